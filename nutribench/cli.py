@@ -1,0 +1,178 @@
+"""The ``nutribench`` command line: a thin typer layer over the library.
+
+Errors a user can fix (bad config files, unknown names, bad arguments) print one line and
+exit with status 2; anything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from nutribench.config import ConfigError
+
+app = typer.Typer(no_args_is_help=True, add_completion=False, help="NutriRL: RL under delayed state transitions.")
+regimes_app = typer.Typer(no_args_is_help=True, help="Inspect, check and regenerate the regime files.")
+bench_app = typer.Typer(no_args_is_help=True, help="Throughput benchmarks.")
+app.add_typer(regimes_app, name="regimes")
+app.add_typer(bench_app, name="bench")
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+class UserError(Exception):
+    """An error the user can fix; printed as one line."""
+
+
+def user_errors(fn):
+    """Turn ConfigError / UserError / ValueError from the library into one line + exit 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except (ConfigError, UserError) as e:
+            err_console.print(f"[bold red]error:[/] {e}", highlight=False, soft_wrap=True)
+            raise typer.Exit(2) from None
+
+    return wrapper
+
+
+def split_csv(value: str, known: list[str], what: str) -> list[str]:
+    """``"all"`` or a comma-separated subset of ``known``; unknown names are a UserError."""
+    if value.strip() == "all":
+        return list(known)
+    items = [v.strip() for v in value.split(",") if v.strip()]
+    if not items:
+        raise UserError(f"no {what} given: pass 'all' or a comma-separated list of {', '.join(known)}")
+    unknown = [v for v in items if v not in known]
+    if unknown:
+        raise UserError(f"unknown {what} {', '.join(unknown)}: known are {', '.join(known)}")
+    return items
+
+
+# --------------------------------------------------------------------------- regimes
+@regimes_app.command("list")
+@user_errors
+def regimes_list() -> None:
+    """List the regimes with their delay ranges and content hash."""
+    from nutribench.config import list_regimes, load_env_config
+
+    table = Table("regime", "version", "description", "tau C/F/P", "sigma C/F/P", "sha256")
+    for name in list_regimes():
+        cfg = load_env_config(name)
+        r = cfg.regime.ranges
+        fmt = lambda nr: " / ".join(f"{x.low:g}-{x.high:g}" for x in (nr.C, nr.F, nr.P))  # noqa: E731
+        table.add_row(name, str(cfg.version), cfg.regime.description, fmt(r.tau), fmt(r.sigma), cfg.sha256[:12])
+    console.print(table)
+
+
+@regimes_app.command("check")
+@user_errors
+def regimes_check(
+    regimes: Annotated[str, typer.Option(help="'all' or comma-separated names or paths")] = "all",
+) -> None:
+    """Validate regime files and check that their drawn values equal a fresh draw from ranges + seed."""
+    from nutribench.config import list_regimes, load_env_config
+    from nutribench.config.generate import regenerate
+
+    names = list_regimes() if regimes == "all" else [r.strip() for r in regimes.split(",")]
+    bad = 0
+    for name in names:
+        cfg = load_env_config(name)
+        fresh = regenerate(cfg.regime, cfg.catalog)
+        if fresh.foods != cfg.regime.foods:
+            bad += 1
+            err_console.print(f"{cfg.path}: foods: values differ from a fresh draw with seed {cfg.regime.seed}")
+        else:
+            console.print(f"{cfg.path}: ok (sha256 {cfg.sha256[:12]})")
+    if bad:
+        raise typer.Exit(1)
+
+
+@regimes_app.command("generate")
+@user_errors
+def regimes_generate(
+    regime: Annotated[str, typer.Argument(help="regime name or path whose [foods] table is redrawn")],
+    write: Annotated[bool, typer.Option(help="overwrite the file (else print it)")] = False,
+) -> None:
+    """Redraw a regime's per-food tau and sigma from its [ranges] and seed."""
+    from nutribench.config import load_env_config
+    from nutribench.config.generate import regenerate, regime_to_toml, write_regime
+
+    cfg = load_env_config(regime)
+    fresh = regenerate(cfg.regime, cfg.catalog)
+    if write:
+        write_regime(fresh, cfg.path)
+        console.print(f"wrote {cfg.path}" + ("" if fresh == cfg.regime else " (values changed: bump its version)"))
+    else:
+        typer.echo(regime_to_toml(fresh), nl=False)
+
+
+# --------------------------------------------------------------------------- baselines
+@app.command()
+@user_errors
+def baselines(
+    regimes: Annotated[str, typer.Option(help="'all' or comma-separated regime names")] = "all",
+    episodes: Annotated[int, typer.Option(min=1, help="episodes per policy and regime")] = 200,
+    seed: Annotated[int, typer.Option(help="seed of the food streams (the same for every policy)")] = 0,
+    markdown: Annotated[bool, typer.Option(help="print a Markdown table instead of a rich one")] = False,
+) -> None:
+    """Mean return, foods eaten, final distance and overshoot ratio of the simple policies."""
+    from nutribench.baselines import POLICY_ORDER, baseline_table
+    from nutribench.config import list_regimes
+
+    names = split_csv(regimes, list_regimes(), "regime")
+    rows = baseline_table(names, episodes=episodes, seed=seed)
+    headers = ["regime", "policy", "return", "foods", "final distance", "overshoot ratio"]
+    cells = [
+        [r["regime"], r["policy"], f"{r['return']:.2f}", f"{r['foods']:.2f}", f"{r['final_distance']:.3f}", f"{r['overshoot_ratio']:.3f}"]
+        for r in rows
+    ]
+    if markdown:
+        typer.echo("| " + " | ".join(headers) + " |")
+        typer.echo("|" + "---|" * len(headers))
+        for c in cells:
+            typer.echo("| " + " | ".join(c) + " |")
+        return
+    table = Table(*headers, title=f"Simple policies, {episodes} episodes each (seed {seed}); means")
+    for i, c in enumerate(cells):
+        table.add_row(*c, end_section=(i + 1) % len(POLICY_ORDER) == 0)
+    console.print(table)
+
+
+# --------------------------------------------------------------------------- bench
+@bench_app.command("env")
+@user_errors
+def bench_env_cmd(
+    regimes: Annotated[str, typer.Option(help="comma-separated regimes")] = "run0,run6",
+    sizes: Annotated[str, typer.Option(help="comma-separated vector env sizes")] = "1,64,1024,4096",
+    repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 5,
+) -> None:
+    """Env-steps per second of the single env and the vector env (random actions)."""
+    from nutribench.bench import bench_env
+    from nutribench.config import list_regimes
+
+    names = split_csv(regimes, list_regimes(), "regime")
+    try:
+        ns = [int(s) for s in sizes.split(",")]
+    except ValueError:
+        raise UserError(f"--sizes must be comma-separated integers, got '{sizes}'") from None
+    table = Table("regime", "env", "num_envs", "env-steps/s (median)")
+    for r in bench_env(names, ns, repeats=repeats):
+        table.add_row(r["regime"], r["env"], str(r["num_envs"]), f"{r['steps_per_s']:,.0f}")
+    console.print(table)
+
+
+def main() -> None:  # pragma: no cover
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,195 @@
+"""Loading, validating and hashing the environment's configuration files.
+
+Every failure raises :class:`ConfigError` with one line that names the file and the field,
+so the CLI can print it and exit non-zero without a traceback.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tomllib
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+from pydantic import BaseModel, ValidationError
+
+from nutribench.config.models import NUTRIENTS, FoodCatalog, Regime, RewardConfig
+
+M = TypeVar("M", bound=BaseModel)
+
+
+class ConfigError(ValueError):
+    """A configuration file is missing or invalid. The message is one line for users."""
+
+
+def regimes_dir() -> Path:
+    """Where the regime files live.
+
+    ``$NUTRIBENCH_REGIMES`` if set; else the ``regimes/`` folder of the source checkout
+    (editable install); else the copy shipped inside the wheel.
+    """
+    env = os.environ.get("NUTRIBENCH_REGIMES")
+    if env:
+        return Path(env)
+    package = Path(__file__).resolve().parents[1]
+    for candidate in (package.parent / "regimes", package / "_regimes"):
+        if candidate.is_dir():
+            return candidate
+    raise ConfigError(
+        "no regimes folder found: set NUTRIBENCH_REGIMES to the folder holding run0.toml .. run6.toml"
+    )
+
+
+def _format_loc(loc: tuple[Any, ...]) -> str:
+    return ".".join(str(p) for p in loc) or "(top level)"
+
+
+def format_validation_error(path: Path | str, err: ValidationError) -> str:
+    """One line: file, the first failing field and what is wrong (and how many more)."""
+    errors = err.errors()
+    first = errors[0]
+    msg = first["msg"]
+    if first["type"] == "extra_forbidden":
+        msg = "unknown key (remove it or check its spelling)"
+    elif first["type"] == "missing":
+        msg = "missing (every value must be written out; nothing is defaulted)"
+    elif "input" in first and not isinstance(first["input"], (dict, list)):
+        msg = f"{msg} (got {first['input']!r})"
+    more = f" (+{len(errors) - 1} more errors)" if len(errors) > 1 else ""
+    return f"{path}: {_format_loc(first['loc'])}: {msg}{more}"
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: file not found") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: not valid TOML: {e}") from None
+
+
+def load_model(model: type[M], path: Path) -> M:
+    """Read a TOML file into ``model``, turning validation errors into one-line ConfigErrors."""
+    data = read_toml(path)
+    try:
+        return model.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(format_validation_error(path, e)) from None
+
+
+def canonical_json(obj: Any) -> str:
+    """Stable JSON text of a config's content (key order and formatting do not matter)."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"))
+
+
+def content_sha256(obj: Any) -> str:
+    return hashlib.sha256(canonical_json(obj).encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Everything that fixes the dynamics of one regime: regime + food catalog + reward.
+
+    ``sha256`` hashes the semantic content of all three (not the file formatting), so a
+    result row can be traced to the exact dynamics that made it.
+    """
+
+    regime: Regime
+    catalog: FoodCatalog
+    reward: RewardConfig
+    path: Path | None = None
+
+    def __post_init__(self) -> None:
+        where = self.path or f"regime {self.regime.name}"
+        cat, reg = set(self.catalog.keys), set(self.regime.foods)
+        if cat != reg:
+            missing = sorted(cat - reg)
+            unknown = sorted(reg - cat)
+            parts = []
+            if missing:
+                parts.append(f"no delays for catalog foods {missing}")
+            if unknown:
+                parts.append(f"delays for foods not in the catalog {unknown}")
+            raise ConfigError(
+                f"{where}: foods: catalog size mismatch: the regime has {len(reg)} foods, "
+                f"the catalog '{self.regime.catalog}' has {len(cat)}; " + "; ".join(parts)
+            )
+
+    @property
+    def name(self) -> str:
+        return self.regime.name
+
+    @property
+    def version(self) -> int:
+        return self.regime.version
+
+    def content(self) -> dict[str, Any]:
+        return {
+            "regime": self.regime.model_dump(mode="json"),
+            "catalog": self.catalog.model_dump(mode="json"),
+            "reward": self.reward.model_dump(mode="json"),
+        }
+
+    @cached_property
+    def sha256(self) -> str:
+        return content_sha256(self.content())
+
+    # ---- arrays the environment uses (catalog order, nutrients C, F, P) ----
+    def masses(self) -> np.ndarray:
+        return self.catalog.masses()
+
+    def _delay_array(self, what: str) -> np.ndarray:
+        rows = []
+        for key in self.catalog.keys:
+            values = getattr(self.regime.foods[key], what)
+            rows.append([getattr(values, n) for n in NUTRIENTS])
+        return np.array(rows, dtype=np.float64)
+
+    def tau(self) -> np.ndarray:
+        return self._delay_array("tau")
+
+    def sigma(self) -> np.ndarray:
+        return self._delay_array("sigma")
+
+
+def resolve_regime_path(regime: str | os.PathLike[str]) -> Path:
+    """A regime name (``run3``) or a path to a regime file."""
+    s = str(regime)
+    if s.endswith(".toml") or os.sep in s or "/" in s:
+        return Path(s)
+    path = regimes_dir() / f"{s}.toml"
+    if not path.exists():
+        known = ", ".join(list_regimes()) or "none"
+        raise ConfigError(f"unknown regime '{s}': known regimes are {known} (or give a path to a .toml file)")
+    return path
+
+
+def load_env_config(regime: str | os.PathLike[str] | EnvConfig) -> EnvConfig:
+    """Load a regime by name, path, or pass an :class:`EnvConfig` through."""
+    if isinstance(regime, EnvConfig):
+        return regime
+    path = resolve_regime_path(regime)
+    reg = load_model(Regime, path)
+    catalog = load_model(FoodCatalog, path.parent / reg.catalog)
+    reward = load_model(RewardConfig, path.parent / reg.reward)
+    return EnvConfig(regime=reg, catalog=catalog, reward=reward, path=path)
+
+
+def list_regimes(folder: Path | None = None) -> list[str]:
+    """Names of the regime files in ``folder`` (files with ``ranges`` and ``foods`` tables)."""
+    folder = folder or regimes_dir()
+    names = []
+    for p in sorted(folder.glob("*.toml")):
+        try:
+            data = read_toml(p)
+        except ConfigError:
+            continue
+        if "ranges" in data and "foods" in data:
+            names.append(p.stem)
+    return names

@@ -1,0 +1,177 @@
+"""Pydantic models of the environment's configuration files.
+
+Three kinds of file live in ``regimes/``:
+
+* the food catalog (``foods.toml``): named foods with a portion and its nutrients, and the
+  daily target in grams;
+* the reward config (``reward.toml``): horizon and reward coefficients, the same for every
+  regime;
+* one file per delay regime (``run0.toml`` .. ``run6.toml``): the Table 1 ranges, the seed
+  they were drawn with, and the drawn per-food, per-nutrient mean delay ``tau`` and spread
+  ``sigma`` written out, so that the file alone fixes the dynamics.
+
+Every model forbids unknown keys and has no defaults for anything that changes the
+dynamics: a missing value is an error, never silently filled in.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+#: Order of the nutrients in every array of the package.
+NUTRIENTS: tuple[str, str, str] = ("C", "F", "P")
+
+NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+Key = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$")]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class NonNegNutrients(_Strict):
+    """One non-negative number per nutrient (carbohydrate C, fat F, protein P)."""
+
+    C: NonNeg
+    F: NonNeg
+    P: NonNeg
+
+    def as_array(self) -> np.ndarray:
+        return np.array([self.C, self.F, self.P], dtype=np.float64)
+
+
+class PositiveNutrients(NonNegNutrients):
+    C: Positive
+    F: Positive
+    P: Positive
+
+
+class Food(_Strict):
+    """A food item: one portion of a real food, with its nutrients per 100 g."""
+
+    key: Key
+    name: str
+    portion: str
+    portion_g: Positive
+    per_100g: NonNegNutrients
+    source_id: str = Field(description="identifier of the entry in the public nutrient table")
+
+    def grams(self) -> np.ndarray:
+        """Grams of (C, F, P) in one portion."""
+        return self.per_100g.as_array() * self.portion_g / 100.0
+
+
+class FoodCatalog(_Strict):
+    """The foods on offer and the daily target they are measured against."""
+
+    name: str
+    version: Annotated[int, Field(ge=1)]
+    source: str
+    target_grams: PositiveNutrients
+    food: Annotated[list[Food], Field(min_length=1)]
+
+    @field_validator("food")
+    @classmethod
+    def _unique_keys(cls, foods: list[Food]) -> list[Food]:
+        keys = [f.key for f in foods]
+        dupes = sorted({k for k in keys if keys.count(k) > 1})
+        if dupes:
+            raise ValueError(f"duplicate food keys {dupes}")
+        return foods
+
+    @property
+    def keys(self) -> list[str]:
+        return [f.key for f in self.food]
+
+    def masses(self) -> np.ndarray:
+        """(N, 3) nutrients per portion in units of the daily target."""
+        grams = np.stack([f.grams() for f in self.food])
+        return grams / self.target_grams.as_array()
+
+
+class RewardConfig(_Strict):
+    """Horizon and reward coefficients, shared by every regime (SPEC 1).
+
+    r_t = lp (d_{t-1} - d_t) - lc tanh(d_t / tau_c) - lo tanh(|max(0, s_t - T)|_2^2),
+    with d_t = |s_t - T|_1 and nutrients in units of the daily target (T = (1, 1, 1)).
+    """
+
+    name: str
+    version: Annotated[int, Field(ge=1)]
+    horizon: Annotated[int, Field(ge=1)]
+    lp: NonNeg
+    lc: NonNeg
+    lo: Positive
+    tau_c: Positive
+
+
+class Range(_Strict):
+    """A closed interval [low, high] of non-negative values."""
+
+    low: NonNeg
+    high: NonNeg
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Range:
+        if self.high < self.low:
+            raise ValueError(f"high ({self.high}) is below low ({self.low})")
+        return self
+
+    def contains(self, x: float) -> bool:
+        return self.low - 1e-9 <= x <= self.high + 1e-9
+
+
+class NutrientRanges(_Strict):
+    C: Range
+    F: Range
+    P: Range
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo = np.array([self.C.low, self.F.low, self.P.low])
+        hi = np.array([self.C.high, self.F.high, self.P.high])
+        return lo, hi
+
+
+class DelayRanges(_Strict):
+    """The Table 1 ranges the per-food delays are drawn from (in steps)."""
+
+    tau: NutrientRanges
+    sigma: NutrientRanges
+
+
+class FoodDelay(_Strict):
+    """Mean delay tau and spread sigma (steps) of each nutrient of one food."""
+
+    tau: NonNegNutrients
+    sigma: NonNegNutrients
+
+
+class Regime(_Strict):
+    """A delay regime: the ranges, the seed, and the drawn delays written out."""
+
+    name: Key
+    version: Annotated[int, Field(ge=1)]
+    description: str
+    seed: Annotated[int, Field(ge=0)]
+    catalog: str = Field(description="food catalog file, relative to this file")
+    reward: str = Field(description="reward config file, relative to this file")
+    ranges: DelayRanges
+    foods: dict[Key, FoodDelay]
+
+    @model_validator(mode="after")
+    def _within_ranges(self) -> Regime:
+        for key, delay in self.foods.items():
+            for what in ("tau", "sigma"):
+                values, ranges = getattr(delay, what), getattr(self.ranges, what)
+                for n in NUTRIENTS:
+                    x, r = getattr(values, n), getattr(ranges, n)
+                    if not r.contains(x):
+                        raise ValueError(
+                            f"foods.{key}.{what}.{n} = {x} is outside ranges.{what}.{n} "
+                            f"[{r.low}, {r.high}]"
+                        )
+        return self

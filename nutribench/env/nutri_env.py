@@ -1,0 +1,261 @@
+"""NutriRL: regulating three macronutrients under delayed, overlapping absorption.
+
+## Description
+
+Each step (~30 minutes) one food from a catalog of N items is offered; the agent skips it
+or eats it. What it eats is absorbed gradually over later steps through Gaussian kernels,
+overlapping with earlier meals and irreversible, so the observed state lags behind the
+decisions. The agent must bring its cumulative absorbed carbohydrates, fats and proteins
+to a hidden daily target without overshooting. This is the environment of SPEC 1; the
+delay statistics come from a regime file (``regimes/run0.toml`` .. ``run6.toml``).
+
+## Action space
+
+``Discrete(2)``: 0 skips the offered food, 1 eats it.
+
+## Observation space
+
+A flat ``Box(0, high, (3 + N,), float32)``: the absorbed nutrients ``s_t = (C, F, P)`` in
+units of the daily target, followed by the one-hot embedding of the food offered next
+(N = 10 for the shipped catalog). A flat Box rather than a Dict so that every
+Stable-Baselines3 policy and normaliser works on it unchanged; the recurrent agent splits
+it by index (``obs[:3]`` nutrients, ``obs[3:]`` food). The observation returned by the
+final step has an all-zero food part: the day is over and nothing is offered. The backlog
+of pending absorption and the target are not observed (a POMDP).
+
+## Transition
+
+Eating food i at step t (steps are numbered 1..H) schedules ``m_n(i) * w_k`` of nutrient
+n at step t + k, with the kernel weights w of :mod:`nutribench.env.kernels` (window
+t+1 .. t+ceil(6 sigma); with sigma = 0 everything at t + round(tau); with tau = sigma = 0
+in the same step, so the observation returned by that step already contains it). Then
+``s_t = s_{t-1} + (everything due at step t)``. Absorption due after step H never arrives.
+
+## Reward
+
+With ``d_t = |s_t - T|_1`` and ``d_0 = |T|_1`` (T = (1, 1, 1) in target units)::
+
+    r_t = lp (d_{t-1} - d_t) - lc tanh(d_t / tau_c) - lo tanh(|max(0, s_t - T)|_2^2)
+
+(progress, comfort, overshoot), with the coefficients of ``regimes/reward.toml``.
+
+## Episode end
+
+No termination; the episode is truncated after H = 50 steps (``truncated=True``).
+
+## Info
+
+``state`` (s_t in float64), ``distance`` (d_t), ``overshoot`` (per-nutrient bool array, s_t > T), ``foods_consumed``
+(so far), ``ate`` (this step), ``food`` (index offered this step), ``step`` (t), and the
+reward's three signed terms ``reward_progress``, ``reward_comfort``, ``reward_overshoot``
+(they sum to the reward).
+
+## Arguments
+
+``regime``: a regime name (``"run3"``), a path to a regime file, or an
+:class:`~nutribench.config.EnvConfig`. ``render_mode``: ``None``, ``"ansi"`` or
+``"rgb_array"``. ``reset(seed=...)`` seeds the food stream (the only randomness);
+``reset(options={"foods": [i_1, ..., i_H]})`` plays a given food stream instead.
+
+## Inspection
+
+``masses`` (N x 3, target units), ``tau`` and ``sigma`` (N x 3, steps), ``target`` (3,),
+``reward_config``, ``horizon``, ``food_names``, ``schedule`` (N x H x 3 absorption per
+offset), ``state`` and ``pending_by_horizon()`` (what is still due by step H).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from nutribench.config import EnvConfig, load_env_config
+from nutribench.env.kernels import absorption_schedule, arrivals_by_horizon
+
+
+class RegimeDynamics:
+    """Everything precomputed once per regime and shared by the single and vector envs."""
+
+    def __init__(self, regime: str | os.PathLike[str] | EnvConfig):
+        self.config = load_env_config(regime)
+        cfg = self.config
+        self.reward_config = cfg.reward
+        self.horizon = cfg.reward.horizon
+        self.masses = cfg.masses()
+        self.tau = cfg.tau()
+        self.sigma = cfg.sigma()
+        self.n_foods = self.masses.shape[0]
+        self.food_names = list(cfg.catalog.keys)
+        self.target = np.ones(3)
+        self.schedule = absorption_schedule(self.masses, self.tau, self.sigma, self.horizon)
+        self.arrivals = arrivals_by_horizon(self.schedule, self.horizon)
+        # Observation bounds: nothing can exceed eating the richest food every step.
+        high = np.concatenate([self.horizon * self.masses.max(axis=0), np.ones(self.n_foods)])
+        self.observation_space = spaces.Box(0.0, high.astype(np.float32), dtype=np.float32)
+        self.action_space = spaces.Discrete(2)
+        # Row j: observation template with food j offered; last row: nothing offered.
+        self.obs_template = np.zeros((self.n_foods + 1, 3 + self.n_foods), dtype=np.float32)
+        self.obs_template[np.arange(self.n_foods), 3 + np.arange(self.n_foods)] = 1.0
+
+    def check_foods(self, foods: Any, shape: tuple[int, ...]) -> np.ndarray:
+        arr = np.asarray(foods)
+        if arr.shape != shape or not np.issubdtype(arr.dtype, np.integer):
+            raise ValueError(f"options['foods'] must be integers of shape {shape}, got {arr.dtype} {arr.shape}")
+        if arr.size and (arr.min() < 0 or arr.max() >= self.n_foods):
+            raise ValueError(f"options['foods'] must index the catalog (0..{self.n_foods - 1})")
+        return arr.astype(np.int64)
+
+
+class NutriRLEnv(gym.Env[np.ndarray, int]):
+    __doc__ = __doc__
+    metadata = {"render_modes": ["ansi", "rgb_array"], "render_fps": 4}
+
+    def __init__(self, regime: str | os.PathLike[str] | EnvConfig = "run0", render_mode: str | None = None):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        self.dyn = RegimeDynamics(regime)
+        self.render_mode = render_mode
+        self.observation_space = self.dyn.observation_space
+        self.action_space = self.dyn.action_space
+        r = self.dyn.reward_config
+        self._lp, self._lc, self._lo, self._tau_c = r.lp, r.lc, r.lo, r.tau_c
+        self._H = self.dyn.horizon
+        self._A = self.dyn.schedule
+        self._pending = np.zeros((self._H, 3))
+        self._foods = np.zeros(self._H, dtype=np.int64)
+        self._t = self._H  # must reset first
+        self._s = [0.0, 0.0, 0.0]
+        self._d = 3.0
+        self._eaten = 0
+
+    # ---- inspection API ----
+    config = property(lambda self: self.dyn.config)
+    masses = property(lambda self: self.dyn.masses)
+    tau = property(lambda self: self.dyn.tau)
+    sigma = property(lambda self: self.dyn.sigma)
+    target = property(lambda self: self.dyn.target)
+    reward_config = property(lambda self: self.dyn.reward_config)
+    horizon = property(lambda self: self.dyn.horizon)
+    food_names = property(lambda self: self.dyn.food_names)
+    schedule = property(lambda self: self.dyn.schedule)
+
+    @property
+    def state(self) -> np.ndarray:
+        """Absorbed nutrients s_t (target units)."""
+        return np.array(self._s)
+
+    @property
+    def steps_taken(self) -> int:
+        return self._t
+
+    @property
+    def offered(self) -> int:
+        """Index of the food offered at the next step (-1 once the episode is over)."""
+        return int(self._foods[self._t]) if self._t < self._H else -1
+
+    @property
+    def foods_stream(self) -> np.ndarray:
+        return self._foods.copy()
+
+    def pending_by_horizon(self) -> np.ndarray:
+        """Nutrients already eaten but not yet absorbed that will arrive by step H."""
+        return self._pending[self._t :].sum(axis=0)
+
+    # ---- gymnasium API ----
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        if options and "foods" in options:
+            self._foods = self.dyn.check_foods(options["foods"], (self._H,))
+        else:
+            self._foods = self.np_random.integers(0, self.dyn.n_foods, size=self._H)
+        self._pending[:] = 0.0
+        self._t = 0
+        self._s = [0.0, 0.0, 0.0]
+        self._d = 3.0
+        self._eaten = 0
+        obs = self.dyn.obs_template[self._foods[0]].copy()
+        info = {"state": np.zeros(3), "distance": self._d, "overshoot": np.zeros(3, dtype=bool), "foods_consumed": 0, "step": 0}
+        return obs, info
+
+    def step(self, action):
+        t = self._t
+        H = self._H
+        if t >= H:
+            raise RuntimeError("step() called after the episode ended: call reset() first")
+        food = self._foods[t]
+        pending = self._pending
+        ate = action == 1
+        if ate:
+            pending[t:] += self._A[food, : H - t]
+            self._eaten += 1
+        elif action != 0:
+            raise ValueError(f"action must be 0 (skip) or 1 (eat), got {action!r}")
+        c, f, p = pending[t].tolist()
+        s = self._s
+        C, F, P = s[0] + c, s[1] + f, s[2] + p
+        self._s = [C, F, P]
+        d = abs(C - 1.0) + abs(F - 1.0) + abs(P - 1.0)
+        oc, of, op = max(0.0, C - 1.0), max(0.0, F - 1.0), max(0.0, P - 1.0)
+        progress = self._lp * (self._d - d)
+        comfort = -self._lc * math.tanh(d / self._tau_c)
+        overshoot = -self._lo * math.tanh(oc * oc + of * of + op * op)
+        self._d = d
+        self._t = t = t + 1
+        truncated = t == H
+        obs = self.dyn.obs_template[-1 if truncated else self._foods[t]].copy()
+        obs[0], obs[1], obs[2] = C, F, P
+        info = {
+            "state": np.array(self._s),
+            "distance": d,
+            "overshoot": np.array((oc > 0.0, of > 0.0, op > 0.0)),
+            "foods_consumed": self._eaten,
+            "ate": bool(ate),
+            "food": int(food),
+            "step": t,
+            "reward_progress": progress,
+            "reward_comfort": comfort,
+            "reward_overshoot": overshoot,
+        }
+        return obs, progress + comfort + overshoot, False, truncated, info
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='ansi' or 'rgb_array'")
+            return None
+        if self.render_mode == "ansi":
+            return render_ansi(self)
+        return render_rgb(self)
+
+
+def render_ansi(env: NutriRLEnv) -> str:
+    C, F, P = env._s
+    food = env.offered
+    offered = env.food_names[food] if food >= 0 else "-"
+    return (
+        f"step {env.steps_taken:2d}/{env.horizon}  C {C:5.2f}  F {F:5.2f}  P {P:5.2f}  (target 1.00)  "
+        f"distance {env._d:5.2f}  eaten {env._eaten:2d}  offered: {offered}\n"
+    )
+
+
+def render_rgb(env: NutriRLEnv) -> np.ndarray:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(3.2, 2.4), dpi=100)
+    canvas = FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    pending = env.pending_by_horizon()
+    ax.bar(["C", "F", "P"], env._s, color=["#4c72b0", "#dd8452", "#55a868"], label="absorbed")
+    ax.bar(["C", "F", "P"], pending, bottom=env._s, color="none", edgecolor="grey", hatch="//", label="pending")
+    ax.axhline(1.0, color="k", ls="--", lw=1, label="target")
+    ax.set_ylim(0, max(1.5, float(np.max(np.asarray(env._s) + pending)) * 1.1))
+    ax.set_title(f"step {env.steps_taken}/{env.horizon}", fontsize=9)
+    ax.legend(fontsize=6, loc="upper right")
+    fig.tight_layout()
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
