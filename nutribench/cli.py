@@ -170,6 +170,12 @@ def bench_env_cmd(
     console.print(table)
 
 
+# ---- agents (issue 3): train, bench train ----
+
+
+# ---- runs (issue 4): run, status ----
+
+
 def main() -> None:  # pragma: no cover
     app()
 
