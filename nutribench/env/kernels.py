@@ -27,10 +27,15 @@ def kernel(tau: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
     if sigma == 0:
         return np.array([round_half_up(tau)]), np.ones(1)
     offsets = np.arange(1, math.ceil(6 * sigma) + 1)
-    logw = -0.5 * ((offsets - tau) / sigma) ** 2
-    # Subtracting the max before exp changes nothing after normalisation but keeps a
-    # window far from tau (all weights tiny) from underflowing to 0/0.
-    w = np.exp(logw - logw.max())
+    with np.errstate(over="ignore"):
+        logw = -0.5 * ((offsets - tau) / sigma) ** 2
+    if np.isfinite(logw.max()):
+        # Subtracting the max before exp changes nothing after normalisation but keeps a
+        # window far from tau (all weights tiny) from underflowing to 0/0.
+        w = np.exp(logw - logw.max())
+    else:  # sigma so small that every weight overflows: the limit puts all on the nearest offset(s)
+        dist = np.abs(offsets - tau)
+        w = (dist == dist.min()).astype(np.float64)
     return offsets, w / w.sum()
 
 

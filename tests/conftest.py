@@ -1,0 +1,71 @@
+"""Shared fixtures: small hand-made regime folders for exact tests."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import pytest
+
+CATALOG = """\
+name = "tiny"
+version = 1
+source = "test"
+target_grams = { C = 100.0, F = 100.0, P = 100.0 }
+
+[[food]]
+key = "a"
+name = "food a"
+portion = "100 g"
+portion_g = 100.0
+per_100g = { C = 50.0, F = 0.0, P = 10.0 }
+source_id = "test-a"
+
+[[food]]
+key = "b"
+name = "food b"
+portion = "200 g"
+portion_g = 200.0
+per_100g = { C = 0.0, F = 10.0, P = 20.0 }
+source_id = "test-b"
+"""
+
+REWARD = """\
+name = "reward"
+version = 1
+horizon = 8
+lp = 1.0
+lc = 0.5
+lo = 2.0
+tau_c = 0.5
+"""
+
+REGIME = """\
+name = "tiny"
+version = 1
+description = "hand example"
+seed = 0
+catalog = "foods.toml"
+reward = "reward.toml"
+
+[ranges]
+tau = { C = { low = 0.0, high = 5.0 }, F = { low = 0.0, high = 5.0 }, P = { low = 0.0, high = 5.0 } }
+sigma = { C = { low = 0.0, high = 5.0 }, F = { low = 0.0, high = 5.0 }, P = { low = 0.0, high = 5.0 } }
+
+[foods]
+a = { tau = { C = 1.0, F = 0.0, P = 0.0 }, sigma = { C = 0.0, F = 0.0, P = 0.0 } }
+b = { tau = { C = 0.0, F = 2.0, P = 2.6 }, sigma = { C = 0.0, F = 1.0, P = 0.0 } }
+"""
+
+
+def write_regime_dir(folder: Path, regime: str = REGIME, catalog: str = CATALOG, reward: str = REWARD) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "foods.toml").write_text(textwrap.dedent(catalog))
+    (folder / "reward.toml").write_text(textwrap.dedent(reward))
+    (folder / "tiny.toml").write_text(textwrap.dedent(regime))
+    return folder / "tiny.toml"
+
+
+@pytest.fixture
+def tiny_regime(tmp_path: Path) -> Path:
+    return write_regime_dir(tmp_path / "regimes")

@@ -1,0 +1,86 @@
+"""Regime, catalog and reward files: validation messages, regeneration, hashing, CLI errors."""
+
+from __future__ import annotations
+
+import pytest
+from typer.testing import CliRunner
+
+from nutribench.cli import app
+from nutribench.config import ConfigError, list_regimes, load_env_config
+from nutribench.config.generate import regenerate, regime_to_toml
+from tests.conftest import CATALOG, REGIME, REWARD, write_regime_dir
+
+runner = CliRunner()
+
+
+def test_shipped_regimes_load_and_match_a_fresh_draw():
+    assert list_regimes() == [f"run{k}" for k in range(7)]
+    hashes = set()
+    for name in list_regimes():
+        cfg = load_env_config(name)
+        assert regenerate(cfg.regime, cfg.catalog).foods == cfg.regime.foods
+        assert len(cfg.regime.foods) == len(cfg.catalog.food) == 10
+        hashes.add(cfg.sha256)
+    assert len(hashes) == 7
+    run0 = load_env_config("run0")
+    assert (run0.tau() == 0).all() and (run0.sigma() == 0).all()
+
+
+def test_regime_file_round_trips_through_the_writer(tmp_path):
+    cfg = load_env_config("run4")
+    for name in ("foods.toml", "reward.toml"):
+        (tmp_path / name).write_text((cfg.path.parent / name).read_text())
+    (tmp_path / "run4.toml").write_text(regime_to_toml(cfg.regime))
+    again = load_env_config(tmp_path / "run4.toml")
+    assert again.regime == cfg.regime
+    assert again.sha256 == cfg.sha256
+
+
+def test_hash_ignores_formatting_but_not_content(tiny_regime):
+    a = load_env_config(tiny_regime).sha256
+    tiny_regime.write_text("# a comment\n" + tiny_regime.read_text())
+    assert load_env_config(tiny_regime).sha256 == a
+    tiny_regime.write_text(tiny_regime.read_text().replace("P = 2.6", "P = 2.7"))
+    assert load_env_config(tiny_regime).sha256 != a
+
+
+BAD = [
+    ("negative sigma", lambda r, c: (r.replace("sigma = { C = 0.0, F = 1.0", "sigma = { C = 0.0, F = -1.0"), c), "tiny.toml", "foods.b.sigma.F"),
+    ("missing tau", lambda r, c: (r.replace("tau = { C = 1.0, F = 0.0, P = 0.0 }, ", ""), c), "tiny.toml", "foods.a.tau"),
+    ("missing tau value", lambda r, c: (r.replace("tau = { C = 1.0, F = 0.0, P = 0.0 }", "tau = { C = 1.0, F = 0.0 }"), c), "tiny.toml", "foods.a.tau.P"),
+    ("unknown key", lambda r, c: (r.replace("seed = 0", "seed = 0\ncolour = 3"), c), "tiny.toml", "colour"),
+    ("version missing", lambda r, c: (r.replace("version = 1\n", ""), c), "tiny.toml", "version"),
+    ("catalog size mismatch", lambda r, c: (r, c + '\n[[food]]\nkey = "c"\nname = "c"\nportion = "1"\nportion_g = 1.0\nper_100g = { C = 1.0, F = 1.0, P = 1.0 }\nsource_id = "x"\n'), "tiny.toml", "catalog size mismatch"),
+    ("value outside its range", lambda r, c: (r.replace("P = 2.6", "P = 7.0"), c), "tiny.toml", "outside ranges.tau.P"),
+    ("catalog unknown key", lambda r, c: (r, c.replace('source_id = "test-a"', 'source_id = "test-a"\nfiber = 2.0')), "foods.toml", "food.0.fiber"),
+    ("not TOML", lambda r, c: (r + "\n[[[", c), "tiny.toml", "not valid TOML"),
+]
+
+
+@pytest.mark.parametrize("label,mutate,file,field", BAD, ids=[b[0] for b in BAD])
+def test_bad_files_fail_with_one_line_naming_file_and_field(tmp_path, label, mutate, file, field):
+    regime, catalog = mutate(REGIME, CATALOG)
+    path = write_regime_dir(tmp_path / "regimes", regime=regime, catalog=catalog, reward=REWARD)
+    with pytest.raises(ConfigError) as err:
+        load_env_config(path)
+    msg = str(err.value)
+    assert "\n" not in msg
+    assert file in msg and field in msg, msg
+    # and the CLI: one line on stderr, exit code 2, no traceback
+    result = runner.invoke(app, ["regimes", "check", "--regimes", str(path)])
+    assert result.exit_code == 2
+    assert "Traceback" not in result.output
+    assert field in result.output
+
+
+def test_unknown_regime_lists_the_known_ones():
+    with pytest.raises(ConfigError, match="known regimes are run0, run1"):
+        load_env_config("run9")
+    result = runner.invoke(app, ["baselines", "--regimes", "run0,run9", "--episodes", "2"])
+    assert result.exit_code == 2 and "run9" in result.output and "run0" in result.output
+
+
+def test_regimes_generate_prints_the_file():
+    result = runner.invoke(app, ["regimes", "generate", "run3"])
+    assert result.exit_code == 0
+    assert result.output == load_env_config("run3").path.read_text()

@@ -1,0 +1,92 @@
+"""The batched env equals N single envs; autoreset modes; the SB3 adapter."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode
+
+from nutribench.env import NutriRLEnv, NutriRLVectorEnv
+from nutribench.env.sb3 import NutriRLSB3VecEnv
+
+
+@pytest.mark.parametrize("regime", ["run0", "run2", "run5", "run6"])
+def test_vector_env_equals_single_envs(regime):
+    n, rng = 6, np.random.default_rng(11)
+    venv = NutriRLVectorEnv(n, regime=regime)
+    H = venv.horizon
+    foods = rng.integers(0, 10, size=(n, H))
+    actions = rng.integers(0, 2, size=(H, n))
+    singles = [NutriRLEnv(regime) for _ in range(n)]
+    vobs, vinfo = venv.reset(options={"foods": foods})
+    sobs = np.stack([e.reset(options={"foods": foods[j]})[0] for j, e in enumerate(singles)])
+    np.testing.assert_array_equal(vobs, sobs)
+    for t in range(H):
+        vobs, vr, vterm, vtrunc, vinfo = venv.step(actions[t])
+        res = [e.step(int(actions[t, j])) for j, e in enumerate(singles)]
+        np.testing.assert_array_equal(vobs, np.stack([x[0] for x in res]))
+        np.testing.assert_allclose(vr, [x[1] for x in res], rtol=0, atol=1e-12)
+        assert vtrunc.tolist() == [x[3] for x in res]
+        assert vterm.tolist() == [x[2] for x in res]
+        for key in ("state", "distance", "overshoot", "foods_consumed", "reward_progress", "reward_comfort", "reward_overshoot"):
+            np.testing.assert_allclose(
+                np.asarray(vinfo[key], dtype=float), np.stack([np.asarray(x[4][key], dtype=float) for x in res]), atol=1e-12
+            )
+        np.testing.assert_allclose(venv.pending_by_horizon(), np.stack([e.pending_by_horizon() for e in singles]), atol=1e-12)
+
+
+def test_next_step_autoreset():
+    venv = NutriRLVectorEnv(4, regime="run1")
+    assert venv.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+    venv.reset(seed=0)
+    for _ in range(venv.horizon):
+        obs, r, term, trunc, info = venv.step(np.ones(4, dtype=int))
+    assert trunc.all()
+    obs, r, term, trunc, info = venv.step(np.ones(4, dtype=int))  # the reset step
+    assert np.all(r == 0) and not trunc.any() and np.all(obs[:, :3] == 0) and info == {}
+    obs, r, term, trunc, info = venv.step(np.ones(4, dtype=int))
+    assert np.all(info["foods_consumed"] == 1)
+
+
+def test_same_step_autoreset():
+    venv = NutriRLVectorEnv(4, regime="run0", autoreset_mode="SameStep")
+    venv.reset(seed=0)
+    for _ in range(venv.horizon):
+        obs, r, term, trunc, info = venv.step(np.ones(4, dtype=int))
+    assert trunc.all()
+    assert np.all(obs[:, :3] == 0) and np.all(obs[:, 3:].sum(axis=1) == 1)  # first obs of the next day
+    assert np.all(info["final_obs"][:, 3:] == 0) and np.all(info["final_obs"][:, :3] > 0)
+    _, _, _, _, info = venv.step(np.zeros(4, dtype=int))
+    assert np.all(info["foods_consumed"] == 0)
+
+
+def test_vector_seeding_reproducible():
+    a = NutriRLVectorEnv(3, regime="run0")
+    b = NutriRLVectorEnv(3, regime="run0")
+    assert np.array_equal(a.reset(seed=5)[0], b.reset(seed=5)[0])
+    assert np.array_equal(a.offered, b.offered)
+    c = NutriRLVectorEnv(3, regime="run0")
+    c.reset(seed=6)
+    assert not np.array_equal(a._foods, c._foods)
+
+
+def test_sb3_adapter_reports_days_as_episodes():
+    venv = NutriRLSB3VecEnv(num_envs=3, regime="run3")
+    venv.seed(0)
+    obs = venv.reset()
+    assert obs.shape == (3, 13)
+    for t in range(50):
+        obs, rewards, dones, infos = venv.step(np.ones(3, dtype=int))
+        assert rewards.dtype == np.float32
+        assert dones.all() == (t == 49)
+    assert all("terminal_observation" in i and "TimeLimit.truncated" not in i for i in infos)
+    assert venv.last_info["foods_consumed"].tolist() == [50, 50, 50]
+
+
+def test_sb3_ppo_learns_a_little_on_the_adapter():
+    from stable_baselines3 import PPO
+
+    venv = NutriRLSB3VecEnv(num_envs=2, regime="run0")
+    model = PPO("MlpPolicy", venv, n_steps=50, batch_size=50, n_epochs=1, seed=0, device="cpu")
+    model.learn(200)
+    assert model.num_timesteps == 200
