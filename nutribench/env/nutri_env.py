@@ -255,6 +255,7 @@ def render_rgb(env: NutriRLEnv) -> np.ndarray:
     ax.axhline(1.0, color="k", ls="--", lw=1, label="target")
     ax.set_ylim(0, max(1.5, float(np.max(np.asarray(env._s) + pending)) * 1.1))
     ax.set_title(f"step {env.steps_taken}/{env.horizon}", fontsize=9)
+    ax.set_ylabel("x daily target", fontsize=8)
     ax.legend(fontsize=6, loc="upper right")
     fig.tight_layout()
     canvas.draw()
