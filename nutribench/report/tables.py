@@ -1,0 +1,125 @@
+"""Table builders: Table 1 from the regime files, Tables 2-6 from the agent config files, and
+the results table from the episode metrics. Each returns a :class:`TableResult` with the raw
+numbers (written as CSV) and a formatted frame (written as Markdown and LaTeX)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from nutribench.report.figures import algo_label, sort_algos, sort_regimes
+from nutribench.report.stats import iqm_bootstrap_ci
+
+RESULT_METRICS = ["return", "final_distance", "foods", "overshoot_ratio"]
+#: Tables 2..6 of the paper, in order.
+CONFIG_TABLES = {2: "mc", 3: "ddqn", 4: "ppo", 5: "sac", 6: "gru_ppo"}
+
+
+@dataclass
+class TableResult:
+    name: str
+    title: str
+    raw: pd.DataFrame
+    formatted: pd.DataFrame
+
+    def to_markdown(self) -> str:
+        cols = list(self.formatted.columns)
+        lines = [f"**{self.title}**", "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+        for row in self.formatted.itertuples(index=False):
+            lines.append("| " + " | ".join(str(v) for v in row) + " |")
+        return "\n".join(lines) + "\n"
+
+    def to_latex(self) -> str:
+        cols = list(self.formatted.columns)
+        esc = lambda s: str(s).replace("\\", r"\textbackslash{}").replace("_", r"\_").replace("%", r"\%").replace("±", r"$\pm$").replace("&", r"\&")  # noqa: E731
+        lines = [
+            r"\begin{table}[t]",
+            r"\centering",
+            rf"\caption{{{esc(self.title)}}}",
+            r"\begin{tabular}{" + "l" * len(cols) + "}",
+            r"\toprule",
+            " & ".join(esc(c) for c in cols) + r" \\",
+            r"\midrule",
+        ]
+        for row in self.formatted.itertuples(index=False):
+            lines.append(" & ".join(esc(v) for v in row) + r" \\")
+        lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
+        return "\n".join(lines) + "\n"
+
+    def to_csv(self) -> str:
+        return self.raw.to_csv(index=False)
+
+
+def table_regimes(configs) -> TableResult:
+    """Table 1: the delay regimes (ranges in steps), from the regime files."""
+    rows = []
+    for cfg in configs:
+        r = cfg.regime.ranges
+        row = {"run": cfg.name, "description": cfg.regime.description, "version": cfg.version, "seed": cfg.regime.seed}
+        for what in ("tau", "sigma"):
+            for n in ("C", "P", "F"):  # the paper's column order
+                rng_ = getattr(getattr(r, what), n)
+                row[f"{what}_{n}_low"], row[f"{what}_{n}_high"] = rng_.low, rng_.high
+        rows.append(row)
+    raw = pd.DataFrame(rows)
+    raw = raw.set_index("run").loc[sort_regimes(raw["run"])].reset_index()
+    fmt = pd.DataFrame({"run": raw["run"], "description": raw["description"]})
+    for what in ("tau", "sigma"):
+        for n in ("C", "P", "F"):
+            lo, hi = raw[f"{what}_{n}_low"], raw[f"{what}_{n}_high"]
+            fmt[f"{what}_{n}"] = [f"{a:g}" if a == b else f"{a:g}-{b:g}" for a, b in zip(lo, hi)]
+    return TableResult("table1", "Table 1: delay regimes (steps; per-food values drawn uniformly from these ranges)", raw, fmt)
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def table_agent_config(number: int, config) -> TableResult:
+    """Tables 2-6: every hyperparameter of one agent config file."""
+    content = config.model_dump(mode="json")
+    flat = _flatten(content)
+    raw = pd.DataFrame({"hyperparameter": list(flat), "value": [v if not isinstance(v, list) else str(v) for v in flat.values()]})
+    fmt = raw.copy()
+    fmt["value"] = [", ".join(map(str, v)) if isinstance(v, list) else str(v) for v in flat.values()]
+    title = f"Table {number}: {algo_label(content.get('algo', config.name))} configuration ({config.name} v{content.get('version')})"
+    return TableResult(f"table{number}", title, raw, fmt)
+
+
+def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000) -> TableResult:
+    """Results: regime x algorithm, mean ± standard error of the four evaluation metrics over
+    seeds x evaluation episodes, plus the return's interquartile mean with a 95 % percentile
+    bootstrap confidence interval resampling seeds."""
+    ev = df[df["phase"] == "eval"]
+    if ev.empty:
+        raise ValueError("no evaluation episodes for the results table")
+    rows, fmt_rows = [], []
+    for regime in sort_regimes(ev["regime"]):
+        for algo in sort_algos(ev[ev["regime"] == regime]["algo"]):
+            cell = ev[(ev["regime"] == regime) & (ev["algo"] == algo)]
+            row = {"regime": regime, "algo": algo, "seeds": cell["seed"].nunique(), "episodes": len(cell)}
+            f = {"regime": regime, "algorithm": algo_label(algo), "seeds": row["seeds"], "episodes": row["episodes"]}
+            for m in RESULT_METRICS:
+                x = cell[m].to_numpy(dtype=float)
+                mean = float(x.mean())
+                se = float(x.std(ddof=1) / np.sqrt(x.size)) if x.size > 1 else float("nan")
+                row[f"{m}_mean"], row[f"{m}_sem"] = mean, se
+                digits = 2 if m in ("return", "foods") else 3
+                f[m] = f"{mean:.{digits}f} ± {se:.{digits}f}" if np.isfinite(se) else f"{mean:.{digits}f}"
+            by_seed = [g["return"].to_numpy(dtype=float) for _, g in cell.groupby("seed")]
+            point, lo, hi = iqm_bootstrap_ci(by_seed, reps=seeds_bootstrap)
+            row["return_iqm"], row["return_iqm_lo"], row["return_iqm_hi"] = point, lo, hi
+            f["return IQM [95% CI]"] = f"{point:.2f} [{lo:.2f}, {hi:.2f}]" if np.isfinite(lo) else f"{point:.2f} [single seed]"
+            rows.append(row)
+            fmt_rows.append(f)
+    title = "Results: fixed-policy inference, mean ± standard error over seeds x evaluation episodes"
+    return TableResult("results", title, pd.DataFrame(rows), pd.DataFrame(fmt_rows))

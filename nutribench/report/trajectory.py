@@ -1,0 +1,61 @@
+"""The trajectory view: one evaluation day, nutrients against target, meals and their
+absorption curves. The picture that explains delayed transitions to a newcomer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from nutribench.config import NUTRIENTS
+from nutribench.env import RegimeDynamics
+
+NUTRIENT_COLORS = {"C": "#4c72b0", "F": "#dd8452", "P": "#55a868"}
+NUTRIENT_NAMES = {"C": "carbohydrate", "F": "fat", "P": "protein"}
+
+
+def trajectory_figure(steps: pd.DataFrame, dynamics: RegimeDynamics, title: str = "") -> Figure:
+    """``steps``: one evaluation episode, columns ``step`` (1..H), ``food`` (index offered),
+    ``action`` (0/1), ``C``, ``F``, ``P`` (absorbed state after the step).
+
+    Top: absorbed nutrients per step against the target, with the meals eaten marked.
+    Bottom: each meal's absorption curve per nutrient (what it delivers at each step), so the
+    lag between a decision and its effect is visible.
+    """
+    steps = steps.sort_values("step")
+    H = dynamics.horizon
+    x = np.concatenate([[0], steps["step"].to_numpy()])
+    fig = Figure(figsize=(10, 6.4), layout="constrained")
+    top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 2])
+    for n in NUTRIENTS:
+        y = np.concatenate([[0.0], steps[n].to_numpy()])
+        top.step(x, y, where="post", color=NUTRIENT_COLORS[n], lw=1.8, label=f"{NUTRIENT_NAMES[n]} ({n})")
+    top.axhline(1.0, color="k", ls="--", lw=1, label="daily target")
+    meals = steps[steps["action"] == 1]
+    ymax = max(1.2, float(steps[list(NUTRIENTS)].to_numpy().max()) * 1.08)
+    for _, m in meals.iterrows():
+        t = int(m["step"])
+        top.axvline(t - 0.5, color="0.6", lw=0.8, ls=":")
+        top.text(t - 0.5, ymax * 0.99, dynamics.food_names[int(m["food"])].replace("_", " "), rotation=90, va="top", ha="right", fontsize=7, color="0.3")
+    top.set_ylim(0, ymax)
+    top.set_ylabel("absorbed (x daily target)")
+    top.legend(loc="center right", fontsize=8)
+    top.grid(alpha=0.3)
+    if title:
+        top.set_title(title, fontsize=10)
+    # absorption curves: a meal eaten at step t delivers schedule[food, k] at step t + k
+    for _, m in meals.iterrows():
+        t, food = int(m["step"]), int(m["food"])
+        k = np.arange(0, H - t + 1)
+        for j, n in enumerate(NUTRIENTS):
+            amount = dynamics.schedule[food, k, j]
+            if amount.sum() <= 0:
+                continue
+            bottom.plot(t + k, amount, color=NUTRIENT_COLORS[n], lw=1, alpha=0.85, marker="." if len(k) < 3 else None)
+        bottom.axvline(t - 0.5, color="0.6", lw=0.8, ls=":")
+    bottom.set_ylabel("delivered per step\n(x daily target)")
+    bottom.set_xlabel(f"step (1 step ~ 30 min; day = {H} steps)")
+    bottom.set_xlim(0, H + 0.5)
+    bottom.grid(alpha=0.3)
+    bottom.set_title("absorption of each meal eaten (one curve per meal and nutrient)", fontsize=9, loc="left")
+    return fig

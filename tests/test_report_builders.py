@@ -1,0 +1,127 @@
+"""Figure and table builders on synthetic DataFrames (no database)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from nutribench.config import list_regimes, load_env_config
+from nutribench.report.figures import eval_across_regimes, training_curves
+from nutribench.report.stats import iqm, iqm_bootstrap_ci, sem
+from nutribench.report.tables import table_regimes, table_results
+
+METRICS = ["return", "foods", "final_distance", "overshoot_ratio"]
+
+
+def synthetic(regimes=("run0", "run3", "run6"), algos=("ppo", "sac"), seeds=(0, 21, 9), train_eps=40, eval_eps=5, seed=0):
+    rng = np.random.default_rng(seed)
+    rows = []
+    for r in regimes:
+        for a in algos:
+            for s in seeds:
+                for phase, n in (("train", train_eps), ("eval", eval_eps)):
+                    for e in range(n):
+                        rows.append(
+                            {"regime": r, "algo": a, "seed": s, "phase": phase, "episode": e,
+                             "return": rng.normal(-100, 20), "foods": rng.integers(0, 20), "final_distance": rng.random() * 3,
+                             "overshoot_ratio": rng.random()}
+                        )
+    return pd.DataFrame(rows)
+
+
+def _lines(ax):
+    return [l for l in ax.get_lines() if not l.get_label().startswith("best") and l.get_linestyle() != "--"]
+
+
+def test_training_curves_panels_lines_and_band():
+    df = synthetic()
+    res = training_curves(df, "return", window=1)
+    visible = [ax for ax in res.figure.axes if ax.get_visible()]
+    assert len(visible) == 3
+    for ax in visible:
+        assert len(_lines(ax)) == 2  # one line per algorithm
+        assert any(l.get_linestyle() == "--" for l in ax.get_lines())  # best-return line
+    # with window 1 the band is the plain standard error across seeds, per episode
+    cell = df[(df.phase == "train") & (df.regime == "run3") & (df.algo == "sac") & (df.episode == 7)]["return"]
+    drawn = res.data[(res.data.regime == "run3") & (res.data.algo == "sac") & (res.data.episode == 7)].iloc[0]
+    assert drawn["mean"] == pytest.approx(cell.mean())
+    assert drawn["sem"] == pytest.approx(cell.std(ddof=1) / np.sqrt(3))
+
+
+def test_training_curves_smoothing_window():
+    df = synthetic(regimes=("run1",), algos=("ppo",), seeds=(0,))
+    res = training_curves(df, "foods", window=5)
+    train = df[df.phase == "train"].sort_values("episode")["foods"].to_numpy(dtype=float)
+    np.testing.assert_allclose(res.data["mean"].to_numpy()[4], train[:5].mean())
+    assert res.data["sem"].isna().all()  # one seed: no band
+    assert len(res.figure.axes[0].collections) == 0
+
+
+def test_missing_cells_are_omitted_and_noted():
+    df = synthetic()
+    df = df[~((df.regime == "run3") & (df.algo == "ppo"))]
+    res = training_curves(df, "return")
+    run3 = [ax for ax in res.figure.axes if ax.get_title() == "run3"][0]
+    assert [l.get_label() for l in _lines(run3)] == ["SAC"]
+    assert res.notes == ["no data: PPO/run3"]
+    res3 = eval_across_regimes(df)
+    ppo = res3.data[(res3.data.panel == "return") & (res3.data.algo == "ppo")]
+    assert ppo["regime"].tolist() == ["run0", "run6"]
+
+
+def test_eval_figure_four_panels_and_standard_error():
+    df = synthetic()
+    res = eval_across_regimes(df)
+    assert len(res.figure.axes) == 4
+    for ax in res.figure.axes:
+        assert len(ax.get_lines()) == 2
+    cell = df[(df.phase == "eval") & (df.regime == "run6") & (df.algo == "ppo")]["final_distance"]
+    row = res.data[(res.data.panel == "final_distance") & (res.data.algo == "ppo") & (res.data.regime == "run6")].iloc[0]
+    assert row["mean"] == pytest.approx(cell.mean())
+    assert row["sem"] == pytest.approx(cell.std(ddof=1) / np.sqrt(len(cell)))
+    assert row["x"] == 6
+
+
+def test_eval_figure_with_references_and_algo_filter():
+    df = synthetic(algos=("ppo", "gru_ppo", "sac"))
+    refs = pd.DataFrame([{"regime": r, "policy": p, **{m: v for m, v in zip(METRICS, (-50.0, 0.0, 3.0, 0.0))}} for r in ("run0", "run3", "run6") for p in ("never", "planner")])
+    res = eval_across_regimes(df, algos=["ppo", "gru_ppo"], references=refs)
+    assert sorted(res.data["algo"].unique()) == ["gru_ppo", "ppo"]
+    labels = [l.get_label() for l in res.figure.axes[0].get_lines()]
+    assert "never (reference)" in labels and "planner (reference)" in labels and "SAC" not in labels
+    with pytest.raises(ValueError, match="no evaluation episodes"):
+        eval_across_regimes(df, algos=["mc"])
+
+
+def test_results_table_matches_pandas():
+    df = synthetic()
+    t = table_results(df, seeds_bootstrap=200)
+    ev = df[df.phase == "eval"]
+    g = ev.groupby(["regime", "algo"])
+    for _, row in t.raw.iterrows():
+        cell = g.get_group((row["regime"], row["algo"]))
+        for m in METRICS:
+            assert row[f"{m}_mean"] == pytest.approx(cell[m].mean())
+            assert row[f"{m}_sem"] == pytest.approx(cell[m].sem())
+        assert row["return_iqm"] == pytest.approx(iqm(cell["return"].to_numpy()))
+        assert row["return_iqm_lo"] <= row["return_iqm"] <= row["return_iqm_hi"]
+    md = t.to_markdown()
+    assert md.count("\n| run") == 6 and "±" in md
+    assert "\\pm" in t.to_latex()
+    assert t.to_csv().splitlines()[0].startswith("regime,algo,seeds,episodes,return_mean")
+
+
+def test_stats_helpers():
+    assert iqm(np.arange(8.0)) == pytest.approx(np.mean([2, 3, 4, 5]))
+    assert iqm(np.array([1.0, 100.0])) == pytest.approx(50.5)
+    assert np.isnan(sem([1.0]))
+    point, lo, hi = iqm_bootstrap_ci([np.array([1.0, 2.0])])
+    assert point == 1.5 and np.isnan(lo) and np.isnan(hi)
+
+
+def test_table1_from_the_regime_files():
+    t = table_regimes([load_env_config(r) for r in list_regimes()])
+    assert t.raw["run"].tolist() == [f"run{k}" for k in range(7)]
+    row = t.formatted.set_index("run").loc["run5"]
+    assert row["tau_F"] == "18-20" and row["sigma_P"] == "2.8-4.8"
