@@ -64,3 +64,70 @@ def bench_env(regimes=("run0", "run6"), sizes=(1, 64, 1024, 4096), repeats: int 
                 {"regime": regime, "env": "vector", "num_envs": n, "steps_per_s": vector_env_rate(regime, n, vsteps, repeats)}
             )
     return rows
+
+
+# --------------------------------------------------------------------------- training
+#: Paper grid: 7 regimes x 5 algorithms x 5 seeds x 5000 episodes of 50 steps.
+PAPER_GRID = {"regimes": 7, "seeds": 5, "episodes": 5000}
+
+
+def _bench_config(algo: str):
+    """The shipped config, with DDQN's learning start moved to step 0 so that the timed
+    steps are learning steps (as are 96 % of a 5000-episode job's)."""
+    from nutribench.agents.config import load_agent_config
+
+    cfg = load_agent_config(algo)
+    if cfg.algo == "ddqn":
+        cfg = cfg.model_copy(update={"learning_starts": 0})
+    return cfg
+
+
+def _bare_sb3_seconds(algo: str, regime: str, episodes: int, seed: int) -> float:
+    """Bare Stable-Baselines3 (``PPO`` or ``DQN``) with the same hyperparameters on the same
+    env, without nutribench's episode recording."""
+    import torch
+    from stable_baselines3 import DQN, PPO
+
+    from nutribench.agents import algos
+    from nutribench.agents.api import make_train_env
+    from nutribench.config import load_env_config
+
+    torch.set_num_threads(1)
+    env_cfg = load_env_config(regime)
+    cfg = _bench_config(algo)
+    _, env = make_train_env(env_cfg, cfg)
+    model = algos.build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon)
+    # same hyperparameters, SB3's own class (DQN: the vanilla max target)
+    bare_cls = {"ppo": PPO, "ddqn": DQN}[algo]
+    model.__class__ = bare_cls
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=episodes * env_cfg.reward.horizon)
+    return time.perf_counter() - t0
+
+
+def bench_train(
+    algos: list[str], regime: str = "run0", episodes: int = 100, repeats: int = 3, seed: int = 0
+) -> list[dict]:
+    """Env-steps per second of ``nutribench.agents.train`` for each algorithm, and of bare
+    SB3 PPO and DQN on the same env (medians over ``repeats``); plus the CPU-hours the paper
+    grid would take at that rate, one job per core."""
+    from nutribench.agents.api import train
+
+    steps = episodes * 50
+    rows = []
+    for algo in algos:
+        cfg = _bench_config(algo)
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            train(regime, cfg, seed=seed, episodes=episodes)
+            times.append(time.perf_counter() - t0)
+        rows.append({"what": f"nutribench {algo}", "algo": algo, "steps_per_s": steps / statistics.median(times)})
+        if algo in ("ppo", "ddqn"):
+            bare = statistics.median(_bare_sb3_seconds(algo, regime, episodes, seed) for _ in range(repeats))
+            label = {"ppo": "PPO", "ddqn": "DQN"}[algo]
+            rows.append({"what": f"bare SB3 {label}", "algo": algo, "steps_per_s": steps / bare})
+    grid_steps = PAPER_GRID["regimes"] * PAPER_GRID["seeds"] * PAPER_GRID["episodes"] * 50
+    for r in rows:
+        r["paper_grid_cpu_hours"] = grid_steps / r["steps_per_s"] / 3600
+    return rows

@@ -171,13 +171,99 @@ def bench_env_cmd(
 
 
 # ---- agents (issue 3): train, bench train ----
+@app.command("train")
+@user_errors
+def train_cmd(
+    algo: Annotated[str, typer.Option(help="agent config name (regimes/agents/<name>.toml) or a .toml path")] = "ppo",
+    regime: Annotated[str, typer.Option(help="regime name or file")] = "run0",
+    seed: Annotated[int, typer.Option(help="training seed; the evaluation days derive from it")] = 0,
+    episodes: Annotated[int, typer.Option(min=1, help="training days (episodes of 50 steps)")] = 300,
+    eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days")] = 5,
+    save: Annotated[Optional[Path], typer.Option(help="save the trained model here (.zip + .json)")] = None,
+) -> None:
+    """Train one agent in the foreground, then evaluate it greedily and print the metrics."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from nutribench.agents import eval_food_streams, evaluate, load_agent_config, train
+    from nutribench.config import load_env_config
+
+    env_cfg = load_env_config(regime)
+    cfg = load_agent_config(algo)
+    if save is not None and save.suffix != ".zip":
+        raise UserError(f"--save {save}: the model file must end in .zip")
+    if save is not None and not save.parent.is_dir():
+        raise UserError(f"--save {save}: folder {save.parent} does not exist")
+    recent: list[dict] = []
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[stats]}"),
+               TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
+    with Progress(*columns, console=console, transient=False) as progress:
+        task = progress.add_task(f"{cfg.name} on {env_cfg.name}, seed {seed}", total=episodes, stats="")
+
+        def on_episode(row: dict) -> None:
+            recent.append(row)
+            last = recent[-20:]
+            ret = sum(r["return"] for r in last) / len(last)
+            foods = sum(r["foods"] for r in last) / len(last)
+            progress.update(task, advance=1, stats=f"return {ret:8.2f}  foods {foods:5.2f} (last {len(last)})")
+
+        agent = train(env_cfg, cfg, seed=seed, episodes=episodes, on_episode=on_episode)
+    result = evaluate(agent, env_cfg, eval_food_streams(env_cfg, seed, eval_episodes), record_steps=False)
+    table = Table("eval day", "return", "foods", "final distance", "overshoot ratio", "final C/F/P", title="greedy evaluation")
+    for r in result.episodes:
+        table.add_row(str(r["episode"]), f"{r['return']:.2f}", str(r["foods"]), f"{r['final_distance']:.3f}",
+                      f"{r['overshoot_ratio']:.2f}", f"{r['final_C']:.2f} / {r['final_F']:.2f} / {r['final_P']:.2f}")  # fmt: skip
+    n = len(result.episodes)
+    mean = lambda k: sum(r[k] for r in result.episodes) / n  # noqa: E731
+    table.add_row("mean", f"{mean('return'):.2f}", f"{mean('foods'):.2f}", f"{mean('final_distance'):.3f}", f"{mean('overshoot_ratio'):.2f}", "")
+    console.print(table)
+    if save is not None:
+        console.print(f"model saved to {agent.save(save)} (+ {save.with_suffix('.json').name})")
+
+
+@bench_app.command("train")
+@user_errors
+def bench_train_cmd(
+    algos: Annotated[str, typer.Option(help="'all' or comma-separated algorithms")] = "all",
+    regime: Annotated[str, typer.Option(help="regime")] = "run0",
+    episodes: Annotated[int, typer.Option(min=1, help="training days per timed run")] = 100,
+    repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 3,
+) -> None:
+    """Training env-steps per second of each algorithm, and of bare SB3 PPO / DQN on the same
+    env (the overhead of nutribench's plumbing), with the paper grid's CPU-hours at that rate."""
+    from nutribench.agents.config import ALGOS
+    from nutribench.bench import bench_train
+    from nutribench.config import load_env_config
+
+    names = split_csv(algos, list(ALGOS), "algorithm")
+    load_env_config(regime)
+    rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats)
+    table = Table("run", "env-steps/s (median)", "vs bare SB3", "paper grid CPU-hours", title=f"training throughput, {regime}, {episodes} days x {repeats}")
+    bare = {r["algo"]: r["steps_per_s"] for r in rows if r["what"].startswith("bare")}
+    for r in rows:
+        ratio = ""
+        if not r["what"].startswith("bare") and r["algo"] in bare:
+            ratio = f"{r['steps_per_s'] / bare[r['algo']]:.3f}"
+        table.add_row(r["what"], f"{r['steps_per_s']:,.0f}", ratio, f"{r['paper_grid_cpu_hours']:.1f}")
+    console.print(table)
+    total = sum(r["paper_grid_cpu_hours"] for r in rows if not r["what"].startswith("bare"))
+    console.print(f"paper grid (7 regimes x 5 seeds x 5000 days per algorithm, all 5 algorithms): ~{total:.0f} CPU-hours")
+
 
 
 # ---- runs (issue 4): run, status ----
+from nutribench.scheduler.cli_commands import run_cmd, status_cmd  # noqa: E402
+
+app.command("run")(run_cmd)
+app.command("status")(status_cmd)
 
 
 def main() -> None:  # pragma: no cover
     app()
+
+
+from nutribench.report.cli_commands import report_cmd  # noqa: E402  (issue 5)
+
+app.command("report")(report_cmd)
 
 
 if __name__ == "__main__":  # pragma: no cover

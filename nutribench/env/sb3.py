@@ -8,7 +8,8 @@ The end of the day (step H) is reported as ``done`` *without* ``TimeLimit.trunca
 nothing happens after step H and time is not in the observation, so learners must not
 bootstrap a value past it; the fixed-horizon day is a true episode end.
 
-The batched info dict of the last step is kept as ``last_info`` (arrays of length
+The batched info dict and the raw rewards of the last step are kept as ``last_info`` and
+``last_rewards`` (arrays of length
 ``num_envs``), which is what :class:`~nutribench.env.metrics.EpisodeRecorder` reads.
 """
 
@@ -36,6 +37,7 @@ class NutriRLSB3VecEnv(VecEnv):
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
         self._actions: np.ndarray | None = None
         self.last_info: dict[str, Any] = {}
+        self.last_rewards = np.zeros(self.num_envs)
 
     def reset(self):
         seed = self._seeds[0]
@@ -53,6 +55,7 @@ class NutriRLSB3VecEnv(VecEnv):
     def step_wait(self):
         obs, rewards, terminated, truncated, info = self.venv.step(self._actions)
         self.last_info = info
+        self.last_rewards = rewards
         dones = terminated | truncated
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
         if dones.any():

@@ -67,6 +67,62 @@ def default_window(n_episodes: int) -> int:
     return int(min(100, max(1, round(n_episodes / 50))))
 
 
+def _wrap(text: str, fig: Figure, fontsize: float) -> str:
+    """Wrap ``text`` (each of its lines) to the figure's width at ``fontsize``."""
+    import textwrap
+
+    chars = max(40, int(fig.get_figwidth() * 72 / (fontsize * 0.55)))
+    return "\n".join(textwrap.fill(line, chars) for line in text.split("\n"))
+
+
+def _span(counts: pd.Series) -> str:
+    """``"3"`` when every group has 3, else ``"2-5"``."""
+    lo, hi = int(counts.min()), int(counts.max())
+    return f"{lo}" if lo == hi else f"{lo}-{hi}"
+
+
+def set_title(fig: Figure, title: str) -> None:
+    """The figure's title and caption (suptitle), wrapped to the figure's width; the notes of
+    :func:`draw_notes` are kept under it."""
+    fig._report_title = title  # type: ignore[attr-defined]
+    draw_notes(fig, getattr(fig, "_report_notes", []))
+
+
+def draw_notes(fig: Figure, notes: list[str]) -> None:
+    """Write ``notes`` (what was left out, which data was chosen) under the title and caption.
+
+    They go in the suptitle, the one text besides the legend that the constrained layout
+    keeps clear of the axes (a free ``fig.text`` ends up under the outside legend). Calling
+    it again replaces the notes drawn before."""
+    fig._report_notes = list(notes)  # type: ignore[attr-defined]
+    title = getattr(fig, "_report_title", None)
+    if title is None:
+        title = fig.get_suptitle()
+        fig._report_title = title  # type: ignore[attr-defined]
+    text = title + "".join(f"\nnote: {n}" for n in notes)
+    fig.suptitle(_wrap(text, fig, 10), fontsize=10)
+
+
+def _legend_rows(fig: Figure, rows: list[tuple[list, list[str]]], fontsize: float = 9) -> None:
+    """One figure legend under the panels with one row per group (learners, references).
+
+    Matplotlib fills legend columns first, so the entries are interleaved column by column
+    and short rows are padded with invisible entries."""
+    from matplotlib.lines import Line2D
+
+    rows = [r for r in rows if r[1]]
+    if not rows:
+        return
+    ncols = max(len(labels) for _, labels in rows)
+    blank = Line2D([], [], alpha=0)
+    handles, labels = [], []
+    for c in range(ncols):
+        for hs, ls in rows:
+            handles.append(hs[c] if c < len(hs) else blank)
+            labels.append(ls[c] if c < len(ls) else "")
+    fig.legend(handles, labels, loc="outside lower center", ncols=ncols, fontsize=fontsize, frameon=False)
+
+
 def _seed_band(curves: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Mean and standard error across seeds (rows); SE is NaN with one seed."""
     mean = np.nanmean(curves, axis=0)
@@ -96,7 +152,7 @@ def training_curves(
         window = default_window(int(train["episode"].max()) + 1)
     ncols = min(4, len(regimes))
     nrows = int(np.ceil(len(regimes) / ncols))
-    fig = Figure(figsize=(4.2 * ncols, 3.2 * nrows + 0.9), layout="constrained")
+    fig = Figure(figsize=(max(7.5, 4.2 * ncols), 3.2 * nrows + 0.9), layout="constrained")
     axes = fig.subplots(nrows, ncols, squeeze=False, sharex=True)
     rows = []
     for k, regime in enumerate(regimes):
@@ -122,8 +178,9 @@ def training_curves(
         ax.grid(alpha=0.3)
         if k % ncols == 0:
             ax.set_ylabel(METRIC_LABELS.get(metric, metric))
-        if k >= len(regimes) - ncols:
+        if k >= len(regimes) - ncols:  # no panel below: this one carries the x axis
             ax.set_xlabel("training episode")
+            ax.tick_params(labelbottom=True)
     for ax in list(axes.flat)[len(regimes) :]:
         ax.set_visible(False)
     handles, labels = axes.flat[0].get_legend_handles_labels()
@@ -135,10 +192,11 @@ def training_curves(
     fig.legend(handles, labels, loc="outside lower center", ncols=min(6, len(labels)), fontsize=9, frameon=False)
     notes = _missing_note(regimes, algos, train)
     n_seeds = train.groupby(["regime", "algo"])["seed"].nunique()
-    caption = f"mean over seeds ({n_seeds.min()}-{n_seeds.max()} per line) of a {window}-episode moving average; band = standard error across seeds"
-    fig.suptitle((title or f"Training {METRIC_LABELS.get(metric, metric)}") + f"\n{caption}", fontsize=10)
-    if notes:
-        fig.text(0.99, 0.005, "; ".join(notes), ha="right", va="bottom", fontsize=7, color="0.3")
+    smoothing = f"a {window}-episode moving average" if window > 1 else "the per-episode values (no smoothing)"
+    band = "band = standard error across seeds" if n_seeds.max() > 1 else "one seed: no band"
+    caption = f"mean over seeds ({_span(n_seeds)} per line) of {smoothing}; {band}"
+    set_title(fig, (title or f"Training {METRIC_LABELS.get(metric, metric)}") + f"\n{caption}")
+    draw_notes(fig, notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)
 
 
@@ -149,6 +207,9 @@ def _symlog_return_axis(ax) -> None:
 
     lo, hi = ax.get_ylim()
     ax.set_yscale("symlog", linthresh=20, linscale=0.5)
+    if lo < -20:  # the linear autoscale margin shrinks to nothing on the log part: widen it
+        lo *= 1.12
+        ax.set_ylim(lo, hi)
     ticks = [t for t in (-1000, -500, -300, -200, -100, -50, -30, -20, 0, 20) if lo <= t <= hi]
     ax.yaxis.set_major_locator(FixedLocator(ticks))
     ax.yaxis.set_major_formatter(ScalarFormatter())
@@ -198,6 +259,8 @@ def eval_across_regimes(
             x = np.array([xs[r] for r in stats.index])
             ax.plot(x, stats["mean"], marker="o", ms=4, color=algo_color(algo, i), label=algo_label(algo))
             ax.fill_between(x, stats["mean"] - stats["sem"], stats["mean"] + stats["sem"], color=algo_color(algo, i), alpha=0.2, lw=0)
+            if len(x) == 1:  # a band over one x has no width: show the standard error as an error bar
+                ax.errorbar(x, stats["mean"], yerr=stats["sem"], fmt="none", ecolor=algo_color(algo, i), capsize=4, lw=1.2)
             rows.append(
                 pd.DataFrame({"panel": metric, "algo": algo, "regime": stats.index, "x": x, "mean": stats["mean"].to_numpy(), "sem": stats["sem"].to_numpy(), "n": stats["count"].to_numpy()})
             )
@@ -217,14 +280,20 @@ def eval_across_regimes(
             ax.set_xlabel("regime (run)")
             ax.set_xticks(sorted(xs.values()), [str(k) for k in sorted(xs.values())])
     handles, labels = axes.flat[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside lower center", ncols=min(5, len(labels)), fontsize=9, frameon=False)
+    is_ref = [lab.endswith("(reference)") for lab in labels]
+    _legend_rows(
+        fig,
+        [
+            ([h for h, r in zip(handles, is_ref) if not r], [lab for lab, r in zip(labels, is_ref) if not r]),
+            ([h for h, r in zip(handles, is_ref) if r], [lab for lab, r in zip(labels, is_ref) if r]),
+        ],
+    )
     notes = _missing_note(regimes, present_algos, ev)
     if algos is not None:
         absent = [algo_label(a) for a in algos if a not in present_algos]
         if absent:
             notes.append(f"no evaluation data for {', '.join(absent)}")
     n = ev.groupby(["regime", "algo"]).size()
-    fig.suptitle(f"{title}\nmean over seeds x evaluation episodes ({n.min()}-{n.max()} per point); band = standard error", fontsize=10)
-    if notes:
-        fig.text(0.99, 0.005, "; ".join(notes), ha="right", va="bottom", fontsize=7, color="0.3")
+    set_title(fig, f"{title}\nmean over seeds x evaluation episodes ({_span(n)} per point); band (or error bar) = standard error")
+    draw_notes(fig, notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)

@@ -39,7 +39,8 @@ def trajectory_figure(steps: pd.DataFrame, dynamics: RegimeDynamics, title: str 
         top.text(t - 0.5, ymax * 0.99, dynamics.food_names[int(m["food"])].replace("_", " "), rotation=90, va="top", ha="right", fontsize=7, color="0.3")
     top.set_ylim(0, ymax)
     top.set_ylabel("absorbed (x daily target)")
-    top.legend(loc="center right", fontsize=8)
+    # outside the axes: any spot inside would cover the curves on some day
+    fig.legend(*top.get_legend_handles_labels(), loc="outside right upper", fontsize=8, frameon=False)
     top.grid(alpha=0.3)
     if title:
         top.set_title(title, fontsize=10)

@@ -1,0 +1,16 @@
+"""The five agents of SPEC 3 on Stable-Baselines3, their config files, and one interface:
+:func:`train`, :func:`evaluate`, :func:`eval_food_streams`, :class:`TrainedAgent`."""
+
+from nutribench.agents.api import EvalResult, TrainedAgent, eval_food_streams, evaluate, train
+from nutribench.agents.config import ALGOS, list_agent_configs, load_agent_config
+
+__all__ = [
+    "ALGOS",
+    "EvalResult",
+    "TrainedAgent",
+    "eval_food_streams",
+    "evaluate",
+    "list_agent_configs",
+    "load_agent_config",
+    "train",
+]

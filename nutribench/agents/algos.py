@@ -1,0 +1,201 @@
+"""The five algorithms on Stable-Baselines3, built from their config models.
+
+* **MC** (:class:`MonteCarloAC`): SB3 ``A2C`` with a rollout of exactly one day and GAE
+  lambda = 1, i.e. one gradient step per complete episode on full-episode returns minus a
+  value baseline; Adam.
+* **DDQN** (:class:`DoubleDQN`): SB3 ``DQN`` whose target is the double-DQN one (the online
+  net picks ``argmax_a Q(s', a)``, the target net values it), with SB3's n-step replay.
+* **PPO**: SB3 ``PPO``.
+* **SAC**: :class:`~nutribench.agents.sac.DiscreteSAC`.
+* **GRU-PPO**: :class:`~nutribench.agents.gru_ppo.GRUPPO`.
+
+MC and PPO share one backbone between actor and critic (:class:`Backbone`, the shared
+features extractor; SB3 2.x no longer shares ``net_arch`` layers), with linear policy and
+value heads on it: "shared actor-critic, 1 value head" (SPEC 3).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+from stable_baselines3 import A2C, DQN, PPO
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
+from stable_baselines3.common.vec_env import VecEnv
+from torch import nn
+from torch.nn import functional as F
+
+from nutribench.agents.config import DDQNConfig, GRUPPOConfig, MCConfig, PPOConfig, SACConfig
+from nutribench.agents.gru_ppo import GRUPPO
+from nutribench.agents.sac import DiscreteSAC
+
+
+class Backbone(BaseFeaturesExtractor):
+    """MLP ``obs -> net_arch[0] -> ... -> net_arch[-1]`` with ReLU, shared by actor and critic."""
+
+    def __init__(self, observation_space: gym.spaces.Box, net_arch: list[int]):
+        super().__init__(observation_space, features_dim=int(net_arch[-1]))
+        # output_dim=-1: no output layer, the MLP ends on the last hidden layer's ReLU
+        layers = create_mlp(int(np.prod(observation_space.shape)), -1, list(net_arch), nn.ReLU)
+        self.net = nn.Sequential(nn.Flatten(), *layers)
+
+    def forward(self, observations: th.Tensor) -> th.Tensor:
+        return self.net(observations)
+
+
+def shared_actor_critic_kwargs(net_arch: list[int]) -> dict[str, Any]:
+    """Policy kwargs for a shared ``net_arch`` backbone with linear policy and value heads."""
+    return dict(
+        features_extractor_class=Backbone,
+        features_extractor_kwargs=dict(net_arch=list(net_arch)),
+        share_features_extractor=True,
+        net_arch=dict(pi=[], vf=[]),
+        optimizer_class=th.optim.Adam,
+    )
+
+
+# ---------------------------------------------------------------------------- MC
+class MonteCarloAC(A2C):
+    """On-policy Monte Carlo actor-critic (SPEC 3, Table 2) as an A2C whose rollout is one
+    whole day (``n_steps`` = horizon, one env) and whose GAE lambda is 1: each update uses
+    the complete episode's discounted returns. No gradient clipping when ``max_grad_norm`` is
+    ``inf``."""
+
+
+# ---------------------------------------------------------------------------- DDQN
+def double_dqn_target(
+    q_online_next: th.Tensor,
+    q_target_next: th.Tensor,
+    rewards: th.Tensor,
+    dones: th.Tensor,
+    discounts: th.Tensor | float,
+) -> th.Tensor:
+    """``r + discount * (1 - done) * Q_target(s', argmax_a Q_online(s', a))``, shape ``(batch, 1)``.
+
+    :param q_online_next: ``(batch, n_actions)`` online network at the next states.
+    :param q_target_next: ``(batch, n_actions)`` target network at the next states.
+    :param rewards: ``(batch, 1)`` (n-step discounted) rewards.
+    :param dones: ``(batch, 1)`` episode ended within the n steps.
+    :param discounts: ``gamma ** n`` per sample ``(batch, 1)`` or a float.
+    """
+    best = q_online_next.argmax(dim=1, keepdim=True)
+    next_q = th.gather(q_target_next, dim=1, index=best)
+    return rewards + (1 - dones) * discounts * next_q
+
+
+class DoubleDQN(DQN):
+    """SB3 DQN with the double-DQN target; everything else (n-step replay, epsilon-greedy,
+    hard target copies, Huber loss, gradient clipping) is SB3's."""
+
+    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        losses = []
+        for _ in range(gradient_steps):
+            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            discounts = data.discounts if data.discounts is not None else self.gamma
+            with th.no_grad():
+                target = double_dqn_target(
+                    self.q_net(data.next_observations), self.q_net_target(data.next_observations),
+                    data.rewards, data.dones, discounts,
+                )  # fmt: skip
+            current = th.gather(self.q_net(data.observations), dim=1, index=data.actions.long())
+            loss = F.smooth_l1_loss(current, target)
+            losses.append(loss.item())
+            self.policy.optimizer.zero_grad()
+            loss.backward()
+            th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+            self.policy.optimizer.step()
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/loss", float(np.mean(losses)))
+
+
+# ---------------------------------------------------------------------------- builders
+def linear_schedule(start: float, end: float) -> Callable[[float], float]:
+    """SB3 schedule: ``start`` at progress_remaining 1, ``end`` at 0."""
+
+    def schedule(progress_remaining: float) -> float:
+        return end + (start - end) * progress_remaining
+
+    return schedule
+
+
+def build_model(cfg: Any, env: VecEnv, seed: int, horizon: int) -> BaseAlgorithm:
+    """The SB3 algorithm object for config ``cfg`` on ``env`` (CPU, seeded, silent)."""
+    common = dict(env=env, seed=seed, device="cpu", verbose=0, gamma=cfg.gamma)
+    if isinstance(cfg, MCConfig):
+        return MonteCarloAC(
+            "MlpPolicy", n_steps=horizon, learning_rate=cfg.learning_rate, gae_lambda=1.0,
+            ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm,
+            use_rms_prop=False, normalize_advantage=False,
+            policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch), **common,
+        )  # fmt: skip
+    if isinstance(cfg, PPOConfig):
+        # SB3 warns when batch_size does not divide n_steps; whole days per rollout matter more
+        # here than equal minibatches (500 = 7 x 64 + 52).
+        warnings.filterwarnings("ignore", message="You have specified a mini-batch size", module="stable_baselines3")
+        return PPO(
+            "MlpPolicy", learning_rate=cfg.learning_rate, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
+            n_epochs=cfg.n_epochs, gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range,
+            ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm,
+            normalize_advantage=cfg.normalize_advantage,
+            policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch), **common,
+        )  # fmt: skip
+    if isinstance(cfg, GRUPPOConfig):
+        return GRUPPO(
+            learning_rate=cfg.learning_rate, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
+            n_epochs=cfg.n_epochs, gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range,
+            ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm,
+            normalize_advantage=cfg.normalize_advantage, hidden_size=cfg.hidden_size,
+            sequence_length=cfg.sequence_length, **common,
+        )  # fmt: skip
+    if isinstance(cfg, DDQNConfig):
+        return DoubleDQN(
+            "MlpPolicy", learning_rate=linear_schedule(cfg.learning_rate_start, cfg.learning_rate_end),
+            buffer_size=cfg.buffer_size, learning_starts=cfg.learning_starts, batch_size=cfg.batch_size,
+            n_steps=cfg.n_step, max_grad_norm=cfg.max_grad_norm,
+            target_update_interval=cfg.target_update_interval, train_freq=cfg.train_freq,
+            gradient_steps=cfg.gradient_steps, exploration_initial_eps=cfg.exploration_initial_eps,
+            exploration_final_eps=cfg.exploration_final_eps, exploration_fraction=cfg.exploration_fraction,
+            tau=1.0, policy_kwargs=dict(net_arch=list(cfg.net_arch)), **common,
+        )  # fmt: skip
+    if isinstance(cfg, SACConfig):
+        return DiscreteSAC(
+            "MlpPolicy", actor_learning_rate=cfg.actor_learning_rate, critic_learning_rate=cfg.critic_learning_rate,
+            buffer_size=cfg.buffer_size, learning_starts=cfg.learning_starts, batch_size=cfg.batch_size,
+            tau=cfg.tau, alpha=cfg.alpha, train_freq=cfg.train_freq, gradient_steps=cfg.gradient_steps,
+            net_arch=list(cfg.net_arch), **common,
+        )  # fmt: skip
+    raise TypeError(f"no builder for config {type(cfg).__name__}")
+
+
+#: SB3 classes by algo, for loading saved models.
+MODEL_CLASSES: dict[str, type[BaseAlgorithm]] = {
+    "mc": MonteCarloAC, "ddqn": DoubleDQN, "ppo": PPO, "sac": DiscreteSAC, "gru_ppo": GRUPPO,
+}  # fmt: skip
+
+
+def episode_entropy(model: BaseAlgorithm, algo: str, obs: np.ndarray) -> float | None:
+    """Mean policy entropy (nats) over one episode's observations ``(T, obs_dim)`` as the
+    policy saw them (normalised); None for DDQN (no stochastic policy)."""
+    if algo == "ddqn":
+        return None
+    with th.no_grad():
+        x = th.as_tensor(obs, dtype=th.float32)
+        if algo == "sac":
+            ent = model.policy.entropy(x)
+        elif algo == "gru_ppo":
+            pol = model.policy
+            starts = th.zeros(1, x.shape[0])
+            starts[0, 0] = 1.0
+            feats, _ = pol.unroll(x.unsqueeze(0), pol.initial_state(1), starts)
+            ent = pol.action_dist.proba_distribution(pol.actor_head(feats[0])).entropy()
+        else:
+            ent = model.policy.get_distribution(x).entropy()
+    return float(ent.mean())

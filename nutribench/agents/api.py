@@ -1,0 +1,223 @@
+"""One interface to every agent: train, evaluate, save, load.
+
+::
+
+    from nutribench.agents import train, evaluate, eval_food_streams
+    agent = train("run0", "ppo", seed=0, episodes=300, on_episode=print)
+    streams = eval_food_streams("run0", job_seed=0)          # 5 days, the same for every algo
+    result = evaluate(agent, "run0", streams)                 # greedy, one row per day
+    agent.save("models/ppo-run0-seed0.zip")
+
+Training runs on one environment (one day at a time), so ``episodes`` days are exactly
+``episodes * horizon`` env steps, and every finished training day is reported with the
+SPEC 4 metrics (:data:`~nutribench.env.metrics.METRIC_KEYS`, plus ``episode`` and
+``entropy``: the mean policy entropy over the day's steps, None for DDQN).
+
+Reproducible: torch runs single-threaded (jobs run side by side in a process pool), and
+the seed fixes network initialisation, exploration and the env's food stream, so the same
+call twice gives identical metrics on the same machine.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.running_mean_std import RunningMeanStd
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+
+from nutribench.agents.algos import MODEL_CLASSES, build_model, episode_entropy
+from nutribench.agents.config import agent_config_content, load_agent_config, parse_agent_config
+from nutribench.config import EnvConfig, load_env_config
+from nutribench.env.metrics import EpisodeRecorder
+from nutribench.env.sb3 import NutriRLSB3VecEnv
+from nutribench.env.vector_env import NutriRLVectorEnv
+
+#: Mixed into the job seed to draw the evaluation days (independent of training's stream).
+EVAL_STREAM_SALT = 20_240_501
+CLIP_OBS = 10.0
+NORM_EPS = 1e-8
+
+EpisodeFn = Callable[[dict[str, Any]], None]
+
+
+def eval_food_streams(regime: str | EnvConfig, job_seed: int, n: int = 5) -> np.ndarray:
+    """``n`` evaluation days ``(n, horizon)`` of food indices, drawn from the job seed alone,
+    so every algorithm trained with that seed is evaluated on the same days (paired)."""
+    cfg = load_env_config(regime)
+    rng = np.random.default_rng([EVAL_STREAM_SALT, int(job_seed)])
+    return rng.integers(0, len(cfg.catalog.food), size=(n, cfg.reward.horizon))
+
+
+@dataclass
+class TrainedAgent:
+    """A trained SB3 model plus the observation statistics it was trained with.
+
+    ``act`` takes raw observations (it normalises them itself) and is greedy.
+    """
+
+    model: BaseAlgorithm
+    algo: str
+    config: Any
+    obs_mean: np.ndarray | None = None
+    obs_var: np.ndarray | None = None
+    train_episodes: list[dict[str, Any]] = field(default_factory=list)
+
+    def normalize(self, obs: np.ndarray) -> np.ndarray:
+        """Observations as the policy saw them in training (VecNormalize's formula)."""
+        if self.obs_mean is None:
+            return np.asarray(obs, dtype=np.float32)
+        x = (obs - self.obs_mean) / np.sqrt(self.obs_var + NORM_EPS)
+        return np.clip(x, -CLIP_OBS, CLIP_OBS).astype(np.float32)
+
+    def act(
+        self, obs: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None
+    ) -> tuple[np.ndarray, Any]:
+        """Greedy actions for a batch of raw observations ``(n, obs_dim)``; ``state`` is the
+        recurrent state (GRU-PPO; None elsewhere), reset where ``episode_start`` is true."""
+        x = self.normalize(obs)
+        if self.algo == "gru_ppo":
+            return self.model.predict(x, state=state, episode_start=episode_start, deterministic=True)
+        actions, _ = self.model.predict(x, deterministic=True)
+        return actions, None
+
+    def save(self, path: str | Path) -> Path:
+        """``path`` (.zip, SB3's format) and ``path`` with ``.json`` (algo, config, obs statistics)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.model.save(path)
+        side = {
+            "algo": self.algo,
+            "config": agent_config_content(self.config),
+            "obs_mean": None if self.obs_mean is None else self.obs_mean.tolist(),
+            "obs_var": None if self.obs_var is None else self.obs_var.tolist(),
+        }
+        path.with_suffix(".json").write_text(json.dumps(side, indent=1))
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> TrainedAgent:
+        """Load what :meth:`save` wrote."""
+        path = Path(path)
+        side = json.loads(path.with_suffix(".json").read_text())
+        algo = side["algo"]
+        model = MODEL_CLASSES[algo].load(path, device="cpu")
+        arr = lambda v: None if v is None else np.asarray(v, dtype=np.float64)  # noqa: E731
+        return cls(model, algo, parse_agent_config(side["config"], path), arr(side["obs_mean"]), arr(side["obs_var"]))
+
+
+class EpisodeMetrics(BaseCallback):
+    """Records the SPEC 4 metrics of every finished training day and stops after ``episodes``.
+
+    Reads the dones SB3 passes to callbacks and the raw rewards and batched info of the
+    NutriRL SB3 adapter (not SB3's rewards, which ``VecNormalize`` may have scaled); the observation each action was taken at is ``model._last_obs``
+    during ``on_step`` (on- and off-policy SB3 update it after the callback).
+    """
+
+    def __init__(self, base_env: NutriRLSB3VecEnv, algo: str, episodes: int, on_episode: EpisodeFn | None = None):
+        super().__init__()
+        self.base_env = base_env
+        self.algo = algo
+        self.n_episodes = episodes
+        self.on_episode = on_episode
+        self.recorder = EpisodeRecorder(1)
+        self.episodes: list[dict[str, Any]] = []
+        self._obs: list[np.ndarray] = []
+
+    def _on_step(self) -> bool:
+        self._obs.append(np.array(self.model._last_obs[0], dtype=np.float32))
+        for metrics in self.recorder.record(self.base_env.last_rewards, self.locals["dones"], self.base_env.last_info):
+            row = {"episode": len(self.episodes), **metrics, "entropy": episode_entropy(self.model, self.algo, np.stack(self._obs))}
+            self._obs.clear()
+            self.episodes.append(row)
+            if self.on_episode is not None:
+                self.on_episode(row)
+        return len(self.episodes) < self.n_episodes
+
+
+def make_train_env(env_cfg: EnvConfig, cfg: Any) -> tuple[NutriRLSB3VecEnv, VecEnv]:
+    """The single-day SB3 env a job trains on, and the same wrapped in ``VecNormalize``
+    as the config asks (observations and/or rewards; SB3 sees scaled rewards, the
+    recorded metrics stay raw because they are read from the base env)."""
+    base = NutriRLSB3VecEnv(num_envs=1, regime=env_cfg)
+    if not (cfg.normalize_obs or cfg.normalize_reward):
+        return base, base
+    env = VecNormalize(
+        base, norm_obs=cfg.normalize_obs, norm_reward=cfg.normalize_reward, gamma=cfg.gamma, clip_obs=CLIP_OBS, epsilon=NORM_EPS
+    )
+    return base, env
+
+
+def train(
+    regime: str | EnvConfig,
+    agent_config: Any,
+    seed: int,
+    episodes: int,
+    on_episode: EpisodeFn | None = None,
+) -> TrainedAgent:
+    """Train ``agent_config`` (name, file or model) on ``regime`` for ``episodes`` days.
+
+    :param on_episode: called with each finished training day's metrics dict.
+    :return: the trained agent; its ``train_episodes`` hold every day's metrics.
+    """
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    th.set_num_threads(1)
+    env_cfg = load_env_config(regime)
+    cfg = load_agent_config(agent_config)
+    horizon = env_cfg.reward.horizon
+    base, env = make_train_env(env_cfg, cfg)
+    model = build_model(cfg, env, seed=seed, horizon=horizon)
+    recorder = EpisodeMetrics(base, cfg.algo, episodes, on_episode)
+    model.learn(total_timesteps=episodes * horizon, callback=recorder)
+    rms: RunningMeanStd | None = env.obs_rms if cfg.normalize_obs else None  # type: ignore[union-attr]
+    agent = TrainedAgent(model, cfg.algo, cfg, None if rms is None else rms.mean.copy(), None if rms is None else rms.var.copy())
+    agent.train_episodes = recorder.episodes
+    return agent
+
+
+@dataclass
+class EvalResult:
+    """Evaluation of one agent: one metrics row per day and, if recorded, one row per step
+    (``episode``, ``step`` 1..H, ``food`` offered, ``action``, ``C``/``F``/``P`` absorbed
+    after the step, ``reward``)."""
+
+    episodes: list[dict[str, Any]]
+    steps: list[dict[str, Any]]
+
+
+def evaluate(agent: TrainedAgent, regime: str | EnvConfig, food_streams: np.ndarray, record_steps: bool = True) -> EvalResult:
+    """Greedy play of ``agent`` on the given days ``(n, horizon)``, all days side by side."""
+    env_cfg = load_env_config(regime)
+    streams = np.asarray(food_streams)
+    n, horizon = streams.shape
+    venv = NutriRLVectorEnv(n, regime=env_cfg)
+    obs, _ = venv.reset(options={"foods": streams})
+    recorder = EpisodeRecorder(n)
+    state, start = None, np.ones(n, dtype=bool)
+    seen, finished, steps = [], [], []
+    for t in range(horizon):
+        seen.append(agent.normalize(obs))
+        actions, state = agent.act(obs, state, start)
+        actions = np.asarray(actions).reshape(n)
+        obs, rewards, terminated, truncated, info = venv.step(actions)
+        finished += recorder.record(rewards, terminated | truncated, info)
+        start = np.zeros(n, dtype=bool)
+        if record_steps:
+            s = np.asarray(info["state"]).reshape(n, 3)
+            for j in range(n):
+                steps.append({"episode": j, "step": t + 1, "food": int(streams[j, t]), "action": int(actions[j]),
+                              "C": float(s[j, 0]), "F": float(s[j, 1]), "P": float(s[j, 2]), "reward": float(rewards[j])})  # fmt: skip
+    seen_arr = np.stack(seen, axis=1)  # (n, H, obs_dim)
+    rows = [
+        {"episode": j, **m, "entropy": episode_entropy(agent.model, agent.algo, seen_arr[j])}
+        for j, m in enumerate(finished)
+    ]
+    return EvalResult(rows, steps)

@@ -1,0 +1,202 @@
+"""Agent configurations (SPEC 3, Tables 2-6) as versioned, validated files.
+
+One TOML file per configuration in ``regimes/agents/`` (``<name>.toml``); the ``algo`` key
+picks the model of a discriminated union, every hyperparameter is written out (nothing is
+defaulted), unknown keys are errors, and ``name`` must equal the file name. A user adds a
+variant by copying a file, changing ``name`` (and the file name) and the values.
+
+The content hash (:func:`agent_config_sha256`) is what the results database records next
+to ``name`` and ``version``: a file changed without a version bump is refused by ``run``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+
+import tomli_w
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from nutribench.config.loading import ConfigError, content_sha256, format_validation_error, read_toml, regimes_dir
+
+#: The algorithms nutribench implements, in the paper's order.
+ALGOS: tuple[str, ...] = ("mc", "ddqn", "ppo", "sac", "gru_ppo")
+
+PosFloat = Annotated[float, Field(gt=0)]
+Prob = Annotated[float, Field(ge=0, le=1)]
+PosInt = Annotated[int, Field(ge=1)]
+Name = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$", max_length=64)]
+
+
+class _AgentBase(BaseModel):
+    """Fields every agent config has."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: Name
+    version: PosInt
+    description: str
+    normalize_obs: bool = Field(description="running mean/std normalisation of observations (SB3 VecNormalize)")
+    normalize_reward: bool = Field(
+        description="scale rewards by a running std of the discounted return (SB3 VecNormalize); recorded returns stay raw"
+    )
+    gamma: Annotated[float, Field(gt=0, le=1)]
+
+
+class _FeedForward(_AgentBase):
+    net_arch: list[PosInt] = Field(min_length=1, description="hidden layers of the shared backbone, e.g. [256, 128]")
+
+
+class MCConfig(_FeedForward):
+    """Monte Carlo actor-critic: one update per complete episode, GAE with lambda = 1."""
+
+    algo: Literal["mc"]
+    learning_rate: PosFloat
+    gae_lambda: Literal[1.0]
+    ent_coef: Annotated[float, Field(ge=0)]
+    vf_coef: PosFloat
+    max_grad_norm: PosFloat = Field(description="inf: no clipping")
+
+
+class _PPOFields(BaseModel):
+    """PPO's optimisation fields, shared by the feedforward and the recurrent PPO."""
+
+    learning_rate: PosFloat
+    n_steps: PosInt
+    batch_size: PosInt
+    n_epochs: PosInt
+    gae_lambda: Prob
+    clip_range: PosFloat
+    ent_coef: Annotated[float, Field(ge=0)]
+    vf_coef: PosFloat
+    max_grad_norm: PosFloat
+    normalize_advantage: bool
+
+
+class PPOConfig(_FeedForward, _PPOFields):
+    """PPO, clipped surrogate, shared actor-critic."""
+
+    algo: Literal["ppo"]
+
+
+class GRUPPOConfig(_AgentBase, _PPOFields):
+    """PPO with the recurrent two-GRU policy of Table 6 (heads fixed by SPEC 3)."""
+
+    algo: Literal["gru_ppo"]
+    hidden_size: PosInt
+    sequence_length: PosInt
+
+    @model_validator(mode="after")
+    def _whole_sequences(self) -> GRUPPOConfig:
+        if self.n_steps % self.sequence_length:
+            raise ValueError(f"n_steps ({self.n_steps}) must be a multiple of sequence_length ({self.sequence_length})")
+        return self
+
+
+class DDQNConfig(_FeedForward):
+    """Double DQN with n-step returns."""
+
+    algo: Literal["ddqn"]
+    learning_rate_start: PosFloat
+    learning_rate_end: PosFloat
+    buffer_size: PosInt
+    learning_starts: Annotated[int, Field(ge=0)]
+    batch_size: PosInt
+    n_step: PosInt
+    max_grad_norm: PosFloat
+    target_update_interval: PosInt
+    train_freq: PosInt
+    gradient_steps: PosInt
+    exploration_initial_eps: Prob
+    exploration_final_eps: Prob
+    exploration_fraction: Prob
+
+
+class SACConfig(_FeedForward):
+    """Discrete-action SAC, fixed temperature."""
+
+    algo: Literal["sac"]
+    actor_learning_rate: PosFloat
+    critic_learning_rate: PosFloat
+    buffer_size: PosInt
+    learning_starts: Annotated[int, Field(ge=0)]
+    batch_size: PosInt
+    tau: Prob
+    alpha: Annotated[float, Field(ge=0)]
+    train_freq: PosInt
+    gradient_steps: PosInt
+
+
+AgentConfig = Annotated[Union[MCConfig, DDQNConfig, PPOConfig, SACConfig, GRUPPOConfig], Field(discriminator="algo")]
+MODELS: dict[str, type[_AgentBase]] = {
+    "mc": MCConfig, "ddqn": DDQNConfig, "ppo": PPOConfig, "sac": SACConfig, "gru_ppo": GRUPPOConfig,
+}  # fmt: skip
+
+
+def agents_dir() -> Path:
+    """``regimes/agents/`` (or ``$NUTRIBENCH_AGENTS``)."""
+    import os
+
+    env = os.environ.get("NUTRIBENCH_AGENTS")
+    return Path(env) if env else regimes_dir() / "agents"
+
+
+def list_agent_configs(folder: Path | None = None) -> list[str]:
+    """Names of the agent config files, the five paper configs first in the paper's order."""
+    folder = folder or agents_dir()
+    names = sorted(p.stem for p in folder.glob("*.toml")) if folder.is_dir() else []
+    return [a for a in ALGOS if a in names] + [n for n in names if n not in ALGOS]
+
+
+def resolve_agent_path(name_or_path: str | Path) -> Path:
+    """A config name (``ppo``) or a path to a TOML file."""
+    s = str(name_or_path)
+    if s.endswith(".toml") or "/" in s:
+        path = Path(s)
+        if not path.is_file():
+            raise ConfigError(f"{path}: no such agent config file")
+        return path
+    path = agents_dir() / f"{s}.toml"
+    if not path.is_file():
+        known = ", ".join(list_agent_configs()) or "(none)"
+        raise ConfigError(f"unknown agent config '{s}': known are {known} (files in {agents_dir()})")
+    return path
+
+
+def load_agent_config(name_or_path: str | Path | BaseModel) -> Any:
+    """The validated config model of a name, a file, or a model (returned as is)."""
+    if isinstance(name_or_path, BaseModel):
+        return name_or_path
+    path = resolve_agent_path(name_or_path)
+    cfg = parse_agent_config(read_toml(path), path)
+    if cfg.name != path.stem:
+        raise ConfigError(f"{path}: name: '{cfg.name}' differs from the file name '{path.stem}' (make them equal)")
+    return cfg
+
+
+def agent_config_content(cfg: BaseModel) -> dict[str, Any]:
+    """The config as plain data (what is hashed and stored in the database)."""
+    return cfg.model_dump(mode="json")
+
+
+def agent_config_sha256(cfg: BaseModel) -> str:
+    """sha256 of the canonical JSON of :func:`agent_config_content`."""
+    return content_sha256(agent_config_content(cfg))
+
+
+def agent_config_to_toml(cfg: BaseModel) -> str:
+    """The config as TOML (round-trips through :func:`load_agent_config`)."""
+    data = agent_config_content(cfg)
+    data = {"algo": data.pop("algo"), **data}
+    return tomli_w.dumps(data)
+
+
+def parse_agent_config(data: dict[str, Any], source: str | Path = "<dict>") -> Any:
+    """Validate plain data as an agent config (one-line :class:`ConfigError` if invalid)."""
+    algo = data.get("algo")
+    if algo not in MODELS:
+        raise ConfigError(f"{source}: algo: unknown algorithm {algo!r}: known are {', '.join(ALGOS)}")
+    try:
+        return MODELS[algo].model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(format_validation_error(source, e)) from None

@@ -1,0 +1,82 @@
+"""A synthetic job for tests and dry runs of the scheduler: no torch, no training.
+
+It sleeps ``$NUTRIBENCH_FAKE_SECONDS`` (default 0.001) per training episode and makes
+deterministic metrics from the seed. Environment variables make chosen jobs misbehave
+(each a comma-separated list of ``regime:algo:seed`` labels, or ``*`` for every job):
+
+``NUTRIBENCH_FAKE_FAIL``   raise an exception halfway through training
+``NUTRIBENCH_FAKE_KILL``   SIGKILL its own process halfway through (a dying worker)
+``NUTRIBENCH_FAKE_LOG``    a folder: each execution drops a file there (to count runs)
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+
+from nutribench.jobs.metadata import collect_metadata
+from nutribench.jobs.spec import JobResult, JobSpec
+from nutribench.jobs.worker import JobProgress, Sink
+from nutribench.store.engine import utcnow
+
+HORIZON = 50
+
+
+def _matches(var: str, spec: JobSpec) -> bool:
+    value = os.environ.get(var, "")
+    if not value:
+        return False
+    labels = {v.strip() for v in value.split(",")}
+    return "*" in labels or f"{spec.regime}:{spec.algo}:{spec.seed}" in labels
+
+
+def _metrics(rng: np.random.Generator, k: int) -> dict:
+    return {
+        "episode": k,
+        "return": float(rng.normal(-5.0 + 0.01 * k, 1.0)),
+        "foods": int(rng.integers(0, 10)),
+        "final_distance": float(rng.uniform(0, 3)),
+        "overshoot_ratio": float(rng.uniform(0, 1)),
+        "final_C": float(rng.uniform(0, 2)),
+        "final_F": float(rng.uniform(0, 2)),
+        "final_P": float(rng.uniform(0, 2)),
+        "first_overshoot_step": int(rng.integers(1, HORIZON + 1)) if rng.random() < 0.5 else None,
+        "entropy": float(rng.uniform(0, 0.7)),
+    }
+
+
+def fake_run_job(spec: JobSpec, progress: Sink | None = None) -> JobResult:
+    started, t0 = utcnow(), time.perf_counter()
+    log = os.environ.get("NUTRIBENCH_FAKE_LOG")
+    if log:
+        (Path(log) / f"job{spec.job_id}-pid{os.getpid()}-{uuid.uuid4().hex[:8]}").touch()
+    seconds = float(os.environ.get("NUTRIBENCH_FAKE_SECONDS", "0.001"))
+    rng = np.random.default_rng([spec.seed, spec.job_id])
+    reporter = JobProgress(spec, progress, interval=0.2)
+    reporter.start()
+    train = []
+    for k in range(spec.episodes):
+        if k == spec.episodes // 2:
+            if _matches("NUTRIBENCH_FAKE_FAIL", spec):
+                raise RuntimeError(f"fake failure in {spec.label} at episode {k}")
+            if _matches("NUTRIBENCH_FAKE_KILL", spec):
+                os.kill(os.getpid(), signal.SIGKILL)
+        time.sleep(seconds)
+        train.append(_metrics(rng, k))
+        reporter.episode(k + 1, train[-1]["return"])
+    evals, steps = [], []
+    for e in range(spec.eval_episodes):
+        evals.append(_metrics(rng, e))
+        s = np.cumsum(rng.uniform(0, 0.05, size=(HORIZON, 3)), axis=0)
+        for t in range(HORIZON):
+            steps.append({"episode": e, "step": t + 1, "food": int(rng.integers(0, 10)), "action": int(rng.integers(0, 2)),
+                          "C": float(s[t, 0]), "F": float(s[t, 1]), "P": float(s[t, 2]), "reward": float(rng.normal())})  # fmt: skip
+    Path(spec.model_path).parent.mkdir(parents=True, exist_ok=True)
+    Path(spec.model_path).write_text("fake model\n")
+    meta = collect_metadata() | {"started_at": started, "finished_at": utcnow(), "wall_seconds": time.perf_counter() - t0}
+    return JobResult(spec.job_id, train, evals, steps, meta, model_path=spec.model_path)

@@ -1,0 +1,55 @@
+"""Reproducibility facts about the process that runs a job."""
+
+from __future__ import annotations
+
+import functools
+import platform
+import socket
+import subprocess
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+
+def _version(dist: str) -> str | None:
+    try:
+        return version(dist)
+    except PackageNotFoundError:
+        return None
+
+
+@functools.lru_cache(maxsize=1)
+def git_state(folder: str | None = None) -> tuple[str | None, bool | None]:
+    """(commit, dirty) of the checkout holding the nutribench package; (None, None) if it is
+    not a git checkout. Dirty means tracked files differ from the commit (untracked files,
+    such as a results database in the tree, do not count)."""
+    where = folder or str(Path(__file__).resolve().parents[2])
+    try:
+        commit = subprocess.run(
+            ["git", "-C", where, "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", where, "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True, text=True, timeout=30, check=True,
+        ).stdout.strip() != ""  # fmt: skip
+    except (OSError, subprocess.SubprocessError):
+        return None, None
+    return (commit or None), dirty
+
+
+def collect_metadata() -> dict[str, Any]:
+    """Host, platform, Python and package versions, git commit and whether the tree is dirty."""
+    import nutribench
+
+    commit, dirty = git_state()
+    return {
+        "host": socket.gethostname(),
+        "platform": platform.platform(terse=True)[:255],
+        "python_version": platform.python_version(),
+        "numpy_version": _version("numpy"),
+        "torch_version": _version("torch"),
+        "sb3_version": _version("stable-baselines3") or _version("stable_baselines3"),
+        "nutribench_version": nutribench.__version__,
+        "git_commit": commit,
+        "git_dirty": dirty,
+    }

@@ -1,0 +1,42 @@
+"""The real job: train one agent on one regime with one seed, evaluate it, save the model.
+
+Runs in a worker process; never touches the database. Progress goes to ``sink`` (see
+:mod:`nutribench.jobs.worker`); the result is a :class:`~nutribench.jobs.spec.JobResult`.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from nutribench.agents.api import eval_food_streams, evaluate, train
+from nutribench.agents.config import agent_config_sha256
+from nutribench.jobs.metadata import collect_metadata
+from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
+from nutribench.jobs.worker import JobProgress, Sink
+from nutribench.store.engine import utcnow
+
+
+def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
+    """Train ``spec.agent_config`` on ``spec.regime_config`` for ``spec.episodes`` days with
+    ``spec.seed``, then evaluate greedily on ``spec.eval_episodes`` days drawn from the seed
+    (the same days for every algorithm), and save the model to ``spec.model_path``."""
+    if spec.regime_config.sha256 != spec.regime_sha256:
+        raise JobFailed(f"{spec.label}: regime content changed since the job was recorded")
+    if agent_config_sha256(spec.agent_config) != spec.algo_sha256:
+        raise JobFailed(f"{spec.label}: agent config content changed since the job was recorded")
+    started, t0 = utcnow(), time.perf_counter()
+    progress = JobProgress(spec, sink)
+    progress.start()
+    agent = train(
+        spec.regime_config, spec.agent_config, seed=spec.seed, episodes=spec.episodes,
+        on_episode=lambda row: progress.episode(row["episode"] + 1, row["return"]),
+    )  # fmt: skip
+    progress.phase("eval")
+    streams = eval_food_streams(spec.regime_config, spec.seed, spec.eval_episodes)
+    result = evaluate(agent, spec.regime_config, streams, record_steps=True)
+    model_path = None
+    if spec.model_path:
+        model_path = str(agent.save(Path(spec.model_path)))
+    meta = collect_metadata() | {"started_at": started, "finished_at": utcnow(), "wall_seconds": time.perf_counter() - t0}
+    return JobResult(spec.job_id, agent.train_episodes, result.episodes, result.steps, meta, model_path=model_path)

@@ -1,0 +1,83 @@
+"""The worker side of a job: the entry point every executor runs, thread limits, and the
+throttled progress reporter.
+
+A worker never touches the database. It reports progress through ``sink`` (a picklable
+callable given by the executor: a pipe to the driver for the local pool, a dask event topic
+on a cluster, or nothing), and returns a :class:`JobResult` or raises :class:`JobFailed`.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import sys
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
+
+PROGRESS_INTERVAL_S = 1.0  # at most one progress event per job per second
+RECENT_EPISODES = 20  # "recent return" = mean over this many training episodes
+
+Sink = Callable[[dict[str, Any]], None]
+JobFn = Callable[[JobSpec, Sink | None], JobResult]
+
+
+def limit_threads() -> None:
+    """One worker = one job = one thread of torch / BLAS (set before torch is imported)."""
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    if "torch" in sys.modules:
+        import torch
+
+        torch.set_num_threads(1)
+
+
+class JobProgress:
+    """Throttled progress events of one job: ``start``, then ``episode`` (k done of n, mean
+    recent return) at most every ``interval`` seconds and at the last episode."""
+
+    def __init__(self, spec: JobSpec, sink: Sink | None, interval: float = PROGRESS_INTERVAL_S):
+        self.spec = spec
+        self.sink = sink
+        self.interval = interval
+        self.recent: deque[float] = deque(maxlen=RECENT_EPISODES)
+        self._last = 0.0
+
+    def _send(self, event: dict[str, Any]) -> None:
+        if self.sink is None:
+            return
+        try:
+            self.sink({"job_id": self.spec.job_id, "time": time.time(), **event})
+        except Exception:  # progress is best effort; it never fails a job
+            pass
+
+    def start(self) -> None:
+        self._last = time.monotonic()
+        self._send({"kind": "start", "pid": os.getpid(), "host": socket.gethostname(), "k": 0, "n": self.spec.episodes})
+
+    def episode(self, k_done: int, ret: float | None) -> None:
+        if ret is not None:
+            self.recent.append(float(ret))
+        now = time.monotonic()
+        if now - self._last >= self.interval or k_done >= self.spec.episodes:
+            self._last = now
+            mean = sum(self.recent) / len(self.recent) if self.recent else None
+            self._send({"kind": "episode", "k": k_done, "n": self.spec.episodes, "ret": mean})
+
+    def phase(self, name: str) -> None:
+        self._send({"kind": "phase", "phase": name})
+
+
+def execute(job_fn: JobFn, spec: JobSpec, sink: Sink | None = None) -> JobResult:
+    """Run one job in a worker; any exception comes back as a picklable :class:`JobFailed`."""
+    limit_threads()
+    try:
+        return job_fn(spec, sink)
+    except JobFailed:
+        raise
+    except Exception as e:
+        raise JobFailed(f"{type(e).__name__}: {e}", traceback.format_exc()) from None

@@ -1,0 +1,165 @@
+"""The ``run`` and ``status`` commands (registered in :mod:`nutribench.cli`).
+
+Everything a user can get wrong (unknown regime or algorithm, malformed seeds, a database
+path that cannot be written, a file that is not a database, a config changed without a
+version bump, an unknown executor) is checked before the database file is created and
+reported as one red line with exit status 2.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from nutribench.config import ConfigError
+from nutribench.scheduler.executors import ExecutorError
+from nutribench.scheduler.grid import DEFAULT_PRESET, PRESETS, GridError
+from nutribench.store import StoreError
+
+# nutribench.cli imports this module, so it is imported lazily here (see _cli).
+
+
+def _cli():
+    """The CLI module (its consoles, UserError and split_csv), imported when a command runs."""
+    from nutribench import cli
+
+    return cli
+
+
+def one_line_errors(fn):
+    """Errors a user can fix -> one red line on stderr and exit status 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        from nutribench.scheduler.driver import RunError
+
+        cli = _cli()
+        try:
+            return fn(*args, **kwargs)
+        except (cli.UserError, ConfigError, StoreError, ExecutorError, GridError, RunError) as e:
+            cli.err_console.print(f"[bold red]error:[/] {e}", highlight=False, soft_wrap=True)
+            raise typer.Exit(2) from None
+
+    return wrapper
+
+
+def _check_executor(value: str) -> None:
+    v = value.strip()
+    if v == "local" or any(v.startswith(p) and len(v) > len(p) for p in ("dask://", "tcp://", "tls://")):
+        return
+    raise ExecutorError(f"unknown --executor '{value}': use 'local' or 'dask://HOST:PORT'")
+
+
+def _check_db(db: str) -> None:
+    """Refuse a database path that cannot be created or is not SQLite, before anything runs."""
+    from nutribench.store.engine import check_sqlite_file, database_url, sqlite_path
+
+    path = sqlite_path(database_url(db))
+    if path is not None:
+        check_sqlite_file(path, create=True)
+
+
+@one_line_errors
+def run_cmd(
+    preset: Annotated[Optional[str], typer.Option(help=f"grid preset: {', '.join(PRESETS)} (default {DEFAULT_PRESET}); options below override its fields")] = None,
+    regimes: Annotated[str, typer.Option(help="'all' or comma-separated regime names (run0..run6)")] = "all",
+    algos: Annotated[str, typer.Option(help="'all' or comma-separated agent config names (mc, ddqn, ppo, sac, gru_ppo)")] = "all",
+    seeds: Annotated[Optional[str], typer.Option(help="comma-separated non-negative integers, e.g. 0,21,9")] = None,
+    episodes: Annotated[Optional[int], typer.Option(help="training episodes per job")] = None,
+    eval_episodes: Annotated[Optional[int], typer.Option(help="evaluation episodes per job (default 5)")] = None,
+    workers: Annotated[Optional[int], typer.Option(min=1, help="jobs at once (default: core count; never more than jobs)")] = None,
+    executor: Annotated[str, typer.Option(help="'local' (a process per job) or 'dask://HOST:PORT'")] = "local",
+    db: Annotated[str, typer.Option(help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
+    models_dir: Annotated[Optional[Path], typer.Option(help="where trained models go (default: models/ next to the db)")] = None,
+    upgrade_only: Annotated[bool, typer.Option("--upgrade-only", help="create or upgrade the database schema, then exit")] = False,
+) -> None:
+    """Train and evaluate every regime x algo x seed job not done yet; store the results."""
+    from nutribench.store import open_store
+
+    cli = _cli()
+    if upgrade_only:
+        store = open_store(db, writer=True)
+        store.dispose()
+        what = "created" if store.created else (f"upgraded from {store.upgraded_from}" if store.upgraded_from else "already")
+        cli.console.print(f"{store.display}: schema {what} at revision {store.revision}", highlight=False)
+        return
+    from nutribench.agents.config import list_agent_configs
+    from nutribench.config import list_regimes
+    from nutribench.scheduler.driver import MAX_FAILURES, default_job_fn, load_grid_configs, run_grid
+    from nutribench.scheduler.grid import resolve_grid
+
+    grid = resolve_grid(
+        preset=preset,
+        regimes=cli.split_csv(regimes, list_regimes(), "regime"),
+        algos=cli.split_csv(algos, list_agent_configs(), "algorithm"),
+        seeds=seeds, episodes=episodes, eval_episodes=eval_episodes,
+    )  # fmt: skip
+    _check_executor(executor)
+    _check_db(db)
+    load_grid_configs(grid)  # a broken config file fails here, before the database exists
+    job_fn = default_job_fn()
+    try:
+        summary = run_grid(
+            db, grid.regimes, grid.algos, grid.seeds, grid.episodes, grid.eval_episodes, workers=workers,
+            executor=executor, job_fn=job_fn, models_dir=models_dir, display=True,
+        )  # fmt: skip
+    except KeyboardInterrupt:  # before any job started (opening the database, claiming)
+        raise typer.Exit(130) from None
+    parts = [f"{summary.done} done", f"{summary.failed} failed", f"{summary.skipped} already done"]
+    if summary.busy:
+        parts.append(f"{summary.busy} running in another driver")
+    if summary.given_up:
+        parts.append(f"{summary.given_up} failed {MAX_FAILURES} times (not retried: see `nutribench status`)")
+    if summary.interrupted:
+        parts.append(f"{summary.interrupted} interrupted (the next run resumes them)")
+    cli.err_console.print(f"{summary.total} jobs: " + ", ".join(parts), highlight=False)
+    if summary.exit_code:
+        raise typer.Exit(summary.exit_code)
+
+
+@one_line_errors
+def status_cmd(
+    db: Annotated[str, typer.Option(help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
+    as_json: Annotated[bool, typer.Option("--json", help="print JSON instead of a table")] = False,
+) -> None:
+    """Jobs done, running, failed and pending per regime x algo, wall time, ETA, last errors."""
+    from nutribench.scheduler.status import status_table
+
+    report = status_table(db)
+    if as_json:
+        typer.echo(json.dumps(report.to_dict(), indent=2, default=str))
+        return
+    render_status(report)
+
+
+def render_status(report) -> None:
+    """The status report as rich tables on stdout."""
+    from rich.table import Table
+
+    from nutribench.scheduler.progress import format_duration
+
+    cli = _cli()
+    table = Table("regime", "algo", "budget", "done", "run", "fail", "pend", "wall", "left", title="nutribench status")
+    for r in report.rows:
+        table.add_row(
+            f"{r.regime} v{r.regime_version}", f"{r.algo} v{r.algo_version}", str(r.budget), str(r.done),
+            str(r.running), f"[red]{r.failed}[/]" if r.failed else "0", str(r.pending),
+            format_duration(r.wall_seconds), format_duration(r.remaining_seconds),
+        )  # fmt: skip
+    cli.console.print(table)
+    t = report.totals
+    cli.console.print(
+        f"{t['jobs']} jobs: {t['done']} done, {t['running']} running, {t['failed']} failed, {t['pending']} pending; "
+        f"wall used {format_duration(report.wall_seconds)}; ETA {format_duration(report.eta_seconds)}"
+        f" with {max(report.workers, 1)} worker{'s' if report.workers > 1 else ''}",
+        highlight=False,
+    )
+    if report.errors:
+        errs = Table("regime", "algo", "seed", "failures", "last error", title="failed jobs")
+        for e in report.errors:
+            errs.add_row(e["regime"], e["algo"], str(e["seed"]), f"{e['failures']}" + ("" if e["retried"] else " (gave up)"), e["error"])
+        cli.console.print(errs)

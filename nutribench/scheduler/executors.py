@@ -1,0 +1,155 @@
+"""Executors the scheduler runs jobs on, and the side channel their progress takes.
+
+The scheduler only uses the ``concurrent.futures.Executor`` interface (``submit`` and the
+futures it returns). Progress is a side channel chosen with the executor, because a job's
+worker cannot share a queue with the driver in every setting:
+
+* ``local`` (default): :class:`~nutribench.scheduler.local.LocalProcessExecutor`, one fresh
+  process per job; progress events travel through that job's own pipe.
+* ``dask://HOST:PORT``: ``distributed.Client(...).get_executor()``; progress events are dask
+  worker events (``Worker.log_event`` on a topic this run subscribes to).
+* any other ``Executor`` (library use): no live progress; jobs still report when done and the
+  driver still heartbeats them.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import uuid
+from collections.abc import Callable
+from concurrent.futures import Executor
+from dataclasses import dataclass, field
+from typing import Any
+
+# Imported by the fork server once, so that each job's process starts with them loaded.
+PRELOAD = ("nutribench.jobs.preload",)
+
+
+class ExecutorError(Exception):
+    """A bad ``--executor`` value or an unreachable cluster (one line for users)."""
+
+
+def core_count() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+class DaskSink:
+    """Progress sink for jobs on a dask cluster: a worker event on ``topic`` (picklable)."""
+
+    def __init__(self, topic: str):
+        self.topic = topic
+
+    def __call__(self, event: dict[str, Any]) -> None:
+        try:
+            from distributed import get_worker
+
+            get_worker().log_event(self.topic, event)
+        except (ImportError, ValueError):  # not inside a dask worker
+            pass
+
+
+@dataclass
+class ExecutorHandle:
+    """An executor plus what the scheduler needs around it."""
+
+    executor: Executor
+    slots: int  # jobs kept in flight at once
+    description: str
+    sink: Callable[[dict[str, Any]], None] | None = None  # picklable; handed to each job
+    events: queue.Queue = field(default_factory=queue.Queue)  # progress events at the driver
+    _terminate: Callable[[], None] | None = None
+    _close: Callable[[], None] | None = None
+
+    def drain(self) -> list[dict[str, Any]]:
+        out = []
+        while True:
+            try:
+                out.append(self.events.get_nowait())
+            except queue.Empty:
+                return out
+
+    def terminate_running(self) -> None:
+        """Stop the jobs in flight (Ctrl-C): their outcomes will be ignored."""
+        try:
+            self.executor.shutdown(wait=False, cancel_futures=True)
+        except TypeError:  # pragma: no cover - executors without cancel_futures
+            self.executor.shutdown(wait=False)
+        if self._terminate is not None:
+            self._terminate()
+
+    def close(self) -> None:
+        try:
+            self.executor.shutdown(wait=True)
+        finally:
+            if self._close is not None:
+                self._close()
+
+
+def local_executor(workers: int) -> ExecutorHandle:
+    from nutribench.scheduler.local import LocalProcessExecutor, PipeSink
+
+    events: queue.Queue = queue.Queue()
+    ex = LocalProcessExecutor(workers, on_progress=events.put, preload=PRELOAD)
+    return ExecutorHandle(
+        ex, workers, f"{workers} local worker process{'es' if workers != 1 else ''}",
+        sink=PipeSink(), events=events, _terminate=ex.terminate_running,
+    )  # fmt: skip
+
+
+def dask_executor(address: str, workers: int | None) -> ExecutorHandle:
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ExecutorError("--executor dask://... needs dask.distributed: pip install 'nutribench[dask]'") from None
+    try:
+        client = Client(address, timeout="10s", set_as_default=False)
+    except (OSError, TimeoutError) as e:
+        raise ExecutorError(f"cannot reach the dask scheduler at {address}: {e}") from None
+    threads = sum(client.nthreads().values())
+    slots = workers or max(threads, 1)
+    topic = f"nutribench-progress-{uuid.uuid4().hex[:12]}"
+    events: queue.Queue = queue.Queue()
+
+    def handler(event) -> None:  # (timestamp, msg) from the scheduler
+        msg = event[1] if isinstance(event, tuple) and len(event) == 2 else event
+        if isinstance(msg, dict):
+            events.put(msg)
+
+    client.subscribe_topic(topic, handler)
+
+    def close() -> None:
+        try:
+            client.unsubscribe_topic(topic)
+        finally:
+            client.close()
+
+    return ExecutorHandle(
+        client.get_executor(pure=False), slots,
+        f"dask cluster {address} ({len(client.nthreads())} workers, {threads} threads)",
+        sink=DaskSink(topic), events=events, _close=close,
+    )  # fmt: skip
+
+
+def make_executor(spec: str | None, workers: int | None, n_jobs: int) -> tuple[ExecutorHandle, str | None]:
+    """``local`` or ``dask://HOST:PORT`` (or ``tcp://``, ``tls://``). Returns the handle and a
+    note for the user when the worker count was reduced."""
+    spec = (spec or "local").strip()
+    if spec == "local":
+        cores = core_count()
+        want = workers or cores
+        n = max(1, min(want, cores, n_jobs))
+        note = None
+        if workers and workers > cores:
+            note = f"--workers {workers} is more than the {cores} cores here: using {n}"
+        return local_executor(n), note
+    for prefix in ("dask://", "tcp://", "tls://"):
+        if spec.startswith(prefix):
+            address = ("tcp://" + spec[len(prefix):]) if prefix == "dask://" else spec
+            handle = dask_executor(address, workers)
+            handle.slots = max(1, min(handle.slots, n_jobs))
+            return handle, None
+    raise ExecutorError(f"unknown --executor '{spec}': use 'local' or 'dask://HOST:PORT'")

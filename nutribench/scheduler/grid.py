@@ -1,0 +1,111 @@
+"""The experiment grid: presets, parsing of the ``run`` options, and expansion into
+regime x agent config x seed cells.
+
+Presets fix the seeds and the training budget; explicit options override single fields::
+
+    smoke   every regime, every algorithm, seeds 0,            20 episodes
+    quick   every regime, every algorithm, seeds 0,21,         300 episodes
+    paper   every regime, every algorithm, seeds 0,21,9,2003,1997, 5000 episodes
+
+Every preset evaluates each trained agent on ``EVAL_EPISODES`` = 5 episodes.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+EVAL_EPISODES = 5
+DEFAULT_PRESET = "paper"
+
+
+class GridError(ValueError):
+    """A malformed grid option (seeds, preset, budget). One line for users."""
+
+
+@dataclass(frozen=True)
+class Preset:
+    """Seeds and training budget of a named grid; regimes and algorithms are all."""
+
+    seeds: tuple[int, ...]
+    episodes: int
+    eval_episodes: int = EVAL_EPISODES
+
+
+PRESETS: dict[str, Preset] = {
+    "smoke": Preset(seeds=(0,), episodes=20),
+    "quick": Preset(seeds=(0, 21), episodes=300),
+    "paper": Preset(seeds=(0, 21, 9, 2003, 1997), episodes=5000),
+}
+
+
+@dataclass(frozen=True)
+class Grid:
+    """What one ``run`` asks for: names of regimes and agent configs, seeds, budgets."""
+
+    regimes: tuple[str, ...]
+    algos: tuple[str, ...]
+    seeds: tuple[int, ...]
+    episodes: int
+    eval_episodes: int
+
+    def cells(self) -> list[tuple[str, str, int]]:
+        """(regime, algo, seed) for every job of the grid, regime-major."""
+        return expand(self.regimes, self.algos, self.seeds)
+
+    def __len__(self) -> int:
+        return len(self.regimes) * len(self.algos) * len(self.seeds)
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """``"0,21,9"`` -> ``(0, 21, 9)``; anything else (empty items, non-integers, negative
+    numbers, repeats) is a :class:`GridError` naming the offending item."""
+    items = [s.strip() for s in text.split(",")]
+    if not any(items):
+        raise GridError(f"--seeds '{text}' is empty: give comma-separated non-negative integers, e.g. 0,21,9")
+    seeds: list[int] = []
+    for item in items:
+        if not item.isdigit():  # rejects '', '-1', '1.5', '0x10', ' 3a'
+            raise GridError(f"--seeds '{text}': '{item}' is not a non-negative integer: give e.g. 0,21,9")
+        value = int(item)
+        if value in seeds:
+            raise GridError(f"--seeds '{text}': seed {value} is given twice")
+        seeds.append(value)
+    return tuple(seeds)
+
+
+def resolve_grid(
+    *,
+    preset: str | None,
+    regimes: Sequence[str],
+    algos: Sequence[str],
+    seeds: str | None = None,
+    episodes: int | None = None,
+    eval_episodes: int | None = None,
+) -> Grid:
+    """The grid of ``preset`` (default :data:`DEFAULT_PRESET`) with the explicitly given
+    fields replacing the preset's. ``regimes`` and ``algos`` are already-validated names."""
+    name = preset or DEFAULT_PRESET
+    if name not in PRESETS:
+        raise GridError(f"unknown --preset '{name}': use one of {', '.join(PRESETS)}")
+    base = PRESETS[name]
+    grid = Grid(
+        regimes=tuple(regimes),
+        algos=tuple(algos),
+        seeds=parse_seeds(seeds) if seeds is not None else base.seeds,
+        episodes=base.episodes if episodes is None else episodes,
+        eval_episodes=base.eval_episodes if eval_episodes is None else eval_episodes,
+    )
+    if grid.episodes < 1:
+        raise GridError(f"--episodes {grid.episodes}: the training budget must be at least 1 episode")
+    if grid.eval_episodes < 0:
+        raise GridError(f"--eval-episodes {grid.eval_episodes}: must be 0 or more")
+    if not grid.regimes or not grid.algos:
+        raise GridError("the grid is empty: give at least one regime and one algorithm")
+    return grid
+
+
+def expand(regimes: Sequence[str], algos: Sequence[str], seeds: Sequence[int]) -> list[tuple[str, str, int]]:
+    """Every (regime, algo, seed) combination, regime-major, in the order given."""
+    return list(itertools.product(regimes, algos, seeds))

@@ -1,0 +1,102 @@
+"""What ``nutribench run`` shows while it works: a rich Live panel (overall jobs done of
+total with an ETA, one line per running job: regime, algo, seed, episode k/n, recent
+return) and one log line per finished or failed job. ``display=False`` shows nothing."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from rich.console import Console, Group
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+REFRESH_S = 0.5
+
+
+def format_duration(seconds: float | None) -> str:
+    """``1h02m``, ``4m05s``, ``12s``; ``?`` when unknown."""
+    if seconds is None or seconds != seconds or seconds < 0:
+        return "?"
+    s = int(round(seconds))
+    if s >= 3600:
+        return f"{s // 3600}h{(s % 3600) // 60:02d}m"
+    if s >= 60:
+        return f"{s // 60}m{s % 60:02d}s"
+    return f"{s}s"
+
+
+def eta_seconds(run: Any, elapsed: float) -> float | None:
+    """Remaining time of this run, from the episodes trained so far (finished jobs count
+    their whole budget, running ones their progress) and the time they took."""
+    budget = run.grid.episodes
+    planned = max(run.planned, len(run.attempted)) * budget
+    done = (run.summary.done + run.summary.failed) * budget + sum(int(st.get("k", 0)) for st in run.live.values())
+    if done <= 0 or planned <= 0:
+        return None
+    return elapsed * max(planned - done, 0) / done
+
+
+class NullView:
+    """No display (library use, tests)."""
+
+    def start(self, run: Any) -> None: ...
+    def update(self, run: Any) -> None: ...
+    def log(self, message: str) -> None: ...
+    def stop(self, run: Any) -> None: ...
+
+
+class LiveView(NullView):
+    """The rich Live panel on stderr."""
+
+    def __init__(self, total: int, description: str, note: str | None, console: Console | None = None):
+        self.console = console or Console(stderr=True)
+        self.total, self.description, self.note = total, description, note
+        self.t0 = time.monotonic()
+        self._last = 0.0
+        self.live = Live(console=self.console, auto_refresh=False, transient=False)
+
+    def start(self, run: Any) -> None:
+        if self.note:
+            self.console.print(f"[yellow]note:[/] {self.note}", highlight=False)
+        self.console.print(
+            f"{run.planned} of {run.summary.total} jobs to run on {self.description}", highlight=False
+        )
+        self.live.start()
+        self.update(run, force=True)
+
+    def render(self, run: Any) -> Group:
+        elapsed = time.monotonic() - self.t0
+        s = run.summary
+        head = Text(
+            f"jobs: {s.done} done, {s.failed} failed, {len(run.in_flight)} running, of {run.planned} to run "
+            f"(grid {s.total})   elapsed {format_duration(elapsed)}   ETA {format_duration(eta_seconds(run, elapsed))}"
+        )
+        if not run.live:
+            return Group(head)
+        table = Table("regime", "algo", "seed", "episode", "recent return", "time", box=None, pad_edge=False)
+        for st in sorted(run.live.values(), key=lambda st: st["spec"].job_id):
+            spec = st["spec"]
+            ret = "" if st.get("ret") is None else f"{st['ret']:.2f}"
+            table.add_row(spec.regime, spec.algo, str(spec.seed), f"{st.get('k', 0)}/{spec.episodes}", ret,
+                          format_duration(time.monotonic() - st["t0"]))  # fmt: skip
+        return Group(head, table)
+
+    def update(self, run: Any, force: bool = False) -> None:
+        now = time.monotonic()
+        if force or now - self._last >= REFRESH_S:
+            self._last = now
+            self.live.update(self.render(run), refresh=True)
+
+    def log(self, message: str) -> None:
+        self.live.console.print(message, highlight=False)
+
+    def stop(self, run: Any) -> None:
+        self.update(run, force=True)
+        self.live.stop()
+
+
+def make_view(display: bool, grid: Any, total: int, description: str, note: str | None) -> NullView:
+    """A :class:`LiveView` when ``display``, else a :class:`NullView`."""
+    return LiveView(total, description, note) if display else NullView()

@@ -1,0 +1,148 @@
+"""``nutribench status``: what is done, running, failed and pending, per regime x algo, and
+how long the rest will take.
+
+Only the ``jobs`` table (with the two config tables joined in) is read, never ``episodes``,
+so the answer is instant however many episode rows the database holds. It reads while a
+driver writes (SQLite WAL: readers never wait for the writer).
+
+A ``running`` job whose heartbeat is older than the driver's stale limit is counted as
+``pending``: its driver is gone and the next ``run`` picks it up.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict, dataclass, field
+from datetime import timedelta
+from typing import Any
+
+from sqlalchemy import select
+
+from nutribench.scheduler.driver import MAX_FAILURES, STALE_AFTER_S
+from nutribench.store import AgentConfig, Job, RegimeConfig, open_store, utcnow
+
+COUNTS = ("done", "running", "failed", "pending")
+
+
+@dataclass
+class StatusRow:
+    """One regime x algo (config name and version) cell of the grid."""
+
+    regime: str
+    regime_version: int
+    algo: str
+    algo_version: int
+    budget: int
+    done: int = 0
+    running: int = 0
+    failed: int = 0
+    pending: int = 0
+    wall_seconds: float = 0.0  # used by the done jobs
+    remaining_seconds: float | None = None  # of work left (one worker), from done jobs' mean wall
+
+
+@dataclass
+class StatusReport:
+    """The whole status: rows, totals, the ETA and the last error of each failed job."""
+
+    rows: list[StatusRow]
+    totals: dict[str, int]
+    wall_seconds: float
+    workers: int  # jobs running now (fresh heartbeat)
+    eta_seconds: float | None  # remaining work / max(workers, 1)
+    errors: list[dict[str, Any]] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data for ``--json``."""
+        return {
+            "rows": [asdict(r) for r in self.rows],
+            "totals": self.totals,
+            "wall_seconds": self.wall_seconds,
+            "workers": self.workers,
+            "eta_seconds": self.eta_seconds,
+            "errors": self.errors,
+        }
+
+    def to_frame(self):
+        """The rows as a pandas DataFrame."""
+        import pandas as pd
+
+        return pd.DataFrame([asdict(r) for r in self.rows])
+
+
+def _state(status: str, beat, stale_before) -> str:
+    if status == "running":
+        return "running" if beat is not None and beat >= stale_before else "pending"
+    if status == "interrupted":
+        return "pending"
+    return status
+
+
+def _last_line(text: str | None) -> str:
+    lines = [ln for ln in (text or "").strip().splitlines() if ln.strip()]
+    if not lines:
+        return ""
+    # a traceback's last line is the exception; a one-line error is itself
+    return lines[-1].strip()[:300]
+
+
+def status_table(db: str | os.PathLike[str]) -> StatusReport:
+    """Counts per regime x algo x budget, wall time used, remaining work and ETA, and the
+    last error of every failed job. Raises StoreError (one line) for a bad database."""
+    store = open_store(db)
+    try:
+        q = (
+            select(RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version, Job.seed,
+                   Job.episodes, Job.status, Job.heartbeat_at, Job.wall_seconds, Job.episodes_done, Job.failures,
+                   Job.error)  # fmt: skip
+            .join(RegimeConfig, RegimeConfig.id == Job.regime_id)
+            .join(AgentConfig, AgentConfig.id == Job.agent_config_id)
+            .order_by(RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version, Job.episodes, Job.seed)
+        )
+        with store.engine.connect() as conn:
+            jobs = conn.execute(q).all()
+    finally:
+        store.dispose()
+    return summarize(jobs)
+
+
+def summarize(jobs: list) -> StatusReport:
+    """The report of job tuples (regime, rv, algo, av, seed, episodes, status, heartbeat,
+    wall, episodes_done, failures, error)."""
+    stale_before = utcnow() - timedelta(seconds=STALE_AFTER_S)
+    rows: dict[tuple, StatusRow] = {}
+    walls: dict[tuple, list[float]] = {}
+    left: dict[tuple, float] = {}  # jobs' worth of work left
+    errors = []
+    for regime, rv, algo, av, seed, budget, status, beat, wall, k, failures, error in jobs:
+        key = (regime, rv, algo, av, budget)
+        row = rows.setdefault(key, StatusRow(regime, rv, algo, av, budget))
+        state = _state(status, beat, stale_before)
+        setattr(row, state, getattr(row, state) + 1)
+        if state == "done" and wall is not None:
+            row.wall_seconds += wall
+            walls.setdefault(key, []).append(wall)
+        elif state == "running":
+            left[key] = left.get(key, 0.0) + max(0.0, 1.0 - (k or 0) / max(budget, 1))
+        elif state in ("pending",) or (state == "failed" and failures < MAX_FAILURES):
+            left[key] = left.get(key, 0.0) + 1.0
+        if state == "failed":
+            errors.append({"regime": regime, "algo": algo, "seed": seed, "budget": budget, "failures": failures,
+                           "retried": failures < MAX_FAILURES, "error": _last_line(error)})  # fmt: skip
+    every = [w for ws in walls.values() for w in ws]
+    overall_mean = sum(every) / len(every) if every else None
+    remaining, unknown = 0.0, False
+    for key, row in rows.items():
+        ws = walls.get(key)
+        mean = sum(ws) / len(ws) if ws else overall_mean
+        jobs_left = left.get(key, 0.0)
+        if jobs_left and mean is None:
+            unknown = True
+            continue
+        row.remaining_seconds = jobs_left * mean if mean is not None else 0.0
+        remaining += row.remaining_seconds
+    totals = {c: sum(getattr(r, c) for r in rows.values()) for c in COUNTS}
+    totals["jobs"] = len(jobs)
+    workers = totals["running"]
+    eta = None if unknown else remaining / max(workers, 1)
+    return StatusReport(list(rows.values()), totals, sum(r.wall_seconds for r in rows.values()), workers, eta, errors)

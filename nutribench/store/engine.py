@@ -1,0 +1,128 @@
+"""Engines and sessions: the database URL, SQLite's WAL mode and busy timeout, and a
+session scope that commits or rolls back.
+
+``--db`` takes a file path (SQLite) or any SQLAlchemy URL (``postgresql+psycopg://...``).
+
+SQLite: every connection sets a busy timeout, so a reader waits for a writer's short
+transaction instead of failing with "database is locked"; the writer's engine puts the file
+in WAL mode (readers and one writer at once) and opens each transaction with
+``BEGIN IMMEDIATE``: it takes the write lock up front, so two drivers serialise their
+transactions instead of failing when a read turns into a write. Readers use a plain
+deferred ``BEGIN`` and never block the writer.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from datetime import UTC, datetime
+from pathlib import Path
+
+from sqlalchemy import Engine, create_engine, event
+from sqlalchemy.engine import URL, make_url
+from sqlalchemy.exc import ArgumentError, NoSuchModuleError
+from sqlalchemy.orm import Session, sessionmaker
+
+BUSY_TIMEOUT_MS = 30_000
+SQLITE_HEADER = b"SQLite format 3\x00"
+
+
+class StoreError(Exception):
+    """A database problem a user can fix (bad path, not a database, old schema). One line."""
+
+
+def utcnow() -> datetime:
+    """Naive UTC: the one time representation stored (SQLite has no time zones)."""
+    return datetime.now(UTC).replace(tzinfo=None)
+
+
+def database_url(db: str | os.PathLike[str]) -> URL:
+    """A SQLAlchemy URL from ``--db``: a URL as is, anything else a SQLite file path."""
+    s = str(db)
+    if "://" in s:
+        try:
+            return make_url(s)
+        except ArgumentError as e:
+            raise StoreError(f"--db {s}: not a valid SQLAlchemy URL ({e})") from None
+    if not s.strip():
+        raise StoreError("--db is empty: give a file path or a SQLAlchemy URL")
+    return URL.create("sqlite", database=str(Path(s).expanduser().absolute()))
+
+
+def sqlite_path(url: URL) -> Path | None:
+    """The file of a SQLite URL; None for other databases and in-memory SQLite."""
+    if url.get_backend_name() != "sqlite":
+        return None
+    db = url.database
+    if not db or db == ":memory:" or db.startswith("file:"):
+        return None
+    return Path(db)
+
+
+def display_url(url: URL) -> str:
+    """The URL without a password, or the plain path of a SQLite file."""
+    path = sqlite_path(url)
+    return str(path) if path is not None else url.render_as_string(hide_password=True)
+
+
+def check_sqlite_file(path: Path, *, create: bool) -> None:
+    """Refuse early, with one line, what SQLite would report obscurely (or too late)."""
+    if path.is_dir():
+        raise StoreError(f"{path} is a directory, not a database file: give a file path to --db")
+    if path.exists():
+        if path.stat().st_size > 0:
+            try:
+                with open(path, "rb") as fh:
+                    header = fh.read(16)
+            except OSError as e:
+                raise StoreError(f"cannot read {path}: {e.strerror}") from None
+            if header != SQLITE_HEADER:
+                raise StoreError(f"{path} is not a SQLite database (no SQLite header): give another file to --db")
+        if create and not os.access(path, os.W_OK):
+            raise StoreError(f"cannot write to {path}: permission denied")
+        return
+    if not create:
+        raise StoreError(f"no results database at {path}: `nutribench run --db {path}` creates it")
+    parent = path.parent
+    if not parent.is_dir():
+        raise StoreError(f"cannot create {path}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise StoreError(f"cannot create {path}: folder {parent} is not writable")
+
+
+def make_engine(url: URL | str, *, writer: bool = False, busy_timeout_ms: int = BUSY_TIMEOUT_MS) -> Engine:
+    """An engine for ``url``; on SQLite with the pragmas and transaction mode above."""
+    url = url if isinstance(url, URL) else database_url(url)
+    if url.get_backend_name() != "sqlite":
+        try:
+            return create_engine(url, pool_pre_ping=True)
+        except (NoSuchModuleError, ImportError) as e:  # unknown dialect, driver not installed
+            raise StoreError(f"--db {display_url(url)}: cannot use this database URL: {e}") from None
+    engine = create_engine(url, connect_args={"timeout": busy_timeout_ms / 1000})
+
+    @event.listens_for(engine, "connect")
+    def _on_connect(dbapi_conn, _record):  # pragma: no cover - exercised by every test
+        dbapi_conn.isolation_level = None  # we emit BEGIN ourselves (see "begin" below)
+        cur = dbapi_conn.cursor()
+        cur.execute(f"PRAGMA busy_timeout = {int(busy_timeout_ms)}")
+        cur.execute("PRAGMA foreign_keys = ON")
+        if writer:
+            cur.execute("PRAGMA journal_mode = WAL")
+            cur.execute("PRAGMA synchronous = NORMAL")
+        cur.close()
+
+    @event.listens_for(engine, "begin")
+    def _on_begin(conn):  # pragma: no cover
+        conn.exec_driver_sql("BEGIN IMMEDIATE" if writer else "BEGIN")
+
+    return engine
+
+
+@contextmanager
+def session_scope(engine: Engine) -> Iterator[Session]:
+    """One transaction: commit if the block succeeds, roll back if it raises."""
+    factory = sessionmaker(engine, expire_on_commit=False)
+    with factory() as session:
+        with session.begin():
+            yield session

@@ -1,0 +1,184 @@
+"""The results database: every table of nutribench as SQLAlchemy 2 ORM models.
+
+``regimes`` / ``agent_configs``
+    The exact content of every configuration a job ran with: name, version, sha256 of the
+    canonical JSON content, and the content itself (``body``). Unique on (name, version);
+    the same name and version with another hash is refused ("bump the version").
+``jobs``
+    One row per (regime config, agent config, seed, training budget, eval episodes): the
+    unit of work. Status ``pending`` -> ``running`` -> ``done`` | ``failed`` |
+    ``interrupted``; progress and heartbeat while running; reproducibility metadata and the
+    trained model's path once done; the last error text if it failed.
+``episodes``
+    Per-episode metrics of SPEC 4, phase ``train`` or ``eval``; primary key
+    (job, phase, episode). Written in the same transaction that marks the job done.
+``eval_steps``
+    Every step of every evaluation episode (food offered, action, absorbed C/F/P after the
+    step, reward), for trajectory plots.
+
+The views ``episode_metrics`` and ``eval_trajectories`` (names joined in) are created by
+the migrations (see :mod:`nutribench.store.views`); views are not ORM models.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    Boolean,
+    CheckConstraint,
+    DateTime,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    MetaData,
+    String,
+    Text,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+
+#: Job states. ``interrupted`` jobs (Ctrl-C) and ``failed`` ones (below the retry limit)
+#: are picked up again by the next ``run``; stale ``running`` ones too.
+JOB_STATUSES = ("pending", "running", "done", "failed", "interrupted")
+PHASES = ("train", "eval")
+
+NAMING = {
+    "ix": "ix_%(table_name)s_%(column_0_N_name)s",
+    "uq": "uq_%(table_name)s_%(column_0_N_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+
+class Base(DeclarativeBase):
+    metadata = MetaData(naming_convention=NAMING)
+
+
+class RegimeConfig(Base):
+    """A regime's full dynamics (regime file + food catalog + reward), as hashed by EnvConfig."""
+
+    __tablename__ = "regimes"
+    __table_args__ = (UniqueConstraint("name", "version"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(64))
+    version: Mapped[int] = mapped_column(Integer)
+    sha256: Mapped[str] = mapped_column(String(64))
+    body: Mapped[dict[str, Any]] = mapped_column(JSON)
+    source: Mapped[str | None] = mapped_column(Text, doc="file the content was read from")
+    created_at: Mapped[datetime] = mapped_column(DateTime)
+
+
+class AgentConfig(Base):
+    """An agent configuration file's content (algorithm and hyperparameters)."""
+
+    __tablename__ = "agent_configs"
+    __table_args__ = (UniqueConstraint("name", "version"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(64))
+    algo: Mapped[str] = mapped_column(String(64))
+    version: Mapped[int] = mapped_column(Integer)
+    sha256: Mapped[str] = mapped_column(String(64))
+    body: Mapped[dict[str, Any]] = mapped_column(JSON)
+    source: Mapped[str | None] = mapped_column(Text)
+    created_at: Mapped[datetime] = mapped_column(DateTime)
+
+
+class Job(Base):
+    """One training run: regime config x agent config x seed x budget."""
+
+    __tablename__ = "jobs"
+    __table_args__ = (
+        UniqueConstraint("regime_id", "agent_config_id", "seed", "episodes", "eval_episodes"),
+        CheckConstraint("status IN ('pending', 'running', 'done', 'failed', 'interrupted')", name="status"),
+        Index(None, "status"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    regime_id: Mapped[int] = mapped_column(ForeignKey("regimes.id"))
+    agent_config_id: Mapped[int] = mapped_column(ForeignKey("agent_configs.id"))
+    seed: Mapped[int] = mapped_column(Integer)
+    episodes: Mapped[int] = mapped_column(Integer, doc="training budget (episodes)")
+    eval_episodes: Mapped[int] = mapped_column(Integer)
+    status: Mapped[str] = mapped_column(String(16))
+    attempt: Mapped[int] = mapped_column(Integer, doc="how many times the job was started")
+    failures: Mapped[int] = mapped_column(Integer, doc="how many of those attempts failed")
+    # live progress, written by the driver while the job runs
+    episodes_done: Mapped[int] = mapped_column(Integer)
+    last_return: Mapped[float | None] = mapped_column(Float, doc="mean return of recent training episodes")
+    owner: Mapped[str | None] = mapped_column(String(128), doc="host:pid:token of the driver running it")
+    heartbeat_at: Mapped[datetime | None] = mapped_column(DateTime)
+    worker_pid: Mapped[int | None] = mapped_column(Integer)
+    # timing (UTC, naive)
+    created_at: Mapped[datetime] = mapped_column(DateTime)
+    started_at: Mapped[datetime | None] = mapped_column(DateTime)
+    finished_at: Mapped[datetime | None] = mapped_column(DateTime)
+    wall_seconds: Mapped[float | None] = mapped_column(Float)
+    # reproducibility metadata, from the worker that ran it
+    host: Mapped[str | None] = mapped_column(String(255))
+    platform: Mapped[str | None] = mapped_column(String(255))
+    python_version: Mapped[str | None] = mapped_column(String(32))
+    numpy_version: Mapped[str | None] = mapped_column(String(32))
+    torch_version: Mapped[str | None] = mapped_column(String(32))
+    sb3_version: Mapped[str | None] = mapped_column(String(32))
+    nutribench_version: Mapped[str | None] = mapped_column(String(64))
+    git_commit: Mapped[str | None] = mapped_column(String(40))
+    git_dirty: Mapped[bool | None] = mapped_column(Boolean)
+    model_path: Mapped[str | None] = mapped_column(Text)
+    error: Mapped[str | None] = mapped_column(Text, doc="last failure (traceback or reason); kept after a retry")
+
+
+class Episode(Base):
+    """Metrics of one training or evaluation episode (SPEC 4)."""
+
+    __tablename__ = "episodes"
+    __table_args__ = (CheckConstraint("phase IN ('train', 'eval')", name="phase"),)
+
+    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
+    phase: Mapped[str] = mapped_column(String(8), primary_key=True)
+    episode: Mapped[int] = mapped_column(Integer, primary_key=True, doc="0-based")
+    ret: Mapped[float] = mapped_column("return", Float)
+    foods: Mapped[int] = mapped_column(Integer)
+    final_distance: Mapped[float] = mapped_column(Float)
+    overshoot_ratio: Mapped[float] = mapped_column(Float)
+    final_C: Mapped[float] = mapped_column(Float)
+    final_F: Mapped[float] = mapped_column(Float)
+    final_P: Mapped[float] = mapped_column(Float)
+    first_overshoot_step: Mapped[int | None] = mapped_column(Integer)
+    entropy: Mapped[float | None] = mapped_column(Float)
+
+
+class EvalStep(Base):
+    """One step of an evaluation episode: enough to redraw the trajectory."""
+
+    __tablename__ = "eval_steps"
+
+    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
+    episode: Mapped[int] = mapped_column(Integer, primary_key=True)
+    step: Mapped[int] = mapped_column(Integer, primary_key=True, doc="1..H")
+    food: Mapped[int] = mapped_column(Integer, doc="index of the food offered at this step")
+    action: Mapped[int] = mapped_column(Integer, doc="0 skip, 1 eat")
+    C: Mapped[float] = mapped_column(Float, doc="absorbed after the step, x daily target")
+    F: Mapped[float] = mapped_column(Float)
+    P: Mapped[float] = mapped_column(Float)
+    reward: Mapped[float] = mapped_column(Float)
+
+
+#: Metric columns of ``episodes`` (and of the ``episode_metrics`` view), in order.
+EPISODE_METRICS = (
+    "return",
+    "foods",
+    "final_distance",
+    "overshoot_ratio",
+    "final_C",
+    "final_F",
+    "final_P",
+    "first_overshoot_step",
+    "entropy",
+)

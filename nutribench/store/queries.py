@@ -1,0 +1,112 @@
+"""Query functions that return pandas DataFrames (pandas is imported only when called).
+
+One line from Python::
+
+    from nutribench.store import read_episode_metrics
+    df = read_episode_metrics("nutribench.db", phase="eval")
+
+or with pandas alone: ``pd.read_sql("select * from episode_metrics", "sqlite:///nutribench.db")``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+from typing import TYPE_CHECKING
+
+from sqlalchemy import Engine, text
+from sqlalchemy.engine import URL
+
+from nutribench.store.schema import open_store
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+Db = str | os.PathLike[str] | URL | Engine
+
+
+def _engine(db: Db) -> tuple[Engine, bool]:
+    if isinstance(db, Engine):
+        return db, False
+    return open_store(db).engine, True
+
+
+def _where(filters: dict[str, Iterable | str | int | None]) -> tuple[str, dict]:
+    parts, params = [], {}
+    for col, value in filters.items():
+        if value is None:
+            continue
+        values = [value] if isinstance(value, (str, int)) else list(value)
+        names = [f"{col}_{i}" for i in range(len(values))]
+        parts.append(f'"{col}" IN ({", ".join(":" + n for n in names)})')
+        params.update(dict(zip(names, values)))
+    return (" WHERE " + " AND ".join(parts)) if parts else "", params
+
+
+def _read(db: Db, view: str, filters: dict, order: str, latest_only: bool) -> pd.DataFrame:
+    import pandas as pd
+
+    engine, owned = _engine(db)
+    where, params = _where(filters)
+    sql = f"SELECT * FROM {view}{where} ORDER BY {order}"
+    try:
+        with engine.connect() as conn:
+            df = pd.read_sql(text(sql), conn, params=params)
+    finally:
+        if owned:
+            engine.dispose()
+    if latest_only and len(df):
+        df = df[df["regime_version"] == df.groupby("regime")["regime_version"].transform("max")]
+        df = df[df["algo_version"] == df.groupby("algo")["algo_version"].transform("max")]
+        df = df.reset_index(drop=True)
+    return df
+
+
+def read_episode_metrics(
+    db: Db,
+    *,
+    phase: str | None = None,
+    regimes: Iterable[str] | str | None = None,
+    algos: Iterable[str] | str | None = None,
+    budget: int | None = None,
+    latest_only: bool = False,
+) -> pd.DataFrame:
+    """Rows of the ``episode_metrics`` view (columns in :mod:`nutribench.store.views`).
+
+    ``latest_only`` keeps, per regime and per algo, only the newest config version present.
+    """
+    filters = {"phase": phase, "regime": regimes, "algo": algos, "budget": budget}
+    return _read(db, "episode_metrics", filters, '"job_id", "phase", "episode"', latest_only)
+
+
+def read_eval_trajectories(
+    db: Db,
+    *,
+    regimes: Iterable[str] | str | None = None,
+    algos: Iterable[str] | str | None = None,
+    seeds: Iterable[int] | int | None = None,
+    episode: int | None = None,
+    latest_only: bool = False,
+) -> pd.DataFrame:
+    """Rows of ``eval_trajectories``: one per step of each evaluation episode."""
+    filters = {"regime": regimes, "algo": algos, "seed": seeds, "episode": episode}
+    return _read(db, "eval_trajectories", filters, '"job_id", "episode", "step"', latest_only)
+
+
+def read_jobs(db: Db) -> pd.DataFrame:
+    """The jobs table with regime and algo names and versions joined in."""
+    import pandas as pd
+
+    engine, owned = _engine(db)
+    sql = (
+        'SELECT r."name" AS regime, r."version" AS regime_version, a."name" AS algo, '
+        'a."version" AS algo_version, j.* FROM jobs j '
+        'JOIN regimes r ON r."id" = j."regime_id" JOIN agent_configs a ON a."id" = j."agent_config_id" '
+        'ORDER BY j."id"'
+    )
+    try:
+        with engine.connect() as conn:
+            return pd.read_sql(text(sql), conn)
+    finally:
+        if owned:
+            engine.dispose()

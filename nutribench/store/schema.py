@@ -1,0 +1,162 @@
+"""Schema versions: alembic migrations in ``migrations/``, checked every time a database is
+opened.
+
+The driver (``nutribench run``) is the only one that creates or upgrades a schema:
+:func:`open_store` with ``writer=True`` creates an empty database at the newest revision and
+upgrades an older one, under the write lock (a second driver waits, then finds it done).
+Readers (``status``, the report) refuse an older schema with the exact command to run, and
+every opener refuses a schema newer than this nutribench knows.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from alembic import command
+from alembic.config import Config
+from alembic.runtime.migration import MigrationContext
+from alembic.script import ScriptDirectory
+from sqlalchemy import Connection, Engine, inspect, text
+from sqlalchemy.engine import URL
+from sqlalchemy.exc import DatabaseError, OperationalError
+
+from nutribench.store.engine import (
+    StoreError,
+    check_sqlite_file,
+    database_url,
+    display_url,
+    make_engine,
+    sqlite_path,
+)
+
+PG_MIGRATION_LOCK = 7_402_911  # pg_advisory_xact_lock key that serialises schema upgrades
+
+
+def migrations_dir() -> Path:
+    """``migrations/`` of the source checkout, else the copy shipped in the wheel."""
+    env = os.environ.get("NUTRIBENCH_MIGRATIONS")
+    if env:
+        return Path(env)
+    package = Path(__file__).resolve().parents[1]
+    for candidate in (package.parent / "migrations", package / "_migrations"):
+        if (candidate / "env.py").is_file():
+            return candidate
+    raise StoreError("no migrations folder found: set NUTRIBENCH_MIGRATIONS to the folder holding env.py")
+
+
+def alembic_config(url: URL | str | None = None) -> Config:
+    """A programmatic alembic Config (no alembic.ini needed)."""
+    cfg = Config()
+    cfg.set_main_option("script_location", str(migrations_dir()))
+    if url is not None:
+        u = url if isinstance(url, URL) else database_url(url)
+        cfg.set_main_option("sqlalchemy.url", u.render_as_string(hide_password=False).replace("%", "%%"))
+    return cfg
+
+
+def head_revision() -> str:
+    return ScriptDirectory.from_config(alembic_config()).get_current_head()
+
+
+def revision_chain() -> list[str]:
+    """Revisions from the first to the head."""
+    script = ScriptDirectory.from_config(alembic_config())
+    return [s.revision for s in reversed(list(script.walk_revisions()))]
+
+
+def current_revision(conn: Connection) -> str | None:
+    return MigrationContext.configure(conn).get_current_revision()
+
+
+def upgrade_connection(conn: Connection, target: str = "head") -> None:
+    """Run the migrations up to ``target`` on ``conn``, inside its current transaction."""
+    cfg = alembic_config()
+    cfg.attributes["connection"] = conn
+    command.upgrade(cfg, target)
+
+
+@dataclass
+class Store:
+    """An open results database: its engine, URL and what opening it did."""
+
+    engine: Engine
+    url: URL
+    revision: str
+    upgraded_from: str | None = None  # set when opening upgraded an older schema
+    created: bool = False
+
+    @property
+    def display(self) -> str:
+        return display_url(self.url)
+
+    def dispose(self) -> None:
+        self.engine.dispose()
+
+
+def _upgrade_cmd(display: str) -> str:
+    return f"nutribench run --upgrade-only --db {display}"
+
+
+def _classify(conn: Connection, display: str) -> str | None:
+    """The schema revision, None for an empty database; refuse foreign databases."""
+    rev = current_revision(conn)
+    if rev is None:
+        tables = set(inspect(conn).get_table_names())
+        if tables:
+            raise StoreError(
+                f"{display} holds tables ({', '.join(sorted(tables)[:4])}...) but no nutribench schema: "
+                "give another --db"
+            )
+        return None
+    known = set(revision_chain())
+    if rev not in known:
+        raise StoreError(
+            f"{display} is on schema revision {rev}, unknown to this nutribench (newest known: "
+            f"{head_revision()}): it was written by a newer nutribench; upgrade nutribench"
+        )
+    return rev
+
+
+def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrade: bool = True) -> Store:
+    """Open ``db`` and check its schema.
+
+    ``writer=True`` (the driver): create the file if missing, create or upgrade the schema
+    (unless ``upgrade=False``, then refuse). ``writer=False``: refuse a missing file, an empty
+    database or an older schema with the command that fixes it.
+    """
+    url = db if isinstance(db, URL) else database_url(db)
+    display = display_url(url)
+    path = sqlite_path(url)
+    if path is not None:
+        check_sqlite_file(path, create=writer)
+    engine = make_engine(url, writer=writer)
+    head = head_revision()
+    try:
+        if writer:
+            with engine.begin() as conn:  # BEGIN IMMEDIATE on SQLite: one upgrader at a time
+                if conn.dialect.name == "postgresql":
+                    conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": PG_MIGRATION_LOCK})
+                rev = _classify(conn, display)
+                if rev != head:
+                    if not upgrade:
+                        raise StoreError(f"{display} is on schema revision {rev}, this nutribench needs {head}: run `{_upgrade_cmd(display)}`")
+                    upgrade_connection(conn)
+            return Store(engine, url, head, upgraded_from=rev if rev not in (None, head) else None, created=rev is None)
+        with engine.connect() as conn:
+            rev = _classify(conn, display)
+        if rev is None:
+            raise StoreError(f"{display} is an empty database, nothing has run yet: `nutribench run --db {display}` fills it")
+        if rev != head:
+            raise StoreError(f"{display} is on schema revision {rev}, this nutribench needs {head}: run `{_upgrade_cmd(display)}`")
+        return Store(engine, url, head)
+    except StoreError:
+        engine.dispose()
+        raise
+    except OperationalError as e:
+        engine.dispose()
+        raise StoreError(f"cannot open database {display}: {str(e.orig).strip() or type(e.orig).__name__}") from None
+    except DatabaseError as e:
+        engine.dispose()
+        raise StoreError(f"{display} is not a usable database: {str(e.orig).strip()}") from None

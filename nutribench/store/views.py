@@ -1,0 +1,29 @@
+"""The flat SQL views, for one-line pandas queries.
+
+They are created by the migrations (``migrations/versions``; views are not ORM models, and
+each revision keeps a frozen copy of its view text). Columns:
+
+``episode_metrics``
+    regime, regime_version, algo (the agent config's name), algo_version, seed, budget
+    (training episodes of the job), phase (train | eval), episode (0-based), return, foods,
+    final_distance, overshoot_ratio, final_C, final_F, final_P, first_overshoot_step,
+    entropy, job_id.
+``eval_trajectories``
+    regime, regime_version, algo, algo_version, seed, budget, episode, step (1..H), food
+    (index offered), action (0/1), C, F, P (absorbed after the step), reward, job_id.
+"""
+
+from __future__ import annotations
+
+VIEWS = ("episode_metrics", "eval_trajectories")
+
+EPISODE_METRICS_COLUMNS = (
+    "regime", "regime_version", "algo", "algo_version", "seed", "budget", "phase", "episode",
+    "return", "foods", "final_distance", "overshoot_ratio", "final_C", "final_F", "final_P",
+    "first_overshoot_step", "entropy", "job_id",
+)  # fmt: skip
+
+EVAL_TRAJECTORY_COLUMNS = (
+    "regime", "regime_version", "algo", "algo_version", "seed", "budget", "episode", "step",
+    "food", "action", "C", "F", "P", "reward", "job_id",
+)  # fmt: skip

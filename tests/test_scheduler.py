@@ -1,0 +1,303 @@
+"""The driver of ``nutribench run`` with the synthetic job (no training): grid expansion,
+end-to-end storage, resume, config versioning, dying and failing workers, Ctrl-C,
+concurrent drivers, status, and a dask cluster."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from sqlalchemy import create_engine, text
+from typer.testing import CliRunner
+
+from nutribench.cli import app
+from nutribench.config import list_regimes
+from nutribench.jobs.fake import fake_run_job
+from nutribench.scheduler.driver import MAX_FAILURES, RunError, run_grid
+from nutribench.scheduler.grid import PRESETS, GridError, parse_seeds, resolve_grid
+from nutribench.scheduler.status import status_table
+
+REPO = Path(__file__).resolve().parents[1]
+NUTRIBENCH = str(Path(sys.executable).parent / "nutribench")
+H = 50  # steps per fake evaluation episode
+
+
+class EnvJob:
+    """The fake job with extra environment variables set in the worker (a picklable
+    callable: the fork server's environment is fixed when it starts)."""
+
+    def __init__(self, **env: str):
+        self.env = env
+
+    def __call__(self, spec, sink=None):
+        os.environ.update(self.env)
+        return fake_run_job(spec, sink)
+
+
+@pytest.fixture
+def regimes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A private copy of regimes/ (regime and agent config files) the test may edit."""
+    folder = tmp_path / "regimes"
+    shutil.copytree(REPO / "regimes", folder)
+    monkeypatch.setenv("NUTRIBENCH_REGIMES", str(folder))
+    monkeypatch.delenv("NUTRIBENCH_AGENTS", raising=False)
+    return folder
+
+
+def sql(db: Path, query: str) -> list[tuple]:
+    engine = create_engine(f"sqlite:///{db}")
+    try:
+        with engine.connect() as conn:
+            return [tuple(r) for r in conn.execute(text(query))]
+    finally:
+        engine.dispose()
+
+
+def statuses(db: Path) -> dict[tuple[str, int], str]:
+    rows = sql(db, "SELECT a.name, j.seed, j.status FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id")
+    return {(a, s): st for a, s, st in rows}
+
+
+# --------------------------------------------------------------------------- grid
+def test_presets_and_overrides() -> None:
+    assert PRESETS["smoke"].seeds == (0,) and PRESETS["smoke"].episodes == 20
+    assert PRESETS["quick"].seeds == (0, 21) and PRESETS["quick"].episodes == 300
+    assert PRESETS["paper"].seeds == (0, 21, 9, 2003, 1997) and PRESETS["paper"].episodes == 5000
+    assert all(p.eval_episodes == 5 for p in PRESETS.values())
+    g = resolve_grid(preset="quick", regimes=["run0", "run3"], algos=["ppo"], episodes=7)
+    assert (g.seeds, g.episodes, g.eval_episodes) == ((0, 21), 7, 5)
+    assert g.cells() == [("run0", "ppo", 0), ("run0", "ppo", 21), ("run3", "ppo", 0), ("run3", "ppo", 21)]
+    g = resolve_grid(preset="smoke", regimes=["run0"], algos=["sac"], seeds="9,2003", eval_episodes=2)
+    assert (g.seeds, g.episodes, g.eval_episodes) == ((9, 2003), 20, 2)
+
+
+@pytest.mark.parametrize("bad", ["", "0,,1", "a", "1.5", "-1", "0,0", "0x1", "0;1"])
+def test_malformed_seeds_are_one_line_errors(bad: str) -> None:
+    with pytest.raises(GridError) as e:
+        parse_seeds(bad)
+    assert "\n" not in str(e.value) and "--seeds" in str(e.value)
+
+
+def test_parse_seeds() -> None:
+    assert parse_seeds("0, 21,9") == (0, 21, 9)
+
+
+# --------------------------------------------------------------------------- end to end
+def test_smoke_grid_stores_every_row_and_rerun_does_nothing(regimes: Path, tmp_path: Path) -> None:
+    db, log = tmp_path / "r.db", tmp_path / "log"
+    log.mkdir()
+    algos = ["mc", "ddqn", "ppo", "sac", "gru_ppo"]
+    g = resolve_grid(preset="smoke", regimes=list_regimes(), algos=algos)
+    s = run_grid(db, g.regimes, g.algos, g.seeds, g.episodes, g.eval_episodes, workers=2,
+                 job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)), display=False)  # fmt: skip
+    n = 7 * 5
+    assert (s.done, s.failed, s.skipped, s.exit_code) == (n, 0, 0, 0)
+    df = pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")
+    assert len(df) == n * (20 + 5)
+    assert df.groupby("phase").size().to_dict() == {"eval": n * 5, "train": n * 20}
+    assert set(df["regime"]) == set(list_regimes()) and set(df["algo"]) == set(algos)
+    traj = pd.read_sql("select * from eval_trajectories", f"sqlite:///{db}")
+    assert len(traj) == n * 5 * H
+    jobs = pd.read_sql("select * from jobs", f"sqlite:///{db}")
+    assert set(jobs["status"]) == {"done"} and (jobs["episodes_done"] == 20).all()
+    assert jobs["host"].notna().all() and jobs["wall_seconds"].notna().all() and jobs["owner"].isna().all()
+    first = jobs.iloc[0]
+    assert Path(first["model_path"]).is_file()
+    assert Path(first["model_path"]).relative_to(tmp_path / "models").parts[2].startswith("seed0-ep20")
+    assert len(list(log.iterdir())) == n
+
+    again = run_grid(db, g.regimes, g.algos, g.seeds, g.episodes, g.eval_episodes, workers=2,
+                     job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)), display=False)  # fmt: skip
+    assert (again.done, again.skipped, again.exit_code) == (0, n, 0)
+    assert len(list(log.iterdir())) == n  # nothing executed
+    assert len(pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")) == n * 25
+
+
+def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> None:
+    db = tmp_path / "r.db"
+    args = dict(seeds=[0], episodes=4, eval_episodes=1, workers=1, job_fn=fake_run_job, display=False)
+    assert run_grid(db, ["run0"], ["ppo"], **args).done == 1
+    ppo = regimes / "agents" / "ppo.toml"
+    ppo.write_text(ppo.read_text().replace("learning_rate = 1e-3", "learning_rate = 2e-3"))
+    before = sql(db, "SELECT (SELECT count(*) FROM agent_configs), (SELECT count(*) FROM jobs)")
+    with pytest.raises(RunError, match=r"ppo\.toml: version 1 is already recorded with different content: bump the version"):
+        run_grid(db, ["run0"], ["ppo"], **args)
+    assert sql(db, "SELECT (SELECT count(*) FROM agent_configs), (SELECT count(*) FROM jobs)") == before
+    # the CLI says it in one line, exit 2
+    res = CliRunner().invoke(app, ["run", "--db", str(db), "--regimes", "run0", "--algos", "ppo", "--seeds", "0",
+                                   "--episodes", "4", "--eval-episodes", "1"], env={"NUTRIBENCH_JOB": "fake"})  # fmt: skip
+    assert res.exit_code == 2 and "bump the version" in res.output and len(res.output.strip().splitlines()) == 1
+
+    ppo.write_text(ppo.read_text().replace("version = 1", "version = 2"))
+    assert run_grid(db, ["run0"], ["ppo"], **args).done == 1
+    rows = sql(db, "SELECT a.version, j.status FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id ORDER BY a.version")
+    assert rows == [(1, "done"), (2, "done")]
+    df = pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")
+    assert df.groupby("algo_version").size().to_dict() == {1: 5, 2: 5}
+
+    run3 = regimes / "run3.toml"  # a regime file works the same way
+    assert run_grid(db, ["run3"], ["sac"], **args).done == 1
+    run3.write_text(run3.read_text().replace('description = "', 'description = "changed: '))
+    with pytest.raises(RunError, match=r"run3\.toml: version 1 is already recorded"):
+        run_grid(db, ["run3"], ["sac"], **args)
+
+
+def test_killed_worker_fails_only_its_job_and_the_next_run_completes_it(regimes: Path, tmp_path: Path) -> None:
+    db = tmp_path / "r.db"
+    args = dict(seeds=[0], episodes=10, eval_episodes=2, workers=2, display=False)
+    s = run_grid(db, ["run0"], ["mc", "ppo", "sac"], job_fn=EnvJob(NUTRIBENCH_FAKE_KILL="run0:ppo:0"), **args)
+    assert (s.done, s.failed, s.exit_code) == (2, 1, 1)
+    assert statuses(db) == {("mc", 0): "done", ("ppo", 0): "failed", ("sac", 0): "done"}
+    (failures, error), = sql(db, "SELECT failures, error FROM jobs WHERE status = 'failed'")
+    assert failures == 1 and "SIGKILL" in error
+    df = pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")
+    assert df.groupby("algo").size().to_dict() == {"mc": 12, "sac": 12}
+
+    s = run_grid(db, ["run0"], ["mc", "ppo", "sac"], job_fn=fake_run_job, **args)
+    assert (s.done, s.skipped, s.exit_code) == (1, 2, 0)
+    assert set(statuses(db).values()) == {"done"}
+    assert len(pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")) == 3 * 12
+
+
+def test_failing_job_is_retried_until_the_limit(regimes: Path, tmp_path: Path) -> None:
+    db = tmp_path / "r.db"
+    failing = EnvJob(NUTRIBENCH_FAKE_FAIL="run1:sac:0")
+    args = dict(seeds=[0], episodes=6, eval_episodes=1, workers=1, job_fn=failing, display=False)
+    for attempt in range(1, MAX_FAILURES + 1):
+        s = run_grid(db, ["run1"], ["sac"], **args)
+        assert (s.failed, s.exit_code) == (1, 1)
+        assert sql(db, "SELECT failures, attempt, status FROM jobs") == [(attempt, attempt, "failed")]
+    s = run_grid(db, ["run1"], ["sac"], **args)  # given up: not started again
+    assert (s.failed, s.given_up, s.exit_code) == (0, 1, 1)
+    assert sql(db, "SELECT failures, attempt FROM jobs") == [(MAX_FAILURES, MAX_FAILURES)]
+    report = status_table(db)
+    assert report.totals["failed"] == 1
+    assert report.errors[0]["error"].startswith("RuntimeError: fake failure in run1 sac seed 0")
+    assert report.errors[0]["retried"] is False
+
+
+# --------------------------------------------------------------------------- processes
+def _env(regimes: Path, **extra: str) -> dict[str, str]:
+    env = dict(os.environ, NUTRIBENCH_REGIMES=str(regimes), NUTRIBENCH_JOB="fake", **extra)
+    env.pop("NUTRIBENCH_AGENTS", None)
+    return env
+
+
+def _wait_for(predicate, timeout: float = 30.0) -> None:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return
+        time.sleep(0.1)
+    raise AssertionError("timed out")
+
+
+def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path, tmp_path: Path) -> None:
+    db = tmp_path / "r.db"
+    cmd = [NUTRIBENCH, "run", "--db", str(db), "--regimes", "run0", "--algos", "ppo,sac", "--seeds", "0,21",
+           "--episodes", "400", "--eval-episodes", "2", "--workers", "2"]  # fmt: skip
+    proc = subprocess.Popen(cmd, env=_env(regimes, NUTRIBENCH_FAKE_SECONDS="0.02"), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)  # fmt: skip
+    try:
+        _wait_for(lambda: db.exists() and sql(db, "SELECT count(*) FROM sqlite_master WHERE name='jobs'")[0][0]
+                  and sql(db, "SELECT count(*) FROM jobs WHERE status='running' AND episodes_done > 0")[0][0] == 2)
+        report = status_table(db)  # status while the run writes
+        assert (report.totals["running"], report.totals["pending"], report.totals["jobs"]) == (2, 2, 4)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, out
+    assert "2 interrupted" in out
+    assert sorted(statuses(db).values()) == ["interrupted", "interrupted", "pending", "pending"]
+    assert sql(db, "SELECT count(*) FROM episodes")[0][0] == 0
+    assert sql(db, "SELECT count(*) FROM eval_steps")[0][0] == 0
+    assert sql(db, "SELECT count(*) FROM jobs WHERE owner IS NOT NULL")[0][0] == 0
+
+
+def test_two_concurrent_runs_never_run_a_job_twice(regimes: Path, tmp_path: Path) -> None:
+    db, log = tmp_path / "r.db", tmp_path / "log"
+    log.mkdir()
+    cmd = [NUTRIBENCH, "run", "--db", str(db), "--regimes", "run0,run1", "--algos", "mc,ppo,sac", "--seeds", "0",
+           "--episodes", "20", "--eval-episodes", "1", "--workers", "2"]  # fmt: skip
+    env = _env(regimes, NUTRIBENCH_FAKE_SECONDS="0.01", NUTRIBENCH_FAKE_LOG=str(log))
+    procs = [subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for _ in range(2)]
+    outs = [p.communicate(timeout=60)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    runs = sorted(f.name.split("-")[0] for f in log.iterdir())
+    assert runs == sorted(set(runs)) and len(runs) == 6  # every job exactly once
+    assert sql(db, "SELECT count(*), sum(status = 'done') FROM jobs") == [(6, 6)]
+    assert sql(db, "SELECT count(*) FROM episodes")[0][0] == 6 * 21
+
+
+# --------------------------------------------------------------------------- CLI input
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--algos", "ppo,bogus"], "unknown algorithm bogus: known are mc, ddqn, ppo, sac, gru_ppo"),
+        (["--regimes", "run0,run9"], "unknown regime run9: known are run0"),
+        (["--seeds", "0,2x"], "'2x' is not a non-negative integer"),
+        (["--episodes", "0"], "at least 1 episode"),
+        (["--executor", "slurm"], "unknown --executor 'slurm'"),
+        (["--preset", "huge"], "unknown --preset 'huge'"),
+    ],
+)
+def test_bad_run_options_are_one_line_and_create_nothing(regimes: Path, tmp_path: Path, args, message) -> None:
+    db = tmp_path / "r.db"
+    res = CliRunner().invoke(app, ["run", "--db", str(db), *args], env={"NUTRIBENCH_JOB": "fake"})
+    assert res.exit_code == 2, res.output
+    assert message in res.output and len(res.output.strip().splitlines()) == 1
+    assert not db.exists() and not (tmp_path / "models").exists()
+
+
+def test_bad_database_paths_are_one_line(regimes: Path, tmp_path: Path) -> None:
+    text_file = tmp_path / "notes.txt"
+    text_file.write_text("not a database\n" * 10)
+    cases = [
+        (text_file, "is not a SQLite database"),
+        (tmp_path / "missing" / "r.db", "folder"),
+        (tmp_path, "is a directory"),
+    ]
+    for db, message in cases:
+        res = CliRunner().invoke(app, ["run", "--db", str(db), "--preset", "smoke"], env={"NUTRIBENCH_JOB": "fake"})
+        assert res.exit_code == 2 and message in res.output and len(res.output.strip().splitlines()) == 1, res.output
+    assert text_file.read_text().startswith("not a database")
+    res = CliRunner().invoke(app, ["status", "--db", str(tmp_path / "none.db")])
+    assert res.exit_code == 2 and "no results database" in res.output
+
+
+def test_status_json(regimes: Path, tmp_path: Path) -> None:
+    db = tmp_path / "r.db"
+    run_grid(db, ["run2"], ["ppo", "sac"], [0, 1], 5, 1, workers=2, job_fn=EnvJob(NUTRIBENCH_FAKE_FAIL="run2:sac:1"), display=False)
+    res = CliRunner().invoke(app, ["status", "--db", str(db), "--json"])
+    assert res.exit_code == 0, res.output
+    import json
+
+    data = json.loads(res.output)
+    assert data["totals"] == {"done": 3, "running": 0, "failed": 1, "pending": 0, "jobs": 4}
+    by_algo = {r["algo"]: r for r in data["rows"]}
+    assert (by_algo["sac"]["done"], by_algo["sac"]["failed"]) == (1, 1)
+    assert by_algo["sac"]["remaining_seconds"] > 0 and data["eta_seconds"] > 0  # the failed job will be retried
+    assert data["errors"][0]["seed"] == 1 and "fake failure" in data["errors"][0]["error"]
+    res = CliRunner().invoke(app, ["status", "--db", str(db)])
+    assert res.exit_code == 0 and "fake failure" in res.output
+
+
+# --------------------------------------------------------------------------- dask
+def test_dask_executor_runs_jobs_on_a_local_cluster(regimes: Path, tmp_path: Path) -> None:
+    import distributed  # in the dev extra (and the `dask` extra)
+
+    db = tmp_path / "r.db"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        address = cluster.scheduler_address.replace("tcp://", "dask://")
+        s = run_grid(db, ["run0"], ["ppo", "sac"], [0], 8, 2, executor=address, job_fn=fake_run_job, display=False)
+    assert (s.done, s.failed) == (2, 0)
+    assert len(pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")) == 2 * 10

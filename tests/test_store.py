@@ -1,0 +1,133 @@
+"""The results database: migrations (from empty and from 0001), models == migrations,
+one-line errors for bad databases, and a reader beside a writer (WAL)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+from alembic.autogenerate import compare_metadata
+from alembic.runtime.migration import MigrationContext
+from sqlalchemy import create_engine, inspect, text
+from typer.testing import CliRunner
+
+from nutribench.cli import app
+from nutribench.store import Base, StoreError, head_revision, make_engine, open_store, read_episode_metrics
+from nutribench.store.engine import database_url
+from nutribench.store.schema import revision_chain, upgrade_connection
+from nutribench.store.views import EPISODE_METRICS_COLUMNS, EVAL_TRAJECTORY_COLUMNS, VIEWS
+
+
+def _include(obj, name, type_, reflected, compare_to) -> bool:
+    return not (type_ == "table" and name in VIEWS)
+
+
+def make_0001(db: Path) -> None:
+    """A database at revision 0001 holding one finished job with two episodes."""
+    engine = make_engine(database_url(db), writer=True)
+    with engine.begin() as conn:
+        upgrade_connection(conn, "0001")
+        conn.execute(text("INSERT INTO regimes VALUES (1, 'run0', 1, 'aa', '{}', NULL, '2026-01-01')"))
+        conn.execute(text("INSERT INTO agent_configs VALUES (1, 'ppo', 'ppo', 1, 'bb', '{}', NULL, '2026-01-01')"))
+        conn.execute(text(
+            "INSERT INTO jobs (id, regime_id, agent_config_id, seed, episodes, eval_episodes, status, attempt, failures, "
+            "episodes_done, created_at) VALUES (1, 1, 1, 0, 2, 0, 'done', 1, 0, 2, '2026-01-01')"
+        ))  # fmt: skip
+        for k in range(2):
+            conn.execute(text(f"INSERT INTO episodes VALUES (1, 'train', {k}, -1.5, 3, 0.5, 0.1, 1, 1, 1, NULL, 0.2)"))
+    engine.dispose()
+
+
+def test_revisions_are_linear() -> None:
+    assert revision_chain() == ["0001", "0002"] and head_revision() == "0002"
+
+
+def test_create_from_empty_matches_the_models(tmp_path: Path) -> None:
+    store = open_store(tmp_path / "new.db", writer=True)
+    assert (store.created, store.revision) == (True, head_revision())
+    with store.engine.connect() as conn:
+        names = set(inspect(conn).get_table_names())
+        assert {"regimes", "agent_configs", "jobs", "episodes", "eval_steps", "alembic_version"} <= names
+        assert set(inspect(conn).get_view_names()) == set(VIEWS)
+        diff = compare_metadata(MigrationContext.configure(conn, opts={"include_object": _include, "compare_type": True}), Base.metadata)
+        cols = [c[1] for c in conn.execute(text("PRAGMA table_info(episode_metrics)"))]
+        assert tuple(cols) == EPISODE_METRICS_COLUMNS
+        cols = [c[1] for c in conn.execute(text("PRAGMA table_info(eval_trajectories)"))]
+        assert tuple(cols) == EVAL_TRAJECTORY_COLUMNS
+        assert conn.execute(text("PRAGMA journal_mode")).scalar() == "wal"
+    store.dispose()
+    assert diff == []
+
+
+def test_upgrade_from_0001_keeps_the_data(tmp_path: Path) -> None:
+    db = tmp_path / "old.db"
+    make_0001(db)
+    with pytest.raises(StoreError, match=r"revision 0001, this nutribench needs 0002: run `nutribench run --upgrade-only"):
+        open_store(db)  # readers refuse, with the command that fixes it
+    res = CliRunner().invoke(app, ["run", "--upgrade-only", "--db", str(db)])
+    assert res.exit_code == 0 and "upgraded from 0001" in res.output, res.output
+    store = open_store(db)
+    with store.engine.connect() as conn:
+        diff = compare_metadata(MigrationContext.configure(conn, opts={"include_object": _include, "compare_type": True}), Base.metadata)
+        assert conn.execute(text("SELECT count(*) FROM eval_steps")).scalar() == 0
+    store.dispose()
+    assert diff == []
+    df = read_episode_metrics(db)
+    assert list(df["episode"]) == [0, 1] and set(df["regime"]) == {"run0"} and set(df["algo"]) == {"ppo"}
+    again = open_store(db, writer=True)  # at head: nothing to do
+    assert (again.upgraded_from, again.created) == (None, False)
+    again.dispose()
+
+
+def test_bad_databases_are_one_line_errors(tmp_path: Path) -> None:
+    text_file = tmp_path / "notes.txt"
+    text_file.write_text("hello\n")
+    foreign = tmp_path / "foreign.db"
+    e = create_engine(f"sqlite:///{foreign}")
+    with e.begin() as conn:
+        conn.execute(text("CREATE TABLE customers (id INTEGER)"))
+    e.dispose()
+    newer = tmp_path / "newer.db"
+    open_store(newer, writer=True).dispose()
+    e = create_engine(f"sqlite:///{newer}")
+    with e.begin() as conn:
+        conn.execute(text("UPDATE alembic_version SET version_num = '0099'"))
+    e.dispose()
+    cases = [
+        (dict(db=text_file, writer=True), "is not a SQLite database"),
+        (dict(db=tmp_path, writer=True), "is a directory"),
+        (dict(db=tmp_path / "no" / "x.db", writer=True), "does not exist"),
+        (dict(db=tmp_path / "absent.db"), "no results database"),
+        (dict(db=foreign, writer=True), "holds tables (customers...) but no nutribench schema"),
+        (dict(db=newer, writer=True), "unknown to this nutribench"),
+        (dict(db="postgresql+nope://u@h/x"), "cannot use this database URL"),
+        (dict(db="://x"), "not a valid SQLAlchemy URL"),
+    ]
+    for kwargs, message in cases:
+        with pytest.raises(StoreError) as err:
+            open_store(**kwargs)
+        assert message in str(err.value) and "\n" not in str(err.value), str(err.value)
+    assert text_file.read_text() == "hello\n"
+    assert not (tmp_path / "absent.db").exists()
+
+
+def test_a_reader_does_not_wait_for_a_writer(tmp_path: Path) -> None:
+    db = tmp_path / "wal.db"
+    make_0001(db)
+    writer = open_store(db, writer=True)
+    reader = open_store(db)
+    try:
+        with writer.engine.connect() as w:
+            w.begin()  # BEGIN IMMEDIATE: holds the write lock until the end of this block
+            w.execute(text("UPDATE jobs SET status = 'failed' WHERE id = 1"))
+            t0 = time.perf_counter()
+            with reader.engine.connect() as r:
+                assert r.execute(text("SELECT status FROM jobs WHERE id = 1")).scalar() == "done"
+            assert time.perf_counter() - t0 < 1.0  # no busy wait behind the writer
+            w.commit()
+        with reader.engine.connect() as r:
+            assert r.execute(text("SELECT status FROM jobs WHERE id = 1")).scalar() == "failed"
+    finally:
+        writer.dispose()
+        reader.dispose()
