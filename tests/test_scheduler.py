@@ -68,7 +68,7 @@ def statuses(db: Path) -> dict[tuple[str, int], str]:
 # --------------------------------------------------------------------------- grid
 def test_presets_and_overrides() -> None:
     assert PRESETS["smoke"].seeds == (0,) and PRESETS["smoke"].episodes == 20
-    assert PRESETS["quick"].seeds == (0, 21) and PRESETS["quick"].episodes == 300
+    assert PRESETS["quick"].seeds == (0, 21) and PRESETS["quick"].episodes == 500
     assert PRESETS["paper"].seeds == (0, 21, 9, 2003, 1997) and PRESETS["paper"].episodes == 5000
     assert all(p.eval_episodes == 5 for p in PRESETS.values())
     g = resolve_grid(preset="quick", regimes=["run0", "run3"], algos=["ppo"], episodes=7)

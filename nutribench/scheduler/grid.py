@@ -4,7 +4,7 @@ regime x agent config x seed cells.
 Presets fix the seeds and the training budget; explicit options override single fields::
 
     smoke   every regime, every algorithm, seeds 0,            20 episodes
-    quick   every regime, every algorithm, seeds 0,21,         300 episodes
+    quick   every regime, every algorithm, seeds 0,21,         500 episodes
     paper   every regime, every algorithm, seeds 0,21,9,2003,1997, 5000 episodes
 
 Every preset evaluates each trained agent on ``EVAL_EPISODES`` = 5 episodes.
@@ -35,7 +35,7 @@ class Preset:
 
 PRESETS: dict[str, Preset] = {
     "smoke": Preset(seeds=(0,), episodes=20),
-    "quick": Preset(seeds=(0, 21), episodes=300),
+    "quick": Preset(seeds=(0, 21), episodes=500),
     "paper": Preset(seeds=(0, 21, 9, 2003, 1997), episodes=5000),
 }
 
