@@ -241,3 +241,18 @@ def test_learns_on_run0_within_a_ci_budget(algo, episodes, update, random_return
     first = np.mean([r["return"] for r in agent.train_episodes[:20]])
     last = np.mean([r["return"] for r in agent.train_episodes[-20:]])
     assert last > first, (first, last)
+
+
+def test_bench_train_reports_each_algorithm_and_its_bare_references():
+    from nutribench.bench import bench_train
+
+    rows = bench_train(["ppo", "ddqn", "mc"], episodes=2, repeats=1)
+    assert [r["what"] for r in rows] == [
+        "nutribench ppo", "bare SB3 PPO",
+        "nutribench ddqn", "bare SB3 DQN loop, double target", "bare SB3 DQN, vanilla target",
+        "nutribench mc",
+    ]  # fmt: skip
+    grid_steps = 7 * 5 * 5000 * 50
+    for r in rows:
+        assert r["steps_per_s"] > 0
+        assert r["paper_grid_cpu_hours"] == pytest.approx(grid_steps / r["steps_per_s"] / 3600)

@@ -301,3 +301,14 @@ def test_dask_executor_runs_jobs_on_a_local_cluster(regimes: Path, tmp_path: Pat
         s = run_grid(db, ["run0"], ["ppo", "sac"], [0], 8, 2, executor=address, job_fn=fake_run_job, display=False)
     assert (s.done, s.failed) == (2, 0)
     assert len(pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")) == 2 * 10
+
+
+def test_bench_status_times_a_given_database(tmp_path: Path) -> None:
+    from nutribench.bench import bench_status
+
+    db = tmp_path / "r.db"
+    run_grid(db, ["run0", "run1"], ["ppo"], [0], episodes=4, eval_episodes=2, workers=1,
+             job_fn=fake_run_job, models_dir=tmp_path / "m", display=False)  # fmt: skip
+    r = bench_status(str(db), repeats=1)
+    assert (r["jobs"], r["episode_rows"]) == (2, 2 * (4 + 2))
+    assert r["build_seconds"] is None and r["status_table_s"] > 0 and r["status_cli_s"] > r["status_table_s"]

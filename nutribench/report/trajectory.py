@@ -54,6 +54,9 @@ def trajectory_figure(steps: pd.DataFrame, dynamics: RegimeDynamics, title: str 
                 continue
             bottom.plot(t + k, amount, color=NUTRIENT_COLORS[n], lw=1, alpha=0.85, marker="." if len(k) < 3 else None)
         bottom.axvline(t - 0.5, color="0.6", lw=0.8, ls=":")
+    if meals.empty:  # a policy that never eats: say so instead of drawing two empty panels
+        for ax in (top, bottom):
+            ax.text(0.5, 0.5, "no meal eaten on this day", transform=ax.transAxes, ha="center", va="center", color="0.4")
     bottom.set_ylabel("delivered per step\n(x daily target)")
     bottom.set_xlabel(f"step (1 step ~ 30 min; day = {H} steps)")
     bottom.set_xlim(0, H + 0.5)
