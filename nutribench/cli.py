@@ -237,15 +237,10 @@ def bench_train_cmd(
     names = split_csv(algos, list(ALGOS), "algorithm")
     load_env_config(regime)
     rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats)
-    table = Table("run", "env-steps/s (median)", "vs first bare row", "paper grid CPU-hours", title=f"training throughput, {regime}, {episodes} days x {repeats}")
-    bare: dict[str, float] = {}
+    table = Table("run", "env-steps/s (median)", "vs bare SB3 (paired median)", "paper grid CPU-hours",
+                  title=f"training throughput, {regime}, {episodes} days x {repeats}")  # fmt: skip
     for r in rows:
-        if r["bare"]:
-            bare.setdefault(r["algo"], r["steps_per_s"])
-    for r in rows:
-        ratio = ""
-        if not r["bare"] and r["algo"] in bare:
-            ratio = f"{r['steps_per_s'] / bare[r['algo']]:.3f}"
+        ratio = f"{r['vs_bare']:.3f}" if "vs_bare" in r else ""
         table.add_row(r["what"], f"{r['steps_per_s']:,.0f}", ratio, f"{r['paper_grid_cpu_hours']:.1f}")
     console.print(table)
     total = sum(r["paper_grid_cpu_hours"] for r in rows if not r["bare"])

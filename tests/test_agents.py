@@ -256,3 +256,6 @@ def test_bench_train_reports_each_algorithm_and_its_bare_references():
     for r in rows:
         assert r["steps_per_s"] > 0
         assert r["paper_grid_cpu_hours"] == pytest.approx(grid_steps / r["steps_per_s"] / 3600)
+    # our rows with a bare reference carry the paired ratio, the others (and bare rows) none
+    assert [("vs_bare" in r) for r in rows] == [True, False, True, False, False, False]
+    assert all(0 < r["vs_bare"] < 10 for r in rows if "vs_bare" in r)

@@ -125,3 +125,15 @@ def test_table1_from_the_regime_files():
     assert t.raw["run"].tolist() == [f"run{k}" for k in range(7)]
     row = t.formatted.set_index("run").loc["run5"]
     assert row["tau_F"] == "18-20" and row["sigma_P"] == "2.8-4.8"
+
+
+def test_eval_figure_draws_coinciding_algorithms_apart():
+    df = synthetic()
+    df.loc[df.phase == "eval", "return"] = -50.0  # both algorithms learned the same policy
+    res = eval_across_regimes(df)
+    ppo, sac = (l for l in _lines(res.figure.axes[0]))
+    assert (ppo.get_ydata() == sac.get_ydata()).all()
+    gap = np.asarray(sac.get_xdata()) - np.asarray(ppo.get_xdata())
+    assert (gap > 0).all() and np.allclose(gap, gap[0])
+    centre = (np.asarray(ppo.get_xdata()) + np.asarray(sac.get_xdata())) / 2
+    assert np.allclose(centre, sorted(res.data["x"].unique()))

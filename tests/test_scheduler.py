@@ -312,3 +312,26 @@ def test_bench_status_times_a_given_database(tmp_path: Path) -> None:
     r = bench_status(str(db), repeats=1)
     assert (r["jobs"], r["episode_rows"]) == (2, 2 * (4 + 2))
     assert r["build_seconds"] is None and r["status_table_s"] > 0 and r["status_cli_s"] > r["status_table_s"]
+
+
+def test_status_prices_pending_jobs_by_their_algorithm_and_budget() -> None:
+    from nutribench.scheduler.status import summarize
+
+    def job(regime, algo, seed, budget, status, wall=None):  # the tuple status_table selects
+        return (regime, 1, algo, 1, seed, budget, status, None, wall, 0, 0, None)
+
+    jobs = [
+        job("run0", "mc", 0, 100, "done", wall=10.0),
+        job("run0", "ddqn", 0, 100, "done", wall=200.0),
+        job("run1", "mc", 0, 100, "pending"),
+        job("run1", "ddqn", 0, 100, "pending"),
+        job("run1", "ddqn", 1, 100, "pending"),
+        job("run1", "sac", 0, 400, "pending"),  # no done sac job: the mean rate of all, 1.05 s/day
+    ]
+    rep = summarize(jobs)
+    left = {(r.regime, r.algo): r.remaining_seconds for r in rep.rows}
+    assert left[("run1", "mc")] == pytest.approx(10.0)
+    assert left[("run1", "ddqn")] == pytest.approx(400.0)
+    assert left[("run1", "sac")] == pytest.approx(400 * (0.1 + 2.0) / 2)
+    assert left[("run0", "mc")] == 0.0
+    assert rep.eta_seconds == pytest.approx(10.0 + 400.0 + 420.0)  # nothing running: one worker

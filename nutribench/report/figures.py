@@ -222,6 +222,10 @@ def _missing_note(regimes: list[str], algos: list[str], df: pd.DataFrame) -> lis
     return [f"no data: {', '.join(missing)}"] if missing else []
 
 
+#: Horizontal offset between neighbouring algorithms in Figures 3 and 4 (regime units).
+DODGE = 0.06
+
+
 def eval_across_regimes(
     df: pd.DataFrame,
     algos: list[str] | None = None,
@@ -247,6 +251,9 @@ def eval_across_regimes(
     present_algos = sort_algos(ev["algo"])
     fig = Figure(figsize=(11, 7.6), layout="constrained")
     axes = fig.subplots(2, 2, sharex=True)
+    # each algorithm drawn slightly beside the regime's x, so that lines which coincide
+    # (several agents that learned the same policy) stay visible; ``data["x"]`` is the regime
+    dodge = {a: DODGE * (i - (len(present_algos) - 1) / 2) for i, a in enumerate(present_algos)}
     rows = []
     for p, metric in enumerate(EVAL_PANELS):
         ax = axes.flat[p]
@@ -257,10 +264,11 @@ def eval_across_regimes(
             stats = stats.loc[sort_regimes(stats.index)]
             stats["sem"] = stats["std"] / np.sqrt(stats["count"])
             x = np.array([xs[r] for r in stats.index])
-            ax.plot(x, stats["mean"], marker="o", ms=4, color=algo_color(algo, i), label=algo_label(algo))
-            ax.fill_between(x, stats["mean"] - stats["sem"], stats["mean"] + stats["sem"], color=algo_color(algo, i), alpha=0.2, lw=0)
+            xd = x + dodge[algo]
+            ax.plot(xd, stats["mean"], marker="o", ms=4, color=algo_color(algo, i), label=algo_label(algo))
+            ax.fill_between(xd, stats["mean"] - stats["sem"], stats["mean"] + stats["sem"], color=algo_color(algo, i), alpha=0.2, lw=0)
             if len(x) == 1:  # a band over one x has no width: show the standard error as an error bar
-                ax.errorbar(x, stats["mean"], yerr=stats["sem"], fmt="none", ecolor=algo_color(algo, i), capsize=4, lw=1.2)
+                ax.errorbar(xd, stats["mean"], yerr=stats["sem"], fmt="none", ecolor=algo_color(algo, i), capsize=4, lw=1.2)
             rows.append(
                 pd.DataFrame({"panel": metric, "algo": algo, "regime": stats.index, "x": x, "mean": stats["mean"].to_numpy(), "sem": stats["sem"].to_numpy(), "n": stats["count"].to_numpy()})
             )
@@ -294,6 +302,6 @@ def eval_across_regimes(
         if absent:
             notes.append(f"no evaluation data for {', '.join(absent)}")
     n = ev.groupby(["regime", "algo"]).size()
-    set_title(fig, f"{title}\nmean over seeds x evaluation episodes ({_span(n)} per point); band (or error bar) = standard error")
+    set_title(fig, f"{title}\nmean over seeds x evaluation episodes ({_span(n)} per point); band (or error bar) = standard error;\nalgorithms are drawn slightly apart along x so that equal values stay visible")
     draw_notes(fig, notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)

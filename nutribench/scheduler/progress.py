@@ -95,6 +95,8 @@ class LiveView(NullView):
     def stop(self, run: Any) -> None:
         self.update(run, force=True)
         self.live.stop()
+        if not self.console.is_terminal:  # rich leaves a non-terminal's last frame without its newline
+            self.console.line()
 
 
 def make_view(display: bool, grid: Any, total: int, description: str, note: str | None) -> NullView:

@@ -38,7 +38,7 @@ class StatusRow:
     failed: int = 0
     pending: int = 0
     wall_seconds: float = 0.0  # used by the done jobs
-    remaining_seconds: float | None = None  # of work left (one worker), from done jobs' mean wall
+    remaining_seconds: float | None = None  # of work left (one worker), see :func:`summarize`
 
 
 @dataclass
@@ -106,12 +106,21 @@ def status_table(db: str | os.PathLike[str]) -> StatusReport:
     return summarize(jobs)
 
 
+def _mean(values: list[float] | None) -> float | None:
+    return sum(values) / len(values) if values else None
+
+
 def summarize(jobs: list) -> StatusReport:
     """The report of job tuples (regime, rv, algo, av, seed, episodes, status, heartbeat,
-    wall, episodes_done, failures, error)."""
+    wall, episodes_done, failures, error).
+
+    Work left is priced in seconds per training episode of the done jobs: of the same cell
+    (regime x algo config), else of the same algo config in any regime (the algorithm, not
+    the regime, sets the cost: a DDQN day costs several MC days), else of every done job.
+    """
     stale_before = utcnow() - timedelta(seconds=STALE_AFTER_S)
     rows: dict[tuple, StatusRow] = {}
-    walls: dict[tuple, list[float]] = {}
+    rates: dict[tuple, list[float]] = {}  # seconds per episode of done jobs, per cell
     left: dict[tuple, float] = {}  # jobs' worth of work left
     errors = []
     for regime, rv, algo, av, seed, budget, status, beat, wall, k, failures, error in jobs:
@@ -121,7 +130,7 @@ def summarize(jobs: list) -> StatusReport:
         setattr(row, state, getattr(row, state) + 1)
         if state == "done" and wall is not None:
             row.wall_seconds += wall
-            walls.setdefault(key, []).append(wall)
+            rates.setdefault(key, []).append(wall / max(budget, 1))
         elif state == "running":
             left[key] = left.get(key, 0.0) + max(0.0, 1.0 - (k or 0) / max(budget, 1))
         elif state in ("pending",) or (state == "failed" and failures < MAX_FAILURES):
@@ -129,17 +138,18 @@ def summarize(jobs: list) -> StatusReport:
         if state == "failed":
             errors.append({"regime": regime, "algo": algo, "seed": seed, "budget": budget, "failures": failures,
                            "retried": failures < MAX_FAILURES, "error": _last_line(error)})  # fmt: skip
-    every = [w for ws in walls.values() for w in ws]
-    overall_mean = sum(every) / len(every) if every else None
+    per_algo: dict[tuple, list[float]] = {}
+    for (_, _, algo, av, _), rs in rates.items():
+        per_algo.setdefault((algo, av), []).extend(rs)
+    overall = _mean([r for rs in rates.values() for r in rs])
     remaining, unknown = 0.0, False
     for key, row in rows.items():
-        ws = walls.get(key)
-        mean = sum(ws) / len(ws) if ws else overall_mean
+        rate = _mean(rates.get(key)) or _mean(per_algo.get((row.algo, row.algo_version))) or overall
         jobs_left = left.get(key, 0.0)
-        if jobs_left and mean is None:
+        if jobs_left and rate is None:
             unknown = True
             continue
-        row.remaining_seconds = jobs_left * mean if mean is not None else 0.0
+        row.remaining_seconds = jobs_left * row.budget * rate if rate is not None else 0.0
         remaining += row.remaining_seconds
     totals = {c: sum(getattr(r, c) for r in rows.values()) for c in COUNTS}
     totals["jobs"] = len(jobs)
