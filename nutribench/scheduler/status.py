@@ -116,7 +116,7 @@ def summarize(jobs: list) -> StatusReport:
 
     Work left is priced in seconds per training episode of the done jobs: of the same cell
     (regime x algo config), else of the same algo config in any regime (the algorithm, not
-    the regime, sets the cost: a DDQN day costs several MC days), else of every done job.
+    the regime, sets the cost: a SAC day costs about nine MC days), else of every done job.
     """
     stale_before = utcnow() - timedelta(seconds=STALE_AFTER_S)
     rows: dict[tuple, StatusRow] = {}
@@ -144,7 +144,7 @@ def summarize(jobs: list) -> StatusReport:
     overall = _mean([r for rs in rates.values() for r in rs])
     remaining, unknown = 0.0, False
     for key, row in rows.items():
-        rate = _mean(rates.get(key)) or _mean(per_algo.get((row.algo, row.algo_version))) or overall
+        rate = next((r for r in (_mean(rates.get(key)), _mean(per_algo.get((row.algo, row.algo_version))), overall) if r is not None), None)
         jobs_left = left.get(key, 0.0)
         if jobs_left and rate is None:
             unknown = True
