@@ -15,6 +15,7 @@ from rich.console import Console
 from rich.table import Table
 
 from nutribench.config import ConfigError
+from nutribench.store.engine import StoreError
 
 app = typer.Typer(no_args_is_help=True, add_completion=False, help="NutriRL: RL under delayed state transitions.")
 regimes_app = typer.Typer(no_args_is_help=True, help="Inspect, check and regenerate the regime files.")
@@ -31,13 +32,13 @@ class UserError(Exception):
 
 
 def user_errors(fn):
-    """Turn ConfigError / UserError / ValueError from the library into one line + exit 2."""
+    """Turn ConfigError / UserError / StoreError from the library into one line + exit 2."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         try:
             return fn(*args, **kwargs)
-        except (ConfigError, UserError) as e:
+        except (ConfigError, UserError, StoreError) as e:
             err_console.print(f"[bold red]error:[/] {e}", highlight=False, soft_wrap=True)
             raise typer.Exit(2) from None
 
@@ -260,12 +261,7 @@ def bench_status_cmd(
 
     if db is None:
         console.print("building a synthetic paper-grid database (175 fake jobs x 5000 days) ...")
-    from nutribench.store.engine import StoreError
-
-    try:
-        r = bench_status(db, repeats=repeats)
-    except StoreError as e:
-        raise UserError(str(e)) from None
+    r = bench_status(db, repeats=repeats)
     if r["build_seconds"] is not None:
         console.print(f"built {r['db']} in {r['build_seconds']:.0f} s")
     console.print(f"{r['jobs']} jobs, {r['episode_rows']:,} episode rows, {r['db_mb']:.0f} MB")
