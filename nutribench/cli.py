@@ -249,6 +249,76 @@ def bench_train_cmd(
 
 
 
+@bench_app.command("learn")
+@user_errors
+def bench_learn_cmd(
+    algos: Annotated[str, typer.Option(help="'all' or comma-separated agent config names")] = "all",
+    regimes: Annotated[str, typer.Option(help="'all' or comma-separated regimes; run0 carries the targets")] = "run0,run3,run6",
+    seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2",
+    episodes: Annotated[str, typer.Option(help="training days: a default, then NAME=N for a config or algorithm")] = "500,ddqn=2000",
+    eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")] = 10,
+    workers: Annotated[Optional[int], typer.Option(min=1, help="agents trained at once (default: the cores)")] = None,
+    markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
+) -> None:
+    """Train every agent for a budget over several seeds, evaluate greedily on the fixed
+    evaluation days, and state each as the share of the never -> planner gap it closes
+    (run0 target: at least 75 % with 3-6 foods a day)."""
+    from nutribench.agents.config import list_agent_configs
+    from nutribench.bench_learn import DEFAULT_BUDGET, learn_benchmark, markdown_table, summarize
+    from nutribench.config import list_regimes
+
+    names = split_csv(algos, list_agent_configs()[:5] if algos == "all" else list_agent_configs(), "agent config")
+    regime_names = split_csv(regimes, list_regimes(), "regime")
+    seed_list = parse_ints(seeds, "--seeds")
+    default, budgets = parse_budgets(episodes, DEFAULT_BUDGET)
+    with console.status("training") as status:
+        runs = learn_benchmark(
+            names, regime_names, seed_list, budgets=budgets, default_budget=default, eval_episodes=eval_episodes,
+            workers=workers, on_done=lambda r, k, n: status.update(f"{k}/{n} done (last: {r.algo} {r.regime} seed {r.seed})"),
+        )  # fmt: skip
+    rows = summarize(runs)
+    if markdown:
+        console.print(markdown_table(rows), highlight=False, soft_wrap=True)
+        return
+    table = Table("regime", "algo", "days", "return", "IQM", "foods", "final dist.", "overshoot", "never", "planner",
+                  "gap closed", "lowest seed", "target", title=f"learnability, seeds {seeds}, {eval_episodes} eval days each")  # fmt: skip
+    for r in rows:
+        target = "" if r["target_met"] is None else ("[green]met" if r["target_met"] else "[red]not met")
+        table.add_row(r["regime"], r["algo"], str(r["episodes"]), f"{r['return']:.2f}", f"{r['return_iqm']:.2f}", f"{r['foods']:.2f}",
+                      f"{r['final_distance']:.3f}", f"{r['overshoot_ratio']:.3f}", f"{r['never']:.2f}", f"{r['planner']:.2f}",
+                      f"{100 * r['gap_closed']:.0f} %", f"{100 * r['gap_closed_min_seed']:.0f} %", target)  # fmt: skip
+    console.print(table)
+
+
+def parse_ints(value: str, option: str) -> list[int]:
+    """``"0,21"`` -> ``[0, 21]``; anything else is a UserError naming the option."""
+    try:
+        items = [int(v) for v in value.split(",") if v.strip()]
+    except ValueError:
+        raise UserError(f"{option} {value!r}: expected comma-separated integers, e.g. 0,1,2") from None
+    if not items:
+        raise UserError(f"{option}: no value given, e.g. 0,1,2")
+    return items
+
+
+def parse_budgets(value: str, default: int) -> tuple[int, dict[str, int]]:
+    """``"500,ddqn=2000"`` -> ``(500, {"ddqn": 2000})``."""
+    budgets: dict[str, int] = {}
+    for item in (v.strip() for v in value.split(",") if v.strip()):
+        name, _, n = item.rpartition("=")
+        try:
+            days = int(n)
+        except ValueError:
+            raise UserError(f"--episodes {item!r}: expected N or NAME=N with N a whole number of days, e.g. 500,ddqn=2000") from None
+        if days < 1:
+            raise UserError(f"--episodes {item!r}: the number of days must be >= 1")
+        if name:
+            budgets[name] = days
+        else:
+            default = days
+    return default, budgets
+
+
 @bench_app.command("status")
 @user_errors
 def bench_status_cmd(

@@ -33,6 +33,19 @@ def test_reference_points_are_ordered(regime):
     assert rows["never"]["final_distance"] == pytest.approx(3.0)
 
 
+def test_reward_version_2_gives_the_authors_landscape_on_run0():
+    """REFERENCE.md: never eating costs about -21.5 a day in the authors' units (d_0 / tau_c
+    = 2.29 / 5), a random-like start about twice that, learned agents -6 to -8. Ours: never
+    -50 tanh(3 / 6.5), random worse than twice never, the planner near the top, so "never"
+    is far from good (reward version 1 had never -50 and planner -37.5: almost no gap)."""
+    import math
+
+    rows = {r["policy"]: r for r in baseline_table(["run0"], episodes=200, seed=0)}
+    assert rows["never"]["return"] == pytest.approx(-50 * math.tanh(3 / 6.5))
+    assert rows["random"]["return"] < 2 * rows["never"]["return"]
+    assert rows["planner"]["return"] > rows["never"]["return"] / 4
+
+
 def test_policies_work_on_the_single_env_too():
     env = NutriRLEnv("run3")
     foods = np.random.default_rng(0).integers(0, 10, size=(3, 50))

@@ -30,6 +30,7 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
@@ -139,7 +140,15 @@ class EpisodeMetrics(BaseCallback):
             self.episodes.append(row)
             if self.on_episode is not None:
                 self.on_episode(row)
-        return len(self.episodes) < self.n_episodes
+        return len(self.episodes) < self.n_episodes or self._rollout_ends_here()
+
+    def _rollout_ends_here(self) -> bool:
+        """True on the last step of an on-policy rollout: there, stopping would make SB3 drop
+        the rollout without its update, so training goes on and ``learn`` ends after the
+        update (``total_timesteps`` is the budget). A budget that ends mid-rollout stops there:
+        SB3 cannot update on a partial rollout, so those last days teach nothing."""
+        n, n_rollout = self.locals.get("n_steps"), self.locals.get("n_rollout_steps")
+        return isinstance(self.model, OnPolicyAlgorithm) and n is not None and n + 1 == n_rollout
 
 
 def make_train_env(env_cfg: EnvConfig, cfg: Any) -> tuple[NutriRLSB3VecEnv, VecEnv]:

@@ -38,6 +38,11 @@ With ``d_t = |s_t - T|_1`` and ``d_0 = |T|_1`` (T = (1, 1, 1) in target units)::
     r_t = lp (d_{t-1} - d_t) - lc tanh(d_t / tau_c) - lo tanh(|max(0, s_t - T)|_2^2)
 
 (progress, comfort, overshoot), with the coefficients of ``regimes/reward.toml``.
+Its version 2 (lp = lc = 1, tau_c = 6.5, lo = 1) gives the authors' reward landscape in
+target units (their units divide each nutrient by its catalog column's L2 norm, where
+d_0 = 2.29 and tau_c = 5): comfort ``tanh(d / 6.5)`` is nearly linear over a day, so on
+run0 never eating scores -21.6 a day, eating at random about -76 and the planner of
+:mod:`nutribench.env.policies` about -3.
 
 ## Episode end
 

@@ -201,8 +201,9 @@ def training_curves(
 
 
 def _symlog_return_axis(ax) -> None:
-    """Returns span -500 (always eat) to ~-35 (planner): a symmetric-log axis keeps the
-    learners readable next to the references, with plain-number ticks."""
+    """Returns span about -110 (always eat, reward version 2) to -3 (planner): a
+    symmetric-log axis (linear within +-20) keeps the learners readable next to the
+    references, with plain-number ticks."""
     from matplotlib.ticker import FixedLocator, ScalarFormatter
 
     lo, hi = ax.get_ylim()
@@ -210,7 +211,7 @@ def _symlog_return_axis(ax) -> None:
     if lo < -20:  # the linear autoscale margin shrinks to nothing on the log part: widen it
         lo *= 1.12
         ax.set_ylim(lo, hi)
-    ticks = [t for t in (-1000, -500, -300, -200, -100, -50, -30, -20, 0, 20) if lo <= t <= hi]
+    ticks = [t for t in (-1000, -500, -300, -200, -100, -50, -30, -20, -10, 0, 20) if lo <= t <= hi]
     ax.yaxis.set_major_locator(FixedLocator(ticks))
     ax.yaxis.set_major_formatter(ScalarFormatter())
     ax.yaxis.set_minor_locator(FixedLocator([]))

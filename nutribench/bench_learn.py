@@ -1,0 +1,166 @@
+"""Learnability benchmark: does each agent learn the task, and how much of it?
+
+``nutribench bench learn`` trains every agent config on run0 (and, for the record, on
+delayed regimes) for a fixed budget over several seeds, plays each trained agent greedily
+on the job seed's fixed evaluation days (:func:`~nutribench.agents.eval_food_streams`,
+the days every algorithm of that seed is evaluated on), and states the result against the
+reference policies played on the very same days:
+
+    gap closed = (return - return of never) / (return of planner - return of never)
+
+0 is "never eat", 1 the full-information greedy planner (which is not optimal, so a
+learner may exceed 1). A benchmark, not a test: it takes minutes per algorithm.
+
+::
+
+    from nutribench.bench_learn import learn_benchmark, summarize
+    runs = learn_benchmark(["ppo"], ["run0"], seeds=[0, 1, 2], budgets={"ppo": 500})
+    print(summarize(runs))
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+#: Run0 targets of issue 11: the share of the never -> planner gap, and the foods a day.
+TARGET_GAP = 0.75
+TARGET_FOODS = (3.0, 6.0)
+DEFAULT_BUDGET = 500
+#: DDQN's epsilon schedule and 10k-step warm-up (SPEC 3) make it slower by design.
+DEFAULT_BUDGETS = {"ddqn": 2000}
+EVAL_EPISODES = 10
+
+
+@dataclass(frozen=True)
+class LearnRun:
+    """One trained agent, evaluated: per evaluation day its metrics, and the reference
+    policies' returns on the same days."""
+
+    algo: str
+    regime: str
+    seed: int
+    episodes: int
+    wall_seconds: float
+    eval_rows: list[dict[str, Any]]
+    never_returns: list[float]
+    planner_returns: list[float]
+
+
+def reference_returns(regime: str, streams: np.ndarray) -> dict[str, list[float]]:
+    """Returns of ``never`` and ``planner`` on the given days ``(n, horizon)``."""
+    from nutribench.env import NutriRLVectorEnv
+    from nutribench.env.metrics import play
+    from nutribench.env.policies import make_policy
+
+    out = {}
+    for name in ("never", "planner"):
+        env = NutriRLVectorEnv(len(streams), regime=regime)
+        out[name] = [float(r["return"]) for r in play(env, make_policy(name, 0), episodes=len(streams), foods=streams)]
+    return out
+
+
+def _one_run(config: Any, regime: str, seed: int, episodes: int, eval_episodes: int) -> LearnRun:
+    from nutribench.agents import eval_food_streams, evaluate, train
+
+    start = time.perf_counter()
+    agent = train(regime, config, seed=seed, episodes=episodes)
+    wall = time.perf_counter() - start
+    streams = eval_food_streams(regime, seed, eval_episodes)
+    rows = evaluate(agent, regime, streams, record_steps=False).episodes
+    ref = reference_returns(regime, streams)
+    return LearnRun(config.name, regime, seed, episodes, wall, rows, ref["never"], ref["planner"])
+
+
+def budget_for(name: str, algo: str, budgets: dict[str, int], default: int) -> int:
+    """The budget of config ``name`` (algorithm ``algo``): by name, then by algorithm."""
+    return budgets.get(name, budgets.get(algo, default))
+
+
+def learn_benchmark(
+    configs: Iterable[str | Any],
+    regimes: Iterable[str],
+    seeds: Iterable[int],
+    budgets: dict[str, int] | None = None,
+    default_budget: int = DEFAULT_BUDGET,
+    eval_episodes: int = EVAL_EPISODES,
+    workers: int | None = None,
+    on_done: Callable[[LearnRun, int, int], None] | None = None,
+) -> list[LearnRun]:
+    """Train and evaluate every (config, regime, seed) on a process pool (one torch thread
+    each); ``budgets`` maps a config name or algorithm to its training days.
+    ``on_done(run, k, total)`` is called as each finishes."""
+    from nutribench.agents import load_agent_config
+
+    budgets = dict(DEFAULT_BUDGETS if budgets is None else budgets)
+    cfgs = [load_agent_config(c) for c in configs]
+    jobs = [(c, r, s, budget_for(c.name, c.algo, budgets, default_budget)) for c in cfgs for r in regimes for s in seeds]
+    # the longest first, so that no long job starts last
+    jobs.sort(key=lambda j: -j[3] * (5 if j[0].algo in ("sac", "gru_ppo") else 1))
+    workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
+    runs: list[LearnRun] = []
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(_one_run, c, r, s, n, eval_episodes) for c, r, s, n in jobs]
+        for fut in as_completed(futures):
+            runs.append(fut.result())
+            if on_done is not None:
+                on_done(runs[-1], len(runs), len(jobs))
+    order = {(c.name, r, s): k for k, (c, r, s, _) in enumerate(sorted(jobs, key=lambda j: (j[1], [x.name for x in cfgs].index(j[0].name), j[2])))}
+    return sorted(runs, key=lambda x: order[(x.algo, x.regime, x.seed)])
+
+
+def iqm(values: np.ndarray) -> float:
+    """Interquartile mean: the mean of the middle 50 % (rliable's IQM)."""
+    v = np.sort(np.asarray(values, dtype=float))
+    lo, hi = int(np.floor(0.25 * len(v))), int(np.ceil(0.75 * len(v)))
+    return float(v[lo:hi].mean()) if hi > lo else float(v.mean())
+
+
+def summarize(runs: list[LearnRun]) -> list[dict[str, Any]]:
+    """One row per (regime, config) over its seeds x evaluation days: return (mean, IQM),
+    foods, final distance, overshoot ratio, the never and planner returns on those days, the
+    gap closed (of the means; and its lowest seed), wall seconds per job, and, on run0,
+    whether issue 11's target holds."""
+    groups: dict[tuple[str, str], list[LearnRun]] = {}
+    for run in runs:
+        groups.setdefault((run.regime, run.algo), []).append(run)
+    rows = []
+    for (regime, algo), rs in groups.items():
+        ret = np.array([e["return"] for r in rs for e in r.eval_rows])
+        never = float(np.mean([x for r in rs for x in r.never_returns]))
+        planner = float(np.mean([x for r in rs for x in r.planner_returns]))
+        per_seed = [(np.mean([e["return"] for e in r.eval_rows]) - np.mean(r.never_returns))
+                    / (np.mean(r.planner_returns) - np.mean(r.never_returns)) for r in rs]  # fmt: skip
+        foods = float(np.mean([e["foods"] for r in rs for e in r.eval_rows]))
+        gap = (float(ret.mean()) - never) / (planner - never)
+        row = {
+            "regime": regime, "algo": algo, "episodes": rs[0].episodes, "seeds": len(rs),
+            "return": float(ret.mean()), "return_iqm": iqm(ret), "foods": foods,
+            "final_distance": float(np.mean([e["final_distance"] for r in rs for e in r.eval_rows])),
+            "overshoot_ratio": float(np.mean([e["overshoot_ratio"] for r in rs for e in r.eval_rows])),
+            "never": never, "planner": planner, "gap_closed": gap, "gap_closed_min_seed": float(min(per_seed)),
+            "wall_seconds": float(np.median([r.wall_seconds for r in rs])),
+        }  # fmt: skip
+        row["target_met"] = (gap >= TARGET_GAP and TARGET_FOODS[0] <= foods <= TARGET_FOODS[1]) if regime == "run0" else None
+        rows.append(row)
+    return rows
+
+
+def markdown_table(rows: list[dict[str, Any]]) -> str:
+    """The summary as a Markdown table (what the README records)."""
+    head = "| regime | algo | days | seeds | return | IQM | foods | final distance | overshoot ratio | never | planner | gap closed | lowest seed | target |"
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for r in rows:
+        target = "" if r["target_met"] is None else ("met" if r["target_met"] else "not met")
+        lines.append(
+            f"| {r['regime']} | {r['algo']} | {r['episodes']} | {r['seeds']} | {r['return']:.2f} | {r['return_iqm']:.2f} "
+            f"| {r['foods']:.2f} | {r['final_distance']:.3f} | {r['overshoot_ratio']:.3f} | {r['never']:.2f} "
+            f"| {r['planner']:.2f} | {100 * r['gap_closed']:.0f} % | {100 * r['gap_closed_min_seed']:.0f} % | {target} |"
+        )
+    return "\n".join(lines)
