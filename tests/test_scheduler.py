@@ -145,7 +145,7 @@ def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> N
     run3 = regimes / "run3.toml"  # a regime file works the same way
     assert run_grid(db, ["run3"], ["sac"], **args).done == 1
     run3.write_text(run3.read_text().replace('description = "', 'description = "changed: '))
-    with pytest.raises(RunError, match=r"run3\.toml: version 1 is already recorded"):
+    with pytest.raises(RunError, match=r"run3\.toml: version 2 is already recorded"):
         run_grid(db, ["run3"], ["sac"], **args)
 
 
