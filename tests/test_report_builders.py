@@ -137,3 +137,20 @@ def test_eval_figure_draws_coinciding_algorithms_apart():
     assert (gap > 0).all() and np.allclose(gap, gap[0])
     centre = (np.asarray(ppo.get_xdata()) + np.asarray(sac.get_xdata())) / 2
     assert np.allclose(centre, sorted(res.data["x"].unique()))
+
+
+def test_training_table_is_the_last_tenth_of_training_beside_the_authors():
+    from nutribench.report.tables import table_training
+
+    df = synthetic(algos=("ppo", "sac"), train_eps=40).assign(budget=40)
+    res = table_training(df)
+    raw = res.raw.set_index(["regime", "algo"])
+    tail = df[(df.phase == "train") & (df.episode >= 36)]
+    for (regime, algo), cell in tail.groupby(["regime", "algo"]):
+        per_seed = cell.groupby("seed")["return"].mean()
+        assert raw.loc[(regime, algo), "return_mean"] == pytest.approx(per_seed.mean())
+        assert raw.loc[(regime, algo), "return_sem"] == pytest.approx(per_seed.std(ddof=1) / np.sqrt(3))
+    # the authors' logged numbers of REFERENCE.md, run0 and run6
+    assert (raw.loc[("run0", "ppo"), "authors_return"], raw.loc[("run0", "ppo"), "authors_foods"]) == (-5.9, 5.0)
+    assert (raw.loc[("run6", "sac"), "authors_return"], raw.loc[("run6", "sac"), "authors_foods"]) == (-29.0, 25.3)
+    assert "authors' return" in res.formatted.columns

@@ -38,7 +38,7 @@ from nutribench.report.figures import (
     sort_regimes,
     training_curves,
 )
-from nutribench.report.tables import CONFIG_TABLES, TableResult, table_agent_config, table_regimes, table_results
+from nutribench.report.tables import CONFIG_TABLES, TableResult, table_agent_config, table_regimes, table_results, table_training
 
 #: Figures of the paper this command can build, and the file stem each is written to.
 FIGURES: dict[int, str] = {
@@ -48,7 +48,8 @@ FIGURES: dict[int, str] = {
     4: "fig4_ppo_vs_gru_ppo",
 }
 #: Tables: 1 (regimes), 2-6 (agent configurations), "results".
-TABLES: dict[str, str] = {"1": "table1_regimes", **{str(n): f"table{n}_{a}" for n, a in CONFIG_TABLES.items()}, "results": "table_results"}
+TABLES: dict[str, str] = {"1": "table1_regimes", **{str(n): f"table{n}_{a}" for n, a in CONFIG_TABLES.items()}, "results": "table_results",
+                           "training": "table_training_vs_authors"}
 FIG4_ALGOS = ("ppo", "gru_ppo")
 PNG_DPI = 150
 
@@ -247,7 +248,7 @@ def build_table(key: str, data: ReportData | None = None, db: Db | None = None) 
         if not names:
             raise ReportError("table 1: no regime files found")
         return table_regimes([load_env_config(n) for n in names])
-    if key in TABLES and key != "results":
+    if key in TABLES and key.isdigit():
         number = int(key)
         algo = CONFIG_TABLES[number]
         try:
@@ -267,6 +268,13 @@ def build_table(key: str, data: ReportData | None = None, db: Db | None = None) 
             raise ReportError("results table: no evaluation episodes in the database")
         res = table_results(ev)
         if data.notes:  # what was left out, in the caption as on the figures
+            res.title += " (note: " + "; ".join(data.notes) + ")"
+        return res
+    if key == "training":
+        if data is None or data.train.empty:
+            raise ReportError("training table: no training episodes in the database")
+        res = table_training(data.train)
+        if data.notes:
             res.title += " (note: " + "; ".join(data.notes) + ")"
         return res
     raise ReportError(f"no table {key!r}: the tables are {', '.join(TABLES)}")
@@ -301,7 +309,7 @@ def build_report(
         raise ReportError("nothing to build: ask for figures, tables or all")
     # the database is read once, up front, and only when something needs it: a database that
     # cannot be read (missing, empty, outdated) fails the whole command, even with ``all``
-    data = load_report_data(db) if figs or "results" in tables else None
+    data = load_report_data(db) if figs or "results" in tables or "training" in tables else None
     if data is not None and log:
         for note in data.notes:
             log(f"note: {note}")

@@ -33,7 +33,7 @@ def parse_figs(values: list[str] | None) -> list[int]:
 
 
 def parse_tables(values: list[str] | None) -> list[str]:
-    """``--table`` values (1-6, results, or all); bad values raise ValueError."""
+    """``--table`` values (1-6, results, training, or all); bad values raise ValueError."""
     from nutribench.report.build import TABLES
 
     items = _split(values)
@@ -47,7 +47,7 @@ def parse_tables(values: list[str] | None) -> list[str]:
 
 def report_cmd(
     fig: Annotated[Optional[list[str]], typer.Option("--fig", help="figure 1-4 (repeat or comma list; 'all')")] = None,
-    table: Annotated[Optional[list[str]], typer.Option("--table", help="table 1-6 or 'results' (repeat or comma list; 'all')")] = None,
+    table: Annotated[Optional[list[str]], typer.Option("--table", help="table 1-6, 'results' or 'training' (repeat or comma list; 'all')")] = None,
     all_: Annotated[bool, typer.Option("--all", help="every figure and table the database supports")] = False,
     trajectory: Annotated[bool, typer.Option("--trajectory", help="one evaluation episode's trajectory (needs --algo --regime --seed)")] = False,
     algo: Annotated[Optional[str], typer.Option(help="agent config of the trajectory, e.g. ppo")] = None,

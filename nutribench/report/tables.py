@@ -123,3 +123,38 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000) -> TableResult:
             fmt_rows.append(f)
     title = "Results: fixed-policy inference, mean ± standard error over seeds x evaluation episodes"
     return TableResult("results", title, pd.DataFrame(rows), pd.DataFrame(fmt_rows))
+
+
+def table_training(df: pd.DataFrame, last_share: float = 0.1) -> TableResult:
+    """Our training return and foods over the last ``last_share`` of each job's training days
+    (mean over days and seeds, with the seeds' spread as a standard error), next to the
+    authors' logged ones over the last 10 % of their 5000 days
+    (:mod:`nutribench.report.reference`)."""
+    from nutribench.report.reference import AUTHORS_BUDGET, authors_training
+
+    tr = df[df["phase"] == "train"]
+    if tr.empty:
+        raise ValueError("no training episodes for the training table")
+    rows, fmt_rows = [], []
+    for regime in sort_regimes(tr["regime"]):
+        for algo in sort_algos(tr[tr["regime"] == regime]["algo"]):
+            cell = tr[(tr["regime"] == regime) & (tr["algo"] == algo)]
+            budget = int(cell["budget"].max())
+            tail = cell[cell["episode"] >= budget * (1 - last_share)]
+            per_seed = tail.groupby("seed")[["return", "foods"]].mean()
+            theirs = authors_training(algo, regime)
+            row = {"regime": regime, "algo": algo, "days": budget, "seeds": len(per_seed)}
+            f = {"regime": regime, "algorithm": algo_label(algo), "our days": budget, "seeds": len(per_seed)}
+            for m in ("return", "foods"):
+                x = per_seed[m].to_numpy(dtype=float)
+                se = float(x.std(ddof=1) / np.sqrt(x.size)) if x.size > 1 else float("nan")
+                row[f"{m}_mean"], row[f"{m}_sem"] = float(x.mean()), se
+                f[f"our {m}"] = f"{x.mean():.2f} ± {se:.2f}" if np.isfinite(se) else f"{x.mean():.2f}"
+                row[f"authors_{m}"] = float("nan") if theirs is None else theirs[0 if m == "return" else 1]
+                f[f"authors' {m}"] = "" if theirs is None else f"{row[f'authors_{m}']:.1f}"
+            rows.append(row)
+            fmt_rows.append(f)
+    pct = round(100 * last_share)
+    title = (f"Training: mean return and foods per day over the last {pct} % of training days, ours (± standard error over "
+             f"seeds) and the authors' logged ones (last 10 % of their {AUTHORS_BUDGET} days)")  # fmt: skip
+    return TableResult("training", title, pd.DataFrame(rows), pd.DataFrame(fmt_rows))
