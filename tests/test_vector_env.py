@@ -90,3 +90,20 @@ def test_sb3_ppo_learns_a_little_on_the_adapter():
     model = PPO("MlpPolicy", venv, n_steps=50, batch_size=50, n_epochs=1, seed=0, device="cpu")
     model.learn(200)
     assert model.num_timesteps == 200
+
+
+@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
+def test_the_last_steps_info_survives_the_next_days_reset(mode):
+    """Issue 12, defect 1: the day's last info (and SAME_STEP's final_info) kept a reference to
+    the env's distance array, which the next day's reset set back to 3.0 in place."""
+    env = NutriRLVectorEnv(4, regime="run0", autoreset_mode=mode)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        _, _, _, truncated, info = env.step(rng.integers(0, 2, size=4))
+    assert truncated.all()
+    env.step(np.zeros(4, dtype=int))  # NEXT_STEP: this is the reset step; SAME_STEP: day 2, step 1
+    for i in (info, info.get("final_info", info)):
+        expected = np.abs(np.asarray(i["state"]) - 1.0).sum(axis=1)
+        np.testing.assert_allclose(i["distance"], expected)
+        assert not np.allclose(i["distance"], 3.0)

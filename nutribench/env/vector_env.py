@@ -177,13 +177,15 @@ class NutriRLVectorEnv(VectorEnv):
         self._d = d
         self._t = t + 1
         truncated = np.full(n, self._t == H)
+        # every value a fresh array: a later reset (SAME_STEP: this very step) rewrites the
+        # env's own arrays in place, and must not change an info the caller holds
         info = {
             "state": s.T.copy(),
-            "distance": d,
+            "distance": d.copy(),
             "overshoot": (dev > 0.0).T,
             "foods_consumed": self._eaten.copy(),
-            "ate": ate,
-            "food": food,
+            "ate": ate.copy(),
+            "food": food.copy(),
             "step": np.full(n, self._t),
             "reward_progress": progress,
             "reward_comfort": comfort,
