@@ -310,3 +310,22 @@ def test_on_policy_jobs_update_on_their_last_rollout(algo, days, updates, monkey
     assert len(agent.train_episodes) == days
     assert len(calls) == updates
     assert agent.model.num_timesteps == days * 50
+
+
+def test_ddqn_learning_rate_schedule_is_sb3s_picklable_linear_schedule(tmp_path):
+    """Issue 12, defect 5: a closure as schedule is pickled into the saved model by cloudpickle
+    and breaks loading elsewhere; SB3's LinearSchedule is a plain class."""
+    import pickle
+
+    from stable_baselines3.common.utils import LinearSchedule
+
+    from nutribench.agents.algos import build_model
+    from nutribench.agents.api import make_train_env
+    from nutribench.config import load_env_config
+
+    cfg = load_agent_config("ddqn")
+    _, env = make_train_env(load_env_config("run0"), cfg)
+    model = build_model(cfg, env, seed=0, horizon=50)
+    schedule = pickle.loads(pickle.dumps(model.lr_schedule))  # plain pickle: no closure inside
+    assert isinstance(getattr(schedule, "value_schedule", schedule), LinearSchedule)
+    assert schedule(1.0) == pytest.approx(1e-3) and schedule(0.5) == pytest.approx(5.5e-4) and schedule(0.0) == pytest.approx(1e-4)

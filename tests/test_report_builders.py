@@ -154,3 +154,14 @@ def test_training_table_is_the_last_tenth_of_training_beside_the_authors():
     assert (raw.loc[("run0", "ppo"), "authors_return"], raw.loc[("run0", "ppo"), "authors_foods"]) == (-5.9, 5.0)
     assert (raw.loc[("run6", "sac"), "authors_return"], raw.loc[("run6", "sac"), "authors_foods"]) == (-29.0, 25.3)
     assert "authors' return" in res.formatted.columns
+
+
+def test_latex_escapes_every_special_character():
+    from nutribench.report.tables import TableResult, latex_escape
+
+    assert latex_escape("a_b 50% & #1 $x$ {y} ~z^2 \\ ±") == (
+        r"a\_b 50\% \& \#1 \$x\$ \{y\} \textasciitilde{}z\textasciicircum{}2 \textbackslash{} $\pm$"
+    )
+    frame = pd.DataFrame({"name": ["ppo_#2 {v~1}"]})
+    tex = TableResult("t", "title $", frame, frame).to_latex()
+    assert r"ppo\_\#2 \{v\textasciitilde{}1\}" in tex and r"title \$" in tex

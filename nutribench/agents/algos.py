@@ -17,7 +17,6 @@ value heads on it: "shared actor-critic, 1 value head" (SPEC 3).
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
@@ -26,6 +25,7 @@ import torch as th
 from stable_baselines3 import A2C, DQN, PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
+from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 from torch.nn import functional as F
@@ -117,15 +117,6 @@ class DoubleDQN(DQN):
 
 
 # ---------------------------------------------------------------------------- builders
-def linear_schedule(start: float, end: float) -> Callable[[float], float]:
-    """SB3 schedule: ``start`` at progress_remaining 1, ``end`` at 0."""
-
-    def schedule(progress_remaining: float) -> float:
-        return end + (start - end) * progress_remaining
-
-    return schedule
-
-
 def build_model(cfg: Any, env: VecEnv, seed: int, horizon: int) -> BaseAlgorithm:
     """The SB3 algorithm object for config ``cfg`` on ``env`` (CPU, seeded, silent)."""
     common = dict(env=env, seed=seed, device="cpu", verbose=0, gamma=cfg.gamma)
@@ -157,7 +148,7 @@ def build_model(cfg: Any, env: VecEnv, seed: int, horizon: int) -> BaseAlgorithm
         )  # fmt: skip
     if isinstance(cfg, DDQNConfig):
         return DoubleDQN(
-            "MlpPolicy", learning_rate=linear_schedule(cfg.learning_rate_start, cfg.learning_rate_end),
+            "MlpPolicy", learning_rate=LinearSchedule(cfg.learning_rate_start, cfg.learning_rate_end, end_fraction=1.0),
             buffer_size=cfg.buffer_size, learning_starts=cfg.learning_starts, batch_size=cfg.batch_size,
             n_steps=cfg.n_step, max_grad_norm=cfg.max_grad_norm,
             target_update_interval=cfg.target_update_interval, train_freq=cfg.train_freq,

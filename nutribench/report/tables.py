@@ -33,7 +33,7 @@ class TableResult:
 
     def to_latex(self) -> str:
         cols = list(self.formatted.columns)
-        esc = lambda s: str(s).replace("\\", r"\textbackslash{}").replace("_", r"\_").replace("%", r"\%").replace("±", r"$\pm$").replace("&", r"\&")  # noqa: E731
+        esc = latex_escape
         lines = [
             r"\begin{table}[t]",
             r"\centering",
@@ -50,6 +50,16 @@ class TableResult:
 
     def to_csv(self) -> str:
         return self.raw.to_csv(index=False)
+
+
+#: LaTeX's special characters and what each becomes in running text.
+_LATEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
+                  "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}", "±": r"$\pm$"}  # fmt: skip
+
+
+def latex_escape(value: object) -> str:
+    """``value`` as LaTeX text: every special character escaped, character by character."""
+    return "".join(_LATEX_SPECIAL.get(ch, ch) for ch in str(value))
 
 
 def table_regimes(configs) -> TableResult:
