@@ -107,3 +107,21 @@ def test_the_last_steps_info_survives_the_next_days_reset(mode):
         expected = np.abs(np.asarray(i["state"]) - 1.0).sum(axis=1)
         np.testing.assert_allclose(i["distance"], expected)
         assert not np.allclose(i["distance"], 3.0)
+
+
+def test_sb3_adapter_passes_each_envs_info_through():
+    """Issue 12, defect 3: VecMonitor(info_keywords=...) needs the env's info per env."""
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    base = NutriRLSB3VecEnv(num_envs=3, regime="run0")
+    base.seed(0)
+    venv = VecMonitor(base, info_keywords=("foods_consumed", "distance"))
+    venv.reset()
+    for t in range(50):
+        _, _, dones, infos = venv.step(np.array([1, 0, int(t % 10 == 0)]))
+        assert [int(i["step"]) for i in infos] == [t + 1] * 3
+    assert dones.all()
+    assert [i["episode"]["foods_consumed"] for i in infos] == [50, 0, 5]
+    for i in infos:
+        np.testing.assert_allclose(i["episode"]["distance"], np.abs(i["state"] - 1.0).sum())
+        assert i["terminal_observation"].shape == (13,)

@@ -57,7 +57,10 @@ class NutriRLSB3VecEnv(VecEnv):
         self.last_info = info
         self.last_rewards = rewards
         dones = terminated | truncated
-        infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        # the env's info, env by env (what VecMonitor(info_keywords=...) and callbacks read);
+        # at a day's end it is the day's last step's info, the next day's first obs aside
+        per_env = [(k, v) for k, v in info.items() if k not in ("final_obs", "final_info")]
+        infos: list[dict[str, Any]] = [{k: v[j] for k, v in per_env} for j in range(self.num_envs)]
         if dones.any():
             final_obs = info["final_obs"]
             for j in np.flatnonzero(dones):
