@@ -186,6 +186,7 @@ def train_cmd(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     from nutribench.agents import eval_food_streams, evaluate, load_agent_config, train
+    from nutribench.agents.api import vec_normalize_path
     from nutribench.config import load_env_config
 
     env_cfg = load_env_config(regime)
@@ -218,7 +219,9 @@ def train_cmd(
     table.add_row("mean", f"{mean('return'):.2f}", f"{mean('foods'):.2f}", f"{mean('final_distance'):.3f}", f"{mean('overshoot_ratio'):.2f}", "")
     console.print(table)
     if save is not None:
-        console.print(f"model saved to {agent.save(save)} (+ {save.with_suffix('.json').name})")
+        path = agent.save(save)
+        extra = [p.name for p in (vec_normalize_path(path), path.with_suffix(".json")) if p.is_file()]
+        console.print(f"model saved to {path} (+ {', '.join(extra)}; README \"Agents\" shows how to load it with plain SB3)")
 
 
 @bench_app.command("train")

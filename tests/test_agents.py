@@ -329,3 +329,36 @@ def test_ddqn_learning_rate_schedule_is_sb3s_picklable_linear_schedule(tmp_path)
     schedule = pickle.loads(pickle.dumps(model.lr_schedule))  # plain pickle: no closure inside
     assert isinstance(getattr(schedule, "value_schedule", schedule), LinearSchedule)
     assert schedule(1.0) == pytest.approx(1e-3) and schedule(0.5) == pytest.approx(5.5e-4) and schedule(0.0) == pytest.approx(1e-4)
+
+
+@pytest.mark.parametrize(("algo", "sb3_class"), [("ppo", "PPO"), ("mc", "A2C"), ("ddqn", "DQN")])
+def test_a_saved_model_plays_the_same_greedy_actions_in_plain_sb3(algo, sb3_class, tmp_path):
+    """Issue 12, defect 2: the README's plain-SB3 recipe (the model's SB3 class, VecNormalize
+    loaded from the pickle beside it) acts exactly as nutribench's own agent does."""
+    import json
+
+    import stable_baselines3
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from nutribench.agents.api import vec_normalize_path
+    from nutribench.env.sb3 import NutriRLSB3VecEnv
+
+    cfg = load_agent_config(algo).model_copy(update={"learning_starts": 100} if algo == "ddqn" else {})
+    agent = train("run3", cfg, seed=3, episodes=12)
+    path = agent.save(tmp_path / f"{algo}.zip")
+    side = json.loads(path.with_suffix(".json").read_text())
+    assert side["load_with"] == f"stable_baselines3.{sb3_class}"
+    assert side["provenance"]["regime"] == "run3" and side["provenance"]["seed"] == 3 and side["provenance"]["episodes"] == 12
+
+    env = VecNormalize.load(str(vec_normalize_path(path)), NutriRLSB3VecEnv(num_envs=4, regime="run3"))
+    env.training, env.norm_reward = False, False
+    model = getattr(stable_baselines3, sb3_class).load(path, device="cpu")
+    env.seed(5)
+    obs = env.reset()
+    agreed = []
+    for _ in range(50):
+        action, _ = model.predict(obs, deterministic=True)
+        ours, _ = agent.act(env.get_original_obs())
+        agreed.append(np.array_equal(np.asarray(action).reshape(-1), np.asarray(ours).reshape(-1)))
+        obs, _, _, _ = env.step(action)
+    assert all(agreed)

@@ -48,6 +48,28 @@ NORM_EPS = 1e-8
 
 EpisodeFn = Callable[[dict[str, Any]], None]
 
+#: The class that loads each algorithm's saved .zip with plain SB3 (``CLASS.load(path)``).
+#: MC and DDQN are SB3's A2C and DQN with other settings or another ``train()``, so SB3's own
+#: classes load and act with them; discrete SAC and GRU-PPO have policies of their own.
+PLAIN_SB3_CLASSES = {
+    "mc": "stable_baselines3.A2C", "ddqn": "stable_baselines3.DQN", "ppo": "stable_baselines3.PPO",
+    "sac": "nutribench.agents.sac.DiscreteSAC", "gru_ppo": "nutribench.agents.gru_ppo.GRUPPO",
+}  # fmt: skip
+
+
+def vec_normalize_path(model_path: str | Path) -> Path:
+    """Where the ``VecNormalize`` statistics of a saved model live: ``m.zip`` -> ``m.vecnormalize.pkl``."""
+    return Path(model_path).with_suffix(".vecnormalize.pkl")
+
+
+def _package_version() -> str | None:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("nutribench")
+    except PackageNotFoundError:
+        return None
+
 
 def eval_food_streams(regime: str | EnvConfig, job_seed: int, n: int = 5) -> np.ndarray:
     """``n`` evaluation days ``(n, horizon)`` of food indices, drawn from the job seed alone,
@@ -70,6 +92,10 @@ class TrainedAgent:
     obs_mean: np.ndarray | None = None
     obs_var: np.ndarray | None = None
     train_episodes: list[dict[str, Any]] = field(default_factory=list)
+    #: the ``VecNormalize`` the model was trained in (saved beside the model for plain SB3)
+    vec_normalize: VecNormalize | None = None
+    #: where the model came from: regime, regime_version, regime_sha256, seed, episodes
+    provenance: dict[str, Any] = field(default_factory=dict)
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         """Observations as the policy saw them in training (VecNormalize's formula)."""
@@ -90,15 +116,31 @@ class TrainedAgent:
         return actions, None
 
     def save(self, path: str | Path) -> Path:
-        """``path`` (.zip, SB3's format) and ``path`` with ``.json`` (algo, config, obs statistics)."""
+        """Write the model the SB3 way, loadable without nutribench's own code paths:
+
+        * ``path`` (.zip): the SB3 model (``PLAIN_SB3_CLASSES[algo]``, e.g. ``PPO.load(path)``);
+        * ``path`` with ``.vecnormalize.pkl``: the observation (and reward) normaliser, as
+          ``VecNormalize.save`` writes it (rl-zoo3's habit), if the config normalises;
+        * ``path`` with ``.json``: algo, the class that loads the model, the agent config, the
+          observation statistics, and where the model came from (regime name, version and
+          content hash, seed, training days, nutribench version, git commit).
+        """
+        from nutribench.jobs.metadata import git_state
+
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         self.model.save(path)
+        if self.vec_normalize is not None:
+            self.vec_normalize.save(str(vec_normalize_path(path)))
+        commit, dirty = git_state()
         side = {
             "algo": self.algo,
+            "load_with": PLAIN_SB3_CLASSES[self.algo],
+            "vec_normalize": vec_normalize_path(path).name if self.vec_normalize is not None else None,
             "config": agent_config_content(self.config),
             "obs_mean": None if self.obs_mean is None else self.obs_mean.tolist(),
             "obs_var": None if self.obs_var is None else self.obs_var.tolist(),
+            "provenance": {**self.provenance, "nutribench_version": _package_version(), "git_commit": commit, "git_dirty": dirty},
         }
         path.with_suffix(".json").write_text(json.dumps(side, indent=1))
         return path
@@ -187,7 +229,12 @@ def train(
     recorder = EpisodeMetrics(base, cfg.algo, episodes, on_episode)
     model.learn(total_timesteps=episodes * horizon, callback=recorder)
     rms: RunningMeanStd | None = env.obs_rms if cfg.normalize_obs else None  # type: ignore[union-attr]
-    agent = TrainedAgent(model, cfg.algo, cfg, None if rms is None else rms.mean.copy(), None if rms is None else rms.var.copy())
+    provenance = {"regime": env_cfg.name, "regime_version": env_cfg.version, "regime_sha256": env_cfg.sha256,
+                  "agent_config": cfg.name, "agent_config_version": cfg.version, "seed": seed, "episodes": episodes}  # fmt: skip
+    agent = TrainedAgent(
+        model, cfg.algo, cfg, None if rms is None else rms.mean.copy(), None if rms is None else rms.var.copy(),
+        vec_normalize=env if isinstance(env, VecNormalize) else None, provenance=provenance,
+    )  # fmt: skip
     agent.train_episodes = recorder.episodes
     return agent
 
