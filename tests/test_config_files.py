@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from typer.testing import CliRunner
 
@@ -84,3 +86,28 @@ def test_regimes_generate_prints_the_file():
     result = runner.invoke(app, ["regimes", "generate", "run3"])
     assert result.exit_code == 0
     assert result.output == load_env_config("run3").path.read_text()
+
+
+@pytest.mark.parametrize(
+    ("mutate", "expected"),
+    [
+        (lambda t: t.replace("[ranges]", "x = [\n[ranges]"), r"run3\.toml: not valid TOML: .*line \d+"),  # syntax error
+        (lambda t: t.replace("[foods]", "[food_values]"), r"run3\.toml: .*foods"),  # a renamed table
+    ],
+)
+def test_a_broken_regime_file_fails_check_and_run_instead_of_leaving_the_grid(tmp_path, monkeypatch, mutate, expected):
+    """Issue 13, defect 1: a regime file that did not parse was skipped by the listing, so
+    `regimes check` said ok for the other six and `run` ran a six-regime grid with exit 0."""
+    import re
+    import shutil
+
+    folder = tmp_path / "regimes"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "regimes", folder)
+    (folder / "run3.toml").write_text(mutate((folder / "run3.toml").read_text()))
+    monkeypatch.setenv("NUTRIBENCH_REGIMES", str(folder))
+    check = runner.invoke(app, ["regimes", "check"])
+    assert check.exit_code == 2 and re.search(expected, check.output), check.output
+    run = runner.invoke(app, ["run", "--regimes", "all", "--algos", "mc", "--seeds", "0", "--episodes", "2",
+                              "--db", str(tmp_path / "r.db")], env={"NUTRIBENCH_JOB": "fake"})  # fmt: skip
+    assert run.exit_code == 2 and re.search(expected, run.output), run.output
+    assert not (tmp_path / "r.db").exists()

@@ -182,14 +182,14 @@ def load_env_config(regime: str | os.PathLike[str] | EnvConfig) -> EnvConfig:
 
 
 def list_regimes(folder: Path | None = None) -> list[str]:
-    """Names of the regime files in ``folder`` (files with ``ranges`` and ``foods`` tables)."""
+    """Names of the regime files in ``folder``: files with any of a regime's own keys
+    (``ranges``, ``foods``, ``catalog``), so that a regime file missing one of them is listed
+    and then fails to load with the field named. A file that is not valid TOML raises
+    :class:`ConfigError` (file, line and column): it must not silently leave the grid."""
     folder = folder or regimes_dir()
     names = []
     for p in sorted(folder.glob("*.toml")):
-        try:
-            data = read_toml(p)
-        except ConfigError:
-            continue
-        if "ranges" in data and "foods" in data:
+        data = read_toml(p)
+        if any(key in data for key in ("ranges", "foods", "catalog")):
             names.append(p.stem)
     return names
