@@ -288,7 +288,8 @@ def test_bench_train_reports_each_algorithm_and_its_bare_references():
         assert r["paper_grid_cpu_hours"] == pytest.approx(grid_steps / r["steps_per_s"] / 3600)
     # our rows with a bare reference carry the paired ratio, the others (and bare rows) none
     assert [("vs_bare" in r) for r in rows] == [True, False, True, False, False, False]
-    assert all(0 < r["vs_bare"] < 10 for r in rows if "vs_bare" in r)
+    # a ratio of two timings: its shape is tested, never its size (timings belong in benchmarks)
+    assert all(math.isfinite(r["vs_bare"]) and r["vs_bare"] > 0 for r in rows if "vs_bare" in r)
 
 
 # ---------------------------------------------------------------------- last rollout
