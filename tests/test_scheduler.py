@@ -199,7 +199,10 @@ def _wait_for(predicate, timeout: float = 30.0) -> None:
     raise AssertionError("timed out")
 
 
-def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path, tmp_path: Path, sig) -> None:
+    """Ctrl-C, and as it (issue 13, defect 2) a batch system's SIGTERM and a closed terminal's
+    SIGHUP: the running jobs are released as interrupted at once, not left `running`."""
     db = tmp_path / "r.db"
     cmd = [NUTRIBENCH, "run", "--db", str(db), "--regimes", "run0", "--algos", "ppo,sac", "--seeds", "0,21",
            "--episodes", "400", "--eval-episodes", "2", "--workers", "2"]  # fmt: skip
@@ -210,7 +213,7 @@ def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path,
                   and sql(db, "SELECT count(*) FROM jobs WHERE status='running' AND episodes_done > 0")[0][0] == 2)
         report = status_table(db)  # status while the run writes
         assert (report.totals["running"], report.totals["pending"], report.totals["jobs"]) == (2, 2, 4)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         out, _ = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:

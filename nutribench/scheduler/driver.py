@@ -413,8 +413,9 @@ class _Run:
             self.view.update(self)
 
     def interrupt(self) -> None:
-        """Ctrl-C: stop the workers, mark their jobs interrupted, write nothing else."""
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
+        """Ctrl-C (or SIGTERM, SIGHUP): stop the workers, mark their jobs interrupted, write
+        nothing else. A second signal meanwhile is ignored, so the cleanup finishes."""
+        previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in STOP_SIGNALS} if _main_thread() else None
         try:
             try:
                 self.handle.terminate_running()
@@ -424,8 +425,32 @@ class _Run:
             self.in_flight.clear()
             self.live.clear()
         finally:
-            if previous is not None:
-                signal.signal(signal.SIGINT, previous)
+            for sig, handler in (previous or {}).items():
+                signal.signal(sig, handler)
+
+
+#: Signals that stop a run as Ctrl-C does: a batch system's preemption (SIGTERM) and a closed
+#: terminal (SIGHUP) release the running jobs as ``interrupted`` at once.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+def _raise_keyboard_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+class _StopSignalsAsCtrlC:
+    """Within the block, SIGTERM and SIGHUP raise KeyboardInterrupt as SIGINT does (main
+    thread only; elsewhere signal handlers cannot be set)."""
+
+    def __enter__(self) -> None:
+        self.previous = {}
+        if _main_thread():
+            for sig in STOP_SIGNALS[1:]:
+                self.previous[sig] = signal.signal(sig, _raise_keyboard_interrupt)
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self.previous.items():
+            signal.signal(sig, handler)
 
 
 def _main_thread() -> bool:
@@ -484,7 +509,8 @@ def run_grid(
             run.planned = runnable
             view.start(run)
             try:
-                run.loop()
+                with _StopSignalsAsCtrlC():
+                    run.loop()
             except KeyboardInterrupt:
                 run.interrupt()
             finally:
