@@ -306,6 +306,21 @@ def test_dask_executor_runs_jobs_on_a_local_cluster(regimes: Path, tmp_path: Pat
     assert len(pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")) == 2 * 10
 
 
+def test_an_unreachable_dask_scheduler_fails_before_the_database_is_touched(regimes: Path, tmp_path: Path) -> None:
+    """Issue 13, defect 5: the database file, config rows and pending jobs were written first."""
+    import socket
+
+    from nutribench.scheduler.executors import ExecutorError
+
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    db = tmp_path / "r.db"
+    with pytest.raises(ExecutorError, match=f"cannot reach the dask scheduler at tcp://127.0.0.1:{port}"):
+        run_grid(db, ["run0"], ["ppo"], [0], 4, 1, executor=f"dask://127.0.0.1:{port}", job_fn=fake_run_job, display=False)
+    assert not db.exists()
+
+
 def test_bench_status_times_a_given_database(tmp_path: Path) -> None:
     from nutribench.bench import bench_status
 

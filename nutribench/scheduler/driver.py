@@ -39,7 +39,7 @@ from sqlalchemy.orm import Session
 
 from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
 from nutribench.jobs.worker import JobFn, execute
-from nutribench.scheduler.executors import ExecutorHandle, make_executor
+from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
 from nutribench.scheduler.grid import Grid
 from nutribench.store import AgentConfig, Episode, EvalStep, Job, RegimeConfig, open_store, session_scope, utcnow
 from nutribench.store.engine import sqlite_path
@@ -483,6 +483,7 @@ def run_grid(
     grid = Grid(tuple(regimes), tuple(algos), tuple(seeds), episodes, eval_episodes)
     job_fn = job_fn or default_job_fn()
     regime_cfgs, agent_cfgs = load_grid_configs(grid)  # before the database file is created
+    probe_executor(executor)  # likewise: an unreachable cluster writes nothing
     store = open_store(db, writer=True)
     try:
         job_ids = register_grid(store, grid, regime_cfgs, agent_cfgs)

@@ -134,6 +134,16 @@ def dask_executor(address: str, workers: int | None) -> ExecutorHandle:
     )  # fmt: skip
 
 
+def probe_executor(spec: str | None) -> None:
+    """Raise :class:`ExecutorError` now if ``spec`` is unknown or names a dask scheduler that
+    cannot be reached, so that ``run`` fails before it creates or writes the database."""
+    spec = (spec or "local").strip()
+    if spec == "local":
+        return
+    handle, _ = make_executor(spec, None, 1)
+    handle.close()
+
+
 def make_executor(spec: str | None, workers: int | None, n_jobs: int) -> tuple[ExecutorHandle, str | None]:
     """``local`` or ``dask://HOST:PORT`` (or ``tcp://``, ``tls://``). Returns the handle and a
     note for the user when the worker count was reduced."""
