@@ -183,6 +183,23 @@ def test_failing_job_is_retried_until_the_limit(regimes: Path, tmp_path: Path) -
     assert report.errors[0]["retried"] is False
 
 
+
+def test_retry_failed_runs_a_given_up_job_again_and_clears_its_error(regimes: Path, tmp_path: Path) -> None:
+    """Issue 13, defect 6: once a job's cause is fixed, `run --retry-failed` tries it again;
+    a job that then succeeds no longer shows its old error."""
+    db = tmp_path / "r.db"
+    args = dict(seeds=[0], episodes=6, eval_episodes=1, workers=1, display=False)
+    for _ in range(MAX_FAILURES):
+        run_grid(db, ["run1"], ["sac"], job_fn=EnvJob(NUTRIBENCH_FAKE_FAIL="run1:sac:0"), **args)
+    assert run_grid(db, ["run1"], ["sac"], job_fn=fake_run_job, **args).given_up == 1  # the cause is fixed, still given up
+    s = run_grid(db, ["run1"], ["sac"], job_fn=fake_run_job, retry_failed=True, **args)
+    assert (s.done, s.failed, s.given_up, s.exit_code) == (1, 0, 0, 0)
+    assert sql(db, "SELECT status, error FROM jobs") == [("done", None)]
+    res = CliRunner().invoke(app, ["run", "--db", str(db), "--regimes", "run1", "--algos", "sac", "--seeds", "0",
+                              "--episodes", "6", "--eval-episodes", "1", "--retry-failed"], env={"NUTRIBENCH_JOB": "fake"})  # fmt: skip
+    assert res.exit_code == 0 and "1 already done" in res.output, res.output
+
+
 # --------------------------------------------------------------------------- processes
 def _env(regimes: Path, **extra: str) -> dict[str, str]:
     env = dict(os.environ, NUTRIBENCH_REGIMES=str(regimes), NUTRIBENCH_JOB="fake", **extra)

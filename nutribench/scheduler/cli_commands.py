@@ -76,6 +76,7 @@ def run_cmd(
     db: Annotated[str, typer.Option(help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
     models_dir: Annotated[Optional[Path], typer.Option(help="where trained models go (default: models/ next to the db)")] = None,
     upgrade_only: Annotated[bool, typer.Option("--upgrade-only", help="create or upgrade the database schema, then exit")] = False,
+    retry_failed: Annotated[bool, typer.Option("--retry-failed", help="try again the jobs that failed 3 times (once their cause is fixed)")] = False,
 ) -> None:
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
     from nutribench.store import open_store
@@ -105,7 +106,7 @@ def run_cmd(
     try:
         summary = run_grid(
             db, grid.regimes, grid.algos, grid.seeds, grid.episodes, grid.eval_episodes, workers=workers,
-            executor=executor, job_fn=job_fn, models_dir=models_dir, display=True,
+            executor=executor, job_fn=job_fn, models_dir=models_dir, display=True, retry_failed=retry_failed,
         )  # fmt: skip
     except KeyboardInterrupt:  # before any job started (opening the database, claiming)
         raise typer.Exit(130) from None
@@ -113,7 +114,7 @@ def run_cmd(
     if summary.busy:
         parts.append(f"{summary.busy} running in another driver")
     if summary.given_up:
-        parts.append(f"{summary.given_up} failed {MAX_FAILURES} times (not retried: see `nutribench status`)")
+        parts.append(f"{summary.given_up} failed {MAX_FAILURES} times (not retried: see `nutribench status`; `--retry-failed` tries them again)")
     if summary.interrupted:
         parts.append(f"{summary.interrupted} interrupted (the next run resumes them)")
     cli.err_console.print(f"{summary.total} jobs: " + ", ".join(parts), highlight=False)

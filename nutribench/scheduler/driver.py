@@ -177,6 +177,16 @@ def register_grid(store: Store, grid: Grid, regimes: list[_Config], agents: list
         return [existing[k] for k in keys]
 
 
+def reset_given_up(store: Store, job_ids: Sequence[int]) -> int:
+    """``--retry-failed``: jobs of ``job_ids`` that failed :data:`MAX_FAILURES` times get their
+    failure count reset (their last error stays until they succeed); how many."""
+    with session_scope(store.engine) as s:
+        return s.execute(
+            update(Job).where(Job.id.in_(job_ids), Job.status == "failed", Job.failures >= MAX_FAILURES)
+            .values(failures=0).execution_options(synchronize_session=False)
+        ).rowcount  # fmt: skip
+
+
 # --------------------------------------------------------------------------- claims
 def _claimable(now) -> Any:
     stale = now - timedelta(seconds=STALE_AFTER_S)
@@ -251,7 +261,7 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
         claimed = s.execute(
             update(Job).where(Job.id == result.job_id, Job.owner == owner, Job.status == "running").values(
                 status="done", owner=None, heartbeat_at=utcnow(), episodes_done=job.episodes,
-                model_path=result.model_path or model_path, **meta,
+                model_path=result.model_path or model_path, error=None, **meta,
             ).execution_options(synchronize_session=False)
         ).rowcount  # fmt: skip
         if claimed != 1:
@@ -471,9 +481,11 @@ def run_grid(
     job_fn: JobFn | None = None,
     models_dir: str | os.PathLike[str] | None = None,
     display: bool = True,
+    retry_failed: bool = False,
 ) -> RunSummary:
     """Run every job of the grid regime x algo x seed that is not done yet (see the module
     docstring). Returns counts; ``summary.exit_code`` is what ``nutribench run`` exits with.
+    ``retry_failed``: jobs that failed :data:`MAX_FAILURES` times are tried again.
 
     Raises ConfigError (bad config file), StoreError (bad database), ExecutorError (bad
     ``executor``) or RunError (config changed without a version bump), all one line.
@@ -487,6 +499,8 @@ def run_grid(
     store = open_store(db, writer=True)
     try:
         job_ids = register_grid(store, grid, regime_cfgs, agent_cfgs)
+        if retry_failed:
+            reset_given_up(store, job_ids)
         runnable = count_claimable(store, job_ids)
         owner = driver_token()
         out = Path(models_dir) if models_dir is not None else default_models_dir(store)
