@@ -244,3 +244,5 @@ def test_trajectory_writes_png(full_db: Path, tmp_path: Path):
     assert str(png) in result.stdout.replace("\n", "")
     line = one_error_line(invoke("--trajectory", "--algo", "ppo", "--regime", "run3", "--seed", "9", "--db", str(full_db), "--out", str(out)))
     assert "no evaluation steps for ppo/run3 seed 9 episode 0" in line and "available:" in line
+    # a few cells, and how to see all of them (it printed every combination in one long line)
+    assert line.count("/run") <= 1 + 4 and "SELECT DISTINCT algo, regime, seed" in line and len(line) < 400, line

@@ -366,13 +366,19 @@ def build_trajectory(db: Db, algo: str, regime: str, seed: int, episode: int = 0
     return write_figure(fig, out, f"trajectory_{regime}_{algo}_seed{seed}_ep{episode}")
 
 
+#: Cells listed in "trajectory not found" before "... N more".
+AVAILABLE_SHOWN = 4
+
+
 def _available(steps: pd.DataFrame) -> str:
     if steps.empty:
         return " (the database holds no evaluation steps)"
     cells = steps[["algo", "regime", "seed"]].drop_duplicates()
     parts = [f"{a}/{r} seeds {','.join(map(str, sorted(g['seed'])))}" for (a, r), g in cells.groupby(["algo", "regime"])]
     eps = sorted(steps["episode"].unique())
-    return f"; available: {'; '.join(parts)} (episodes {eps[0]}-{eps[-1]})"
+    shown = "; ".join(parts[:AVAILABLE_SHOWN]) + (f"; ... {len(parts) - AVAILABLE_SHOWN} more" if len(parts) > AVAILABLE_SHOWN else "")
+    return (f"; available: {shown} (episodes {eps[0]}-{eps[-1]}; all of them: "
+            "nutribench status, or SELECT DISTINCT algo, regime, seed FROM episode_metrics WHERE phase = 'eval')")
 
 
 __all__ = [
