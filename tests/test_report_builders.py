@@ -165,3 +165,11 @@ def test_latex_escapes_every_special_character():
     frame = pd.DataFrame({"name": ["ppo_#2 {v~1}"]})
     tex = TableResult("t", "title $", frame, frame).to_latex()
     assert r"ppo\_\#2 \{v\textasciitilde{}1\}" in tex and r"title \$" in tex
+
+
+def test_the_best_line_says_smoothed_only_when_the_curves_are():
+    """Issue 13 small cut: the caption said "no smoothing" while the legend said "best (smoothed)"."""
+    for window, label in ((1, "best"), (5, "best (smoothed)")):
+        res = training_curves(synthetic(), "return", window=window)
+        labels = [l.get_label() for ax in res.figure.axes for l in ax.get_lines()]
+        assert label in labels and ("best (smoothed)" in labels) == (window > 1)

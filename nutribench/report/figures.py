@@ -173,7 +173,7 @@ def training_curves(
             best = max(best, float(np.nanmax(mean)))
             rows.append(pd.DataFrame({"regime": regime, "algo": algo, "episode": x, "mean": mean, "sem": se, "n_seeds": wide.shape[0]}))
         if best_line and np.isfinite(best):
-            ax.axhline(best, color="k", ls="--", lw=0.9, label="best (smoothed)")
+            ax.axhline(best, color="k", ls="--", lw=0.9, label="best (smoothed)" if window > 1 else "best")
         ax.set_title(f"{regime}", fontsize=10)
         ax.grid(alpha=0.3)
         if k % ncols == 0:
