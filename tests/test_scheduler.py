@@ -200,6 +200,33 @@ def test_retry_failed_runs_a_given_up_job_again_and_clears_its_error(regimes: Pa
     assert res.exit_code == 0 and "1 already done" in res.output, res.output
 
 
+
+def test_a_rerun_after_a_driver_crash_waits_and_takes_the_orphaned_jobs_over(regimes: Path, tmp_path: Path) -> None:
+    """Issue 13, defect 3: after a driver crash the obvious re-run exited 0 ("2 running in
+    another driver") with work not done. Now it waits until their heartbeat is stale, then
+    runs them; it never runs a job whose driver is alive (test_two_concurrent_runs_...)."""
+    from datetime import timedelta
+
+    from nutribench.scheduler import driver
+    from nutribench.store.engine import utcnow
+
+    db = tmp_path / "r.db"
+    args = dict(seeds=[0, 1], episodes=4, eval_episodes=1, workers=1, job_fn=fake_run_job, display=False)
+    assert run_grid(db, ["run0"], ["ppo"], **args).done == 2
+    engine = create_engine(f"sqlite:///{db}")
+    beat = utcnow() - timedelta(seconds=driver.STALE_AFTER_S - 2)  # the crashed driver's last heartbeat
+    with engine.begin() as conn:  # as a crashed driver leaves it: running, no rows written
+        conn.execute(text("UPDATE jobs SET status='running', owner='crashed', heartbeat_at=:b, episodes_done=2 "
+                          "WHERE seed = 1"), {"b": beat})  # fmt: skip
+        for table in ("episodes", "eval_steps"):
+            conn.execute(text(f"DELETE FROM {table} WHERE job_id IN (SELECT id FROM jobs WHERE seed = 1)"))
+    t0 = time.monotonic()
+    s = run_grid(db, ["run0"], ["ppo"], **args)
+    assert (s.done, s.busy, s.exit_code) == (1, 0, 0)
+    assert 1.0 < time.monotonic() - t0 < 30
+    assert set(statuses(db).values()) == {"done"}
+
+
 # --------------------------------------------------------------------------- processes
 def _env(regimes: Path, **extra: str) -> dict[str, str]:
     env = dict(os.environ, NUTRIBENCH_REGIMES=str(regimes), NUTRIBENCH_JOB="fake", **extra)

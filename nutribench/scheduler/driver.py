@@ -30,7 +30,7 @@ import uuid
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
-from datetime import timedelta
+from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +47,7 @@ from nutribench.store.schema import Store
 
 MAX_FAILURES = 3  # a job that failed this often is no longer retried
 STALE_AFTER_S = 120.0  # a running job whose heartbeat is older belongs to a dead driver
+WAIT_POLL_S = 1.0  # how often a driver with nothing to run looks at jobs held by another
 FLUSH_EVERY_S = 3.0  # progress + heartbeat writes
 EPISODE_COLUMNS = ("return", "foods", "final_distance", "overshoot_ratio", "final_C", "final_F", "final_P",
                    "first_overshoot_step", "entropy")  # fmt: skip
@@ -221,6 +222,18 @@ def claim_jobs(store: Store, job_ids: Sequence[int], exclude: set[int], n: int, 
             ).execution_options(synchronize_session=False)
         )  # fmt: skip
         return list(s.execute(select(Job).where(Job.id.in_(ids), Job.owner == owner, Job.status == "running")).scalars())
+
+
+def held_elsewhere(store: Store, job_ids: Sequence[int], owner: str) -> tuple[int, datetime | None]:
+    """How many of ``job_ids`` another driver is running (fresh heartbeat), and when the
+    last of them becomes claimable if that driver's heartbeat stops now."""
+    fresh = utcnow() - timedelta(seconds=STALE_AFTER_S)
+    with store.engine.connect() as conn:
+        beats = conn.execute(select(Job.heartbeat_at).where(
+            Job.id.in_(job_ids), Job.status == "running", Job.owner != owner, Job.heartbeat_at >= fresh)).scalars().all()  # fmt: skip
+    if not beats:
+        return 0, None
+    return len(beats), max(beats) + timedelta(seconds=STALE_AFTER_S)
 
 
 def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, int]:
@@ -422,6 +435,26 @@ class _Run:
                 last_flush = time.monotonic()
             self.view.update(self)
 
+    def wait_for_others(self) -> None:
+        """Jobs of the grid held by another driver: wait until that driver has finished them,
+        or, if its heartbeat stops (a crashed driver), take them over once they are
+        :data:`STALE_AFTER_S` old, so that a re-run after a crash finishes the grid."""
+        said = None
+        while True:
+            held, claimable_at = held_elsewhere(self.store, self.job_ids, self.owner)
+            if count_claimable(self.store, [j for j in self.job_ids if j not in self.attempted]):
+                self.exhausted = False
+                self.loop()
+                continue
+            if not held:
+                return
+            if claimable_at != said:
+                self.view.log(f"waiting for {held} job{'s' if held != 1 else ''} held by another driver: done there, "
+                              f"or taken over here at {claimable_at:%H:%M:%S} UTC if its heartbeat stops")  # fmt: skip
+                said = claimable_at
+            time.sleep(WAIT_POLL_S)
+            self.view.update(self)
+
     def interrupt(self) -> None:
         """Ctrl-C (or SIGTERM, SIGHUP): stop the workers, mark their jobs interrupted, write
         nothing else. A second signal meanwhile is ignored, so the cleanup finishes."""
@@ -517,8 +550,9 @@ def run_grid(
                            job.eval_episodes, str(path), r.obj, a.obj, attempt=job.attempt)  # fmt: skip
 
         summary = RunSummary(total=len(job_ids))
-        if runnable:
-            handle, note = make_executor(executor, workers, runnable)
+        held, _ = held_elsewhere(store, job_ids, owner)
+        if runnable or held:
+            handle, note = make_executor(executor, workers, max(runnable, held))
             view = make_view(display, grid, len(job_ids), handle.description, note)
             run = _Run(store, grid, job_ids, make_spec, handle, job_fn, owner, view)
             run.planned = runnable
@@ -526,6 +560,7 @@ def run_grid(
             try:
                 with _StopSignalsAsCtrlC():
                     run.loop()
+                    run.wait_for_others()
             except KeyboardInterrupt:
                 run.interrupt()
             finally:
