@@ -221,10 +221,19 @@ def test_a_rerun_after_a_driver_crash_waits_and_takes_the_orphaned_jobs_over(reg
         for table in ("episodes", "eval_steps"):
             conn.execute(text(f"DELETE FROM {table} WHERE job_id IN (SELECT id FROM jobs WHERE seed = 1)"))
     t0 = time.monotonic()
+    report = status_table(db)  # still fresh: running
+    assert (report.totals["running"], report.totals["orphaned"]) == (1, 0)
     s = run_grid(db, ["run0"], ["ppo"], **args)
     assert (s.done, s.busy, s.exit_code) == (1, 0, 0)
     assert 1.0 < time.monotonic() - t0 < 30
     assert set(statuses(db).values()) == {"done"}
+    with engine.begin() as conn:  # a crash long ago: status says the job is orphaned
+        conn.execute(text("UPDATE jobs SET status='running', owner='crashed', heartbeat_at=:b WHERE seed = 1"),
+                     {"b": utcnow() - timedelta(seconds=driver.STALE_AFTER_S + 5)})  # fmt: skip
+    report = status_table(db)
+    assert (report.totals["running"], report.totals["pending"], report.totals["orphaned"]) == (0, 1, 1)
+    res = CliRunner().invoke(app, ["status", "--db", str(db)])
+    assert "1 of the pending jobs were running in a driver whose heartbeat stopped" in res.output.replace("\n", " ")
 
 
 # --------------------------------------------------------------------------- processes
@@ -329,7 +338,7 @@ def test_status_json(regimes: Path, tmp_path: Path) -> None:
     import json
 
     data = json.loads(res.output)
-    assert data["totals"] == {"done": 3, "running": 0, "failed": 1, "pending": 0, "jobs": 4}
+    assert data["totals"] == {"done": 3, "running": 0, "failed": 1, "pending": 0, "jobs": 4, "orphaned": 0}
     by_algo = {r["algo"]: r for r in data["rows"]}
     assert (by_algo["sac"]["done"], by_algo["sac"]["failed"]) == (1, 1)
     assert by_algo["sac"]["remaining_seconds"] > 0 and data["eta_seconds"] > 0  # the failed job will be retried

@@ -159,6 +159,11 @@ def render_status(report) -> None:
         f" with {max(report.workers, 1)} worker{'s' if report.workers > 1 else ''}",
         highlight=False,
     )
+    if t.get("orphaned"):
+        cli.console.print(
+            f"[yellow]{t['orphaned']} of the pending jobs were running in a driver whose heartbeat stopped "
+            f"(crashed or killed): the next `nutribench run` takes them over[/]", highlight=False,
+        )  # fmt: skip
     if report.errors:
         errs = Table("regime", "algo", "seed", "failures", "last error", title="failed jobs")
         for e in report.errors:

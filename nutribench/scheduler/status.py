@@ -6,7 +6,8 @@ so the answer is instant however many episode rows the database holds. It reads 
 driver writes (SQLite WAL: readers never wait for the writer).
 
 A ``running`` job whose heartbeat is older than the driver's stale limit is counted as
-``pending``: its driver is gone and the next ``run`` picks it up.
+``pending`` (and in ``totals["orphaned"]``): its driver is gone and the next ``run`` takes
+it over.
 """
 
 from __future__ import annotations
@@ -123,10 +124,12 @@ def summarize(jobs: list) -> StatusReport:
     rates: dict[tuple, list[float]] = {}  # seconds per episode of done jobs, per cell
     left: dict[tuple, float] = {}  # jobs' worth of work left
     errors = []
+    orphaned = 0  # `running` with a stopped heartbeat: counted as pending, and said so
     for regime, rv, algo, av, seed, budget, status, beat, wall, k, failures, error in jobs:
         key = (regime, rv, algo, av, budget)
         row = rows.setdefault(key, StatusRow(regime, rv, algo, av, budget))
         state = _state(status, beat, stale_before)
+        orphaned += status == "running" and state == "pending"
         setattr(row, state, getattr(row, state) + 1)
         if state == "done" and wall is not None:
             row.wall_seconds += wall
@@ -153,6 +156,7 @@ def summarize(jobs: list) -> StatusReport:
         remaining += row.remaining_seconds
     totals = {c: sum(getattr(r, c) for r in rows.values()) for c in COUNTS}
     totals["jobs"] = len(jobs)
+    totals["orphaned"] = orphaned
     workers = totals["running"]
     eta = None if unknown else remaining / max(workers, 1)
     return StatusReport(list(rows.values()), totals, sum(r.wall_seconds for r in rows.values()), workers, eta, errors)
