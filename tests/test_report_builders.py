@@ -173,3 +173,12 @@ def test_the_best_line_says_smoothed_only_when_the_curves_are():
         res = training_curves(synthetic(), "return", window=window)
         labels = [l.get_label() for ax in res.figure.axes for l in ax.get_lines()]
         assert label in labels and ("best (smoothed)" in labels) == (window > 1)
+
+
+def test_the_symlog_return_axis_says_so():
+    """Issue 13 small cut: Figure 3 panel A's symmetric log axis was not labelled as such."""
+    df = synthetic()
+    refs = pd.DataFrame([{"regime": r, "policy": p, "return": v, "foods": 0.0, "final_distance": 3.0, "overshoot_ratio": 0.0}
+                         for r in ("run0", "run3", "run6") for p, v in (("never", -21.6), ("always", -100.0))])  # fmt: skip
+    ax = eval_across_regimes(df, references=refs).figure.axes[0]
+    assert ax.get_yscale() == "symlog" and "log scale" in ax.get_ylabel()

@@ -215,6 +215,7 @@ def _symlog_return_axis(ax) -> None:
     ax.yaxis.set_major_locator(FixedLocator(ticks))
     ax.yaxis.set_major_formatter(ScalarFormatter())
     ax.yaxis.set_minor_locator(FixedLocator([]))
+    ax.set_ylabel("symmetric log scale (linear within ±20)", fontsize=8)
 
 
 def _missing_note(regimes: list[str], algos: list[str], df: pd.DataFrame) -> list[str]:
