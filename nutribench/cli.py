@@ -19,7 +19,7 @@ from nutribench.store.engine import StoreError
 
 app = typer.Typer(no_args_is_help=True, add_completion=False, help="NutriRL: RL under delayed state transitions.")
 regimes_app = typer.Typer(no_args_is_help=True, help="Inspect, check and regenerate the regime files.")
-bench_app = typer.Typer(no_args_is_help=True, help="Throughput benchmarks.")
+bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks: env and training throughput, status speed, learnability.")
 app.add_typer(regimes_app, name="regimes")
 app.add_typer(bench_app, name="bench")
 
