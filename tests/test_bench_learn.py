@@ -1,0 +1,53 @@
+"""`nutribench bench learn`: the gap arithmetic, the budgets, and the command's shape (its
+figures are a benchmark's, not a test's)."""
+
+from __future__ import annotations
+
+import pytest
+from typer.testing import CliRunner
+
+from nutribench.bench_learn import LearnRun, budget_for, iqm, markdown_table, summarize
+from nutribench.cli import app, parse_budgets
+
+runner = CliRunner()
+
+
+def _run(algo, regime, seed, returns, foods, never=-20.0, planner=-4.0):
+    rows = [{"return": r, "foods": f, "final_distance": 1.0, "overshoot_ratio": 0.0} for r, f in zip(returns, foods)]
+    return LearnRun(algo, regime, seed, 500, 1.0, rows, [never] * len(rows), [planner] * len(rows))
+
+
+def test_gap_closed_is_zero_for_never_one_for_the_planner_and_checks_the_target():
+    runs = [_run("ppo", "run0", 0, [-4.0, -4.0], [4, 4]), _run("ppo", "run0", 1, [-12.0, -12.0], [4, 5]),
+            _run("mc", "run0", 0, [-20.0], [0]), _run("ppo", "run3", 0, [-4.0], [4])]  # fmt: skip
+    rows = {(r["regime"], r["algo"]): r for r in summarize(runs)}
+    ppo = rows[("run0", "ppo")]
+    assert ppo["gap_closed"] == pytest.approx(0.75) and ppo["gap_closed_min_seed"] == pytest.approx(0.5)
+    assert ppo["target_met"] is True and ppo["foods"] == pytest.approx(4.25)
+    assert rows[("run0", "mc")]["gap_closed"] == 0.0 and rows[("run0", "mc")]["target_met"] is False
+    assert rows[("run3", "ppo")]["target_met"] is None  # targets are set on run0 only
+    assert "| run0 | ppo | 500 | 2 |" in markdown_table(list(rows.values()))
+
+
+def test_iqm_is_the_mean_of_the_middle_half():
+    assert iqm([0, 1, 2, 3, 4, 5, 6, 100]) == pytest.approx(3.5)
+
+
+def test_budgets_by_name_then_algorithm():
+    assert parse_budgets("500,ddqn=2000", 100) == (500, {"ddqn": 2000})
+    assert budget_for("ddqn_fast", "ddqn", {"ddqn": 2000}, 500) == 2000
+    assert budget_for("ddqn_fast", "ddqn", {"ddqn_fast": 300, "ddqn": 2000}, 500) == 300
+    assert budget_for("ppo", "ppo", {"ddqn": 2000}, 500) == 500
+
+
+@pytest.mark.parametrize("bad", ["abc", "ppo=x", "0", "ppo=-3"])
+def test_a_bad_budget_is_one_line_and_exit_2(bad):
+    res = runner.invoke(app, ["bench", "learn", "--episodes", bad])
+    assert res.exit_code == 2 and "--episodes" in res.output and len(res.output.strip().splitlines()) == 1, res.output
+
+
+def test_bench_learn_runs_and_prints_its_table():
+    res = runner.invoke(app, ["bench", "learn", "--algos", "ppo", "--regimes", "run0", "--seeds", "0", "--episodes", "2",
+                              "--eval-episodes", "2", "--workers", "1", "--markdown"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "| run0 | ppo | 2 | 1 |" in res.output and "gap closed" in res.output
