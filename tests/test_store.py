@@ -131,3 +131,14 @@ def test_a_reader_does_not_wait_for_a_writer(tmp_path: Path) -> None:
     finally:
         writer.dispose()
         reader.dispose()
+
+
+def test_a_worker_does_not_import_the_database_layer():
+    """Issue 12: jobs/run.py imported store.engine for a timestamp, loading SQLAlchemy and
+    alembic in every worker process."""
+    import subprocess
+    import sys
+
+    code = "import sys, nutribench.jobs.run, nutribench.jobs.fake; print(sorted(m for m in ('sqlalchemy', 'alembic') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "[]"

@@ -22,7 +22,7 @@ import numpy as np
 from nutribench.jobs.metadata import collect_metadata
 from nutribench.jobs.spec import JobResult, JobSpec
 from nutribench.jobs.worker import JobProgress, Sink
-from nutribench.store.engine import utcnow
+from nutribench.clock import utcnow
 
 HORIZON = 50
 

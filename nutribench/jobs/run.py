@@ -14,7 +14,7 @@ from nutribench.agents.config import agent_config_sha256
 from nutribench.jobs.metadata import collect_metadata
 from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
 from nutribench.jobs.worker import JobProgress, Sink
-from nutribench.store.engine import utcnow
+from nutribench.clock import utcnow
 
 
 def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:

@@ -16,7 +16,6 @@ from __future__ import annotations
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
-from datetime import UTC, datetime
 from pathlib import Path
 
 from sqlalchemy import Engine, create_engine, event
@@ -24,17 +23,14 @@ from sqlalchemy.engine import URL, make_url
 from sqlalchemy.exc import ArgumentError, NoSuchModuleError
 from sqlalchemy.orm import Session, sessionmaker
 
+from nutribench.clock import utcnow  # noqa: F401 - re-exported: the store stamps times with it
+
 BUSY_TIMEOUT_MS = 30_000
 SQLITE_HEADER = b"SQLite format 3\x00"
 
 
 class StoreError(Exception):
     """A database problem a user can fix (bad path, not a database, old schema). One line."""
-
-
-def utcnow() -> datetime:
-    """Naive UTC: the one time representation stored (SQLite has no time zones)."""
-    return datetime.now(UTC).replace(tzinfo=None)
 
 
 def database_url(db: str | os.PathLike[str]) -> URL:
