@@ -17,9 +17,9 @@ from rich.table import Table
 from nutribench.config import ConfigError
 from nutribench.store.engine import StoreError
 
-app = typer.Typer(no_args_is_help=True, add_completion=False, help="NutriRL: RL under delayed state transitions.")
-regimes_app = typer.Typer(no_args_is_help=True, help="Inspect, check and regenerate the regime files.")
-bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks: env and training throughput, status speed, learnability.")
+app = typer.Typer(no_args_is_help=True, add_completion=False, rich_markup_mode=None, help="NutriRL: RL under delayed state transitions.")
+regimes_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Inspect, check and regenerate the regime files.")
+bench_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Benchmarks: env and training throughput, status speed, learnability.")
 app.add_typer(regimes_app, name="regimes")
 app.add_typer(bench_app, name="bench")
 

@@ -111,3 +111,10 @@ def test_a_broken_regime_file_fails_check_and_run_instead_of_leaving_the_grid(tm
                               "--db", str(tmp_path / "r.db")], env={"NUTRIBENCH_JOB": "fake"})  # fmt: skip
     assert run.exit_code == 2 and re.search(expected, run.output), run.output
     assert not (tmp_path / "r.db").exists()
+
+
+def test_help_keeps_brackets_and_shows_flags_as_flags():
+    """Issue 13 small cut: rich markup ate `[ranges]` and `[foods]`, and flags showed `<bool>`."""
+    out = runner.invoke(app, ["regimes", "generate", "--help"]).output
+    assert "[ranges]" in out and "[foods]" in out
+    assert "<bool>" not in out and "--write / --no-write" in out
