@@ -182,3 +182,23 @@ def test_the_symlog_return_axis_says_so():
                          for r in ("run0", "run3", "run6") for p, v in (("never", -21.6), ("always", -100.0))])  # fmt: skip
     ax = eval_across_regimes(df, references=refs).figure.axes[0]
     assert ax.get_yscale() == "symlog" and "log scale" in ax.get_ylabel()
+
+
+def test_trajectory_meal_labels_sit_above_the_curves():
+    """Issue 13 small cut: with many meals the labels inside the axes covered the curves."""
+    from nutribench.env import NutriRLEnv
+    from nutribench.report.trajectory import trajectory_figure
+
+    env = NutriRLEnv("run3")
+    env.reset(options={"foods": [k % 10 for k in range(50)]})
+    rows = []
+    for t in range(50):
+        _, _, _, _, info = env.step(int(t % 3 == 0))
+        s = info["state"]
+        rows.append({"step": t + 1, "food": t % 10, "action": int(t % 3 == 0), "C": s[0], "F": s[1], "P": s[2]})
+    fig = trajectory_figure(pd.DataFrame(rows), env.dyn, title="t")
+    top = fig.axes[0]
+    labels = [t for t in top.texts if t.get_rotation() == 90]
+    assert len(labels) == 17
+    for label in labels:  # y in axes coordinates, above the top of the axes
+        assert label.get_transform() == top.get_xaxis_transform() and label.get_position()[1] > 1.0

@@ -36,14 +36,16 @@ def trajectory_figure(steps: pd.DataFrame, dynamics: RegimeDynamics, title: str 
     for _, m in meals.iterrows():
         t = int(m["step"])
         top.axvline(t - 0.5, color="0.6", lw=0.8, ls=":")
-        top.text(t - 0.5, ymax * 0.99, dynamics.food_names[int(m["food"])].replace("_", " "), rotation=90, va="top", ha="right", fontsize=7, color="0.3")
+        # above the axes, in a strip of their own: inside, labels covered the curves
+        top.text(t - 0.5, 1.01, dynamics.food_names[int(m["food"])].replace("_", " "), rotation=90, va="bottom", ha="center",
+                 fontsize=7, color="0.3", transform=top.get_xaxis_transform(), clip_on=False)  # fmt: skip
     top.set_ylim(0, ymax)
     top.set_ylabel("absorbed (x daily target)")
     # outside the axes: any spot inside would cover the curves on some day
     fig.legend(*top.get_legend_handles_labels(), loc="outside right upper", fontsize=8, frameon=False)
     top.grid(alpha=0.3)
     if title:
-        top.set_title(title, fontsize=10)
+        fig.suptitle(title, fontsize=10)
     # absorption curves: a meal eaten at step t delivers schedule[food, k] at step t + k
     for _, m in meals.iterrows():
         t, food = int(m["step"]), int(m["food"])
