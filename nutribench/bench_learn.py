@@ -122,6 +122,11 @@ def iqm(values: np.ndarray) -> float:
     return float(v[lo:hi].mean()) if hi > lo else float(v.mean())
 
 
+def _gap(value: float, never: float, planner: float) -> float:
+    """Share of the never -> planner gap; NaN where the two coincide (no gap to close)."""
+    return float((value - never) / (planner - never)) if planner != never else float("nan")
+
+
 def summarize(runs: list[LearnRun]) -> list[dict[str, Any]]:
     """One row per (regime, config) over its seeds x evaluation days: return (mean, IQM),
     foods, final distance, overshoot ratio, the never and planner returns on those days, the
@@ -135,10 +140,10 @@ def summarize(runs: list[LearnRun]) -> list[dict[str, Any]]:
         ret = np.array([e["return"] for r in rs for e in r.eval_rows])
         never = float(np.mean([x for r in rs for x in r.never_returns]))
         planner = float(np.mean([x for r in rs for x in r.planner_returns]))
-        per_seed = [(np.mean([e["return"] for e in r.eval_rows]) - np.mean(r.never_returns))
-                    / (np.mean(r.planner_returns) - np.mean(r.never_returns)) for r in rs]  # fmt: skip
+        per_seed = [_gap(np.mean([e["return"] for e in r.eval_rows]), np.mean(r.never_returns), np.mean(r.planner_returns))
+                    for r in rs]  # fmt: skip
         foods = float(np.mean([e["foods"] for r in rs for e in r.eval_rows]))
-        gap = (float(ret.mean()) - never) / (planner - never)
+        gap = _gap(float(ret.mean()), never, planner)
         row = {
             "regime": regime, "algo": algo, "episodes": rs[0].episodes, "seeds": len(rs),
             "return": float(ret.mean()), "return_iqm": iqm(ret), "foods": foods,

@@ -266,7 +266,7 @@ def bench_learn_cmd(
     """Train every agent for a budget over several seeds, evaluate greedily on the fixed
     evaluation days, and state each as the share of the never -> planner gap it closes
     (run0 target: at least 75 % with 3-6 foods a day)."""
-    from nutribench.agents.config import list_agent_configs
+    from nutribench.agents.config import ALGOS, list_agent_configs
     from nutribench.bench_learn import DEFAULT_BUDGET, learn_benchmark, markdown_table, summarize
     from nutribench.config import list_regimes
 
@@ -274,6 +274,9 @@ def bench_learn_cmd(
     regime_names = split_csv(regimes, list_regimes(), "regime")
     seed_list = parse_ints(seeds, "--seeds")
     default, budgets = parse_budgets(episodes, DEFAULT_BUDGET)
+    unknown = sorted(set(budgets) - set(list_agent_configs()) - set(ALGOS))
+    if unknown:
+        raise UserError(f"--episodes {episodes!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})")
     with console.status("training") as status:
         runs = learn_benchmark(
             names, regime_names, seed_list, budgets=budgets, default_budget=default, eval_episodes=eval_episodes,

@@ -167,6 +167,9 @@ def test_save_and_load_give_the_same_greedy_evaluation(algo, tmp_path):
     assert path.is_file() and path.with_suffix(".json").is_file()
     loaded = TrainedAgent.load(path)
     assert loaded.algo == algo and loaded.config == agent.config
+    assert loaded.provenance["regime"] == "run2" and loaded.provenance["seed"] == 4
+    again = loaded.save(tmp_path / "m2" / f"{algo}.zip")  # a loaded agent saves everything again
+    assert again.with_suffix(".vecnormalize.pkl").is_file()
     after = evaluate(loaded, "run2", streams, record_steps=True)
     assert after.episodes == before.episodes and after.steps == before.steps
 
@@ -261,16 +264,17 @@ def test_ppo_learns_to_eat_on_run0_within_a_ci_budget(seed):
 
 
 def test_ddqn_learns_on_run0_within_a_ci_budget():
-    # CI budget: learning starts after 1,000 steps instead of the paper's 10,000 (200 days
-    # of 50 steps would otherwise leave no update); it must beat random clearly and not eat
-    # everything.
+    """CI budget: learning starts after 1,000 steps instead of the paper's 10,000 (200 days
+    of 50 steps would otherwise leave no update). At 200 days DDQN has learned to eat a
+    little (seed 0: -14.2 with 1.9 foods, 41 % of the gap), which "never" (0 %, 0 foods) and
+    "random" (far below 0 %) fail."""
     cfg = load_agent_config("ddqn").model_copy(update={"learning_starts": 1000})
     agent = train("run0", cfg, seed=0, episodes=200)
     streams = eval_food_streams("run0", 0, CI_EVAL_DAYS)
     rows = evaluate(agent, "run0", streams, record_steps=False).episodes
-    ret = float(np.mean([r["return"] for r in rows]))
-    assert ret > np.mean(simple_policy_returns("random", streams)) + 20, ret
-    assert np.mean([r["foods"] for r in rows]) < 25
+    gap = gap_closed([r["return"] for r in rows], streams)
+    foods = float(np.mean([r["foods"] for r in rows]))
+    assert gap >= 0.2 and 1 <= foods <= 8, (gap, foods)
 
 
 def test_bench_train_reports_each_algorithm_and_its_bare_references():

@@ -29,6 +29,13 @@ def test_gap_closed_is_zero_for_never_one_for_the_planner_and_checks_the_target(
     assert "| run0 | ppo | 500 | 2 |" in markdown_table(list(rows.values()))
 
 
+def test_no_gap_to_close_is_nan_not_a_crash():
+    import math
+
+    (row,) = summarize([_run("ppo", "run0", 0, [-4.0], [4], never=-4.0, planner=-4.0)])
+    assert math.isnan(row["gap_closed"]) and row["target_met"] is False
+
+
 def test_iqm_is_the_mean_of_the_middle_half():
     assert iqm([0, 1, 2, 3, 4, 5, 6, 100]) == pytest.approx(3.5)
 
@@ -40,7 +47,7 @@ def test_budgets_by_name_then_algorithm():
     assert budget_for("ppo", "ppo", {"ddqn": 2000}, 500) == 500
 
 
-@pytest.mark.parametrize("bad", ["abc", "ppo=x", "0", "ppo=-3"])
+@pytest.mark.parametrize("bad", ["abc", "ppo=x", "0", "ppo=-3", "500,pp0=300"])
 def test_a_bad_budget_is_one_line_and_exit_2(bad):
     res = runner.invoke(app, ["bench", "learn", "--episodes", bad])
     assert res.exit_code == 2 and "--episodes" in res.output and len(res.output.strip().splitlines()) == 1, res.output

@@ -36,7 +36,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from nutribench.agents.algos import MODEL_CLASSES, build_model, episode_entropy
 from nutribench.agents.config import agent_config_content, load_agent_config, parse_agent_config
-from nutribench.config import EnvConfig, load_env_config
+from nutribench.config import ConfigError, EnvConfig, load_env_config
 from nutribench.env.metrics import EpisodeRecorder
 from nutribench.env.sb3 import NutriRLSB3VecEnv
 from nutribench.env.vector_env import NutriRLVectorEnv
@@ -153,7 +153,15 @@ class TrainedAgent:
         algo = side["algo"]
         model = MODEL_CLASSES[algo].load(path, device="cpu")
         arr = lambda v: None if v is None else np.asarray(v, dtype=np.float64)  # noqa: E731
-        return cls(model, algo, parse_agent_config(side["config"], path), arr(side["obs_mean"]), arr(side["obs_var"]))
+        agent = cls(model, algo, parse_agent_config(side["config"], path), arr(side["obs_mean"]), arr(side["obs_var"]))
+        agent.provenance = dict(side.get("provenance") or {})  # absent in files written before it was recorded
+        if side.get("vec_normalize") and vec_normalize_path(path).is_file():  # so that saving it again keeps the pickle
+            try:  # the env only carries the spaces; the statistics come from the pickle
+                venv = NutriRLSB3VecEnv(regime=agent.provenance.get("regime", "run0"))
+                agent.vec_normalize = VecNormalize.load(str(vec_normalize_path(path)), venv)
+            except ConfigError:  # a regime that is no longer a file here: act as before, save without the pickle
+                agent.vec_normalize = None
+        return agent
 
 
 class EpisodeMetrics(BaseCallback):

@@ -291,7 +291,7 @@ def build_report(
 ) -> list[Path]:
     """Write the requested figures and tables under ``out`` and return the paths written.
 
-    ``all=True`` builds Figures 1-4, Tables 1-6 and the results table; what the database
+    ``all=True`` builds Figures 1-4, Tables 1-6, the results and the training tables; what the database
     cannot support (e.g. Figure 4 without PPO or GRU-PPO results) is skipped and reported
     through ``log``. An item asked for by number that cannot be built raises
     :class:`ReportError`. ``reference_episodes``: episodes per simple policy and regime for

@@ -448,10 +448,10 @@ class _Run:
                 continue
             if not held:
                 return
-            if claimable_at != said:
+            if held != said:  # once per change: a live driver moves claimable_at at every heartbeat
                 self.view.log(f"waiting for {held} job{'s' if held != 1 else ''} held by another driver: done there, "
-                              f"or taken over here at {claimable_at:%H:%M:%S} UTC if its heartbeat stops")  # fmt: skip
-                said = claimable_at
+                              f"or taken over here from {claimable_at:%H:%M:%S} UTC if its heartbeat stops")  # fmt: skip
+                said = held
             time.sleep(WAIT_POLL_S)
             self.view.update(self)
 
