@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from nutribench.config import EnvConfig, load_env_config
 from nutribench.env import NutriRLVectorEnv
 from nutribench.env.metrics import play
 from nutribench.env.policies import make_policy
@@ -12,11 +13,17 @@ POLICY_ORDER = ("random", "never", "always", "planner")
 SUMMARY_KEYS = ("return", "foods", "final_distance", "overshoot_ratio")
 
 
+def play_simple_policy(policy: str, regime: str | EnvConfig, foods: np.ndarray, seed: int = 0) -> list[dict]:
+    """Per-episode metrics of ``policy`` on the given days ``(n, horizon)`` of food indices."""
+    env = NutriRLVectorEnv(len(foods), regime=regime)
+    return play(env, make_policy(policy, seed), episodes=len(foods), foods=foods)
+
+
 def evaluate_simple_policy(policy: str, regime: str, episodes: int = 200, seed: int = 0) -> list[dict]:
     """Per-episode metrics of ``policy`` on ``episodes`` days drawn with ``seed``."""
-    env = NutriRLVectorEnv(episodes, regime=regime)
-    foods = np.random.default_rng(seed).integers(0, env.dyn.n_foods, size=(episodes, env.horizon))
-    return play(env, make_policy(policy, seed), episodes=episodes, foods=foods)
+    cfg = load_env_config(regime)
+    foods = np.random.default_rng(seed).integers(0, len(cfg.catalog.food), size=(episodes, cfg.reward.horizon))
+    return play_simple_policy(policy, cfg, foods, seed)
 
 
 def baseline_table(regimes: list[str], episodes: int = 200, seed: int = 0) -> list[dict]:

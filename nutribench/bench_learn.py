@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from nutribench.report.stats import iqm
+
 #: Run0 targets of issue 11: the share of the never -> planner gap, and the foods a day.
 TARGET_GAP = 0.75
 TARGET_FOODS = (3.0, 6.0)
@@ -55,15 +57,9 @@ class LearnRun:
 
 def reference_returns(regime: str, streams: np.ndarray) -> dict[str, list[float]]:
     """Returns of ``never`` and ``planner`` on the given days ``(n, horizon)``."""
-    from nutribench.env import NutriRLVectorEnv
-    from nutribench.env.metrics import play
-    from nutribench.env.policies import make_policy
+    from nutribench.baselines import play_simple_policy
 
-    out = {}
-    for name in ("never", "planner"):
-        env = NutriRLVectorEnv(len(streams), regime=regime)
-        out[name] = [float(r["return"]) for r in play(env, make_policy(name, 0), episodes=len(streams), foods=streams)]
-    return out
+    return {name: [float(r["return"]) for r in play_simple_policy(name, regime, streams)] for name in ("never", "planner")}
 
 
 def _one_run(config: Any, regime: str, seed: int, episodes: int, eval_episodes: int) -> LearnRun:
@@ -100,6 +96,7 @@ def learn_benchmark(
 
     budgets = dict(DEFAULT_BUDGETS if budgets is None else budgets)
     cfgs = [load_agent_config(c) for c in configs]
+    regimes, seeds = list(regimes), list(seeds)
     jobs = [(c, r, s, budget_for(c.name, c.algo, budgets, default_budget)) for c in cfgs for r in regimes for s in seeds]
     # the longest first, so that no long job starts last
     jobs.sort(key=lambda j: -j[3] * (5 if j[0].algo in ("sac", "gru_ppo") else 1))
@@ -111,18 +108,11 @@ def learn_benchmark(
             runs.append(fut.result())
             if on_done is not None:
                 on_done(runs[-1], len(runs), len(jobs))
-    order = {(c.name, r, s): k for k, (c, r, s, _) in enumerate(sorted(jobs, key=lambda j: (j[1], [x.name for x in cfgs].index(j[0].name), j[2])))}
-    return sorted(runs, key=lambda x: order[(x.algo, x.regime, x.seed)])
+    names = [c.name for c in cfgs]
+    return sorted(runs, key=lambda x: (regimes.index(x.regime), names.index(x.algo), seeds.index(x.seed)))
 
 
-def iqm(values: np.ndarray) -> float:
-    """Interquartile mean: the mean of the middle 50 % (rliable's IQM)."""
-    v = np.sort(np.asarray(values, dtype=float))
-    lo, hi = int(np.floor(0.25 * len(v))), int(np.ceil(0.75 * len(v)))
-    return float(v[lo:hi].mean()) if hi > lo else float(v.mean())
-
-
-def _gap(value: float, never: float, planner: float) -> float:
+def gap_closed(value: float, never: float, planner: float) -> float:
     """Share of the never -> planner gap; NaN where the two coincide (no gap to close)."""
     return float((value - never) / (planner - never)) if planner != never else float("nan")
 
@@ -140,10 +130,10 @@ def summarize(runs: list[LearnRun]) -> list[dict[str, Any]]:
         ret = np.array([e["return"] for r in rs for e in r.eval_rows])
         never = float(np.mean([x for r in rs for x in r.never_returns]))
         planner = float(np.mean([x for r in rs for x in r.planner_returns]))
-        per_seed = [_gap(np.mean([e["return"] for e in r.eval_rows]), np.mean(r.never_returns), np.mean(r.planner_returns))
+        per_seed = [gap_closed(np.mean([e["return"] for e in r.eval_rows]), np.mean(r.never_returns), np.mean(r.planner_returns))
                     for r in rs]  # fmt: skip
         foods = float(np.mean([e["foods"] for r in rs for e in r.eval_rows]))
-        gap = _gap(float(ret.mean()), never, planner)
+        gap = gap_closed(float(ret.mean()), never, planner)
         row = {
             "regime": regime, "algo": algo, "episodes": rs[0].episodes, "seeds": len(rs),
             "return": float(ret.mean()), "return_iqm": iqm(ret), "foods": foods,
@@ -157,15 +147,25 @@ def summarize(runs: list[LearnRun]) -> list[dict[str, Any]]:
     return rows
 
 
+#: Columns of the summary tables (Markdown and the terminal's), one cell each per row.
+COLUMNS = ("regime", "algo", "days", "seeds", "return", "IQM", "foods", "final distance", "overshoot ratio",
+           "never", "planner", "gap closed", "lowest seed", "target")  # fmt: skip
+
+
+def target_text(row: dict[str, Any]) -> str:
+    """"met", "not met", or "" where no target is set (regimes other than run0)."""
+    return "" if row["target_met"] is None else ("met" if row["target_met"] else "not met")
+
+
+def row_cells(r: dict[str, Any]) -> list[str]:
+    """One summary row as the text of each of :data:`COLUMNS`."""
+    return [r["regime"], r["algo"], str(r["episodes"]), str(r["seeds"]), f"{r['return']:.2f}", f"{r['return_iqm']:.2f}",
+            f"{r['foods']:.2f}", f"{r['final_distance']:.3f}", f"{r['overshoot_ratio']:.3f}", f"{r['never']:.2f}",
+            f"{r['planner']:.2f}", f"{100 * r['gap_closed']:.0f} %", f"{100 * r['gap_closed_min_seed']:.0f} %", target_text(r)]  # fmt: skip
+
+
 def markdown_table(rows: list[dict[str, Any]]) -> str:
     """The summary as a Markdown table (what the README records)."""
-    head = "| regime | algo | days | seeds | return | IQM | foods | final distance | overshoot ratio | never | planner | gap closed | lowest seed | target |"
-    lines = [head, "|" + "---|" * (head.count("|") - 1)]
-    for r in rows:
-        target = "" if r["target_met"] is None else ("met" if r["target_met"] else "not met")
-        lines.append(
-            f"| {r['regime']} | {r['algo']} | {r['episodes']} | {r['seeds']} | {r['return']:.2f} | {r['return_iqm']:.2f} "
-            f"| {r['foods']:.2f} | {r['final_distance']:.3f} | {r['overshoot_ratio']:.3f} | {r['never']:.2f} "
-            f"| {r['planner']:.2f} | {100 * r['gap_closed']:.0f} % | {100 * r['gap_closed_min_seed']:.0f} % | {target} |"
-        )
+    lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    lines += ["| " + " | ".join(row_cells(r)) + " |" for r in rows]
     return "\n".join(lines)

@@ -267,12 +267,16 @@ def bench_learn_cmd(
     evaluation days, and state each as the share of the never -> planner gap it closes
     (run0 target: at least 75 % with 3-6 foods a day)."""
     from nutribench.agents.config import ALGOS, list_agent_configs
-    from nutribench.bench_learn import DEFAULT_BUDGET, learn_benchmark, markdown_table, summarize
+    from nutribench.bench_learn import COLUMNS, DEFAULT_BUDGET, learn_benchmark, markdown_table, row_cells, summarize
     from nutribench.config import list_regimes
+    from nutribench.scheduler.grid import GridError, parse_seeds
 
     names = split_csv(algos, list_agent_configs()[:5] if algos == "all" else list_agent_configs(), "agent config")
     regime_names = split_csv(regimes, list_regimes(), "regime")
-    seed_list = parse_ints(seeds, "--seeds")
+    try:
+        seed_list = list(parse_seeds(seeds))
+    except GridError as e:
+        raise UserError(str(e)) from None
     default, budgets = parse_budgets(episodes, DEFAULT_BUDGET)
     unknown = sorted(set(budgets) - set(list_agent_configs()) - set(ALGOS))
     if unknown:
@@ -286,25 +290,13 @@ def bench_learn_cmd(
     if markdown:
         console.print(markdown_table(rows), highlight=False, soft_wrap=True)
         return
-    table = Table("regime", "algo", "days", "return", "IQM", "foods", "final dist.", "overshoot", "never", "planner",
-                  "gap closed", "lowest seed", "target", title=f"learnability, seeds {seeds}, {eval_episodes} eval days each")  # fmt: skip
+    table = Table(*COLUMNS, title=f"learnability, seeds {seeds}, {eval_episodes} eval days each")
     for r in rows:
-        target = "" if r["target_met"] is None else ("[green]met" if r["target_met"] else "[red]not met")
-        table.add_row(r["regime"], r["algo"], str(r["episodes"]), f"{r['return']:.2f}", f"{r['return_iqm']:.2f}", f"{r['foods']:.2f}",
-                      f"{r['final_distance']:.3f}", f"{r['overshoot_ratio']:.3f}", f"{r['never']:.2f}", f"{r['planner']:.2f}",
-                      f"{100 * r['gap_closed']:.0f} %", f"{100 * r['gap_closed_min_seed']:.0f} %", target)  # fmt: skip
+        cells = row_cells(r)
+        if r["target_met"] is not None:
+            cells[-1] = f"[{'green' if r['target_met'] else 'red'}]{cells[-1]}"
+        table.add_row(*cells)
     console.print(table)
-
-
-def parse_ints(value: str, option: str) -> list[int]:
-    """``"0,21"`` -> ``[0, 21]``; anything else is a UserError naming the option."""
-    try:
-        items = [int(v) for v in value.split(",") if v.strip()]
-    except ValueError:
-        raise UserError(f"{option} {value!r}: expected comma-separated integers, e.g. 0,1,2") from None
-    if not items:
-        raise UserError(f"{option}: no value given, e.g. 0,1,2")
-    return items
 
 
 def parse_budgets(value: str, default: int) -> tuple[int, dict[str, int]]:

@@ -219,20 +219,17 @@ PPO_CI_DAYS = 500
 
 
 def gap_closed(returns: list[float], streams: np.ndarray) -> float:
+    from nutribench.bench_learn import gap_closed as share_of_gap
     from nutribench.bench_learn import reference_returns
 
     ref = reference_returns("run0", streams)
-    never, planner = np.mean(ref["never"]), np.mean(ref["planner"])
-    return float((np.mean(returns) - never) / (planner - never))
+    return share_of_gap(float(np.mean(returns)), float(np.mean(ref["never"])), float(np.mean(ref["planner"])))
 
 
 def simple_policy_returns(policy: str, streams: np.ndarray) -> list[float]:
-    from nutribench.env import NutriRLVectorEnv
-    from nutribench.env.metrics import play
-    from nutribench.env.policies import make_policy
+    from nutribench.baselines import play_simple_policy
 
-    env = NutriRLVectorEnv(len(streams), regime="run0")
-    return [r["return"] for r in play(env, make_policy(policy, 0), episodes=len(streams), foods=streams)]
+    return [r["return"] for r in play_simple_policy(policy, "run0", streams)]
 
 
 @pytest.mark.parametrize("policy", ["never", "random", "always"])

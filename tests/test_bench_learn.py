@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from typer.testing import CliRunner
 
-from nutribench.bench_learn import LearnRun, budget_for, iqm, markdown_table, summarize
+from nutribench.bench_learn import LearnRun, budget_for, iqm, markdown_table, summarize  # iqm: the report's, reused
 from nutribench.cli import app, parse_budgets
 
 runner = CliRunner()
@@ -58,3 +58,9 @@ def test_bench_learn_runs_and_prints_its_table():
                               "--eval-episodes", "2", "--workers", "1", "--markdown"])  # fmt: skip
     assert res.exit_code == 0, res.output
     assert "| run0 | ppo | 2 | 1 |" in res.output and "gap closed" in res.output
+
+
+@pytest.mark.parametrize("bad", ["0,0", "a", "-1", ""])
+def test_bad_seeds_are_one_line_and_exit_2(bad):
+    res = runner.invoke(app, ["bench", "learn", "--seeds", bad])
+    assert res.exit_code == 2 and "--seeds" in res.output and len(res.output.strip().splitlines()) == 1, res.output

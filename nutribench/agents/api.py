@@ -62,15 +62,6 @@ def vec_normalize_path(model_path: str | Path) -> Path:
     return Path(model_path).with_suffix(".vecnormalize.pkl")
 
 
-def _package_version() -> str | None:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("nutribench")
-    except PackageNotFoundError:
-        return None
-
-
 def eval_food_streams(regime: str | EnvConfig, job_seed: int, n: int = 5) -> np.ndarray:
     """``n`` evaluation days ``(n, horizon)`` of food indices, drawn from the job seed alone,
     so every algorithm trained with that seed is evaluated on the same days (paired)."""
@@ -125,14 +116,14 @@ class TrainedAgent:
           observation statistics, and where the model came from (regime name, version and
           content hash, seed, training days, nutribench version, git commit).
         """
-        from nutribench.jobs.metadata import git_state
+        from nutribench.jobs.metadata import collect_metadata
 
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         self.model.save(path)
         if self.vec_normalize is not None:
             self.vec_normalize.save(str(vec_normalize_path(path)))
-        commit, dirty = git_state()
+        meta = collect_metadata()
         side = {
             "algo": self.algo,
             "load_with": PLAIN_SB3_CLASSES[self.algo],
@@ -140,7 +131,7 @@ class TrainedAgent:
             "config": agent_config_content(self.config),
             "obs_mean": None if self.obs_mean is None else self.obs_mean.tolist(),
             "obs_var": None if self.obs_var is None else self.obs_var.tolist(),
-            "provenance": {**self.provenance, "nutribench_version": _package_version(), "git_commit": commit, "git_dirty": dirty},
+            "provenance": {**self.provenance, **{k: meta[k] for k in ("nutribench_version", "git_commit", "git_dirty")}},
         }
         path.with_suffix(".json").write_text(json.dumps(side, indent=1))
         return path
