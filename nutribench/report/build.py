@@ -237,6 +237,13 @@ class _StoredConfig:
         return self.body
 
 
+def _with_notes(res: TableResult, data: ReportData) -> TableResult:
+    """What was left out of the data, in the table's caption as on the figures."""
+    if data.notes:
+        res.title += " (note: " + "; ".join(data.notes) + ")"
+    return res
+
+
 def build_table(key: str, data: ReportData | None = None, db: Db | None = None) -> TableResult:
     """Table ``key`` ("1".."6" or "results"). Table 1 reads the regime files; Tables 2-6 the
     agent config files (else the newest config of that algorithm stored in ``db``); the
@@ -266,17 +273,11 @@ def build_table(key: str, data: ReportData | None = None, db: Db | None = None) 
         ev = data.eval
         if ev.empty:
             raise ReportError("results table: no evaluation episodes in the database")
-        res = table_results(ev)
-        if data.notes:  # what was left out, in the caption as on the figures
-            res.title += " (note: " + "; ".join(data.notes) + ")"
-        return res
+        return _with_notes(table_results(ev), data)
     if key == "training":
         if data is None or data.train.empty:
             raise ReportError("training table: no training episodes in the database")
-        res = table_training(data.train)
-        if data.notes:
-            res.title += " (note: " + "; ".join(data.notes) + ")"
-        return res
+        return _with_notes(table_training(data.train), data)
     raise ReportError(f"no table {key!r}: the tables are {', '.join(TABLES)}")
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 
 from nutribench.report.figures import algo_label, sort_algos, sort_regimes
-from nutribench.report.stats import iqm_bootstrap_ci
+from nutribench.report.stats import iqm_bootstrap_ci, sem
 
 RESULT_METRICS = ["return", "final_distance", "foods", "overshoot_ratio"]
 #: Tables 2..6 of the paper, in order.
@@ -105,6 +105,12 @@ def table_agent_config(number: int, config) -> TableResult:
     return TableResult(f"table{number}", title, raw, fmt)
 
 
+def mean_sem_cell(values: pd.Series, digits: int) -> tuple[float, float, str]:
+    """Mean, standard error, and the table's text ``mean ± se`` (the mean alone for one value)."""
+    mean, se = float(np.mean(values.to_numpy(dtype=float))), sem(values)
+    return mean, se, f"{mean:.{digits}f} ± {se:.{digits}f}" if np.isfinite(se) else f"{mean:.{digits}f}"
+
+
 def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000) -> TableResult:
     """Results: regime x algorithm, mean ± standard error of the four evaluation metrics over
     seeds x evaluation episodes, plus the return's interquartile mean with a 95 % percentile
@@ -119,12 +125,7 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000) -> TableResult:
             row = {"regime": regime, "algo": algo, "seeds": cell["seed"].nunique(), "episodes": len(cell)}
             f = {"regime": regime, "algorithm": algo_label(algo), "seeds": row["seeds"], "episodes": row["episodes"]}
             for m in RESULT_METRICS:
-                x = cell[m].to_numpy(dtype=float)
-                mean = float(x.mean())
-                se = float(x.std(ddof=1) / np.sqrt(x.size)) if x.size > 1 else float("nan")
-                row[f"{m}_mean"], row[f"{m}_sem"] = mean, se
-                digits = 2 if m in ("return", "foods") else 3
-                f[m] = f"{mean:.{digits}f} ± {se:.{digits}f}" if np.isfinite(se) else f"{mean:.{digits}f}"
+                row[f"{m}_mean"], row[f"{m}_sem"], f[m] = mean_sem_cell(cell[m], 2 if m in ("return", "foods") else 3)
             by_seed = [g["return"].to_numpy(dtype=float) for _, g in cell.groupby("seed")]
             point, lo, hi = iqm_bootstrap_ci(by_seed, reps=seeds_bootstrap)
             row["return_iqm"], row["return_iqm_lo"], row["return_iqm_hi"] = point, lo, hi
@@ -156,10 +157,7 @@ def table_training(df: pd.DataFrame, last_share: float = 0.1) -> TableResult:
             row = {"regime": regime, "algo": algo, "days": budget, "seeds": len(per_seed)}
             f = {"regime": regime, "algorithm": algo_label(algo), "our days": budget, "seeds": len(per_seed)}
             for m in ("return", "foods"):
-                x = per_seed[m].to_numpy(dtype=float)
-                se = float(x.std(ddof=1) / np.sqrt(x.size)) if x.size > 1 else float("nan")
-                row[f"{m}_mean"], row[f"{m}_sem"] = float(x.mean()), se
-                f[f"our {m}"] = f"{x.mean():.2f} ± {se:.2f}" if np.isfinite(se) else f"{x.mean():.2f}"
+                row[f"{m}_mean"], row[f"{m}_sem"], f[f"our {m}"] = mean_sem_cell(per_seed[m], 2)
                 row[f"authors_{m}"] = float("nan") if theirs is None else theirs[0 if m == "return" else 1]
                 f[f"authors' {m}"] = "" if theirs is None else f"{row[f'authors_{m}']:.1f}"
             rows.append(row)
