@@ -21,6 +21,7 @@ call twice gives identical metrics on the same machine.
 from __future__ import annotations
 
 import json
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +37,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from nutribench.agents.algos import MODEL_CLASSES, build_model, episode_entropy
 from nutribench.agents.config import agent_config_content, load_agent_config, parse_agent_config
-from nutribench.config import ConfigError, EnvConfig, load_env_config
+from nutribench.config import EnvConfig, load_env_config
 from nutribench.env.metrics import EpisodeRecorder
 from nutribench.env.sb3 import NutriRLSB3VecEnv
 from nutribench.env.vector_env import NutriRLVectorEnv
@@ -85,6 +86,8 @@ class TrainedAgent:
     train_episodes: list[dict[str, Any]] = field(default_factory=list)
     #: the ``VecNormalize`` the model was trained in (saved beside the model for plain SB3)
     vec_normalize: VecNormalize | None = None
+    #: a loaded agent's ``.vecnormalize.pkl``: saving the agent again copies it
+    vec_normalize_file: Path | None = None
     #: where the model came from: regime, regime_version, regime_sha256, seed, episodes
     provenance: dict[str, Any] = field(default_factory=dict)
 
@@ -121,13 +124,17 @@ class TrainedAgent:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         self.model.save(path)
+        target = vec_normalize_path(path)
         if self.vec_normalize is not None:
-            self.vec_normalize.save(str(vec_normalize_path(path)))
+            self.vec_normalize.save(str(target))
+        elif self.vec_normalize_file is not None and self.vec_normalize_file.resolve() != target.resolve():
+            shutil.copyfile(self.vec_normalize_file, target)
+        has_pickle = self.vec_normalize is not None or self.vec_normalize_file is not None
         meta = collect_metadata()
         side = {
             "algo": self.algo,
             "load_with": PLAIN_SB3_CLASSES[self.algo],
-            "vec_normalize": vec_normalize_path(path).name if self.vec_normalize is not None else None,
+            "vec_normalize": target.name if has_pickle else None,
             "config": agent_config_content(self.config),
             "obs_mean": None if self.obs_mean is None else self.obs_mean.tolist(),
             "obs_var": None if self.obs_var is None else self.obs_var.tolist(),
@@ -146,12 +153,8 @@ class TrainedAgent:
         arr = lambda v: None if v is None else np.asarray(v, dtype=np.float64)  # noqa: E731
         agent = cls(model, algo, parse_agent_config(side["config"], path), arr(side["obs_mean"]), arr(side["obs_var"]))
         agent.provenance = dict(side.get("provenance") or {})  # absent in files written before it was recorded
-        if side.get("vec_normalize") and vec_normalize_path(path).is_file():  # so that saving it again keeps the pickle
-            try:  # the env only carries the spaces; the statistics come from the pickle
-                venv = NutriRLSB3VecEnv(regime=agent.provenance.get("regime", "run0"))
-                agent.vec_normalize = VecNormalize.load(str(vec_normalize_path(path)), venv)
-            except ConfigError:  # a regime that is no longer a file here: act as before, save without the pickle
-                agent.vec_normalize = None
+        if side.get("vec_normalize") and vec_normalize_path(path).is_file():
+            agent.vec_normalize_file = vec_normalize_path(path)
         return agent
 
 
