@@ -119,7 +119,7 @@ class TrainedAgent:
           observation statistics, and where the model came from (regime name, version and
           content hash, seed, training days, nutribench version, git commit).
         """
-        from nutribench.jobs.metadata import collect_metadata
+        from nutribench.provenance import collect_metadata
 
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)

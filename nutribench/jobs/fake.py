@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nutribench.jobs.metadata import collect_metadata
+from nutribench.provenance import collect_metadata
 from nutribench.jobs.spec import JobResult, JobSpec
 from nutribench.jobs.worker import JobProgress, Sink
 from nutribench.clock import utcnow

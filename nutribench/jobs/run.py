@@ -11,7 +11,7 @@ from pathlib import Path
 
 from nutribench.agents.api import eval_food_streams, evaluate, train
 from nutribench.agents.config import agent_config_sha256
-from nutribench.jobs.metadata import collect_metadata
+from nutribench.provenance import collect_metadata
 from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
 from nutribench.jobs.worker import JobProgress, Sink
 from nutribench.clock import utcnow

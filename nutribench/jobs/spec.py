@@ -43,7 +43,7 @@ class JobResult:
     ``train`` / ``eval``: one dict per episode with ``episode`` (0-based) and the metric keys
     of :data:`nutribench.env.metrics.METRIC_KEYS` plus ``entropy``. ``eval_steps``: one dict
     per evaluation step (``episode``, ``step`` 1..H, ``food``, ``action``, ``C``, ``F``,
-    ``P``, ``reward``). ``metadata``: reproducibility facts (see :mod:`nutribench.jobs.metadata`)
+    ``P``, ``reward``). ``metadata``: reproducibility facts (see :mod:`nutribench.provenance`)
     plus ``started_at``, ``finished_at`` (naive UTC) and ``wall_seconds``.
     """
 

@@ -1,4 +1,5 @@
-"""Reproducibility facts about the process that runs a job."""
+"""Reproducibility facts about the running process (host, versions, git commit), recorded with
+every job and every saved model. At the bottom of the house: agents and jobs both use it."""
 
 from __future__ import annotations
 
