@@ -108,9 +108,9 @@ def _bare_sb3_seconds(algo: str, regime: str, episodes: int, seed: int, bare_cls
     env_cfg = load_env_config(regime)
     cfg = _bench_config(algo)
     _, env = make_train_env(env_cfg, cfg)
-    model = algos.build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon)
     # same hyperparameters and networks; the class decides the update (DQN: the vanilla max target)
-    model.__class__ = {"PPO": PPO, "DQN": DQN, "DoubleDQN": algos.DoubleDQN}[bare_cls_name]
+    cls = {"PPO": PPO, "DQN": DQN, "DoubleDQN": algos.DoubleDQN}[bare_cls_name]
+    model = algos.build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon, cls=cls)
     model.learn(total_timesteps=episodes * env_cfg.reward.horizon)
     return time.perf_counter() - t0
 

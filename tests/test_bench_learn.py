@@ -7,7 +7,8 @@ import pytest
 from typer.testing import CliRunner
 
 from nutribench.bench_learn import LearnRun, budget_for, iqm, markdown_table, summarize  # iqm: the report's, reused
-from nutribench.cli import app, parse_budgets
+from nutribench.cli import app
+from nutribench.cli.bench import parse_budgets
 
 runner = CliRunner()
 

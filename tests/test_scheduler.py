@@ -20,7 +20,8 @@ from typer.testing import CliRunner
 from nutribench.cli import app
 from nutribench.config import list_regimes
 from nutribench.jobs.fake import fake_run_job
-from nutribench.scheduler.driver import MAX_FAILURES, RunError, run_grid
+from nutribench.scheduler.driver import RunError, run_grid
+from nutribench.store.jobs import MAX_FAILURES, STALE_AFTER_S
 from nutribench.scheduler.grid import PRESETS, GridError, parse_seeds, resolve_grid
 from nutribench.scheduler.status import status_table
 
@@ -207,14 +208,13 @@ def test_a_rerun_after_a_driver_crash_waits_and_takes_the_orphaned_jobs_over(reg
     runs them; it never runs a job whose driver is alive (test_two_concurrent_runs_...)."""
     from datetime import timedelta
 
-    from nutribench.scheduler import driver
     from nutribench.store.engine import utcnow
 
     db = tmp_path / "r.db"
     args = dict(seeds=[0, 1], episodes=4, eval_episodes=1, workers=1, job_fn=fake_run_job, display=False)
     assert run_grid(db, ["run0"], ["ppo"], **args).done == 2
     engine = create_engine(f"sqlite:///{db}")
-    beat = utcnow() - timedelta(seconds=driver.STALE_AFTER_S - 5)  # the crashed driver's last heartbeat
+    beat = utcnow() - timedelta(seconds=STALE_AFTER_S - 5)  # the crashed driver's last heartbeat
     with engine.begin() as conn:  # as a crashed driver leaves it: running, no rows written
         conn.execute(text("UPDATE jobs SET status='running', owner='crashed', heartbeat_at=:b, episodes_done=2 "
                           "WHERE seed = 1"), {"b": beat})  # fmt: skip
@@ -229,7 +229,7 @@ def test_a_rerun_after_a_driver_crash_waits_and_takes_the_orphaned_jobs_over(reg
     assert set(statuses(db).values()) == {"done"}
     with engine.begin() as conn:  # a crash long ago: status says the job is orphaned
         conn.execute(text("UPDATE jobs SET status='running', owner='crashed', heartbeat_at=:b WHERE seed = 1"),
-                     {"b": utcnow() - timedelta(seconds=driver.STALE_AFTER_S + 5)})  # fmt: skip
+                     {"b": utcnow() - timedelta(seconds=STALE_AFTER_S + 5)})  # fmt: skip
     report = status_table(db)
     assert (report.totals["running"], report.totals["pending"], report.totals["orphaned"]) == (0, 1, 1)
     res = CliRunner().invoke(app, ["status", "--db", str(db)])

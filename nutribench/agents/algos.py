@@ -115,53 +115,66 @@ class DoubleDQN(DQN):
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/loss", float(np.mean(losses)))
 
+    def day_entropy(self, obs: np.ndarray) -> None:
+        """Epsilon-greedy over Q-values: no stochastic policy whose entropy to record."""
+        return None
+
 
 # ---------------------------------------------------------------------------- builders
-def build_model(cfg: Any, env: VecEnv, seed: int, horizon: int) -> BaseAlgorithm:
-    """The SB3 algorithm object for config ``cfg`` on ``env`` (CPU, seeded, silent)."""
-    common = dict(env=env, seed=seed, device="cpu", verbose=0, gamma=cfg.gamma)
+def build_model(cfg: Any, env: VecEnv, seed: int, horizon: int, cls: type[BaseAlgorithm] | None = None) -> BaseAlgorithm:
+    """The SB3 algorithm object for config ``cfg`` on ``env`` (CPU, seeded, silent).
+
+    ``cls`` replaces the config's class by another taking the same arguments (the speed
+    benchmark times SB3's vanilla ``DQN`` with DDQN's hyperparameters this way)."""
+    default_cls, kwargs = model_arguments(cfg, horizon)
+    return (cls or default_cls)(env=env, seed=seed, device="cpu", verbose=0, gamma=cfg.gamma, **kwargs)
+
+
+def model_arguments(cfg: Any, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+    """The algorithm class of config ``cfg`` and its constructor arguments (all but env,
+    seed, device, verbosity and gamma, which :func:`build_model` adds)."""
     if isinstance(cfg, MCConfig):
-        return MonteCarloAC(
-            "MlpPolicy", n_steps=horizon, learning_rate=cfg.learning_rate, gae_lambda=1.0,
+        return MonteCarloAC, dict(
+            policy="MlpPolicy", n_steps=horizon, learning_rate=cfg.learning_rate, gae_lambda=1.0,
             ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm,
             use_rms_prop=False, normalize_advantage=False,
-            policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch), **common,
+            policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch),
         )  # fmt: skip
     if isinstance(cfg, PPOConfig):
         # SB3 warns when batch_size does not divide n_steps; whole days per rollout matter more
         # here than equal minibatches (500 = 7 x 64 + 52).
         warnings.filterwarnings("ignore", message="You have specified a mini-batch size", module="stable_baselines3")
-        return PPO(
-            "MlpPolicy", learning_rate=cfg.learning_rate, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
+        return PPO, dict(
+            policy="MlpPolicy", learning_rate=cfg.learning_rate, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
             n_epochs=cfg.n_epochs, gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range,
             ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm,
             normalize_advantage=cfg.normalize_advantage,
-            policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch), **common,
+            policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch),
         )  # fmt: skip
     if isinstance(cfg, GRUPPOConfig):
-        return GRUPPO(
+        return GRUPPO, dict(
             learning_rate=cfg.learning_rate, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
             n_epochs=cfg.n_epochs, gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range,
             ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm,
             normalize_advantage=cfg.normalize_advantage, hidden_size=cfg.hidden_size,
-            sequence_length=cfg.sequence_length, **common,
+            sequence_length=cfg.sequence_length,
         )  # fmt: skip
     if isinstance(cfg, DDQNConfig):
-        return DoubleDQN(
-            "MlpPolicy", learning_rate=LinearSchedule(cfg.learning_rate_start, cfg.learning_rate_end, end_fraction=1.0),
+        return DoubleDQN, dict(
+            policy="MlpPolicy", learning_rate=LinearSchedule(cfg.learning_rate_start, cfg.learning_rate_end, end_fraction=1.0),
             buffer_size=cfg.buffer_size, learning_starts=cfg.learning_starts, batch_size=cfg.batch_size,
             n_steps=cfg.n_step, max_grad_norm=cfg.max_grad_norm,
             target_update_interval=cfg.target_update_interval, train_freq=cfg.train_freq,
             gradient_steps=cfg.gradient_steps, exploration_initial_eps=cfg.exploration_initial_eps,
             exploration_final_eps=cfg.exploration_final_eps, exploration_fraction=cfg.exploration_fraction,
-            tau=1.0, policy_kwargs=dict(net_arch=list(cfg.net_arch)), **common,
+            tau=1.0, policy_kwargs=dict(net_arch=list(cfg.net_arch)),
         )  # fmt: skip
     if isinstance(cfg, SACConfig):
-        return DiscreteSAC(
-            "MlpPolicy", actor_learning_rate=cfg.actor_learning_rate, critic_learning_rate=cfg.critic_learning_rate,
+        return DiscreteSAC, dict(
+            policy="MlpPolicy", actor_learning_rate=cfg.actor_learning_rate, critic_learning_rate=cfg.critic_learning_rate,
             buffer_size=cfg.buffer_size, learning_starts=cfg.learning_starts, batch_size=cfg.batch_size,
             tau=cfg.tau, alpha=cfg.alpha, train_freq=cfg.train_freq, gradient_steps=cfg.gradient_steps,
-            net_arch=list(cfg.net_arch), **common,
+            net_arch=list(cfg.net_arch),
         )  # fmt: skip
     raise TypeError(f"no builder for config {type(cfg).__name__}")
 
@@ -172,21 +185,13 @@ MODEL_CLASSES: dict[str, type[BaseAlgorithm]] = {
 }  # fmt: skip
 
 
-def episode_entropy(model: BaseAlgorithm, algo: str, obs: np.ndarray) -> float | None:
+def episode_entropy(model: BaseAlgorithm, obs: np.ndarray) -> float | None:
     """Mean policy entropy (nats) over one episode's observations ``(T, obs_dim)`` as the
-    policy saw them (normalised); None for DDQN (no stochastic policy)."""
-    if algo == "ddqn":
-        return None
+    policy saw them (normalised), from the first step of the day; None for a policy that is
+    not stochastic. An algorithm with a policy of its own says how (``day_entropy``: DDQN,
+    discrete SAC, GRU-PPO); SB3's actor-critic policies (MC, PPO) share one way."""
+    own = getattr(model, "day_entropy", None)
+    if own is not None:
+        return own(obs)
     with th.no_grad():
-        x = th.as_tensor(obs, dtype=th.float32)
-        if algo == "sac":
-            ent = model.policy.entropy(x)
-        elif algo == "gru_ppo":
-            pol = model.policy
-            starts = th.zeros(1, x.shape[0])
-            starts[0, 0] = 1.0
-            feats, _ = pol.unroll(x.unsqueeze(0), pol.initial_state(1), starts)
-            ent = pol.action_dist.proba_distribution(pol.actor_head(feats[0])).entropy()
-        else:
-            ent = model.policy.get_distribution(x).entropy()
-    return float(ent.mean())
+        return float(model.policy.get_distribution(th.as_tensor(obs, dtype=th.float32)).entropy().mean())

@@ -104,10 +104,7 @@ class TrainedAgent:
         """Greedy actions for a batch of raw observations ``(n, obs_dim)``; ``state`` is the
         recurrent state (GRU-PPO; None elsewhere), reset where ``episode_start`` is true."""
         x = self.normalize(obs)
-        if self.algo == "gru_ppo":
-            return self.model.predict(x, state=state, episode_start=episode_start, deterministic=True)
-        actions, _ = self.model.predict(x, deterministic=True)
-        return actions, None
+        return self.model.predict(x, state=state, episode_start=episode_start, deterministic=True)
 
     def save(self, path: str | Path) -> Path:
         """Write the model the SB3 way, loadable without nutribench's own code paths:
@@ -179,7 +176,7 @@ class EpisodeMetrics(BaseCallback):
     def _on_step(self) -> bool:
         self._obs.append(np.array(self.model._last_obs[0], dtype=np.float32))
         for metrics in self.recorder.record(self.base_env.last_rewards, self.locals["dones"], self.base_env.last_info):
-            row = {"episode": len(self.episodes), **metrics, "entropy": episode_entropy(self.model, self.algo, np.stack(self._obs))}
+            row = {"episode": len(self.episodes), **metrics, "entropy": episode_entropy(self.model, np.stack(self._obs))}
             self._obs.clear()
             self.episodes.append(row)
             if self.on_episode is not None:
@@ -275,7 +272,7 @@ def evaluate(agent: TrainedAgent, regime: str | EnvConfig, food_streams: np.ndar
                               "C": float(s[j, 0]), "F": float(s[j, 1]), "P": float(s[j, 2]), "reward": float(rewards[j])})  # fmt: skip
     seen_arr = np.stack(seen, axis=1)  # (n, H, obs_dim)
     rows = [
-        {"episode": j, **m, "entropy": episode_entropy(agent.model, agent.algo, seen_arr[j])}
+        {"episode": j, **m, "entropy": episode_entropy(agent.model, seen_arr[j])}
         for j, m in enumerate(finished)
     ]
     return EvalResult(rows, steps)

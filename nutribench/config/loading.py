@@ -19,11 +19,12 @@ import numpy as np
 from pydantic import BaseModel, ValidationError
 
 from nutribench.config.models import NUTRIENTS, FoodCatalog, Regime, RewardConfig
+from nutribench.errors import UserError
 
 M = TypeVar("M", bound=BaseModel)
 
 
-class ConfigError(ValueError):
+class ConfigError(UserError, ValueError):
     """A configuration file is missing or invalid. The message is one line for users."""
 
 

@@ -39,6 +39,7 @@ from nutribench.report.figures import (
     training_curves,
 )
 from nutribench.report.tables import CONFIG_TABLES, TableResult, table_agent_config, table_regimes, table_results, table_training
+from nutribench.errors import UserError
 
 #: Figures of the paper this command can build, and the file stem each is written to.
 FIGURES: dict[int, str] = {
@@ -57,7 +58,7 @@ Db = str | os.PathLike[str]
 Log = Callable[[str], None]
 
 
-class ReportError(ValueError):
+class ReportError(UserError, ValueError):
     """Something the report cannot build from what it was given; printed as one line."""
 
 

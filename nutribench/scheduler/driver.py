@@ -9,8 +9,8 @@ One call of :func:`run_grid`:
 3. creates the missing job rows (unique on regime, agent config, seed, budget, eval
    episodes), so a re-run finds the done ones and skips them;
 4. claims runnable jobs just in time, one short transaction per batch: ``pending``,
-   ``interrupted``, ``failed`` below :data:`MAX_FAILURES` failures, and ``running`` ones
-   whose driver stopped heartbeating :data:`STALE_AFTER_S` ago. A claim sets status,
+   ``interrupted``, ``failed`` below :data:`~nutribench.store.jobs.MAX_FAILURES` failures, and ``running`` ones
+   whose driver stopped heartbeating :data:`~nutribench.store.jobs.STALE_AFTER_S` ago. A claim sets status,
    owner token and heartbeat under the write lock, so two drivers never run one job;
 5. keeps at most ``slots`` jobs in flight on the executor, shows their progress, writes
    progress and a heartbeat of its running jobs every :data:`FLUSH_EVERY_S` seconds;
@@ -30,41 +30,33 @@ import uuid
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
-from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import and_, insert, or_, select, update
-from sqlalchemy.orm import Session
+from sqlalchemy import select
 
-from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
+from nutribench.jobs.spec import JobFailed, JobSpec
 from nutribench.jobs.worker import JobFn, execute
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
 from nutribench.scheduler.grid import Grid
-from nutribench.store import AgentConfig, Episode, EvalStep, Job, RegimeConfig, open_store, session_scope, utcnow
+from nutribench.scheduler.registration import RunError, load_grid_configs, model_path, register_grid
+from nutribench.store import AgentConfig, Job, RegimeConfig, open_store
+from nutribench.store.jobs import (
+    claim_jobs, count_claimable, flush_progress, grid_counts, held_elsewhere, release_jobs, reset_given_up, store_failure,
+    store_result,
+)  # fmt: skip
 from nutribench.store.engine import sqlite_path
 from nutribench.store.schema import Store
 
-MAX_FAILURES = 3  # a job that failed this often is no longer retried
-STALE_AFTER_S = 120.0  # a running job whose heartbeat is older belongs to a dead driver
 WAIT_POLL_S = 1.0  # how often a driver with nothing to run looks at jobs held by another
 FLUSH_EVERY_S = 3.0  # progress + heartbeat writes
-EPISODE_COLUMNS = ("return", "foods", "final_distance", "overshoot_ratio", "final_C", "final_F", "final_P",
-                   "first_overshoot_step", "entropy")  # fmt: skip
-STEP_COLUMNS = ("episode", "step", "food", "action", "C", "F", "P", "reward")
-METADATA_COLUMNS = ("host", "platform", "python_version", "numpy_version", "torch_version", "sb3_version",
-                    "nutribench_version", "git_commit", "git_dirty", "started_at", "finished_at", "wall_seconds")  # fmt: skip
 
-
-class RunError(Exception):
-    """A problem with the run a user can fix (config changed without a version bump, no
-    job function). One line."""
 
 
 @dataclass
 class RunSummary:
     """What one ``run`` did. ``skipped``: already done before it started; ``busy``: being
-    run by another driver; ``given_up``: failed :data:`MAX_FAILURES` times, not retried."""
+    run by another driver; ``given_up``: failed :data:`~nutribench.store.jobs.MAX_FAILURES` times, not retried."""
 
     total: int = 0
     done: int = 0
@@ -82,246 +74,6 @@ class RunSummary:
         if self.user_interrupt:
             return 130
         return 1 if (self.failed or self.given_up) else 0
-
-
-# --------------------------------------------------------------------------- configs
-@dataclass(frozen=True)
-class _Config:
-    name: str
-    version: int
-    sha256: str
-    body: dict[str, Any]
-    source: str
-    obj: Any
-    algo: str | None = None
-
-
-def _shown(path: Path | str) -> str:
-    """A file path relative to the current folder when it lies below it."""
-    p = Path(path)
-    try:
-        return str(p.resolve().relative_to(Path.cwd().resolve()))
-    except ValueError:
-        return str(p)
-
-
-def load_grid_configs(grid: Grid) -> tuple[list[_Config], list[_Config]]:
-    """Load every regime and agent config of the grid (ConfigError on a bad file)."""
-    from nutribench.agents.config import (
-        agent_config_content,
-        agent_config_sha256,
-        load_agent_config,
-        resolve_agent_path,
-    )
-    from nutribench.config import load_env_config
-
-    regimes = []
-    for name in grid.regimes:
-        env = load_env_config(name)
-        regimes.append(_Config(env.name, env.version, env.sha256, env.content(), _shown(env.path or name), env))
-    agents = []
-    for name in grid.algos:
-        cfg = load_agent_config(name)
-        source = _shown(resolve_agent_path(name))
-        agents.append(_Config(cfg.name, cfg.version, agent_config_sha256(cfg), agent_config_content(cfg), source, cfg, cfg.algo))
-    return regimes, agents
-
-
-def _register(session: Session, table: type, configs: Sequence[_Config]) -> dict[str, int]:
-    """Ids of ``configs`` in ``table``, inserting the new ones; refuses changed content."""
-    ids: dict[str, int] = {}
-    for c in configs:
-        row = session.execute(select(table).where(table.name == c.name, table.version == c.version)).scalar_one_or_none()
-        if row is not None:
-            if row.sha256 != c.sha256:
-                raise RunError(f"{c.source}: version {c.version} is already recorded with different content: bump the version")
-            ids[c.name] = row.id
-            continue
-        extra = {"algo": c.algo} if table is AgentConfig else {}
-        new = table(name=c.name, version=c.version, sha256=c.sha256, body=c.body, source=c.source, created_at=utcnow(), **extra)
-        session.add(new)
-        session.flush()
-        ids[c.name] = new.id
-    return ids
-
-
-def register_grid(store: Store, grid: Grid, regimes: list[_Config], agents: list[_Config]) -> list[int]:
-    """Record the configs and create the missing job rows, in one transaction; the ids of
-    the grid's jobs in grid order."""
-    with session_scope(store.engine) as s:
-        rids = _register(s, RegimeConfig, regimes)
-        aids = _register(s, AgentConfig, agents)
-        existing = {
-            (r.regime_id, r.agent_config_id, r.seed): r.id
-            for r in s.execute(
-                select(Job.id, Job.regime_id, Job.agent_config_id, Job.seed).where(
-                    Job.regime_id.in_(rids.values()), Job.agent_config_id.in_(aids.values()),
-                    Job.episodes == grid.episodes, Job.eval_episodes == grid.eval_episodes,
-                )  # fmt: skip
-            )
-        }
-        keys = [(rids[r], aids[a], seed) for r, a, seed in grid.cells()]
-        missing = [k for k in keys if k not in existing]
-        if missing:
-            now = utcnow()
-            s.execute(insert(Job), [
-                {"regime_id": r, "agent_config_id": a, "seed": seed, "episodes": grid.episodes,
-                 "eval_episodes": grid.eval_episodes, "status": "pending", "attempt": 0, "failures": 0,
-                 "episodes_done": 0, "created_at": now}
-                for r, a, seed in missing
-            ])  # fmt: skip
-            for r in s.execute(select(Job.id, Job.regime_id, Job.agent_config_id, Job.seed).where(
-                Job.regime_id.in_(rids.values()), Job.agent_config_id.in_(aids.values()),
-                Job.episodes == grid.episodes, Job.eval_episodes == grid.eval_episodes,
-            )):  # fmt: skip
-                existing[(r.regime_id, r.agent_config_id, r.seed)] = r.id
-        return [existing[k] for k in keys]
-
-
-def reset_given_up(store: Store, job_ids: Sequence[int]) -> int:
-    """``--retry-failed``: jobs of ``job_ids`` that failed :data:`MAX_FAILURES` times get their
-    failure count reset (their last error stays until they succeed); how many."""
-    with session_scope(store.engine) as s:
-        return s.execute(
-            update(Job).where(Job.id.in_(job_ids), Job.status == "failed", Job.failures >= MAX_FAILURES)
-            .values(failures=0).execution_options(synchronize_session=False)
-        ).rowcount  # fmt: skip
-
-
-# --------------------------------------------------------------------------- claims
-def _claimable(now) -> Any:
-    stale = now - timedelta(seconds=STALE_AFTER_S)
-    return or_(
-        Job.status.in_(("pending", "interrupted")),
-        and_(Job.status == "failed", Job.failures < MAX_FAILURES),
-        and_(Job.status == "running", or_(Job.heartbeat_at.is_(None), Job.heartbeat_at < stale)),
-    )
-
-
-def count_claimable(store: Store, job_ids: Sequence[int]) -> int:
-    """How many of ``job_ids`` a claim could take now."""
-    with store.engine.connect() as conn:
-        return len(conn.execute(select(Job.id).where(Job.id.in_(job_ids), _claimable(utcnow()))).all())
-
-
-def claim_jobs(store: Store, job_ids: Sequence[int], exclude: set[int], n: int, owner: str) -> list[Job]:
-    """Atomically take up to ``n`` runnable jobs of ``job_ids`` (not in ``exclude``) for
-    ``owner``: status ``running``, owner token, fresh heartbeat, attempt + 1."""
-    candidates = [j for j in job_ids if j not in exclude]
-    if n <= 0 or not candidates:
-        return []
-    with session_scope(store.engine) as s:  # BEGIN IMMEDIATE on SQLite: one claimer at a time
-        now = utcnow()
-        ids = s.execute(select(Job.id).where(Job.id.in_(candidates), _claimable(now)).order_by(Job.id).limit(n)).scalars().all()
-        if not ids:
-            return []
-        s.execute(
-            update(Job).where(Job.id.in_(ids), _claimable(now)).values(
-                status="running", owner=owner, heartbeat_at=now, started_at=now, finished_at=None,
-                attempt=Job.attempt + 1, episodes_done=0, last_return=None, worker_pid=None,
-            ).execution_options(synchronize_session=False)
-        )  # fmt: skip
-        return list(s.execute(select(Job).where(Job.id.in_(ids), Job.owner == owner, Job.status == "running")).scalars())
-
-
-def held_elsewhere(store: Store, job_ids: Sequence[int], owner: str) -> tuple[int, datetime | None]:
-    """How many of ``job_ids`` another driver is running (fresh heartbeat), and when the
-    last of them becomes claimable if that driver's heartbeat stops now."""
-    fresh = utcnow() - timedelta(seconds=STALE_AFTER_S)
-    with store.engine.connect() as conn:
-        beats = conn.execute(select(Job.heartbeat_at).where(
-            Job.id.in_(job_ids), Job.status == "running", Job.owner != owner, Job.heartbeat_at >= fresh)).scalars().all()  # fmt: skip
-    if not beats:
-        return 0, None
-    return len(beats), max(beats) + timedelta(seconds=STALE_AFTER_S)
-
-
-def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, int]:
-    """Status counts of the grid's jobs, as this driver sees them at the end."""
-    out = {"done": 0, "given_up": 0, "busy": 0}
-    now = utcnow()
-    with store.engine.connect() as conn:
-        rows = conn.execute(select(Job.status, Job.failures, Job.owner, Job.heartbeat_at).where(Job.id.in_(job_ids))).all()
-    for status, failures, job_owner, beat in rows:
-        if status == "done":
-            out["done"] += 1
-        elif status == "failed" and failures >= MAX_FAILURES:
-            out["given_up"] += 1
-        elif status == "running" and job_owner != owner and beat is not None and beat >= now - timedelta(seconds=STALE_AFTER_S):
-            out["busy"] += 1
-    return out
-
-
-# --------------------------------------------------------------------------- writes
-def _episode_rows(job_id: int, phase: str, episodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    rows = []
-    for ep in episodes:
-        row = {"job_id": job_id, "phase": phase, "episode": int(ep["episode"])}
-        for col in EPISODE_COLUMNS:
-            row["ret" if col == "return" else col] = ep.get(col)
-        rows.append(row)
-    return rows
-
-
-def store_result(store: Store, result: JobResult, owner: str, model_path: str | None) -> bool:
-    """Write a finished job in one transaction: its episodes, evaluation steps, metadata and
-    status ``done``. False (nothing written) if this driver no longer owns the job."""
-    with session_scope(store.engine) as s:
-        meta = {k: result.metadata[k] for k in METADATA_COLUMNS if k in result.metadata}
-        if meta.get("platform"):
-            meta["platform"] = str(meta["platform"])[:255]
-        job = s.execute(select(Job).where(Job.id == result.job_id)).scalar_one()
-        claimed = s.execute(
-            update(Job).where(Job.id == result.job_id, Job.owner == owner, Job.status == "running").values(
-                status="done", owner=None, heartbeat_at=utcnow(), episodes_done=job.episodes,
-                model_path=result.model_path or model_path, error=None, **meta,
-            ).execution_options(synchronize_session=False)
-        ).rowcount  # fmt: skip
-        if claimed != 1:
-            return False
-        rows = _episode_rows(result.job_id, "train", result.train) + _episode_rows(result.job_id, "eval", result.eval)
-        if rows:
-            s.execute(insert(Episode), rows)
-        if result.eval_steps:
-            s.execute(insert(EvalStep), [{"job_id": result.job_id, **{k: st[k] for k in STEP_COLUMNS}} for st in result.eval_steps])
-        return True
-
-
-def store_failure(store: Store, job_id: int, owner: str, error: str) -> None:
-    """Status ``failed``, one more failure, the error text kept."""
-    with session_scope(store.engine) as s:
-        s.execute(
-            update(Job).where(Job.id == job_id, Job.owner == owner).values(
-                status="failed", failures=Job.failures + 1, error=error, owner=None, finished_at=utcnow(),
-            ).execution_options(synchronize_session=False)
-        )  # fmt: skip
-
-
-def release_jobs(store: Store, job_ids: Sequence[int], owner: str, status: str = "interrupted") -> int:
-    """Give back jobs this driver claimed (Ctrl-C, executor failure): no rows, new status."""
-    if not job_ids:
-        return 0
-    with session_scope(store.engine) as s:
-        return s.execute(
-            update(Job).where(Job.id.in_(list(job_ids)), Job.owner == owner, Job.status == "running").values(
-                status=status, owner=None, finished_at=utcnow(),
-            ).execution_options(synchronize_session=False)
-        ).rowcount  # fmt: skip
-
-
-def flush_progress(store: Store, owner: str, live: dict[int, dict[str, Any]]) -> None:
-    """Heartbeat every job this driver runs, with its episodes done and recent return."""
-    if not live:
-        return
-    with session_scope(store.engine) as s:
-        now = utcnow()
-        for job_id, st in live.items():
-            values: dict[str, Any] = {"heartbeat_at": now, "episodes_done": int(st.get("k", 0))}
-            if st.get("ret") is not None:
-                values["last_return"] = float(st["ret"])
-            if st.get("pid") is not None:
-                values["worker_pid"] = int(st["pid"])
-            s.execute(update(Job).where(Job.id == job_id, Job.owner == owner).values(**values).execution_options(synchronize_session=False))
 
 
 # --------------------------------------------------------------------------- helpers
@@ -345,11 +97,6 @@ def default_models_dir(store: Store) -> Path:
     """``models/`` next to a SQLite file, else in the current folder."""
     path = sqlite_path(store.url)
     return (path.parent if path is not None else Path.cwd()) / "models"
-
-
-def model_path(models_dir: Path, regime: _Config, agent: _Config, seed: int, episodes: int) -> Path:
-    """``<models>/<regime>-v<rv>/<algo>-v<av>/seed<seed>-ep<episodes>.zip``."""
-    return models_dir / f"{regime.name}-v{regime.version}" / f"{agent.name}-v{agent.version}" / f"seed{seed}-ep{episodes}.zip"
 
 
 def driver_token() -> str:
@@ -438,7 +185,7 @@ class _Run:
     def wait_for_others(self) -> None:
         """Jobs of the grid held by another driver: wait until that driver has finished them,
         or, if its heartbeat stops (a crashed driver), take them over once they are
-        :data:`STALE_AFTER_S` old, so that a re-run after a crash finishes the grid."""
+        :data:`~nutribench.store.jobs.STALE_AFTER_S` old, so that a re-run after a crash finishes the grid."""
         said = None
         while True:
             held, claimable_at = held_elsewhere(self.store, self.job_ids, self.owner)
@@ -518,7 +265,7 @@ def run_grid(
 ) -> RunSummary:
     """Run every job of the grid regime x algo x seed that is not done yet (see the module
     docstring). Returns counts; ``summary.exit_code`` is what ``nutribench run`` exits with.
-    ``retry_failed``: jobs that failed :data:`MAX_FAILURES` times are tried again.
+    ``retry_failed``: jobs that failed :data:`~nutribench.store.jobs.MAX_FAILURES` times are tried again.
 
     Raises ConfigError (bad config file), StoreError (bad database), ExecutorError (bad
     ``executor``) or RunError (config changed without a version bump), all one line.

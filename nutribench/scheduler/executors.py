@@ -21,12 +21,13 @@ from collections.abc import Callable
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from typing import Any
+from nutribench.errors import UserError
 
 # Imported by the fork server once, so that each job's process starts with them loaded.
 PRELOAD = ("nutribench.jobs.preload",)
 
 
-class ExecutorError(Exception):
+class ExecutorError(UserError):
     """A bad ``--executor`` value or an unreachable cluster (one line for users)."""
 
 

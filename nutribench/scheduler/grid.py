@@ -15,12 +15,13 @@ from __future__ import annotations
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
+from nutribench.errors import UserError
 
 EVAL_EPISODES = 5
 DEFAULT_PRESET = "paper"
 
 
-class GridError(ValueError):
+class GridError(UserError, ValueError):
     """A malformed grid option (seeds, preset, budget). One line for users."""
 
 

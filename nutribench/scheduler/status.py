@@ -5,8 +5,8 @@ Only the ``jobs`` table (with the two config tables joined in) is read, never ``
 so the answer is instant however many episode rows the database holds. It reads while a
 driver writes (SQLite WAL: readers never wait for the writer).
 
-A ``running`` job whose heartbeat is older than the driver's stale limit is counted as
-``pending`` (and in ``totals["orphaned"]``): its driver is gone and the next ``run`` takes
+A ``running`` job whose heartbeat is older than the stale limit is counted as ``pending``
+(:func:`nutribench.store.jobs.job_state`, the rule the driver claims by) (and in ``totals["orphaned"]``): its driver is gone and the next ``run`` takes
 it over.
 """
 
@@ -14,13 +14,12 @@ from __future__ import annotations
 
 import os
 from dataclasses import asdict, dataclass, field
-from datetime import timedelta
 from typing import Any
 
 from sqlalchemy import select
 
-from nutribench.scheduler.driver import MAX_FAILURES, STALE_AFTER_S
 from nutribench.store import AgentConfig, Job, RegimeConfig, open_store, utcnow
+from nutribench.store.jobs import MAX_FAILURES, job_state
 
 COUNTS = ("done", "running", "failed", "pending")
 
@@ -71,14 +70,6 @@ class StatusReport:
         return pd.DataFrame([asdict(r) for r in self.rows])
 
 
-def _state(status: str, beat, stale_before) -> str:
-    if status == "running":
-        return "running" if beat is not None and beat >= stale_before else "pending"
-    if status == "interrupted":
-        return "pending"
-    return status
-
-
 def _last_line(text: str | None) -> str:
     lines = [ln for ln in (text or "").strip().splitlines() if ln.strip()]
     if not lines:
@@ -119,7 +110,7 @@ def summarize(jobs: list) -> StatusReport:
     (regime x algo config), else of the same algo config in any regime (the algorithm, not
     the regime, sets the cost: a SAC day costs about nine MC days), else of every done job.
     """
-    stale_before = utcnow() - timedelta(seconds=STALE_AFTER_S)
+    now = utcnow()
     rows: dict[tuple, StatusRow] = {}
     rates: dict[tuple, list[float]] = {}  # seconds per episode of done jobs, per cell
     left: dict[tuple, float] = {}  # jobs' worth of work left
@@ -128,7 +119,7 @@ def summarize(jobs: list) -> StatusReport:
     for regime, rv, algo, av, seed, budget, status, beat, wall, k, failures, error in jobs:
         key = (regime, rv, algo, av, budget)
         row = rows.setdefault(key, StatusRow(regime, rv, algo, av, budget))
-        state = _state(status, beat, stale_before)
+        state = job_state(status, beat, now)
         orphaned += status == "running" and state == "pending"
         setattr(row, state, getattr(row, state) + 1)
         if state == "done" and wall is not None:

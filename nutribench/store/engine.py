@@ -24,12 +24,13 @@ from sqlalchemy.exc import ArgumentError, NoSuchModuleError
 from sqlalchemy.orm import Session, sessionmaker
 
 from nutribench.clock import utcnow  # noqa: F401 - re-exported: the store stamps times with it
+from nutribench.errors import UserError
 
 BUSY_TIMEOUT_MS = 30_000
 SQLITE_HEADER = b"SQLite format 3\x00"
 
 
-class StoreError(Exception):
+class StoreError(UserError):
     """A database problem a user can fix (bad path, not a database, old schema). One line."""
 
 

@@ -15,15 +15,10 @@ each revision keeps a frozen copy of its view text). Columns:
 
 from __future__ import annotations
 
+from nutribench.store.models import EPISODE_METRICS, EVAL_STEP_COLUMNS
+
 VIEWS = ("episode_metrics", "eval_trajectories")
 
-EPISODE_METRICS_COLUMNS = (
-    "regime", "regime_version", "algo", "algo_version", "seed", "budget", "phase", "episode",
-    "return", "foods", "final_distance", "overshoot_ratio", "final_C", "final_F", "final_P",
-    "first_overshoot_step", "entropy", "job_id",
-)  # fmt: skip
-
-EVAL_TRAJECTORY_COLUMNS = (
-    "regime", "regime_version", "algo", "algo_version", "seed", "budget", "episode", "step",
-    "food", "action", "C", "F", "P", "reward", "job_id",
-)  # fmt: skip
+_JOB_COLUMNS = ("regime", "regime_version", "algo", "algo_version", "seed", "budget")
+EPISODE_METRICS_COLUMNS = (*_JOB_COLUMNS, "phase", "episode", *EPISODE_METRICS, "job_id")
+EVAL_TRAJECTORY_COLUMNS = (*_JOB_COLUMNS, *EVAL_STEP_COLUMNS, "job_id")

@@ -1,9 +1,6 @@
 """``nutribench report``: figures and tables of the paper regenerated from the results database.
 
-Registered in :mod:`nutribench.cli` with ``app.command("report")(report_cmd)``. This module
-imports nothing from :mod:`nutribench.cli` at import time (that module imports this one at
-its end) and imports pandas and matplotlib only when the command runs, so the CLI starts
-fast; the CLI's error handling (one line, exit 2) is borrowed when the command runs.
+Pandas and matplotlib are imported only when the command runs, so the CLI starts fast.
 """
 
 from __future__ import annotations
@@ -13,6 +10,8 @@ from typing import Annotated, Optional
 
 import typer
 
+from nutribench.cli.common import UserError, console, err_console, user_errors
+
 
 def _split(values: list[str] | None) -> list[str]:
     """Repeated options and comma lists, flattened: ``--fig 1 --fig 3,4`` -> 1, 3, 4."""
@@ -20,7 +19,7 @@ def _split(values: list[str] | None) -> list[str]:
 
 
 def parse_figs(values: list[str] | None) -> list[int]:
-    """``--fig`` values as figure numbers (``all`` = every figure); bad values raise ValueError."""
+    """``--fig`` values as figure numbers (``all`` = every figure); bad values raise UserError."""
     from nutribench.report.build import FIGURES
 
     items = _split(values)
@@ -28,12 +27,12 @@ def parse_figs(values: list[str] | None) -> list[int]:
         return list(FIGURES)
     bad = [v for v in items if not (v.isdigit() and int(v) in FIGURES)]
     if bad:
-        raise ValueError(f"--fig {', '.join(bad)}: the figures are {', '.join(map(str, FIGURES))} (repeat --fig or give a comma list)")
+        raise UserError(f"--fig {', '.join(bad)}: the figures are {', '.join(map(str, FIGURES))} (repeat --fig or give a comma list)")
     return list(dict.fromkeys(int(v) for v in items))
 
 
 def parse_tables(values: list[str] | None) -> list[str]:
-    """``--table`` values (1-6, results, training, or all); bad values raise ValueError."""
+    """``--table`` values (1-6, results, training, or all); bad values raise UserError."""
     from nutribench.report.build import TABLES
 
     items = _split(values)
@@ -41,10 +40,11 @@ def parse_tables(values: list[str] | None) -> list[str]:
         return list(TABLES)
     bad = [v for v in items if v not in TABLES]
     if bad:
-        raise ValueError(f"--table {', '.join(bad)}: the tables are {', '.join(TABLES)} (repeat --table or give a comma list)")
+        raise UserError(f"--table {', '.join(bad)}: the tables are {', '.join(TABLES)} (repeat --table or give a comma list)")
     return list(dict.fromkeys(items))
 
 
+@user_errors
 def report_cmd(
     fig: Annotated[Optional[list[str]], typer.Option("--fig", help="figure 1-4 (repeat or comma list; 'all')")] = None,
     table: Annotated[Optional[list[str]], typer.Option("--table", help="table 1-6, 'results' or 'training' (repeat or comma list; 'all')")] = None,
@@ -59,35 +59,23 @@ def report_cmd(
     reference_episodes: Annotated[int, typer.Option(min=1, help="episodes per simple policy and regime for the reference lines of figures 3/4")] = 200,
 ) -> None:
     """Regenerate the paper's figures (PNG + PDF) and tables (Markdown, LaTeX, CSV) from the database."""
-    from nutribench.cli import UserError, console, err_console, user_errors
-    from nutribench.report.build import ReportError, build_report, build_trajectory
-    from nutribench.store import StoreError
+    from nutribench.report.build import build_report, build_trajectory
 
-    @user_errors
-    def run() -> None:
-        try:
-            figs, tables = parse_figs(fig), parse_tables(table)
-        except ValueError as e:
-            raise UserError(str(e)) from None
-        if not (figs or tables or all_ or trajectory):
-            raise UserError("nothing to build: pass --fig, --table, --all or --trajectory (see nutribench report --help)")
-        if trajectory:
-            missing = [o for o, v in (("--algo", algo), ("--regime", regime), ("--seed", seed)) if v is None]
-            if missing:
-                raise UserError(f"--trajectory needs {', '.join(missing)}")
-        elif algo is not None or regime is not None or seed is not None:
-            raise UserError("--algo, --regime and --seed pick a trajectory: add --trajectory")
-        log = lambda msg: err_console.print(msg, style="yellow", highlight=False, soft_wrap=True)  # noqa: E731
-        paths: list[Path] = []
-        try:
-            if figs or tables or all_:
-                paths += build_report(db, out, figs=figs, tables=tables, all=all_, reference_episodes=reference_episodes, log=log)
-            if trajectory:
-                paths += build_trajectory(db, algo, regime, seed, episode=episode, out=out)
-        except (ReportError, StoreError) as e:
-            raise UserError(str(e)) from None
-        for p in paths:
-            console.print(str(p), highlight=False, soft_wrap=True)
-
-    run()
+    figs, tables = parse_figs(fig), parse_tables(table)
+    if not (figs or tables or all_ or trajectory):
+        raise UserError("nothing to build: pass --fig, --table, --all or --trajectory (see nutribench report --help)")
+    if trajectory:
+        missing = [o for o, v in (("--algo", algo), ("--regime", regime), ("--seed", seed)) if v is None]
+        if missing:
+            raise UserError(f"--trajectory needs {', '.join(missing)}")
+    elif algo is not None or regime is not None or seed is not None:
+        raise UserError("--algo, --regime and --seed pick a trajectory: add --trajectory")
+    log = lambda msg: err_console.print(msg, style="yellow", highlight=False, soft_wrap=True)  # noqa: E731
+    paths: list[Path] = []
+    if figs or tables or all_:
+        paths += build_report(db, out, figs=figs, tables=tables, all=all_, reference_episodes=reference_episodes, log=log)
+    if trajectory:
+        paths += build_trajectory(db, algo, regime, seed, episode=episode, out=out)
+    for p in paths:
+        console.print(str(p), highlight=False, soft_wrap=True)
 

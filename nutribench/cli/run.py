@@ -1,4 +1,4 @@
-"""The ``run`` and ``status`` commands (registered in :mod:`nutribench.cli`).
+"""``nutribench run`` and ``nutribench status``.
 
 Everything a user can get wrong (unknown regime or algorithm, malformed seeds, a database
 path that cannot be written, a file that is not a database, a config changed without a
@@ -8,43 +8,15 @@ reported as one red line with exit status 2.
 
 from __future__ import annotations
 
-import functools
 import json
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
-from nutribench.config import ConfigError
+from nutribench.cli.common import console, err_console, split_csv, user_errors
 from nutribench.scheduler.executors import ExecutorError
-from nutribench.scheduler.grid import DEFAULT_PRESET, PRESETS, GridError
-from nutribench.store import StoreError
-
-# nutribench.cli imports this module, so it is imported lazily here (see _cli).
-
-
-def _cli():
-    """The CLI module (its consoles, UserError and split_csv), imported when a command runs."""
-    from nutribench import cli
-
-    return cli
-
-
-def one_line_errors(fn):
-    """Errors a user can fix -> one red line on stderr and exit status 2."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        from nutribench.scheduler.driver import RunError
-
-        cli = _cli()
-        try:
-            return fn(*args, **kwargs)
-        except (cli.UserError, ConfigError, StoreError, ExecutorError, GridError, RunError) as e:
-            cli.err_console.print(f"[bold red]error:[/] {e}", highlight=False, soft_wrap=True)
-            raise typer.Exit(2) from None
-
-    return wrapper
+from nutribench.scheduler.grid import DEFAULT_PRESET, PRESETS
 
 
 def _check_executor(value: str) -> None:
@@ -63,7 +35,7 @@ def _check_db(db: str) -> None:
         check_sqlite_file(path, create=True)
 
 
-@one_line_errors
+@user_errors
 def run_cmd(
     preset: Annotated[Optional[str], typer.Option(help=f"grid preset: {', '.join(PRESETS)} (default {DEFAULT_PRESET}); options below override its fields")] = None,
     regimes: Annotated[str, typer.Option(help="'all' or comma-separated regime names (run0..run6)")] = "all",
@@ -81,22 +53,23 @@ def run_cmd(
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
     from nutribench.store import open_store
 
-    cli = _cli()
     if upgrade_only:
         store = open_store(db, writer=True)
         store.dispose()
         what = "created" if store.created else (f"upgraded from {store.upgraded_from}" if store.upgraded_from else "already")
-        cli.console.print(f"{store.display}: schema {what} at revision {store.revision}", highlight=False)
+        console.print(f"{store.display}: schema {what} at revision {store.revision}", highlight=False)
         return
     from nutribench.agents.config import list_agent_configs
     from nutribench.config import list_regimes
-    from nutribench.scheduler.driver import MAX_FAILURES, default_job_fn, load_grid_configs, run_grid
+    from nutribench.scheduler.driver import default_job_fn, run_grid
+    from nutribench.scheduler.registration import load_grid_configs
+    from nutribench.store.jobs import MAX_FAILURES
     from nutribench.scheduler.grid import resolve_grid
 
     grid = resolve_grid(
         preset=preset,
-        regimes=cli.split_csv(regimes, list_regimes(), "regime"),
-        algos=cli.split_csv(algos, list_agent_configs(), "algorithm"),
+        regimes=split_csv(regimes, list_regimes(), "regime"),
+        algos=split_csv(algos, list_agent_configs(), "algorithm"),
         seeds=seeds, episodes=episodes, eval_episodes=eval_episodes,
     )  # fmt: skip
     _check_executor(executor)
@@ -117,12 +90,12 @@ def run_cmd(
         parts.append(f"{summary.given_up} failed {MAX_FAILURES} times (not retried: see `nutribench status`; `--retry-failed` tries them again)")
     if summary.interrupted:
         parts.append(f"{summary.interrupted} interrupted (the next run resumes them)")
-    cli.err_console.print(f"{summary.total} jobs: " + ", ".join(parts), highlight=False)
+    err_console.print(f"{summary.total} jobs: " + ", ".join(parts), highlight=False)
     if summary.exit_code:
         raise typer.Exit(summary.exit_code)
 
 
-@one_line_errors
+@user_errors
 def status_cmd(
     db: Annotated[str, typer.Option(help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
     as_json: Annotated[bool, typer.Option("--json", help="print JSON instead of a table")] = False,
@@ -143,7 +116,6 @@ def render_status(report) -> None:
 
     from nutribench.scheduler.progress import format_duration
 
-    cli = _cli()
     table = Table("regime", "algo", "budget", "done", "run", "fail", "pend", "wall", "left", title="nutribench status")
     for r in report.rows:
         table.add_row(
@@ -151,16 +123,16 @@ def render_status(report) -> None:
             str(r.running), f"[red]{r.failed}[/]" if r.failed else "0", str(r.pending),
             format_duration(r.wall_seconds), format_duration(r.remaining_seconds),
         )  # fmt: skip
-    cli.console.print(table)
+    console.print(table)
     t = report.totals
-    cli.console.print(
+    console.print(
         f"{t['jobs']} jobs: {t['done']} done, {t['running']} running, {t['failed']} failed, {t['pending']} pending; "
         f"wall used {format_duration(report.wall_seconds)}; ETA {format_duration(report.eta_seconds)}"
         f" with {max(report.workers, 1)} worker{'s' if report.workers > 1 else ''}",
         highlight=False,
     )
     if t.get("orphaned"):
-        cli.console.print(
+        console.print(
             f"[yellow]{t['orphaned']} of the pending jobs were running in a driver whose heartbeat stopped "
             f"(crashed or killed): the next `nutribench run` takes them over[/]", highlight=False,
         )  # fmt: skip
@@ -168,4 +140,4 @@ def render_status(report) -> None:
         errs = Table("regime", "algo", "seed", "failures", "last error", title="failed jobs")
         for e in report.errors:
             errs.add_row(e["regime"], e["algo"], str(e["seed"]), f"{e['failures']}" + ("" if e["retried"] else " (gave up)"), e["error"])
-        cli.console.print(errs)
+        console.print(errs)

@@ -1,63 +1,23 @@
-"""Soft Actor-Critic for discrete actions (SPEC 3), on Stable-Baselines3's off-policy machinery.
-
-The discrete form of SAC (Christodoulou 2019; CleanRL's ``sac_atari``), written so that each
-part of the update can be read (and tested) on its own:
-
-* **actor**: a categorical policy ``pi(a|s) = softmax(logits(s))``, MLP ``obs -> 256 -> 128 -> |A|``.
-* **critics**: twin Q-networks, each an MLP ``obs -> 256 -> 128 -> |A|`` (one Q-head per action),
-  and two target copies updated by Polyak averaging (``tau = 0.005``) after every gradient step.
-* **soft value** as an *expectation* under the policy (no sampled next action)::
-
-      V(s') = sum_a pi(a|s') * ( min(Q1_targ, Q2_targ)(s', a) - alpha * log pi(a|s') )
-
-  -> :func:`soft_value`.
-* **1-step soft Bellman target**: ``y = r + gamma * (1 - done) * V(s')`` -> :func:`soft_bellman_target`.
-* **critic loss**: ``MSE(Q1(s, a), y) + MSE(Q2(s, a), y)`` (CleanRL's sum of the two).
-* **actor loss**: ``E_s sum_a pi(a|s) * (alpha * log pi(a|s) - min(Q1, Q2)(s, a))`` with the critics
-  detached (an exact expectation again, so no reparameterisation trick is needed).
-* **temperature**: ``alpha = 0.2``, fixed (no automatic entropy tuning).
-* separate Adam optimisers: actor lr 1e-4, critic lr 1e-3; no gradient clipping.
-
-Everything else (replay buffer of 100k transitions, uniform random actions until
-``learning_starts`` = batch size, ``train_freq``/``gradient_steps``, VecNormalize handling,
-logging, ``save``/``load``) is Stable-Baselines3's :class:`OffPolicyAlgorithm`. Its replay
-buffer stores the *unnormalised* observations and normalises them when sampling, so
-wrapping the env in ``VecNormalize`` works unchanged. An episode end without
-``TimeLimit.truncated`` (NutriRL's day end) is a true terminal: no bootstrap past it.
-
-With ``n_envs`` environments, one collection step is ``n_envs`` env steps and is followed by
-``gradient_steps`` gradient steps (SB3 semantics); ``gradient_steps=-1`` does one gradient
-step per env step.
-"""
+"""Discrete SAC, the algorithm: the pure maths of the update, and the SB3 off-policy algorithm around it."""
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Sequence
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from torch import nn
 from torch.nn import functional as F
 
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.preprocessing import preprocess_obs
-from stable_baselines3.common.torch_layers import create_mlp
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, PyTorchObs, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import FloatSchedule, polyak_update, update_learning_rate
 
-__all__ = ["DiscreteSAC", "DiscreteSACPolicy", "TwinQNetwork", "soft_value", "soft_bellman_target"]
+from nutribench.agents.sac.policy import DiscreteSACPolicy
 
-SelfDiscreteSAC = TypeVar("SelfDiscreteSAC", bound="DiscreteSAC")
-
-
-# ---------------------------------------------------------------------------------------------
-# Pure maths of the update (unit-tested on their own)
-# ---------------------------------------------------------------------------------------------
 
 
 def soft_value(
@@ -86,126 +46,6 @@ def soft_value(
 def soft_bellman_target(rewards: th.Tensor, dones: th.Tensor, next_values: th.Tensor, gamma: float) -> th.Tensor:
     """1-step soft Bellman target ``r + gamma * (1 - done) * V(s')`` (all inputs flattened to ``(batch,)``)."""
     return rewards.reshape(-1) + gamma * (1.0 - dones.reshape(-1)) * next_values.reshape(-1)
-
-
-# ---------------------------------------------------------------------------------------------
-# Networks and policy
-# ---------------------------------------------------------------------------------------------
-
-
-class TwinQNetwork(nn.Module):
-    """Two independent Q-networks, each mapping an observation to one Q-value per action."""
-
-    def __init__(self, obs_dim: int, n_actions: int, net_arch: Sequence[int], activation_fn: type[nn.Module] = nn.ReLU):
-        super().__init__()
-        self.q1 = nn.Sequential(*create_mlp(obs_dim, n_actions, list(net_arch), activation_fn))
-        self.q2 = nn.Sequential(*create_mlp(obs_dim, n_actions, list(net_arch), activation_fn))
-
-    def forward(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        return self.q1(obs), self.q2(obs)
-
-
-class DiscreteSACPolicy(BasePolicy):
-    """Categorical actor + twin Q critics + their two target copies, with one Adam optimiser each
-    for the actor (``actor_optimizer``) and for both critics (``critic_optimizer``).
-
-    ``predict(obs, deterministic=True)`` returns ``argmax_a pi(a|s)``; ``deterministic=False``
-    samples from ``pi``.
-
-    :param observation_space: flat ``Box`` observation space.
-    :param action_space: ``Discrete`` action space.
-    :param lr_schedule: learning-rate schedule used to build both optimisers; the algorithm
-        then sets each optimiser's own rate (actor and critic rates differ).
-    :param net_arch: hidden layer sizes of the actor and of each critic.
-    :param activation_fn: activation between hidden layers.
-    :param optimizer_class: optimiser class (Adam).
-    :param optimizer_kwargs: extra optimiser keyword arguments (besides the learning rate).
-    """
-
-    def __init__(
-        self,
-        observation_space: spaces.Space,
-        action_space: spaces.Space,
-        lr_schedule: Schedule,
-        net_arch: Sequence[int] = (256, 128),
-        activation_fn: type[nn.Module] = nn.ReLU,
-        optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
-        optimizer_kwargs: dict[str, Any] | None = None,
-    ):
-        super().__init__(
-            observation_space,
-            action_space,
-            optimizer_class=optimizer_class,
-            optimizer_kwargs=optimizer_kwargs,
-        )
-        if not isinstance(action_space, spaces.Discrete):
-            raise ValueError(f"DiscreteSACPolicy needs a Discrete action space, got {action_space}")
-        if not isinstance(observation_space, spaces.Box) or len(observation_space.shape) != 1:
-            raise ValueError(f"DiscreteSACPolicy needs a flat Box observation space, got {observation_space}")
-        self.net_arch = [int(n) for n in net_arch]
-        self.activation_fn = activation_fn
-        obs_dim = int(observation_space.shape[0])
-        n_actions = int(action_space.n)
-
-        self.actor = nn.Sequential(*create_mlp(obs_dim, n_actions, self.net_arch, activation_fn))
-        self.critic = TwinQNetwork(obs_dim, n_actions, self.net_arch, activation_fn)
-        self.critic_target = copy.deepcopy(self.critic)
-        self.critic_target.requires_grad_(False)
-        self.critic_target.train(False)
-
-        self.actor_optimizer = self.optimizer_class(self.actor.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
-        self.critic_optimizer = self.optimizer_class(self.critic.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        data.update(
-            dict(
-                lr_schedule=self._dummy_schedule,  # not needed to load the policy alone
-                net_arch=self.net_arch,
-                activation_fn=self.activation_fn,
-                optimizer_class=self.optimizer_class,
-                optimizer_kwargs=self.optimizer_kwargs,
-            )
-        )
-        return data
-
-    def set_training_mode(self, mode: bool) -> None:
-        self.actor.train(mode)
-        self.critic.train(mode)
-        self.training = mode  # the target critic always stays in eval mode
-
-    def _obs(self, obs: PyTorchObs) -> th.Tensor:
-        return preprocess_obs(obs, self.observation_space).float()  # type: ignore[return-value]
-
-    def action_log_probs(self, obs: PyTorchObs) -> tuple[th.Tensor, th.Tensor]:
-        """``(probs, log_probs)``, each ``(batch, n_actions)``, of the policy at ``obs``."""
-        logits = self.actor(self._obs(obs))
-        log_probs = F.log_softmax(logits, dim=-1)
-        return log_probs.exp(), log_probs
-
-    def entropy(self, obs: PyTorchObs) -> th.Tensor:
-        """``(batch,)`` entropy ``-sum_a pi(a|s) log pi(a|s)`` of the action distribution."""
-        probs, log_probs = self.action_log_probs(obs)
-        return -(probs * log_probs).sum(dim=-1)
-
-    def q_values(self, obs: PyTorchObs, target: bool = False) -> tuple[th.Tensor, th.Tensor]:
-        """``(Q1, Q2)`` at ``obs``, each ``(batch, n_actions)``; ``target=True`` uses the target nets."""
-        critic = self.critic_target if target else self.critic
-        return critic(self._obs(obs))
-
-    def forward(self, obs: PyTorchObs, deterministic: bool = False) -> th.Tensor:
-        return self._predict(obs, deterministic=deterministic)
-
-    def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
-        logits = self.actor(self._obs(observation))
-        if deterministic:
-            return logits.argmax(dim=-1)
-        return th.distributions.Categorical(logits=logits, validate_args=False).sample()
-
-
-# ---------------------------------------------------------------------------------------------
-# Algorithm
-# ---------------------------------------------------------------------------------------------
 
 
 class DiscreteSAC(OffPolicyAlgorithm):
@@ -401,25 +241,11 @@ class DiscreteSAC(OffPolicyAlgorithm):
             entropy = self.policy.entropy(obs).cpu().numpy()
         return entropy if vectorized else entropy[0]
 
-    # ---- SB3 plumbing ----
+    def day_entropy(self, obs: np.ndarray) -> float:
+        """Mean entropy over one day's observations ``(T, obs_dim)`` (the training record's)."""
+        return float(self.action_entropy(obs).mean())
 
-    def learn(
-        self: SelfDiscreteSAC,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 4,
-        tb_log_name: str = "DiscreteSAC",
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfDiscreteSAC:
-        return super().learn(
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=tb_log_name,
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
-        )
+    # ---- SB3 plumbing ----
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "actor_lr_schedule", "critic_lr_schedule"]

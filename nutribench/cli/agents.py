@@ -1,0 +1,92 @@
+"""``nutribench baselines`` and ``nutribench train``: the simple policies and one agent in the foreground."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.table import Table
+
+from nutribench.cli.common import UserError, console, split_csv, user_errors
+
+
+@user_errors
+def baselines(
+    regimes: Annotated[str, typer.Option(help="'all' or comma-separated regime names")] = "all",
+    episodes: Annotated[int, typer.Option(min=1, help="episodes per policy and regime")] = 200,
+    seed: Annotated[int, typer.Option(help="seed of the food streams (the same for every policy)")] = 0,
+    markdown: Annotated[bool, typer.Option(help="print a Markdown table instead of a rich one")] = False,
+) -> None:
+    """Mean return, foods eaten, final distance and overshoot ratio of the simple policies."""
+    from nutribench.baselines import POLICY_ORDER, baseline_table
+    from nutribench.config import list_regimes
+
+    names = split_csv(regimes, list_regimes(), "regime")
+    rows = baseline_table(names, episodes=episodes, seed=seed)
+    headers = ["regime", "policy", "return", "foods", "final distance", "overshoot ratio"]
+    cells = [
+        [r["regime"], r["policy"], f"{r['return']:.2f}", f"{r['foods']:.2f}", f"{r['final_distance']:.3f}", f"{r['overshoot_ratio']:.3f}"]
+        for r in rows
+    ]
+    if markdown:
+        typer.echo("| " + " | ".join(headers) + " |")
+        typer.echo("|" + "---|" * len(headers))
+        for c in cells:
+            typer.echo("| " + " | ".join(c) + " |")
+        return
+    table = Table(*headers, title=f"Simple policies, {episodes} episodes each (seed {seed}); means")
+    for i, c in enumerate(cells):
+        table.add_row(*c, end_section=(i + 1) % len(POLICY_ORDER) == 0)
+    console.print(table)
+
+
+@user_errors
+def train_cmd(
+    algo: Annotated[str, typer.Option(help="agent config name (regimes/agents/<name>.toml) or a .toml path")] = "ppo",
+    regime: Annotated[str, typer.Option(help="regime name or file")] = "run0",
+    seed: Annotated[int, typer.Option(help="training seed; the evaluation days derive from it")] = 0,
+    episodes: Annotated[int, typer.Option(min=1, help="training days (episodes of 50 steps)")] = 300,
+    eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days")] = 5,
+    save: Annotated[Optional[Path], typer.Option(help="save the trained model here (.zip + .json)")] = None,
+) -> None:
+    """Train one agent in the foreground, then evaluate it greedily and print the metrics."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from nutribench.agents import eval_food_streams, evaluate, load_agent_config, train
+    from nutribench.agents.api import vec_normalize_path
+    from nutribench.config import load_env_config
+
+    env_cfg = load_env_config(regime)
+    cfg = load_agent_config(algo)
+    if save is not None and save.suffix != ".zip":
+        raise UserError(f"--save {save}: the model file must end in .zip")
+    if save is not None and not save.parent.is_dir():
+        raise UserError(f"--save {save}: folder {save.parent} does not exist")
+    recent: list[dict] = []
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[stats]}"),
+               TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
+    with Progress(*columns, console=console, transient=False) as progress:
+        task = progress.add_task(f"{cfg.name} on {env_cfg.name}, seed {seed}", total=episodes, stats="")
+
+        def on_episode(row: dict) -> None:
+            recent.append(row)
+            last = recent[-20:]
+            ret = sum(r["return"] for r in last) / len(last)
+            foods = sum(r["foods"] for r in last) / len(last)
+            progress.update(task, advance=1, stats=f"return {ret:8.2f}  foods {foods:5.2f} (last {len(last)})")
+
+        agent = train(env_cfg, cfg, seed=seed, episodes=episodes, on_episode=on_episode)
+    result = evaluate(agent, env_cfg, eval_food_streams(env_cfg, seed, eval_episodes), record_steps=False)
+    table = Table("eval day", "return", "foods", "final distance", "overshoot ratio", "final C/F/P", title="greedy evaluation")
+    for r in result.episodes:
+        table.add_row(str(r["episode"]), f"{r['return']:.2f}", str(r["foods"]), f"{r['final_distance']:.3f}",
+                      f"{r['overshoot_ratio']:.2f}", f"{r['final_C']:.2f} / {r['final_F']:.2f} / {r['final_P']:.2f}")  # fmt: skip
+    n = len(result.episodes)
+    mean = lambda k: sum(r[k] for r in result.episodes) / n  # noqa: E731
+    table.add_row("mean", f"{mean('return'):.2f}", f"{mean('foods'):.2f}", f"{mean('final_distance'):.3f}", f"{mean('overshoot_ratio'):.2f}", "")
+    console.print(table)
+    if save is not None:
+        path = agent.save(save)
+        extra = [p.name for p in (vec_normalize_path(path), path.with_suffix(".json")) if p.is_file()]
+        console.print(f"model saved to {path} (+ {', '.join(extra)}; README \"Agents\" shows how to load it with plain SB3)")

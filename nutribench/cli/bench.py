@@ -1,0 +1,144 @@
+"""``nutribench bench env|train|learn|status``: throughput, status speed and learnability benchmarks."""
+
+from __future__ import annotations
+
+from typing import Annotated, Optional
+
+import typer
+from rich.table import Table
+
+from nutribench.cli.common import UserError, console, split_csv, user_errors
+
+bench_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Benchmarks: env and training throughput, status speed, learnability.")
+
+
+@bench_app.command("env")
+@user_errors
+def bench_env_cmd(
+    regimes: Annotated[str, typer.Option(help="comma-separated regimes")] = "run0,run6",
+    sizes: Annotated[str, typer.Option(help="comma-separated vector env sizes")] = "1,64,1024,4096",
+    repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 5,
+) -> None:
+    """Env-steps per second of the single env and the vector env (random actions)."""
+    from nutribench.bench import bench_env
+    from nutribench.config import list_regimes
+
+    names = split_csv(regimes, list_regimes(), "regime")
+    try:
+        ns = [int(s) for s in sizes.split(",")]
+    except ValueError:
+        raise UserError(f"--sizes must be comma-separated integers, got '{sizes}'") from None
+    table = Table("regime", "env", "num_envs", "env-steps/s (median)")
+    for r in bench_env(names, ns, repeats=repeats):
+        table.add_row(r["regime"], r["env"], str(r["num_envs"]), f"{r['steps_per_s']:,.0f}")
+    console.print(table)
+
+
+@bench_app.command("train")
+@user_errors
+def bench_train_cmd(
+    algos: Annotated[str, typer.Option(help="'all' or comma-separated algorithms")] = "all",
+    regime: Annotated[str, typer.Option(help="regime")] = "run0",
+    episodes: Annotated[int, typer.Option(min=1, help="training days per timed run")] = 100,
+    repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 3,
+) -> None:
+    """Training env-steps per second of each algorithm, and of bare SB3 PPO / DQN on the same
+    env (the overhead of nutribench's plumbing), with the paper grid's CPU-hours at that rate."""
+    from nutribench.agents.config import ALGOS
+    from nutribench.bench import bench_train
+    from nutribench.config import load_env_config
+
+    names = split_csv(algos, list(ALGOS), "algorithm")
+    load_env_config(regime)
+    rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats)
+    table = Table("run", "env-steps/s (median)", "vs bare SB3 (paired median)", "paper grid CPU-hours",
+                  title=f"training throughput, {regime}, {episodes} days x {repeats}")  # fmt: skip
+    for r in rows:
+        ratio = f"{r['vs_bare']:.3f}" if "vs_bare" in r else ""
+        table.add_row(r["what"], f"{r['steps_per_s']:,.0f}", ratio, f"{r['paper_grid_cpu_hours']:.1f}")
+    console.print(table)
+    total = sum(r["paper_grid_cpu_hours"] for r in rows if not r["bare"])
+    console.print(f"paper grid (7 regimes x 5 seeds x 5000 days per algorithm, all 5 algorithms): ~{total:.0f} CPU-hours")
+
+
+
+@bench_app.command("learn")
+@user_errors
+def bench_learn_cmd(
+    algos: Annotated[str, typer.Option(help="'all' or comma-separated agent config names")] = "all",
+    regimes: Annotated[str, typer.Option(help="'all' or comma-separated regimes; run0 carries the targets")] = "run0,run3,run6",
+    seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2",
+    episodes: Annotated[str, typer.Option(help="training days: a default, then NAME=N for a config or algorithm")] = "500,ddqn=2000",
+    eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")] = 10,
+    workers: Annotated[Optional[int], typer.Option(min=1, help="agents trained at once (default: the cores)")] = None,
+    markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
+) -> None:
+    """Train every agent for a budget over several seeds, evaluate greedily on the fixed
+    evaluation days, and state each as the share of the never -> planner gap it closes
+    (run0 target: at least 75 % with 3-6 foods a day)."""
+    from nutribench.agents.config import ALGOS, list_agent_configs
+    from nutribench.bench_learn import COLUMNS, DEFAULT_BUDGET, learn_benchmark, markdown_table, row_cells, summarize
+    from nutribench.config import list_regimes
+    from nutribench.scheduler.grid import parse_seeds
+
+    names = split_csv(algos, list_agent_configs()[:5] if algos == "all" else list_agent_configs(), "agent config")
+    regime_names = split_csv(regimes, list_regimes(), "regime")
+    seed_list = list(parse_seeds(seeds))
+    default, budgets = parse_budgets(episodes, DEFAULT_BUDGET)
+    unknown = sorted(set(budgets) - set(list_agent_configs()) - set(ALGOS))
+    if unknown:
+        raise UserError(f"--episodes {episodes!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})")
+    with console.status("training") as status:
+        runs = learn_benchmark(
+            names, regime_names, seed_list, budgets=budgets, default_budget=default, eval_episodes=eval_episodes,
+            workers=workers, on_done=lambda r, k, n: status.update(f"{k}/{n} done (last: {r.algo} {r.regime} seed {r.seed})"),
+        )  # fmt: skip
+    rows = summarize(runs)
+    if markdown:
+        console.print(markdown_table(rows), highlight=False, soft_wrap=True)
+        return
+    table = Table(*COLUMNS, title=f"learnability, seeds {seeds}, {eval_episodes} eval days each")
+    for r in rows:
+        cells = row_cells(r)
+        if r["target_met"] is not None:
+            cells[-1] = f"[{'green' if r['target_met'] else 'red'}]{cells[-1]}"
+        table.add_row(*cells)
+    console.print(table)
+
+
+def parse_budgets(value: str, default: int) -> tuple[int, dict[str, int]]:
+    """``"500,ddqn=2000"`` -> ``(500, {"ddqn": 2000})``."""
+    budgets: dict[str, int] = {}
+    for item in (v.strip() for v in value.split(",") if v.strip()):
+        name, _, n = item.rpartition("=")
+        try:
+            days = int(n)
+        except ValueError:
+            raise UserError(f"--episodes {item!r}: expected N or NAME=N with N a whole number of days, e.g. 500,ddqn=2000") from None
+        if days < 1:
+            raise UserError(f"--episodes {item!r}: the number of days must be >= 1")
+        if name:
+            budgets[name] = days
+        else:
+            default = days
+    return default, budgets
+
+
+@bench_app.command("status")
+@user_errors
+def bench_status_cmd(
+    db: Annotated[Optional[str], typer.Option(help="time this database instead of building a synthetic paper grid")] = None,
+    repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 5,
+) -> None:
+    """Time `nutribench status` on a database holding the full paper grid (175 jobs,
+    875,000 training-day rows of synthetic jobs; building it takes a few minutes)."""
+    from nutribench.bench import bench_status
+
+    if db is None:
+        console.print("building a synthetic paper-grid database (175 fake jobs x 5000 days) ...")
+    r = bench_status(db, repeats=repeats)
+    if r["build_seconds"] is not None:
+        console.print(f"built {r['db']} in {r['build_seconds']:.0f} s")
+    console.print(f"{r['jobs']} jobs, {r['episode_rows']:,} episode rows, {r['db_mb']:.0f} MB")
+    console.print(f"status_table(): {r['status_table_s']:.3f} s   `nutribench status --json`: {r['status_cli_s']:.2f} s "
+                  f"(medians of {repeats}; the CLI figure includes Python start-up)")

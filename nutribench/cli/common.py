@@ -1,0 +1,54 @@
+"""What every command module of the CLI shares: the consoles, the one-line error
+decorator and the parsing of comma lists.
+
+Errors a user can fix derive from :class:`nutribench.errors.UserError` in whichever room
+raises them; :func:`user_errors` prints them as one red line and exits with status 2.
+Anything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+from nutribench.errors import UserError
+
+__all__ = ["UserError", "console", "err_console", "print_error", "split_csv", "user_errors"]
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+def print_error(e: BaseException | str) -> None:
+    """One red ``error:`` line on stderr; the message is printed as is (no rich markup)."""
+    err_console.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
+
+
+def user_errors(fn):
+    """Any :class:`UserError` raised by the command -> one line on stderr and exit status 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except UserError as e:
+            print_error(e)
+            raise typer.Exit(2) from None
+
+    return wrapper
+
+
+def split_csv(value: str, known: list[str], what: str) -> list[str]:
+    """``"all"`` or a comma-separated subset of ``known``; unknown names are a UserError."""
+    if value.strip() == "all":
+        return list(known)
+    items = [v.strip() for v in value.split(",") if v.strip()]
+    if not items:
+        raise UserError(f"no {what} given: pass 'all' or a comma-separated list of {', '.join(known)}")
+    unknown = [v for v in items if v not in known]
+    if unknown:
+        raise UserError(f"unknown {what} {', '.join(unknown)}: known are {', '.join(known)}")
+    return items

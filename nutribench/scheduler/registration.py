@@ -1,0 +1,115 @@
+"""A grid's configs and job rows: load every regime and agent config it names, record
+their content in the database (refusing a changed file whose version was not bumped), and
+create the job rows it lacks. Used by :func:`nutribench.scheduler.driver.run_grid` before
+any job runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import insert, select
+from sqlalchemy.orm import Session
+
+from nutribench.errors import UserError
+from nutribench.scheduler.grid import Grid
+from nutribench.store import AgentConfig, Job, RegimeConfig, session_scope, utcnow
+from nutribench.store.schema import Store
+
+
+class RunError(UserError):
+    """A problem with the run a user can fix (config changed without a version bump, no
+    job function). One line."""
+
+
+@dataclass(frozen=True)
+class _Config:
+    name: str
+    version: int
+    sha256: str
+    body: dict[str, Any]
+    source: str
+    obj: Any
+    algo: str | None = None
+
+
+def _shown(path: Path | str) -> str:
+    """A file path relative to the current folder when it lies below it."""
+    p = Path(path)
+    try:
+        return str(p.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(p)
+
+
+def load_grid_configs(grid: Grid) -> tuple[list[_Config], list[_Config]]:
+    """Load every regime and agent config of the grid (ConfigError on a bad file)."""
+    from nutribench.agents.config import (
+        agent_config_content,
+        agent_config_sha256,
+        load_agent_config,
+        resolve_agent_path,
+    )
+    from nutribench.config import load_env_config
+
+    regimes = []
+    for name in grid.regimes:
+        env = load_env_config(name)
+        regimes.append(_Config(env.name, env.version, env.sha256, env.content(), _shown(env.path or name), env))
+    agents = []
+    for name in grid.algos:
+        cfg = load_agent_config(name)
+        source = _shown(resolve_agent_path(name))
+        agents.append(_Config(cfg.name, cfg.version, agent_config_sha256(cfg), agent_config_content(cfg), source, cfg, cfg.algo))
+    return regimes, agents
+
+
+def _register(session: Session, table: type, configs: Sequence[_Config]) -> dict[str, int]:
+    """Ids of ``configs`` in ``table``, inserting the new ones; refuses changed content."""
+    ids: dict[str, int] = {}
+    for c in configs:
+        row = session.execute(select(table).where(table.name == c.name, table.version == c.version)).scalar_one_or_none()
+        if row is not None:
+            if row.sha256 != c.sha256:
+                raise RunError(f"{c.source}: version {c.version} is already recorded with different content: bump the version")
+            ids[c.name] = row.id
+            continue
+        extra = {"algo": c.algo} if table is AgentConfig else {}
+        new = table(name=c.name, version=c.version, sha256=c.sha256, body=c.body, source=c.source, created_at=utcnow(), **extra)
+        session.add(new)
+        session.flush()
+        ids[c.name] = new.id
+    return ids
+
+
+def register_grid(store: Store, grid: Grid, regimes: list[_Config], agents: list[_Config]) -> list[int]:
+    """Record the configs and create the missing job rows, in one transaction; the ids of
+    the grid's jobs in grid order."""
+    with session_scope(store.engine) as s:
+        rids = _register(s, RegimeConfig, regimes)
+        aids = _register(s, AgentConfig, agents)
+        query = select(Job.id, Job.regime_id, Job.agent_config_id, Job.seed).where(
+            Job.regime_id.in_(rids.values()), Job.agent_config_id.in_(aids.values()),
+            Job.episodes == grid.episodes, Job.eval_episodes == grid.eval_episodes,
+        )  # fmt: skip
+        existing = {(r.regime_id, r.agent_config_id, r.seed): r.id for r in s.execute(query)}
+        keys = [(rids[r], aids[a], seed) for r, a, seed in grid.cells()]
+        missing = [k for k in keys if k not in existing]
+        if missing:
+            now = utcnow()
+            s.execute(insert(Job), [
+                {"regime_id": r, "agent_config_id": a, "seed": seed, "episodes": grid.episodes,
+                 "eval_episodes": grid.eval_episodes, "status": "pending", "attempt": 0, "failures": 0,
+                 "episodes_done": 0, "created_at": now}
+                for r, a, seed in missing
+            ])  # fmt: skip
+            existing.update({(r.regime_id, r.agent_config_id, r.seed): r.id for r in s.execute(query)})
+        return [existing[k] for k in keys]
+
+
+def model_path(models_dir: Path, regime: _Config, agent: _Config, seed: int, episodes: int) -> Path:
+    """``<models>/<regime>-v<rv>/<algo>-v<av>/seed<seed>-ep<episodes>.zip``."""
+    return models_dir / f"{regime.name}-v{regime.version}" / f"{agent.name}-v{agent.version}" / f"seed{seed}-ep{episodes}.zip"

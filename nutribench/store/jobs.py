@@ -1,0 +1,195 @@
+"""The job lifecycle, in one place: the only code that changes a job's status.
+
+A job row moves ``pending`` -> ``running`` (claimed by one driver: owner token, heartbeat)
+-> ``done`` (its episodes, evaluation steps and metadata written in the same transaction)
+or ``failed`` (one more failure, the error kept) or ``interrupted`` (given back on Ctrl-C).
+Runnable ("claimable") are ``pending``, ``interrupted``, ``failed`` below
+:data:`MAX_FAILURES` failures, and ``running`` jobs whose heartbeat is older than
+:data:`STALE_AFTER_S` (their driver is gone). The driver (:mod:`nutribench.scheduler.driver`)
+writes through these functions and ``nutribench status`` reads the same rule
+(:func:`job_state`), so the two never disagree on which job is orphaned.
+
+A claim takes the write lock (``BEGIN IMMEDIATE`` on SQLite), so two drivers never claim one
+job; every write checks the owner token, so a driver that lost a job (taken over as stale)
+writes nothing for it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from datetime import datetime, timedelta
+from typing import TYPE_CHECKING, Any
+
+from sqlalchemy import and_, insert, or_, select, update
+
+from nutribench.store.engine import session_scope, utcnow
+from nutribench.store.models import EPISODE_METRICS, EVAL_STEP_COLUMNS, METADATA_COLUMNS, Episode, EvalStep, Job
+from nutribench.store.schema import Store
+
+if TYPE_CHECKING:
+    from nutribench.jobs.spec import JobResult
+
+MAX_FAILURES = 3  # a job that failed this often is no longer retried
+STALE_AFTER_S = 120.0  # a running job whose heartbeat is older belongs to a dead driver
+
+
+def stale_before(now: datetime) -> datetime:
+    """Heartbeats before this time belong to a driver that is gone."""
+    return now - timedelta(seconds=STALE_AFTER_S)
+
+
+def job_state(status: str, heartbeat: datetime | None, now: datetime) -> str:
+    """What a job is for scheduling: ``done``, ``failed``, ``running`` (a driver is alive and
+    heartbeating it) or ``pending`` (never run, interrupted, or running in a driver whose
+    heartbeat stopped: the next run takes it over)."""
+    if status == "running":
+        return "running" if heartbeat is not None and heartbeat >= stale_before(now) else "pending"
+    if status == "interrupted":
+        return "pending"
+    return status
+
+
+def reset_given_up(store: Store, job_ids: Sequence[int]) -> int:
+    """``--retry-failed``: jobs of ``job_ids`` that failed :data:`MAX_FAILURES` times get their
+    failure count reset (their last error stays until they succeed); how many."""
+    with session_scope(store.engine) as s:
+        return s.execute(
+            update(Job).where(Job.id.in_(job_ids), Job.status == "failed", Job.failures >= MAX_FAILURES)
+            .values(failures=0).execution_options(synchronize_session=False)
+        ).rowcount  # fmt: skip
+
+
+def _claimable(now) -> Any:
+    stale = stale_before(now)
+    return or_(
+        Job.status.in_(("pending", "interrupted")),
+        and_(Job.status == "failed", Job.failures < MAX_FAILURES),
+        and_(Job.status == "running", or_(Job.heartbeat_at.is_(None), Job.heartbeat_at < stale)),
+    )
+
+
+def count_claimable(store: Store, job_ids: Sequence[int]) -> int:
+    """How many of ``job_ids`` a claim could take now."""
+    with store.engine.connect() as conn:
+        return len(conn.execute(select(Job.id).where(Job.id.in_(job_ids), _claimable(utcnow()))).all())
+
+
+def claim_jobs(store: Store, job_ids: Sequence[int], exclude: set[int], n: int, owner: str) -> list[Job]:
+    """Atomically take up to ``n`` runnable jobs of ``job_ids`` (not in ``exclude``) for
+    ``owner``: status ``running``, owner token, fresh heartbeat, attempt + 1."""
+    candidates = [j for j in job_ids if j not in exclude]
+    if n <= 0 or not candidates:
+        return []
+    with session_scope(store.engine) as s:  # BEGIN IMMEDIATE on SQLite: one claimer at a time
+        now = utcnow()
+        ids = s.execute(select(Job.id).where(Job.id.in_(candidates), _claimable(now)).order_by(Job.id).limit(n)).scalars().all()
+        if not ids:
+            return []
+        s.execute(
+            update(Job).where(Job.id.in_(ids), _claimable(now)).values(
+                status="running", owner=owner, heartbeat_at=now, started_at=now, finished_at=None,
+                attempt=Job.attempt + 1, episodes_done=0, last_return=None, worker_pid=None,
+            ).execution_options(synchronize_session=False)
+        )  # fmt: skip
+        return list(s.execute(select(Job).where(Job.id.in_(ids), Job.owner == owner, Job.status == "running")).scalars())
+
+
+def held_elsewhere(store: Store, job_ids: Sequence[int], owner: str) -> tuple[int, datetime | None]:
+    """How many of ``job_ids`` another driver is running (fresh heartbeat), and when the
+    last of them becomes claimable if that driver's heartbeat stops now."""
+    fresh = stale_before(utcnow())
+    with store.engine.connect() as conn:
+        beats = conn.execute(select(Job.heartbeat_at).where(
+            Job.id.in_(job_ids), Job.status == "running", Job.owner != owner, Job.heartbeat_at >= fresh)).scalars().all()  # fmt: skip
+    if not beats:
+        return 0, None
+    return len(beats), max(beats) + timedelta(seconds=STALE_AFTER_S)
+
+
+def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, int]:
+    """Status counts of the grid's jobs, as this driver sees them at the end."""
+    out = {"done": 0, "given_up": 0, "busy": 0}
+    now = utcnow()
+    with store.engine.connect() as conn:
+        rows = conn.execute(select(Job.status, Job.failures, Job.owner, Job.heartbeat_at).where(Job.id.in_(job_ids))).all()
+    for status, failures, job_owner, beat in rows:
+        if status == "done":
+            out["done"] += 1
+        elif status == "failed" and failures >= MAX_FAILURES:
+            out["given_up"] += 1
+        elif job_owner != owner and job_state(status, beat, now) == "running":
+            out["busy"] += 1
+    return out
+
+
+def _episode_rows(job_id: int, phase: str, episodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    rows = []
+    for ep in episodes:
+        row = {"job_id": job_id, "phase": phase, "episode": int(ep["episode"])}
+        for col in EPISODE_METRICS:
+            row["ret" if col == "return" else col] = ep.get(col)
+        rows.append(row)
+    return rows
+
+
+def store_result(store: Store, result: JobResult, owner: str, model_path: str | None) -> bool:
+    """Write a finished job in one transaction: its episodes, evaluation steps, metadata and
+    status ``done``. False (nothing written) if this driver no longer owns the job."""
+    with session_scope(store.engine) as s:
+        meta = {k: result.metadata[k] for k in METADATA_COLUMNS if k in result.metadata}
+        if meta.get("platform"):
+            meta["platform"] = str(meta["platform"])[:255]
+        job = s.execute(select(Job).where(Job.id == result.job_id)).scalar_one()
+        claimed = s.execute(
+            update(Job).where(Job.id == result.job_id, Job.owner == owner, Job.status == "running").values(
+                status="done", owner=None, heartbeat_at=utcnow(), episodes_done=job.episodes,
+                model_path=result.model_path or model_path, error=None, **meta,
+            ).execution_options(synchronize_session=False)
+        ).rowcount  # fmt: skip
+        if claimed != 1:
+            return False
+        rows = _episode_rows(result.job_id, "train", result.train) + _episode_rows(result.job_id, "eval", result.eval)
+        if rows:
+            s.execute(insert(Episode), rows)
+        if result.eval_steps:
+            s.execute(insert(EvalStep), [{"job_id": result.job_id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in result.eval_steps])
+        return True
+
+
+def store_failure(store: Store, job_id: int, owner: str, error: str) -> None:
+    """Status ``failed``, one more failure, the error text kept."""
+    with session_scope(store.engine) as s:
+        s.execute(
+            update(Job).where(Job.id == job_id, Job.owner == owner).values(
+                status="failed", failures=Job.failures + 1, error=error, owner=None, finished_at=utcnow(),
+            ).execution_options(synchronize_session=False)
+        )  # fmt: skip
+
+
+def release_jobs(store: Store, job_ids: Sequence[int], owner: str, status: str = "interrupted") -> int:
+    """Give back jobs this driver claimed (Ctrl-C, executor failure): no rows, new status."""
+    if not job_ids:
+        return 0
+    with session_scope(store.engine) as s:
+        return s.execute(
+            update(Job).where(Job.id.in_(list(job_ids)), Job.owner == owner, Job.status == "running").values(
+                status=status, owner=None, finished_at=utcnow(),
+            ).execution_options(synchronize_session=False)
+        ).rowcount  # fmt: skip
+
+
+def flush_progress(store: Store, owner: str, live: dict[int, dict[str, Any]]) -> None:
+    """Heartbeat every job this driver runs, with its episodes done and recent return."""
+    if not live:
+        return
+    with session_scope(store.engine) as s:
+        now = utcnow()
+        for job_id, st in live.items():
+            values: dict[str, Any] = {"heartbeat_at": now, "episodes_done": int(st.get("k", 0))}
+            if st.get("ret") is not None:
+                values["last_return"] = float(st["ret"])
+            if st.get("pid") is not None:
+                values["worker_pid"] = int(st["pid"])
+            s.execute(update(Job).where(Job.id == job_id, Job.owner == owner).values(**values).execution_options(synchronize_session=False))
+
+
