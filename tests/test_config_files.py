@@ -118,3 +118,27 @@ def test_help_keeps_brackets_and_shows_flags_as_flags():
     out = runner.invoke(app, ["regimes", "generate", "--help"]).output
     assert "[ranges]" in out and "[foods]" in out
     assert "<bool>" not in out and "--write / --no-write" in out
+
+
+def test_an_error_line_shows_brackets_as_written(tmp_path):
+    """A message holding [..] (a pattern, a TOML table name) was eaten as rich markup:
+    "should match pattern '^*$'" instead of "'^[a-z][a-z0-9_]*$'"."""
+    text = (Path(__file__).parents[1] / "regimes" / "agents" / "ppo.toml").read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace('name = "ppo"', 'name = "Bad-Name"'))
+    result = runner.invoke(app, ["train", "--algo", str(bad)])
+    assert result.exit_code == 2
+    assert "'^[a-z][a-z0-9_]*$'" in result.output.replace("\n", "")
+
+
+def test_every_rooms_user_error_is_one_class():
+    """One base class: the CLI turns any of them into one line and exit 2."""
+    from nutribench.errors import UserError
+    from nutribench.report.build import ReportError
+    from nutribench.scheduler.executors import ExecutorError
+    from nutribench.scheduler.grid import GridError
+    from nutribench.scheduler.registration import RunError
+    from nutribench.store import StoreError
+
+    for cls in (ConfigError, StoreError, GridError, ExecutorError, RunError, ReportError):
+        assert issubclass(cls, UserError), cls
