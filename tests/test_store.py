@@ -142,3 +142,27 @@ def test_a_worker_does_not_import_the_database_layer():
     code = "import sys, nutribench.jobs.run, nutribench.jobs.fake; print(sorted(m for m in ('sqlalchemy', 'alembic') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]"
+
+
+def test_a_writer_opening_a_new_database_waits_for_a_lock_held_elsewhere(tmp_path):
+    """Issue 13, defect 4: two drivers started at the same moment on a new file; one failed
+    with "database is locked" at open (SQLite does not call the busy handler when switching
+    to WAL). Another connection holds the lock for 0.5 s: the open now waits for it."""
+    import sqlite3
+    import threading
+
+    path = tmp_path / "new.db"
+    holder = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
+    holder.execute("BEGIN IMMEDIATE")
+    holder.execute("PRAGMA user_version = 0")  # a write: the holder now has the lock
+    release = threading.Timer(0.5, lambda: holder.execute("ROLLBACK"))
+    release.start()
+    try:
+        store = open_store(path, writer=True)
+    finally:
+        release.join()
+        holder.close()
+    assert store.created
+    with store.engine.connect() as conn:
+        assert conn.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
+    store.dispose()

@@ -14,6 +14,8 @@ deferred ``BEGIN`` and never block the writer.
 from __future__ import annotations
 
 import os
+import sqlite3
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -88,6 +90,26 @@ def check_sqlite_file(path: Path, *, create: bool) -> None:
         raise StoreError(f"cannot create {path}: folder {parent} is not writable")
 
 
+def _switch_to_wal(cursor: sqlite3.Cursor, timeout_s: float) -> None:
+    """``PRAGMA journal_mode = WAL``, waiting for the lock like every other statement.
+
+    Switching a new database to WAL needs an exclusive lock, and SQLite reports "database is
+    locked" at once, without calling the busy handler, while another connection holds a
+    lock on it: two drivers started at the same moment on a new file failed one time in ten
+    (issue 13, defect 4). So: retry with a growing pause until the busy timeout."""
+    deadline = time.monotonic() + timeout_s
+    pause = 0.002
+    while True:
+        try:
+            cursor.execute("PRAGMA journal_mode = WAL")
+            return
+        except sqlite3.OperationalError as e:
+            if "locked" not in str(e) or time.monotonic() + pause > deadline:
+                raise
+            time.sleep(pause)
+            pause = min(2 * pause, 0.1)
+
+
 def make_engine(url: URL | str, *, writer: bool = False, busy_timeout_ms: int = BUSY_TIMEOUT_MS) -> Engine:
     """An engine for ``url``; on SQLite with the pragmas and transaction mode above."""
     url = url if isinstance(url, URL) else database_url(url)
@@ -105,7 +127,7 @@ def make_engine(url: URL | str, *, writer: bool = False, busy_timeout_ms: int = 
         cur.execute(f"PRAGMA busy_timeout = {int(busy_timeout_ms)}")
         cur.execute("PRAGMA foreign_keys = ON")
         if writer:
-            cur.execute("PRAGMA journal_mode = WAL")
+            _switch_to_wal(cur, busy_timeout_ms / 1000)
             cur.execute("PRAGMA synchronous = NORMAL")
         cur.close()
 
