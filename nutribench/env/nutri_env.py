@@ -116,7 +116,23 @@ class RegimeDynamics:
         return arr.astype(np.int64)
 
 
-class NutriRLEnv(gym.Env[np.ndarray, int]):
+class DynamicsView:
+    """The inspection API the single and the vector env share: the regime's constants,
+    read from ``self.dyn`` (:class:`RegimeDynamics`)."""
+
+    dyn: RegimeDynamics
+    config = property(lambda self: self.dyn.config)
+    masses = property(lambda self: self.dyn.masses)
+    tau = property(lambda self: self.dyn.tau)
+    sigma = property(lambda self: self.dyn.sigma)
+    target = property(lambda self: self.dyn.target)
+    reward_config = property(lambda self: self.dyn.reward_config)
+    horizon = property(lambda self: self.dyn.horizon)
+    food_names = property(lambda self: self.dyn.food_names)
+    schedule = property(lambda self: self.dyn.schedule)
+
+
+class NutriRLEnv(DynamicsView, gym.Env[np.ndarray, int]):
     __doc__ = __doc__
     metadata = {"render_modes": ["ansi", "rgb_array"], "render_fps": 4}
 
@@ -138,16 +154,6 @@ class NutriRLEnv(gym.Env[np.ndarray, int]):
         self._d = 3.0
         self._eaten = 0
 
-    # ---- inspection API ----
-    config = property(lambda self: self.dyn.config)
-    masses = property(lambda self: self.dyn.masses)
-    tau = property(lambda self: self.dyn.tau)
-    sigma = property(lambda self: self.dyn.sigma)
-    target = property(lambda self: self.dyn.target)
-    reward_config = property(lambda self: self.dyn.reward_config)
-    horizon = property(lambda self: self.dyn.horizon)
-    food_names = property(lambda self: self.dyn.food_names)
-    schedule = property(lambda self: self.dyn.schedule)
 
     @property
     def state(self) -> np.ndarray:

@@ -25,15 +25,14 @@ import os
 from typing import Any
 
 import numpy as np
-from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from nutribench.config import EnvConfig
-from nutribench.env.nutri_env import RegimeDynamics
+from nutribench.env.nutri_env import DynamicsView, RegimeDynamics
 
 
-class NutriRLVectorEnv(VectorEnv):
+class NutriRLVectorEnv(DynamicsView, VectorEnv):
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(
@@ -77,15 +76,6 @@ class NutriRLVectorEnv(VectorEnv):
         self._t = H
         self._needs_reset = True
 
-    # ---- inspection API (as on the single env) ----
-    config = property(lambda self: self.dyn.config)
-    masses = property(lambda self: self.dyn.masses)
-    tau = property(lambda self: self.dyn.tau)
-    sigma = property(lambda self: self.dyn.sigma)
-    target = property(lambda self: self.dyn.target)
-    reward_config = property(lambda self: self.dyn.reward_config)
-    horizon = property(lambda self: self.dyn.horizon)
-    food_names = property(lambda self: self.dyn.food_names)
 
     @property
     def state(self) -> np.ndarray:

@@ -316,27 +316,26 @@ def build_report(
         for note in data.notes:
             log(f"note: {note}")
 
+    def built(make: Callable[[], Any]) -> Any:
+        """What ``make`` builds; with ``all``, None (and a log line) for what the data cannot give."""
+        try:
+            return make()
+        except ReportError as e:
+            if not all:
+                raise
+            if log:
+                log(f"skipped: {e}")
+            return None
+
     paths: list[Path] = []
     for f in figs:
-        try:
-            res = build_figure(f, data, reference_episodes=reference_episodes, log=log)
-        except ReportError as e:
-            if not all:
-                raise
-            if log:
-                log(f"skipped: {e}")
-            continue
-        paths += write_figure(res, out, FIGURES[f])
+        res = built(lambda: build_figure(f, data, reference_episodes=reference_episodes, log=log))
+        if res is not None:
+            paths += write_figure(res, out, FIGURES[f])
     for t in tables:
-        try:
-            res_t = build_table(t, data, db)
-        except ReportError as e:
-            if not all:
-                raise
-            if log:
-                log(f"skipped: {e}")
-            continue
-        paths += write_table(res_t, out, TABLES[t])
+        res_t = built(lambda: build_table(t, data, db))
+        if res_t is not None:
+            paths += write_table(res_t, out, TABLES[t])
     return paths
 
 
