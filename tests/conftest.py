@@ -69,3 +69,23 @@ def write_regime_dir(folder: Path, regime: str = REGIME, catalog: str = CATALOG,
 @pytest.fixture
 def tiny_regime(tmp_path: Path) -> Path:
     return write_regime_dir(tmp_path / "regimes")
+
+
+@pytest.fixture(scope="session")
+def postgres():
+    """A throwaway PostgreSQL server for the session (tests/pg.py). If it cannot start, the
+    tests that use it fail with the reason: they are never skipped."""
+    from tests import pg
+
+    try:
+        server = pg.start()
+    except pg.PostgresUnavailable as e:
+        pytest.fail(f"the PostgreSQL tests need a throwaway server and none could start: {e}", pytrace=False)
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def pg_url(postgres) -> str:
+    """The SQLAlchemy URL of a new empty database on the throwaway server."""
+    return postgres.create_database()

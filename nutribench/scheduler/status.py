@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import os
 from dataclasses import asdict, dataclass, field
+from datetime import datetime
 from typing import Any
 
 from sqlalchemy import select
 
 from nutribench.store import AgentConfig, Job, RegimeConfig, open_store, utcnow
+from nutribench.store.engine import db_now
 from nutribench.store.jobs import MAX_FAILURES, job_state
 
 COUNTS = ("done", "running", "failed", "pending")
@@ -93,24 +95,26 @@ def status_table(db: str | os.PathLike[str]) -> StatusReport:
         )
         with store.engine.connect() as conn:
             jobs = conn.execute(q).all()
+            now = db_now(conn)
     finally:
         store.dispose()
-    return summarize(jobs)
+    return summarize(jobs, now)
 
 
 def _mean(values: list[float] | None) -> float | None:
     return sum(values) / len(values) if values else None
 
 
-def summarize(jobs: list) -> StatusReport:
+def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
     """The report of job tuples (regime, rv, algo, av, seed, episodes, status, heartbeat,
-    wall, episodes_done, failures, error).
+    wall, episodes_done, failures, error); ``now`` (the database's clock, default this
+    host's) judges heartbeats.
 
     Work left is priced in seconds per training episode of the done jobs: of the same cell
     (regime x algo config), else of the same algo config in any regime (the algorithm, not
     the regime, sets the cost: a SAC day costs about nine MC days), else of every done job.
     """
-    now = utcnow()
+    now = now or utcnow()
     rows: dict[tuple, StatusRow] = {}
     rates: dict[tuple, list[float]] = {}  # seconds per episode of done jobs, per cell
     left: dict[tuple, float] = {}  # jobs' worth of work left

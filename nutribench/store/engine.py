@@ -17,15 +17,16 @@ import os
 import sqlite3
 import time
 from collections.abc import Iterator
+from datetime import datetime
 from contextlib import contextmanager
 from pathlib import Path
 
-from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import Connection, Engine, create_engine, event, text
 from sqlalchemy.engine import URL, make_url
 from sqlalchemy.exc import ArgumentError, NoSuchModuleError
 from sqlalchemy.orm import Session, sessionmaker
 
-from nutribench.clock import utcnow  # noqa: F401 - re-exported: the store stamps times with it
+from nutribench.clock import utcnow
 from nutribench.errors import UserError
 
 BUSY_TIMEOUT_MS = 30_000
@@ -136,6 +137,16 @@ def make_engine(url: URL | str, *, writer: bool = False, busy_timeout_ms: int = 
         conn.exec_driver_sql("BEGIN IMMEDIATE" if writer else "BEGIN")
 
     return engine
+
+
+def db_now(conn: Connection | Session) -> datetime:
+    """Now, naive UTC, by the database's clock on a server database (PostgreSQL), so that the
+    drivers of several hosts judge heartbeats by one clock; by this host's clock on SQLite
+    (a file: every driver runs on the host that holds it, or on one whose clock it shares)."""
+    bind = conn if isinstance(conn, Connection) else conn.connection()
+    if bind.dialect.name == "postgresql":
+        return bind.execute(text("SELECT timezone('UTC', clock_timestamp())")).scalar_one()
+    return utcnow()
 
 
 @contextmanager

@@ -9,9 +9,11 @@ Runnable ("claimable") are ``pending``, ``interrupted``, ``failed`` below
 writes through these functions and ``nutribench status`` reads the same rule
 (:func:`job_state`), so the two never disagree on which job is orphaned.
 
-A claim takes the write lock (``BEGIN IMMEDIATE`` on SQLite), so two drivers never claim one
-job; every write checks the owner token, so a driver that lost a job (taken over as stale)
-writes nothing for it.
+A claim takes the write lock (``BEGIN IMMEDIATE`` on SQLite; on PostgreSQL it locks the rows it
+takes with ``SELECT ... FOR UPDATE SKIP LOCKED``, and its UPDATE re-checks the rule), so two
+drivers never claim one job; heartbeats and the stale rule use the database's clock
+(:func:`~nutribench.store.engine.db_now`), not each host's. Every write checks the owner
+token, so a driver that lost a job (taken over as stale) writes nothing for it.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import and_, insert, or_, select, update
 
-from nutribench.store.engine import session_scope, utcnow
+from nutribench.store.engine import db_now, session_scope
 from nutribench.store.models import EPISODE_METRICS, EVAL_STEP_COLUMNS, METADATA_COLUMNS, Episode, EvalStep, Job
 from nutribench.store.schema import Store
 
@@ -71,7 +73,7 @@ def _claimable(now) -> Any:
 def count_claimable(store: Store, job_ids: Sequence[int]) -> int:
     """How many of ``job_ids`` a claim could take now."""
     with store.engine.connect() as conn:
-        return len(conn.execute(select(Job.id).where(Job.id.in_(job_ids), _claimable(utcnow()))).all())
+        return len(conn.execute(select(Job.id).where(Job.id.in_(job_ids), _claimable(db_now(conn)))).all())
 
 
 def claim_jobs(store: Store, job_ids: Sequence[int], exclude: set[int], n: int, owner: str) -> list[Job]:
@@ -81,8 +83,13 @@ def claim_jobs(store: Store, job_ids: Sequence[int], exclude: set[int], n: int, 
     if n <= 0 or not candidates:
         return []
     with session_scope(store.engine) as s:  # BEGIN IMMEDIATE on SQLite: one claimer at a time
-        now = utcnow()
-        ids = s.execute(select(Job.id).where(Job.id.in_(candidates), _claimable(now)).order_by(Job.id).limit(n)).scalars().all()
+        now = db_now(s)
+        # PostgreSQL: lock the rows taken, and pass over rows another claimer has locked (SQLite
+        # has one writer at a time and ignores FOR UPDATE). The UPDATE re-checks the rule anyway.
+        ids = s.execute(
+            select(Job.id).where(Job.id.in_(candidates), _claimable(now)).order_by(Job.id).limit(n)
+            .with_for_update(skip_locked=True)
+        ).scalars().all()  # fmt: skip
         if not ids:
             return []
         s.execute(
@@ -97,8 +104,8 @@ def claim_jobs(store: Store, job_ids: Sequence[int], exclude: set[int], n: int, 
 def held_elsewhere(store: Store, job_ids: Sequence[int], owner: str) -> tuple[int, datetime | None]:
     """How many of ``job_ids`` another driver is running (fresh heartbeat), and when the
     last of them becomes claimable if that driver's heartbeat stops now."""
-    fresh = stale_before(utcnow())
     with store.engine.connect() as conn:
+        fresh = stale_before(db_now(conn))
         beats = conn.execute(select(Job.heartbeat_at).where(
             Job.id.in_(job_ids), Job.status == "running", Job.owner != owner, Job.heartbeat_at >= fresh)).scalars().all()  # fmt: skip
     if not beats:
@@ -109,8 +116,8 @@ def held_elsewhere(store: Store, job_ids: Sequence[int], owner: str) -> tuple[in
 def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, int]:
     """Status counts of the grid's jobs, as this driver sees them at the end."""
     out = {"done": 0, "given_up": 0, "busy": 0}
-    now = utcnow()
     with store.engine.connect() as conn:
+        now = db_now(conn)
         rows = conn.execute(select(Job.status, Job.failures, Job.owner, Job.heartbeat_at).where(Job.id.in_(job_ids))).all()
     for status, failures, job_owner, beat in rows:
         if status == "done":
@@ -142,7 +149,7 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
         job = s.execute(select(Job).where(Job.id == result.job_id)).scalar_one()
         claimed = s.execute(
             update(Job).where(Job.id == result.job_id, Job.owner == owner, Job.status == "running").values(
-                status="done", owner=None, heartbeat_at=utcnow(), episodes_done=job.episodes,
+                status="done", owner=None, heartbeat_at=db_now(s), episodes_done=job.episodes,
                 model_path=result.model_path or model_path, error=None, **meta,
             ).execution_options(synchronize_session=False)
         ).rowcount  # fmt: skip
@@ -161,7 +168,7 @@ def store_failure(store: Store, job_id: int, owner: str, error: str) -> None:
     with session_scope(store.engine) as s:
         s.execute(
             update(Job).where(Job.id == job_id, Job.owner == owner).values(
-                status="failed", failures=Job.failures + 1, error=error, owner=None, finished_at=utcnow(),
+                status="failed", failures=Job.failures + 1, error=error, owner=None, finished_at=db_now(s),
             ).execution_options(synchronize_session=False)
         )  # fmt: skip
 
@@ -173,7 +180,7 @@ def release_jobs(store: Store, job_ids: Sequence[int], owner: str, status: str =
     with session_scope(store.engine) as s:
         return s.execute(
             update(Job).where(Job.id.in_(list(job_ids)), Job.owner == owner, Job.status == "running").values(
-                status=status, owner=None, finished_at=utcnow(),
+                status=status, owner=None, finished_at=db_now(s),
             ).execution_options(synchronize_session=False)
         ).rowcount  # fmt: skip
 
@@ -183,7 +190,7 @@ def flush_progress(store: Store, owner: str, live: dict[int, dict[str, Any]]) ->
     if not live:
         return
     with session_scope(store.engine) as s:
-        now = utcnow()
+        now = db_now(s)
         for job_id, st in live.items():
             values: dict[str, Any] = {"heartbeat_at": now, "episodes_done": int(st.get("k", 0))}
             if st.get("ret") is not None:

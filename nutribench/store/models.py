@@ -22,6 +22,7 @@ the migrations (see :mod:`nutribench.store.views`); views are not ORM models.
 
 from __future__ import annotations
 
+import math
 from datetime import datetime
 from typing import Any
 
@@ -40,6 +41,7 @@ from sqlalchemy import (
     UniqueConstraint,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+from sqlalchemy.types import TypeDecorator
 
 #: Job states. ``interrupted`` jobs (Ctrl-C) and ``failed`` ones (below the retry limit)
 #: are picked up again by the next ``run``; stale ``running`` ones too.
@@ -53,6 +55,30 @@ NAMING = {
     "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
     "pk": "pk_%(table_name)s",
 }
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float written as the string ``"inf"``, ``"-inf"`` or
+    ``"nan"``: strict JSON, which PostgreSQL requires (SQLite took ``Infinity``; MC's
+    ``max_grad_norm = inf`` made the first PostgreSQL run fail). Content hashes are taken
+    from the config itself, not from this stored copy, so they do not change."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value
+
+
+class StrictJSON(TypeDecorator):
+    """JSON stored through :func:`json_safe` on every database."""
+
+    impl = JSON
+    cache_ok = True
+
+    def process_bind_param(self, value: Any, dialect: Any) -> Any:
+        return None if value is None else json_safe(value)
 
 
 class Base(DeclarativeBase):
@@ -69,7 +95,7 @@ class RegimeConfig(Base):
     name: Mapped[str] = mapped_column(String(64))
     version: Mapped[int] = mapped_column(Integer)
     sha256: Mapped[str] = mapped_column(String(64))
-    body: Mapped[dict[str, Any]] = mapped_column(JSON)
+    body: Mapped[dict[str, Any]] = mapped_column(StrictJSON)
     source: Mapped[str | None] = mapped_column(Text, doc="file the content was read from")
     created_at: Mapped[datetime] = mapped_column(DateTime)
 
@@ -85,7 +111,7 @@ class AgentConfig(Base):
     algo: Mapped[str] = mapped_column(String(64))
     version: Mapped[int] = mapped_column(Integer)
     sha256: Mapped[str] = mapped_column(String(64))
-    body: Mapped[dict[str, Any]] = mapped_column(JSON)
+    body: Mapped[dict[str, Any]] = mapped_column(StrictJSON)
     source: Mapped[str | None] = mapped_column(Text)
     created_at: Mapped[datetime] = mapped_column(DateTime)
 

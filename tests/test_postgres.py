@@ -1,0 +1,173 @@
+"""PostgreSQL as a first-class results database (issue 14), against a real throwaway server
+(tests/pg.py): the alembic chain, the views and the pandas one-liner, claims by two drivers
+at once, a killed driver's jobs taken over, an upgrade from the first revision, and readers
+during a run. The jobs are the synthetic ones (``NUTRIBENCH_JOB=fake``)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from datetime import timedelta
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from sqlalchemy import create_engine, inspect, text
+from typer.testing import CliRunner
+
+from nutribench.cli import app
+from nutribench.scheduler.status import status_table
+from nutribench.store import StoreError, head_revision, open_store, read_episode_metrics
+from nutribench.store.jobs import STALE_AFTER_S
+from nutribench.store.views import EPISODE_METRICS_COLUMNS, VIEWS
+from tests.test_store import make_0001
+
+REPO = Path(__file__).resolve().parents[1]
+NUTRIBENCH = str(Path(sys.executable).parent / "nutribench")
+runner = CliRunner()
+
+
+def sql(url: str, query: str, **params) -> list[tuple]:
+    engine = create_engine(url)
+    try:
+        with engine.begin() as conn:
+            result = conn.execute(text(query), params)
+            return [tuple(r) for r in result] if result.returns_rows else []
+    finally:
+        engine.dispose()
+
+
+def _env(tmp_path: Path, **extra: str) -> dict[str, str]:
+    env = dict(os.environ, NUTRIBENCH_JOB="fake", **extra)
+    env.pop("NUTRIBENCH_AGENTS", None)
+    env.pop("NUTRIBENCH_REGIMES", None)
+    return env
+
+
+def _run_cmd(url: str, *args: str) -> list[str]:
+    return [NUTRIBENCH, "run", "--db", url, "--regimes", "run0,run1", "--algos", "mc,ppo,sac", *args]
+
+
+def _wait_for(predicate, timeout: float = 60.0) -> None:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return
+        time.sleep(0.1)
+    raise AssertionError("timed out")
+
+
+def test_a_grid_status_report_and_pandas_on_postgres(pg_url: str, tmp_path: Path) -> None:
+    """The first contact that failed (MC's max_grad_norm = inf was stored as JSON Infinity)."""
+    env = _env(tmp_path)
+    done = subprocess.run(_run_cmd(pg_url, "--seeds", "0,1", "--episodes", "5", "--eval-episodes", "2"),
+                          env=env, capture_output=True, text=True, cwd=tmp_path, timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "12 jobs: 12 done" in done.stderr
+    assert sql(pg_url, "SELECT body->>'max_grad_norm' FROM agent_configs WHERE name = 'mc'") == [("inf",)]
+    engine = create_engine(pg_url)
+    with engine.connect() as conn:
+        assert set(inspect(conn).get_view_names()) >= set(VIEWS)
+    df = pd.read_sql("SELECT * FROM episode_metrics", engine)  # the README's one-liner, unchanged
+    engine.dispose()
+    assert tuple(df.columns) == EPISODE_METRICS_COLUMNS
+    assert len(df) == 12 * (5 + 2)
+    assert len(read_episode_metrics(pg_url)) == len(df)
+    report = status_table(pg_url)
+    assert (report.totals["done"], report.totals["jobs"]) == (12, 12)
+    res = runner.invoke(app, ["report", "--db", pg_url, "--table", "results", "--out", str(tmp_path / "rep")])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "rep" / "table_results.md").is_file()
+    again = subprocess.run(_run_cmd(pg_url, "--seeds", "0,1", "--episodes", "5", "--eval-episodes", "2"),
+                           env=env, capture_output=True, text=True, cwd=tmp_path, timeout=120)  # fmt: skip
+    assert again.returncode == 0 and "12 already done" in again.stderr, again.stderr
+
+
+def test_two_drivers_at_once_never_run_a_job_twice_on_postgres(pg_url: str, tmp_path: Path) -> None:
+    log = tmp_path / "log"
+    log.mkdir()
+    env = _env(tmp_path, NUTRIBENCH_FAKE_SECONDS="0.01", NUTRIBENCH_FAKE_LOG=str(log))
+    cmd = _run_cmd(pg_url, "--seeds", "0,1,2", "--episodes", "20", "--eval-episodes", "1", "--workers", "2")
+    procs = [subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+             for _ in range(2)]  # fmt: skip
+    outs = [p.communicate(timeout=120)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    executions = sorted(f.name.split("-")[0] for f in log.iterdir())
+    assert len(executions) == 18 and len(set(executions)) == 18  # every job exactly once
+    assert all("done" in out for out in outs)  # both drivers ran jobs: the grid was shared
+    assert sql(pg_url, "SELECT count(*), sum(CASE WHEN status = 'done' THEN 1 ELSE 0 END) FROM jobs") == [(18, 18)]
+    assert sql(pg_url, "SELECT count(*) FROM episodes") == [(18 * 21,)]
+    assert sql(pg_url, "SELECT count(*) FROM (SELECT job_id, phase, episode FROM episodes "
+                       "GROUP BY 1, 2, 3 HAVING count(*) > 1) d") == [(0,)]  # fmt: skip
+
+
+def test_a_killed_driver_s_jobs_are_taken_over_on_postgres(pg_url: str, tmp_path: Path) -> None:
+    """kill -9 of a driver and its workers (a host that died): its jobs stay `running` with a
+    heartbeat that stops; a second driver waits until it is stale by the database's clock,
+    then runs them. Heartbeats are moved back to STALE_AFTER_S - 4 s to keep the test short."""
+    log = tmp_path / "log"
+    log.mkdir()
+    env = _env(tmp_path, NUTRIBENCH_FAKE_SECONDS="0.05", NUTRIBENCH_FAKE_LOG=str(log))
+    cmd = _run_cmd(pg_url, "--seeds", "0", "--episodes", "200", "--eval-episodes", "1", "--workers", "2")
+    victim = subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                              start_new_session=True)  # fmt: skip
+    try:
+        _wait_for(lambda: bool(sql(pg_url, "SELECT 1 FROM information_schema.tables WHERE table_name = 'jobs'"))
+                  and sql(pg_url, "SELECT count(*) FROM jobs WHERE status = 'running' AND episodes_done > 0") == [(2,)])
+    finally:
+        os.killpg(victim.pid, signal.SIGKILL)
+        victim.wait(timeout=30)
+    assert sql(pg_url, "SELECT count(*) FROM jobs WHERE status = 'running'") == [(2,)]
+    assert sql(pg_url, "SELECT count(*) FROM episodes") == [(0,)]  # rows only for finished jobs
+    sql(pg_url, "UPDATE jobs SET heartbeat_at = timezone('UTC', now()) - make_interval(secs => :s) WHERE status = 'running'",
+        s=STALE_AFTER_S - 4)  # fmt: skip
+    report = status_table(pg_url)
+    assert (report.totals["running"], report.totals["orphaned"]) == (2, 0)  # not stale yet
+    t0 = time.monotonic()
+    rescue = subprocess.run(cmd, env=dict(env, NUTRIBENCH_FAKE_SECONDS="0.001"), cwd=tmp_path, capture_output=True,
+                            text=True, timeout=180)  # fmt: skip
+    assert rescue.returncode == 0, rescue.stderr
+    assert "6 jobs: 6 done" in rescue.stderr
+    assert time.monotonic() - t0 > 2.0  # it waited for the heartbeat to go stale
+    assert sql(pg_url, "SELECT count(*), sum(CASE WHEN status = 'done' THEN 1 ELSE 0 END), max(attempt) FROM jobs") == [(6, 6, 2)]
+    assert sql(pg_url, "SELECT count(*) FROM episodes") == [(6 * 201,)]
+    executions = [f.name.split("-")[0] for f in log.iterdir()]
+    assert len(executions) == 8  # 2 killed half-way + 6 in the rescuing driver
+
+
+def test_upgrade_from_the_first_revision_on_postgres(pg_url: str) -> None:
+    make_0001(pg_url)
+    with pytest.raises(StoreError, match=r"revision 0001, this nutribench needs 0002: run `nutribench run --upgrade-only"):
+        open_store(pg_url)
+    res = runner.invoke(app, ["run", "--upgrade-only", "--db", pg_url])
+    assert res.exit_code == 0 and "upgraded from 0001" in " ".join(res.output.split()), res.output
+    store = open_store(pg_url)
+    assert store.revision == head_revision()
+    store.dispose()
+    df = read_episode_metrics(pg_url)
+    assert list(df["episode"]) == [0, 1] and set(df["algo"]) == {"ppo"}
+
+
+def test_status_and_report_read_while_a_run_writes_on_postgres(pg_url: str, tmp_path: Path) -> None:
+    env = _env(tmp_path, NUTRIBENCH_FAKE_SECONDS="0.01")
+    cmd = _run_cmd(pg_url, "--seeds", "0,1", "--episodes", "100", "--eval-episodes", "1", "--workers", "2")
+    proc = subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    seen_partial = False
+    try:
+        _wait_for(lambda: bool(sql(pg_url, "SELECT 1 FROM information_schema.tables WHERE table_name = 'jobs'")))
+        while proc.poll() is None:
+            report = status_table(pg_url)
+            n = len(read_episode_metrics(pg_url))
+            assert n % 101 == 0  # a job's rows appear all at once
+            seen_partial |= 0 < report.totals["done"] < 12
+            time.sleep(0.2)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, out
+    assert seen_partial
+    assert status_table(pg_url).totals["done"] == 12
