@@ -6,6 +6,7 @@ during a run. The jobs are the synthetic ones (``NUTRIBENCH_JOB=fake``)."""
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -97,7 +98,8 @@ def test_two_drivers_at_once_never_run_a_job_twice_on_postgres(pg_url: str, tmp_
     assert [p.returncode for p in procs] == [0, 0], outs
     executions = sorted(f.name.split("-")[0] for f in log.iterdir())
     assert len(executions) == 18 and len(set(executions)) == 18  # every job exactly once
-    assert all("done" in out for out in outs)  # both drivers ran jobs: the grid was shared
+    done = [int(re.search(r"18 jobs: (\d+) done", out).group(1)) for out in outs]
+    assert sum(done) == 18  # the two drivers shared the grid
     assert sql(pg_url, "SELECT count(*), sum(CASE WHEN status = 'done' THEN 1 ELSE 0 END) FROM jobs") == [(18, 18)]
     assert sql(pg_url, "SELECT count(*) FROM episodes") == [(18 * 21,)]
     assert sql(pg_url, "SELECT count(*) FROM (SELECT job_id, phase, episode FROM episodes "
@@ -171,3 +173,56 @@ def test_status_and_report_read_while_a_run_writes_on_postgres(pg_url: str, tmp_
     assert proc.returncode == 0, out
     assert seen_partial
     assert status_table(pg_url).totals["done"] == 12
+
+
+def test_db_copy_moves_a_sqlite_database_into_postgres(pg_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """README "Running on several machines": an existing SQLite database's results moved
+    into PostgreSQL, then the grid goes on there."""
+    from nutribench.jobs.fake import fake_run_job
+    from nutribench.scheduler.driver import run_grid
+
+    monkeypatch.chdir(tmp_path)
+    db = tmp_path / "lab.db"
+    assert run_grid(db, ["run0", "run3"], ["mc", "ppo"], [0], 6, 2, job_fn=fake_run_job, display=False).done == 4
+    res = runner.invoke(app, ["db", "copy", str(db), pg_url])
+    assert res.exit_code == 0, res.output
+    assert "episodes: 32 rows" in res.output and "4 jobs" in res.output
+    before = read_episode_metrics(db).sort_values(["job_id", "phase", "episode"]).reset_index(drop=True)
+    after = read_episode_metrics(pg_url).sort_values(["job_id", "phase", "episode"]).reset_index(drop=True)
+    pd.testing.assert_frame_equal(before, after, check_dtype=False)
+    assert sql(pg_url, "SELECT body->>'max_grad_norm' FROM agent_configs WHERE name = 'mc'") == [("inf",)]
+    again = runner.invoke(app, ["db", "copy", str(db), pg_url])  # never on top of results
+    assert again.exit_code == 2 and "already holds 4 jobs" in again.output
+    more = run_grid(pg_url, ["run0", "run3"], ["mc", "ppo"], [0, 1], 6, 2, job_fn=fake_run_job, display=False)
+    assert (more.done, more.skipped) == (4, 4)  # new job ids follow the copied ones
+    assert sql(pg_url, "SELECT count(*), count(DISTINCT id) FROM jobs") == [(8, 8)]
+
+
+def test_two_hosts_simulated_one_dask_cluster_two_drivers_one_database(
+    pg_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A two-host lab on one machine: a dask cluster of separate worker processes, and two
+    drivers started at once from two working folders on one PostgreSQL database, sharing a
+    models folder. Every job runs exactly once."""
+    import distributed
+
+    log = tmp_path / "log"
+    log.mkdir()
+    monkeypatch.setenv("NUTRIBENCH_FAKE_LOG", str(log))  # the workers inherit it
+    monkeypatch.setenv("NUTRIBENCH_FAKE_SECONDS", "0.005")
+    hosts = [tmp_path / "host-a", tmp_path / "host-b"]
+    for h in hosts:
+        h.mkdir()
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        address = cluster.scheduler_address.replace("tcp://", "dask://")
+        cmd = _run_cmd(pg_url, "--seeds", "0,1,2", "--episodes", "20", "--eval-episodes", "1", "--executor", address,
+                       "--models-dir", str(tmp_path / "shared-models"))  # fmt: skip
+        procs = [subprocess.Popen(cmd, env=_env(tmp_path), cwd=h, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                 for h in hosts]  # fmt: skip
+        outs = [p.communicate(timeout=180)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    executions = sorted(f.name.split("-")[0] for f in log.iterdir())
+    assert len(executions) == 18 and len(set(executions)) == 18
+    assert sql(pg_url, "SELECT count(*), sum(CASE WHEN status = 'done' THEN 1 ELSE 0 END) FROM jobs") == [(18, 18)]
+    assert sql(pg_url, "SELECT count(*) FROM episodes") == [(18 * 21,)]
+    assert sql(pg_url, "SELECT count(DISTINCT host) FROM jobs") == [(1,)]  # one machine, honestly

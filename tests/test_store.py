@@ -102,6 +102,7 @@ def test_bad_databases_are_one_line_errors(tmp_path: Path) -> None:
         (dict(db=foreign, writer=True), "holds tables (customers...) but no nutribench schema"),
         (dict(db=newer, writer=True), "unknown to this nutribench"),
         (dict(db="postgresql+nope://u@h/x"), "cannot use this database URL"),
+        (dict(db="postgresql+psycopg://u:secret@127.0.0.1:1/x"), "u:***@127.0.0.1:1/x: connection failed"),  # nobody listens
         (dict(db="://x"), "not a valid SQLAlchemy URL"),
     ]
     for kwargs, message in cases:

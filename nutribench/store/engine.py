@@ -118,7 +118,8 @@ def make_engine(url: URL | str, *, writer: bool = False, busy_timeout_ms: int = 
         try:
             return create_engine(url, pool_pre_ping=True)
         except (NoSuchModuleError, ImportError) as e:  # unknown dialect, driver not installed
-            raise StoreError(f"--db {display_url(url)}: cannot use this database URL: {e}") from None
+            hint = " (pip install 'nutribench[postgres]' installs psycopg 3, for URLs postgresql+psycopg://...)" if url.get_backend_name() == "postgresql" else ""
+            raise StoreError(f"--db {display_url(url)}: cannot use this database URL: {e}{hint}") from None
     engine = create_engine(url, connect_args={"timeout": busy_timeout_ms / 1000})
 
     @event.listens_for(engine, "connect")

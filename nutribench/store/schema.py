@@ -156,7 +156,12 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
         raise
     except OperationalError as e:
         engine.dispose()
-        raise StoreError(f"cannot open database {display}: {str(e.orig).strip() or type(e.orig).__name__}") from None
+        raise StoreError(f"cannot open database {display}: {_one_line(e.orig)}") from None
     except DatabaseError as e:
         engine.dispose()
-        raise StoreError(f"{display} is not a usable database: {str(e.orig).strip()}") from None
+        raise StoreError(f"{display} is not a usable database: {_one_line(e.orig)}") from None
+
+
+def _one_line(error: BaseException) -> str:
+    """A driver's error message on one line (PostgreSQL's span several)."""
+    return " ".join(str(error).split()) or type(error).__name__
