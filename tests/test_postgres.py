@@ -226,3 +226,40 @@ def test_two_hosts_simulated_one_dask_cluster_two_drivers_one_database(
     assert sql(pg_url, "SELECT count(*), sum(CASE WHEN status = 'done' THEN 1 ELSE 0 END) FROM jobs") == [(18, 18)]
     assert sql(pg_url, "SELECT count(*) FROM episodes") == [(18 * 21,)]
     assert sql(pg_url, "SELECT count(DISTINCT host) FROM jobs") == [(1,)]  # one machine, honestly
+
+
+def test_a_driver_registering_a_grid_waits_for_another_registering_it(pg_url: str) -> None:
+    """Two drivers started at the same moment on a new grid: on PostgreSQL both inserted the
+    same config row and one died on the unique key (7 of 30 driver starts, in 15 scripted pairs
+    on new databases). Registration now holds an advisory lock, as SQLite's BEGIN IMMEDIATE does.
+    Here driver A has inserted the configs and not yet committed; driver B registers the same
+    grid meanwhile, and must end with the same rows, not an IntegrityError."""
+    import threading
+
+    from nutribench.scheduler.grid import resolve_grid
+    from nutribench.scheduler.registration import _register, load_grid_configs, register_grid
+    from nutribench.store import RegimeConfig, session_scope
+    from nutribench.store.engine import REGISTRATION_LOCK, hold_write_lock
+
+    grid = resolve_grid(preset=None, regimes=["run0"], algos=["ppo"], seeds="0,1", episodes=2, eval_episodes=1)
+    regimes, agents = load_grid_configs(grid)
+    store_a, store_b = open_store(pg_url, writer=True), open_store(pg_url, writer=True)
+    outcome: list = []
+
+    def driver_b() -> None:
+        try:
+            outcome.append(register_grid(store_b, grid, regimes, agents))
+        except Exception as e:  # noqa: BLE001 - the assertion shows it
+            outcome.append(e)
+
+    with session_scope(store_a.engine) as s:  # driver A, mid-registration
+        hold_write_lock(s, REGISTRATION_LOCK)
+        _register(s, RegimeConfig, regimes)
+        b = threading.Thread(target=driver_b)
+        b.start()
+        time.sleep(0.5)  # B reaches the point where it waits for A
+    b.join(timeout=60)
+    store_a.dispose()
+    store_b.dispose()
+    assert len(outcome) == 1 and isinstance(outcome[0], list) and len(outcome[0]) == 2, outcome
+    assert sql(pg_url, "SELECT count(*) FROM regimes") == [(1,)]

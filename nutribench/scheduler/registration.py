@@ -17,6 +17,7 @@ from sqlalchemy.orm import Session
 from nutribench.errors import UserError
 from nutribench.scheduler.grid import Grid
 from nutribench.store import AgentConfig, Job, RegimeConfig, session_scope, utcnow
+from nutribench.store.engine import REGISTRATION_LOCK, hold_write_lock
 from nutribench.store.schema import Store
 
 
@@ -89,6 +90,7 @@ def register_grid(store: Store, grid: Grid, regimes: list[_Config], agents: list
     """Record the configs and create the missing job rows, in one transaction; the ids of
     the grid's jobs in grid order."""
     with session_scope(store.engine) as s:
+        hold_write_lock(s, REGISTRATION_LOCK)  # two drivers started at once: one registers, then the other
         rids = _register(s, RegimeConfig, regimes)
         aids = _register(s, AgentConfig, agents)
         query = select(Job.id, Job.regime_id, Job.agent_config_id, Job.seed).where(

@@ -140,6 +140,21 @@ def make_engine(url: URL | str, *, writer: bool = False, busy_timeout_ms: int = 
     return engine
 
 
+#: pg_advisory_xact_lock keys: one writer at a time for what SQLite serialises with BEGIN IMMEDIATE
+MIGRATION_LOCK = 7_402_911  # creating or upgrading the schema
+REGISTRATION_LOCK = 7_402_912  # recording configs and creating a grid's job rows
+
+
+def hold_write_lock(conn: Connection | Session, key: int) -> None:
+    """Serialise a transaction with every other one holding ``key``, until it ends. SQLite
+    needs nothing more (a writer's BEGIN IMMEDIATE already takes the database's one write
+    lock); PostgreSQL takes a transaction-level advisory lock. Without it two drivers
+    started at once both inserted the same config row and one failed on the unique key."""
+    bind = conn if isinstance(conn, Connection) else conn.connection()
+    if bind.dialect.name == "postgresql":
+        bind.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": key})
+
+
 def db_now(conn: Connection | Session) -> datetime:
     """Now, naive UTC, by the database's clock on a server database (PostgreSQL), so that the
     drivers of several hosts judge heartbeats by one clock; by this host's clock on SQLite

@@ -18,21 +18,20 @@ from alembic import command
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import Connection, Engine, inspect, text
+from sqlalchemy import Connection, Engine, inspect
 from sqlalchemy.engine import URL
 from sqlalchemy.exc import DatabaseError, OperationalError
 
 from nutribench.store.engine import (
+    MIGRATION_LOCK,
     StoreError,
     check_sqlite_file,
     database_url,
     display_url,
+    hold_write_lock,
     make_engine,
     sqlite_path,
 )
-
-PG_MIGRATION_LOCK = 7_402_911  # pg_advisory_xact_lock key that serialises schema upgrades
-
 
 def migrations_dir() -> Path:
     """``migrations/`` of the source checkout, else the copy shipped in the wheel."""
@@ -136,8 +135,7 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
     try:
         if writer:
             with engine.begin() as conn:  # BEGIN IMMEDIATE on SQLite: one upgrader at a time
-                if conn.dialect.name == "postgresql":
-                    conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": PG_MIGRATION_LOCK})
+                hold_write_lock(conn, MIGRATION_LOCK)
                 rev = _classify(conn, display)
                 if rev != head:
                     if not upgrade:
