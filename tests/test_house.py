@@ -18,7 +18,7 @@ LAYERS: list[set[str]] = [
     {"nutribench", "errors", "clock", "provenance"},
     {"config"},
     {"env"},
-    {"agents", "baselines"},
+    {"agents", "baselines", "engine"},
     {"jobs", "store"},
     {"scheduler", "report"},
     {"bench", "bench_learn"},

@@ -1,0 +1,210 @@
+"""PPO for K agents at once: SB3's PPO update, with every agent's parameters stacked along a
+leading agent axis.
+
+The K agents share an agent config (``ppo.toml``) and differ in their seed (and may differ
+in their regime: each agent has its own env row). Per agent, everything is what
+:class:`stable_baselines3.PPO` with nutribench's shared backbone does (``algos.build_model``):
+
+* policy: ``obs -> 256 -> 128`` (ReLU) shared by a linear actor head (2 logits) and a linear
+  value head; orthogonal initialisation with SB3's gains (sqrt(2) backbone, 0.01 actor, 1
+  value), zero biases; Adam with eps 1e-5;
+* ``VecNormalize``: a running mean and variance of the observations, and of the discounted
+  return for reward scaling, each agent its own;
+* rollouts of ``n_steps`` env steps, GAE (gamma, lambda), a day's end a true terminal;
+* ``n_epochs`` passes over the rollout in minibatches of ``batch_size`` drawn by a random
+  permutation; advantages normalised per minibatch; clipped surrogate; unclipped value loss;
+  entropy bonus; the gradient clipped to ``max_grad_norm`` in L2 over the agent's own
+  parameters.
+
+Stacking is exact: the loss is the sum of the K agents' losses, so each agent's gradient is
+its own loss's gradient; Adam is elementwise; the gradient norm is taken per agent. One
+update of agent k equals SB3's update of that agent alone (``tests/test_engine.py``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch as th
+
+ADAM_EPS = 1e-5  # SB3's ActorCriticPolicy passes eps=1e-5 to Adam
+GAINS = (math.sqrt(2), math.sqrt(2), 0.01, 1.0)  # backbone layers, actor head, value head
+
+
+@dataclass
+class PPOSettings:
+    """The hyperparameters of one agent config that the update reads (``PPOConfig``)."""
+
+    learning_rate: float
+    n_steps: int
+    batch_size: int
+    n_epochs: int
+    gamma: float
+    gae_lambda: float
+    clip_range: float
+    ent_coef: float
+    vf_coef: float
+    max_grad_norm: float
+    normalize_advantage: bool
+
+    @classmethod
+    def from_config(cls, cfg) -> PPOSettings:
+        return cls(**{f: getattr(cfg, f) for f in cls.__dataclass_fields__})
+
+
+class StackedActorCritic:
+    """K copies of the shared actor-critic: parameters of shape ``(K, ...)``.
+
+    Layers are ``(W, b)`` with ``W: (K, in, out)``, ``b: (K, 1, out)``; the backbone's layers
+    come first, then the actor head, then the value head.
+    """
+
+    def __init__(self, k: int, obs_dim: int, net_arch: list[int], n_actions: int = 2, generators: list[th.Generator] | None = None):
+        sizes = [obs_dim, *net_arch]
+        shapes = [*zip(sizes[:-1], sizes[1:]), (sizes[-1], n_actions), (sizes[-1], 1)]
+        gains = [GAINS[0]] * len(net_arch) + [GAINS[2], GAINS[3]]
+        self.params: list[th.Tensor] = []
+        for (n_in, n_out), gain in zip(shapes, gains):
+            w = th.empty(k, n_in, n_out)
+            for j in range(k):  # SB3 initialises the (out, in) weight orthogonally
+                block = th.empty(n_out, n_in)
+                th.nn.init.orthogonal_(block, gain=gain, generator=None if generators is None else generators[j])
+                w[j] = block.T
+            self.params += [w.requires_grad_(), th.zeros(k, 1, n_out, requires_grad=True)]
+        self.n_hidden = len(net_arch)
+
+    @property
+    def k(self) -> int:
+        return self.params[0].shape[0]
+
+    def forward(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """``obs (K, B, obs_dim)`` -> logits ``(K, B, n_actions)``, values ``(K, B)``."""
+        x = obs
+        p = self.params
+        for i in range(self.n_hidden):
+            x = th.relu(th.baddbmm(p[2 * i + 1], x, p[2 * i]))
+        j = 2 * self.n_hidden
+        logits = th.baddbmm(p[j + 1], x, p[j])
+        values = th.baddbmm(p[j + 3], x, p[j + 2]).squeeze(-1)
+        return logits, values
+
+    def load_sb3(self, j: int, policy) -> None:
+        """Copy the weights of an SB3 ``ActorCriticPolicy`` (nutribench's backbone) into agent ``j``."""
+        linears = [m for m in policy.features_extractor.net if isinstance(m, th.nn.Linear)]
+        linears += [policy.action_net, policy.value_net]
+        with th.no_grad():
+            for i, lin in enumerate(linears):
+                self.params[2 * i][j].copy_(lin.weight.T)
+                self.params[2 * i + 1][j, 0].copy_(lin.bias)
+
+    def store_sb3(self, j: int, policy) -> None:
+        """Copy agent ``j``'s weights into an SB3 ``ActorCriticPolicy`` of the same shape."""
+        linears = [m for m in policy.features_extractor.net if isinstance(m, th.nn.Linear)]
+        linears += [policy.action_net, policy.value_net]
+        with th.no_grad():
+            for i, lin in enumerate(linears):
+                lin.weight.copy_(self.params[2 * i][j].T)
+                lin.bias.copy_(self.params[2 * i + 1][j, 0])
+
+
+class RunningStats:
+    """SB3's ``RunningMeanStd`` for K agents at once: ``mean``/``var`` ``(K, *shape)``,
+    ``count (K,)``, each agent updated with one sample ``(K, *shape)`` per call."""
+
+    def __init__(self, k: int, shape: tuple[int, ...] = (), epsilon: float = 1e-4):
+        self.mean = np.zeros((k, *shape))
+        self.var = np.ones((k, *shape))
+        self.count = np.full(k, epsilon)
+
+    def update(self, x: np.ndarray) -> None:
+        """One sample per agent (SB3's update with a batch of one: batch variance 0)."""
+        c = self.count.reshape(-1, *([1] * (self.mean.ndim - 1)))
+        delta = x - self.mean
+        tot = c + 1.0
+        self.mean = self.mean + delta / tot
+        self.var = (self.var * c + np.square(delta) * c / tot) / tot
+        self.count = self.count + 1.0
+
+
+def clip_grad_norm_per_agent(params: list[th.Tensor], max_norm: float) -> th.Tensor:
+    """``torch.nn.utils.clip_grad_norm_`` applied to each agent's own parameters; the K norms."""
+    sq = sum(p.grad.pow(2).reshape(p.shape[0], -1).sum(dim=1) for p in params)
+    norms = sq.sqrt()
+    if math.isfinite(max_norm):
+        coef = (max_norm / (norms + 1e-6)).clamp(max=1.0)
+        for p in params:
+            p.grad.mul_(coef.reshape(-1, *([1] * (p.ndim - 1))))
+    return norms
+
+
+@dataclass
+class Rollout:
+    """One rollout of K agents, ``T`` steps each (agent axis first)."""
+
+    obs: th.Tensor  # (K, T, obs_dim) as the policy saw them (normalised)
+    actions: th.Tensor  # (K, T) long
+    log_probs: th.Tensor  # (K, T)
+    values: th.Tensor  # (K, T)
+    advantages: th.Tensor  # (K, T)
+    returns: th.Tensor  # (K, T)
+
+
+def gae(rewards: np.ndarray, values: np.ndarray, episode_starts: np.ndarray, last_values: np.ndarray, last_dones: np.ndarray,
+        gamma: float, lam: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """SB3's ``RolloutBuffer.compute_returns_and_advantage`` for ``(K, T)`` arrays: advantages, returns."""
+    k, t_max = rewards.shape
+    adv = np.zeros((k, t_max), dtype=np.float32)
+    last = np.zeros(k, dtype=np.float32)
+    for t in reversed(range(t_max)):
+        if t == t_max - 1:
+            non_terminal = 1.0 - last_dones.astype(np.float32)
+            next_values = last_values
+        else:
+            non_terminal = 1.0 - episode_starts[:, t + 1]
+            next_values = values[:, t + 1]
+        delta = rewards[:, t] + gamma * next_values * non_terminal - values[:, t]
+        last = delta + gamma * lam * non_terminal * last
+        adv[:, t] = last
+    return adv, adv + values
+
+
+def ppo_update(net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: Rollout, s: PPOSettings,
+               permutations: np.ndarray) -> dict[str, np.ndarray]:  # fmt: skip
+    """SB3 ``PPO.train()`` for the K agents: ``permutations (n_epochs, K, T)`` order each
+    agent's transitions in each epoch (SB3 draws ``np.random.permutation(T)``). Returns the
+    last minibatch's per-agent losses."""
+    k, t_max = rollout.actions.shape
+    rows = th.arange(k).unsqueeze(1)
+    out: dict[str, np.ndarray] = {}
+    for epoch in range(s.n_epochs):
+        perm = th.as_tensor(permutations[epoch])
+        for start in range(0, t_max, s.batch_size):
+            idx = perm[:, start : start + s.batch_size]  # (K, B)
+            obs = rollout.obs[rows, idx]
+            actions = rollout.actions[rows, idx]
+            adv = rollout.advantages[rows, idx]
+            if s.normalize_advantage and idx.shape[1] > 1:
+                adv = (adv - adv.mean(dim=1, keepdim=True)) / (adv.std(dim=1, keepdim=True) + 1e-8)
+            logits, values = net.forward(obs)
+            logp_all = th.log_softmax(logits, dim=-1)
+            log_prob = logp_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
+            entropy = -(logp_all.exp() * logp_all).sum(-1)
+            ratio = th.exp(log_prob - rollout.log_probs[rows, idx])
+            surrogate = th.min(adv * ratio, adv * th.clamp(ratio, 1 - s.clip_range, 1 + s.clip_range))
+            policy_loss = -surrogate.mean(dim=1)
+            value_loss = (rollout.returns[rows, idx] - values).pow(2).mean(dim=1)
+            entropy_loss = -entropy.mean(dim=1)
+            loss = policy_loss + s.ent_coef * entropy_loss + s.vf_coef * value_loss  # (K,)
+            optimizer.zero_grad()
+            loss.sum().backward()  # disjoint parameters: each agent gets its own loss's gradient
+            clip_grad_norm_per_agent(net.params, s.max_grad_norm)
+            optimizer.step()
+            out = {"policy_loss": policy_loss.detach().numpy(), "value_loss": value_loss.detach().numpy(),
+                   "entropy_loss": entropy_loss.detach().numpy()}  # fmt: skip
+    return out
+
+
+def make_optimizer(net: StackedActorCritic, learning_rate: float) -> th.optim.Adam:
+    return th.optim.Adam(net.params, lr=learning_rate, eps=ADAM_EPS)

@@ -1,0 +1,177 @@
+"""The batched engine makes the SB3 agents' updates (issue 15): with identical initial
+weights and identical data, one update of K stacked agents gives each agent exactly the
+parameters SB3 gives it alone (float32 tolerance), so there is no cross-talk."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch as th
+
+from nutribench.agents.algos import build_model
+from nutribench.agents.api import make_train_env
+from nutribench.agents.config import load_agent_config
+from nutribench.config import load_env_config
+from nutribench.engine.ppo import (
+    PPOSettings,
+    Rollout,
+    RunningStats,
+    StackedActorCritic,
+    clip_grad_norm_per_agent,
+    gae,
+    make_optimizer,
+    ppo_update,
+)
+
+
+def _sb3_ppo_after_one_rollout(seed: int, regime: str = "run0"):
+    cfg = load_agent_config("ppo")
+    env_cfg = load_env_config(regime)
+    _, env = make_train_env(env_cfg, cfg)
+    model = build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon)
+    _, callback = model._setup_learn(cfg.n_steps, callback=None)
+    callback.on_training_start(locals(), globals())
+    assert model.collect_rollouts(model.env, callback, model.rollout_buffer, n_rollout_steps=model.n_steps)
+    return cfg, model
+
+
+def _rollout_of(models) -> Rollout:
+    bufs = [m.rollout_buffer for m in models]
+    stack = lambda name: th.as_tensor(np.stack([getattr(b, name)[:, 0] for b in bufs]))  # noqa: E731
+    return Rollout(
+        obs=stack("observations").float(), actions=stack("actions").squeeze(-1).long(), log_probs=stack("log_probs").float(),
+        values=stack("values").float(), advantages=stack("advantages").float(), returns=stack("returns").float(),
+    )  # fmt: skip
+
+
+def test_one_ppo_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -> None:
+    th.set_num_threads(1)
+    seeds = [0, 1, 2]  # different weights, different data (run0 and run3), one stack
+    made = [_sb3_ppo_after_one_rollout(s, r) for s, r in zip(seeds, ["run0", "run3", "run0"])]
+    cfg, models = made[0][0], [m for _, m in made]
+    net = StackedActorCritic(len(models), models[0].observation_space.shape[0], list(cfg.net_arch))
+    for j, m in enumerate(models):
+        net.load_sb3(j, m.policy)
+    optimizer = make_optimizer(net, cfg.learning_rate)
+    rollout = _rollout_of(models)
+    settings = PPOSettings.from_config(cfg)
+    perms = []
+    for j, m in enumerate(models):  # SB3 draws one permutation per epoch from numpy's global RNG
+        np.random.seed(100 + j)
+        perms.append([np.random.permutation(cfg.n_steps) for _ in range(cfg.n_epochs)])
+        np.random.seed(100 + j)
+        m.train()
+    ppo_update(net, optimizer, rollout, settings, np.stack(perms, axis=1))
+    for j, m in enumerate(models):
+        mine = StackedActorCritic(1, net.params[0].shape[1], list(cfg.net_arch))
+        mine.params = [p[j : j + 1].detach() for p in net.params]
+        reference = StackedActorCritic(1, net.params[0].shape[1], list(cfg.net_arch))
+        reference.load_sb3(0, m.policy)
+        for a, b in zip(mine.params, reference.params):
+            np.testing.assert_allclose(a.numpy(), b.detach().numpy(), rtol=1e-4, atol=2e-6)
+
+
+def test_stacked_agents_do_not_talk_to_each_other() -> None:
+    """Agent 0's update is the same whether it is trained alone or beside two others whose
+    data is wild (large rewards): nothing of theirs reaches it (gradient norm, Adam, losses)."""
+    th.set_num_threads(1)
+    cfg, model = _sb3_ppo_after_one_rollout(0)
+    settings = PPOSettings.from_config(cfg)
+    base = _rollout_of([model])
+    rng = np.random.default_rng(0)
+
+    def stacked(k: int):
+        net = StackedActorCritic(k, 13, list(cfg.net_arch))
+        for j in range(k):  # every agent starts from the same weights
+            net.load_sb3(j, model.policy)
+        return net
+
+    alone, crowd = stacked(1), stacked(3)
+    wild = Rollout(*(th.cat([getattr(base, f), getattr(base, f).repeat(2, *([1] * (getattr(base, f).ndim - 1)))])
+                     for f in ("obs", "actions", "log_probs", "values", "advantages", "returns")))  # fmt: skip
+    wild.advantages[1:] *= 1e4
+    wild.returns[1:] += 1e3
+    perm = np.stack([[rng.permutation(cfg.n_steps) for _ in range(3)] for _ in range(cfg.n_epochs)])
+    ppo_update(alone, make_optimizer(alone, cfg.learning_rate), base, settings, perm[:, :1])
+    ppo_update(crowd, make_optimizer(crowd, cfg.learning_rate), wild, settings, perm)
+    for a, b in zip(alone.params, crowd.params):  # float32 rounding only (batched kernels differ by K)
+        th.testing.assert_close(a[0], b[0], rtol=1e-5, atol=1e-6)
+    drift = max(float((b[1] - b[0]).abs().max()) for b in crowd.params)
+    assert drift > 1e-3  # same start, other data, far apart: cross-talk would show
+
+
+def test_running_stats_equal_sb3_s_for_each_agent() -> None:
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
+
+    rng = np.random.default_rng(0)
+    xs = rng.normal(size=(200, 3, 5)) * np.array([1.0, 10.0, 0.1])[:, None]
+    mine, refs = RunningStats(3, (5,)), [RunningMeanStd(shape=(5,)) for _ in range(3)]
+    for x in xs:
+        mine.update(x)
+        for j, r in enumerate(refs):
+            r.update(x[j : j + 1])
+    for j, r in enumerate(refs):
+        np.testing.assert_allclose(mine.mean[j], r.mean, rtol=1e-12)
+        np.testing.assert_allclose(mine.var[j], r.var, rtol=1e-10)
+
+
+def test_gae_equals_sb3_s_rollout_buffer() -> None:
+    from gymnasium import spaces
+    from stable_baselines3.common.buffers import RolloutBuffer
+
+    rng = np.random.default_rng(1)
+    t_max = 100
+    buf = RolloutBuffer(t_max, spaces.Box(-1, 1, (2,)), spaces.Discrete(2), n_envs=1, gamma=0.99, gae_lambda=0.95)
+    rewards, values = rng.normal(size=t_max).astype(np.float32), rng.normal(size=t_max).astype(np.float32)
+    starts = (np.arange(t_max) % 50 == 0).astype(np.float32)
+    for t in range(t_max):
+        buf.add(np.zeros((1, 2)), np.zeros((1, 1)), rewards[t : t + 1], starts[t : t + 1], th.tensor([values[t]]), th.zeros(1))
+    buf.compute_returns_and_advantage(th.tensor([0.3]), np.array([True]))
+    adv, ret = gae(rewards[None], values[None], starts[None], np.array([0.3]), np.array([True]), 0.99, 0.95)
+    np.testing.assert_allclose(adv[0], buf.advantages[:, 0], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(ret[0], buf.returns[:, 0], rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("max_norm", [0.5, float("inf")])
+def test_gradient_clipping_is_per_agent(max_norm: float) -> None:
+    g = th.Generator().manual_seed(0)
+    params = [th.randn(3, 4, 5, generator=g, requires_grad=True), th.randn(3, 1, 5, generator=g, requires_grad=True)]
+    for p in params:
+        p.grad = th.randn(p.shape, generator=g) * th.tensor([0.01, 1.0, 100.0]).reshape(-1, *([1] * (p.ndim - 1)))
+    expected = []
+    for j in range(3):
+        own = [th.nn.Parameter(p[j].detach().clone()) for p in params]
+        for o, p in zip(own, params):
+            o.grad = p.grad[j].clone()
+        th.nn.utils.clip_grad_norm_(own, max_norm)
+        expected.append([o.grad for o in own])
+    clip_grad_norm_per_agent(params, max_norm)
+    for j in range(3):
+        for p, e in zip(params, expected[j]):
+            th.testing.assert_close(p.grad[j], e)
+
+
+def test_batched_training_yields_agents_the_single_agent_api_uses(tmp_path) -> None:
+    """Every job's days, in the SB3 engine's row format; the same seed gives the same run
+    whichever agents share its batch; the agents evaluate, save and load as SB3 agents do."""
+    from nutribench.agents import evaluate, eval_food_streams
+    from nutribench.agents.api import TrainedAgent
+    from nutribench.engine.train import train_ppo_batched
+
+    seen: list[tuple[int, int]] = []
+    agents = train_ppo_batched([("run0", 0), ("run3", 1), ("run0", 2)], "ppo", episodes=21,
+                               on_episode=lambda j, row: seen.append((j, row["episode"])))  # fmt: skip
+    assert sorted(seen) == sorted((j, e) for j in range(3) for e in range(21))
+    first = agents[0].train_episodes
+    assert len(first) == 21 and set(first[0]) == {"episode", "return", "foods", "final_distance", "overshoot_ratio",
+                                                 "final_C", "final_F", "final_P", "first_overshoot_step", "entropy"}  # fmt: skip
+    alone = train_ppo_batched([("run0", 0)], "ppo", episodes=21)[0].train_episodes
+    assert [d["foods"] for d in alone] == [d["foods"] for d in first]
+    np.testing.assert_allclose([d["return"] for d in alone], [d["return"] for d in first], rtol=1e-5)
+    assert [d["foods"] for d in agents[2].train_episodes] != [d["foods"] for d in first]  # another seed, another run
+    streams = eval_food_streams("run3", 1, 3)
+    before = evaluate(agents[1], "run3", streams)
+    path = agents[1].save(tmp_path / "batched.zip")
+    after = evaluate(TrainedAgent.load(path), "run3", streams)
+    assert [e["return"] for e in before.episodes] == [e["return"] for e in after.episodes]
+    assert agents[1].provenance["engine"] == "batched"
