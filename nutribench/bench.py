@@ -227,3 +227,62 @@ def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = 
         "status_table_s": statistics.median(in_process),
         "status_cli_s": statistics.median(cli),
     }
+
+
+def ppo_flops_per_env_step(cfg, obs_dim: int = 13, n_actions: int = 2) -> float:
+    """Floating-point operations of PPO per env step: one forward pass to act, and per step
+    of the rollout ``n_epochs`` forward + backward passes (backward = 2 forwards) in the
+    update. Only the matrix products count (2 x in x out per sample and layer)."""
+    sizes = [obs_dim, *cfg.net_arch]
+    forward = 2 * sum(a * b for a, b in zip(sizes[:-1], sizes[1:])) + 2 * sizes[-1] * (n_actions + 1)
+    return forward * (1 + 3 * cfg.n_epochs)
+
+
+def matmul_flops_per_s(k: int = 35, batch: int = 64, n_in: int = 256, n_out: int = 128, repeats: int = 200) -> float:
+    """This machine's dense float32 batched-matmul rate on one thread, at the shape of the
+    batched engine's largest layer (K agents x a minibatch): median of 5 timings."""
+    import torch
+
+    torch.set_num_threads(1)
+    a, b = torch.randn(k, batch, n_in), torch.randn(k, n_in, n_out)
+    out = torch.empty(k, batch, n_out)
+    torch.bmm(a, b, out=out)
+    rates = []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        for _ in range(repeats):
+            torch.bmm(a, b, out=out)
+        rates.append(2 * k * batch * n_in * n_out * repeats / (time.perf_counter() - t0))
+    return statistics.median(rates)
+
+
+def bench_train_batched(algo: str = "ppo", k_regimes: int = 7, k_seeds: int = 5, episodes: int = 20, repeats: int = 3) -> dict:
+    """Env-steps per second of the batched engine training K = regimes x seeds agents of
+    ``algo`` at once in one process (one thread), the arithmetic it does per env step, this
+    machine's matmul rate, the share of that floor reached, and the paper grid's wall time
+    for this algorithm at that rate on all the cores."""
+    import os
+
+    from nutribench import SHIPPED_REGIMES
+    from nutribench.agents.config import load_agent_config
+    from nutribench.engine.train import train_ppo_batched
+
+    if algo != "ppo":
+        raise ValueError(f"the batched engine trains ppo so far, not {algo}")
+    cfg = load_agent_config(algo)
+    jobs = [(r, s) for r in SHIPPED_REGIMES[:k_regimes] for s in range(k_seeds)]
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        train_ppo_batched(jobs, cfg, episodes)
+        times.append(time.perf_counter() - t0)
+    steps = len(jobs) * episodes * 50
+    rate = steps / statistics.median(times)
+    flops = ppo_flops_per_env_step(cfg)
+    peak = matmul_flops_per_s(k=len(jobs))
+    grid_steps = PAPER_GRID["regimes"] * PAPER_GRID["seeds"] * PAPER_GRID["episodes"] * 50
+    cores = len(os.sched_getaffinity(0))
+    return {"algo": algo, "k": len(jobs), "episodes": episodes, "steps_per_s": rate, "flops_per_step": flops,
+            "matmul_flops_per_s": peak, "floor_share": rate * flops / peak,
+            "paper_grid_wall_hours": grid_steps / rate / min(cores, PAPER_GRID["regimes"] * PAPER_GRID["seeds"]) / 3600,
+            "paper_grid_floor_hours": grid_steps * flops / peak / 3600, "cores": cores}  # fmt: skip

@@ -41,9 +41,12 @@ def bench_train_cmd(
     regime: Annotated[str, typer.Option(help="regime")] = "run0",
     episodes: Annotated[int, typer.Option(min=1, help="training days per timed run")] = 100,
     repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 3,
+    engine: Annotated[str, typer.Option(help="'sb3', or 'batched': the batched engine at K = 35 beside SB3's")] = "sb3",
 ) -> None:
     """Training env-steps per second of each algorithm, and of bare SB3 PPO / DQN on the same
-    env (the overhead of nutribench's plumbing), with the paper grid's CPU-hours at that rate."""
+    env (the overhead of nutribench's plumbing), with the paper grid's CPU-hours at that rate.
+    With --engine batched, also the batched engine (7 regimes x 5 seeds at once): its rate,
+    FLOPs per env step, this machine's matmul rate and the share of that floor reached."""
     from nutribench.agents.config import ALGOS
     from nutribench.bench import bench_train
     from nutribench.config import load_env_config
@@ -59,6 +62,25 @@ def bench_train_cmd(
     console.print(table)
     total = sum(r["paper_grid_cpu_hours"] for r in rows if not r["bare"])
     console.print(f"paper grid (7 regimes x 5 seeds x 5000 days per algorithm, all 5 algorithms): ~{total:.0f} CPU-hours")
+    if engine == "sb3":
+        return
+    if engine != "batched":
+        raise UserError(f"--engine {engine!r}: use 'sb3' or 'batched'")
+    from nutribench.bench import bench_train_batched
+    from nutribench.bench_engines import BATCHED_ALGOS
+
+    sb3_rate = {r["algo"]: r["steps_per_s"] for r in rows if not r["bare"]}
+    table = Table("algo", "K", "env-steps/s (median)", "vs SB3 engine", "MFLOP / env step", "matmul GFLOP/s",
+                  "share of floor", "paper grid wall h", title=f"batched engine, {episodes} days x {repeats}")  # fmt: skip
+    for algo in [a for a in names if a in BATCHED_ALGOS]:
+        b = bench_train_batched(algo, episodes=episodes, repeats=repeats)
+        table.add_row(algo, str(b["k"]), f"{b['steps_per_s']:,.0f}", f"{b['steps_per_s'] / sb3_rate[algo]:.1f}x",
+                      f"{b['flops_per_step'] / 1e6:.2f}", f"{b['matmul_flops_per_s'] / 1e9:.0f}", f"{100 * b['floor_share']:.0f} %",
+                      f"{b['paper_grid_wall_hours']:.2f} (floor {b['paper_grid_floor_hours']:.2f} on 1 core)")  # fmt: skip
+    console.print(table)
+    skipped = [a for a in names if a not in BATCHED_ALGOS]
+    if skipped:
+        console.print(f"not in the batched engine yet: {', '.join(skipped)}", highlight=False)
 
 
 
@@ -142,3 +164,36 @@ def bench_status_cmd(
     console.print(f"{r['jobs']} jobs, {r['episode_rows']:,} episode rows, {r['db_mb']:.0f} MB")
     console.print(f"status_table(): {r['status_table_s']:.3f} s   `nutribench status --json`: {r['status_cli_s']:.2f} s "
                   f"(medians of {repeats}; the CLI figure includes Python start-up)")
+
+
+@bench_app.command("engines")
+@user_errors
+def bench_engines_cmd(
+    algos: Annotated[str, typer.Option(help="comma-separated algorithms the batched engine trains")] = "ppo",
+    regimes: Annotated[str, typer.Option(help="comma-separated regimes")] = "run0,run6",
+    seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2,3,4",
+    episodes: Annotated[int, typer.Option(min=1, help="training days per job, both engines")] = 500,
+    eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")] = 10,
+    markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
+) -> None:
+    """Train with both engines (SB3 and batched) on the same seeds and budget; per algorithm
+    and regime the IQM of the evaluation returns with a 95 % bootstrap interval over seeds;
+    the two engines' intervals must overlap."""
+    from nutribench.bench_engines import BATCHED_ALGOS, COLUMNS, bench_engines, markdown_table, row_cells
+    from nutribench.config import list_regimes
+    from nutribench.scheduler.grid import parse_seeds
+
+    names = split_csv(algos, list(BATCHED_ALGOS), "algorithm for the batched engine")
+    regime_names = split_csv(regimes, list_regimes(), "regime")
+    with console.status("training with both engines"):
+        rows = bench_engines(names, regime_names, list(parse_seeds(seeds)), episodes, eval_episodes)
+    if markdown:
+        console.print(markdown_table(rows), highlight=False, soft_wrap=True)
+    else:
+        table = Table(*COLUMNS, title=f"engines: SB3 vs batched, {episodes} days, seeds {seeds}")
+        for r in rows:
+            table.add_row(*row_cells(r))
+        console.print(table)
+    walls = {r["engine"]: r["total_wall_seconds"] for r in rows}
+    console.print(f"wall time: SB3 {walls['sb3']:.0f} s (a process per job, one per core), batched {walls['batched']:.0f} s (one process)",
+                  highlight=False)  # fmt: skip
