@@ -229,13 +229,15 @@ def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = 
     }
 
 
-def ppo_flops_per_env_step(cfg, obs_dim: int = 13, n_actions: int = 2) -> float:
-    """Floating-point operations of PPO per env step: one forward pass to act, and per step
-    of the rollout ``n_epochs`` forward + backward passes (backward = 2 forwards) in the
-    update. Only the matrix products count (2 x in x out per sample and layer)."""
+def flops_per_env_step(cfg, obs_dim: int = 13, n_actions: int = 2, horizon: int = 50) -> float:
+    """Floating-point operations of PPO or MC per env step: one forward pass to act, and per
+    step of the rollout ``n_epochs`` (MC: 1) forward + backward passes (backward = 2
+    forwards) in the update. Only the matrix products count (2 x in x out per sample and layer)."""
+    from nutribench.engine.actor_critic import OnPolicySettings
+
     sizes = [obs_dim, *cfg.net_arch]
     forward = 2 * sum(a * b for a, b in zip(sizes[:-1], sizes[1:])) + 2 * sizes[-1] * (n_actions + 1)
-    return forward * (1 + 3 * cfg.n_epochs)
+    return forward * (1 + 3 * OnPolicySettings.from_config(cfg, horizon).n_epochs)
 
 
 def matmul_flops_per_s(k: int = 35, batch: int = 64, n_in: int = 256, n_out: int = 128, repeats: int = 200) -> float:
@@ -265,20 +267,18 @@ def bench_train_batched(algo: str = "ppo", k_regimes: int = 7, k_seeds: int = 5,
 
     from nutribench import SHIPPED_REGIMES
     from nutribench.agents.config import load_agent_config
-    from nutribench.engine.train import train_ppo_batched
+    from nutribench.engine.train import train_batched
 
-    if algo != "ppo":
-        raise ValueError(f"the batched engine trains ppo so far, not {algo}")
     cfg = load_agent_config(algo)
     jobs = [(r, s) for r in SHIPPED_REGIMES[:k_regimes] for s in range(k_seeds)]
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        train_ppo_batched(jobs, cfg, episodes)
+        train_batched(jobs, cfg, episodes)
         times.append(time.perf_counter() - t0)
     steps = len(jobs) * episodes * 50
     rate = steps / statistics.median(times)
-    flops = ppo_flops_per_env_step(cfg)
+    flops = flops_per_env_step(cfg)
     peak = matmul_flops_per_s(k=len(jobs))
     grid_steps = PAPER_GRID["regimes"] * PAPER_GRID["seeds"] * PAPER_GRID["episodes"] * 50
     cores = min(len(os.sched_getaffinity(0)), PAPER_GRID["regimes"] * PAPER_GRID["seeds"])  # batches side by side

@@ -24,18 +24,18 @@ from nutribench.report.stats import iqm_bootstrap_ci
 
 ENGINES = ("sb3", "batched")
 #: the algorithms the batched engine trains so far
-BATCHED_ALGOS = ("ppo",)
+BATCHED_ALGOS = ("ppo", "mc")
 
 
 def batched_runs(config: Any, regimes: list[str], seeds: list[int], episodes: int, eval_episodes: int) -> list[LearnRun]:
     """Every (regime, seed) of ``config`` trained at once by the batched engine, then evaluated."""
     from nutribench.agents import eval_food_streams, evaluate, load_agent_config
-    from nutribench.engine.train import train_ppo_batched
+    from nutribench.engine.train import train_batched
 
     cfg = load_agent_config(config)
     jobs = [(r, s) for r in regimes for s in seeds]
     start = time.perf_counter()
-    agents = train_ppo_batched(jobs, cfg, episodes)
+    agents = train_batched(jobs, cfg, episodes)
     wall = (time.perf_counter() - start) / len(jobs)
     runs = []
     for (regime, seed), agent in zip(jobs, agents):

@@ -12,8 +12,8 @@ from nutribench.agents.algos import build_model
 from nutribench.agents.api import make_train_env
 from nutribench.agents.config import load_agent_config
 from nutribench.config import load_env_config
-from nutribench.engine.ppo import (
-    PPOSettings,
+from nutribench.engine.actor_critic import (
+    OnPolicySettings,
     Rollout,
     RunningStats,
     StackedActorCritic,
@@ -24,12 +24,12 @@ from nutribench.engine.ppo import (
 )
 
 
-def _sb3_ppo_after_one_rollout(seed: int, regime: str = "run0"):
-    cfg = load_agent_config("ppo")
+def _sb3_ppo_after_one_rollout(seed: int, regime: str = "run0", algo: str = "ppo"):
+    cfg = load_agent_config(algo)
     env_cfg = load_env_config(regime)
     _, env = make_train_env(env_cfg, cfg)
     model = build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon)
-    _, callback = model._setup_learn(cfg.n_steps, callback=None)
+    _, callback = model._setup_learn(model.n_steps, callback=None)
     callback.on_training_start(locals(), globals())
     assert model.collect_rollouts(model.env, callback, model.rollout_buffer, n_rollout_steps=model.n_steps)
     return cfg, model
@@ -54,7 +54,7 @@ def test_one_ppo_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() ->
         net.load_sb3(j, m.policy)
     optimizer = make_optimizer(net, cfg.learning_rate)
     rollout = _rollout_of(models)
-    settings = PPOSettings.from_config(cfg)
+    settings = OnPolicySettings.from_config(cfg, 50)
     perms = []
     for j, m in enumerate(models):  # SB3 draws one permutation per epoch from numpy's global RNG
         np.random.seed(100 + j)
@@ -76,7 +76,7 @@ def test_stacked_agents_do_not_talk_to_each_other() -> None:
     data is wild (large rewards): nothing of theirs reaches it (gradient norm, Adam, losses)."""
     th.set_num_threads(1)
     cfg, model = _sb3_ppo_after_one_rollout(0)
-    settings = PPOSettings.from_config(cfg)
+    settings = OnPolicySettings.from_config(cfg, 50)
     base = _rollout_of([model])
     rng = np.random.default_rng(0)
 
@@ -156,16 +156,16 @@ def test_batched_training_yields_agents_the_single_agent_api_uses(tmp_path) -> N
     whichever agents share its batch; the agents evaluate, save and load as SB3 agents do."""
     from nutribench.agents import evaluate, eval_food_streams
     from nutribench.agents.api import TrainedAgent
-    from nutribench.engine.train import train_ppo_batched
+    from nutribench.engine.train import train_batched
 
     seen: list[tuple[int, int]] = []
-    agents = train_ppo_batched([("run0", 0), ("run3", 1), ("run0", 2)], "ppo", episodes=21,
+    agents = train_batched([("run0", 0), ("run3", 1), ("run0", 2)], "ppo", episodes=21,
                                on_episode=lambda j, row: seen.append((j, row["episode"])))  # fmt: skip
     assert sorted(seen) == sorted((j, e) for j in range(3) for e in range(21))
     first = agents[0].train_episodes
     assert len(first) == 21 and set(first[0]) == {"episode", "return", "foods", "final_distance", "overshoot_ratio",
                                                  "final_C", "final_F", "final_P", "first_overshoot_step", "entropy"}  # fmt: skip
-    alone = train_ppo_batched([("run0", 0)], "ppo", episodes=21)[0].train_episodes
+    alone = train_batched([("run0", 0)], "ppo", episodes=21)[0].train_episodes
     assert [d["foods"] for d in alone] == [d["foods"] for d in first]
     np.testing.assert_allclose([d["return"] for d in alone], [d["return"] for d in first], rtol=1e-5)
     assert [d["foods"] for d in agents[2].train_episodes] != [d["foods"] for d in first]  # another seed, another run
@@ -179,7 +179,7 @@ def test_batched_training_yields_agents_the_single_agent_api_uses(tmp_path) -> N
 
 def test_bench_engines_and_bench_train_batched_report_their_shape() -> None:
     """The benchmarks' shape, not their figures (timings belong in benchmarks)."""
-    from nutribench.bench import bench_train_batched, ppo_flops_per_env_step
+    from nutribench.bench import bench_train_batched, flops_per_env_step
     from nutribench.bench_engines import bench_engines, markdown_table
 
     rows = bench_engines(["ppo"], ["run0"], [0, 1], episodes=10, eval_episodes=2, workers=1)
@@ -188,6 +188,29 @@ def test_bench_engines_and_bench_train_batched_report_their_shape() -> None:
     assert all(r["ci_low"] <= r["iqm"] <= r["ci_high"] for r in rows)
     assert markdown_table(rows).count("\n") == 3
     cfg = load_agent_config("ppo")
-    assert ppo_flops_per_env_step(cfg) == (2 * (13 * 256 + 256 * 128) + 2 * 128 * 3) * (1 + 3 * cfg.n_epochs)
+    assert flops_per_env_step(cfg) == (2 * (13 * 256 + 256 * 128) + 2 * 128 * 3) * (1 + 3 * cfg.n_epochs)
+    assert flops_per_env_step(load_agent_config("mc")) == (2 * (13 * 256 + 256 * 128) + 2 * 128 * 3) * 4
     b = bench_train_batched("ppo", k_regimes=2, k_seeds=1, episodes=2, repeats=1)
     assert b["k"] == 2 and b["steps_per_s"] > 0 and 0 < b["floor_share"]
+
+
+def test_one_mc_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -> None:
+    """MC is SB3's A2C with a one-day rollout: one gradient step on the whole day."""
+    th.set_num_threads(1)
+    made = [_sb3_ppo_after_one_rollout(s, r, "mc") for s, r in zip([0, 1, 2], ["run0", "run3", "run6"])]
+    cfg, models = made[0][0], [m for _, m in made]
+    net = StackedActorCritic(len(models), 13, list(cfg.net_arch))
+    for j, m in enumerate(models):
+        net.load_sb3(j, m.policy)
+    optimizer = make_optimizer(net, cfg.learning_rate)
+    settings = OnPolicySettings.from_config(cfg, 50)
+    assert (settings.n_steps, settings.n_epochs, settings.clip_range) == (50, 1, None)
+    rollout = _rollout_of(models)  # before train(), which flattens SB3's buffer in place
+    for m in models:
+        m.train()
+    settings.update(net, optimizer, rollout, np.zeros((1, 3, 50), dtype=np.int64))
+    for j, m in enumerate(models):
+        reference = StackedActorCritic(1, 13, list(cfg.net_arch))
+        reference.load_sb3(0, m.policy)
+        for a, b in zip(net.params, reference.params):
+            np.testing.assert_allclose(a[j].detach().numpy(), b[0].detach().numpy(), rtol=1e-4, atol=2e-6)

@@ -1,12 +1,13 @@
-"""Train K PPO agents of one agent config at once (regimes and seeds may differ), and hand
+"""Train K agents of one agent config (PPO or MC) at once (regimes and seeds may differ), and hand
 each back as the :class:`~nutribench.agents.api.TrainedAgent` the SB3 engine would give:
 an SB3 ``PPO`` with the trained weights, its ``VecNormalize`` statistics, and its training
 days' metrics. Evaluation, saving and loading are then the single-agent API's.
 
-Per agent, the loop is SB3's ``PPO.learn`` on nutribench's one-env ``VecNormalize`` setting:
+Per agent, the loop is SB3's ``PPO.learn`` (MC: ``A2C.learn``) on nutribench's one-env
+``VecNormalize`` setting:
 observations normalised by a running mean and variance updated with every observation
 (including each day's first), rewards scaled by the running deviation of the discounted
-return, ``n_steps`` steps per rollout, a day's end a terminal, then ``ppo_update``. A budget
+return, ``n_steps`` steps per rollout (MC: one day), a day's end a terminal, then the update. A budget
 that ends inside a rollout stops there without a partial update, as SB3 does.
 
 Randomness is per agent and comes from its job seed alone (its food days, its action draws,
@@ -28,15 +29,7 @@ from nutribench.agents.algos import build_model
 from nutribench.agents.api import CLIP_OBS, NORM_EPS, TrainedAgent, make_train_env
 from nutribench.agents.config import load_agent_config
 from nutribench.config import EnvConfig, load_env_config
-from nutribench.engine.ppo import (
-    PPOSettings,
-    Rollout,
-    RunningStats,
-    StackedActorCritic,
-    gae,
-    make_optimizer,
-    ppo_update,
-)
+from nutribench.engine.actor_critic import OnPolicySettings, Rollout, RunningStats, StackedActorCritic, gae, make_optimizer
 from nutribench.env.metrics import EpisodeRecorder
 from nutribench.env.vector_env import NutriRLVectorEnv
 
@@ -58,20 +51,19 @@ class _Group:
         self.n_foods = len(env_cfg.catalog.food)
 
 
-def train_ppo_batched(
+def train_batched(
     jobs: Sequence[tuple[str | EnvConfig, int]],
     agent_config: Any,
     episodes: int,
     on_episode: AgentEpisodeFn | None = None,
 ) -> list[TrainedAgent]:
-    """Train one PPO agent per ``(regime, seed)`` of ``jobs`` for ``episodes`` days, all at once.
+    """Train one agent of ``agent_config`` (PPO or MC) per ``(regime, seed)`` of ``jobs`` for
+    ``episodes`` days, all at once.
 
     :param on_episode: called with (job index, the finished day's metrics) for every day.
     """
     th.set_num_threads(1)
     cfg = load_agent_config(agent_config)
-    if cfg.algo != "ppo":
-        raise ValueError(f"the batched engine trains PPO configs so far, not {cfg.algo!r}")
     env_cfgs = [load_env_config(r) for r, _ in jobs]
     seeds = [int(s) for _, s in jobs]
     k = len(jobs)
@@ -79,7 +71,7 @@ def train_ppo_batched(
     if len(horizons) != 1:
         raise ValueError(f"the agents of one batch need one horizon, got {sorted(horizons)}")
     horizon = horizons.pop()
-    s = PPOSettings.from_config(cfg)
+    s = OnPolicySettings.from_config(cfg, horizon)
     rng = {name: [np.random.default_rng([salt, seed]) for seed in seeds] for name, salt in STREAMS.items()}
     by_regime: dict[str, list[int]] = {}
     for j, c in enumerate(env_cfgs):
@@ -176,7 +168,7 @@ def train_ppo_batched(
             values=th.as_tensor(buf_val), advantages=th.as_tensor(adv), returns=th.as_tensor(ret),
         )  # fmt: skip
         perms = np.stack([[r.permutation(T) for r in rng["minibatches"]] for _ in range(s.n_epochs)])
-        ppo_update(net, optimizer, rollout, s, perms)
+        s.update(net, optimizer, rollout, perms)
     wall = time.perf_counter() - t0
     return [_as_trained_agent(net, j, cfg, env_cfgs[j], seeds[j], episodes, obs_stats, ret_stats, episodes_done[j], wall / k)
             for j in range(k)]  # fmt: skip

@@ -1,9 +1,10 @@
-"""PPO for K agents at once: SB3's PPO update, with every agent's parameters stacked along a
-leading agent axis.
+"""PPO and MC for K agents at once: SB3's updates, with every agent's parameters stacked
+along a leading agent axis.
 
-The K agents share an agent config (``ppo.toml``) and differ in their seed (and may differ
-in their regime: each agent has its own env row). Per agent, everything is what
-:class:`stable_baselines3.PPO` with nutribench's shared backbone does (``algos.build_model``):
+The K agents share an agent config (``ppo.toml`` or ``mc.toml``) and differ in their seed
+(and may differ in their regime: each agent has its own env row). Per agent, everything is
+what :class:`stable_baselines3.PPO` (MC: :class:`~nutribench.agents.algos.MonteCarloAC`, an
+A2C) with nutribench's shared backbone does (``algos.build_model``):
 
 * policy: ``obs -> 256 -> 128`` (ReLU) shared by a linear actor head (2 logits) and a linear
   value head; orthogonal initialisation with SB3's gains (sqrt(2) backbone, 0.01 actor, 1
@@ -11,10 +12,13 @@ in their regime: each agent has its own env row). Per agent, everything is what
 * ``VecNormalize``: a running mean and variance of the observations, and of the discounted
   return for reward scaling, each agent its own;
 * rollouts of ``n_steps`` env steps, GAE (gamma, lambda), a day's end a true terminal;
-* ``n_epochs`` passes over the rollout in minibatches of ``batch_size`` drawn by a random
+* PPO: ``n_epochs`` passes over the rollout in minibatches of ``batch_size`` drawn by a random
   permutation; advantages normalised per minibatch; clipped surrogate; unclipped value loss;
   entropy bonus; the gradient clipped to ``max_grad_norm`` in L2 over the agent's own
-  parameters.
+  parameters;
+* MC (A2C's update): one rollout of one day (GAE lambda 1: full-episode returns), one
+  gradient step on all of it: ``-(advantage * log pi)`` + value MSE + entropy bonus, no
+  clipping when ``max_grad_norm`` is ``inf``.
 
 Stacking is exact: the loss is the sum of the K agents' losses, so each agent's gradient is
 its own loss's gradient; Adam is elementwise; the gradient norm is taken per agent. One
@@ -34,24 +38,42 @@ GAINS = (math.sqrt(2), math.sqrt(2), 0.01, 1.0)  # backbone layers, actor head, 
 
 
 @dataclass
-class PPOSettings:
-    """The hyperparameters of one agent config that the update reads (``PPOConfig``)."""
+class OnPolicySettings:
+    """What the rollout and the update read from an agent config (PPO or MC)."""
 
+    algo: str
     learning_rate: float
     n_steps: int
     batch_size: int
     n_epochs: int
     gamma: float
     gae_lambda: float
-    clip_range: float
+    clip_range: float | None  # None: A2C's update (MC)
     ent_coef: float
     vf_coef: float
     max_grad_norm: float
     normalize_advantage: bool
 
     @classmethod
-    def from_config(cls, cfg) -> PPOSettings:
-        return cls(**{f: getattr(cfg, f) for f in cls.__dataclass_fields__})
+    def from_config(cls, cfg, horizon: int) -> OnPolicySettings:
+        """PPO's fields as written; MC as ``algos.model_arguments`` builds it: a rollout of one
+        day, one step on all of it, lambda 1, no advantage normalisation."""
+        common = dict(algo=cfg.algo, learning_rate=cfg.learning_rate, gamma=cfg.gamma, ent_coef=cfg.ent_coef,
+                      vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm)  # fmt: skip
+        if cfg.algo == "mc":
+            return cls(**common, n_steps=horizon, batch_size=horizon, n_epochs=1, gae_lambda=1.0, clip_range=None,
+                       normalize_advantage=False)  # fmt: skip
+        if cfg.algo == "ppo":
+            return cls(**common, n_steps=cfg.n_steps, batch_size=cfg.batch_size, n_epochs=cfg.n_epochs,
+                       gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, normalize_advantage=cfg.normalize_advantage)  # fmt: skip
+        raise ValueError(f"the batched engine trains ppo and mc so far, not {cfg.algo!r}")
+
+    def update(self, net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: Rollout,
+               permutations: np.ndarray) -> dict[str, np.ndarray]:  # fmt: skip
+        """The algorithm's update of the K agents on one rollout."""
+        if self.clip_range is None:
+            return a2c_update(net, optimizer, rollout, self)
+        return ppo_update(net, optimizer, rollout, self, permutations)
 
 
 class StackedActorCritic:
@@ -170,7 +192,7 @@ def gae(rewards: np.ndarray, values: np.ndarray, episode_starts: np.ndarray, las
     return adv, adv + values
 
 
-def ppo_update(net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: Rollout, s: PPOSettings,
+def ppo_update(net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: Rollout, s: OnPolicySettings,
                permutations: np.ndarray) -> dict[str, np.ndarray]:  # fmt: skip
     """SB3 ``PPO.train()`` for the K agents: ``permutations (n_epochs, K, T)`` order each
     agent's transitions in each epoch (SB3 draws ``np.random.permutation(T)``). Returns the
@@ -187,23 +209,45 @@ def ppo_update(net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: 
             adv = rollout.advantages[rows, idx]
             if s.normalize_advantage and idx.shape[1] > 1:
                 adv = (adv - adv.mean(dim=1, keepdim=True)) / (adv.std(dim=1, keepdim=True) + 1e-8)
-            logits, values = net.forward(obs)
-            logp_all = th.log_softmax(logits, dim=-1)
-            log_prob = logp_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
-            entropy = -(logp_all.exp() * logp_all).sum(-1)
+            log_prob, entropy, values = _evaluate_actions(net, obs, actions)
             ratio = th.exp(log_prob - rollout.log_probs[rows, idx])
             surrogate = th.min(adv * ratio, adv * th.clamp(ratio, 1 - s.clip_range, 1 + s.clip_range))
             policy_loss = -surrogate.mean(dim=1)
             value_loss = (rollout.returns[rows, idx] - values).pow(2).mean(dim=1)
-            entropy_loss = -entropy.mean(dim=1)
-            loss = policy_loss + s.ent_coef * entropy_loss + s.vf_coef * value_loss  # (K,)
-            optimizer.zero_grad()
-            loss.sum().backward()  # disjoint parameters: each agent gets its own loss's gradient
-            clip_grad_norm_per_agent(net.params, s.max_grad_norm)
-            optimizer.step()
-            out = {"policy_loss": policy_loss.detach().numpy(), "value_loss": value_loss.detach().numpy(),
-                   "entropy_loss": entropy_loss.detach().numpy()}  # fmt: skip
+            out = _step(net, optimizer, s, policy_loss, value_loss, -entropy.mean(dim=1))
     return out
+
+
+def a2c_update(net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: Rollout, s: OnPolicySettings) -> dict[str, np.ndarray]:
+    """SB3 ``A2C.train()`` for the K agents: one gradient step on the whole rollout (MC)."""
+    log_prob, entropy, values = _evaluate_actions(net, rollout.obs, rollout.actions)
+    adv = rollout.advantages
+    if s.normalize_advantage:
+        adv = (adv - adv.mean(dim=1, keepdim=True)) / (adv.std(dim=1, keepdim=True) + 1e-8)
+    policy_loss = -(adv * log_prob).mean(dim=1)
+    value_loss = (rollout.returns - values).pow(2).mean(dim=1)
+    return _step(net, optimizer, s, policy_loss, value_loss, -entropy.mean(dim=1))
+
+
+def _evaluate_actions(net: StackedActorCritic, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+    """``log pi(a|s)``, the policy's entropy and the values, each ``(K, B)``."""
+    logits, values = net.forward(obs)
+    logp_all = th.log_softmax(logits, dim=-1)
+    log_prob = logp_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
+    entropy = -(logp_all.exp() * logp_all).sum(-1)
+    return log_prob, entropy, values
+
+
+def _step(net: StackedActorCritic, optimizer: th.optim.Optimizer, s: OnPolicySettings, policy_loss: th.Tensor,
+          value_loss: th.Tensor, entropy_loss: th.Tensor) -> dict[str, np.ndarray]:  # fmt: skip
+    """One gradient step on the K agents' losses ``(K,)``: SB3's weighting, per-agent clipping."""
+    loss = policy_loss + s.ent_coef * entropy_loss + s.vf_coef * value_loss
+    optimizer.zero_grad()
+    loss.sum().backward()  # disjoint parameters: each agent gets its own loss's gradient
+    clip_grad_norm_per_agent(net.params, s.max_grad_norm)
+    optimizer.step()
+    return {"policy_loss": policy_loss.detach().numpy(), "value_loss": value_loss.detach().numpy(),
+            "entropy_loss": entropy_loss.detach().numpy()}  # fmt: skip
 
 
 def make_optimizer(net: StackedActorCritic, learning_rate: float) -> th.optim.Adam:
