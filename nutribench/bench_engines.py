@@ -20,11 +20,10 @@ from typing import Any
 import numpy as np
 
 from nutribench.bench_learn import LearnRun, gap_closed, learn_benchmark, reference_returns
+from nutribench.engine import BATCHED_ALGOS
 from nutribench.report.stats import iqm_bootstrap_ci
 
 ENGINES = ("sb3", "batched")
-#: the algorithms the batched engine trains so far
-BATCHED_ALGOS = ("ppo", "mc")
 
 
 def batched_runs(config: Any, regimes: list[str], seeds: list[int], episodes: int, eval_episodes: int) -> list[LearnRun]:

@@ -42,6 +42,16 @@ class EnvJob:
         return fake_run_job(spec, sink)
 
 
+class EnvBatch(EnvJob):
+    """The synthetic batch with extra environment variables set in the worker."""
+
+    def __call__(self, specs, sink=None):
+        from nutribench.jobs.fake import fake_run_batch
+
+        os.environ.update(self.env)
+        return fake_run_batch(specs, sink)
+
+
 @pytest.fixture
 def regimes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """A private copy of regimes/ (regime and agent config files) the test may edit."""
@@ -406,3 +416,47 @@ def test_status_prices_pending_jobs_by_their_algorithm_and_budget() -> None:
     assert left[("run1", "sac")] == pytest.approx(400 * (0.1 + 2.0) / 2)
     assert left[("run0", "mc")] == 0.0
     assert rep.eta_seconds == pytest.approx(10.0 + 400.0 + 420.0)  # nothing running: one worker
+
+
+# --------------------------------------------------------------------------- the batched engine
+def test_engine_batched_trains_ppo_and_mc_in_batches_and_stores_each_job(regimes: Path, tmp_path: Path) -> None:
+    """--engine batched: the PPO and MC jobs run as batches (one per worker), SAC's one by
+    one; every job is stored on its own with its engine; a batch that fails fails each of its
+    jobs, and the next run completes them."""
+    db, log = tmp_path / "r.db", tmp_path / "log"
+    log.mkdir()
+    env = dict(NUTRIBENCH_FAKE_LOG=str(log), NUTRIBENCH_FAKE_FAIL="run3:ppo:1")
+    args = dict(workers=2, job_fn=EnvJob(**env), batch_fn=EnvBatch(**env), display=False, engine="batched")
+    s = run_grid(db, ["run0", "run3"], ["mc", "ppo", "sac"], [0, 1], 6, 1, **args)
+    # 4 PPO jobs on 2 slots: batches of 2, in job order (run0 seeds 0,1; run3 seeds 0,1); the
+    # failing job takes its batch partner down with it
+    assert (s.done, s.failed) == (10, 2)
+    rows = sql(db, "SELECT a.name, r.name, j.seed, j.status, j.engine FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id "
+                   "JOIN regimes r ON r.id = j.regime_id")  # fmt: skip
+    assert sorted((a, r, seed) for a, r, seed, st, _ in rows if st == "failed") == [("ppo", "run3", 0), ("ppo", "run3", 1)]
+    assert {(a, e) for a, _, _, st, e in rows if st == "done"} == {("mc", "batched"), ("ppo", "batched"), ("sac", None)}
+    algo_of = dict(sql(db, "SELECT 'job' || j.id, a.name FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id"))
+    pids: dict[str, set[str]] = {}
+    for f in log.iterdir():  # job<id>-pid<pid>-<token>: one process per batch, one per single job
+        job, pid, _ = f.name.split("-")
+        pids.setdefault(algo_of[job], set()).add(pid)
+    assert (len(pids["mc"]), len(pids["ppo"]), len(pids["sac"])) == (2, 2, 4)
+    env["NUTRIBENCH_FAKE_FAIL"] = ""  # its cause fixed
+    args.update(job_fn=EnvJob(**env), batch_fn=EnvBatch(**env))
+    s = run_grid(db, ["run0", "run3"], ["mc", "ppo", "sac"], [0, 1], 6, 1, **args)
+    assert (s.done, s.failed, s.skipped) == (2, 0, 10)
+    assert sql(db, "SELECT count(*) FROM jobs WHERE status = 'done'") == [(12,)]
+    assert sql(db, "SELECT count(*) FROM episodes") == [(12 * 7,)]
+    with pytest.raises(RunError, match="--engine 'fast'"):
+        run_grid(db, ["run0"], ["ppo"], [0], 6, 1, engine="fast", job_fn=fake_run_job, display=False)
+
+
+def test_engine_batched_with_real_training(regimes: Path, tmp_path: Path) -> None:
+    """The batched engine's worker end to end: trained agents evaluated, saved, stored."""
+    db = tmp_path / "r.db"
+    s = run_grid(db, ["run0", "run3"], ["mc", "ppo"], [0], 10, 1, workers=2, display=False, engine="batched",
+                 models_dir=tmp_path / "models")  # fmt: skip
+    assert (s.done, s.failed) == (4, 0)
+    assert sql(db, "SELECT count(*), sum(engine = 'batched'), sum(model_path IS NOT NULL) FROM jobs") == [(4, 4, 4)]
+    assert sql(db, "SELECT count(*) FROM eval_steps") == [(4 * 50,)]
+    assert len(list((tmp_path / "models").rglob("*.zip"))) == 4

@@ -14,7 +14,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import console, err_console, split_csv, user_errors
+from nutribench.cli.common import UserError, console, err_console, split_csv, user_errors
 from nutribench.scheduler.executors import ExecutorError
 from nutribench.scheduler.grid import DEFAULT_PRESET, PRESETS
 
@@ -49,6 +49,7 @@ def run_cmd(
     models_dir: Annotated[Optional[Path], typer.Option(help="where trained models go (default: models/ next to the db)")] = None,
     upgrade_only: Annotated[bool, typer.Option("--upgrade-only", help="create or upgrade the database schema, then exit")] = False,
     retry_failed: Annotated[bool, typer.Option("--retry-failed", help="try again the jobs that failed 3 times (once their cause is fixed)")] = False,
+    engine: Annotated[str, typer.Option(help="'sb3' (a job per worker) or 'batched' (PPO and MC jobs of one config trained together, one batch per worker)")] = "sb3",
 ) -> None:
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
     from nutribench.store import open_store
@@ -73,13 +74,15 @@ def run_cmd(
         seeds=seeds, episodes=episodes, eval_episodes=eval_episodes,
     )  # fmt: skip
     _check_executor(executor)
+    if engine not in ("sb3", "batched"):
+        raise UserError(f"--engine {engine!r}: use 'sb3' or 'batched'")
     _check_db(db)
     load_grid_configs(grid)  # a broken config file fails here, before the database exists
     job_fn = default_job_fn()
     try:
         summary = run_grid(
             db, grid.regimes, grid.algos, grid.seeds, grid.episodes, grid.eval_episodes, workers=workers,
-            executor=executor, job_fn=job_fn, models_dir=models_dir, display=True, retry_failed=retry_failed,
+            executor=executor, job_fn=job_fn, models_dir=models_dir, display=True, retry_failed=retry_failed, engine=engine,
         )  # fmt: skip
     except KeyboardInterrupt:  # before any job started (opening the database, claiming)
         raise typer.Exit(130) from None

@@ -80,3 +80,12 @@ def fake_run_job(spec: JobSpec, progress: Sink | None = None) -> JobResult:
     Path(spec.model_path).write_text("fake model\n")
     meta = collect_metadata() | {"started_at": started, "finished_at": utcnow(), "wall_seconds": time.perf_counter() - t0}
     return JobResult(spec.job_id, train, evals, steps, meta, model_path=spec.model_path)
+
+
+def fake_run_batch(specs: list[JobSpec], progress: Sink | None = None) -> list[JobResult]:
+    """The synthetic job for each spec of a batch, in turn (the scheduler's batching, tested
+    without training); ``NUTRIBENCH_FAKE_FAIL`` on any of them fails the whole batch."""
+    results = [fake_run_job(spec, progress) for spec in specs]
+    for r in results:
+        r.metadata["engine"] = "batched"
+    return results

@@ -38,5 +38,6 @@ def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
     model_path = None
     if spec.model_path:
         model_path = str(agent.save(Path(spec.model_path)))
-    meta = collect_metadata() | {"started_at": started, "finished_at": utcnow(), "wall_seconds": time.perf_counter() - t0}
+    meta = collect_metadata() | {"started_at": started, "finished_at": utcnow(), "wall_seconds": time.perf_counter() - t0,
+                                 "engine": "sb3"}
     return JobResult(spec.job_id, agent.train_episodes, result.episodes, result.steps, meta, model_path=model_path)

@@ -81,3 +81,16 @@ def execute(job_fn: JobFn, spec: JobSpec, sink: Sink | None = None) -> JobResult
         raise
     except Exception as e:
         raise JobFailed(f"{type(e).__name__}: {e}", traceback.format_exc()) from None
+
+
+def execute_batch(batch_fn: Callable[[list[JobSpec], Sink | None], list[JobResult]], specs: list[JobSpec],
+                  sink: Sink | None = None) -> list[JobResult]:  # fmt: skip
+    """Run one batch of jobs in a worker (the batched engine): one result per spec; any
+    exception comes back as a picklable :class:`JobFailed` and fails the whole batch."""
+    limit_threads()
+    try:
+        return batch_fn(specs, sink)
+    except JobFailed:
+        raise
+    except Exception as e:
+        raise JobFailed(f"{type(e).__name__}: {e}", traceback.format_exc()) from None

@@ -36,7 +36,7 @@ from typing import Any
 from sqlalchemy import select
 
 from nutribench.jobs.spec import JobFailed, JobSpec
-from nutribench.jobs.worker import JobFn, execute
+from nutribench.jobs.worker import JobFn, execute, execute_batch
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.registration import RunError, load_grid_configs, model_path, register_grid
@@ -77,6 +77,22 @@ class RunSummary:
 
 
 # --------------------------------------------------------------------------- helpers
+ENGINES = ("sb3", "batched")
+#: at most this many jobs in one batch (the paper grid's 7 regimes x 5 seeds of one config)
+MAX_BATCH = 35
+
+
+def default_batch_fn() -> Callable:
+    """The batched engine's worker function (``$NUTRIBENCH_JOB=fake``: the synthetic job per spec)."""
+    if os.environ.get("NUTRIBENCH_JOB", "").strip() == "fake":
+        from nutribench.jobs.fake import fake_run_batch
+
+        return fake_run_batch
+    from nutribench.jobs.batch import run_batch
+
+    return run_batch
+
+
 def default_job_fn() -> JobFn:
     """``$NUTRIBENCH_JOB=fake`` (tests, dry runs): the synthetic job; else the real one."""
     choice = os.environ.get("NUTRIBENCH_JOB", "").strip()
@@ -110,14 +126,42 @@ def _error_text(exc: BaseException) -> str:
 
 
 # --------------------------------------------------------------------------- the run
+@dataclass
+class _Pool:
+    """Jobs claimed and started together: one by one (the SB3 engine), or, for the batched
+    engine, up to ``batch_size`` jobs of one agent config per worker."""
+
+    job_ids: list[int]
+    batched: bool = False
+    batch_size: int = 1
+
+
+def batch_pools(job_ids: list[int], cells: list[tuple[str, str, int]], algo_of: dict[str, str], claimable: Callable[[list[int]], int],
+                slots: int) -> list[_Pool]:  # fmt: skip
+    """``--engine batched``: a pool per agent config the batched engine trains, its batches
+    sized so that the runnable jobs fill the slots (at most :data:`MAX_BATCH`); the other
+    configs' jobs one by one."""
+    from nutribench.engine import BATCHED_ALGOS
+
+    by_config: dict[str, list[int]] = {}
+    singles: list[int] = []
+    for job_id, (_, config, _) in zip(job_ids, cells):
+        (by_config.setdefault(config, []) if algo_of[config] in BATCHED_ALGOS else singles).append(job_id)
+    pools = [_Pool(ids, True, max(1, min(MAX_BATCH, -(-claimable(ids) // max(slots, 1))))) for ids in by_config.values()]
+    return pools + [_Pool(singles)]
+
+
 class _Run:
     """State of one driver loop (in flight futures, live progress, counters)."""
 
     def __init__(self, store: Store, grid: Grid, job_ids: list[int], specs: Callable[[Job], JobSpec],
-                 handle: ExecutorHandle, job_fn: JobFn, owner: str, view: Any):  # fmt: skip
+                 handle: ExecutorHandle, job_fn: JobFn, owner: str, view: Any,
+                 pools: list[_Pool] | None = None, batch_fn: Callable | None = None):  # fmt: skip
         self.store, self.grid, self.job_ids, self.make_spec = store, grid, job_ids, specs
         self.handle, self.job_fn, self.owner, self.view = handle, job_fn, owner, view
-        self.in_flight: dict[Future, JobSpec] = {}
+        self.pools = pools if pools is not None else [_Pool(job_ids)]
+        self.batch_fn = batch_fn
+        self.in_flight: dict[Future, list[JobSpec]] = {}
         self.live: dict[int, dict[str, Any]] = {}
         self.attempted: set[int] = set()
         self.exhausted = False
@@ -125,38 +169,58 @@ class _Run:
         self.summary = RunSummary(total=len(job_ids))
 
     def fill(self) -> None:
+        """Claim jobs for the free slots and start them: a single job per slot, or a batch of
+        up to its pool's size per slot (the batched engine)."""
         free = self.handle.slots - len(self.in_flight)
         if free <= 0 or self.exhausted:
             return
-        jobs = claim_jobs(self.store, self.job_ids, self.attempted, free, self.owner)
-        if len(jobs) < free:
+        for pool in self.pools:
+            while free > 0:
+                want = pool.batch_size if pool.batched else free
+                jobs = claim_jobs(self.store, pool.job_ids, self.attempted, want, self.owner)
+                if not jobs:
+                    break
+                specs = [self.make_spec(job) for job in jobs]
+                for spec in specs:
+                    self.attempted.add(spec.job_id)
+                    self.live[spec.job_id] = {"spec": spec, "k": 0, "n": spec.episodes, "ret": None, "t0": time.monotonic()}
+                submit, sink = self.handle.executor.submit, self.handle.sink
+                if pool.batched:
+                    self.in_flight[submit(execute_batch, self.batch_fn, specs, sink)] = specs
+                    free -= 1
+                else:
+                    for spec in specs:
+                        self.in_flight[submit(execute, self.job_fn, spec, sink)] = [spec]
+                    free -= len(specs)
+                if len(jobs) < want:
+                    break
+        if free > 0:
             self.exhausted = True
-        for job in jobs:
-            spec = self.make_spec(job)
-            self.attempted.add(job.id)
-            self.live[job.id] = {"spec": spec, "k": 0, "n": spec.episodes, "ret": None, "t0": time.monotonic()}
-            self.in_flight[self.handle.executor.submit(execute, self.job_fn, spec, self.handle.sink)] = spec
 
     def finish(self, future: Future) -> None:
-        spec = self.in_flight[future]
-        self._settle(future, spec)
-        # forgotten only once its outcome is stored: a Ctrl-C meanwhile still releases the job
+        specs = self.in_flight[future]
+        self._settle(future, specs)
+        # forgotten only once its outcome is stored: a Ctrl-C meanwhile still releases the jobs
         self.in_flight.pop(future, None)
-        self.live.pop(spec.job_id, None)
+        for spec in specs:
+            self.live.pop(spec.job_id, None)
 
-    def _settle(self, future: Future, spec: JobSpec) -> None:
+    def _settle(self, future: Future, specs: list[JobSpec]) -> None:
         try:
-            result = future.result()
+            outcome = future.result()
         except BaseException as e:  # noqa: BLE001 - JobFailed, WorkerDied, pickling errors, cancel
-            store_failure(self.store, spec.job_id, self.owner, _error_text(e))
-            self.summary.failed += 1
             first = str(e).splitlines()[0] if str(e) else type(e).__name__
-            self.summary.errors.append(f"{spec.label}: {first}")
-            self.view.log(f"[red]failed[/] {spec.label}: {first}")
+            for spec in specs:  # a batch that dies fails each of its jobs: the next run retries them
+                store_failure(self.store, spec.job_id, self.owner, _error_text(e))
+                self.summary.failed += 1
+                self.summary.errors.append(f"{spec.label}: {first}")
+                self.view.log(f"[red]failed[/] {spec.label}: {first}")
             return
-        if store_result(self.store, result, self.owner, spec.model_path):
-            self.summary.done += 1
-            self.view.log(f"[green]done[/] {spec.label} ({result.metadata.get('wall_seconds', 0.0):.1f} s)")
+        results = outcome if isinstance(outcome, list) else [outcome]
+        for spec, result in zip(specs, results):
+            if store_result(self.store, result, self.owner, spec.model_path):
+                self.summary.done += 1
+                self.view.log(f"[green]done[/] {spec.label} ({result.metadata.get('wall_seconds', 0.0):.1f} s)")
 
     def events(self) -> None:
         for ev in self.handle.drain():
@@ -210,7 +274,8 @@ class _Run:
             try:
                 self.handle.terminate_running()
             finally:  # whatever stopping the workers did, their jobs are given back
-                self.summary.interrupted = release_jobs(self.store, [s.job_id for s in self.in_flight.values()], self.owner)
+                held = [s.job_id for specs in self.in_flight.values() for s in specs]
+                self.summary.interrupted = release_jobs(self.store, held, self.owner)
             self.summary.user_interrupt = True
             self.in_flight.clear()
             self.live.clear()
@@ -262,18 +327,27 @@ def run_grid(
     models_dir: str | os.PathLike[str] | None = None,
     display: bool = True,
     retry_failed: bool = False,
+    engine: str = "sb3",
+    batch_fn: Callable | None = None,
 ) -> RunSummary:
     """Run every job of the grid regime x algo x seed that is not done yet (see the module
     docstring). Returns counts; ``summary.exit_code`` is what ``nutribench run`` exits with.
     ``retry_failed``: jobs that failed :data:`~nutribench.store.jobs.MAX_FAILURES` times are tried again.
+    ``engine="batched"``: the jobs of PPO and MC configs train in batches, one batch per
+    worker (:mod:`nutribench.engine`); the others as with ``"sb3"``. Each job is still stored
+    on its own, in one transaction, with its engine in ``jobs.engine``.
 
     Raises ConfigError (bad config file), StoreError (bad database), ExecutorError (bad
     ``executor``) or RunError (config changed without a version bump), all one line.
     """
     from nutribench.scheduler.progress import make_view
 
+    if engine not in ENGINES:
+        raise RunError(f"--engine {engine!r}: use {' or '.join(ENGINES)}")
     grid = Grid(tuple(regimes), tuple(algos), tuple(seeds), episodes, eval_episodes)
     job_fn = job_fn or default_job_fn()
+    if engine == "batched":
+        batch_fn = batch_fn or default_batch_fn()
     regime_cfgs, agent_cfgs = load_grid_configs(grid)  # before the database file is created
     probe_executor(executor)  # likewise: an unreachable cluster writes nothing
     store = open_store(db, writer=True)
@@ -301,7 +375,11 @@ def run_grid(
         if runnable or held:
             handle, note = make_executor(executor, workers, max(runnable, held))
             view = make_view(display, grid, len(job_ids), handle.description, note)
-            run = _Run(store, grid, job_ids, make_spec, handle, job_fn, owner, view)
+            pools = None
+            if engine == "batched":
+                pools = batch_pools(job_ids, list(grid.cells()), {a.name: a.algo for a in agent_cfgs},
+                                    lambda ids: count_claimable(store, ids), handle.slots)  # fmt: skip
+            run = _Run(store, grid, job_ids, make_spec, handle, job_fn, owner, view, pools, batch_fn)
             run.planned = runnable
             view.start(run)
             try:

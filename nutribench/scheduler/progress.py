@@ -70,7 +70,7 @@ class LiveView(NullView):
         elapsed = time.monotonic() - self.t0
         s = run.summary
         head = Text(
-            f"jobs: {s.done} done, {s.failed} failed, {len(run.in_flight)} running, of {run.planned} to run "
+            f"jobs: {s.done} done, {s.failed} failed, {len(run.live)} running, of {run.planned} to run "
             f"(grid {s.total})   elapsed {format_duration(elapsed)}   ETA {format_duration(eta_seconds(run, elapsed))}"
         )
         if not run.live:

@@ -156,6 +156,7 @@ class Job(Base):
     nutribench_version: Mapped[str | None] = mapped_column(String(64))
     git_commit: Mapped[str | None] = mapped_column(String(40))
     git_dirty: Mapped[bool | None] = mapped_column(Boolean)
+    engine: Mapped[str | None] = mapped_column(String(16), doc="sb3 | batched: the engine that trained it (revision 0003)")
     model_path: Mapped[str | None] = mapped_column(Text)
     error: Mapped[str | None] = mapped_column(Text, doc="last failure (traceback or reason); kept after a retry")
 
@@ -207,4 +208,5 @@ EVAL_STEP_COLUMNS: tuple[str, ...] = tuple(c.name for c in EvalStep.__table__.co
 #: Columns of ``jobs`` that record where and with what a job ran (from
 #: :func:`nutribench.provenance.collect_metadata` and the worker's clock).
 METADATA_COLUMNS = ("host", "platform", "python_version", "numpy_version", "torch_version", "sb3_version",
-                    "nutribench_version", "git_commit", "git_dirty", "started_at", "finished_at", "wall_seconds")  # fmt: skip
+                    "nutribench_version", "git_commit", "git_dirty", "started_at", "finished_at", "wall_seconds",
+                    "engine")  # fmt: skip
