@@ -72,25 +72,24 @@ class JobProgress:
         self._send({"kind": "phase", "phase": name})
 
 
-def execute(job_fn: JobFn, spec: JobSpec, sink: Sink | None = None) -> JobResult:
-    """Run one job in a worker; any exception comes back as a picklable :class:`JobFailed`."""
+def _in_worker(fn: Callable[..., Any], *args: Any) -> Any:
+    """``fn(*args)`` with one thread; any exception comes back as a picklable :class:`JobFailed`."""
     limit_threads()
     try:
-        return job_fn(spec, sink)
+        return fn(*args)
     except JobFailed:
         raise
     except Exception as e:
         raise JobFailed(f"{type(e).__name__}: {e}", traceback.format_exc()) from None
+
+
+def execute(job_fn: JobFn, spec: JobSpec, sink: Sink | None = None) -> JobResult:
+    """Run one job in a worker."""
+    return _in_worker(job_fn, spec, sink)
 
 
 def execute_batch(batch_fn: Callable[[list[JobSpec], Sink | None], list[JobResult]], specs: list[JobSpec],
                   sink: Sink | None = None) -> list[JobResult]:  # fmt: skip
-    """Run one batch of jobs in a worker (the batched engine): one result per spec; any
-    exception comes back as a picklable :class:`JobFailed` and fails the whole batch."""
-    limit_threads()
-    try:
-        return batch_fn(specs, sink)
-    except JobFailed:
-        raise
-    except Exception as e:
-        raise JobFailed(f"{type(e).__name__}: {e}", traceback.format_exc()) from None
+    """Run one batch of jobs in a worker (the batched engine): one result per spec; an
+    exception fails the whole batch."""
+    return _in_worker(batch_fn, specs, sink)
