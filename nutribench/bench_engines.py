@@ -19,30 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from nutribench.bench_learn import LearnRun, gap_closed, learn_benchmark, reference_returns
+from nutribench.bench_learn import LearnRun, batched_runs, gap_closed, learn_benchmark
 from nutribench.engine import BATCHED_ALGOS
 from nutribench.report.stats import iqm_bootstrap_ci
 
 ENGINES = ("sb3", "batched")
-
-
-def batched_runs(config: Any, regimes: list[str], seeds: list[int], episodes: int, eval_episodes: int) -> list[LearnRun]:
-    """Every (regime, seed) of ``config`` trained at once by the batched engine, then evaluated."""
-    from nutribench.agents import eval_food_streams, evaluate, load_agent_config
-    from nutribench.engine.train import train_batched
-
-    cfg = load_agent_config(config)
-    jobs = [(r, s) for r in regimes for s in seeds]
-    start = time.perf_counter()
-    agents = train_batched(jobs, cfg, episodes)
-    wall = (time.perf_counter() - start) / len(jobs)
-    runs = []
-    for (regime, seed), agent in zip(jobs, agents):
-        streams = eval_food_streams(regime, seed, eval_episodes)
-        ref = reference_returns(regime, streams)
-        rows = evaluate(agent, regime, streams, record_steps=False).episodes
-        runs.append(LearnRun(cfg.name, regime, seed, episodes, wall, rows, ref["never"], ref["planner"]))
-    return runs
 
 
 def bench_engines(algos: Iterable[str] = BATCHED_ALGOS, regimes: Iterable[str] = ("run0", "run6"),

@@ -74,6 +74,25 @@ def _one_run(config: Any, regime: str, seed: int, episodes: int, eval_episodes: 
     return LearnRun(config.name, regime, seed, episodes, wall, rows, ref["never"], ref["planner"])
 
 
+def batched_runs(config: Any, regimes: list[str], seeds: list[int], episodes: int, eval_episodes: int) -> list[LearnRun]:
+    """Every (regime, seed) of ``config`` trained at once by the batched engine, then evaluated."""
+    from nutribench.agents import eval_food_streams, evaluate, load_agent_config
+    from nutribench.engine.train import train_batched
+
+    cfg = load_agent_config(config)
+    jobs = [(r, s) for r in regimes for s in seeds]
+    start = time.perf_counter()
+    agents = train_batched(jobs, cfg, episodes)
+    wall = (time.perf_counter() - start) / len(jobs)
+    runs = []
+    for (regime, seed), agent in zip(jobs, agents):
+        streams = eval_food_streams(regime, seed, eval_episodes)
+        ref = reference_returns(regime, streams)
+        rows = evaluate(agent, regime, streams, record_steps=False).episodes
+        runs.append(LearnRun(cfg.name, regime, seed, episodes, wall, rows, ref["never"], ref["planner"]))
+    return runs
+
+
 def budget_for(name: str, algo: str, budgets: dict[str, int], default: int) -> int:
     """The budget of config ``name`` (algorithm ``algo``): by name, then by algorithm."""
     return budgets.get(name, budgets.get(algo, default))
@@ -88,15 +107,26 @@ def learn_benchmark(
     eval_episodes: int = EVAL_EPISODES,
     workers: int | None = None,
     on_done: Callable[[LearnRun, int, int], None] | None = None,
+    engine: str = "sb3",
 ) -> list[LearnRun]:
     """Train and evaluate every (config, regime, seed) on a process pool (one torch thread
     each); ``budgets`` maps a config name or algorithm to its training days.
-    ``on_done(run, k, total)`` is called as each finishes."""
+    ``on_done(run, k, total)`` is called as each finishes. ``engine="batched"``: each
+    config's jobs trained at once by the batched engine (PPO and MC), in this process."""
     from nutribench.agents import load_agent_config
 
     budgets = dict(DEFAULT_BUDGETS if budgets is None else budgets)
     cfgs = [load_agent_config(c) for c in configs]
     regimes, seeds = list(regimes), list(seeds)
+    if engine == "batched":
+        out: list[LearnRun] = []
+        for c in cfgs:
+            out += batched_runs(c, regimes, seeds, budget_for(c.name, c.algo, budgets, default_budget), eval_episodes)
+            if on_done is not None:
+                on_done(out[-1], len(out), len(cfgs) * len(regimes) * len(seeds))
+        return out
+    if engine != "sb3":
+        raise ValueError(f"engine {engine!r}: use 'sb3' or 'batched'")
     jobs = [(c, r, s, budget_for(c.name, c.algo, budgets, default_budget)) for c in cfgs for r in regimes for s in seeds]
     # the longest first, so that no long job starts last
     jobs.sort(key=lambda j: -j[3] * (5 if j[0].algo in ("sac", "gru_ppo") else 1))

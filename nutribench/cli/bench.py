@@ -94,11 +94,12 @@ def bench_learn_cmd(
     eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")] = 10,
     workers: Annotated[Optional[int], typer.Option(min=1, help="agents trained at once (default: the cores)")] = None,
     markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
+    engine: Annotated[str, typer.Option(help="'sb3' (the reference), or 'batched' for PPO and MC configs (fast sweeps)")] = "sb3",
 ) -> None:
     """Train every agent for a budget over several seeds, evaluate greedily on the fixed
     evaluation days, and state each as the share of the never -> planner gap it closes
     (run0 target: at least 75 % with 3-6 foods a day)."""
-    from nutribench.agents.config import ALGOS, list_agent_configs
+    from nutribench.agents.config import ALGOS, list_agent_configs, load_agent_config
     from nutribench.bench_learn import COLUMNS, DEFAULT_BUDGET, learn_benchmark, markdown_table, row_cells, summarize
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
@@ -110,10 +111,19 @@ def bench_learn_cmd(
     unknown = sorted(set(budgets) - set(list_agent_configs()) - set(ALGOS))
     if unknown:
         raise UserError(f"--episodes {episodes!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})")
+    if engine not in ("sb3", "batched"):
+        raise UserError(f"--engine {engine!r}: use 'sb3' or 'batched'")
+    if engine == "batched":
+        from nutribench.engine import BATCHED_ALGOS
+
+        other = [n for n in names if load_agent_config(n).algo not in BATCHED_ALGOS]
+        if other:
+            raise UserError(f"--engine batched trains {', '.join(BATCHED_ALGOS)} configs, not {', '.join(other)}: use --engine sb3")
     with console.status("training") as status:
         runs = learn_benchmark(
             names, regime_names, seed_list, budgets=budgets, default_budget=default, eval_episodes=eval_episodes,
             workers=workers, on_done=lambda r, k, n: status.update(f"{k}/{n} done (last: {r.algo} {r.regime} seed {r.seed})"),
+            engine=engine,
         )  # fmt: skip
     rows = summarize(runs)
     if markdown:
