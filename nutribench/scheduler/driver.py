@@ -38,6 +38,7 @@ from sqlalchemy import select
 from nutribench.jobs.spec import JobFailed, JobSpec
 from nutribench.jobs.worker import JobFn, execute, execute_batch
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
+from nutribench.scheduler.batching import Pool, batch_pools
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.registration import RunError, load_grid_configs, model_path, register_grid
 from nutribench.store import AgentConfig, Job, RegimeConfig, open_store
@@ -78,8 +79,6 @@ class RunSummary:
 
 # --------------------------------------------------------------------------- helpers
 ENGINES = ("sb3", "batched")
-#: at most this many jobs in one batch (the paper grid's 7 regimes x 5 seeds of one config)
-MAX_BATCH = 35
 
 
 def default_batch_fn() -> Callable:
@@ -126,40 +125,15 @@ def _error_text(exc: BaseException) -> str:
 
 
 # --------------------------------------------------------------------------- the run
-@dataclass
-class _Pool:
-    """Jobs claimed and started together: one by one (the SB3 engine), or, for the batched
-    engine, up to ``batch_size`` jobs of one agent config per worker."""
-
-    job_ids: list[int]
-    batched: bool = False
-    batch_size: int = 1
-
-
-def batch_pools(job_ids: list[int], cells: list[tuple[str, str, int]], algo_of: dict[str, str], claimable: Callable[[list[int]], int],
-                slots: int) -> list[_Pool]:  # fmt: skip
-    """``--engine batched``: a pool per agent config the batched engine trains, its batches
-    sized so that the runnable jobs fill the slots (at most :data:`MAX_BATCH`); the other
-    configs' jobs one by one."""
-    from nutribench.engine import BATCHED_ALGOS
-
-    by_config: dict[str, list[int]] = {}
-    singles: list[int] = []
-    for job_id, (_, config, _) in zip(job_ids, cells):
-        (by_config.setdefault(config, []) if algo_of[config] in BATCHED_ALGOS else singles).append(job_id)
-    pools = [_Pool(ids, True, max(1, min(MAX_BATCH, -(-claimable(ids) // max(slots, 1))))) for ids in by_config.values()]
-    return pools + [_Pool(singles)]
-
-
 class _Run:
     """State of one driver loop (in flight futures, live progress, counters)."""
 
     def __init__(self, store: Store, grid: Grid, job_ids: list[int], specs: Callable[[Job], JobSpec],
                  handle: ExecutorHandle, job_fn: JobFn, owner: str, view: Any,
-                 pools: list[_Pool] | None = None, batch_fn: Callable | None = None):  # fmt: skip
+                 pools: list[Pool] | None = None, batch_fn: Callable | None = None):  # fmt: skip
         self.store, self.grid, self.job_ids, self.make_spec = store, grid, job_ids, specs
         self.handle, self.job_fn, self.owner, self.view = handle, job_fn, owner, view
-        self.pools = pools if pools is not None else [_Pool(job_ids)]
+        self.pools = pools if pools is not None else [Pool(job_ids)]
         self.batch_fn = batch_fn
         self.in_flight: dict[Future, list[JobSpec]] = {}
         self.live: dict[int, dict[str, Any]] = {}

@@ -1,0 +1,35 @@
+"""How ``nutribench run`` groups jobs for the workers: one by one (the SB3 engine), or, with
+``--engine batched``, the jobs of each PPO or MC config in batches, one batch per worker."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+#: at most this many jobs in one batch (the paper grid's 7 regimes x 5 seeds of one config)
+MAX_BATCH = 35
+
+
+@dataclass
+class Pool:
+    """Jobs claimed and started together: one by one (the SB3 engine), or, for the batched
+    engine, up to ``batch_size`` jobs of one agent config per worker."""
+
+    job_ids: list[int]
+    batched: bool = False
+    batch_size: int = 1
+
+
+def batch_pools(job_ids: list[int], cells: list[tuple[str, str, int]], algo_of: dict[str, str], claimable: Callable[[list[int]], int],
+                slots: int) -> list[Pool]:  # fmt: skip
+    """``--engine batched``: a pool per agent config the batched engine trains, its batches
+    sized so that the runnable jobs fill the slots (at most :data:`MAX_BATCH`); the other
+    configs' jobs one by one."""
+    from nutribench.engine import BATCHED_ALGOS
+
+    by_config: dict[str, list[int]] = {}
+    singles: list[int] = []
+    for job_id, (_, config, _) in zip(job_ids, cells):
+        (by_config.setdefault(config, []) if algo_of[config] in BATCHED_ALGOS else singles).append(job_id)
+    pools = [Pool(ids, True, max(1, min(MAX_BATCH, -(-claimable(ids) // max(slots, 1))))) for ids in by_config.values()]
+    return pools + [Pool(singles)]
