@@ -191,7 +191,7 @@ def test_db_copy_moves_a_sqlite_database_into_postgres(pg_url: str, tmp_path: Pa
     pd.testing.assert_frame_equal(before, after, check_dtype=False)
     assert sql(pg_url, "SELECT body->>'max_grad_norm' FROM agent_configs WHERE name = 'mc'") == [("inf",)]
     again = runner.invoke(app, ["db", "copy", str(db), pg_url])  # never on top of results
-    assert again.exit_code == 2 and "already holds 4 jobs" in again.output
+    assert again.exit_code == 2 and "already holds rows" in again.output and "4 jobs" in again.output
     more = run_grid(pg_url, ["run0", "run3"], ["mc", "ppo"], [0, 1], 6, 2, job_fn=fake_run_job, display=False)
     assert (more.done, more.skipped) == (4, 4)  # new job ids follow the copied ones
     assert sql(pg_url, "SELECT count(*), count(DISTINCT id) FROM jobs") == [(8, 8)]

@@ -460,3 +460,31 @@ def test_engine_batched_with_real_training(regimes: Path, tmp_path: Path) -> Non
     assert sql(db, "SELECT count(*), sum(engine = 'batched'), sum(model_path IS NOT NULL) FROM jobs") == [(4, 4, 4)]
     assert sql(db, "SELECT count(*) FROM eval_steps") == [(4 * 50,)]
     assert len(list((tmp_path / "models").rglob("*.zip"))) == 4
+
+
+class HalfBatch(EnvJob):
+    """A batch worker that loses the result of its last job (a bug the driver must survive)."""
+
+    def __call__(self, specs, sink=None):
+        from nutribench.jobs.fake import fake_run_batch
+
+        return fake_run_batch(specs, sink)[:-1]
+
+
+def test_a_job_missing_from_its_batch_s_results_is_failed_not_left_running(regimes: Path, tmp_path: Path) -> None:
+    db = tmp_path / "r.db"
+    s = run_grid(db, ["run0"], ["ppo"], [0, 1, 2], 4, 1, workers=1, job_fn=fake_run_job, batch_fn=HalfBatch(),
+                 display=False, engine="batched")  # fmt: skip
+    assert (s.done, s.failed) == (2, 1)
+    assert sql(db, "SELECT status, count(*) FROM jobs GROUP BY status ORDER BY status") == [("done", 2), ("failed", 1)]
+    assert "returned no result" in sql(db, "SELECT error FROM jobs WHERE status = 'failed'")[0][0]
+
+
+def test_batches_group_jobs_by_config_and_regime_shape() -> None:
+    from nutribench.scheduler.batching import batch_pools
+
+    cells = [("a", "ppo", 0), ("a", "ppo", 1), ("b", "ppo", 0), ("a", "sac", 0), ("a", "mc", 0)]
+    pools = batch_pools([1, 2, 3, 4, 5], cells, {"ppo": "ppo", "sac": "sac", "mc": "mc"},
+                        {"a": (50, 10), "b": (40, 10)}, claimable=len, slots=2)  # fmt: skip
+    assert [(p.job_ids, p.batched, p.batch_size) for p in pools] == [([1, 2], True, 1), ([3], True, 1), ([5], True, 1),
+                                                                     ([4], False, 1)]  # fmt: skip

@@ -12,7 +12,10 @@ that ends inside a rollout stops there without a partial update, as SB3 does.
 
 Randomness is per agent and comes from its job seed alone (its food days, its action draws,
 its minibatch order, its initial weights), so an agent's run does not depend on which
-others share its batch. It is not SB3's random stream: the two engines' runs with one seed
+others share its batch, up to float rounding: the batched matrix kernels round differently
+for different K, and over a long run a rounding difference can flip a sampled action, after
+which the two runs differ as two runs of one seed on two machines may. It is not SB3's
+random stream: the two engines' runs with one seed
 differ as two seeds do; ``nutribench bench engines`` compares them as distributions.
 """
 
@@ -77,7 +80,10 @@ def train_batched(
     for j, c in enumerate(env_cfgs):
         by_regime.setdefault(c.sha256, []).append(j)
     groups = [_Group(env_cfgs[js[0]], js) for js in by_regime.values()]
-    obs_dim = groups[0].env.single_observation_space.shape[0]
+    dims = {g.env.single_observation_space.shape[0] for g in groups}
+    if len(dims) != 1:
+        raise ValueError(f"the agents of one batch need one observation size (one food catalog), got {sorted(dims)}")
+    obs_dim = dims.pop()
     net = StackedActorCritic(k, obs_dim, list(cfg.net_arch),
                              generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in rng["init"]])  # fmt: skip
     optimizer = make_optimizer(net, s.learning_rate)

@@ -20,16 +20,20 @@ class Pool:
     batch_size: int = 1
 
 
-def batch_pools(job_ids: list[int], cells: list[tuple[str, str, int]], algo_of: dict[str, str], claimable: Callable[[list[int]], int],
-                slots: int) -> list[Pool]:  # fmt: skip
-    """``--engine batched``: a pool per agent config the batched engine trains, its batches
-    sized so that the runnable jobs fill the slots (at most :data:`MAX_BATCH`); the other
-    configs' jobs one by one."""
+def batch_pools(job_ids: list[int], cells: list[tuple[str, str, int]], algo_of: dict[str, str],
+                shape_of: dict[str, tuple[int, int]], claimable: Callable[[list[int]], int], slots: int) -> list[Pool]:  # fmt: skip
+    """``--engine batched``: a pool per agent config the batched engine trains and per regime
+    shape (horizon, number of foods: one batch steps its agents in lockstep on one observation
+    size), its batches sized so that the runnable jobs fill the slots (at most
+    :data:`MAX_BATCH`); the other configs' jobs one by one."""
     from nutribench.engine import BATCHED_ALGOS
 
-    by_config: dict[str, list[int]] = {}
+    groups: dict[tuple, list[int]] = {}
     singles: list[int] = []
-    for job_id, (_, config, _) in zip(job_ids, cells):
-        (by_config.setdefault(config, []) if algo_of[config] in BATCHED_ALGOS else singles).append(job_id)
-    pools = [Pool(ids, True, max(1, min(MAX_BATCH, -(-claimable(ids) // max(slots, 1))))) for ids in by_config.values()]
+    for job_id, (regime, config, _) in zip(job_ids, cells):
+        if algo_of[config] in BATCHED_ALGOS:
+            groups.setdefault((config, shape_of[regime]), []).append(job_id)
+        else:
+            singles.append(job_id)
+    pools = [Pool(ids, True, max(1, min(MAX_BATCH, -(-claimable(ids) // max(slots, 1))))) for ids in groups.values()]
     return pools + [Pool(singles)]

@@ -190,9 +190,20 @@ class _Run:
                 self.summary.errors.append(f"{spec.label}: {first}")
                 self.view.log(f"[red]failed[/] {spec.label}: {first}")
             return
-        results = outcome if isinstance(outcome, list) else [outcome]
-        for spec, result in zip(specs, results):
-            if store_result(self.store, result, self.owner, spec.model_path):
+        results = {r.job_id: r for r in (outcome if isinstance(outcome, list) else [outcome])}
+        for spec in specs:  # each job on its own: one that cannot be stored does not lose the others
+            result = results.get(spec.job_id)
+            try:
+                if result is None:
+                    raise JobFailed(f"{spec.label}: its batch returned no result for it")
+                stored = store_result(self.store, result, self.owner, spec.model_path)
+            except Exception as e:  # noqa: BLE001 - recorded as the job's failure, the run goes on
+                store_failure(self.store, spec.job_id, self.owner, _error_text(e))
+                self.summary.failed += 1
+                self.summary.errors.append(f"{spec.label}: {str(e).splitlines()[0] if str(e) else type(e).__name__}")
+                self.view.log(f"[red]failed[/] {spec.label}: could not be stored: {e}")
+                continue
+            if stored:
                 self.summary.done += 1
                 self.view.log(f"[green]done[/] {spec.label} ({result.metadata.get('wall_seconds', 0.0):.1f} s)")
 
@@ -351,7 +362,8 @@ def run_grid(
             view = make_view(display, grid, len(job_ids), handle.description, note)
             pools = None
             if engine == "batched":
-                pools = batch_pools(job_ids, list(grid.cells()), {a.name: a.algo for a in agent_cfgs},
+                shapes = {r.name: (r.obj.reward.horizon, len(r.obj.catalog.food)) for r in regime_cfgs}
+                pools = batch_pools(job_ids, list(grid.cells()), {a.name: a.algo for a in agent_cfgs}, shapes,
                                     lambda ids: count_claimable(store, ids), handle.slots)  # fmt: skip
             run = _Run(store, grid, job_ids, make_spec, handle, job_fn, owner, view, pools, batch_fn)
             run.planned = runnable

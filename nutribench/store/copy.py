@@ -17,7 +17,7 @@ from collections.abc import Callable
 from sqlalchemy import func, insert, select, text
 
 from nutribench.store.engine import StoreError, session_scope
-from nutribench.store.models import Base, Job
+from nutribench.store.models import Base
 from nutribench.store.schema import open_store
 
 BATCH = 20_000
@@ -31,11 +31,14 @@ def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] | 
         if source.url == target.url:
             raise StoreError(f"db copy: source and destination are the same database ({source.display})")
         with target.engine.connect() as conn:
-            held = conn.execute(select(func.count()).select_from(Job)).scalar_one()
-        if held:
-            raise StoreError(f"db copy: {target.display} already holds {held} jobs: copy into a new, empty database")
+            held = {t.name: conn.execute(select(func.count()).select_from(t)).scalar_one() for t in Base.metadata.sorted_tables}
+        if any(held.values()):
+            rows = ", ".join(f"{n} {name}" for name, n in held.items() if n)
+            raise StoreError(f"db copy: {target.display} already holds rows ({rows}): copy into a new, empty database")
         counts: dict[str, int] = {}
-        with source.engine.connect() as read, session_scope(target.engine) as write:
+        # one snapshot of the source for every table (a PostgreSQL source may be written meanwhile)
+        read_options = {"isolation_level": "REPEATABLE READ"} if source.engine.dialect.name == "postgresql" else {}
+        with source.engine.connect().execution_options(**read_options) as read, session_scope(target.engine) as write:
             for table in Base.metadata.sorted_tables:  # parents before children
                 n = 0
                 result = read.execution_options(yield_per=BATCH).execute(select(table).order_by(*table.primary_key.columns))
@@ -52,10 +55,10 @@ def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] | 
                             f"SELECT setval(pg_get_serial_sequence('{table.name}', 'id'), "
                             f"coalesce((SELECT max(id) FROM {table.name}), 0) + 1, false)"
                         ))  # fmt: skip
-        with target.engine.connect() as conn:
-            copied = {t.name: conn.execute(select(func.count()).select_from(t)).scalar_one() for t in Base.metadata.sorted_tables}
-        if copied != counts:
-            raise StoreError(f"db copy: row counts differ after the copy (source {counts}, destination {copied})")
+            # compared before the commit: a mismatch rolls the whole copy back
+            copied = {t.name: write.execute(select(func.count()).select_from(t)).scalar_one() for t in Base.metadata.sorted_tables}
+            if copied != counts:
+                raise StoreError(f"db copy: row counts differ after the copy (source {counts}, destination {copied})")
         return counts
     finally:
         source.dispose()
