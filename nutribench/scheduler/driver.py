@@ -184,7 +184,17 @@ class _Run:
             outcome = future.result()
         except BaseException as e:  # noqa: BLE001 - JobFailed, WorkerDied, pickling errors, cancel
             first = str(e).splitlines()[0] if str(e) else type(e).__name__
-            for spec in specs:  # a batch that dies fails each of its jobs: the next run retries them
+            if len(specs) > 1 and isinstance(e, Exception):
+                # which job broke the batch is unknown: each goes back and is tried alone in this
+                # run, so that only a job that fails by itself counts a failure
+                ids = [spec.job_id for spec in specs]
+                release_jobs(self.store, ids, self.owner, status="pending")
+                self.attempted.difference_update(ids)
+                self.pools.insert(0, Pool(ids, True, 1))
+                self.exhausted = False
+                self.view.log(f"[yellow]batch failed[/] ({first}): its {len(ids)} jobs are tried one by one")
+                return
+            for spec in specs:
                 store_failure(self.store, spec.job_id, self.owner, _error_text(e))
                 self.summary.failed += 1
                 self.summary.errors.append(f"{spec.label}: {first}")
