@@ -214,3 +214,49 @@ def test_one_mc_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -> 
         reference.load_sb3(0, m.policy)
         for a, b in zip(net.params, reference.params):
             np.testing.assert_allclose(a[j].detach().numpy(), b[0].detach().numpy(), rtol=1e-4, atol=2e-6)
+
+
+@pytest.mark.parametrize("algo", ["ppo", "mc"])
+def test_the_batched_rollout_equals_sb3_s_vecnormalize_and_rollout_buffer_on_the_same_days(algo: str) -> None:
+    """The rollout loop itself, replayed through SB3: the same food days and the same actions
+    played in SB3's VecNormalize over the SB3 adapter give the observations and scaled rewards
+    the batched loop recorded (normalisation order, each day's first observation, the return
+    reset at day ends), and SB3's RolloutBuffer gives its advantages and returns."""
+    from gymnasium import spaces
+    from stable_baselines3.common.buffers import RolloutBuffer
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from nutribench.agents.api import CLIP_OBS, NORM_EPS
+    from nutribench.engine.train import train_batched
+    from nutribench.env.sb3 import NutriRLSB3VecEnv
+
+    cfg = load_agent_config(algo)
+    jobs = [("run0", 0), ("run3", 1)]
+    seen: list[dict] = []
+    days = 10 if algo == "ppo" else 2  # one PPO rollout (500 steps), two MC rollouts (one day each)
+    train_batched(jobs, cfg, days, on_rollout=seen.append)
+    assert len(seen) == (1 if algo == "ppo" else 2)
+    for j, (regime, _) in enumerate(jobs):
+        base = NutriRLSB3VecEnv(regime=regime)
+        queue = [d[j] for d in seen[-1]["foods"]]
+        start_day = base.venv._start_day
+        base.venv._start_day = lambda foods=None: start_day(queue.pop(0))  # the batched loop's days, in order
+        env = VecNormalize(base, norm_obs=cfg.normalize_obs, norm_reward=cfg.normalize_reward, gamma=cfg.gamma,
+                           clip_obs=CLIP_OBS, epsilon=NORM_EPS)  # fmt: skip
+        obs = env.reset()
+        for r, rollout in enumerate(seen):
+            t_max = rollout["actions"].shape[1]
+            buf = RolloutBuffer(t_max, spaces.Box(-1, 1, (obs.shape[1],)), spaces.Discrete(2), n_envs=1,
+                                gamma=cfg.gamma, gae_lambda=1.0 if algo == "mc" else cfg.gae_lambda)  # fmt: skip
+            start = True
+            for t in range(t_max):
+                np.testing.assert_allclose(rollout["obs"][j, t], obs[0], rtol=1e-5, atol=1e-6)
+                assert rollout["starts"][j, t] == float(start)
+                obs, reward, done, _ = env.step(np.array([rollout["actions"][j, t]]))
+                np.testing.assert_allclose(rollout["rewards"][j, t], reward[0], rtol=1e-5, atol=1e-6)
+                buf.add(np.zeros((1, obs.shape[1])), np.zeros((1, 1)), reward, np.array([start]),
+                        th.tensor([float(rollout["values"][j, t])]), th.zeros(1))  # fmt: skip
+                start = bool(done[0])
+            buf.compute_returns_and_advantage(th.tensor([0.0]), np.array([start]))
+            np.testing.assert_allclose(rollout["advantages"][j], buf.advantages[:, 0], rtol=1e-4, atol=1e-5)
+            np.testing.assert_allclose(rollout["returns"][j], buf.returns[:, 0], rtol=1e-4, atol=1e-5)

@@ -59,9 +59,15 @@ def train_batched(
     agent_config: Any,
     episodes: int,
     on_episode: AgentEpisodeFn | None = None,
+    on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None,
 ) -> list[TrainedAgent]:
     """Train one agent of ``agent_config`` (PPO or MC) per ``(regime, seed)`` of ``jobs`` for
     ``episodes`` days, all at once.
+
+    :param on_rollout: called before each update with the rollout's arrays (agent axis first):
+        ``obs`` (as the policy saw them), ``actions``, ``rewards`` (as the update sees them),
+        ``starts``, ``values``, ``advantages``, ``returns``, and ``foods`` (every day drawn so
+        far, ``(days, K, horizon)``); for tests that replay it through SB3.
 
     :param on_episode: called with (job index, the finished day's metrics) for every day.
     """
@@ -91,12 +97,16 @@ def train_batched(
     ret_stats = RunningStats(k) if cfg.normalize_reward else None
     discounted = np.zeros(k)
 
+    days_drawn: list[np.ndarray] = []
+
     def new_days() -> np.ndarray:
         raw = np.empty((k, obs_dim))
+        day = np.empty((k, horizon), dtype=np.int64)
         for g in groups:
             foods = np.stack([rng["foods"][j].integers(0, g.n_foods, size=horizon) for j in g.agents])
             o, _ = g.env.reset(options={"foods": foods})
-            raw[g.agents] = o
+            raw[g.agents], day[g.agents] = o, foods
+        days_drawn.append(day)
         return raw
 
     def seen(raw: np.ndarray) -> np.ndarray:
@@ -169,6 +179,9 @@ def train_batched(
         with th.no_grad():
             _, last_values = net.forward(th.as_tensor(obs).unsqueeze(1))
         adv, ret = gae(buf_rew, buf_val, buf_start, last_values[:, 0].numpy(), start_of_day.astype(bool), s.gamma, s.gae_lambda)
+        if on_rollout is not None:
+            on_rollout({"obs": buf_obs, "actions": buf_act, "rewards": buf_rew, "starts": buf_start, "values": buf_val,
+                        "advantages": adv, "returns": ret, "foods": np.stack(days_drawn)})  # fmt: skip
         rollout = Rollout(
             obs=th.as_tensor(buf_obs), actions=th.as_tensor(buf_act), log_probs=th.as_tensor(buf_logp),
             values=th.as_tensor(buf_val), advantages=th.as_tensor(adv), returns=th.as_tensor(ret),
