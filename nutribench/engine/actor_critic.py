@@ -79,23 +79,29 @@ class OnPolicySettings:
 class StackedActorCritic:
     """K copies of the shared actor-critic: parameters of shape ``(K, ...)``.
 
-    Layers are ``(W, b)`` with ``W: (K, in, out)``, ``b: (K, 1, out)``; the backbone's layers
-    come first, then the actor head, then the value head.
+    Layers are ``(W, b)`` with ``W: (K, in, out)``, ``b: (K, 1, out)``: the backbone's layers,
+    then one head layer holding the actor's logits and the value side by side (columns
+    ``:n_actions`` and ``n_actions``), so that both heads are one batched product.
     """
 
     def __init__(self, k: int, obs_dim: int, net_arch: list[int], n_actions: int = 2, generators: list[th.Generator] | None = None):
         sizes = [obs_dim, *net_arch]
-        shapes = [*zip(sizes[:-1], sizes[1:]), (sizes[-1], n_actions), (sizes[-1], 1)]
-        gains = [GAINS[0]] * len(net_arch) + [GAINS[2], GAINS[3]]
+        self.n_actions = n_actions
+        self.n_hidden = len(net_arch)
         self.params: list[th.Tensor] = []
-        for (n_in, n_out), gain in zip(shapes, gains):
+
+        def orthogonal(n_in: int, n_out: int, gain: float) -> th.Tensor:
             w = th.empty(k, n_in, n_out)
-            for j in range(k):  # SB3 initialises the (out, in) weight orthogonally
+            for j in range(k):  # SB3 initialises each (out, in) weight orthogonally
                 block = th.empty(n_out, n_in)
                 th.nn.init.orthogonal_(block, gain=gain, generator=None if generators is None else generators[j])
                 w[j] = block.T
-            self.params += [w.requires_grad_(), th.zeros(k, 1, n_out, requires_grad=True)]
-        self.n_hidden = len(net_arch)
+            return w
+
+        for n_in, n_out in zip(sizes[:-1], sizes[1:]):
+            self.params += [orthogonal(n_in, n_out, GAINS[0]).requires_grad_(), th.zeros(k, 1, n_out, requires_grad=True)]
+        head = th.cat([orthogonal(sizes[-1], n_actions, GAINS[2]), orthogonal(sizes[-1], 1, GAINS[3])], dim=2)
+        self.params += [head.requires_grad_(), th.zeros(k, 1, n_actions + 1, requires_grad=True)]
 
     @property
     def k(self) -> int:
@@ -107,28 +113,32 @@ class StackedActorCritic:
         p = self.params
         for i in range(self.n_hidden):
             x = th.relu(th.baddbmm(p[2 * i + 1], x, p[2 * i]))
-        j = 2 * self.n_hidden
-        logits = th.baddbmm(p[j + 1], x, p[j])
-        values = th.baddbmm(p[j + 3], x, p[j + 2]).squeeze(-1)
-        return logits, values
+        out = th.baddbmm(p[-1], x, p[-2])
+        return out[..., : self.n_actions], out[..., self.n_actions]
+
+    def _sb3_layers(self, policy) -> list[th.nn.Linear]:
+        return [m for m in policy.features_extractor.net if isinstance(m, th.nn.Linear)]
 
     def load_sb3(self, j: int, policy) -> None:
         """Copy the weights of an SB3 ``ActorCriticPolicy`` (nutribench's backbone) into agent ``j``."""
-        linears = [m for m in policy.features_extractor.net if isinstance(m, th.nn.Linear)]
-        linears += [policy.action_net, policy.value_net]
         with th.no_grad():
-            for i, lin in enumerate(linears):
+            for i, lin in enumerate(self._sb3_layers(policy)):
                 self.params[2 * i][j].copy_(lin.weight.T)
                 self.params[2 * i + 1][j, 0].copy_(lin.bias)
+            self.params[-2][j].copy_(th.cat([policy.action_net.weight, policy.value_net.weight]).T)
+            self.params[-1][j, 0].copy_(th.cat([policy.action_net.bias, policy.value_net.bias]))
 
     def store_sb3(self, j: int, policy) -> None:
         """Copy agent ``j``'s weights into an SB3 ``ActorCriticPolicy`` of the same shape."""
-        linears = [m for m in policy.features_extractor.net if isinstance(m, th.nn.Linear)]
-        linears += [policy.action_net, policy.value_net]
+        a = self.n_actions
         with th.no_grad():
-            for i, lin in enumerate(linears):
+            for i, lin in enumerate(self._sb3_layers(policy)):
                 lin.weight.copy_(self.params[2 * i][j].T)
                 lin.bias.copy_(self.params[2 * i + 1][j, 0])
+            policy.action_net.weight.copy_(self.params[-2][j][:, :a].T)
+            policy.value_net.weight.copy_(self.params[-2][j][:, a:].T)
+            policy.action_net.bias.copy_(self.params[-1][j, 0, :a])
+            policy.value_net.bias.copy_(self.params[-1][j, 0, a:])
 
 
 class RunningStats:
@@ -202,18 +212,19 @@ def ppo_update(net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: 
     out: dict[str, np.ndarray] = {}
     for epoch in range(s.n_epochs):
         perm = th.as_tensor(permutations[epoch])
+        # the epoch's order once, then contiguous minibatches of it (SB3's order exactly)
+        obs_e, act_e, adv_e = rollout.obs[rows, perm], rollout.actions[rows, perm], rollout.advantages[rows, perm]
+        logp_e, ret_e = rollout.log_probs[rows, perm], rollout.returns[rows, perm]
         for start in range(0, t_max, s.batch_size):
-            idx = perm[:, start : start + s.batch_size]  # (K, B)
-            obs = rollout.obs[rows, idx]
-            actions = rollout.actions[rows, idx]
-            adv = rollout.advantages[rows, idx]
-            if s.normalize_advantage and idx.shape[1] > 1:
+            mb = slice(start, start + s.batch_size)
+            adv = adv_e[:, mb]
+            if s.normalize_advantage and adv.shape[1] > 1:
                 adv = (adv - adv.mean(dim=1, keepdim=True)) / (adv.std(dim=1, keepdim=True) + 1e-8)
-            log_prob, entropy, values = _evaluate_actions(net, obs, actions)
-            ratio = th.exp(log_prob - rollout.log_probs[rows, idx])
+            log_prob, entropy, values = _evaluate_actions(net, obs_e[:, mb], act_e[:, mb])
+            ratio = th.exp(log_prob - logp_e[:, mb])
             surrogate = th.min(adv * ratio, adv * th.clamp(ratio, 1 - s.clip_range, 1 + s.clip_range))
             policy_loss = -surrogate.mean(dim=1)
-            value_loss = (rollout.returns[rows, idx] - values).pow(2).mean(dim=1)
+            value_loss = (ret_e[:, mb] - values).pow(2).mean(dim=1)
             out = _step(net, optimizer, s, policy_loss, value_loss, -entropy.mean(dim=1))
     return out
 
