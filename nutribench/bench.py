@@ -263,11 +263,10 @@ def bench_train_batched(algo: str = "ppo", k_regimes: int = 7, k_seeds: int = 5,
     ``algo`` at once in one process (one thread), the arithmetic it does per env step, this
     machine's matmul rate, the share of that floor reached, and the paper grid's wall time
     for this algorithm at that rate on all the cores."""
-    import os
-
     from nutribench import SHIPPED_REGIMES
     from nutribench.agents.config import load_agent_config
     from nutribench.engine.train import train_batched
+    from nutribench.scheduler.executors import core_count
 
     cfg = load_agent_config(algo)
     jobs = [(r, s) for r in SHIPPED_REGIMES[:k_regimes] for s in range(k_seeds)]
@@ -281,7 +280,7 @@ def bench_train_batched(algo: str = "ppo", k_regimes: int = 7, k_seeds: int = 5,
     flops = flops_per_env_step(cfg)
     peak = matmul_flops_per_s(k=len(jobs))
     grid_steps = PAPER_GRID["regimes"] * PAPER_GRID["seeds"] * PAPER_GRID["episodes"] * 50
-    cores = min(len(os.sched_getaffinity(0)), PAPER_GRID["regimes"] * PAPER_GRID["seeds"])  # batches side by side
+    cores = min(core_count(), PAPER_GRID["regimes"] * PAPER_GRID["seeds"])  # batches side by side
     return {"algo": algo, "k": len(jobs), "episodes": episodes, "steps_per_s": rate, "flops_per_step": flops,
             "matmul_flops_per_s": peak, "floor_share": rate * flops / peak,
             "paper_grid_wall_hours": grid_steps / rate / cores / 3600,

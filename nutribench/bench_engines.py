@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from nutribench.bench_learn import LearnRun, batched_runs, gap_closed, learn_benchmark
+from nutribench.bench_learn import LearnRun, batched_runs, learn_benchmark, summarize
 from nutribench.engine import BATCHED_ALGOS
 from nutribench.report.stats import iqm_bootstrap_ci
 
@@ -51,13 +51,10 @@ def bench_engines(algos: Iterable[str] = BATCHED_ALGOS, regimes: Iterable[str] =
                 rs = [r for r in runs[engine] if r.algo == algo and r.regime == regime]
                 by_seed = [np.array([e["return"] for e in r.eval_rows]) for r in rs]
                 point, lo, hi = iqm_bootstrap_ci(by_seed)
-                never = float(np.mean([x for r in rs for x in r.never_returns]))
-                planner = float(np.mean([x for r in rs for x in r.planner_returns]))
-                mean = float(np.mean(np.concatenate(by_seed)))
+                learned = summarize(rs)[0]  # the gap, foods and wall time as bench learn states them
                 row = {"algo": algo, "regime": regime, "engine": engine, "seeds": len(rs), "episodes": episodes,
-                       "iqm": point, "ci_low": lo, "ci_high": hi, "gap_closed": gap_closed(mean, never, planner),
-                       "foods": float(np.mean([e["foods"] for r in rs for e in r.eval_rows])),
-                       "wall_seconds_per_job": float(np.median([r.wall_seconds for r in rs])), "overlap": None}  # fmt: skip
+                       "iqm": point, "ci_low": lo, "ci_high": hi, "gap_closed": learned["gap_closed"],
+                       "foods": learned["foods"], "wall_seconds_per_job": learned["wall_seconds"], "overlap": None}  # fmt: skip
                 pair.append(row)
             sb3, batched = pair
             batched["overlap"] = bool(sb3["ci_low"] <= batched["ci_high"] and batched["ci_low"] <= sb3["ci_high"])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
@@ -56,6 +57,16 @@ sigma = { C = { low = 0.0, high = 5.0 }, F = { low = 0.0, high = 5.0 }, P = { lo
 a = { tau = { C = 1.0, F = 0.0, P = 0.0 }, sigma = { C = 0.0, F = 0.0, P = 0.0 } }
 b = { tau = { C = 0.0, F = 2.0, P = 2.6 }, sigma = { C = 0.0, F = 1.0, P = 0.0 } }
 """
+
+
+def wait_for(predicate, timeout: float) -> None:
+    """Poll ``predicate`` every 0.1 s until it holds; fail the test after ``timeout`` seconds."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return
+        time.sleep(0.1)
+    raise AssertionError("timed out")
 
 
 def write_regime_dir(folder: Path, regime: str = REGIME, catalog: str = CATALOG, reward: str = REWARD) -> Path:

@@ -23,6 +23,7 @@ from nutribench.scheduler.status import status_table
 from nutribench.store import StoreError, head_revision, open_store, read_episode_metrics
 from nutribench.store.jobs import STALE_AFTER_S
 from nutribench.store.views import EPISODE_METRICS_COLUMNS, VIEWS
+from tests.conftest import wait_for
 from tests.test_store import make_0001
 
 REPO = Path(__file__).resolve().parents[1]
@@ -49,15 +50,6 @@ def _env(tmp_path: Path, **extra: str) -> dict[str, str]:
 
 def _run_cmd(url: str, *args: str) -> list[str]:
     return [NUTRIBENCH, "run", "--db", url, "--regimes", "run0,run1", "--algos", "mc,ppo,sac", *args]
-
-
-def _wait_for(predicate, timeout: float = 60.0) -> None:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return
-        time.sleep(0.1)
-    raise AssertionError("timed out")
 
 
 def test_a_grid_status_report_and_pandas_on_postgres(pg_url: str, tmp_path: Path) -> None:
@@ -116,8 +108,9 @@ def test_a_killed_driver_s_jobs_are_taken_over_on_postgres(pg_url: str, tmp_path
     victim = subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                               start_new_session=True)  # fmt: skip
     try:
-        _wait_for(lambda: bool(sql(pg_url, "SELECT 1 FROM information_schema.tables WHERE table_name = 'jobs'"))
-                  and sql(pg_url, "SELECT count(*) FROM jobs WHERE status = 'running' AND episodes_done > 0") == [(2,)])
+        wait_for(lambda: bool(sql(pg_url, "SELECT 1 FROM information_schema.tables WHERE table_name = 'jobs'"))
+                 and sql(pg_url, "SELECT count(*) FROM jobs WHERE status = 'running' AND episodes_done > 0") == [(2,)],
+                 timeout=60)
     finally:
         os.killpg(victim.pid, signal.SIGKILL)
         victim.wait(timeout=30)
@@ -158,7 +151,7 @@ def test_status_and_report_read_while_a_run_writes_on_postgres(pg_url: str, tmp_
     proc = subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     seen_partial = False
     try:
-        _wait_for(lambda: bool(sql(pg_url, "SELECT 1 FROM information_schema.tables WHERE table_name = 'jobs'")))
+        wait_for(lambda: bool(sql(pg_url, "SELECT 1 FROM information_schema.tables WHERE table_name = 'jobs'")), timeout=60)
         while proc.poll() is None:
             report = status_table(pg_url)
             n = len(read_episode_metrics(pg_url))

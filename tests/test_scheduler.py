@@ -25,6 +25,8 @@ from nutribench.store.jobs import MAX_FAILURES, STALE_AFTER_S
 from nutribench.scheduler.grid import PRESETS, GridError, parse_seeds, resolve_grid
 from nutribench.scheduler.status import status_table
 
+from tests.conftest import wait_for
+
 REPO = Path(__file__).resolve().parents[1]
 NUTRIBENCH = str(Path(sys.executable).parent / "nutribench")
 H = 50  # steps per fake evaluation episode
@@ -253,15 +255,6 @@ def _env(regimes: Path, **extra: str) -> dict[str, str]:
     return env
 
 
-def _wait_for(predicate, timeout: float = 30.0) -> None:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return
-        time.sleep(0.1)
-    raise AssertionError("timed out")
-
-
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path, tmp_path: Path, sig) -> None:
     """Ctrl-C, and as it (issue 13, defect 2) a batch system's SIGTERM and a closed terminal's
@@ -272,8 +265,8 @@ def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path,
     proc = subprocess.Popen(cmd, env=_env(regimes, NUTRIBENCH_FAKE_SECONDS="0.02"), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)  # fmt: skip
     try:
-        _wait_for(lambda: db.exists() and sql(db, "SELECT count(*) FROM sqlite_master WHERE name='jobs'")[0][0]
-                  and sql(db, "SELECT count(*) FROM jobs WHERE status='running' AND episodes_done > 0")[0][0] == 2)
+        wait_for(lambda: db.exists() and sql(db, "SELECT count(*) FROM sqlite_master WHERE name='jobs'")[0][0]
+                 and sql(db, "SELECT count(*) FROM jobs WHERE status='running' AND episodes_done > 0")[0][0] == 2, timeout=30)
         report = status_table(db)  # status while the run writes
         assert (report.totals["running"], report.totals["pending"], report.totals["jobs"]) == (2, 2, 4)
         proc.send_signal(sig)

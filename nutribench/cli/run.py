@@ -14,7 +14,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import UserError, console, err_console, split_csv, user_errors
+from nutribench.cli.common import console, err_console, split_csv, user_errors
 from nutribench.scheduler.executors import ExecutorError
 from nutribench.scheduler.grid import DEFAULT_PRESET, PRESETS
 
@@ -74,8 +74,6 @@ def run_cmd(
         seeds=seeds, episodes=episodes, eval_episodes=eval_episodes,
     )  # fmt: skip
     _check_executor(executor)
-    if engine not in ("sb3", "batched"):
-        raise UserError(f"--engine {engine!r}: use 'sb3' or 'batched'")
     _check_db(db)
     load_grid_configs(grid)  # a broken config file fails here, before the database exists
     job_fn = default_job_fn()

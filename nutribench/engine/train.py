@@ -46,11 +46,9 @@ class _Group:
     """The agents of one regime: one natively batched vector env, rows ``agents``."""
 
     def __init__(self, env_cfg: EnvConfig, agents: list[int]):
-        self.cfg = env_cfg
         self.agents = np.asarray(agents)
         self.env = NutriRLVectorEnv(len(agents), regime=env_cfg)
         self.recorder = EpisodeRecorder(len(agents))
-        self.horizon = env_cfg.reward.horizon
         self.n_foods = len(env_cfg.catalog.food)
 
 

@@ -12,9 +12,9 @@ import time
 from pathlib import Path
 
 from nutribench.agents import eval_food_streams, evaluate
-from nutribench.agents.config import agent_config_sha256
 from nutribench.clock import utcnow
 from nutribench.engine.train import train_batched
+from nutribench.jobs.run import check_configs
 from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
 from nutribench.jobs.worker import JobProgress, Sink
 from nutribench.provenance import collect_metadata
@@ -22,10 +22,7 @@ from nutribench.provenance import collect_metadata
 def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]:
     """Train the jobs ``specs`` (one agent config, one budget) at once; one result per job."""
     for spec in specs:
-        if spec.regime_config.sha256 != spec.regime_sha256:
-            raise JobFailed(f"{spec.label}: regime content changed since the job was recorded")
-        if agent_config_sha256(spec.agent_config) != spec.algo_sha256:
-            raise JobFailed(f"{spec.label}: agent config content changed since the job was recorded")
+        check_configs(spec)
     if len({(s.algo, s.algo_version, s.episodes) for s in specs}) != 1:
         raise JobFailed("a batch needs one agent config and one budget")
     started, t0 = utcnow(), time.perf_counter()

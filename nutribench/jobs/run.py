@@ -17,14 +17,19 @@ from nutribench.jobs.worker import JobProgress, Sink
 from nutribench.clock import utcnow
 
 
-def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
-    """Train ``spec.agent_config`` on ``spec.regime_config`` for ``spec.episodes`` days with
-    ``spec.seed``, then evaluate greedily on ``spec.eval_episodes`` days drawn from the seed
-    (the same days for every algorithm), and save the model to ``spec.model_path``."""
+def check_configs(spec: JobSpec) -> None:
+    """The configs a job carries must still hash to what the driver recorded."""
     if spec.regime_config.sha256 != spec.regime_sha256:
         raise JobFailed(f"{spec.label}: regime content changed since the job was recorded")
     if agent_config_sha256(spec.agent_config) != spec.algo_sha256:
         raise JobFailed(f"{spec.label}: agent config content changed since the job was recorded")
+
+
+def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
+    """Train ``spec.agent_config`` on ``spec.regime_config`` for ``spec.episodes`` days with
+    ``spec.seed``, then evaluate greedily on ``spec.eval_episodes`` days drawn from the seed
+    (the same days for every algorithm), and save the model to ``spec.model_path``."""
+    check_configs(spec)
     started, t0 = utcnow(), time.perf_counter()
     progress = JobProgress(spec, sink)
     progress.start()

@@ -118,6 +118,10 @@ def driver_token() -> str:
     return f"{socket.gethostname()[:80]}:{os.getpid()}:{uuid.uuid4().hex[:12]}"
 
 
+def _first_line(exc: BaseException) -> str:
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+
+
 def _error_text(exc: BaseException) -> str:
     if isinstance(exc, JobFailed):
         return f"{exc}\n{exc.traceback_text}".strip()
@@ -183,7 +187,6 @@ class _Run:
         try:
             outcome = future.result()
         except BaseException as e:  # noqa: BLE001 - JobFailed, WorkerDied, pickling errors, cancel
-            first = str(e).splitlines()[0] if str(e) else type(e).__name__
             if len(specs) > 1 and isinstance(e, Exception):
                 # which job broke the batch is unknown: each goes back and is tried alone in this
                 # run, so that only a job that fails by itself counts a failure
@@ -192,13 +195,10 @@ class _Run:
                 self.attempted.difference_update(ids)
                 self.pools.insert(0, Pool(ids, True, 1))
                 self.exhausted = False
-                self.view.log(f"[yellow]batch failed[/] ({first}): its {len(ids)} jobs are tried one by one")
+                self.view.log(f"[yellow]batch failed[/] ({_first_line(e)}): its {len(ids)} jobs are tried one by one")
                 return
             for spec in specs:
-                store_failure(self.store, spec.job_id, self.owner, _error_text(e))
-                self.summary.failed += 1
-                self.summary.errors.append(f"{spec.label}: {first}")
-                self.view.log(f"[red]failed[/] {spec.label}: {first}")
+                self._failed(spec, e)
             return
         results = {r.job_id: r for r in (outcome if isinstance(outcome, list) else [outcome])}
         for spec in specs:  # each job on its own: one that cannot be stored does not lose the others
@@ -208,14 +208,18 @@ class _Run:
                     raise JobFailed(f"{spec.label}: its batch returned no result for it")
                 stored = store_result(self.store, result, self.owner, spec.model_path)
             except Exception as e:  # noqa: BLE001 - recorded as the job's failure, the run goes on
-                store_failure(self.store, spec.job_id, self.owner, _error_text(e))
-                self.summary.failed += 1
-                self.summary.errors.append(f"{spec.label}: {str(e).splitlines()[0] if str(e) else type(e).__name__}")
-                self.view.log(f"[red]failed[/] {spec.label}: could not be stored: {e}")
+                self._failed(spec, e, "could not be stored: ")
                 continue
             if stored:
                 self.summary.done += 1
                 self.view.log(f"[green]done[/] {spec.label} ({result.metadata.get('wall_seconds', 0.0):.1f} s)")
+
+    def _failed(self, spec: JobSpec, error: BaseException, shown: str = "") -> None:
+        """Status ``failed`` with the error kept, counted and shown (after ``shown``)."""
+        store_failure(self.store, spec.job_id, self.owner, _error_text(error))
+        self.summary.failed += 1
+        self.summary.errors.append(f"{spec.label}: {_first_line(error)}")
+        self.view.log(f"[red]failed[/] {spec.label}: {shown}{_first_line(error)}")
 
     def events(self) -> None:
         for ev in self.handle.drain():
