@@ -49,7 +49,7 @@ def run_cmd(
     models_dir: Annotated[Optional[Path], typer.Option(help="where trained models go (default: models/ next to the db)")] = None,
     upgrade_only: Annotated[bool, typer.Option("--upgrade-only", help="create or upgrade the database schema, then exit")] = False,
     retry_failed: Annotated[bool, typer.Option("--retry-failed", help="try again the jobs that failed 3 times (once their cause is fixed)")] = False,
-    engine: Annotated[str, typer.Option(help="'sb3' (a job per worker) or 'batched' (PPO and MC jobs of one config trained together, one batch per worker)")] = "sb3",
+    engine: Annotated[str, typer.Option(help="'sb3' (a job per worker) or 'batched' (PPO, MC and DDQN jobs of one config trained together, one batch per worker)")] = "sb3",
 ) -> None:
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
     from nutribench.store import open_store

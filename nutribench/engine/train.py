@@ -1,6 +1,6 @@
-"""Train K agents of one agent config (PPO or MC) at once (regimes and seeds may differ), and hand
+"""Train K agents of one agent config (PPO, MC or DDQN) at once (regimes and seeds may differ), and hand
 each back as the :class:`~nutribench.agents.api.TrainedAgent` the SB3 engine would give:
-an SB3 ``PPO`` with the trained weights, its ``VecNormalize`` statistics, and its training
+an SB3 ``PPO`` (MC: ``MonteCarloAC``; DDQN: ``DoubleDQN``, :mod:`nutribench.engine.ddqn`) with the trained weights, its ``VecNormalize`` statistics, and its training
 days' metrics. Evaluation, saving and loading are then the single-agent API's.
 
 Per agent, the loop is SB3's ``PPO.learn`` (MC: ``A2C.learn``) on nutribench's one-env
@@ -28,28 +28,11 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from nutribench.agents.algos import build_model
-from nutribench.agents.api import CLIP_OBS, NORM_EPS, TrainedAgent, make_train_env
+from nutribench.agents.api import CLIP_OBS, NORM_EPS, TrainedAgent
 from nutribench.agents.config import load_agent_config
-from nutribench.config import EnvConfig, load_env_config
+from nutribench.config import EnvConfig
 from nutribench.engine.actor_critic import OnPolicySettings, Rollout, RunningStats, StackedActorCritic, gae, make_optimizer
-from nutribench.env.metrics import EpisodeRecorder
-from nutribench.env.vector_env import NutriRLVectorEnv
-
-#: Mixed into each job seed for the batched engine's streams (foods, actions, minibatches, init).
-STREAMS = {"foods": 1, "actions": 2, "minibatches": 3, "init": 4}
-
-AgentEpisodeFn = Callable[[int, dict[str, Any]], None]
-
-
-class _Group:
-    """The agents of one regime: one natively batched vector env, rows ``agents``."""
-
-    def __init__(self, env_cfg: EnvConfig, agents: list[int]):
-        self.agents = np.asarray(agents)
-        self.env = NutriRLVectorEnv(len(agents), regime=env_cfg)
-        self.recorder = EpisodeRecorder(len(agents))
-        self.n_foods = len(env_cfg.catalog.food)
+from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
 
 
 def train_batched(
@@ -59,65 +42,34 @@ def train_batched(
     on_episode: AgentEpisodeFn | None = None,
     on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None,
 ) -> list[TrainedAgent]:
-    """Train one agent of ``agent_config`` (PPO or MC) per ``(regime, seed)`` of ``jobs`` for
+    """Train one agent of ``agent_config`` (PPO, MC or DDQN) per ``(regime, seed)`` of ``jobs`` for
     ``episodes`` days, all at once.
 
     :param on_rollout: called before each update with the rollout's arrays (agent axis first):
         ``obs`` (as the policy saw them), ``actions``, ``rewards`` (as the update sees them),
         ``starts``, ``values``, ``advantages``, ``returns``, and ``foods`` (every day drawn so
-        far, ``(days, K, horizon)``); for tests that replay it through SB3.
+        far, ``(days, K, horizon)``); for tests that replay it through SB3 (PPO and MC).
 
     :param on_episode: called with (job index, the finished day's metrics) for every day.
     """
     th.set_num_threads(1)
     cfg = load_agent_config(agent_config)
-    env_cfgs = [load_env_config(r) for r, _ in jobs]
-    seeds = [int(s) for _, s in jobs]
-    k = len(jobs)
-    horizons = {c.reward.horizon for c in env_cfgs}
-    if len(horizons) != 1:
-        raise ValueError(f"the agents of one batch need one horizon, got {sorted(horizons)}")
-    horizon = horizons.pop()
+    if cfg.algo == "ddqn":
+        from nutribench.engine.ddqn import train_ddqn_batched
+
+        return train_ddqn_batched(jobs, cfg, episodes, on_episode)
+    envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
+    k, horizon, obs_dim, rng = envs.k, envs.horizon, envs.obs_dim, envs.rng
     s = OnPolicySettings.from_config(cfg, horizon)
-    rng = {name: [np.random.default_rng([salt, seed]) for seed in seeds] for name, salt in STREAMS.items()}
-    by_regime: dict[str, list[int]] = {}
-    for j, c in enumerate(env_cfgs):
-        by_regime.setdefault(c.sha256, []).append(j)
-    groups = [_Group(env_cfgs[js[0]], js) for js in by_regime.values()]
-    dims = {g.env.single_observation_space.shape[0] for g in groups}
-    if len(dims) != 1:
-        raise ValueError(f"the agents of one batch need one observation size (one food catalog), got {sorted(dims)}")
-    obs_dim = dims.pop()
     net = StackedActorCritic(k, obs_dim, list(cfg.net_arch),
                              generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in rng["init"]])  # fmt: skip
     optimizer = make_optimizer(net, s.learning_rate)
-    obs_stats = RunningStats(k, (obs_dim,)) if cfg.normalize_obs else None
     ret_stats = RunningStats(k) if cfg.normalize_reward else None
     discounted = np.zeros(k)
 
-    days_drawn: list[np.ndarray] = []
-
-    def new_days() -> np.ndarray:
-        raw = np.empty((k, obs_dim))
-        day = np.empty((k, horizon), dtype=np.int64)
-        for g in groups:
-            foods = np.stack([rng["foods"][j].integers(0, g.n_foods, size=horizon) for j in g.agents])
-            o, _ = g.env.reset(options={"foods": foods})
-            raw[g.agents], day[g.agents] = o, foods
-        days_drawn.append(day)
-        return raw
-
-    def seen(raw: np.ndarray) -> np.ndarray:
-        if obs_stats is None:
-            return raw.astype(np.float32)
-        obs_stats.update(raw)
-        return np.clip((raw - obs_stats.mean) / np.sqrt(obs_stats.var + NORM_EPS), -CLIP_OBS, CLIP_OBS).astype(np.float32)
-
-    episodes_done = [[] for _ in range(k)]
-    day_entropy = np.zeros(k)
     total_steps = episodes * horizon
     n_rollouts = total_steps // s.n_steps
-    obs = seen(new_days())
+    obs = envs.seen(envs.new_days())
     start_of_day = np.ones(k, dtype=np.float32)
     step = 0
     t0 = time.perf_counter()
@@ -138,24 +90,10 @@ def train_batched(
             logp = th.log_softmax(logits[:, 0], dim=-1).numpy()
             p_eat = np.exp(logp[:, 1])
             actions = (uniforms[:, t] < p_eat).astype(np.int64)
-            day_entropy += -(np.exp(logp) * logp).sum(axis=1)
             buf_obs[:, t], buf_act[:, t], buf_start[:, t] = obs, actions, start_of_day
             buf_logp[:, t] = logp[np.arange(k), actions]
             buf_val[:, t] = values[:, 0].numpy()
-            raw_next = np.empty((k, obs_dim))
-            rewards = np.empty(k)
-            day_over = False
-            for g in groups:
-                o, r, term, trunc, info = g.env.step(actions[g.agents])
-                raw_next[g.agents], rewards[g.agents] = o, r
-                ended = term | trunc
-                for row, metrics in zip(np.flatnonzero(ended), g.recorder.record(r, ended, info)):
-                    j = int(g.agents[row])
-                    metrics = {"episode": len(episodes_done[j]), **metrics, "entropy": float(day_entropy[j] / horizon)}
-                    episodes_done[j].append(metrics)
-                    if on_episode is not None:
-                        on_episode(j, metrics)
-                day_over = bool(ended.all())
+            raw_next, rewards, day_over = envs.step(actions, entropy=-(np.exp(logp) * logp).sum(axis=1))
             if ret_stats is not None:
                 discounted = discounted * s.gamma + rewards
                 ret_stats.update(discounted)
@@ -166,12 +104,11 @@ def train_batched(
             step += 1
             if day_over:
                 discounted[:] = 0.0
-                day_entropy[:] = 0.0
-                raw_next = new_days()
+                raw_next = envs.new_days()
                 start_of_day = np.ones(k, dtype=np.float32)
             else:
                 start_of_day = np.zeros(k, dtype=np.float32)
-            obs = seen(raw_next)
+            obs = envs.seen(raw_next)
         if T < s.n_steps:
             break  # a partial rollout: SB3 stops without updating on it
         with th.no_grad():
@@ -179,7 +116,7 @@ def train_batched(
         adv, ret = gae(buf_rew, buf_val, buf_start, last_values[:, 0].numpy(), start_of_day.astype(bool), s.gamma, s.gae_lambda)
         if on_rollout is not None:
             on_rollout({"obs": buf_obs, "actions": buf_act, "rewards": buf_rew, "starts": buf_start, "values": buf_val,
-                        "advantages": adv, "returns": ret, "foods": np.stack(days_drawn)})  # fmt: skip
+                        "advantages": adv, "returns": ret, "foods": np.stack(envs.days_drawn)})  # fmt: skip
         rollout = Rollout(
             obs=th.as_tensor(buf_obs), actions=th.as_tensor(buf_act), log_probs=th.as_tensor(buf_logp),
             values=th.as_tensor(buf_val), advantages=th.as_tensor(adv), returns=th.as_tensor(ret),
@@ -187,26 +124,5 @@ def train_batched(
         perms = np.stack([[r.permutation(T) for r in rng["minibatches"]] for _ in range(s.n_epochs)])
         s.update(net, optimizer, rollout, perms)
     wall = time.perf_counter() - t0
-    return [_as_trained_agent(net, j, cfg, env_cfgs[j], seeds[j], episodes, obs_stats, ret_stats, episodes_done[j], wall / k)
+    return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), ret_stats, wall / k)
             for j in range(k)]  # fmt: skip
-
-
-def _as_trained_agent(net: StackedActorCritic, j: int, cfg: Any, env_cfg: EnvConfig, seed: int, episodes: int,
-                      obs_stats: RunningStats | None, ret_stats: RunningStats | None, days: list[dict],
-                      wall: float) -> TrainedAgent:  # fmt: skip
-    """Agent ``j`` as an SB3 PPO in its ``VecNormalize``, as ``agents.train`` returns it."""
-    _, env = make_train_env(env_cfg, cfg)
-    model = build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon)
-    net.store_sb3(j, model.policy)
-    mean = var = None
-    if obs_stats is not None:
-        mean, var = obs_stats.mean[j].copy(), obs_stats.var[j].copy()
-        env.obs_rms.mean, env.obs_rms.var, env.obs_rms.count = mean.copy(), var.copy(), float(obs_stats.count[j])
-    if ret_stats is not None:
-        env.ret_rms.mean, env.ret_rms.var, env.ret_rms.count = float(ret_stats.mean[j]), float(ret_stats.var[j]), float(ret_stats.count[j])
-    provenance = {"regime": env_cfg.name, "regime_version": env_cfg.version, "regime_sha256": env_cfg.sha256,
-                  "agent_config": cfg.name, "agent_config_version": cfg.version, "seed": seed, "episodes": episodes,
-                  "engine": "batched", "batch_wall_seconds_per_agent": wall}  # fmt: skip
-    agent = TrainedAgent(model, cfg.algo, cfg, mean, var, vec_normalize=env if hasattr(env, "obs_rms") else None, provenance=provenance)
-    agent.train_episodes = days
-    return agent

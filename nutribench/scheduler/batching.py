@@ -1,5 +1,5 @@
 """How ``nutribench run`` groups jobs for the workers: one by one (the SB3 engine), or, with
-``--engine batched``, the jobs of each PPO or MC config in batches, one batch per worker."""
+``--engine batched``, the jobs of each PPO, MC or DDQN config in batches, one batch per worker."""
 
 from __future__ import annotations
 

@@ -332,7 +332,7 @@ def run_grid(
     """Run every job of the grid regime x algo x seed that is not done yet (see the module
     docstring). Returns counts; ``summary.exit_code`` is what ``nutribench run`` exits with.
     ``retry_failed``: jobs that failed :data:`~nutribench.store.jobs.MAX_FAILURES` times are tried again.
-    ``engine="batched"``: the jobs of PPO and MC configs train in batches, one batch per
+    ``engine="batched"``: the jobs of PPO, MC and DDQN configs train in batches, one batch per
     worker (:mod:`nutribench.engine`); the others as with ``"sb3"``. Each job is still stored
     on its own, in one transaction, with its engine in ``jobs.engine``.
 

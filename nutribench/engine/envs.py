@@ -1,0 +1,138 @@
+"""The K agents' environments for the batched engine: one natively batched vector env per
+regime (rows are agents), each agent's food days from its own seed, its observations
+normalised by its own running statistics (SB3's ``VecNormalize``), and its training days'
+metrics recorded as the SB3 engine records them; and each trained agent handed back as the
+SB3 engine's :class:`~nutribench.agents.api.TrainedAgent`."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from nutribench.agents.algos import build_model
+from nutribench.agents.api import CLIP_OBS, NORM_EPS, TrainedAgent, make_train_env
+from nutribench.config import EnvConfig, load_env_config
+from nutribench.engine.actor_critic import RunningStats
+from nutribench.env.metrics import EpisodeRecorder
+from nutribench.env.vector_env import NutriRLVectorEnv
+
+#: Mixed into each job seed for the batched engine's streams (foods, actions, minibatches and
+#: replay samples, init).
+STREAMS = {"foods": 1, "actions": 2, "minibatches": 3, "init": 4}
+
+AgentEpisodeFn = Callable[[int, dict[str, Any]], None]
+
+
+class _Group:
+    """The agents of one regime: one natively batched vector env, rows ``agents``."""
+
+    def __init__(self, env_cfg: EnvConfig, agents: list[int]):
+        self.agents = np.asarray(agents)
+        self.env = NutriRLVectorEnv(len(agents), regime=env_cfg)
+        self.recorder = EpisodeRecorder(len(agents))
+        self.n_foods = len(env_cfg.catalog.food)
+
+
+class AgentEnvs:
+    """One env per ``(regime, seed)`` of ``jobs``, stepped together; every day starts and
+    ends at once for all agents (one horizon)."""
+
+    def __init__(self, jobs: Sequence[tuple[str | EnvConfig, int]], normalize_obs: bool,
+                 on_episode: AgentEpisodeFn | None = None):  # fmt: skip
+        self.env_cfgs = [load_env_config(r) for r, _ in jobs]
+        self.seeds = [int(s) for _, s in jobs]
+        self.k = len(jobs)
+        horizons = {c.reward.horizon for c in self.env_cfgs}
+        if len(horizons) != 1:
+            raise ValueError(f"the agents of one batch need one horizon, got {sorted(horizons)}")
+        self.horizon = horizons.pop()
+        self.rng = {name: [np.random.default_rng([salt, seed]) for seed in self.seeds] for name, salt in STREAMS.items()}
+        by_regime: dict[str, list[int]] = {}
+        for j, c in enumerate(self.env_cfgs):
+            by_regime.setdefault(c.sha256, []).append(j)
+        self.groups = [_Group(self.env_cfgs[js[0]], js) for js in by_regime.values()]
+        dims = {g.env.single_observation_space.shape[0] for g in self.groups}
+        if len(dims) != 1:
+            raise ValueError(f"the agents of one batch need one observation size (one food catalog), got {sorted(dims)}")
+        self.obs_dim = dims.pop()
+        self.obs_stats = RunningStats(self.k, (self.obs_dim,)) if normalize_obs else None
+        self.on_episode = on_episode
+        self.days_drawn: list[np.ndarray] = []  # each day's foods (K, horizon), for tests
+        self.episodes: list[list[dict[str, Any]]] = [[] for _ in range(self.k)]
+        self._entropy = np.zeros(self.k)
+
+    def new_days(self) -> np.ndarray:
+        """Start a day for every agent (foods from its own stream); the raw observations."""
+        raw = np.empty((self.k, self.obs_dim))
+        day = np.empty((self.k, self.horizon), dtype=np.int64)
+        for g in self.groups:
+            foods = np.stack([self.rng["foods"][j].integers(0, g.n_foods, size=self.horizon) for j in g.agents])
+            o, _ = g.env.reset(options={"foods": foods})
+            raw[g.agents], day[g.agents] = o, foods
+        self.days_drawn.append(day)
+        return raw
+
+    def seen(self, raw: np.ndarray) -> np.ndarray:
+        """Observations ``(K, obs_dim)`` as the policies see them: the statistics updated
+        with them first, then normalised and clipped (``VecNormalize`` in training)."""
+        if self.obs_stats is None:
+            return raw.astype(np.float32)
+        self.obs_stats.update(raw)
+        return self.normalize(raw)
+
+    def normalize(self, raw: np.ndarray) -> np.ndarray:
+        """``raw (K, ..., obs_dim)`` normalised by each agent's current statistics, no update."""
+        if self.obs_stats is None:
+            return raw.astype(np.float32)
+        shape = (self.k,) + (1,) * (raw.ndim - 2) + (self.obs_dim,)
+        mean, var = self.obs_stats.mean.reshape(shape), self.obs_stats.var.reshape(shape)
+        return np.clip((raw - mean) / np.sqrt(var + NORM_EPS), -CLIP_OBS, CLIP_OBS).astype(np.float32)
+
+    def step(self, actions: np.ndarray, entropy: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, bool]:
+        """Step every agent: raw next observations, raw rewards, and whether the day ended
+        (then recorded for each agent, with its policy's mean ``entropy`` over the day, or
+        None for a policy without one)."""
+        if entropy is not None:
+            self._entropy += entropy
+        raw_next = np.empty((self.k, self.obs_dim))
+        rewards = np.empty(self.k)
+        day_over = False
+        for g in self.groups:
+            o, r, term, trunc, info = g.env.step(actions[g.agents])
+            raw_next[g.agents], rewards[g.agents] = o, r
+            ended = term | trunc
+            for row, metrics in zip(np.flatnonzero(ended), g.recorder.record(r, ended, info)):
+                j = int(g.agents[row])
+                day_entropy = None if entropy is None else float(self._entropy[j] / self.horizon)
+                metrics = {"episode": len(self.episodes[j]), **metrics, "entropy": day_entropy}
+                self.episodes[j].append(metrics)
+                if self.on_episode is not None:
+                    self.on_episode(j, metrics)
+            day_over = bool(ended.all())
+        if day_over:
+            self._entropy[:] = 0.0
+        return raw_next, rewards, day_over
+
+
+def as_trained_agent(envs: AgentEnvs, j: int, cfg: Any, episodes: int, store_weights: Callable[[Any], None],
+                     ret_stats: RunningStats | None, wall: float) -> TrainedAgent:  # fmt: skip
+    """Agent ``j`` of ``envs`` as the SB3 model of its config in its ``VecNormalize``, as
+    ``agents.train`` returns it: ``store_weights(model)`` puts the trained weights in."""
+    env_cfg, seed, obs_stats = envs.env_cfgs[j], envs.seeds[j], envs.obs_stats
+    _, env = make_train_env(env_cfg, cfg)
+    model = build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon)
+    store_weights(model)
+    mean = var = None
+    if obs_stats is not None:
+        mean, var = obs_stats.mean[j].copy(), obs_stats.var[j].copy()
+        env.obs_rms.mean, env.obs_rms.var, env.obs_rms.count = mean.copy(), var.copy(), float(obs_stats.count[j])
+    if ret_stats is not None:
+        env.ret_rms.mean, env.ret_rms.var, env.ret_rms.count = float(ret_stats.mean[j]), float(ret_stats.var[j]), float(ret_stats.count[j])
+    provenance = {"regime": env_cfg.name, "regime_version": env_cfg.version, "regime_sha256": env_cfg.sha256,
+                  "agent_config": cfg.name, "agent_config_version": cfg.version, "seed": seed, "episodes": episodes,
+                  "engine": "batched", "batch_wall_seconds_per_agent": wall}  # fmt: skip
+    agent = TrainedAgent(model, cfg.algo, cfg, mean, var, vec_normalize=env if hasattr(env, "obs_rms") else None, provenance=provenance)
+    agent.train_episodes = envs.episodes[j]
+    return agent
