@@ -82,12 +82,13 @@ BARE_REFERENCES: dict[str, list[tuple[str, str]]] = {
 
 
 def _bench_config(algo: str):
-    """The shipped config, with DDQN's learning start moved to step 0 so that the timed
-    steps are learning steps (as are 96 % of a 5000-episode job's)."""
+    """The shipped config, with DDQN's and SAC's learning start moved to step 0 so that the
+    timed steps are learning steps (as are 96 % of a 5000-episode DDQN job's, and all but 128
+    of a SAC job's)."""
     from nutribench.agents.config import load_agent_config
 
     cfg = load_agent_config(algo)
-    if cfg.algo == "ddqn":
+    if cfg.algo in ("ddqn", "sac"):
         cfg = cfg.model_copy(update={"learning_starts": 0})
     return cfg
 
@@ -235,11 +236,16 @@ def flops_per_env_step(cfg, obs_dim: int = 13, n_actions: int = 2, horizon: int 
     to act, and per step of the rollout ``n_epochs`` (MC: 1) forward + backward passes.
     DDQN (once learning has started): one forward to act, and per update (every
     ``train_freq`` steps, ``gradient_steps`` of them) ``batch_size`` samples through the
-    online and target nets at the next states and the online net forward and backward."""
-    if cfg.algo == "ddqn":
+    online and target nets at the next states and the online net forward and backward.
+    Discrete SAC (once learning has started): one actor forward to act, and per update and
+    sample 14 network forwards: the actor and the two target critics at the next states (3),
+    both critics forward and backward (6), the actor forward and backward (3), both critics
+    again for the actor's loss (2)."""
+    if cfg.algo in ("ddqn", "sac"):
         sizes = [obs_dim, *cfg.net_arch, n_actions]
         forward = 2 * sum(a * b for a, b in zip(sizes[:-1], sizes[1:]))
-        return forward * (1 + 5 * cfg.batch_size * cfg.gradient_steps / cfg.train_freq)
+        per_sample = 5 if cfg.algo == "ddqn" else 14
+        return forward * (1 + per_sample * cfg.batch_size * cfg.gradient_steps / cfg.train_freq)
     from nutribench.engine.actor_critic import OnPolicySettings
 
     sizes = [obs_dim, *cfg.net_arch]
@@ -267,14 +273,14 @@ def matmul_flops_per_s(k: int = 35, batch: int = 64, n_in: int = 256, n_out: int
 
 def bench_train_batched(algo: str = "ppo", k_regimes: int = 7, k_seeds: int = 5, episodes: int = 20, repeats: int = 3) -> dict:
     """Env-steps per second of the batched engine training K = regimes x seeds agents of
-    ``algo`` at once in one process (one thread; DDQN learning from the first step), the arithmetic it does per env step, this
+    ``algo`` at once in one process (one thread; DDQN and SAC learning from the first step), the arithmetic it does per env step, this
     machine's matmul rate, the share of that floor reached, and the paper grid's wall time
     for this algorithm at that rate on all the cores."""
     from nutribench import SHIPPED_REGIMES
     from nutribench.engine.train import train_batched
     from nutribench.scheduler.executors import core_count
 
-    cfg = _bench_config(algo)  # DDQN learning from the first step, as in the SB3 engine's row
+    cfg = _bench_config(algo)  # DDQN and SAC learning from the first step, as in the SB3 engine's rows
     jobs = [(r, s) for r in SHIPPED_REGIMES[:k_regimes] for s in range(k_seeds)]
     times = []
     for _ in range(repeats):
@@ -284,7 +290,7 @@ def bench_train_batched(algo: str = "ppo", k_regimes: int = 7, k_seeds: int = 5,
     steps = len(jobs) * episodes * 50
     rate = steps / statistics.median(times)
     flops = flops_per_env_step(cfg)
-    peak = matmul_flops_per_s(k=len(jobs), batch=cfg.batch_size if cfg.algo == "ddqn" else 64)
+    peak = matmul_flops_per_s(k=len(jobs), batch=cfg.batch_size if cfg.algo in ("ddqn", "sac") else 64)
     grid_steps = PAPER_GRID["regimes"] * PAPER_GRID["seeds"] * PAPER_GRID["episodes"] * 50
     cores = min(core_count(), PAPER_GRID["regimes"] * PAPER_GRID["seeds"])  # batches side by side
     return {"algo": algo, "k": len(jobs), "episodes": episodes, "steps_per_s": rate, "flops_per_step": flops,

@@ -69,6 +69,52 @@ def wait_for(predicate, timeout: float) -> None:
     raise AssertionError("timed out")
 
 
+def sb3_model(algo: str, seed: int, regime: str = "run0"):
+    """``(config, model)``: the SB3 engine's model of the shipped ``algo`` config on ``regime``
+    as a job builds it, with a silent logger so that ``train()`` can be called directly."""
+    from stable_baselines3.common.logger import Logger
+
+    from nutribench.agents.algos import build_model
+    from nutribench.agents.api import make_train_env
+    from nutribench.agents.config import load_agent_config
+    from nutribench.config import load_env_config
+
+    cfg, env_cfg = load_agent_config(algo), load_env_config(regime)
+    _, env = make_train_env(env_cfg, cfg)
+    model = build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon)
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    return cfg, model
+
+
+def shake(params, seed: int, scale: float = 0.05) -> None:
+    """Add seeded noise to ``params`` in place (a target network unlike its online one)."""
+    import torch as th
+
+    with th.no_grad():
+        for p in params:
+            p.add_(scale * th.randn(p.shape, generator=th.Generator().manual_seed(seed)))
+
+
+def sb3_updates(algo_cls, regime: str, cfg, episodes: int, what) -> list:
+    """Train ``cfg`` with the SB3 engine (seed 0) and return ``what(model)`` at each call of
+    ``algo_cls.train`` (before the update): when and how the SB3 agent updates."""
+    from nutribench.agents.api import train
+
+    seen: list = []
+    original = algo_cls.train
+
+    def spy(self, gradient_steps, batch_size=100):
+        seen.append(what(self))
+        original(self, gradient_steps, batch_size)
+
+    algo_cls.train = spy
+    try:
+        train(regime, cfg, seed=0, episodes=episodes)
+    finally:
+        algo_cls.train = original
+    return seen
+
+
 def write_regime_dir(folder: Path, regime: str = REGIME, catalog: str = CATALOG, reward: str = REWARD) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "foods.toml").write_text(textwrap.dedent(catalog))

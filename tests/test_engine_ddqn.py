@@ -9,25 +9,17 @@ import pytest
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import NStepReplayBuffer
-from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.utils import LinearSchedule
 
-from nutribench.agents.algos import DoubleDQN, build_model
+from nutribench.agents.algos import DoubleDQN
 from nutribench.agents.api import TrainedAgent, evaluate, eval_food_streams, make_train_env
 from nutribench.agents.config import load_agent_config
 from nutribench.config import load_env_config
-from nutribench.engine.ddqn import (
-    Batch,
-    StackedMLP,
-    StackedReplay,
-    ddqn_update,
-    linear_schedule,
-    make_q_optimizer,
-    q_linears,
-    train_ddqn_batched,
-)
+from nutribench.engine.ddqn import ddqn_update, q_linears, train_ddqn_batched
 from nutribench.engine.envs import AgentEnvs
+from nutribench.engine.off_policy import Batch, StackedMLP, StackedReplay, linear_schedule, make_adam
+from tests.conftest import sb3_model, sb3_updates, shake
 
 OBS_DIM, GAMMA, N_STEP = 13, 0.99, 5
 
@@ -72,14 +64,8 @@ def test_n_step_sampling_equals_sb3_s_n_step_replay_buffer(size: int, n: int) ->
 
 
 def _sb3_ddqn(seed: int):
-    cfg = load_agent_config("ddqn")
-    env_cfg = load_env_config("run0")
-    _, env = make_train_env(env_cfg, cfg)
-    model = build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon)
-    model.set_logger(Logger(folder=None, output_formats=[]))
-    with th.no_grad():  # a target net unlike the online one, so that the double target matters
-        for p in model.q_net_target.parameters():
-            p.add_(0.05 * th.randn(p.shape, generator=th.Generator().manual_seed(seed)))
+    cfg, model = sb3_model("ddqn", seed)
+    shake(model.q_net_target.parameters(), seed)  # so that the target network matters
     return cfg, model
 
 
@@ -94,7 +80,7 @@ def test_one_ddqn_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -
     for j, (_, m) in enumerate(models):
         q.load_linears(j, q_linears(m.q_net))
         q_target.load_linears(j, q_linears(m.q_net_target))
-    optimizer = make_q_optimizer(q, cfg.learning_rate_start)
+    optimizer = make_adam(q.params, cfg.learning_rate_start)
     rng = np.random.default_rng(3)
     for progress in (0.9, 0.6):
         batch = Batch(
@@ -150,21 +136,8 @@ def test_the_loop_updates_when_sb3_does_with_its_learning_rate_epsilon_and_targe
     events: list[tuple] = []
     train_ddqn_batched([("run0", 0), ("run6", 1)], cfg, episodes=3,
                        on_update=lambda u: events.append((u["steps"], u["learning_rate"], u["epsilon"], u["target_copies"])))  # fmt: skip
-    from nutribench.agents.api import train
-
-    sb3: list[tuple] = []
-    original = DoubleDQN.train
-
-    def spy(self, gradient_steps, batch_size=100):
-        sb3.append((self.num_timesteps, self.lr_schedule(self._current_progress_remaining), self.exploration_rate,
-                    self._n_calls // self.target_update_interval))  # fmt: skip
-        original(self, gradient_steps, batch_size)
-
-    DoubleDQN.train = spy
-    try:
-        train("run0", cfg, seed=0, episodes=3)
-    finally:
-        DoubleDQN.train = original
+    sb3 = sb3_updates(DoubleDQN, "run0", cfg, 3, lambda m: (m.num_timesteps, m.lr_schedule(m._current_progress_remaining),
+                                                         m.exploration_rate, m._n_calls // m.target_update_interval))  # fmt: skip
     assert len(events) == len(sb3) == (150 - 1 - 60) // 4
     for ours, theirs in zip(events, sb3):
         assert ours[0] == theirs[0] and ours[3] == theirs[3]

@@ -1,6 +1,6 @@
-"""Train K agents of one agent config (PPO, MC or DDQN) at once (regimes and seeds may differ), and hand
+"""Train K agents of one agent config (PPO, MC, DDQN or SAC) at once (regimes and seeds may differ), and hand
 each back as the :class:`~nutribench.agents.api.TrainedAgent` the SB3 engine would give:
-an SB3 ``PPO`` (MC: ``MonteCarloAC``; DDQN: ``DoubleDQN``, :mod:`nutribench.engine.ddqn`) with the trained weights, its ``VecNormalize`` statistics, and its training
+an SB3 ``PPO`` (MC: ``MonteCarloAC``; DDQN: ``DoubleDQN``, :mod:`nutribench.engine.ddqn`; SAC: ``DiscreteSAC``, :mod:`nutribench.engine.sac`) with the trained weights, its ``VecNormalize`` statistics, and its training
 days' metrics. Evaluation, saving and loading are then the single-agent API's.
 
 Per agent, the loop is SB3's ``PPO.learn`` (MC: ``A2C.learn``) on nutribench's one-env
@@ -42,7 +42,7 @@ def train_batched(
     on_episode: AgentEpisodeFn | None = None,
     on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None,
 ) -> list[TrainedAgent]:
-    """Train one agent of ``agent_config`` (PPO, MC or DDQN) per ``(regime, seed)`` of ``jobs`` for
+    """Train one agent of ``agent_config`` (PPO, MC, DDQN or SAC) per ``(regime, seed)`` of ``jobs`` for
     ``episodes`` days, all at once.
 
     :param on_rollout: called before each update with the rollout's arrays (agent axis first):
@@ -58,6 +58,10 @@ def train_batched(
         from nutribench.engine.ddqn import train_ddqn_batched
 
         return train_ddqn_batched(jobs, cfg, episodes, on_episode)
+    if cfg.algo == "sac":
+        from nutribench.engine.sac import train_sac_batched
+
+        return train_sac_batched(jobs, cfg, episodes, on_episode)
     envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
     k, horizon, obs_dim, rng = envs.k, envs.horizon, envs.obs_dim, envs.rng
     s = OnPolicySettings.from_config(cfg, horizon)

@@ -1,0 +1,137 @@
+"""Discrete SAC for K agents at once: :class:`~nutribench.agents.sac.DiscreteSAC`'s update
+with every agent's parameters stacked along a leading agent axis.
+
+Per agent, everything is what ``algos.build_model`` builds from ``sac.toml``:
+
+* a categorical actor ``obs -> 256 -> 128 -> 2`` and twin critics of the same shape (one Q
+  per action), PyTorch's default ``Linear`` initialisation, target critics copied from
+  them; one Adam (eps 1e-8) for the actor and one for both critics, each at its own rate;
+* ``VecNormalize`` of the observations; SB3's off-policy loop
+  (:func:`~nutribench.engine.off_policy.run_off_policy`) with its one-step replay: uniformly
+  random actions for the first ``learning_starts`` steps, then actions drawn from the policy;
+* each update: the critics regress the soft Bellman target ``r + gamma (1 - done)
+  sum_a pi(a|s') (min Q_targ(s', a) - alpha log pi(a|s'))`` (MSE, both critics); then the
+  actor minimises ``sum_a pi(a|s) (alpha log pi(a|s) - min Q(s, a))`` against the
+  just-updated critics; then the targets move by Polyak averaging (``tau``).
+
+The twin critics of the K agents are one stack of 2K networks (first critics, then second
+critics), so that both are one batched product. The day's entropy recorded for each agent
+is the policy's at the moment it acted (the SB3 engine's is the end-of-day policy's on the
+day's observations; SAC's policy moves every step, so the two differ slightly).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import torch as th
+
+from nutribench.agents.api import TrainedAgent
+from nutribench.config import EnvConfig
+from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
+from nutribench.engine.off_policy import Batch, StackedMLP, make_adam, run_off_policy
+
+
+def linears(seq: th.nn.Module) -> list[th.nn.Linear]:
+    """The ``Linear`` layers of an ``nn.Sequential`` MLP, input to output."""
+    return [m for m in seq if isinstance(m, th.nn.Linear)]
+
+
+class StackedSAC:
+    """The K agents' actors (a K-stack), critics and target critics (2K-stacks: agent ``j``'s
+    first critic at ``j``, its second at ``K + j``) and their two optimisers."""
+
+    def __init__(self, k: int, sizes: list[int], actor_lr: float, critic_lr: float,
+                 generators: list[th.Generator] | None = None):  # fmt: skip
+        self.k = k
+        self.actor = StackedMLP(k, sizes, generators)
+        self.critic = StackedMLP(2 * k, sizes, None if generators is None else generators + generators)
+        self.critic_target = StackedMLP(2 * k, sizes)
+        self.critic_target.copy_from(self.critic)
+        self.actor_optimizer = make_adam(self.actor.params, actor_lr)
+        self.critic_optimizer = make_adam(self.critic.params, critic_lr)
+
+    def twin_q(self, obs: th.Tensor, target: bool = False) -> tuple[th.Tensor, th.Tensor]:
+        """``(Q1, Q2)`` at ``obs (K, B, d)``, each ``(K, B, n_actions)``."""
+        q = (self.critic_target if target else self.critic).forward(th.cat([obs, obs]))
+        return q[: self.k], q[self.k :]
+
+    def policy(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """``(probs, log_probs)`` of the actors at ``obs (K, B, d)``."""
+        log_probs = th.log_softmax(self.actor.forward(obs), dim=-1)
+        return log_probs.exp(), log_probs
+
+    def load_sb3(self, j: int, policy) -> None:
+        """Agent ``j``'s networks from a ``DiscreteSACPolicy``."""
+        self.actor.load_linears(j, linears(policy.actor))
+        for net, critic in ((self.critic, policy.critic), (self.critic_target, policy.critic_target)):
+            net.load_linears(j, linears(critic.q1))
+            net.load_linears(self.k + j, linears(critic.q2))
+
+    def store_sb3(self, j: int, policy) -> None:
+        """Agent ``j``'s networks into a ``DiscreteSACPolicy``."""
+        self.actor.store_linears(j, linears(policy.actor))
+        for net, critic in ((self.critic, policy.critic), (self.critic_target, policy.critic_target)):
+            net.store_linears(j, linears(critic.q1))
+            net.store_linears(self.k + j, linears(critic.q2))
+
+
+def sac_update(net: StackedSAC, batch: Batch, alpha: float, gamma: float, tau: float) -> dict[str, np.ndarray]:
+    """One gradient step of :meth:`DiscreteSAC.train` for the K agents: critics, then actor,
+    then targets. Returns each agent's critic and actor loss ``(K,)``."""
+    with th.no_grad():
+        probs_next, log_probs_next = net.policy(batch.next_obs)
+        q1_next, q2_next = net.twin_q(batch.next_obs, target=True)
+        v_next = (probs_next * (th.min(q1_next, q2_next) - alpha * log_probs_next)).sum(dim=-1)
+        y = batch.rewards + gamma * (1.0 - batch.dones) * v_next
+    q1, q2 = net.twin_q(batch.obs)
+    a = batch.actions.unsqueeze(-1)
+    critic_loss = (q1.gather(-1, a).squeeze(-1) - y).pow(2).mean(dim=1) + (q2.gather(-1, a).squeeze(-1) - y).pow(2).mean(dim=1)
+    net.critic_optimizer.zero_grad()
+    critic_loss.sum().backward()
+    net.critic_optimizer.step()
+
+    probs, log_probs = net.policy(batch.obs)
+    with th.no_grad():
+        q1, q2 = net.twin_q(batch.obs)
+        min_q = th.min(q1, q2)
+    actor_loss = (probs * (alpha * log_probs - min_q)).sum(dim=-1).mean(dim=1)
+    net.actor_optimizer.zero_grad()
+    actor_loss.sum().backward()
+    net.actor_optimizer.step()
+
+    with th.no_grad():  # SB3's polyak_update: targ * (1 - tau) + tau * online
+        th._foreach_mul_(net.critic_target.params, 1.0 - tau)
+        th._foreach_add_(net.critic_target.params, net.critic.params, alpha=tau)
+    return {"critic_loss": critic_loss.detach().numpy(), "actor_loss": actor_loss.detach().numpy()}
+
+
+def train_sac_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, episodes: int,
+                      on_episode: AgentEpisodeFn | None = None,
+                      on_update: Callable[[dict[str, Any]], None] | None = None) -> list[TrainedAgent]:  # fmt: skip
+    """Train one discrete-SAC agent of ``cfg`` per ``(regime, seed)`` of ``jobs`` for
+    ``episodes`` days, all at once; ``on_update`` gets ``steps`` and the K losses after each update."""
+    envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
+    k = envs.k
+    net = StackedSAC(k, [envs.obs_dim, *cfg.net_arch, 2], cfg.actor_learning_rate, cfg.critic_learning_rate,
+                     generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]])  # fmt: skip
+
+    def act(obs: np.ndarray, n: int, uniforms: np.ndarray, random_actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        with th.no_grad():
+            probs, log_probs = net.policy(th.as_tensor(obs).unsqueeze(1))
+        probs, log_probs = probs[:, 0].numpy(), log_probs[:, 0].numpy()
+        entropy = -(probs * log_probs).sum(axis=1)
+        if n < cfg.learning_starts:
+            return random_actions, entropy
+        return (uniforms < probs[:, 1]).astype(np.int64), entropy
+
+    def update(steps: int, progress: float, batch: Batch) -> None:
+        losses = sac_update(net, batch, cfg.alpha, cfg.gamma, cfg.tau)
+        if on_update is not None:
+            on_update({"steps": steps, **losses})
+
+    wall = run_off_policy(envs, cfg, episodes * envs.horizon, act, update)
+    return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), None, wall / k)
+            for j in range(k)]  # fmt: skip
