@@ -248,8 +248,13 @@ def flops_per_env_step(cfg, obs_dim: int = 13, n_actions: int = 2, horizon: int 
         return forward * (1 + per_sample * cfg.batch_size * cfg.gradient_steps / cfg.train_freq)
     from nutribench.engine.actor_critic import OnPolicySettings
 
-    sizes = [obs_dim, *cfg.net_arch]
-    forward = 2 * sum(a * b for a, b in zip(sizes[:-1], sizes[1:])) + 2 * sizes[-1] * (n_actions + 1)
+    if cfg.algo == "gru_ppo":  # two GRU steps (input and recurrent products of 3 gates), two heads
+        h, head = cfg.hidden_size, 128
+        grus = sum(2 * n_in * 3 * h + 2 * h * 3 * h for n_in in (3, obs_dim - 3))
+        forward = grus + 2 * (2 * h) * head * 2 + 2 * head * (n_actions + 1)
+    else:
+        sizes = [obs_dim, *cfg.net_arch]
+        forward = 2 * sum(a * b for a, b in zip(sizes[:-1], sizes[1:])) + 2 * sizes[-1] * (n_actions + 1)
     return forward * (1 + 3 * OnPolicySettings.from_config(cfg, horizon).n_epochs)
 
 

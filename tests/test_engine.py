@@ -216,7 +216,7 @@ def test_one_mc_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -> 
             np.testing.assert_allclose(a[j].detach().numpy(), b[0].detach().numpy(), rtol=1e-4, atol=2e-6)
 
 
-@pytest.mark.parametrize("algo", ["ppo", "mc"])
+@pytest.mark.parametrize("algo", ["ppo", "mc", "gru_ppo"])
 def test_the_batched_rollout_equals_sb3_s_vecnormalize_and_rollout_buffer_on_the_same_days(algo: str) -> None:
     """The rollout loop itself, replayed through SB3: the same food days and the same actions
     played in SB3's VecNormalize over the SB3 adapter give the observations and scaled rewards
@@ -233,9 +233,9 @@ def test_the_batched_rollout_equals_sb3_s_vecnormalize_and_rollout_buffer_on_the
     cfg = load_agent_config(algo)
     jobs = [("run0", 0), ("run3", 1)]
     seen: list[dict] = []
-    days = 10 if algo == "ppo" else 2  # one PPO rollout (500 steps), two MC rollouts (one day each)
+    days = 2 if algo == "mc" else 10  # one PPO / GRU-PPO rollout (500 steps), two MC rollouts (one day each)
     train_batched(jobs, cfg, days, on_rollout=seen.append)
-    assert len(seen) == (1 if algo == "ppo" else 2)
+    assert len(seen) == (2 if algo == "mc" else 1)
     for j, (regime, _) in enumerate(jobs):
         base = NutriRLSB3VecEnv(regime=regime)
         queue = [d[j] for d in seen[-1]["foods"]]
@@ -260,3 +260,64 @@ def test_the_batched_rollout_equals_sb3_s_vecnormalize_and_rollout_buffer_on_the
             buf.compute_returns_and_advantage(th.tensor([0.0]), np.array([start]))
             np.testing.assert_allclose(rollout["advantages"][j], buf.advantages[:, 0], rtol=1e-4, atol=1e-5)
             np.testing.assert_allclose(rollout["returns"][j], buf.returns[:, 0], rtol=1e-4, atol=1e-5)
+
+
+# --------------------------------------------------------------------------- GRU-PPO
+def test_one_gru_ppo_update_of_stacked_agents_equals_gru_ppo_s_update_of_each_alone() -> None:
+    """One rollout each (run0, run3, run0), then one ``GRUPPO.train()`` of each alone against
+    one stacked update: every weight of both GRUs and both heads, relative tolerance 1e-4.
+
+    Three epochs (six minibatch steps over whole days), not the config's ten: the two agree
+    to 2e-7 for four epochs, and then, on these seeds, one critic-head ReLU unit of one agent
+    whose input sits at zero to float rounding is on in one implementation and off in the
+    other for one sample, so that unit's 256 weights part by ~1e-4 (traced: every other
+    weight of that head stays equal). The update code is the same in every epoch."""
+    import dataclasses
+
+    from nutribench.engine.gru_ppo import StackedGRUActorCritic, gru_ppo_update
+
+    th.set_num_threads(1)
+    epochs = 3
+    made = [_sb3_ppo_after_one_rollout(s, r, "gru_ppo") for s, r in zip([0, 1, 2], ["run0", "run3", "run0"])]
+    cfg, models = made[0][0], [m for _, m in made]
+    net = StackedGRUActorCritic(len(models), models[0].observation_space.shape[0], cfg.hidden_size)
+    for j, m in enumerate(models):
+        net.load_sb3(j, m.policy)
+        m.n_epochs = epochs
+    optimizer = make_optimizer(net, cfg.learning_rate)
+    settings = dataclasses.replace(OnPolicySettings.from_config(cfg, 50), n_epochs=epochs)
+    n_days = cfg.n_steps // cfg.sequence_length
+    perms = []
+    for j, m in enumerate(models):  # the buffer draws one permutation of the days per epoch
+        np.random.seed(200 + j)
+        perms.append([np.random.permutation(n_days) for _ in range(epochs)])
+        np.random.seed(200 + j)
+        m.train()
+    gru_ppo_update(net, optimizer, _rollout_of(models), settings, np.stack(perms, axis=1))
+    for j, m in enumerate(models):
+        for ours, theirs in net._sb3_pairs(m.policy, j):
+            np.testing.assert_allclose(ours.detach().numpy(), theirs.detach().numpy(), rtol=1e-4, atol=1e-6)
+
+
+def test_the_stacked_gru_acts_and_replays_days_as_the_sb3_policy_does() -> None:
+    """Acting step by step (state carried, reset at a day's start) and replaying whole days
+    give the SB3 policy's logits and values for each of two stacked agents."""
+    from nutribench.engine.gru_ppo import StackedGRUActorCritic
+
+    models = [_sb3_ppo_after_one_rollout(s, "run0", "gru_ppo")[1] for s in (3, 4)]
+    net = StackedGRUActorCritic(2, 13, 128)
+    for j, m in enumerate(models):
+        net.load_sb3(j, m.policy)
+    obs = th.as_tensor(np.stack([m.rollout_buffer.observations[:100, 0] for m in models]), dtype=th.float32)  # two days
+    state = th.full((4, 1, 128), 0.3)  # junk before the first day: the reset must clear it
+    with th.no_grad():
+        day_logits, day_values = net.sequences(obs.reshape(2, 2, 50, 13))
+        for j, m in enumerate(models):
+            feats, _ = m.policy.unroll(obs[j].reshape(2, 50, 13), m.policy.initial_state(2), th.zeros(2, 50))
+            np.testing.assert_allclose(day_logits[j].reshape(100, -1), m.policy.actor_head(feats).reshape(100, -1), rtol=1e-4, atol=1e-5)
+            np.testing.assert_allclose(day_values[j].reshape(100), m.policy.critic_head(feats).reshape(100), rtol=1e-4, atol=1e-5)
+        for t in range(100):
+            starts = th.full((2,), float(t % 50 == 0))
+            logits, values, state = net.step(obs[:, t], state, starts)
+            np.testing.assert_allclose(logits, day_logits.reshape(2, 100, -1)[:, t], rtol=1e-4, atol=1e-5)
+            np.testing.assert_allclose(values, day_values.reshape(2, 100)[:, t], rtol=1e-4, atol=1e-5)

@@ -4,4 +4,4 @@ parameters stacked along an agent axis (issue 15). The SB3 agents in
 to make the same update as its SB3 counterpart."""
 
 #: the algorithms the batched engine trains (their agent configs can run with ``--engine batched``)
-BATCHED_ALGOS = ("ppo", "mc", "ddqn", "sac")
+BATCHED_ALGOS = ("ppo", "mc", "ddqn", "sac", "gru_ppo")

@@ -39,7 +39,7 @@ GAINS = (math.sqrt(2), math.sqrt(2), 0.01, 1.0)  # backbone layers, actor head, 
 
 @dataclass
 class OnPolicySettings:
-    """What the rollout and the update read from an agent config (PPO or MC)."""
+    """What the rollout and the update read from an agent config (PPO, MC or GRU-PPO)."""
 
     algo: str
     learning_rate: float
@@ -53,11 +53,13 @@ class OnPolicySettings:
     vf_coef: float
     max_grad_norm: float
     normalize_advantage: bool
+    sequence_length: int | None = None  # GRU-PPO: minibatches of whole days (batch_size counts days)
 
     @classmethod
     def from_config(cls, cfg, horizon: int) -> OnPolicySettings:
         """PPO's fields as written; MC as ``algos.model_arguments`` builds it: a rollout of one
-        day, one step on all of it, lambda 1, no advantage normalisation."""
+        day, one step on all of it, lambda 1, no advantage normalisation; GRU-PPO's batch in
+        whole days."""
         common = dict(algo=cfg.algo, learning_rate=cfg.learning_rate, gamma=cfg.gamma, ent_coef=cfg.ent_coef,
                       vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm)  # fmt: skip
         if cfg.algo == "mc":
@@ -66,7 +68,11 @@ class OnPolicySettings:
         if cfg.algo == "ppo":
             return cls(**common, n_steps=cfg.n_steps, batch_size=cfg.batch_size, n_epochs=cfg.n_epochs,
                        gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, normalize_advantage=cfg.normalize_advantage)  # fmt: skip
-        raise ValueError(f"the batched engine trains ppo and mc so far, not {cfg.algo!r}")
+        if cfg.algo == "gru_ppo":  # as GRUPPO.sequences_per_batch
+            return cls(**common, n_steps=cfg.n_steps, batch_size=max(1, round(cfg.batch_size / cfg.sequence_length)),
+                       n_epochs=cfg.n_epochs, gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range,
+                       normalize_advantage=cfg.normalize_advantage, sequence_length=cfg.sequence_length)  # fmt: skip
+        raise ValueError(f"no on-policy settings for {cfg.algo!r}")
 
     def update(self, net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: Rollout,
                permutations: np.ndarray) -> dict[str, np.ndarray]:  # fmt: skip
@@ -160,14 +166,17 @@ class RunningStats:
         self.count = self.count + 1.0
 
 
-def clip_grad_norm_per_agent(params: list[th.Tensor], max_norm: float) -> th.Tensor:
-    """``torch.nn.utils.clip_grad_norm_`` applied to each agent's own parameters; the K norms."""
-    sq = sum(p.grad.pow(2).reshape(p.shape[0], -1).sum(dim=1) for p in params)
+def clip_grad_norm_per_agent(params: list[th.Tensor], max_norm: float, k: int | None = None) -> th.Tensor:
+    """``torch.nn.utils.clip_grad_norm_`` applied to each agent's own parameters; the K norms.
+    A parameter may stack several networks per agent along its first axis (``m * K`` rows:
+    row ``i * K + j`` is agent ``j``'s ``i``-th); ``k`` is K (default: the first parameter's rows)."""
+    k = params[0].shape[0] if k is None else k
+    sq = sum(p.grad.pow(2).reshape(p.shape[0] // k, k, -1).sum(dim=(0, 2)) for p in params)
     norms = sq.sqrt()
     if math.isfinite(max_norm):
         coef = (max_norm / (norms + 1e-6)).clamp(max=1.0)
         for p in params:
-            p.grad.mul_(coef.reshape(-1, *([1] * (p.ndim - 1))))
+            p.grad.mul_(coef.repeat(p.shape[0] // k).reshape(-1, *([1] * (p.ndim - 1))))
     return norms
 
 

@@ -1,10 +1,13 @@
-"""Train K agents of one agent config (PPO, MC, DDQN or SAC) at once (regimes and seeds may differ), and hand
-each back as the :class:`~nutribench.agents.api.TrainedAgent` the SB3 engine would give:
-an SB3 ``PPO`` (MC: ``MonteCarloAC``; DDQN: ``DoubleDQN``, :mod:`nutribench.engine.ddqn`; SAC: ``DiscreteSAC``, :mod:`nutribench.engine.sac`) with the trained weights, its ``VecNormalize`` statistics, and its training
-days' metrics. Evaluation, saving and loading are then the single-agent API's.
+"""Train K agents of one agent config at once (regimes and seeds may differ), and hand each
+back as the :class:`~nutribench.agents.api.TrainedAgent` the SB3 engine would give: the SB3
+model of its config (``PPO``, ``MonteCarloAC``, ``DoubleDQN``, ``DiscreteSAC`` or
+``GRUPPO``) with the trained weights, its ``VecNormalize`` statistics, and its training days'
+metrics. Evaluation, saving and loading are then the single-agent API's. DDQN and SAC run
+in :mod:`nutribench.engine.ddqn` and :mod:`nutribench.engine.sac`; the on-policy ones here.
 
-Per agent, the loop is SB3's ``PPO.learn`` (MC: ``A2C.learn``) on nutribench's one-env
-``VecNormalize`` setting:
+Per agent, the on-policy loop is SB3's ``PPO.learn`` (MC: ``A2C.learn``; GRU-PPO:
+``GRUPPO.learn``, the GRU state carried from step to step and reset at each day's start) on
+nutribench's one-env ``VecNormalize`` setting:
 observations normalised by a running mean and variance updated with every observation
 (including each day's first), rewards scaled by the running deviation of the discounted
 return, ``n_steps`` steps per rollout (MC: one day), a day's end a terminal, then the update. A budget
@@ -33,6 +36,34 @@ from nutribench.agents.config import load_agent_config
 from nutribench.config import EnvConfig
 from nutribench.engine.actor_critic import OnPolicySettings, Rollout, RunningStats, StackedActorCritic, gae, make_optimizer
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
+from nutribench.engine.gru_ppo import StackedGRUActorCritic, gru_ppo_update
+
+
+class _Feedforward:
+    """Acting with the shared MLP actor-critic: ``(obs (K, d), starts (K,))`` -> logits ``(K, 2)``, values ``(K,)``."""
+
+    def __init__(self, net: StackedActorCritic):
+        self.net = net
+
+    def __call__(self, obs: th.Tensor, starts: th.Tensor, advance: bool = True) -> tuple[th.Tensor, th.Tensor]:
+        logits, values = self.net.forward(obs.unsqueeze(1))
+        return logits[:, 0], values[:, 0]
+
+
+class _Recurrent:
+    """Acting with the GRU actor-critic, its state carried from step to step (reset where a
+    day starts); ``advance=False`` peeks (the value after the rollout, as SB3's
+    ``predict_values``, which does not keep the new state)."""
+
+    def __init__(self, net: StackedGRUActorCritic):
+        self.net = net
+        self.state = th.zeros(2 * net.k, 1, net.hidden)
+
+    def __call__(self, obs: th.Tensor, starts: th.Tensor, advance: bool = True) -> tuple[th.Tensor, th.Tensor]:
+        logits, values, state = self.net.step(obs, self.state, starts)
+        if advance:
+            self.state = state
+        return logits, values
 
 
 def train_batched(
@@ -42,7 +73,7 @@ def train_batched(
     on_episode: AgentEpisodeFn | None = None,
     on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None,
 ) -> list[TrainedAgent]:
-    """Train one agent of ``agent_config`` (PPO, MC, DDQN or SAC) per ``(regime, seed)`` of ``jobs`` for
+    """Train one agent of ``agent_config`` per ``(regime, seed)`` of ``jobs`` for
     ``episodes`` days, all at once.
 
     :param on_rollout: called before each update with the rollout's arrays (agent axis first):
@@ -65,8 +96,16 @@ def train_batched(
     envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
     k, horizon, obs_dim, rng = envs.k, envs.horizon, envs.obs_dim, envs.rng
     s = OnPolicySettings.from_config(cfg, horizon)
-    net = StackedActorCritic(k, obs_dim, list(cfg.net_arch),
-                             generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in rng["init"]])  # fmt: skip
+    generators = [th.Generator().manual_seed(int(r.integers(2**62))) for r in rng["init"]]
+    if s.sequence_length is None:
+        net = StackedActorCritic(k, obs_dim, list(cfg.net_arch), generators=generators)
+        policy = _Feedforward(net)
+    else:
+        if s.sequence_length != horizon or s.n_steps % horizon:
+            raise ValueError(f"GRU-PPO trains on whole days: sequence_length ({s.sequence_length}) must be the horizon "
+                             f"({horizon}) and n_steps ({s.n_steps}) a multiple of it")  # fmt: skip
+        net = StackedGRUActorCritic(k, obs_dim, cfg.hidden_size, generators=generators)
+        policy = _Recurrent(net)
     optimizer = make_optimizer(net, s.learning_rate)
     ret_stats = RunningStats(k) if cfg.normalize_reward else None
     discounted = np.zeros(k)
@@ -90,13 +129,13 @@ def train_batched(
         uniforms = np.stack([r.random(T) for r in rng["actions"]])
         for t in range(T):
             with th.no_grad():
-                logits, values = net.forward(th.as_tensor(obs).unsqueeze(1))
-            logp = th.log_softmax(logits[:, 0], dim=-1).numpy()
+                logits, values = policy(th.as_tensor(obs), th.as_tensor(start_of_day))
+            logp = th.log_softmax(logits, dim=-1).numpy()
             p_eat = np.exp(logp[:, 1])
             actions = (uniforms[:, t] < p_eat).astype(np.int64)
             buf_obs[:, t], buf_act[:, t], buf_start[:, t] = obs, actions, start_of_day
             buf_logp[:, t] = logp[np.arange(k), actions]
-            buf_val[:, t] = values[:, 0].numpy()
+            buf_val[:, t] = values.numpy()
             raw_next, rewards, day_over = envs.step(actions, entropy=-(np.exp(logp) * logp).sum(axis=1))
             if ret_stats is not None:
                 discounted = discounted * s.gamma + rewards
@@ -116,8 +155,8 @@ def train_batched(
         if T < s.n_steps:
             break  # a partial rollout: SB3 stops without updating on it
         with th.no_grad():
-            _, last_values = net.forward(th.as_tensor(obs).unsqueeze(1))
-        adv, ret = gae(buf_rew, buf_val, buf_start, last_values[:, 0].numpy(), start_of_day.astype(bool), s.gamma, s.gae_lambda)
+            _, last_values = policy(th.as_tensor(obs), th.as_tensor(start_of_day), advance=False)
+        adv, ret = gae(buf_rew, buf_val, buf_start, last_values.numpy(), start_of_day.astype(bool), s.gamma, s.gae_lambda)
         if on_rollout is not None:
             on_rollout({"obs": buf_obs, "actions": buf_act, "rewards": buf_rew, "starts": buf_start, "values": buf_val,
                         "advantages": adv, "returns": ret, "foods": np.stack(envs.days_drawn)})  # fmt: skip
@@ -125,8 +164,12 @@ def train_batched(
             obs=th.as_tensor(buf_obs), actions=th.as_tensor(buf_act), log_probs=th.as_tensor(buf_logp),
             values=th.as_tensor(buf_val), advantages=th.as_tensor(adv), returns=th.as_tensor(ret),
         )  # fmt: skip
-        perms = np.stack([[r.permutation(T) for r in rng["minibatches"]] for _ in range(s.n_epochs)])
-        s.update(net, optimizer, rollout, perms)
+        units = T if s.sequence_length is None else T // s.sequence_length  # transitions, or days (GRU-PPO)
+        perms = np.stack([[r.permutation(units) for r in rng["minibatches"]] for _ in range(s.n_epochs)])
+        if s.sequence_length is None:
+            s.update(net, optimizer, rollout, perms)
+        else:
+            gru_ppo_update(net, optimizer, rollout, s, perms)
     wall = time.perf_counter() - t0
     return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), ret_stats, wall / k)
             for j in range(k)]  # fmt: skip

@@ -1,0 +1,188 @@
+"""GRU-PPO for K agents at once: :class:`~nutribench.agents.gru_ppo.GRUPPO`'s policy and
+update with every agent's parameters stacked along a leading agent axis.
+
+Per agent, the policy is ``GRUActorCriticPolicy`` (``gru_ppo.toml``): a GRU over the
+nutrient stream (the first 3 observation dims) and a GRU over the food stream (the rest),
+their hidden states concatenated (256) into an actor head 256-128-2 and a critic head
+256-128-1; orthogonal initialisation (each GRU gate block with gain 1, the heads with
+SB3's gains), zero biases; the state is reset at each day's start and carried step to step.
+Training is PPO over whole days: each epoch shuffles the rollout's days and takes
+minibatches of ``round(batch_size / 50)`` days, each replayed through the GRUs from the zero
+state with the gradient through the whole day (backpropagation through time).
+
+The two GRUs of the K agents are one stack of 2K recurrent cells (nutrient cells first, then
+food cells; the nutrient cells' inputs are zero-padded to the food stream's width, and the
+padded weights, receiving no gradient, stay zero), so each time step is one batched product.
+The cell is ``torch.nn.GRU``'s: ``r = s(W_ir x + b_ir + W_hr h + b_hr)``, ``z = s(W_iz x +
+b_iz + W_hz h + b_hz)``, ``n = tanh(W_in x + b_in + r (W_hn h + b_hn))``, ``h' = (1 - z) n + z h``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch as th
+
+from nutribench.engine.actor_critic import OnPolicySettings, Rollout, clip_grad_norm_per_agent
+
+N_NUTRIENTS = 3
+
+
+def _orthogonal(k: int, n_in: int, n_out: int, gain: float, generators: list[th.Generator] | None) -> th.Tensor:
+    """``(k, n_in, n_out)``: each agent's ``(n_out, n_in)`` weight initialised orthogonally, transposed."""
+    w = th.empty(k, n_in, n_out)
+    for j in range(k):
+        block = th.empty(n_out, n_in)
+        th.nn.init.orthogonal_(block, gain=gain, generator=None if generators is None else generators[j])
+        w[j] = block.T
+    return w
+
+
+class StackedGRUActorCritic:
+    """K copies of ``GRUActorCriticPolicy``. Parameters, in order: the 2K cells' ``W_ih (2K,
+    in, 3H)``, ``b_ih (2K, 1, 3H)``, ``W_hh (2K, H, 3H)``, ``b_hh (2K, 1, 3H)`` (gates r, z,
+    n as nn.GRU), then the heads' first layers side by side ``(K, 2H, 2 x head)`` and bias,
+    the actor's last layer ``(K, head, 2)`` and bias, the critic's ``(K, head, 1)`` and bias."""
+
+    def __init__(self, k: int, obs_dim: int, hidden: int = 128, head: int = 128, n_actions: int = 2,
+                 generators: list[th.Generator] | None = None):  # fmt: skip
+        self.k, self.hidden, self.head, self.n_actions = k, hidden, head, n_actions
+        self.n_foods = obs_dim - N_NUTRIENTS
+        self.width = max(N_NUTRIENTS, self.n_foods)
+        h3 = 3 * hidden
+        w_ih, w_hh = th.zeros(2 * k, self.width, h3), th.zeros(2 * k, hidden, h3)
+        for stream, n_in in ((0, N_NUTRIENTS), (1, self.n_foods)):  # as policy.py: nutrient GRU, then food GRU
+            for gate in range(3):
+                cols = slice(gate * hidden, (gate + 1) * hidden)
+                w_ih[stream * k : (stream + 1) * k, :n_in, cols] = _orthogonal(k, n_in, hidden, 1.0, generators)
+                w_hh[stream * k : (stream + 1) * k, :, cols] = _orthogonal(k, hidden, hidden, 1.0, generators)
+        first = th.cat([_orthogonal(k, 2 * hidden, head, math.sqrt(2), generators),
+                        _orthogonal(k, 2 * hidden, head, math.sqrt(2), generators)], dim=2)  # fmt: skip
+        actor_out = _orthogonal(k, head, n_actions, 0.01, generators)
+        critic_out = _orthogonal(k, head, 1, 1.0, generators)
+        self.params = [
+            w_ih, th.zeros(2 * k, 1, h3), w_hh, th.zeros(2 * k, 1, h3),
+            first, th.zeros(k, 1, 2 * head), actor_out, th.zeros(k, 1, n_actions), critic_out, th.zeros(k, 1, 1),
+        ]  # fmt: skip
+        for p in self.params:
+            p.requires_grad_()
+
+    # ---- the recurrent core ----
+
+    def _inputs(self, obs: th.Tensor) -> th.Tensor:
+        """``obs (K, N, d)`` -> the 2K cells' inputs ``(2K, N, width)``."""
+        nut, food = obs[..., :N_NUTRIENTS], obs[..., N_NUTRIENTS:]
+        pad = lambda x: th.nn.functional.pad(x, (0, self.width - x.shape[-1]))  # noqa: E731
+        return th.cat([pad(nut), pad(food)])
+
+    def _cell(self, gi: th.Tensor, h: th.Tensor) -> th.Tensor:
+        """One GRU step of the 2K cells: input projection ``gi (2K, B, 3H)``, state ``h (2K, B, H)``."""
+        gh = th.baddbmm(self.params[3], h, self.params[2])
+        H = self.hidden
+        r = th.sigmoid(gi[..., :H] + gh[..., :H])
+        z = th.sigmoid(gi[..., H : 2 * H] + gh[..., H : 2 * H])
+        n = th.tanh(gi[..., 2 * H :] + r * gh[..., 2 * H :])
+        return n + z * (h - n)  # (1 - z) n + z h
+
+    def _heads(self, features: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """``features (K, N, 2H)`` -> logits ``(K, N, n_actions)``, values ``(K, N)``."""
+        p = self.params
+        x = th.relu(th.baddbmm(p[5], features, p[4]))
+        logits = th.baddbmm(p[7], x[..., : self.head], p[6])
+        values = th.baddbmm(p[9], x[..., self.head :], p[8])
+        return logits, values[..., 0]
+
+    def sequences(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """Whole days from the zero state: ``obs (K, S, T, d)`` -> logits ``(K, S, T, n_actions)``, values ``(K, S, T)``."""
+        k, s, t_max, _ = obs.shape
+        gi = th.baddbmm(self.params[1], self._inputs(obs.reshape(k, s * t_max, -1)), self.params[0]).reshape(2 * k, s, t_max, -1)
+        h = obs.new_zeros(2 * k, s, self.hidden)
+        outs = []
+        for t in range(t_max):
+            h = self._cell(gi[:, :, t], h)
+            outs.append(h)
+        out = th.stack(outs, dim=2)  # (2K, S, T, H)
+        features = th.cat([out[:k], out[k:]], dim=-1).reshape(k, s * t_max, 2 * self.hidden)
+        logits, values = self._heads(features)
+        return logits.reshape(k, s, t_max, -1), values.reshape(k, s, t_max)
+
+    def step(self, obs: th.Tensor, state: th.Tensor, starts: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """One acting step: ``obs (K, d)``, ``state (2K, 1, H)`` zeroed where ``starts (K,)``;
+        logits ``(K, n_actions)``, values ``(K,)`` and the new state."""
+        keep = (1.0 - starts).reshape(1, self.k, 1, 1).expand(2, -1, -1, -1).reshape(2 * self.k, 1, 1)
+        gi = th.baddbmm(self.params[1], self._inputs(obs.unsqueeze(1)), self.params[0])
+        h = self._cell(gi, state * keep)
+        logits, values = self._heads(th.cat([h[: self.k], h[self.k :]], dim=-1))
+        return logits[:, 0], values[:, 0], h
+
+    # ---- SB3's policy ----
+
+    def _sb3_pairs(self, policy, j: int):
+        """(our view, SB3 tensor in our layout) of agent ``j``'s every parameter."""
+        k, H, a = self.k, self.hidden, self.n_actions
+        p = self.params
+        pairs = []
+        for stream, gru in enumerate((policy.nutrient_gru, policy.food_gru)):
+            row = stream * k + j
+            n_in = gru.weight_ih_l0.shape[1]
+            pairs += [(p[0][row, :n_in], gru.weight_ih_l0.T), (p[1][row, 0], gru.bias_ih_l0),
+                      (p[2][row], gru.weight_hh_l0.T), (p[3][row, 0], gru.bias_hh_l0)]  # fmt: skip
+        pairs += [(p[4][j, :, : self.head], policy.actor_head[0].weight.T), (p[4][j, :, self.head :], policy.critic_head[0].weight.T),
+                  (p[5][j, 0, : self.head], policy.actor_head[0].bias), (p[5][j, 0, self.head :], policy.critic_head[0].bias),
+                  (p[6][j], policy.actor_head[2].weight.T), (p[7][j, 0], policy.actor_head[2].bias),
+                  (p[8][j], policy.critic_head[2].weight.T), (p[9][j, 0], policy.critic_head[2].bias)]  # fmt: skip
+        assert H == policy.hidden_size and a == policy.action_space.n
+        return pairs
+
+    def load_sb3(self, j: int, policy) -> None:
+        """Agent ``j``'s weights from a ``GRUActorCriticPolicy``."""
+        with th.no_grad():
+            for ours, theirs in self._sb3_pairs(policy, j):
+                ours.copy_(theirs)
+
+    def store_sb3(self, j: int, policy) -> None:
+        """Agent ``j``'s weights into a ``GRUActorCriticPolicy``."""
+        with th.no_grad():
+            for ours, theirs in self._sb3_pairs(policy, j):
+                theirs.copy_(ours)
+
+
+def gru_ppo_update(net: StackedGRUActorCritic, optimizer: th.optim.Optimizer, rollout: Rollout, s: OnPolicySettings,
+                   permutations: np.ndarray) -> dict[str, np.ndarray]:  # fmt: skip
+    """``GRUPPO.train()`` for the K agents: ``permutations (n_epochs, K, days)`` order each
+    agent's days in each epoch; minibatches of ``s.batch_size`` days. Returns the last
+    minibatch's per-agent losses."""
+    k, t_all = rollout.actions.shape
+    seq = s.sequence_length
+    n_seq = t_all // seq
+    days = lambda x: x.reshape(k, n_seq, seq, *x.shape[2:])  # noqa: E731
+    obs, actions, logp_old = days(rollout.obs), days(rollout.actions), days(rollout.log_probs)
+    advantages, returns = days(rollout.advantages), days(rollout.returns)
+    rows = th.arange(k).unsqueeze(1)
+    out: dict[str, np.ndarray] = {}
+    for epoch in range(s.n_epochs):
+        perm = th.as_tensor(permutations[epoch])
+        for start in range(0, n_seq, s.batch_size):
+            mb = perm[:, start : start + s.batch_size]
+            logits, values = net.sequences(obs[rows, mb])
+            b = mb.shape[1] * seq
+            logp_all = th.log_softmax(logits, dim=-1).reshape(k, b, -1)
+            log_prob = logp_all.gather(-1, actions[rows, mb].reshape(k, b, 1)).squeeze(-1)
+            entropy = -(logp_all.exp() * logp_all).sum(-1)
+            adv = advantages[rows, mb].reshape(k, b)
+            if s.normalize_advantage and b > 1:
+                adv = (adv - adv.mean(dim=1, keepdim=True)) / (adv.std(dim=1, keepdim=True) + 1e-8)
+            ratio = th.exp(log_prob - logp_old[rows, mb].reshape(k, b))
+            policy_loss = -th.min(adv * ratio, adv * th.clamp(ratio, 1 - s.clip_range, 1 + s.clip_range)).mean(dim=1)
+            value_loss = (returns[rows, mb].reshape(k, b) - values.reshape(k, b)).pow(2).mean(dim=1)
+            entropy_loss = -entropy.mean(dim=1)
+            loss = policy_loss + s.ent_coef * entropy_loss + s.vf_coef * value_loss
+            optimizer.zero_grad()
+            loss.sum().backward()
+            clip_grad_norm_per_agent(net.params, s.max_grad_norm, k=k)
+            optimizer.step()
+            out = {"policy_loss": policy_loss.detach().numpy(), "value_loss": value_loss.detach().numpy(),
+                   "entropy_loss": entropy_loss.detach().numpy()}  # fmt: skip
+    return out
+
