@@ -321,3 +321,30 @@ def test_the_stacked_gru_acts_and_replays_days_as_the_sb3_policy_does() -> None:
             logits, values, state = net.step(obs[:, t], state, starts)
             np.testing.assert_allclose(logits, day_logits.reshape(2, 100, -1)[:, t], rtol=1e-4, atol=1e-5)
             np.testing.assert_allclose(values, day_values.reshape(2, 100)[:, t], rtol=1e-4, atol=1e-5)
+
+
+def test_the_gru_s_hand_written_backward_is_the_gradient() -> None:
+    """``GRUSequence``'s backward against numerical differentiation (float64), and against
+    autograd through the step-by-step cell (float32)."""
+    from nutribench.engine.gru_ppo import GRUSequence, StackedGRUActorCritic
+
+    g = th.Generator().manual_seed(0)
+    m, s, t_max, h = 2, 3, 5, 4
+    args = [th.randn(m, s, t_max, 3 * h, generator=g, dtype=th.float64), 0.5 * th.randn(m, h, 3 * h, generator=g, dtype=th.float64),
+            th.randn(m, 1, 3 * h, generator=g, dtype=th.float64)]  # fmt: skip
+    assert th.autograd.gradcheck(GRUSequence.apply, [a.requires_grad_() for a in args])
+
+    net = StackedGRUActorCritic(3, 13, 16, generators=[th.Generator().manual_seed(j) for j in range(3)])
+    gi = th.randn(6, 2, 7, 48, generator=g, requires_grad=True)
+    weights = th.randn(6, 2, 7, 16, generator=g)
+    (GRUSequence.apply(gi, net.params[2], net.params[3]) * weights).sum().backward()
+    ours = [gi.grad.clone(), net.params[2].grad.clone(), net.params[3].grad.clone()]
+    for x in (gi, net.params[2], net.params[3]):
+        x.grad = None
+    hidden, outs = th.zeros(6, 2, 16), []
+    for t in range(7):
+        hidden = net._cell(gi[:, :, t], hidden)
+        outs.append(hidden)
+    (th.stack(outs, dim=2) * weights).sum().backward()
+    for a, b in zip(ours, [gi.grad, net.params[2].grad, net.params[3].grad]):
+        np.testing.assert_allclose(a.numpy(), b.numpy(), rtol=1e-4, atol=1e-5)

@@ -39,6 +39,58 @@ def _orthogonal(k: int, n_in: int, n_out: int, gain: float, generators: list[th.
     return w
 
 
+class GRUSequence(th.autograd.Function):
+    """The hidden states ``(M, S, T, H)`` of M stacked GRU cells run over S sequences of T
+    steps from the zero state, given the input projections ``gi = W_ih x + b_ih`` ``(M, S, T,
+    3H)``, ``W_hh (M, H, 3H)`` and ``b_hh (M, 1, 3H)``; with a hand-written backward pass
+    through time: per step a few elementwise products and one batched product for the state's
+    gradient, and ``W_hh``'s gradient as one batched product over all steps at the end
+    (autograd's backward of the step-by-step loop took 3.4 times the forward pass)."""
+
+    @staticmethod
+    def forward(ctx, gi: th.Tensor, w_hh: th.Tensor, b_hh: th.Tensor) -> th.Tensor:
+        m, s, t_max, h3 = gi.shape
+        H = h3 // 3
+        hs = gi.new_empty(m, s, t_max, H)
+        rz = gi.new_empty(m, s, t_max, 2 * H)
+        ns = gi.new_empty(m, s, t_max, H)
+        ghn = gi.new_empty(m, s, t_max, H)
+        h = gi.new_zeros(m, s, H)
+        for t in range(t_max):
+            gh = th.baddbmm(b_hh, h, w_hh)
+            g = gi[:, :, t]
+            gates = th.sigmoid(g[..., : 2 * H] + gh[..., : 2 * H])
+            n = th.tanh(g[..., 2 * H :] + gates[..., :H] * gh[..., 2 * H :])
+            h = n + gates[..., H:] * (h - n)
+            hs[:, :, t], rz[:, :, t], ns[:, :, t], ghn[:, :, t] = h, gates, n, gh[..., 2 * H :]
+        ctx.save_for_backward(w_hh, hs, rz, ns, ghn)
+        return hs
+
+    @staticmethod
+    def backward(ctx, d_hs: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        w_hh, hs, rz, ns, ghn = ctx.saved_tensors
+        m, s, t_max, H = hs.shape
+        d_gi = hs.new_empty(m, s, t_max, 3 * H)
+        d_gh = hs.new_empty(m, s, t_max, 3 * H)
+        w_t = w_hh.transpose(1, 2)
+        zeros = hs.new_zeros(m, s, H)
+        dh = zeros
+        for t in reversed(range(t_max)):
+            dh = dh + d_hs[:, :, t]
+            h_prev = hs[:, :, t - 1] if t > 0 else zeros
+            r, z, n = rz[:, :, t, :H], rz[:, :, t, H:], ns[:, :, t]
+            da_n = dh * (1 - z) * (1 - n * n)
+            d_rz = th.cat([da_n * ghn[:, :, t], dh * (h_prev - n)], dim=-1) * rz[:, :, t] * (1 - rz[:, :, t])
+            d_gi[:, :, t, : 2 * H] = d_rz
+            d_gi[:, :, t, 2 * H :] = da_n
+            d_gh[:, :, t, : 2 * H] = d_rz
+            d_gh[:, :, t, 2 * H :] = da_n * r
+            dh = dh * z + th.bmm(d_gh[:, :, t], w_t)
+        h_prev_all = th.cat([hs.new_zeros(m, s, 1, H), hs[:, :, :-1]], dim=2).reshape(m, s * t_max, H)
+        d_gh_flat = d_gh.reshape(m, s * t_max, 3 * H)
+        return d_gi, th.bmm(h_prev_all.transpose(1, 2), d_gh_flat), d_gh_flat.sum(dim=1, keepdim=True)
+
+
 class StackedGRUActorCritic:
     """K copies of ``GRUActorCriticPolicy``. Parameters, in order: the 2K cells' ``W_ih (2K,
     in, 3H)``, ``b_ih (2K, 1, 3H)``, ``W_hh (2K, H, 3H)``, ``b_hh (2K, 1, 3H)`` (gates r, z,
@@ -97,12 +149,7 @@ class StackedGRUActorCritic:
         """Whole days from the zero state: ``obs (K, S, T, d)`` -> logits ``(K, S, T, n_actions)``, values ``(K, S, T)``."""
         k, s, t_max, _ = obs.shape
         gi = th.baddbmm(self.params[1], self._inputs(obs.reshape(k, s * t_max, -1)), self.params[0]).reshape(2 * k, s, t_max, -1)
-        h = obs.new_zeros(2 * k, s, self.hidden)
-        outs = []
-        for t in range(t_max):
-            h = self._cell(gi[:, :, t], h)
-            outs.append(h)
-        out = th.stack(outs, dim=2)  # (2K, S, T, H)
+        out = GRUSequence.apply(gi, self.params[2], self.params[3])  # (2K, S, T, H)
         features = th.cat([out[:k], out[k:]], dim=-1).reshape(k, s * t_max, 2 * self.hidden)
         logits, values = self._heads(features)
         return logits.reshape(k, s, t_max, -1), values.reshape(k, s, t_max)
