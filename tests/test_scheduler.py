@@ -412,9 +412,9 @@ def test_status_prices_pending_jobs_by_their_algorithm_and_budget() -> None:
 
 
 # --------------------------------------------------------------------------- the batched engine
-def test_engine_batched_trains_ppo_and_mc_in_batches_and_stores_each_job(regimes: Path, tmp_path: Path) -> None:
-    """--engine batched: the PPO and MC jobs run as batches (one per worker), SAC's one by
-    one; every job is stored on its own with its engine; a batch that fails has its jobs
+def test_engine_batched_trains_each_config_in_batches_and_stores_each_job(regimes: Path, tmp_path: Path) -> None:
+    """--engine batched: each config's jobs run as batches (one per worker); every job is
+    stored on its own with its engine; a batch that fails has its jobs
     tried one by one, so only the job that fails alone counts a failure; the next run, its
     cause fixed, completes it."""
     db, log = tmp_path / "r.db", tmp_path / "log"
@@ -428,13 +428,13 @@ def test_engine_batched_trains_ppo_and_mc_in_batches_and_stores_each_job(regimes
     rows = sql(db, "SELECT a.name, r.name, j.seed, j.status, j.engine FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id "
                    "JOIN regimes r ON r.id = j.regime_id")  # fmt: skip
     assert sorted((a, r, seed) for a, r, seed, st, _ in rows if st == "failed") == [("ppo", "run3", 1)]
-    assert {(a, e) for a, _, _, st, e in rows if st == "done"} == {("mc", "batched"), ("ppo", "batched"), ("sac", None)}
+    assert {(a, e) for a, _, _, st, e in rows if st == "done"} == {("mc", "batched"), ("ppo", "batched"), ("sac", "batched")}
     algo_of = dict(sql(db, "SELECT 'job' || j.id, a.name FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id"))
     pids: dict[str, set[str]] = {}
     for f in log.iterdir():  # job<id>-pid<pid>-<token>: one process per batch, one per single job
         job, pid, _ = f.name.split("-")
         pids.setdefault(algo_of[job], set()).add(pid)
-    assert (len(pids["mc"]), len(pids["sac"])) == (2, 4)
+    assert (len(pids["mc"]), len(pids["sac"])) == (2, 2)
     assert len(pids["ppo"]) == 4  # the good batch, the failed one, and its two jobs alone
     env["NUTRIBENCH_FAKE_FAIL"] = ""  # its cause fixed
     args.update(job_fn=EnvJob(**env), batch_fn=EnvBatch(**env))
@@ -444,6 +444,22 @@ def test_engine_batched_trains_ppo_and_mc_in_batches_and_stores_each_job(regimes
     assert sql(db, "SELECT count(*) FROM episodes") == [(12 * 7,)]
     with pytest.raises(RunError, match="--engine 'fast'"):
         run_grid(db, ["run0"], ["ppo"], [0], 6, 1, engine="fast", job_fn=fake_run_job, display=False)
+
+
+def test_batch_size_caps_the_batches(regimes: Path, tmp_path: Path) -> None:
+    """--batch-size N: no batch holds more than N jobs (6 PPO jobs on 2 workers in batches of
+    at most 2: 3 processes, not 2); 0 is refused before anything is written."""
+    db, log = tmp_path / "r.db", tmp_path / "log"
+    log.mkdir()
+    env = dict(NUTRIBENCH_FAKE_LOG=str(log), NUTRIBENCH_FAKE_FAIL="")
+    s = run_grid(db, ["run0", "run3"], ["ppo"], [0, 1, 2], 4, 1, workers=2, job_fn=EnvJob(**env), batch_fn=EnvBatch(**env),
+                 display=False, engine="batched", max_batch=2)  # fmt: skip
+    assert (s.done, s.failed) == (6, 0)
+    pids = {f.name.split("-")[1] for f in log.iterdir()}
+    assert len(pids) == 3
+    with pytest.raises(RunError, match="--batch-size 0"):
+        run_grid(tmp_path / "other.db", ["run0"], ["ppo"], [0], 4, 1, engine="batched", max_batch=0, display=False)
+    assert not (tmp_path / "other.db").exists()
 
 
 def test_engine_batched_with_real_training(regimes: Path, tmp_path: Path) -> None:
@@ -478,8 +494,9 @@ def test_a_job_missing_from_its_batch_s_results_is_failed_not_left_running(regim
 def test_batches_group_jobs_by_config_and_regime_shape() -> None:
     from nutribench.scheduler.batching import batch_pools
 
-    cells = [("a", "ppo", 0), ("a", "ppo", 1), ("b", "ppo", 0), ("a", "sac", 0), ("a", "mc", 0)]
-    pools = batch_pools([1, 2, 3, 4, 5], cells, {"ppo": "ppo", "sac": "sac", "mc": "mc"},
+    # "x": a config of an algorithm the batched engine does not train: its jobs run one by one
+    cells = [("a", "ppo", 0), ("a", "ppo", 1), ("b", "ppo", 0), ("a", "x", 0), ("a", "mc", 0)]
+    pools = batch_pools([1, 2, 3, 4, 5], cells, {"ppo": "ppo", "x": "not_in_the_engine", "mc": "mc"},
                         {"a": (50, 10), "b": (40, 10)}, claimable=len, slots=2)  # fmt: skip
     assert [(p.job_ids, p.batched, p.batch_size) for p in pools] == [([1, 2], True, 1), ([3], True, 1), ([5], True, 1),
                                                                      ([4], False, 1)]  # fmt: skip

@@ -49,7 +49,8 @@ def run_cmd(
     models_dir: Annotated[Optional[Path], typer.Option(help="where trained models go (default: models/ next to the db)")] = None,
     upgrade_only: Annotated[bool, typer.Option("--upgrade-only", help="create or upgrade the database schema, then exit")] = False,
     retry_failed: Annotated[bool, typer.Option("--retry-failed", help="try again the jobs that failed 3 times (once their cause is fixed)")] = False,
-    engine: Annotated[str, typer.Option(help="'sb3' (a job per worker) or 'batched' (PPO, MC and DDQN jobs of one config trained together, one batch per worker)")] = "sb3",
+    engine: Annotated[str, typer.Option(help="'sb3' (a job per worker) or 'batched' (the jobs of one agent config trained together, one batch per worker)")] = "sb3",
+    batch_size: Annotated[int, typer.Option(min=1, help="--engine batched: at most this many jobs in a batch (a batch's jobs are stored when it ends)")] = 35,
 ) -> None:
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
     from nutribench.store import open_store
@@ -81,6 +82,7 @@ def run_cmd(
         summary = run_grid(
             db, grid.regimes, grid.algos, grid.seeds, grid.episodes, grid.eval_episodes, workers=workers,
             executor=executor, job_fn=job_fn, models_dir=models_dir, display=True, retry_failed=retry_failed, engine=engine,
+            max_batch=batch_size,
         )  # fmt: skip
     except KeyboardInterrupt:  # before any job started (opening the database, claiming)
         raise typer.Exit(130) from None

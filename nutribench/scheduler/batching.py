@@ -1,5 +1,5 @@
 """How ``nutribench run`` groups jobs for the workers: one by one (the SB3 engine), or, with
-``--engine batched``, the jobs of each PPO, MC or DDQN config in batches, one batch per worker."""
+``--engine batched``, the jobs of each agent config in batches, one batch per worker."""
 
 from __future__ import annotations
 
@@ -21,11 +21,13 @@ class Pool:
 
 
 def batch_pools(job_ids: list[int], cells: list[tuple[str, str, int]], algo_of: dict[str, str],
-                shape_of: dict[str, tuple[int, int]], claimable: Callable[[list[int]], int], slots: int) -> list[Pool]:  # fmt: skip
+                shape_of: dict[str, tuple[int, int]], claimable: Callable[[list[int]], int], slots: int,
+                max_batch: int = MAX_BATCH) -> list[Pool]:  # fmt: skip
     """``--engine batched``: a pool per agent config the batched engine trains and per regime
     shape (horizon, number of foods: one batch steps its agents in lockstep on one observation
-    size), its batches sized so that the runnable jobs fill the slots (at most
-    :data:`MAX_BATCH`); the other configs' jobs one by one."""
+    size), its batches sized so that the runnable jobs fill the slots (at most ``max_batch``:
+    a batch's jobs are stored when the whole batch ends, so a stopped run loses the work of
+    its unfinished batches); the other configs' jobs one by one."""
     from nutribench.engine import BATCHED_ALGOS
 
     groups: dict[tuple, list[int]] = {}
@@ -35,5 +37,5 @@ def batch_pools(job_ids: list[int], cells: list[tuple[str, str, int]], algo_of: 
             groups.setdefault((config, shape_of[regime]), []).append(job_id)
         else:
             singles.append(job_id)
-    pools = [Pool(ids, True, max(1, min(MAX_BATCH, -(-claimable(ids) // max(slots, 1))))) for ids in groups.values()]
+    pools = [Pool(ids, True, max(1, min(max_batch, -(-claimable(ids) // max(slots, 1))))) for ids in groups.values()]
     return pools + [Pool(singles)]

@@ -38,7 +38,7 @@ from sqlalchemy import select
 from nutribench.jobs.spec import JobFailed, JobSpec
 from nutribench.jobs.worker import JobFn, execute, execute_batch
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
-from nutribench.scheduler.batching import Pool, batch_pools
+from nutribench.scheduler.batching import MAX_BATCH, Pool, batch_pools
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.registration import RunError, load_grid_configs, model_path, register_grid
 from nutribench.store import AgentConfig, Job, RegimeConfig, open_store
@@ -328,12 +328,13 @@ def run_grid(
     retry_failed: bool = False,
     engine: str = "sb3",
     batch_fn: Callable | None = None,
+    max_batch: int = MAX_BATCH,
 ) -> RunSummary:
     """Run every job of the grid regime x algo x seed that is not done yet (see the module
     docstring). Returns counts; ``summary.exit_code`` is what ``nutribench run`` exits with.
     ``retry_failed``: jobs that failed :data:`~nutribench.store.jobs.MAX_FAILURES` times are tried again.
-    ``engine="batched"``: the jobs of PPO, MC and DDQN configs train in batches, one batch per
-    worker (:mod:`nutribench.engine`); the others as with ``"sb3"``. Each job is still stored
+    ``engine="batched"``: the jobs of each agent config train in batches of at most
+    ``max_batch``, one batch per worker (:mod:`nutribench.engine`). Each job is still stored
     on its own, in one transaction, with its engine in ``jobs.engine``.
 
     Raises ConfigError (bad config file), StoreError (bad database), ExecutorError (bad
@@ -343,6 +344,8 @@ def run_grid(
 
     if engine not in ENGINES:
         raise RunError(f"--engine {engine!r}: use {' or '.join(ENGINES)}")
+    if max_batch < 1:
+        raise RunError(f"--batch-size {max_batch}: use a positive number of jobs")
     grid = Grid(tuple(regimes), tuple(algos), tuple(seeds), episodes, eval_episodes)
     job_fn = job_fn or default_job_fn()
     if engine == "batched":
@@ -378,7 +381,7 @@ def run_grid(
             if engine == "batched":
                 shapes = {r.name: (r.obj.reward.horizon, len(r.obj.catalog.food)) for r in regime_cfgs}
                 pools = batch_pools(job_ids, list(grid.cells()), {a.name: a.algo for a in agent_cfgs}, shapes,
-                                    lambda ids: count_claimable(store, ids), handle.slots)  # fmt: skip
+                                    lambda ids: count_claimable(store, ids), handle.slots, max_batch)  # fmt: skip
             run = _Run(store, grid, job_ids, make_spec, handle, job_fn, owner, view, pools, batch_fn)
             run.planned = runnable
             view.start(run)
