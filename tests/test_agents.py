@@ -260,6 +260,28 @@ def test_ppo_learns_to_eat_on_run0_within_a_ci_budget(seed):
     assert last > first, (first, last)
 
 
+@pytest.mark.parametrize("algo", ["ddqn", "sac"])
+def test_sb3_s_random_actions_do_not_depend_on_the_food_offered(algo):
+    """SB3 seeds the action space and the env with one seed; the env draws foods from a
+    PCG64 stream seeded the same way, so without the action space's own stream every warm-up
+    "random" action was eat exactly for the upper half of the food indices (measured: eat
+    fraction 0.0 for foods 0-4, 1.0 for 5-9). Now each half eats about half the time."""
+    from nutribench.agents.algos import build_model
+    from nutribench.agents.api import make_train_env
+    from nutribench.config import load_env_config
+
+    cfg = load_agent_config(algo).model_copy(update={"learning_starts": 10_000})
+    base, env = make_train_env(load_env_config("run0"), cfg)
+    model = build_model(cfg, env, seed=0, horizon=50)
+    seen: list[tuple[int, int]] = []
+    step_async = base.step_async
+    base.step_async = lambda a: (seen.append((int(base.venv._foods[0, base.venv._t]), int(np.ravel(a)[0]))), step_async(a))[1]
+    model.learn(total_timesteps=2000)
+    foods, acts = np.array(seen).T
+    low, high = acts[foods < 5].mean(), acts[foods >= 5].mean()
+    assert 0.4 < low < 0.6 and 0.4 < high < 0.6, (low, high)
+
+
 def test_ddqn_learns_on_run0_within_a_ci_budget():
     """CI budget: learning starts after 1,000 steps instead of the paper's 10,000 (200 days
     of 50 steps would otherwise leave no update). At 200 days DDQN has learned to eat a

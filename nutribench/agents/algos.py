@@ -121,13 +121,23 @@ class DoubleDQN(DQN):
 
 
 # ---------------------------------------------------------------------------- builders
+#: Mixed into the job seed for the action space's random stream (see :func:`build_model`).
+ACTION_STREAM_SALT = 27_182
+
+
 def build_model(cfg: Any, env: VecEnv, seed: int, horizon: int, cls: type[BaseAlgorithm] | None = None) -> BaseAlgorithm:
     """The SB3 algorithm object for config ``cfg`` on ``env`` (CPU, seeded, silent).
 
     ``cls`` replaces the config's class by another taking the same arguments (the speed
     benchmark times SB3's vanilla ``DQN`` with DDQN's hyperparameters this way)."""
     default_cls, kwargs = model_arguments(cfg, horizon)
-    return (cls or default_cls)(env=env, seed=seed, device="cpu", verbose=0, gamma=cfg.gamma, **kwargs)
+    model = (cls or default_cls)(env=env, seed=seed, device="cpu", verbose=0, gamma=cfg.gamma, **kwargs)
+    # SB3 seeds the action space with the job seed, and the env draws each day's foods from a
+    # generator seeded the same way: one PCG64 stream twice, so that SB3's "random" actions
+    # (DDQN's warm-up and epsilon steps, SAC's warm-up) were a function of the food offered
+    # (eat exactly when its index is in the upper half). The action space gets its own stream.
+    model.action_space.seed(int(np.random.SeedSequence([ACTION_STREAM_SALT, int(seed)]).generate_state(1)[0]))
+    return model
 
 
 def model_arguments(cfg: Any, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
