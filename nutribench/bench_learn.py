@@ -112,7 +112,7 @@ def learn_benchmark(
     """Train and evaluate every (config, regime, seed) on a process pool (one torch thread
     each); ``budgets`` maps a config name or algorithm to its training days.
     ``on_done(run, k, total)`` is called as each finishes. ``engine="batched"``: each
-    config's jobs trained at once by the batched engine (PPO, MC and DDQN), in this process."""
+    config's jobs trained at once by the batched engine, in this process."""
     from nutribench.agents import load_agent_config
 
     budgets = dict(DEFAULT_BUDGETS if budgets is None else budgets)

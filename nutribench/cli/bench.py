@@ -94,7 +94,7 @@ def bench_learn_cmd(
     eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")] = 10,
     workers: Annotated[Optional[int], typer.Option(min=1, help="agents trained at once (default: the cores)")] = None,
     markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
-    engine: Annotated[str, typer.Option(help="'sb3' (the reference), or 'batched' for PPO, MC and DDQN configs (fast sweeps)")] = "sb3",
+    engine: Annotated[str, typer.Option(help="'sb3' (the reference), or 'batched' (every config's seeds and regimes at once: fast sweeps)")] = "sb3",
 ) -> None:
     """Train every agent for a budget over several seeds, evaluate greedily on the fixed
     evaluation days, and state each as the share of the never -> planner gap it closes

@@ -79,7 +79,7 @@ def train_batched(
     :param on_rollout: called before each update with the rollout's arrays (agent axis first):
         ``obs`` (as the policy saw them), ``actions``, ``rewards`` (as the update sees them),
         ``starts``, ``values``, ``advantages``, ``returns``, and ``foods`` (every day drawn so
-        far, ``(days, K, horizon)``); for tests that replay it through SB3 (PPO and MC).
+        far, ``(days, K, horizon)``); for tests that replay it through SB3 (PPO, MC, GRU-PPO).
 
     :param on_episode: called with (job index, the finished day's metrics) for every day.
     """
