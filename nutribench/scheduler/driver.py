@@ -333,19 +333,16 @@ def run_grid(
     """Run every job of the grid regime x algo x seed that is not done yet (see the module
     docstring). Returns counts; ``summary.exit_code`` is what ``nutribench run`` exits with.
     ``retry_failed``: jobs that failed :data:`~nutribench.store.jobs.MAX_FAILURES` times are tried again.
-    ``engine="batched"``: the jobs of each agent config train in batches of at most
-    ``max_batch``, one batch per worker (:mod:`nutribench.engine`). Each job is still stored
-    on its own, in one transaction, with its engine in ``jobs.engine``.
-
+    ``engine="batched"``: each agent config's jobs train in batches of at most ``max_batch``,
+    one per worker (:mod:`nutribench.engine`), each job stored on its own with ``jobs.engine``.
     Raises ConfigError (bad config file), StoreError (bad database), ExecutorError (bad
     ``executor``) or RunError (config changed without a version bump), all one line.
     """
     from nutribench.scheduler.progress import make_view
 
-    if engine not in ENGINES:
-        raise RunError(f"--engine {engine!r}: use {' or '.join(ENGINES)}")
-    if max_batch < 1:
-        raise RunError(f"--batch-size {max_batch}: use a positive number of jobs")
+    if engine not in ENGINES or max_batch < 1:
+        raise RunError(f"--engine {engine!r}: use {' or '.join(ENGINES)}" if engine not in ENGINES
+                       else f"--batch-size {max_batch}: use a positive number of jobs")  # fmt: skip
     grid = Grid(tuple(regimes), tuple(algos), tuple(seeds), episodes, eval_episodes)
     job_fn = job_fn or default_job_fn()
     if engine == "batched":
