@@ -95,6 +95,22 @@ def shake(params, seed: int, scale: float = 0.05) -> None:
             p.add_(scale * th.randn(p.shape, generator=th.Generator().manual_seed(seed)))
 
 
+def random_batch(rng, k: int, b: int, obs_dim: int, reward_scale: float, gamma: float, n_step: int = 1):
+    """Random replay samples of K agents (``engine.off_policy.Batch``): normal observations
+    and rewards (times ``reward_scale``), 20 % dones, and discounts ``gamma ** m`` with ``m``
+    drawn in 1..``n_step`` (``gamma`` everywhere for one-step returns)."""
+    import torch as th
+
+    from nutribench.engine.off_policy import Batch
+
+    f32 = lambda x: th.as_tensor(x, dtype=th.float32)  # noqa: E731
+    obs, actions = f32(rng.normal(size=(k, b, obs_dim))), th.as_tensor(rng.integers(0, 2, size=(k, b)))
+    rewards, next_obs = f32(rng.normal(size=(k, b)) * reward_scale), f32(rng.normal(size=(k, b, obs_dim)))
+    dones = f32(rng.random((k, b)) < 0.2)
+    discounts = f32(gamma ** rng.integers(1, n_step + 1, size=(k, b))) if n_step > 1 else th.full((k, b), gamma)
+    return Batch(obs=obs, actions=actions, rewards=rewards, next_obs=next_obs, dones=dones, discounts=discounts)
+
+
 def sb3_updates(algo_cls, regime: str, cfg, episodes: int, what) -> list:
     """Train ``cfg`` with the SB3 engine (seed 0) and return ``what(model)`` at each call of
     ``algo_cls.train`` (before the update): when and how the SB3 agent updates."""

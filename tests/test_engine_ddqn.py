@@ -18,8 +18,9 @@ from nutribench.agents.config import load_agent_config
 from nutribench.config import load_env_config
 from nutribench.engine.ddqn import ddqn_update, q_linears, train_ddqn_batched
 from nutribench.engine.envs import AgentEnvs
-from nutribench.engine.off_policy import Batch, StackedMLP, StackedReplay, linear_schedule, make_adam
-from tests.conftest import sb3_model, sb3_updates, shake
+from nutribench.engine.actor_critic import make_adam
+from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, StackedMLP, StackedReplay, linear_schedule
+from tests.conftest import random_batch, sb3_model, sb3_updates, shake
 
 OBS_DIM, GAMMA, N_STEP = 13, 0.99, 5
 
@@ -80,17 +81,10 @@ def test_one_ddqn_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -
     for j, (_, m) in enumerate(models):
         q.load_linears(j, q_linears(m.q_net))
         q_target.load_linears(j, q_linears(m.q_net_target))
-    optimizer = make_adam(q.params, cfg.learning_rate_start)
+    optimizer = make_adam(q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
     rng = np.random.default_rng(3)
     for progress in (0.9, 0.6):
-        batch = Batch(
-            obs=th.as_tensor(rng.normal(size=(k, b, OBS_DIM)), dtype=th.float32),
-            actions=th.as_tensor(rng.integers(0, 2, size=(k, b))),
-            rewards=th.as_tensor(rng.normal(size=(k, b)) * 20, dtype=th.float32),
-            next_obs=th.as_tensor(rng.normal(size=(k, b, OBS_DIM)), dtype=th.float32),
-            dones=th.as_tensor(rng.random((k, b)) < 0.2, dtype=th.float32),
-            discounts=th.as_tensor(GAMMA ** rng.integers(1, 6, size=(k, b)), dtype=th.float32),
-        )  # fmt: skip
+        batch = random_batch(rng, k, b, OBS_DIM, 20.0, GAMMA, n_step=5)
         lr = linear_schedule(cfg.learning_rate_start, cfg.learning_rate_end, 1.0, progress)
         losses = ddqn_update(q, q_target, optimizer, batch, lr, cfg.max_grad_norm)
         for j, (_, m) in enumerate(models):

@@ -12,9 +12,8 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from nutribench.agents.api import TrainedAgent, eval_food_streams, evaluate
 from nutribench.agents.config import load_agent_config
 from nutribench.agents.sac import DiscreteSAC
-from nutribench.engine.off_policy import Batch
 from nutribench.engine.sac import StackedSAC, linears, sac_update, train_sac_batched
-from tests.conftest import sb3_model, sb3_updates, shake
+from tests.conftest import random_batch, sb3_model, sb3_updates, shake
 
 OBS_DIM = 13
 
@@ -58,14 +57,7 @@ def test_one_sac_update_of_stacked_agents_equals_discrete_sac_s_update_of_each_a
             assert th.equal(ours, theirs)
     rng = np.random.default_rng(5)
     for _ in range(2):
-        batch = Batch(
-            obs=th.as_tensor(rng.normal(size=(k, b, OBS_DIM)), dtype=th.float32),
-            actions=th.as_tensor(rng.integers(0, 2, size=(k, b))),
-            rewards=th.as_tensor(rng.normal(size=(k, b)) * 3, dtype=th.float32),
-            next_obs=th.as_tensor(rng.normal(size=(k, b, OBS_DIM)), dtype=th.float32),
-            dones=th.as_tensor(rng.random((k, b)) < 0.2, dtype=th.float32),
-            discounts=th.full((k, b), cfg.gamma),
-        )  # fmt: skip
+        batch = random_batch(rng, k, b, OBS_DIM, 3.0, cfg.gamma)
         losses = sac_update(net, batch, cfg.alpha, cfg.gamma, cfg.tau)
         for j, (_, m) in enumerate(models):
             sample = ReplayBufferSamples(batch.obs[j], batch.actions[j].unsqueeze(1), batch.next_obs[j],

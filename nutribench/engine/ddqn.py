@@ -33,14 +33,14 @@ from torch.nn import functional as F
 
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
-from nutribench.engine.actor_critic import clip_grad_norm_per_agent
+from nutribench.engine.actor_critic import clip_grad_norm_per_agent, linears, make_adam
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
-from nutribench.engine.off_policy import Batch, StackedMLP, linear_schedule, make_adam, run_off_policy
+from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, StackedMLP, linear_schedule, run_off_policy
 
 
 def q_linears(q_net: th.nn.Module) -> list[th.nn.Linear]:
     """The ``Linear`` layers of an SB3 ``QNetwork``, input to output."""
-    return [m for m in q_net.q_net if isinstance(m, th.nn.Linear)]
+    return linears(q_net.q_net)
 
 
 def ddqn_update(q: StackedMLP, q_target: StackedMLP, optimizer: th.optim.Optimizer, batch: Batch, learning_rate: float,
@@ -75,7 +75,7 @@ def train_ddqn_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, ep
     q = StackedMLP(k, sizes, generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]])
     q_target = StackedMLP(k, sizes)
     q_target.copy_from(q)
-    optimizer = make_adam(q.params, cfg.learning_rate_start)
+    optimizer = make_adam(q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
     # SB3's DQN: epsilon 0 until its first step's schedule update (read only if learning_starts = 0)
     state = {"epsilon": 0.0, "copies": 0}
 

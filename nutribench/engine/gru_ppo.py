@@ -24,19 +24,9 @@ import math
 import numpy as np
 import torch as th
 
-from nutribench.engine.actor_critic import OnPolicySettings, Rollout, clip_grad_norm_per_agent
+from nutribench.engine.actor_critic import OnPolicySettings, Rollout, clip_grad_norm_per_agent, orthogonal
 
 N_NUTRIENTS = 3
-
-
-def _orthogonal(k: int, n_in: int, n_out: int, gain: float, generators: list[th.Generator] | None) -> th.Tensor:
-    """``(k, n_in, n_out)``: each agent's ``(n_out, n_in)`` weight initialised orthogonally, transposed."""
-    w = th.empty(k, n_in, n_out)
-    for j in range(k):
-        block = th.empty(n_out, n_in)
-        th.nn.init.orthogonal_(block, gain=gain, generator=None if generators is None else generators[j])
-        w[j] = block.T
-    return w
 
 
 class GRUSequence(th.autograd.Function):
@@ -107,12 +97,12 @@ class StackedGRUActorCritic:
         for stream, n_in in ((0, N_NUTRIENTS), (1, self.n_foods)):  # as policy.py: nutrient GRU, then food GRU
             for gate in range(3):
                 cols = slice(gate * hidden, (gate + 1) * hidden)
-                w_ih[stream * k : (stream + 1) * k, :n_in, cols] = _orthogonal(k, n_in, hidden, 1.0, generators)
-                w_hh[stream * k : (stream + 1) * k, :, cols] = _orthogonal(k, hidden, hidden, 1.0, generators)
-        first = th.cat([_orthogonal(k, 2 * hidden, head, math.sqrt(2), generators),
-                        _orthogonal(k, 2 * hidden, head, math.sqrt(2), generators)], dim=2)  # fmt: skip
-        actor_out = _orthogonal(k, head, n_actions, 0.01, generators)
-        critic_out = _orthogonal(k, head, 1, 1.0, generators)
+                w_ih[stream * k : (stream + 1) * k, :n_in, cols] = orthogonal(k, n_in, hidden, 1.0, generators)
+                w_hh[stream * k : (stream + 1) * k, :, cols] = orthogonal(k, hidden, hidden, 1.0, generators)
+        first = th.cat([orthogonal(k, 2 * hidden, head, math.sqrt(2), generators),
+                        orthogonal(k, 2 * hidden, head, math.sqrt(2), generators)], dim=2)  # fmt: skip
+        actor_out = orthogonal(k, head, n_actions, 0.01, generators)
+        critic_out = orthogonal(k, head, 1, 1.0, generators)
         self.params = [
             w_ih, th.zeros(2 * k, 1, h3), w_hh, th.zeros(2 * k, 1, h3),
             first, th.zeros(k, 1, 2 * head), actor_out, th.zeros(k, 1, n_actions), critic_out, th.zeros(k, 1, 1),

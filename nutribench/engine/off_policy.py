@@ -139,14 +139,8 @@ class StackedReplay:
         )  # fmt: skip
 
 
-def make_adam(params: list[th.Tensor], learning_rate: float, eps: float = 1e-8) -> th.optim.Adam:
-    """Adam over stacked parameters (elementwise, so each agent's update is its own), fused
-    where torch has it on the CPU; eps 1e-8 is torch's default, which SB3's off-policy
-    policies keep."""
-    try:
-        return th.optim.Adam(params, lr=learning_rate, eps=eps, fused=True)
-    except RuntimeError:  # pragma: no cover - torch < 2.4 on CPU
-        return th.optim.Adam(params, lr=learning_rate, eps=eps, foreach=True)
+#: Adam's eps in SB3's off-policy policies (DQN, and DiscreteSAC's): torch's default.
+OFF_POLICY_ADAM_EPS = 1e-8
 
 
 #: ``act(obs, n, uniforms, random_actions)``: the K actions at normalised ``obs`` after ``n``

@@ -31,12 +31,8 @@ import torch as th
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
-from nutribench.engine.off_policy import Batch, StackedMLP, make_adam, run_off_policy
-
-
-def linears(seq: th.nn.Module) -> list[th.nn.Linear]:
-    """The ``Linear`` layers of an ``nn.Sequential`` MLP, input to output."""
-    return [m for m in seq if isinstance(m, th.nn.Linear)]
+from nutribench.engine.actor_critic import linears, make_adam
+from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, StackedMLP, run_off_policy
 
 
 class StackedSAC:
@@ -50,8 +46,8 @@ class StackedSAC:
         self.critic = StackedMLP(2 * k, sizes, None if generators is None else generators + generators)
         self.critic_target = StackedMLP(2 * k, sizes)
         self.critic_target.copy_from(self.critic)
-        self.actor_optimizer = make_adam(self.actor.params, actor_lr)
-        self.critic_optimizer = make_adam(self.critic.params, critic_lr)
+        self.actor_optimizer = make_adam(self.actor.params, actor_lr, OFF_POLICY_ADAM_EPS)
+        self.critic_optimizer = make_adam(self.critic.params, critic_lr, OFF_POLICY_ADAM_EPS)
 
     def twin_q(self, obs: th.Tensor, target: bool = False) -> tuple[th.Tensor, th.Tensor]:
         """``(Q1, Q2)`` at ``obs (K, B, d)``, each ``(K, B, n_actions)``."""

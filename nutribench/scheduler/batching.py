@@ -6,8 +6,20 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from nutribench.scheduler.registration import RunError
+
 #: at most this many jobs in one batch (the paper grid's 7 regimes x 5 seeds of one config)
 MAX_BATCH = 35
+#: ``nutribench run --engine``: a job per worker (the reference), or batches per agent config
+ENGINES = ("sb3", "batched")
+
+
+def check_engine(engine: str, max_batch: int) -> None:
+    """Refuse an unknown ``--engine`` or a ``--batch-size`` below 1, in one line."""
+    if engine not in ENGINES:
+        raise RunError(f"--engine {engine!r}: use {' or '.join(ENGINES)}")
+    if max_batch < 1:
+        raise RunError(f"--batch-size {max_batch}: use a positive number of jobs")
 
 
 @dataclass

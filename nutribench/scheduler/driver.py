@@ -38,7 +38,7 @@ from sqlalchemy import select
 from nutribench.jobs.spec import JobFailed, JobSpec
 from nutribench.jobs.worker import JobFn, execute, execute_batch
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
-from nutribench.scheduler.batching import MAX_BATCH, Pool, batch_pools
+from nutribench.scheduler.batching import MAX_BATCH, Pool, batch_pools, check_engine
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.registration import RunError, load_grid_configs, model_path, register_grid
 from nutribench.store import AgentConfig, Job, RegimeConfig, open_store
@@ -78,7 +78,6 @@ class RunSummary:
 
 
 # --------------------------------------------------------------------------- helpers
-ENGINES = ("sb3", "batched")
 
 
 def default_batch_fn() -> Callable:
@@ -340,9 +339,7 @@ def run_grid(
     """
     from nutribench.scheduler.progress import make_view
 
-    if engine not in ENGINES or max_batch < 1:
-        raise RunError(f"--engine {engine!r}: use {' or '.join(ENGINES)}" if engine not in ENGINES
-                       else f"--batch-size {max_batch}: use a positive number of jobs")  # fmt: skip
+    check_engine(engine, max_batch)
     grid = Grid(tuple(regimes), tuple(algos), tuple(seeds), episodes, eval_episodes)
     job_fn = job_fn or default_job_fn()
     if engine == "batched":
