@@ -131,6 +131,17 @@ def test_each_algorithm_trains_and_evaluates(algo, regime):
         assert sum(s["action"] for s in result.steps if s["episode"] == r["episode"]) == r["foods"]
 
 
+@pytest.mark.parametrize("algo", ALGOS)
+def test_training_leaves_no_sb3_log_folder_behind(algo, tmp_path, monkeypatch):
+    """SB3's default logger makes a folder tempdir/SB3-<date> at every learn(): one per job."""
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.delenv("SB3_LOGDIR", raising=False)
+    train("run0", algo, seed=1, episodes=1)
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith("SB3-")] == []
+
+
 def test_recorded_training_returns_are_raw_rewards_not_normalised():
     cfg = load_agent_config("ppo")
     assert cfg.normalize_reward

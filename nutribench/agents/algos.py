@@ -24,6 +24,7 @@ import numpy as np
 import torch as th
 from stable_baselines3 import A2C, DQN, PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
 from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import VecEnv
@@ -137,6 +138,9 @@ def build_model(cfg: Any, env: VecEnv, seed: int, horizon: int, cls: type[BaseAl
     # (DDQN's warm-up and epsilon steps, SAC's warm-up) were a function of the food offered
     # (eat exactly when its index is in the upper half). The action space gets its own stream.
     model.action_space.seed(int(np.random.SeedSequence([ACTION_STREAM_SALT, int(seed)]).generate_state(1)[0]))
+    # Without a logger of its own, every ``learn()`` makes SB3 create an empty folder
+    # tempdir/SB3-<date> (its default logger's folder), one per job: thousands in /tmp.
+    model.set_logger(Logger(folder=None, output_formats=[]))
     return model
 
 
