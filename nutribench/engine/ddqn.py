@@ -34,6 +34,7 @@ from torch.nn import functional as F
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
 from nutribench.engine.actor_critic import clip_grad_norm_per_agent, linears, make_adam
+from nutribench.engine.checkpoint import Checkpoint, resumed
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, StackedMLP, linear_schedule, run_off_policy
 
@@ -63,8 +64,10 @@ def ddqn_update(q: StackedMLP, q_target: StackedMLP, optimizer: th.optim.Optimiz
 
 def train_ddqn_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, episodes: int,
                        on_episode: AgentEpisodeFn | None = None,
-                       on_update: Callable[[dict[str, Any]], None] | None = None) -> list[TrainedAgent]:  # fmt: skip
-    """Train one DDQN agent of ``cfg`` per ``(regime, seed)`` of ``jobs`` for ``episodes`` days, all at once.
+                       on_update: Callable[[dict[str, Any]], None] | None = None,
+                       checkpoint: Checkpoint | None = None) -> list[TrainedAgent]:  # fmt: skip
+    """Train one DDQN agent of ``cfg`` per ``(regime, seed)`` of ``jobs`` for ``episodes`` days,
+    all at once (resuming from ``checkpoint`` if it holds a state).
 
     :param on_update: called after each update with ``steps`` (env steps so far), the
         ``learning_rate`` and ``epsilon`` in force, ``target_copies`` so far and the K ``losses``.
@@ -78,6 +81,7 @@ def train_ddqn_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, ep
     optimizer = make_adam(q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
     # SB3's DQN: epsilon 0 until its first step's schedule update (read only if learning_starts = 0)
     state = {"epsilon": 0.0, "copies": 0}
+    q, q_target, optimizer, state = resumed(checkpoint, "model") or (q, q_target, optimizer, state)
 
     def act(obs: np.ndarray, n: int, uniforms: np.ndarray, random_actions: np.ndarray) -> tuple[np.ndarray, None]:
         if n < cfg.learning_starts:
@@ -99,7 +103,8 @@ def train_ddqn_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, ep
             on_update({"steps": steps, "learning_rate": lr, "epsilon": state["epsilon"], "target_copies": state["copies"],
                        "losses": losses})  # fmt: skip
 
-    wall = run_off_policy(envs, cfg, episodes * envs.horizon, act, update, after_step, n_step=cfg.n_step)
+    wall = run_off_policy(envs, cfg, episodes * envs.horizon, act, update, after_step, n_step=cfg.n_step,
+                          checkpoint=checkpoint, model=(q, q_target, optimizer, state))  # fmt: skip
     return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: _store(q, q_target, j, model), None, wall / k)
             for j in range(k)]  # fmt: skip
 

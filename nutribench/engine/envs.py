@@ -63,6 +63,17 @@ class AgentEnvs:
         self.episodes: list[list[dict[str, Any]]] = [[] for _ in range(self.k)]
         self._entropy = np.zeros(self.k)
 
+    def __getstate__(self) -> dict[str, Any]:  # a checkpoint keeps the state, not the caller's callback
+        return {**self.__dict__, "on_episode": None}
+
+    def restore(self, saved: AgentEnvs) -> None:
+        """Take over the state of ``saved`` (from a checkpoint), keeping this one's ``on_episode``."""
+        if saved.seeds != self.seeds or [c.sha256 for c in saved.env_cfgs] != [c.sha256 for c in self.env_cfgs]:
+            raise ValueError("the checkpoint is of other jobs than this batch's")
+        on_episode = self.on_episode
+        self.__dict__.update(saved.__dict__)
+        self.on_episode = on_episode
+
     def new_days(self) -> np.ndarray:
         """Start a day for every agent (foods from its own stream); the raw observations."""
         raw = np.empty((self.k, self.obs_dim))

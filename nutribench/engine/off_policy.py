@@ -17,10 +17,12 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch as th
 
+from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs
 
 
@@ -150,19 +152,30 @@ ActFn = Callable[[np.ndarray, int, np.ndarray, np.ndarray], tuple[np.ndarray, np
 
 
 def run_off_policy(envs: AgentEnvs, cfg, total: int, act: ActFn, update: Callable[[int, float, Batch], None],
-                   after_step: Callable[[int, float], None] | None = None, n_step: int = 1) -> float:  # fmt: skip
+                   after_step: Callable[[int, float], None] | None = None, n_step: int = 1,
+                   checkpoint: Checkpoint | None = None, model: Any = None) -> float:  # fmt: skip
     """Run ``total`` env steps of SB3's off-policy loop for the K agents of ``envs``; reads
     ``buffer_size``, ``learning_starts``, ``train_freq``, ``gradient_steps``,
     ``batch_size`` and ``gamma`` from ``cfg``. ``after_step(steps, progress_remaining)``
     runs after each step (SB3's ``_on_step``), ``update(steps, progress_remaining, batch)``
-    ``gradient_steps`` times at each training point. Returns the wall seconds."""
+    ``gradient_steps`` times at each training point. With a ``checkpoint``, the loop
+    resumes from its state if it has one, and saves itself and ``model`` (everything the
+    caller's ``act``/``update`` change: networks, optimisers, counters) at day boundaries
+    when it is due. Returns the wall seconds (of the processes before a resume too)."""
     rng = envs.rng
-    replay = StackedReplay(envs.k, min(cfg.buffer_size, total), envs.obs_dim, n_step, cfg.gamma)
-    raw = envs.new_days()
-    obs = envs.seen(raw)
+    saved = checkpoint.state if checkpoint is not None else None
+    if saved is not None:
+        envs.restore(saved["envs"])
+        rng, replay, raw, obs, start = envs.rng, saved["replay"], saved["raw"], saved["obs"], saved["steps"]
+    else:
+        replay = StackedReplay(envs.k, min(cfg.buffer_size, total), envs.obs_dim, n_step, cfg.gamma)
+        raw = envs.new_days()
+        obs, start = envs.seen(raw), 0
     t0 = time.perf_counter()
-    for n in range(total):  # n env steps taken so far
+    for n in range(start, total):  # n env steps taken so far
         t = n % envs.horizon
+        if t == 0 and checkpoint is not None and n > start and checkpoint.due():
+            checkpoint.save(steps=n, envs=envs, replay=replay, raw=raw, obs=obs, model=model)
         if t == 0:  # each agent's random actions and uniform draws for the day, from its own stream
             random_actions = np.stack([r.integers(0, 2, size=envs.horizon) for r in rng["actions"]])
             uniforms = np.stack([r.random(envs.horizon) for r in rng["actions"]])
@@ -179,4 +192,4 @@ def run_off_policy(envs: AgentEnvs, cfg, total: int, act: ActFn, update: Callabl
             for _ in range(cfg.gradient_steps):
                 idx = np.stack([r.integers(0, replay.filled, size=cfg.batch_size) for r in rng["minibatches"]])
                 update(steps, progress, replay.sample(idx, envs.normalize))
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0 + (checkpoint.seconds_before if saved is not None else 0.0)

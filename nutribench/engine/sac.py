@@ -30,6 +30,7 @@ import torch as th
 
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
+from nutribench.engine.checkpoint import Checkpoint, resumed
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
 from nutribench.engine.actor_critic import linears, make_adam
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, StackedMLP, run_off_policy
@@ -106,13 +107,16 @@ def sac_update(net: StackedSAC, batch: Batch, alpha: float, gamma: float, tau: f
 
 def train_sac_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, episodes: int,
                       on_episode: AgentEpisodeFn | None = None,
-                      on_update: Callable[[dict[str, Any]], None] | None = None) -> list[TrainedAgent]:  # fmt: skip
+                      on_update: Callable[[dict[str, Any]], None] | None = None,
+                      checkpoint: Checkpoint | None = None) -> list[TrainedAgent]:  # fmt: skip
     """Train one discrete-SAC agent of ``cfg`` per ``(regime, seed)`` of ``jobs`` for
-    ``episodes`` days, all at once; ``on_update`` gets ``steps`` and the K losses after each update."""
+    ``episodes`` days, all at once (resuming from ``checkpoint`` if it holds a state);
+    ``on_update`` gets ``steps`` and the K losses after each update."""
     envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
     k = envs.k
-    net = StackedSAC(k, [envs.obs_dim, *cfg.net_arch, 2], cfg.actor_learning_rate, cfg.critic_learning_rate,
-                     generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]])  # fmt: skip
+    net = resumed(checkpoint, "model") or StackedSAC(
+        k, [envs.obs_dim, *cfg.net_arch, 2], cfg.actor_learning_rate, cfg.critic_learning_rate,
+        generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]])  # fmt: skip
 
     def act(obs: np.ndarray, n: int, uniforms: np.ndarray, random_actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         with th.no_grad():
@@ -128,6 +132,6 @@ def train_sac_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, epi
         if on_update is not None:
             on_update({"steps": steps, **losses})
 
-    wall = run_off_policy(envs, cfg, episodes * envs.horizon, act, update)
+    wall = run_off_policy(envs, cfg, episodes * envs.horizon, act, update, checkpoint=checkpoint, model=net)
     return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), None, wall / k)
             for j in range(k)]  # fmt: skip

@@ -35,6 +35,7 @@ from nutribench.agents.api import CLIP_OBS, NORM_EPS, TrainedAgent
 from nutribench.agents.config import load_agent_config
 from nutribench.config import EnvConfig
 from nutribench.engine.actor_critic import OnPolicySettings, Rollout, RunningStats, StackedActorCritic, gae, make_optimizer
+from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
 from nutribench.engine.gru_ppo import StackedGRUActorCritic, gru_ppo_update
 
@@ -72,6 +73,7 @@ def train_batched(
     episodes: int,
     on_episode: AgentEpisodeFn | None = None,
     on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None,
+    checkpoint: Checkpoint | None = None,
 ) -> list[TrainedAgent]:
     """Train one agent of ``agent_config`` per ``(regime, seed)`` of ``jobs`` for
     ``episodes`` days, all at once.
@@ -82,17 +84,19 @@ def train_batched(
         far, ``(days, K, horizon)``); for tests that replay it through SB3 (PPO, MC, GRU-PPO).
 
     :param on_episode: called with (job index, the finished day's metrics) for every day.
+    :param checkpoint: resume from its state if it holds one; save the training state to it
+        at rollout (off-policy: day) boundaries when it is due (:mod:`nutribench.engine.checkpoint`).
     """
     th.set_num_threads(1)
     cfg = load_agent_config(agent_config)
     if cfg.algo == "ddqn":
         from nutribench.engine.ddqn import train_ddqn_batched
 
-        return train_ddqn_batched(jobs, cfg, episodes, on_episode)
+        return train_ddqn_batched(jobs, cfg, episodes, on_episode, checkpoint=checkpoint)
     if cfg.algo == "sac":
         from nutribench.engine.sac import train_sac_batched
 
-        return train_sac_batched(jobs, cfg, episodes, on_episode)
+        return train_sac_batched(jobs, cfg, episodes, on_episode, checkpoint=checkpoint)
     envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
     k, horizon, obs_dim, rng = envs.k, envs.horizon, envs.obs_dim, envs.rng
     s = OnPolicySettings.from_config(cfg, horizon)
@@ -112,11 +116,21 @@ def train_batched(
 
     total_steps = episodes * horizon
     n_rollouts = total_steps // s.n_steps
-    obs = envs.seen(envs.new_days())
-    start_of_day = np.ones(k, dtype=np.float32)
-    step = 0
+    saved = checkpoint.state if checkpoint is not None else None
+    if saved is not None:
+        envs.restore(saved["envs"])
+        rng = envs.rng
+        net, policy, optimizer, ret_stats, discounted = saved["model"]
+        obs, start_of_day, step, first = saved["obs"], saved["start_of_day"], saved["steps"], saved["rollout"]
+    else:
+        obs = envs.seen(envs.new_days())
+        start_of_day = np.ones(k, dtype=np.float32)
+        step = first = 0
     t0 = time.perf_counter()
-    for rollout_index in range(n_rollouts + 1):
+    for rollout_index in range(first, n_rollouts + 1):
+        if checkpoint is not None and rollout_index > first and checkpoint.due():
+            checkpoint.save(rollout=rollout_index, steps=step, envs=envs, obs=obs, start_of_day=start_of_day,
+                            model=(net, policy, optimizer, ret_stats, discounted))  # fmt: skip
         T = s.n_steps if rollout_index < n_rollouts else total_steps - step
         if T == 0:
             break
@@ -170,6 +184,6 @@ def train_batched(
             s.update(net, optimizer, rollout, perms)
         else:
             gru_ppo_update(net, optimizer, rollout, s, perms)
-    wall = time.perf_counter() - t0
+    wall = time.perf_counter() - t0 + (checkpoint.seconds_before if saved is not None else 0.0)
     return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), ret_stats, wall / k)
             for j in range(k)]  # fmt: skip

@@ -4,20 +4,30 @@ single-job worker does (:func:`nutribench.jobs.run.run_job`), with ``engine = "b
 
 A batch that raises fails all its jobs (the driver records each failure; the next run
 retries them). Progress is reported per job, as for single jobs.
+
+A batch saves its training state every few minutes to ``<models>/checkpoints/`` (see
+:mod:`nutribench.engine.checkpoint`); a stopped batch started again by the next ``nutribench
+run`` resumes from there. The file's name says what the batch is (agent config, budget,
+regimes and seeds, code version), so another batch or another code version never reads it;
+it is deleted once the batch's jobs are evaluated and handed to the driver.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import time
 from pathlib import Path
 
 from nutribench.agents import eval_food_streams, evaluate
 from nutribench.clock import utcnow
+from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.train import train_batched
 from nutribench.jobs.run import check_configs
 from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
 from nutribench.jobs.worker import JobProgress, Sink
-from nutribench.provenance import collect_metadata
+from nutribench.provenance import collect_metadata, git_state
+
 
 def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]:
     """Train the jobs ``specs`` (one agent config, one budget) at once; one result per job."""
@@ -29,11 +39,13 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
     progress = [JobProgress(spec, sink) for spec in specs]
     for p in progress:
         p.start()
+    path = checkpoint_path(specs)
+    checkpoint = Checkpoint(path) if path is not None else None
     agents = train_batched(
         [(s.regime_config, s.seed) for s in specs], specs[0].agent_config, specs[0].episodes,
-        on_episode=lambda j, row: progress[j].episode(row["episode"] + 1, row["return"]),
+        on_episode=lambda j, row: progress[j].episode(row["episode"] + 1, row["return"]), checkpoint=checkpoint,
     )  # fmt: skip
-    train_wall = time.perf_counter() - t0
+    train_wall = time.perf_counter() - t0 + (checkpoint.seconds_before if checkpoint is not None else 0.0)
     meta = collect_metadata()
     results = []
     for spec, agent, p in zip(specs, agents, progress):
@@ -47,4 +59,21 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
         results.append(JobResult(spec.job_id, agent.train_episodes, evaluation.episodes, evaluation.steps,
                                  meta | {"started_at": started, "finished_at": utcnow(), "wall_seconds": wall, "engine": "batched"},
                                  model_path=model_path))  # fmt: skip
+    if checkpoint is not None:
+        checkpoint.remove()
     return results
+
+
+def checkpoint_path(specs: list[JobSpec]) -> Path | None:
+    """``<models>/checkpoints/<config>-v<version>-<digest>.pt`` for the batch of ``specs``
+    (None without a models folder); the digest covers the agent config's hash, the budget,
+    each job's regime hash and seed, and the code version."""
+    if not specs[0].model_path:
+        return None
+    import nutribench
+
+    what = [nutribench.__version__, git_state()[0], specs[0].algo_sha256, specs[0].episodes,
+            [(s.regime_sha256, s.seed) for s in specs]]  # fmt: skip
+    digest = hashlib.sha256(json.dumps(what).encode()).hexdigest()[:16]
+    models = Path(specs[0].model_path).parents[2]
+    return models / "checkpoints" / f"{specs[0].algo}-v{specs[0].algo_version}-{digest}.pt"
