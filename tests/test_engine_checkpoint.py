@@ -3,6 +3,8 @@ checkpoint ends exactly where an uninterrupted batch ends."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch as th
@@ -121,8 +123,25 @@ def test_run_batch_resumes_a_stopped_batch_and_removes_its_checkpoint(tmp_path, 
     files = list((tmp_path / "b" / "checkpoints").glob("mc-v*.pt"))
     assert len(files) == 1 and batch.checkpoint_path(specs("b")) == files[0]
     assert batch.checkpoint_path(specs("b")[:1]) != files[0]  # another batch: another file
+    manifest = batch.manifest(files[0])
+    assert json.loads(manifest.read_text()) == {"job_ids": [1, 2]}
     monkeypatch.setattr(batch, "JobProgress", JobProgress)
     again = batch.run_batch(specs("b"))
     assert [r.train for r in again] == [r.train for r in whole]
     assert [r.eval for r in again] == [r.eval for r in whole]
-    assert not files[0].exists()
+    assert not files[0].exists() and not manifest.exists()
+
+
+def test_a_batch_that_left_a_checkpoint_is_claimed_first_and_whole(tmp_path):
+    from nutribench.scheduler.batching import Pool, checkpointed_first
+
+    folder = tmp_path / "checkpoints"
+    folder.mkdir()
+    (folder / "sac-v1-a.pt.jobs.json").write_text(json.dumps({"job_ids": [21, 22, 25]}))
+    (folder / "sac-v1-b.pt.jobs.json").write_text(json.dumps({"job_ids": [90, 91]}))  # not in this grid
+    (folder / "sac-v1-c.pt.jobs.json").write_text("{broken")
+    pools = [Pool(list(range(1, 11)), True, 4), Pool(list(range(20, 30)), True, 4), Pool([40])]
+    out = checkpointed_first(pools, folder)
+    assert [(p.job_ids, p.batched, p.batch_size) for p in out] == [
+        ([21, 22, 25], True, 3), (list(range(1, 11)), True, 4), ([20, 23, 24, 26, 27, 28, 29], True, 4), ([40], False, 1)]
+    assert checkpointed_first(pools, tmp_path / "none") == pools

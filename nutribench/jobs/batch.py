@@ -9,7 +9,9 @@ A batch saves its training state every few minutes to ``<models>/checkpoints/`` 
 :mod:`nutribench.engine.checkpoint`); a stopped batch started again by the next ``nutribench
 run`` resumes from there. The file's name says what the batch is (agent config, budget,
 regimes and seeds, code version), so another batch or another code version never reads it;
-it is deleted once the batch's jobs are evaluated and handed to the driver.
+it is deleted once the batch's jobs are evaluated and handed to the driver. Beside it,
+``<checkpoint>.jobs.json`` lists the batch's job ids: the scheduler claims those jobs as one
+batch again before it forms new ones.
 """
 
 from __future__ import annotations
@@ -39,8 +41,13 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
     progress = [JobProgress(spec, sink) for spec in specs]
     for p in progress:
         p.start()
+    specs = sorted(specs, key=lambda s: s.job_id)  # one agent order for the batch, whatever the claim's
     path = checkpoint_path(specs)
-    checkpoint = Checkpoint(path) if path is not None else None
+    checkpoint = None
+    if path is not None:
+        checkpoint = Checkpoint(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        manifest(path).write_text(json.dumps({"job_ids": [s.job_id for s in specs]}))
     agents = train_batched(
         [(s.regime_config, s.seed) for s in specs], specs[0].agent_config, specs[0].episodes,
         on_episode=lambda j, row: progress[j].episode(row["episode"] + 1, row["return"]), checkpoint=checkpoint,
@@ -59,9 +66,16 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
         results.append(JobResult(spec.job_id, agent.train_episodes, evaluation.episodes, evaluation.steps,
                                  meta | {"started_at": started, "finished_at": utcnow(), "wall_seconds": wall, "engine": "batched"},
                                  model_path=model_path))  # fmt: skip
-    if checkpoint is not None:
+    if path is not None:
         checkpoint.remove()
+        manifest(path).unlink(missing_ok=True)
     return results
+
+
+def manifest(path: Path) -> Path:
+    """``<checkpoint>.jobs.json``: the job ids of the batch, so that the next run claims the
+    same batch and it resumes (:func:`nutribench.scheduler.batching.checkpointed_first`)."""
+    return path.with_name(path.name + ".jobs.json")
 
 
 def checkpoint_path(specs: list[JobSpec]) -> Path | None:

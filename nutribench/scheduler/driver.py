@@ -38,7 +38,7 @@ from sqlalchemy import select
 from nutribench.jobs.spec import JobFailed, JobSpec
 from nutribench.jobs.worker import JobFn, execute, execute_batch
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
-from nutribench.scheduler.batching import MAX_BATCH, Pool, batch_pools, check_engine
+from nutribench.scheduler.batching import MAX_BATCH, Pool, batch_pools, check_engine, checkpointed_first
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.registration import RunError, load_grid_configs, model_path, register_grid
 from nutribench.store import AgentConfig, Job, RegimeConfig, open_store
@@ -374,8 +374,9 @@ def run_grid(
             pools = None
             if engine == "batched":
                 shapes = {r.name: (r.obj.reward.horizon, len(r.obj.catalog.food)) for r in regime_cfgs}
-                pools = batch_pools(job_ids, list(grid.cells()), {a.name: a.algo for a in agent_cfgs}, shapes,
-                                    lambda ids: count_claimable(store, ids), handle.slots, max_batch)  # fmt: skip
+                pools = checkpointed_first(batch_pools(job_ids, list(grid.cells()), {a.name: a.algo for a in agent_cfgs},
+                                               shapes, lambda ids: count_claimable(store, ids), handle.slots, max_batch),
+                                           out / "checkpoints")  # fmt: skip
             run = _Run(store, grid, job_ids, make_spec, handle, job_fn, owner, view, pools, batch_fn)
             run.planned = runnable
             view.start(run)
