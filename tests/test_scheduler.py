@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from datetime import datetime
 from pathlib import Path
 
 import pandas as pd
@@ -375,6 +376,33 @@ def test_an_unreachable_dask_scheduler_fails_before_the_database_is_touched(regi
     with pytest.raises(ExecutorError, match=f"cannot reach the dask scheduler at tcp://127.0.0.1:{port}"):
         run_grid(db, ["run0"], ["ppo"], [0], 4, 1, executor=f"dask://127.0.0.1:{port}", job_fn=fake_run_job, display=False)
     assert not db.exists()
+
+
+def test_status_prices_a_config_with_no_done_job_by_its_running_batch() -> None:
+    """The batched engine: the jobs of a batch share one worker process; a config with no
+    done job is priced by its running jobs' progress, not by the other algorithms' mean."""
+    from datetime import timedelta
+
+    from nutribench.scheduler.status import summarize
+
+    now = datetime(2026, 1, 1, 12, 0, 0)
+    claimed = now - timedelta(seconds=100)
+
+    def job(algo, seed, status, wall=None, k=0, pid=None):  # the tuple status_table selects
+        beat = now if status == "running" else None
+        return ("run0", 1, algo, 1, seed, 100, status, beat, wall, k, 0, None, "host:1:tok", pid, claimed)
+
+    jobs = [
+        job("mc", 0, "done", wall=1.0),  # 0.01 s/day: far from SAC's cost
+        job("sac", 0, "running", k=10, pid=7),  # one batch of two, 10 days each in 100 s:
+        job("sac", 1, "running", k=10, pid=7),  # 5 worker-seconds per day and job
+        job("sac", 2, "pending"),
+    ]
+    rep = summarize(jobs, now)
+    assert rep.workers == 1
+    sac = next(r for r in rep.rows if r.algo == "sac")
+    assert sac.remaining_seconds == pytest.approx((0.9 + 0.9 + 1.0) * 100 * 5.0)
+    assert rep.eta_seconds == pytest.approx(1400.0)
 
 
 def test_bench_status_times_a_given_database(tmp_path: Path) -> None:

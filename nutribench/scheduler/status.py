@@ -13,6 +13,7 @@ it over.
 from __future__ import annotations
 
 import os
+from collections import Counter
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from typing import Any
@@ -50,7 +51,7 @@ class StatusReport:
     rows: list[StatusRow]
     totals: dict[str, int]
     wall_seconds: float
-    workers: int  # jobs running now (fresh heartbeat)
+    workers: int  # worker processes running jobs now (fresh heartbeat; a batch is one)
     eta_seconds: float | None  # remaining work / max(workers, 1)
     errors: list[dict[str, Any]] = field(default_factory=list)
 
@@ -88,7 +89,7 @@ def status_table(db: str | os.PathLike[str]) -> StatusReport:
         q = (
             select(RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version, Job.seed,
                    Job.episodes, Job.status, Job.heartbeat_at, Job.wall_seconds, Job.episodes_done, Job.failures,
-                   Job.error)  # fmt: skip
+                   Job.error, Job.owner, Job.worker_pid, Job.started_at)  # fmt: skip
             .join(RegimeConfig, RegimeConfig.id == Job.regime_id)
             .join(AgentConfig, AgentConfig.id == Job.agent_config_id)
             .order_by(RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version, Job.episodes, Job.seed)
@@ -107,12 +108,17 @@ def _mean(values: list[float] | None) -> float | None:
 
 def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
     """The report of job tuples (regime, rv, algo, av, seed, episodes, status, heartbeat,
-    wall, episodes_done, failures, error); ``now`` (the database's clock, default this
-    host's) judges heartbeats.
+    wall, episodes_done, failures, error[, owner, worker_pid, started_at]); ``now`` (the
+    database's clock, default this host's) judges heartbeats.
 
-    Work left is priced in seconds per training episode of the done jobs: of the same cell
-    (regime x algo config), else of the same algo config in any regime (the algorithm, not
-    the regime, sets the cost: a SAC day costs about nine MC days), else of every done job.
+    Work left is priced in worker-seconds per training episode of the done jobs: of the same
+    cell (regime x algo config), else of the same algo config in any regime (the algorithm,
+    not the regime, sets the cost: a SAC day costs about nine MC days), else of the running
+    jobs of that algo config (time since claimed / episodes done, shared among the jobs of
+    one batch: one worker process), else of every done job. The workers are the distinct
+    worker processes of the running jobs (a batch of the batched engine is one). A batch
+    resumed from a checkpoint counts its days from before the resume: its rate looks faster
+    than it is until the batch ends.
     """
     now = now or utcnow()
     rows: dict[tuple, StatusRow] = {}
@@ -120,7 +126,9 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
     left: dict[tuple, float] = {}  # jobs' worth of work left
     errors = []
     orphaned = 0  # `running` with a stopped heartbeat: counted as pending, and said so
-    for regime, rv, algo, av, seed, budget, status, beat, wall, k, failures, error in jobs:
+    running: list[tuple[tuple, int, datetime | None, tuple]] = []  # (algo, av), episodes done, claimed, worker
+    for n, (regime, rv, algo, av, seed, budget, status, beat, wall, k, failures, error, *more) in enumerate(jobs):
+        owner, pid, started = (list(more) + [None, None, None])[:3]
         key = (regime, rv, algo, av, budget)
         row = rows.setdefault(key, StatusRow(regime, rv, algo, av, budget))
         state = job_state(status, beat, now)
@@ -131,6 +139,7 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
             rates.setdefault(key, []).append(wall / max(budget, 1))
         elif state == "running":
             left[key] = left.get(key, 0.0) + max(0.0, 1.0 - (k or 0) / max(budget, 1))
+            running.append(((algo, av), k or 0, started, (owner, pid) if pid is not None else ("job", n)))
         elif state in ("pending",) or (state == "failed" and failures < MAX_FAILURES):
             left[key] = left.get(key, 0.0) + 1.0
         if state == "failed":
@@ -140,9 +149,17 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
     for (_, _, algo, av, _), rs in rates.items():
         per_algo.setdefault((algo, av), []).extend(rs)
     overall = _mean([r for rs in rates.values() for r in rs])
+    sharing = Counter(worker for *_, worker in running)
+    running_rates: dict[tuple, list[float]] = {}
+    for config, k, started, worker in running:
+        if k > 0 and started is not None:
+            elapsed = max(0.0, (now - started).total_seconds())
+            running_rates.setdefault(config, []).append(elapsed / (k * sharing[worker]))
     remaining, unknown = 0.0, False
     for key, row in rows.items():
-        rate = next((r for r in (_mean(rates.get(key)), _mean(per_algo.get((row.algo, row.algo_version))), overall) if r is not None), None)
+        config = (row.algo, row.algo_version)
+        guesses = (_mean(rates.get(key)), _mean(per_algo.get(config)), _mean(running_rates.get(config)), overall)
+        rate = next((r for r in guesses if r is not None), None)
         jobs_left = left.get(key, 0.0)
         if jobs_left and rate is None:
             unknown = True
@@ -152,6 +169,6 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
     totals = {c: sum(getattr(r, c) for r in rows.values()) for c in COUNTS}
     totals["jobs"] = len(jobs)
     totals["orphaned"] = orphaned
-    workers = totals["running"]
+    workers = len(sharing)
     eta = None if unknown else remaining / max(workers, 1)
     return StatusReport(list(rows.values()), totals, sum(r.wall_seconds for r in rows.values()), workers, eta, errors)
