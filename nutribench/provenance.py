@@ -24,7 +24,7 @@ def git_state(folder: str | None = None) -> tuple[str | None, bool | None]:
     """(commit, dirty) of the checkout holding the nutribench package; (None, None) if it is
     not a git checkout. Dirty means tracked files differ from the commit (untracked files,
     such as a results database in the tree, do not count)."""
-    where = folder or str(Path(__file__).resolve().parents[2])
+    where = folder or str(Path(__file__).resolve().parents[1])  # <checkout>/nutribench/provenance.py
     try:
         commit = subprocess.run(
             ["git", "-C", where, "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10, check=True

@@ -499,6 +499,10 @@ def test_engine_batched_with_real_training(regimes: Path, tmp_path: Path) -> Non
     assert sql(db, "SELECT count(*), sum(engine = 'batched'), sum(model_path IS NOT NULL) FROM jobs") == [(4, 4, 4)]
     assert sql(db, "SELECT count(*) FROM eval_steps") == [(4 * 50,)]
     assert len(list((tmp_path / "models").rglob("*.zip"))) == 4
+    # every row names the commit of the code that made it (this test runs in a git checkout)
+    head = subprocess.run(["git", "-C", str(Path(__file__).resolve().parents[1]), "rev-parse", "HEAD"],
+                          capture_output=True, text=True, check=True).stdout.strip()  # fmt: skip
+    assert sql(db, "SELECT DISTINCT git_commit FROM jobs") == [(head,)]
 
 
 class HalfBatch(EnvJob):
