@@ -2,7 +2,7 @@
 
 One module per command group: :mod:`~nutribench.cli.regimes` (``regimes list|check|generate``),
 :mod:`~nutribench.cli.agents` (``baselines``, ``train``), :mod:`~nutribench.cli.run`
-(``run``, ``status``), :mod:`~nutribench.cli.report` (``report``), :mod:`~nutribench.cli.db` (``db copy``) and
+(``run``, ``status``), :mod:`~nutribench.cli.report` (``report``), :mod:`~nutribench.cli.db` (``db copy``, ``db export``, ``db import``) and
 :mod:`~nutribench.cli.bench` (``bench env|train|learn|status``); :mod:`~nutribench.cli.common`
 holds what they share. Commands import the library they call when they run, so
 ``nutribench --help`` starts fast. Nothing below this package imports from it.

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from nutribench.cli.common import console, user_errors
 
-db_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Results databases: copy one into another.")
+db_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Results databases: copy one into another, export finished jobs to a file, import such a file.")
 
 
 @db_app.command("copy")
@@ -22,3 +23,34 @@ def db_copy_cmd(
 
     counts = copy_database(src, dst, on_table=lambda name, n: console.print(f"{name}: {n:,} rows", highlight=False))
     console.print(f"copied {sum(counts.values()):,} rows; {counts.get('jobs', 0)} jobs", highlight=False)
+
+
+@db_app.command("export")
+@user_errors
+def db_export_cmd(
+    out: Annotated[Path, typer.Argument(help="archive to write (.npz)")],
+    db: Annotated[str, typer.Option(help="database to read: a SQLite file or SQLAlchemy URL")] = "nutribench.db",
+    algos: Annotated[str | None, typer.Option(help="only these agent configs (comma-separated names); default: all")] = None,
+) -> None:
+    """Write DB's done jobs (configs, job rows, episodes, evaluation steps) to one portable file."""
+    from nutribench.store.archive import export_results
+
+    names = [a.strip() for a in algos.split(",") if a.strip()] if algos else None
+    counts = export_results(db, out, names)
+    size = out.stat().st_size / 1e6
+    console.print(f"{out}: {counts['jobs']} jobs, {counts['episodes']:,} episodes, {counts['eval_steps']:,} evaluation steps ({size:.1f} MB)", highlight=False)
+
+
+@db_app.command("import")
+@user_errors
+def db_import_cmd(
+    archive: Annotated[Path, typer.Argument(help="archive written by `nutribench db export`")],
+    db: Annotated[str, typer.Option(help="database to merge into (created if missing): a SQLite file or URL")] = "nutribench.db",
+) -> None:
+    """Merge an archive's jobs into DB: new jobs are added, pending ones take the archived
+    result, jobs DB already has done are kept as they are."""
+    from nutribench.store.archive import import_results
+
+    counts = import_results(archive, db)
+    console.print(f"{archive} -> {db}: {counts['imported']} jobs imported ({counts['episodes']:,} episodes, "
+                  f"{counts['eval_steps']:,} evaluation steps), {counts['kept']} already done there and kept", highlight=False)  # fmt: skip

@@ -1,0 +1,133 @@
+"""``nutribench db export`` / ``db import``: a grid run in parts on disks that are not shared
+(another machine, a later working session) carried into one database, exactly."""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from typer.testing import CliRunner
+
+from nutribench.cli import app
+from nutribench.jobs.fake import fake_run_job
+from nutribench.scheduler.driver import run_grid
+from nutribench.store import read_episode_metrics, read_eval_trajectories, read_jobs
+
+runner = CliRunner()
+SORT = ["regime", "algo", "seed", "phase", "episode"]
+
+
+def _grid(db: Path, algos: list[str], seeds: list[int]):
+    return run_grid(db, ["run0", "run3"], algos, seeds, 6, 2, job_fn=fake_run_job, display=False)
+
+
+def _out(res) -> str:
+    return " ".join(res.output.split())  # the console wraps long lines
+
+
+def _metrics(db: Path) -> pd.DataFrame:
+    return read_episode_metrics(db).drop(columns="job_id").sort_values(SORT).reset_index(drop=True)
+
+
+def test_a_grid_run_in_two_parts_merges_into_one_database(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    part1, part2, merged = (tmp_path / f"{n}.db" for n in ("part1", "part2", "merged"))
+    assert _grid(part1, ["mc"], [0, 1]).done == 4
+    assert _grid(part2, ["mc", "ppo"], [0, 1]).done == 8
+    with sqlite3.connect(part1) as c:  # part 1 was stopped before its seed-1 jobs finished
+        c.execute("UPDATE jobs SET status = 'pending' WHERE seed = 1")
+    res = runner.invoke(app, ["db", "export", str(tmp_path / "p1.npz"), "--db", str(part1)])
+    assert res.exit_code == 0, res.output
+    assert "2 jobs, 16 episodes, 200 evaluation steps" in _out(res)  # only done jobs travel
+    res = runner.invoke(app, ["db", "export", str(tmp_path / "p2.npz"), "--db", str(part2), "--algos", "ppo"])
+    assert res.exit_code == 0 and "4 jobs" in _out(res), res.output
+
+    for archive in ("p1.npz", "p2.npz"):
+        res = runner.invoke(app, ["db", "import", str(tmp_path / archive), "--db", str(merged)])
+        assert res.exit_code == 0, res.output
+    done1 = _metrics(part1).merge(read_jobs(part1).query("status == 'done'")[["regime", "algo", "seed"]])
+    expected = pd.concat([done1, _metrics(part2).query("algo == 'ppo'")]).sort_values(SORT).reset_index(drop=True)
+    pd.testing.assert_frame_equal(_metrics(merged), expected, check_dtype=False)
+    traj = [read_eval_trajectories(db).drop(columns="job_id").query("algo == 'ppo'").sort_values(["regime", "seed", "episode", "step"])
+            .reset_index(drop=True) for db in (merged, part2)]  # fmt: skip
+    pd.testing.assert_frame_equal(*traj, check_dtype=False)
+    # the grid goes on in the merged database: only the missing MC seed-1 jobs run
+    more = _grid(merged, ["mc", "ppo"], [0, 1])
+    assert (more.done, more.skipped) == (2, 6)
+
+    # importing again keeps what is there
+    again = runner.invoke(app, ["db", "import", str(tmp_path / "p1.npz"), "--db", str(merged)])
+    assert again.exit_code == 0 and "0 jobs imported" in _out(again) and "2 already done there and kept" in _out(again)
+    assert len(read_jobs(merged)) == 8 and set(read_jobs(merged)["status"]) == {"done"}
+    # an archived result fills a job the database holds pending (a registered, unrun grid)
+    with sqlite3.connect(part2) as c:
+        c.execute("UPDATE jobs SET status = 'pending' WHERE id IN (SELECT j.id FROM jobs j JOIN agent_configs a "
+                  "ON a.id = j.agent_config_id WHERE a.name = 'ppo')")  # fmt: skip
+        c.execute("DELETE FROM episodes WHERE job_id IN (SELECT id FROM jobs WHERE status = 'pending')")
+        c.execute("DELETE FROM eval_steps WHERE job_id IN (SELECT id FROM jobs WHERE status = 'pending')")
+    before = _metrics(merged).query("algo == 'ppo'").reset_index(drop=True)
+    res = runner.invoke(app, ["db", "import", str(tmp_path / "p2.npz"), "--db", str(part2)])
+    assert res.exit_code == 0 and "4 jobs imported" in _out(res), res.output
+    assert len(read_jobs(part2)) == 8 and set(read_jobs(part2)["status"]) == {"done"}
+    pd.testing.assert_frame_equal(_metrics(part2).query("algo == 'ppo'").reset_index(drop=True), before, check_dtype=False)
+
+
+def test_provenance_and_exact_values_survive_the_trip(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    src, dst = tmp_path / "src.db", tmp_path / "dst.db"
+    _grid(src, ["mc"], [0])
+    with sqlite3.connect(src) as c:  # values no float32 or decimal rounding would keep
+        c.execute("UPDATE episodes SET \"return\" = -7.123456789012345 + episode * 1e-13, entropy = NULL WHERE phase = 'eval'")
+        c.execute("UPDATE jobs SET git_commit = 'abc123', git_dirty = 0")
+    runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src)])
+    assert runner.invoke(app, ["db", "import", str(tmp_path / "a.npz"), "--db", str(dst)]).exit_code == 0
+    pd.testing.assert_frame_equal(_metrics(dst), _metrics(src), check_exact=True, check_dtype=False)
+    a, b = (read_jobs(db).drop(columns=["job_id"], errors="ignore") for db in (src, dst))
+    for col in ("git_commit", "wall_seconds", "engine", "regime_sha256", "agent_sha256", "started_at"):
+        if col in a:
+            assert list(a[col]) == list(b[col]), col
+    assert set(b["git_commit"]) == {"abc123"}
+
+
+def test_bad_archives_and_conflicts_are_one_line_errors(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    src, dst = tmp_path / "src.db", tmp_path / "dst.db"
+    _grid(src, ["mc"], [0])
+    res = runner.invoke(app, ["db", "import", str(tmp_path / "missing.npz"), "--db", str(dst)])
+    assert res.exit_code == 2 and "no such file" in _out(res)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    res = runner.invoke(app, ["db", "import", str(tmp_path / "junk.npz"), "--db", str(dst)])
+    assert res.exit_code == 2 and "not a results archive" in _out(res)
+    np.savez(tmp_path / "other.npz", x=np.zeros(3))
+    res = runner.invoke(app, ["db", "import", str(tmp_path / "other.npz"), "--db", str(dst)])
+    assert res.exit_code == 2 and "not a results archive" in _out(res)
+    res = runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src), "--algos", "sac"])
+    assert res.exit_code == 2 and "no done jobs of sac" in _out(res) and not (tmp_path / "a.npz").exists()
+    # the same config version with other content: the databases disagree, nothing is written
+    assert runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src)]).exit_code == 0
+    _grid(dst, ["ppo"], [0])
+    with sqlite3.connect(src) as c:
+        c.execute("UPDATE agent_configs SET sha256 = 'x' || substr(sha256, 2)")
+    assert runner.invoke(app, ["db", "export", str(tmp_path / "b.npz"), "--db", str(src)]).exit_code == 0
+    assert runner.invoke(app, ["db", "import", str(tmp_path / "a.npz"), "--db", str(dst)]).exit_code == 0
+    before = len(read_episode_metrics(dst))
+    res = runner.invoke(app, ["db", "import", str(tmp_path / "b.npz"), "--db", str(dst)])
+    assert res.exit_code == 2 and "mc v" in _out(res) and "other content" in _out(res)
+    assert len(read_episode_metrics(dst)) == before
+
+
+def test_a_job_another_driver_runs_is_not_overwritten(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    src, dst = tmp_path / "src.db", tmp_path / "dst.db"
+    _grid(src, ["mc"], [0])
+    _grid(dst, ["mc"], [0])
+    runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src)])
+    with sqlite3.connect(dst) as c:
+        c.execute("UPDATE jobs SET status = 'running', owner = 'elsewhere:1:x', heartbeat_at = datetime('now') WHERE id = 1")
+        c.execute("DELETE FROM episodes WHERE job_id = 1")
+    res = runner.invoke(app, ["db", "import", str(tmp_path / "a.npz"), "--db", str(dst)])
+    assert res.exit_code == 2 and "is running" in _out(res) and "elsewhere" in _out(res)
+    with sqlite3.connect(dst) as c:
+        assert c.execute("SELECT count(*) FROM episodes WHERE job_id = 1").fetchone() == (0,)
