@@ -202,3 +202,39 @@ def test_trajectory_meal_labels_sit_above_the_curves():
     assert len(labels) == 17
     for label in labels:  # y in axes coordinates, above the top of the axes
         assert label.get_transform() == top.get_xaxis_transform() and label.get_position()[1] > 1.0
+
+
+def test_results_table_gives_the_share_of_the_never_to_planner_gap_on_the_rows_days():
+    df = synthetic(regimes=("run0",), algos=("ppo",), seeds=(0, 21), eval_eps=2)
+    ev = df[df.phase == "eval"]
+    refs = ev[["regime", "seed", "episode"]].copy()
+    refs["never"] = -20.0 - refs["episode"]            # -20, -21 per seed
+    refs["planner"] = -4.0 + 0.0 * refs["episode"]
+    t = table_results(df, seeds_bootstrap=50, references=refs)
+    row = t.raw.iloc[0]
+    assert row["never_mean"] == pytest.approx(-20.5) and row["planner_mean"] == pytest.approx(-4.0)
+    assert row["gap_closed"] == pytest.approx((ev["return"].mean() + 20.5) / 16.5)
+    assert t.formatted.iloc[0]["gap closed"] == f"{100 * row['gap_closed']:.0f} %"
+    # a day without its yardsticks: no share rather than a share of other days
+    t = table_results(df, seeds_bootstrap=50, references=refs.iloc[1:])
+    assert np.isnan(t.raw.iloc[0]["gap_closed"]) and t.formatted.iloc[0]["gap closed"] == "n/a"
+    # without references the table is as before
+    assert "gap_closed" not in table_results(df, seeds_bootstrap=50).raw
+
+
+def test_the_yardsticks_play_each_jobs_own_evaluation_days():
+    from nutribench.agents import eval_food_streams
+    from nutribench.baselines import play_simple_policy
+    from nutribench.report.build import eval_day_references
+
+    version = load_env_config("run3").version
+    ev = pd.DataFrame({"regime": ["run3"] * 3 + ["run0"], "regime_version": [version] * 3 + [version + 99],
+                       "seed": [9, 9, 9, 0], "episode": [0, 1, 2, 0]})  # fmt: skip
+    logged: list[str] = []
+    refs = eval_day_references(ev, log=logged.append)
+    assert list(refs["regime"]) == ["run3"] * 3 and list(refs["episode"]) == [0, 1, 2]  # run0's version is not the file's
+    assert "run0" in logged[0] and f"v{version + 99}" in logged[0]
+    streams = eval_food_streams("run3", 9, 3)
+    for name in ("never", "planner"):
+        assert list(refs[name]) == pytest.approx([r["return"] for r in play_simple_policy(name, "run3", streams)])
+    assert (refs["planner"] > refs["never"]).all()

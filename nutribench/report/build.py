@@ -148,6 +148,37 @@ def simple_policy_references(regimes: Iterable[str], episodes: int = 200, seed: 
     return pd.DataFrame(rows, columns=["regime", "policy", "return", "foods", "final_distance", "overshoot_ratio"])
 
 
+def eval_day_references(ev: pd.DataFrame, log: Log | None = None) -> pd.DataFrame:
+    """The ``never`` and ``planner`` returns on every evaluation day of ``ev``: a job of seed
+    ``s`` evaluates on ``eval_food_streams(regime, s, n)``, so the yardsticks play exactly
+    those days. Only where the database's regime version is the regime file's (the days and
+    the reward are the file's); other regimes are left out (logged).
+
+    Columns: regime, seed, episode, never, planner.
+    """
+    from nutribench.agents import eval_food_streams
+    from nutribench.baselines import play_simple_policy
+    from nutribench.config import load_env_config
+
+    rows: list[dict[str, Any]] = []
+    for (regime, version, seed), days in ev.groupby(["regime", "regime_version", "seed"]):
+        try:
+            cfg = load_env_config(regime)
+        except ConfigError as e:
+            if log:
+                log(f"no never/planner yardsticks for {regime}: {e}")
+            continue
+        if int(cfg.version) != int(version):
+            if log:
+                log(f"no never/planner yardsticks for {regime} v{version}: the regime file is v{cfg.version}")
+            continue
+        streams = eval_food_streams(regime, int(seed), int(days["episode"].max()) + 1)
+        played = {name: [float(r["return"]) for r in play_simple_policy(name, regime, streams)] for name in ("never", "planner")}
+        rows += [{"regime": regime, "seed": seed, "episode": e, "never": played["never"][e], "planner": played["planner"][e]}
+                 for e in range(len(streams))]  # fmt: skip
+    return pd.DataFrame(rows, columns=["regime", "seed", "episode", "never", "planner"])
+
+
 # --------------------------------------------------------------------------- writing
 def write_figure(fig_result: FigureResult | Figure, out_dir: Db, stem: str) -> list[Path]:
     """Write ``<out_dir>/<stem>.png`` (150 dpi) and ``.pdf``; return both paths."""
@@ -274,7 +305,7 @@ def build_table(key: str, data: ReportData | None = None, db: Db | None = None) 
         ev = data.eval
         if ev.empty:
             raise ReportError("results table: no evaluation episodes in the database")
-        return _with_notes(table_results(ev), data)
+        return _with_notes(table_results(ev, references=eval_day_references(ev)), data)
     if key == "training":
         if data is None or data.train.empty:
             raise ReportError("training table: no training episodes in the database")

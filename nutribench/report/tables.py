@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from nutribench.bench_learn import gap_closed
 from nutribench.report.figures import algo_label, sort_algos, sort_regimes
 from nutribench.report.stats import iqm_bootstrap_ci, sem
 
@@ -111,13 +112,19 @@ def mean_sem_cell(values: pd.Series, digits: int) -> tuple[float, float, str]:
     return mean, se, f"{mean:.{digits}f} ± {se:.{digits}f}" if np.isfinite(se) else f"{mean:.{digits}f}"
 
 
-def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000) -> TableResult:
+def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.DataFrame | None = None) -> TableResult:
     """Results: regime x algorithm, mean ± standard error of the four evaluation metrics over
     seeds x evaluation episodes, plus the return's interquartile mean with a 95 % percentile
-    bootstrap confidence interval resampling seeds."""
+    bootstrap confidence interval resampling seeds.
+
+    With ``references`` (columns regime, seed, episode, never, planner: the two yardsticks'
+    returns on each evaluation day) each row also gives the mean return of ``never`` and of
+    the ``planner`` on exactly the row's evaluation days, and the share of that gap the
+    agent closes; NaN where a day of the row has no reference."""
     ev = df[df["phase"] == "eval"]
     if ev.empty:
         raise ValueError("no evaluation episodes for the results table")
+    ref = references.set_index(["regime", "seed", "episode"])[["never", "planner"]] if references is not None else None
     rows, fmt_rows = [], []
     for regime in sort_regimes(ev["regime"]):
         for algo in sort_algos(ev[ev["regime"] == regime]["algo"]):
@@ -130,6 +137,15 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000) -> TableResult:
             point, lo, hi = iqm_bootstrap_ci(by_seed, reps=seeds_bootstrap)
             row["return_iqm"], row["return_iqm_lo"], row["return_iqm_hi"] = point, lo, hi
             f["return IQM [95% CI]"] = f"{point:.2f} [{lo:.2f}, {hi:.2f}]" if np.isfinite(lo) else f"{point:.2f} [single seed]"
+            if ref is not None:
+                keys = pd.MultiIndex.from_arrays([cell["regime"], cell["seed"], cell["episode"]])
+                days = ref.reindex(keys)
+                complete = not days.isna().any().any()
+                row["never_mean"] = float(days["never"].mean()) if complete else float("nan")
+                row["planner_mean"] = float(days["planner"].mean()) if complete else float("nan")
+                row["gap_closed"] = gap_closed(row["return_mean"], row["never_mean"], row["planner_mean"]) if complete else float("nan")
+                f["never / planner"] = f"{row['never_mean']:.2f} / {row['planner_mean']:.2f}" if complete else "n/a"
+                f["gap closed"] = f"{100 * row['gap_closed']:.0f} %" if np.isfinite(row["gap_closed"]) else "n/a"
             rows.append(row)
             fmt_rows.append(f)
     title = "Results: fixed-policy inference, mean ± standard error over seeds x evaluation episodes"
