@@ -43,6 +43,12 @@ def test_a_grid_run_in_two_parts_merges_into_one_database(tmp_path, monkeypatch)
     assert "2 jobs, 16 episodes, 200 evaluation steps" in _out(res)  # only done jobs travel
     res = runner.invoke(app, ["db", "export", str(tmp_path / "p2.npz"), "--db", str(part2), "--algos", "ppo"])
     assert res.exit_code == 0 and "4 jobs" in _out(res), res.output
+    # a part can also be cut by regime: ppo on run3 only (2 seeds)
+    res = runner.invoke(app, ["db", "export", str(tmp_path / "p3.npz"), "--db", str(part2), "--algos", "ppo", "--regimes", "run3"])
+    assert res.exit_code == 0 and "2 jobs" in _out(res), res.output
+    res = runner.invoke(app, ["db", "import", str(tmp_path / "p3.npz"), "--db", str(tmp_path / "p3.db")])
+    assert res.exit_code == 0, res.output
+    assert set(map(tuple, read_jobs(tmp_path / "p3.db")[["regime", "algo"]].values)) == {("run3", "ppo")}
 
     for archive in ("p1.npz", "p2.npz"):
         res = runner.invoke(app, ["db", "import", str(tmp_path / archive), "--db", str(merged)])
@@ -105,6 +111,8 @@ def test_bad_archives_and_conflicts_are_one_line_errors(tmp_path, monkeypatch) -
     assert res.exit_code == 2 and "not a results archive" in _out(res)
     res = runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src), "--algos", "sac"])
     assert res.exit_code == 2 and "no done jobs of sac" in _out(res) and not (tmp_path / "a.npz").exists()
+    res = runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src), "--regimes", "run5"])
+    assert res.exit_code == 2 and "no done jobs of run5" in _out(res) and not (tmp_path / "a.npz").exists()
     # the same config version with other content: the databases disagree, nothing is written
     assert runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src)]).exit_code == 0
     _grid(dst, ["ppo"], [0])

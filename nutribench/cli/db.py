@@ -31,12 +31,15 @@ def db_export_cmd(
     out: Annotated[Path, typer.Argument(help="archive to write (.npz)")],
     db: Annotated[str, typer.Option(help="database to read: a SQLite file or SQLAlchemy URL")] = "nutribench.db",
     algos: Annotated[str | None, typer.Option(help="only these agent configs (comma-separated names); default: all")] = None,
+    regimes: Annotated[str | None, typer.Option(help="only these regimes (comma-separated names); default: all")] = None,
 ) -> None:
     """Write DB's done jobs (configs, job rows, episodes, evaluation steps) to one portable file."""
     from nutribench.store.archive import export_results
 
-    names = [a.strip() for a in algos.split(",") if a.strip()] if algos else None
-    counts = export_results(db, out, names)
+    def listed(text: str | None) -> list[str] | None:
+        return [a.strip() for a in text.split(",") if a.strip()] if text else None
+
+    counts = export_results(db, out, listed(algos), listed(regimes))
     size = out.stat().st_size / 1e6
     console.print(f"{out}: {counts['jobs']} jobs, {counts['episodes']:,} episodes, {counts['eval_steps']:,} evaluation steps ({size:.1f} MB)", highlight=False)
 

@@ -69,9 +69,10 @@ def _columns(table: type) -> list[Any]:
     return [c for c in table.__table__.columns if c.name != "job_id"]
 
 
-def export_results(db: str, out: str | os.PathLike[str], algos: Sequence[str] | None = None) -> dict[str, int]:
-    """Write the done jobs of ``db`` (only those of agent configs named in ``algos``, if given)
-    to the archive ``out``; rows written per table."""
+def export_results(db: str, out: str | os.PathLike[str], algos: Sequence[str] | None = None,
+                   regimes: Sequence[str] | None = None) -> dict[str, int]:  # fmt: skip
+    """Write the done jobs of ``db`` (only those of agent configs named in ``algos`` and of
+    regimes named in ``regimes``, where given) to the archive ``out``; rows written per table."""
     store = open_store(db)
     try:
         with store.engine.connect() as conn:
@@ -79,10 +80,12 @@ def export_results(db: str, out: str | os.PathLike[str], algos: Sequence[str] | 
                 AgentConfig, Job.agent_config_id == AgentConfig.id).where(Job.status == "done").order_by(Job.id)  # fmt: skip
             if algos:
                 query = query.where(AgentConfig.name.in_(list(algos)))
+            if regimes:
+                query = query.where(RegimeConfig.name.in_(list(regimes)))
             with Session(bind=conn) as s:
                 found = s.execute(query).all()
                 if not found:
-                    which = f" of {', '.join(algos)}" if algos else ""
+                    which = "".join(f" of {', '.join(names)}" for names in (algos, regimes) if names)
                     raise StoreError(f"db export: {store.display} holds no done jobs{which}: nothing to export")
                 regimes = {r.id: _row(r, _CONFIG_SKIP) for _, r, _ in found}
                 agents = {a.id: _row(a, _CONFIG_SKIP) for _, _, a in found}
