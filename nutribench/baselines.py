@@ -13,6 +13,13 @@ POLICY_ORDER = ("random", "never", "always", "planner")
 SUMMARY_KEYS = ("return", "foods", "final_distance", "overshoot_ratio")
 
 
+def gap_closed(value: float, never: float, planner: float) -> float:
+    """Share of the never -> planner gap that ``value`` closes (0 = never eat, 1 = the
+    planner; the planner is greedy, not optimal, so more than 1 is possible); NaN where the
+    two coincide (no gap to close)."""
+    return float((value - never) / (planner - never)) if planner != never else float("nan")
+
+
 def play_simple_policy(policy: str, regime: str | EnvConfig, foods: np.ndarray, seed: int = 0) -> list[dict]:
     """Per-episode metrics of ``policy`` on the given days ``(n, horizon)`` of food indices."""
     env = NutriRLVectorEnv(len(foods), regime=regime)

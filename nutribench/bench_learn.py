@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from nutribench.baselines import gap_closed
 from nutribench.report.stats import iqm
 
 #: Run0 targets of issue 11: the share of the never -> planner gap, and the foods a day.
@@ -140,11 +141,6 @@ def learn_benchmark(
                 on_done(runs[-1], len(runs), len(jobs))
     names = [c.name for c in cfgs]
     return sorted(runs, key=lambda x: (regimes.index(x.regime), names.index(x.algo), seeds.index(x.seed)))
-
-
-def gap_closed(value: float, never: float, planner: float) -> float:
-    """Share of the never -> planner gap; NaN where the two coincide (no gap to close)."""
-    return float((value - never) / (planner - never)) if planner != never else float("nan")
 
 
 def summarize(runs: list[LearnRun]) -> list[dict[str, Any]]:

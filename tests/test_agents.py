@@ -237,7 +237,7 @@ PPO_CI_EACH_BAR = 0.25
 
 
 def gap_closed(returns: list[float], streams: np.ndarray) -> float:
-    from nutribench.bench_learn import gap_closed as share_of_gap
+    from nutribench.baselines import gap_closed as share_of_gap
     from nutribench.bench_learn import reference_returns
 
     ref = reference_returns("run0", streams)

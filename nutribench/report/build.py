@@ -9,8 +9,8 @@ Figure / table out). This module adds what those pure builders do not know about
   versions (``latest_only``) and, per (regime, algorithm, seed), the job with the largest
   training budget (the newest such job if several); what was left out becomes a note;
 * Figures 1/2 use the ``train`` phase, Figures 3/4 and the results table the ``eval`` phase;
-* the reference lines of Figures 3/4 (the four simple policies, evaluated afresh on the
-  regime files with a fixed seed; nothing cached on disk);
+* the reference lines of Figures 3/4 and the results table's yardsticks
+  (:mod:`nutribench.report.references`: the simple policies, played afresh; nothing cached);
 * writing: figures as PNG (150 dpi) and PDF, tables as Markdown, LaTeX and CSV.
 
 Problems a user can fix raise :class:`ReportError` (one line); a database that cannot be
@@ -38,6 +38,7 @@ from nutribench.report.figures import (
     sort_regimes,
     training_curves,
 )
+from nutribench.report.references import eval_day_references, simple_policy_references
 from nutribench.report.tables import CONFIG_TABLES, TableResult, table_agent_config, table_regimes, table_results, table_training
 from nutribench.errors import UserError
 
@@ -127,56 +128,6 @@ def load_report_data(db: Db, latest_only: bool = True) -> ReportData:
         df, notes = _keep_latest_versions(df)
     df, budget_notes = _keep_largest_budget(df)
     return ReportData(df.reset_index(drop=True), notes + budget_notes)
-
-
-def simple_policy_references(regimes: Iterable[str], episodes: int = 200, seed: int = 0, log: Log | None = None) -> pd.DataFrame:
-    """Reference lines of Figures 3/4: the mean metrics of the four simple policies (random,
-    never, always, full-information planner) per regime, on the same ``episodes`` food
-    streams drawn with ``seed``. Regimes without a regime file are left out (logged).
-
-    Columns: regime, policy, return, foods, final_distance, overshoot_ratio.
-    """
-    from nutribench.baselines import baseline_table
-
-    rows = []
-    for regime in regimes:
-        try:
-            rows += baseline_table([regime], episodes=episodes, seed=seed)
-        except ConfigError as e:
-            if log:
-                log(f"no reference lines for {regime}: {e}")
-    return pd.DataFrame(rows, columns=["regime", "policy", "return", "foods", "final_distance", "overshoot_ratio"])
-
-
-def eval_day_references(ev: pd.DataFrame, log: Log | None = None) -> pd.DataFrame:
-    """The ``never`` and ``planner`` returns on every evaluation day of ``ev``: a job of seed
-    ``s`` evaluates on ``eval_food_streams(regime, s, n)``, so the yardsticks play exactly
-    those days. Only where the database's regime version is the regime file's (the days and
-    the reward are the file's); other regimes are left out (logged).
-
-    Columns: regime, seed, episode, never, planner.
-    """
-    from nutribench.agents import eval_food_streams
-    from nutribench.baselines import play_simple_policy
-    from nutribench.config import load_env_config
-
-    rows: list[dict[str, Any]] = []
-    for (regime, version, seed), days in ev.groupby(["regime", "regime_version", "seed"]):
-        try:
-            cfg = load_env_config(regime)
-        except ConfigError as e:
-            if log:
-                log(f"no never/planner yardsticks for {regime}: {e}")
-            continue
-        if int(cfg.version) != int(version):
-            if log:
-                log(f"no never/planner yardsticks for {regime} v{version}: the regime file is v{cfg.version}")
-            continue
-        streams = eval_food_streams(regime, int(seed), int(days["episode"].max()) + 1)
-        played = {name: [float(r["return"]) for r in play_simple_policy(name, regime, streams)] for name in ("never", "planner")}
-        rows += [{"regime": regime, "seed": seed, "episode": e, "never": played["never"][e], "planner": played["planner"][e]}
-                 for e in range(len(streams))]  # fmt: skip
-    return pd.DataFrame(rows, columns=["regime", "seed", "episode", "never", "planner"])
 
 
 # --------------------------------------------------------------------------- writing
@@ -422,6 +373,7 @@ __all__ = [
     "build_report",
     "build_table",
     "build_trajectory",
+    "eval_day_references",
     "load_report_data",
     "simple_policy_references",
     "write_figure",

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from nutribench.bench_learn import gap_closed
+from nutribench.baselines import gap_closed
 from nutribench.report.figures import algo_label, sort_algos, sort_regimes
 from nutribench.report.stats import iqm_bootstrap_ci, sem
 
