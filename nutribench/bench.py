@@ -258,29 +258,39 @@ def flops_per_env_step(cfg, obs_dim: int = 13, n_actions: int = 2, horizon: int 
     return forward * (1 + 3 * OnPolicySettings.from_config(cfg, horizon).n_epochs)
 
 
-def matmul_flops_per_s(k: int = 35, batch: int = 64, n_in: int = 256, n_out: int = 128, repeats: int = 200) -> float:
-    """This machine's dense float32 batched-matmul rate on one thread, at the shape of the
-    batched engine's largest layer (K agents x a minibatch): median of 5 timings."""
+def matmul_flops_per_s(k: int = 35, batch: int = 64, n_in: int = 256, n_out: int = 128, repeats: int = 200,
+                       device: str = "cpu") -> float:  # fmt: skip
+    """This machine's dense float32 batched-matmul rate on one thread (or on the CUDA
+    ``device``), at the shape of the batched engine's largest layer (K agents x a
+    minibatch): median of 5 timings."""
     import torch
 
+    from nutribench.engine.device import resolve_device
+
     torch.set_num_threads(1)
-    a, b = torch.randn(k, batch, n_in), torch.randn(k, n_in, n_out)
-    out = torch.empty(k, batch, n_out)
+    dev = resolve_device(device)
+    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
+    a, b = torch.randn(k, batch, n_in).to(dev), torch.randn(k, n_in, n_out).to(dev)
+    out = torch.empty(k, batch, n_out, device=dev)
     torch.bmm(a, b, out=out)
     rates = []
     for _ in range(5):
+        sync()
         t0 = time.perf_counter()
         for _ in range(repeats):
             torch.bmm(a, b, out=out)
+        sync()
         rates.append(2 * k * batch * n_in * n_out * repeats / (time.perf_counter() - t0))
     return statistics.median(rates)
 
 
-def bench_train_batched(algo: str = "ppo", k_regimes: int = 7, k_seeds: int = 5, episodes: int = 20, repeats: int = 3) -> dict:
+def bench_train_batched(algo: str = "ppo", k_regimes: int = 7, k_seeds: int = 5, episodes: int = 20, repeats: int = 3,
+                        device: str = "cpu") -> dict:  # fmt: skip
     """Env-steps per second of the batched engine training K = regimes x seeds agents of
     ``algo`` at once in one process (one thread; DDQN and SAC learning from the first step), the arithmetic it does per env step, this
-    machine's matmul rate, the share of that floor reached, and the paper grid's wall time
-    for this algorithm at that rate on all the cores."""
+    machine's matmul rate (on ``device``, where the engine trains), the share of that floor
+    reached, and the paper grid's wall time for this algorithm at that rate on all the cores
+    (batches side by side; on one GPU they share it, so there these hours are optimistic)."""
     from nutribench import SHIPPED_REGIMES
     from nutribench.engine.train import train_batched
     from nutribench.scheduler.executors import core_count
@@ -290,12 +300,12 @@ def bench_train_batched(algo: str = "ppo", k_regimes: int = 7, k_seeds: int = 5,
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        train_batched(jobs, cfg, episodes)
+        train_batched(jobs, cfg, episodes, device=device)
         times.append(time.perf_counter() - t0)
     steps = len(jobs) * episodes * 50
     rate = steps / statistics.median(times)
     flops = flops_per_env_step(cfg)
-    peak = matmul_flops_per_s(k=len(jobs), batch=cfg.batch_size if cfg.algo in ("ddqn", "sac") else 64)
+    peak = matmul_flops_per_s(k=len(jobs), batch=cfg.batch_size if cfg.algo in ("ddqn", "sac") else 64, device=device)
     grid_steps = PAPER_GRID["regimes"] * PAPER_GRID["seeds"] * PAPER_GRID["episodes"] * 50
     cores = min(core_count(), PAPER_GRID["regimes"] * PAPER_GRID["seeds"])  # batches side by side
     return {"algo": algo, "k": len(jobs), "episodes": episodes, "steps_per_s": rate, "flops_per_step": flops,

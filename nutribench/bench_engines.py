@@ -8,7 +8,7 @@ and the wall time. The two engines' random streams differ (see
 the two engines must overlap.
 
 The SB3 engine trains one job per process on a process pool (one per core); the batched
-engine trains all of an algorithm's jobs in one process, on one core.
+engine trains all of an algorithm's jobs in one process, on one core (or on ``device``).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ ENGINES = ("sb3", "batched")
 
 def bench_engines(algos: Iterable[str] = BATCHED_ALGOS, regimes: Iterable[str] = ("run0", "run6"),
                   seeds: Iterable[int] = (0, 1, 2, 3, 4), episodes: int = 500, eval_episodes: int = 10,
-                  workers: int | None = None) -> list[dict[str, Any]]:  # fmt: skip
+                  workers: int | None = None, device: str = "cpu") -> list[dict[str, Any]]:  # fmt: skip
     """One row per (algorithm, regime, engine), and per (algorithm, regime) whether the two
     engines' intervals overlap (``overlap``, on the batched row)."""
     algos, regimes, seeds = list(algos), list(regimes), list(seeds)
@@ -41,7 +41,7 @@ def bench_engines(algos: Iterable[str] = BATCHED_ALGOS, regimes: Iterable[str] =
     sb3_wall = time.perf_counter() - start
     start = time.perf_counter()
     for algo in algos:
-        runs["batched"] += batched_runs(algo, regimes, seeds, episodes, eval_episodes)
+        runs["batched"] += batched_runs(algo, regimes, seeds, episodes, eval_episodes, device)
     batched_wall = time.perf_counter() - start
     rows = []
     for algo in algos:

@@ -75,15 +75,16 @@ def _one_run(config: Any, regime: str, seed: int, episodes: int, eval_episodes: 
     return LearnRun(config.name, regime, seed, episodes, wall, rows, ref["never"], ref["planner"])
 
 
-def batched_runs(config: Any, regimes: list[str], seeds: list[int], episodes: int, eval_episodes: int) -> list[LearnRun]:
-    """Every (regime, seed) of ``config`` trained at once by the batched engine, then evaluated."""
+def batched_runs(config: Any, regimes: list[str], seeds: list[int], episodes: int, eval_episodes: int,
+                 device: str = "cpu") -> list[LearnRun]:  # fmt: skip
+    """Every (regime, seed) of ``config`` trained at once by the batched engine on ``device``, then evaluated."""
     from nutribench.agents import eval_food_streams, evaluate, load_agent_config
     from nutribench.engine.train import train_batched
 
     cfg = load_agent_config(config)
     jobs = [(r, s) for r in regimes for s in seeds]
     start = time.perf_counter()
-    agents = train_batched(jobs, cfg, episodes)
+    agents = train_batched(jobs, cfg, episodes, device=device)
     wall = (time.perf_counter() - start) / len(jobs)
     runs = []
     for (regime, seed), agent in zip(jobs, agents):
@@ -109,11 +110,13 @@ def learn_benchmark(
     workers: int | None = None,
     on_done: Callable[[LearnRun, int, int], None] | None = None,
     engine: str = "sb3",
+    device: str = "cpu",
 ) -> list[LearnRun]:
     """Train and evaluate every (config, regime, seed) on a process pool (one torch thread
     each); ``budgets`` maps a config name or algorithm to its training days.
     ``on_done(run, k, total)`` is called as each finishes. ``engine="batched"``: each
-    config's jobs trained at once by the batched engine, in this process."""
+    config's jobs trained at once by the batched engine, in this process, on ``device``
+    (the SB3 engine trains on the CPU)."""
     from nutribench.agents import load_agent_config
 
     budgets = dict(DEFAULT_BUDGETS if budgets is None else budgets)
@@ -122,7 +125,7 @@ def learn_benchmark(
     if engine == "batched":
         out: list[LearnRun] = []
         for c in cfgs:
-            out += batched_runs(c, regimes, seeds, budget_for(c.name, c.algo, budgets, default_budget), eval_episodes)
+            out += batched_runs(c, regimes, seeds, budget_for(c.name, c.algo, budgets, default_budget), eval_episodes, device)
             if on_done is not None:
                 on_done(out[-1], len(out), len(cfgs) * len(regimes) * len(seeds))
         return out

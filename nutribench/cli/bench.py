@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from nutribench.cli.common import UserError, console, split_csv, user_errors
+from nutribench.cli.common import DEVICE_HELP, UserError, console, split_csv, user_errors
 
 bench_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Benchmarks: env and training throughput, status speed, learnability.")
 
@@ -42,6 +42,7 @@ def bench_train_cmd(
     episodes: Annotated[int, typer.Option(min=1, help="training days per timed run")] = 100,
     repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 3,
     engine: Annotated[str, typer.Option(help="'sb3', or 'batched': the batched engine at K = 35 beside SB3's")] = "sb3",
+    device: Annotated[str, typer.Option(help=f"--engine batched: {DEVICE_HELP} (SB3's rows: the CPU)")] = "auto",
 ) -> None:
     """Training env-steps per second of each algorithm, and of bare SB3 PPO / DQN on the same
     env (the overhead of nutribench's plumbing), with the paper grid's CPU-hours at that rate.
@@ -51,6 +52,7 @@ def bench_train_cmd(
     from nutribench.bench import bench_train
     from nutribench.config import load_env_config
 
+    check_engine_options(engine, device)
     names = split_csv(algos, list(ALGOS), "algorithm")
     load_env_config(regime)
     rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats)
@@ -64,8 +66,6 @@ def bench_train_cmd(
     console.print(f"paper grid (7 regimes x 5 seeds x 5000 days per algorithm, all 5 algorithms): ~{total:.0f} CPU-hours")
     if engine == "sb3":
         return
-    if engine != "batched":
-        raise UserError(f"--engine {engine!r}: use 'sb3' or 'batched'")
     from nutribench.bench import bench_train_batched
     from nutribench.bench_engines import BATCHED_ALGOS
 
@@ -73,7 +73,7 @@ def bench_train_cmd(
     table = Table("algo", "K", "env-steps/s (median)", "vs SB3 engine", "MFLOP / env step", "matmul GFLOP/s",
                   "share of floor", "paper grid wall h", title=f"batched engine, {episodes} days x {repeats}, batches on all cores")  # fmt: skip
     for algo in [a for a in names if a in BATCHED_ALGOS]:
-        b = bench_train_batched(algo, episodes=episodes, repeats=repeats)
+        b = bench_train_batched(algo, episodes=episodes, repeats=repeats, device=device)
         table.add_row(algo, str(b["k"]), f"{b['steps_per_s']:,.0f}", f"{b['steps_per_s'] / sb3_rate[algo]:.1f}x",
                       f"{b['flops_per_step'] / 1e6:.2f}", f"{b['matmul_flops_per_s'] / 1e9:.0f}", f"{100 * b['floor_share']:.0f} %",
                       f"{b['paper_grid_wall_hours']:.2f} (floor {b['paper_grid_floor_hours']:.2f})")  # fmt: skip
@@ -95,6 +95,7 @@ def bench_learn_cmd(
     workers: Annotated[Optional[int], typer.Option(min=1, help="agents trained at once (default: the cores)")] = None,
     markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
     engine: Annotated[str, typer.Option(help="'sb3' (the reference), or 'batched' (every config's seeds and regimes at once: fast sweeps)")] = "sb3",
+    device: Annotated[str, typer.Option(help=f"--engine batched: {DEVICE_HELP} (the SB3 engine: the CPU)")] = "auto",
 ) -> None:
     """Train every agent for a budget over several seeds, evaluate greedily on the fixed
     evaluation days, and state each as the share of the never -> planner gap it closes
@@ -111,8 +112,7 @@ def bench_learn_cmd(
     unknown = sorted(set(budgets) - set(list_agent_configs()) - set(ALGOS))
     if unknown:
         raise UserError(f"--episodes {episodes!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})")
-    if engine not in ("sb3", "batched"):
-        raise UserError(f"--engine {engine!r}: use 'sb3' or 'batched'")
+    check_engine_options(engine, device)
     if engine == "batched":
         from nutribench.engine import BATCHED_ALGOS
 
@@ -123,7 +123,7 @@ def bench_learn_cmd(
         runs = learn_benchmark(
             names, regime_names, seed_list, budgets=budgets, default_budget=default, eval_episodes=eval_episodes,
             workers=workers, on_done=lambda r, k, n: status.update(f"{k}/{n} done (last: {r.algo} {r.regime} seed {r.seed})"),
-            engine=engine,
+            engine=engine, device=device,
         )  # fmt: skip
     rows = summarize(runs)
     if markdown:
@@ -185,6 +185,7 @@ def bench_engines_cmd(
     episodes: Annotated[int, typer.Option(min=1, help="training days per job, both engines")] = 500,
     eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")] = 10,
     markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
+    device: Annotated[str, typer.Option(help=f"the batched engine's: {DEVICE_HELP} (the SB3 engine: the CPU)")] = "auto",
 ) -> None:
     """Train with both engines (SB3 and batched) on the same seeds and budget; per algorithm
     and regime the IQM of the evaluation returns with a 95 % bootstrap interval over seeds;
@@ -193,10 +194,11 @@ def bench_engines_cmd(
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
 
+    check_engine_options("batched", device)
     names = split_csv(algos, list(BATCHED_ALGOS), "algorithm for the batched engine")
     regime_names = split_csv(regimes, list_regimes(), "regime")
     with console.status("training with both engines"):
-        rows = bench_engines(names, regime_names, list(parse_seeds(seeds)), episodes, eval_episodes)
+        rows = bench_engines(names, regime_names, list(parse_seeds(seeds)), episodes, eval_episodes, device=device)
     if markdown:
         console.print(markdown_table(rows), highlight=False, soft_wrap=True)
     else:
@@ -207,3 +209,11 @@ def bench_engines_cmd(
     walls = {r["engine"]: r["total_wall_seconds"] for r in rows}
     console.print(f"wall time: SB3 {walls['sb3']:.0f} s (a process per job, one per core), batched {walls['batched']:.0f} s (one process)",
                   highlight=False)  # fmt: skip
+
+
+def check_engine_options(engine: str, device: str) -> None:
+    """Refuse an unknown ``--engine``, an unknown ``--device``, CUDA where there is none, or a
+    GPU asked of the SB3 engine, in one line, before anything trains."""
+    from nutribench.scheduler.batching import check_engine
+
+    check_engine(engine, 1, device)

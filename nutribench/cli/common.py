@@ -16,7 +16,10 @@ from rich.markup import escape
 
 from nutribench.errors import UserError
 
-__all__ = ["UserError", "console", "err_console", "print_error", "split_csv", "user_errors"]
+__all__ = ["DEVICE_HELP", "UserError", "console", "err_console", "print_error", "split_csv", "user_errors"]
+
+#: the help of ``--device`` (checked by :mod:`nutribench.engine.device`, which imports torch: not here)
+DEVICE_HELP = "where the batched engine trains: 'auto' (CUDA when available, else the CPU), 'cpu', 'cuda' or 'cuda:N'"
 
 console = Console()
 err_console = Console(stderr=True)

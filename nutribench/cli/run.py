@@ -2,8 +2,9 @@
 
 Everything a user can get wrong (unknown regime or algorithm, malformed seeds, a database
 path that cannot be written, a file that is not a database, a config changed without a
-version bump, an unknown executor) is checked before the database file is created and
-reported as one red line with exit status 2.
+version bump, an unknown executor, an engine option it cannot take such as ``--device cuda``
+where there is no CUDA) is checked before the database file is created and reported as one
+red line with exit status 2.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import console, err_console, split_csv, user_errors
+from nutribench.cli.common import DEVICE_HELP, console, err_console, split_csv, user_errors
 from nutribench.scheduler.executors import ExecutorError
 from nutribench.scheduler.grid import DEFAULT_PRESET, PRESETS
 
@@ -51,6 +52,7 @@ def run_cmd(
     retry_failed: Annotated[bool, typer.Option("--retry-failed", help="try again the jobs that failed 3 times (once their cause is fixed)")] = False,
     engine: Annotated[str, typer.Option(help="'sb3' (a job per worker) or 'batched' (the jobs of one agent config trained together, one batch per worker)")] = "sb3",
     batch_size: Annotated[int, typer.Option(min=1, help="--engine batched: at most this many jobs in a batch (a batch's jobs are stored when it ends)")] = 35,
+    device: Annotated[str, typer.Option(help=f"{DEVICE_HELP}; the SB3 engine trains on the CPU (auto or cpu)")] = "auto",
 ) -> None:
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
     from nutribench.store import open_store
@@ -66,6 +68,7 @@ def run_cmd(
     from nutribench.scheduler.driver import default_job_fn, run_grid
     from nutribench.scheduler.registration import load_grid_configs
     from nutribench.store.jobs import MAX_FAILURES
+    from nutribench.scheduler.batching import check_engine
     from nutribench.scheduler.grid import resolve_grid
 
     grid = resolve_grid(
@@ -75,6 +78,7 @@ def run_cmd(
         seeds=seeds, episodes=episodes, eval_episodes=eval_episodes,
     )  # fmt: skip
     _check_executor(executor)
+    check_engine(engine, batch_size, device)
     _check_db(db)
     load_grid_configs(grid)  # a broken config file fails here, before the database exists
     job_fn = default_job_fn()
@@ -82,7 +86,7 @@ def run_cmd(
         summary = run_grid(
             db, grid.regimes, grid.algos, grid.seeds, grid.episodes, grid.eval_episodes, workers=workers,
             executor=executor, job_fn=job_fn, models_dir=models_dir, display=True, retry_failed=retry_failed, engine=engine,
-            max_batch=batch_size,
+            max_batch=batch_size, device=device,
         )  # fmt: skip
     except KeyboardInterrupt:  # before any job started (opening the database, claiming)
         raise typer.Exit(130) from None

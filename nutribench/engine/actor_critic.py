@@ -33,6 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch as th
 
+from nutribench.engine.device import leaves_on
+
 ADAM_EPS = 1e-5  # SB3's ActorCriticPolicy passes eps=1e-5 to Adam
 GAINS = (math.sqrt(2), math.sqrt(2), 0.01, 1.0)  # backbone layers, actor head, value head
 
@@ -106,7 +108,9 @@ class StackedActorCritic:
     ``:n_actions`` and ``n_actions``), so that both heads are one batched product.
     """
 
-    def __init__(self, k: int, obs_dim: int, net_arch: list[int], n_actions: int = 2, generators: list[th.Generator] | None = None):
+    def __init__(self, k: int, obs_dim: int, net_arch: list[int], n_actions: int = 2, generators: list[th.Generator] | None = None,
+                 device: th.device | str | None = None):  # fmt: skip
+        """Initialised on the CPU from ``generators`` (one per agent), then moved to ``device``."""
         sizes = [obs_dim, *net_arch]
         self.n_actions = n_actions
         self.n_hidden = len(net_arch)
@@ -117,6 +121,7 @@ class StackedActorCritic:
         head = th.cat([orthogonal(k, sizes[-1], n_actions, GAINS[2], generators),
                        orthogonal(k, sizes[-1], 1, GAINS[3], generators)], dim=2)  # fmt: skip
         self.params += [head.requires_grad_(), th.zeros(k, 1, n_actions + 1, requires_grad=True)]
+        self.params = leaves_on(self.params, device)
 
     @property
     def k(self) -> int:
@@ -223,10 +228,11 @@ def ppo_update(net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: 
     agent's transitions in each epoch (SB3 draws ``np.random.permutation(T)``). Returns the
     last minibatch's per-agent losses."""
     k, t_max = rollout.actions.shape
-    rows = th.arange(k).unsqueeze(1)
+    device = rollout.actions.device
+    rows = th.arange(k, device=device).unsqueeze(1)
     out: dict[str, np.ndarray] = {}
     for epoch in range(s.n_epochs):
-        perm = th.as_tensor(permutations[epoch])
+        perm = th.as_tensor(permutations[epoch], device=device)
         # the epoch's order once, then contiguous minibatches of it (SB3's order exactly)
         obs_e, act_e, adv_e = rollout.obs[rows, perm], rollout.actions[rows, perm], rollout.advantages[rows, perm]
         logp_e, ret_e = rollout.log_probs[rows, perm], rollout.returns[rows, perm]
@@ -272,8 +278,12 @@ def _step(net: StackedActorCritic, optimizer: th.optim.Optimizer, s: OnPolicySet
     loss.sum().backward()  # disjoint parameters: each agent gets its own loss's gradient
     clip_grad_norm_per_agent(net.params, s.max_grad_norm)
     optimizer.step()
-    return {"policy_loss": policy_loss.detach().numpy(), "value_loss": value_loss.detach().numpy(),
-            "entropy_loss": entropy_loss.detach().numpy()}  # fmt: skip
+    return losses_on_cpu(policy_loss=policy_loss, value_loss=value_loss, entropy_loss=entropy_loss)
+
+
+def losses_on_cpu(**losses: th.Tensor) -> dict[str, np.ndarray]:
+    """The K agents' losses as numpy arrays (from any device)."""
+    return {name: loss.detach().cpu().numpy() for name, loss in losses.items()}
 
 
 def make_adam(params: list[th.Tensor], learning_rate: float, eps: float) -> th.optim.Adam:

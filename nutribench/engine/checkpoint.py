@@ -10,6 +10,13 @@ same file carries on from there and ends exactly where an uninterrupted batch wo
 (tested: same metrics, same weights). The file is written to a temporary name and renamed,
 so a process killed while saving leaves the previous checkpoint whole.
 
+A checkpoint moves between devices: it is read with ``map_location`` onto the device the
+batch trains on (:meth:`Checkpoint.read_onto`), so a batch stopped on a GPU resumes on the
+CPU and the other way round; every tensor of the state (parameters, optimiser moments and
+steps, GRU states) goes to that device, while the random streams (numpy generators) and
+the replay buffers and statistics (numpy arrays) are the CPU's on every device. The resumed
+run then goes on as a run on that device would, not bit for bit as the first device's would.
+
 The file is a pickle (``torch.save``): read only checkpoints this tool wrote.
 """
 
@@ -29,11 +36,13 @@ DEFAULT_EVERY_SECONDS = 300.0
 
 class Checkpoint:
     """The checkpoint file of one batch: ``state`` holds what was saved (None when there is
-    no usable file), :meth:`save` writes when :meth:`due`, :meth:`remove` once the batch ends."""
+    no usable file; its tensors on ``device``), :meth:`save` writes when :meth:`due`,
+    :meth:`remove` once the batch ends."""
 
-    def __init__(self, path: str | Path, every_seconds: float = DEFAULT_EVERY_SECONDS):
+    def __init__(self, path: str | Path, every_seconds: float = DEFAULT_EVERY_SECONDS, device: str | th.device = "cpu"):
         self.path = Path(path)
         self.every_seconds = every_seconds
+        self.device = th.device(device)
         self.saved_at = time.monotonic()
         self.state: dict[str, Any] | None = self._read()
         #: training seconds spent before this process (in the runs that wrote the checkpoint)
@@ -44,10 +53,18 @@ class Checkpoint:
         if not self.path.is_file():
             return None
         try:
-            return th.load(self.path, weights_only=False)
+            return th.load(self.path, map_location=self.device, weights_only=False)
         except Exception as exc:  # a file from another code version, or damaged: start afresh
             warnings.warn(f"{self.path}: unreadable checkpoint ({type(exc).__name__}: {exc}); the batch starts over", stacklevel=2)
             return None
+
+    def read_onto(self, device: str | th.device) -> dict[str, Any] | None:
+        """:attr:`state` with its tensors on ``device``: read again from the file (with
+        ``map_location``) if it was read onto another device."""
+        if self.state is not None and th.device(device) != self.device:
+            self.device = th.device(device)
+            self.state = self._read()
+        return self.state
 
     def due(self) -> bool:
         """Whether ``every_seconds`` have passed since the last save (or the start)."""

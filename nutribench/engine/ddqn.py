@@ -35,6 +35,7 @@ from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
 from nutribench.engine.actor_critic import clip_grad_norm_per_agent, linears, make_adam
 from nutribench.engine.checkpoint import Checkpoint, resumed
+from nutribench.engine.device import resolve_device
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, StackedMLP, linear_schedule, run_off_policy
 
@@ -59,24 +60,28 @@ def ddqn_update(q: StackedMLP, q_target: StackedMLP, optimizer: th.optim.Optimiz
     loss.sum().backward()
     clip_grad_norm_per_agent(q.params, max_grad_norm)
     optimizer.step()
-    return loss.detach().numpy()
+    return loss.detach().cpu().numpy()
 
 
 def train_ddqn_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, episodes: int,
                        on_episode: AgentEpisodeFn | None = None,
                        on_update: Callable[[dict[str, Any]], None] | None = None,
-                       checkpoint: Checkpoint | None = None) -> list[TrainedAgent]:  # fmt: skip
+                       checkpoint: Checkpoint | None = None, device: str | th.device = "cpu") -> list[TrainedAgent]:  # fmt: skip
     """Train one DDQN agent of ``cfg`` per ``(regime, seed)`` of ``jobs`` for ``episodes`` days,
-    all at once (resuming from ``checkpoint`` if it holds a state).
+    all at once (resuming from ``checkpoint`` if it holds a state), on ``device``
+    (:func:`~nutribench.engine.device.resolve_device`).
 
     :param on_update: called after each update with ``steps`` (env steps so far), the
         ``learning_rate`` and ``epsilon`` in force, ``target_copies`` so far and the K ``losses``.
     """
+    device = resolve_device(device)
+    if checkpoint is not None:
+        checkpoint.read_onto(device)
     envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
     k = envs.k
     sizes = [envs.obs_dim, *cfg.net_arch, 2]
-    q = StackedMLP(k, sizes, generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]])
-    q_target = StackedMLP(k, sizes)
+    q = StackedMLP(k, sizes, generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]], device=device)
+    q_target = StackedMLP(k, sizes, device=device)
     q_target.copy_from(q)
     optimizer = make_adam(q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
     # SB3's DQN: epsilon 0 until its first step's schedule update (read only if learning_starts = 0)
@@ -87,7 +92,7 @@ def train_ddqn_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, ep
         if n < cfg.learning_starts:
             return random_actions, None
         with th.no_grad():
-            greedy = q.forward(th.as_tensor(obs).unsqueeze(1))[:, 0].argmax(dim=1).numpy()
+            greedy = q.forward(th.as_tensor(obs, device=device).unsqueeze(1))[:, 0].argmax(dim=1).cpu().numpy()
         return np.where(uniforms < state["epsilon"], random_actions, greedy), None
 
     def after_step(steps: int, progress: float) -> None:
@@ -104,9 +109,9 @@ def train_ddqn_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, ep
                        "losses": losses})  # fmt: skip
 
     wall = run_off_policy(envs, cfg, episodes * envs.horizon, act, update, after_step, n_step=cfg.n_step,
-                          checkpoint=checkpoint, model=(q, q_target, optimizer, state))  # fmt: skip
-    return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: _store(q, q_target, j, model), None, wall / k)
-            for j in range(k)]  # fmt: skip
+                          checkpoint=checkpoint, model=(q, q_target, optimizer, state), device=device)  # fmt: skip
+    return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: _store(q, q_target, j, model), None, wall / k,
+                             str(device)) for j in range(k)]  # fmt: skip
 
 
 def _store(q: StackedMLP, q_target: StackedMLP, j: int, model: Any) -> None:

@@ -128,9 +128,10 @@ class AgentEnvs:
 
 
 def as_trained_agent(envs: AgentEnvs, j: int, cfg: Any, episodes: int, store_weights: Callable[[Any], None],
-                     ret_stats: RunningStats | None, wall: float) -> TrainedAgent:  # fmt: skip
+                     ret_stats: RunningStats | None, wall: float, device: str = "cpu") -> TrainedAgent:  # fmt: skip
     """Agent ``j`` of ``envs`` as the SB3 model of its config in its ``VecNormalize``, as
-    ``agents.train`` returns it: ``store_weights(model)`` puts the trained weights in."""
+    ``agents.train`` returns it: ``store_weights(model)`` puts the trained weights in (the
+    model is on the CPU whatever the ``device`` trained it; its provenance names that device)."""
     env_cfg, seed, obs_stats = envs.env_cfgs[j], envs.seeds[j], envs.obs_stats
     _, env = make_train_env(env_cfg, cfg)
     model = build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon)
@@ -143,7 +144,7 @@ def as_trained_agent(envs: AgentEnvs, j: int, cfg: Any, episodes: int, store_wei
         env.ret_rms.mean, env.ret_rms.var, env.ret_rms.count = float(ret_stats.mean[j]), float(ret_stats.var[j]), float(ret_stats.count[j])
     provenance = {"regime": env_cfg.name, "regime_version": env_cfg.version, "regime_sha256": env_cfg.sha256,
                   "agent_config": cfg.name, "agent_config_version": cfg.version, "seed": seed, "episodes": episodes,
-                  "engine": "batched", "batch_wall_seconds_per_agent": wall}  # fmt: skip
+                  "engine": "batched", "device": device, "batch_wall_seconds_per_agent": wall}  # fmt: skip
     agent = TrainedAgent(model, cfg.algo, cfg, mean, var, vec_normalize=env if hasattr(env, "obs_rms") else None, provenance=provenance)
     agent.train_episodes = envs.episodes[j]
     return agent

@@ -24,7 +24,8 @@ import math
 import numpy as np
 import torch as th
 
-from nutribench.engine.actor_critic import OnPolicySettings, Rollout, clip_grad_norm_per_agent, orthogonal
+from nutribench.engine.actor_critic import OnPolicySettings, Rollout, clip_grad_norm_per_agent, losses_on_cpu, orthogonal
+from nutribench.engine.device import leaves_on
 
 N_NUTRIENTS = 3
 
@@ -88,7 +89,8 @@ class StackedGRUActorCritic:
     the actor's last layer ``(K, head, 2)`` and bias, the critic's ``(K, head, 1)`` and bias."""
 
     def __init__(self, k: int, obs_dim: int, hidden: int = 128, head: int = 128, n_actions: int = 2,
-                 generators: list[th.Generator] | None = None):  # fmt: skip
+                 generators: list[th.Generator] | None = None, device: th.device | str | None = None):  # fmt: skip
+        """Initialised on the CPU from ``generators`` (one per agent), then moved to ``device``."""
         self.k, self.hidden, self.head, self.n_actions = k, hidden, head, n_actions
         self.n_foods = obs_dim - N_NUTRIENTS
         self.width = max(N_NUTRIENTS, self.n_foods)
@@ -109,6 +111,7 @@ class StackedGRUActorCritic:
         ]  # fmt: skip
         for p in self.params:
             p.requires_grad_()
+        self.params = leaves_on(self.params, device)
 
     # ---- the recurrent core ----
 
@@ -196,10 +199,10 @@ def gru_ppo_update(net: StackedGRUActorCritic, optimizer: th.optim.Optimizer, ro
     days = lambda x: x.reshape(k, n_seq, seq, *x.shape[2:])  # noqa: E731
     obs, actions, logp_old = days(rollout.obs), days(rollout.actions), days(rollout.log_probs)
     advantages, returns = days(rollout.advantages), days(rollout.returns)
-    rows = th.arange(k).unsqueeze(1)
+    rows = th.arange(k, device=rollout.actions.device).unsqueeze(1)
     out: dict[str, np.ndarray] = {}
     for epoch in range(s.n_epochs):
-        perm = th.as_tensor(permutations[epoch])
+        perm = th.as_tensor(permutations[epoch], device=rollout.actions.device)
         for start in range(0, n_seq, s.batch_size):
             mb = perm[:, start : start + s.batch_size]
             logits, values = net.sequences(obs[rows, mb])
@@ -219,7 +222,6 @@ def gru_ppo_update(net: StackedGRUActorCritic, optimizer: th.optim.Optimizer, ro
             loss.sum().backward()
             clip_grad_norm_per_agent(net.params, s.max_grad_norm, k=k)
             optimizer.step()
-            out = {"policy_loss": policy_loss.detach().numpy(), "value_loss": value_loss.detach().numpy(),
-                   "entropy_loss": entropy_loss.detach().numpy()}  # fmt: skip
+            out = losses_on_cpu(policy_loss=policy_loss, value_loss=value_loss, entropy_loss=entropy_loss)
     return out
 

@@ -23,6 +23,7 @@ import numpy as np
 import torch as th
 
 from nutribench.engine.checkpoint import Checkpoint
+from nutribench.engine.device import leaves_on
 from nutribench.engine.envs import AgentEnvs
 
 
@@ -35,9 +36,11 @@ def linear_schedule(start: float, end: float, fraction: float, progress_remainin
 
 class StackedMLP:
     """K copies of an MLP ``obs -> net_arch -> n_out`` (ReLU): layers ``(W (K, in, out),
-    b (K, 1, out))``, each agent initialised as ``torch.nn.Linear`` is, from its own generator."""
+    b (K, 1, out))``, each agent initialised as ``torch.nn.Linear`` is, from its own generator
+    (None: torch's global one), on the CPU, then moved to ``device``."""
 
-    def __init__(self, k: int, sizes: list[int], generators: list[th.Generator] | None = None):
+    def __init__(self, k: int, sizes: list[int], generators: list[th.Generator] | None = None,
+                 device: th.device | str | None = None):  # fmt: skip
         self.params: list[th.Tensor] = []
         for n_in, n_out in zip(sizes[:-1], sizes[1:]):
             w, b = th.empty(k, n_in, n_out), th.empty(k, 1, n_out)
@@ -49,6 +52,7 @@ class StackedMLP:
                 w[j] = block.T
                 th.nn.init.uniform_(b[j], -bound, bound, generator=g)
             self.params += [w.requires_grad_(), b.requires_grad_()]
+        self.params = leaves_on(self.params, device)
 
     def forward(self, x: th.Tensor) -> th.Tensor:
         """``x (K, B, in)`` -> ``(K, B, out)``."""
@@ -117,9 +121,10 @@ class StackedReplay:
     def filled(self) -> int:
         return self.size if self.full else self.pos
 
-    def sample(self, idx: np.ndarray, normalize) -> Batch:
+    def sample(self, idx: np.ndarray, normalize, device: th.device | str | None = None) -> Batch:
         """The transitions at ``idx (K, B)``: n-step sums cut at a day's end or at the newest
-        transition (which then bootstraps), observations through ``normalize``."""
+        transition (which then bootstraps), observations through ``normalize``; sampled on
+        the CPU (numpy), the batch's tensors on ``device`` (None: the CPU)."""
         k = idx.shape[0]
         rows = np.arange(k)[:, None, None]
         window = (idx[:, :, None] + np.arange(self.n_step)) % self.size  # (K, B, n)
@@ -133,11 +138,11 @@ class StackedReplay:
         returns = (self.rewards[rows, window] * powers * mask).sum(axis=2)
         end = (idx + last) % self.size
         r2 = np.arange(k)[:, None]
+        on = lambda x: th.as_tensor(x, device=device)  # noqa: E731
         return Batch(
-            obs=th.as_tensor(normalize(self.obs[r2, idx])), actions=th.as_tensor(self.actions[r2, idx]),
-            rewards=th.as_tensor(returns.astype(np.float32)), next_obs=th.as_tensor(normalize(self.next_obs[r2, end])),
-            dones=th.as_tensor(self.dones[r2, end].astype(np.float32)),
-            discounts=th.as_tensor((self.gamma ** steps).astype(np.float32)),
+            obs=on(normalize(self.obs[r2, idx])), actions=on(self.actions[r2, idx]),
+            rewards=on(returns.astype(np.float32)), next_obs=on(normalize(self.next_obs[r2, end])),
+            dones=on(self.dones[r2, end].astype(np.float32)), discounts=on((self.gamma ** steps).astype(np.float32)),
         )  # fmt: skip
 
 
@@ -153,7 +158,8 @@ ActFn = Callable[[np.ndarray, int, np.ndarray, np.ndarray], tuple[np.ndarray, np
 
 def run_off_policy(envs: AgentEnvs, cfg, total: int, act: ActFn, update: Callable[[int, float, Batch], None],
                    after_step: Callable[[int, float], None] | None = None, n_step: int = 1,
-                   checkpoint: Checkpoint | None = None, model: Any = None) -> float:  # fmt: skip
+                   checkpoint: Checkpoint | None = None, model: Any = None,
+                   device: th.device | str | None = None) -> float:  # fmt: skip
     """Run ``total`` env steps of SB3's off-policy loop for the K agents of ``envs``; reads
     ``buffer_size``, ``learning_starts``, ``train_freq``, ``gradient_steps``,
     ``batch_size`` and ``gamma`` from ``cfg``. ``after_step(steps, progress_remaining)``
@@ -161,7 +167,8 @@ def run_off_policy(envs: AgentEnvs, cfg, total: int, act: ActFn, update: Callabl
     ``gradient_steps`` times at each training point. With a ``checkpoint``, the loop
     resumes from its state if it has one, and saves itself and ``model`` (everything the
     caller's ``act``/``update`` change: networks, optimisers, counters) at day boundaries
-    when it is due. Returns the wall seconds (of the processes before a resume too)."""
+    when it is due. Sampled batches go to ``device`` (None: the CPU). Returns the wall
+    seconds (of the processes before a resume too)."""
     rng = envs.rng
     saved = checkpoint.state if checkpoint is not None else None
     if saved is not None:
@@ -191,5 +198,5 @@ def run_off_policy(envs: AgentEnvs, cfg, total: int, act: ActFn, update: Callabl
         if steps % cfg.train_freq == 0 and steps > cfg.learning_starts and steps < total:
             for _ in range(cfg.gradient_steps):
                 idx = np.stack([r.integers(0, replay.filled, size=cfg.batch_size) for r in rng["minibatches"]])
-                update(steps, progress, replay.sample(idx, envs.normalize))
+                update(steps, progress, replay.sample(idx, envs.normalize, device))
     return time.perf_counter() - t0 + (checkpoint.seconds_before if saved is not None else 0.0)

@@ -31,21 +31,23 @@ import torch as th
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
 from nutribench.engine.checkpoint import Checkpoint, resumed
+from nutribench.engine.device import resolve_device
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
-from nutribench.engine.actor_critic import linears, make_adam
+from nutribench.engine.actor_critic import linears, losses_on_cpu, make_adam
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, StackedMLP, run_off_policy
 
 
 class StackedSAC:
     """The K agents' actors (a K-stack), critics and target critics (2K-stacks: agent ``j``'s
-    first critic at ``j``, its second at ``K + j``) and their two optimisers."""
+    first critic at ``j``, its second at ``K + j``) and their two optimisers, initialised on
+    the CPU and moved to ``device``."""
 
     def __init__(self, k: int, sizes: list[int], actor_lr: float, critic_lr: float,
-                 generators: list[th.Generator] | None = None):  # fmt: skip
+                 generators: list[th.Generator] | None = None, device: th.device | str | None = None):  # fmt: skip
         self.k = k
-        self.actor = StackedMLP(k, sizes, generators)
-        self.critic = StackedMLP(2 * k, sizes, None if generators is None else generators + generators)
-        self.critic_target = StackedMLP(2 * k, sizes)
+        self.actor = StackedMLP(k, sizes, generators, device)
+        self.critic = StackedMLP(2 * k, sizes, None if generators is None else generators + generators, device)
+        self.critic_target = StackedMLP(2 * k, sizes, device=device)
         self.critic_target.copy_from(self.critic)
         self.actor_optimizer = make_adam(self.actor.params, actor_lr, OFF_POLICY_ADAM_EPS)
         self.critic_optimizer = make_adam(self.critic.params, critic_lr, OFF_POLICY_ADAM_EPS)
@@ -102,26 +104,30 @@ def sac_update(net: StackedSAC, batch: Batch, alpha: float, gamma: float, tau: f
     with th.no_grad():  # SB3's polyak_update: targ * (1 - tau) + tau * online
         th._foreach_mul_(net.critic_target.params, 1.0 - tau)
         th._foreach_add_(net.critic_target.params, net.critic.params, alpha=tau)
-    return {"critic_loss": critic_loss.detach().numpy(), "actor_loss": actor_loss.detach().numpy()}
+    return losses_on_cpu(critic_loss=critic_loss, actor_loss=actor_loss)
 
 
 def train_sac_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, episodes: int,
                       on_episode: AgentEpisodeFn | None = None,
                       on_update: Callable[[dict[str, Any]], None] | None = None,
-                      checkpoint: Checkpoint | None = None) -> list[TrainedAgent]:  # fmt: skip
+                      checkpoint: Checkpoint | None = None, device: str | th.device = "cpu") -> list[TrainedAgent]:  # fmt: skip
     """Train one discrete-SAC agent of ``cfg`` per ``(regime, seed)`` of ``jobs`` for
-    ``episodes`` days, all at once (resuming from ``checkpoint`` if it holds a state);
-    ``on_update`` gets ``steps`` and the K losses after each update."""
+    ``episodes`` days, all at once (resuming from ``checkpoint`` if it holds a state), on
+    ``device`` (:func:`~nutribench.engine.device.resolve_device`); ``on_update`` gets
+    ``steps`` and the K losses after each update."""
+    device = resolve_device(device)
+    if checkpoint is not None:
+        checkpoint.read_onto(device)
     envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
     k = envs.k
     net = resumed(checkpoint, "model") or StackedSAC(
         k, [envs.obs_dim, *cfg.net_arch, 2], cfg.actor_learning_rate, cfg.critic_learning_rate,
-        generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]])  # fmt: skip
+        generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]], device=device)  # fmt: skip
 
     def act(obs: np.ndarray, n: int, uniforms: np.ndarray, random_actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         with th.no_grad():
-            probs, log_probs = net.policy(th.as_tensor(obs).unsqueeze(1))
-        probs, log_probs = probs[:, 0].numpy(), log_probs[:, 0].numpy()
+            probs, log_probs = net.policy(th.as_tensor(obs, device=device).unsqueeze(1))
+        probs, log_probs = probs[:, 0].cpu().numpy(), log_probs[:, 0].cpu().numpy()
         entropy = -(probs * log_probs).sum(axis=1)
         if n < cfg.learning_starts:
             return random_actions, entropy
@@ -132,6 +138,6 @@ def train_sac_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, epi
         if on_update is not None:
             on_update({"steps": steps, **losses})
 
-    wall = run_off_policy(envs, cfg, episodes * envs.horizon, act, update, checkpoint=checkpoint, model=net)
-    return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), None, wall / k)
-            for j in range(k)]  # fmt: skip
+    wall = run_off_policy(envs, cfg, episodes * envs.horizon, act, update, checkpoint=checkpoint, model=net, device=device)
+    return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), None, wall / k,
+                             str(device)) for j in range(k)]  # fmt: skip

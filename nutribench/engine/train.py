@@ -20,6 +20,13 @@ for different K, and over a long run a rounding difference can flip a sampled ac
 which the two runs differ as two runs of one seed on two machines may. It is not SB3's
 random stream: the two engines' runs with one seed
 differ as two seeds do; ``nutribench bench engines`` compares them as distributions.
+
+Every engine entry point takes a ``device`` (:mod:`nutribench.engine.device`; default the
+CPU). The networks, optimiser states, GRU states and each update's tensors live there; the
+envs, replay buffers, running statistics and random streams stay on the CPU (numpy, and CPU
+generators for the initial weights, which are drawn on the CPU and then moved), so an
+agent's random draws are the same on every device; what it does with them differs by float
+rounding from one device to another.
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ from nutribench.agents.config import load_agent_config
 from nutribench.config import EnvConfig
 from nutribench.engine.actor_critic import OnPolicySettings, Rollout, RunningStats, StackedActorCritic, gae, make_optimizer
 from nutribench.engine.checkpoint import Checkpoint
+from nutribench.engine.device import resolve_device
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
 from nutribench.engine.gru_ppo import StackedGRUActorCritic, gru_ppo_update
 
@@ -58,7 +66,7 @@ class _Recurrent:
 
     def __init__(self, net: StackedGRUActorCritic):
         self.net = net
-        self.state = th.zeros(2 * net.k, 1, net.hidden)
+        self.state = th.zeros(2 * net.k, 1, net.hidden, device=net.params[0].device)
 
     def __call__(self, obs: th.Tensor, starts: th.Tensor, advance: bool = True) -> tuple[th.Tensor, th.Tensor]:
         logits, values, state = self.net.step(obs, self.state, starts)
@@ -74,6 +82,7 @@ def train_batched(
     on_episode: AgentEpisodeFn | None = None,
     on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None,
     checkpoint: Checkpoint | None = None,
+    device: str | th.device = "cpu",
 ) -> list[TrainedAgent]:
     """Train one agent of ``agent_config`` per ``(regime, seed)`` of ``jobs`` for
     ``episodes`` days, all at once.
@@ -86,29 +95,33 @@ def train_batched(
     :param on_episode: called with (job index, the finished day's metrics) for every day.
     :param checkpoint: resume from its state if it holds one; save the training state to it
         at rollout (off-policy: day) boundaries when it is due (:mod:`nutribench.engine.checkpoint`).
+    :param device: where the networks train (:func:`~nutribench.engine.device.resolve_device`:
+        ``"auto"``, ``"cpu"``, ``"cuda"``, ``"cuda:N"``). The default is the CPU, whose runs are
+        reproducible bit for bit; the random streams are the CPU's on every device.
     """
     th.set_num_threads(1)
     cfg = load_agent_config(agent_config)
+    device = resolve_device(device)
     if cfg.algo == "ddqn":
         from nutribench.engine.ddqn import train_ddqn_batched
 
-        return train_ddqn_batched(jobs, cfg, episodes, on_episode, checkpoint=checkpoint)
+        return train_ddqn_batched(jobs, cfg, episodes, on_episode, checkpoint=checkpoint, device=device)
     if cfg.algo == "sac":
         from nutribench.engine.sac import train_sac_batched
 
-        return train_sac_batched(jobs, cfg, episodes, on_episode, checkpoint=checkpoint)
+        return train_sac_batched(jobs, cfg, episodes, on_episode, checkpoint=checkpoint, device=device)
     envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
     k, horizon, obs_dim, rng = envs.k, envs.horizon, envs.obs_dim, envs.rng
     s = OnPolicySettings.from_config(cfg, horizon)
     generators = [th.Generator().manual_seed(int(r.integers(2**62))) for r in rng["init"]]
     if s.sequence_length is None:
-        net = StackedActorCritic(k, obs_dim, list(cfg.net_arch), generators=generators)
+        net = StackedActorCritic(k, obs_dim, list(cfg.net_arch), generators=generators, device=device)
         policy = _Feedforward(net)
     else:
         if s.sequence_length != horizon or s.n_steps % horizon:
             raise ValueError(f"GRU-PPO trains on whole days: sequence_length ({s.sequence_length}) must be the horizon "
                              f"({horizon}) and n_steps ({s.n_steps}) a multiple of it")  # fmt: skip
-        net = StackedGRUActorCritic(k, obs_dim, cfg.hidden_size, generators=generators)
+        net = StackedGRUActorCritic(k, obs_dim, cfg.hidden_size, generators=generators, device=device)
         policy = _Recurrent(net)
     optimizer = make_optimizer(net, s.learning_rate)
     ret_stats = RunningStats(k) if cfg.normalize_reward else None
@@ -116,7 +129,7 @@ def train_batched(
 
     total_steps = episodes * horizon
     n_rollouts = total_steps // s.n_steps
-    saved = checkpoint.state if checkpoint is not None else None
+    saved = checkpoint.read_onto(device) if checkpoint is not None else None
     if saved is not None:
         envs.restore(saved["envs"])
         rng = envs.rng
@@ -143,13 +156,13 @@ def train_batched(
         uniforms = np.stack([r.random(T) for r in rng["actions"]])
         for t in range(T):
             with th.no_grad():
-                logits, values = policy(th.as_tensor(obs), th.as_tensor(start_of_day))
-            logp = th.log_softmax(logits, dim=-1).numpy()
+                logits, values = policy(th.as_tensor(obs, device=device), th.as_tensor(start_of_day, device=device))
+            logp = th.log_softmax(logits, dim=-1).cpu().numpy()
             p_eat = np.exp(logp[:, 1])
             actions = (uniforms[:, t] < p_eat).astype(np.int64)
             buf_obs[:, t], buf_act[:, t], buf_start[:, t] = obs, actions, start_of_day
             buf_logp[:, t] = logp[np.arange(k), actions]
-            buf_val[:, t] = values.numpy()
+            buf_val[:, t] = values.cpu().numpy()
             raw_next, rewards, day_over = envs.step(actions, entropy=-(np.exp(logp) * logp).sum(axis=1))
             if ret_stats is not None:
                 discounted = discounted * s.gamma + rewards
@@ -169,15 +182,14 @@ def train_batched(
         if T < s.n_steps:
             break  # a partial rollout: SB3 stops without updating on it
         with th.no_grad():
-            _, last_values = policy(th.as_tensor(obs), th.as_tensor(start_of_day), advance=False)
-        adv, ret = gae(buf_rew, buf_val, buf_start, last_values.numpy(), start_of_day.astype(bool), s.gamma, s.gae_lambda)
+            _, last_values = policy(th.as_tensor(obs, device=device), th.as_tensor(start_of_day, device=device), advance=False)
+        adv, ret = gae(buf_rew, buf_val, buf_start, last_values.cpu().numpy(), start_of_day.astype(bool), s.gamma, s.gae_lambda)
         if on_rollout is not None:
             on_rollout({"obs": buf_obs, "actions": buf_act, "rewards": buf_rew, "starts": buf_start, "values": buf_val,
                         "advantages": adv, "returns": ret, "foods": np.stack(envs.days_drawn)})  # fmt: skip
-        rollout = Rollout(
-            obs=th.as_tensor(buf_obs), actions=th.as_tensor(buf_act), log_probs=th.as_tensor(buf_logp),
-            values=th.as_tensor(buf_val), advantages=th.as_tensor(adv), returns=th.as_tensor(ret),
-        )  # fmt: skip
+        on = lambda x: th.as_tensor(x, device=device)  # noqa: E731
+        rollout = Rollout(obs=on(buf_obs), actions=on(buf_act), log_probs=on(buf_logp), values=on(buf_val),
+                          advantages=on(adv), returns=on(ret))  # fmt: skip
         units = T if s.sequence_length is None else T // s.sequence_length  # transitions, or days (GRU-PPO)
         perms = np.stack([[r.permutation(units) for r in rng["minibatches"]] for _ in range(s.n_epochs)])
         if s.sequence_length is None:
@@ -185,5 +197,5 @@ def train_batched(
         else:
             gru_ppo_update(net, optimizer, rollout, s, perms)
     wall = time.perf_counter() - t0 + (checkpoint.seconds_before if saved is not None else 0.0)
-    return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), ret_stats, wall / k)
-            for j in range(k)]  # fmt: skip
+    return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), ret_stats, wall / k,
+                             str(device)) for j in range(k)]  # fmt: skip

@@ -24,6 +24,7 @@ from pathlib import Path
 from nutribench.agents import eval_food_streams, evaluate
 from nutribench.clock import utcnow
 from nutribench.engine.checkpoint import Checkpoint
+from nutribench.engine.device import resolve_device
 from nutribench.engine.train import train_batched
 from nutribench.jobs.run import check_configs
 from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
@@ -35,8 +36,9 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
     """Train the jobs ``specs`` (one agent config, one budget) at once; one result per job."""
     for spec in specs:
         check_configs(spec)
-    if len({(s.algo, s.algo_version, s.episodes) for s in specs}) != 1:
-        raise JobFailed("a batch needs one agent config and one budget")
+    if len({(s.algo, s.algo_version, s.episodes, s.device) for s in specs}) != 1:
+        raise JobFailed("a batch needs one agent config, one budget and one device")
+    device = resolve_device(specs[0].device)
     started, t0 = utcnow(), time.perf_counter()
     progress = [JobProgress(spec, sink) for spec in specs]
     for p in progress:
@@ -45,12 +47,13 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
     path = checkpoint_path(specs)
     checkpoint = None
     if path is not None:
-        checkpoint = Checkpoint(path)
+        checkpoint = Checkpoint(path, device=device)
         path.parent.mkdir(parents=True, exist_ok=True)
         manifest(path).write_text(json.dumps({"job_ids": [s.job_id for s in specs]}))
     agents = train_batched(
         [(s.regime_config, s.seed) for s in specs], specs[0].agent_config, specs[0].episodes,
         on_episode=lambda j, row: progress[j].episode(row["episode"] + 1, row["return"]), checkpoint=checkpoint,
+        device=device,
     )  # fmt: skip
     train_wall = time.perf_counter() - t0 + (checkpoint.seconds_before if checkpoint is not None else 0.0)
     meta = collect_metadata()

@@ -14,6 +14,8 @@ class JobSpec:
     The config objects travel with the spec (an :class:`~nutribench.config.EnvConfig` and an
     agent config), so a worker never rereads a file that may have changed since the driver
     recorded its hash; ``*_sha256`` are those recorded hashes, checked by the worker.
+    ``device``: where the batched engine trains the job (``--device``: ``auto``, ``cpu``,
+    ``cuda`` or ``cuda:N``, resolved in the worker); the SB3 engine trains on the CPU.
     """
 
     job_id: int
@@ -30,6 +32,7 @@ class JobSpec:
     regime_config: Any = field(repr=False, compare=False)
     agent_config: Any = field(repr=False, compare=False)
     attempt: int = 1
+    device: str = "cpu"
 
     @property
     def label(self) -> str:

@@ -16,12 +16,23 @@ MAX_BATCH = 35
 ENGINES = ("sb3", "batched")
 
 
-def check_engine(engine: str, max_batch: int) -> None:
-    """Refuse an unknown ``--engine`` or a ``--batch-size`` below 1, in one line."""
+def check_engine(engine: str, max_batch: int, device: str = "auto") -> None:
+    """Refuse an unknown ``--engine``, a ``--batch-size`` below 1, or a ``--device`` the
+    engine cannot train on, in one line. The SB3 engine trains on the CPU (its models are
+    built there), so it takes ``auto`` (= the CPU) and ``cpu`` only; the batched engine takes
+    any device :func:`~nutribench.engine.device.check_device` accepts here (CUDA only where
+    this machine has it: a dask cluster whose driver has no GPU runs its GPUs with ``auto``)."""
     if engine not in ENGINES:
         raise RunError(f"--engine {engine!r}: use {' or '.join(ENGINES)}")
     if max_batch < 1:
         raise RunError(f"--batch-size {max_batch}: use a positive number of jobs")
+    if engine == "sb3":
+        if str(device).strip().lower() not in ("auto", "cpu"):
+            raise RunError(f"--device {device}: the SB3 engine trains on the CPU; use --device cpu or auto, or --engine batched")
+        return
+    from nutribench.engine.device import check_device
+
+    check_device(device)
 
 
 @dataclass

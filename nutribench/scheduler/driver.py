@@ -53,7 +53,6 @@ WAIT_POLL_S = 1.0  # how often a driver with nothing to run looks at jobs held b
 FLUSH_EVERY_S = 3.0  # progress + heartbeat writes
 
 
-
 @dataclass
 class RunSummary:
     """What one ``run`` did. ``skipped``: already done before it started; ``busy``: being
@@ -328,18 +327,20 @@ def run_grid(
     engine: str = "sb3",
     batch_fn: Callable | None = None,
     max_batch: int = MAX_BATCH,
+    device: str = "auto",
 ) -> RunSummary:
     """Run every job of the grid regime x algo x seed that is not done yet (see the module
     docstring). Returns counts; ``summary.exit_code`` is what ``nutribench run`` exits with.
     ``retry_failed``: jobs that failed :data:`~nutribench.store.jobs.MAX_FAILURES` times are tried again.
     ``engine="batched"``: each agent config's jobs train in batches of at most ``max_batch``,
-    one per worker (:mod:`nutribench.engine`), each job stored on its own with ``jobs.engine``.
-    Raises ConfigError (bad config file), StoreError (bad database), ExecutorError (bad
-    ``executor``) or RunError (config changed without a version bump), all one line.
+    one per worker (:mod:`nutribench.engine`), each job stored on its own with ``jobs.engine``,
+    on ``device`` (``auto``: CUDA where a worker has it; the SB3 engine takes ``auto`` or ``cpu``).
+    Raises ConfigError (bad config file), StoreError (bad database), ExecutorError (bad ``executor``),
+    DeviceError (bad ``device``) or RunError (config changed without a version bump), all one line.
     """
     from nutribench.scheduler.progress import make_view
 
-    check_engine(engine, max_batch)
+    check_engine(engine, max_batch, device)
     grid = Grid(tuple(regimes), tuple(algos), tuple(seeds), episodes, eval_episodes)
     job_fn = job_fn or default_job_fn()
     if engine == "batched":
@@ -364,7 +365,7 @@ def run_grid(
             r, a = by_id[0][rid[job.regime_id]], by_id[1][aid[job.agent_config_id]]
             path = model_path(out, r, a, job.seed, job.episodes)
             return JobSpec(job.id, r.name, r.version, r.sha256, a.name, a.version, a.sha256, job.seed, job.episodes,
-                           job.eval_episodes, str(path), r.obj, a.obj, attempt=job.attempt)  # fmt: skip
+                           job.eval_episodes, str(path), r.obj, a.obj, attempt=job.attempt, device=device)  # fmt: skip
 
         summary = RunSummary(total=len(job_ids))
         held, _ = held_elsewhere(store, job_ids, owner)
