@@ -1,0 +1,80 @@
+"""What GRU-PPO's memory costs on run0 and buys in the delayed regimes: a diagnostic, not an agent.
+
+Trains ``gru_ppo.toml`` in the batched engine twice over the same seeds and budget, once as
+it is (the GRU state carried from step to step within a day, SPEC 3) and once with the state
+reset before every step (no memory: the length-1, no-carried-state form SPEC 3 names as the
+published implementation's defect). Everything else is identical: file, seeds, initial
+weights, food days, evaluation days. Both are evaluated greedily on the seeds' fixed
+evaluation days and summarised as ``nutribench bench learn`` does (share of the never ->
+planner gap closed).
+
+    python reports/gru_memory/without_memory.py --regimes run0 --seeds 0,1,2,3,4,5,6,7,8,9
+
+About 70 s per 10 seeds x regime x variant on one core of the 2-core machine. The memoryless
+variant is made by patching three functions for the duration of its run (acting, the
+update's replay of days, and the SB3 policy used in evaluation); see :func:`no_memory`.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import torch as th
+
+import nutribench.agents.gru_ppo.policy as sb3_policy
+import nutribench.engine.gru_ppo as stacked
+import nutribench.engine.train as engine
+from nutribench.agents import load_agent_config
+from nutribench.bench_learn import batched_runs, markdown_table, summarize
+
+
+@contextmanager
+def no_memory() -> Iterator[None]:
+    """GRU-PPO with its hidden state zeroed before every step, in acting, training and evaluation."""
+    sequences = stacked.StackedGRUActorCritic.sequences
+    act = engine._Recurrent.__call__
+    unroll = sb3_policy.GRUActorCriticPolicy.unroll
+
+    def sequences_of_single_steps(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        k, s, t, d = obs.shape  # every step its own sequence, from the zero state
+        logits, values = sequences(self, obs.reshape(k, s * t, 1, d))
+        return logits.reshape(k, s, t, -1), values.reshape(k, s, t)
+
+    def act_from_zero(self, obs: th.Tensor, starts: th.Tensor, advance: bool = True):
+        return act(self, obs, th.ones_like(starts), advance)
+
+    def unroll_from_zero(self, obs: th.Tensor, state, episode_starts: th.Tensor):
+        return unroll(self, obs, state, th.ones_like(episode_starts))
+
+    stacked.StackedGRUActorCritic.sequences = sequences_of_single_steps
+    engine._Recurrent.__call__ = act_from_zero
+    sb3_policy.GRUActorCriticPolicy.unroll = unroll_from_zero
+    try:
+        yield
+    finally:
+        stacked.StackedGRUActorCritic.sequences = sequences
+        engine._Recurrent.__call__ = act
+        sb3_policy.GRUActorCriticPolicy.unroll = unroll
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--regimes", default="run0", help="comma-separated regimes (default run0)")
+    parser.add_argument("--seeds", default="0,1,2,3,4,5,6,7,8,9", help="comma-separated training seeds")
+    parser.add_argument("--episodes", type=int, default=500, help="training days (default 500)")
+    args = parser.parse_args()
+    regimes, seeds = args.regimes.split(","), [int(s) for s in args.seeds.split(",")]
+    th.set_num_threads(1)
+    cfg = load_agent_config("gru_ppo")
+    rows = summarize(batched_runs(cfg, regimes, seeds, args.episodes, 10))
+    with no_memory():
+        memoryless = summarize(batched_runs(cfg, regimes, seeds, args.episodes, 10))
+    for row in memoryless:
+        row["algo"] = f"{row['algo']} without memory"
+    print(markdown_table(rows + memoryless))
+
+
+if __name__ == "__main__":
+    main()
