@@ -256,6 +256,11 @@ def _env(regimes: Path, **extra: str) -> dict[str, str]:
     return env
 
 
+def _default_stop_signals() -> None:
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path, tmp_path: Path, sig) -> None:
     """Ctrl-C, and as it (issue 13, defect 2) a batch system's SIGTERM and a closed terminal's
@@ -263,8 +268,10 @@ def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path,
     db = tmp_path / "r.db"
     cmd = [NUTRIBENCH, "run", "--db", str(db), "--regimes", "run0", "--algos", "ppo,sac", "--seeds", "0,21",
            "--episodes", "400", "--eval-episodes", "2", "--workers", "2"]  # fmt: skip
+    # The signals' default dispositions in the child, as in a terminal: a shell starts a
+    # background command (`pytest ... &`) with SIGINT ignored, and the child would inherit it.
     proc = subprocess.Popen(cmd, env=_env(regimes, NUTRIBENCH_FAKE_SECONDS="0.02"), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)  # fmt: skip
+                            stderr=subprocess.STDOUT, text=True, preexec_fn=_default_stop_signals)  # fmt: skip
     try:
         wait_for(lambda: db.exists() and sql(db, "SELECT count(*) FROM sqlite_master WHERE name='jobs'")[0][0]
                  and sql(db, "SELECT count(*) FROM jobs WHERE status='running' AND episodes_done > 0")[0][0] == 2, timeout=30)

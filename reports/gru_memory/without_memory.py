@@ -10,7 +10,8 @@ planner gap closed).
 
     python reports/gru_memory/without_memory.py --regimes run0 --seeds 0,1,2,3,4,5,6,7,8,9
 
-About 70 s per 10 seeds x regime x variant on one core of the 2-core machine. The memoryless
+About 70 s per 10 seeds x regime x variant on one core of the 2-core machine (``--engine sb3``:
+the reference engine, one agent after another, about 1.5 min per agent). The memoryless
 variant is made by patching three functions for the duration of its run (acting, the
 update's replay of days, and the SB3 policy used in evaluation); see :func:`no_memory`.
 """
@@ -27,7 +28,7 @@ import nutribench.agents.gru_ppo.policy as sb3_policy
 import nutribench.engine.gru_ppo as stacked
 import nutribench.engine.train as engine
 from nutribench.agents import load_agent_config
-from nutribench.bench_learn import batched_runs, markdown_table, summarize
+from nutribench.bench_learn import _one_run, batched_runs, markdown_table, summarize
 
 
 @contextmanager
@@ -64,13 +65,21 @@ def main() -> None:
     parser.add_argument("--regimes", default="run0", help="comma-separated regimes (default run0)")
     parser.add_argument("--seeds", default="0,1,2,3,4,5,6,7,8,9", help="comma-separated training seeds")
     parser.add_argument("--episodes", type=int, default=500, help="training days (default 500)")
+    parser.add_argument("--engine", choices=("batched", "sb3"), default="batched",
+                        help="batched (all seeds and regimes at once) or sb3 (the reference engine, in turn)")
     args = parser.parse_args()
     regimes, seeds = args.regimes.split(","), [int(s) for s in args.seeds.split(",")]
     th.set_num_threads(1)
     cfg = load_agent_config("gru_ppo")
-    rows = summarize(batched_runs(cfg, regimes, seeds, args.episodes, 10))
+
+    def runs() -> list:
+        if args.engine == "batched":
+            return batched_runs(cfg, regimes, seeds, args.episodes, 10)
+        return [_one_run(cfg, r, s, args.episodes, 10) for r in regimes for s in seeds]
+
+    rows = summarize(runs())
     with no_memory():
-        memoryless = summarize(batched_runs(cfg, regimes, seeds, args.episodes, 10))
+        memoryless = summarize(runs())
     for row in memoryless:
         row["algo"] = f"{row['algo']} without memory"
     print(markdown_table(rows + memoryless))
