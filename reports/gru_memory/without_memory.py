@@ -1,6 +1,6 @@
 """What GRU-PPO's memory costs on run0 and buys in the delayed regimes: a diagnostic, not an agent.
 
-Trains ``gru_ppo.toml`` in the batched engine twice over the same seeds and budget, once as
+Trains ``gru_ppo.toml`` (batched engine by default, or SB3's) twice over the same seeds and budget, once as
 it is (the GRU state carried from step to step within a day, SPEC 3) and once with the state
 reset before every step (no memory: the length-1, no-carried-state form SPEC 3 names as the
 published implementation's defect). Everything else is identical: file, seeds, initial
@@ -13,7 +13,8 @@ planner gap closed).
 About 70 s per 10 seeds x regime x variant on one core of the 2-core machine (``--engine sb3``:
 the reference engine, one agent after another, about 1.5 min per agent). The memoryless
 variant is made by patching three functions for the duration of its run (acting, the
-update's replay of days, and the SB3 policy used in evaluation); see :func:`no_memory`.
+update's replay of days, and the SB3 policy, which the SB3 engine trains and both engines
+evaluate with); see :func:`no_memory`.
 """
 
 from __future__ import annotations
