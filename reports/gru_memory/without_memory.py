@@ -11,7 +11,7 @@ planner gap closed).
     python reports/gru_memory/without_memory.py --regimes run0 --seeds 0,1,2,3,4,5,6,7,8,9
 
 About 70 s per 10 seeds x regime x variant on one core of the 2-core machine (``--engine sb3``:
-the reference engine, one agent after another, about 1.5 min per agent). The memoryless
+the reference engine, one agent after another, about 1 min per agent). The memoryless
 variant is made by patching three functions for the duration of its run (acting, the
 update's replay of days, and the SB3 policy, which the SB3 engine trains and both engines
 evaluate with); see :func:`no_memory`.
