@@ -21,7 +21,7 @@ from typer.testing import CliRunner
 from nutribench.cli import app
 from nutribench.config import list_regimes
 from nutribench.jobs.fake import fake_run_job
-from nutribench.scheduler.driver import RunError, run_grid
+from nutribench.scheduler.driver import STOP_SIGNALS, RunError, run_grid
 from nutribench.store.jobs import MAX_FAILURES, STALE_AFTER_S
 from nutribench.scheduler.grid import PRESETS, GridError, parse_seeds, resolve_grid
 from nutribench.scheduler.status import status_table
@@ -257,7 +257,7 @@ def _env(regimes: Path, **extra: str) -> dict[str, str]:
 
 
 def _default_stop_signals() -> None:
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+    for sig in STOP_SIGNALS:
         signal.signal(sig, signal.SIG_DFL)
 
 

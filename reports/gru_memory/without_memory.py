@@ -30,7 +30,9 @@ import nutribench.engine.gru_ppo as stacked
 import nutribench.engine.train as engine
 from nutribench.agents import load_agent_config
 from nutribench.bench_learn import _one_run, batched_runs, markdown_table, summarize
-from nutribench.config.loading import list_regimes
+from nutribench.cli.common import UserError, split_csv
+from nutribench.config import list_regimes
+from nutribench.scheduler.grid import parse_seeds
 
 
 @contextmanager
@@ -62,25 +64,18 @@ def no_memory() -> Iterator[None]:
         sb3_policy.GRUActorCriticPolicy.unroll = unroll
 
 
-def _seeds(text: str) -> list[int]:
-    try:
-        return [int(s) for s in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: give comma-separated integers, e.g. 0,1,2") from None
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--regimes", default="run0", help="comma-separated regimes (default run0)")
-    parser.add_argument("--seeds", type=_seeds, default="0,1,2,3,4,5,6,7,8,9", help="comma-separated training seeds")
+    parser.add_argument("--seeds", default="0,1,2,3,4,5,6,7,8,9", help="comma-separated training seeds")
     parser.add_argument("--episodes", type=int, default=500, help="training days (default 500)")
     parser.add_argument("--engine", choices=("batched", "sb3"), default="batched",
                         help="batched (all seeds and regimes at once) or sb3 (the reference engine, in turn)")
     args = parser.parse_args()
-    regimes, seeds = args.regimes.split(","), args.seeds
-    known = list_regimes()
-    if any(r not in known for r in regimes):
-        parser.error(f"--regimes {args.regimes}: use names among {','.join(known)}")
+    try:  # the CLI's own parsing, and its one-line errors
+        regimes, seeds = split_csv(args.regimes, list_regimes(), "regime"), list(parse_seeds(args.seeds))
+    except UserError as e:
+        parser.error(str(e))
     th.set_num_threads(1)
     cfg = load_agent_config("gru_ppo")
 
