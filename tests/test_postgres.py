@@ -134,7 +134,7 @@ def test_a_killed_driver_s_jobs_are_taken_over_on_postgres(pg_url: str, tmp_path
 
 def test_upgrade_from_the_first_revision_on_postgres(pg_url: str) -> None:
     make_0001(pg_url)
-    with pytest.raises(StoreError, match=r"revision 0001, this nutribench needs 0003: run `nutribench run --upgrade-only"):
+    with pytest.raises(StoreError, match=r"revision 0001, this nutribench needs 0004: run `nutribench run --upgrade-only"):
         open_store(pg_url)
     res = runner.invoke(app, ["run", "--upgrade-only", "--db", pg_url])
     assert res.exit_code == 0 and "upgraded from 0001" in " ".join(res.output.split()), res.output

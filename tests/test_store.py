@@ -40,7 +40,7 @@ def make_0001(db: Path) -> None:
 
 
 def test_revisions_are_linear() -> None:
-    assert revision_chain() == ["0001", "0002", "0003"] and head_revision() == "0003"
+    assert revision_chain() == ["0001", "0002", "0003", "0004"] and head_revision() == "0004"
 
 
 def test_create_from_empty_matches_the_models(tmp_path: Path) -> None:
@@ -63,7 +63,7 @@ def test_create_from_empty_matches_the_models(tmp_path: Path) -> None:
 def test_upgrade_from_0001_keeps_the_data(tmp_path: Path) -> None:
     db = tmp_path / "old.db"
     make_0001(db)
-    with pytest.raises(StoreError, match=r"revision 0001, this nutribench needs 0003: run `nutribench run --upgrade-only"):
+    with pytest.raises(StoreError, match=r"revision 0001, this nutribench needs 0004: run `nutribench run --upgrade-only"):
         open_store(db)  # readers refuse, with the command that fixes it
     res = CliRunner().invoke(app, ["run", "--upgrade-only", "--db", str(db)])
     assert res.exit_code == 0 and "upgraded from 0001" in res.output, res.output

@@ -156,7 +156,16 @@ class Job(Base):
     nutribench_version: Mapped[str | None] = mapped_column(String(64))
     git_commit: Mapped[str | None] = mapped_column(String(40))
     git_dirty: Mapped[bool | None] = mapped_column(Boolean)
-    engine: Mapped[str | None] = mapped_column(String(16), doc="sb3 | batched: the engine that trained it (revision 0003)")
+    engine: Mapped[str | None] = mapped_column(
+        String(16), doc="sb3 | batched | external: what trained it (revision 0003; external: revision 0004)"
+    )
+    # revision 0004: dry runs kept apart, the batched engine's batch, an external agent's source
+    fake: Mapped[bool] = mapped_column(Boolean, default=False, doc="a dry run's synthetic job: never a result")
+    batch_id: Mapped[str | None] = mapped_column(String(64), doc="the batched engine's batch the job trained in")
+    batch_size: Mapped[int | None] = mapped_column(Integer, doc="how many jobs that batch trained side by side (K)")
+    device: Mapped[str | None] = mapped_column(String(32), doc="the device it trained on (cpu, cuda:0, ...)")
+    source: Mapped[str | None] = mapped_column(Text, doc="external agents: the entry point or the calling script")
+    source_sha256: Mapped[str | None] = mapped_column(String(64), doc="sha256 of that script's or module's file")
     model_path: Mapped[str | None] = mapped_column(Text)
     error: Mapped[str | None] = mapped_column(Text, doc="last failure (traceback or reason); kept after a retry")
 
@@ -209,4 +218,4 @@ EVAL_STEP_COLUMNS: tuple[str, ...] = tuple(c.name for c in EvalStep.__table__.co
 #: :func:`nutribench.provenance.collect_metadata` and the worker's clock).
 METADATA_COLUMNS = ("host", "platform", "python_version", "numpy_version", "torch_version", "sb3_version",
                     "nutribench_version", "git_commit", "git_dirty", "started_at", "finished_at", "wall_seconds",
-                    "engine")  # fmt: skip
+                    "engine", "fake", "batch_id", "batch_size", "device", "source", "source_sha256")  # fmt: skip
