@@ -3,7 +3,15 @@
 ``import nutribench`` registers the Gymnasium ids ``nutribench/NutriRL-v0`` (with a
 ``regime=`` argument, default ``"run0"``) and one id per shipped regime,
 ``nutribench/NutriRL-run0-v0`` .. ``nutribench/NutriRL-run6-v0``; each has a natively
-batched vector entry point for ``gymnasium.make_vec``.
+batched vector entry point for ``gymnasium.make_vec``. ``regime=`` takes any regime in the
+regimes folder (``nutribench regimes generate NAME --from run6 ... --write`` adds one) or a
+path to a regime file.
+
+Every spec has ``max_episode_steps = HORIZON`` (50, the day of ``regimes/reward.toml``), so
+``gymnasium.make`` adds a ``TimeLimit`` and time-aware wrappers work
+(``gymnasium.wrappers.TimeAwareObservation(gymnasium.make(ENV_ID, regime="run6"))``). The
+environment truncates each day at its regime's horizon itself; the ``TimeLimit`` truncates
+at the same step (or earlier, with a smaller ``max_episode_steps``), never a second time.
 """
 
 from importlib.metadata import PackageNotFoundError, version
@@ -15,6 +23,23 @@ except PackageNotFoundError:  # running from a source tree without installing
 
 ENV_ID = "nutribench/NutriRL-v0"
 SHIPPED_REGIMES = tuple(f"run{k}" for k in range(7))
+#: Steps in a day: the ``horizon`` of ``regimes/reward.toml``, shared by every regime.
+HORIZON = 50
+
+
+def make_vector_env(num_envs: int = 1, max_episode_steps: int | None = None, **kwargs):
+    """The vector entry point: a :class:`~nutribench.env.vector_env.NutriRLVectorEnv`, whose
+    days end at the regime's horizon. ``gymnasium.make_vec`` passes the spec's
+    ``max_episode_steps``; one below the horizon cannot be honoured and is a ValueError."""
+    from nutribench.env.vector_env import NutriRLVectorEnv
+
+    env = NutriRLVectorEnv(num_envs=num_envs, **kwargs)
+    if max_episode_steps is not None and max_episode_steps < env.horizon:
+        raise ValueError(
+            f"max_episode_steps={max_episode_steps} is below the horizon {env.horizon}: the vector env runs whole "
+            "days; use gymnasium.make (its TimeLimit) for shorter episodes"
+        )
+    return env
 
 
 def register_envs() -> None:
@@ -28,8 +53,9 @@ def register_envs() -> None:
         gymnasium.register(
             id=env_id,
             entry_point="nutribench.env.nutri_env:NutriRLEnv",
-            vector_entry_point="nutribench.env.vector_env:NutriRLVectorEnv",
+            vector_entry_point="nutribench:make_vector_env",
             kwargs=kwargs,
+            max_episode_steps=HORIZON,
             disable_env_checker=False,
         )
 

@@ -1,13 +1,13 @@
-"""``nutribench regimes list|check|generate``: inspect, check and regenerate the regime files."""
+"""``nutribench regimes list|check|generate``: inspect, check, regenerate and create the regime files."""
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Optional
 
 import typer
 from rich.table import Table
 
-from nutribench.cli.common import console, err_console, user_errors
+from nutribench.cli.common import UserError, console, err_console, user_errors
 
 regimes_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Inspect, check and regenerate the regime files.")
 
@@ -43,27 +43,91 @@ def regimes_check(
         fresh = regenerate(cfg.regime, cfg.catalog)
         if fresh.foods != cfg.regime.foods:
             bad += 1
-            err_console.print(f"{cfg.path}: foods: values differ from a fresh draw with seed {cfg.regime.seed}")
+            err_console.print(f"{cfg.path}: foods: values differ from a fresh draw with seed {cfg.regime.seed}", highlight=False, soft_wrap=True)
         else:
-            console.print(f"{cfg.path}: ok (sha256 {cfg.sha256[:12]})")
+            console.print(f"{cfg.path}: ok (sha256 {cfg.sha256[:12]})", highlight=False, soft_wrap=True)
     if bad:
         raise typer.Exit(1)
+
+
+RANGES_HELP = "with --from: {what} ranges in steps per nutrient, NUTRIENT=LOW-HIGH, e.g. {example}; nutrients left out keep the --from regime's ranges"
 
 
 @regimes_app.command("generate")
 @user_errors
 def regimes_generate(
-    regime: Annotated[str, typer.Argument(help="regime name or path whose [foods] table is redrawn")],
-    write: Annotated[bool, typer.Option(help="overwrite the file (else print it)")] = False,
+    name: Annotated[str, typer.Argument(
+        help="an existing regime (name or path) whose [foods] table is redrawn; with --from, the name of the new regime")],
+    source: Annotated[Optional[str], typer.Option(
+        "--from", help="create regime NAME from this regime (name or path): its ranges (but --tau/--sigma), catalog and reward, and a fresh draw")] = None,
+    tau: Annotated[Optional[str], typer.Option(help=RANGES_HELP.format(what="tau", example="C=10-12,F=18-20,P=14-16"))] = None,
+    sigma: Annotated[Optional[str], typer.Option(help=RANGES_HELP.format(what="sigma", example="C=5-8.4,F=9-14,P=7-11.2"))] = None,
+    seed: Annotated[Optional[int], typer.Option(
+        help="with --from: seed of the draw (default: derived from NAME, the first 4 bytes of sha256(NAME), so the same command gives the same file)")] = None,
+    description: Annotated[Optional[str], typer.Option(help="with --from: the description (default: the ranges and the --from regime)")] = None,
+    write: Annotated[bool, typer.Option(help="write the file (else print it); with --from it goes to the regimes folder as NAME.toml")] = False,
+    force: Annotated[bool, typer.Option(help="with --from: overwrite an existing NAME.toml")] = False,
 ) -> None:
-    """Redraw a regime's per-food tau and sigma from its [ranges] and seed."""
-    from nutribench.config import load_env_config
+    """Redraw a regime's per-food tau and sigma from its [ranges] and seed, or, with --from,
+    create regime NAME (version 1) from another's ranges with new --tau/--sigma ranges.
+
+    Example: nutribench regimes generate run7 --from run6 --tau C=10-12,F=18-20,P=14-16 --write
+    """
+    if source is None:
+        extra = (("--tau", tau), ("--sigma", sigma), ("--seed", seed), ("--description", description))
+        given = [opt for opt, value in extra if value is not None]
+        if given:
+            raise UserError(f"regimes generate {name}: {given[0]} needs --from REGIME (it creates a new regime), e.g. --from run6")
+        _redraw(name, write)
+    else:
+        _create(name, source, tau=tau, sigma=sigma, seed=seed, description=description, write=write, force=force)
+
+
+def _redraw(regime: str, write: bool) -> None:
+    """An existing regime with its [foods] redrawn from its own ranges and seed: printed, or written back."""
+    from nutribench.config import ConfigError, load_env_config
     from nutribench.config.generate import regenerate, regime_to_toml, write_regime
 
-    cfg = load_env_config(regime)
+    try:
+        cfg = load_env_config(regime)
+    except ConfigError as e:
+        if str(e).startswith("unknown regime"):
+            raise ConfigError(f"{e}; to create it, add --from REGIME (e.g. --from run6)") from None
+        raise
     fresh = regenerate(cfg.regime, cfg.catalog)
     if write:
         write_regime(fresh, cfg.path)
-        console.print(f"wrote {cfg.path}" + ("" if fresh == cfg.regime else " (values changed: bump its version)"))
+        note = "" if fresh == cfg.regime else " (values changed: bump its version)"
+        console.print(f"wrote {cfg.path}{note}", highlight=False, soft_wrap=True)
     else:
         typer.echo(regime_to_toml(fresh), nl=False)
+
+
+def _create(name: str, source: str, *, tau: str | None, sigma: str | None, seed: int | None,
+            description: str | None, write: bool, force: bool) -> None:
+    """Regime ``name`` from ``source`` with new ranges: printed, or written to the regimes folder."""
+    from nutribench.config import EnvConfig, FoodCatalog, RewardConfig, load_env_config, load_model, regimes_dir
+    from nutribench.config.generate import check_regime_name, derive_regime, parse_ranges, regime_to_toml, write_regime
+
+    check_regime_name(name)
+    new_tau = parse_ranges(tau, "--tau") if tau is not None else None
+    new_sigma = parse_ranges(sigma, "--sigma") if sigma is not None else None
+    src = load_env_config(source)
+    folder = regimes_dir()
+    path = folder / f"{name}.toml"
+    for needed in (src.regime.catalog, src.regime.reward):
+        if not (folder / needed).is_file():
+            raise UserError(f"{folder}: no {needed} for the new regime {name}: copy {src.path.parent / needed} there")
+    catalog = load_model(FoodCatalog, folder / src.regime.catalog)
+    new = derive_regime(src.regime, catalog, name, tau=new_tau, sigma=new_sigma, seed=seed, description=description)
+    EnvConfig(regime=new, catalog=catalog, reward=load_model(RewardConfig, folder / new.reward), path=path)  # validates
+    if not write:
+        typer.echo(regime_to_toml(new), nl=False)
+        return
+    replaced = path.exists()
+    if replaced and not force:
+        raise UserError(f"{path} already exists: pass --force to overwrite it, or choose another NAME")
+    write_regime(new, path)
+    note = " (replaced the old file: if results were stored under it, bump its version)" if replaced else ""
+    console.print(f"wrote {path} (seed {new.seed}); use it as regime={name} or --regimes {name}{note}",
+                  highlight=False, soft_wrap=True)

@@ -5,17 +5,29 @@ size=(N, 3))`` with the Table 1 bounds per nutrient column (C, F, P), then ``sig
 same way; foods in catalog order; values rounded to 2 decimals (the file is what fixes the
 dynamics, the rounding only keeps it readable). ``nutribench regimes generate`` re-runs
 this draw, so the written values are reproducible and reviewable.
+
+:func:`derive_regime` makes a new regime from an existing one: other ranges (parsed from
+the CLI's ``C=10-12,F=18-20,P=14-16`` by :func:`parse_ranges`), a seed (by default
+:func:`default_seed` of the name), version 1, and a fresh draw.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import re
 from pathlib import Path
 
 import numpy as np
+from pydantic import ValidationError
 
+from nutribench.config.loading import ConfigError, format_validation_error
 from nutribench.config.models import NUTRIENTS, DelayRanges, FoodCatalog, Regime
 
 DECIMALS = 2
+_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+_NUMBER = r"-?(?:\d+(?:\.\d*)?|\.\d+)"
+_RANGE = re.compile(rf"^\s*(\w+)\s*=\s*({_NUMBER})\s*-\s*({_NUMBER})\s*$")
 
 
 def draw_delays(ranges: DelayRanges, seed: int, catalog: FoodCatalog) -> dict[str, dict]:
@@ -40,6 +52,98 @@ def regenerate(regime: Regime, catalog: FoodCatalog) -> Regime:
     return Regime.model_validate(data)
 
 
+def default_seed(name: str) -> int:
+    """The seed a new regime gets when none is given: the first 4 bytes of sha256(name)."""
+    return int.from_bytes(hashlib.sha256(name.encode()).digest()[:4], "big")
+
+
+def check_regime_name(name: str) -> str:
+    """``name`` if it can name a regime (and its file), else a one-line ConfigError."""
+    if not _NAME.match(name):
+        raise ConfigError(
+            f"regime name '{name}' is not valid: use lowercase letters, digits and _, starting with a letter (e.g. run7)"
+        )
+    return name
+
+
+def _parse_range(item: str, option: str) -> tuple[str, dict[str, float]]:
+    m = _RANGE.match(item)
+    if not m:
+        raise ConfigError(f"{option} '{item}': malformed range: write NUTRIENT=LOW-HIGH, e.g. {option} C=10-12,F=18-20,P=14-16")
+    key, low, high = m.group(1).upper(), float(m.group(2)), float(m.group(3))
+    if key not in NUTRIENTS:
+        raise ConfigError(f"{option} '{item}': unknown nutrient '{m.group(1)}': use C, F or P")
+    if low < 0 or high < 0:
+        raise ConfigError(f"{option} '{item}': negative bound: delays are steps >= 0 (e.g. {key}=0-2)")
+    if low > high:
+        raise ConfigError(f"{option} '{item}': low {low:g} is above high {high:g}: write {key}={high:g}-{low:g}")
+    return key, {"low": low, "high": high}
+
+
+def parse_ranges(text: str, option: str = "--tau") -> dict[str, dict[str, float]]:
+    """``"C=10-12,F=18-20,P=14-16"`` -> ``{"C": {"low": 10.0, "high": 12.0}, ...}``.
+
+    Any subset of C, F, P may be given; a bad item raises a one-line :class:`ConfigError`
+    that names ``option``.
+    """
+    out: dict[str, dict[str, float]] = {}
+    items = [i for i in text.split(",") if i.strip()]
+    if not items:
+        raise ConfigError(f"{option} '{text}': no ranges given: write e.g. {option} C=10-12,F=18-20,P=14-16")
+    for item in items:
+        key, rng = _parse_range(item, option)
+        if key in out:
+            raise ConfigError(f"{option} '{text}': nutrient {key} given twice: give each of C, F, P at most once")
+        out[key] = rng
+    return out
+
+
+def derive_regime(
+    source: Regime,
+    catalog: FoodCatalog,
+    name: str,
+    *,
+    tau: dict[str, dict[str, float]] | None = None,
+    sigma: dict[str, dict[str, float]] | None = None,
+    seed: int | None = None,
+    description: str | None = None,
+) -> Regime:
+    """A new regime ``name`` (version 1) made from ``source``: its ranges with ``tau`` and
+    ``sigma`` (per nutrient, from :func:`parse_ranges`) replacing theirs, its catalog and
+    reward files, and per-food delays freshly drawn with ``seed`` (default
+    :func:`default_seed` of ``name``)."""
+    if seed is not None and seed < 0:
+        raise ConfigError(f"new regime {name}: seed {seed} is negative: give a seed >= 0 (or none, to derive it from the name)")
+    ranges = source.ranges.model_dump(mode="json")
+    for what, new in (("tau", tau), ("sigma", sigma)):
+        ranges[what].update(new or {})
+    data = {
+        "name": check_regime_name(name),
+        "version": 1,
+        "description": description if description is not None else _describe(source.name, ranges),
+        "seed": default_seed(name) if seed is None else seed,
+        "catalog": source.catalog,
+        "reward": source.reward,
+        "ranges": ranges,
+        "foods": {},
+    }
+    try:
+        data["foods"] = draw_delays(DelayRanges.model_validate(ranges), data["seed"], catalog)
+        return Regime.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(format_validation_error(f"new regime {name}", e)) from None
+
+
+def _describe(source: str, ranges: dict) -> str:
+    fmt = lambda r: ", ".join(f"{n} {r[n]['low']:g}-{r[n]['high']:g}" for n in NUTRIENTS)  # noqa: E731
+    return f"tau {fmt(ranges['tau'])}; sigma {fmt(ranges['sigma'])} (from {source})"
+
+
+def _toml_str(s: str) -> str:
+    """A TOML basic string (JSON's escapes are TOML's)."""
+    return json.dumps(s, ensure_ascii=False)
+
+
 def _num(x: float) -> str:
     return repr(float(x)) if x != int(x) else f"{int(x)}.0"
 
@@ -56,16 +160,16 @@ def regime_to_toml(regime: Regime) -> str:
     """TOML text of a regime, one line per food, in the layout of the shipped files."""
     d = regime.model_dump(mode="json")
     lines = [
-        f"# Delay regime {d['name']}: {d['description']}.",
+        f"# Delay regime {d['name']}: {' '.join(d['description'].split())}.",
         "# The per-food values below were drawn by `nutribench regimes generate` from [ranges]",
         "# with `seed` (uniform, rounded to 2 decimals). They, not the ranges, fix the dynamics.",
         "# tau = mean absorption delay, sigma = spread, both in steps (1 step ~ 30 min).",
         f'name = "{d["name"]}"',
         f"version = {d['version']}",
-        f'description = "{d["description"]}"',
+        f"description = {_toml_str(d['description'])}",
         f"seed = {d['seed']}",
-        f'catalog = "{d["catalog"]}"',
-        f'reward = "{d["reward"]}"',
+        f"catalog = {_toml_str(d['catalog'])}",
+        f"reward = {_toml_str(d['reward'])}",
         "",
         "[ranges]",
         f"tau = {_range_table(d['ranges']['tau'])}",
@@ -79,4 +183,5 @@ def regime_to_toml(regime: Regime) -> str:
 
 
 def write_regime(regime: Regime, path: Path) -> None:
+    """Write ``regime`` to ``path`` in the layout of :func:`regime_to_toml`."""
     path.write_text(regime_to_toml(regime))
