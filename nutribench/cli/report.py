@@ -32,23 +32,38 @@ def parse_figs(values: list[str] | None) -> list[int]:
 
 
 def parse_tables(values: list[str] | None) -> list[str]:
-    """``--table`` values (1-6, results, training, or all); bad values raise UserError."""
-    from nutribench.report.build import TABLES
+    """``--table`` values: 1-6, results, training, all, or a number from 7 / a config name for
+    the database's other agent configs (those are checked against the database when it is read)."""
+    return list(dict.fromkeys(_split(values)))
 
-    items = _split(values)
-    if "all" in items:
-        return list(TABLES)
-    bad = [v for v in items if v not in TABLES]
-    if bad:
-        raise UserError(f"--table {', '.join(bad)}: the tables are {', '.join(TABLES)} (repeat --table or give a comma list)")
-    return list(dict.fromkeys(items))
+
+def parse_algos(value: str | None) -> list[str] | None:
+    """``--algos a,b,c`` as names (None: every config of the database)."""
+    if value is None:
+        return None
+    names = list(dict.fromkeys(_split([value])))
+    if not names:
+        raise UserError("--algos: give a comma list of agent config names, e.g. --algos ppo,sac")
+    return names
+
+
+def parse_pair(value: str | None) -> list[str] | None:
+    """``--pair a,b``: Figure 4's two agent configs (None: ppo,gru_ppo)."""
+    if value is None:
+        return None
+    names = _split([value])
+    if len(names) != 2 or names[0] == names[1]:
+        raise UserError(f"--pair {value}: give two different agent configs, e.g. --pair ppo,gru_ppo")
+    return names
 
 
 @user_errors
 def report_cmd(
     fig: Annotated[Optional[list[str]], typer.Option("--fig", help="figure 1-4 (repeat or comma list; 'all')")] = None,
-    table: Annotated[Optional[list[str]], typer.Option("--table", help="table 1-6, 'results' or 'training' (repeat or comma list; 'all')")] = None,
+    table: Annotated[Optional[list[str]], typer.Option("--table", help="table 1-6, 7... (the database's other agent configs; or a config's name), 'results' or 'training' (repeat or comma list; 'all')")] = None,
     all_: Annotated[bool, typer.Option("--all", help="every figure and table the database supports")] = False,
+    algos: Annotated[Optional[str], typer.Option("--algos", help="agent configs drawn in the figures and tables, comma list (default: every config in the database)")] = None,
+    pair: Annotated[Optional[str], typer.Option("--pair", help="the two agent configs of figure 4, comma list (default: ppo,gru_ppo)")] = None,
     trajectory: Annotated[bool, typer.Option("--trajectory", help="one evaluation episode's trajectory (needs --algo --regime --seed)")] = False,
     algo: Annotated[Optional[str], typer.Option(help="agent config of the trajectory, e.g. ppo")] = None,
     regime: Annotated[Optional[str], typer.Option(help="regime of the trajectory, e.g. run3")] = None,
@@ -62,8 +77,11 @@ def report_cmd(
     from nutribench.report.build import build_report, build_trajectory
 
     figs, tables = parse_figs(fig), parse_tables(table)
+    selected, pair_names = parse_algos(algos), parse_pair(pair)
     if not (figs or tables or all_ or trajectory):
         raise UserError("nothing to build: pass --fig, --table, --all or --trajectory (see nutribench report --help)")
+    if (selected or pair_names) and not (figs or tables or all_):
+        raise UserError("--algos and --pair select what figures and tables draw: add --fig, --table or --all")
     if trajectory:
         missing = [o for o, v in (("--algo", algo), ("--regime", regime), ("--seed", seed)) if v is None]
         if missing:
@@ -73,7 +91,8 @@ def report_cmd(
     log = lambda msg: err_console.print(msg, style="yellow", highlight=False, soft_wrap=True)  # noqa: E731
     paths: list[Path] = []
     if figs or tables or all_:
-        paths += build_report(db, out, figs=figs, tables=tables, all=all_, reference_episodes=reference_episodes, log=log)
+        paths += build_report(db, out, figs=figs, tables=tables, all=all_, reference_episodes=reference_episodes, log=log,
+                              algos=selected, pair=pair_names)  # fmt: skip
     if trajectory:
         paths += build_trajectory(db, algo, regime, seed, episode=episode, out=out)
     for p in paths:

@@ -5,12 +5,19 @@ Everything here is a thin layer over :mod:`nutribench.report.figures`,
 :mod:`nutribench.report.tables` and :mod:`nutribench.report.trajectory` (DataFrame in,
 Figure / table out). This module adds what those pure builders do not know about:
 
+* which agent configs a report draws (``algos``: default every config in the database) and
+  which pair Figure 4 compares (``pair``: default PPO and GRU-PPO); colours are one palette
+  per database (:mod:`nutribench.report.palette`), so a config looks the same in every figure;
 * which rows of the database a figure uses: per regime and algorithm the newest config
   versions (``latest_only``) and, per (regime, algorithm, seed), the job with the largest
-  training budget (the newest such job if several); what was left out becomes a note;
+  training budget (the newest such job if several), chosen among the selected configs
+  alone (a report of some configs is the report of a database holding only those); what
+  was left out becomes a note;
 * Figures 1/2 use the ``train`` phase, Figures 3/4 and the results table the ``eval`` phase;
 * the reference lines of Figures 3/4 and the results table's yardsticks
   (:mod:`nutribench.report.references`: the simple policies, played afresh; nothing cached);
+* Tables 2-6 from the five built-in agent config files, Tables 7, 8, ... from the bodies of
+  the other configs stored in the database (:func:`nutribench.report.tables.config_table_numbers`);
 * writing: figures as PNG (150 dpi) and PDF, tables as Markdown, LaTeX and CSV.
 
 Problems a user can fix raise :class:`ReportError` (one line); a database that cannot be
@@ -30,16 +37,20 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from nutribench.config import ConfigError
-from nutribench.report.figures import (
-    FigureResult,
-    algo_label,
-    draw_notes,
-    eval_across_regimes,
-    sort_regimes,
-    training_curves,
-)
+from nutribench.report.figures import FigureResult, draw_notes, eval_across_regimes, sort_regimes, training_curves
+from nutribench.report.palette import Palette, palette
+from nutribench.report.palette import label as algo_label
+from nutribench.report.palette import order as sort_algos
 from nutribench.report.references import eval_day_references, simple_policy_references
-from nutribench.report.tables import CONFIG_TABLES, TableResult, table_agent_config, table_regimes, table_results, table_training
+from nutribench.report.tables import (
+    CONFIG_TABLES,
+    TableResult,
+    config_table_numbers,
+    table_agent_config,
+    table_regimes,
+    table_results,
+    table_training,
+)
 from nutribench.errors import UserError
 
 #: Figures of the paper this command can build, and the file stem each is written to.
@@ -49,10 +60,12 @@ FIGURES: dict[int, str] = {
     3: "fig3_eval_across_regimes",
     4: "fig4_ppo_vs_gru_ppo",
 }
-#: Tables: 1 (regimes), 2-6 (agent configurations), "results".
+#: Tables: 1 (regimes), 2-6 (the built-in agent configurations), "results", "training"; the
+#: other configs of a database add Tables 7, 8, ... (``table<N>_<name>``).
 TABLES: dict[str, str] = {"1": "table1_regimes", **{str(n): f"table{n}_{a}" for n, a in CONFIG_TABLES.items()}, "results": "table_results",
                            "training": "table_training_vs_authors"}
-FIG4_ALGOS = ("ppo", "gru_ppo")
+#: Figure 4's default pair (its file keeps the name ``fig4_ppo_vs_gru_ppo``).
+FIG4_ALGOS = DEFAULT_PAIR = ("ppo", "gru_ppo")
 PNG_DPI = 150
 
 Db = str | os.PathLike[str]
@@ -69,6 +82,14 @@ class ReportData:
 
     metrics: pd.DataFrame
     notes: list[str] = field(default_factory=list)
+    #: the configs asked for (None: every config of the database)
+    selected: tuple[str, ...] | None = None
+    #: the colours of every config of the database, so each figure colours a name alike
+    colors: Palette | None = None
+
+    def what(self) -> str:
+        """`` for a2c_mine, PPO`` when configs were selected, else ``""`` (for messages)."""
+        return f" for {', '.join(algo_label(a) for a in self.selected)}" if self.selected else ""
 
     @property
     def train(self) -> pd.DataFrame:
@@ -108,8 +129,8 @@ def _keep_largest_budget(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
     return df[df["job_id"] == newest_job], notes
 
 
-def load_report_data(db: Db, latest_only: bool = True) -> ReportData:
-    """All episode metrics of ``db`` that a report uses (see the module docstring).
+def read_metrics(db: Db) -> pd.DataFrame:
+    """Every row of ``db``'s ``episode_metrics`` view.
 
     Raises :class:`nutribench.store.StoreError` for a missing, empty or outdated database
     and :class:`ReportError` when it holds no episodes yet.
@@ -123,11 +144,59 @@ def load_report_data(db: Db, latest_only: bool = True) -> ReportData:
         store.dispose()
     if df.empty:
         raise ReportError(f"{store.display} holds no finished episodes yet: `nutribench run --db {db}` fills it")
+    return df
+
+
+def prepare(df: pd.DataFrame, algos: Sequence[str] | None = None, latest_only: bool = True) -> ReportData:
+    """The rows of ``df`` (all of ``episode_metrics``) a report draws: those of ``algos``
+    (default every config), the newest versions and largest budgets of them, and notes on
+    what was left out. Its palette covers every config of ``df``."""
+    colors = palette(df["algo"].unique())
+    selected = tuple(sort_algos(algos)) if algos is not None else None
+    if selected is not None:
+        df = df[df["algo"].isin(selected)]
+    if df.empty:
+        return ReportData(df.reset_index(drop=True), [], selected, colors)
     notes: list[str] = []
     if latest_only:
         df, notes = _keep_latest_versions(df)
     df, budget_notes = _keep_largest_budget(df)
-    return ReportData(df.reset_index(drop=True), notes + budget_notes)
+    return ReportData(df.reset_index(drop=True), notes + budget_notes, selected, colors)
+
+
+def load_report_data(db: Db, latest_only: bool = True, algos: Sequence[str] | None = None) -> ReportData:
+    """The episode metrics of ``db`` that a report of ``algos`` (default: every config) uses;
+    see :func:`read_metrics` and :func:`prepare`."""
+    return prepare(read_metrics(db), algos, latest_only)
+
+
+def stored_agent_configs(db: Db) -> dict[str, Any]:
+    """The newest version of each agent config recorded in ``db``, by name (in palette
+    order), as objects :func:`table_agent_config` accepts. Raises
+    :class:`nutribench.store.StoreError` for a database that cannot be read."""
+    from sqlalchemy import select
+
+    from nutribench.store import AgentConfig, open_store, session_scope
+
+    store = open_store(db)
+    try:
+        with session_scope(store.engine) as s:
+            rows = s.execute(select(AgentConfig.name, AgentConfig.version, AgentConfig.body)).all()
+    finally:
+        store.dispose()
+    newest: dict[str, tuple[int, dict[str, Any]]] = {}
+    for name, version, body in rows:
+        if name not in newest or version > newest[name][0]:
+            newest[name] = (version, dict(body))
+    return {n: _StoredConfig(n, newest[n][1]) for n in sort_algos(newest)}
+
+
+def check_known(names: Sequence[str], held: Iterable[str], option: str) -> None:
+    """:class:`ReportError` (one line, what the database holds) for names not in ``held``."""
+    held = sort_algos(held)
+    unknown = [n for n in names if n not in held]
+    if unknown:
+        raise ReportError(f"{option} {', '.join(unknown)}: not in the database, which holds {', '.join(held) or 'no agent configs'}")
 
 
 # --------------------------------------------------------------------------- writing
@@ -163,23 +232,40 @@ def _add_notes(res: FigureResult, extra: Sequence[str]) -> FigureResult:
 
 
 # --------------------------------------------------------------------------- figures and tables
-def build_figure(number: int, data: ReportData, reference_episodes: int = 200, log: Log | None = None) -> FigureResult:
-    """Figure 1-4 of the paper from ``data``; :class:`ReportError` when it has nothing to draw."""
+def figure_stem(number: int, pair: Sequence[str] | None = None) -> str:
+    """The file stem of figure ``number``; Figure 4's follows its pair (``fig4_a_vs_b``)."""
+    if number == 4 and pair is not None and tuple(pair) != DEFAULT_PAIR:
+        return f"fig4_{pair[0]}_vs_{pair[1]}"
+    return FIGURES[number]
+
+
+def _eval_figure(number: int, data: ReportData, pair: Sequence[str], reference_episodes: int, log: Log | None) -> FigureResult:
+    """Figure 3 (every config of ``data``) or Figure 4 (``pair``)."""
+    algos = list(pair) if number == 4 else None
+    ev = data.eval if algos is None else data.eval[data.eval["algo"].isin(algos)]
+    if ev.empty:
+        what = f" for {', '.join(algo_label(a) for a in algos)}" if algos else data.what()
+        raise ReportError(f"figure {number}: no evaluation episodes{what} in the database")
+    refs = simple_policy_references(sort_regimes(ev["regime"]), episodes=reference_episodes, log=log)
+    title = "Fixed-policy inference across regimes"
+    if number == 4:
+        title = f"{algo_label(pair[0])} against {algo_label(pair[1])}: fixed-policy inference across regimes"
+    return eval_across_regimes(data.eval, algos=algos, references=refs, title=title, colors=data.colors)
+
+
+def build_figure(
+    number: int, data: ReportData, reference_episodes: int = 200, log: Log | None = None, pair: Sequence[str] = DEFAULT_PAIR
+) -> FigureResult:
+    """Figure 1-4 of the paper from ``data`` (Figure 4: ``pair``, which ``data`` must hold);
+    :class:`ReportError` when it has nothing to draw."""
     try:
         if number in (1, 2):
             if data.train.empty:
-                raise ReportError(f"figure {number}: no training episodes in the database")
+                raise ReportError(f"figure {number}: no training episodes{data.what()} in the database")
             # the dashed "best" line marks the best return (Figure 1); most foods eaten is no "best"
-            res = training_curves(data.train, "return" if number == 1 else "foods", best_line=number == 1)
+            res = training_curves(data.train, "return" if number == 1 else "foods", best_line=number == 1, colors=data.colors)
         elif number in (3, 4):
-            algos = list(FIG4_ALGOS) if number == 4 else None
-            ev = data.eval if algos is None else data.eval[data.eval["algo"].isin(algos)]
-            if ev.empty:
-                what = f" for {', '.join(algo_label(a) for a in algos)}" if algos else ""
-                raise ReportError(f"figure {number}: no evaluation episodes{what} in the database")
-            refs = simple_policy_references(sort_regimes(ev["regime"]), episodes=reference_episodes, log=log)
-            title = "PPO against GRU-PPO: fixed-policy inference across regimes" if number == 4 else "Fixed-policy inference across regimes"
-            res = eval_across_regimes(data.eval, algos=algos, references=refs, title=title)
+            res = _eval_figure(number, data, pair, reference_episodes, log)
         else:
             raise ReportError(f"no figure {number}: the figures are 1, 2, 3, 4")
     except ValueError as e:
@@ -188,27 +274,6 @@ def build_figure(number: int, data: ReportData, reference_episodes: int = 200, l
         raise ReportError(f"figure {number}: {e}") from None
     # what load_report_data left out (older versions, smaller budgets) goes on the figure too
     return _add_notes(res, data.notes)
-
-
-def _stored_agent_config(db: Db, algo: str) -> Any | None:
-    """The newest agent config of ``algo`` recorded in ``db`` (for Tables 2-6 when the config
-    file is missing), as an object :func:`table_agent_config` accepts; None if none."""
-    from sqlalchemy import select
-
-    from nutribench.store import AgentConfig, StoreError, open_store, session_scope
-
-    try:
-        store = open_store(db)
-    except StoreError:
-        return None
-    try:
-        with session_scope(store.engine) as s:
-            row = s.scalars(select(AgentConfig).where(AgentConfig.algo == algo).order_by(AgentConfig.version.desc())).first()
-            if row is None:
-                return None
-            return _StoredConfig(row.name, dict(row.body))
-    finally:
-        store.dispose()
 
 
 @dataclass
@@ -227,10 +292,70 @@ def _with_notes(res: TableResult, data: ReportData) -> TableResult:
     return res
 
 
-def build_table(key: str, data: ReportData | None = None, db: Db | None = None) -> TableResult:
-    """Table ``key`` ("1".."6" or "results"). Table 1 reads the regime files; Tables 2-6 the
-    agent config files (else the newest config of that algorithm stored in ``db``); the
-    results table the evaluation episodes of ``data``."""
+def _stored_or_none(db: Db | None) -> dict[str, Any]:
+    """:func:`stored_agent_configs` of ``db``; empty when there is no readable database."""
+    from nutribench.store import StoreError
+
+    try:
+        return stored_agent_configs(db) if db is not None else {}
+    except StoreError:
+        return {}
+
+
+def _table_list(numbers: dict[int, str]) -> str:
+    return ", ".join(["1", *(f"{n} ({name})" for n, name in numbers.items()), "results", "training"])
+
+
+def resolve_table(key: str, numbers: dict[int, str]) -> tuple[str, str]:
+    """(key, file stem) of table ``key``: "1", a config table's number or its config's name,
+    "results" or "training"; ``numbers``: :func:`config_table_numbers` of the database."""
+    by_name = {name: n for n, name in numbers.items()}
+    key = str(by_name.get(key, key))
+    if key.isdigit() and int(key) in numbers:
+        return key, f"table{key}_{numbers[int(key)]}"
+    if key in TABLES:
+        return key, TABLES[key]
+    raise ReportError(f"no table {key} (--table {key}): the tables are {_table_list(numbers)}")
+
+
+def _config_table(number: int, name: str, db: Db | None, stored: dict[str, Any] | None) -> TableResult:
+    """Table ``number``: a built-in config from its file (else as stored in ``db``); any other
+    config as stored in ``db`` (the body it ran with)."""
+    config, why = None, ""
+    if name in CONFIG_TABLES.values():
+        try:
+            from nutribench.agents.config import load_agent_config
+
+            config = load_agent_config(name)
+        except (ImportError, ConfigError) as e:
+            why = f" ({e})"
+    if config is None:
+        config = (stored if stored is not None else _stored_or_none(db)).get(name)
+    if config is None:
+        raise ReportError(f"table {number}: no {name} agent config file and none in the database{why}")
+    return table_agent_config(number, config)
+
+
+def _metrics_table(key: str, data: ReportData | None) -> TableResult:
+    """The results or the training table of ``data``."""
+    if data is None:
+        raise ReportError(f"the {key} table needs the episode metrics of the database")
+    if key == "results":
+        ev = data.eval
+        if ev.empty:
+            raise ReportError(f"results table: no evaluation episodes{data.what()} in the database")
+        return _with_notes(table_results(ev, references=eval_day_references(ev)), data)
+    if data.train.empty:
+        raise ReportError(f"training table: no training episodes{data.what()} in the database")
+    return _with_notes(table_training(data.train), data)
+
+
+def build_table(key: str, data: ReportData | None = None, db: Db | None = None, stored: dict[str, Any] | None = None) -> TableResult:
+    """Table ``key``: "1" from the regime files; "2".."6" from the built-in agent config files
+    (else the newest config of that name stored in ``db``); "7"... (or a config's name) from
+    the configs stored in ``db`` (``stored``: :func:`stored_agent_configs`, read when not
+    given); "results" and "training" from the episodes of ``data``."""
+    key = str(key)
     if key == "1":
         from nutribench.config import list_regimes, load_env_config
 
@@ -238,30 +363,45 @@ def build_table(key: str, data: ReportData | None = None, db: Db | None = None) 
         if not names:
             raise ReportError("table 1: no regime files found")
         return table_regimes([load_env_config(n) for n in names])
-    if key in TABLES and key.isdigit():
-        number = int(key)
-        algo = CONFIG_TABLES[number]
-        try:
-            from nutribench.agents.config import load_agent_config
+    if key in ("results", "training"):
+        return _metrics_table(key, data)
+    if stored is None and key not in TABLES:
+        stored = _stored_or_none(db)
+    numbers = config_table_numbers(stored or ())
+    number = int(resolve_table(key, numbers)[0])
+    return _config_table(number, numbers[number], db, stored)
 
-            config = load_agent_config(algo)
-        except (ImportError, ConfigError) as e:
-            config = _stored_agent_config(db, algo) if db is not None else None
-            if config is None:
-                raise ReportError(f"table {number}: no {algo} agent config file and none in the database ({e})") from None
-        return table_agent_config(number, config)
-    if key == "results":
-        if data is None:
-            raise ReportError("the results table needs the episode metrics of the database")
-        ev = data.eval
-        if ev.empty:
-            raise ReportError("results table: no evaluation episodes in the database")
-        return _with_notes(table_results(ev, references=eval_day_references(ev)), data)
-    if key == "training":
-        if data is None or data.train.empty:
-            raise ReportError("training table: no training episodes in the database")
-        return _with_notes(table_training(data.train), data)
-    raise ReportError(f"no table {key!r}: the tables are {', '.join(TABLES)}")
+
+def _table_plan(tables: Sequence[str], all: bool, stored: dict[str, Any] | None, algos: Sequence[str] | None) -> dict[str, str]:  # noqa: A002
+    """Table key -> file stem of every table to build, checked. ``all`` (or "all" among
+    ``tables``): Table 1, the config tables of ``algos`` (default every config: 2-6 and the
+    database's others), the results and the training tables."""
+    numbers = config_table_numbers(stored or ())
+    keys = [t for t in tables if t != "all"]
+    if all or "all" in tables:
+        configs = [str(n) for n, name in numbers.items() if algos is None or name in algos]
+        keys = ["1", *configs, "results", "training", *keys]
+    plan: dict[str, str] = {}
+    for k in keys:
+        key, stem = resolve_table(k, numbers)
+        plan.setdefault(key, stem)
+    return plan
+
+
+def _check_pair(pair: Sequence[str] | None) -> tuple[str, str]:
+    if pair is None:
+        return DEFAULT_PAIR
+    if len(pair) != 2 or pair[0] == pair[1]:
+        raise ReportError(f"--pair {','.join(pair)}: give two different agent configs, e.g. --pair ppo,gru_ppo")
+    return (pair[0], pair[1])
+
+
+def _needs_stored(figs: list[int], tables: list[str], all: bool, algos: Sequence[str] | None, pair_given: bool) -> bool:  # noqa: A002
+    """Whether the database's agent configs must be read: to check ``algos`` or the pair, or
+    to find the tables of configs other than the five."""
+    if all or any(t not in TABLES for t in tables):
+        return True
+    return (algos is not None and bool(figs or [t for t in tables if t != "1"])) or (pair_given and 4 in figs)
 
 
 def build_report(
@@ -272,30 +412,41 @@ def build_report(
     all: bool = False,  # noqa: A002 - mirrors the --all option
     reference_episodes: int = 200,
     log: Log | None = None,
+    algos: Sequence[str] | None = None,
+    pair: Sequence[str] | None = None,
 ) -> list[Path]:
     """Write the requested figures and tables under ``out`` and return the paths written.
 
-    ``all=True`` builds Figures 1-4, Tables 1-6, the results and the training tables; what the database
-    cannot support (e.g. Figure 4 without PPO or GRU-PPO results) is skipped and reported
-    through ``log``. An item asked for by number that cannot be built raises
-    :class:`ReportError`. ``reference_episodes``: episodes per simple policy and regime for
-    the reference lines of Figures 3/4.
+    ``all=True`` builds Figures 1-4, Table 1, the config tables, the results and the training
+    tables; what the database cannot support (e.g. Figure 4 without PPO or GRU-PPO results) is
+    skipped and reported through ``log``. An item asked for by number that cannot be built
+    raises :class:`ReportError`. ``algos``: the agent configs drawn (default: every config in
+    the database); ``pair``: Figure 4's two configs (default PPO and GRU-PPO; not limited by
+    ``algos``); a name the database does not hold raises :class:`ReportError`.
+    ``reference_episodes``: episodes per simple policy and regime for the reference lines of
+    Figures 3/4.
     """
     figs = list(FIGURES) if all else [int(f) for f in figs]
-    tables = list(TABLES) if all else [str(t) for t in tables]
+    tables = [str(t) for t in tables]
     for f in figs:
         if f not in FIGURES:
             raise ReportError(f"no figure {f}: the figures are {', '.join(map(str, FIGURES))}")
-    for t in tables:
-        if t not in TABLES:
-            raise ReportError(f"no table {t!r}: the tables are {', '.join(TABLES)}")
     if not figs and not tables:
         raise ReportError("nothing to build: ask for figures, tables or all")
+    pair_given, pair = pair is not None, _check_pair(pair)
+    stored = stored_agent_configs(db) if _needs_stored(figs, tables, all, algos, pair_given) else None
+    if stored is not None and algos is not None:
+        check_known(algos, stored, "--algos")
+    if stored is not None and pair_given and 4 in figs:
+        check_known(pair, stored, "--pair")
+    plan = _table_plan(tables, all, stored, algos)
     # the database is read once, up front, and only when something needs it: a database that
     # cannot be read (missing, empty, outdated) fails the whole command, even with ``all``
-    data = load_report_data(db) if figs or "results" in tables or "training" in tables else None
-    if data is not None and log:
-        for note in data.notes:
+    raw = read_metrics(db) if figs or {"results", "training"} & set(plan) else None
+    data = prepare(raw, algos) if raw is not None else None
+    pair_data = prepare(raw, pair) if raw is not None and 4 in figs else None
+    if log:
+        for note in dict.fromkeys([*(data.notes if data else []), *(pair_data.notes if pair_data else [])]):
             log(f"note: {note}")
 
     def built(make: Callable[[], Any]) -> Any:
@@ -311,13 +462,13 @@ def build_report(
 
     paths: list[Path] = []
     for f in figs:
-        res = built(lambda: build_figure(f, data, reference_episodes=reference_episodes, log=log))
+        res = built(lambda: build_figure(f, pair_data if f == 4 else data, reference_episodes=reference_episodes, log=log, pair=pair))
         if res is not None:
-            paths += write_figure(res, out, FIGURES[f])
-    for t in tables:
-        res_t = built(lambda: build_table(t, data, db))
+            paths += write_figure(res, out, figure_stem(f, pair))
+    for key, stem in plan.items():
+        res_t = built(lambda: build_table(key, data, db, stored))
         if res_t is not None:
-            paths += write_table(res_t, out, TABLES[t])
+            paths += write_table(res_t, out, stem)
     return paths
 
 
@@ -373,9 +524,15 @@ __all__ = [
     "build_report",
     "build_table",
     "build_trajectory",
+    "check_known",
     "eval_day_references",
+    "figure_stem",
     "load_report_data",
+    "prepare",
+    "read_metrics",
+    "resolve_table",
     "simple_policy_references",
+    "stored_agent_configs",
     "write_figure",
     "write_table",
 ]

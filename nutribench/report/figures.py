@@ -2,23 +2,27 @@
 
 Input columns (those of the ``episode_metrics`` view): ``regime``, ``algo``, ``seed``,
 ``phase`` ("train" / "eval"), ``episode`` and the metric columns (``return``, ``foods``,
-``final_distance``, ``overshoot_ratio``). Each builder returns a :class:`FigureResult`
-holding the Figure and the exact numbers it drew, so tests (and curious readers) can
+``final_distance``, ``overshoot_ratio``) and, where known, ``budget`` (training days of the
+job). The order, colour and label of each config: :mod:`nutribench.report.palette`. Every
+figure states the training budget and the seeds of what it drew. Each builder returns a
+:class:`FigureResult` holding the Figure and the exact numbers it drew, so tests (and curious readers) can
 check them without parsing pixels.
 """
 
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-ALGO_ORDER = ["mc", "ddqn", "ppo", "sac", "gru_ppo"]
-ALGO_LABELS = {"mc": "MC", "ddqn": "DDQN", "ppo": "PPO", "sac": "SAC", "gru_ppo": "GRU-PPO"}
-ALGO_COLORS = {"mc": "#8c564b", "ddqn": "#1f77b4", "ppo": "#2ca02c", "sac": "#d62728", "gru_ppo": "#9467bd"}
+from nutribench.report.palette import Palette, palette
+from nutribench.report.palette import label as algo_label
+from nutribench.report.palette import order as sort_algos
+
 METRIC_LABELS = {
     "return": "episodic return",
     "foods": "foods consumed",
@@ -50,18 +54,6 @@ def sort_regimes(names) -> list[str]:
     return sorted(set(names), key=lambda r: (regime_index(r) is None, regime_index(r) or 0, str(r)))
 
 
-def sort_algos(names) -> list[str]:
-    return sorted(set(names), key=lambda a: (ALGO_ORDER.index(a) if a in ALGO_ORDER else len(ALGO_ORDER), str(a)))
-
-
-def algo_label(a: str) -> str:
-    return ALGO_LABELS.get(a, a)
-
-
-def algo_color(a: str, i: int) -> str:
-    return ALGO_COLORS.get(a, f"C{i % 10}")
-
-
 def default_window(n_episodes: int) -> int:
     """Smoothing window: ~2 % of the episodes, at least 1, at most 100."""
     return int(min(100, max(1, round(n_episodes / 50))))
@@ -73,6 +65,38 @@ def _wrap(text: str, fig: Figure, fontsize: float) -> str:
 
     chars = max(40, int(fig.get_figwidth() * 72 / (fontsize * 0.55)))
     return "\n".join(textwrap.fill(line, chars) for line in text.split("\n"))
+
+
+def seed_list(seeds: Iterable[int]) -> str:
+    """Seeds in increasing order, runs of three or more as ranges: ``0-9, 21, 1997``."""
+    seeds = sorted({int(s) for s in seeds})
+    parts: list[str] = []
+    i = 0
+    while i < len(seeds):
+        j = i
+        while j + 1 < len(seeds) and seeds[j + 1] == seeds[j] + 1:
+            j += 1
+        parts += [f"{seeds[i]}-{seeds[j]}"] if j - i >= 2 else [str(s) for s in seeds[i : j + 1]]
+        i = j + 1
+    return ", ".join(parts)
+
+
+def _budget_seeds(cell: pd.DataFrame) -> str:
+    """``budget 5000 days, seeds 0-9`` of one config's rows (no budget without the column)."""
+    budgets = sorted({int(b) for b in cell["budget"]}) if "budget" in cell else []
+    text = f"budget {'/'.join(map(str, budgets))} days, " if budgets else ""
+    return text + f"seed{'s' if cell['seed'].nunique() > 1 else ''} {seed_list(cell['seed'])}"
+
+
+def budget_seeds_text(df: pd.DataFrame) -> str:
+    """The training budget (days) and seeds of the rows drawn: ``budget 5000 days, seeds 0,
+    9, 21`` when every config has the same, else per config, configs alike together
+    (``MC, PPO: budget 5000 days, seeds 0-9; a2c_mine: budget 1000 days, seed 0``)."""
+    per = {a: _budget_seeds(df[df["algo"] == a]) for a in sort_algos(df["algo"])}
+    texts = list(dict.fromkeys(per.values()))
+    if len(texts) == 1:
+        return texts[0]
+    return "; ".join(f"{', '.join(algo_label(a) for a, t in per.items() if t == text)}: {text}" for text in texts)
 
 
 def _span(counts: pd.Series) -> str:
@@ -103,14 +127,19 @@ def draw_notes(fig: Figure, notes: list[str]) -> None:
     fig.suptitle(_wrap(text, fig, 10), fontsize=10)
 
 
+#: Most entries in one row of a figure legend.
+LEGEND_COLS = 6
+
+
 def _legend_rows(fig: Figure, rows: list[tuple[list, list[str]]], fontsize: float = 9) -> None:
     """One figure legend under the panels with one row per group (learners, references).
 
     Matplotlib fills legend columns first, so the entries are interleaved column by column
-    and short rows are padded with invisible entries."""
+    and short rows are padded with invisible entries; a group of more than
+    :data:`LEGEND_COLS` entries takes several rows."""
     from matplotlib.lines import Line2D
 
-    rows = [r for r in rows if r[1]]
+    rows = [(hs[k : k + LEGEND_COLS], ls[k : k + LEGEND_COLS]) for hs, ls in rows for k in range(0, len(ls), LEGEND_COLS)]
     if not rows:
         return
     ncols = max(len(labels) for _, labels in rows)
@@ -139,15 +168,19 @@ def training_curves(
     window: int | None = None,
     best_line: bool = True,
     title: str | None = None,
+    colors: Palette | None = None,
 ) -> FigureResult:
     """Figures 1 and 2: a training metric per episode, one panel per regime present, one line
     per algorithm (mean over seeds of the per-seed moving average, shaded standard error
-    across seeds), and a dashed line at the best smoothed value of the panel."""
+    across seeds), and a dashed line at the best smoothed value of the panel.
+
+    ``colors``: the report's palette (default: one over the configs drawn)."""
     train = df[df["phase"] == "train"]
     if train.empty:
         raise ValueError("no training episodes to plot")
     regimes = sort_regimes(train["regime"])
     algos = sort_algos(train["algo"])
+    colors = colors or palette(algos)
     if window is None:
         window = default_window(int(train["episode"].max()) + 1)
     ncols = min(4, len(regimes))
@@ -159,7 +192,7 @@ def training_curves(
         ax = axes.flat[k]
         sub = train[train["regime"] == regime]
         best = -np.inf
-        for i, algo in enumerate(algos):
+        for algo in algos:
             cell = sub[sub["algo"] == algo]
             if cell.empty:
                 continue
@@ -167,9 +200,9 @@ def training_curves(
             smoothed = wide.T.rolling(window, min_periods=1).mean().T.to_numpy()
             mean, se = _seed_band(smoothed)
             x = wide.columns.to_numpy()
-            ax.plot(x, mean, color=algo_color(algo, i), lw=1.4, label=algo_label(algo))
+            ax.plot(x, mean, color=colors.color(algo), lw=1.4, label=algo_label(algo))
             if not np.all(np.isnan(se)):
-                ax.fill_between(x, mean - se, mean + se, color=algo_color(algo, i), alpha=0.2, lw=0)
+                ax.fill_between(x, mean - se, mean + se, color=colors.color(algo), alpha=0.2, lw=0)
             best = max(best, float(np.nanmax(mean)))
             rows.append(pd.DataFrame({"regime": regime, "algo": algo, "episode": x, "mean": mean, "sem": se, "n_seeds": wide.shape[0]}))
         if best_line and np.isfinite(best):
@@ -183,21 +216,28 @@ def training_curves(
             ax.tick_params(labelbottom=True)
     for ax in list(axes.flat)[len(regimes) :]:
         ax.set_visible(False)
-    handles, labels = axes.flat[0].get_legend_handles_labels()
-    for ax in list(axes.flat)[1 : len(regimes)]:
-        for h, lab in zip(*ax.get_legend_handles_labels()):
-            if lab not in labels:
-                handles.append(h)
-                labels.append(lab)
-    fig.legend(handles, labels, loc="outside lower center", ncols=min(6, len(labels)), fontsize=9, frameon=False)
+    _training_legend(fig, list(axes.flat)[: len(regimes)], algos)
     notes = _missing_note(regimes, algos, train)
     n_seeds = train.groupby(["regime", "algo"])["seed"].nunique()
     smoothing = f"a {window}-episode moving average" if window > 1 else "the per-episode values (no smoothing)"
     band = "band = standard error across seeds" if n_seeds.max() > 1 else "one seed: no band"
-    caption = f"mean over seeds ({_span(n_seeds)} per line) of {smoothing}; {band}"
+    caption = f"mean over seeds ({_span(n_seeds)} per line) of {smoothing}; {band}\n{budget_seeds_text(train)}"
     set_title(fig, (title or f"Training {METRIC_LABELS.get(metric, metric)}") + f"\n{caption}")
     draw_notes(fig, notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)
+
+
+def _training_legend(fig: Figure, axes: list, algos: list[str]) -> None:
+    """The legend of Figures 1/2: the configs in palette order, then the "best" line; in one
+    row when it fits, else the configs' rows and the "best" row."""
+    found: dict[str, object] = {}
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            found.setdefault(lab, h)
+    learners = [algo_label(a) for a in algos if algo_label(a) in found]
+    rest = [lab for lab in found if lab not in learners]
+    groups = [learners + rest] if len(found) <= LEGEND_COLS else [learners, rest]
+    _legend_rows(fig, [([found[lab] for lab in g], g) for g in groups])
 
 
 def _symlog_return_axis(ax) -> None:
@@ -233,6 +273,7 @@ def eval_across_regimes(
     algos: list[str] | None = None,
     references: pd.DataFrame | None = None,
     title: str = "Fixed-policy inference across regimes",
+    colors: Palette | None = None,
 ) -> FigureResult:
     """Figures 3 and 4: evaluation metrics per regime, panels (A) return, (B) final distance,
     (C) foods consumed, (D) overshoot ratio; one line per algorithm, mean over seeds x
@@ -240,6 +281,7 @@ def eval_across_regimes(
 
     ``references``: optional rows (regime, policy, metric columns) of the simple policies,
     drawn as thin grey lines so the reader sees where no learning and full information lie.
+    ``colors``: the report's palette (default: one over the configs drawn).
     """
     ev = df[df["phase"] == "eval"]
     if algos is not None:
@@ -251,6 +293,7 @@ def eval_across_regimes(
         regimes = sort_regimes(set(regimes))
     xs = {r: (regime_index(r) if regime_index(r) is not None else i) for i, r in enumerate(regimes)}
     present_algos = sort_algos(ev["algo"])
+    colors = colors or palette(present_algos)
     fig = Figure(figsize=(11, 7.6), layout="constrained")
     axes = fig.subplots(2, 2, sharex=True)
     # each algorithm drawn slightly beside the regime's x, so that lines which coincide
@@ -259,18 +302,18 @@ def eval_across_regimes(
     rows = []
     for p, metric in enumerate(EVAL_PANELS):
         ax = axes.flat[p]
-        for i, algo in enumerate(present_algos):
-            cell = ev[ev["algo"] == algo]
+        for algo in present_algos:
+            cell, color = ev[ev["algo"] == algo], colors.color(algo)
             g = cell.groupby("regime")[metric]
             stats = pd.DataFrame({"mean": g.mean(), "count": g.count(), "std": g.std(ddof=1)})
             stats = stats.loc[sort_regimes(stats.index)]
             stats["sem"] = stats["std"] / np.sqrt(stats["count"])
             x = np.array([xs[r] for r in stats.index])
             xd = x + dodge[algo]
-            ax.plot(xd, stats["mean"], marker="o", ms=4, color=algo_color(algo, i), label=algo_label(algo))
-            ax.fill_between(xd, stats["mean"] - stats["sem"], stats["mean"] + stats["sem"], color=algo_color(algo, i), alpha=0.2, lw=0)
+            ax.plot(xd, stats["mean"], marker="o", ms=4, color=color, label=algo_label(algo))
+            ax.fill_between(xd, stats["mean"] - stats["sem"], stats["mean"] + stats["sem"], color=color, alpha=0.2, lw=0)
             if len(x) == 1:  # a band over one x has no width: show the standard error as an error bar
-                ax.errorbar(xd, stats["mean"], yerr=stats["sem"], fmt="none", ecolor=algo_color(algo, i), capsize=4, lw=1.2)
+                ax.errorbar(xd, stats["mean"], yerr=stats["sem"], fmt="none", ecolor=color, capsize=4, lw=1.2)
             rows.append(
                 pd.DataFrame({"panel": metric, "algo": algo, "regime": stats.index, "x": x, "mean": stats["mean"].to_numpy(), "sem": stats["sem"].to_numpy(), "n": stats["count"].to_numpy()})
             )
@@ -304,6 +347,7 @@ def eval_across_regimes(
         if absent:
             notes.append(f"no evaluation data for {', '.join(absent)}")
     n = ev.groupby(["regime", "algo"]).size()
-    set_title(fig, f"{title}\nmean over seeds x evaluation episodes ({_span(n)} per point); band (or error bar) = standard error;\nalgorithms are drawn slightly apart along x so that equal values stay visible")
+    set_title(fig, f"{title}\nmean over seeds x evaluation episodes ({_span(n)} per point); band (or error bar) = standard error;\n"
+                   f"algorithms are drawn slightly apart along x so that equal values stay visible\n{budget_seeds_text(ev)}")
     draw_notes(fig, notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)

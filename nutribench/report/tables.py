@@ -1,21 +1,34 @@
-"""Table builders: Table 1 from the regime files, Tables 2-6 from the agent config files, and
-the results table from the episode metrics. Each returns a :class:`TableResult` with the raw
+"""Table builders: Table 1 from the regime files, Tables 2-6 from the five built-in agent
+config files, Tables 7, 8, ... from the other agent configs (variants, plug-in agents) stored in
+the database, and the results table from the episode metrics. Each returns a :class:`TableResult` with the raw
 numbers (written as CSV) and a formatted frame (written as Markdown and LaTeX)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
 from nutribench.baselines import gap_closed
-from nutribench.report.figures import algo_label, sort_algos, sort_regimes
+from nutribench.report.figures import sort_regimes
+from nutribench.report.palette import label as algo_label
+from nutribench.report.palette import order as sort_algos
 from nutribench.report.stats import iqm_bootstrap_ci, sem
 
 RESULT_METRICS = ["return", "final_distance", "foods", "overshoot_ratio"]
 #: Tables 2..6 of the paper, in order.
 CONFIG_TABLES = {2: "mc", 3: "ddqn", 4: "ppo", 5: "sac", 6: "gru_ppo"}
+#: The number of the first table of a config other than the five.
+FIRST_OTHER_TABLE = 7
+
+
+def config_table_numbers(names: Iterable[str]) -> dict[int, str]:
+    """Table number -> config name: 2-6 for the five built-in configs, then 7, 8, ... for the
+    other ``names`` sorted by name (so the numbers follow from the set of configs alone)."""
+    others = sorted(set(names) - set(CONFIG_TABLES.values()))
+    return {**CONFIG_TABLES, **{FIRST_OTHER_TABLE + i: n for i, n in enumerate(others)}}
 
 
 @dataclass
@@ -88,22 +101,33 @@ def _flatten(d: dict, prefix: str = "") -> dict:
     out = {}
     for k, v in d.items():
         key = f"{prefix}{k}"
-        if isinstance(v, dict):
+        if isinstance(v, dict) and v:
             out.update(_flatten(v, key + "."))
+        elif isinstance(v, dict):
+            out[key] = "{}"  # an empty table (e.g. [params]) is still shown
         else:
             out[key] = v
     return out
 
 
+def _config_title(number: int, name: str, content: dict) -> str:
+    """``Table 4: PPO configuration (ppo v1)``; a variant or plug-in says its algorithm."""
+    algo = content.get("algo", name)
+    kind = "" if algo == name else f", {algo_label(algo)} variant" if algo != "external" else ", external agent"
+    entry = f" {content['entry_point']}" if content.get("entry_point") else ""
+    return f"Table {number}: {algo_label(name)} configuration ({name} v{content.get('version')}{kind}{entry})"
+
+
 def table_agent_config(number: int, config) -> TableResult:
-    """Tables 2-6: every hyperparameter of one agent config file."""
+    """Tables 2-6 (and 7, ...): every key of one agent config (a model from its file, or the
+    body stored in the database); nested tables such as an external agent's ``[params]``
+    as ``params.<key>`` rows."""
     content = config.model_dump(mode="json")
     flat = _flatten(content)
     raw = pd.DataFrame({"hyperparameter": list(flat), "value": [v if not isinstance(v, list) else str(v) for v in flat.values()]})
     fmt = raw.copy()
     fmt["value"] = [", ".join(map(str, v)) if isinstance(v, list) else str(v) for v in flat.values()]
-    title = f"Table {number}: {algo_label(content.get('algo', config.name))} configuration ({config.name} v{content.get('version')})"
-    return TableResult(f"table{number}", title, raw, fmt)
+    return TableResult(f"table{number}", _config_title(number, config.name, content), raw, fmt)
 
 
 def mean_sem_cell(values: pd.Series, digits: int) -> tuple[float, float, str]:

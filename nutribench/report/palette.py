@@ -1,0 +1,129 @@
+"""Which agent configs a figure draws, in what order, in what colour and under what label.
+
+The five built-in configs keep the paper's order, labels and colours (published figures use
+them). Any other config (a variant, a plug-in agent) comes after them, sorted by name, is
+labelled with its name and gets a colour derived from its name: a hash of the name picks a
+sequence of candidate colours, and the config takes the first candidate that is clearly
+apart (CIELAB distance :data:`MIN_DISTANCE`) from the five built-in colours and from the
+configs placed before it. So a name's colour is a function of the name alone unless it
+would look like a config that sorts before it, and the same set of names always gets the
+same colours. Build one :class:`Palette` per report (over every config the database holds)
+and every figure of it uses the same colour for a name.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from matplotlib.colors import hsv_to_rgb, to_hex, to_rgb
+
+#: The paper's configs, in the paper's order.
+BUILTIN_ORDER: tuple[str, ...] = ("mc", "ddqn", "ppo", "sac", "gru_ppo")
+BUILTIN_LABELS: dict[str, str] = {"mc": "MC", "ddqn": "DDQN", "ppo": "PPO", "sac": "SAC", "gru_ppo": "GRU-PPO"}
+BUILTIN_COLORS: dict[str, str] = {"mc": "#8c564b", "ddqn": "#1f77b4", "ppo": "#2ca02c", "sac": "#d62728", "gru_ppo": "#9467bd"}
+#: Smallest CIELAB (CIE76) distance between a derived colour and any colour placed before it.
+MIN_DISTANCE = 32.0
+#: Candidate colours tried per name before the most distant one is taken.
+CANDIDATES = 96
+_GOLDEN = 0.6180339887498949
+
+
+def order(names: Iterable[str]) -> list[str]:
+    """``names`` once each: the built-in configs in the paper's order, then the others by name."""
+    rank = {n: i for i, n in enumerate(BUILTIN_ORDER)}
+    return sorted(set(map(str, names)), key=lambda n: (rank.get(n, len(rank)), n))
+
+
+def label(name: str) -> str:
+    """The legend and table label: MC, DDQN, PPO, SAC, GRU-PPO for the five, else the name."""
+    return BUILTIN_LABELS.get(name, name)
+
+
+def _lab(color: str) -> np.ndarray:
+    """sRGB colour -> CIELAB (D65 white)."""
+    rgb = np.asarray(to_rgb(color))
+    lin = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+    m = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]])
+    xyz = m @ lin / np.array([0.95047, 1.0, 1.08883])
+    f = np.where(xyz > (6 / 29) ** 3, np.cbrt(xyz), xyz / (3 * (6 / 29) ** 2) + 4 / 29)
+    return np.array([116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2])])
+
+
+def distance(a: str, b: str) -> float:
+    """Perceptual distance of two colours (CIE76: Euclidean in CIELAB)."""
+    return float(np.linalg.norm(_lab(a) - _lab(b)))
+
+
+def candidates(name: str) -> Iterator[str]:
+    """The colours ``name`` may take, in order: hue from a hash of the name, then steps of the
+    golden angle; saturation and brightness vary, never grey and never pale."""
+    h = int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "big")
+    hue0 = (h % 10_000) / 10_000
+    for k in range(CANDIDATES):
+        hue = (hue0 + k * _GOLDEN) % 1.0
+        sat = (0.85, 0.6, 0.95)[(h // 10_000 + k) % 3]
+        val = (0.75, 0.9, 0.55)[(h // 30_000 + k // 3) % 3]
+        yield to_hex(hsv_to_rgb((hue, sat, val)))
+
+
+def _pick(name: str, taken: list[str]) -> str:
+    """The first candidate of ``name`` far enough from every colour in ``taken``; if none is,
+    the candidate farthest from them."""
+    best, best_d = "", -1.0
+    for c in candidates(name):
+        d = min((distance(c, t) for t in taken), default=np.inf)
+        if d >= MIN_DISTANCE:
+            return c
+        if d > best_d:
+            best, best_d = c, d
+    return best
+
+
+def colors(names: Iterable[str]) -> dict[str, str]:
+    """A colour per name, in :func:`order`: the built-in colours for the five, derived
+    colours for the others (distinct from the five's and from each other's)."""
+    names = order(names)
+    taken = list(BUILTIN_COLORS.values())
+    out: dict[str, str] = {}
+    for n in names:
+        if n in BUILTIN_COLORS:
+            out[n] = BUILTIN_COLORS[n]
+        else:
+            out[n] = _pick(n, taken)
+            taken.append(out[n])
+    return out
+
+
+@dataclass(frozen=True)
+class Palette:
+    """The colours of one report's configs; a name it does not know is added to it."""
+
+    colors: Mapping[str, str]
+
+    def color(self, name: str) -> str:
+        """``name``'s colour (as in :func:`colors` over the palette's names and ``name``)."""
+        if name in self.colors:
+            return self.colors[name]
+        return colors([*self.colors, name])[name]
+
+    @staticmethod
+    def label(name: str) -> str:
+        """See :func:`label`."""
+        return label(name)
+
+    @staticmethod
+    def order(names: Iterable[str]) -> list[str]:
+        """See :func:`order`."""
+        return order(names)
+
+
+def palette(names: Iterable[str] = ()) -> Palette:
+    """The :class:`Palette` of ``names`` (give every config of the report, so that each
+    figure colours a name the same way)."""
+    return Palette(colors(names))
+
+
+__all__ = ["BUILTIN_COLORS", "BUILTIN_LABELS", "BUILTIN_ORDER", "Palette", "colors", "distance", "label", "order", "palette"]
