@@ -1,7 +1,54 @@
 """The batched training engine: K agents of one agent config trained at once, their
 parameters stacked along an agent axis (issue 15). The SB3 agents in
 :mod:`nutribench.agents` stay the reference implementation; each algorithm here is tested
-to make the same update as its SB3 counterpart."""
+to make the same update as its SB3 counterpart.
+
+The engine never silently differs from the reference: a config with a setting it does not
+implement is refused (:func:`supports` says why, :func:`check_supported` raises
+:class:`UnsupportedConfig`), and the scheduler trains such a config's jobs with the SB3
+engine instead. This module imports neither torch nor the engine's code.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from nutribench.errors import UserError
 
 #: the algorithms the batched engine trains (their agent configs can run with ``--engine batched``)
 BATCHED_ALGOS = ("ppo", "mc", "ddqn", "sac", "gru_ppo")
+#: the off-policy algorithms, whose replay would have to scale sampled rewards for ``normalize_reward``
+_REPLAY_ALGOS = ("ddqn", "sac")
+
+
+class UnsupportedConfig(UserError, ValueError):
+    """An agent config the batched engine cannot train as the SB3 engine does (one line)."""
+
+
+def supports(cfg: Any, horizon: int | None = None) -> str | None:
+    """None if the batched engine trains agent config ``cfg`` (a config model, name or path)
+    exactly as the SB3 engine does (on regimes of ``horizon`` steps a day, when given); else
+    the reason, one line: what, which config, how to fix."""
+    if isinstance(cfg, str) or not hasattr(cfg, "algo"):
+        from nutribench.agents.config import load_agent_config
+
+        cfg = load_agent_config(cfg)
+    name, algo = getattr(cfg, "name", "?"), cfg.algo
+    if algo not in BATCHED_ALGOS:
+        return f"agent config {name!r} ({algo}): the batched engine trains {', '.join(BATCHED_ALGOS)} only; use --engine sb3"
+    if algo in _REPLAY_ALGOS and cfg.normalize_reward:
+        return (f"agent config {name!r} ({algo}): the batched engine does not scale replayed rewards (normalize_reward = true); "
+                "set normalize_reward = false or use --engine sb3")  # fmt: skip
+    if algo == "gru_ppo" and horizon is not None and (cfg.sequence_length != horizon or cfg.n_steps % horizon):
+        return (f"agent config {name!r} (gru_ppo): the batched engine trains on whole days, so sequence_length "
+                f"({cfg.sequence_length}) must be the horizon ({horizon}) and n_steps ({cfg.n_steps}) a multiple of it; "
+                "use --engine sb3")  # fmt: skip
+    return None
+
+
+def check_supported(cfg: Any, horizon: int | None = None) -> None:
+    """Raise :class:`UnsupportedConfig` with :func:`supports`'s reason if the batched engine
+    does not train ``cfg`` as the SB3 engine does."""
+    reason = supports(cfg, horizon)
+    if reason is not None:
+        raise UnsupportedConfig(reason)

@@ -33,6 +33,7 @@ from torch.nn import functional as F
 
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
+from nutribench.engine import check_supported
 from nutribench.engine.actor_critic import clip_grad_norm_per_agent, linears, make_adam
 from nutribench.engine.checkpoint import Checkpoint, resumed
 from nutribench.engine.device import resolve_device
@@ -74,6 +75,7 @@ def train_ddqn_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, ep
     :param on_update: called after each update with ``steps`` (env steps so far), the
         ``learning_rate`` and ``epsilon`` in force, ``target_copies`` so far and the K ``losses``.
     """
+    check_supported(cfg)  # e.g. normalize_reward, which this replay does not apply
     device = resolve_device(device)
     if checkpoint is not None:
         checkpoint.read_onto(device)

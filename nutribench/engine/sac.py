@@ -30,6 +30,7 @@ import torch as th
 
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
+from nutribench.engine import check_supported
 from nutribench.engine.checkpoint import Checkpoint, resumed
 from nutribench.engine.device import resolve_device
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
@@ -115,6 +116,7 @@ def train_sac_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, epi
     ``episodes`` days, all at once (resuming from ``checkpoint`` if it holds a state), on
     ``device`` (:func:`~nutribench.engine.device.resolve_device`); ``on_update`` gets
     ``steps`` and the K losses after each update."""
+    check_supported(cfg)  # e.g. normalize_reward, which this replay does not apply
     device = resolve_device(device)
     if checkpoint is not None:
         checkpoint.read_onto(device)

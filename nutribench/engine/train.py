@@ -40,7 +40,8 @@ import torch as th
 
 from nutribench.agents.api import CLIP_OBS, NORM_EPS, TrainedAgent
 from nutribench.agents.config import load_agent_config
-from nutribench.config import EnvConfig
+from nutribench.config import EnvConfig, load_env_config
+from nutribench.engine import check_supported
 from nutribench.engine.actor_critic import OnPolicySettings, Rollout, RunningStats, StackedActorCritic, gae, make_optimizer
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.device import resolve_device
@@ -98,9 +99,12 @@ def train_batched(
     :param device: where the networks train (:func:`~nutribench.engine.device.resolve_device`:
         ``"auto"``, ``"cpu"``, ``"cuda"``, ``"cuda:N"``). The default is the CPU, whose runs are
         reproducible bit for bit; the random streams are the CPU's on every device.
+    :raises nutribench.engine.UnsupportedConfig: (one line, before anything trains) for a
+        config this engine would not train as the SB3 engine does (:func:`nutribench.engine.supports`).
     """
     th.set_num_threads(1)
     cfg = load_agent_config(agent_config)
+    check_supported(cfg, load_env_config(jobs[0][0]).reward.horizon if jobs else None)  # before anything trains
     device = resolve_device(device)
     if cfg.algo == "ddqn":
         from nutribench.engine.ddqn import train_ddqn_batched
@@ -117,10 +121,7 @@ def train_batched(
     if s.sequence_length is None:
         net = StackedActorCritic(k, obs_dim, list(cfg.net_arch), generators=generators, device=device)
         policy = _Feedforward(net)
-    else:
-        if s.sequence_length != horizon or s.n_steps % horizon:
-            raise ValueError(f"GRU-PPO trains on whole days: sequence_length ({s.sequence_length}) must be the horizon "
-                             f"({horizon}) and n_steps ({s.n_steps}) a multiple of it")  # fmt: skip
+    else:  # whole days (check_supported)
         net = StackedGRUActorCritic(k, obs_dim, cfg.hidden_size, generators=generators, device=device)
         policy = _Recurrent(net)
     optimizer = make_optimizer(net, s.learning_rate)

@@ -3,7 +3,10 @@ batched engine (:mod:`nutribench.engine`), each then evaluated, saved and return
 single-job worker does (:func:`nutribench.jobs.run.run_job`), with ``engine = "batched"``.
 
 A batch that raises fails all its jobs (the driver records each failure; the next run
-retries them). Progress is reported per job, as for single jobs.
+retries them). Progress is reported per job, as for single jobs. Each job's result records
+its batch: ``batch_id`` (one random id per batch run), ``batch_size`` (K) and ``device``
+(the torch device it trained on), since a batched job's numbers depend on both by float
+rounding.
 
 A batch saves its training state every few minutes to ``<models>/checkpoints/`` (see
 :mod:`nutribench.engine.checkpoint`); a stopped batch started again by the next ``nutribench
@@ -19,10 +22,12 @@ from __future__ import annotations
 import hashlib
 import json
 import time
+import uuid
 from pathlib import Path
 
 from nutribench.agents import eval_food_streams, evaluate
 from nutribench.clock import utcnow
+from nutribench.engine import supports
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.device import resolve_device
 from nutribench.engine.train import train_batched
@@ -38,7 +43,13 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
         check_configs(spec)
     if len({(s.algo, s.algo_version, s.episodes, s.device) for s in specs}) != 1:
         raise JobFailed("a batch needs one agent config, one budget and one device")
+    for spec in specs:  # the scheduler sends such configs to the SB3 engine; never train them otherwise
+        reason = supports(spec.agent_config, spec.regime_config.reward.horizon)
+        if reason is not None:
+            raise JobFailed(reason)
     device = resolve_device(specs[0].device)
+    # what a batched job's result depends on by float rounding, stored with each job (jobs.batch_*, jobs.device)
+    batch = {"batch_id": uuid.uuid4().hex, "batch_size": len(specs), "device": str(device)}
     started, t0 = utcnow(), time.perf_counter()
     progress = [JobProgress(spec, sink) for spec in specs]
     for p in progress:
@@ -67,7 +78,7 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
         # the batch's training time shared out, plus this job's own evaluation
         wall = train_wall / len(specs) + time.perf_counter() - t_eval
         results.append(JobResult(spec.job_id, agent.train_episodes, evaluation.episodes, evaluation.steps,
-                                 meta | {"started_at": started, "finished_at": utcnow(), "wall_seconds": wall, "engine": "batched"},
+                                 meta | batch | {"started_at": started, "finished_at": utcnow(), "wall_seconds": wall, "engine": "batched"},
                                  model_path=model_path))  # fmt: skip
     if path is not None:
         checkpoint.remove()

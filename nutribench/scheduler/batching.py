@@ -52,13 +52,25 @@ def batch_pools(job_ids: list[int], cells: list[tuple[str, str, int]], algo_of: 
     shape (horizon, number of foods: one batch steps its agents in lockstep on one observation
     size), its batches sized so that the runnable jobs fill the slots (at most ``max_batch``:
     a batch's jobs are stored when the whole batch ends, so a stopped run loses the work of
-    its unfinished batches); the other configs' jobs one by one."""
-    from nutribench.engine import BATCHED_ALGOS
+    its unfinished batches); the other configs' jobs one by one, with the SB3 engine: those of
+    other algorithms, and those with a setting the batched engine does not implement
+    (:func:`nutribench.engine.supports`, the config read again by its name), so that
+    ``--engine batched`` never trains a job otherwise than the reference would."""
+    from nutribench.agents.config import load_agent_config
+    from nutribench.engine import BATCHED_ALGOS, supports
+
+    batchable: dict[tuple[str, int], bool] = {}
+
+    def batched(config: str, horizon: int) -> bool:
+        if (config, horizon) not in batchable:
+            ok = algo_of[config] in BATCHED_ALGOS and supports(load_agent_config(config), horizon) is None
+            batchable[config, horizon] = ok
+        return batchable[config, horizon]
 
     groups: dict[tuple, list[int]] = {}
     singles: list[int] = []
     for job_id, (regime, config, _) in zip(job_ids, cells):
-        if algo_of[config] in BATCHED_ALGOS:
+        if batched(config, shape_of[regime][0]):
             groups.setdefault((config, shape_of[regime]), []).append(job_id)
         else:
             singles.append(job_id)
