@@ -44,5 +44,5 @@ def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
     if spec.model_path:
         model_path = str(agent.save(Path(spec.model_path)))
     meta = collect_metadata() | {"started_at": started, "finished_at": utcnow(), "wall_seconds": time.perf_counter() - t0,
-                                 "engine": "sb3"}
+                                 "engine": "sb3", "device": "cpu"}
     return JobResult(spec.job_id, agent.train_episodes, result.episodes, result.steps, meta, model_path=model_path)
