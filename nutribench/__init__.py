@@ -61,3 +61,12 @@ def register_envs() -> None:
 
 
 register_envs()
+
+
+def __getattr__(name: str):
+    """``nutribench.Recorder`` (imported on first use: ``import nutribench`` stays light)."""
+    if name == "Recorder":
+        from nutribench.recorder import Recorder
+
+        return Recorder
+    raise AttributeError(f"module 'nutribench' has no attribute {name!r}")

@@ -16,6 +16,7 @@ value heads on it: "shared actor-critic, 1 value head" (SPEC 3).
 
 from __future__ import annotations
 
+import inspect
 import warnings
 from typing import Any
 
@@ -199,13 +200,32 @@ MODEL_CLASSES: dict[str, type[BaseAlgorithm]] = {
 }  # fmt: skip
 
 
-def episode_entropy(model: BaseAlgorithm, obs: np.ndarray) -> float | None:
+def episode_entropy(model: Any, obs: np.ndarray) -> float | None:
     """Mean policy entropy (nats) over one episode's observations ``(T, obs_dim)`` as the
     policy saw them (normalised), from the first step of the day; None for a policy that is
-    not stochastic. An algorithm with a policy of its own says how (``day_entropy``: DDQN,
-    discrete SAC, GRU-PPO); SB3's actor-critic policies (MC, PPO) share one way."""
+    not stochastic or whose distribution cannot be read. An algorithm with a policy of its own
+    says how (``day_entropy``: DDQN, discrete SAC, GRU-PPO); SB3's actor-critic policies (MC,
+    PPO, any plug-in built on them) share one way, and sb3-contrib's recurrent policies
+    (``get_distribution(obs, lstm_states, episode_starts)``) are stepped through the day from
+    a zero state, as they acted."""
     own = getattr(model, "day_entropy", None)
     if own is not None:
         return own(obs)
-    with th.no_grad():
-        return float(model.policy.get_distribution(th.as_tensor(obs, dtype=th.float32)).entropy().mean())
+    policy = getattr(model, "policy", None)
+    get_distribution = getattr(policy, "get_distribution", None)
+    if get_distribution is None:
+        return None
+    x = th.as_tensor(obs, dtype=th.float32, device=getattr(policy, "device", "cpu"))
+    try:
+        with th.no_grad():
+            if "lstm_states" in inspect.signature(get_distribution).parameters:
+                shape = policy.lstm_hidden_state_shape  # (layers, 1, hidden): one sequence
+                zeros = th.zeros(shape, device=x.device)
+                starts = th.zeros(len(x), device=x.device)
+                starts[0] = 1.0
+                dist, _ = get_distribution(x, (zeros, zeros.clone()), starts)
+            else:
+                dist = get_distribution(x)
+            return float(dist.entropy().mean())
+    except (NotImplementedError, TypeError, AttributeError, ValueError, RuntimeError):
+        return None  # a policy without a readable distribution: NULL, never a crashed job

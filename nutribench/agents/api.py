@@ -33,9 +33,10 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.running_mean_std import RunningMeanStd
-from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
-from nutribench.agents.algos import MODEL_CLASSES, build_model, episode_entropy
+from nutribench.agents.algos import episode_entropy
+from nutribench.agents import registry
 from nutribench.agents.config import agent_config_content, load_agent_config, parse_agent_config
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.env.metrics import EpisodeRecorder
@@ -48,15 +49,6 @@ CLIP_OBS = 10.0
 NORM_EPS = 1e-8
 
 EpisodeFn = Callable[[dict[str, Any]], None]
-
-#: The class that loads each algorithm's saved .zip with plain SB3 (``CLASS.load(path)``).
-#: MC and DDQN are SB3's A2C and DQN with other settings or another ``train()``, so SB3's own
-#: classes load and act with them; discrete SAC and GRU-PPO have policies of their own.
-PLAIN_SB3_CLASSES = {
-    "mc": "stable_baselines3.A2C", "ddqn": "stable_baselines3.DQN", "ppo": "stable_baselines3.PPO",
-    "sac": "nutribench.agents.sac.DiscreteSAC", "gru_ppo": "nutribench.agents.gru_ppo.GRUPPO",
-}  # fmt: skip
-
 
 def vec_normalize_path(model_path: str | Path) -> Path:
     """Where the ``VecNormalize`` statistics of a saved model live: ``m.zip`` -> ``m.vecnormalize.pkl``."""
@@ -109,7 +101,8 @@ class TrainedAgent:
     def save(self, path: str | Path) -> Path:
         """Write the model the SB3 way, loadable without nutribench's own code paths:
 
-        * ``path`` (.zip): the SB3 model (``PLAIN_SB3_CLASSES[algo]``, e.g. ``PPO.load(path)``);
+        * ``path`` (.zip): the SB3 model (the registry's ``plain`` class, e.g. ``PPO.load(path)``;
+          an external agent's own ``save``, loaded by ``load`` beside its entry point);
         * ``path`` with ``.vecnormalize.pkl``: the observation (and reward) normaliser, as
           ``VecNormalize.save`` writes it (rl-zoo3's habit), if the config normalises;
         * ``path`` with ``.json``: algo, the class that loads the model, the agent config, the
@@ -130,7 +123,7 @@ class TrainedAgent:
         meta = collect_metadata()
         side = {
             "algo": self.algo,
-            "load_with": PLAIN_SB3_CLASSES[self.algo],
+            "load_with": registry.ALGORITHMS[self.algo].plain or registry.loader_entry_point(self.config),
             "vec_normalize": target.name if has_pickle else None,
             "config": agent_config_content(self.config),
             "obs_mean": None if self.obs_mean is None else self.obs_mean.tolist(),
@@ -146,9 +139,10 @@ class TrainedAgent:
         path = Path(path)
         side = json.loads(path.with_suffix(".json").read_text())
         algo = side["algo"]
-        model = MODEL_CLASSES[algo].load(path, device="cpu")
+        config = parse_agent_config(side["config"], path)
+        model = registry.load_model(registry.ALGORITHMS[algo].load or registry.loader_entry_point(config), path)
         arr = lambda v: None if v is None else np.asarray(v, dtype=np.float64)  # noqa: E731
-        agent = cls(model, algo, parse_agent_config(side["config"], path), arr(side["obs_mean"]), arr(side["obs_var"]))
+        agent = cls(model, algo, config, arr(side["obs_mean"]), arr(side["obs_var"]))
         agent.provenance = dict(side.get("provenance") or {})  # absent in files written before it was recorded
         if side.get("vec_normalize") and vec_normalize_path(path).is_file():
             agent.vec_normalize_file = vec_normalize_path(path)
@@ -192,6 +186,50 @@ class EpisodeMetrics(BaseCallback):
         return isinstance(self.model, OnPolicyAlgorithm) and n is not None and n + 1 == n_rollout
 
 
+class RecordingVecEnv(VecEnvWrapper):
+    """The training env of a plug-in agent: records the SPEC 4 metrics of its first
+    ``episodes`` finished days, whatever its ``learn`` does (no SB3 callback needed).
+
+    Sits outside ``VecNormalize``, so the observations it keeps for the day's entropy are the
+    ones the policy saw; the metrics are read from the NutriRL adapter's raw rewards and info.
+    """
+
+    def __init__(self, venv: VecEnv, base: NutriRLSB3VecEnv, episodes: int, on_episode: EpisodeFn | None = None):
+        super().__init__(venv)
+        self.base, self.n_episodes, self.on_episode = base, episodes, on_episode
+        self.model: Any = None
+        self.recorder = EpisodeRecorder(1)
+        self.episodes: list[dict[str, Any]] = []
+        self._obs: list[np.ndarray] = []
+
+    def reset(self) -> np.ndarray:
+        obs = self.venv.reset()
+        self.recorder.clear()
+        self._obs = [np.array(obs[0], dtype=np.float32)]
+        return obs
+
+    def step_wait(self) -> Any:
+        obs, rewards, dones, infos = self.venv.step_wait()
+        for metrics in self.recorder.record(self.base.last_rewards, dones, self.base.last_info):
+            if len(self.episodes) < self.n_episodes:
+                entropy = episode_entropy(self.model, np.stack(self._obs)) if self.model is not None else None
+                row = {"episode": len(self.episodes), **metrics, "entropy": entropy}
+                self.episodes.append(row)
+                if self.on_episode is not None:
+                    self.on_episode(row)
+            self._obs.clear()
+        self._obs.append(np.array(obs[0], dtype=np.float32))
+        return obs, rewards, dones, infos
+
+    def check_budget(self, cfg: Any) -> None:
+        """A plug-in's ``learn(total_timesteps=days x horizon)`` must play its whole budget."""
+        if len(self.episodes) < self.n_episodes:
+            raise RuntimeError(
+                f"{cfg.entry_point}: learn() played {len(self.episodes)} whole days of the {self.n_episodes} asked "
+                "(it must honour total_timesteps)"
+            )
+
+
 def make_train_env(env_cfg: EnvConfig, cfg: Any) -> tuple[NutriRLSB3VecEnv, VecEnv]:
     """The single-day SB3 env a job trains on, and the same wrapped in ``VecNormalize``
     as the config asks (observations and/or rewards; SB3 sees scaled rewards, the
@@ -224,9 +262,16 @@ def train(
     cfg = load_agent_config(agent_config)
     horizon = env_cfg.reward.horizon
     base, env = make_train_env(env_cfg, cfg)
-    model = build_model(cfg, env, seed=seed, horizon=horizon)
-    recorder = EpisodeMetrics(base, cfg.algo, episodes, on_episode)
-    model.learn(total_timesteps=episodes * horizon, callback=recorder)
+    if registry.algorithm(cfg).build is None:  # a plug-in: its days are recorded by the env
+        env = recorder = RecordingVecEnv(env, base, episodes, on_episode)
+        model = recorder.model = registry.make_model(cfg, env, seed=seed, horizon=horizon)
+        model.learn(total_timesteps=episodes * horizon)
+        recorder.check_budget(cfg)
+        env = recorder.venv
+    else:
+        model = registry.make_model(cfg, env, seed=seed, horizon=horizon)
+        recorder = EpisodeMetrics(base, cfg.algo, episodes, on_episode)
+        model.learn(total_timesteps=episodes * horizon, callback=recorder)
     rms: RunningMeanStd | None = env.obs_rms if cfg.normalize_obs else None  # type: ignore[union-attr]
     provenance = {"regime": env_cfg.name, "regime_version": env_cfg.version, "regime_sha256": env_cfg.sha256,
                   "agent_config": cfg.name, "agent_config_version": cfg.version, "seed": seed, "episodes": episodes}  # fmt: skip

@@ -1,9 +1,11 @@
 """Agent configurations (SPEC 3, Tables 2-6) as versioned, validated files.
 
 One TOML file per configuration in ``regimes/agents/`` (``<name>.toml``); the ``algo`` key
-picks the model of a discriminated union, every hyperparameter is written out (nothing is
-defaulted), unknown keys are errors, and ``name`` must equal the file name. A user adds a
-variant by copying a file, changing ``name`` (and the file name) and the values.
+picks the model (:data:`MODELS`), every hyperparameter of the built-in algorithms is written
+out (nothing is defaulted), unknown keys are errors, and ``name`` must equal the file name. A
+user adds a variant by copying a file, changing ``name`` (and the file name) and the values,
+or brings an algorithm of their own with ``algo = "external"`` (:class:`ExternalConfig`): an
+``entry_point = "package.module:make_agent"`` and a free ``[params]`` table.
 
 The content hash (:func:`agent_config_sha256`) is what the results database records next
 to ``name`` and ``version``: a file changed without a version bump is refused by ``run``.
@@ -127,9 +129,42 @@ class SACConfig(_FeedForward):
     gradient_steps: PosInt
 
 
-AgentConfig = Annotated[Union[MCConfig, DDQNConfig, PPOConfig, SACConfig, GRUPPOConfig], Field(discriminator="algo")]
-MODELS: dict[str, type[_AgentBase]] = {
+EntryPoint = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*:[A-Za-z_][A-Za-z0-9_]*$")]
+
+
+class ExternalConfig(BaseModel):
+    """An agent implemented outside nutribench: a plug-in named by its entry point.
+
+    ``entry_point = "package.module:make_agent"`` names a function
+    ``make_agent(params: dict, env: VecEnv, seed: int)`` returning an object with SB3's
+    algorithm surface (``learn(total_timesteps)``, ``predict(obs, state, episode_start,
+    deterministic)``, ``save(path)``); the same module has ``load(path)`` for a saved one.
+    ``params`` is free (it is hashed with the rest of the file). The other fields have the
+    defaults stated here. An external config without ``entry_point`` describes an agent whose
+    results were recorded (:class:`nutribench.Recorder`, ``nutribench evaluate``): it cannot be
+    trained by ``nutribench run``.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    algo: Literal["external"]
+    name: Name
+    version: PosInt
+    description: str
+    entry_point: EntryPoint | None = Field(default=None, description="package.module:make_agent")
+    params: dict[str, Any] = Field(default_factory=dict, description="passed to make_agent as its first argument")
+    normalize_obs: bool = Field(default=False, description="wrap the env in VecNormalize(norm_obs=True)")
+    normalize_reward: bool = Field(default=False, description="wrap the env in VecNormalize(norm_reward=True)")
+    gamma: Annotated[float, Field(gt=0, le=1)] = Field(default=0.99, description="VecNormalize's return discount")
+
+
+AgentConfig = Annotated[
+    Union[MCConfig, DDQNConfig, PPOConfig, SACConfig, GRUPPOConfig, ExternalConfig], Field(discriminator="algo")
+]
+#: The config model of each ``algo`` key: the five built-in algorithms, then plug-ins.
+MODELS: dict[str, type[BaseModel]] = {
     "mc": MCConfig, "ddqn": DDQNConfig, "ppo": PPOConfig, "sac": SACConfig, "gru_ppo": GRUPPOConfig,
+    "external": ExternalConfig,
 }  # fmt: skip
 
 
@@ -195,7 +230,10 @@ def parse_agent_config(data: dict[str, Any], source: str | Path = "<dict>") -> A
     """Validate plain data as an agent config (one-line :class:`ConfigError` if invalid)."""
     algo = data.get("algo")
     if algo not in MODELS:
-        raise ConfigError(f"{source}: algo: unknown algorithm {algo!r}: known are {', '.join(ALGOS)}")
+        raise ConfigError(
+            f"{source}: algo: unknown algorithm {algo!r}: known are {', '.join(MODELS)} "
+            "(an algorithm of your own: algo = \"external\" with entry_point = \"package.module:make_agent\")"
+        )
     try:
         return MODELS[algo].model_validate(data)
     except ValidationError as e:

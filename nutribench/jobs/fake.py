@@ -82,6 +82,9 @@ def fake_run_job(spec: JobSpec, progress: Sink | None = None) -> JobResult:
     return JobResult(spec.job_id, train, evals, steps, meta, model_path=spec.model_path)
 
 
+fake_run_job.fake = True  # type: ignore[attr-defined]  # the driver marks its jobs as a dry run's
+
+
 def fake_run_batch(specs: list[JobSpec], progress: Sink | None = None) -> list[JobResult]:
     """The synthetic job for each spec of a batch, in turn (the scheduler's batching, tested
     without training); ``NUTRIBENCH_FAKE_FAIL`` on any of them fails the whole batch."""
@@ -89,3 +92,6 @@ def fake_run_batch(specs: list[JobSpec], progress: Sink | None = None) -> list[J
     for r in results:
         r.metadata["engine"] = "batched"
     return results
+
+
+fake_run_batch.fake = True  # type: ignore[attr-defined]

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from nutribench.agents.api import eval_food_streams, evaluate, train
 from nutribench.agents.config import agent_config_sha256
+from nutribench.agents.registry import entry_point_source
 from nutribench.provenance import collect_metadata
 from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
 from nutribench.jobs.worker import JobProgress, Sink
@@ -45,4 +46,7 @@ def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
         model_path = str(agent.save(Path(spec.model_path)))
     meta = collect_metadata() | {"started_at": started, "finished_at": utcnow(), "wall_seconds": time.perf_counter() - t0,
                                  "engine": "sb3", "device": "cpu"}
+    if getattr(spec.agent_config, "entry_point", None):  # a plug-in: trained by its own code, in this harness
+        meta["engine"] = "external"
+        meta["source"], meta["source_sha256"] = entry_point_source(spec.agent_config.entry_point)
     return JobResult(spec.job_id, agent.train_episodes, result.episodes, result.steps, meta, model_path=model_path)

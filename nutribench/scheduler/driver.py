@@ -43,7 +43,7 @@ from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.registration import RunError, load_grid_configs, model_path, register_grid
 from nutribench.store import AgentConfig, Job, RegimeConfig, open_store
 from nutribench.store.jobs import (
-    claim_jobs, count_claimable, flush_progress, grid_counts, held_elsewhere, release_jobs, reset_given_up, store_failure,
+    check_not_mixed, claim_jobs, count_claimable, flush_progress, grid_counts, held_elsewhere, release_jobs, reset_given_up, store_failure,
     store_result,
 )  # fmt: skip
 from nutribench.store.engine import sqlite_path
@@ -347,9 +347,11 @@ def run_grid(
         batch_fn = batch_fn or default_batch_fn()
     regime_cfgs, agent_cfgs = load_grid_configs(grid)  # before the database file is created
     probe_executor(executor)  # likewise: an unreachable cluster writes nothing
+    fake = bool(getattr(job_fn, "fake", False) or getattr(batch_fn, "fake", False))
     store = open_store(db, writer=True)
     try:
-        job_ids = register_grid(store, grid, regime_cfgs, agent_cfgs)
+        check_not_mixed(store, fake)
+        job_ids = register_grid(store, grid, regime_cfgs, agent_cfgs, fake=fake)
         if retry_failed:
             reset_given_up(store, job_ids)
         runnable = count_claimable(store, job_ids)

@@ -86,9 +86,9 @@ def _register(session: Session, table: type, configs: Sequence[_Config]) -> dict
     return ids
 
 
-def register_grid(store: Store, grid: Grid, regimes: list[_Config], agents: list[_Config]) -> list[int]:
+def register_grid(store: Store, grid: Grid, regimes: list[_Config], agents: list[_Config], fake: bool = False) -> list[int]:
     """Record the configs and create the missing job rows, in one transaction; the ids of
-    the grid's jobs in grid order."""
+    the grid's jobs in grid order. ``fake``: the rows are a dry run's (``jobs.fake``)."""
     with session_scope(store.engine) as s:
         hold_write_lock(s, REGISTRATION_LOCK)  # two drivers started at once: one registers, then the other
         rids = _register(s, RegimeConfig, regimes)
@@ -105,7 +105,7 @@ def register_grid(store: Store, grid: Grid, regimes: list[_Config], agents: list
             s.execute(insert(Job), [
                 {"regime_id": r, "agent_config_id": a, "seed": seed, "episodes": grid.episodes,
                  "eval_episodes": grid.eval_episodes, "status": "pending", "attempt": 0, "failures": 0,
-                 "episodes_done": 0, "created_at": now}
+                 "episodes_done": 0, "created_at": now, "fake": fake}
                 for r, a, seed in missing
             ])  # fmt: skip
             existing.update({(r.regime_id, r.agent_config_id, r.seed): r.id for r in s.execute(query)})
@@ -115,3 +115,52 @@ def register_grid(store: Store, grid: Grid, regimes: list[_Config], agents: list
 def model_path(models_dir: Path, regime: _Config, agent: _Config, seed: int, episodes: int) -> Path:
     """``<models>/<regime>-v<rv>/<algo>-v<av>/seed<seed>-ep<episodes>.zip``."""
     return models_dir / f"{regime.name}-v{regime.version}" / f"{agent.name}-v{agent.version}" / f"seed{seed}-ep{episodes}.zip"
+
+
+@dataclass(frozen=True)
+class ExternalJob:
+    """A job trained outside nutribench (:class:`nutribench.Recorder`, ``nutribench evaluate``):
+    its configs, seed, metric rows and metadata, stored as one done job."""
+
+    regime_config: Any
+    agent_config: Any
+    seed: int
+    train: list[dict[str, Any]]
+    eval: list[dict[str, Any]]
+    eval_steps: list[dict[str, Any]]
+    metadata: dict[str, Any]
+
+
+def store_external_job(store: Store, job: ExternalJob) -> int:
+    """Record ``job``'s configs and write it as a done job with its rows, in one transaction;
+    its id. A job with the same regime, agent, seed and budget already there is refused."""
+    from nutribench.agents.config import agent_config_content, agent_config_sha256
+    from nutribench.store.engine import display_url
+    from nutribench.store.jobs import check_not_mixed, episode_rows
+    from nutribench.store.models import EVAL_STEP_COLUMNS, METADATA_COLUMNS, Episode, EvalStep
+
+    env, cfg = job.regime_config, job.agent_config
+    regime = _Config(env.name, env.version, env.sha256, env.content(), _shown(env.path or env.name), env)
+    agent = _Config(cfg.name, cfg.version, agent_config_sha256(cfg), agent_config_content(cfg), "recorded", cfg, cfg.algo)
+    check_not_mixed(store, fake=False)
+    with session_scope(store.engine) as s:
+        hold_write_lock(s, REGISTRATION_LOCK)
+        rid = _register(s, RegimeConfig, [regime])[regime.name]
+        aid = _register(s, AgentConfig, [agent])[agent.name]
+        key = dict(regime_id=rid, agent_config_id=aid, seed=job.seed, episodes=len(job.train), eval_episodes=len(job.eval))
+        old = s.execute(select(Job.id).filter_by(**key)).scalar_one_or_none()
+        if old is not None:
+            raise RunError(
+                f"{display_url(store.url)}: {cfg.name} v{cfg.version} on {env.name} seed {job.seed} with {len(job.train)} "
+                f"training days is already recorded (job {old}): record another seed, or bump the agent's version"
+            )
+        meta = {k: job.metadata[k] for k in METADATA_COLUMNS if k in job.metadata}
+        row = Job(**key, status="done", attempt=1, failures=0, episodes_done=len(job.train), created_at=utcnow(),
+                  fake=False, **meta)  # fmt: skip
+        s.add(row)
+        s.flush()
+        rows = episode_rows(row.id, "train", job.train) + episode_rows(row.id, "eval", job.eval)
+        s.execute(insert(Episode), rows)
+        if job.eval_steps:
+            s.execute(insert(EvalStep), [{"job_id": row.id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in job.eval_steps])
+        return row.id

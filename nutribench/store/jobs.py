@@ -22,9 +22,9 @@ from collections.abc import Sequence
 from datetime import datetime, timedelta
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import and_, insert, or_, select, update
+from sqlalchemy import and_, func, insert, or_, select, update
 
-from nutribench.store.engine import db_now, session_scope
+from nutribench.store.engine import StoreError, db_now, display_url, session_scope
 from nutribench.store.models import EPISODE_METRICS, EVAL_STEP_COLUMNS, METADATA_COLUMNS, Episode, EvalStep, Job
 from nutribench.store.schema import Store
 
@@ -49,6 +49,22 @@ def job_state(status: str, heartbeat: datetime | None, now: datetime) -> str:
     if status == "interrupted":
         return "pending"
     return status
+
+
+def check_not_mixed(store: Store, fake: bool) -> None:
+    """A dry run's synthetic jobs and real results never share a database: refuse, in one
+    line, to add real work to a database holding dry-run jobs, or a dry run to one holding real
+    jobs (so a real run never counts a synthetic job as done, and no synthetic row is drawn)."""
+    with store.engine.connect() as conn:
+        n = conn.execute(select(func.count()).select_from(Job).where(Job.fake == (not fake))).scalar_one()
+    if not n:
+        return
+    where = display_url(store.url)
+    if fake:
+        raise StoreError(f"{where} holds {n} real jobs: a dry run (NUTRIBENCH_JOB=fake) would mix synthetic rows "
+                         "with results; give it a database of its own (--db)")  # fmt: skip
+    raise StoreError(f"{where} holds {n} dry-run jobs (NUTRIBENCH_JOB=fake), which are never results: write real "
+                     "work to another database (--db), or delete this one")  # fmt: skip
 
 
 def reset_given_up(store: Store, job_ids: Sequence[int]) -> int:
@@ -129,7 +145,7 @@ def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, i
     return out
 
 
-def _episode_rows(job_id: int, phase: str, episodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def episode_rows(job_id: int, phase: str, episodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
     rows = []
     for ep in episodes:
         row = {"job_id": job_id, "phase": phase, "episode": int(ep["episode"])}
@@ -155,7 +171,7 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
         ).rowcount  # fmt: skip
         if claimed != 1:
             return False
-        rows = _episode_rows(result.job_id, "train", result.train) + _episode_rows(result.job_id, "eval", result.eval)
+        rows = episode_rows(result.job_id, "train", result.train) + episode_rows(result.job_id, "eval", result.eval)
         if rows:
             s.execute(insert(Episode), rows)
         if result.eval_steps:

@@ -218,4 +218,4 @@ EVAL_STEP_COLUMNS: tuple[str, ...] = tuple(c.name for c in EvalStep.__table__.co
 #: :func:`nutribench.provenance.collect_metadata` and the worker's clock).
 METADATA_COLUMNS = ("host", "platform", "python_version", "numpy_version", "torch_version", "sb3_version",
                     "nutribench_version", "git_commit", "git_dirty", "started_at", "finished_at", "wall_seconds",
-                    "engine", "fake", "batch_id", "batch_size", "device", "source", "source_sha256")  # fmt: skip
+                    "engine", "batch_id", "batch_size", "device", "source", "source_sha256")  # fmt: skip

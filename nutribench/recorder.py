@@ -1,0 +1,184 @@
+"""Results from anywhere (bsuite's idea): an agent trained by any loop, in any framework,
+becomes a job of the results database, beside the built-in agents.
+
+::
+
+    import nutribench
+
+    with nutribench.Recorder(db="sqlite:///lab.db", name="my_agent", regime="run3", seed=0) as rec:
+        env = rec.env              # a Gymnasium env: every whole day played on it is a training row
+        ...                        # any training loop
+        rec.evaluate(policy)       # the fixed evaluation days of (regime, seed), played greedily
+
+``policy`` is a callable ``obs -> action`` or any object with SB3's ``predict`` (recurrent ones
+included: their state is carried through each day and reset at its start). When the block
+ends without an exception the job is written in one transaction: its training days, its
+evaluation days and steps, and where it came from (``engine = 'external'``, the calling script
+and its sha256, host, versions, git commit). An exception, or no ``evaluate``, writes nothing.
+
+The agent is recorded as an agent config ``algo = "external"`` with no entry point (name,
+version, description, params), hashed like every config: the same name and version with
+other params is refused ("bump the version"), and a (regime, agent, seed, training days) that
+is already in the database is refused rather than overwritten.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import time
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from nutribench.errors import UserError
+
+
+class RecorderError(UserError):
+    """A recording that cannot be written (one line)."""
+
+
+class RecordingEnv(gym.Wrapper):
+    """A NutriRL env that keeps the SPEC 4 metrics of every whole day played on it (a day cut
+    short by ``reset`` is not a row)."""
+
+    def __init__(self, env: gym.Env):
+        super().__init__(env)
+        from nutribench.env.metrics import EpisodeRecorder
+
+        self.recorder = EpisodeRecorder(1)
+        self.days: list[dict[str, Any]] = []
+
+    def reset(self, **kwargs: Any) -> Any:
+        self.recorder.clear()
+        return self.env.reset(**kwargs)
+
+    def step(self, action: Any) -> Any:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        for metrics in self.recorder.record(np.array([reward]), np.array([terminated or truncated]), info):
+            self.days.append({"episode": len(self.days), **metrics, "entropy": None})
+        return obs, reward, terminated, truncated, info
+
+
+class PolicyAgent:
+    """Any policy, seen as the evaluator sees an agent: ``act`` on raw observations."""
+
+    def __init__(self, policy: Any):
+        self.policy = policy
+        self.model = policy if callable(getattr(policy, "predict", None)) else None
+
+    def normalize(self, obs: np.ndarray) -> np.ndarray:
+        return np.asarray(obs, dtype=np.float32)
+
+    def act(self, obs: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None) -> tuple[np.ndarray, Any]:
+        if self.model is not None:
+            return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=True)
+        if not callable(self.policy):
+            raise RecorderError(f"evaluate(policy): a {type(self.policy).__name__} is neither callable (obs -> action) nor has predict()")
+        return np.array([int(self.policy(o)) for o in obs]), None
+
+
+def _caller_source(depth: int = 2) -> tuple[str | None, str | None]:
+    """The file of the code that created the recorder, and its sha256 (None if not a file)."""
+    frame = inspect.stack()[depth]
+    path = Path(frame.filename)
+    if not path.is_file():
+        return None, None
+    return str(path.resolve()), hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+class Recorder:
+    """Records an agent trained outside nutribench as one job of the results database.
+
+    :param db: database file or SQLAlchemy URL (created and upgraded if needed).
+    :param name: the agent's name in the database (``[a-z][a-z0-9_]*``).
+    :param regime: a regime name or regime file.
+    :param seed: the job's seed: it seeds the training days' food stream (``env``'s first
+        ``reset``) and picks the evaluation days, the same days every agent of that seed plays.
+    :param version: the agent's version (bump it when the agent changes).
+    :param params: the agent's settings, stored and hashed with its name and version.
+    :param eval_episodes: how many fixed evaluation days (5: the paper's).
+    :param source: what made the results (default: the calling script), recorded with its hash.
+    """
+
+    def __init__(self, db: str | Path = "nutribench.db", *, name: str, regime: str | Path = "run0", seed: int = 0,
+                 version: int = 1, description: str = "", params: dict[str, Any] | None = None,
+                 eval_episodes: int = 5, source: tuple[str | None, str | None] | None = None):  # fmt: skip
+        from nutribench.agents.config import parse_agent_config
+        from nutribench.config import load_env_config
+
+        self.db, self.seed, self.eval_episodes = db, int(seed), int(eval_episodes)
+        if eval_episodes < 1:
+            raise RecorderError(f"eval_episodes={eval_episodes}: record at least one evaluation day")
+        self.regime_config = load_env_config(regime)
+        body = {"algo": "external", "name": name, "version": version, "description": description or f"{name}, recorded",
+                "params": dict(params or {})}  # fmt: skip
+        self.agent_config = parse_agent_config(body, f"Recorder(name={name!r})")
+        self.source = source if source is not None else _caller_source()
+        self._env: RecordingEnv | None = None
+        self._eval: Any = None
+        self._t0 = 0.0
+
+    # ------------------------------------------------------------------ the with block
+    def __enter__(self) -> Recorder:
+        from nutribench.clock import utcnow
+        from nutribench.env.nutri_env import NutriRLEnv
+
+        self._check_database()
+        self._env = RecordingEnv(NutriRLEnv(regime=self.regime_config))
+        self._env.reset(seed=self.seed)  # seeds the training days' stream: the user's resets continue it
+        self._started, self._t0 = utcnow(), time.perf_counter()
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is None:
+            self.save()
+
+    @property
+    def env(self) -> RecordingEnv:
+        """The Gymnasium env to train on: every whole day played on it is a training row."""
+        if self._env is None:
+            raise RecorderError("Recorder.env: use the recorder in a with block (with nutribench.Recorder(...) as rec:)")
+        return self._env
+
+    def evaluate(self, policy: Any) -> list[dict[str, Any]]:
+        """Play the fixed evaluation days of (regime, seed) greedily with ``policy`` (a
+        callable ``obs -> action`` or an object with SB3's ``predict``); their metrics."""
+        from nutribench.agents.api import eval_food_streams, evaluate
+
+        streams = eval_food_streams(self.regime_config, self.seed, self.eval_episodes)
+        self._eval = evaluate(PolicyAgent(policy), self.regime_config, streams, record_steps=True)
+        return self._eval.episodes
+
+    # ------------------------------------------------------------------ the database
+    def _check_database(self) -> None:
+        from nutribench.store import open_store
+        from nutribench.store.jobs import check_not_mixed
+
+        store = open_store(self.db, writer=True)
+        try:
+            check_not_mixed(store, fake=False)
+        finally:
+            store.dispose()
+
+    def save(self) -> int:
+        """Write the job (called by the with block's end); its id."""
+        if self._eval is None:
+            raise RecorderError(f"Recorder {self.agent_config.name}: call rec.evaluate(policy) before the with block ends (nothing was written)")
+        from nutribench.clock import utcnow
+        from nutribench.provenance import collect_metadata
+        from nutribench.store import open_store
+        from nutribench.scheduler.registration import ExternalJob, store_external_job
+
+        meta = collect_metadata() | {"started_at": self._started, "finished_at": utcnow(),
+                                     "wall_seconds": time.perf_counter() - self._t0, "engine": "external",
+                                     "source": self.source[0], "source_sha256": self.source[1]}  # fmt: skip
+        job = ExternalJob(self.regime_config, self.agent_config, self.seed, self.env.days, self._eval.episodes,
+                          self._eval.steps, meta)  # fmt: skip
+        store = open_store(self.db, writer=True)
+        try:
+            return store_external_job(store, job)
+        finally:
+            store.dispose()
