@@ -1,0 +1,227 @@
+"""The sensitivity study's table and figure from its database (the archives of data/ imported into
+one) and the CSVs of evaluate_models.py.
+
+Per level x regime x evaluation: the share of the never -> planner gap each seed's mean return
+over its 5 evaluation days closes (never and the planner played on exactly those days, under
+the regimes the level was evaluated under), the IQM over seeds with a 95 % percentile bootstrap
+interval resampling seeds (nutribench.report.stats.iqm_bootstrap_ci, 2000 resamples, seed 0),
+the mean return and foods a day. Training length: each seed's mean training return over the
+100 days ending at day 500, 1000, 2000 and 5000 (IQM over seeds, same interval).
+
+    python reports/sensitivity/analyse.py --db /tmp/sens/rebuild.db \
+        --csv reports/sensitivity/eval_control.csv --csv reports/sensitivity/eval_lo0_shipped.csv \
+        --out reports/sensitivity
+"""
+
+from __future__ import annotations
+
+import argparse
+import sqlite3
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from nutribench.agents import eval_food_streams  # noqa: E402
+from nutribench.baselines import gap_closed, play_simple_policy  # noqa: E402
+from nutribench.config import load_env_config  # noqa: E402
+from nutribench.report.stats import iqm_bootstrap_ci  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+#: (agent config, regime version) -> (level id, factor, level text, regimes folder it was trained under)
+LEVELS = {
+    ("ppo", 2): ("control", "none (shipped ppo v1)", "shipped", ROOT / "regimes"),
+    ("ppo", 102): ("lo0", "overshoot weight", "lo 1 -> 1e-6 (off)", HERE / "regimes_lo0"),
+    ("ppo_nonorm", 2): ("nonorm", "reward normalisation", "on -> off", ROOT / "regimes"),
+    ("ppo_lr3e4", 2): ("lr3e4", "learning rate", "1e-3 -> 3e-4", ROOT / "regimes"),
+    ("ppo_g095", 2): ("g095", "discount", "0.99 -> 0.95", ROOT / "regimes"),
+}
+ORDER = ["control", "lo0", "nonorm", "lr3e4", "g095"]
+REGIMES = ["run0", "run3", "run6"]
+WINDOWS = [500, 1000, 2000, 5000]
+WIDTH = 100
+
+
+def level_of(algo: str, version: int) -> tuple[str, str, str, Path]:
+    return LEVELS[(algo, int(version))]
+
+
+def yardsticks(folder: Path, regime: str, seed: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    cfg = load_env_config(folder / f"{regime}.toml")
+    streams = eval_food_streams(cfg, seed, n)
+    never = np.array([r["return"] for r in play_simple_policy("never", cfg, streams)])
+    planner = np.array([r["return"] for r in play_simple_policy("planner", cfg, streams)])
+    return never, planner
+
+
+def summarise(per_seed: pd.DataFrame) -> dict:
+    """per_seed: one row per seed with return, foods, share."""
+    point, lo, hi = iqm_bootstrap_ci([np.array([v]) for v in per_seed["share"]], reps=2000, seed=0)
+    return {"seeds": len(per_seed), "return_mean": per_seed["return"].mean(), "foods_mean": per_seed["foods"].mean(),
+            "share_iqm": point, "share_lo": lo, "share_hi": hi,
+            "share_min": per_seed["share"].min(), "share_max": per_seed["share"].max()}
+
+
+def greedy_rows(ev: pd.DataFrame) -> list[dict]:
+    rows = []
+    for (algo, version, regime), cell in ev.groupby(["algo", "regime_version", "regime"]):
+        level, factor, text, folder = level_of(algo, version)
+        per_seed = []
+        for seed, days in cell.groupby("seed"):
+            days = days.sort_values("episode")
+            never, planner = yardsticks(folder, regime, int(seed), len(days))
+            ret = days["return"].mean()
+            per_seed.append({"seed": seed, "return": ret, "foods": days["foods"].mean(),
+                             "share": gap_closed(ret, never.mean(), planner.mean())})
+        per_seed = pd.DataFrame(per_seed)
+        evaluation = "greedy" if version == 2 else "greedy, own reward (lo off)"
+        rows.append({"level": level, "factor": factor, "value": text, "regime": regime, "evaluation": evaluation,
+                     **summarise(per_seed), "per_seed": " ".join(f"{100 * s:.0f}" for s in per_seed["share"])})
+    return rows
+
+
+def csv_rows(csv: pd.DataFrame) -> list[dict]:
+    rows = []
+    for (level, regime, rv, mode), cell in csv[~csv["mode"].isin(["never", "planner"])].groupby(
+            ["level", "regime", "reward_version", "mode"]):
+        ys = csv[(csv.level == level) & (csv.regime == regime) & (csv.reward_version == rv)]
+        per_seed = []
+        for seed, days in cell.groupby("seed"):
+            never = ys[(ys.seed == seed) & (ys["mode"] == "never")]["return"].mean()
+            planner = ys[(ys.seed == seed) & (ys["mode"] == "planner")]["return"].mean()
+            ret = days["return"].mean()  # over draws x days
+            per_seed.append({"seed": seed, "return": ret, "foods": days["foods"].mean(), "share": gap_closed(ret, never, planner)})
+        per_seed = pd.DataFrame(per_seed)
+        factor, text = next((v[1], v[2]) for v in LEVELS.values() if v[0] == level)
+        draws = cell["draw"].nunique()
+        evaluation = mode + (f" ({draws} draws of the days)" if mode == "stochastic" else "")
+        if rv == 2 and level == "lo0":
+            evaluation += ", shipped reward"
+        if mode == "greedy" and not (rv == 2 and level == "lo0"):
+            continue  # the database's own greedy evaluation, replayed as a check (evaluate_models.py --check)
+        rows.append({"level": level, "factor": factor, "value": text, "regime": regime, "evaluation": evaluation,
+                     **summarise(per_seed), "per_seed": " ".join(f"{100 * s:.0f}" for s in per_seed["share"])})
+    return rows
+
+
+def training_rows(tr: pd.DataFrame, planner_mean: dict) -> list[dict]:
+    rows = []
+    for (algo, version, regime), cell in tr.groupby(["algo", "regime_version", "regime"]):
+        level = level_of(algo, version)[0]
+        for day in WINDOWS:
+            if cell["episode"].max() + 1 < day:
+                continue
+            w = cell[(cell["episode"] >= day - WIDTH) & (cell["episode"] < day)]
+            per_seed = w.groupby("seed")[["return", "foods", "entropy"]].mean()
+            point, lo, hi = iqm_bootstrap_ci([np.array([v]) for v in per_seed["return"]], reps=2000, seed=0)
+            never, planner = planner_mean[(version, regime)]
+            rows.append({"level": level, "regime": regime, "day": day, "seeds": len(per_seed),
+                         "return_iqm": point, "return_lo": lo, "return_hi": hi, "foods_mean": per_seed["foods"].mean(),
+                         "entropy_mean": per_seed["entropy"].mean(), "share_of_iqm": gap_closed(point, never, planner)})
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--db", required=True)
+    ap.add_argument("--csv", action="append", default=[])
+    ap.add_argument("--out", default=str(HERE))
+    ap.add_argument("--budget", type=int, default=5000, help="the jobs' training days")
+    a = ap.parse_args()
+    out = Path(a.out)
+    con = sqlite3.connect(a.db)
+    df = pd.read_sql("select * from episode_metrics where algo like 'ppo%' and budget = ?", con, params=(a.budget,))
+    ev, tr = df[df.phase == "eval"], df[df.phase == "train"]
+    rows = greedy_rows(ev)
+    csv = pd.concat([pd.read_csv(p) for p in a.csv]) if a.csv else pd.DataFrame()
+    if not csv.empty:
+        rows += csv_rows(csv)
+    table = pd.DataFrame(rows)
+    table["_l"] = table["level"].map(ORDER.index)
+    table = table.sort_values(["_l", "evaluation", "regime"]).drop(columns="_l")
+    table.to_csv(out / "table_sensitivity.csv", index=False, float_format="%.4f")
+
+    def cell(r):
+        return f"{100 * r.share_iqm:.0f} % [{100 * r.share_lo:.0f}, {100 * r.share_hi:.0f}]"
+
+    lines = ["| level | factor: value | evaluation | regime | share of the gap, IQM [95 % CI] | seeds' shares (%) | return (mean) | foods (mean) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in table.itertuples():
+        lines.append(f"| {r.level} | {r.factor}: {r.value} | {r.evaluation} | {r.regime} | {cell(r)} | {r.per_seed} | "
+                     f"{r.return_mean:.1f} | {r.foods_mean:.1f} |")
+    (out / "table_sensitivity.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+    # training length: never / planner means over the regime's evaluation days of all seeds (the yardstick)
+    planner_mean = {}
+    for (version, regime), g in ev.groupby(["regime_version", "regime"]):
+        folder = HERE / "regimes_lo0" if version == 102 else ROOT / "regimes"
+        nv, pl = [], []
+        for seed in sorted(g["seed"].unique()):
+            n_, p_ = yardsticks(folder, regime, int(seed), 5)
+            nv.append(n_.mean())
+            pl.append(p_.mean())
+        planner_mean[(version, regime)] = (float(np.mean(nv)), float(np.mean(pl)))
+    trt = pd.DataFrame(training_rows(tr, planner_mean), columns=["level", "regime", "day", "seeds", "return_iqm", "return_lo",
+                                                                 "return_hi", "foods_mean", "entropy_mean", "share_of_iqm"])
+    trt["_l"] = trt["level"].map(ORDER.index)
+    trt = trt.sort_values(["_l", "regime", "day"]).drop(columns="_l")
+    trt.to_csv(out / "table_training_length.csv", index=False, float_format="%.4f")
+    lines = ["| level | regime | training day | training return, IQM [95 % CI] over seeds of the 100 days before it | foods a day (mean) | policy entropy (nats, mean) | share of the gap of the IQM |",
+             "|---|---|---|---|---|---|---|"]
+    for r in trt.itertuples():
+        lines.append(f"| {r.level} | {r.regime} | {r.day} | {r.return_iqm:.1f} [{r.return_lo:.1f}, {r.return_hi:.1f}] | "
+                     f"{r.foods_mean:.1f} | {r.entropy_mean:.2f} | {100 * r.share_of_iqm:.0f} % |")
+    (out / "table_training_length.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    print("yardsticks (never, planner) per regime:", {k: tuple(round(x, 2) for x in v) for k, v in planner_mean.items()})
+
+    # figure: (A) share of the gap per level x regime; (B, C) training return over days in run3 and run6
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), gridspec_kw={"width_ratios": [1.5, 1, 1]})
+    ax = axes[0]
+    series = [(lvl, ev_) for lvl, ev_ in table[["level", "evaluation"]].drop_duplicates().itertuples(index=False)
+              if not ev_.startswith("greedy (replay)")]
+    colors = plt.cm.tab10(np.linspace(0, 1, 10))
+    width = 0.8 / max(len(series), 1)
+    for i, (lvl, ev_) in enumerate(series):
+        sub = table[(table.level == lvl) & (table.evaluation == ev_)].set_index("regime").reindex(REGIMES)
+        x = np.arange(len(REGIMES)) + (i - (len(series) - 1) / 2) * width
+        y = 100 * sub["share_iqm"].to_numpy()
+        err = np.abs(100 * np.vstack([sub["share_iqm"] - sub["share_lo"], sub["share_hi"] - sub["share_iqm"]]))
+        ax.bar(x, y, width, yerr=err, capsize=2, color=colors[i % 10], label=f"{lvl}: {ev_}")
+    ax.axhline(0, color="k", lw=0.8)
+    ax.axhline(100, color="k", lw=0.8, ls="--")
+    ax.set_xticks(np.arange(len(REGIMES)), REGIMES)
+    ax.set_ylabel("share of the never -> planner gap (%)\nIQM over 5 seeds, 95 % bootstrap CI")
+    ax.set_title("(A) evaluation, 5 fixed days per seed")
+    ax.legend(fontsize=7, loc="lower left")
+    for ax, regime, tag in ((axes[1], "run3", "B"), (axes[2], "run6", "C")):
+        for i, lvl in enumerate(ORDER):
+            sub = tr[(tr.regime == regime)]
+            sub = sub[[level_of(a_, v_)[0] == lvl for a_, v_ in zip(sub.algo, sub.regime_version)]]
+            if sub.empty:
+                continue
+            curve = sub.groupby("episode")["return"].mean().rolling(100, min_periods=1).mean()
+            ax.plot(curve.index + 1, curve.to_numpy(), lw=1.2, label=lvl + (" (own reward)" if lvl == "lo0" else ""))
+        nv, pl = planner_mean.get((2, regime), (np.nan, np.nan))
+        ax.axhline(nv, color="k", lw=0.8, ls=":", label="never")
+        ax.axhline(pl, color="k", lw=0.8, ls="--", label="planner (eval days)")
+        for d in WINDOWS[:-1]:
+            ax.axvline(d, color="grey", lw=0.5, alpha=0.5)
+        ax.set_title(f"({tag}) {regime}: training return (stochastic policy)")
+        ax.set_xlabel("training day")
+        ax.set_ylabel("return a day (mean over 5 seeds, 100-day moving mean)")
+        ax.legend(fontsize=7)
+    fig.suptitle("PPO sensitivity study: one factor at a time from the shipped PPO (5000 days, batched engine, seeds 0-4)")
+    fig.tight_layout()
+    fig.savefig(out / "fig_sensitivity.png", dpi=120)
+    print(f"wrote {out / 'fig_sensitivity.png'}")
+
+
+if __name__ == "__main__":
+    main()
