@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import sqlite3
 from pathlib import Path
 
@@ -11,9 +12,10 @@ import pandas as pd
 from typer.testing import CliRunner
 
 from nutribench.cli import app
+from nutribench.config.loading import content_sha256
 from nutribench.jobs.fake import fake_run_job
 from nutribench.scheduler.driver import run_grid
-from nutribench.store import read_episode_metrics, read_eval_trajectories, read_jobs
+from nutribench.store import read_jobs
 
 runner = CliRunner()
 SORT = ["regime", "algo", "seed", "phase", "episode"]
@@ -27,8 +29,24 @@ def _out(res) -> str:
     return " ".join(res.output.split())  # the console wraps long lines
 
 
+# The grids here are dry runs (fake jobs), which the views leave out (revision 0004): the
+# rows are read from the tables, names joined in as the views do.
+_JOINED = ('SELECT r.name AS regime, r.version AS regime_version, a.name AS algo, a.version AS algo_version, '
+           'j.seed AS seed, j.episodes AS budget, t.* FROM {table} t JOIN jobs j ON j.id = t.job_id '
+           'JOIN regimes r ON r.id = j.regime_id JOIN agent_configs a ON a.id = j.agent_config_id')  # fmt: skip
+
+
+def _table(db: Path, table: str) -> pd.DataFrame:
+    with sqlite3.connect(db) as c:
+        return pd.read_sql_query(_JOINED.format(table=table), c)
+
+
 def _metrics(db: Path) -> pd.DataFrame:
-    return read_episode_metrics(db).drop(columns="job_id").sort_values(SORT).reset_index(drop=True)
+    return _table(db, "episodes").drop(columns="job_id").sort_values(SORT).reset_index(drop=True)
+
+
+def _trajectories(db: Path) -> pd.DataFrame:
+    return _table(db, "eval_steps").drop(columns="job_id")
 
 
 def test_a_grid_run_in_two_parts_merges_into_one_database(tmp_path, monkeypatch) -> None:
@@ -55,9 +73,11 @@ def test_a_grid_run_in_two_parts_merges_into_one_database(tmp_path, monkeypatch)
         assert res.exit_code == 0, res.output
     done1 = _metrics(part1).merge(read_jobs(part1).query("status == 'done'")[["regime", "algo", "seed"]])
     expected = pd.concat([done1, _metrics(part2).query("algo == 'ppo'")]).sort_values(SORT).reset_index(drop=True)
+    assert len(expected) == 6 * 8  # 2 done mc jobs of part 1, 4 ppo jobs of part 2
     pd.testing.assert_frame_equal(_metrics(merged), expected, check_dtype=False)
-    traj = [read_eval_trajectories(db).drop(columns="job_id").query("algo == 'ppo'").sort_values(["regime", "seed", "episode", "step"])
+    traj = [_trajectories(db).query("algo == 'ppo'").sort_values(["regime", "seed", "episode", "step"])
             .reset_index(drop=True) for db in (merged, part2)]  # fmt: skip
+    assert len(traj[0]) == 4 * 2 * 50
     pd.testing.assert_frame_equal(*traj, check_dtype=False)
     # the grid goes on in the merged database: only the missing MC seed-1 jobs run
     more = _grid(merged, ["mc", "ppo"], [0, 1])
@@ -86,15 +106,19 @@ def test_provenance_and_exact_values_survive_the_trip(tmp_path, monkeypatch) -> 
     _grid(src, ["mc"], [0])
     with sqlite3.connect(src) as c:  # values no float32 or decimal rounding would keep
         c.execute("UPDATE episodes SET \"return\" = -7.123456789012345 + episode * 1e-13, entropy = NULL WHERE phase = 'eval'")
-        c.execute("UPDATE jobs SET git_commit = 'abc123', git_dirty = 0")
+        c.execute("UPDATE jobs SET git_commit = 'abc123', git_dirty = 0, batch_id = 'b7', batch_size = 2, device = 'cuda:0', "
+                  "source = 'train_mine.py', source_sha256 = '" + "ab" * 32 + "'")  # fmt: skip
     runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src)])
     assert runner.invoke(app, ["db", "import", str(tmp_path / "a.npz"), "--db", str(dst)]).exit_code == 0
+    assert len(_metrics(src)) == 2 * 8
     pd.testing.assert_frame_equal(_metrics(dst), _metrics(src), check_exact=True, check_dtype=False)
+    assert _metrics(dst).query("phase == 'eval'")["entropy"].isna().all()
     a, b = (read_jobs(db).drop(columns=["job_id"], errors="ignore") for db in (src, dst))
-    for col in ("git_commit", "wall_seconds", "engine", "regime_sha256", "agent_sha256", "started_at"):
-        if col in a:
-            assert list(a[col]) == list(b[col]), col
+    for col in ("seed", "episodes", "eval_episodes", "git_commit", "git_dirty", "wall_seconds", "engine", "started_at",
+                "finished_at", "host", "fake", "batch_id", "batch_size", "device", "source", "source_sha256"):  # fmt: skip
+        assert list(a[col]) == list(b[col]), col
     assert set(b["git_commit"]) == {"abc123"}
+    assert b["model_path"].isna().all()  # a stored path is not carried into another database
 
 
 def test_bad_archives_and_conflicts_are_one_line_errors(tmp_path, monkeypatch) -> None:
@@ -113,17 +137,21 @@ def test_bad_archives_and_conflicts_are_one_line_errors(tmp_path, monkeypatch) -
     assert res.exit_code == 2 and "no done jobs of sac" in _out(res) and not (tmp_path / "a.npz").exists()
     res = runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src), "--regimes", "run5"])
     assert res.exit_code == 2 and "no done jobs of run5" in _out(res) and not (tmp_path / "a.npz").exists()
-    # the same config version with other content: the databases disagree, nothing is written
+    # the same config version with other content (a file changed without a version bump, its
+    # hash honestly recomputed): the databases disagree, nothing is written
     assert runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src)]).exit_code == 0
     _grid(dst, ["ppo"], [0])
     with sqlite3.connect(src) as c:
-        c.execute("UPDATE agent_configs SET sha256 = 'x' || substr(sha256, 2)")
+        body = json.loads(c.execute("SELECT body FROM agent_configs WHERE name = 'mc'").fetchone()[0])
+        body["description"] += " (edited)"
+        c.execute("UPDATE agent_configs SET body = ?, sha256 = ? WHERE name = 'mc'", (json.dumps(body), content_sha256(body)))
     assert runner.invoke(app, ["db", "export", str(tmp_path / "b.npz"), "--db", str(src)]).exit_code == 0
     assert runner.invoke(app, ["db", "import", str(tmp_path / "a.npz"), "--db", str(dst)]).exit_code == 0
-    before = len(read_episode_metrics(dst))
+    before = len(_metrics(dst))
+    assert before == 4 * 8
     res = runner.invoke(app, ["db", "import", str(tmp_path / "b.npz"), "--db", str(dst)])
     assert res.exit_code == 2 and "mc v" in _out(res) and "other content" in _out(res)
-    assert len(read_episode_metrics(dst)) == before
+    assert len(_metrics(dst)) == before
 
 
 def test_a_job_another_driver_runs_is_not_overwritten(tmp_path, monkeypatch) -> None:

@@ -51,9 +51,12 @@ def db_import_cmd(
     db: Annotated[str, typer.Option(help="database to merge into (created if missing): a SQLite file or URL")] = "nutribench.db",
 ) -> None:
     """Merge an archive's jobs into DB: new jobs are added, pending ones take the archived
-    result, jobs DB already has done are kept as they are."""
+    result, jobs DB already has done are kept as they are. The archive is checked whole
+    first: one that is damaged or was changed is refused, and nothing is written."""
     from nutribench.store.archive import import_results
+    from nutribench.store.engine import database_url, display_url
 
     counts = import_results(archive, db)
-    console.print(f"{archive} -> {db}: {counts['imported']} jobs imported ({counts['episodes']:,} episodes, "
+    # the database as display_url shows it: a URL's password is never printed
+    console.print(f"{archive} -> {display_url(database_url(db))}: {counts['imported']} jobs imported ({counts['episodes']:,} episodes, "
                   f"{counts['eval_steps']:,} evaluation steps), {counts['kept']} already done there and kept", highlight=False)  # fmt: skip

@@ -76,6 +76,20 @@ class ReportError(UserError, ValueError):
     """Something the report cannot build from what it was given; printed as one line."""
 
 
+def check_names(names: Iterable[Any], what: str, where: str) -> None:
+    """:class:`ReportError` for a name that is not a regime or config name
+    (``[a-z][a-z0-9_]*``): names read from a database become file names and regime files here
+    (``table7_<name>``, ``trajectory_<regime>_<algo>_...``, the regime file of the reference
+    lines), so ``../x`` or ``/etc/y`` must never get that far."""
+    from nutribench.store.archive import NAME_MAX, valid_name
+
+    bad = [n for n in dict.fromkeys(names) if not valid_name(n)]
+    if bad:
+        shown = repr(bad[0]) if len(repr(bad[0])) <= 80 else repr(bad[0])[:77] + "..."
+        raise ReportError(f"{where}: {what} {shown} is not a name ([a-z][a-z0-9_]*, at most {NAME_MAX} characters): "
+                          "no file is built from it")  # fmt: skip
+
+
 @dataclass
 class ReportData:
     """The episode metrics a report draws from, and what was left out of them (notes)."""
@@ -144,6 +158,8 @@ def read_metrics(db: Db) -> pd.DataFrame:
         store.dispose()
     if df.empty:
         raise ReportError(f"{store.display} holds no finished episodes yet: `nutribench run --db {db}` fills it")
+    check_names(df["regime"].unique(), "regime", store.display)
+    check_names(df["algo"].unique(), "agent config", store.display)
     return df
 
 
@@ -184,6 +200,7 @@ def stored_agent_configs(db: Db) -> dict[str, Any]:
             rows = s.execute(select(AgentConfig.name, AgentConfig.version, AgentConfig.body)).all()
     finally:
         store.dispose()
+    check_names([name for name, _, _ in rows], "agent config", store.display)
     newest: dict[str, tuple[int, dict[str, Any]]] = {}
     for name, version, body in rows:
         if name not in newest or version > newest[name][0]:
@@ -393,6 +410,7 @@ def _check_pair(pair: Sequence[str] | None) -> tuple[str, str]:
         return DEFAULT_PAIR
     if len(pair) != 2 or pair[0] == pair[1]:
         raise ReportError(f"--pair {','.join(pair)}: give two different agent configs, e.g. --pair ppo,gru_ppo")
+    check_names(pair, "agent config", "--pair")
     return (pair[0], pair[1])
 
 
@@ -482,6 +500,9 @@ def build_trajectory(db: Db, algo: str, regime: str, seed: int, episode: int = 0
     from nutribench.report.trajectory import trajectory_figure
     from nutribench.store import open_store, read_eval_trajectories
 
+    # both become the file's name and the regime is read from its file: names only
+    check_names([regime], "regime", "--regime")
+    check_names([algo], "agent config", "--algo")
     store = open_store(db)
     try:
         steps = read_eval_trajectories(store.engine, regimes=regime, algos=algo, seeds=seed, episode=episode, latest_only=True)
@@ -525,6 +546,7 @@ __all__ = [
     "build_table",
     "build_trajectory",
     "check_known",
+    "check_names",
     "eval_day_references",
     "figure_stem",
     "load_report_data",
