@@ -41,6 +41,24 @@ def sql(url: str, query: str, **params) -> list[tuple]:
         engine.dispose()
 
 
+# The views leave a dry run's (fake) jobs out; their rows are read from the tables, joined to
+# names as the episode_metrics view joins them.
+EPISODE_ROWS = ('SELECT r."name" AS regime, r."version" AS regime_version, a."name" AS algo, '
+                'a."version" AS algo_version, j."seed" AS seed, j."episodes" AS budget, e.* FROM episodes e '
+                'JOIN jobs j ON j."id" = e."job_id" JOIN regimes r ON r."id" = j."regime_id" '
+                'JOIN agent_configs a ON a."id" = j."agent_config_id"')  # fmt: skip
+
+
+def episode_rows(db: str | Path) -> pd.DataFrame:
+    """Every stored episode with its job's names (dry-run jobs kept), in a stable order."""
+    engine = create_engine(db if isinstance(db, str) else f"sqlite:///{db}")
+    try:
+        df = pd.read_sql(text(EPISODE_ROWS), engine)
+    finally:
+        engine.dispose()
+    return df.sort_values(["job_id", "phase", "episode"]).reset_index(drop=True)
+
+
 def _env(tmp_path: Path, **extra: str) -> dict[str, str]:
     env = dict(os.environ, NUTRIBENCH_JOB="fake", **extra)
     env.pop("NUTRIBENCH_AGENTS", None)
@@ -66,16 +84,28 @@ def test_a_grid_status_report_and_pandas_on_postgres(pg_url: str, tmp_path: Path
     df = pd.read_sql("SELECT * FROM episode_metrics", engine)  # the README's one-liner, unchanged
     engine.dispose()
     assert tuple(df.columns) == EPISODE_METRICS_COLUMNS
-    assert len(df) == 12 * (5 + 2)
+    assert len(df) == 0  # a dry run's jobs are marked fake: the view leaves them out
+    assert sql(pg_url, "SELECT count(*), sum(CASE WHEN fake THEN 1 ELSE 0 END) FROM jobs") == [(12, 12)]
     assert len(read_episode_metrics(pg_url)) == len(df)
+    assert len(episode_rows(pg_url)) == 12 * (5 + 2)  # every row stored
     report = status_table(pg_url)
     assert (report.totals["done"], report.totals["jobs"]) == (12, 12)
-    res = runner.invoke(app, ["report", "--db", pg_url, "--table", "results", "--out", str(tmp_path / "rep")])
-    assert res.exit_code == 0, res.output
-    assert (tmp_path / "rep" / "table_results.md").is_file()
     again = subprocess.run(_run_cmd(pg_url, "--seeds", "0,1", "--episodes", "5", "--eval-episodes", "2"),
                            env=env, capture_output=True, text=True, cwd=tmp_path, timeout=120)  # fmt: skip
     assert again.returncode == 0 and "12 already done" in again.stderr, again.stderr
+    res = runner.invoke(app, ["report", "--db", pg_url, "--table", "results", "--out", str(tmp_path / "rep")])
+    assert res.exit_code == 2 and "holds no finished episodes" in res.output, res.output  # draws no dry-run row
+    assert not (tmp_path / "rep" / "table_results.md").exists()
+    # the same rows as a real run's results: the view (its filter on PostgreSQL) and the report show them
+    sql(pg_url, "UPDATE jobs SET fake = false")
+    engine = create_engine(pg_url)
+    df = pd.read_sql("SELECT * FROM episode_metrics", engine)
+    engine.dispose()
+    assert tuple(df.columns) == EPISODE_METRICS_COLUMNS and len(df) == 12 * (5 + 2)
+    assert len(read_episode_metrics(pg_url)) == len(df)
+    res = runner.invoke(app, ["report", "--db", pg_url, "--table", "results", "--out", str(tmp_path / "rep")])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "rep" / "table_results.md").is_file()
 
 
 def test_two_drivers_at_once_never_run_a_job_twice_on_postgres(pg_url: str, tmp_path: Path) -> None:
@@ -154,8 +184,9 @@ def test_status_and_report_read_while_a_run_writes_on_postgres(pg_url: str, tmp_
         wait_for(lambda: bool(sql(pg_url, "SELECT 1 FROM information_schema.tables WHERE table_name = 'jobs'")), timeout=60)
         while proc.poll() is None:
             report = status_table(pg_url)
-            n = len(read_episode_metrics(pg_url))
-            assert n % 101 == 0  # a job's rows appear all at once
+            per_job = sql(pg_url, "SELECT job_id, count(*) FROM episodes GROUP BY job_id")
+            assert all(n == 101 for _, n in per_job), per_job  # a job's rows appear all at once
+            assert len(read_episode_metrics(pg_url)) == 0  # the dry run's rows: never in the view
             seen_partial |= 0 < report.totals["done"] < 12
             time.sleep(0.2)
         out, _ = proc.communicate(timeout=60)
@@ -165,6 +196,7 @@ def test_status_and_report_read_while_a_run_writes_on_postgres(pg_url: str, tmp_
     assert proc.returncode == 0, out
     assert seen_partial
     assert status_table(pg_url).totals["done"] == 12
+    assert sql(pg_url, "SELECT count(*) FROM episodes") == [(12 * 101,)]
 
 
 def test_db_copy_moves_a_sqlite_database_into_postgres(pg_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -179,9 +211,11 @@ def test_db_copy_moves_a_sqlite_database_into_postgres(pg_url: str, tmp_path: Pa
     res = runner.invoke(app, ["db", "copy", str(db), pg_url])
     assert res.exit_code == 0, res.output
     assert "episodes: 32 rows" in res.output and "4 jobs" in res.output
-    before = read_episode_metrics(db).sort_values(["job_id", "phase", "episode"]).reset_index(drop=True)
-    after = read_episode_metrics(pg_url).sort_values(["job_id", "phase", "episode"]).reset_index(drop=True)
+    before, after = episode_rows(db), episode_rows(pg_url)
+    assert len(before) == 32
     pd.testing.assert_frame_equal(before, after, check_dtype=False)
+    assert sql(pg_url, "SELECT count(*), sum(CASE WHEN fake THEN 1 ELSE 0 END) FROM jobs") == [(4, 4)]  # still a dry run's
+    assert len(read_episode_metrics(db)) == len(read_episode_metrics(pg_url)) == 0
     assert sql(pg_url, "SELECT body->>'max_grad_norm' FROM agent_configs WHERE name = 'mc'") == [("inf",)]
     again = runner.invoke(app, ["db", "copy", str(db), pg_url])  # never on top of results
     assert again.exit_code == 2 and "already holds rows" in again.output and "4 jobs" in again.output

@@ -35,7 +35,10 @@ H = 50  # steps per fake evaluation episode
 
 class EnvJob:
     """The fake job with extra environment variables set in the worker (a picklable
-    callable: the fork server's environment is fixed when it starts)."""
+    callable: the fork server's environment is fixed when it starts). A dry run's job, as
+    the fake job it wraps: its jobs are marked ``fake``, never mixed with real ones."""
+
+    fake = True
 
     def __init__(self, **env: str):
         self.env = env
@@ -72,6 +75,28 @@ def sql(db: Path, query: str) -> list[tuple]:
             return [tuple(r) for r in conn.execute(text(query))]
     finally:
         engine.dispose()
+
+
+# The views (episode_metrics, eval_trajectories) leave a dry run's jobs out; the synthetic
+# jobs' rows are counted in the tables, joined to names as the views join them.
+EPISODE_ROWS = ("SELECT r.name AS regime, r.version AS regime_version, a.name AS algo, a.version AS algo_version, "
+                "j.seed AS seed, j.episodes AS budget, e.* FROM episodes e JOIN jobs j ON j.id = e.job_id "
+                "JOIN regimes r ON r.id = j.regime_id JOIN agent_configs a ON a.id = j.agent_config_id")  # fmt: skip
+TRAJECTORY_ROWS = ("SELECT r.name AS regime, a.name AS algo, j.seed AS seed, s.* FROM eval_steps s "
+                   "JOIN jobs j ON j.id = s.job_id JOIN regimes r ON r.id = j.regime_id "
+                   "JOIN agent_configs a ON a.id = j.agent_config_id")  # fmt: skip
+
+
+def episode_rows(db: Path) -> pd.DataFrame:
+    """Every stored episode with its job's names (the episode_metrics join, dry-run jobs kept)."""
+    return pd.read_sql(EPISODE_ROWS, f"sqlite:///{db}")
+
+
+def assert_views_hide_the_dry_run(db: Path) -> None:
+    """A dry run's jobs are marked fake, and the views show none of their rows."""
+    assert sql(db, "SELECT count(*) > 0, count(*) = sum(fake) FROM jobs") == [(1, 1)]
+    assert sql(db, "SELECT count(*) FROM episode_metrics") == [(0,)]
+    assert sql(db, "SELECT count(*) FROM eval_trajectories") == [(0,)]
 
 
 def statuses(db: Path) -> dict[tuple[str, int], str]:
@@ -113,12 +138,13 @@ def test_smoke_grid_stores_every_row_and_rerun_does_nothing(regimes: Path, tmp_p
                  job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)), display=False)  # fmt: skip
     n = 7 * 5
     assert (s.done, s.failed, s.skipped, s.exit_code) == (n, 0, 0, 0)
-    df = pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")
+    df = episode_rows(db)
     assert len(df) == n * (20 + 5)
     assert df.groupby("phase").size().to_dict() == {"eval": n * 5, "train": n * 20}
     assert set(df["regime"]) == set(list_regimes()) and set(df["algo"]) == set(algos)
-    traj = pd.read_sql("select * from eval_trajectories", f"sqlite:///{db}")
+    traj = pd.read_sql(TRAJECTORY_ROWS, f"sqlite:///{db}")
     assert len(traj) == n * 5 * H
+    assert_views_hide_the_dry_run(db)
     jobs = pd.read_sql("select * from jobs", f"sqlite:///{db}")
     assert set(jobs["status"]) == {"done"} and (jobs["episodes_done"] == 20).all()
     assert jobs["host"].notna().all() and jobs["wall_seconds"].notna().all() and jobs["owner"].isna().all()
@@ -131,7 +157,8 @@ def test_smoke_grid_stores_every_row_and_rerun_does_nothing(regimes: Path, tmp_p
                      job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)), display=False)  # fmt: skip
     assert (again.done, again.skipped, again.exit_code) == (0, n, 0)
     assert len(list(log.iterdir())) == n  # nothing executed
-    assert len(pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")) == n * 25
+    assert len(episode_rows(db)) == n * 25
+    assert_views_hide_the_dry_run(db)
 
 
 def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> None:
@@ -153,8 +180,9 @@ def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> N
     assert run_grid(db, ["run0"], ["ppo"], **args).done == 1
     rows = sql(db, "SELECT a.version, j.status FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id ORDER BY a.version")
     assert rows == [(1, "done"), (2, "done")]
-    df = pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")
+    df = episode_rows(db)
     assert df.groupby("algo_version").size().to_dict() == {1: 5, 2: 5}
+    assert_views_hide_the_dry_run(db)
 
     run3 = regimes / "run3.toml"  # a regime file works the same way
     assert run_grid(db, ["run3"], ["sac"], **args).done == 1
@@ -171,13 +199,14 @@ def test_killed_worker_fails_only_its_job_and_the_next_run_completes_it(regimes:
     assert statuses(db) == {("mc", 0): "done", ("ppo", 0): "failed", ("sac", 0): "done"}
     (failures, error), = sql(db, "SELECT failures, error FROM jobs WHERE status = 'failed'")
     assert failures == 1 and "SIGKILL" in error
-    df = pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")
+    df = episode_rows(db)
     assert df.groupby("algo").size().to_dict() == {"mc": 12, "sac": 12}
 
     s = run_grid(db, ["run0"], ["mc", "ppo", "sac"], job_fn=fake_run_job, **args)
     assert (s.done, s.skipped, s.exit_code) == (1, 2, 0)
     assert set(statuses(db).values()) == {"done"}
-    assert len(pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")) == 3 * 12
+    assert len(episode_rows(db)) == 3 * 12
+    assert_views_hide_the_dry_run(db)
 
 
 def test_failing_job_is_retried_until_the_limit(regimes: Path, tmp_path: Path) -> None:
@@ -367,7 +396,8 @@ def test_dask_executor_runs_jobs_on_a_local_cluster(regimes: Path, tmp_path: Pat
         address = cluster.scheduler_address.replace("tcp://", "dask://")
         s = run_grid(db, ["run0"], ["ppo", "sac"], [0], 8, 2, executor=address, job_fn=fake_run_job, display=False)
     assert (s.done, s.failed) == (2, 0)
-    assert len(pd.read_sql("select * from episode_metrics", f"sqlite:///{db}")) == 2 * 10
+    assert len(episode_rows(db)) == 2 * 10
+    assert_views_hide_the_dry_run(db)
 
 
 def test_an_unreachable_dask_scheduler_fails_before_the_database_is_touched(regimes: Path, tmp_path: Path) -> None:
