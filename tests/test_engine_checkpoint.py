@@ -20,6 +20,22 @@ class Stopped(Exception):
     """Stands for the process being killed."""
 
 
+def batch_specs(models, jobs=JOBS, episodes: int = 5, first_id: int = 1):
+    """The JobSpecs of a batch of MC jobs whose models go to ``models`` (as ``nutribench run`` makes them)."""
+    from nutribench.agents.config import agent_config_sha256
+    from nutribench.config import load_env_config
+    from nutribench.jobs.spec import JobSpec
+
+    cfg = load_agent_config("mc")
+    out = []
+    for i, (regime, seed) in enumerate(jobs):
+        r = load_env_config(regime)
+        path = models / f"{r.name}-v{r.version}" / f"mc-v{cfg.version}" / f"seed{seed}-ep{episodes}.zip"
+        out.append(JobSpec(first_id + i, r.name, r.version, r.sha256, cfg.name, cfg.version, agent_config_sha256(cfg),
+                           seed, episodes, 2, str(path), r, cfg))  # fmt: skip
+    return out
+
+
 def small(algo: str):
     """The agent file, with DDQN's warm-up and target interval shortened so that updates,
     target copies and the epsilon schedule all happen within a few days."""
@@ -76,12 +92,13 @@ def test_a_checkpoint_of_other_jobs_is_refused(tmp_path):
         train_batched([("run0", 3), ("run6", 5)], "mc", 4, checkpoint=Checkpoint(path, every_seconds=0))
 
 
-def test_an_unreadable_checkpoint_is_ignored_with_a_warning(tmp_path):
+def test_an_unreadable_checkpoint_is_refused_in_one_line(tmp_path, capsys):
     path = tmp_path / "batch.pt"
     path.write_bytes(b"not a checkpoint")
-    with pytest.warns(UserWarning, match="unreadable checkpoint"):
-        checkpoint = Checkpoint(path)
+    checkpoint = Checkpoint(path)
     assert checkpoint.state is None
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "checkpoint refused" in err and "the batch starts over" in err, err
     checkpoint.remove()
     assert not path.exists()
 
@@ -93,21 +110,11 @@ def test_run_batch_resumes_a_stopped_batch_and_removes_its_checkpoint(tmp_path, 
     from functools import partial
 
     import nutribench.jobs.batch as batch
-    from nutribench.agents.config import agent_config_sha256
-    from nutribench.config import load_env_config
     from nutribench.jobs.spec import JobSpec
     from nutribench.jobs.worker import JobProgress
 
-    cfg = load_agent_config("mc")
-
     def specs(models: str) -> list[JobSpec]:
-        out = []
-        for i, (regime, seed) in enumerate(JOBS):
-            r = load_env_config(regime)
-            path = tmp_path / models / f"{r.name}-v{r.version}" / f"mc-v{cfg.version}" / f"seed{seed}-ep5.zip"
-            out.append(JobSpec(i + 1, r.name, r.version, r.sha256, cfg.name, cfg.version, agent_config_sha256(cfg),
-                               seed, 5, 2, str(path), r, cfg))  # fmt: skip
-        return out
+        return batch_specs(tmp_path / models)
 
     whole = batch.run_batch(specs("a"))
 
@@ -118,18 +125,28 @@ def test_run_batch_resumes_a_stopped_batch_and_removes_its_checkpoint(tmp_path, 
 
     monkeypatch.setattr(batch, "Checkpoint", partial(Checkpoint, every_seconds=0))
     monkeypatch.setattr(batch, "JobProgress", Killed)
+    # one set of specs for both runs: the checkpoint's name hashes the regime files, read anew by each specs()
+    b = specs("b")
     with pytest.raises(Stopped):
-        batch.run_batch(specs("b"))
+        batch.run_batch(b)
     files = list((tmp_path / "b" / "checkpoints").glob("mc-v*.pt"))
-    assert len(files) == 1 and batch.checkpoint_path(specs("b")) == files[0]
-    assert batch.checkpoint_path(specs("b")[:1]) != files[0]  # another batch: another file
+    assert len(files) == 1 and batch.checkpoint_path(b) == files[0]
+    assert batch.checkpoint_path(b[:1]) != files[0]  # another batch: another file
     manifest = batch.manifest(files[0])
-    assert json.loads(manifest.read_text()) == {"job_ids": [1, 2]}
-    monkeypatch.setattr(batch, "JobProgress", JobProgress)
-    again = batch.run_batch(specs("b"))
+    assert json.loads(manifest.read_text())["job_ids"] == [1, 2]
+    seen: list[int] = []
+
+    class Counted(JobProgress):
+        def episode(self, k_done: int, ret: float | None) -> None:
+            seen.append(k_done)
+
+    monkeypatch.setattr(batch, "JobProgress", Counted)
+    again = batch.run_batch(b)
+    assert seen and min(seen) > 1  # it resumed: only the days after the checkpoint were trained
     assert [r.train for r in again] == [r.train for r in whole]
     assert [r.eval for r in again] == [r.eval for r in whole]
     assert not files[0].exists() and not manifest.exists()
+    assert list((tmp_path / "b" / "checkpoints").iterdir()) == []  # nothing left: the JSON half, temporary files
 
 
 def test_a_batch_that_left_a_checkpoint_is_claimed_first_and_whole(tmp_path):
@@ -145,3 +162,200 @@ def test_a_batch_that_left_a_checkpoint_is_claimed_first_and_whole(tmp_path):
     assert [(p.job_ids, p.batched, p.batch_size) for p in out] == [
         ([21, 22, 25], True, 3), (list(range(1, 11)), True, 4), ([20, 23, 24, 26, 27, 28, 29], True, 4), ([40], False, 1)]
     assert checkpointed_first(pools, tmp_path / "none") == pools
+
+
+# --------------------------------------------------------------------------- no pickle (issue 28, item 1)
+class Planted:
+    """A pickle payload: unpickling it creates ``marker`` (as the audit's ran ``os.system``)."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        import os
+
+        return (os.mkdir, (self.marker,))
+
+
+def plant(path, marker, forged_sidecar: bool) -> None:
+    """A hostile checkpoint at ``path``: a pickle (``torch.save`` of an object), and with
+    ``forged_sidecar`` a JSON half of the right format naming its hash, so that the reader
+    goes as far as ``torch.load`` on it."""
+    import hashlib
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    th.save({"model": Planted(marker), "seconds": 1.0}, path)
+    if forged_sidecar:
+        from nutribench.engine.checkpoint import FORMAT
+
+        digest = hashlib.sha256(path.read_bytes()).hexdigest()
+        sidecar = path.with_name(path.name + ".state.json")
+        sidecar.write_text(json.dumps({"format": FORMAT, "tensors_sha256": digest, "state": {"dict": [], "id": 0}}))
+
+
+@pytest.mark.parametrize("forged_sidecar", [False, True])
+def test_a_planted_pickle_checkpoint_never_runs_and_the_batch_completes(tmp_path, capsys, forged_sidecar):
+    """Issue 28: a pickle planted in ``<models>/checkpoints/`` under the name the batch reads
+    is refused in one line (its code never runs: no marker); the batch trains from the start,
+    gives the results of a batch that found nothing, and leaves no checkpoint file behind."""
+    import nutribench.jobs.batch as batch
+
+    whole = batch.run_batch(batch_specs(tmp_path / "a"))
+    specs = batch_specs(tmp_path / "b")
+    path = batch.checkpoint_path(specs)
+    marker = tmp_path / "pwned"
+    plant(path, marker, forged_sidecar)
+    capsys.readouterr()
+    try:
+        again = batch.run_batch(specs)
+    finally:
+        assert not marker.exists(), "the planted pickle ran"
+    err = [line for line in capsys.readouterr().err.splitlines() if "checkpoint" in line]
+    assert len(err) == 1 and "checkpoint refused" in err[0] and str(path) in err[0], err
+    assert [r.train for r in again] == [r.train for r in whole]
+    assert [r.eval for r in again] == [r.eval for r in whole]
+    assert list(path.parent.iterdir()) == []
+
+
+def test_a_checkpoint_naming_a_class_outside_the_engine_is_refused(tmp_path, capsys):
+    """The JSON half builds only the engine's own classes, by name: a crafted one naming any
+    other (here ``os.system``) is refused, and nothing is called."""
+    import hashlib
+
+    from nutribench.engine.checkpoint import FORMAT
+
+    path = tmp_path / "batch.pt"
+    th.save({"t0": th.zeros(2)}, path)
+    state = {"dict": [["seconds", 1.0], ["x", {"object": "system", "attrs": {"dict": [["command", "touch pwned"]], "id": 2},
+                                               "id": 1}]], "id": 0}  # fmt: skip
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    path.with_name("batch.pt.state.json").write_text(json.dumps({"format": FORMAT, "tensors_sha256": digest, "state": state}))
+    assert Checkpoint(path).state is None
+    assert "unknown class 'system'" in capsys.readouterr().err
+
+
+def test_a_checkpoint_is_a_dict_of_tensors_and_json_and_keeps_shared_objects_shared(tmp_path):
+    """The two halves read without pickle (weights_only, plain JSON); a tensor held by a list
+    and by an optimiser is one tensor again once read, numpy generators go on where they were."""
+    from nutribench.engine.actor_critic import RunningStats
+
+    w = th.randn(3, 2, requires_grad=True)
+    params = [w]
+    opt = th.optim.Adam(params, lr=0.01)
+    w.sum().backward()
+    opt.step()
+    rng = np.random.default_rng(7)
+    stats = RunningStats(2, (3,))
+    stats.update(np.ones((2, 3)))
+    path = tmp_path / "batch.pt"
+    Checkpoint(path).save(model=(params, opt), rng=rng, stats=stats, counts={1: 2, "n": np.int64(3)}, inf=float("inf"))
+    tensors = th.load(path, weights_only=True)
+    assert isinstance(tensors, dict) and all(isinstance(t, th.Tensor) for t in tensors.values())
+    meta = json.loads((tmp_path / "batch.pt.state.json").read_text())
+    assert meta["format"].startswith("nutribench-checkpoint/")
+    state = Checkpoint(path).state
+    params2, opt2 = state["model"]
+    assert opt2.param_groups[0]["params"][0] is params2[0] and params2[0].requires_grad
+    assert th.equal(params2[0], w) and opt2.param_groups[0]["lr"] == 0.01
+    assert th.equal(opt2.state[params2[0]]["exp_avg"], opt.state[w]["exp_avg"])
+    assert state["rng"].random() == rng.random()
+    np.testing.assert_array_equal(state["stats"].mean, stats.mean)
+    assert state["counts"] == {1: 2, "n": 3} and type(state["counts"]["n"]) is np.int64 and state["inf"] == float("inf")
+
+
+def test_a_save_killed_between_its_two_renames_is_finished_by_the_next_read(tmp_path, monkeypatch):
+    import nutribench.engine.checkpoint as ckpt
+
+    path = tmp_path / "batch.pt"
+    Checkpoint(path).save(steps=1, x=np.zeros(3))
+    real, calls = ckpt.os.replace, []
+
+    def replace(src, dst):
+        calls.append(dst)
+        if len(calls) == 2:  # the JSON renamed, the tensors not yet
+            raise Stopped
+        real(src, dst)
+
+    monkeypatch.setattr(ckpt.os, "replace", replace)
+    with pytest.raises(Stopped):
+        Checkpoint(path).save(steps=2, x=np.ones(3))
+    monkeypatch.setattr(ckpt.os, "replace", real)
+    state = Checkpoint(path).state
+    assert state["steps"] == 2 and state["x"].tolist() == [1, 1, 1]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["batch.pt", "batch.pt.state.json"]
+
+
+def test_a_save_that_finds_the_disk_full_keeps_the_previous_checkpoint(tmp_path, monkeypatch, capsys):
+    import errno
+
+    import nutribench.engine.checkpoint as ckpt
+
+    path = tmp_path / "batch.pt"
+    Checkpoint(path).save(steps=1, x=np.zeros(3))
+
+    def full(obj, f, *a, **k):
+        open(f, "wb").write(b"PK\x03")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(ckpt.th, "save", full)
+    Checkpoint(path).save(steps=2, x=np.ones(3))  # says so, does not raise: training goes on
+    assert "checkpoint not saved (OSError: [Errno 28] No space left on device)" in capsys.readouterr().err
+    monkeypatch.undo()
+    assert Checkpoint(path).state["steps"] == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["batch.pt", "batch.pt.state.json"]
+
+
+def write_manifest(path, specs) -> None:
+    """``<checkpoint>.jobs.json`` as run_batch writes it: the job ids, and what each job is."""
+    jobs = [{"job_id": s.job_id, "algo_sha256": s.algo_sha256, "regime_sha256": s.regime_sha256, "seed": s.seed,
+             "episodes": s.episodes} for s in specs]  # fmt: skip
+    path.with_name(path.name + ".jobs.json").write_text(json.dumps({"job_ids": [s.job_id for s in specs], "jobs": jobs}))
+
+
+def test_a_finished_batch_removes_the_checkpoints_other_batches_left_of_its_jobs(tmp_path):
+    """Issue 28: a batch killed, then formed otherwise (another code version, other batch
+    sizes), left its files forever. Once its jobs are done, the finished batch deletes them;
+    a checkpoint of other jobs stays."""
+    import nutribench.jobs.batch as batch
+
+    specs = batch_specs(tmp_path / "m")
+    folder = batch.checkpoint_path(specs).parent
+    name = f"mc-v{specs[0].algo_version}-"
+    # a killed batch of job 2 and job 7 under another name (as another code version names it)
+    old = batch_specs(tmp_path / "m", jobs=[("run6", 4), ("run0", 9)], first_id=2)
+    old[1] = batch_specs(tmp_path / "m", jobs=[("run0", 9)], first_id=7)[0]
+    Checkpoint(folder / f"{name}0ld.pt").save(steps=1)
+    write_manifest(folder / f"{name}0ld.pt", old)
+    # an older nutribench's manifest (job ids only) of jobs 1 and 8, and a batch of other jobs
+    (folder / f"{name}0lder.pt.jobs.json").write_text(json.dumps({"job_ids": [1, 8]}))
+    (folder / f"{name}0lder.pt").write_bytes(b"old")
+    others = batch_specs(tmp_path / "m", jobs=[("run0", 5), ("run6", 6)], first_id=3)
+    Checkpoint(folder / f"{name}0ther.pt").save(steps=1)
+    write_manifest(folder / f"{name}0ther.pt", others)
+    batch.run_batch(specs)
+    assert sorted(p.name for p in folder.iterdir()) == [f"{name}0ther.pt", f"{name}0ther.pt.jobs.json",
+                                                        f"{name}0ther.pt.state.json"]  # fmt: skip
+
+
+def test_a_model_save_cut_short_leaves_the_previous_model_whole(tmp_path, monkeypatch):
+    """Issue 28: a model file cut short by a full disk was left in place; each file is now
+    written to a temporary name and renamed."""
+    import errno
+
+    agent = train_batched([("run0", 3)], "mc", 1)[0]
+    path = tmp_path / "m" / "seed3-ep1.zip"
+    agent.save(path)
+    before = {p.name: p.read_bytes() for p in path.parent.iterdir()}
+    assert set(before) == {"seed3-ep1.zip", "seed3-ep1.json", "seed3-ep1.vecnormalize.pkl"}
+
+    def full(where, *a, **k):
+        with open(where, "wb") as f:
+            f.write(b"PK\x03\x04 half a model")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(agent.model, "save", full)
+    with pytest.raises(OSError):
+        agent.save(path)
+    assert {p.name: p.read_bytes() for p in path.parent.iterdir()} == before
+    monkeypatch.undo()
+    assert type(agent).load(path).algo == "mc"

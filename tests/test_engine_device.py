@@ -129,7 +129,7 @@ def test_an_explicit_cpu_run_is_the_default_run_bit_for_bit(algo: str) -> None:
 
 def test_a_checkpoint_read_onto_the_device_it_was_read_onto_is_not_read_again(tmp_path: Path) -> None:
     path = tmp_path / "batch.pt"
-    th.save({"seconds": 1.0, "x": th.ones(2)}, path)
+    Checkpoint(path).save(x=th.ones(2))
     checkpoint = Checkpoint(path, device="cpu")
     state = checkpoint.state
     assert checkpoint.read_onto(th.device("cpu")) is state and state["x"].device.type == "cpu"

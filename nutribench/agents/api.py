@@ -20,8 +20,11 @@ call twice gives identical metrics on the same machine.
 
 from __future__ import annotations
 
+import glob
 import json
+import os
 import shutil
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,6 +56,22 @@ EpisodeFn = Callable[[dict[str, Any]], None]
 def vec_normalize_path(model_path: str | Path) -> Path:
     """Where the ``VecNormalize`` statistics of a saved model live: ``m.zip`` -> ``m.vecnormalize.pkl``."""
     return Path(model_path).with_suffix(".vecnormalize.pkl")
+
+
+def _write_atomically(target: Path, write: Callable[[Path], Any]) -> bool:
+    """``write(tmp)`` to a temporary name beside ``target`` (same suffix), then renamed over
+    it, so that a write cut short (a full disk, a kill) never leaves a partial ``target``;
+    whatever it left is deleted. False (nothing renamed) if ``write`` wrote no file at that name."""
+    tmp = target.with_name(f".{target.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp{target.suffix}")
+    try:
+        write(tmp)
+        if tmp.is_file():
+            os.replace(tmp, target)
+            return True
+    finally:
+        for p in target.parent.glob(glob.escape(tmp.name) + "*"):
+            p.unlink(missing_ok=True)
+    return False
 
 
 def eval_food_streams(regime: str | EnvConfig, job_seed: int, n: int = 5) -> np.ndarray:
@@ -113,12 +132,14 @@ class TrainedAgent:
 
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        self.model.save(path)
+        # each file written to a temporary name beside it, then renamed: never a partial file
+        if not _write_atomically(path if path.suffix else Path(f"{path}.zip"), self.model.save):  # SB3 adds .zip
+            self.model.save(path)  # a save that names its own file (an external agent's): as it writes it
         target = vec_normalize_path(path)
         if self.vec_normalize is not None:
-            self.vec_normalize.save(str(target))
+            _write_atomically(target, lambda tmp: self.vec_normalize.save(str(tmp)))
         elif self.vec_normalize_file is not None and self.vec_normalize_file.resolve() != target.resolve():
-            shutil.copyfile(self.vec_normalize_file, target)
+            _write_atomically(target, lambda tmp: shutil.copyfile(self.vec_normalize_file, tmp))
         has_pickle = self.vec_normalize is not None or self.vec_normalize_file is not None
         meta = collect_metadata()
         side = {
@@ -130,7 +151,7 @@ class TrainedAgent:
             "obs_var": None if self.obs_var is None else self.obs_var.tolist(),
             "provenance": {**self.provenance, **{k: meta[k] for k in ("nutribench_version", "git_commit", "git_dirty")}},
         }
-        path.with_suffix(".json").write_text(json.dumps(side, indent=1))
+        _write_atomically(path.with_suffix(".json"), lambda tmp: tmp.write_text(json.dumps(side, indent=1)))
         return path
 
     @classmethod

@@ -63,16 +63,32 @@ class AgentEnvs:
         self.episodes: list[list[dict[str, Any]]] = [[] for _ in range(self.k)]
         self._entropy = np.zeros(self.k)
 
-    def __getstate__(self) -> dict[str, Any]:  # a checkpoint keeps the state, not the caller's callback
-        return {**self.__dict__, "on_episode": None}
+    def checkpoint_state(self) -> dict[str, Any]:
+        """What a checkpoint keeps of these envs (:mod:`nutribench.engine.checkpoint`), plain
+        data only: the jobs (seeds, regime hashes), the random streams, the statistics, the
+        days so far, and each env's and recorder's arrays and counters (their ``_`` attributes)."""
+        return {"seeds": list(self.seeds), "regimes": [c.sha256 for c in self.env_cfgs], "rng": self.rng,
+                "obs_stats": self.obs_stats, "days_drawn": self.days_drawn, "episodes": self.episodes,
+                "entropy": self._entropy,
+                "groups": [{"env": _plain_state(g.env), "recorder": _plain_state(g.recorder)} for g in self.groups]}  # fmt: skip
 
-    def restore(self, saved: AgentEnvs) -> None:
-        """Take over the state of ``saved`` (from a checkpoint), keeping this one's ``on_episode``."""
-        if saved.seeds != self.seeds or [c.sha256 for c in saved.env_cfgs] != [c.sha256 for c in self.env_cfgs]:
+    def restore(self, saved: dict[str, Any]) -> None:
+        """Take over ``saved`` (:meth:`checkpoint_state` of the same jobs, from a checkpoint),
+        keeping this one's ``on_episode``; ValueError for a state of other jobs, or one that
+        does not fit these envs (another code version)."""
+        if saved["seeds"] != self.seeds or saved["regimes"] != [c.sha256 for c in self.env_cfgs]:
             raise ValueError("the checkpoint is of other jobs than this batch's")
-        on_episode = self.on_episode
-        self.__dict__.update(saved.__dict__)
-        self.on_episode = on_episode
+        rng = saved["rng"]
+        if (not isinstance(rng, dict) or set(rng) != set(STREAMS)
+                or any(len(rs) != self.k or not all(isinstance(r, np.random.Generator) for r in rs) for rs in rng.values())):  # fmt: skip
+            raise ValueError("the checkpoint's random streams do not fit this batch")
+        if type(saved["obs_stats"]) is not type(self.obs_stats) or len(saved["groups"]) != len(self.groups):
+            raise ValueError("the checkpoint's envs do not fit this batch")
+        for g, s in zip(self.groups, saved["groups"]):
+            _set_plain_state(g.env, s["env"])
+            _set_plain_state(g.recorder, s["recorder"])
+        self.rng, self.obs_stats, self._entropy = rng, saved["obs_stats"], np.asarray(saved["entropy"], dtype=np.float64)
+        self.days_drawn, self.episodes = list(saved["days_drawn"]), [list(e) for e in saved["episodes"]]
 
     def new_days(self) -> np.ndarray:
         """Start a day for every agent (foods from its own stream); the raw observations."""
@@ -125,6 +141,26 @@ class AgentEnvs:
         if day_over:
             self._entropy[:] = 0.0
         return raw_next, rewards, day_over
+
+
+def _plain_state(obj: Any) -> dict[str, Any]:
+    """``obj``'s own ``_`` attributes that are arrays or numbers: an env's or recorder's state."""
+    return {k: v for k, v in vars(obj).items() if k.startswith("_") and isinstance(v, (np.ndarray, int, float))}
+
+
+def _set_plain_state(obj: Any, state: dict[str, Any]) -> None:
+    """Put ``state`` (:func:`_plain_state` of a like object) into ``obj``, each attribute of
+    the type (arrays: dtype and shape) it has there; ValueError where one does not fit."""
+    mine = _plain_state(obj)
+    if not isinstance(state, dict) or set(state) != set(mine):
+        raise ValueError(f"the checkpoint's {type(obj).__name__} state does not fit this batch")
+    for key, value in state.items():
+        have = mine[key]
+        fits = (isinstance(value, np.ndarray) and value.dtype == have.dtype and value.shape == have.shape
+                if isinstance(have, np.ndarray) else type(value) is type(have))  # fmt: skip
+        if not fits:
+            raise ValueError(f"the checkpoint's {type(obj).__name__}.{key} does not fit this batch")
+        setattr(obj, key, value)
 
 
 def as_trained_agent(envs: AgentEnvs, j: int, cfg: Any, episodes: int, store_weights: Callable[[Any], None],

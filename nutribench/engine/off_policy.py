@@ -22,8 +22,9 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from nutribench.engine.checkpoint import Checkpoint
+from nutribench.engine.checkpoint import Checkpoint, register
 from nutribench.engine.device import leaves_on
+from nutribench.engine.actor_critic import RunningStats
 from nutribench.engine.envs import AgentEnvs
 
 
@@ -144,6 +145,9 @@ class StackedReplay:
             rewards=on(returns.astype(np.float32)), next_obs=on(normalize(self.next_obs[r2, end])),
             dones=on(self.dones[r2, end].astype(np.float32)), discounts=on((self.gamma ** steps).astype(np.float32)),
         )  # fmt: skip
+
+
+register(StackedMLP, StackedReplay, RunningStats)  # what its checkpoints hold
 
 
 #: Adam's eps in SB3's off-policy policies (DQN, and DiscreteSAC's): torch's default.

@@ -31,7 +31,7 @@ import torch as th
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
 from nutribench.engine import check_supported
-from nutribench.engine.checkpoint import Checkpoint, resumed
+from nutribench.engine.checkpoint import Checkpoint, register, resumed
 from nutribench.engine.device import resolve_device
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
 from nutribench.engine.actor_critic import linears, losses_on_cpu, make_adam
@@ -76,6 +76,9 @@ class StackedSAC:
         for net, critic in ((self.critic, policy.critic), (self.critic_target, policy.critic_target)):
             net.store_linears(j, linears(critic.q1))
             net.store_linears(self.k + j, linears(critic.q2))
+
+
+register(StackedSAC)  # what its checkpoints hold
 
 
 def sac_update(net: StackedSAC, batch: Batch, alpha: float, gamma: float, tau: float) -> dict[str, np.ndarray]:

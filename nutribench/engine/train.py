@@ -43,7 +43,7 @@ from nutribench.agents.config import load_agent_config
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.engine import check_supported
 from nutribench.engine.actor_critic import OnPolicySettings, Rollout, RunningStats, StackedActorCritic, gae, make_optimizer
-from nutribench.engine.checkpoint import Checkpoint
+from nutribench.engine.checkpoint import Checkpoint, register
 from nutribench.engine.device import resolve_device
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
 from nutribench.engine.gru_ppo import StackedGRUActorCritic, gru_ppo_update
@@ -74,6 +74,9 @@ class _Recurrent:
         if advance:
             self.state = state
         return logits, values
+
+
+register(_Feedforward, _Recurrent, StackedActorCritic, StackedGRUActorCritic, RunningStats)  # what its checkpoints hold
 
 
 def train_batched(

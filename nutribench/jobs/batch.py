@@ -13,14 +13,18 @@ A batch saves its training state every few minutes to ``<models>/checkpoints/`` 
 run`` resumes from there. The file's name says what the batch is (agent config, budget,
 regimes and seeds, code version), so another batch or another code version never reads it;
 it is deleted once the batch's jobs are evaluated and handed to the driver. Beside it,
-``<checkpoint>.jobs.json`` lists the batch's job ids: the scheduler claims those jobs as one
-batch again before it forms new ones.
+``<checkpoint>.jobs.json`` lists the batch's job ids (and what each job is): the scheduler
+claims those jobs as one batch again before it forms new ones. A finished batch also deletes
+the checkpoints that other batches left of any of its jobs (a batch killed and then formed
+otherwise, or by another code version, whose name differs): those jobs are done, and such a
+checkpoint could never be resumed.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
 import time
 import uuid
 from pathlib import Path
@@ -28,7 +32,7 @@ from pathlib import Path
 from nutribench.agents import eval_food_streams, evaluate
 from nutribench.clock import utcnow
 from nutribench.engine import supports
-from nutribench.engine.checkpoint import Checkpoint
+from nutribench.engine.checkpoint import Checkpoint, checkpoint_files
 from nutribench.engine.device import resolve_device
 from nutribench.engine.train import train_batched
 from nutribench.jobs.run import check_configs
@@ -59,8 +63,7 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
     checkpoint = None
     if path is not None:
         checkpoint = Checkpoint(path, device=device)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        manifest(path).write_text(json.dumps({"job_ids": [s.job_id for s in specs]}))
+        write_manifest(path, specs)
     agents = train_batched(
         [(s.regime_config, s.seed) for s in specs], specs[0].agent_config, specs[0].episodes,
         on_episode=lambda j, row: progress[j].episode(row["episode"] + 1, row["return"]), checkpoint=checkpoint,
@@ -83,6 +86,7 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
     if path is not None:
         checkpoint.remove()
         manifest(path).unlink(missing_ok=True)
+        remove_abandoned(path.parent, specs)
     return results
 
 
@@ -90,6 +94,48 @@ def manifest(path: Path) -> Path:
     """``<checkpoint>.jobs.json``: the job ids of the batch, so that the next run claims the
     same batch and it resumes (:func:`nutribench.scheduler.batching.checkpointed_first`)."""
     return path.with_name(path.name + ".jobs.json")
+
+
+def _job(spec: JobSpec) -> dict[str, object]:
+    """What a manifest records of one job: its id and what it is."""
+    return {"job_id": spec.job_id, "algo_sha256": spec.algo_sha256, "regime_sha256": spec.regime_sha256,
+            "seed": spec.seed, "episodes": spec.episodes}  # fmt: skip
+
+
+def write_manifest(path: Path, specs: list[JobSpec]) -> None:
+    """Write :func:`manifest` of the batch ``specs`` (to a temporary name, then renamed)."""
+    target = manifest(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps({"job_ids": [s.job_id for s in specs], "jobs": [_job(s) for s in specs]}))
+    os.replace(tmp, target)
+
+
+def remove_abandoned(folder: Path, specs: list[JobSpec]) -> list[Path]:
+    """Delete the manifests in ``folder`` that name one of the (now finished) jobs ``specs``,
+    and their checkpoints: batches killed earlier whose jobs are done now. A job counts by
+    its id and what it is (agent config, regime, seed, budget); a manifest of an older
+    nutribench (job ids only) by its ids and the file name's agent config. Returns the
+    manifests deleted."""
+    mine = {json.dumps(_job(s), sort_keys=True) for s in specs}
+    ids = {s.job_id for s in specs}
+    prefix = f"{specs[0].algo}-v{specs[0].algo_version}-"
+    removed = []
+    for path in sorted(folder.glob("*.jobs.json")) if folder.is_dir() else []:
+        try:
+            data = json.loads(path.read_text())
+            if isinstance(data.get("jobs"), list):
+                hit = any(json.dumps(j, sort_keys=True) in mine for j in data["jobs"])
+            else:
+                hit = path.name.startswith(prefix) and bool(ids & {int(i) for i in data["job_ids"]})
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            continue
+        if hit:
+            for p in checkpoint_files(path.with_name(path.name[: -len(".jobs.json")])):
+                p.unlink(missing_ok=True)
+            path.unlink(missing_ok=True)
+            removed.append(path)
+    return removed
 
 
 def checkpoint_path(specs: list[JobSpec]) -> Path | None:
