@@ -146,7 +146,7 @@ def test_table1_needs_no_database(tmp_path: Path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--fig", "5"], "--fig 5: the figures are 1, 2, 3, 4"),
+        (["--fig", "6"], "--fig 6: the figures are 1, 2, 3, 4, 5"),
         (["--fig", "1,x"], "--fig x"),
         (["--table", "7"], "--table 7"),
         ([], "nothing to build"),

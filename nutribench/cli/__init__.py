@@ -18,6 +18,7 @@ import typer
 
 from nutribench.cli.agents import baselines, train_cmd
 from nutribench.cli.bench import bench_app
+from nutribench.cli.compare import compare_cmd
 from nutribench.cli.db import db_app
 from nutribench.cli.evaluate import evaluate_cmd
 from nutribench.cli.regimes import regimes_app
@@ -31,6 +32,7 @@ app.command("train")(train_cmd)
 app.command("run")(run_cmd)
 app.command("status")(status_cmd)
 app.command("report")(report_cmd)
+app.command("compare")(compare_cmd)
 app.command("evaluate")(evaluate_cmd)
 app.add_typer(db_app, name="db")
 app.add_typer(bench_app, name="bench")

@@ -59,8 +59,8 @@ def parse_pair(value: str | None) -> list[str] | None:
 
 @user_errors
 def report_cmd(
-    fig: Annotated[Optional[list[str]], typer.Option("--fig", help="figure 1-4 (repeat or comma list; 'all')")] = None,
-    table: Annotated[Optional[list[str]], typer.Option("--table", help="table 1-6, 7... (the database's other agent configs; or a config's name), 'results' or 'training' (repeat or comma list; 'all')")] = None,
+    fig: Annotated[Optional[list[str]], typer.Option("--fig", help="figure 1-4, or 5 (aggregate scores over regimes and seeds) (repeat or comma list; 'all')")] = None,
+    table: Annotated[Optional[list[str]], typer.Option("--table", help="table 1-6, 7... (the database's other agent configs; or a config's name), 'results', 'training' or 'aggregate' (repeat or comma list; 'all')")] = None,
     all_: Annotated[bool, typer.Option("--all", help="every figure and table the database supports")] = False,
     algos: Annotated[Optional[str], typer.Option("--algos", help="agent configs drawn in the figures and tables, comma list (default: every config in the database)")] = None,
     pair: Annotated[Optional[str], typer.Option("--pair", help="the two agent configs of figure 4, comma list (default: ppo,gru_ppo)")] = None,

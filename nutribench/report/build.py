@@ -59,11 +59,12 @@ FIGURES: dict[int, str] = {
     2: "fig2_training_foods",
     3: "fig3_eval_across_regimes",
     4: "fig4_ppo_vs_gru_ppo",
+    5: "fig5_aggregate",  # not the paper's: aggregate scores with rliable (nutribench.report.aggregate)
 }
 #: Tables: 1 (regimes), 2-6 (the built-in agent configurations), "results", "training"; the
 #: other configs of a database add Tables 7, 8, ... (``table<N>_<name>``).
 TABLES: dict[str, str] = {"1": "table1_regimes", **{str(n): f"table{n}_{a}" for n, a in CONFIG_TABLES.items()}, "results": "table_results",
-                           "training": "table_training_vs_authors"}
+                           "training": "table_training_vs_authors", "aggregate": "table_aggregate"}
 #: Figure 4's default pair (its file keeps the name ``fig4_ppo_vs_gru_ppo``).
 FIG4_ALGOS = DEFAULT_PAIR = ("ppo", "gru_ppo")
 PNG_DPI = 150
@@ -283,8 +284,12 @@ def build_figure(
             res = training_curves(data.train, "return" if number == 1 else "foods", best_line=number == 1, colors=data.colors)
         elif number in (3, 4):
             res = _eval_figure(number, data, pair, reference_episodes, log)
+        elif number == 5:
+            from nutribench.report.aggregate import aggregate_figure
+
+            res = aggregate_figure(_aggregate(data, "figure 5"), data.colors, ev=data.eval)
         else:
-            raise ReportError(f"no figure {number}: the figures are 1, 2, 3, 4")
+            raise ReportError(f"no figure {number}: the figures are {', '.join(map(str, FIGURES))}")
     except ValueError as e:
         if isinstance(e, ReportError):
             raise
@@ -320,7 +325,7 @@ def _stored_or_none(db: Db | None) -> dict[str, Any]:
 
 
 def _table_list(numbers: dict[int, str]) -> str:
-    return ", ".join(["1", *(f"{n} ({name})" for n, name in numbers.items()), "results", "training"])
+    return ", ".join(["1", *(f"{n} ({name})" for n, name in numbers.items()), "results", "training", "aggregate"])
 
 
 def resolve_table(key: str, numbers: dict[int, str]) -> tuple[str, str]:
@@ -353,10 +358,26 @@ def _config_table(number: int, name: str, db: Db | None, stored: dict[str, Any] 
     return table_agent_config(number, config)
 
 
+def _aggregate(data: ReportData, what: str):
+    """The aggregate scores of ``data``'s evaluation episodes (Figure 5 and the aggregate
+    table), computed once per ``data``."""
+    from nutribench.report.aggregate import aggregate_from_eval
+
+    if data.eval.empty:
+        raise ReportError(f"{what}: no evaluation episodes{data.what()} in the database")
+    if getattr(data, "_aggregate", None) is None:
+        data._aggregate = aggregate_from_eval(data.eval, eval_day_references(data.eval))  # type: ignore[attr-defined]
+    return data._aggregate  # type: ignore[attr-defined]
+
+
 def _metrics_table(key: str, data: ReportData | None) -> TableResult:
-    """The results or the training table of ``data``."""
+    """The results, the training or the aggregate table of ``data``."""
     if data is None:
         raise ReportError(f"the {key} table needs the episode metrics of the database")
+    if key == "aggregate":
+        from nutribench.report.aggregate import aggregate_table
+
+        return _with_notes(aggregate_table(_aggregate(data, "aggregate table")), data)
     if key == "results":
         ev = data.eval
         if ev.empty:
@@ -380,7 +401,7 @@ def build_table(key: str, data: ReportData | None = None, db: Db | None = None, 
         if not names:
             raise ReportError("table 1: no regime files found")
         return table_regimes([load_env_config(n) for n in names])
-    if key in ("results", "training"):
+    if key in ("results", "training", "aggregate"):
         return _metrics_table(key, data)
     if stored is None and key not in TABLES:
         stored = _stored_or_none(db)
@@ -397,7 +418,7 @@ def _table_plan(tables: Sequence[str], all: bool, stored: dict[str, Any] | None,
     keys = [t for t in tables if t != "all"]
     if all or "all" in tables:
         configs = [str(n) for n, name in numbers.items() if algos is None or name in algos]
-        keys = ["1", *configs, "results", "training", *keys]
+        keys = ["1", *configs, "results", "training", "aggregate", *keys]
     plan: dict[str, str] = {}
     for k in keys:
         key, stem = resolve_table(k, numbers)
@@ -460,7 +481,7 @@ def build_report(
     plan = _table_plan(tables, all, stored, algos)
     # the database is read once, up front, and only when something needs it: a database that
     # cannot be read (missing, empty, outdated) fails the whole command, even with ``all``
-    raw = read_metrics(db) if figs or {"results", "training"} & set(plan) else None
+    raw = read_metrics(db) if figs or {"results", "training", "aggregate"} & set(plan) else None
     data = prepare(raw, algos) if raw is not None else None
     pair_data = prepare(raw, pair) if raw is not None and 4 in figs else None
     if log:

@@ -1,0 +1,34 @@
+"""``nutribench compare A B``: two agent configs on the evaluation days they both played,
+paired by seed and day (a thin layer over :mod:`nutribench.report.compare`)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Optional
+
+import typer
+
+from nutribench.cli.common import UserError, console, user_errors
+
+
+@user_errors
+def compare_cmd(
+    a: Annotated[str, typer.Argument(help="agent config A (a name in the database, e.g. gru_ppo)")],
+    b: Annotated[str, typer.Argument(help="agent config B, compared with A")],
+    regimes: Annotated[Optional[str], typer.Option("--regimes", help="regimes, comma list (default: every regime both were evaluated on)")] = None,
+    markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
+    db: Annotated[str, typer.Option(help="results database: a file path or a SQLAlchemy URL")] = "nutribench.db",
+    reps: Annotated[int, typer.Option(min=100, help="bootstrap resamples of the seeds")] = 10_000,
+) -> None:
+    """A - B per regime and over regimes: the mean paired difference of evaluation returns
+    (same seed, same day) with a 95 % bootstrap interval over seeds, P(A > B) over the paired
+    days, and how many seeds were paired."""
+    from nutribench.report.compare import load_comparison
+
+    names = None
+    if regimes is not None:
+        names = [r.strip() for r in regimes.split(",") if r.strip()]
+        if not names:
+            raise UserError("--regimes: give a comma list of regimes, e.g. --regimes run1,run3")
+    res = load_comparison(db, a, b, regimes=names, reps=reps)
+    text = res.to_markdown() if markdown else res.to_text()
+    console.print(text, end="", highlight=False, soft_wrap=True, markup=False)

@@ -1,0 +1,256 @@
+"""Paired comparison of two agent configs on the days they were both evaluated on
+(``nutribench compare A B``).
+
+Every agent of a seed plays the same evaluation days on a regime (episode ``k`` of seed
+``s`` is the same food stream for every agent, :func:`nutribench.agents.eval_food_streams`),
+so two agents' returns pair by (regime, seed, episode). Per regime and over groups of
+regimes (``all`` compared regimes; the ``delayed`` ones, run1-run6, when run0 is among them):
+
+* the mean paired difference ``A - B`` of the returns over the paired days, with a 95 %
+  percentile bootstrap interval over **seeds**: a resample draws the regime's seeds with
+  replacement and keeps all the paired days of a drawn seed together (the days of one seed
+  share one trained agent each, so they are not independent); over several regimes the
+  seeds are redrawn within each regime (stratified) and the days of all regimes pooled;
+* P(A > B): the share of paired days on which A's return is higher (a tie counts half),
+  with an interval from the same resamples;
+* how many seeds and days were paired.
+
+DataFrame in, :class:`Comparison` out (:func:`compare_agents`; :func:`paired_days` is the
+pairing alone); :func:`load_comparison` reads a results database the way ``nutribench
+report`` does (newest config versions, largest budget, newest job per seed). Errors a user
+can fix raise :class:`CompareError` (one line).
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from nutribench.errors import UserError
+from nutribench.report.aggregate import DELAYED_REGIMES, regime_span
+from nutribench.report.figures import budget_seeds_text, seed_list, sort_regimes
+from nutribench.report.palette import label as algo_label
+from nutribench.report.palette import order as sort_algos
+
+#: Bootstrap resamples of the seeds.
+DEFAULT_REPS = 10_000
+CONFIDENCE = 0.95
+COLUMNS = ["regime", "regimes", "seeds", "days", "a_mean", "b_mean", "diff", "diff_lo", "diff_hi", "p_a_better", "p_lo", "p_hi"]
+
+class CompareError(UserError, ValueError):
+    """Two agents that cannot be compared as asked; printed as one line."""
+
+
+def paired_days(ev: pd.DataFrame, a: str, b: str, regimes: Sequence[str] | None = None) -> pd.DataFrame:
+    """The evaluation days both ``a`` and ``b`` played: one row per (regime, seed, episode)
+    with each one's return (columns regime, seed, episode, a, b), in that order. Rows pair by
+    key, never by position; ``ev`` must hold one row per (regime, algo, seed, episode)."""
+    ev = ev[ev["phase"] == "eval"] if "phase" in ev else ev
+    if regimes is not None:
+        ev = ev[ev["regime"].isin(list(regimes))]
+    key = ["regime", "seed", "episode"]
+    sides = []
+    for name, col in ((a, "a"), (b, "b")):
+        rows = ev[ev["algo"] == name]
+        dup = rows.duplicated(key)
+        if dup.any():
+            r = rows[dup].iloc[0]
+            raise ValueError(f"{name}: several rows for {r['regime']} seed {r['seed']} day {r['episode']}: pick one job per run first (report.build.prepare)")
+        sides.append(rows[key + ["return"]].rename(columns={"return": col}))
+    out = sides[0].merge(sides[1], on=key, how="inner", validate="one_to_one")
+    rank = {r: i for i, r in enumerate(sort_regimes(out["regime"]))}
+    out = out.assign(_rank=out["regime"].map(rank)).sort_values(["_rank", "seed", "episode"])
+    return out.drop(columns="_rank").reset_index(drop=True)
+
+
+def _per_seed(days: pd.DataFrame) -> pd.DataFrame:
+    """Per seed of one regime's paired days: the number of days, the sum of A - B, of A, of B
+    and of the wins (1 when A is higher, 1/2 on a tie)."""
+    d = days.assign(diff=days["a"] - days["b"], win=(days["a"] > days["b"]) + 0.5 * (days["a"] == days["b"]))
+    return d.groupby("seed").agg(n=("diff", "size"), diff=("diff", "sum"), a=("a", "sum"), b=("b", "sum"), win=("win", "sum"))
+
+
+def _interval(values: np.ndarray, confidence: float) -> tuple[float, float]:
+    alpha = (1 - confidence) / 2
+    lo, hi = np.percentile(values, [100 * alpha, 100 * (1 - alpha)])
+    return float(lo), float(hi)
+
+
+def _summary(name: str, regimes: list[str], days: pd.DataFrame, reps: int, seed: int, confidence: float) -> dict:
+    """One row of the comparison: ``days`` (the paired days of ``regimes``) summarised, with
+    a bootstrap over seeds stratified by regime."""
+    per = {r: _per_seed(days[days["regime"] == r]) for r in regimes}
+    n = sum(p["n"].sum() for p in per.values())
+    row = {"regime": name, "regimes": ",".join(regimes), "seeds": int(sum(len(p) for p in per.values())), "days": int(n),
+           "a_mean": float(days["a"].mean()), "b_mean": float(days["b"].mean()),
+           "diff": float((days["a"] - days["b"]).mean()),
+           "p_a_better": float(sum(p["win"].sum() for p in per.values()) / n)}  # fmt: skip
+    if max(len(p) for p in per.values()) < 2:  # one seed everywhere: nothing to resample
+        return {**row, "diff_lo": float("nan"), "diff_hi": float("nan"), "p_lo": float("nan"), "p_hi": float("nan")}
+    rng = np.random.default_rng([seed, *(zlib.crc32(r.encode()) for r in regimes)])
+    tot_n, tot_diff, tot_win = np.zeros(reps), np.zeros(reps), np.zeros(reps)
+    for p in per.values():
+        pick = rng.integers(0, len(p), size=(reps, len(p)))  # the regime's seeds, drawn with replacement
+        tot_n += p["n"].to_numpy()[pick].sum(axis=1)
+        tot_diff += p["diff"].to_numpy()[pick].sum(axis=1)
+        tot_win += p["win"].to_numpy()[pick].sum(axis=1)
+    row["diff_lo"], row["diff_hi"] = _interval(tot_diff / tot_n, confidence)
+    row["p_lo"], row["p_hi"] = _interval(tot_win / tot_n, confidence)
+    return row
+
+
+@dataclass
+class Comparison:
+    """``a`` against ``b``: one row per regime, then the aggregated rows (``rows``, columns
+    :data:`COLUMNS`; ``regime`` is ``all`` or ``delayed`` for those), the paired days, and
+    notes (what could not be paired, what was left out of the database's rows)."""
+
+    a: str
+    b: str
+    rows: pd.DataFrame
+    days: pd.DataFrame
+    reps: int
+    notes: list[str] = field(default_factory=list)
+    #: the training budgets and seeds of each agent's rows, for the header
+    provenance: str = ""
+
+    def title(self) -> str:
+        la, lb = algo_label(self.a), algo_label(self.b)
+        return (f"{la} - {lb}: mean paired difference of evaluation returns (same seed, same day), 95 % bootstrap interval over "
+                f"seeds ({self.reps} resamples, a seed's days kept together); P({la} > {lb}) over paired days (ties count half)")
+
+    def formatted(self) -> pd.DataFrame:
+        """The rows as text: regime, seeds, days, means, difference [interval], P(A > B) [interval]."""
+        la, lb = algo_label(self.a), algo_label(self.b)
+        out = []
+        for r in self.rows.itertuples(index=False):
+            name = r.regime
+            if r.regime in ("all", "delayed"):
+                name = f"{r.regime} ({regime_span(r.regimes.split(','))})"
+            ci = f" [{r.diff_lo:+.2f}, {r.diff_hi:+.2f}]" if np.isfinite(r.diff_lo) else " [single seed]"
+            pci = f" [{r.p_lo:.2f}, {r.p_hi:.2f}]" if np.isfinite(r.p_lo) else ""
+            out.append({"regime": name, "seeds": r.seeds, "days": r.days, la: f"{r.a_mean:.2f}", lb: f"{r.b_mean:.2f}",
+                        f"{la} - {lb} [95% CI]": f"{r.diff:+.2f}{ci}", f"P({la} > {lb})": f"{r.p_a_better:.2f}{pci}"})  # fmt: skip
+        return pd.DataFrame(out)
+
+    def to_markdown(self) -> str:
+        fmt = self.formatted()
+        cols = list(fmt.columns)
+        lines = [f"**{self.title()}**", ""]
+        if self.provenance:
+            lines += [self.provenance, ""]
+        lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+        lines += ["| " + " | ".join(str(v) for v in row) + " |" for row in fmt.itertuples(index=False)]
+        if self.notes:
+            lines += ["", *(f"note: {n}" for n in self.notes)]
+        return "\n".join(lines) + "\n"
+
+    def to_text(self) -> str:
+        fmt = self.formatted()
+        cols = list(fmt.columns)
+        width = {c: max(len(c), *(len(str(v)) for v in fmt[c])) for c in cols}
+        right = {"seeds", "days"}
+        cell = lambda c, v: str(v).rjust(width[c]) if c in right else str(v).ljust(width[c])  # noqa: E731
+        lines = [self.title()]
+        if self.provenance:
+            lines.append(self.provenance)
+        lines += ["", "  ".join(cell(c, c) for c in cols).rstrip()]
+        lines += ["  ".join(cell(c, v) for c, v in zip(cols, row)).rstrip() for row in fmt.itertuples(index=False)]
+        lines += [f"note: {n}" for n in self.notes]
+        return "\n".join(lines) + "\n"
+
+
+def compare_agents(ev: pd.DataFrame, a: str, b: str, regimes: Sequence[str] | None = None, reps: int = DEFAULT_REPS,
+                   seed: int = 0, confidence: float = CONFIDENCE) -> Comparison:  # fmt: skip
+    """``a`` against ``b`` on the evaluation episodes ``ev`` (columns of ``episode_metrics``;
+    one job per run): per regime of ``regimes`` (default: every regime both played) and
+    aggregated. :class:`CompareError` when the two cannot be compared."""
+    if a == b:
+        raise CompareError(f"compare {a} {b}: give two different agent configs")
+    ev = ev[ev["phase"] == "eval"] if "phase" in ev else ev
+    held = sort_algos(ev["algo"])
+    unknown = [n for n in (a, b) if n not in held]
+    if unknown:
+        raise CompareError(f"{', '.join(unknown)}: no evaluation days in the database, which has them for {', '.join(held) or 'no agent config'}")
+    both = sorted(set(ev.loc[ev["algo"] == a, "regime"]) & set(ev.loc[ev["algo"] == b, "regime"]))
+    if regimes is not None:
+        regimes = list(dict.fromkeys(regimes))
+        absent = [r for r in regimes if r not in both]
+        if absent:
+            raise CompareError(f"--regimes {', '.join(absent)}: {a} and {b} were not both evaluated there "
+                               f"(both were on {', '.join(sort_regimes(both)) or 'no regime'})")  # fmt: skip
+    wanted = sort_regimes(both if regimes is None else regimes)
+    if not wanted:
+        raise CompareError(f"{a} and {b} were never evaluated on the same regime ({a}: {_regimes_of(ev, a)}; {b}: {_regimes_of(ev, b)})")
+    days = paired_days(ev, a, b, wanted)
+    notes = []
+    paired = sort_regimes(days["regime"])
+    for r in wanted:
+        if r not in paired:
+            notes.append(f"{r}: no common seed ({a}: seeds {_seeds_of(ev, a, r)}; {b}: seeds {_seeds_of(ev, b, r)})")
+    if days.empty:
+        raise CompareError(f"{a} and {b} share no seed on {', '.join(wanted)}: nothing to pair ({'; '.join(notes)})")
+    for r in paired:
+        for name in (a, b):
+            lost = set(ev.loc[(ev["algo"] == name) & (ev["regime"] == r), "seed"]) - set(days.loc[days["regime"] == r, "seed"])
+            if lost:
+                notes.append(f"{r}: seeds {seed_list(lost)} of {name} have no partner, left out")
+    rows = [_summary(r, [r], days[days["regime"] == r], reps, seed, confidence) for r in paired]
+    if len(paired) > 1:
+        rows.append(_summary("all", paired, days, reps, seed, confidence))
+        delayed = [r for r in paired if r in DELAYED_REGIMES]
+        if len(delayed) > 1 and len(delayed) < len(paired):
+            rows.append(_summary("delayed", delayed, days[days["regime"].isin(delayed)], reps, seed, confidence))
+    used = ev[ev["algo"].isin([a, b]) & ev["regime"].isin(paired)]
+    return Comparison(a, b, pd.DataFrame(rows, columns=COLUMNS), days, reps, notes, budget_seeds_text(used))
+
+
+def _regimes_of(ev: pd.DataFrame, name: str) -> str:
+    return ", ".join(sort_regimes(ev.loc[ev["algo"] == name, "regime"])) or "none"
+
+
+def _seeds_of(ev: pd.DataFrame, name: str, regime: str) -> str:
+    return seed_list(ev.loc[(ev["algo"] == name) & (ev["regime"] == regime), "seed"]) or "none"
+
+
+def read_eval_metrics(db) -> pd.DataFrame:
+    """The evaluation rows of ``db``'s ``episode_metrics`` (the training rows, by far the most,
+    are not read). :class:`nutribench.store.StoreError` for a database that cannot be read,
+    :class:`CompareError` when it holds no evaluation days."""
+    from nutribench.store import open_store, read_episode_metrics
+
+    store = open_store(db)
+    try:
+        ev = read_episode_metrics(store.engine, phase="eval")
+    finally:
+        store.dispose()
+    if ev.empty:
+        raise CompareError(f"{store.display} holds no evaluation days yet: `nutribench run --db {db}` fills it")
+    return ev
+
+
+def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, reps: int = DEFAULT_REPS) -> Comparison:
+    """:func:`compare_agents` on the results database ``db``, its rows chosen as the report
+    chooses them (:func:`nutribench.report.build.prepare`: newest config versions, largest
+    budget, newest job per seed; what that leaves out becomes a note). Agent configs without
+    evaluation days raise :class:`CompareError` naming those the database has."""
+    from nutribench.report.build import prepare
+
+    if a == b:
+        raise CompareError(f"compare {a} {b}: give two different agent configs")
+    ev = read_eval_metrics(db)
+    held = sort_algos(ev["algo"])
+    unknown = [n for n in (a, b) if n not in held]
+    if unknown:
+        raise CompareError(f"{', '.join(unknown)}: no evaluation days in the database, which has them for {', '.join(held)}")
+    data = prepare(ev, [a, b])
+    res = compare_agents(data.eval, a, b, regimes, reps)
+    res.notes = [*data.notes, *res.notes]
+    return res
+
+
+__all__ = ["COLUMNS", "CompareError", "Comparison", "compare_agents", "load_comparison", "paired_days", "read_eval_metrics"]
