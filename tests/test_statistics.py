@@ -18,9 +18,7 @@ from nutribench.report.aggregate import (
     AGGREGATES,
     BATCHED,
     RLIABLE,
-    aggregate_figure,
     aggregate_scores,
-    aggregate_table,
     improvement_probabilities,
     interval_estimates,
     performance_profiles,
@@ -31,6 +29,7 @@ from nutribench.report.aggregate import (
     score_set,
     stratified_resamples,
 )
+from nutribench.report.aggregate_view import aggregate_figure, aggregate_table
 from nutribench.report.compare import CompareError, compare_agents, paired_days
 
 runner = CliRunner()

@@ -31,9 +31,9 @@ original sample (tests/test_statistics.py). With different seed counts per regim
 has no matrix to take; the same statistics are then computed on the ragged runs (IQM and
 optimality gap over all runs pooled, mean and median over the regimes' means).
 
-Everything is DataFrame in, DataFrame / Figure out: :func:`run_scores` (episodes ->
-scores), :func:`aggregate_scores` (scores -> :class:`AggregateResult`),
-:func:`aggregate_figure` and :func:`aggregate_table`.
+Everything is DataFrame in, DataFrame out: :func:`run_scores` (episodes -> scores),
+:func:`aggregate_scores` (scores -> :class:`AggregateResult`); the figure and the table of a
+result: :mod:`nutribench.report.aggregate_view`.
 """
 
 from __future__ import annotations
@@ -45,15 +45,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 import scipy.stats
-from matplotlib.figure import Figure
 from rliable import metrics as rly
 
 from nutribench.baselines import gap_closed
-from nutribench.report.figures import FigureResult, _legend_rows, budget_seeds_text, draw_notes, set_title, sort_regimes
-from nutribench.report.palette import Palette, palette
+from nutribench.report.figures import sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
-from nutribench.report.tables import TableResult
 
 #: The delayed regimes of the paper (run0 has no delays).
 DELAYED_REGIMES: tuple[str, ...] = tuple(f"run{i}" for i in range(1, 7))
@@ -366,179 +363,14 @@ def group_title(res: AggregateResult, group: str) -> str:
     return f"{name} ({regime_span(regimes)})" if regimes else name
 
 
-# --------------------------------------------------------------------------- figure
-_GROUP_STYLE = {"all": dict(alpha=0.85, hatch=None), "delayed": dict(alpha=0.35, hatch="////")}
-
-
-def _percent_axis(axis) -> None:
-    from matplotlib.ticker import PercentFormatter
-
-    axis.set_major_formatter(PercentFormatter(xmax=1, decimals=0))
-
-
-def _yardstick_lines(ax, vertical: bool = True) -> None:
-    for v in (0.0, GAMMA):
-        (ax.axvline if vertical else ax.axhline)(v, color="0.5", ls=":", lw=0.9, zorder=0)
-
-
-def aggregate_figure(res: AggregateResult, colors: Palette | None = None, title: str = "Aggregate scores over regimes and seeds",
-                     ev: pd.DataFrame | None = None) -> FigureResult:  # fmt: skip
-    """The aggregate figure: (top) IQM, median, mean and optimality gap per agent with 95 %
-    intervals, both groups of regimes (solid: all, hatched: delayed); (bottom) the performance
-    profile of each group and the probability-of-improvement matrix of each group.
-
-    ``ev``: the evaluation episodes the scores came from, for the budget and seeds line."""
-    from matplotlib.ticker import MaxNLocator
-
-    colors = colors or palette(res.algos)
-    algos = res.algos
-    groups = [g for g in GROUPS if res.regimes.get(g)]
-    fig = Figure(figsize=(16, 9.6), layout="constrained")
-    grid = fig.add_gridspec(2, 4, height_ratios=[1, 1.15])
-    ypos = {a: len(algos) - 1 - i for i, a in enumerate(algos)}
-    offset = {"all": 0.18, "delayed": -0.18} if len(groups) > 1 else {g: 0.0 for g in groups}
-    drawn = []
-    for k, agg in enumerate(AGGREGATES):
-        ax = fig.add_subplot(grid[0, k])
-        for group in groups:
-            rows = res.intervals[(res.intervals["group"] == group) & (res.intervals["aggregate"] == agg)]
-            for r in rows.itertuples(index=False):
-                y = ypos[r.algo] + offset[group]
-                color = colors.color(r.algo)
-                if np.isfinite(r.lo):
-                    style = _GROUP_STYLE[group]
-                    ax.barh(y, r.hi - r.lo, left=r.lo, height=0.32, color=color, alpha=style["alpha"], hatch=style["hatch"],
-                            edgecolor=color, lw=0.8)  # fmt: skip
-                ax.plot([r.point, r.point], [y - 0.17, y + 0.17], color="k", lw=1.8, solid_capstyle="butt")
-                drawn.append({"panel": agg, "group": group, "algo": r.algo, "point": r.point, "lo": r.lo, "hi": r.hi})
-        _yardstick_lines(ax)
-        ax.set_yticks(list(ypos.values()), [algo_label(a) for a in ypos] if k == 0 else [""] * len(ypos))
-        ax.set_ylim(-0.6, len(algos) - 0.4)
-        _percent_axis(ax.xaxis)
-        ax.set_title(AGGREGATE_LABELS[agg] + (" (lower is better)" if agg == "optimality_gap" else ""), fontsize=10)
-        ax.set_xlabel("share of the never → planner gap", fontsize=8)
-        ax.grid(axis="x", alpha=0.3)
-    for j, group in enumerate(GROUPS):
-        ax = fig.add_subplot(grid[1, j])
-        prof = res.profiles[res.profiles["group"] == group]
-        for algo in algos:
-            p = prof[prof["algo"] == algo]
-            if p.empty:
-                continue
-            color = colors.color(algo)
-            ax.plot(p["tau"], p["fraction"], color=color, lw=1.5, label=algo_label(algo))
-            if p["lo"].notna().any():
-                ax.fill_between(p["tau"], p["lo"], p["hi"], color=color, alpha=0.15, lw=0)
-        _yardstick_lines(ax)
-        _percent_axis(ax.xaxis)
-        ax.set_ylim(-0.02, 1.02)
-        ax.set_title(f"performance profile, {group_title(res, group)}", fontsize=9)
-        ax.set_xlabel("score threshold τ (share of the gap)", fontsize=8)
-        if j == 0:
-            ax.set_ylabel("fraction of runs with score > τ", fontsize=8)
-        ax.xaxis.set_major_locator(MaxNLocator(6))
-        ax.grid(alpha=0.3)
-        if prof.empty:
-            ax.text(0.5, 0.5, "no scored regime in this group", ha="center", va="center", transform=ax.transAxes, fontsize=8)
-    for j, group in enumerate(GROUPS):
-        ax = fig.add_subplot(grid[1, 2 + j])
-        imp = res.improvement[res.improvement["group"] == group]
-        mat = np.full((len(algos), len(algos)), np.nan)
-        idx = {a: i for i, a in enumerate(algos)}
-        for r in imp.itertuples(index=False):
-            mat[idx[r.x], idx[r.y]] = r.p
-        im = ax.imshow(mat, cmap="RdBu", vmin=0, vmax=1)
-        for i in range(len(algos)):
-            for k in range(len(algos)):
-                if np.isfinite(mat[i, k]):
-                    ax.text(k, i, f"{mat[i, k]:.2f}", ha="center", va="center", fontsize=8, color="w" if abs(mat[i, k] - 0.5) > 0.3 else "k")
-        labels = [algo_label(a) for a in algos]
-        ax.set_xticks(range(len(algos)), labels, rotation=45, ha="right", fontsize=8)
-        ax.set_yticks(range(len(algos)), labels, fontsize=8)
-        ax.set_title(f"P(row > column), {group_title(res, group)}", fontsize=9)
-        if j == 1:
-            fig.colorbar(im, ax=ax, shrink=0.8, label="probability of improvement")
-    handles, labels = fig.axes[4].get_legend_handles_labels()
-    from matplotlib.patches import Patch
-
-    group_handles = [Patch(facecolor="0.5", alpha=_GROUP_STYLE[g]["alpha"], hatch=_GROUP_STYLE[g]["hatch"], edgecolor="0.4") for g in groups]
-    _legend_rows(fig, [(handles, labels), (group_handles, [f"intervals: {group_title(res, g)}" for g in groups])])
-    n_runs = res.scores.groupby(["regime", "algo"]).size() if not res.scores.empty else pd.Series(dtype=int)
-    runs_text = f"{int(n_runs.min())}-{int(n_runs.max())}" if len(n_runs) and n_runs.min() != n_runs.max() else (f"{int(n_runs.max())}" if len(n_runs) else "0")
-    caption = (
-        "score of a run (one seed on one regime) = share of the regime's never → planner gap it closes on its own evaluation days "
-        "(0 % = never eat, 100 % = the greedy full-information planner);\n"
-        f"per agent over regimes x seeds ({runs_text} seeds per regime); bars = 95 % stratified-bootstrap intervals over runs "
-        f"({res.reps} resamples, seeds redrawn within each regime), black tick = point estimate (rliable.metrics); dotted: never (0 %), planner (100 %)"
-    )
-    if ev is not None and not ev.empty:
-        caption += f"\n{budget_seeds_text(ev)}"
-    set_title(fig, f"{title}\n{caption}")
-    draw_notes(fig, res.notes)
-    return FigureResult(fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "point", "lo", "hi"]), list(res.notes))
-
-
-# --------------------------------------------------------------------------- table
-def _cell(point: float, lo: float, hi: float, percent: bool) -> str:
-    f = (lambda v: f"{100 * v:.0f}") if percent else (lambda v: f"{v:.2f}")
-    if not np.isfinite(point):
-        return "n/a"
-    return f"{f(point)} [{f(lo)}, {f(hi)}]" if np.isfinite(lo) else f"{f(point)} [single seed]"
-
-
-def aggregate_table(res: AggregateResult) -> TableResult:
-    """One row per group and agent: the four aggregates (in % of the gap) with their 95 %
-    intervals and P(this agent > each other agent) with its interval. ``raw`` has the numbers
-    (columns ``<aggregate>``, ``<aggregate>_lo``, ``_hi``, ``p_gt_<algo>``, ...)."""
-    rows, fmt_rows = [], []
-    for group in GROUPS:
-        if not res.regimes.get(group):
-            continue
-        iv = res.intervals[res.intervals["group"] == group]
-        imp = res.improvement[res.improvement["group"] == group]
-        for algo in res.algos:
-            mine = iv[iv["algo"] == algo].set_index("aggregate")
-            if mine.empty:
-                continue
-            row = {"group": group, "regimes": ",".join(res.regimes[group]), "algo": algo, "runs": int(mine["runs"].iloc[0])}
-            f = {"regimes": group_title(res, group), "algorithm": algo_label(algo), "runs": row["runs"]}
-            for agg in AGGREGATES:
-                p, lo, hi = (float(mine.loc[agg, c]) for c in ("point", "lo", "hi"))
-                row[agg], row[f"{agg}_lo"], row[f"{agg}_hi"] = p, lo, hi
-                f[f"{AGGREGATE_LABELS[agg]} (%)"] = _cell(p, lo, hi, percent=True)
-            for other in res.algos:
-                if other == algo:
-                    continue
-                r = imp[(imp["x"] == algo) & (imp["y"] == other)]
-                p, lo, hi = (float(r[c].iloc[0]) if len(r) else float("nan") for c in ("p", "lo", "hi"))
-                row[f"p_gt_{other}"], row[f"p_gt_{other}_lo"], row[f"p_gt_{other}_hi"] = p, lo, hi
-                f[f"P(> {algo_label(other)})"] = _cell(p, lo, hi, percent=False)
-            rows.append(row)
-            fmt_rows.append(f)
-    title = ("Aggregate scores: share of the never -> planner gap per run (seed x regime), over regimes x seeds; point estimate "
-             f"[95 % stratified-bootstrap interval over runs, {res.reps} resamples]; P(> Y): probability that a run of the row's "
-             "agent scores above a run of Y on the same regime, averaged over regimes")  # fmt: skip
-    if res.notes:
-        title += " (note: " + "; ".join(res.notes) + ")"
-    cols = ["regimes", "algorithm", "runs", *(f"{AGGREGATE_LABELS[a]} (%)" for a in AGGREGATES), *(f"P(> {algo_label(a)})" for a in res.algos)]
-    fmt = pd.DataFrame(fmt_rows, columns=cols).fillna("")
-    if len(fmt) == 0:
-        fmt = fmt[cols[:3]]
-    raw_cols = ["group", "regimes", "algo", "runs", *(f"{a}{s}" for a in AGGREGATES for s in ("", "_lo", "_hi")),
-                *(f"p_gt_{a}{s}" for a in res.algos for s in ("", "_lo", "_hi"))]  # fmt: skip
-    return TableResult("aggregate", title, pd.DataFrame(rows, columns=raw_cols), fmt)
-
-
 __all__ = [
     "AGGREGATES",
     "DELAYED_REGIMES",
     "GROUPS",
     "AggregateResult",
     "ScoreSet",
-    "aggregate_figure",
     "aggregate_from_eval",
     "aggregate_scores",
-    "aggregate_table",
     "group_regimes",
     "improvement_probabilities",
     "interval_estimates",

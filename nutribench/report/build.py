@@ -285,7 +285,7 @@ def build_figure(
         elif number in (3, 4):
             res = _eval_figure(number, data, pair, reference_episodes, log)
         elif number == 5:
-            from nutribench.report.aggregate import aggregate_figure
+            from nutribench.report.aggregate_view import aggregate_figure
 
             res = aggregate_figure(_aggregate(data, "figure 5"), data.colors, ev=data.eval)
         else:
@@ -375,7 +375,7 @@ def _metrics_table(key: str, data: ReportData | None) -> TableResult:
     if data is None:
         raise ReportError(f"the {key} table needs the episode metrics of the database")
     if key == "aggregate":
-        from nutribench.report.aggregate import aggregate_table
+        from nutribench.report.aggregate_view import aggregate_table
 
         return _with_notes(aggregate_table(_aggregate(data, "aggregate table")), data)
     if key == "results":
