@@ -27,21 +27,6 @@ SHIPPED_REGIMES = tuple(f"run{k}" for k in range(7))
 HORIZON = 50
 
 
-def make_vector_env(num_envs: int = 1, max_episode_steps: int | None = None, **kwargs):
-    """The vector entry point: a :class:`~nutribench.env.vector_env.NutriRLVectorEnv`, whose
-    days end at the regime's horizon. ``gymnasium.make_vec`` passes the spec's
-    ``max_episode_steps``; one below the horizon cannot be honoured and is a ValueError."""
-    from nutribench.env.vector_env import NutriRLVectorEnv
-
-    env = NutriRLVectorEnv(num_envs=num_envs, **kwargs)
-    if max_episode_steps is not None and max_episode_steps < env.horizon:
-        raise ValueError(
-            f"max_episode_steps={max_episode_steps} is below the horizon {env.horizon}: the vector env runs whole "
-            "days; use gymnasium.make (its TimeLimit) for shorter episodes"
-        )
-    return env
-
-
 def register_envs() -> None:
     """Register the environment ids with Gymnasium (idempotent)."""
     import gymnasium
@@ -53,7 +38,7 @@ def register_envs() -> None:
         gymnasium.register(
             id=env_id,
             entry_point="nutribench.env.nutri_env:NutriRLEnv",
-            vector_entry_point="nutribench:make_vector_env",
+            vector_entry_point="nutribench.env.vector_env:make_vector_env",
             kwargs=kwargs,
             max_episode_steps=HORIZON,
             disable_env_checker=False,

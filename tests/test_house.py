@@ -20,7 +20,7 @@ LAYERS: list[set[str]] = [
     {"env"},
     {"agents", "baselines", "engine"},
     {"jobs", "store"},
-    {"scheduler", "report"},
+    {"scheduler", "report", "recorder"},
     {"bench", "bench_learn", "bench_engines"},
     {"cli"},
 ]
@@ -37,6 +37,12 @@ def room(module: str) -> str:
     return parts[1] if len(parts) > 1 else "nutribench"
 
 
+def _facade_nodes(tree: ast.AST) -> set[int]:
+    """The nodes inside the package root's ``__getattr__``: the front door that re-exports the
+    public API lazily (``nutribench.Recorder``), not a room; its imports are not the root's."""
+    return {id(n) for f in ast.walk(tree) if isinstance(f, ast.FunctionDef) and f.name == "__getattr__" for n in ast.walk(f)}
+
+
 def import_graph() -> dict[str, set[str]]:
     """module -> the nutribench modules it imports (resolved to existing modules)."""
     files = {module_name(p): p for p in PACKAGE.rglob("*.py")}
@@ -44,7 +50,11 @@ def import_graph() -> dict[str, set[str]]:
     for name, path in files.items():
         package = name if path.name == "__init__.py" else name.rpartition(".")[0]
         deps: set[str] = set()
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        tree = ast.parse(path.read_text(), str(path))
+        facade = _facade_nodes(tree) if name == "nutribench" else set()
+        for node in ast.walk(tree):
+            if id(node) in facade:
+                continue
             targets: list[str] = []
             if isinstance(node, ast.ImportFrom):
                 if node.level:

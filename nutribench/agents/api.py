@@ -39,7 +39,7 @@ from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
 from nutribench.agents.algos import episode_entropy
-from nutribench.agents import registry
+from nutribench.agents.registry import ALGORITHMS, algorithm, load_model, loader_entry_point, make_model
 from nutribench.agents.config import agent_config_content, load_agent_config, parse_agent_config
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.env.metrics import EpisodeRecorder
@@ -144,7 +144,7 @@ class TrainedAgent:
         meta = collect_metadata()
         side = {
             "algo": self.algo,
-            "load_with": registry.ALGORITHMS[self.algo].plain or registry.loader_entry_point(self.config),
+            "load_with": ALGORITHMS[self.algo].plain or loader_entry_point(self.config),
             "vec_normalize": target.name if has_pickle else None,
             "config": agent_config_content(self.config),
             "obs_mean": None if self.obs_mean is None else self.obs_mean.tolist(),
@@ -161,7 +161,7 @@ class TrainedAgent:
         side = json.loads(path.with_suffix(".json").read_text())
         algo = side["algo"]
         config = parse_agent_config(side["config"], path)
-        model = registry.load_model(registry.ALGORITHMS[algo].load or registry.loader_entry_point(config), path)
+        model = load_model(ALGORITHMS[algo].load or loader_entry_point(config), path)
         arr = lambda v: None if v is None else np.asarray(v, dtype=np.float64)  # noqa: E731
         agent = cls(model, algo, config, arr(side["obs_mean"]), arr(side["obs_var"]))
         agent.provenance = dict(side.get("provenance") or {})  # absent in files written before it was recorded
@@ -283,14 +283,14 @@ def train(
     cfg = load_agent_config(agent_config)
     horizon = env_cfg.reward.horizon
     base, env = make_train_env(env_cfg, cfg)
-    if registry.algorithm(cfg).build is None:  # a plug-in: its days are recorded by the env
+    if algorithm(cfg).build is None:  # a plug-in: its days are recorded by the env
         env = recorder = RecordingVecEnv(env, base, episodes, on_episode)
-        model = recorder.model = registry.make_model(cfg, env, seed=seed, horizon=horizon)
+        model = recorder.model = make_model(cfg, env, seed=seed, horizon=horizon)
         model.learn(total_timesteps=episodes * horizon)
         recorder.check_budget(cfg)
         env = recorder.venv
     else:
-        model = registry.make_model(cfg, env, seed=seed, horizon=horizon)
+        model = make_model(cfg, env, seed=seed, horizon=horizon)
         recorder = EpisodeMetrics(base, cfg.algo, episodes, on_episode)
         model.learn(total_timesteps=episodes * horizon, callback=recorder)
     rms: RunningMeanStd | None = env.obs_rms if cfg.normalize_obs else None  # type: ignore[union-attr]

@@ -189,3 +189,16 @@ class NutriRLVectorEnv(DynamicsView, VectorEnv):
                 self._start_day()
                 obs = self._observe()
         return obs, progress + comfort + overshoot, np.zeros(n, dtype=bool), truncated, info
+
+
+def make_vector_env(num_envs: int = 1, max_episode_steps: int | None = None, **kwargs):
+    """The vector entry point: a :class:`~nutribench.env.vector_env.NutriRLVectorEnv`, whose
+    days end at the regime's horizon. ``gymnasium.make_vec`` passes the spec's
+    ``max_episode_steps``; one below the horizon cannot be honoured and is a ValueError."""
+    env = NutriRLVectorEnv(num_envs=num_envs, **kwargs)
+    if max_episode_steps is not None and max_episode_steps < env.horizon:
+        raise ValueError(
+            f"max_episode_steps={max_episode_steps} is below the horizon {env.horizon}: the vector env runs whole "
+            "days; use gymnasium.make (its TimeLimit) for shorter episodes"
+        )
+    return env
