@@ -265,20 +265,15 @@ class _Run:
 
     def interrupt(self) -> None:
         """Ctrl-C (or SIGTERM, SIGHUP): stop the workers, mark their jobs interrupted, write
-        nothing else. A second signal meanwhile is ignored, so the cleanup finishes."""
-        previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in STOP_SIGNALS} if _main_thread() else None
+        nothing else. Further signals meanwhile are ignored (:class:`_StopSignalsAsCtrlC`)."""
         try:
-            try:
-                self.handle.terminate_running()
-            finally:  # whatever stopping the workers did, their jobs are given back
-                held = [s.job_id for specs in self.in_flight.values() for s in specs]
-                self.summary.interrupted = release_jobs(self.store, held, self.owner)
-            self.summary.user_interrupt = True
-            self.in_flight.clear()
-            self.live.clear()
-        finally:
-            for sig, handler in (previous or {}).items():
-                signal.signal(sig, handler)
+            self.handle.terminate_running()
+        finally:  # whatever stopping the workers did, their jobs are given back
+            held = [s.job_id for specs in self.in_flight.values() for s in specs]
+            self.summary.interrupted = release_jobs(self.store, held, self.owner)
+        self.summary.user_interrupt = True
+        self.in_flight.clear()
+        self.live.clear()
 
 
 #: Signals that stop a run as Ctrl-C does: a batch system's preemption (SIGTERM) and a closed
@@ -286,23 +281,26 @@ class _Run:
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
-def _raise_keyboard_interrupt(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt(signal.Signals(signum).name)
-
-
 class _StopSignalsAsCtrlC:
-    """Within the block, SIGTERM and SIGHUP raise KeyboardInterrupt as SIGINT does (main
-    thread only; elsewhere signal handlers cannot be set)."""
+    """Within the block (main thread only), the first stop signal raises KeyboardInterrupt;
+    later ones are ignored: in the block for a second (then the first counts as lost), and
+    after a stop until exit. SIGINT stays ignored where it was (a shell's background job)."""
 
     def __enter__(self) -> None:
-        self.previous = {}
-        if _main_thread():
-            for sig in STOP_SIGNALS[1:]:
-                self.previous[sig] = signal.signal(sig, _raise_keyboard_interrupt)
+        self.previous, self.raised_at = {}, None
+        for sig in STOP_SIGNALS if _main_thread() else ():
+            if sig != signal.SIGINT or signal.getsignal(sig) is not signal.SIG_IGN:
+                self.previous[sig] = signal.signal(sig, self._stop)
 
-    def __exit__(self, *exc: object) -> None:
+    def _stop(self, signum: int, frame: Any) -> None:
+        if self.raised_at is None or time.monotonic() - self.raised_at > 1.0:
+            self.raised_at = time.monotonic()
+            raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    def __exit__(self, kind: type[BaseException] | None, *exc: object) -> None:
+        stopped = self.raised_at is not None or (kind is not None and issubclass(kind, KeyboardInterrupt))
         for sig, handler in self.previous.items():
-            signal.signal(sig, handler)
+            signal.signal(sig, signal.SIG_IGN if stopped else handler)
 
 
 def _main_thread() -> bool:
