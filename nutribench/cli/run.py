@@ -3,13 +3,14 @@
 Everything a user can get wrong (unknown regime or algorithm, malformed seeds, a database
 path that cannot be written, a file that is not a database, a config changed without a
 version bump, an unknown executor, an engine option it cannot take such as ``--device cuda``
-where there is no CUDA) is checked before the database file is created and reported as one
-red line with exit status 2.
+where there is no CUDA, a models folder that is a file) is checked before the database file
+is created and reported as one red line with exit status 2.
 """
 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -34,6 +35,24 @@ def _check_db(db: str) -> None:
     path = sqlite_path(database_url(db))
     if path is not None:
         check_sqlite_file(path, create=True)
+
+
+def _check_models_dir(models_dir: Path | None, db: str) -> None:
+    """Refuse a models folder that cannot be one (a file, or a path through a file, or not
+    writable) before anything runs: each job would train and then fail to save."""
+    from nutribench.scheduler.registration import RunError
+    from nutribench.store.engine import database_url, sqlite_path
+
+    if models_dir is None:
+        path = sqlite_path(database_url(db))
+        folder, what = (path.parent if path is not None else Path.cwd()) / "models", "the models folder"
+    else:
+        folder, what = Path(models_dir), f"--models-dir {models_dir}"
+    found = next((p for p in (folder, *folder.absolute().parents) if p.exists() or p.is_symlink()), None)
+    if found is None or found.is_dir() and os.access(found, os.W_OK | os.X_OK):
+        return
+    why = f"{found} is not a writable folder" if found.is_dir() else f"{found} is a file, not a folder"
+    raise RunError(f"{what}: {why}: give a folder for the trained models" + (" (--models-dir)" if models_dir is None else ""))
 
 
 @user_errors
@@ -79,6 +98,7 @@ def run_cmd(
     )  # fmt: skip
     _check_executor(executor)
     check_engine(engine, batch_size, device)
+    _check_models_dir(models_dir, db)
     _check_db(db)
     load_grid_configs(grid)  # a broken config file fails here, before the database exists
     job_fn = default_job_fn()

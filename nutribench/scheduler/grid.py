@@ -59,16 +59,22 @@ class Grid:
         return len(self.regimes) * len(self.algos) * len(self.seeds)
 
 
+#: the largest seed: what a database's integer column holds everywhere (PostgreSQL's INTEGER)
+MAX_SEED = 2**31 - 1
+
+
 def parse_seeds(text: str) -> tuple[int, ...]:
     """``"0,21,9"`` -> ``(0, 21, 9)``; anything else (empty items, non-integers, negative
-    numbers, repeats) is a :class:`GridError` naming the offending item."""
+    numbers, seeds over :data:`MAX_SEED`, repeats) is a :class:`GridError` naming the offending item."""
     items = [s.strip() for s in text.split(",")]
     if not any(items):
         raise GridError(f"--seeds '{text}' is empty: give comma-separated non-negative integers, e.g. 0,21,9")
     seeds: list[int] = []
     for item in items:
-        if not item.isdigit():  # rejects '', '-1', '1.5', '0x10', ' 3a'
+        if not (item.isascii() and item.isdigit()):  # rejects '', '-1', '1.5', '0x10', ' 3a', '²'
             raise GridError(f"--seeds '{text}': '{item}' is not a non-negative integer: give e.g. 0,21,9")
+        if len(item) > 10 or int(item) > MAX_SEED:
+            raise GridError(f"--seeds '{text}': seed {item[:24]} is too large: seeds go from 0 to {MAX_SEED}")
         value = int(item)
         if value in seeds:
             raise GridError(f"--seeds '{text}': seed {value} is given twice")
