@@ -67,9 +67,11 @@ def summarise(per_seed: pd.DataFrame) -> dict:
             "share_min": per_seed["share"].min(), "share_max": per_seed["share"].max()}
 
 
-def greedy_rows(ev: pd.DataFrame) -> list[dict]:
+def greedy_rows(ev: pd.DataFrame, steps: pd.DataFrame) -> list[dict]:
     rows = []
     for (algo, version, regime), cell in ev.groupby(["algo", "regime_version", "regime"]):
+        meals = steps[(steps.algo == algo) & (steps.regime_version == version) & (steps.regime == regime) & (steps.action == 1)]
+        late = float((meals.step >= 46).mean()) if len(meals) else float("nan")
         level, factor, text, folder = level_of(algo, version)
         per_seed = []
         for seed, days in cell.groupby("seed"):
@@ -81,7 +83,8 @@ def greedy_rows(ev: pd.DataFrame) -> list[dict]:
         per_seed = pd.DataFrame(per_seed)
         evaluation = "greedy" if version == 2 else "greedy, own reward (lo off)"
         rows.append({"level": level, "factor": factor, "value": text, "regime": regime, "evaluation": evaluation,
-                     **summarise(per_seed), "per_seed": " ".join(f"{100 * s:.0f}" for s in per_seed["share"])})
+                     **summarise(per_seed), "per_seed": " ".join(f"{100 * s:.0f}" for s in per_seed["share"]),
+                     "late_meals": late})
     return rows
 
 
@@ -137,7 +140,9 @@ def main() -> None:
     con = sqlite3.connect(a.db)
     df = pd.read_sql("select * from episode_metrics where algo like 'ppo%' and budget = ?", con, params=(a.budget,))
     ev, tr = df[df.phase == "eval"], df[df.phase == "train"]
-    rows = greedy_rows(ev)
+    steps = pd.read_sql("select algo, regime, regime_version, step, action from eval_trajectories where algo like 'ppo%' and budget = ?",
+                        con, params=(a.budget,))
+    rows = greedy_rows(ev, steps)
     csv = pd.concat([pd.read_csv(p) for p in a.csv]) if a.csv else pd.DataFrame()
     if not csv.empty:
         rows += csv_rows(csv)
@@ -146,14 +151,17 @@ def main() -> None:
     table = table.sort_values(["_l", "evaluation", "regime"]).drop(columns="_l")
     table.to_csv(out / "table_sensitivity.csv", index=False, float_format="%.4f")
 
+    def late(v):
+        return f"{100 * v:.0f} %" if isinstance(v, float) and np.isfinite(v) else ""
+
     def cell(r):
         return f"{100 * r.share_iqm:.0f} % [{100 * r.share_lo:.0f}, {100 * r.share_hi:.0f}]"
 
-    lines = ["| level | factor: value | evaluation | regime | share of the gap, IQM [95 % CI] | seeds' shares (%) | return (mean) | foods (mean) |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| level | factor: value | evaluation | regime | share of the gap, IQM [95 % CI] | seeds' shares (%) | return (mean) | foods (mean) | meals in the last 5 steps |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in table.itertuples():
         lines.append(f"| {r.level} | {r.factor}: {r.value} | {r.evaluation} | {r.regime} | {cell(r)} | {r.per_seed} | "
-                     f"{r.return_mean:.1f} | {r.foods_mean:.1f} |")
+                     f"{r.return_mean:.1f} | {r.foods_mean:.1f} | {late(r.late_meals)} |")
     (out / "table_sensitivity.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
@@ -199,7 +207,7 @@ def main() -> None:
     ax.set_xticks(np.arange(len(REGIMES)), REGIMES)
     ax.set_ylabel("share of the never -> planner gap (%)\nIQM over 5 seeds, 95 % bootstrap CI")
     ax.set_title("(A) evaluation, 5 fixed days per seed")
-    ax.legend(fontsize=7, loc="lower left")
+    ax.legend(fontsize=7, loc="upper right")
     for ax, regime, tag in ((axes[1], "run3", "B"), (axes[2], "run6", "C")):
         for i, lvl in enumerate(ORDER):
             sub = tr[(tr.regime == regime)]
