@@ -8,39 +8,48 @@ Figure / table out). This module adds what those pure builders do not know about
 * which agent configs a report draws (``algos``: default every config in the database) and
   which pair Figure 4 compares (``pair``: default PPO and GRU-PPO); colours are one palette
   per database (:mod:`nutribench.report.palette`), so a config looks the same in every figure;
-* which rows of the database a figure uses: per regime and algorithm the newest config
-  versions (``latest_only``) and, per (regime, algorithm, seed), the job with the largest
-  training budget (the newest such job if several), chosen among the selected configs
-  alone (a report of some configs is the report of a database holding only those); what
-  was left out becomes a note;
+* which rows of the database a figure uses (:mod:`nutribench.report.data`): per regime and
+  algorithm the newest config versions (``latest_only``) and, per (regime, algorithm, seed),
+  the job with the largest training budget (the newest such job if several), chosen among
+  the selected configs alone (a report of some configs is the report of a database holding
+  only those); what was left out becomes a note;
 * Figures 1/2 use the ``train`` phase, Figures 3/4 and the results table the ``eval`` phase;
 * the reference lines of Figures 3/4 and the results table's yardsticks
   (:mod:`nutribench.report.references`: the simple policies, played afresh; nothing cached);
 * Tables 2-6 from the five built-in agent config files, Tables 7, 8, ... from the bodies of
   the other configs stored in the database (:func:`nutribench.report.tables.config_table_numbers`);
-* writing: figures as PNG (150 dpi) and PDF, tables as Markdown, LaTeX and CSV.
+* writing (:mod:`nutribench.report.output`): figures as PNG (150 dpi) and PDF, tables as
+  Markdown, LaTeX and CSV, and the trajectory view of one evaluation episode.
 
-Problems a user can fix raise :class:`ReportError` (one line); a database that cannot be
-read raises :class:`nutribench.store.StoreError`.
+The names of :mod:`nutribench.report.data` and :mod:`nutribench.report.output` are importable
+from here too. Problems a user can fix raise :class:`ReportError` (one line); a database that
+cannot be read raises :class:`nutribench.store.StoreError`.
 """
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-import pandas as pd
-from matplotlib.figure import Figure
-
 from nutribench.config import ConfigError
+from nutribench.report.data import (
+    Db,
+    ReportData,
+    ReportError,
+    _keep_largest_budget,
+    _keep_latest_versions,
+    _StoredConfig,
+    check_known,
+    check_names,
+    load_report_data,
+    prepare,
+    read_metrics,
+    stored_agent_configs,
+)
 from nutribench.report.figures import FigureResult, draw_notes, eval_across_regimes, sort_regimes, training_curves
-from nutribench.report.palette import Palette, palette
+from nutribench.report.output import AVAILABLE_SHOWN, PNG_DPI, _available, build_trajectory, write_figure, write_table
 from nutribench.report.palette import label as algo_label
-from nutribench.report.palette import order as sort_algos
 from nutribench.report.references import eval_day_references, simple_policy_references
 from nutribench.report.tables import (
     CONFIG_TABLES,
@@ -51,7 +60,6 @@ from nutribench.report.tables import (
     table_results,
     table_training,
 )
-from nutribench.errors import UserError
 
 #: Figures of the paper this command can build, and the file stem each is written to.
 FIGURES: dict[int, str] = {
@@ -67,177 +75,8 @@ TABLES: dict[str, str] = {"1": "table1_regimes", **{str(n): f"table{n}_{a}" for 
                            "training": "table_training_vs_authors", "aggregate": "table_aggregate"}
 #: Figure 4's default pair (its file keeps the name ``fig4_ppo_vs_gru_ppo``).
 FIG4_ALGOS = DEFAULT_PAIR = ("ppo", "gru_ppo")
-PNG_DPI = 150
 
-Db = str | os.PathLike[str]
 Log = Callable[[str], None]
-
-
-class ReportError(UserError, ValueError):
-    """Something the report cannot build from what it was given; printed as one line."""
-
-
-def check_names(names: Iterable[Any], what: str, where: str) -> None:
-    """:class:`ReportError` for a name that is not a regime or config name
-    (``[a-z][a-z0-9_]*``): names read from a database become file names and regime files here
-    (``table7_<name>``, ``trajectory_<regime>_<algo>_...``, the regime file of the reference
-    lines), so ``../x`` or ``/etc/y`` must never get that far."""
-    from nutribench.store.archive import NAME_MAX, valid_name
-
-    bad = [n for n in dict.fromkeys(names) if not valid_name(n)]
-    if bad:
-        shown = repr(bad[0]) if len(repr(bad[0])) <= 80 else repr(bad[0])[:77] + "..."
-        raise ReportError(f"{where}: {what} {shown} is not a name ([a-z][a-z0-9_]*, at most {NAME_MAX} characters): "
-                          "no file is built from it")  # fmt: skip
-
-
-@dataclass
-class ReportData:
-    """The episode metrics a report draws from, and what was left out of them (notes)."""
-
-    metrics: pd.DataFrame
-    notes: list[str] = field(default_factory=list)
-    #: the configs asked for (None: every config of the database)
-    selected: tuple[str, ...] | None = None
-    #: the colours of every config of the database, so each figure colours a name alike
-    colors: Palette | None = None
-
-    def what(self) -> str:
-        """`` for a2c_mine, PPO`` when configs were selected, else ``""`` (for messages)."""
-        return f" for {', '.join(algo_label(a) for a in self.selected)}" if self.selected else ""
-
-    @property
-    def train(self) -> pd.DataFrame:
-        return self.metrics[self.metrics["phase"] == "train"]
-
-    @property
-    def eval(self) -> pd.DataFrame:
-        return self.metrics[self.metrics["phase"] == "eval"]
-
-
-# --------------------------------------------------------------------------- data
-def _keep_latest_versions(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
-    """Per regime and per algo, the newest config version present; note what was dropped."""
-    notes = []
-    for col, ver in (("regime", "regime_version"), ("algo", "algo_version")):
-        newest = df.groupby(col)[ver].transform("max")
-        old = df[df[ver] < newest]
-        if len(old):
-            dropped = sorted({f"{n} v{v}" for n, v in old[[col, ver]].drop_duplicates().itertuples(index=False)})
-            notes.append(f"older {col} versions left out: {', '.join(dropped)}")
-        df = df[df[ver] == newest]
-    return df, notes
-
-
-def _keep_largest_budget(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
-    """Per (regime, algo) the largest training budget; per seed of it the newest job."""
-    notes = []
-    largest = df.groupby(["regime", "algo"])["budget"].transform("max")
-    mixed = df.groupby(["regime", "algo"])["budget"].nunique()
-    for (regime, algo), n in mixed[mixed > 1].items():
-        budgets = sorted(df[(df["regime"] == regime) & (df["algo"] == algo)]["budget"].unique())
-        notes.append(f"{algo_label(algo)}/{regime}: budgets {', '.join(map(str, budgets))} in the database, the largest ({budgets[-1]}) shown")
-    df = df[df["budget"] == largest]
-    newest_job = df.groupby(["regime", "algo", "seed"])["job_id"].transform("max")
-    if (df["job_id"] != newest_job).any():
-        notes.append("several jobs for one regime/algo/seed/budget: the newest of each shown")
-    return df[df["job_id"] == newest_job], notes
-
-
-def read_metrics(db: Db) -> pd.DataFrame:
-    """Every row of ``db``'s ``episode_metrics`` view.
-
-    Raises :class:`nutribench.store.StoreError` for a missing, empty or outdated database
-    and :class:`ReportError` when it holds no episodes yet.
-    """
-    from nutribench.store import open_store, read_episode_metrics
-
-    store = open_store(db)
-    try:
-        df = read_episode_metrics(store.engine)
-    finally:
-        store.dispose()
-    if df.empty:
-        raise ReportError(f"{store.display} holds no finished episodes yet: `nutribench run --db {db}` fills it")
-    check_names(df["regime"].unique(), "regime", store.display)
-    check_names(df["algo"].unique(), "agent config", store.display)
-    return df
-
-
-def prepare(df: pd.DataFrame, algos: Sequence[str] | None = None, latest_only: bool = True) -> ReportData:
-    """The rows of ``df`` (all of ``episode_metrics``) a report draws: those of ``algos``
-    (default every config), the newest versions and largest budgets of them, and notes on
-    what was left out. Its palette covers every config of ``df``."""
-    colors = palette(df["algo"].unique())
-    selected = tuple(sort_algos(algos)) if algos is not None else None
-    if selected is not None:
-        df = df[df["algo"].isin(selected)]
-    if df.empty:
-        return ReportData(df.reset_index(drop=True), [], selected, colors)
-    notes: list[str] = []
-    if latest_only:
-        df, notes = _keep_latest_versions(df)
-    df, budget_notes = _keep_largest_budget(df)
-    return ReportData(df.reset_index(drop=True), notes + budget_notes, selected, colors)
-
-
-def load_report_data(db: Db, latest_only: bool = True, algos: Sequence[str] | None = None) -> ReportData:
-    """The episode metrics of ``db`` that a report of ``algos`` (default: every config) uses;
-    see :func:`read_metrics` and :func:`prepare`."""
-    return prepare(read_metrics(db), algos, latest_only)
-
-
-def stored_agent_configs(db: Db) -> dict[str, Any]:
-    """The newest version of each agent config recorded in ``db``, by name (in palette
-    order), as objects :func:`table_agent_config` accepts. Raises
-    :class:`nutribench.store.StoreError` for a database that cannot be read."""
-    from sqlalchemy import select
-
-    from nutribench.store import AgentConfig, open_store, session_scope
-
-    store = open_store(db)
-    try:
-        with session_scope(store.engine) as s:
-            rows = s.execute(select(AgentConfig.name, AgentConfig.version, AgentConfig.body)).all()
-    finally:
-        store.dispose()
-    check_names([name for name, _, _ in rows], "agent config", store.display)
-    newest: dict[str, tuple[int, dict[str, Any]]] = {}
-    for name, version, body in rows:
-        if name not in newest or version > newest[name][0]:
-            newest[name] = (version, dict(body))
-    return {n: _StoredConfig(n, newest[n][1]) for n in sort_algos(newest)}
-
-
-def check_known(names: Sequence[str], held: Iterable[str], option: str) -> None:
-    """:class:`ReportError` (one line, what the database holds) for names not in ``held``."""
-    held = sort_algos(held)
-    unknown = [n for n in names if n not in held]
-    if unknown:
-        raise ReportError(f"{option} {', '.join(unknown)}: not in the database, which holds {', '.join(held) or 'no agent configs'}")
-
-
-# --------------------------------------------------------------------------- writing
-def write_figure(fig_result: FigureResult | Figure, out_dir: Db, stem: str) -> list[Path]:
-    """Write ``<out_dir>/<stem>.png`` (150 dpi) and ``.pdf``; return both paths."""
-    fig = fig_result.figure if isinstance(fig_result, FigureResult) else fig_result
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = [out / f"{stem}.png", out / f"{stem}.pdf"]
-    fig.savefig(paths[0], dpi=PNG_DPI)
-    fig.savefig(paths[1])
-    return paths
-
-
-def write_table(table_result: TableResult, out_dir: Db, stem: str) -> list[Path]:
-    """Write ``<out_dir>/<stem>.md``, ``.tex`` and ``.csv``; return the three paths."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = [out / f"{stem}.md", out / f"{stem}.tex", out / f"{stem}.csv"]
-    paths[0].write_text(table_result.to_markdown())
-    paths[1].write_text(table_result.to_latex())
-    paths[2].write_text(table_result.to_csv())
-    return paths
 
 
 def _add_notes(res: FigureResult, extra: Sequence[str]) -> FigureResult:
@@ -296,15 +135,6 @@ def build_figure(
         raise ReportError(f"figure {number}: {e}") from None
     # what load_report_data left out (older versions, smaller budgets) goes on the figure too
     return _add_notes(res, data.notes)
-
-
-@dataclass
-class _StoredConfig:
-    name: str
-    body: dict[str, Any]
-
-    def model_dump(self, mode: str = "json") -> dict[str, Any]:
-        return self.body
 
 
 def _with_notes(res: TableResult, data: ReportData) -> TableResult:
@@ -509,52 +339,6 @@ def build_report(
         if res_t is not None:
             paths += write_table(res_t, out, stem)
     return paths
-
-
-# --------------------------------------------------------------------------- trajectory
-def build_trajectory(db: Db, algo: str, regime: str, seed: int, episode: int = 0, out: Db = "reports") -> list[Path]:
-    """The trajectory view of one evaluation episode, written as PNG and PDF.
-
-    Uses the newest config versions and, if several jobs match, the largest budget.
-    """
-    from nutribench.env import RegimeDynamics
-    from nutribench.report.trajectory import trajectory_figure
-    from nutribench.store import open_store, read_eval_trajectories
-
-    # both become the file's name and the regime is read from its file: names only
-    check_names([regime], "regime", "--regime")
-    check_names([algo], "agent config", "--algo")
-    store = open_store(db)
-    try:
-        steps = read_eval_trajectories(store.engine, regimes=regime, algos=algo, seeds=seed, episode=episode, latest_only=True)
-        if steps.empty:
-            have = read_eval_trajectories(store.engine, latest_only=True)
-            raise ReportError(f"no evaluation steps for {algo}/{regime} seed {seed} episode {episode} in {store.display}" + _available(have))
-    finally:
-        store.dispose()
-    budget = int(steps["budget"].max())
-    steps = steps[steps["budget"] == budget]
-    steps = steps[steps["job_id"] == steps["job_id"].max()]
-    dynamics = RegimeDynamics(regime)
-    ret = float(np.sum(steps["reward"].to_numpy(dtype=float)))
-    title = f"{algo_label(algo)} on {regime}, seed {seed}, evaluation episode {episode} (budget {budget} episodes): return {ret:.2f}, {int(steps['action'].sum())} meals"
-    fig = trajectory_figure(steps[["step", "food", "action", "C", "F", "P"]], dynamics, title=title)
-    return write_figure(fig, out, f"trajectory_{regime}_{algo}_seed{seed}_ep{episode}")
-
-
-#: Cells listed in "trajectory not found" before "... N more".
-AVAILABLE_SHOWN = 4
-
-
-def _available(steps: pd.DataFrame) -> str:
-    if steps.empty:
-        return " (the database holds no evaluation steps)"
-    cells = steps[["algo", "regime", "seed"]].drop_duplicates()
-    parts = [f"{a}/{r} seeds {','.join(map(str, sorted(g['seed'])))}" for (a, r), g in cells.groupby(["algo", "regime"])]
-    eps = sorted(steps["episode"].unique())
-    shown = "; ".join(parts[:AVAILABLE_SHOWN]) + (f"; ... {len(parts) - AVAILABLE_SHOWN} more" if len(parts) > AVAILABLE_SHOWN else "")
-    return (f"; available: {shown} (episodes {eps[0]}-{eps[-1]}; all of them: "
-            "nutribench status, or SELECT DISTINCT algo, regime, seed FROM episode_metrics WHERE phase = 'eval')")
 
 
 __all__ = [

@@ -1,0 +1,179 @@
+"""The data a report draws, read from the results database and selected: :class:`ReportData`
+(the episode metrics and the notes on what was left out), :func:`read_metrics` (every row
+of ``episode_metrics``), :func:`prepare` (the rows of the configs asked for; per regime and
+algorithm the newest config versions, per (regime, algorithm, seed) the job with the largest
+training budget, the newest such job if several; a palette over every config of the
+database) and :func:`load_report_data` (both), :func:`stored_agent_configs` (the newest body
+of each agent config recorded), and the checks of names read from a database or given on the
+command line (:func:`check_names`, :func:`check_known`), which raise :class:`ReportError`, the
+one-line error of every report problem a user can fix. :mod:`nutribench.report.build`
+re-exports all of it.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import pandas as pd
+
+from nutribench.errors import UserError
+from nutribench.report.palette import Palette, palette
+from nutribench.report.palette import label as algo_label
+from nutribench.report.palette import order as sort_algos
+
+Db = str | os.PathLike[str]
+
+
+class ReportError(UserError, ValueError):
+    """Something the report cannot build from what it was given; printed as one line."""
+
+
+def check_names(names: Iterable[Any], what: str, where: str) -> None:
+    """:class:`ReportError` for a name that is not a regime or config name
+    (``[a-z][a-z0-9_]*``): names read from a database become file names and regime files here
+    (``table7_<name>``, ``trajectory_<regime>_<algo>_...``, the regime file of the reference
+    lines), so ``../x`` or ``/etc/y`` must never get that far."""
+    from nutribench.store.archive import NAME_MAX, valid_name
+
+    bad = [n for n in dict.fromkeys(names) if not valid_name(n)]
+    if bad:
+        shown = repr(bad[0]) if len(repr(bad[0])) <= 80 else repr(bad[0])[:77] + "..."
+        raise ReportError(f"{where}: {what} {shown} is not a name ([a-z][a-z0-9_]*, at most {NAME_MAX} characters): "
+                          "no file is built from it")  # fmt: skip
+
+
+@dataclass
+class ReportData:
+    """The episode metrics a report draws from, and what was left out of them (notes)."""
+
+    metrics: pd.DataFrame
+    notes: list[str] = field(default_factory=list)
+    #: the configs asked for (None: every config of the database)
+    selected: tuple[str, ...] | None = None
+    #: the colours of every config of the database, so each figure colours a name alike
+    colors: Palette | None = None
+
+    def what(self) -> str:
+        """`` for a2c_mine, PPO`` when configs were selected, else ``""`` (for messages)."""
+        return f" for {', '.join(algo_label(a) for a in self.selected)}" if self.selected else ""
+
+    @property
+    def train(self) -> pd.DataFrame:
+        return self.metrics[self.metrics["phase"] == "train"]
+
+    @property
+    def eval(self) -> pd.DataFrame:
+        return self.metrics[self.metrics["phase"] == "eval"]
+
+
+def _keep_latest_versions(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
+    """Per regime and per algo, the newest config version present; note what was dropped."""
+    notes = []
+    for col, ver in (("regime", "regime_version"), ("algo", "algo_version")):
+        newest = df.groupby(col)[ver].transform("max")
+        old = df[df[ver] < newest]
+        if len(old):
+            dropped = sorted({f"{n} v{v}" for n, v in old[[col, ver]].drop_duplicates().itertuples(index=False)})
+            notes.append(f"older {col} versions left out: {', '.join(dropped)}")
+        df = df[df[ver] == newest]
+    return df, notes
+
+
+def _keep_largest_budget(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
+    """Per (regime, algo) the largest training budget; per seed of it the newest job."""
+    notes = []
+    largest = df.groupby(["regime", "algo"])["budget"].transform("max")
+    mixed = df.groupby(["regime", "algo"])["budget"].nunique()
+    for (regime, algo), n in mixed[mixed > 1].items():
+        budgets = sorted(df[(df["regime"] == regime) & (df["algo"] == algo)]["budget"].unique())
+        notes.append(f"{algo_label(algo)}/{regime}: budgets {', '.join(map(str, budgets))} in the database, the largest ({budgets[-1]}) shown")
+    df = df[df["budget"] == largest]
+    newest_job = df.groupby(["regime", "algo", "seed"])["job_id"].transform("max")
+    if (df["job_id"] != newest_job).any():
+        notes.append("several jobs for one regime/algo/seed/budget: the newest of each shown")
+    return df[df["job_id"] == newest_job], notes
+
+
+def read_metrics(db: Db) -> pd.DataFrame:
+    """Every row of ``db``'s ``episode_metrics`` view.
+
+    Raises :class:`nutribench.store.StoreError` for a missing, empty or outdated database
+    and :class:`ReportError` when it holds no episodes yet.
+    """
+    from nutribench.store import open_store, read_episode_metrics
+
+    store = open_store(db)
+    try:
+        df = read_episode_metrics(store.engine)
+    finally:
+        store.dispose()
+    if df.empty:
+        raise ReportError(f"{store.display} holds no finished episodes yet: `nutribench run --db {db}` fills it")
+    check_names(df["regime"].unique(), "regime", store.display)
+    check_names(df["algo"].unique(), "agent config", store.display)
+    return df
+
+
+def prepare(df: pd.DataFrame, algos: Sequence[str] | None = None, latest_only: bool = True) -> ReportData:
+    """The rows of ``df`` (all of ``episode_metrics``) a report draws: those of ``algos``
+    (default every config), the newest versions and largest budgets of them, and notes on
+    what was left out. Its palette covers every config of ``df``."""
+    colors = palette(df["algo"].unique())
+    selected = tuple(sort_algos(algos)) if algos is not None else None
+    if selected is not None:
+        df = df[df["algo"].isin(selected)]
+    if df.empty:
+        return ReportData(df.reset_index(drop=True), [], selected, colors)
+    notes: list[str] = []
+    if latest_only:
+        df, notes = _keep_latest_versions(df)
+    df, budget_notes = _keep_largest_budget(df)
+    return ReportData(df.reset_index(drop=True), notes + budget_notes, selected, colors)
+
+
+def load_report_data(db: Db, latest_only: bool = True, algos: Sequence[str] | None = None) -> ReportData:
+    """The episode metrics of ``db`` that a report of ``algos`` (default: every config) uses;
+    see :func:`read_metrics` and :func:`prepare`."""
+    return prepare(read_metrics(db), algos, latest_only)
+
+
+def stored_agent_configs(db: Db) -> dict[str, Any]:
+    """The newest version of each agent config recorded in ``db``, by name (in palette
+    order), as objects :func:`table_agent_config` accepts. Raises
+    :class:`nutribench.store.StoreError` for a database that cannot be read."""
+    from sqlalchemy import select
+
+    from nutribench.store import AgentConfig, open_store, session_scope
+
+    store = open_store(db)
+    try:
+        with session_scope(store.engine) as s:
+            rows = s.execute(select(AgentConfig.name, AgentConfig.version, AgentConfig.body)).all()
+    finally:
+        store.dispose()
+    check_names([name for name, _, _ in rows], "agent config", store.display)
+    newest: dict[str, tuple[int, dict[str, Any]]] = {}
+    for name, version, body in rows:
+        if name not in newest or version > newest[name][0]:
+            newest[name] = (version, dict(body))
+    return {n: _StoredConfig(n, newest[n][1]) for n in sort_algos(newest)}
+
+
+def check_known(names: Sequence[str], held: Iterable[str], option: str) -> None:
+    """:class:`ReportError` (one line, what the database holds) for names not in ``held``."""
+    held = sort_algos(held)
+    unknown = [n for n in names if n not in held]
+    if unknown:
+        raise ReportError(f"{option} {', '.join(unknown)}: not in the database, which holds {', '.join(held) or 'no agent configs'}")
+
+
+@dataclass
+class _StoredConfig:
+    name: str
+    body: dict[str, Any]
+
+    def model_dump(self, mode: str = "json") -> dict[str, Any]:
+        return self.body

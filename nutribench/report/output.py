@@ -1,0 +1,89 @@
+"""Writing a report's files: a figure as PNG (150 dpi) and PDF (:func:`write_figure`), a
+table as Markdown, LaTeX and CSV (:func:`write_table`), and the trajectory view of one
+evaluation episode (:func:`build_trajectory`: its steps read from the database, drawn with
+:mod:`nutribench.report.trajectory` and written; what the database holds instead named in
+the one-line error when it has no such episode). :mod:`nutribench.report.build` re-exports
+all of it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from nutribench.report.data import Db, ReportError, check_names
+from nutribench.report.figures import FigureResult
+from nutribench.report.palette import label as algo_label
+from nutribench.report.tables import TableResult
+
+PNG_DPI = 150
+
+
+def write_figure(fig_result: FigureResult | Figure, out_dir: Db, stem: str) -> list[Path]:
+    """Write ``<out_dir>/<stem>.png`` (150 dpi) and ``.pdf``; return both paths."""
+    fig = fig_result.figure if isinstance(fig_result, FigureResult) else fig_result
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / f"{stem}.png", out / f"{stem}.pdf"]
+    fig.savefig(paths[0], dpi=PNG_DPI)
+    fig.savefig(paths[1])
+    return paths
+
+
+def write_table(table_result: TableResult, out_dir: Db, stem: str) -> list[Path]:
+    """Write ``<out_dir>/<stem>.md``, ``.tex`` and ``.csv``; return the three paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / f"{stem}.md", out / f"{stem}.tex", out / f"{stem}.csv"]
+    paths[0].write_text(table_result.to_markdown())
+    paths[1].write_text(table_result.to_latex())
+    paths[2].write_text(table_result.to_csv())
+    return paths
+
+
+def build_trajectory(db: Db, algo: str, regime: str, seed: int, episode: int = 0, out: Db = "reports") -> list[Path]:
+    """The trajectory view of one evaluation episode, written as PNG and PDF.
+
+    Uses the newest config versions and, if several jobs match, the largest budget.
+    """
+    from nutribench.env import RegimeDynamics
+    from nutribench.report.trajectory import trajectory_figure
+    from nutribench.store import open_store, read_eval_trajectories
+
+    # both become the file's name and the regime is read from its file: names only
+    check_names([regime], "regime", "--regime")
+    check_names([algo], "agent config", "--algo")
+    store = open_store(db)
+    try:
+        steps = read_eval_trajectories(store.engine, regimes=regime, algos=algo, seeds=seed, episode=episode, latest_only=True)
+        if steps.empty:
+            have = read_eval_trajectories(store.engine, latest_only=True)
+            raise ReportError(f"no evaluation steps for {algo}/{regime} seed {seed} episode {episode} in {store.display}" + _available(have))
+    finally:
+        store.dispose()
+    budget = int(steps["budget"].max())
+    steps = steps[steps["budget"] == budget]
+    steps = steps[steps["job_id"] == steps["job_id"].max()]
+    dynamics = RegimeDynamics(regime)
+    ret = float(np.sum(steps["reward"].to_numpy(dtype=float)))
+    title = f"{algo_label(algo)} on {regime}, seed {seed}, evaluation episode {episode} (budget {budget} episodes): return {ret:.2f}, {int(steps['action'].sum())} meals"
+    fig = trajectory_figure(steps[["step", "food", "action", "C", "F", "P"]], dynamics, title=title)
+    return write_figure(fig, out, f"trajectory_{regime}_{algo}_seed{seed}_ep{episode}")
+
+
+#: Cells listed in "trajectory not found" before "... N more".
+AVAILABLE_SHOWN = 4
+
+
+def _available(steps: pd.DataFrame) -> str:
+    if steps.empty:
+        return " (the database holds no evaluation steps)"
+    cells = steps[["algo", "regime", "seed"]].drop_duplicates()
+    parts = [f"{a}/{r} seeds {','.join(map(str, sorted(g['seed'])))}" for (a, r), g in cells.groupby(["algo", "regime"])]
+    eps = sorted(steps["episode"].unique())
+    shown = "; ".join(parts[:AVAILABLE_SHOWN]) + (f"; ... {len(parts) - AVAILABLE_SHOWN} more" if len(parts) > AVAILABLE_SHOWN else "")
+    return (f"; available: {shown} (episodes {eps[0]}-{eps[-1]}; all of them: "
+            "nutribench status, or SELECT DISTINCT algo, regime, seed FROM episode_metrics WHERE phase = 'eval')")

@@ -1,0 +1,252 @@
+"""Reading a results archive and checking it whole before anything is written
+(:mod:`nutribench.store.archive`'s docstring lists the checks): :func:`read_archive` loads the
+``.npz`` (no pickle) and refuses, in one line naming the archive, a file that is not a readable
+archive of this format and version, or whose content fails a check; :func:`verify_archive`
+checks a file alone. Here are the checks of the file and of its arrays (every column there,
+one-dimensional, of its type and length, NULL masks only where allowed, no other array;
+every row's job, phase, episode, step, food and action in range; no key twice; per job its
+training days, evaluation days and steps complete) and :func:`_verify`, which runs them with
+the meta's checks (:mod:`nutribench.store.archive_meta`) and compares the meta's counts.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+import numpy as np
+
+from nutribench.store.archive_meta import (
+    _INT32,
+    _META_KEYS,
+    _TABLES,
+    FORMAT,
+    FORMAT_VERSION,
+    _check_configs,
+    _check_jobs,
+    _columns,
+    _Invalid,
+    _reason,
+    _short,
+)
+from nutribench.store.engine import StoreError
+from nutribench.store.models import PHASES
+
+
+def _load(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The raw ``meta`` and arrays of the file ``path``; StoreError for one that is not a
+    readable archive (missing, empty, truncated, bit-flipped, not a zip of arrays)."""
+    not_archive = f"db import: {path} is not a results archive (`nutribench db export` writes one)"
+    if os.path.isdir(path):
+        raise StoreError(f"db import: {path} is a folder, not an archive: give the .npz file `nutribench db export` wrote")
+    if not os.path.exists(path):
+        raise StoreError(f"db import: {path}: no such file")
+    try:
+        if os.path.getsize(path) == 0:
+            raise StoreError(f"{not_archive}: the file is empty")
+        loaded = np.load(path, allow_pickle=False)
+        if not isinstance(loaded, np.lib.npyio.NpzFile):  # a .npy file: one array
+            raise StoreError(f"{not_archive}: a single array, not a set of columns")
+        with loaded as z:
+            arrays = {k: z[k] for k in z.files}
+    except StoreError:
+        raise
+    except Exception as e:  # noqa: BLE001 - bytes from anywhere: BadZipFile, zlib.error, EOFError, a bad .npy header
+        # (ValueError, tokenize.TokenError, ...): whatever the reader trips on, the file is not an archive
+        raise StoreError(f"{not_archive}: {_reason(e)}") from None
+    meta_raw = arrays.pop("meta", None)
+    if not isinstance(meta_raw, np.ndarray) or meta_raw.dtype != np.uint8 or meta_raw.ndim != 1:
+        raise StoreError(f"{not_archive}: no meta")
+    try:
+        meta = json.loads(meta_raw.tobytes().decode())
+    except (UnicodeDecodeError, ValueError, RecursionError) as e:
+        raise StoreError(f"{not_archive}: its meta is not JSON ({_reason(e)})") from None
+    if not isinstance(meta, dict):
+        raise StoreError(f"{not_archive}: its meta is not a JSON object")
+    return meta, arrays
+
+
+def read_archive(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The archive's ``meta`` and its column arrays, every check of
+    :mod:`nutribench.store.archive`'s docstring passed; :class:`StoreError` (one line naming
+    the archive and what is wrong) otherwise."""
+    meta, arrays = _load(path)
+    if meta.get("format") != FORMAT or type(meta.get("format_version")) is not int or meta["format_version"] != FORMAT_VERSION:
+        if meta.get("format") != FORMAT:
+            raise StoreError(f"db import: {path} is not a results archive (`nutribench db export` writes one): format {_short(meta.get('format'))}")
+        raise StoreError(f"db import: {path} is format {FORMAT} v{_short(meta.get('format_version'), 20)}, "
+                         f"this nutribench reads {FORMAT} v{FORMAT_VERSION}")  # fmt: skip
+    try:
+        _verify(meta, arrays)
+    except _Invalid as e:
+        raise StoreError(f"db import: {path} is damaged or was changed: {e}; nothing imported") from None
+    except RecursionError:
+        raise StoreError(f"db import: {path} is damaged or was changed: its meta is nested too deeply; nothing imported") from None
+    return meta, arrays
+
+
+def verify_archive(path: str | os.PathLike[str]) -> dict[str, int]:
+    """Check the archive ``path`` (nothing is opened but the file); its counts."""
+    meta, _ = read_archive(path)
+    return dict(meta["counts"])
+
+
+def _check_arrays(arrays: dict[str, np.ndarray], n_jobs: int) -> dict[str, dict[str, np.ndarray]]:
+    """Every table's columns there, of their type and length; NULL masks only where a column
+    allows NULL; no other array. The columns by table (``job`` included, masks applied as NaN)."""
+    expected: set[str] = set()
+    tables: dict[str, dict[str, np.ndarray]] = {}
+    for name, table in _TABLES.items():
+        job = arrays.get(f"{name}.job")
+        if not isinstance(job, np.ndarray) or job.ndim != 1 or job.dtype.kind != "i":
+            raise _Invalid(f"column {name}.job is missing or not a column of integers")
+        expected.add(f"{name}.job")
+        n = len(job)
+        cols = {"job": job}
+        for col in _columns(table):
+            key = f"{name}.{col.name}"
+            arr = arrays.get(key)
+            kind = col.type.python_type
+            want = {float: "float64", int: "integers", str: "strings"}[kind]
+            if arr is None:
+                raise _Invalid(f"column {key} is missing")
+            if not isinstance(arr, np.ndarray) or arr.ndim != 1:
+                raise _Invalid(f"{key} is not a column")
+            ok = {float: arr.dtype == np.float64, int: arr.dtype.kind == "i", str: arr.dtype.kind == "U"}[kind]
+            if not ok:
+                raise _Invalid(f"column {key} holds {arr.dtype}, not {want}")
+            if len(arr) != n:
+                raise _Invalid(f"column {key} has {len(arr):,} rows, {name}.job {n:,}")
+            expected.add(key)
+            null = arrays.get(f"{key}.null")
+            if null is not None:
+                if not col.nullable:
+                    raise _Invalid(f"column {key} has NULLs, which it does not allow")
+                if not isinstance(null, np.ndarray) or null.ndim != 1 or null.dtype != np.bool_ or len(null) != n:
+                    raise _Invalid(f"{key}.null is not a boolean column of {n:,} rows")
+                expected.add(f"{key}.null")
+                cols[f"{col.name}.null"] = null
+            if kind is float:
+                bad = ~np.isfinite(arr)
+                if null is not None:
+                    bad &= ~null
+                if bad.any():
+                    row = int(np.argmax(bad))
+                    raise _Invalid(f"column {key} holds {'NaN' if np.isnan(arr[row]) else arr[row]} in row {row} "
+                                   "(a measurement is finite; a NULL is marked in its .null mask)")  # fmt: skip
+                if null is not None:
+                    arr = np.where(null, np.nan, arr)
+            elif kind is int and n:
+                vals = arr if null is None else arr[~null]
+                if vals.size and (vals.min() < _INT32[0] or vals.max() > _INT32[1]):
+                    raise _Invalid(f"column {key} holds integers out of range")
+            elif kind is str and n:
+                length = getattr(col.type, "length", None)
+                if length is not None and arr.dtype.itemsize // 4 > length and (np.char.str_len(arr) > length).any():
+                    raise _Invalid(f"column {key} holds strings longer than {length} characters")
+            cols[col.name] = arr
+        if n and (job.min() < 0 or job.max() >= n_jobs):
+            bad = int(job.min()) if job.min() < 0 else int(job.max())
+            raise _Invalid(f"{name} row {int(np.argmax(job == bad))} belongs to job {bad}, but the archive has {n_jobs} jobs")
+        tables[name] = cols
+    other = sorted(set(arrays) - expected)
+    if other:
+        raise _Invalid(f"array {_short(other[0])} is not part of the format")
+    return tables
+
+
+def _duplicate(keys: list[np.ndarray]) -> int | None:
+    """A row whose key (the columns ``keys``) another row has too; None if all differ."""
+    n = len(keys[0])
+    if n < 2:
+        return None
+    order = np.lexsort(keys[::-1])
+    same = np.ones(n - 1, dtype=bool)
+    for k in keys:
+        s = k[order]
+        same &= s[1:] == s[:-1]
+    if not same.any():
+        return None
+    return int(order[int(np.argmax(same)) + 1])
+
+
+def _check_rows(tables: dict[str, dict[str, np.ndarray]], per_job: dict[str, np.ndarray], jobs: list[dict[str, Any]]) -> None:
+    """Values in range and every job's rows complete: its budget of training days, its
+    evaluation days, and H steps of each."""
+    n_jobs = len(jobs)
+    ep = tables["episodes"]
+    job = ep["job"]
+    phase_ok = np.isin(ep["phase"], PHASES)
+    if not phase_ok.all():
+        row = int(np.argmin(phase_ok))
+        raise _Invalid(f"episodes row {row}: phase {_short(str(ep['phase'][row]))} is neither train nor eval")
+    train = ep["phase"] == "train"
+    limit = np.where(train, per_job["episodes"][job], per_job["eval_episodes"][job]) if job.size else job
+    bad = (ep["episode"] < 0) | (ep["episode"] >= limit)
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise _Invalid(f"episodes row {row}: {ep['phase'][row]} episode {int(ep['episode'][row])} of job {int(job[row])} "
+                       f"is out of its range 0..{int(limit[row]) - 1}")  # fmt: skip
+    horizon = per_job["horizon"][job] if job.size else job
+    bad = (ep["foods"] < 0) | (ep["foods"] > horizon)
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise _Invalid(f"episodes row {row}: {int(ep['foods'][row])} foods in a day of {int(horizon[row])} steps")
+    first = ep["first_overshoot_step"]
+    bad = (first < 1) | (first > horizon)
+    if "first_overshoot_step.null" in ep:
+        bad &= ~ep["first_overshoot_step.null"]
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise _Invalid(f"episodes row {row}: first_overshoot_step {int(first[row])} is out of its range 1..{int(horizon[row])}")
+    row = _duplicate([job, train.astype(np.int8), ep["episode"]])
+    if row is not None:
+        raise _Invalid(f"episodes row {row}: job {int(job[row])}'s {ep['phase'][row]} episode {int(ep['episode'][row])} is there twice")
+    st = tables["eval_steps"]
+    sjob = st["job"]
+    horizon = per_job["horizon"][sjob] if sjob.size else sjob
+    for col, lo, hi in (("episode", 0, per_job["eval_episodes"][sjob] - 1 if sjob.size else sjob), ("step", 1, horizon),
+                        ("food", 0, per_job["foods"][sjob] - 1 if sjob.size else sjob), ("action", 0, 1)):  # fmt: skip
+        bad = (st[col] < lo) | (st[col] > hi)
+        if bad.any():
+            row = int(np.argmax(bad))
+            top = hi if np.isscalar(hi) else int(hi[row])
+            raise _Invalid(f"eval_steps row {row}: {col} {int(st[col][row])} of job {int(sjob[row])} is out of its range {lo}..{top}")
+    row = _duplicate([sjob, st["episode"], st["step"]])
+    if row is not None:
+        raise _Invalid(f"eval_steps row {row}: job {int(sjob[row])}'s evaluation episode {int(st['episode'][row])} "
+                       f"step {int(st['step'][row])} is there twice")  # fmt: skip
+    trains = np.bincount(job[train], minlength=n_jobs)
+    evals = np.bincount(job[~train], minlength=n_jobs)
+    steps = np.bincount(sjob, minlength=n_jobs)
+    want_steps = per_job["eval_episodes"] * per_job["horizon"]
+    for i, j in enumerate(jobs):
+        label = f"job {i} ({j['regime'][0]} x {j['agent'][0]} seed {j['seed']})"
+        if trains[i] != per_job["episodes"][i]:
+            budget = "the training days it recorded" if j.get("engine") == "external" else "its budget"
+            raise _Invalid(f"{label} has {trains[i]:,} training episodes, {budget} is {per_job['episodes'][i]:,}")
+        if evals[i] != per_job["eval_episodes"][i]:
+            raise _Invalid(f"{label} has {evals[i]:,} evaluation episodes, not its {per_job['eval_episodes'][i]:,}")
+        if steps[i] != want_steps[i]:
+            raise _Invalid(f"{label} has {steps[i]:,} evaluation steps, not {per_job['eval_episodes'][i]} days x "
+                           f"{per_job['horizon'][i]} = {want_steps[i]:,}")  # fmt: skip
+
+
+def _verify(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+    """Every check of :mod:`nutribench.store.archive`'s docstring on an archive's content;
+    :class:`_Invalid` with the first thing wrong."""
+    unknown = sorted(set(meta) - _META_KEYS)
+    if unknown:
+        raise _Invalid(f"meta: unknown field {_short(unknown[0])}")
+    configs = _check_configs(meta)
+    per_job = _check_jobs(meta, configs)
+    tables = _check_arrays(arrays, len(meta["jobs"]))
+    _check_rows(tables, per_job, meta["jobs"])
+    counts = meta.get("counts")
+    have = {"jobs": len(meta["jobs"]), **{name: len(cols["job"]) for name, cols in tables.items()}}
+    if not isinstance(counts, dict) or set(counts) != set(have):
+        raise _Invalid(f"meta: counts should list {', '.join(have)}")
+    for key, n in have.items():
+        if counts[key] != n:
+            raise _Invalid(f"meta says {counts[key]} {key}, the archive holds {n:,}")
