@@ -35,7 +35,7 @@ KEYS = ("return", "foods", "final_distance", "overshoot_ratio")
 
 
 def done_jobs(db: str, algo: str) -> pd.DataFrame:
-    q = """select j.id as job_id, r.name as regime, r.version as regime_version, a.name as algo, j.seed, j.episodes as budget,
+    q = """select j.id as job_id, r.name as regime, r.version as regime_version, a.name as algo, a.version as algo_version, j.seed, j.episodes as budget,
                   j.eval_episodes, j.model_path
            from jobs j join regimes r on r.id = j.regime_id join agent_configs a on a.id = j.agent_config_id
            where j.status = 'done' and j.fake = 0 and a.name = ? order by r.name, j.episodes, j.seed"""
@@ -75,6 +75,8 @@ def main() -> None:
     ap.add_argument("--budget", type=int, default=None, help="only jobs of this many training days")
     ap.add_argument("--yardsticks", action="store_true", help="also play never and the planner on the same days")
     ap.add_argument("--check", action="store_true", help="greedy returns must equal the database's evaluation returns")
+    ap.add_argument("--models-dir", default=None,
+                    help="read each model from here instead (its path below the job's models/ folder), e.g. the unpacked data/models_*.tar.gz")
     ap.add_argument("--out", required=True)
     a = ap.parse_args()
     th.set_num_threads(1)
@@ -89,7 +91,11 @@ def main() -> None:
     for job in jobs.itertuples():
         env_cfg = load_env_config(Path(a.regimes_dir) / f"{job.regime}.toml")
         streams = eval_food_streams(env_cfg, int(job.seed), int(job.eval_episodes))
-        agent = TrainedAgent.load(job.model_path)
+        path = job.model_path
+        if a.models_dir is not None:  # the layout of the models/ folder; an imported archive has no model paths
+            path = str(Path(a.models_dir) / f"{job.regime}-v{job.regime_version}" / f"{job.algo}-v{job.algo_version}"
+                       / f"seed{job.seed}-ep{job.budget}.zip")
+        agent = TrainedAgent.load(path)
         base = {"level": a.level or a.algo, "algo": job.algo, "regime": job.regime, "reward_version": env_cfg.reward.version,
                 "regime_version_played": env_cfg.version, "seed": int(job.seed), "budget": int(job.budget), "job_id": int(job.job_id)}
         if "greedy" in modes:
