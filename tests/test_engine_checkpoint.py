@@ -248,7 +248,10 @@ def test_a_checkpoint_is_a_dict_of_tensors_and_json_and_keeps_shared_objects_sha
     stats = RunningStats(2, (3,))
     stats.update(np.ones((2, 3)))
     path = tmp_path / "batch.pt"
-    Checkpoint(path).save(model=(params, opt), rng=rng, stats=stats, counts={1: 2, "n": np.int64(3)}, inf=float("inf"))
+    days = [np.arange(3), np.arange(3) + 1]
+    rows = [{"episode": 0, "return": -1.5, "first_overshoot_step": None}]
+    Checkpoint(path).save(model=(params, opt), rng=rng, stats=stats, counts={1: 2, "n": np.int64(3)}, inf=float("inf"),
+                          days=days, rows=rows, again=rows)  # fmt: skip
     tensors = th.load(path, weights_only=True)
     assert isinstance(tensors, dict) and all(isinstance(t, th.Tensor) for t in tensors.values())
     meta = json.loads((tmp_path / "batch.pt.state.json").read_text())
@@ -261,6 +264,8 @@ def test_a_checkpoint_is_a_dict_of_tensors_and_json_and_keeps_shared_objects_sha
     assert state["rng"].random() == rng.random()
     np.testing.assert_array_equal(state["stats"].mean, stats.mean)
     assert state["counts"] == {1: 2, "n": 3} and type(state["counts"]["n"]) is np.int64 and state["inf"] == float("inf")
+    assert [d.tolist() for d in state["days"]] == [[0, 1, 2], [1, 2, 3]] and state["days"][0].dtype == days[0].dtype
+    assert state["rows"] == rows and state["again"] is state["rows"]
 
 
 def test_a_save_killed_between_its_two_renames_is_finished_by_the_next_read(tmp_path, monkeypatch):

@@ -16,13 +16,17 @@ for the rest and the structure: numbers, strings, lists, dicts, numpy generators
 bit generator's state, optimisers as their ``state_dict``, the engine's classes by name
 (:func:`register`; rebuilt from their attributes, none of their code runs), each object
 shared by several parts (a network and its optimiser's parameters) shared again when read.
-The JSON names the sha256 of the ``.pt``. A save writes both to temporary names, then
-renames the JSON, then the tensors; a process killed between the two renames leaves the
-new tensors at the temporary name, and the next read puts them in place. A checkpoint that
-does not read this way (a pickle, a damaged file, tensors that do not match their JSON, an
-unknown class) is refused in one line on stderr and the batch starts over. A save that
-fails (a full disk) says so in one line, the previous checkpoint stays whole, and training
-goes on.
+Plain data (a day's metrics) goes to the JSON as it is, a list of like arrays (the days
+drawn) to the ``.pt`` as one stacked array, read back as views of it. The JSON names the
+sha256 of the ``.pt``. A save writes both to temporary names, then renames the JSON, then
+the tensors; a process killed between the two renames leaves the new tensors at the
+temporary name, and the next read puts them in place. A checkpoint that does not read this
+way (a pickle, a damaged file, tensors that do not match their JSON, an unknown class) is
+refused in one line on stderr and the batch starts over. A save that fails (a full disk)
+says so in one line, the previous checkpoint stays whole, and training goes on.
+
+Longer than 400 lines: the format is one piece (what the encoder writes, the decoder reads
+and checks, and the file pair's writing, renaming and reading).
 
 A checkpoint moves between devices: it is read onto the device the batch trains on
 (:meth:`Checkpoint.read_onto`), so a batch stopped on a GPU resumes on the CPU and the other
@@ -61,6 +65,7 @@ _OPTIMIZERS = {c.__name__: c for c in (th.optim.Adam, th.optim.AdamW, th.optim.S
 _DTYPES = {np.dtype(t).str: np.dtype(t) for t in (np.bool_, np.int8, np.uint8, np.int16, np.uint16, np.int32, np.uint32,
                                                    np.int64, np.uint64, np.float16, np.float32, np.float64)}  # fmt: skip
 
+_JSON_SCALARS = {type(None), bool, int, str}
 _CLASSES: dict[str, type] = {}  # the engine's classes a checkpoint may hold, by name (:func:`register`)
 
 
@@ -131,6 +136,11 @@ class _Encoder:
         if ref is not None:
             return ref
         n = self._refs[id(value)]
+        if kind in (list, dict) and _is_json(value):  # plain data (a day's metrics): as JSON, inner objects copied
+            return {"json": value, "id": n}
+        if kind is list and len(value) > 1 and _like_arrays(value):  # (the days drawn): one stacked array
+            return {"stack": self._tensor(value, lambda v: th.from_numpy(np.stack(v))), "dtype": value[0].dtype.str,
+                    "shape": [len(value), *value[0].shape], "id": n}  # fmt: skip
         if kind is list:
             return {"list": [self.encode(v) for v in value], "id": n}
         if kind is dict:
@@ -199,6 +209,11 @@ class _Decoder:
                     raise CheckpointRefused(f"array {node['array']} is not the {dtype} {shape} its JSON says")
                 self._done[key] = a
             return self._done[key]
+        if "json" in node:  # JSON's own lists, dicts and scalars: nothing to build
+            return self._register(node, node["json"])
+        if "stack" in node:
+            stacked = self.decode({"array": node["stack"], "dtype": node["dtype"], "shape": node["shape"]})
+            return self._register(node, list(stacked))
         if "tuple" in node:
             return tuple(self.decode(v) for v in _list(node["tuple"]))
         if "list" in node:
@@ -244,6 +259,34 @@ def _known(table: Any, name: Any, what: str) -> Any:
     if not isinstance(name, (str, int)) or name not in table:
         raise CheckpointRefused(f"its JSON names an unknown {what} {str(name)[:40]!r}")
     return table[name] if isinstance(table, dict) else name
+
+
+def _is_json(value: dict | list) -> bool:
+    """Whether ``value`` is JSON's own data: str-keyed dicts, lists, None, bool, int, str,
+    finite floats (each container scanned before its contents, so that most others fail fast)."""
+    todo = [value]
+    while todo:
+        v = todo.pop()
+        if type(v) is dict:
+            if not all(type(k) is str for k in v):
+                return False
+            v = v.values()
+        deeper = []
+        for x in v:
+            t = type(x)
+            if t is dict or t is list:
+                deeper.append(x)
+            elif t not in _JSON_SCALARS and not (t is float and x - x == 0.0):  # not inf, not nan
+                return False
+        todo += deeper
+    return True
+
+
+def _like_arrays(values: list[Any]) -> bool:
+    """Whether ``values`` are numpy arrays of one dtype (a checkpoint's) and one shape."""
+    first = values[0]
+    return (type(first) is np.ndarray and first.dtype.str in _DTYPES
+            and all(type(v) is np.ndarray and v.dtype == first.dtype and v.shape == first.shape for v in values))  # fmt: skip
 
 
 def _plain_dtype(text: Any) -> np.dtype:
