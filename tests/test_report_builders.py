@@ -79,7 +79,8 @@ def test_eval_figure_four_panels_and_standard_error():
     cell = df[(df.phase == "eval") & (df.regime == "run6") & (df.algo == "ppo")]["final_distance"]
     row = res.data[(res.data.panel == "final_distance") & (res.data.algo == "ppo") & (res.data.regime == "run6")].iloc[0]
     assert row["mean"] == pytest.approx(cell.mean())
-    assert row["sem"] == pytest.approx(cell.std(ddof=1) / np.sqrt(len(cell)))
+    assert row["sem"] == pytest.approx(cell.std(ddof=1) / np.sqrt(len(cell)))  # pooled, kept in the data
+    assert row["lo"] <= row["mean"] <= row["hi"]  # the band drawn: 95 % interval over seeds
     assert row["x"] == 6
 
 
@@ -175,13 +176,67 @@ def test_the_best_line_says_smoothed_only_when_the_curves_are():
         assert label in labels and ("best (smoothed)" in labels) == (window > 1)
 
 
-def test_the_symlog_return_axis_says_so():
-    """Issue 13 small cut: Figure 3 panel A's symmetric log axis was not labelled as such."""
+def _day_refs(df, never=-20.0, planner=-4.0):
+    refs = df[df.phase == "eval"][["regime", "seed", "episode"]].drop_duplicates().copy()
+    refs["never"], refs["planner"] = never, planner
+    return refs
+
+
+def test_the_return_panel_shows_the_share_of_the_gap_on_a_linear_axis():
+    """Issue 27 item 3 (replaces issue 13's test of the symlog axis, which this item removes):
+    panel (A) shows each seed's share of the never -> planner gap closed, on a linear axis
+    that says so; the simple policies' reference lines are on the same scale."""
     df = synthetic()
     refs = pd.DataFrame([{"regime": r, "policy": p, "return": v, "foods": 0.0, "final_distance": 3.0, "overshoot_ratio": 0.0}
-                         for r in ("run0", "run3", "run6") for p, v in (("never", -21.6), ("always", -100.0))])  # fmt: skip
-    ax = eval_across_regimes(df, references=refs).figure.axes[0]
-    assert ax.get_yscale() == "symlog" and "log scale" in ax.get_ylabel()
+                         for r in ("run0", "run3", "run6") for p, v in (("never", -20.0), ("planner", -4.0), ("always", -100.0))])  # fmt: skip
+    res = eval_across_regimes(df, references=refs, day_references=_day_refs(df))
+    ax = res.figure.axes[0]
+    assert ax.get_yscale() == "linear" and "gap" in ax.get_title(loc="left") and "planner" in ax.get_ylabel()
+    ev = df[df.phase == "eval"]
+    cell = ev[(ev.regime == "run3") & (ev.algo == "sac")]
+    shares = (cell.groupby("seed")["return"].mean() + 20.0) / 16.0
+    row = res.data[(res.data.panel == "gap_closed") & (res.data.algo == "sac") & (res.data.regime == "run3")].iloc[0]
+    assert row["mean"] == pytest.approx(shares.mean()) and row["lo"] <= row["mean"] <= row["hi"]
+    always = [l for l in ax.get_lines() if l.get_label() == "always (reference)"][0]
+    assert np.allclose(always.get_ydata(), (-100.0 + 20.0) / 16.0)
+    assert "share of the never -> planner gap" in res.figure._suptitle.get_text()
+    # yardsticks missing on a regime's days: panel (A) falls back to returns, with a note
+    res = eval_across_regimes(df, references=refs, day_references=_day_refs(df[df.regime != "run6"]))
+    assert "return" in res.figure.axes[0].get_title(loc="left") and "(linear)" in res.figure.axes[0].get_ylabel()
+    assert any("panel (A) shows returns" in n and "run6" in n for n in res.notes)
+    assert set(res.data["panel"]) == {"return", "final_distance", "foods", "overshoot_ratio"}
+
+
+def test_eval_bands_are_95_percent_intervals_over_seed_means():
+    from nutribench.report.stats import seed_mean_ci
+
+    df = synthetic(seeds=(0, 1, 2, 3, 4))
+    res = eval_across_regimes(df, bootstrap=500)
+    ev = df[df.phase == "eval"]
+    per_seed = ev[(ev.regime == "run0") & (ev.algo == "ppo")].groupby("seed")["foods"].mean().to_numpy(dtype=float)
+    row = res.data[(res.data.panel == "foods") & (res.data.algo == "ppo") & (res.data.regime == "run0")].iloc[0]
+    assert (row["mean"], row["lo"], row["hi"]) == pytest.approx(seed_mean_ci(per_seed, reps=500))
+    assert row["lo"] >= per_seed.min() and row["hi"] <= per_seed.max() and row["seeds"] == 5
+    band = res.figure.axes[2].collections[0].get_paths()[0].vertices[:, 1]
+    assert np.isclose(band, row["lo"]).any() and np.isclose(band, row["hi"]).any()
+    assert "95 % bootstrap interval over seeds" in res.figure._suptitle.get_text()
+    one = eval_across_regimes(synthetic(seeds=(0,)))
+    assert one.data[["lo", "hi"]].isna().all().all() and "one seed: no band" in one.figure._suptitle.get_text()
+
+
+def test_results_table_leads_with_the_seed_level_interval():
+    from nutribench.report.stats import seed_mean_ci
+
+    df = synthetic()
+    t = table_results(df, seeds_bootstrap=300, references=_day_refs(df))
+    assert list(t.formatted.columns[4:6]) == ["return [95% CI over seeds]", "gap closed [95% CI over seeds]"]
+    ev = df[df.phase == "eval"]
+    per_seed = ev[(ev.regime == "run0") & (ev.algo == "ppo")].groupby("seed")["return"].mean().to_numpy(dtype=float)
+    row = t.raw.iloc[0]
+    assert (row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"]) == pytest.approx(seed_mean_ci(per_seed, reps=300))
+    assert (row["gap_closed_seed_mean"], row["gap_closed_seed_lo"]) == pytest.approx(
+        seed_mean_ci((per_seed + 20.0) / 16.0, reps=300)[:2])
+    assert "±" in t.formatted.iloc[0]["return"]  # the paper's mean ± s.e. is kept beside it
 
 
 def test_trajectory_meal_labels_sit_above_the_curves():

@@ -107,7 +107,8 @@ def _eval_figure(number: int, data: ReportData, pair: Sequence[str], reference_e
     title = "Fixed-policy inference across regimes"
     if number == 4:
         title = f"{algo_label(pair[0])} against {algo_label(pair[1])}: fixed-policy inference across regimes"
-    return eval_across_regimes(data.eval, algos=algos, references=refs, title=title, colors=data.colors)
+    return eval_across_regimes(data.eval, algos=algos, references=refs, title=title, colors=data.colors,
+                               day_references=_day_references(data, log))
 
 
 def build_figure(
@@ -188,6 +189,14 @@ def _config_table(number: int, name: str, db: Db | None, stored: dict[str, Any] 
     return table_agent_config(number, config)
 
 
+def _day_references(data: ReportData, log: Log | None = None):
+    """The never/planner yardsticks on every evaluation day of ``data`` (Figures 3/4 panel (A),
+    the results table, Figure 5), played once per ``data``."""
+    if getattr(data, "_day_references", None) is None:
+        data._day_references = eval_day_references(data.eval, log=log)  # type: ignore[attr-defined]
+    return data._day_references  # type: ignore[attr-defined]
+
+
 def _aggregate(data: ReportData, what: str):
     """The aggregate scores of ``data``'s evaluation episodes (Figure 5 and the aggregate
     table), computed once per ``data``."""
@@ -196,7 +205,7 @@ def _aggregate(data: ReportData, what: str):
     if data.eval.empty:
         raise ReportError(f"{what}: no evaluation episodes{data.what()} in the database")
     if getattr(data, "_aggregate", None) is None:
-        data._aggregate = aggregate_from_eval(data.eval, eval_day_references(data.eval))  # type: ignore[attr-defined]
+        data._aggregate = aggregate_from_eval(data.eval, _day_references(data))  # type: ignore[attr-defined]
     return data._aggregate  # type: ignore[attr-defined]
 
 
@@ -212,7 +221,7 @@ def _metrics_table(key: str, data: ReportData | None) -> TableResult:
         ev = data.eval
         if ev.empty:
             raise ReportError(f"results table: no evaluation episodes{data.what()} in the database")
-        return _with_notes(table_results(ev, references=eval_day_references(ev)), data)
+        return _with_notes(table_results(ev, references=_day_references(data)), data)
     if data.train.empty:
         raise ReportError(f"training table: no training episodes{data.what()} in the database")
     return _with_notes(table_training(data.train), data)

@@ -22,6 +22,7 @@ from matplotlib.figure import Figure
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
+from nutribench.report.stats import seed_mean_ci
 
 METRIC_LABELS = {
     "return": "episodic return",
@@ -240,22 +241,48 @@ def _training_legend(fig: Figure, axes: list, algos: list[str]) -> None:
     _legend_rows(fig, [([found[lab] for lab in g], g) for g in groups])
 
 
-def _symlog_return_axis(ax) -> None:
-    """Returns span about -110 (always eat, reward version 2) to -3 (planner): a
-    symmetric-log axis (linear within +-20) keeps the learners readable next to the
-    references, with plain-number ticks."""
-    from matplotlib.ticker import FixedLocator, ScalarFormatter
+#: Label of Figures 3/4 panel (A) when it shows the share of the never -> planner gap.
+GAP_LABEL = "share of the never -> planner gap closed"
 
-    lo, hi = ax.get_ylim()
-    ax.set_yscale("symlog", linthresh=20, linscale=0.5)
-    if lo < -20:  # the linear autoscale margin shrinks to nothing on the log part: widen it
-        lo *= 1.12
-        ax.set_ylim(lo, hi)
-    ticks = [t for t in (-1000, -500, -300, -200, -100, -50, -30, -20, -10, 0, 20) if lo <= t <= hi]
-    ax.yaxis.set_major_locator(FixedLocator(ticks))
-    ax.yaxis.set_major_formatter(ScalarFormatter())
-    ax.yaxis.set_minor_locator(FixedLocator([]))
-    ax.set_ylabel("symmetric log scale (linear within ±20)", fontsize=8)
+
+def _gap_axis(ax) -> None:
+    """Panel (A) on the gap scale: linear, 0 = never eat, 100 % = the full-information planner,
+    so equal distances are equal shares of what there is to gain."""
+    from matplotlib.ticker import PercentFormatter
+
+    ax.yaxis.set_major_formatter(PercentFormatter(xmax=1, decimals=0))
+    for v in (0.0, 1.0):
+        ax.axhline(v, color="0.5", ls=":", lw=0.9, zorder=0)
+    ax.set_ylabel("0 = never eat, 100 % = planner (linear)", fontsize=8)
+
+
+def seed_scores(ev: pd.DataFrame, day_references: pd.DataFrame) -> pd.DataFrame:
+    """Per (regime, algo, seed): the share of the never -> planner gap the seed's mean return
+    closes on its own evaluation days (the results table's "gap closed", per seed); NaN where a
+    day has no yardstick. Columns: regime, algo, seed, score."""
+    ref = day_references.set_index(["regime", "seed", "episode"])[["never", "planner"]]
+    rows = []
+    for (regime, algo, seed), days in ev.groupby(["regime", "algo", "seed"], sort=True):
+        yard = ref.reindex(pd.MultiIndex.from_arrays([days["regime"], days["seed"], days["episode"]]))
+        score = float("nan")
+        if not yard.isna().any().any():
+            never, planner = float(yard["never"].mean()), float(yard["planner"].mean())
+            if planner != never:
+                score = (float(days["return"].mean()) - never) / (planner - never)
+        rows.append({"regime": regime, "algo": algo, "seed": seed, "score": score})
+    return pd.DataFrame(rows, columns=["regime", "algo", "seed", "score"])
+
+
+def _reference_scores(references: pd.DataFrame) -> pd.DataFrame:
+    """The simple policies' reference lines on the gap scale: each policy's mean return as a
+    share of the never -> planner gap on the same reference days (never = 0, planner = 1)."""
+    wide = references.pivot_table(index="regime", columns="policy", values="return", aggfunc="mean")
+    if not {"never", "planner"} <= set(wide.columns):
+        return references.iloc[0:0]
+    gap = (wide["planner"] - wide["never"]).replace(0.0, np.nan)
+    out = references.copy()
+    out["return"] = [(r - wide.loc[g, "never"]) / gap.loc[g] for g, r in zip(out["regime"], out["return"])]
+    return out
 
 
 def _missing_note(regimes: list[str], algos: list[str], df: pd.DataFrame) -> list[str]:
@@ -274,10 +301,24 @@ def eval_across_regimes(
     references: pd.DataFrame | None = None,
     title: str = "Fixed-policy inference across regimes",
     colors: Palette | None = None,
+    day_references: pd.DataFrame | None = None,
+    bootstrap: int = 2000,
 ) -> FigureResult:
     """Figures 3 and 4: evaluation metrics per regime, panels (A) return, (B) final distance,
-    (C) foods consumed, (D) overshoot ratio; one line per algorithm, mean over seeds x
-    evaluation episodes with a standard-error band over the same pooled episodes.
+    (C) foods consumed, (D) overshoot ratio; one line per algorithm at the mean of the seeds'
+    means (each seed's mean over its evaluation days), with a band of the 95 % percentile
+    bootstrap interval over seeds (``bootstrap`` resamples of the seed means; no band with one
+    seed).
+
+    ``day_references`` (columns regime, seed, episode, never, planner: the yardsticks on each
+    evaluation day, :func:`nutribench.report.references.eval_day_references`): panel (A) then
+    shows each seed's share of the never -> planner gap closed on its own days, on a linear
+    axis (0 = never, 100 % = planner), so distances between agents read truly; where a regime
+    drawn has no yardsticks (its regime file is not the version the jobs ran) panel (A) falls
+    back to returns on a linear axis, with a note. ``res.data`` keeps, per point, the mean and
+    the pooled standard error over seeds x days (``sem``, the paper's band) beside the
+    interval drawn (``lo``, ``hi``) and the seed count (``seeds``); panel "return" rows hold
+    returns, panel "gap_closed" rows shares.
 
     ``references``: optional rows (regime, policy, metric columns) of the simple policies,
     drawn as thin grey lines so the reader sees where no learning and full information lie.
@@ -289,11 +330,18 @@ def eval_across_regimes(
     if ev.empty:
         raise ValueError("no evaluation episodes to plot" + (f" for {', '.join(algos)}" if algos else ""))
     regimes = sort_regimes(ev["regime"])
-    if references is not None:
-        regimes = sort_regimes(set(regimes))
     xs = {r: (regime_index(r) if regime_index(r) is not None else i) for i, r in enumerate(regimes)}
     present_algos = sort_algos(ev["algo"])
     colors = colors or palette(present_algos)
+    notes: list[str] = []
+    scores = None
+    if day_references is not None:
+        scores = seed_scores(ev, day_references)
+        unscored = sort_regimes(scores.loc[~np.isfinite(scores["score"].to_numpy(dtype=float)), "regime"].unique())
+        if unscored:
+            notes.append(f"panel (A) shows returns, not the share of the gap: no never/planner yardsticks for {', '.join(unscored)} "
+                         "(the regime file is not the version the jobs ran)")  # fmt: skip
+            scores = None
     fig = Figure(figsize=(11, 7.6), layout="constrained")
     axes = fig.subplots(2, 2, sharex=True)
     # each algorithm drawn slightly beside the regime's x, so that lines which coincide
@@ -302,33 +350,52 @@ def eval_across_regimes(
     rows = []
     for p, metric in enumerate(EVAL_PANELS):
         ax = axes.flat[p]
+        gap_panel = metric == "return" and scores is not None
         for algo in present_algos:
             cell, color = ev[ev["algo"] == algo], colors.color(algo)
             g = cell.groupby("regime")[metric]
-            stats = pd.DataFrame({"mean": g.mean(), "count": g.count(), "std": g.std(ddof=1)})
+            stats = pd.DataFrame({"count": g.count(), "std": g.std(ddof=1)})
             stats = stats.loc[sort_regimes(stats.index)]
             stats["sem"] = stats["std"] / np.sqrt(stats["count"])
+            if gap_panel:
+                per_seed = scores[scores["algo"] == algo].groupby("regime")["score"]
+                stats["sem"] = np.nan  # the pooled standard error is a return's, not a share's
+            else:
+                per_seed = cell.groupby(["regime", "seed"])[metric].mean().groupby("regime")
+            ci = {r: seed_mean_ci(v.to_numpy(dtype=float), reps=bootstrap) for r, v in per_seed}
+            stats["mean"] = [ci[r][0] for r in stats.index]
+            stats["lo"] = [ci[r][1] for r in stats.index]
+            stats["hi"] = [ci[r][2] for r in stats.index]
+            stats["seeds"] = [int(cell[cell["regime"] == r]["seed"].nunique()) for r in stats.index]
             x = np.array([xs[r] for r in stats.index])
             xd = x + dodge[algo]
             ax.plot(xd, stats["mean"], marker="o", ms=4, color=color, label=algo_label(algo))
-            ax.fill_between(xd, stats["mean"] - stats["sem"], stats["mean"] + stats["sem"], color=color, alpha=0.2, lw=0)
-            if len(x) == 1:  # a band over one x has no width: show the standard error as an error bar
-                ax.errorbar(xd, stats["mean"], yerr=stats["sem"], fmt="none", ecolor=color, capsize=4, lw=1.2)
+            ax.fill_between(xd, stats["lo"], stats["hi"], color=color, alpha=0.2, lw=0)
+            if len(x) == 1:  # a band over one x has no width: show the interval as an error bar
+                err = np.array([stats["mean"] - stats["lo"], stats["hi"] - stats["mean"]])
+                ax.errorbar(xd, stats["mean"], yerr=err, fmt="none", ecolor=color, capsize=4, lw=1.2)
             rows.append(
-                pd.DataFrame({"panel": metric, "algo": algo, "regime": stats.index, "x": x, "mean": stats["mean"].to_numpy(), "sem": stats["sem"].to_numpy(), "n": stats["count"].to_numpy()})
-            )
+                pd.DataFrame({"panel": "gap_closed" if gap_panel else metric, "algo": algo, "regime": stats.index, "x": x,
+                              "mean": stats["mean"].to_numpy(), "lo": stats["lo"].to_numpy(), "hi": stats["hi"].to_numpy(),
+                              "sem": stats["sem"].to_numpy(), "n": stats["count"].to_numpy(), "seeds": stats["seeds"].to_numpy()})
+            )  # fmt: skip
         if references is not None and not references.empty:
             ref = references[references["regime"].isin(regimes)]
+            if gap_panel:
+                ref = _reference_scores(ref)
             for policy, style in POLICY_STYLES.items():
                 r = ref[ref["policy"] == policy]
                 if r.empty:
                     continue
                 r = r.set_index("regime").loc[sort_regimes(r["regime"])]
                 ax.plot([xs[k] for k in r.index], r[metric], lw=0.8, ms=4, alpha=0.9, label=f"{policy} (reference)", **style)
-        ax.set_title(f"({'ABCD'[p]}) {METRIC_LABELS[metric]}", fontsize=10, loc="left")
+        panel_title = GAP_LABEL if gap_panel else METRIC_LABELS[metric]
+        ax.set_title(f"({'ABCD'[p]}) {panel_title}", fontsize=10, loc="left")
         ax.grid(alpha=0.3)
-        if metric == "return" and references is not None:
-            _symlog_return_axis(ax)
+        if gap_panel:
+            _gap_axis(ax)
+        elif metric == "return":
+            ax.set_ylabel("return (linear)", fontsize=8)
         if p >= 2:
             ax.set_xlabel("regime (run)")
             ax.set_xticks(sorted(xs.values()), [str(k) for k in sorted(xs.values())])
@@ -341,13 +408,18 @@ def eval_across_regimes(
             ([h for h, r in zip(handles, is_ref) if r], [lab for lab, r in zip(labels, is_ref) if r]),
         ],
     )
-    notes = _missing_note(regimes, present_algos, ev)
+    notes = _missing_note(regimes, present_algos, ev) + notes
     if algos is not None:
         absent = [algo_label(a) for a in algos if a not in present_algos]
         if absent:
             notes.append(f"no evaluation data for {', '.join(absent)}")
-    n = ev.groupby(["regime", "algo"]).size()
-    set_title(fig, f"{title}\nmean over seeds x evaluation episodes ({_span(n)} per point); band (or error bar) = standard error;\n"
-                   f"algorithms are drawn slightly apart along x so that equal values stay visible\n{budget_seeds_text(ev)}")
+    n_seeds = ev.groupby(["regime", "algo"])["seed"].nunique()
+    n_days = ev.groupby(["regime", "algo", "seed"]).size()
+    band = ("band (or error bar) = 95 % bootstrap interval over seeds (seed means resampled)" if n_seeds.max() > 1
+            else "one seed: no band")  # fmt: skip
+    panel_a = (f"(A) each seed's share of the never -> planner gap closed on its own evaluation days; returns in the results table"
+               if scores is not None else "(A) return")  # fmt: skip
+    set_title(fig, f"{title}\nmean over seeds ({_span(n_seeds)} per point) of each seed's mean over its evaluation days ({_span(n_days)});\n"
+                   f"{band}; {panel_a};\nalgorithms are drawn slightly apart along x so that equal values stay visible\n{budget_seeds_text(ev)}")
     draw_notes(fig, notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)

@@ -52,3 +52,21 @@ def iqm_bootstrap_ci(
         stats[r] = iqm(np.concatenate([values_by_seed[i] for i in pick]))
     lo, hi = np.quantile(stats, [alpha / 2, 1 - alpha / 2])
     return point, float(lo), float(hi)
+
+
+def seed_mean_ci(seed_means: np.ndarray | list[float], reps: int = 2000, alpha: float = 0.05, seed: int = 0) -> tuple[float, float, float]:
+    """Mean of the seeds' means and its percentile bootstrap interval over **seeds**: each
+    resample redraws the seeds with replacement (each seed's mean over its evaluation days is
+    one value), as for few-seed RL results (Agarwal et al. 2021). ``(mean, nan, nan)`` with
+    fewer than two seeds: one run gives no spread to resample."""
+    x = np.asarray(seed_means, dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return float("nan"), float("nan"), float("nan")
+    point = float(x.mean())
+    if x.size < 2:
+        return point, float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    stats = x[rng.integers(0, x.size, size=(reps, x.size))].mean(axis=1)
+    lo, hi = np.quantile(stats, [alpha / 2, 1 - alpha / 2])
+    return point, float(lo), float(hi)
