@@ -73,6 +73,7 @@ def main() -> None:
     ap.add_argument("--draws", type=int, default=20)
     ap.add_argument("--regimes-dir", default="regimes", help="the regimes folder to play under")
     ap.add_argument("--budget", type=int, default=None, help="only jobs of this many training days")
+    ap.add_argument("--regime-version", type=int, default=None, help="only jobs trained on this regime version (lo0: 102)")
     ap.add_argument("--yardsticks", action="store_true", help="also play never and the planner on the same days")
     ap.add_argument("--check", action="store_true", help="greedy returns must equal the database's evaluation returns")
     ap.add_argument("--models-dir", default=None,
@@ -84,6 +85,8 @@ def main() -> None:
     jobs = done_jobs(a.db, a.algo)
     if a.budget is not None:
         jobs = jobs[jobs.budget == a.budget]
+    if a.regime_version is not None:
+        jobs = jobs[jobs.regime_version == a.regime_version]
     if jobs.empty:
         raise SystemExit(f"no done jobs of {a.algo} in {a.db}")
     stored = pd.read_sql("select job_id, episode, return from episodes where phase = 'eval'", sqlite3.connect(a.db))
