@@ -19,7 +19,8 @@ Figure / table out). This module adds what those pure builders do not know about
 * Tables 2-6 from the five built-in agent config files, Tables 7, 8, ... from the bodies of
   the other configs stored in the database (:func:`nutribench.report.tables.config_table_numbers`);
 * writing (:mod:`nutribench.report.output`): figures as PNG (150 dpi) and PDF, tables as
-  Markdown, LaTeX and CSV, and the trajectory view of one evaluation episode.
+  Markdown, LaTeX and CSV, and the trajectory view of one evaluation episode; with ``all``,
+  ``index.html``, the report on one static page (:mod:`nutribench.report.html`).
 
 The names of :mod:`nutribench.report.data` and :mod:`nutribench.report.output` are importable
 from here too. Problems a user can fix raise :class:`ReportError` (one line); a database that
@@ -48,6 +49,7 @@ from nutribench.report.data import (
     stored_agent_configs,
 )
 from nutribench.report.figures import FigureResult, draw_notes, eval_across_regimes, sort_regimes, training_curves
+from nutribench.report.html import write_index
 from nutribench.report.output import AVAILABLE_SHOWN, PNG_DPI, _available, build_trajectory, write_figure, write_table
 from nutribench.report.palette import label as algo_label
 from nutribench.report.references import eval_day_references, simple_policy_references
@@ -295,8 +297,9 @@ def build_report(
 ) -> list[Path]:
     """Write the requested figures and tables under ``out`` and return the paths written.
 
-    ``all=True`` builds Figures 1-4, Table 1, the config tables, the results and the training
-    tables; what the database cannot support (e.g. Figure 4 without PPO or GRU-PPO results) is
+    ``all=True`` builds Figures 1-5, Table 1, the config tables, the results, the training and
+    the aggregate tables, and ``index.html``: those figures and tables on one static page
+    (:mod:`nutribench.report.html`); what the database cannot support (e.g. Figure 4 without PPO or GRU-PPO results) is
     skipped and reported through ``log``. An item asked for by number that cannot be built
     raises :class:`ReportError`. ``algos``: the agent configs drawn (default: every config in
     the database); ``pair``: Figure 4's two configs (default PPO and GRU-PPO; not limited by
@@ -339,15 +342,39 @@ def build_report(
             return None
 
     paths: list[Path] = []
+    page: list[Any] = []  # what index.html shows (with ``all``)
     for f in figs:
         res = built(lambda: build_figure(f, pair_data if f == 4 else data, reference_episodes=reference_episodes, log=log, pair=pair))
         if res is not None:
-            paths += write_figure(res, out, figure_stem(f, pair))
+            written = write_figure(res, out, figure_stem(f, pair))
+            paths += written
+            page.append(_page_figure(f, res, written))
     for key, stem in plan.items():
         res_t = built(lambda: build_table(key, data, db, stored))
         if res_t is not None:
-            paths += write_table(res_t, out, stem)
+            written = write_table(res_t, out, stem)
+            paths += written
+            page.append(_page_table(stem, res_t, written))
+    if all:
+        paths.append(write_index(page, out, title="nutribench report", subtitle=f"from {db}" if isinstance(db, (str, Path)) else ""))
     return paths
+
+
+def _page_figure(number: int, res: FigureResult, written: Sequence[Path]) -> Any:
+    """Figure ``number`` on index.html: its PNG, the first line of its title, its notes."""
+    from nutribench.report.html import PageItem
+
+    sup = getattr(res.figure, "_suptitle", None)
+    heading = sup.get_text().splitlines()[0] if sup is not None and sup.get_text() else ""
+    return PageItem(written[0].stem, f"Figure {number}" + (f": {heading}" if heading else ""), png=written[0].name,
+                    notes=list(res.notes), files=[p.name for p in written])  # fmt: skip
+
+
+def _page_table(stem: str, res: TableResult, written: Sequence[Path]) -> Any:
+    """A table on index.html: its formatted frame as an HTML table under its title."""
+    from nutribench.report.html import PageItem
+
+    return PageItem(stem, res.title, table=res.formatted, files=[p.name for p in written])
 
 
 __all__ = [

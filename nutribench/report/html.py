@@ -1,0 +1,93 @@
+"""One page to look at: ``index.html`` beside a report's files, with its figures (the PNGs,
+by relative link) and its tables (the formatted tables as HTML tables) on one static page.
+
+No server, no network, no external CSS or JavaScript: the page opens from the folder (or a
+copy of it) in any browser. A small inline script marks, once the page has loaded, how many
+of its images did load (``<body data-loaded="N" data-images="M">``), so that a headless
+browser can check the page (tests/test_report_html.py).
+"""
+
+from __future__ import annotations
+
+import html
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+INDEX = "index.html"
+
+_STYLE = """
+body { font-family: sans-serif; margin: 1.5em auto; max-width: 1200px; padding: 0 1em; color: #222; }
+nav a { margin-right: 0.8em; }
+figure { margin: 1.5em 0; }
+figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
+figcaption, .notes { font-size: 0.9em; color: #555; }
+table { border-collapse: collapse; font-size: 0.85em; margin: 0.5em 0 1.5em; }
+th, td { border: 1px solid #ccc; padding: 0.2em 0.5em; text-align: left; vertical-align: top; }
+th { background: #f2f2f2; }
+tr:nth-child(even) td { background: #fafafa; }
+"""
+
+_SCRIPT = """
+window.addEventListener("load", function () {
+  var imgs = Array.prototype.slice.call(document.images);
+  var ok = imgs.filter(function (i) { return i.complete && i.naturalWidth > 0; });
+  document.body.dataset.images = String(imgs.length);
+  document.body.dataset.loaded = String(ok.length);
+});
+"""
+
+
+@dataclass
+class PageItem:
+    """One figure (``png``: its file, relative to the page) or one table (``table``) of the page."""
+
+    stem: str
+    title: str
+    png: str | None = None
+    table: pd.DataFrame | None = None
+    notes: list[str] = field(default_factory=list)
+    files: list[str] = field(default_factory=list)
+
+
+def table_html(frame: pd.DataFrame) -> str:
+    """``frame`` as an HTML table, every cell escaped."""
+    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in frame.columns)
+    body = "\n".join("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in row) + "</tr>" for row in frame.itertuples(index=False))
+    return f"<table>\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody>\n</table>"
+
+
+def _links(files: Sequence[str]) -> str:
+    return " · ".join(f'<a href="{html.escape(f, quote=True)}">{html.escape(Path(f).suffix.lstrip(".") or f)}</a>' for f in files)
+
+
+def page_html(items: Sequence[PageItem], title: str = "nutribench report", subtitle: str = "") -> str:
+    """The page: a contents line, then each figure and each table with its files linked."""
+    nav = " ".join(f'<a href="#{html.escape(i.stem, quote=True)}">{html.escape(i.stem)}</a>' for i in items)
+    parts = []
+    for i in items:
+        sid = html.escape(i.stem, quote=True)
+        notes = "".join(f'<p class="notes">note: {html.escape(n)}</p>' for n in i.notes)
+        files = f'<p class="notes">files: {_links(i.files)}</p>' if i.files else ""
+        if i.png is not None:
+            src = html.escape(i.png, quote=True)
+            parts.append(f'<section id="{sid}">\n<h2>{html.escape(i.title)}</h2>\n<figure><a href="{src}"><img src="{src}" alt="{sid}"></a>'
+                         f"<figcaption>{html.escape(i.stem)}</figcaption></figure>\n{notes}{files}\n</section>")  # fmt: skip
+        else:
+            table = table_html(i.table) if i.table is not None else ""
+            parts.append(f'<section id="{sid}">\n<h2>{html.escape(i.title)}</h2>\n{table}\n{notes}{files}\n</section>')
+    sub = f"<p>{html.escape(subtitle)}</p>" if subtitle else ""
+    return (f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n<title>{html.escape(title)}</title>\n'
+            f"<style>{_STYLE}</style>\n<script>{_SCRIPT}</script>\n</head>\n<body>\n<h1>{html.escape(title)}</h1>\n{sub}\n"
+            f"<nav>{nav}</nav>\n" + "\n".join(parts) + "\n</body>\n</html>\n")  # fmt: skip
+
+
+def write_index(items: Sequence[PageItem], out_dir: str | Path, title: str = "nutribench report", subtitle: str = "") -> Path:
+    """Write ``<out_dir>/index.html`` with ``items`` (their files relative to ``out_dir``)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / INDEX
+    path.write_text(page_html(items, title, subtitle), encoding="utf-8")
+    return path
