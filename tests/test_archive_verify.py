@@ -534,4 +534,9 @@ def test_a_committed_archive_still_imports_and_rebuilds_its_tables(tmp_path) -> 
         committed = pd.read_csv(PAPER / f"{stem}.csv")
         committed = committed[(committed["algo"] == "sac") & committed["regime"].isin(["run4", "run5", "run6"])]
         assert len(built) == 3
-        pd.testing.assert_frame_equal(built.reset_index(drop=True), committed.reset_index(drop=True), check_exact=False, rtol=1e-12)
+        # the seed-level interval columns are bootstrap draws over the whole table's cells, so a
+        # table of three cells draws other numbers: compared are the columns that are not draws
+        cols = [c for c in committed.columns if not c.startswith(("return_seed", "gap_closed_seed"))]
+        assert len(cols) >= 8
+        pd.testing.assert_frame_equal(built[cols].reset_index(drop=True), committed[cols].reset_index(drop=True),
+                                      check_exact=False, rtol=1e-12)  # fmt: skip
