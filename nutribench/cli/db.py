@@ -29,7 +29,7 @@ def db_copy_cmd(
 @user_errors
 def db_export_cmd(
     out: Annotated[Path, typer.Argument(help="archive to write (.npz)")],
-    db: Annotated[str, typer.Option(help="database to read: a SQLite file or SQLAlchemy URL")] = "nutribench.db",
+    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="database to read: a SQLite file or SQLAlchemy URL")] = "nutribench.db",
     algos: Annotated[str | None, typer.Option(help="only these agent configs (comma-separated names); default: all")] = None,
     regimes: Annotated[str | None, typer.Option(help="only these regimes (comma-separated names); default: all")] = None,
 ) -> None:
@@ -48,7 +48,7 @@ def db_export_cmd(
 @user_errors
 def db_import_cmd(
     archive: Annotated[Path, typer.Argument(help="archive written by `nutribench db export`")],
-    db: Annotated[str, typer.Option(help="database to merge into (created if missing): a SQLite file or URL")] = "nutribench.db",
+    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="database to merge into (created if missing): a SQLite file or URL")] = "nutribench.db",
 ) -> None:
     """Merge an archive's jobs into DB: new jobs are added, pending ones take the archived
     result, jobs DB already has done are kept as they are. The archive is checked whole

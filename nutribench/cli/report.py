@@ -69,7 +69,7 @@ def report_cmd(
     regime: Annotated[Optional[str], typer.Option(help="regime of the trajectory, e.g. run3")] = None,
     seed: Annotated[Optional[int], typer.Option(help="seed of the trajectory's job")] = None,
     episode: Annotated[int, typer.Option(min=0, help="evaluation episode of the trajectory")] = 0,
-    db: Annotated[str, typer.Option(help="results database: a file path or a SQLAlchemy URL")] = "nutribench.db",
+    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="results database: a file path or a SQLAlchemy URL")] = "nutribench.db",
     out: Annotated[Path, typer.Option(help="folder the files are written to")] = Path("reports"),
     reference_episodes: Annotated[int, typer.Option(min=1, help="episodes per simple policy and regime for the reference lines of figures 3/4")] = 200,
 ) -> None:

@@ -65,7 +65,7 @@ def run_cmd(
     eval_episodes: Annotated[Optional[int], typer.Option(help="evaluation episodes per job (default 5)")] = None,
     workers: Annotated[Optional[int], typer.Option(min=1, help="jobs at once (default: core count; never more than jobs)")] = None,
     executor: Annotated[str, typer.Option(help="'local' (a process per job) or 'dask://HOST:PORT'")] = "local",
-    db: Annotated[str, typer.Option(help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
+    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
     models_dir: Annotated[Optional[Path], typer.Option(help="where trained models go (default: models/ next to the db)")] = None,
     upgrade_only: Annotated[bool, typer.Option("--upgrade-only", help="create or upgrade the database schema, then exit")] = False,
     retry_failed: Annotated[bool, typer.Option("--retry-failed", help="try again the jobs that failed 3 times (once their cause is fixed)")] = False,
@@ -124,7 +124,7 @@ def run_cmd(
 
 @user_errors
 def status_cmd(
-    db: Annotated[str, typer.Option(help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
+    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
     as_json: Annotated[bool, typer.Option("--json", help="print JSON instead of a table")] = False,
 ) -> None:
     """Jobs done, running, failed and pending per regime x algo, wall time, ETA, last errors."""

@@ -104,6 +104,7 @@ def read_metrics(db: Db) -> pd.DataFrame:
     and :class:`ReportError` when it holds no episodes yet.
     """
     from nutribench.store import open_store, read_episode_metrics
+    from nutribench.store.schema import db_command
 
     store = open_store(db)
     try:
@@ -111,7 +112,7 @@ def read_metrics(db: Db) -> pd.DataFrame:
     finally:
         store.dispose()
     if df.empty:
-        raise ReportError(f"{store.display} holds no finished episodes yet: `nutribench run --db {db}` fills it")
+        raise ReportError(f"{store.display} holds no finished episodes yet: {db_command('nutribench run', store.url)} fills it")
     check_names(df["regime"].unique(), "regime", store.display)
     check_names(df["algo"].unique(), "agent config", store.display)
     return df

@@ -34,19 +34,21 @@ from pathlib import Path
 from typing import Any
 
 from sqlalchemy import select
+from sqlalchemy.exc import OperationalError
 
-from nutribench.jobs.spec import JobFailed, JobSpec
+from nutribench.jobs.spec import JobSpec
 from nutribench.jobs.worker import JobFn, execute, execute_batch
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
 from nutribench.scheduler.batching import MAX_BATCH, Pool, batch_pools, check_engine, checkpointed_first
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.registration import RunError, load_grid_configs, model_path, register_grid
+from nutribench.scheduler.storing import HeldResults, interrupt_line, one_line, release_quietly, stop_line, store_finished, unless_locked
+from nutribench.scheduler.storing import error_text as _error_text, first_line as _first_line
 from nutribench.store import AgentConfig, Job, RegimeConfig, open_store
 from nutribench.store.jobs import (
     check_not_mixed, claim_jobs, count_claimable, flush_progress, grid_counts, held_elsewhere, release_jobs, reset_given_up, store_failure,
-    store_result,
 )  # fmt: skip
-from nutribench.store.engine import sqlite_path
+from nutribench.store.engine import StoreError, sqlite_path
 from nutribench.store.schema import Store
 
 WAIT_POLL_S = 1.0  # how often a driver with nothing to run looks at jobs held by another
@@ -116,16 +118,6 @@ def driver_token() -> str:
     return f"{socket.gethostname()[:80]}:{os.getpid()}:{uuid.uuid4().hex[:12]}"
 
 
-def _first_line(exc: BaseException) -> str:
-    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-
-
-def _error_text(exc: BaseException) -> str:
-    if isinstance(exc, JobFailed):
-        return f"{exc}\n{exc.traceback_text}".strip()
-    return f"{type(exc).__name__}: {exc}"
-
-
 # --------------------------------------------------------------------------- the run
 class _Run:
     """State of one driver loop (in flight futures, live progress, counters)."""
@@ -138,6 +130,7 @@ class _Run:
         self.pools = pools if pools is not None else [Pool(job_ids)]
         self.batch_fn = batch_fn
         self.in_flight: dict[Future, list[JobSpec]] = {}
+        self.held = HeldResults()  # finished jobs' results that met the write lock, stored again later
         self.live: dict[int, dict[str, Any]] = {}
         self.attempted: set[int] = set()
         self.exhausted = False
@@ -153,7 +146,7 @@ class _Run:
         for pool in self.pools:
             while free > 0:
                 want = pool.batch_size if pool.batched else free
-                jobs = claim_jobs(self.store, pool.job_ids, self.attempted, want, self.owner)
+                jobs = unless_locked(claim_jobs, self.store, pool.job_ids, self.attempted, want, self.owner, default=[])
                 if not jobs:
                     break
                 specs = [self.make_spec(job) for job in jobs]
@@ -179,7 +172,8 @@ class _Run:
         # forgotten only once its outcome is stored: a Ctrl-C meanwhile still releases the jobs
         self.in_flight.pop(future, None)
         for spec in specs:
-            self.live.pop(spec.job_id, None)
+            if spec.job_id not in self.held:  # a held result's job keeps heartbeating
+                self.live.pop(spec.job_id, None)
 
     def _settle(self, future: Future, specs: list[JobSpec]) -> None:
         try:
@@ -200,17 +194,12 @@ class _Run:
             return
         results = {r.job_id: r for r in (outcome if isinstance(outcome, list) else [outcome])}
         for spec in specs:  # each job on its own: one that cannot be stored does not lose the others
-            result = results.get(spec.job_id)
-            try:
-                if result is None:
-                    raise JobFailed(f"{spec.label}: its batch returned no result for it")
-                stored = store_result(self.store, result, self.owner, spec.model_path)
-            except Exception as e:  # noqa: BLE001 - recorded as the job's failure, the run goes on
-                self._failed(spec, e, "could not be stored: ")
-                continue
-            if stored:
-                self.summary.done += 1
-                self.view.log(f"[green]done[/] {spec.label} ({result.metadata.get('wall_seconds', 0.0):.1f} s)")
+            self._store(spec, results.get(spec.job_id))
+
+    def _store(self, spec: JobSpec, result: Any) -> None:
+        if store_finished(self, spec, result):
+            self.summary.done += 1
+            self.view.log(f"[green]done[/] {spec.label} ({result.metadata.get('wall_seconds', 0.0):.1f} s)")
 
     def _failed(self, spec: JobSpec, error: BaseException, shown: str = "") -> None:
         """Status ``failed`` with the error kept, counted and shown (after ``shown``)."""
@@ -232,14 +221,16 @@ class _Run:
         last_flush = time.monotonic()
         while True:
             self.fill()
-            if not self.in_flight:
+            for held in self.held.due():
+                self._store(held.spec, held.result)
+            if not self.in_flight and not self.held:
                 return
-            finished, _ = wait(list(self.in_flight), timeout=0.25, return_when=FIRST_COMPLETED)
+            finished = wait(list(self.in_flight), timeout=0.25, return_when=FIRST_COMPLETED)[0] if self.in_flight else time.sleep(0.25) or ()
             self.events()
             for f in finished:
                 self.finish(f)
             if time.monotonic() - last_flush >= FLUSH_EVERY_S:
-                flush_progress(self.store, self.owner, self.live)
+                unless_locked(flush_progress, self.store, self.owner, self.live)
                 last_flush = time.monotonic()
             self.view.update(self)
 
@@ -263,17 +254,23 @@ class _Run:
             time.sleep(WAIT_POLL_S)
             self.view.update(self)
 
-    def interrupt(self) -> None:
-        """Ctrl-C (or SIGTERM, SIGHUP): stop the workers, mark their jobs interrupted, write
-        nothing else. Further signals meanwhile are ignored (:class:`_StopSignalsAsCtrlC`)."""
+    def interrupt(self, error: BaseException | None = None) -> str:
+        """Ctrl-C (or SIGTERM, SIGHUP), or a storage ``error`` (its one line is returned): stop the
+        workers, mark their jobs (and held results' jobs) interrupted, write nothing else.
+        Further signals meanwhile are ignored (:class:`_StopSignalsAsCtrlC`)."""
         try:
             self.handle.terminate_running()
         finally:  # whatever stopping the workers did, their jobs are given back
-            held = [s.job_id for specs in self.in_flight.values() for s in specs]
-            self.summary.interrupted = release_jobs(self.store, held, self.owner)
-        self.summary.user_interrupt = True
+            held = [s.job_id for specs in self.in_flight.values() for s in specs] + list(self.held)
+            released = release_quietly(self.store, held, self.owner)
+        self.summary.interrupted = released if isinstance(released, int) else 0
+        line = stop_line(self.store.display, error, released, len(held), self.held) if error else interrupt_line(released, len(held), self.held)
+        if line and not error:
+            self.view.log(f"[red]{line}[/]")
+        self.summary.user_interrupt = error is None
         self.in_flight.clear()
         self.live.clear()
+        return line
 
 
 #: Signals that stop a run as Ctrl-C does: a batch system's preemption (SIGTERM) and a closed
@@ -387,6 +384,8 @@ def run_grid(
                     run.wait_for_others()
             except KeyboardInterrupt:
                 run.interrupt()
+            except OperationalError as e:  # disk full, I/O error, read-only file: one line, jobs given back
+                raise StoreError(run.interrupt(e)) from None
             finally:
                 view.stop(run)
                 handle.close()
@@ -395,5 +394,7 @@ def run_grid(
         summary.skipped = max(0, counts["done"] - summary.done)
         summary.given_up, summary.busy = counts["given_up"], counts["busy"]
         return summary
+    except OperationalError as e:  # a write refused before any job was claimed (a read-only file)
+        raise StoreError(f"cannot write to {store.display}: {one_line(e)}: no job was claimed; the next run resumes") from None
     finally:
         store.dispose()

@@ -11,6 +11,7 @@ every opener refuses a schema newer than this nutribench knows.
 from __future__ import annotations
 
 import os
+import shlex
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -94,8 +95,22 @@ class Store:
         self.engine.dispose()
 
 
-def _upgrade_cmd(display: str) -> str:
-    return f"nutribench run --upgrade-only --db {display}"
+#: the environment variable the CLI's ``--db`` options read (``run``, ``status``, ``report``, ``db``)
+DB_ENV = "NUTRIBENCH_DB"
+
+
+def db_command(command: str, url: URL) -> str:
+    """```command --db DB``` as it can be pasted, no password printed: a SQLite file's path or a
+    URL without a password as given; a URL with a password as ``"$NUTRIBENCH_DB"``, saying to
+    set that variable (the password is never shown: ``***`` would fail when pasted)."""
+    path = sqlite_path(url)
+    if path is not None or url.password is None:
+        return f"`{command} --db {shlex.quote(str(path) if path is not None else url.render_as_string(hide_password=False))}`"
+    return f'`{command} --db "${DB_ENV}"` (with {DB_ENV} set to the database URL, password included)'
+
+
+def _upgrade_cmd(url: URL) -> str:
+    return db_command("nutribench run --upgrade-only", url)
 
 
 def _classify(conn: Connection, display: str) -> str | None:
@@ -139,15 +154,15 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
                 rev = _classify(conn, display)
                 if rev != head:
                     if not upgrade:
-                        raise StoreError(f"{display} is on schema revision {rev}, this nutribench needs {head}: run `{_upgrade_cmd(display)}`")
+                        raise StoreError(f"{display} is on schema revision {rev}, this nutribench needs {head}: run {_upgrade_cmd(url)}")
                     upgrade_connection(conn)
             return Store(engine, url, head, upgraded_from=rev if rev not in (None, head) else None, created=rev is None)
         with engine.connect() as conn:
             rev = _classify(conn, display)
         if rev is None:
-            raise StoreError(f"{display} is an empty database, nothing has run yet: `nutribench run --db {display}` fills it")
+            raise StoreError(f"{display} is an empty database, nothing has run yet: {db_command('nutribench run', url)} fills it")
         if rev != head:
-            raise StoreError(f"{display} is on schema revision {rev}, this nutribench needs {head}: run `{_upgrade_cmd(display)}`")
+            raise StoreError(f"{display} is on schema revision {rev}, this nutribench needs {head}: run {_upgrade_cmd(url)}")
         return Store(engine, url, head)
     except StoreError:
         engine.dispose()

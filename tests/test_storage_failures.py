@@ -1,0 +1,236 @@
+"""Storing finished jobs when the database pushes back (issue 28, items 4 and 6): a disk that
+fills or an I/O error while a job is stored, a read-only database, a write lock held past the
+busy timeout, and the printed commands that must work when pasted without showing a password."""
+
+from __future__ import annotations
+
+import shutil
+import sqlite3
+import threading
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from sqlalchemy.engine import make_url
+from sqlalchemy.exc import OperationalError
+from typer.testing import CliRunner
+
+import nutribench.scheduler.driver as driver
+import nutribench.store.schema as schema
+from nutribench.cli import app
+from nutribench.jobs.fake import fake_run_job
+from nutribench.scheduler.driver import run_grid
+from nutribench.store.engine import StoreError, make_engine
+
+REPO = Path(__file__).resolve().parents[1]
+SECRET = "s3cr3t-pw"
+
+
+@pytest.fixture
+def regimes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    folder = tmp_path / "regimes"
+    shutil.copytree(REPO / "regimes", folder)
+    monkeypatch.setenv("NUTRIBENCH_REGIMES", str(folder))
+    monkeypatch.delenv("NUTRIBENCH_AGENTS", raising=False)
+    monkeypatch.delenv("NUTRIBENCH_DB", raising=False)
+    return folder
+
+
+def sql(db: Path, query: str) -> list[tuple]:
+    con = sqlite3.connect(db)
+    try:
+        return con.execute(query).fetchall()
+    finally:
+        con.close()
+
+
+def grid(db: Path, seeds=(0, 21), **kw):
+    return run_grid(db, ["run0"], ["ppo"], list(seeds), 20, 1, workers=1, job_fn=fake_run_job, display=False, **kw)
+
+
+def patch_store(monkeypatch: pytest.MonkeyPatch, fn) -> None:
+    """Replace the store of a finished job wherever the driver looks it up (today's code and this one)."""
+    monkeypatch.setattr(driver, "store_result", fn, raising=False)
+    monkeypatch.setattr("nutribench.scheduler.storing.store_result", fn, raising=False)
+
+
+def operational(message: str) -> OperationalError:
+    return OperationalError("UPDATE jobs SET ...", {}, sqlite3.OperationalError(message))
+
+
+# --------------------------------------------------------------------------- disk full, I/O error
+@pytest.mark.parametrize("message", ["database or disk is full", "disk I/O error"])
+def test_disk_full_while_storing_stops_with_one_line_and_the_next_run_resumes(regimes, tmp_path, monkeypatch, message) -> None:
+    db = tmp_path / "r.db"
+
+    def full(*args, **kw):
+        raise operational(message)
+
+    patch_store(monkeypatch, full)
+    with pytest.raises(StoreError) as info:
+        grid(db)
+    line = str(info.value)
+    assert "\n" not in line and message in line and "released" in line and "next run resumes" in line, line
+    # nothing half-written, no job left running, no failure counted
+    assert sql(db, "SELECT count(*) FROM episodes") == [(0,)]
+    assert sql(db, "SELECT count(*) FROM jobs WHERE status IN ('running', 'failed') OR owner IS NOT NULL") == [(0,)]
+    monkeypatch.undo()
+    monkeypatch.setenv("NUTRIBENCH_REGIMES", str(regimes))
+    summary = grid(db)
+    assert (summary.done, summary.failed, summary.exit_code) == (2, 0, 0)
+    assert sql(db, "SELECT status, failures FROM jobs") == [("done", 0), ("done", 0)]
+
+
+def test_disk_full_that_refuses_every_write_leaves_the_jobs_to_the_stale_rule(regimes, tmp_path, monkeypatch) -> None:
+    db = tmp_path / "r.db"
+
+    def full(*args, **kw):
+        raise operational("database or disk is full")
+
+    patch_store(monkeypatch, full)
+    monkeypatch.setattr(driver, "store_failure", full)
+    monkeypatch.setattr("nutribench.scheduler.storing.release_jobs", full)
+    monkeypatch.setattr(driver, "release_jobs", full)
+    with pytest.raises(StoreError) as info:
+        grid(db, seeds=(0,))
+    line = str(info.value)
+    assert "\n" not in line and "could not be released" in line and "heartbeat" in line, line
+    assert sql(db, "SELECT status FROM jobs") == [("running",)]  # the next run takes it over once stale
+
+
+def test_disk_full_through_the_cli_is_one_line_exit_2(regimes, tmp_path, monkeypatch) -> None:
+    db = tmp_path / "r.db"
+    monkeypatch.setenv("NUTRIBENCH_JOB", "fake")
+
+    def full(*args, **kw):
+        raise operational("database or disk is full")
+
+    patch_store(monkeypatch, full)
+    res = CliRunner().invoke(app, ["run", "--db", str(db), "--regimes", "run0", "--algos", "ppo", "--seeds", "0",
+                                   "--episodes", "20", "--eval-episodes", "1", "--workers", "1"])  # fmt: skip
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output and "database or disk is full" in res.output
+    assert sql(db, "SELECT status FROM jobs") == [("interrupted",)]
+
+
+# --------------------------------------------------------------------------- read-only database
+def test_readonly_database_is_one_line_exit_2_and_nothing_is_lost(regimes, tmp_path, monkeypatch) -> None:
+    """An immutable file (chattr +i; chmod 444 where not root): SQLite refuses the first write
+    of the run, the claim, with "attempt to write a readonly database". Running as root makes
+    chmod ineffective, so the claim's refusal is simulated."""
+    db = tmp_path / "r.db"
+    monkeypatch.setenv("NUTRIBENCH_JOB", "fake")
+    args = ["run", "--db", str(db), "--regimes", "run0", "--algos", "ppo", "--episodes", "20", "--eval-episodes", "1",
+            "--workers", "1"]  # fmt: skip
+    assert CliRunner().invoke(app, [*args, "--seeds", "0"]).exit_code == 0
+    before = sql(db, "SELECT count(*) FROM episodes")
+
+    def readonly(*a, **kw):
+        raise operational("attempt to write a readonly database")
+
+    monkeypatch.setattr(driver, "claim_jobs", readonly)
+    res = CliRunner().invoke(app, [*args, "--seeds", "0,21"])
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output and "readonly database" in res.output
+    errors = [ln for ln in res.output.splitlines() if "readonly" in ln]
+    assert len(errors) == 1 and errors[0].startswith("error: cannot write to"), res.output
+    assert sql(db, "SELECT count(*) FROM episodes") == before
+    assert sql(db, "SELECT status FROM jobs ORDER BY seed") == [("done",), ("pending",)]
+    monkeypatch.undo()
+    monkeypatch.setenv("NUTRIBENCH_REGIMES", str(regimes))
+    monkeypatch.setenv("NUTRIBENCH_JOB", "fake")
+    assert CliRunner().invoke(app, [*args, "--seeds", "0,21"]).exit_code == 0
+    assert sql(db, "SELECT status FROM jobs ORDER BY seed") == [("done",), ("done",)]
+
+
+# --------------------------------------------------------------------------- write lock
+def test_a_result_that_meets_the_write_lock_is_kept_and_stored_when_it_clears(regimes, tmp_path, monkeypatch) -> None:
+    db = tmp_path / "r.db"
+    monkeypatch.setattr(schema, "make_engine", lambda url, writer=False: make_engine(url, writer=writer, busy_timeout_ms=200))
+    real = driver.store_result if hasattr(driver, "store_result") else __import__("nutribench.store.jobs").store.jobs.store_result
+    holding, blocker = threading.Event(), []
+
+    def hold_lock() -> None:
+        con = sqlite3.connect(db, isolation_level=None)
+        con.execute("BEGIN IMMEDIATE")
+        holding.set()
+        threading.Event().wait(1.5)
+        con.execute("COMMIT")
+        con.close()
+
+    calls = []
+
+    def locked_store(*args, **kw):
+        calls.append(1)
+        if not blocker:  # the first store meets a write transaction held by another connection
+            blocker.append(threading.Thread(target=hold_lock))
+            blocker[0].start()
+            holding.wait(5)
+        return real(*args, **kw)
+
+    patch_store(monkeypatch, locked_store)
+    summary = grid(db, seeds=(0,))
+    blocker[0].join()
+    assert (summary.done, summary.failed, summary.exit_code) == (1, 0, 0)
+    assert sql(db, "SELECT status, failures, owner FROM jobs") == [("done", 0, None)]
+    assert sql(db, "SELECT count(*) > 0 FROM episodes") == [(1,)]
+    assert len(calls) >= 2  # met the lock, kept, stored again once it cleared
+
+
+def test_a_result_still_locked_when_the_run_stops_is_named_in_one_line(regimes, tmp_path, monkeypatch) -> None:
+    db = tmp_path / "r.db"
+    monkeypatch.setenv("NUTRIBENCH_JOB", "fake")
+    calls = []
+
+    def locked_then_ctrl_c(*args, **kw):
+        calls.append(1)
+        if len(calls) == 1:
+            raise operational("database is locked")
+        raise KeyboardInterrupt  # Ctrl-C while the result waits for the lock
+
+    patch_store(monkeypatch, locked_then_ctrl_c)
+    res = CliRunner().invoke(app, ["run", "--db", str(db), "--regimes", "run0", "--algos", "ppo", "--seeds", "0",
+                                   "--episodes", "20", "--eval-episodes", "1", "--workers", "1"])  # fmt: skip
+    assert res.exit_code == 130, res.output
+    lines = [ln for ln in res.output.splitlines() if "could not be stored" in ln]
+    assert len(lines) == 1 and "run0" in lines[0] and "ppo" in lines[0], res.output
+    assert sql(db, "SELECT status, failures FROM jobs") == [("interrupted", 0)]
+
+
+# --------------------------------------------------------------------------- printed commands
+def test_printed_commands_use_an_environment_variable_not_the_password() -> None:
+    url = make_url(f"postgresql+psycopg://bench:{SECRET}@db.example/results")
+    cmd = schema._upgrade_cmd(url)
+    assert SECRET not in cmd and "***" not in cmd
+    assert 'nutribench run --upgrade-only --db "$NUTRIBENCH_DB"' in cmd and "NUTRIBENCH_DB set to" in cmd
+    plain = schema._upgrade_cmd(make_url("postgresql+psycopg://bench@db.example/results"))
+    assert "--db postgresql+psycopg://bench@db.example/results" in plain
+
+
+def test_report_hint_shows_no_password(monkeypatch) -> None:
+    import nutribench.store as store_pkg
+    from nutribench.report.data import ReportError, read_metrics
+
+    url = make_url(f"postgresql+psycopg://bench:{SECRET}@db.example/results")
+
+    class FakeStore:
+        display, engine = url.render_as_string(hide_password=True), None
+
+        def __init__(self):
+            self.url = url
+
+        def dispose(self):
+            pass
+
+    monkeypatch.setattr(store_pkg, "open_store", lambda db: FakeStore())
+    monkeypatch.setattr(store_pkg, "read_episode_metrics", lambda engine: pd.DataFrame())
+    with pytest.raises(ReportError) as info:
+        read_metrics(url.render_as_string(hide_password=False))
+    assert SECRET not in str(info.value) and '--db "$NUTRIBENCH_DB"' in str(info.value)
+
+
+def test_the_db_option_reads_nutribench_db(tmp_path, monkeypatch) -> None:
+    where = tmp_path / "elsewhere.db"
+    monkeypatch.setenv("NUTRIBENCH_DB", str(where))
+    res = CliRunner().invoke(app, ["status"])
+    assert res.exit_code == 2 and str(where) in res.output.replace("\n", ""), res.output
