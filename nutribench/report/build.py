@@ -49,7 +49,7 @@ from nutribench.report.data import (
     stored_agent_configs,
 )
 from nutribench.report.figures import FigureResult, draw_notes, eval_across_regimes, sort_regimes, training_curves
-from nutribench.report.html import write_index
+from nutribench.report.html import page_figure, page_table, write_index
 from nutribench.report.output import AVAILABLE_SHOWN, PNG_DPI, _available, build_trajectory, write_figure, write_table
 from nutribench.report.palette import label as algo_label
 from nutribench.report.references import eval_day_references, simple_policy_references
@@ -348,33 +348,16 @@ def build_report(
         if res is not None:
             written = write_figure(res, out, figure_stem(f, pair))
             paths += written
-            page.append(_page_figure(f, res, written))
+            page.append(page_figure(f, res, written))
     for key, stem in plan.items():
         res_t = built(lambda: build_table(key, data, db, stored))
         if res_t is not None:
             written = write_table(res_t, out, stem)
             paths += written
-            page.append(_page_table(stem, res_t, written))
+            page.append(page_table(stem, res_t, written))
     if all:
         paths.append(write_index(page, out, title="nutribench report", subtitle=f"from {db}" if isinstance(db, (str, Path)) else ""))
     return paths
-
-
-def _page_figure(number: int, res: FigureResult, written: Sequence[Path]) -> Any:
-    """Figure ``number`` on index.html: its PNG, the first line of its title, its notes."""
-    from nutribench.report.html import PageItem
-
-    sup = getattr(res.figure, "_suptitle", None)
-    heading = sup.get_text().splitlines()[0] if sup is not None and sup.get_text() else ""
-    return PageItem(written[0].stem, f"Figure {number}" + (f": {heading}" if heading else ""), png=written[0].name,
-                    notes=list(res.notes), files=[p.name for p in written])  # fmt: skip
-
-
-def _page_table(stem: str, res: TableResult, written: Sequence[Path]) -> Any:
-    """A table on index.html: its formatted frame as an HTML table under its title."""
-    from nutribench.report.html import PageItem
-
-    return PageItem(stem, res.title, table=res.formatted, files=[p.name for p in written])
 
 
 __all__ = [

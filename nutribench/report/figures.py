@@ -11,10 +11,6 @@ check them without parsing pixels.
 
 from __future__ import annotations
 
-import re
-from collections.abc import Iterable
-from dataclasses import dataclass, field
-
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
@@ -23,6 +19,20 @@ from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
 from nutribench.report.stats import seed_mean_ci
+from nutribench.report.figure_parts import (  # noqa: F401 (re-exported: the figures' shared parts)
+    LEGEND_COLS,
+    _span,
+    FigureResult,
+    _legend_rows,
+    _wrap,
+    budget_seeds_text,
+    default_window,
+    draw_notes,
+    regime_index,
+    seed_list,
+    set_title,
+    sort_regimes,
+)
 
 METRIC_LABELS = {
     "return": "episodic return",
@@ -37,120 +47,6 @@ POLICY_STYLES = {
     "planner": dict(color="k", ls="-", marker="*"),
 }
 EVAL_PANELS = ["return", "final_distance", "foods", "overshoot_ratio"]
-
-
-@dataclass
-class FigureResult:
-    figure: Figure
-    data: pd.DataFrame  # what was drawn: one row per (panel, line, x)
-    notes: list[str] = field(default_factory=list)
-
-
-def regime_index(name: str) -> int | None:
-    m = re.fullmatch(r"run(\d+)", str(name))
-    return int(m.group(1)) if m else None
-
-
-def sort_regimes(names) -> list[str]:
-    return sorted(set(names), key=lambda r: (regime_index(r) is None, regime_index(r) or 0, str(r)))
-
-
-def default_window(n_episodes: int) -> int:
-    """Smoothing window: ~2 % of the episodes, at least 1, at most 100."""
-    return int(min(100, max(1, round(n_episodes / 50))))
-
-
-def _wrap(text: str, fig: Figure, fontsize: float) -> str:
-    """Wrap ``text`` (each of its lines) to the figure's width at ``fontsize``."""
-    import textwrap
-
-    chars = max(40, int(fig.get_figwidth() * 72 / (fontsize * 0.55)))
-    return "\n".join(textwrap.fill(line, chars) for line in text.split("\n"))
-
-
-def seed_list(seeds: Iterable[int]) -> str:
-    """Seeds in increasing order, runs of three or more as ranges: ``0-9, 21, 1997``."""
-    seeds = sorted({int(s) for s in seeds})
-    parts: list[str] = []
-    i = 0
-    while i < len(seeds):
-        j = i
-        while j + 1 < len(seeds) and seeds[j + 1] == seeds[j] + 1:
-            j += 1
-        parts += [f"{seeds[i]}-{seeds[j]}"] if j - i >= 2 else [str(s) for s in seeds[i : j + 1]]
-        i = j + 1
-    return ", ".join(parts)
-
-
-def _budget_seeds(cell: pd.DataFrame) -> str:
-    """``budget 5000 days, seeds 0-9`` of one config's rows (no budget without the column)."""
-    budgets = sorted({int(b) for b in cell["budget"]}) if "budget" in cell else []
-    text = f"budget {'/'.join(map(str, budgets))} days, " if budgets else ""
-    return text + f"seed{'s' if cell['seed'].nunique() > 1 else ''} {seed_list(cell['seed'])}"
-
-
-def budget_seeds_text(df: pd.DataFrame) -> str:
-    """The training budget (days) and seeds of the rows drawn: ``budget 5000 days, seeds 0,
-    9, 21`` when every config has the same, else per config, configs alike together
-    (``MC, PPO: budget 5000 days, seeds 0-9; a2c_mine: budget 1000 days, seed 0``)."""
-    per = {a: _budget_seeds(df[df["algo"] == a]) for a in sort_algos(df["algo"])}
-    texts = list(dict.fromkeys(per.values()))
-    if len(texts) == 1:
-        return texts[0]
-    return "; ".join(f"{', '.join(algo_label(a) for a, t in per.items() if t == text)}: {text}" for text in texts)
-
-
-def _span(counts: pd.Series) -> str:
-    """``"3"`` when every group has 3, else ``"2-5"``."""
-    lo, hi = int(counts.min()), int(counts.max())
-    return f"{lo}" if lo == hi else f"{lo}-{hi}"
-
-
-def set_title(fig: Figure, title: str) -> None:
-    """The figure's title and caption (suptitle), wrapped to the figure's width; the notes of
-    :func:`draw_notes` are kept under it."""
-    fig._report_title = title  # type: ignore[attr-defined]
-    draw_notes(fig, getattr(fig, "_report_notes", []))
-
-
-def draw_notes(fig: Figure, notes: list[str]) -> None:
-    """Write ``notes`` (what was left out, which data was chosen) under the title and caption.
-
-    They go in the suptitle, the one text besides the legend that the constrained layout
-    keeps clear of the axes (a free ``fig.text`` ends up under the outside legend). Calling
-    it again replaces the notes drawn before."""
-    fig._report_notes = list(notes)  # type: ignore[attr-defined]
-    title = getattr(fig, "_report_title", None)
-    if title is None:
-        title = fig.get_suptitle()
-        fig._report_title = title  # type: ignore[attr-defined]
-    text = title + "".join(f"\nnote: {n}" for n in notes)
-    fig.suptitle(_wrap(text, fig, 10), fontsize=10)
-
-
-#: Most entries in one row of a figure legend.
-LEGEND_COLS = 6
-
-
-def _legend_rows(fig: Figure, rows: list[tuple[list, list[str]]], fontsize: float = 9) -> None:
-    """One figure legend under the panels with one row per group (learners, references).
-
-    Matplotlib fills legend columns first, so the entries are interleaved column by column
-    and short rows are padded with invisible entries; a group of more than
-    :data:`LEGEND_COLS` entries takes several rows."""
-    from matplotlib.lines import Line2D
-
-    rows = [(hs[k : k + LEGEND_COLS], ls[k : k + LEGEND_COLS]) for hs, ls in rows for k in range(0, len(ls), LEGEND_COLS)]
-    if not rows:
-        return
-    ncols = max(len(labels) for _, labels in rows)
-    blank = Line2D([], [], alpha=0)
-    handles, labels = [], []
-    for c in range(ncols):
-        for hs, ls in rows:
-            handles.append(hs[c] if c < len(hs) else blank)
-            labels.append(ls[c] if c < len(ls) else "")
-    fig.legend(handles, labels, loc="outside lower center", ncols=ncols, fontsize=fontsize, frameon=False)
 
 
 def _seed_band(curves: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -417,7 +313,7 @@ def eval_across_regimes(
     n_days = ev.groupby(["regime", "algo", "seed"]).size()
     band = ("band (or error bar) = 95 % bootstrap interval over seeds (seed means resampled)" if n_seeds.max() > 1
             else "one seed: no band")  # fmt: skip
-    panel_a = (f"(A) each seed's share of the never -> planner gap closed on its own evaluation days; returns in the results table"
+    panel_a = ("(A) each seed's share of the never -> planner gap closed on its own evaluation days; returns in the results table"
                if scores is not None else "(A) return")  # fmt: skip
     set_title(fig, f"{title}\nmean over seeds ({_span(n_seeds)} per point) of each seed's mean over its evaluation days ({_span(n_days)});\n"
                    f"{band}; {panel_a};\nalgorithms are drawn slightly apart along x so that equal values stay visible\n{budget_seeds_text(ev)}")

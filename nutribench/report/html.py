@@ -12,6 +12,7 @@ from __future__ import annotations
 import html
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 from pathlib import Path
 
 import pandas as pd
@@ -91,3 +92,16 @@ def write_index(items: Sequence[PageItem], out_dir: str | Path, title: str = "nu
     path = out / INDEX
     path.write_text(page_html(items, title, subtitle), encoding="utf-8")
     return path
+
+
+def page_figure(number: int, res: Any, written: Sequence[Path]) -> PageItem:
+    """Figure ``number`` on index.html: its PNG, the first line of its title, its notes."""
+    sup = getattr(res.figure, "_suptitle", None)
+    heading = sup.get_text().splitlines()[0] if sup is not None and sup.get_text() else ""
+    return PageItem(written[0].stem, f"Figure {number}" + (f": {heading}" if heading else ""), png=written[0].name,
+                    notes=list(res.notes), files=[p.name for p in written])  # fmt: skip
+
+
+def page_table(stem: str, res: Any, written: Sequence[Path]) -> PageItem:
+    """A table on index.html: its formatted frame as an HTML table under its title."""
+    return PageItem(stem, res.title, table=res.formatted, files=[p.name for p in written])
