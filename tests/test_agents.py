@@ -261,6 +261,7 @@ def test_the_learning_bar_passes_for_the_planner():
     assert gap_closed(simple_policy_returns("planner", streams), streams) == pytest.approx(1.0)
 
 
+@pytest.mark.slow
 def test_ppo_learns_to_eat_on_run0_within_a_ci_budget():
     """PPO (its config file, unchanged) on run0 for PPO_CI_DAYS days, seeds PPO_CI_SEEDS:
     the median seed closes at least half of the never -> planner gap on its fixed evaluation
@@ -305,6 +306,7 @@ def test_sb3_s_random_actions_do_not_depend_on_the_food_offered(algo):
     assert 0.4 < low < 0.6 and 0.4 < high < 0.6, (low, high)
 
 
+@pytest.mark.slow
 def test_ddqn_learns_on_run0_within_a_ci_budget():
     """CI budget: learning starts after 1,000 steps instead of the paper's 10,000 (200 days
     of 50 steps would otherwise leave no update). At 200 days DDQN has learned to eat a

@@ -19,6 +19,8 @@ from nutribench.config import list_regimes
 NUTRIBENCH = str(Path(sys.executable).parent / "nutribench")
 EPISODES, EVAL, H = 20, 5, 50
 
+pytestmark = pytest.mark.slow  # the smoke grid trains every regime x algorithm in a subprocess: minutes
+
 
 def nutribench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([NUTRIBENCH, *args], cwd=cwd, capture_output=True, text=True, timeout=900)
