@@ -193,24 +193,25 @@ def main() -> None:
     print("yardsticks (never, planner) per regime:", {k: tuple(round(x, 2) for x in v) for k, v in planner_mean.items()})
 
     # figure: (A) share of the gap per level x regime; (B, C) training return over days in run3 and run6
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), gridspec_kw={"width_ratios": [1.5, 1, 1]})
+    fig, axes = plt.subplots(1, 3, figsize=(17, 6), gridspec_kw={"width_ratios": [1.5, 1, 1]})
+    color = {lvl: f"C{i}" for i, lvl in enumerate(ORDER)}
     ax = axes[0]
-    series = [(lvl, ev_) for lvl, ev_ in table[["level", "evaluation"]].drop_duplicates().itertuples(index=False)
-              if not ev_.startswith("greedy (replay)")]
-    colors = plt.cm.tab10(np.linspace(0, 1, 10))
+    series = [(lvl, ev_) for lvl, ev_ in table[["level", "evaluation"]].drop_duplicates().itertuples(index=False)]
     width = 0.8 / max(len(series), 1)
     for i, (lvl, ev_) in enumerate(series):
         sub = table[(table.level == lvl) & (table.evaluation == ev_)].set_index("regime").reindex(REGIMES)
         x = np.arange(len(REGIMES)) + (i - (len(series) - 1) / 2) * width
         y = 100 * sub["share_iqm"].to_numpy()
         err = np.abs(100 * np.vstack([sub["share_iqm"] - sub["share_lo"], sub["share_hi"] - sub["share_iqm"]]))
-        ax.bar(x, y, width, yerr=err, capsize=2, color=colors[i % 10], label=f"{lvl}: {ev_}")
+        odd = ev_.startswith("stochastic") or "own reward" in ev_
+        ax.bar(x, y, width, yerr=err, capsize=2, color=color[lvl], alpha=0.45 if odd else 1.0, hatch="//" if odd else None,
+               edgecolor="k", lw=0.3, label=f"{lvl}: {ev_}")
     ax.axhline(0, color="k", lw=0.8)
     ax.axhline(100, color="k", lw=0.8, ls="--")
     ax.set_xticks(np.arange(len(REGIMES)), REGIMES)
     ax.set_ylabel("share of the never -> planner gap (%)\nIQM over 5 seeds, 95 % bootstrap CI")
-    ax.set_title("(A) evaluation, 5 fixed days per seed")
-    ax.legend(fontsize=7, loc="upper right")
+    ax.set_title("(A) evaluation, 5 fixed days per seed (0 % = never eat, 100 % = planner)")
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=2)
     for ax, regime, tag in ((axes[1], "run3", "B"), (axes[2], "run6", "C")):
         for i, lvl in enumerate(ORDER):
             sub = tr[(tr.regime == regime)]
@@ -218,7 +219,7 @@ def main() -> None:
             if sub.empty:
                 continue
             curve = sub.groupby("episode")["return"].mean().rolling(100, min_periods=1).mean()
-            ax.plot(curve.index + 1, curve.to_numpy(), lw=1.2, label=lvl + (" (own reward)" if lvl == "lo0" else ""))
+            ax.plot(curve.index + 1, curve.to_numpy(), lw=1.2, color=color[lvl], label=lvl + (" (its own reward, lo off)" if lvl == "lo0" else ""))
         nv, pl = planner_mean.get((2, regime), (np.nan, np.nan))
         ax.axhline(nv, color="k", lw=0.8, ls=":", label="never")
         ax.axhline(pl, color="k", lw=0.8, ls="--", label="planner (eval days)")
