@@ -66,6 +66,7 @@ def plugin_folder(tmp_path: Path) -> Path:
     return tmp_path
 
 
+@pytest.mark.slow
 def test_plugin_runs_through_nutribench_run_and_reaches_the_report(plugin_folder: Path, monkeypatch):
     env = {"NUTRIBENCH_AGENTS": str(plugin_folder / "agents")}
     db = plugin_folder / "lab.db"
@@ -263,6 +264,7 @@ def test_fake_jobs_are_marked_never_drawn_and_never_mixed_with_real_ones(tmp_pat
     assert sqlite3.connect(real).execute("SELECT count(*) FROM jobs").fetchone()[0] == 1
 
 
+@pytest.mark.slow
 def test_guide_code_blocks_run(tmp_path: Path):
     """Every Python and shell block of docs/own-agent.md, in order, in a scratch folder."""
     guide = REPO / "docs" / "own-agent.md"
