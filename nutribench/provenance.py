@@ -4,6 +4,7 @@ every job and every saved model. At the bottom of the house: agents and jobs bot
 from __future__ import annotations
 
 import functools
+import hashlib
 import platform
 import socket
 import subprocess
@@ -36,6 +37,14 @@ def git_state(folder: str | None = None) -> tuple[str | None, bool | None]:
     except (OSError, subprocess.SubprocessError):
         return None, None
     return (commit or None), dirty
+
+
+def file_sha256(path: str | Path | None) -> str | None:
+    """sha256 of a file's bytes (None when ``path`` is not a file): what an external job's
+    source, a recorded script or an evaluated model file, is recorded with."""
+    if not path or not Path(path).is_file():
+        return None
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def collect_metadata() -> dict[str, Any]:

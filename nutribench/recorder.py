@@ -24,7 +24,6 @@ is already in the database is refused rather than overwritten.
 
 from __future__ import annotations
 
-import hashlib
 import inspect
 import time
 from pathlib import Path
@@ -86,7 +85,9 @@ def _caller_source(depth: int = 2) -> tuple[str | None, str | None]:
     path = Path(frame.filename)
     if not path.is_file():
         return None, None
-    return str(path.resolve()), hashlib.sha256(path.read_bytes()).hexdigest()
+    from nutribench.provenance import file_sha256
+
+    return str(path.resolve()), file_sha256(path)
 
 
 class Recorder:

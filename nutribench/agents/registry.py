@@ -17,7 +17,6 @@ in each worker, from installed packages or from the current folder (as ``python 
 
 from __future__ import annotations
 
-import hashlib
 import importlib
 import sys
 from dataclasses import dataclass
@@ -25,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from nutribench.config.loading import ConfigError
+from nutribench.provenance import file_sha256
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,6 @@ class Algorithm:
     """One registered algorithm.
 
     :param algo: the ``algo`` key of its config files.
-    :param label: how figures and tables name it.
     :param build: entry point of ``f(cfg, env, seed, horizon) -> model`` (None: the config's
         own ``entry_point``, called as ``make_agent(params, env, seed)``).
     :param load: entry point of what loads a saved model: a class with ``.load(path)`` or a
@@ -42,7 +41,6 @@ class Algorithm:
     """
 
     algo: str
-    label: str
     build: str | None
     load: str | None
     plain: str | None = None
@@ -54,12 +52,12 @@ ALGORITHMS: dict[str, Algorithm] = {
     for a in (
         # MC and DDQN are SB3's A2C and DQN with other settings or another train(): plain SB3
         # loads and acts with them; discrete SAC and GRU-PPO have policies of their own
-        Algorithm("mc", "MC", _BUILD, "nutribench.agents.algos:MonteCarloAC", "stable_baselines3.A2C"),
-        Algorithm("ddqn", "DDQN", _BUILD, "nutribench.agents.algos:DoubleDQN", "stable_baselines3.DQN"),
-        Algorithm("ppo", "PPO", _BUILD, "stable_baselines3:PPO", "stable_baselines3.PPO"),
-        Algorithm("sac", "SAC", _BUILD, "nutribench.agents.sac:DiscreteSAC", "nutribench.agents.sac.DiscreteSAC"),
-        Algorithm("gru_ppo", "GRU-PPO", _BUILD, "nutribench.agents.gru_ppo:GRUPPO", "nutribench.agents.gru_ppo.GRUPPO"),
-        Algorithm("external", "external", None, None),
+        Algorithm("mc", _BUILD, "nutribench.agents.algos:MonteCarloAC", "stable_baselines3.A2C"),
+        Algorithm("ddqn", _BUILD, "nutribench.agents.algos:DoubleDQN", "stable_baselines3.DQN"),
+        Algorithm("ppo", _BUILD, "stable_baselines3:PPO", "stable_baselines3.PPO"),
+        Algorithm("sac", _BUILD, "nutribench.agents.sac:DiscreteSAC", "nutribench.agents.sac.DiscreteSAC"),
+        Algorithm("gru_ppo", _BUILD, "nutribench.agents.gru_ppo:GRUPPO", "nutribench.agents.gru_ppo.GRUPPO"),
+        Algorithm("external", None, None),
     )
 }
 
@@ -100,8 +98,7 @@ def entry_point_source(entry_point: str) -> tuple[str, str | None]:
     """``(entry point, sha256 of its module's file)``: what an external job records."""
     module = _import(entry_point.partition(":")[0])
     path = getattr(module, "__file__", None)
-    digest = hashlib.sha256(Path(path).read_bytes()).hexdigest() if path and Path(path).is_file() else None
-    return entry_point, digest
+    return entry_point, file_sha256(path)
 
 
 def algorithm(cfg: Any) -> Algorithm:

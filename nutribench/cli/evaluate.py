@@ -3,7 +3,6 @@ of (regime, seed) and stored as a job beside the built-in agents."""
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 from typing import Annotated
 
@@ -26,6 +25,7 @@ def evaluate_cmd(
 ) -> None:
     """Evaluate a saved model greedily and store it as a job (engine 'external', no training rows)."""
     from nutribench.agents.registry import import_entry_point
+    from nutribench.provenance import file_sha256
     from nutribench.recorder import Recorder
 
     if not model.exists():
@@ -35,9 +35,8 @@ def evaluate_cmd(
         policy = load(str(model))
     except Exception as e:  # the user's loader: its failure is theirs to read, in one line
         raise UserError(f"--entry-point {entry_point} could not load {model}: {type(e).__name__}: {e}") from None
-    digest = hashlib.sha256(model.read_bytes()).hexdigest() if model.is_file() else None
     rec = Recorder(db, name=name, regime=regime, seed=seed, version=version, eval_episodes=eval_episodes,
-                   source=(f"{entry_point} {model.resolve()}", digest))  # fmt: skip
+                   source=(f"{entry_point} {model.resolve()}", file_sha256(model)))  # fmt: skip
     with rec:
         rows = rec.evaluate(policy)
     mean = sum(r["return"] for r in rows) / len(rows)
