@@ -39,5 +39,7 @@ def baseline_table(regimes: list[str], episodes: int = 200, seed: int = 0) -> li
     for regime in regimes:
         for policy in POLICY_ORDER:
             eps = evaluate_simple_policy(policy, regime, episodes, seed)
-            rows.append({"regime": regime, "policy": policy, **{k: float(np.mean([e[k] for e in eps])) for k in SUMMARY_KEYS}})
+            rows.append(
+                {"regime": regime, "policy": policy, **{k: float(np.mean([e[k] for e in eps])) for k in SUMMARY_KEYS}}
+            )
     return rows

@@ -58,11 +58,18 @@ def vector_env_rate(regime: str, num_envs: int, vector_steps: int = 1000, repeat
 def bench_env(regimes=("run0", "run6"), sizes=(1, 64, 1024, 4096), repeats: int = 5) -> list[dict]:
     rows = []
     for regime in regimes:
-        rows.append({"regime": regime, "env": "single", "num_envs": 1, "steps_per_s": single_env_rate(regime, repeats=repeats)})
+        rows.append(
+            {"regime": regime, "env": "single", "num_envs": 1, "steps_per_s": single_env_rate(regime, repeats=repeats)}
+        )
         for n in sizes:
             vsteps = max(200, min(20_000, 2_000_000 // n))
             rows.append(
-                {"regime": regime, "env": "vector", "num_envs": n, "steps_per_s": vector_env_rate(regime, n, vsteps, repeats)}
+                {
+                    "regime": regime,
+                    "env": "vector",
+                    "num_envs": n,
+                    "steps_per_s": vector_env_rate(regime, n, vsteps, repeats),
+                }
             )
     return rows
 
@@ -144,13 +151,25 @@ def bench_train(
             times.append(timed_train(cfg))
             for cls_name, _ in bare_refs:
                 bare_times[cls_name].append(_bare_sb3_seconds(algo, regime, episodes, seed, cls_name))
-        row = {"what": f"nutribench {algo}", "algo": algo, "steps_per_s": steps / statistics.median(times), "bare": False}
+        row = {
+            "what": f"nutribench {algo}",
+            "algo": algo,
+            "steps_per_s": steps / statistics.median(times),
+            "bare": False,
+        }
         if bare_refs:  # the first bare row is the one the plumbing's overhead is measured against
             ref = bare_times[bare_refs[0][0]]
             row["vs_bare"] = statistics.median(b / t for b, t in zip(ref, times))  # paired, per repeat
         rows.append(row)
         for cls_name, label in bare_refs:
-            rows.append({"what": label, "algo": algo, "steps_per_s": steps / statistics.median(bare_times[cls_name]), "bare": True})
+            rows.append(
+                {
+                    "what": label,
+                    "algo": algo,
+                    "steps_per_s": steps / statistics.median(bare_times[cls_name]),
+                    "bare": True,
+                }
+            )
     grid_steps = PAPER_GRID["regimes"] * PAPER_GRID["seeds"] * PAPER_GRID["episodes"] * 50
     for r in rows:
         r["paper_grid_cpu_hours"] = grid_steps / r["steps_per_s"] / 3600
@@ -197,8 +216,17 @@ def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = 
         db = str(Path(tmp) / "paper_grid.db")
         paper = PRESETS["paper"]
         t0 = time.perf_counter()
-        run_grid(db, list_regimes(), list(ALGOS), paper.seeds, paper.episodes, workers=workers,
-                 job_fn=_InstantFakeJob(), models_dir=Path(tmp) / "models", display=False)  # fmt: skip
+        run_grid(
+            db,
+            list_regimes(),
+            list(ALGOS),
+            paper.seeds,
+            paper.episodes,
+            workers=workers,
+            job_fn=_InstantFakeJob(),
+            models_dir=Path(tmp) / "models",
+            display=False,
+        )
         build_s = time.perf_counter() - t0
     else:
         build_s = None
@@ -217,7 +245,9 @@ def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = 
     cli = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "nutribench.cli", "status", "--json", "--db", db], check=True, capture_output=True)
+        subprocess.run(
+            [sys.executable, "-m", "nutribench.cli", "status", "--json", "--db", db], check=True, capture_output=True
+        )
         cli.append(time.perf_counter() - t0)
     return {
         "db": db,
@@ -258,8 +288,9 @@ def flops_per_env_step(cfg, obs_dim: int = 13, n_actions: int = 2, horizon: int 
     return forward * (1 + 3 * OnPolicySettings.from_config(cfg, horizon).n_epochs)
 
 
-def matmul_flops_per_s(k: int = 35, batch: int = 64, n_in: int = 256, n_out: int = 128, repeats: int = 200,
-                       device: str = "cpu") -> float:  # fmt: skip
+def matmul_flops_per_s(
+    k: int = 35, batch: int = 64, n_in: int = 256, n_out: int = 128, repeats: int = 200, device: str = "cpu"
+) -> float:
     """This machine's dense float32 batched-matmul rate on one thread (or on the CUDA
     ``device``), at the shape of the batched engine's largest layer (K agents x a
     minibatch): median of 5 timings."""
@@ -284,14 +315,16 @@ def matmul_flops_per_s(k: int = 35, batch: int = 64, n_in: int = 256, n_out: int
     return statistics.median(rates)
 
 
-def bench_train_batched(algo: str = "ppo", k_regimes: int = 7, k_seeds: int = 5, episodes: int = 20, repeats: int = 3,
-                        device: str = "cpu") -> dict:  # fmt: skip
+def bench_train_batched(
+    algo: str = "ppo", k_regimes: int = 7, k_seeds: int = 5, episodes: int = 20, repeats: int = 3, device: str = "cpu"
+) -> dict:
     """Env-steps per second of the batched engine training K = regimes x seeds agents of
     ``algo`` at once in one process (one thread; DDQN and SAC learning from the first step), the arithmetic it does per env step, this
     machine's matmul rate (on ``device``, where the engine trains), the share of that floor
-    reached, and the paper grid's wall time for this algorithm at that rate on all the cores
-    (batches side by side; on one GPU they share it, so there these hours are optimistic)."""
+    reached, and the paper grid's wall time for this algorithm at that rate: on the CPU with
+    batches side by side on all the cores, on a GPU as one batch of K = 35 there."""
     from nutribench import SHIPPED_REGIMES
+    from nutribench.engine.device import resolve_device
     from nutribench.engine.train import train_batched
     from nutribench.scheduler.executors import core_count
 
@@ -307,8 +340,18 @@ def bench_train_batched(algo: str = "ppo", k_regimes: int = 7, k_seeds: int = 5,
     flops = flops_per_env_step(cfg)
     peak = matmul_flops_per_s(k=len(jobs), batch=cfg.batch_size if cfg.algo in ("ddqn", "sac") else 64, device=device)
     grid_steps = PAPER_GRID["regimes"] * PAPER_GRID["seeds"] * PAPER_GRID["episodes"] * 50
-    cores = min(core_count(), PAPER_GRID["regimes"] * PAPER_GRID["seeds"])  # batches side by side
-    return {"algo": algo, "k": len(jobs), "episodes": episodes, "steps_per_s": rate, "flops_per_step": flops,
-            "matmul_flops_per_s": peak, "floor_share": rate * flops / peak,
-            "paper_grid_wall_hours": grid_steps / rate / cores / 3600,
-            "paper_grid_floor_hours": grid_steps * flops / peak / cores / 3600, "cores": cores}  # fmt: skip
+    # on the CPU, batches side by side on all the cores; on a GPU, the one batch on it
+    on_gpu = resolve_device(device).type == "cuda"
+    cores = 1 if on_gpu else min(core_count(), PAPER_GRID["regimes"] * PAPER_GRID["seeds"])
+    return {
+        "algo": algo,
+        "k": len(jobs),
+        "episodes": episodes,
+        "steps_per_s": rate,
+        "flops_per_step": flops,
+        "matmul_flops_per_s": peak,
+        "floor_share": rate * flops / peak,
+        "paper_grid_wall_hours": grid_steps / rate / cores / 3600,
+        "paper_grid_floor_hours": grid_steps * flops / peak / cores / 3600,
+        "cores": cores,
+    }

@@ -9,12 +9,20 @@ the two engines must overlap.
 
 The SB3 engine trains one job per process on a process pool (one per core); the batched
 engine trains all of an algorithm's jobs in one process, on one core (or on ``device``).
+With ``concurrent=True`` each algorithm's batched process runs beside the SB3 pool instead
+of after it (for a machine with more cores than SB3 jobs); the results are the same, only
+the wall time differs.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import json
+import multiprocessing
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,23 +34,78 @@ from nutribench.report.stats import iqm_bootstrap_ci
 ENGINES = ("sb3", "batched")
 
 
-def bench_engines(algos: Iterable[str] = BATCHED_ALGOS, regimes: Iterable[str] = ("run0", "run6"),
-                  seeds: Iterable[int] = (0, 1, 2, 3, 4), episodes: int = 500, eval_episodes: int = 10,
-                  workers: int | None = None, device: str = "cpu") -> list[dict[str, Any]]:  # fmt: skip
+def _timed_batched_runs(
+    algo: str, regimes: list[str], seeds: list[int], episodes: int, eval_episodes: int, device: str
+) -> tuple[list[LearnRun], float]:
+    start = time.perf_counter()
+    runs = batched_runs(algo, regimes, seeds, episodes, eval_episodes, device)
+    return runs, time.perf_counter() - start
+
+
+def _save(path: Path | None, runs: dict[str, list[LearnRun]], episodes: int, device: str) -> None:
+    if path is not None:
+        records = [{"engine": e, **dataclasses.asdict(r)} for e in ENGINES for r in runs[e]]
+        path.write_text(json.dumps({"episodes": episodes, "device": device, "runs": records}, default=float))
+
+
+def bench_engines(
+    algos: Iterable[str] = BATCHED_ALGOS,
+    regimes: Iterable[str] = ("run0", "run6"),
+    seeds: Iterable[int] = (0, 1, 2, 3, 4),
+    episodes: int = 500,
+    eval_episodes: int = 10,
+    workers: int | None = None,
+    device: str = "cpu",
+    concurrent: bool = False,
+    save: Path | None = None,
+    on_done: Callable[[str, LearnRun], None] | None = None,
+) -> list[dict[str, Any]]:
     """One row per (algorithm, regime, engine), and per (algorithm, regime) whether the two
-    engines' intervals overlap (``overlap``, on the batched row)."""
+    engines' intervals overlap (``overlap``, on the batched row). ``concurrent``: each
+    algorithm's batched training runs in its own process beside the SB3 pool. ``save``: every
+    trained agent's evaluation returns and the reference returns on its days, as JSON (the SB3
+    engine's as soon as they are in, then all). ``on_done(engine, run)`` as each agent is in."""
     algos, regimes, seeds = list(algos), list(regimes), list(seeds)
     unknown = [a for a in algos if a not in BATCHED_ALGOS]
     if unknown:
-        raise ValueError(f"the batched engine does not train {', '.join(unknown)} yet (it trains {', '.join(BATCHED_ALGOS)})")
+        raise ValueError(
+            f"the batched engine does not train {', '.join(unknown)} yet (it trains {', '.join(BATCHED_ALGOS)})"
+        )
     runs: dict[str, list[LearnRun]] = {"sb3": [], "batched": []}
+    batched_walls: list[float] = []
+    pool = None
+    if concurrent:  # spawn: a CUDA context does not survive fork
+        pool = ProcessPoolExecutor(len(algos), mp_context=multiprocessing.get_context("spawn"))
+        futures = [pool.submit(_timed_batched_runs, a, regimes, seeds, episodes, eval_episodes, device) for a in algos]
     start = time.perf_counter()
-    runs["sb3"] = learn_benchmark(algos, regimes, seeds, budgets={}, default_budget=episodes, eval_episodes=eval_episodes, workers=workers)
+    sb3_done = None if on_done is None else (lambda run, k, n: on_done("sb3", run))
+    runs["sb3"] = learn_benchmark(
+        algos,
+        regimes,
+        seeds,
+        budgets={},
+        default_budget=episodes,
+        eval_episodes=eval_episodes,
+        workers=workers,
+        on_done=sb3_done,
+    )
     sb3_wall = time.perf_counter() - start
-    start = time.perf_counter()
-    for algo in algos:
-        runs["batched"] += batched_runs(algo, regimes, seeds, episodes, eval_episodes, device)
-    batched_wall = time.perf_counter() - start
+    _save(save, runs, episodes, device)
+    if pool is not None:
+        for future in futures:
+            algo_runs, wall = future.result()
+            runs["batched"] += algo_runs
+            batched_walls.append(wall)
+        pool.shutdown()
+    else:
+        for algo in algos:
+            algo_runs, wall = _timed_batched_runs(algo, regimes, seeds, episodes, eval_episodes, device)
+            runs["batched"] += algo_runs
+            batched_walls.append(wall)
+    for run in runs["batched"] if on_done is not None else ():
+        on_done("batched", run)
+    batched_wall = max(batched_walls) if concurrent else sum(batched_walls)
+    _save(save, runs, episodes, device)
     rows = []
     for algo in algos:
         for regime in regimes:
@@ -52,9 +115,20 @@ def bench_engines(algos: Iterable[str] = BATCHED_ALGOS, regimes: Iterable[str] =
                 by_seed = [np.array([e["return"] for e in r.eval_rows]) for r in rs]
                 point, lo, hi = iqm_bootstrap_ci(by_seed)
                 learned = summarize(rs)[0]  # the gap, foods and wall time as bench learn states them
-                row = {"algo": algo, "regime": regime, "engine": engine, "seeds": len(rs), "episodes": episodes,
-                       "iqm": point, "ci_low": lo, "ci_high": hi, "gap_closed": learned["gap_closed"],
-                       "foods": learned["foods"], "wall_seconds_per_job": learned["wall_seconds"], "overlap": None}  # fmt: skip
+                row = {
+                    "algo": algo,
+                    "regime": regime,
+                    "engine": engine,
+                    "seeds": len(rs),
+                    "episodes": episodes,
+                    "iqm": point,
+                    "ci_low": lo,
+                    "ci_high": hi,
+                    "gap_closed": learned["gap_closed"],
+                    "foods": learned["foods"],
+                    "wall_seconds_per_job": learned["wall_seconds"],
+                    "overlap": None,
+                }
                 pair.append(row)
             sb3, batched = pair
             batched["overlap"] = bool(sb3["ci_low"] <= batched["ci_high"] and batched["ci_low"] <= sb3["ci_high"])
@@ -64,14 +138,33 @@ def bench_engines(algos: Iterable[str] = BATCHED_ALGOS, regimes: Iterable[str] =
     return rows
 
 
-COLUMNS = ("algo", "regime", "engine", "seeds", "days", "IQM return [95 % CI]", "gap closed", "foods",
-           "wall s per job", "intervals overlap")  # fmt: skip
+COLUMNS = (
+    "algo",
+    "regime",
+    "engine",
+    "seeds",
+    "days",
+    "IQM return [95 % CI]",
+    "gap closed",
+    "foods",
+    "wall s per job",
+    "intervals overlap",
+)
 
 
 def row_cells(r: dict[str, Any]) -> list[str]:
-    return [r["algo"], r["regime"], r["engine"], str(r["seeds"]), str(r["episodes"]),
-            f"{r['iqm']:.2f} [{r['ci_low']:.2f}, {r['ci_high']:.2f}]", f"{100 * r['gap_closed']:.0f} %", f"{r['foods']:.2f}",
-            f"{r['wall_seconds_per_job']:.1f}", "" if r["overlap"] is None else ("yes" if r["overlap"] else "NO")]  # fmt: skip
+    return [
+        r["algo"],
+        r["regime"],
+        r["engine"],
+        str(r["seeds"]),
+        str(r["episodes"]),
+        f"{r['iqm']:.2f} [{r['ci_low']:.2f}, {r['ci_high']:.2f}]",
+        f"{100 * r['gap_closed']:.0f} %",
+        f"{r['foods']:.2f}",
+        f"{r['wall_seconds_per_job']:.1f}",
+        "" if r["overlap"] is None else ("yes" if r["overlap"] else "NO"),
+    ]
 
 
 def markdown_table(rows: list[dict[str, Any]]) -> str:

@@ -20,6 +20,7 @@ learner may exceed 1). A benchmark, not a test: it takes minutes per algorithm.
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import time
 from collections.abc import Callable, Iterable
@@ -60,7 +61,9 @@ def reference_returns(regime: str, streams: np.ndarray) -> dict[str, list[float]
     """Returns of ``never`` and ``planner`` on the given days ``(n, horizon)``."""
     from nutribench.baselines import play_simple_policy
 
-    return {name: [float(r["return"]) for r in play_simple_policy(name, regime, streams)] for name in ("never", "planner")}
+    return {
+        name: [float(r["return"]) for r in play_simple_policy(name, regime, streams)] for name in ("never", "planner")
+    }
 
 
 def _one_run(config: Any, regime: str, seed: int, episodes: int, eval_episodes: int) -> LearnRun:
@@ -75,8 +78,9 @@ def _one_run(config: Any, regime: str, seed: int, episodes: int, eval_episodes: 
     return LearnRun(config.name, regime, seed, episodes, wall, rows, ref["never"], ref["planner"])
 
 
-def batched_runs(config: Any, regimes: list[str], seeds: list[int], episodes: int, eval_episodes: int,
-                 device: str = "cpu") -> list[LearnRun]:  # fmt: skip
+def batched_runs(
+    config: Any, regimes: list[str], seeds: list[int], episodes: int, eval_episodes: int, device: str = "cpu"
+) -> list[LearnRun]:
     """Every (regime, seed) of ``config`` trained at once by the batched engine on ``device``, then evaluated."""
     from nutribench.agents import eval_food_streams, evaluate, load_agent_config
     from nutribench.engine.train import train_batched
@@ -125,18 +129,27 @@ def learn_benchmark(
     if engine == "batched":
         out: list[LearnRun] = []
         for c in cfgs:
-            out += batched_runs(c, regimes, seeds, budget_for(c.name, c.algo, budgets, default_budget), eval_episodes, device)
+            out += batched_runs(
+                c, regimes, seeds, budget_for(c.name, c.algo, budgets, default_budget), eval_episodes, device
+            )
             if on_done is not None:
                 on_done(out[-1], len(out), len(cfgs) * len(regimes) * len(seeds))
         return out
     if engine != "sb3":
         raise ValueError(f"engine {engine!r}: use 'sb3' or 'batched'")
-    jobs = [(c, r, s, budget_for(c.name, c.algo, budgets, default_budget)) for c in cfgs for r in regimes for s in seeds]
+    jobs = [
+        (c, r, s, budget_for(c.name, c.algo, budgets, default_budget)) for c in cfgs for r in regimes for s in seeds
+    ]
     # the longest first, so that no long job starts last
     jobs.sort(key=lambda j: -j[3] * (5 if j[0].algo in ("sac", "gru_ppo") else 1))
     workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
     runs: list[LearnRun] = []
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    # forkserver, as the scheduler's pool: a child forked from a parent that touched CUDA
+    # fails at its first CUDA call (even torch's CPU Adam asks), seen on a GPU machine
+    context = multiprocessing.get_context(
+        "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
+    )
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
         futures = [pool.submit(_one_run, c, r, s, n, eval_episodes) for c, r, s, n in jobs]
         for fut in as_completed(futures):
             runs.append(fut.result())
@@ -159,38 +172,79 @@ def summarize(runs: list[LearnRun]) -> list[dict[str, Any]]:
         ret = np.array([e["return"] for r in rs for e in r.eval_rows])
         never = float(np.mean([x for r in rs for x in r.never_returns]))
         planner = float(np.mean([x for r in rs for x in r.planner_returns]))
-        per_seed = [gap_closed(np.mean([e["return"] for e in r.eval_rows]), np.mean(r.never_returns), np.mean(r.planner_returns))
-                    for r in rs]  # fmt: skip
+        per_seed = [
+            gap_closed(
+                np.mean([e["return"] for e in r.eval_rows]), np.mean(r.never_returns), np.mean(r.planner_returns)
+            )
+            for r in rs
+        ]
         foods = float(np.mean([e["foods"] for r in rs for e in r.eval_rows]))
         gap = gap_closed(float(ret.mean()), never, planner)
         row = {
-            "regime": regime, "algo": algo, "episodes": rs[0].episodes, "seeds": len(rs),
-            "return": float(ret.mean()), "return_iqm": iqm(ret), "foods": foods,
+            "regime": regime,
+            "algo": algo,
+            "episodes": rs[0].episodes,
+            "seeds": len(rs),
+            "return": float(ret.mean()),
+            "return_iqm": iqm(ret),
+            "foods": foods,
             "final_distance": float(np.mean([e["final_distance"] for r in rs for e in r.eval_rows])),
             "overshoot_ratio": float(np.mean([e["overshoot_ratio"] for r in rs for e in r.eval_rows])),
-            "never": never, "planner": planner, "gap_closed": gap, "gap_closed_min_seed": float(min(per_seed)),
+            "never": never,
+            "planner": planner,
+            "gap_closed": gap,
+            "gap_closed_min_seed": float(min(per_seed)),
             "wall_seconds": float(np.median([r.wall_seconds for r in rs])),
-        }  # fmt: skip
-        row["target_met"] = (gap >= TARGET_GAP and TARGET_FOODS[0] <= foods <= TARGET_FOODS[1]) if regime == "run0" else None
+        }
+        row["target_met"] = (
+            (gap >= TARGET_GAP and TARGET_FOODS[0] <= foods <= TARGET_FOODS[1]) if regime == "run0" else None
+        )
         rows.append(row)
     return rows
 
 
 #: Columns of the summary tables (Markdown and the terminal's), one cell each per row.
-COLUMNS = ("regime", "algo", "days", "seeds", "return", "IQM", "foods", "final distance", "overshoot ratio",
-           "never", "planner", "gap closed", "lowest seed", "target")  # fmt: skip
+COLUMNS = (
+    "regime",
+    "algo",
+    "days",
+    "seeds",
+    "return",
+    "IQM",
+    "foods",
+    "final distance",
+    "overshoot ratio",
+    "never",
+    "planner",
+    "gap closed",
+    "lowest seed",
+    "target",
+)
 
 
 def target_text(row: dict[str, Any]) -> str:
-    """"met", "not met", or "" where no target is set (regimes other than run0)."""
+    """ "met", "not met", or "" where no target is set (regimes other than run0)."""
     return "" if row["target_met"] is None else ("met" if row["target_met"] else "not met")
 
 
 def row_cells(r: dict[str, Any]) -> list[str]:
     """One summary row as the text of each of :data:`COLUMNS`."""
-    return [r["regime"], r["algo"], str(r["episodes"]), str(r["seeds"]), f"{r['return']:.2f}", f"{r['return_iqm']:.2f}",
-            f"{r['foods']:.2f}", f"{r['final_distance']:.3f}", f"{r['overshoot_ratio']:.3f}", f"{r['never']:.2f}",
-            f"{r['planner']:.2f}", f"{100 * r['gap_closed']:.0f} %", f"{100 * r['gap_closed_min_seed']:.0f} %", target_text(r)]  # fmt: skip
+    return [
+        r["regime"],
+        r["algo"],
+        str(r["episodes"]),
+        str(r["seeds"]),
+        f"{r['return']:.2f}",
+        f"{r['return_iqm']:.2f}",
+        f"{r['foods']:.2f}",
+        f"{r['final_distance']:.3f}",
+        f"{r['overshoot_ratio']:.3f}",
+        f"{r['never']:.2f}",
+        f"{r['planner']:.2f}",
+        f"{100 * r['gap_closed']:.0f} %",
+        f"{100 * r['gap_closed_min_seed']:.0f} %",
+        target_text(r),
+    ]
 
 
 def markdown_table(rows: list[dict[str, Any]]) -> str:

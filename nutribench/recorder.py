@@ -71,11 +71,15 @@ class PolicyAgent:
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         return np.asarray(obs, dtype=np.float32)
 
-    def act(self, obs: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None) -> tuple[np.ndarray, Any]:
+    def act(
+        self, obs: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None
+    ) -> tuple[np.ndarray, Any]:
         if self.model is not None:
             return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=True)
         if not callable(self.policy):
-            raise RecorderError(f"evaluate(policy): a {type(self.policy).__name__} is neither callable (obs -> action) nor has predict()")
+            raise RecorderError(
+                f"evaluate(policy): a {type(self.policy).__name__} is neither callable (obs -> action) nor has predict()"
+            )
         return np.array([int(self.policy(o)) for o in obs]), None
 
 
@@ -104,9 +108,19 @@ class Recorder:
     :param source: what made the results (default: the calling script), recorded with its hash.
     """
 
-    def __init__(self, db: str | Path = "nutribench.db", *, name: str, regime: str | Path = "run0", seed: int = 0,
-                 version: int = 1, description: str = "", params: dict[str, Any] | None = None,
-                 eval_episodes: int = 5, source: tuple[str | None, str | None] | None = None):  # fmt: skip
+    def __init__(
+        self,
+        db: str | Path = "nutribench.db",
+        *,
+        name: str,
+        regime: str | Path = "run0",
+        seed: int = 0,
+        version: int = 1,
+        description: str = "",
+        params: dict[str, Any] | None = None,
+        eval_episodes: int = 5,
+        source: tuple[str | None, str | None] | None = None,
+    ):
         from nutribench.agents.config import parse_agent_config
         from nutribench.config import load_env_config
 
@@ -114,8 +128,13 @@ class Recorder:
         if eval_episodes < 1:
             raise RecorderError(f"eval_episodes={eval_episodes}: record at least one evaluation day")
         self.regime_config = load_env_config(regime)
-        body = {"algo": "external", "name": name, "version": version, "description": description or f"{name}, recorded",
-                "params": dict(params or {})}  # fmt: skip
+        body = {
+            "algo": "external",
+            "name": name,
+            "version": version,
+            "description": description or f"{name}, recorded",
+            "params": dict(params or {}),
+        }
         self.agent_config = parse_agent_config(body, f"Recorder(name={name!r})")
         self.source = source if source is not None else _caller_source()
         self._env: RecordingEnv | None = None
@@ -141,7 +160,9 @@ class Recorder:
     def env(self) -> RecordingEnv:
         """The Gymnasium env to train on: every whole day played on it is a training row."""
         if self._env is None:
-            raise RecorderError("Recorder.env: use the recorder in a with block (with nutribench.Recorder(...) as rec:)")
+            raise RecorderError(
+                "Recorder.env: use the recorder in a with block (with nutribench.Recorder(...) as rec:)"
+            )
         return self._env
 
     def evaluate(self, policy: Any) -> list[dict[str, Any]]:
@@ -167,17 +188,25 @@ class Recorder:
     def save(self) -> int:
         """Write the job (called by the with block's end); its id."""
         if self._eval is None:
-            raise RecorderError(f"Recorder {self.agent_config.name}: call rec.evaluate(policy) before the with block ends (nothing was written)")
+            raise RecorderError(
+                f"Recorder {self.agent_config.name}: call rec.evaluate(policy) before the with block ends (nothing was written)"
+            )
         from nutribench.clock import utcnow
         from nutribench.provenance import collect_metadata
-        from nutribench.store import open_store
         from nutribench.scheduler.registration import ExternalJob, store_external_job
+        from nutribench.store import open_store
 
-        meta = collect_metadata() | {"started_at": self._started, "finished_at": utcnow(),
-                                     "wall_seconds": time.perf_counter() - self._t0, "engine": "external",
-                                     "source": self.source[0], "source_sha256": self.source[1]}  # fmt: skip
-        job = ExternalJob(self.regime_config, self.agent_config, self.seed, self.env.days, self._eval.episodes,
-                          self._eval.steps, meta)  # fmt: skip
+        meta = collect_metadata() | {
+            "started_at": self._started,
+            "finished_at": utcnow(),
+            "wall_seconds": time.perf_counter() - self._t0,
+            "engine": "external",
+            "source": self.source[0],
+            "source_sha256": self.source[1],
+        }
+        job = ExternalJob(
+            self.regime_config, self.agent_config, self.seed, self.env.days, self._eval.episodes, self._eval.steps, meta
+        )
         store = open_store(self.db, writer=True)
         try:
             return store_external_job(store, job)

@@ -37,8 +37,10 @@ def _bindir() -> Path:
     initdb = shutil.which("initdb")
     if initdb:
         return Path(initdb).parent
-    raise PostgresUnavailable("no PostgreSQL binaries (initdb) found: install the Debian package 'postgresql' "
-                              "or set NUTRIBENCH_PG_BIN to the folder holding initdb and pg_ctl")  # fmt: skip
+    raise PostgresUnavailable(
+        "no PostgreSQL binaries (initdb) found: install the Debian package 'postgresql' "
+        "or set NUTRIBENCH_PG_BIN to the folder holding initdb and pg_ctl"
+    )
 
 
 def _free_port() -> int:
@@ -72,8 +74,11 @@ class Server:
         return self.url(name)
 
     def stop(self) -> None:
-        subprocess.run(self._cmd(str(self.bindir / "pg_ctl"), "-D", str(self.folder / "data"), "-m", "immediate", "stop"),
-                       capture_output=True, check=False)  # fmt: skip
+        subprocess.run(
+            self._cmd(str(self.bindir / "pg_ctl"), "-D", str(self.folder / "data"), "-m", "immediate", "stop"),
+            capture_output=True,
+            check=False,
+        )
         shutil.rmtree(self.folder, ignore_errors=True)
 
 
@@ -93,13 +98,26 @@ def start() -> Server:
     data, log = folder / "data", folder / "server.log"
     steps = [
         [str(bindir / "initdb"), "-D", str(data), "-U", USER, "--auth=trust", "-E", "UTF8", "--no-sync"],
-        [str(bindir / "pg_ctl"), "-D", str(data), "-l", str(log), "-w", "-t", "60", "-o",
-         f"-p {server.port} -k {folder} -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=200", "start"],
-    ]  # fmt: skip
+        [
+            str(bindir / "pg_ctl"),
+            "-D",
+            str(data),
+            "-l",
+            str(log),
+            "-w",
+            "-t",
+            "60",
+            "-o",
+            f"-p {server.port} -k {folder} -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=200",
+            "start",
+        ],
+    ]
     for step in steps:
         done = subprocess.run(server._cmd(*step), capture_output=True, text=True, check=False)
         if done.returncode != 0:
             tail = log.read_text()[-2000:] if log.exists() else ""
             server.stop()
-            raise PostgresUnavailable(f"{' '.join(step[:1])} failed ({done.returncode}): {done.stderr.strip()[-2000:]} {tail}")
+            raise PostgresUnavailable(
+                f"{' '.join(step[:1])} failed ({done.returncode}): {done.stderr.strip()[-2000:]} {tail}"
+            )
     return server

@@ -50,11 +50,23 @@ def test_the_five_paper_configs_are_listed_first():
 
 def test_spec3_values_in_the_files():
     ddqn = load_agent_config("ddqn")
-    assert (ddqn.buffer_size, ddqn.learning_starts, ddqn.batch_size, ddqn.n_step, ddqn.max_grad_norm) == (300_000, 10_000, 128, 5, 10)
+    assert (ddqn.buffer_size, ddqn.learning_starts, ddqn.batch_size, ddqn.n_step, ddqn.max_grad_norm) == (
+        300_000,
+        10_000,
+        128,
+        5,
+        10,
+    )
     assert (ddqn.learning_rate_start, ddqn.learning_rate_end) == (1e-3, 1e-4)
     sac = load_agent_config("sac")
     assert (sac.alpha, sac.tau, sac.actor_learning_rate, sac.critic_learning_rate, sac.buffer_size, sac.batch_size) == (
-        0.2, 0.005, 1e-4, 1e-3, 100_000, 128)  # fmt: skip
+        0.2,
+        0.005,
+        1e-4,
+        1e-3,
+        100_000,
+        128,
+    )
     for algo in ("mc", "ddqn", "ppo", "sac"):
         assert load_agent_config(algo).net_arch == [256, 128]
     assert load_agent_config("gru_ppo").hidden_size == 128
@@ -101,7 +113,12 @@ def test_unknown_algorithm_name_lists_the_known_ones():
 def test_a_copied_file_with_a_new_name_is_a_variant(tmp_path, monkeypatch):
     folder = tmp_path / "agents"
     folder.mkdir()
-    text = (agents_dir() / "ppo.toml").read_text().replace('name = "ppo"', 'name = "ppo_fast"').replace("n_epochs = 10", "n_epochs = 2")
+    text = (
+        (agents_dir() / "ppo.toml")
+        .read_text()
+        .replace('name = "ppo"', 'name = "ppo_fast"')
+        .replace("n_epochs = 10", "n_epochs = 2")
+    )
     (folder / "ppo_fast.toml").write_text(text)
     monkeypatch.setenv("NUTRIBENCH_AGENTS", str(folder))
     cfg = load_agent_config("ppo_fast")
@@ -299,7 +316,10 @@ def test_sb3_s_random_actions_do_not_depend_on_the_food_offered(algo):
     model = build_model(cfg, env, seed=0, horizon=50)
     seen: list[tuple[int, int]] = []
     step_async = base.step_async
-    base.step_async = lambda a: (seen.append((int(base.venv._foods[0, base.venv._t]), int(np.ravel(a)[0]))), step_async(a))[1]
+    base.step_async = lambda a: (
+        seen.append((int(base.venv._foods[0, base.venv._t]), int(np.ravel(a)[0]))),
+        step_async(a),
+    )[1]
     model.learn(total_timesteps=2000)
     foods, acts = np.array(seen).T
     low, high = acts[foods < 5].mean(), acts[foods >= 5].mean()
@@ -326,10 +346,13 @@ def test_bench_train_reports_each_algorithm_and_its_bare_references():
 
     rows = bench_train(["ppo", "ddqn", "mc"], episodes=2, repeats=1)
     assert [r["what"] for r in rows] == [
-        "nutribench ppo", "bare SB3 PPO",
-        "nutribench ddqn", "bare SB3 DQN loop, double target", "bare SB3 DQN, vanilla target",
+        "nutribench ppo",
+        "bare SB3 PPO",
+        "nutribench ddqn",
+        "bare SB3 DQN loop, double target",
+        "bare SB3 DQN, vanilla target",
         "nutribench mc",
-    ]  # fmt: skip
+    ]
     grid_steps = 7 * 5 * 5000 * 50
     for r in rows:
         assert r["steps_per_s"] > 0
@@ -354,7 +377,9 @@ def test_on_policy_jobs_update_on_their_last_rollout(algo, days, updates, monkey
     calls = []
     cls = MODEL_CLASSES[algo]
     original = cls.train
-    monkeypatch.setattr(cls, "train", lambda self, *a, **k: (calls.append(self.num_timesteps), original(self, *a, **k))[1])
+    monkeypatch.setattr(
+        cls, "train", lambda self, *a, **k: (calls.append(self.num_timesteps), original(self, *a, **k))[1]
+    )
     agent = train("run0", algo, seed=0, episodes=days)
     assert len(agent.train_episodes) == days
     assert len(calls) == updates
@@ -377,7 +402,11 @@ def test_ddqn_learning_rate_schedule_is_sb3s_picklable_linear_schedule(tmp_path)
     model = build_model(cfg, env, seed=0, horizon=50)
     schedule = pickle.loads(pickle.dumps(model.lr_schedule))  # plain pickle: no closure inside
     assert isinstance(getattr(schedule, "value_schedule", schedule), LinearSchedule)
-    assert schedule(1.0) == pytest.approx(1e-3) and schedule(0.5) == pytest.approx(5.5e-4) and schedule(0.0) == pytest.approx(1e-4)
+    assert (
+        schedule(1.0) == pytest.approx(1e-3)
+        and schedule(0.5) == pytest.approx(5.5e-4)
+        and schedule(0.0) == pytest.approx(1e-4)
+    )
 
 
 @pytest.mark.parametrize(("algo", "sb3_class"), [("ppo", "PPO"), ("mc", "A2C"), ("ddqn", "DQN")])
@@ -397,7 +426,11 @@ def test_a_saved_model_plays_the_same_greedy_actions_in_plain_sb3(algo, sb3_clas
     path = agent.save(tmp_path / f"{algo}.zip")
     side = json.loads(path.with_suffix(".json").read_text())
     assert side["load_with"] == f"stable_baselines3.{sb3_class}"
-    assert side["provenance"]["regime"] == "run3" and side["provenance"]["seed"] == 3 and side["provenance"]["episodes"] == 12
+    assert (
+        side["provenance"]["regime"] == "run3"
+        and side["provenance"]["seed"] == 3
+        and side["provenance"]["episodes"] == 12
+    )
 
     env = VecNormalize.load(str(vec_normalize_path(path)), NutriRLSB3VecEnv(num_envs=4, regime="run3"))
     env.training, env.norm_reward = False, False

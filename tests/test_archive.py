@@ -31,9 +31,11 @@ def _out(res) -> str:
 
 # The grids here are dry runs (fake jobs), which the views leave out (revision 0004): the
 # rows are read from the tables, names joined in as the views do.
-_JOINED = ('SELECT r.name AS regime, r.version AS regime_version, a.name AS algo, a.version AS algo_version, '
-           'j.seed AS seed, j.episodes AS budget, t.* FROM {table} t JOIN jobs j ON j.id = t.job_id '
-           'JOIN regimes r ON r.id = j.regime_id JOIN agent_configs a ON a.id = j.agent_config_id')  # fmt: skip
+_JOINED = (
+    "SELECT r.name AS regime, r.version AS regime_version, a.name AS algo, a.version AS algo_version, "
+    "j.seed AS seed, j.episodes AS budget, t.* FROM {table} t JOIN jobs j ON j.id = t.job_id "
+    "JOIN regimes r ON r.id = j.regime_id JOIN agent_configs a ON a.id = j.agent_config_id"
+)
 
 
 def _table(db: Path, table: str) -> pd.DataFrame:
@@ -62,7 +64,9 @@ def test_a_grid_run_in_two_parts_merges_into_one_database(tmp_path, monkeypatch)
     res = runner.invoke(app, ["db", "export", str(tmp_path / "p2.npz"), "--db", str(part2), "--algos", "ppo"])
     assert res.exit_code == 0 and "4 jobs" in _out(res), res.output
     # a part can also be cut by regime: ppo on run3 only (2 seeds)
-    res = runner.invoke(app, ["db", "export", str(tmp_path / "p3.npz"), "--db", str(part2), "--algos", "ppo", "--regimes", "run3"])
+    res = runner.invoke(
+        app, ["db", "export", str(tmp_path / "p3.npz"), "--db", str(part2), "--algos", "ppo", "--regimes", "run3"]
+    )
     assert res.exit_code == 0 and "2 jobs" in _out(res), res.output
     res = runner.invoke(app, ["db", "import", str(tmp_path / "p3.npz"), "--db", str(tmp_path / "p3.db")])
     assert res.exit_code == 0, res.output
@@ -75,8 +79,13 @@ def test_a_grid_run_in_two_parts_merges_into_one_database(tmp_path, monkeypatch)
     expected = pd.concat([done1, _metrics(part2).query("algo == 'ppo'")]).sort_values(SORT).reset_index(drop=True)
     assert len(expected) == 6 * 8  # 2 done mc jobs of part 1, 4 ppo jobs of part 2
     pd.testing.assert_frame_equal(_metrics(merged), expected, check_dtype=False)
-    traj = [_trajectories(db).query("algo == 'ppo'").sort_values(["regime", "seed", "episode", "step"])
-            .reset_index(drop=True) for db in (merged, part2)]  # fmt: skip
+    traj = [
+        _trajectories(db)
+        .query("algo == 'ppo'")
+        .sort_values(["regime", "seed", "episode", "step"])
+        .reset_index(drop=True)
+        for db in (merged, part2)
+    ]
     assert len(traj[0]) == 4 * 2 * 50
     pd.testing.assert_frame_equal(*traj, check_dtype=False)
     # the grid goes on in the merged database: only the missing MC seed-1 jobs run
@@ -89,15 +98,19 @@ def test_a_grid_run_in_two_parts_merges_into_one_database(tmp_path, monkeypatch)
     assert len(read_jobs(merged)) == 8 and set(read_jobs(merged)["status"]) == {"done"}
     # an archived result fills a job the database holds pending (a registered, unrun grid)
     with sqlite3.connect(part2) as c:
-        c.execute("UPDATE jobs SET status = 'pending' WHERE id IN (SELECT j.id FROM jobs j JOIN agent_configs a "
-                  "ON a.id = j.agent_config_id WHERE a.name = 'ppo')")  # fmt: skip
+        c.execute(
+            "UPDATE jobs SET status = 'pending' WHERE id IN (SELECT j.id FROM jobs j JOIN agent_configs a "
+            "ON a.id = j.agent_config_id WHERE a.name = 'ppo')"
+        )
         c.execute("DELETE FROM episodes WHERE job_id IN (SELECT id FROM jobs WHERE status = 'pending')")
         c.execute("DELETE FROM eval_steps WHERE job_id IN (SELECT id FROM jobs WHERE status = 'pending')")
     before = _metrics(merged).query("algo == 'ppo'").reset_index(drop=True)
     res = runner.invoke(app, ["db", "import", str(tmp_path / "p2.npz"), "--db", str(part2)])
     assert res.exit_code == 0 and "4 jobs imported" in _out(res), res.output
     assert len(read_jobs(part2)) == 8 and set(read_jobs(part2)["status"]) == {"done"}
-    pd.testing.assert_frame_equal(_metrics(part2).query("algo == 'ppo'").reset_index(drop=True), before, check_dtype=False)
+    pd.testing.assert_frame_equal(
+        _metrics(part2).query("algo == 'ppo'").reset_index(drop=True), before, check_dtype=False
+    )
 
 
 def test_provenance_and_exact_values_survive_the_trip(tmp_path, monkeypatch) -> None:
@@ -105,17 +118,37 @@ def test_provenance_and_exact_values_survive_the_trip(tmp_path, monkeypatch) -> 
     src, dst = tmp_path / "src.db", tmp_path / "dst.db"
     _grid(src, ["mc"], [0])
     with sqlite3.connect(src) as c:  # values no float32 or decimal rounding would keep
-        c.execute("UPDATE episodes SET \"return\" = -7.123456789012345 + episode * 1e-13, entropy = NULL WHERE phase = 'eval'")
-        c.execute("UPDATE jobs SET git_commit = 'abc123', git_dirty = 0, batch_id = 'b7', batch_size = 2, device = 'cuda:0', "
-                  "source = 'train_mine.py', source_sha256 = '" + "ab" * 32 + "'")  # fmt: skip
+        c.execute(
+            "UPDATE episodes SET \"return\" = -7.123456789012345 + episode * 1e-13, entropy = NULL WHERE phase = 'eval'"
+        )
+        c.execute(
+            "UPDATE jobs SET git_commit = 'abc123', git_dirty = 0, batch_id = 'b7', batch_size = 2, device = 'cuda:0', "
+            "source = 'train_mine.py', source_sha256 = '" + "ab" * 32 + "'"
+        )
     runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src)])
     assert runner.invoke(app, ["db", "import", str(tmp_path / "a.npz"), "--db", str(dst)]).exit_code == 0
     assert len(_metrics(src)) == 2 * 8
     pd.testing.assert_frame_equal(_metrics(dst), _metrics(src), check_exact=True, check_dtype=False)
     assert _metrics(dst).query("phase == 'eval'")["entropy"].isna().all()
     a, b = (read_jobs(db).drop(columns=["job_id"], errors="ignore") for db in (src, dst))
-    for col in ("seed", "episodes", "eval_episodes", "git_commit", "git_dirty", "wall_seconds", "engine", "started_at",
-                "finished_at", "host", "fake", "batch_id", "batch_size", "device", "source", "source_sha256"):  # fmt: skip
+    for col in (
+        "seed",
+        "episodes",
+        "eval_episodes",
+        "git_commit",
+        "git_dirty",
+        "wall_seconds",
+        "engine",
+        "started_at",
+        "finished_at",
+        "host",
+        "fake",
+        "batch_id",
+        "batch_size",
+        "device",
+        "source",
+        "source_sha256",
+    ):
         assert list(a[col]) == list(b[col]), col
     assert set(b["git_commit"]) == {"abc123"}
     assert b["model_path"].isna().all()  # a stored path is not carried into another database
@@ -144,7 +177,9 @@ def test_bad_archives_and_conflicts_are_one_line_errors(tmp_path, monkeypatch) -
     with sqlite3.connect(src) as c:
         body = json.loads(c.execute("SELECT body FROM agent_configs WHERE name = 'mc'").fetchone()[0])
         body["description"] += " (edited)"
-        c.execute("UPDATE agent_configs SET body = ?, sha256 = ? WHERE name = 'mc'", (json.dumps(body), content_sha256(body)))
+        c.execute(
+            "UPDATE agent_configs SET body = ?, sha256 = ? WHERE name = 'mc'", (json.dumps(body), content_sha256(body))
+        )
     assert runner.invoke(app, ["db", "export", str(tmp_path / "b.npz"), "--db", str(src)]).exit_code == 0
     assert runner.invoke(app, ["db", "import", str(tmp_path / "a.npz"), "--db", str(dst)]).exit_code == 0
     before = len(_metrics(dst))
@@ -161,7 +196,9 @@ def test_a_job_another_driver_runs_is_not_overwritten(tmp_path, monkeypatch) -> 
     _grid(dst, ["mc"], [0])
     runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src)])
     with sqlite3.connect(dst) as c:
-        c.execute("UPDATE jobs SET status = 'running', owner = 'elsewhere:1:x', heartbeat_at = datetime('now') WHERE id = 1")
+        c.execute(
+            "UPDATE jobs SET status = 'running', owner = 'elsewhere:1:x', heartbeat_at = datetime('now') WHERE id = 1"
+        )
         c.execute("DELETE FROM episodes WHERE job_id = 1")
     res = runner.invoke(app, ["db", "import", str(tmp_path / "a.npz"), "--db", str(dst)])
     assert res.exit_code == 2 and "is running" in _out(res) and "elsewhere" in _out(res)

@@ -71,7 +71,11 @@ def _save(path: Path, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> No
 
 def _recount(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
     """The meta's counts made to agree, so that only the tampering itself is wrong."""
-    meta["counts"] = {"jobs": len(meta["jobs"]), "episodes": len(arrays["episodes.job"]), "eval_steps": len(arrays["eval_steps.job"])}
+    meta["counts"] = {
+        "jobs": len(meta["jobs"]),
+        "episodes": len(arrays["episodes.job"]),
+        "eval_steps": len(arrays["eval_steps.job"]),
+    }
 
 
 def _keep(arrays: dict[str, np.ndarray], table: str, keep: np.ndarray) -> None:
@@ -105,7 +109,11 @@ def _rename_agent(meta: dict[str, Any], name: str) -> None:
 
 
 def _drop_steps(m, a):  # the audit's case: a done job missing 10 of its evaluation steps
-    _keep(a, "eval_steps", ~((a["eval_steps.job"] == 0) & (a["eval_steps.episode"] == 1) & (a["eval_steps.step"] > H - 10)))
+    _keep(
+        a,
+        "eval_steps",
+        ~((a["eval_steps.job"] == 0) & (a["eval_steps.episode"] == 1) & (a["eval_steps.step"] > H - 10)),
+    )
     _recount(m, a)
 
 
@@ -120,7 +128,9 @@ def _drop_eval_episode(m, a):
 
 
 def _duplicate_episode(m, a):  # train episode 2 of job 0 renumbered 1: the count is right, a key is twice
-    a["episodes.episode"][(a["episodes.job"] == 0) & (a["episodes.phase"] == "train") & (a["episodes.episode"] == 2)] = 1
+    a["episodes.episode"][
+        (a["episodes.job"] == 0) & (a["episodes.phase"] == "train") & (a["episodes.episode"] == 2)
+    ] = 1
 
 
 def _duplicate_step(m, a):
@@ -192,7 +202,12 @@ def _flip_data(member: str) -> Callable:
 
     def flip(data: bytes) -> bytes:
         info = _member(data, member)
-        start = info.header_offset + 30 + len(info.filename.encode()) + int.from_bytes(data[info.header_offset + 28 : info.header_offset + 30], "little")
+        start = (
+            info.header_offset
+            + 30
+            + len(info.filename.encode())
+            + int.from_bytes(data[info.header_offset + 28 : info.header_offset + 30], "little")
+        )
         b = bytearray(data)
         b[start + info.compress_size // 2] ^= 0x10
         return bytes(b)
@@ -239,14 +254,26 @@ TAMPERINGS: dict[str, tuple[Callable, str]] = {
     "a newer format version": (lambda m, a: m.update(format_version=2), "v2, this nutribench reads"),
     "a column removed": (lambda m, a: a.pop("episodes.return"), "column episodes.return is missing"),
     "the job column removed": (lambda m, a: a.pop("eval_steps.job"), "eval_steps.job is missing"),
-    "a column shortened": (lambda m, a: a.update({"eval_steps.C": a["eval_steps.C"][:-1]}), "eval_steps.C has 199 rows"),
-    "a column of another type": (lambda m, a: a.update({"episodes.return": a["episodes.return"].astype(np.float32)}), "float32, not float64"),
+    "a column shortened": (
+        lambda m, a: a.update({"eval_steps.C": a["eval_steps.C"][:-1]}),
+        "eval_steps.C has 199 rows",
+    ),
+    "a column of another type": (
+        lambda m, a: a.update({"episodes.return": a["episodes.return"].astype(np.float32)}),
+        "float32, not float64",
+    ),
     "a 2-d column": (lambda m, a: a.update({"eval_steps.F": a["eval_steps.F"].reshape(2, -1)}), "not a column"),
     "NaN in foods": (_nan_in_foods, "episodes.foods holds float64, not integers"),
     "NaN in a return": (_set("episodes.return", 2, np.nan), "episodes.return holds NaN in row 2"),
     "infinity in a reward": (_set("eval_steps.reward", 5, -np.inf), "eval_steps.reward holds -inf in row 5"),
-    "a NULL mask where NULL is not allowed": (lambda m, a: a.update({"episodes.return.null": np.zeros(len(a["episodes.return"]), bool)}), "does not allow"),
-    "an array the format does not have": (lambda m, a: a.update({"episodes.extra": np.zeros(len(a["episodes.job"]))}), "not part of the format"),
+    "a NULL mask where NULL is not allowed": (
+        lambda m, a: a.update({"episodes.return.null": np.zeros(len(a["episodes.return"]), bool)}),
+        "does not allow",
+    ),
+    "an array the format does not have": (
+        lambda m, a: a.update({"episodes.extra": np.zeros(len(a["episodes.job"]))}),
+        "not part of the format",
+    ),
     "a job index out of range": (_set("episodes.job", 4, 2), "belongs to job 2, but the archive has 2 jobs"),
     "a negative job index": (_set("eval_steps.job", 9, -1), "belongs to job -1"),
     "a job missing 10 evaluation steps": (_drop_steps, "has 90 evaluation steps, not 2 days x 50 = 100"),
@@ -259,7 +286,10 @@ TAMPERINGS: dict[str, tuple[Callable, str]] = {
     "an unknown food": (_set("eval_steps.food", 0, 999), "food 999"),
     "an action that is no action": (_set("eval_steps.action", 0, 2), "action 2"),
     "more foods than steps": (_set("episodes.foods", 1, H + 1), "51 foods in a day of 50 steps"),
-    "a NULL mask removed": (lambda m, a: a.pop("episodes.first_overshoot_step.null"), "first_overshoot_step -1 is out of its range 1..50"),
+    "a NULL mask removed": (
+        lambda m, a: a.pop("episodes.first_overshoot_step.null"),
+        "first_overshoot_step -1 is out of its range 1..50",
+    ),
     "an unknown phase": (_set("episodes.phase", 0, "test"), "phase 'test'"),
     "an unknown status": (_job("status", "weird"), "unknown status"),
     "a job not done": (_job("status", "pending"), "done jobs only"),
@@ -278,7 +308,10 @@ TAMPERINGS: dict[str, tuple[Callable, str]] = {
     "an agent name with capitals": (lambda m, a: _rename_agent(m, "PPO"), "is not a name"),
     "a name of 65 characters": (lambda m, a: _rename_agent(m, "a" * 65), "at most 64 characters"),
     "a name ending in a newline": (lambda m, a: _rename_agent(m, "mc\n"), "is not a name"),
-    "meta counts too many episodes": (lambda m, a: m["counts"].update(episodes=m["counts"]["episodes"] + 25), "meta says 35 episodes, the archive holds 10"),
+    "meta counts too many episodes": (
+        lambda m, a: m["counts"].update(episodes=m["counts"]["episodes"] + 25),
+        "meta says 35 episodes, the archive holds 10",
+    ),
     "meta counts fewer jobs": (lambda m, a: m["counts"].update(jobs=1), "meta says 1 jobs"),
     "a dry run's jobs mixed with real ones": (_mixed_fake, "mixes a dry run's jobs"),
     "an unknown meta field": (lambda m, a: m.update(extra=1), "unknown field 'extra'"),
@@ -296,7 +329,12 @@ def _write_tampered(good: Path, name: str, out: Path) -> None:
     elif name == "no meta":
         np.savez(out, **arrays)
     elif name == "an object array":
-        np.savez(out, meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), x=np.array([{"a": 1}], dtype=object), **arrays)
+        np.savez(
+            out,
+            meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
+            x=np.array([{"a": 1}], dtype=object),
+            **arrays,
+        )
     else:
         tamper(meta, arrays)
         _save(out, meta, arrays)
@@ -343,7 +381,9 @@ def test_no_bit_flip_imports_other_data(source, tmp_path) -> None:
         accepted += 1
         assert m == meta and set(a) == set(arrays), pos
         for k in a:
-            assert a[k].dtype == arrays[k].dtype and np.array_equal(a[k], arrays[k], equal_nan=a[k].dtype.kind == "f"), (pos, k)
+            assert a[k].dtype == arrays[k].dtype and np.array_equal(
+                a[k], arrays[k], equal_nan=a[k].dtype.kind == "f"
+            ), (pos, k)
     assert refused > 4 * accepted  # most bytes are data
 
 
@@ -437,7 +477,9 @@ def test_export_checks_what_it_writes(source, tmp_path) -> None:
     assert not (tmp_path / "a.npz").exists() and not list(tmp_path.glob("*.tmp*"))
 
 
-@pytest.mark.parametrize("out, words", [("/nonexistent/o.npz", "folder /nonexistent does not exist"), (".", "is a folder")])
+@pytest.mark.parametrize(
+    "out, words", [("/nonexistent/o.npz", "folder /nonexistent does not exist"), (".", "is a folder")]
+)
 def test_export_to_a_place_it_cannot_write_is_one_line(source, tmp_path, monkeypatch, out, words) -> None:
     src, _ = source
     monkeypatch.chdir(tmp_path)
@@ -449,7 +491,9 @@ def test_export_to_a_place_it_cannot_write_is_one_line(source, tmp_path, monkeyp
 
 def test_import_into_postgresql_prints_no_password(source, pg_url) -> None:
     _, good = source
-    url = pg_url.replace("postgresql+psycopg://nutribench@", "postgresql+psycopg://nutribench:s3cret@")  # trust auth ignores it
+    url = pg_url.replace(
+        "postgresql+psycopg://nutribench@", "postgresql+psycopg://nutribench:s3cret@"
+    )  # trust auth ignores it
     res = runner.invoke(app, ["db", "import", str(good), "--db", url])
     assert res.exit_code == 0, res.output
     assert "s3cret" not in res.output and "nutribench:***@" in _out(res) and "2 jobs imported" in _out(res)
@@ -480,9 +524,28 @@ def test_report_refuses_a_stored_name_that_is_a_path(evil_db, tmp_path) -> None:
         res = runner.invoke(app, ["report", *args, "--db", str(evil_db), "--out", str(out)])
         assert res.exit_code == 2 and len(_lines(res)) == 1 and "Traceback" not in res.output, (args, res.output)
         assert "regime '../../etc/x/evil' is not a name" in _out(res), res.output
-    res = runner.invoke(app, ["report", "--trajectory", "--algo", "mc", "--regime", "../../etc/x/evil", "--seed", "0",
-                              "--db", str(evil_db), "--out", str(out)])  # fmt: skip
-    assert res.exit_code == 2 and len(_lines(res)) == 1 and "--regime: regime '../../etc/x/evil' is not a name" in _out(res), res.output
+    res = runner.invoke(
+        app,
+        [
+            "report",
+            "--trajectory",
+            "--algo",
+            "mc",
+            "--regime",
+            "../../etc/x/evil",
+            "--seed",
+            "0",
+            "--db",
+            str(evil_db),
+            "--out",
+            str(out),
+        ],
+    )
+    assert (
+        res.exit_code == 2
+        and len(_lines(res)) == 1
+        and "--regime: regime '../../etc/x/evil' is not a name" in _out(res)
+    ), res.output
     assert not out.exists() and not (tmp_path / "etc").exists()
 
 
@@ -492,7 +555,9 @@ def test_report_refuses_a_stored_agent_name_that_is_a_path(evil_db, tmp_path) ->
         c.execute("UPDATE agent_configs SET name = '../mine'")
     out = tmp_path / "out"
     res = runner.invoke(app, ["report", "--table", "7", "--db", str(evil_db), "--out", str(out)])
-    assert res.exit_code == 2 and len(_lines(res)) == 1 and "agent config '../mine' is not a name" in _out(res), res.output
+    assert res.exit_code == 2 and len(_lines(res)) == 1 and "agent config '../mine' is not a name" in _out(res), (
+        res.output
+    )
     res = runner.invoke(app, ["report", "--fig", "4", "--pair", "../mine,ppo", "--db", str(evil_db), "--out", str(out)])
     assert res.exit_code == 2 and len(_lines(res)) == 1 and "is not a name" in _out(res), res.output
     assert not out.exists()
@@ -538,5 +603,6 @@ def test_a_committed_archive_still_imports_and_rebuilds_its_tables(tmp_path) -> 
         # table of three cells draws other numbers: compared are the columns that are not draws
         cols = [c for c in committed.columns if not c.startswith(("return_seed", "gap_closed_seed"))]
         assert len(cols) >= 8
-        pd.testing.assert_frame_equal(built[cols].reset_index(drop=True), committed[cols].reset_index(drop=True),
-                                      check_exact=False, rtol=1e-12)  # fmt: skip
+        pd.testing.assert_frame_equal(
+            built[cols].reset_index(drop=True), committed[cols].reset_index(drop=True), check_exact=False, rtol=1e-12
+        )

@@ -32,16 +32,38 @@ def lab(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return tmp_path
 
 
-GRID = ["run", "--db", "new.db", "--regimes", "run0", "--algos", "ppo", "--seeds", "0", "--episodes", "2", "--eval-episodes", "1"]
+GRID = [
+    "run",
+    "--db",
+    "new.db",
+    "--regimes",
+    "run0",
+    "--algos",
+    "ppo",
+    "--seeds",
+    "0",
+    "--episodes",
+    "2",
+    "--eval-episodes",
+    "1",
+]
 
 BAD = {
-    "regime name differs from its file name": (["run", "--db", "new.db", "--regimes", "run7", "--algos", "ppo",
-                                                 "--seeds", "0", "--episodes", "2"], "run7"),
+    "regime name differs from its file name": (
+        ["run", "--db", "new.db", "--regimes", "run7", "--algos", "ppo", "--seeds", "0", "--episodes", "2"],
+        "run7",
+    ),
     "seed too large": ([*GRID[:7], "--seeds", "99999999999999999999999", "--episodes", "2"], "too large"),
     "negative seed": ([*GRID[:7], "--seeds", "-1", "--episodes", "2"], "seed"),
     "unknown regime": (["run", "--db", "new.db", "--regimes", "run99", "--algos", "ppo", "--episodes", "2"], "run99"),
-    "regime name that is a path": (["run", "--db", "new.db", "--regimes", "../../etc/x", "--algos", "ppo", "--episodes", "2"], ""),
-    "unknown agent": (["run", "--db", "new.db", "--regimes", "run0", "--algos", "recurrent_ppo", "--episodes", "2"], "recurrent_ppo"),
+    "regime name that is a path": (
+        ["run", "--db", "new.db", "--regimes", "../../etc/x", "--algos", "ppo", "--episodes", "2"],
+        "",
+    ),
+    "unknown agent": (
+        ["run", "--db", "new.db", "--regimes", "run0", "--algos", "recurrent_ppo", "--episodes", "2"],
+        "recurrent_ppo",
+    ),
     "zero training days": ([*GRID[:9], "--episodes", "0"], "episodes"),
     "unknown engine": ([*GRID, "--engine", "fast"], "--engine"),
     "models folder is a file": ([*GRID, "--models-dir", "a_file"], "a_file"),
@@ -53,11 +75,18 @@ BAD = {
     "report of a missing database": (["report", "--all", "--db", "new.db", "--out", "out"], "new.db"),
     "status of a missing database": (["status", "--db", "new.db"], "new.db"),
     "compare on a missing database": (["compare", "ppo", "mc", "--db", "new.db"], "new.db"),
-    "evaluate a missing model": (["evaluate", "--model", "nope.zip", "--entry-point", "x.y:load", "--name", "a",
-                                  "--db", "new.db"], "nope.zip"),
-    "evaluate with a bad entry point": (["evaluate", "--model", "a_file", "--entry-point", "no_such_mod_xyz:load",
-                                         "--name", "a", "--db", "new.db"], "no_such_mod_xyz"),
-    "new regime with a reversed range": (["regimes", "generate", "run8", "--from", "run6", "--tau", "C=12-10", "--write"], "C"),
+    "evaluate a missing model": (
+        ["evaluate", "--model", "nope.zip", "--entry-point", "x.y:load", "--name", "a", "--db", "new.db"],
+        "nope.zip",
+    ),
+    "evaluate with a bad entry point": (
+        ["evaluate", "--model", "a_file", "--entry-point", "no_such_mod_xyz:load", "--name", "a", "--db", "new.db"],
+        "no_such_mod_xyz",
+    ),
+    "new regime with a reversed range": (
+        ["regimes", "generate", "run8", "--from", "run6", "--tau", "C=12-10", "--write"],
+        "C",
+    ),
 }
 
 

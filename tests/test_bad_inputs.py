@@ -15,8 +15,24 @@ from tests.test_scheduler import regimes  # noqa: F401 - the fixture
 
 def run(tmp_path: Path, *args: str):
     db = tmp_path / "r.db"
-    res = CliRunner().invoke(app, ["run", "--db", str(db), "--regimes", "run0", "--algos", "ppo", "--episodes", "2",
-                                   "--eval-episodes", "1", *args], env={"NUTRIBENCH_JOB": "fake"})  # fmt: skip
+    res = CliRunner().invoke(
+        app,
+        [
+            "run",
+            "--db",
+            str(db),
+            "--regimes",
+            "run0",
+            "--algos",
+            "ppo",
+            "--episodes",
+            "2",
+            "--eval-episodes",
+            "1",
+            *args,
+        ],
+        env={"NUTRIBENCH_JOB": "fake"},
+    )
     return res, db
 
 

@@ -19,8 +19,12 @@ def _run(algo, regime, seed, returns, foods, never=-20.0, planner=-4.0):
 
 
 def test_gap_closed_is_zero_for_never_one_for_the_planner_and_checks_the_target():
-    runs = [_run("ppo", "run0", 0, [-4.0, -4.0], [4, 4]), _run("ppo", "run0", 1, [-12.0, -12.0], [4, 5]),
-            _run("mc", "run0", 0, [-20.0], [0]), _run("ppo", "run3", 0, [-4.0], [4])]  # fmt: skip
+    runs = [
+        _run("ppo", "run0", 0, [-4.0, -4.0], [4, 4]),
+        _run("ppo", "run0", 1, [-12.0, -12.0], [4, 5]),
+        _run("mc", "run0", 0, [-20.0], [0]),
+        _run("ppo", "run3", 0, [-4.0], [4]),
+    ]
     rows = {(r["regime"], r["algo"]): r for r in summarize(runs)}
     ppo = rows[("run0", "ppo")]
     assert ppo["gap_closed"] == pytest.approx(0.75) and ppo["gap_closed_min_seed"] == pytest.approx(0.5)
@@ -55,8 +59,26 @@ def test_a_bad_budget_is_one_line_and_exit_2(bad):
 
 
 def test_bench_learn_runs_and_prints_its_table():
-    res = runner.invoke(app, ["bench", "learn", "--algos", "ppo", "--regimes", "run0", "--seeds", "0", "--episodes", "2",
-                              "--eval-episodes", "2", "--workers", "1", "--markdown"])  # fmt: skip
+    res = runner.invoke(
+        app,
+        [
+            "bench",
+            "learn",
+            "--algos",
+            "ppo",
+            "--regimes",
+            "run0",
+            "--seeds",
+            "0",
+            "--episodes",
+            "2",
+            "--eval-episodes",
+            "2",
+            "--workers",
+            "1",
+            "--markdown",
+        ],
+    )
     assert res.exit_code == 0, res.output
     assert "| run0 | ppo | 2 | 1 |" in res.output and "gap closed" in res.output
 
@@ -68,8 +90,26 @@ def test_bad_seeds_are_one_line_and_exit_2(bad):
 
 
 def test_bench_learn_with_the_batched_engine_and_its_limits(monkeypatch) -> None:
-    res = CliRunner().invoke(app, ["bench", "learn", "--algos", "mc,ppo,sac", "--regimes", "run0", "--seeds", "0,1",
-                                   "--episodes", "2", "--eval-episodes", "1", "--engine", "batched", "--markdown"])  # fmt: skip
+    res = CliRunner().invoke(
+        app,
+        [
+            "bench",
+            "learn",
+            "--algos",
+            "mc,ppo,sac",
+            "--regimes",
+            "run0",
+            "--seeds",
+            "0,1",
+            "--episodes",
+            "2",
+            "--eval-episodes",
+            "1",
+            "--engine",
+            "batched",
+            "--markdown",
+        ],
+    )
     assert res.exit_code == 0, res.output
     assert all(f"| run0 | {a} | 2 | 2 |" in res.output for a in ("mc", "ppo", "sac"))
     # an algorithm the engine would not train (all five are in it today) is refused in one line

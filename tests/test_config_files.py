@@ -47,14 +47,43 @@ def test_hash_ignores_formatting_but_not_content(tiny_regime):
 
 
 BAD = [
-    ("negative sigma", lambda r, c: (r.replace("sigma = { C = 0.0, F = 1.0", "sigma = { C = 0.0, F = -1.0"), c), "tiny.toml", "foods.b.sigma.F"),
-    ("missing tau", lambda r, c: (r.replace("tau = { C = 1.0, F = 0.0, P = 0.0 }, ", ""), c), "tiny.toml", "foods.a.tau"),
-    ("missing tau value", lambda r, c: (r.replace("tau = { C = 1.0, F = 0.0, P = 0.0 }", "tau = { C = 1.0, F = 0.0 }"), c), "tiny.toml", "foods.a.tau.P"),
+    (
+        "negative sigma",
+        lambda r, c: (r.replace("sigma = { C = 0.0, F = 1.0", "sigma = { C = 0.0, F = -1.0"), c),
+        "tiny.toml",
+        "foods.b.sigma.F",
+    ),
+    (
+        "missing tau",
+        lambda r, c: (r.replace("tau = { C = 1.0, F = 0.0, P = 0.0 }, ", ""), c),
+        "tiny.toml",
+        "foods.a.tau",
+    ),
+    (
+        "missing tau value",
+        lambda r, c: (r.replace("tau = { C = 1.0, F = 0.0, P = 0.0 }", "tau = { C = 1.0, F = 0.0 }"), c),
+        "tiny.toml",
+        "foods.a.tau.P",
+    ),
     ("unknown key", lambda r, c: (r.replace("seed = 0", "seed = 0\ncolour = 3"), c), "tiny.toml", "colour"),
     ("version missing", lambda r, c: (r.replace("version = 1\n", ""), c), "tiny.toml", "version"),
-    ("catalog size mismatch", lambda r, c: (r, c + '\n[[food]]\nkey = "c"\nname = "c"\nportion = "1"\nportion_g = 1.0\nper_100g = { C = 1.0, F = 1.0, P = 1.0 }\nsource_id = "x"\n'), "tiny.toml", "catalog size mismatch"),
+    (
+        "catalog size mismatch",
+        lambda r, c: (
+            r,
+            c
+            + '\n[[food]]\nkey = "c"\nname = "c"\nportion = "1"\nportion_g = 1.0\nper_100g = { C = 1.0, F = 1.0, P = 1.0 }\nsource_id = "x"\n',
+        ),
+        "tiny.toml",
+        "catalog size mismatch",
+    ),
     ("value outside its range", lambda r, c: (r.replace("P = 2.6", "P = 7.0"), c), "tiny.toml", "outside ranges.tau.P"),
-    ("catalog unknown key", lambda r, c: (r, c.replace('source_id = "test-a"', 'source_id = "test-a"\nfiber = 2.0')), "foods.toml", "food.0.fiber"),
+    (
+        "catalog unknown key",
+        lambda r, c: (r, c.replace('source_id = "test-a"', 'source_id = "test-a"\nfiber = 2.0')),
+        "foods.toml",
+        "food.0.fiber",
+    ),
     ("not TOML", lambda r, c: (r + "\n[[[", c), "tiny.toml", "not valid TOML"),
 ]
 
@@ -107,8 +136,11 @@ def test_a_broken_regime_file_fails_check_and_run_instead_of_leaving_the_grid(tm
     monkeypatch.setenv("NUTRIBENCH_REGIMES", str(folder))
     check = runner.invoke(app, ["regimes", "check"])
     assert check.exit_code == 2 and re.search(expected, check.output), check.output
-    run = runner.invoke(app, ["run", "--regimes", "all", "--algos", "mc", "--seeds", "0", "--episodes", "2",
-                              "--db", str(tmp_path / "r.db")], env={"NUTRIBENCH_JOB": "fake"})  # fmt: skip
+    run = runner.invoke(
+        app,
+        ["run", "--regimes", "all", "--algos", "mc", "--seeds", "0", "--episodes", "2", "--db", str(tmp_path / "r.db")],
+        env={"NUTRIBENCH_JOB": "fake"},
+    )
     assert run.exit_code == 2 and re.search(expected, run.output), run.output
     assert not (tmp_path / "r.db").exists()
 

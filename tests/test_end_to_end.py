@@ -12,8 +12,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from nutribench.agents.config import ALGOS
 from nutribench.agents.api import TrainedAgent
+from nutribench.agents.config import ALGOS
 from nutribench.config import list_regimes
 
 NUTRIBENCH = str(Path(sys.executable).parent / "nutribench")
@@ -55,10 +55,23 @@ def test_every_job_and_episode_is_in_the_view(smoke: Path):
 def test_jobs_carry_their_metadata_and_model(smoke: Path):
     jobs = pd.read_sql("SELECT * FROM jobs", f"sqlite:///{smoke / 'nutribench.db'}")
     assert (jobs["status"] == "done").all()
-    for col in ("host", "python_version", "torch_version", "sb3_version", "nutribench_version", "started_at",
-                "finished_at", "wall_seconds", "model_path"):  # fmt: skip
+    for col in (
+        "host",
+        "python_version",
+        "torch_version",
+        "sb3_version",
+        "nutribench_version",
+        "started_at",
+        "finished_at",
+        "wall_seconds",
+        "model_path",
+    ):
         assert jobs[col].notna().all(), col
-    path = smoke / jobs["model_path"].iloc[0] if not Path(jobs["model_path"].iloc[0]).is_absolute() else Path(jobs["model_path"].iloc[0])
+    path = (
+        smoke / jobs["model_path"].iloc[0]
+        if not Path(jobs["model_path"].iloc[0]).is_absolute()
+        else Path(jobs["model_path"].iloc[0])
+    )
     agent = TrainedAgent.load(path)
     assert agent.algo in ALGOS
 

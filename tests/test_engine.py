@@ -39,9 +39,13 @@ def _rollout_of(models) -> Rollout:
     bufs = [m.rollout_buffer for m in models]
     stack = lambda name: th.as_tensor(np.stack([getattr(b, name)[:, 0] for b in bufs]))  # noqa: E731
     return Rollout(
-        obs=stack("observations").float(), actions=stack("actions").squeeze(-1).long(), log_probs=stack("log_probs").float(),
-        values=stack("values").float(), advantages=stack("advantages").float(), returns=stack("returns").float(),
-    )  # fmt: skip
+        obs=stack("observations").float(),
+        actions=stack("actions").squeeze(-1).long(),
+        log_probs=stack("log_probs").float(),
+        values=stack("values").float(),
+        advantages=stack("advantages").float(),
+        returns=stack("returns").float(),
+    )
 
 
 def test_one_ppo_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -> None:
@@ -87,8 +91,12 @@ def test_stacked_agents_do_not_talk_to_each_other() -> None:
         return net
 
     alone, crowd = stacked(1), stacked(3)
-    wild = Rollout(*(th.cat([getattr(base, f), getattr(base, f).repeat(2, *([1] * (getattr(base, f).ndim - 1)))])
-                     for f in ("obs", "actions", "log_probs", "values", "advantages", "returns")))  # fmt: skip
+    wild = Rollout(
+        *(
+            th.cat([getattr(base, f), getattr(base, f).repeat(2, *([1] * (getattr(base, f).ndim - 1)))])
+            for f in ("obs", "actions", "log_probs", "values", "advantages", "returns")
+        )
+    )
     wild.advantages[1:] *= 1e4
     wild.returns[1:] += 1e3
     perm = np.stack([[rng.permutation(cfg.n_steps) for _ in range(3)] for _ in range(cfg.n_epochs)])
@@ -125,7 +133,14 @@ def test_gae_equals_sb3_s_rollout_buffer() -> None:
     rewards, values = rng.normal(size=t_max).astype(np.float32), rng.normal(size=t_max).astype(np.float32)
     starts = (np.arange(t_max) % 50 == 0).astype(np.float32)
     for t in range(t_max):
-        buf.add(np.zeros((1, 2)), np.zeros((1, 1)), rewards[t : t + 1], starts[t : t + 1], th.tensor([values[t]]), th.zeros(1))
+        buf.add(
+            np.zeros((1, 2)),
+            np.zeros((1, 1)),
+            rewards[t : t + 1],
+            starts[t : t + 1],
+            th.tensor([values[t]]),
+            th.zeros(1),
+        )
     buf.compute_returns_and_advantage(th.tensor([0.3]), np.array([True]))
     adv, ret = gae(rewards[None], values[None], starts[None], np.array([0.3]), np.array([True]), 0.99, 0.95)
     np.testing.assert_allclose(adv[0], buf.advantages[:, 0], rtol=1e-5, atol=1e-6)
@@ -154,17 +169,31 @@ def test_gradient_clipping_is_per_agent(max_norm: float) -> None:
 def test_batched_training_yields_agents_the_single_agent_api_uses(tmp_path) -> None:
     """Every job's days, in the SB3 engine's row format; the same seed gives the same run
     whichever agents share its batch; the agents evaluate, save and load as SB3 agents do."""
-    from nutribench.agents import evaluate, eval_food_streams
+    from nutribench.agents import eval_food_streams, evaluate
     from nutribench.agents.api import TrainedAgent
     from nutribench.engine.train import train_batched
 
     seen: list[tuple[int, int]] = []
-    agents = train_batched([("run0", 0), ("run3", 1), ("run0", 2)], "ppo", episodes=21,
-                               on_episode=lambda j, row: seen.append((j, row["episode"])))  # fmt: skip
+    agents = train_batched(
+        [("run0", 0), ("run3", 1), ("run0", 2)],
+        "ppo",
+        episodes=21,
+        on_episode=lambda j, row: seen.append((j, row["episode"])),
+    )
     assert sorted(seen) == sorted((j, e) for j in range(3) for e in range(21))
     first = agents[0].train_episodes
-    assert len(first) == 21 and set(first[0]) == {"episode", "return", "foods", "final_distance", "overshoot_ratio",
-                                                 "final_C", "final_F", "final_P", "first_overshoot_step", "entropy"}  # fmt: skip
+    assert len(first) == 21 and set(first[0]) == {
+        "episode",
+        "return",
+        "foods",
+        "final_distance",
+        "overshoot_ratio",
+        "final_C",
+        "final_F",
+        "final_P",
+        "first_overshoot_step",
+        "entropy",
+    }
     alone = train_batched([("run0", 0)], "ppo", episodes=21)[0].train_episodes
     assert [d["foods"] for d in alone] == [d["foods"] for d in first]
     np.testing.assert_allclose([d["return"] for d in alone], [d["return"] for d in first], rtol=1e-5)
@@ -240,22 +269,42 @@ def test_the_batched_rollout_equals_sb3_s_vecnormalize_and_rollout_buffer_on_the
         base = NutriRLSB3VecEnv(regime=regime)
         queue = [d[j] for d in seen[-1]["foods"]]
         start_day = base.venv._start_day
-        base.venv._start_day = lambda foods=None: start_day(queue.pop(0))  # the batched loop's days, in order
-        env = VecNormalize(base, norm_obs=cfg.normalize_obs, norm_reward=cfg.normalize_reward, gamma=cfg.gamma,
-                           clip_obs=CLIP_OBS, epsilon=NORM_EPS)  # fmt: skip
+        base.venv._start_day = lambda foods=None, start_day=start_day, queue=queue: start_day(
+            queue.pop(0)
+        )  # the batched loop's days, in order
+        env = VecNormalize(
+            base,
+            norm_obs=cfg.normalize_obs,
+            norm_reward=cfg.normalize_reward,
+            gamma=cfg.gamma,
+            clip_obs=CLIP_OBS,
+            epsilon=NORM_EPS,
+        )
         obs = env.reset()
-        for r, rollout in enumerate(seen):
+        for rollout in seen:
             t_max = rollout["actions"].shape[1]
-            buf = RolloutBuffer(t_max, spaces.Box(-1, 1, (obs.shape[1],)), spaces.Discrete(2), n_envs=1,
-                                gamma=cfg.gamma, gae_lambda=1.0 if algo == "mc" else cfg.gae_lambda)  # fmt: skip
+            buf = RolloutBuffer(
+                t_max,
+                spaces.Box(-1, 1, (obs.shape[1],)),
+                spaces.Discrete(2),
+                n_envs=1,
+                gamma=cfg.gamma,
+                gae_lambda=1.0 if algo == "mc" else cfg.gae_lambda,
+            )
             start = True
             for t in range(t_max):
                 np.testing.assert_allclose(rollout["obs"][j, t], obs[0], rtol=1e-5, atol=1e-6)
                 assert rollout["starts"][j, t] == float(start)
                 obs, reward, done, _ = env.step(np.array([rollout["actions"][j, t]]))
                 np.testing.assert_allclose(rollout["rewards"][j, t], reward[0], rtol=1e-5, atol=1e-6)
-                buf.add(np.zeros((1, obs.shape[1])), np.zeros((1, 1)), reward, np.array([start]),
-                        th.tensor([float(rollout["values"][j, t])]), th.zeros(1))  # fmt: skip
+                buf.add(
+                    np.zeros((1, obs.shape[1])),
+                    np.zeros((1, 1)),
+                    reward,
+                    np.array([start]),
+                    th.tensor([float(rollout["values"][j, t])]),
+                    th.zeros(1),
+                )
                 start = bool(done[0])
             buf.compute_returns_and_advantage(th.tensor([0.0]), np.array([start]))
             np.testing.assert_allclose(rollout["advantages"][j], buf.advantages[:, 0], rtol=1e-4, atol=1e-5)
@@ -314,8 +363,12 @@ def test_the_stacked_gru_acts_and_replays_days_as_the_sb3_policy_does() -> None:
         day_logits, day_values = net.sequences(obs.reshape(2, 2, 50, 13))
         for j, m in enumerate(models):
             feats, _ = m.policy.unroll(obs[j].reshape(2, 50, 13), m.policy.initial_state(2), th.zeros(2, 50))
-            np.testing.assert_allclose(day_logits[j].reshape(100, -1), m.policy.actor_head(feats).reshape(100, -1), rtol=1e-4, atol=1e-5)
-            np.testing.assert_allclose(day_values[j].reshape(100), m.policy.critic_head(feats).reshape(100), rtol=1e-4, atol=1e-5)
+            np.testing.assert_allclose(
+                day_logits[j].reshape(100, -1), m.policy.actor_head(feats).reshape(100, -1), rtol=1e-4, atol=1e-5
+            )
+            np.testing.assert_allclose(
+                day_values[j].reshape(100), m.policy.critic_head(feats).reshape(100), rtol=1e-4, atol=1e-5
+            )
         for t in range(100):
             starts = th.full((2,), float(t % 50 == 0))
             logits, values, state = net.step(obs[:, t], state, starts)
@@ -330,8 +383,11 @@ def test_the_gru_s_hand_written_backward_is_the_gradient() -> None:
 
     g = th.Generator().manual_seed(0)
     m, s, t_max, h = 2, 3, 5, 4
-    args = [th.randn(m, s, t_max, 3 * h, generator=g, dtype=th.float64), 0.5 * th.randn(m, h, 3 * h, generator=g, dtype=th.float64),
-            th.randn(m, 1, 3 * h, generator=g, dtype=th.float64)]  # fmt: skip
+    args = [
+        th.randn(m, s, t_max, 3 * h, generator=g, dtype=th.float64),
+        0.5 * th.randn(m, h, 3 * h, generator=g, dtype=th.float64),
+        th.randn(m, 1, 3 * h, generator=g, dtype=th.float64),
+    ]
     assert th.autograd.gradcheck(GRUSequence.apply, [a.requires_grad_() for a in args])
 
     net = StackedGRUActorCritic(3, 13, 16, generators=[th.Generator().manual_seed(j) for j in range(3)])

@@ -38,8 +38,11 @@ def binomial_interval(n: int, p: float, confidence: float = CONFIDENCE) -> tuple
     """The central interval ``[low, high]`` of Binomial(n, p) holding at least ``confidence``
     of its mass (as ``scipy.stats.binom.interval``)."""
     k = np.arange(n + 1)
-    log_pmf = (np.array([math.lgamma(n + 1) - math.lgamma(i + 1) - math.lgamma(n - i + 1) for i in k])
-               + k * math.log(p) + (n - k) * math.log1p(-p))  # fmt: skip
+    log_pmf = (
+        np.array([math.lgamma(n + 1) - math.lgamma(i + 1) - math.lgamma(n - i + 1) for i in k])
+        + k * math.log(p)
+        + (n - k) * math.log1p(-p)
+    )
     cdf = np.cumsum(np.exp(log_pmf))
     tail = (1 - confidence) / 2
     return int(np.searchsorted(cdf, tail)), int(np.searchsorted(cdf, 1 - tail))
@@ -89,19 +92,27 @@ def assert_follows(p_eat: np.ndarray, actions: np.ndarray) -> None:
         assert n > 0.3 * p_eat.size, (p, n, p_eat.size)  # both groups well filled
         low, high = binomial_interval(n, p)
         eaten = int(actions[group].sum())
-        assert low <= eaten <= high, f"P(eat) = {p}: ate {eaten / n:.3f} of {n} draws, expected {low / n:.3f}-{high / n:.3f}"
+        assert low <= eaten <= high, (
+            f"P(eat) = {p}: ate {eaten / n:.3f} of {n} draws, expected {low / n:.3f}-{high / n:.3f}"
+        )
 
 
 def quick(algo: str, **update):
     """The shipped config with short updates (few epochs, small batches), so that a few days hold several."""
-    fast = {"ppo": dict(n_steps=100, n_epochs=1, batch_size=100), "gru_ppo": dict(n_steps=100, n_epochs=1, batch_size=100),
-            "sac": dict(learning_starts=0, batch_size=16, train_freq=10), "ddqn": dict(learning_starts=0, batch_size=16)}
+    fast = {
+        "ppo": dict(n_steps=100, n_epochs=1, batch_size=100),
+        "gru_ppo": dict(n_steps=100, n_epochs=1, batch_size=100),
+        "sac": dict(learning_starts=0, batch_size=16, train_freq=10),
+        "ddqn": dict(learning_starts=0, batch_size=16),
+    }
     return load_agent_config(algo).model_copy(update={**fast.get(algo, {}), **update})
 
 
 # ------------------------------------------------------------------- sampling in the training loops
 @pytest.mark.parametrize("algo", ["ppo", "mc"])
-def test_ppo_and_mc_sample_their_actions_with_the_policy_s_probabilities(algo: str, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_ppo_and_mc_sample_their_actions_with_the_policy_s_probabilities(
+    algo: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
     draws = Draws()
     draws.install(monkeypatch)
     forward = StackedActorCritic.forward
@@ -293,5 +304,7 @@ def test_the_batched_ppo_learns_to_eat_on_run0_and_beats_never_eating() -> None:
         gap = gap_closed(mean, never, float(np.mean(ref["planner"])))
         foods = float(np.mean([r["foods"] for r in rows]))
         results.append((seed, round(gap, 3), foods, round(mean, 2), round(never, 2)))
-    assert all(gap > BATCHED_PPO_EACH_BAR and foods >= 1 and mean > never for _, gap, foods, mean, never in results), results
+    assert all(gap > BATCHED_PPO_EACH_BAR and foods >= 1 and mean > never for _, gap, foods, mean, never in results), (
+        results
+    )
     assert np.median([r[1] for r in results]) >= BATCHED_PPO_MEDIAN_BAR, results

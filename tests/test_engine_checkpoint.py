@@ -31,8 +31,23 @@ def batch_specs(models, jobs=JOBS, episodes: int = 5, first_id: int = 1):
     for i, (regime, seed) in enumerate(jobs):
         r = load_env_config(regime)
         path = models / f"{r.name}-v{r.version}" / f"mc-v{cfg.version}" / f"seed{seed}-ep{episodes}.zip"
-        out.append(JobSpec(first_id + i, r.name, r.version, r.sha256, cfg.name, cfg.version, agent_config_sha256(cfg),
-                           seed, episodes, 2, str(path), r, cfg))  # fmt: skip
+        out.append(
+            JobSpec(
+                first_id + i,
+                r.name,
+                r.version,
+                r.sha256,
+                cfg.name,
+                cfg.version,
+                agent_config_sha256(cfg),
+                seed,
+                episodes,
+                2,
+                str(path),
+                r,
+                cfg,
+            )
+        )
     return out
 
 
@@ -56,7 +71,9 @@ def same_agents(a, b) -> None:
             np.testing.assert_array_equal(x.obs_mean, y.obs_mean)
 
 
-@pytest.mark.parametrize("algo,days,stop_day", [("mc", 5, 3), ("ppo", 25, 17), ("gru_ppo", 20, 12), ("ddqn", 8, 5), ("sac", 6, 4)])
+@pytest.mark.parametrize(
+    "algo,days,stop_day", [("mc", 5, 3), ("ppo", 25, 17), ("gru_ppo", 20, 12), ("ddqn", 8, 5), ("sac", 6, 4)]
+)
 def test_a_stopped_batch_resumes_from_its_checkpoint_and_ends_as_an_uninterrupted_one(algo, days, stop_day, tmp_path):
     cfg = small(algo)
     whole = train_batched(JOBS, cfg, days)
@@ -71,8 +88,9 @@ def test_a_stopped_batch_resumes_from_its_checkpoint_and_ends_as_an_uninterrupte
     checkpoint = Checkpoint(path, every_seconds=0)
     assert checkpoint.state is not None and 0 < checkpoint.state["steps"] <= stop_day * 50
     seen: list[tuple[int, int]] = []
-    resumed = train_batched(JOBS, cfg, days, on_episode=lambda j, row: seen.append((j, row["episode"])),
-                            checkpoint=checkpoint)  # fmt: skip
+    resumed = train_batched(
+        JOBS, cfg, days, on_episode=lambda j, row: seen.append((j, row["episode"])), checkpoint=checkpoint
+    )
     same_agents(whole, resumed)
     # the resumed process trained only the days after the checkpoint
     first = checkpoint.state["steps"] // 50
@@ -160,7 +178,11 @@ def test_a_batch_that_left_a_checkpoint_is_claimed_first_and_whole(tmp_path):
     pools = [Pool(list(range(1, 11)), True, 4), Pool(list(range(20, 30)), True, 4), Pool([40])]
     out = checkpointed_first(pools, folder)
     assert [(p.job_ids, p.batched, p.batch_size) for p in out] == [
-        ([21, 22, 25], True, 3), (list(range(1, 11)), True, 4), ([20, 23, 24, 26, 27, 28, 29], True, 4), ([40], False, 1)]
+        ([21, 22, 25], True, 3),
+        (list(range(1, 11)), True, 4),
+        ([20, 23, 24, 26, 27, 28, 29], True, 4),
+        ([40], False, 1),
+    ]
     assert checkpointed_first(pools, tmp_path / "none") == pools
 
 
@@ -226,10 +248,17 @@ def test_a_checkpoint_naming_a_class_outside_the_engine_is_refused(tmp_path, cap
 
     path = tmp_path / "batch.pt"
     th.save({"t0": th.zeros(2)}, path)
-    state = {"dict": [["seconds", 1.0], ["x", {"object": "system", "attrs": {"dict": [["command", "touch pwned"]], "id": 2},
-                                               "id": 1}]], "id": 0}  # fmt: skip
+    state = {
+        "dict": [
+            ["seconds", 1.0],
+            ["x", {"object": "system", "attrs": {"dict": [["command", "touch pwned"]], "id": 2}, "id": 1}],
+        ],
+        "id": 0,
+    }
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
-    path.with_name("batch.pt.state.json").write_text(json.dumps({"format": FORMAT, "tensors_sha256": digest, "state": state}))
+    path.with_name("batch.pt.state.json").write_text(
+        json.dumps({"format": FORMAT, "tensors_sha256": digest, "state": state})
+    )
     assert Checkpoint(path).state is None
     assert "unknown class 'system'" in capsys.readouterr().err
 
@@ -250,8 +279,16 @@ def test_a_checkpoint_is_a_dict_of_tensors_and_json_and_keeps_shared_objects_sha
     path = tmp_path / "batch.pt"
     days = [np.arange(3), np.arange(3) + 1]
     rows = [{"episode": 0, "return": -1.5, "first_overshoot_step": None}]
-    Checkpoint(path).save(model=(params, opt), rng=rng, stats=stats, counts={1: 2, "n": np.int64(3)}, inf=float("inf"),
-                          days=days, rows=rows, again=rows)  # fmt: skip
+    Checkpoint(path).save(
+        model=(params, opt),
+        rng=rng,
+        stats=stats,
+        counts={1: 2, "n": np.int64(3)},
+        inf=float("inf"),
+        days=days,
+        rows=rows,
+        again=rows,
+    )
     tensors = th.load(path, weights_only=True)
     assert isinstance(tensors, dict) and all(isinstance(t, th.Tensor) for t in tensors.values())
     meta = json.loads((tmp_path / "batch.pt.state.json").read_text())
@@ -312,9 +349,19 @@ def test_a_save_that_finds_the_disk_full_keeps_the_previous_checkpoint(tmp_path,
 
 def write_manifest(path, specs) -> None:
     """``<checkpoint>.jobs.json`` as run_batch writes it: the job ids, and what each job is."""
-    jobs = [{"job_id": s.job_id, "algo_sha256": s.algo_sha256, "regime_sha256": s.regime_sha256, "seed": s.seed,
-             "episodes": s.episodes} for s in specs]  # fmt: skip
-    path.with_name(path.name + ".jobs.json").write_text(json.dumps({"job_ids": [s.job_id for s in specs], "jobs": jobs}))
+    jobs = [
+        {
+            "job_id": s.job_id,
+            "algo_sha256": s.algo_sha256,
+            "regime_sha256": s.regime_sha256,
+            "seed": s.seed,
+            "episodes": s.episodes,
+        }
+        for s in specs
+    ]
+    path.with_name(path.name + ".jobs.json").write_text(
+        json.dumps({"job_ids": [s.job_id for s in specs], "jobs": jobs})
+    )
 
 
 def test_a_finished_batch_removes_the_checkpoints_other_batches_left_of_its_jobs(tmp_path):
@@ -338,8 +385,11 @@ def test_a_finished_batch_removes_the_checkpoints_other_batches_left_of_its_jobs
     Checkpoint(folder / f"{name}0ther.pt").save(steps=1)
     write_manifest(folder / f"{name}0ther.pt", others)
     batch.run_batch(specs)
-    assert sorted(p.name for p in folder.iterdir()) == [f"{name}0ther.pt", f"{name}0ther.pt.jobs.json",
-                                                        f"{name}0ther.pt.state.json"]  # fmt: skip
+    assert sorted(p.name for p in folder.iterdir()) == [
+        f"{name}0ther.pt",
+        f"{name}0ther.pt.jobs.json",
+        f"{name}0ther.pt.state.json",
+    ]
 
 
 def test_a_model_save_cut_short_leaves_the_previous_model_whole(tmp_path, monkeypatch):

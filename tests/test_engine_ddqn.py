@@ -13,12 +13,12 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.utils import LinearSchedule
 
 from nutribench.agents.algos import DoubleDQN
-from nutribench.agents.api import TrainedAgent, evaluate, eval_food_streams, make_train_env
+from nutribench.agents.api import TrainedAgent, eval_food_streams, evaluate, make_train_env
 from nutribench.agents.config import load_agent_config
 from nutribench.config import load_env_config
+from nutribench.engine.actor_critic import make_adam
 from nutribench.engine.ddqn import ddqn_update, q_linears, train_ddqn_batched
 from nutribench.engine.envs import AgentEnvs
-from nutribench.engine.actor_critic import make_adam
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, StackedMLP, StackedReplay, linear_schedule
 from tests.conftest import random_batch, sb3_model, sb3_updates, shake
 
@@ -44,8 +44,15 @@ def test_n_step_sampling_equals_sb3_s_n_step_replay_buffer(size: int, n: int) ->
     data = [_transitions(seed, n) for seed in range(k)]
     theirs = []
     for obs, nxt, act, rew, done in data:
-        buf = NStepReplayBuffer(size, spaces.Box(-np.inf, np.inf, (OBS_DIM,)), spaces.Discrete(2), device="cpu",
-                                n_envs=1, n_steps=N_STEP, gamma=GAMMA)  # fmt: skip
+        buf = NStepReplayBuffer(
+            size,
+            spaces.Box(-np.inf, np.inf, (OBS_DIM,)),
+            spaces.Discrete(2),
+            device="cpu",
+            n_envs=1,
+            n_steps=N_STEP,
+            gamma=GAMMA,
+        )
         for t in range(n):
             buf.add(obs[t : t + 1], nxt[t : t + 1], np.array([[act[t]]]), rew[t : t + 1], done[t : t + 1], [{}])
         theirs.append(buf)
@@ -88,8 +95,14 @@ def test_one_ddqn_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -
         lr = linear_schedule(cfg.learning_rate_start, cfg.learning_rate_end, 1.0, progress)
         losses = ddqn_update(q, q_target, optimizer, batch, lr, cfg.max_grad_norm)
         for j, (_, m) in enumerate(models):
-            sample = ReplayBufferSamples(batch.obs[j], batch.actions[j].unsqueeze(1), batch.next_obs[j],
-                                         batch.dones[j].unsqueeze(1), batch.rewards[j].unsqueeze(1), batch.discounts[j].unsqueeze(1))  # fmt: skip
+            sample = ReplayBufferSamples(
+                batch.obs[j],
+                batch.actions[j].unsqueeze(1),
+                batch.next_obs[j],
+                batch.dones[j].unsqueeze(1),
+                batch.rewards[j].unsqueeze(1),
+                batch.discounts[j].unsqueeze(1),
+            )
             m.replay_buffer.sample = lambda *a, s=sample, **kw: s
             m._current_progress_remaining = progress
             m.train(gradient_steps=1, batch_size=b)
@@ -128,10 +141,24 @@ def test_the_loop_updates_when_sb3_does_with_its_learning_rate_epsilon_and_targe
     and target copies (SB3's last step ends the job before its update, as ours does)."""
     cfg = _small(load_agent_config("ddqn"))
     events: list[tuple] = []
-    train_ddqn_batched([("run0", 0), ("run6", 1)], cfg, episodes=3,
-                       on_update=lambda u: events.append((u["steps"], u["learning_rate"], u["epsilon"], u["target_copies"])))  # fmt: skip
-    sb3 = sb3_updates(DoubleDQN, "run0", cfg, 3, lambda m: (m.num_timesteps, m.lr_schedule(m._current_progress_remaining),
-                                                         m.exploration_rate, m._n_calls // m.target_update_interval))  # fmt: skip
+    train_ddqn_batched(
+        [("run0", 0), ("run6", 1)],
+        cfg,
+        episodes=3,
+        on_update=lambda u: events.append((u["steps"], u["learning_rate"], u["epsilon"], u["target_copies"])),
+    )
+    sb3 = sb3_updates(
+        DoubleDQN,
+        "run0",
+        cfg,
+        3,
+        lambda m: (
+            m.num_timesteps,
+            m.lr_schedule(m._current_progress_remaining),
+            m.exploration_rate,
+            m._n_calls // m.target_update_interval,
+        ),
+    )
     assert len(events) == len(sb3) == (150 - 1 - 60) // 4
     for ours, theirs in zip(events, sb3):
         assert ours[0] == theirs[0] and ours[3] == theirs[3]
@@ -141,7 +168,9 @@ def test_the_loop_updates_when_sb3_does_with_its_learning_rate_epsilon_and_targe
 def test_batched_ddqn_agents_are_sb3_double_dqns_the_single_agent_api_uses(tmp_path) -> None:
     cfg = _small(load_agent_config("ddqn"))
     days: list[tuple[int, dict]] = []
-    agents = train_ddqn_batched([("run0", 0), ("run3", 0)], cfg, episodes=3, on_episode=lambda j, m: days.append((j, m)))
+    agents = train_ddqn_batched(
+        [("run0", 0), ("run3", 0)], cfg, episodes=3, on_episode=lambda j, m: days.append((j, m))
+    )
     assert [len(a.train_episodes) for a in agents] == [3, 3] and len(days) == 6
     assert all(m["entropy"] is None for _, m in days)
     streams = eval_food_streams("run0", 0, 2)

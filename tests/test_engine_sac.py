@@ -60,12 +60,19 @@ def test_one_sac_update_of_stacked_agents_equals_discrete_sac_s_update_of_each_a
         batch = random_batch(rng, k, b, OBS_DIM, 3.0, cfg.gamma)
         losses = sac_update(net, batch, cfg.alpha, cfg.gamma, cfg.tau)
         for j, (_, m) in enumerate(models):
-            sample = ReplayBufferSamples(batch.obs[j], batch.actions[j].unsqueeze(1), batch.next_obs[j],
-                                         batch.dones[j].unsqueeze(1), batch.rewards[j].unsqueeze(1))  # fmt: skip
+            sample = ReplayBufferSamples(
+                batch.obs[j],
+                batch.actions[j].unsqueeze(1),
+                batch.next_obs[j],
+                batch.dones[j].unsqueeze(1),
+                batch.rewards[j].unsqueeze(1),
+            )
             m.replay_buffer.sample = lambda *a, s=sample, **kw: s
             m.train(gradient_steps=1, batch_size=b)
             assert losses["critic_loss"][j] == pytest.approx(m.logger.name_to_value["train/critic_loss"], rel=1e-5)
-            assert losses["actor_loss"][j] == pytest.approx(m.logger.name_to_value["train/actor_loss"], rel=1e-4, abs=1e-6)
+            assert losses["actor_loss"][j] == pytest.approx(
+                m.logger.name_to_value["train/actor_loss"], rel=1e-4, abs=1e-6
+            )
             for ours, theirs in zip(_params(net, j), _sb3_params(m.policy)):
                 np.testing.assert_allclose(ours, theirs, rtol=1e-4, atol=1e-6)
 

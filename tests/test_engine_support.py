@@ -47,9 +47,19 @@ def agents(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 def test_the_paper_configs_are_supported_and_the_variants_refused_in_one_line(agents: Path) -> None:
     for algo in ALGOS:
         assert supports(load_agent_config(algo), 50) is None and supports(algo) is None
-    for name, words in (("ddqn_nr", "normalize_reward"), ("sac_nr", "normalize_reward"), ("gru_ppo_half", "sequence_length (25)")):
+    for name, words in (
+        ("ddqn_nr", "normalize_reward"),
+        ("sac_nr", "normalize_reward"),
+        ("gru_ppo_half", "sequence_length (25)"),
+    ):
         reason = supports(load_agent_config(name), 50)
-        assert reason is not None and words in reason and repr(name) in reason and "--engine sb3" in reason and "\n" not in reason
+        assert (
+            reason is not None
+            and words in reason
+            and repr(name) in reason
+            and "--engine sb3" in reason
+            and "\n" not in reason
+        )
     assert supports("gru_ppo_half") is None  # whole days of an unknown horizon: decided where the horizon is known
     external = load_agent_config("ppo").model_copy(update={"algo": "external"})
     assert "--engine sb3" in supports(external)
@@ -59,7 +69,9 @@ def test_the_paper_configs_are_supported_and_the_variants_refused_in_one_line(ag
 
 
 @pytest.mark.parametrize("name", ["ddqn_nr", "sac_nr", "gru_ppo_half"])
-def test_the_engine_refuses_an_unsupported_config_before_training(name: str, agents: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_engine_refuses_an_unsupported_config_before_training(
+    name: str, agents: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     from nutribench.engine.envs import AgentEnvs
     from nutribench.engine.train import train_batched
 
@@ -79,7 +91,14 @@ def test_the_engine_refuses_an_unsupported_config_before_training(name: str, age
 
 
 def test_batch_pools_send_unsupported_configs_to_the_sb3_engine(agents: Path) -> None:
-    cells = [("a", "ppo", 0), ("a", "ddqn_nr", 0), ("a", "sac", 0), ("a", "sac_nr", 1), ("a", "gru_ppo_half", 0), ("b", "gru_ppo", 0)]
+    cells = [
+        ("a", "ppo", 0),
+        ("a", "ddqn_nr", 0),
+        ("a", "sac", 0),
+        ("a", "sac_nr", 1),
+        ("a", "gru_ppo_half", 0),
+        ("b", "gru_ppo", 0),
+    ]
     algo_of = {c: load_agent_config(c).algo for _, c, _ in cells}
     pools = batch_pools([1, 2, 3, 4, 5, 6], cells, algo_of, {"a": (50, 10), "b": (50, 10)}, claimable=len, slots=1)
     assert [(p.job_ids, p.batched) for p in pools] == [([1], True), ([3], True), ([6], True), ([2, 4, 5], False)]
@@ -88,10 +107,23 @@ def test_batch_pools_send_unsupported_configs_to_the_sb3_engine(agents: Path) ->
     assert [(p.job_ids, p.batched) for p in pools] == [([1], False)]
 
 
-def test_run_with_the_batched_engine_trains_unsupported_configs_with_the_sb3_engine(agents: Path, tmp_path: Path) -> None:
+def test_run_with_the_batched_engine_trains_unsupported_configs_with_the_sb3_engine(
+    agents: Path, tmp_path: Path
+) -> None:
     db = tmp_path / "r.db"
-    s = run_grid(db, ["run0"], ["ppo", "ddqn_nr"], [0, 1], 2, 1, workers=1, job_fn=fake_run_job, batch_fn=fake_run_batch,
-                 display=False, engine="batched")  # fmt: skip
+    s = run_grid(
+        db,
+        ["run0"],
+        ["ppo", "ddqn_nr"],
+        [0, 1],
+        2,
+        1,
+        workers=1,
+        job_fn=fake_run_job,
+        batch_fn=fake_run_batch,
+        display=False,
+        engine="batched",
+    )
     assert (s.done, s.failed) == (4, 0)
     jobs = read_jobs(db)
     engines = {(a, e == "batched") for a, e in zip(jobs["algo"], jobs["engine"])}
@@ -101,8 +133,25 @@ def test_run_with_the_batched_engine_trains_unsupported_configs_with_the_sb3_eng
 def test_bench_learn_refuses_an_unsupported_config_in_one_line(agents: Path) -> None:
     from nutribench.cli import app
 
-    res = CliRunner().invoke(app, ["bench", "learn", "--algos", "sac_nr", "--regimes", "run0", "--seeds", "0",
-                                   "--episodes", "2", "--engine", "batched", "--device", "cpu"])  # fmt: skip
+    res = CliRunner().invoke(
+        app,
+        [
+            "bench",
+            "learn",
+            "--algos",
+            "sac_nr",
+            "--regimes",
+            "run0",
+            "--seeds",
+            "0",
+            "--episodes",
+            "2",
+            "--engine",
+            "batched",
+            "--device",
+            "cpu",
+        ],
+    )
     assert res.exit_code == 2, res.output
     line = " ".join(res.output.split())
     assert "normalize_reward" in line and "--engine sb3" in line
@@ -117,7 +166,9 @@ def test_run_batch_refuses_an_unsupported_config(agents: Path, tmp_path: Path) -
 
     regimes, configs = load_grid_configs(Grid(("run0",), ("sac_nr",), (0,), 2, 1))
     r, a = regimes[0], configs[0]
-    spec = JobSpec(1, r.name, r.version, r.sha256, a.name, a.version, a.sha256, 0, 2, 1, str(tmp_path / "m.zip"), r.obj, a.obj)
+    spec = JobSpec(
+        1, r.name, r.version, r.sha256, a.name, a.version, a.sha256, 0, 2, 1, str(tmp_path / "m.zip"), r.obj, a.obj
+    )
     with pytest.raises(JobFailed, match="normalize_reward"):
         run_batch([spec])
 
@@ -126,7 +177,9 @@ def test_run_batch_refuses_an_unsupported_config(agents: Path, tmp_path: Path) -
 def test_batched_jobs_store_their_batch_and_device_and_sb3_jobs_the_cpu(tmp_path: Path) -> None:
     """A tiny real grid: three PPO jobs in batches of at most two (one of 2, one of 1), then one SB3 job."""
     db = tmp_path / "r.db"
-    s = run_grid(db, ["run0"], ["ppo"], [0, 1, 2], 2, 1, workers=1, display=False, engine="batched", max_batch=2, device="cpu")
+    s = run_grid(
+        db, ["run0"], ["ppo"], [0, 1, 2], 2, 1, workers=1, display=False, engine="batched", max_batch=2, device="cpu"
+    )
     assert (s.done, s.failed) == (3, 0)
     jobs = read_jobs(db)
     assert set(jobs["engine"]) == {"batched"} and set(jobs["device"]) == {"cpu"}

@@ -114,7 +114,7 @@ def test_run0_absorbs_in_the_same_step():
     env = NutriRLEnv("run0")
     env.reset(seed=3)
     food = env.offered
-    obs, *_ , info = env.step(1)
+    obs, *_, info = env.step(1)
     np.testing.assert_allclose(info["state"], env.masses[food], atol=1e-15)
     np.testing.assert_allclose(obs[:3], env.masses[food], rtol=1e-6)
 

@@ -51,7 +51,9 @@ def test_without_memory_every_step_is_played_from_the_zero_state_and_the_agent_i
         policy = GRUActorCriticPolicy(*_spaces(), lr_schedule=lambda _: 1e-3, hidden_size=16)
         feats, _ = policy.unroll(obs.unsqueeze(0), policy.initial_state(1), th.zeros(1, 8))
         last, _ = policy.unroll(obs[-1:].unsqueeze(0), policy.initial_state(1), th.ones(1, 1))
-        np.testing.assert_allclose(feats[0, -1].detach().numpy(), last[0, 0].detach().numpy(), rtol=1e-5, atol=1e-6)  # nor in evaluation
+        np.testing.assert_allclose(
+            feats[0, -1].detach().numpy(), last[0, 0].detach().numpy(), rtol=1e-5, atol=1e-6
+        )  # nor in evaluation
 
     np.testing.assert_allclose(_day_outputs(net, obs)[1], acted, rtol=0, atol=0)  # restored
 

@@ -10,7 +10,12 @@ import pytest
 import torch as th
 from stable_baselines3.common.vec_env import VecNormalize
 
-from nutribench.agents.gru_ppo import GRUPPO, GRUActorCriticPolicy, RecurrentRolloutBuffer, RecurrentRolloutBufferSamples
+from nutribench.agents.gru_ppo import (
+    GRUPPO,
+    GRUActorCriticPolicy,
+    RecurrentRolloutBuffer,
+    RecurrentRolloutBufferSamples,
+)
 from nutribench.env import NutriRLEnv
 from nutribench.env.sb3 import NutriRLSB3VecEnv
 
@@ -197,7 +202,9 @@ def test_rollout_carries_the_state_and_the_buffer_serves_whole_episodes():
 def test_to_sequences_keeps_each_envs_time_line():
     import gymnasium as gym
 
-    buf = RecurrentRolloutBuffer(100, gym.spaces.Box(-1, 1, (13,)), gym.spaces.Discrete(2), n_envs=3, sequence_length=50)
+    buf = RecurrentRolloutBuffer(
+        100, gym.spaces.Box(-1, 1, (13,)), gym.spaces.Discrete(2), n_envs=3, sequence_length=50
+    )
     arr = (1000 * np.arange(3)[None, :] + np.arange(100)[:, None]).astype(np.float32)  # value = 1000 * env + step
     seq = buf.to_sequences(arr)
     assert seq.shape == (6, 50)

@@ -40,7 +40,9 @@ def room(module: str) -> str:
 def _facade_nodes(tree: ast.AST) -> set[int]:
     """The nodes inside the package root's ``__getattr__``: the front door that re-exports the
     public API lazily (``nutribench.Recorder``), not a room; its imports are not the root's."""
-    return {id(n) for f in ast.walk(tree) if isinstance(f, ast.FunctionDef) and f.name == "__getattr__" for n in ast.walk(f)}
+    return {
+        id(n) for f in ast.walk(tree) if isinstance(f, ast.FunctionDef) and f.name == "__getattr__" for n in ast.walk(f)
+    }
 
 
 def import_graph() -> dict[str, set[str]]:

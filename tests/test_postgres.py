@@ -46,10 +46,12 @@ def sql(url: str, query: str, **params) -> list[tuple]:
 
 # The views leave a dry run's (fake) jobs out; their rows are read from the tables, joined to
 # names as the episode_metrics view joins them.
-EPISODE_ROWS = ('SELECT r."name" AS regime, r."version" AS regime_version, a."name" AS algo, '
-                'a."version" AS algo_version, j."seed" AS seed, j."episodes" AS budget, e.* FROM episodes e '
-                'JOIN jobs j ON j."id" = e."job_id" JOIN regimes r ON r."id" = j."regime_id" '
-                'JOIN agent_configs a ON a."id" = j."agent_config_id"')  # fmt: skip
+EPISODE_ROWS = (
+    'SELECT r."name" AS regime, r."version" AS regime_version, a."name" AS algo, '
+    'a."version" AS algo_version, j."seed" AS seed, j."episodes" AS budget, e.* FROM episodes e '
+    'JOIN jobs j ON j."id" = e."job_id" JOIN regimes r ON r."id" = j."regime_id" '
+    'JOIN agent_configs a ON a."id" = j."agent_config_id"'
+)
 
 
 def episode_rows(db: str | Path) -> pd.DataFrame:
@@ -76,8 +78,14 @@ def _run_cmd(url: str, *args: str) -> list[str]:
 def test_a_grid_status_report_and_pandas_on_postgres(pg_url: str, tmp_path: Path) -> None:
     """The first contact that failed (MC's max_grad_norm = inf was stored as JSON Infinity)."""
     env = _env(tmp_path)
-    done = subprocess.run(_run_cmd(pg_url, "--seeds", "0,1", "--episodes", "5", "--eval-episodes", "2"),
-                          env=env, capture_output=True, text=True, cwd=tmp_path, timeout=120)  # fmt: skip
+    done = subprocess.run(
+        _run_cmd(pg_url, "--seeds", "0,1", "--episodes", "5", "--eval-episodes", "2"),
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=120,
+    )
     assert done.returncode == 0, done.stderr
     assert "12 jobs: 12 done" in done.stderr
     assert sql(pg_url, "SELECT body->>'max_grad_norm' FROM agent_configs WHERE name = 'mc'") == [("inf",)]
@@ -93,8 +101,14 @@ def test_a_grid_status_report_and_pandas_on_postgres(pg_url: str, tmp_path: Path
     assert len(episode_rows(pg_url)) == 12 * (5 + 2)  # every row stored
     report = status_table(pg_url)
     assert (report.totals["done"], report.totals["jobs"]) == (12, 12)
-    again = subprocess.run(_run_cmd(pg_url, "--seeds", "0,1", "--episodes", "5", "--eval-episodes", "2"),
-                           env=env, capture_output=True, text=True, cwd=tmp_path, timeout=120)  # fmt: skip
+    again = subprocess.run(
+        _run_cmd(pg_url, "--seeds", "0,1", "--episodes", "5", "--eval-episodes", "2"),
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=120,
+    )
     assert again.returncode == 0 and "12 already done" in again.stderr, again.stderr
     res = runner.invoke(app, ["report", "--db", pg_url, "--table", "results", "--out", str(tmp_path / "rep")])
     assert res.exit_code == 2 and "holds no finished episodes" in res.output, res.output  # draws no dry-run row
@@ -116,8 +130,10 @@ def test_two_drivers_at_once_never_run_a_job_twice_on_postgres(pg_url: str, tmp_
     log.mkdir()
     env = _env(tmp_path, NUTRIBENCH_FAKE_SECONDS="0.01", NUTRIBENCH_FAKE_LOG=str(log))
     cmd = _run_cmd(pg_url, "--seeds", "0,1,2", "--episodes", "20", "--eval-episodes", "1", "--workers", "2")
-    procs = [subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-             for _ in range(2)]  # fmt: skip
+    procs = [
+        subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        for _ in range(2)
+    ]
     outs = [p.communicate(timeout=120)[0] for p in procs]
     assert [p.returncode for p in procs] == [0, 0], outs
     executions = sorted(f.name.split("-")[0] for f in log.iterdir())
@@ -126,8 +142,10 @@ def test_two_drivers_at_once_never_run_a_job_twice_on_postgres(pg_url: str, tmp_
     assert sum(done) == 18  # the two drivers shared the grid
     assert sql(pg_url, "SELECT count(*), sum(CASE WHEN status = 'done' THEN 1 ELSE 0 END) FROM jobs") == [(18, 18)]
     assert sql(pg_url, "SELECT count(*) FROM episodes") == [(18 * 21,)]
-    assert sql(pg_url, "SELECT count(*) FROM (SELECT job_id, phase, episode FROM episodes "
-                       "GROUP BY 1, 2, 3 HAVING count(*) > 1) d") == [(0,)]  # fmt: skip
+    assert sql(
+        pg_url,
+        "SELECT count(*) FROM (SELECT job_id, phase, episode FROM episodes GROUP BY 1, 2, 3 HAVING count(*) > 1) d",
+    ) == [(0,)]
 
 
 def test_a_killed_driver_s_jobs_are_taken_over_on_postgres(pg_url: str, tmp_path: Path) -> None:
@@ -138,29 +156,40 @@ def test_a_killed_driver_s_jobs_are_taken_over_on_postgres(pg_url: str, tmp_path
     log.mkdir()
     env = _env(tmp_path, NUTRIBENCH_FAKE_SECONDS="0.05", NUTRIBENCH_FAKE_LOG=str(log))
     cmd = _run_cmd(pg_url, "--seeds", "0", "--episodes", "200", "--eval-episodes", "1", "--workers", "2")
-    victim = subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                              start_new_session=True)  # fmt: skip
+    victim = subprocess.Popen(
+        cmd, env=env, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
     try:
-        wait_for(lambda: bool(sql(pg_url, "SELECT 1 FROM information_schema.tables WHERE table_name = 'jobs'"))
-                 and sql(pg_url, "SELECT count(*) FROM jobs WHERE status = 'running' AND episodes_done > 0") == [(2,)],
-                 timeout=60)
+        wait_for(
+            lambda: (
+                bool(sql(pg_url, "SELECT 1 FROM information_schema.tables WHERE table_name = 'jobs'"))
+                and sql(pg_url, "SELECT count(*) FROM jobs WHERE status = 'running' AND episodes_done > 0") == [(2,)]
+            ),
+            timeout=60,
+        )
     finally:
         os.killpg(victim.pid, signal.SIGKILL)
         victim.wait(timeout=30)
     assert sql(pg_url, "SELECT count(*) FROM jobs WHERE status = 'running'") == [(2,)]
     assert sql(pg_url, "SELECT count(*) FROM episodes") == [(0,)]  # rows only for finished jobs
-    sql(pg_url, "UPDATE jobs SET heartbeat_at = timezone('UTC', now()) - make_interval(secs => :s) WHERE status = 'running'",
-        s=STALE_AFTER_S - 4)  # fmt: skip
+    sql(
+        pg_url,
+        "UPDATE jobs SET heartbeat_at = timezone('UTC', now()) - make_interval(secs => :s) WHERE status = 'running'",
+        s=STALE_AFTER_S - 4,
+    )
     report = status_table(pg_url)
     assert (report.totals["running"], report.totals["orphaned"]) == (2, 0)  # not stale yet
-    (beat,), = sql(pg_url, "SELECT max(heartbeat_at) FROM jobs WHERE status = 'running'")
-    rescue = subprocess.run(cmd, env=dict(env, NUTRIBENCH_FAKE_SECONDS="0.001"), cwd=tmp_path, capture_output=True,
-                            text=True, timeout=180)  # fmt: skip
+    ((beat,),) = sql(pg_url, "SELECT max(heartbeat_at) FROM jobs WHERE status = 'running'")
+    rescue = subprocess.run(
+        cmd, env=dict(env, NUTRIBENCH_FAKE_SECONDS="0.001"), cwd=tmp_path, capture_output=True, text=True, timeout=180
+    )
     assert rescue.returncode == 0, rescue.stderr
     assert "6 jobs: 6 done" in rescue.stderr
-    (taken_over,), = sql(pg_url, "SELECT min(started_at) FROM jobs WHERE attempt = 2")
+    ((taken_over,),) = sql(pg_url, "SELECT min(started_at) FROM jobs WHERE attempt = 2")
     assert taken_over > beat + timedelta(seconds=STALE_AFTER_S)  # it waited for the heartbeat to go stale
-    assert sql(pg_url, "SELECT count(*), sum(CASE WHEN status = 'done' THEN 1 ELSE 0 END), max(attempt) FROM jobs") == [(6, 6, 2)]
+    assert sql(pg_url, "SELECT count(*), sum(CASE WHEN status = 'done' THEN 1 ELSE 0 END), max(attempt) FROM jobs") == [
+        (6, 6, 2)
+    ]
     assert sql(pg_url, "SELECT count(*) FROM episodes") == [(6 * 201,)]
     executions = [f.name.split("-")[0] for f in log.iterdir()]
     assert len(executions) == 8  # 2 killed half-way + 6 in the rescuing driver
@@ -168,7 +197,9 @@ def test_a_killed_driver_s_jobs_are_taken_over_on_postgres(pg_url: str, tmp_path
 
 def test_upgrade_from_the_first_revision_on_postgres(pg_url: str) -> None:
     make_0001(pg_url)
-    with pytest.raises(StoreError, match=r"revision 0001, this nutribench needs 0004: run `nutribench run --upgrade-only"):
+    with pytest.raises(
+        StoreError, match=r"revision 0001, this nutribench needs 0004: run `nutribench run --upgrade-only"
+    ):
         open_store(pg_url)
     res = runner.invoke(app, ["run", "--upgrade-only", "--db", pg_url])
     assert res.exit_code == 0 and "upgraded from 0001" in " ".join(res.output.split()), res.output
@@ -185,7 +216,9 @@ def test_status_and_report_read_while_a_run_writes_on_postgres(pg_url: str, tmp_
     proc = subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     seen_partial = False
     try:
-        wait_for(lambda: bool(sql(pg_url, "SELECT 1 FROM information_schema.tables WHERE table_name = 'jobs'")), timeout=60)
+        wait_for(
+            lambda: bool(sql(pg_url, "SELECT 1 FROM information_schema.tables WHERE table_name = 'jobs'")), timeout=60
+        )
         while proc.poll() is None:
             report = status_table(pg_url)
             per_job = sql(pg_url, "SELECT job_id, count(*) FROM episodes GROUP BY job_id")
@@ -203,7 +236,9 @@ def test_status_and_report_read_while_a_run_writes_on_postgres(pg_url: str, tmp_
     assert sql(pg_url, "SELECT count(*) FROM episodes") == [(12 * 101,)]
 
 
-def test_db_copy_moves_a_sqlite_database_into_postgres(pg_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_db_copy_moves_a_sqlite_database_into_postgres(
+    pg_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """README "Running on several machines": an existing SQLite database's results moved
     into PostgreSQL, then the grid goes on there."""
     from nutribench.jobs.fake import fake_run_job
@@ -218,7 +253,9 @@ def test_db_copy_moves_a_sqlite_database_into_postgres(pg_url: str, tmp_path: Pa
     before, after = episode_rows(db), episode_rows(pg_url)
     assert len(before) == 32
     pd.testing.assert_frame_equal(before, after, check_dtype=False)
-    assert sql(pg_url, "SELECT count(*), sum(CASE WHEN fake THEN 1 ELSE 0 END) FROM jobs") == [(4, 4)]  # still a dry run's
+    assert sql(pg_url, "SELECT count(*), sum(CASE WHEN fake THEN 1 ELSE 0 END) FROM jobs") == [
+        (4, 4)
+    ]  # still a dry run's
     assert len(read_episode_metrics(db)) == len(read_episode_metrics(pg_url)) == 0
     assert sql(pg_url, "SELECT body->>'max_grad_norm' FROM agent_configs WHERE name = 'mc'") == [("inf",)]
     again = runner.invoke(app, ["db", "copy", str(db), pg_url])  # never on top of results
@@ -245,10 +282,25 @@ def test_two_hosts_simulated_one_dask_cluster_two_drivers_one_database(
         h.mkdir()
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         address = cluster.scheduler_address.replace("tcp://", "dask://")
-        cmd = _run_cmd(pg_url, "--seeds", "0,1,2", "--episodes", "20", "--eval-episodes", "1", "--executor", address,
-                       "--models-dir", str(tmp_path / "shared-models"))  # fmt: skip
-        procs = [subprocess.Popen(cmd, env=_env(tmp_path), cwd=h, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-                 for h in hosts]  # fmt: skip
+        cmd = _run_cmd(
+            pg_url,
+            "--seeds",
+            "0,1,2",
+            "--episodes",
+            "20",
+            "--eval-episodes",
+            "1",
+            "--executor",
+            address,
+            "--models-dir",
+            str(tmp_path / "shared-models"),
+        )
+        procs = [
+            subprocess.Popen(
+                cmd, env=_env(tmp_path), cwd=h, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+            )
+            for h in hosts
+        ]
         outs = [p.communicate(timeout=180)[0] for p in procs]
     assert [p.returncode for p in procs] == [0, 0], outs
     executions = sorted(f.name.split("-")[0] for f in log.iterdir())

@@ -14,7 +14,9 @@ from nutribench.report.tables import table_regimes, table_results
 METRICS = ["return", "foods", "final_distance", "overshoot_ratio"]
 
 
-def synthetic(regimes=("run0", "run3", "run6"), algos=("ppo", "sac"), seeds=(0, 21, 9), train_eps=40, eval_eps=5, seed=0):
+def synthetic(
+    regimes=("run0", "run3", "run6"), algos=("ppo", "sac"), seeds=(0, 21, 9), train_eps=40, eval_eps=5, seed=0
+):
     rng = np.random.default_rng(seed)
     rows = []
     for r in regimes:
@@ -23,9 +25,17 @@ def synthetic(regimes=("run0", "run3", "run6"), algos=("ppo", "sac"), seeds=(0, 
                 for phase, n in (("train", train_eps), ("eval", eval_eps)):
                     for e in range(n):
                         rows.append(
-                            {"regime": r, "algo": a, "seed": s, "phase": phase, "episode": e,
-                             "return": rng.normal(-100, 20), "foods": rng.integers(0, 20), "final_distance": rng.random() * 3,
-                             "overshoot_ratio": rng.random()}
+                            {
+                                "regime": r,
+                                "algo": a,
+                                "seed": s,
+                                "phase": phase,
+                                "episode": e,
+                                "return": rng.normal(-100, 20),
+                                "foods": rng.integers(0, 20),
+                                "final_distance": rng.random() * 3,
+                                "overshoot_ratio": rng.random(),
+                            }
                         )
     return pd.DataFrame(rows)
 
@@ -77,7 +87,9 @@ def test_eval_figure_four_panels_and_standard_error():
     for ax in res.figure.axes:
         assert len(ax.get_lines()) == 2
     cell = df[(df.phase == "eval") & (df.regime == "run6") & (df.algo == "ppo")]["final_distance"]
-    row = res.data[(res.data.panel == "final_distance") & (res.data.algo == "ppo") & (res.data.regime == "run6")].iloc[0]
+    row = res.data[(res.data.panel == "final_distance") & (res.data.algo == "ppo") & (res.data.regime == "run6")].iloc[
+        0
+    ]
     assert row["mean"] == pytest.approx(cell.mean())
     assert row["sem"] == pytest.approx(cell.std(ddof=1) / np.sqrt(len(cell)))  # pooled, kept in the data
     assert row["lo"] <= row["mean"] <= row["hi"]  # the band drawn: 95 % interval over seeds
@@ -86,7 +98,13 @@ def test_eval_figure_four_panels_and_standard_error():
 
 def test_eval_figure_with_references_and_algo_filter():
     df = synthetic(algos=("ppo", "gru_ppo", "sac"))
-    refs = pd.DataFrame([{"regime": r, "policy": p, **{m: v for m, v in zip(METRICS, (-50.0, 0.0, 3.0, 0.0))}} for r in ("run0", "run3", "run6") for p in ("never", "planner")])
+    refs = pd.DataFrame(
+        [
+            {"regime": r, "policy": p, **{m: v for m, v in zip(METRICS, (-50.0, 0.0, 3.0, 0.0))}}
+            for r in ("run0", "run3", "run6")
+            for p in ("never", "planner")
+        ]
+    )
     res = eval_across_regimes(df, algos=["ppo", "gru_ppo"], references=refs)
     assert sorted(res.data["algo"].unique()) == ["gru_ppo", "ppo"]
     labels = [l.get_label() for l in res.figure.axes[0].get_lines()]
@@ -187,8 +205,13 @@ def test_the_return_panel_shows_the_share_of_the_gap_on_a_linear_axis():
     panel (A) shows each seed's share of the never -> planner gap closed, on a linear axis
     that says so; the simple policies' reference lines are on the same scale."""
     df = synthetic()
-    refs = pd.DataFrame([{"regime": r, "policy": p, "return": v, "foods": 0.0, "final_distance": 3.0, "overshoot_ratio": 0.0}
-                         for r in ("run0", "run3", "run6") for p, v in (("never", -20.0), ("planner", -4.0), ("always", -100.0))])  # fmt: skip
+    refs = pd.DataFrame(
+        [
+            {"regime": r, "policy": p, "return": v, "foods": 0.0, "final_distance": 3.0, "overshoot_ratio": 0.0}
+            for r in ("run0", "run3", "run6")
+            for p, v in (("never", -20.0), ("planner", -4.0), ("always", -100.0))
+        ]
+    )
     res = eval_across_regimes(df, references=refs, day_references=_day_refs(df))
     ax = res.figure.axes[0]
     assert ax.get_yscale() == "linear" and "gap" in ax.get_title(loc="left") and "planner" in ax.get_ylabel()
@@ -233,9 +256,12 @@ def test_results_table_leads_with_the_seed_level_interval():
     ev = df[df.phase == "eval"]
     per_seed = ev[(ev.regime == "run0") & (ev.algo == "ppo")].groupby("seed")["return"].mean().to_numpy(dtype=float)
     row = t.raw.iloc[0]
-    assert (row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"]) == pytest.approx(seed_mean_ci(per_seed, reps=300))
+    assert (row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"]) == pytest.approx(
+        seed_mean_ci(per_seed, reps=300)
+    )
     assert (row["gap_closed_seed_mean"], row["gap_closed_seed_lo"]) == pytest.approx(
-        seed_mean_ci((per_seed + 20.0) / 16.0, reps=300)[:2])
+        seed_mean_ci((per_seed + 20.0) / 16.0, reps=300)[:2]
+    )
     assert "±" in t.formatted.iloc[0]["return"]  # the paper's mean ± s.e. is kept beside it
 
 
@@ -263,7 +289,7 @@ def test_results_table_gives_the_share_of_the_never_to_planner_gap_on_the_rows_d
     df = synthetic(regimes=("run0",), algos=("ppo",), seeds=(0, 21), eval_eps=2)
     ev = df[df.phase == "eval"]
     refs = ev[["regime", "seed", "episode"]].copy()
-    refs["never"] = -20.0 - refs["episode"]            # -20, -21 per seed
+    refs["never"] = -20.0 - refs["episode"]  # -20, -21 per seed
     refs["planner"] = -4.0 + 0.0 * refs["episode"]
     t = table_results(df, seeds_bootstrap=50, references=refs)
     row = t.raw.iloc[0]
@@ -283,11 +309,21 @@ def test_the_yardsticks_play_each_jobs_own_evaluation_days():
     from nutribench.report.build import eval_day_references
 
     version = load_env_config("run3").version
-    ev = pd.DataFrame({"regime": ["run3"] * 3 + ["run0"], "regime_version": [version] * 3 + [version + 99],
-                       "seed": [9, 9, 9, 0], "episode": [0, 1, 2, 0]})  # fmt: skip
+    ev = pd.DataFrame(
+        {
+            "regime": ["run3"] * 3 + ["run0"],
+            "regime_version": [version] * 3 + [version + 99],
+            "seed": [9, 9, 9, 0],
+            "episode": [0, 1, 2, 0],
+        }
+    )
     logged: list[str] = []
     refs = eval_day_references(ev, log=logged.append)
-    assert list(refs["regime"]) == ["run3"] * 3 and list(refs["episode"]) == [0, 1, 2]  # run0's version is not the file's
+    assert list(refs["regime"]) == ["run3"] * 3 and list(refs["episode"]) == [
+        0,
+        1,
+        2,
+    ]  # run0's version is not the file's
     assert "run0" in logged[0] and f"v{version + 99}" in logged[0]
     streams = eval_food_streams("run3", 9, 3)
     for name in ("never", "planner"):

@@ -34,8 +34,21 @@ def make_db(
     store = open_store(path, writer=True)
     now = utcnow()
     with session_scope(store.engine) as s:
-        regs = {r: RegimeConfig(name=r, version=1, sha256="0" * 64, body={}, source=None, created_at=now) for r in regimes}
-        ags = {a: AgentConfig(name=a, algo=a, version=1, sha256="1" * 64, body={"name": a, "algo": a, "version": 1}, source=None, created_at=now) for a in algos}
+        regs = {
+            r: RegimeConfig(name=r, version=1, sha256="0" * 64, body={}, source=None, created_at=now) for r in regimes
+        }
+        ags = {
+            a: AgentConfig(
+                name=a,
+                algo=a,
+                version=1,
+                sha256="1" * 64,
+                body={"name": a, "algo": a, "version": 1},
+                source=None,
+                created_at=now,
+            )
+            for a in algos
+        }
         s.add_all([*regs.values(), *ags.values()])
         s.flush()
         for r in regimes:
@@ -43,32 +56,58 @@ def make_db(
                 for seed in seeds:
                     for budget in budgets:
                         job = Job(
-                            regime_id=regs[r].id, agent_config_id=ags[a].id, seed=seed, episodes=budget, eval_episodes=eval_eps,
-                            status="done", attempt=1, failures=0, episodes_done=budget, created_at=now,
-                        )  # fmt: skip
+                            regime_id=regs[r].id,
+                            agent_config_id=ags[a].id,
+                            seed=seed,
+                            episodes=budget,
+                            eval_episodes=eval_eps,
+                            status="done",
+                            attempt=1,
+                            failures=0,
+                            episodes_done=budget,
+                            created_at=now,
+                        )
                         s.add(job)
                         s.flush()
                         for phase, n in (("train", budget), ("eval", eval_eps)):
                             for e in range(n):
                                 s.add(
                                     Episode(
-                                        job_id=job.id, phase=phase, episode=e, ret=float(rng.normal(-80 + e, 10)),
-                                        foods=int(rng.integers(0, 12)), final_distance=float(rng.random() * 3),
-                                        overshoot_ratio=float(rng.random()), final_C=1.0, final_F=1.0, final_P=1.0,
-                                        first_overshoot_step=None, entropy=None,
+                                        job_id=job.id,
+                                        phase=phase,
+                                        episode=e,
+                                        ret=float(rng.normal(-80 + e, 10)),
+                                        foods=int(rng.integers(0, 12)),
+                                        final_distance=float(rng.random() * 3),
+                                        overshoot_ratio=float(rng.random()),
+                                        final_C=1.0,
+                                        final_F=1.0,
+                                        final_P=1.0,
+                                        first_overshoot_step=None,
+                                        entropy=None,
                                     )
-                                )  # fmt: skip
+                                )
                         if steps:
                             for e in range(eval_eps):
                                 action = rng.random(H) < 0.1
-                                absorbed = np.cumsum(rng.random((H, 3)) * 0.05 * action[:, None].repeat(3, 1).cumsum(0).clip(0, 1), axis=0)
+                                absorbed = np.cumsum(
+                                    rng.random((H, 3)) * 0.05 * action[:, None].repeat(3, 1).cumsum(0).clip(0, 1),
+                                    axis=0,
+                                )
                                 for t in range(H):
                                     s.add(
                                         EvalStep(
-                                            job_id=job.id, episode=e, step=t + 1, food=int(rng.integers(0, 10)), action=int(action[t]),
-                                            C=float(absorbed[t, 0]), F=float(absorbed[t, 1]), P=float(absorbed[t, 2]), reward=-1.0,
+                                            job_id=job.id,
+                                            episode=e,
+                                            step=t + 1,
+                                            food=int(rng.integers(0, 10)),
+                                            action=int(action[t]),
+                                            C=float(absorbed[t, 0]),
+                                            F=float(absorbed[t, 1]),
+                                            P=float(absorbed[t, 2]),
+                                            reward=-1.0,
                                         )
-                                    )  # fmt: skip
+                                    )
     store.dispose()
     return path
 
@@ -130,11 +169,14 @@ def test_results_table_equals_pandas_on_the_view(full_db: Path, tmp_path: Path):
 
 
 def test_figure_and_table_selection(full_db: Path, tmp_path: Path):
-    result = invoke("--fig", "1,3", "--fig", "2", "--table", "1", "--db", str(full_db), "--out", str(tmp_path), *REF_EPISODES)
+    result = invoke(
+        "--fig", "1,3", "--fig", "2", "--table", "1", "--db", str(full_db), "--out", str(tmp_path), *REF_EPISODES
+    )
     assert result.exit_code == 0, result.output
     names = sorted(p.name for p in tmp_path.iterdir())
     assert names == sorted(
-        [f"{FIGURES[f]}.{e}" for f in (1, 2, 3) for e in ("png", "pdf")] + [f"table1_regimes.{e}" for e in ("md", "tex", "csv")]
+        [f"{FIGURES[f]}.{e}" for f in (1, 2, 3) for e in ("png", "pdf")]
+        + [f"table1_regimes.{e}" for e in ("md", "tex", "csv")]
     )
 
 
@@ -209,14 +251,19 @@ def test_all_skips_what_the_data_cannot_support(tmp_path: Path):
 
 
 def test_largest_budget_is_used_and_noted(tmp_path: Path):
-    db = make_db(tmp_path / "budgets.db", regimes=("run0",), algos=("ppo",), seeds=(0, 1), budgets=(10, 30), steps=False)
+    db = make_db(
+        tmp_path / "budgets.db", regimes=("run0",), algos=("ppo",), seeds=(0, 1), budgets=(10, 30), steps=False
+    )
     data = load_report_data(db)
     assert set(data.metrics["budget"]) == {30}
     assert data.metrics.groupby("seed")["job_id"].nunique().tolist() == [1, 1]
     assert data.notes == ["PPO/run0: budgets 10, 30 in the database, the largest (30) shown"]
     from nutribench.report.build import build_figure
 
-    assert "note: PPO/run0: budgets 10, 30 in the database, the largest (30) shown" in build_figure(1, data).figure.get_suptitle()
+    assert (
+        "note: PPO/run0: budgets 10, 30 in the database, the largest (30) shown"
+        in build_figure(1, data).figure.get_suptitle()
+    )
     paths = build_report(db, tmp_path / "r", figs=[1], tables=["results"], reference_episodes=4)
     assert {p.suffix for p in paths} == {".png", ".pdf", ".md", ".tex", ".csv"}
     table = pd.read_csv(tmp_path / "r" / "table_results.csv")
@@ -238,12 +285,30 @@ def test_simple_policy_references_are_deterministic():
 
 def test_trajectory_writes_png(full_db: Path, tmp_path: Path):
     out = tmp_path / "r"
-    result = invoke("--trajectory", "--algo", "ppo", "--regime", "run3", "--seed", "1", "--episode", "2", "--db", str(full_db), "--out", str(out))
+    result = invoke(
+        "--trajectory",
+        "--algo",
+        "ppo",
+        "--regime",
+        "run3",
+        "--seed",
+        "1",
+        "--episode",
+        "2",
+        "--db",
+        str(full_db),
+        "--out",
+        str(out),
+    )
     assert result.exit_code == 0, result.output
     png = out / "trajectory_run3_ppo_seed1_ep2.png"
     assert png.read_bytes()[:4] == b"\x89PNG" and png.stat().st_size > 10_000
     assert str(png) in result.stdout.replace("\n", "")
-    line = one_error_line(invoke("--trajectory", "--algo", "ppo", "--regime", "run3", "--seed", "9", "--db", str(full_db), "--out", str(out)))
+    line = one_error_line(
+        invoke(
+            "--trajectory", "--algo", "ppo", "--regime", "run3", "--seed", "9", "--db", str(full_db), "--out", str(out)
+        )
+    )
     assert "no evaluation steps for ppo/run3 seed 9 episode 0" in line and "available:" in line
     # a few cells, and how to see all of them (it printed every combination in one long line)
     assert line.count("/run") <= 1 + 4 and "SELECT DISTINCT algo, regime, seed" in line and len(line) < 400, line

@@ -36,8 +36,18 @@ def _browser() -> str:
 
 
 def _chromium(page: Path, tmp: Path, *extra: str) -> subprocess.CompletedProcess:
-    args = [_browser(), "--headless", "--disable-gpu", "--no-sandbox", "--no-first-run", "--disable-extensions",
-            f"--user-data-dir={tmp / 'profile'}", "--virtual-time-budget=10000", *extra, page.resolve().as_uri()]  # fmt: skip
+    args = [
+        _browser(),
+        "--headless",
+        "--disable-gpu",
+        "--no-sandbox",
+        "--no-first-run",
+        "--disable-extensions",
+        f"--user-data-dir={tmp / 'profile'}",
+        "--virtual-time-budget=10000",
+        *extra,
+        page.resolve().as_uri(),
+    ]
     return subprocess.run(args, capture_output=True, text=True, timeout=120, check=False)
 
 
@@ -89,8 +99,11 @@ def test_the_check_sees_a_figure_that_does_not_load(tmp_path: Path):
 
     fig = Figure(figsize=(2, 1))
     fig.savefig(tmp_path / "a.png")
-    items = [PageItem("a", "Figure A", png="a.png"), PageItem("b", "Figure B", png="missing.png"),
-             PageItem("t", "Table <T> & co", table=pd.DataFrame({"x<": ["1 & 2"]}))]  # fmt: skip
+    items = [
+        PageItem("a", "Figure A", png="a.png"),
+        PageItem("b", "Figure B", png="missing.png"),
+        PageItem("t", "Table <T> & co", table=pd.DataFrame({"x<": ["1 & 2"]})),
+    ]
     page = write_index(items, tmp_path)
     assert "Table &lt;T&gt; &amp; co" in page.read_text() and "<td>1 &amp; 2</td>" in page.read_text()
     images, loaded, _ = _loaded(page, tmp_path)

@@ -19,8 +19,13 @@ from nutribench.report.palette import BUILTIN_COLORS, BUILTIN_ORDER, MIN_DISTANC
 from nutribench.store import AgentConfig, Episode, Job, RegimeConfig, open_store, session_scope, utcnow
 
 REF = ["--reference-episodes", "2"]  # the simple-policy references of figures 3/4, kept cheap
-EXTERNAL = {"name": "a2c_mine", "algo": "external", "version": 1, "entry_point": "mypkg.agents:make_agent",
-            "params": {"lr": 0.0007, "hidden": [64, 64], "n_steps": 5}}  # fmt: skip
+EXTERNAL = {
+    "name": "a2c_mine",
+    "algo": "external",
+    "version": 1,
+    "entry_point": "mypkg.agents:make_agent",
+    "params": {"lr": 0.0007, "hidden": [64, 64], "n_steps": 5},
+}
 VARIANT = {"name": "ppo_big", "algo": "ppo", "version": 2, "net_arch": [512, 256], "learning_rate": 0.0003}
 runner = CliRunner()
 
@@ -29,30 +34,59 @@ def _config(name: str, body: dict | None = None) -> dict:
     return body or {"name": name, "algo": name, "version": 1}
 
 
-def make_db(path: Path, configs: dict[str, tuple[dict, tuple[int, ...], int]], regimes=("run0", "run3"), eval_eps: int = 3) -> Path:
+def make_db(
+    path: Path, configs: dict[str, tuple[dict, tuple[int, ...], int]], regimes=("run0", "run3"), eval_eps: int = 3
+) -> Path:
     """A results database as tests/test_report_cli.py's make_db builds one (through the ORM),
     but each config with its own stored body, seeds and training budget; no evaluation steps."""
     rng = np.random.default_rng(0)
     store = open_store(path, writer=True)
     now = utcnow()
     with session_scope(store.engine) as s:
-        regs = {r: RegimeConfig(name=r, version=1, sha256="0" * 64, body={}, source=None, created_at=now) for r in regimes}
-        ags = {n: AgentConfig(name=n, algo=b["algo"], version=b["version"], sha256="1" * 64, body=b, source=None, created_at=now)
-               for n, (b, _, _) in configs.items()}  # fmt: skip
+        regs = {
+            r: RegimeConfig(name=r, version=1, sha256="0" * 64, body={}, source=None, created_at=now) for r in regimes
+        }
+        ags = {
+            n: AgentConfig(
+                name=n, algo=b["algo"], version=b["version"], sha256="1" * 64, body=b, source=None, created_at=now
+            )
+            for n, (b, _, _) in configs.items()
+        }
         s.add_all([*regs.values(), *ags.values()])
         s.flush()
         for r in regimes:
             for n, (_, seeds, budget) in configs.items():
                 for seed in seeds:
-                    job = Job(regime_id=regs[r].id, agent_config_id=ags[n].id, seed=seed, episodes=budget, eval_episodes=eval_eps,
-                              status="done", attempt=1, failures=0, episodes_done=budget, created_at=now)  # fmt: skip
+                    job = Job(
+                        regime_id=regs[r].id,
+                        agent_config_id=ags[n].id,
+                        seed=seed,
+                        episodes=budget,
+                        eval_episodes=eval_eps,
+                        status="done",
+                        attempt=1,
+                        failures=0,
+                        episodes_done=budget,
+                        created_at=now,
+                    )
                     s.add(job)
                     s.flush()
                     for phase, count in (("train", budget), ("eval", eval_eps)):
                         s.add_all(
-                            Episode(job_id=job.id, phase=phase, episode=e, ret=float(rng.normal(-60 + e, 5)), foods=int(rng.integers(0, 12)),
-                                    final_distance=float(rng.random() * 3), overshoot_ratio=float(rng.random()), final_C=1.0, final_F=1.0,
-                                    final_P=1.0, first_overshoot_step=None, entropy=None)  # fmt: skip
+                            Episode(
+                                job_id=job.id,
+                                phase=phase,
+                                episode=e,
+                                ret=float(rng.normal(-60 + e, 5)),
+                                foods=int(rng.integers(0, 12)),
+                                final_distance=float(rng.random() * 3),
+                                overshoot_ratio=float(rng.random()),
+                                final_C=1.0,
+                                final_F=1.0,
+                                final_P=1.0,
+                                first_overshoot_step=None,
+                                entropy=None,
+                            )
                             for e in range(count)
                         )
     store.dispose()
@@ -64,10 +98,16 @@ def db(tmp_path_factory) -> Path:
     """PPO, SAC, GRU-PPO (budget 20, seeds 0 and 1), a plug-in agent a2c_mine (budget 30,
     seeds 0-2) and a PPO variant ppo_big (budget 20, seeds 0 and 1)."""
     base = ((0, 1), 20)
-    return make_db(tmp_path_factory.mktemp("sel") / "sel.db", {
-        "ppo": (_config("ppo"), *base), "sac": (_config("sac"), *base), "gru_ppo": (_config("gru_ppo"), *base),
-        "a2c_mine": (EXTERNAL, (0, 1, 2), 30), "ppo_big": (VARIANT, *base),
-    })  # fmt: skip
+    return make_db(
+        tmp_path_factory.mktemp("sel") / "sel.db",
+        {
+            "ppo": (_config("ppo"), *base),
+            "sac": (_config("sac"), *base),
+            "gru_ppo": (_config("gru_ppo"), *base),
+            "a2c_mine": (EXTERNAL, (0, 1, 2), 30),
+            "ppo_big": (VARIANT, *base),
+        },
+    )
 
 
 def invoke(db: Path, out: Path, *args: str):
@@ -105,7 +145,13 @@ def test_algos_selects_the_configs_of_the_tables_and_figures(db: Path, tmp_path:
     assert legend_labels(fig1)[:2] == ["PPO", "a2c_mine"] and "SAC" not in legend_labels(fig1)
     # default: every config of the database
     every = build_figure(1, load_report_data(db))
-    assert [lab for lab in legend_labels(every) if not lab.startswith("best")] == ["PPO", "SAC", "GRU-PPO", "a2c_mine", "ppo_big"]
+    assert [lab for lab in legend_labels(every) if not lab.startswith("best")] == [
+        "PPO",
+        "SAC",
+        "GRU-PPO",
+        "a2c_mine",
+        "ppo_big",
+    ]
 
 
 def test_unknown_algos_are_one_line_naming_what_the_database_holds(db: Path, tmp_path: Path):
@@ -128,9 +174,14 @@ def test_pair_draws_figure_4_for_another_pair(db: Path, tmp_path: Path):
     assert (tmp_path / "d" / "fig4_ppo_vs_gru_ppo.png").exists()
 
 
-@pytest.mark.parametrize("pair, message", [("ppo,absent", "--pair absent: not in the database, which holds ppo, sac"),
-                                           ("ppo", "--pair ppo: give two different agent configs"),
-                                           ("ppo,ppo", "give two different")])  # fmt: skip
+@pytest.mark.parametrize(
+    "pair, message",
+    [
+        ("ppo,absent", "--pair absent: not in the database, which holds ppo, sac"),
+        ("ppo", "--pair ppo: give two different agent configs"),
+        ("ppo,ppo", "give two different"),
+    ],
+)
 def test_a_pair_the_database_lacks_is_one_line(db: Path, tmp_path: Path, pair: str, message: str):
     line = one_error_line(invoke(db, tmp_path, "--fig", "4", "--pair", pair, *REF))
     assert message in line
@@ -155,12 +206,19 @@ def test_a_colour_is_stable_by_name():
     big = colors([*OTHERS, *BUILTIN_ORDER])
     assert big == colors(reversed([*OTHERS, *BUILTIN_ORDER]))  # the order names come in does not matter
     for name in ("a2c_mine", "ppo_big", "rainbow"):  # alone, with the five, among other configs: one colour
-        assert colors([name])[name] == colors([name, *BUILTIN_ORDER])[name] == big[name] == colors([name, "sac", "zz_later"])[name]
+        assert (
+            colors([name])[name]
+            == colors([name, *BUILTIN_ORDER])[name]
+            == big[name]
+            == colors([name, "sac", "zz_later"])[name]
+        )
     # trpo's own colour is too near ppo_big's (which sorts before it): only then does it move,
     # the same way in every set holding both
     alone = colors(["trpo"])["trpo"]
     assert distance(alone, big["ppo_big"]) < MIN_DISTANCE and big["trpo"] != alone
-    assert colors(["trpo", "ppo_big"])["trpo"] == big["trpo"] and colors(["trpo", "a2c_mine", "rainbow"])["trpo"] == alone
+    assert (
+        colors(["trpo", "ppo_big"])["trpo"] == big["trpo"] and colors(["trpo", "a2c_mine", "rainbow"])["trpo"] == alone
+    )
     assert colors(["ppo"])["ppo"] == BUILTIN_COLORS["ppo"]
 
 
@@ -173,13 +231,22 @@ def test_a_sixth_config_never_takes_a_built_in_colour():
 
 def test_labels_and_order():
     assert [label(n) for n in order(["zeta", "gru_ppo", "a2c_mine", "mc", "ppo", "sac", "ddqn"])] == [
-        "MC", "DDQN", "PPO", "SAC", "GRU-PPO", "a2c_mine", "zeta"]  # fmt: skip
+        "MC",
+        "DDQN",
+        "PPO",
+        "SAC",
+        "GRU-PPO",
+        "a2c_mine",
+        "zeta",
+    ]
 
 
 def test_a_config_has_one_colour_in_every_figure_of_a_report(db: Path):
     every, some = load_report_data(db), load_report_data(db, algos=["a2c_mine"])
     fig1, fig1_alone = build_figure(1, every), build_figure(1, some)
-    fig4 = build_figure(4, load_report_data(db, algos=["a2c_mine", "ppo"]), reference_episodes=2, pair=("a2c_mine", "ppo"))
+    fig4 = build_figure(
+        4, load_report_data(db, algos=["a2c_mine", "ppo"]), reference_episodes=2, pair=("a2c_mine", "ppo")
+    )
     colour = line_colors(fig1)["a2c_mine"]
     assert colour == line_colors(fig1_alone)["a2c_mine"] == line_colors(fig4)["a2c_mine"]
     assert colour != BUILTIN_COLORS["mc"] and line_colors(fig4)["PPO"] == BUILTIN_COLORS["ppo"]
@@ -190,7 +257,9 @@ def test_every_figure_states_its_budget_and_seeds(db: Path):
     same = load_report_data(db, algos=["ppo", "sac"])
     for number in (1, 2, 3):
         assert "budget 20 days, seeds 0, 1" in figure_text(build_figure(number, same, reference_episodes=2))
-    fig4 = build_figure(4, load_report_data(db, algos=["a2c_mine", "ppo"]), reference_episodes=2, pair=("a2c_mine", "ppo"))
+    fig4 = build_figure(
+        4, load_report_data(db, algos=["a2c_mine", "ppo"]), reference_episodes=2, pair=("a2c_mine", "ppo")
+    )
     assert "PPO: budget 20 days, seeds 0, 1; a2c_mine: budget 30 days, seeds 0-2" in figure_text(fig4)
 
 

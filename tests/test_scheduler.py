@@ -21,10 +21,9 @@ from nutribench.cli import app
 from nutribench.config import list_regimes
 from nutribench.jobs.fake import fake_run_job
 from nutribench.scheduler.driver import STOP_SIGNALS, RunError, run_grid
-from nutribench.store.jobs import MAX_FAILURES, STALE_AFTER_S
 from nutribench.scheduler.grid import PRESETS, GridError, parse_seeds, resolve_grid
 from nutribench.scheduler.status import status_table
-
+from nutribench.store.jobs import MAX_FAILURES, STALE_AFTER_S
 from tests.conftest import wait_for
 
 REPO = Path(__file__).resolve().parents[1]
@@ -78,12 +77,16 @@ def sql(db: Path, query: str) -> list[tuple]:
 
 # The views (episode_metrics, eval_trajectories) leave a dry run's jobs out; the synthetic
 # jobs' rows are counted in the tables, joined to names as the views join them.
-EPISODE_ROWS = ("SELECT r.name AS regime, r.version AS regime_version, a.name AS algo, a.version AS algo_version, "
-                "j.seed AS seed, j.episodes AS budget, e.* FROM episodes e JOIN jobs j ON j.id = e.job_id "
-                "JOIN regimes r ON r.id = j.regime_id JOIN agent_configs a ON a.id = j.agent_config_id")  # fmt: skip
-TRAJECTORY_ROWS = ("SELECT r.name AS regime, a.name AS algo, j.seed AS seed, s.* FROM eval_steps s "
-                   "JOIN jobs j ON j.id = s.job_id JOIN regimes r ON r.id = j.regime_id "
-                   "JOIN agent_configs a ON a.id = j.agent_config_id")  # fmt: skip
+EPISODE_ROWS = (
+    "SELECT r.name AS regime, r.version AS regime_version, a.name AS algo, a.version AS algo_version, "
+    "j.seed AS seed, j.episodes AS budget, e.* FROM episodes e JOIN jobs j ON j.id = e.job_id "
+    "JOIN regimes r ON r.id = j.regime_id JOIN agent_configs a ON a.id = j.agent_config_id"
+)
+TRAJECTORY_ROWS = (
+    "SELECT r.name AS regime, a.name AS algo, j.seed AS seed, s.* FROM eval_steps s "
+    "JOIN jobs j ON j.id = s.job_id JOIN regimes r ON r.id = j.regime_id "
+    "JOIN agent_configs a ON a.id = j.agent_config_id"
+)
 
 
 def episode_rows(db: Path) -> pd.DataFrame:
@@ -134,8 +137,17 @@ def test_smoke_grid_stores_every_row_and_rerun_does_nothing(regimes: Path, tmp_p
     log.mkdir()
     algos = ["mc", "ddqn", "ppo", "sac", "gru_ppo"]
     g = resolve_grid(preset="smoke", regimes=list_regimes(), algos=algos)
-    s = run_grid(db, g.regimes, g.algos, g.seeds, g.episodes, g.eval_episodes, workers=2,
-                 job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)), display=False)  # fmt: skip
+    s = run_grid(
+        db,
+        g.regimes,
+        g.algos,
+        g.seeds,
+        g.episodes,
+        g.eval_episodes,
+        workers=2,
+        job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)),
+        display=False,
+    )
     n = 7 * 5
     assert (s.done, s.failed, s.skipped, s.exit_code) == (n, 0, 0, 0)
     df = episode_rows(db)
@@ -153,8 +165,17 @@ def test_smoke_grid_stores_every_row_and_rerun_does_nothing(regimes: Path, tmp_p
     assert Path(first["model_path"]).relative_to(tmp_path / "models").parts[2].startswith("seed0-ep20")
     assert len(list(log.iterdir())) == n
 
-    again = run_grid(db, g.regimes, g.algos, g.seeds, g.episodes, g.eval_episodes, workers=2,
-                     job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)), display=False)  # fmt: skip
+    again = run_grid(
+        db,
+        g.regimes,
+        g.algos,
+        g.seeds,
+        g.episodes,
+        g.eval_episodes,
+        workers=2,
+        job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)),
+        display=False,
+    )
     assert (again.done, again.skipped, again.exit_code) == (0, n, 0)
     assert len(list(log.iterdir())) == n  # nothing executed
     assert len(episode_rows(db)) == n * 25
@@ -168,17 +189,38 @@ def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> N
     ppo = regimes / "agents" / "ppo.toml"
     ppo.write_text(ppo.read_text().replace("learning_rate = 1e-3", "learning_rate = 2e-3"))
     before = sql(db, "SELECT (SELECT count(*) FROM agent_configs), (SELECT count(*) FROM jobs)")
-    with pytest.raises(RunError, match=r"ppo\.toml: version 1 is already recorded with different content: bump the version"):
+    with pytest.raises(
+        RunError, match=r"ppo\.toml: version 1 is already recorded with different content: bump the version"
+    ):
         run_grid(db, ["run0"], ["ppo"], **args)
     assert sql(db, "SELECT (SELECT count(*) FROM agent_configs), (SELECT count(*) FROM jobs)") == before
     # the CLI says it in one line, exit 2
-    res = CliRunner().invoke(app, ["run", "--db", str(db), "--regimes", "run0", "--algos", "ppo", "--seeds", "0",
-                                   "--episodes", "4", "--eval-episodes", "1"], env={"NUTRIBENCH_JOB": "fake"})  # fmt: skip
+    res = CliRunner().invoke(
+        app,
+        [
+            "run",
+            "--db",
+            str(db),
+            "--regimes",
+            "run0",
+            "--algos",
+            "ppo",
+            "--seeds",
+            "0",
+            "--episodes",
+            "4",
+            "--eval-episodes",
+            "1",
+        ],
+        env={"NUTRIBENCH_JOB": "fake"},
+    )
     assert res.exit_code == 2 and "bump the version" in res.output and len(res.output.strip().splitlines()) == 1
 
     ppo.write_text(ppo.read_text().replace("version = 1", "version = 2"))
     assert run_grid(db, ["run0"], ["ppo"], **args).done == 1
-    rows = sql(db, "SELECT a.version, j.status FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id ORDER BY a.version")
+    rows = sql(
+        db, "SELECT a.version, j.status FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id ORDER BY a.version"
+    )
     assert rows == [(1, "done"), (2, "done")]
     df = episode_rows(db)
     assert df.groupby("algo_version").size().to_dict() == {1: 5, 2: 5}
@@ -197,7 +239,7 @@ def test_killed_worker_fails_only_its_job_and_the_next_run_completes_it(regimes:
     s = run_grid(db, ["run0"], ["mc", "ppo", "sac"], job_fn=EnvJob(NUTRIBENCH_FAKE_KILL="run0:ppo:0"), **args)
     assert (s.done, s.failed, s.exit_code) == (2, 1, 1)
     assert statuses(db) == {("mc", 0): "done", ("ppo", 0): "failed", ("sac", 0): "done"}
-    (failures, error), = sql(db, "SELECT failures, error FROM jobs WHERE status = 'failed'")
+    ((failures, error),) = sql(db, "SELECT failures, error FROM jobs WHERE status = 'failed'")
     assert failures == 1 and "SIGKILL" in error
     df = episode_rows(db)
     assert df.groupby("algo").size().to_dict() == {"mc": 12, "sac": 12}
@@ -226,7 +268,6 @@ def test_failing_job_is_retried_until_the_limit(regimes: Path, tmp_path: Path) -
     assert report.errors[0]["retried"] is False
 
 
-
 def test_retry_failed_runs_a_given_up_job_again_and_clears_its_error(regimes: Path, tmp_path: Path) -> None:
     """Issue 13, defect 6: once a job's cause is fixed, `run --retry-failed` tries it again;
     a job that then succeeds no longer shows its old error."""
@@ -234,14 +275,33 @@ def test_retry_failed_runs_a_given_up_job_again_and_clears_its_error(regimes: Pa
     args = dict(seeds=[0], episodes=6, eval_episodes=1, workers=1, display=False)
     for _ in range(MAX_FAILURES):
         run_grid(db, ["run1"], ["sac"], job_fn=EnvJob(NUTRIBENCH_FAKE_FAIL="run1:sac:0"), **args)
-    assert run_grid(db, ["run1"], ["sac"], job_fn=fake_run_job, **args).given_up == 1  # the cause is fixed, still given up
+    assert (
+        run_grid(db, ["run1"], ["sac"], job_fn=fake_run_job, **args).given_up == 1
+    )  # the cause is fixed, still given up
     s = run_grid(db, ["run1"], ["sac"], job_fn=fake_run_job, retry_failed=True, **args)
     assert (s.done, s.failed, s.given_up, s.exit_code) == (1, 0, 0, 0)
     assert sql(db, "SELECT status, error FROM jobs") == [("done", None)]
-    res = CliRunner().invoke(app, ["run", "--db", str(db), "--regimes", "run1", "--algos", "sac", "--seeds", "0",
-                              "--episodes", "6", "--eval-episodes", "1", "--retry-failed"], env={"NUTRIBENCH_JOB": "fake"})  # fmt: skip
+    res = CliRunner().invoke(
+        app,
+        [
+            "run",
+            "--db",
+            str(db),
+            "--regimes",
+            "run1",
+            "--algos",
+            "sac",
+            "--seeds",
+            "0",
+            "--episodes",
+            "6",
+            "--eval-episodes",
+            "1",
+            "--retry-failed",
+        ],
+        env={"NUTRIBENCH_JOB": "fake"},
+    )
     assert res.exit_code == 0 and "1 already done" in res.output, res.output
-
 
 
 def test_a_rerun_after_a_driver_crash_waits_and_takes_the_orphaned_jobs_over(regimes: Path, tmp_path: Path) -> None:
@@ -258,20 +318,26 @@ def test_a_rerun_after_a_driver_crash_waits_and_takes_the_orphaned_jobs_over(reg
     engine = create_engine(f"sqlite:///{db}")
     beat = utcnow() - timedelta(seconds=STALE_AFTER_S - 5)  # the crashed driver's last heartbeat
     with engine.begin() as conn:  # as a crashed driver leaves it: running, no rows written
-        conn.execute(text("UPDATE jobs SET status='running', owner='crashed', heartbeat_at=:b, episodes_done=2 "
-                          "WHERE seed = 1"), {"b": beat})  # fmt: skip
+        conn.execute(
+            text("UPDATE jobs SET status='running', owner='crashed', heartbeat_at=:b, episodes_done=2 WHERE seed = 1"),
+            {"b": beat},
+        )
         for table in ("episodes", "eval_steps"):
             conn.execute(text(f"DELETE FROM {table} WHERE job_id IN (SELECT id FROM jobs WHERE seed = 1)"))
     report = status_table(db)  # still fresh: running
     assert (report.totals["running"], report.totals["orphaned"]) == (1, 0)
     s = run_grid(db, ["run0"], ["ppo"], **args)
     assert (s.done, s.busy, s.exit_code) == (1, 0, 0)
-    (started, attempt), = sql(db, "SELECT started_at, attempt FROM jobs WHERE seed = 1")
-    assert attempt == 2 and datetime.fromisoformat(started) > beat + timedelta(seconds=STALE_AFTER_S)  # taken over once stale, not before
+    ((started, attempt),) = sql(db, "SELECT started_at, attempt FROM jobs WHERE seed = 1")
+    assert attempt == 2 and datetime.fromisoformat(started) > beat + timedelta(
+        seconds=STALE_AFTER_S
+    )  # taken over once stale, not before
     assert set(statuses(db).values()) == {"done"}
     with engine.begin() as conn:  # a crash long ago: status says the job is orphaned
-        conn.execute(text("UPDATE jobs SET status='running', owner='crashed', heartbeat_at=:b WHERE seed = 1"),
-                     {"b": utcnow() - timedelta(seconds=STALE_AFTER_S + 5)})  # fmt: skip
+        conn.execute(
+            text("UPDATE jobs SET status='running', owner='crashed', heartbeat_at=:b WHERE seed = 1"),
+            {"b": utcnow() - timedelta(seconds=STALE_AFTER_S + 5)},
+        )
     report = status_table(db)
     assert (report.totals["running"], report.totals["pending"], report.totals["orphaned"]) == (0, 1, 1)
     res = CliRunner().invoke(app, ["status", "--db", str(db)])
@@ -290,21 +356,55 @@ def _default_stop_signals() -> None:
         signal.signal(sig, signal.SIG_DFL)
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, pytest.param(signal.SIGTERM, marks=pytest.mark.slow),
-                                 pytest.param(signal.SIGHUP, marks=pytest.mark.slow)])  # SIGINT in the fast run
+@pytest.mark.parametrize(
+    "sig",
+    [
+        signal.SIGINT,
+        pytest.param(signal.SIGTERM, marks=pytest.mark.slow),
+        pytest.param(signal.SIGHUP, marks=pytest.mark.slow),
+    ],
+)  # SIGINT in the fast run
 def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path, tmp_path: Path, sig) -> None:
     """Ctrl-C, and as it (issue 13, defect 2) a batch system's SIGTERM and a closed terminal's
     SIGHUP: the running jobs are released as interrupted at once, not left `running`."""
     db = tmp_path / "r.db"
-    cmd = [NUTRIBENCH, "run", "--db", str(db), "--regimes", "run0", "--algos", "ppo,sac", "--seeds", "0,21",
-           "--episodes", "400", "--eval-episodes", "2", "--workers", "2"]  # fmt: skip
+    cmd = [
+        NUTRIBENCH,
+        "run",
+        "--db",
+        str(db),
+        "--regimes",
+        "run0",
+        "--algos",
+        "ppo,sac",
+        "--seeds",
+        "0,21",
+        "--episodes",
+        "400",
+        "--eval-episodes",
+        "2",
+        "--workers",
+        "2",
+    ]
     # The signals' default dispositions in the child, as in a terminal: a shell starts a
     # background command (`pytest ... &`) with SIGINT ignored, and the child would inherit it.
-    proc = subprocess.Popen(cmd, env=_env(regimes, NUTRIBENCH_FAKE_SECONDS="0.02"), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, preexec_fn=_default_stop_signals)  # fmt: skip
+    proc = subprocess.Popen(
+        cmd,
+        env=_env(regimes, NUTRIBENCH_FAKE_SECONDS="0.02"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        preexec_fn=_default_stop_signals,
+    )
     try:
-        wait_for(lambda: db.exists() and sql(db, "SELECT count(*) FROM sqlite_master WHERE name='jobs'")[0][0]
-                 and sql(db, "SELECT count(*) FROM jobs WHERE status='running' AND episodes_done > 0")[0][0] == 2, timeout=30)
+        wait_for(
+            lambda: (
+                db.exists()
+                and sql(db, "SELECT count(*) FROM sqlite_master WHERE name='jobs'")[0][0]
+                and sql(db, "SELECT count(*) FROM jobs WHERE status='running' AND episodes_done > 0")[0][0] == 2
+            ),
+            timeout=30,
+        )
         report = status_table(db)  # status while the run writes
         assert (report.totals["running"], report.totals["pending"], report.totals["jobs"]) == (2, 2, 4)
         proc.send_signal(sig)
@@ -324,10 +424,28 @@ def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path,
 def test_two_concurrent_runs_never_run_a_job_twice(regimes: Path, tmp_path: Path) -> None:
     db, log = tmp_path / "r.db", tmp_path / "log"
     log.mkdir()
-    cmd = [NUTRIBENCH, "run", "--db", str(db), "--regimes", "run0,run1", "--algos", "mc,ppo,sac", "--seeds", "0",
-           "--episodes", "20", "--eval-episodes", "1", "--workers", "2"]  # fmt: skip
+    cmd = [
+        NUTRIBENCH,
+        "run",
+        "--db",
+        str(db),
+        "--regimes",
+        "run0,run1",
+        "--algos",
+        "mc,ppo,sac",
+        "--seeds",
+        "0",
+        "--episodes",
+        "20",
+        "--eval-episodes",
+        "1",
+        "--workers",
+        "2",
+    ]
     env = _env(regimes, NUTRIBENCH_FAKE_SECONDS="0.01", NUTRIBENCH_FAKE_LOG=str(log))
-    procs = [subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for _ in range(2)]
+    procs = [
+        subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for _ in range(2)
+    ]
     outs = [p.communicate(timeout=60)[0] for p in procs]
     assert [p.returncode for p in procs] == [0, 0], outs
     runs = sorted(f.name.split("-")[0] for f in log.iterdir())
@@ -374,7 +492,17 @@ def test_bad_database_paths_are_one_line(regimes: Path, tmp_path: Path) -> None:
 
 def test_status_json(regimes: Path, tmp_path: Path) -> None:
     db = tmp_path / "r.db"
-    run_grid(db, ["run2"], ["ppo", "sac"], [0, 1], 5, 1, workers=2, job_fn=EnvJob(NUTRIBENCH_FAKE_FAIL="run2:sac:1"), display=False)
+    run_grid(
+        db,
+        ["run2"],
+        ["ppo", "sac"],
+        [0, 1],
+        5,
+        1,
+        workers=2,
+        job_fn=EnvJob(NUTRIBENCH_FAKE_FAIL="run2:sac:1"),
+        display=False,
+    )
     res = CliRunner().invoke(app, ["status", "--db", str(db), "--json"])
     assert res.exit_code == 0, res.output
     import json
@@ -414,7 +542,9 @@ def test_an_unreachable_dask_scheduler_fails_before_the_database_is_touched(regi
         port = s.getsockname()[1]
     db = tmp_path / "r.db"
     with pytest.raises(ExecutorError, match=f"cannot reach the dask scheduler at tcp://127.0.0.1:{port}"):
-        run_grid(db, ["run0"], ["ppo"], [0], 4, 1, executor=f"dask://127.0.0.1:{port}", job_fn=fake_run_job, display=False)
+        run_grid(
+            db, ["run0"], ["ppo"], [0], 4, 1, executor=f"dask://127.0.0.1:{port}", job_fn=fake_run_job, display=False
+        )
     assert not db.exists()
 
 
@@ -449,8 +579,18 @@ def test_bench_status_times_a_given_database(tmp_path: Path) -> None:
     from nutribench.bench import bench_status
 
     db = tmp_path / "r.db"
-    run_grid(db, ["run0", "run1"], ["ppo"], [0], episodes=4, eval_episodes=2, workers=1,
-             job_fn=fake_run_job, models_dir=tmp_path / "m", display=False)  # fmt: skip
+    run_grid(
+        db,
+        ["run0", "run1"],
+        ["ppo"],
+        [0],
+        episodes=4,
+        eval_episodes=2,
+        workers=1,
+        job_fn=fake_run_job,
+        models_dir=tmp_path / "m",
+        display=False,
+    )
     r = bench_status(str(db), repeats=1)
     assert (r["jobs"], r["episode_rows"]) == (2, 2 * (4 + 2))
     assert r["build_seconds"] is None and r["status_table_s"] > 0 and r["status_cli_s"] > r["status_table_s"]
@@ -494,10 +634,17 @@ def test_engine_batched_trains_each_config_in_batches_and_stores_each_job(regime
     # 4 PPO jobs on 2 slots: batches of 2, in job order (run0 seeds 0,1; run3 seeds 0,1); the
     # batch holding the failing job fails, its two jobs are tried alone: one succeeds
     assert (s.done, s.failed) == (11, 1)
-    rows = sql(db, "SELECT a.name, r.name, j.seed, j.status, j.engine FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id "
-                   "JOIN regimes r ON r.id = j.regime_id")  # fmt: skip
+    rows = sql(
+        db,
+        "SELECT a.name, r.name, j.seed, j.status, j.engine FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id "
+        "JOIN regimes r ON r.id = j.regime_id",
+    )
     assert sorted((a, r, seed) for a, r, seed, st, _ in rows if st == "failed") == [("ppo", "run3", 1)]
-    assert {(a, e) for a, _, _, st, e in rows if st == "done"} == {("mc", "batched"), ("ppo", "batched"), ("sac", "batched")}
+    assert {(a, e) for a, _, _, st, e in rows if st == "done"} == {
+        ("mc", "batched"),
+        ("ppo", "batched"),
+        ("sac", "batched"),
+    }
     algo_of = dict(sql(db, "SELECT 'job' || j.id, a.name FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id"))
     pids: dict[str, set[str]] = {}
     for f in log.iterdir():  # job<id>-pid<pid>-<token>: one process per batch, one per single job
@@ -521,8 +668,20 @@ def test_batch_size_caps_the_batches(regimes: Path, tmp_path: Path) -> None:
     db, log = tmp_path / "r.db", tmp_path / "log"
     log.mkdir()
     env = dict(NUTRIBENCH_FAKE_LOG=str(log), NUTRIBENCH_FAKE_FAIL="")
-    s = run_grid(db, ["run0", "run3"], ["ppo"], [0, 1, 2], 4, 1, workers=2, job_fn=EnvJob(**env), batch_fn=EnvBatch(**env),
-                 display=False, engine="batched", max_batch=2)  # fmt: skip
+    s = run_grid(
+        db,
+        ["run0", "run3"],
+        ["ppo"],
+        [0, 1, 2],
+        4,
+        1,
+        workers=2,
+        job_fn=EnvJob(**env),
+        batch_fn=EnvBatch(**env),
+        display=False,
+        engine="batched",
+        max_batch=2,
+    )
     assert (s.done, s.failed) == (6, 0)
     pids = {f.name.split("-")[1] for f in log.iterdir()}
     assert len(pids) == 3
@@ -535,15 +694,29 @@ def test_batch_size_caps_the_batches(regimes: Path, tmp_path: Path) -> None:
 def test_engine_batched_with_real_training(regimes: Path, tmp_path: Path) -> None:
     """The batched engine's worker end to end: trained agents evaluated, saved, stored."""
     db = tmp_path / "r.db"
-    s = run_grid(db, ["run0", "run3"], ["mc", "ppo"], [0], 10, 1, workers=2, display=False, engine="batched",
-                 models_dir=tmp_path / "models")  # fmt: skip
+    s = run_grid(
+        db,
+        ["run0", "run3"],
+        ["mc", "ppo"],
+        [0],
+        10,
+        1,
+        workers=2,
+        display=False,
+        engine="batched",
+        models_dir=tmp_path / "models",
+    )
     assert (s.done, s.failed) == (4, 0)
     assert sql(db, "SELECT count(*), sum(engine = 'batched'), sum(model_path IS NOT NULL) FROM jobs") == [(4, 4, 4)]
     assert sql(db, "SELECT count(*) FROM eval_steps") == [(4 * 50,)]
     assert len(list((tmp_path / "models").rglob("*.zip"))) == 4
     # every row names the commit of the code that made it (this test runs in a git checkout)
-    head = subprocess.run(["git", "-C", str(Path(__file__).resolve().parents[1]), "rev-parse", "HEAD"],
-                          capture_output=True, text=True, check=True).stdout.strip()  # fmt: skip
+    head = subprocess.run(
+        ["git", "-C", str(Path(__file__).resolve().parents[1]), "rev-parse", "HEAD"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
     assert sql(db, "SELECT DISTINCT git_commit FROM jobs") == [(head,)]
 
 
@@ -558,8 +731,19 @@ class HalfBatch(EnvJob):
 
 def test_a_job_missing_from_its_batch_s_results_is_failed_not_left_running(regimes: Path, tmp_path: Path) -> None:
     db = tmp_path / "r.db"
-    s = run_grid(db, ["run0"], ["ppo"], [0, 1, 2], 4, 1, workers=1, job_fn=fake_run_job, batch_fn=HalfBatch(),
-                 display=False, engine="batched")  # fmt: skip
+    s = run_grid(
+        db,
+        ["run0"],
+        ["ppo"],
+        [0, 1, 2],
+        4,
+        1,
+        workers=1,
+        job_fn=fake_run_job,
+        batch_fn=HalfBatch(),
+        display=False,
+        engine="batched",
+    )
     assert (s.done, s.failed) == (2, 1)
     assert sql(db, "SELECT status, count(*) FROM jobs GROUP BY status ORDER BY status") == [("done", 2), ("failed", 1)]
     assert "returned no result" in sql(db, "SELECT error FROM jobs WHERE status = 'failed'")[0][0]
@@ -570,7 +754,17 @@ def test_batches_group_jobs_by_config_and_regime_shape() -> None:
 
     # "x": a config of an algorithm the batched engine does not train: its jobs run one by one
     cells = [("a", "ppo", 0), ("a", "ppo", 1), ("b", "ppo", 0), ("a", "x", 0), ("a", "mc", 0)]
-    pools = batch_pools([1, 2, 3, 4, 5], cells, {"ppo": "ppo", "x": "not_in_the_engine", "mc": "mc"},
-                        {"a": (50, 10), "b": (40, 10)}, claimable=len, slots=2)  # fmt: skip
-    assert [(p.job_ids, p.batched, p.batch_size) for p in pools] == [([1, 2], True, 1), ([3], True, 1), ([5], True, 1),
-                                                                     ([4], False, 1)]  # fmt: skip
+    pools = batch_pools(
+        [1, 2, 3, 4, 5],
+        cells,
+        {"ppo": "ppo", "x": "not_in_the_engine", "mc": "mc"},
+        {"a": (50, 10), "b": (40, 10)},
+        claimable=len,
+        slots=2,
+    )
+    assert [(p.job_ids, p.batched, p.batch_size) for p in pools] == [
+        ([1, 2], True, 1),
+        ([3], True, 1),
+        ([5], True, 1),
+        ([4], False, 1),
+    ]

@@ -25,19 +25,54 @@ def _default_stop_signals() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("first", "then"),
-    [(signal.SIGTERM, signal.SIGTERM), (signal.SIGTERM, signal.SIGHUP), (signal.SIGHUP, signal.SIGHUP),
-     (signal.SIGINT, signal.SIGTERM), (signal.SIGINT, signal.SIGINT)],  # fmt: skip
+    [
+        (signal.SIGTERM, signal.SIGTERM),
+        (signal.SIGTERM, signal.SIGHUP),
+        (signal.SIGHUP, signal.SIGHUP),
+        (signal.SIGINT, signal.SIGTERM),
+        (signal.SIGINT, signal.SIGINT),
+    ],
     ids=lambda s: s.name,
 )
-def test_signals_during_the_graceful_stop_end_in_that_stop_and_exit_130(regimes: Path, tmp_path: Path, first, then) -> None:
+def test_signals_during_the_graceful_stop_end_in_that_stop_and_exit_130(
+    regimes: Path, tmp_path: Path, first, then
+) -> None:
     db = tmp_path / "r.db"
-    cmd = [NUTRIBENCH, "run", "--db", str(db), "--regimes", "run0", "--algos", "ppo,sac", "--seeds", "0,21",
-           "--episodes", "400", "--eval-episodes", "2", "--workers", "2"]  # fmt: skip
-    proc = subprocess.Popen(cmd, env=_env(regimes, NUTRIBENCH_FAKE_SECONDS="0.02"), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, preexec_fn=_default_stop_signals)  # fmt: skip
+    cmd = [
+        NUTRIBENCH,
+        "run",
+        "--db",
+        str(db),
+        "--regimes",
+        "run0",
+        "--algos",
+        "ppo,sac",
+        "--seeds",
+        "0,21",
+        "--episodes",
+        "400",
+        "--eval-episodes",
+        "2",
+        "--workers",
+        "2",
+    ]
+    proc = subprocess.Popen(
+        cmd,
+        env=_env(regimes, NUTRIBENCH_FAKE_SECONDS="0.02"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        preexec_fn=_default_stop_signals,
+    )
     try:
-        wait_for(lambda: db.exists() and sql(db, "SELECT count(*) FROM sqlite_master WHERE name='jobs'")[0][0]
-                 and sql(db, "SELECT count(*) FROM jobs WHERE status='running' AND episodes_done > 0")[0][0] == 2, timeout=60)
+        wait_for(
+            lambda: (
+                db.exists()
+                and sql(db, "SELECT count(*) FROM sqlite_master WHERE name='jobs'")[0][0]
+                and sql(db, "SELECT count(*) FROM jobs WHERE status='running' AND episodes_done > 0")[0][0] == 2
+            ),
+            timeout=60,
+        )
         proc.send_signal(first)
         sent, end = 1, time.monotonic() + 30
         while proc.poll() is None and time.monotonic() < end:  # the stop meets signal after signal until it is over

@@ -38,15 +38,43 @@ runner = CliRunner()
 REGIMES = ["run0", "run1", "run2", "run3"]
 SEEDS = [0, 9, 21, 1997, 2003]
 MATRICES = {
-    "mc": np.array([[1.10, 0.62, 0.57, 0.29], [1.05, 0.70, 0.40, 0.35], [1.12, 0.55, 0.61, 0.10], [0.98, 0.66, 0.52, 0.31], [1.20, 0.58, 0.45, 0.27]]),
-    "ppo": np.array([[1.08, 0.00, -0.25, -0.88], [1.07, 0.10, -0.40, -0.60], [1.10, -0.20, 0.05, -1.20], [1.02, 0.30, -0.10, -0.95], [1.09, 0.05, -0.30, -0.70]]),
-    "gru_ppo": np.array([[1.10, 0.63, 0.42, 0.57], [1.06, 0.55, 0.48, 0.62], [1.11, 0.70, 0.39, 0.50], [1.09, 0.61, 0.45, 0.57], [1.03, 0.66, 0.36, 0.66]]),
+    "mc": np.array(
+        [
+            [1.10, 0.62, 0.57, 0.29],
+            [1.05, 0.70, 0.40, 0.35],
+            [1.12, 0.55, 0.61, 0.10],
+            [0.98, 0.66, 0.52, 0.31],
+            [1.20, 0.58, 0.45, 0.27],
+        ]
+    ),
+    "ppo": np.array(
+        [
+            [1.08, 0.00, -0.25, -0.88],
+            [1.07, 0.10, -0.40, -0.60],
+            [1.10, -0.20, 0.05, -1.20],
+            [1.02, 0.30, -0.10, -0.95],
+            [1.09, 0.05, -0.30, -0.70],
+        ]
+    ),
+    "gru_ppo": np.array(
+        [
+            [1.10, 0.63, 0.42, 0.57],
+            [1.06, 0.55, 0.48, 0.62],
+            [1.11, 0.70, 0.39, 0.50],
+            [1.09, 0.61, 0.45, 0.57],
+            [1.03, 0.66, 0.36, 0.66],
+        ]
+    ),
 }
 
 
 def scores_frame(matrices=MATRICES, regimes=REGIMES, seeds=SEEDS) -> pd.DataFrame:
-    rows = [{"regime": r, "algo": a, "seed": s, "score": float(m[i, j])}
-            for a, m in matrices.items() for i, s in enumerate(seeds) for j, r in enumerate(regimes)]  # fmt: skip
+    rows = [
+        {"regime": r, "algo": a, "seed": s, "score": float(m[i, j])}
+        for a, m in matrices.items()
+        for i, s in enumerate(seeds)
+        for j, r in enumerate(regimes)
+    ]
     return pd.DataFrame(rows)
 
 
@@ -60,10 +88,14 @@ def test_point_estimates_equal_rliable_on_a_hand_made_matrix():
         assert iv.loc[(algo, "iqm"), "point"] == pytest.approx(rly.aggregate_iqm(m), abs=1e-12)
         assert iv.loc[(algo, "median"), "point"] == pytest.approx(rly.aggregate_median(m), abs=1e-12)
         assert iv.loc[(algo, "mean"), "point"] == pytest.approx(rly.aggregate_mean(m), abs=1e-12)
-        assert iv.loc[(algo, "optimality_gap"), "point"] == pytest.approx(rly.aggregate_optimality_gap(m, gamma=1), abs=1e-12)
+        assert iv.loc[(algo, "optimality_gap"), "point"] == pytest.approx(
+            rly.aggregate_optimality_gap(m, gamma=1), abs=1e-12
+        )
         # the bootstrap's statistics, applied to the original sample, are rliable's too
         for agg in AGGREGATES:
-            assert BATCHED[agg]([m[None, :, j] for j in range(m.shape[1])])[0] == pytest.approx(RLIABLE[agg](m), abs=1e-12)
+            assert BATCHED[agg]([m[None, :, j] for j in range(m.shape[1])])[0] == pytest.approx(
+                RLIABLE[agg](m), abs=1e-12
+            )
     # one value by hand: 20 scores, IQM = mean of the 6th..15th smallest (scipy's 25 % trim)
     gru = np.sort(MATRICES["gru_ppo"].ravel())
     assert point_estimate("iqm", ss.runs["gru_ppo"]) == pytest.approx(gru[5:15].mean())
@@ -149,14 +181,25 @@ def test_performance_profile_counts_runs_above_tau():
 
 
 def test_run_scores_share_of_the_gap_on_the_runs_own_days():
-    ev = pd.DataFrame({
-        "regime": ["run1"] * 4 + ["run2"] * 2, "algo": ["ppo"] * 6, "seed": [0, 0, 1, 1, 0, 0],
-        "episode": [0, 1, 0, 1, 0, 1], "phase": "eval", "return": [-10.0, -14.0, -20.0, -22.0, -5.0, -7.0],
-    })  # fmt: skip
-    refs = pd.DataFrame({
-        "regime": ["run1"] * 4, "seed": [0, 0, 1, 1], "episode": [0, 1, 0, 1],
-        "never": [-21.0, -22.0, -21.5, -21.5], "planner": [-4.0, -6.0, -5.0, -5.0],
-    })  # fmt: skip
+    ev = pd.DataFrame(
+        {
+            "regime": ["run1"] * 4 + ["run2"] * 2,
+            "algo": ["ppo"] * 6,
+            "seed": [0, 0, 1, 1, 0, 0],
+            "episode": [0, 1, 0, 1, 0, 1],
+            "phase": "eval",
+            "return": [-10.0, -14.0, -20.0, -22.0, -5.0, -7.0],
+        }
+    )
+    refs = pd.DataFrame(
+        {
+            "regime": ["run1"] * 4,
+            "seed": [0, 0, 1, 1],
+            "episode": [0, 1, 0, 1],
+            "never": [-21.0, -22.0, -21.5, -21.5],
+            "planner": [-4.0, -6.0, -5.0, -5.0],
+        }
+    )
     sc = run_scores(ev, refs).set_index(["regime", "seed"])
     # seed 0 of run1: return -12, never -21.5, planner -5 -> (−12 + 21.5) / 16.5
     assert sc.loc[("run1", 0), "score"] == pytest.approx(9.5 / 16.5)
@@ -212,27 +255,48 @@ def episodes_frame(regimes=("run0", "run3"), algos=("ppo", "gru_ppo"), seeds=(0,
             for s in seeds:
                 job += 1
                 for e in range(days):
-                    rows.append({"regime": r, "regime_version": 2, "algo": a, "algo_version": 1, "seed": s, "budget": 100,
-                                 "phase": "eval", "episode": e, "return": float(rng.normal(-15, 5)), "job_id": job})  # fmt: skip
+                    rows.append(
+                        {
+                            "regime": r,
+                            "regime_version": 2,
+                            "algo": a,
+                            "algo_version": 1,
+                            "seed": s,
+                            "budget": 100,
+                            "phase": "eval",
+                            "episode": e,
+                            "return": float(rng.normal(-15, 5)),
+                            "job_id": job,
+                        }
+                    )
     return pd.DataFrame(rows)
 
 
 def test_paired_difference_equals_a_hand_computation():
     # run1: seeds 0 and 1, two days each; run2: seed 0, one day (B ties A there)
     rows = [
-        ("run1", 0, 0, -10.0, -14.0), ("run1", 0, 1, -12.0, -11.0),
-        ("run1", 1, 0, -9.0, -15.0), ("run1", 1, 1, -8.0, -16.0),
+        ("run1", 0, 0, -10.0, -14.0),
+        ("run1", 0, 1, -12.0, -11.0),
+        ("run1", 1, 0, -9.0, -15.0),
+        ("run1", 1, 1, -8.0, -16.0),
         ("run2", 0, 0, -20.0, -20.0),
-    ]  # fmt: skip
-    ev = pd.DataFrame([{"regime": r, "seed": s, "episode": e, "phase": "eval", "algo": a, "return": v}
-                       for r, s, e, va, vb in rows for a, v in (("gru_ppo", va), ("ppo", vb))])  # fmt: skip
+    ]
+    ev = pd.DataFrame(
+        [
+            {"regime": r, "seed": s, "episode": e, "phase": "eval", "algo": a, "return": v}
+            for r, s, e, va, vb in rows
+            for a, v in (("gru_ppo", va), ("ppo", vb))
+        ]
+    )
     c = compare_agents(ev, "gru_ppo", "ppo", reps=20_000)
     rows_ = c.rows.set_index("regime")
     # run1: differences +4, -1 (seed 0), +6, +8 (seed 1): mean 17/4; A higher on 3 of 4 days
     assert rows_.loc["run1", "diff"] == pytest.approx(17 / 4)
     assert rows_.loc["run1", "p_a_better"] == pytest.approx(3 / 4)
     assert rows_.loc["run1", "seeds"] == 2 and rows_.loc["run1", "days"] == 4
-    assert rows_.loc["run1", "a_mean"] == pytest.approx(-39 / 4) and rows_.loc["run1", "b_mean"] == pytest.approx(-56 / 4)
+    assert rows_.loc["run1", "a_mean"] == pytest.approx(-39 / 4) and rows_.loc["run1", "b_mean"] == pytest.approx(
+        -56 / 4
+    )
     # the bootstrap draws whole seeds: the resampled means are seed 0's (1.5), both (4.25) or seed 1's (7)
     assert rows_.loc["run1", "diff_lo"] == pytest.approx(1.5) and rows_.loc["run1", "diff_hi"] == pytest.approx(7.0)
     # run2: one seed, a tie: P = 1/2, no interval
@@ -261,11 +325,14 @@ def test_pairing_is_by_seed_and_day_not_by_row_order():
     days = paired_days(ev, "gru_ppo", "ppo")
     assert (days["a"] - days["b"]).to_numpy() == pytest.approx(1.0) and len(days) == 2 * 4 * 5
     # the test can fail: the same rows paired by position within a (regime, seed) are not A = B + 1
-    by_position = np.concatenate([
-        ev[(ev.algo == "gru_ppo") & (ev.regime == r) & (ev.seed == s)]["return"].to_numpy()
-        - ev[(ev.algo == "ppo") & (ev.regime == r) & (ev.seed == s)]["return"].to_numpy()
-        for r in ("run0", "run3") for s in range(4)
-    ])  # fmt: skip
+    by_position = np.concatenate(
+        [
+            ev[(ev.algo == "gru_ppo") & (ev.regime == r) & (ev.seed == s)]["return"].to_numpy()
+            - ev[(ev.algo == "ppo") & (ev.regime == r) & (ev.seed == s)]["return"].to_numpy()
+            for r in ("run0", "run3")
+            for s in range(4)
+        ]
+    )
     assert not np.allclose(by_position, 1.0)
 
 
@@ -299,8 +366,14 @@ def test_compare_errors_in_the_library():
 def db(tmp_path_factory) -> Path:
     from tests.test_report_cli import make_db
 
-    return make_db(tmp_path_factory.mktemp("cmp") / "cmp.db", regimes=("run0", "run3"), algos=("ppo", "gru_ppo", "sac"),
-                   seeds=(0, 1), eval_eps=3, steps=False)  # fmt: skip
+    return make_db(
+        tmp_path_factory.mktemp("cmp") / "cmp.db",
+        regimes=("run0", "run3"),
+        algos=("ppo", "gru_ppo", "sac"),
+        seeds=(0, 1),
+        eval_eps=3,
+        steps=False,
+    )
 
 
 def compare(*args: str):
@@ -350,7 +423,9 @@ def test_compare_no_common_seed_and_no_database(tmp_path: Path):
 
     a = make_db(tmp_path / "a.db", regimes=("run3",), algos=("ppo", "gru_ppo"), seeds=(0,), eval_eps=2, steps=False)
     with sqlite3.connect(a) as con:  # gru_ppo's job ran with another seed
-        con.execute("UPDATE jobs SET seed = 5 WHERE agent_config_id = (SELECT id FROM agent_configs WHERE name = 'gru_ppo')")
+        con.execute(
+            "UPDATE jobs SET seed = 5 WHERE agent_config_id = (SELECT id FROM agent_configs WHERE name = 'gru_ppo')"
+        )
     line = one_error_line(compare("gru_ppo", "ppo", "--db", str(a)))
     assert "share no seed on run3" in line and "gru_ppo: seeds 5" in line and "ppo: seeds 0" in line
     assert "no results database" in one_error_line(compare("gru_ppo", "ppo", "--db", str(tmp_path / "nope.db")))
@@ -367,8 +442,12 @@ def test_intervals_match_rliable_library_where_it_imports():
         pytest.skip(f"rliable.library does not import here ({type(e).__name__}): the pandas-3 trap")
     ss = score_set(scores_frame(), REGIMES)
     ours = interval_estimates(ss, reps=20_000).set_index(["algo", "aggregate"])
-    funcs = {"iqm": rly.aggregate_iqm, "median": rly.aggregate_median, "mean": rly.aggregate_mean,
-             "optimality_gap": rly.aggregate_optimality_gap}  # fmt: skip
+    funcs = {
+        "iqm": rly.aggregate_iqm,
+        "median": rly.aggregate_median,
+        "mean": rly.aggregate_mean,
+        "optimality_gap": rly.aggregate_optimality_gap,
+    }
     np.random.seed(0)
     for agg, f in funcs.items():
         points, cis = rl.get_interval_estimates(MATRICES, lambda m, f=f: np.array([f(m)]), reps=20_000)

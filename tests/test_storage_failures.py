@@ -60,7 +60,9 @@ def operational(message: str) -> OperationalError:
 
 # --------------------------------------------------------------------------- disk full, I/O error
 @pytest.mark.parametrize("message", ["database or disk is full", "disk I/O error"])
-def test_disk_full_while_storing_stops_with_one_line_and_the_next_run_resumes(regimes, tmp_path, monkeypatch, message) -> None:
+def test_disk_full_while_storing_stops_with_one_line_and_the_next_run_resumes(
+    regimes, tmp_path, monkeypatch, message
+) -> None:
     db = tmp_path / "r.db"
 
     def full(*args, **kw):
@@ -106,8 +108,26 @@ def test_disk_full_through_the_cli_is_one_line_exit_2(regimes, tmp_path, monkeyp
         raise operational("database or disk is full")
 
     patch_store(monkeypatch, full)
-    res = CliRunner().invoke(app, ["run", "--db", str(db), "--regimes", "run0", "--algos", "ppo", "--seeds", "0",
-                                   "--episodes", "20", "--eval-episodes", "1", "--workers", "1"])  # fmt: skip
+    res = CliRunner().invoke(
+        app,
+        [
+            "run",
+            "--db",
+            str(db),
+            "--regimes",
+            "run0",
+            "--algos",
+            "ppo",
+            "--seeds",
+            "0",
+            "--episodes",
+            "20",
+            "--eval-episodes",
+            "1",
+            "--workers",
+            "1",
+        ],
+    )
     assert res.exit_code == 2, res.output
     assert "Traceback" not in res.output and "database or disk is full" in res.output
     assert sql(db, "SELECT status FROM jobs") == [("interrupted",)]
@@ -120,8 +140,21 @@ def test_readonly_database_is_one_line_exit_2_and_nothing_is_lost(regimes, tmp_p
     chmod ineffective, so the claim's refusal is simulated."""
     db = tmp_path / "r.db"
     monkeypatch.setenv("NUTRIBENCH_JOB", "fake")
-    args = ["run", "--db", str(db), "--regimes", "run0", "--algos", "ppo", "--episodes", "20", "--eval-episodes", "1",
-            "--workers", "1"]  # fmt: skip
+    args = [
+        "run",
+        "--db",
+        str(db),
+        "--regimes",
+        "run0",
+        "--algos",
+        "ppo",
+        "--episodes",
+        "20",
+        "--eval-episodes",
+        "1",
+        "--workers",
+        "1",
+    ]
     assert CliRunner().invoke(app, [*args, "--seeds", "0"]).exit_code == 0
     before = sql(db, "SELECT count(*) FROM episodes")
 
@@ -146,8 +179,14 @@ def test_readonly_database_is_one_line_exit_2_and_nothing_is_lost(regimes, tmp_p
 # --------------------------------------------------------------------------- write lock
 def test_a_result_that_meets_the_write_lock_is_kept_and_stored_when_it_clears(regimes, tmp_path, monkeypatch) -> None:
     db = tmp_path / "r.db"
-    monkeypatch.setattr(schema, "make_engine", lambda url, writer=False: make_engine(url, writer=writer, busy_timeout_ms=200))
-    real = driver.store_result if hasattr(driver, "store_result") else __import__("nutribench.store.jobs").store.jobs.store_result
+    monkeypatch.setattr(
+        schema, "make_engine", lambda url, writer=False: make_engine(url, writer=writer, busy_timeout_ms=200)
+    )
+    real = (
+        driver.store_result
+        if hasattr(driver, "store_result")
+        else __import__("nutribench.store.jobs").store.jobs.store_result
+    )
     holding, blocker = threading.Event(), []
 
     def hold_lock() -> None:
@@ -189,8 +228,26 @@ def test_a_result_still_locked_when_the_run_stops_is_named_in_one_line(regimes, 
         raise KeyboardInterrupt  # Ctrl-C while the result waits for the lock
 
     patch_store(monkeypatch, locked_then_ctrl_c)
-    res = CliRunner().invoke(app, ["run", "--db", str(db), "--regimes", "run0", "--algos", "ppo", "--seeds", "0",
-                                   "--episodes", "20", "--eval-episodes", "1", "--workers", "1"])  # fmt: skip
+    res = CliRunner().invoke(
+        app,
+        [
+            "run",
+            "--db",
+            str(db),
+            "--regimes",
+            "run0",
+            "--algos",
+            "ppo",
+            "--seeds",
+            "0",
+            "--episodes",
+            "20",
+            "--eval-episodes",
+            "1",
+            "--workers",
+            "1",
+        ],
+    )
     assert res.exit_code == 130, res.output
     lines = [ln for ln in res.output.splitlines() if "could not be stored" in ln]
     assert len(lines) == 1 and "run0" in lines[0] and "ppo" in lines[0], res.output

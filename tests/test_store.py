@@ -29,10 +29,12 @@ def make_0001(db: Path) -> None:
         upgrade_connection(conn, "0001")
         conn.execute(text("INSERT INTO regimes VALUES (1, 'run0', 1, 'aa', '{}', NULL, '2026-01-01')"))
         conn.execute(text("INSERT INTO agent_configs VALUES (1, 'ppo', 'ppo', 1, 'bb', '{}', NULL, '2026-01-01')"))
-        conn.execute(text(
-            "INSERT INTO jobs (id, regime_id, agent_config_id, seed, episodes, eval_episodes, status, attempt, failures, "
-            "episodes_done, created_at) VALUES (1, 1, 1, 0, 2, 0, 'done', 1, 0, 2, '2026-01-01')"
-        ))  # fmt: skip
+        conn.execute(
+            text(
+                "INSERT INTO jobs (id, regime_id, agent_config_id, seed, episodes, eval_episodes, status, attempt, failures, "
+                "episodes_done, created_at) VALUES (1, 1, 1, 0, 2, 0, 'done', 1, 0, 2, '2026-01-01')"
+            )
+        )
         for k in range(2):
             conn.execute(text(f"INSERT INTO episodes VALUES (1, 'train', {k}, -1.5, 3, 0.5, 0.1, 1, 1, 1, NULL, 0.2)"))
     engine.dispose()
@@ -49,7 +51,9 @@ def test_create_from_empty_matches_the_models(tmp_path: Path) -> None:
         names = set(inspect(conn).get_table_names())
         assert {"regimes", "agent_configs", "jobs", "episodes", "eval_steps", "alembic_version"} <= names
         assert set(inspect(conn).get_view_names()) == set(VIEWS)
-        diff = compare_metadata(MigrationContext.configure(conn, opts={"include_object": _include, "compare_type": True}), Base.metadata)
+        diff = compare_metadata(
+            MigrationContext.configure(conn, opts={"include_object": _include, "compare_type": True}), Base.metadata
+        )
         cols = [c[1] for c in conn.execute(text("PRAGMA table_info(episode_metrics)"))]
         assert tuple(cols) == EPISODE_METRICS_COLUMNS
         cols = [c[1] for c in conn.execute(text("PRAGMA table_info(eval_trajectories)"))]
@@ -62,13 +66,17 @@ def test_create_from_empty_matches_the_models(tmp_path: Path) -> None:
 def test_upgrade_from_0001_keeps_the_data(tmp_path: Path) -> None:
     db = tmp_path / "old.db"
     make_0001(db)
-    with pytest.raises(StoreError, match=r"revision 0001, this nutribench needs 0004: run `nutribench run --upgrade-only"):
+    with pytest.raises(
+        StoreError, match=r"revision 0001, this nutribench needs 0004: run `nutribench run --upgrade-only"
+    ):
         open_store(db)  # readers refuse, with the command that fixes it
     res = CliRunner().invoke(app, ["run", "--upgrade-only", "--db", str(db)])
     assert res.exit_code == 0 and "upgraded from 0001" in res.output, res.output
     store = open_store(db)
     with store.engine.connect() as conn:
-        diff = compare_metadata(MigrationContext.configure(conn, opts={"include_object": _include, "compare_type": True}), Base.metadata)
+        diff = compare_metadata(
+            MigrationContext.configure(conn, opts={"include_object": _include, "compare_type": True}), Base.metadata
+        )
         assert conn.execute(text("SELECT count(*) FROM eval_steps")).scalar() == 0
     store.dispose()
     assert diff == []
@@ -101,7 +109,10 @@ def test_bad_databases_are_one_line_errors(tmp_path: Path) -> None:
         (dict(db=foreign, writer=True), "holds tables (customers...) but no nutribench schema"),
         (dict(db=newer, writer=True), "unknown to this nutribench"),
         (dict(db="postgresql+nope://u@h/x"), "cannot use this database URL"),
-        (dict(db="postgresql+psycopg://u:secret@127.0.0.1:1/x"), "u:***@127.0.0.1:1/x: connection failed"),  # nobody listens
+        (
+            dict(db="postgresql+psycopg://u:secret@127.0.0.1:1/x"),
+            "u:***@127.0.0.1:1/x: connection failed",
+        ),  # nobody listens
         (dict(db="://x"), "not a valid SQLAlchemy URL"),
     ]
     for kwargs, message in cases:
@@ -122,7 +133,9 @@ def test_a_reader_does_not_wait_for_a_writer(tmp_path: Path) -> None:
             w.begin()  # BEGIN IMMEDIATE: holds the write lock until the end of this block
             w.execute(text("UPDATE jobs SET status = 'failed' WHERE id = 1"))
             with reader.engine.connect() as r:
-                r.exec_driver_sql("PRAGMA busy_timeout = 0")  # a reader that had to wait would fail: "database is locked"
+                r.exec_driver_sql(
+                    "PRAGMA busy_timeout = 0"
+                )  # a reader that had to wait would fail: "database is locked"
                 assert r.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
                 assert r.execute(text("SELECT status FROM jobs WHERE id = 1")).scalar() == "done"
             w.commit()

@@ -28,11 +28,23 @@ def test_vector_env_equals_single_envs(regime):
         np.testing.assert_allclose(vr, [x[1] for x in res], rtol=0, atol=1e-12)
         assert vtrunc.tolist() == [x[3] for x in res]
         assert vterm.tolist() == [x[2] for x in res]
-        for key in ("state", "distance", "overshoot", "foods_consumed", "reward_progress", "reward_comfort", "reward_overshoot"):
+        for key in (
+            "state",
+            "distance",
+            "overshoot",
+            "foods_consumed",
+            "reward_progress",
+            "reward_comfort",
+            "reward_overshoot",
+        ):
             np.testing.assert_allclose(
-                np.asarray(vinfo[key], dtype=float), np.stack([np.asarray(x[4][key], dtype=float) for x in res]), atol=1e-12
+                np.asarray(vinfo[key], dtype=float),
+                np.stack([np.asarray(x[4][key], dtype=float) for x in res]),
+                atol=1e-12,
             )
-        np.testing.assert_allclose(venv.pending_by_horizon(), np.stack([e.pending_by_horizon() for e in singles]), atol=1e-12)
+        np.testing.assert_allclose(
+            venv.pending_by_horizon(), np.stack([e.pending_by_horizon() for e in singles]), atol=1e-12
+        )
 
 
 def test_next_step_autoreset():

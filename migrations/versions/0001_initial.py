@@ -87,11 +87,17 @@ def upgrade() -> None:
         sa.CheckConstraint(
             "status IN ('pending', 'running', 'done', 'failed', 'interrupted')", name=op.f("ck_jobs_status")
         ),
-        sa.ForeignKeyConstraint(["agent_config_id"], ["agent_configs.id"], name=op.f("fk_jobs_agent_config_id_agent_configs")),
+        sa.ForeignKeyConstraint(
+            ["agent_config_id"], ["agent_configs.id"], name=op.f("fk_jobs_agent_config_id_agent_configs")
+        ),
         sa.ForeignKeyConstraint(["regime_id"], ["regimes.id"], name=op.f("fk_jobs_regime_id_regimes")),
         sa.PrimaryKeyConstraint("id", name=op.f("pk_jobs")),
         sa.UniqueConstraint(
-            "regime_id", "agent_config_id", "seed", "episodes", "eval_episodes",
+            "regime_id",
+            "agent_config_id",
+            "seed",
+            "episodes",
+            "eval_episodes",
             name=op.f("uq_jobs_regime_id_agent_config_id_seed_episodes_eval_episodes"),
         ),
     )

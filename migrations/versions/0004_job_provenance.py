@@ -58,6 +58,7 @@ JOIN agent_configs a ON a."id" = j."agent_config_id"
 WHERE j."fake" = false
 """
 
+
 def upgrade() -> None:
     op.execute("DROP VIEW IF EXISTS episode_metrics")
     op.execute("DROP VIEW IF EXISTS eval_trajectories")

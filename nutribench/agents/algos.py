@@ -103,9 +103,12 @@ class DoubleDQN(DQN):
             discounts = data.discounts if data.discounts is not None else self.gamma
             with th.no_grad():
                 target = double_dqn_target(
-                    self.q_net(data.next_observations), self.q_net_target(data.next_observations),
-                    data.rewards, data.dones, discounts,
-                )  # fmt: skip
+                    self.q_net(data.next_observations),
+                    self.q_net_target(data.next_observations),
+                    data.rewards,
+                    data.dones,
+                    discounts,
+                )
             current = th.gather(self.q_net(data.observations), dim=1, index=data.actions.long())
             loss = F.smooth_l1_loss(current, target)
             losses.append(loss.item())
@@ -127,7 +130,9 @@ class DoubleDQN(DQN):
 ACTION_STREAM_SALT = 27_182
 
 
-def build_model(cfg: Any, env: VecEnv, seed: int, horizon: int, cls: type[BaseAlgorithm] | None = None) -> BaseAlgorithm:
+def build_model(
+    cfg: Any, env: VecEnv, seed: int, horizon: int, cls: type[BaseAlgorithm] | None = None
+) -> BaseAlgorithm:
     """The SB3 algorithm object for config ``cfg`` on ``env`` (CPU, seeded, silent).
 
     ``cls`` replaces the config's class by another taking the same arguments (the speed
@@ -150,54 +155,93 @@ def model_arguments(cfg: Any, horizon: int) -> tuple[type[BaseAlgorithm], dict[s
     seed, device, verbosity and gamma, which :func:`build_model` adds)."""
     if isinstance(cfg, MCConfig):
         return MonteCarloAC, dict(
-            policy="MlpPolicy", n_steps=horizon, learning_rate=cfg.learning_rate, gae_lambda=1.0,
-            ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm,
-            use_rms_prop=False, normalize_advantage=False,
+            policy="MlpPolicy",
+            n_steps=horizon,
+            learning_rate=cfg.learning_rate,
+            gae_lambda=1.0,
+            ent_coef=cfg.ent_coef,
+            vf_coef=cfg.vf_coef,
+            max_grad_norm=cfg.max_grad_norm,
+            use_rms_prop=False,
+            normalize_advantage=False,
             policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch),
-        )  # fmt: skip
+        )
     if isinstance(cfg, PPOConfig):
         # SB3 warns when batch_size does not divide n_steps; whole days per rollout matter more
         # here than equal minibatches (500 = 7 x 64 + 52).
         warnings.filterwarnings("ignore", message="You have specified a mini-batch size", module="stable_baselines3")
         return PPO, dict(
-            policy="MlpPolicy", learning_rate=cfg.learning_rate, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
-            n_epochs=cfg.n_epochs, gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range,
-            ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm,
+            policy="MlpPolicy",
+            learning_rate=cfg.learning_rate,
+            n_steps=cfg.n_steps,
+            batch_size=cfg.batch_size,
+            n_epochs=cfg.n_epochs,
+            gae_lambda=cfg.gae_lambda,
+            clip_range=cfg.clip_range,
+            ent_coef=cfg.ent_coef,
+            vf_coef=cfg.vf_coef,
+            max_grad_norm=cfg.max_grad_norm,
             normalize_advantage=cfg.normalize_advantage,
             policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch),
-        )  # fmt: skip
+        )
     if isinstance(cfg, GRUPPOConfig):
         return GRUPPO, dict(
-            learning_rate=cfg.learning_rate, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
-            n_epochs=cfg.n_epochs, gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range,
-            ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm,
-            normalize_advantage=cfg.normalize_advantage, hidden_size=cfg.hidden_size,
+            learning_rate=cfg.learning_rate,
+            n_steps=cfg.n_steps,
+            batch_size=cfg.batch_size,
+            n_epochs=cfg.n_epochs,
+            gae_lambda=cfg.gae_lambda,
+            clip_range=cfg.clip_range,
+            ent_coef=cfg.ent_coef,
+            vf_coef=cfg.vf_coef,
+            max_grad_norm=cfg.max_grad_norm,
+            normalize_advantage=cfg.normalize_advantage,
+            hidden_size=cfg.hidden_size,
             sequence_length=cfg.sequence_length,
-        )  # fmt: skip
+        )
     if isinstance(cfg, DDQNConfig):
         return DoubleDQN, dict(
-            policy="MlpPolicy", learning_rate=LinearSchedule(cfg.learning_rate_start, cfg.learning_rate_end, end_fraction=1.0),
-            buffer_size=cfg.buffer_size, learning_starts=cfg.learning_starts, batch_size=cfg.batch_size,
-            n_steps=cfg.n_step, max_grad_norm=cfg.max_grad_norm,
-            target_update_interval=cfg.target_update_interval, train_freq=cfg.train_freq,
-            gradient_steps=cfg.gradient_steps, exploration_initial_eps=cfg.exploration_initial_eps,
-            exploration_final_eps=cfg.exploration_final_eps, exploration_fraction=cfg.exploration_fraction,
-            tau=1.0, policy_kwargs=dict(net_arch=list(cfg.net_arch)),
-        )  # fmt: skip
+            policy="MlpPolicy",
+            learning_rate=LinearSchedule(cfg.learning_rate_start, cfg.learning_rate_end, end_fraction=1.0),
+            buffer_size=cfg.buffer_size,
+            learning_starts=cfg.learning_starts,
+            batch_size=cfg.batch_size,
+            n_steps=cfg.n_step,
+            max_grad_norm=cfg.max_grad_norm,
+            target_update_interval=cfg.target_update_interval,
+            train_freq=cfg.train_freq,
+            gradient_steps=cfg.gradient_steps,
+            exploration_initial_eps=cfg.exploration_initial_eps,
+            exploration_final_eps=cfg.exploration_final_eps,
+            exploration_fraction=cfg.exploration_fraction,
+            tau=1.0,
+            policy_kwargs=dict(net_arch=list(cfg.net_arch)),
+        )
     if isinstance(cfg, SACConfig):
         return DiscreteSAC, dict(
-            policy="MlpPolicy", actor_learning_rate=cfg.actor_learning_rate, critic_learning_rate=cfg.critic_learning_rate,
-            buffer_size=cfg.buffer_size, learning_starts=cfg.learning_starts, batch_size=cfg.batch_size,
-            tau=cfg.tau, alpha=cfg.alpha, train_freq=cfg.train_freq, gradient_steps=cfg.gradient_steps,
+            policy="MlpPolicy",
+            actor_learning_rate=cfg.actor_learning_rate,
+            critic_learning_rate=cfg.critic_learning_rate,
+            buffer_size=cfg.buffer_size,
+            learning_starts=cfg.learning_starts,
+            batch_size=cfg.batch_size,
+            tau=cfg.tau,
+            alpha=cfg.alpha,
+            train_freq=cfg.train_freq,
+            gradient_steps=cfg.gradient_steps,
             net_arch=list(cfg.net_arch),
-        )  # fmt: skip
+        )
     raise TypeError(f"no builder for config {type(cfg).__name__}")
 
 
 #: SB3 classes by algo, for loading saved models.
 MODEL_CLASSES: dict[str, type[BaseAlgorithm]] = {
-    "mc": MonteCarloAC, "ddqn": DoubleDQN, "ppo": PPO, "sac": DiscreteSAC, "gru_ppo": GRUPPO,
-}  # fmt: skip
+    "mc": MonteCarloAC,
+    "ddqn": DoubleDQN,
+    "ppo": PPO,
+    "sac": DiscreteSAC,
+    "gru_ppo": GRUPPO,
+}
 
 
 def episode_entropy(model: Any, obs: np.ndarray) -> float | None:

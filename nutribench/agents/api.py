@@ -39,8 +39,8 @@ from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
 from nutribench.agents.algos import episode_entropy
-from nutribench.agents.registry import ALGORITHMS, algorithm, load_model, loader_entry_point, make_model
 from nutribench.agents.config import agent_config_content, load_agent_config, parse_agent_config
+from nutribench.agents.registry import ALGORITHMS, algorithm, load_model, loader_entry_point, make_model
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.env.metrics import EpisodeRecorder
 from nutribench.env.sb3 import NutriRLSB3VecEnv
@@ -52,6 +52,7 @@ CLIP_OBS = 10.0
 NORM_EPS = 1e-8
 
 EpisodeFn = Callable[[dict[str, Any]], None]
+
 
 def vec_normalize_path(model_path: str | Path) -> Path:
     """Where the ``VecNormalize`` statistics of a saved model live: ``m.zip`` -> ``m.vecnormalize.pkl``."""
@@ -149,7 +150,10 @@ class TrainedAgent:
             "config": agent_config_content(self.config),
             "obs_mean": None if self.obs_mean is None else self.obs_mean.tolist(),
             "obs_var": None if self.obs_var is None else self.obs_var.tolist(),
-            "provenance": {**self.provenance, **{k: meta[k] for k in ("nutribench_version", "git_commit", "git_dirty")}},
+            "provenance": {
+                **self.provenance,
+                **{k: meta[k] for k in ("nutribench_version", "git_commit", "git_dirty")},
+            },
         }
         _write_atomically(path.with_suffix(".json"), lambda tmp: tmp.write_text(json.dumps(side, indent=1)))
         return path
@@ -191,7 +195,11 @@ class EpisodeMetrics(BaseCallback):
     def _on_step(self) -> bool:
         self._obs.append(np.array(self.model._last_obs[0], dtype=np.float32))
         for metrics in self.recorder.record(self.base_env.last_rewards, self.locals["dones"], self.base_env.last_info):
-            row = {"episode": len(self.episodes), **metrics, "entropy": episode_entropy(self.model, np.stack(self._obs))}
+            row = {
+                "episode": len(self.episodes),
+                **metrics,
+                "entropy": episode_entropy(self.model, np.stack(self._obs)),
+            }
             self._obs.clear()
             self.episodes.append(row)
             if self.on_episode is not None:
@@ -259,7 +267,12 @@ def make_train_env(env_cfg: EnvConfig, cfg: Any) -> tuple[NutriRLSB3VecEnv, VecE
     if not (cfg.normalize_obs or cfg.normalize_reward):
         return base, base
     env = VecNormalize(
-        base, norm_obs=cfg.normalize_obs, norm_reward=cfg.normalize_reward, gamma=cfg.gamma, clip_obs=CLIP_OBS, epsilon=NORM_EPS
+        base,
+        norm_obs=cfg.normalize_obs,
+        norm_reward=cfg.normalize_reward,
+        gamma=cfg.gamma,
+        clip_obs=CLIP_OBS,
+        epsilon=NORM_EPS,
     )
     return base, env
 
@@ -294,12 +307,24 @@ def train(
         recorder = EpisodeMetrics(base, cfg.algo, episodes, on_episode)
         model.learn(total_timesteps=episodes * horizon, callback=recorder)
     rms: RunningMeanStd | None = env.obs_rms if cfg.normalize_obs else None  # type: ignore[union-attr]
-    provenance = {"regime": env_cfg.name, "regime_version": env_cfg.version, "regime_sha256": env_cfg.sha256,
-                  "agent_config": cfg.name, "agent_config_version": cfg.version, "seed": seed, "episodes": episodes}  # fmt: skip
+    provenance = {
+        "regime": env_cfg.name,
+        "regime_version": env_cfg.version,
+        "regime_sha256": env_cfg.sha256,
+        "agent_config": cfg.name,
+        "agent_config_version": cfg.version,
+        "seed": seed,
+        "episodes": episodes,
+    }
     agent = TrainedAgent(
-        model, cfg.algo, cfg, None if rms is None else rms.mean.copy(), None if rms is None else rms.var.copy(),
-        vec_normalize=env if isinstance(env, VecNormalize) else None, provenance=provenance,
-    )  # fmt: skip
+        model,
+        cfg.algo,
+        cfg,
+        None if rms is None else rms.mean.copy(),
+        None if rms is None else rms.var.copy(),
+        vec_normalize=env if isinstance(env, VecNormalize) else None,
+        provenance=provenance,
+    )
     agent.train_episodes = recorder.episodes
     return agent
 
@@ -314,7 +339,9 @@ class EvalResult:
     steps: list[dict[str, Any]]
 
 
-def evaluate(agent: TrainedAgent, regime: str | EnvConfig, food_streams: np.ndarray, record_steps: bool = True) -> EvalResult:
+def evaluate(
+    agent: TrainedAgent, regime: str | EnvConfig, food_streams: np.ndarray, record_steps: bool = True
+) -> EvalResult:
     """Greedy play of ``agent`` on the given days ``(n, horizon)``, all days side by side."""
     env_cfg = load_env_config(regime)
     streams = np.asarray(food_streams)
@@ -334,11 +361,18 @@ def evaluate(agent: TrainedAgent, regime: str | EnvConfig, food_streams: np.ndar
         if record_steps:
             s = np.asarray(info["state"]).reshape(n, 3)
             for j in range(n):
-                steps.append({"episode": j, "step": t + 1, "food": int(streams[j, t]), "action": int(actions[j]),
-                              "C": float(s[j, 0]), "F": float(s[j, 1]), "P": float(s[j, 2]), "reward": float(rewards[j])})  # fmt: skip
+                steps.append(
+                    {
+                        "episode": j,
+                        "step": t + 1,
+                        "food": int(streams[j, t]),
+                        "action": int(actions[j]),
+                        "C": float(s[j, 0]),
+                        "F": float(s[j, 1]),
+                        "P": float(s[j, 2]),
+                        "reward": float(rewards[j]),
+                    }
+                )
     seen_arr = np.stack(seen, axis=1)  # (n, H, obs_dim)
-    rows = [
-        {"episode": j, **m, "entropy": episode_entropy(agent.model, seen_arr[j])}
-        for j, m in enumerate(finished)
-    ]
+    rows = [{"episode": j, **m, "entropy": episode_entropy(agent.model, seen_arr[j])} for j, m in enumerate(finished)]
     return EvalResult(rows, steps)

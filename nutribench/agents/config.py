@@ -129,7 +129,9 @@ class SACConfig(_FeedForward):
     gradient_steps: PosInt
 
 
-EntryPoint = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*:[A-Za-z_][A-Za-z0-9_]*$")]
+EntryPoint = Annotated[
+    str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*:[A-Za-z_][A-Za-z0-9_]*$")
+]
 
 
 class ExternalConfig(BaseModel):
@@ -163,9 +165,13 @@ AgentConfig = Annotated[
 ]
 #: The config model of each ``algo`` key: the five built-in algorithms, then plug-ins.
 MODELS: dict[str, type[BaseModel]] = {
-    "mc": MCConfig, "ddqn": DDQNConfig, "ppo": PPOConfig, "sac": SACConfig, "gru_ppo": GRUPPOConfig,
+    "mc": MCConfig,
+    "ddqn": DDQNConfig,
+    "ppo": PPOConfig,
+    "sac": SACConfig,
+    "gru_ppo": GRUPPOConfig,
     "external": ExternalConfig,
-}  # fmt: skip
+}
 
 
 def agents_dir() -> Path:
@@ -232,7 +238,7 @@ def parse_agent_config(data: dict[str, Any], source: str | Path = "<dict>") -> A
     if algo not in MODELS:
         raise ConfigError(
             f"{source}: algo: unknown algorithm {algo!r}: known are {', '.join(MODELS)} "
-            "(an algorithm of your own: algo = \"external\" with entry_point = \"package.module:make_agent\")"
+            '(an algorithm of your own: algo = "external" with entry_point = "package.module:make_agent")'
         )
     try:
         return MODELS[algo].model_validate(data)

@@ -125,12 +125,14 @@ def make_model(cfg: Any, env: Any, seed: int, horizon: int) -> Any:
     if not cfg.entry_point:
         raise ConfigError(
             f"agent config {cfg.name}: algo 'external' without entry_point can only hold recorded results; "
-            "add entry_point = \"package.module:make_agent\" to train it"
+            'add entry_point = "package.module:make_agent" to train it'
         )
     model = import_entry_point(cfg.entry_point)(dict(cfg.params), env, seed)
     for method in ("learn", "predict", "save"):
         if not callable(getattr(model, method, None)):
-            raise ConfigError(f"{cfg.entry_point} returned a {type(model).__name__} without {method}(): it needs SB3's learn, predict and save")
+            raise ConfigError(
+                f"{cfg.entry_point} returned a {type(model).__name__} without {method}(): it needs SB3's learn, predict and save"
+            )
     return model
 
 

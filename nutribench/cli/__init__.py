@@ -25,7 +25,12 @@ from nutribench.cli.regimes import regimes_app
 from nutribench.cli.report import report_cmd
 from nutribench.cli.run import run_cmd, status_cmd
 
-app = typer.Typer(no_args_is_help=True, add_completion=False, rich_markup_mode=None, help="NutriRL: RL under delayed state transitions.")
+app = typer.Typer(
+    no_args_is_help=True,
+    add_completion=False,
+    rich_markup_mode=None,
+    help="NutriRL: RL under delayed state transitions.",
+)
 app.add_typer(regimes_app, name="regimes")
 app.command("baselines")(baselines)
 app.command("train")(train_cmd)

@@ -26,7 +26,14 @@ def baselines(
     rows = baseline_table(names, episodes=episodes, seed=seed)
     headers = ["regime", "policy", "return", "foods", "final distance", "overshoot ratio"]
     cells = [
-        [r["regime"], r["policy"], f"{r['return']:.2f}", f"{r['foods']:.2f}", f"{r['final_distance']:.3f}", f"{r['overshoot_ratio']:.3f}"]
+        [
+            r["regime"],
+            r["policy"],
+            f"{r['return']:.2f}",
+            f"{r['foods']:.2f}",
+            f"{r['final_distance']:.3f}",
+            f"{r['overshoot_ratio']:.3f}",
+        ]
         for r in rows
     ]
     if markdown:
@@ -51,7 +58,14 @@ def train_cmd(
     save: Annotated[Optional[Path], typer.Option(help="save the trained model here (.zip + .json)")] = None,
 ) -> None:
     """Train one agent in the foreground, then evaluate it greedily and print the metrics."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
 
     from nutribench.agents import eval_food_streams, evaluate, load_agent_config, train
     from nutribench.agents.api import vec_normalize_path
@@ -64,8 +78,14 @@ def train_cmd(
     if save is not None and not save.parent.is_dir():
         raise UserError(f"--save {save}: folder {save.parent} does not exist")
     recent: list[dict] = []
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[stats]}"),
-               TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[stats]}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
     with Progress(*columns, console=console, transient=False) as progress:
         task = progress.add_task(f"{cfg.name} on {env_cfg.name}, seed {seed}", total=episodes, stats="")
 
@@ -78,15 +98,32 @@ def train_cmd(
 
         agent = train(env_cfg, cfg, seed=seed, episodes=episodes, on_episode=on_episode)
     result = evaluate(agent, env_cfg, eval_food_streams(env_cfg, seed, eval_episodes), record_steps=False)
-    table = Table("eval day", "return", "foods", "final distance", "overshoot ratio", "final C/F/P", title="greedy evaluation")
+    table = Table(
+        "eval day", "return", "foods", "final distance", "overshoot ratio", "final C/F/P", title="greedy evaluation"
+    )
     for r in result.episodes:
-        table.add_row(str(r["episode"]), f"{r['return']:.2f}", str(r["foods"]), f"{r['final_distance']:.3f}",
-                      f"{r['overshoot_ratio']:.2f}", f"{r['final_C']:.2f} / {r['final_F']:.2f} / {r['final_P']:.2f}")  # fmt: skip
+        table.add_row(
+            str(r["episode"]),
+            f"{r['return']:.2f}",
+            str(r["foods"]),
+            f"{r['final_distance']:.3f}",
+            f"{r['overshoot_ratio']:.2f}",
+            f"{r['final_C']:.2f} / {r['final_F']:.2f} / {r['final_P']:.2f}",
+        )
     n = len(result.episodes)
     mean = lambda k: sum(r[k] for r in result.episodes) / n  # noqa: E731
-    table.add_row("mean", f"{mean('return'):.2f}", f"{mean('foods'):.2f}", f"{mean('final_distance'):.3f}", f"{mean('overshoot_ratio'):.2f}", "")
+    table.add_row(
+        "mean",
+        f"{mean('return'):.2f}",
+        f"{mean('foods'):.2f}",
+        f"{mean('final_distance'):.3f}",
+        f"{mean('overshoot_ratio'):.2f}",
+        "",
+    )
     console.print(table)
     if save is not None:
         path = agent.save(save)
         extra = [p.name for p in (vec_normalize_path(path), path.with_suffix(".json")) if p.is_file()]
-        console.print(f"model saved to {path} (+ {', '.join(extra)}; README \"Agents\" shows how to load it with plain SB3)")
+        console.print(
+            f'model saved to {path} (+ {", ".join(extra)}; README "Agents" shows how to load it with plain SB3)'
+        )

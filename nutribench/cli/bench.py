@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
@@ -9,7 +10,11 @@ from rich.table import Table
 
 from nutribench.cli.common import DEVICE_HELP, UserError, console, split_csv, user_errors
 
-bench_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Benchmarks: env and training throughput, status speed, learnability.")
+bench_app = typer.Typer(
+    no_args_is_help=True,
+    rich_markup_mode=None,
+    help="Benchmarks: env and training throughput, status speed, learnability.",
+)
 
 
 @bench_app.command("env")
@@ -56,45 +61,76 @@ def bench_train_cmd(
     names = split_csv(algos, list(ALGOS), "algorithm")
     load_env_config(regime)
     rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats)
-    table = Table("run", "env-steps/s (median)", "vs bare SB3 (paired median)", "paper grid CPU-hours",
-                  title=f"training throughput, {regime}, {episodes} days x {repeats}")  # fmt: skip
+    table = Table(
+        "run",
+        "env-steps/s (median)",
+        "vs bare SB3 (paired median)",
+        "paper grid CPU-hours",
+        title=f"training throughput, {regime}, {episodes} days x {repeats}",
+    )
     for r in rows:
         ratio = f"{r['vs_bare']:.3f}" if "vs_bare" in r else ""
         table.add_row(r["what"], f"{r['steps_per_s']:,.0f}", ratio, f"{r['paper_grid_cpu_hours']:.1f}")
     console.print(table)
     total = sum(r["paper_grid_cpu_hours"] for r in rows if not r["bare"])
-    console.print(f"paper grid (7 regimes x 5 seeds x 5000 days per algorithm, all 5 algorithms): ~{total:.0f} CPU-hours")
+    console.print(
+        f"paper grid (7 regimes x 5 seeds x 5000 days per algorithm, all 5 algorithms): ~{total:.0f} CPU-hours"
+    )
     if engine == "sb3":
         return
     from nutribench.bench import bench_train_batched
     from nutribench.bench_engines import BATCHED_ALGOS
 
     sb3_rate = {r["algo"]: r["steps_per_s"] for r in rows if not r["bare"]}
-    table = Table("algo", "K", "env-steps/s (median)", "vs SB3 engine", "MFLOP / env step", "matmul GFLOP/s",
-                  "share of floor", "paper grid wall h", title=f"batched engine, {episodes} days x {repeats}, batches on all cores")  # fmt: skip
+    table = Table(
+        "algo",
+        "K",
+        "env-steps/s (median)",
+        "vs SB3 engine",
+        "MFLOP / env step",
+        "matmul GFLOP/s",
+        "share of floor",
+        "paper grid wall h",
+        title=f"batched engine, {episodes} days x {repeats}, batches on all cores",
+    )
     for algo in [a for a in names if a in BATCHED_ALGOS]:
         b = bench_train_batched(algo, episodes=episodes, repeats=repeats, device=device)
-        table.add_row(algo, str(b["k"]), f"{b['steps_per_s']:,.0f}", f"{b['steps_per_s'] / sb3_rate[algo]:.1f}x",
-                      f"{b['flops_per_step'] / 1e6:.2f}", f"{b['matmul_flops_per_s'] / 1e9:.0f}", f"{100 * b['floor_share']:.0f} %",
-                      f"{b['paper_grid_wall_hours']:.2f} (floor {b['paper_grid_floor_hours']:.2f})")  # fmt: skip
+        table.add_row(
+            algo,
+            str(b["k"]),
+            f"{b['steps_per_s']:,.0f}",
+            f"{b['steps_per_s'] / sb3_rate[algo]:.1f}x",
+            f"{b['flops_per_step'] / 1e6:.2f}",
+            f"{b['matmul_flops_per_s'] / 1e9:.0f}",
+            f"{100 * b['floor_share']:.0f} %",
+            f"{b['paper_grid_wall_hours']:.2f} (floor {b['paper_grid_floor_hours']:.2f})",
+        )
     console.print(table)
     skipped = [a for a in names if a not in BATCHED_ALGOS]
     if skipped:
         console.print(f"not in the batched engine yet: {', '.join(skipped)}", highlight=False)
 
 
-
 @bench_app.command("learn")
 @user_errors
 def bench_learn_cmd(
     algos: Annotated[str, typer.Option(help="'all' or comma-separated agent config names")] = "all",
-    regimes: Annotated[str, typer.Option(help="'all' or comma-separated regimes; run0 carries the targets")] = "run0,run3,run6",
+    regimes: Annotated[
+        str, typer.Option(help="'all' or comma-separated regimes; run0 carries the targets")
+    ] = "run0,run3,run6",
     seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2",
-    episodes: Annotated[str, typer.Option(help="training days: a default, then NAME=N for a config or algorithm")] = "500,ddqn=2000",
+    episodes: Annotated[
+        str, typer.Option(help="training days: a default, then NAME=N for a config or algorithm")
+    ] = "500,ddqn=2000",
     eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")] = 10,
     workers: Annotated[Optional[int], typer.Option(min=1, help="agents trained at once (default: the cores)")] = None,
     markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
-    engine: Annotated[str, typer.Option(help="'sb3' (the reference), or 'batched' (every config's seeds and regimes at once: fast sweeps)")] = "sb3",
+    engine: Annotated[
+        str,
+        typer.Option(
+            help="'sb3' (the reference), or 'batched' (every config's seeds and regimes at once: fast sweeps)"
+        ),
+    ] = "sb3",
     device: Annotated[str, typer.Option(help=f"--engine batched: {DEVICE_HELP} (the SB3 engine: the CPU)")] = "auto",
 ) -> None:
     """Train every agent for a budget over several seeds, evaluate greedily on the fixed
@@ -111,20 +147,31 @@ def bench_learn_cmd(
     default, budgets = parse_budgets(episodes, DEFAULT_BUDGET)
     unknown = sorted(set(budgets) - set(list_agent_configs()) - set(ALGOS))
     if unknown:
-        raise UserError(f"--episodes {episodes!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})")
+        raise UserError(
+            f"--episodes {episodes!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})"
+        )
     check_engine_options(engine, device)
     if engine == "batched":
         from nutribench.engine import BATCHED_ALGOS
 
         other = [n for n in names if load_agent_config(n).algo not in BATCHED_ALGOS]
         if other:
-            raise UserError(f"--engine batched trains {', '.join(BATCHED_ALGOS)} configs, not {', '.join(other)}: use --engine sb3")
+            raise UserError(
+                f"--engine batched trains {', '.join(BATCHED_ALGOS)} configs, not {', '.join(other)}: use --engine sb3"
+            )
     with console.status("training") as status:
         runs = learn_benchmark(
-            names, regime_names, seed_list, budgets=budgets, default_budget=default, eval_episodes=eval_episodes,
-            workers=workers, on_done=lambda r, k, n: status.update(f"{k}/{n} done (last: {r.algo} {r.regime} seed {r.seed})"),
-            engine=engine, device=device,
-        )  # fmt: skip
+            names,
+            regime_names,
+            seed_list,
+            budgets=budgets,
+            default_budget=default,
+            eval_episodes=eval_episodes,
+            workers=workers,
+            on_done=lambda r, k, n: status.update(f"{k}/{n} done (last: {r.algo} {r.regime} seed {r.seed})"),
+            engine=engine,
+            device=device,
+        )
     rows = summarize(runs)
     if markdown:
         console.print(markdown_table(rows), highlight=False, soft_wrap=True)
@@ -146,7 +193,9 @@ def parse_budgets(value: str, default: int) -> tuple[int, dict[str, int]]:
         try:
             days = int(n)
         except ValueError:
-            raise UserError(f"--episodes {item!r}: expected N or NAME=N with N a whole number of days, e.g. 500,ddqn=2000") from None
+            raise UserError(
+                f"--episodes {item!r}: expected N or NAME=N with N a whole number of days, e.g. 500,ddqn=2000"
+            ) from None
         if days < 1:
             raise UserError(f"--episodes {item!r}: the number of days must be >= 1")
         if name:
@@ -159,7 +208,9 @@ def parse_budgets(value: str, default: int) -> tuple[int, dict[str, int]]:
 @bench_app.command("status")
 @user_errors
 def bench_status_cmd(
-    db: Annotated[Optional[str], typer.Option(help="time this database instead of building a synthetic paper grid")] = None,
+    db: Annotated[
+        Optional[str], typer.Option(help="time this database instead of building a synthetic paper grid")
+    ] = None,
     repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 5,
 ) -> None:
     """Time `nutribench status` on a database holding the full paper grid (175 jobs,
@@ -172,8 +223,10 @@ def bench_status_cmd(
     if r["build_seconds"] is not None:
         console.print(f"built {r['db']} in {r['build_seconds']:.0f} s")
     console.print(f"{r['jobs']} jobs, {r['episode_rows']:,} episode rows, {r['db_mb']:.0f} MB")
-    console.print(f"status_table(): {r['status_table_s']:.3f} s   `nutribench status --json`: {r['status_cli_s']:.2f} s "
-                  f"(medians of {repeats}; the CLI figure includes Python start-up)")
+    console.print(
+        f"status_table(): {r['status_table_s']:.3f} s   `nutribench status --json`: {r['status_cli_s']:.2f} s "
+        f"(medians of {repeats}; the CLI figure includes Python start-up)"
+    )
 
 
 @bench_app.command("engines")
@@ -185,7 +238,20 @@ def bench_engines_cmd(
     episodes: Annotated[int, typer.Option(min=1, help="training days per job, both engines")] = 500,
     eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")] = 10,
     markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
-    device: Annotated[str, typer.Option(help=f"the batched engine's: {DEVICE_HELP} (the SB3 engine: the CPU)")] = "auto",
+    device: Annotated[
+        str, typer.Option(help=f"the batched engine's: {DEVICE_HELP} (the SB3 engine: the CPU)")
+    ] = "auto",
+    concurrent: Annotated[
+        bool,
+        typer.Option(
+            "--concurrent",
+            help="train each algorithm's batched jobs beside the SB3 pool, not after it (cores to spare)",
+        ),
+    ] = False,
+    workers: Annotated[Optional[int], typer.Option(min=1, help="SB3 jobs trained at once (default: the cores)")] = None,
+    save: Annotated[
+        Optional[Path], typer.Option(help="also write every agent's evaluation returns (JSON) to this file")
+    ] = None,
 ) -> None:
     """Train with both engines (SB3 and batched) on the same seeds and budget; per algorithm
     and regime the IQM of the evaluation returns with a 95 % bootstrap interval over seeds;
@@ -198,7 +264,18 @@ def bench_engines_cmd(
     names = split_csv(algos, list(BATCHED_ALGOS), "algorithm for the batched engine")
     regime_names = split_csv(regimes, list_regimes(), "regime")
     with console.status("training with both engines"):
-        rows = bench_engines(names, regime_names, list(parse_seeds(seeds)), episodes, eval_episodes, device=device)
+        rows = bench_engines(
+            names,
+            regime_names,
+            list(parse_seeds(seeds)),
+            episodes,
+            eval_episodes,
+            workers=workers,
+            device=device,
+            concurrent=concurrent,
+            save=save,
+            on_done=_report_engine_run,
+        )
     if markdown:
         console.print(markdown_table(rows), highlight=False, soft_wrap=True)
     else:
@@ -207,8 +284,20 @@ def bench_engines_cmd(
             table.add_row(*row_cells(r))
         console.print(table)
     walls = {r["engine"]: r["total_wall_seconds"] for r in rows}
-    console.print(f"wall time: SB3 {walls['sb3']:.0f} s (a process per job, one per core), batched {walls['batched']:.0f} s (one process)",
-                  highlight=False)  # fmt: skip
+    how = "a process per algorithm, beside the SB3 pool" if concurrent else "one process"
+    console.print(
+        f"wall time: SB3 {walls['sb3']:.0f} s (a process per job, one per core), batched {walls['batched']:.0f} s ({how})",
+        highlight=False,
+    )
+
+
+def _report_engine_run(engine: str, run) -> None:
+    mean = sum(e["return"] for e in run.eval_rows) / len(run.eval_rows)
+    console.print(
+        f"{engine} {run.algo} {run.regime} seed {run.seed}: evaluation return {mean:.2f} (mean of "
+        f"{len(run.eval_rows)} days), {run.wall_seconds:.0f} s of training",
+        highlight=False,
+    )
 
 
 def check_engine_options(engine: str, device: str) -> None:

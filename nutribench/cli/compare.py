@@ -14,9 +14,14 @@ from nutribench.cli.common import UserError, console, user_errors
 def compare_cmd(
     a: Annotated[str, typer.Argument(help="agent config A (a name in the database, e.g. gru_ppo)")],
     b: Annotated[str, typer.Argument(help="agent config B, compared with A")],
-    regimes: Annotated[Optional[str], typer.Option("--regimes", help="regimes, comma list (default: every regime both were evaluated on)")] = None,
+    regimes: Annotated[
+        Optional[str],
+        typer.Option("--regimes", help="regimes, comma list (default: every regime both were evaluated on)"),
+    ] = None,
     markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
-    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="results database: a file path or a SQLAlchemy URL")] = "nutribench.db",
+    db: Annotated[
+        str, typer.Option(envvar="NUTRIBENCH_DB", help="results database: a file path or a SQLAlchemy URL")
+    ] = "nutribench.db",
     reps: Annotated[int, typer.Option(min=100, help="bootstrap resamples of the seeds")] = 10_000,
 ) -> None:
     """A - B per regime and over regimes: the mean paired difference of evaluation returns

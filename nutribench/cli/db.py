@@ -9,7 +9,11 @@ import typer
 
 from nutribench.cli.common import console, user_errors
 
-db_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Results databases: copy one into another, export finished jobs to a file, import such a file.")
+db_app = typer.Typer(
+    no_args_is_help=True,
+    rich_markup_mode=None,
+    help="Results databases: copy one into another, export finished jobs to a file, import such a file.",
+)
 
 
 @db_app.command("copy")
@@ -29,9 +33,15 @@ def db_copy_cmd(
 @user_errors
 def db_export_cmd(
     out: Annotated[Path, typer.Argument(help="archive to write (.npz)")],
-    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="database to read: a SQLite file or SQLAlchemy URL")] = "nutribench.db",
-    algos: Annotated[str | None, typer.Option(help="only these agent configs (comma-separated names); default: all")] = None,
-    regimes: Annotated[str | None, typer.Option(help="only these regimes (comma-separated names); default: all")] = None,
+    db: Annotated[
+        str, typer.Option(envvar="NUTRIBENCH_DB", help="database to read: a SQLite file or SQLAlchemy URL")
+    ] = "nutribench.db",
+    algos: Annotated[
+        str | None, typer.Option(help="only these agent configs (comma-separated names); default: all")
+    ] = None,
+    regimes: Annotated[
+        str | None, typer.Option(help="only these regimes (comma-separated names); default: all")
+    ] = None,
 ) -> None:
     """Write DB's done jobs (configs, job rows, episodes, evaluation steps) to one portable file."""
     from nutribench.store.archive import export_results
@@ -41,14 +51,20 @@ def db_export_cmd(
 
     counts = export_results(db, out, listed(algos), listed(regimes))
     size = out.stat().st_size / 1e6
-    console.print(f"{out}: {counts['jobs']} jobs, {counts['episodes']:,} episodes, {counts['eval_steps']:,} evaluation steps ({size:.1f} MB)", highlight=False)
+    console.print(
+        f"{out}: {counts['jobs']} jobs, {counts['episodes']:,} episodes, {counts['eval_steps']:,} evaluation steps ({size:.1f} MB)",
+        highlight=False,
+    )
 
 
 @db_app.command("import")
 @user_errors
 def db_import_cmd(
     archive: Annotated[Path, typer.Argument(help="archive written by `nutribench db export`")],
-    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="database to merge into (created if missing): a SQLite file or URL")] = "nutribench.db",
+    db: Annotated[
+        str,
+        typer.Option(envvar="NUTRIBENCH_DB", help="database to merge into (created if missing): a SQLite file or URL"),
+    ] = "nutribench.db",
 ) -> None:
     """Merge an archive's jobs into DB: new jobs are added, pending ones take the archived
     result, jobs DB already has done are kept as they are. The archive is checked whole
@@ -58,5 +74,8 @@ def db_import_cmd(
 
     counts = import_results(archive, db)
     # the database as display_url shows it: a URL's password is never printed
-    console.print(f"{archive} -> {display_url(database_url(db))}: {counts['imported']} jobs imported ({counts['episodes']:,} episodes, "
-                  f"{counts['eval_steps']:,} evaluation steps), {counts['kept']} already done there and kept", highlight=False)  # fmt: skip
+    console.print(
+        f"{archive} -> {display_url(database_url(db))}: {counts['imported']} jobs imported ({counts['episodes']:,} episodes, "
+        f"{counts['eval_steps']:,} evaluation steps), {counts['kept']} already done there and kept",
+        highlight=False,
+    )

@@ -15,10 +15,14 @@ from nutribench.errors import UserError
 @user_errors
 def evaluate_cmd(
     model: Annotated[Path, typer.Option(help="the saved model (a file or folder your loader reads)")],
-    entry_point: Annotated[str, typer.Option(help="package.module:load, called as load(MODEL) -> a policy with predict() or a callable")],
+    entry_point: Annotated[
+        str, typer.Option(help="package.module:load, called as load(MODEL) -> a policy with predict() or a callable")
+    ],
     name: Annotated[str, typer.Option(help="the agent's name in the database ([a-z][a-z0-9_]*)")],
     regime: Annotated[str, typer.Option(help="regime name or regime file")] = "run0",
-    seed: Annotated[int, typer.Option(min=0, help="picks the evaluation days (the same for every agent of this seed)")] = 0,
+    seed: Annotated[
+        int, typer.Option(min=0, help="picks the evaluation days (the same for every agent of this seed)")
+    ] = 0,
     version: Annotated[int, typer.Option(min=1, help="the agent's version")] = 1,
     eval_episodes: Annotated[int, typer.Option(min=1, help="evaluation days (5: the paper's)")] = 5,
     db: Annotated[str, typer.Option(help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
@@ -35,11 +39,20 @@ def evaluate_cmd(
         policy = load(str(model))
     except Exception as e:  # the user's loader: its failure is theirs to read, in one line
         raise UserError(f"--entry-point {entry_point} could not load {model}: {type(e).__name__}: {e}") from None
-    rec = Recorder(db, name=name, regime=regime, seed=seed, version=version, eval_episodes=eval_episodes,
-                   source=(f"{entry_point} {model.resolve()}", file_sha256(model)))  # fmt: skip
+    rec = Recorder(
+        db,
+        name=name,
+        regime=regime,
+        seed=seed,
+        version=version,
+        eval_episodes=eval_episodes,
+        source=(f"{entry_point} {model.resolve()}", file_sha256(model)),
+    )
     with rec:
         rows = rec.evaluate(policy)
     mean = sum(r["return"] for r in rows) / len(rows)
     foods = sum(r["foods"] for r in rows) / len(rows)
-    console.print(f"{name} on {rec.regime_config.name} seed {seed}: {len(rows)} evaluation days, mean return {mean:.2f}, "
-                  f"{foods:.1f} foods a day; stored in {db}")  # fmt: skip
+    console.print(
+        f"{name} on {rec.regime_config.name} seed {seed}: {len(rows)} evaluation days, mean return {mean:.2f}, "
+        f"{foods:.1f} foods a day; stored in {db}"
+    )

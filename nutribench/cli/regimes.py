@@ -9,7 +9,9 @@ from rich.table import Table
 
 from nutribench.cli.common import UserError, console, err_console, user_errors
 
-regimes_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Inspect, check and regenerate the regime files.")
+regimes_app = typer.Typer(
+    no_args_is_help=True, rich_markup_mode=None, help="Inspect, check and regenerate the regime files."
+)
 
 
 @regimes_app.command("list")
@@ -43,7 +45,11 @@ def regimes_check(
         fresh = regenerate(cfg.regime, cfg.catalog)
         if fresh.foods != cfg.regime.foods:
             bad += 1
-            err_console.print(f"{cfg.path}: foods: values differ from a fresh draw with seed {cfg.regime.seed}", highlight=False, soft_wrap=True)
+            err_console.print(
+                f"{cfg.path}: foods: values differ from a fresh draw with seed {cfg.regime.seed}",
+                highlight=False,
+                soft_wrap=True,
+            )
         else:
             console.print(f"{cfg.path}: ok (sha256 {cfg.sha256[:12]})", highlight=False, soft_wrap=True)
     if bad:
@@ -56,16 +62,38 @@ RANGES_HELP = "with --from: {what} ranges in steps per nutrient, NUTRIENT=LOW-HI
 @regimes_app.command("generate")
 @user_errors
 def regimes_generate(
-    name: Annotated[str, typer.Argument(
-        help="an existing regime (name or path) whose [foods] table is redrawn; with --from, the name of the new regime")],
-    source: Annotated[Optional[str], typer.Option(
-        "--from", help="create regime NAME from this regime (name or path): its ranges (but --tau/--sigma), catalog and reward, and a fresh draw")] = None,
-    tau: Annotated[Optional[str], typer.Option(help=RANGES_HELP.format(what="tau", example="C=10-12,F=18-20,P=14-16"))] = None,
-    sigma: Annotated[Optional[str], typer.Option(help=RANGES_HELP.format(what="sigma", example="C=5-8.4,F=9-14,P=7-11.2"))] = None,
-    seed: Annotated[Optional[int], typer.Option(
-        help="with --from: seed of the draw (default: derived from NAME, the first 4 bytes of sha256(NAME), so the same command gives the same file)")] = None,
-    description: Annotated[Optional[str], typer.Option(help="with --from: the description (default: the ranges and the --from regime)")] = None,
-    write: Annotated[bool, typer.Option(help="write the file (else print it); with --from it goes to the regimes folder as NAME.toml")] = False,
+    name: Annotated[
+        str,
+        typer.Argument(
+            help="an existing regime (name or path) whose [foods] table is redrawn; with --from, the name of the new regime"
+        ),
+    ],
+    source: Annotated[
+        Optional[str],
+        typer.Option(
+            "--from",
+            help="create regime NAME from this regime (name or path): its ranges (but --tau/--sigma), catalog and reward, and a fresh draw",
+        ),
+    ] = None,
+    tau: Annotated[
+        Optional[str], typer.Option(help=RANGES_HELP.format(what="tau", example="C=10-12,F=18-20,P=14-16"))
+    ] = None,
+    sigma: Annotated[
+        Optional[str], typer.Option(help=RANGES_HELP.format(what="sigma", example="C=5-8.4,F=9-14,P=7-11.2"))
+    ] = None,
+    seed: Annotated[
+        Optional[int],
+        typer.Option(
+            help="with --from: seed of the draw (default: derived from NAME, the first 4 bytes of sha256(NAME), so the same command gives the same file)"
+        ),
+    ] = None,
+    description: Annotated[
+        Optional[str], typer.Option(help="with --from: the description (default: the ranges and the --from regime)")
+    ] = None,
+    write: Annotated[
+        bool,
+        typer.Option(help="write the file (else print it); with --from it goes to the regimes folder as NAME.toml"),
+    ] = False,
     force: Annotated[bool, typer.Option(help="with --from: overwrite an existing NAME.toml")] = False,
 ) -> None:
     """Redraw a regime's per-food tau and sigma from its [ranges] and seed, or, with --from,
@@ -77,7 +105,9 @@ def regimes_generate(
         extra = (("--tau", tau), ("--sigma", sigma), ("--seed", seed), ("--description", description))
         given = [opt for opt, value in extra if value is not None]
         if given:
-            raise UserError(f"regimes generate {name}: {given[0]} needs --from REGIME (it creates a new regime), e.g. --from run6")
+            raise UserError(
+                f"regimes generate {name}: {given[0]} needs --from REGIME (it creates a new regime), e.g. --from run6"
+            )
         _redraw(name, write)
     else:
         _create(name, source, tau=tau, sigma=sigma, seed=seed, description=description, write=write, force=force)
@@ -103,8 +133,17 @@ def _redraw(regime: str, write: bool) -> None:
         typer.echo(regime_to_toml(fresh), nl=False)
 
 
-def _create(name: str, source: str, *, tau: str | None, sigma: str | None, seed: int | None,
-            description: str | None, write: bool, force: bool) -> None:
+def _create(
+    name: str,
+    source: str,
+    *,
+    tau: str | None,
+    sigma: str | None,
+    seed: int | None,
+    description: str | None,
+    write: bool,
+    force: bool,
+) -> None:
     """Regime ``name`` from ``source`` with new ranges: printed, or written to the regimes folder."""
     from nutribench.config import EnvConfig, FoodCatalog, RewardConfig, load_env_config, load_model, regimes_dir
     from nutribench.config.generate import check_regime_name, derive_regime, parse_ranges, regime_to_toml, write_regime
@@ -129,5 +168,8 @@ def _create(name: str, source: str, *, tau: str | None, sigma: str | None, seed:
         raise UserError(f"{path} already exists: pass --force to overwrite it, or choose another NAME")
     write_regime(new, path)
     note = " (replaced the old file: if results were stored under it, bump its version)" if replaced else ""
-    console.print(f"wrote {path} (seed {new.seed}); use it as regime={name} or --regimes {name}{note}",
-                  highlight=False, soft_wrap=True)
+    console.print(
+        f"wrote {path} (seed {new.seed}); use it as regime={name} or --regimes {name}{note}",
+        highlight=False,
+        soft_wrap=True,
+    )

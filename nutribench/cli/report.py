@@ -27,7 +27,9 @@ def parse_figs(values: list[str] | None) -> list[int]:
         return list(FIGURES)
     bad = [v for v in items if not (v.isdigit() and int(v) in FIGURES)]
     if bad:
-        raise UserError(f"--fig {', '.join(bad)}: the figures are {', '.join(map(str, FIGURES))} (repeat --fig or give a comma list)")
+        raise UserError(
+            f"--fig {', '.join(bad)}: the figures are {', '.join(map(str, FIGURES))} (repeat --fig or give a comma list)"
+        )
     return list(dict.fromkeys(int(v) for v in items))
 
 
@@ -59,19 +61,45 @@ def parse_pair(value: str | None) -> list[str] | None:
 
 @user_errors
 def report_cmd(
-    fig: Annotated[Optional[list[str]], typer.Option("--fig", help="figure 1-4, or 5 (aggregate scores over regimes and seeds) (repeat or comma list; 'all')")] = None,
-    table: Annotated[Optional[list[str]], typer.Option("--table", help="table 1-6, 7... (the database's other agent configs; or a config's name), 'results', 'training' or 'aggregate' (repeat or comma list; 'all')")] = None,
+    fig: Annotated[
+        Optional[list[str]],
+        typer.Option(
+            "--fig", help="figure 1-4, or 5 (aggregate scores over regimes and seeds) (repeat or comma list; 'all')"
+        ),
+    ] = None,
+    table: Annotated[
+        Optional[list[str]],
+        typer.Option(
+            "--table",
+            help="table 1-6, 7... (the database's other agent configs; or a config's name), 'results', 'training' or 'aggregate' (repeat or comma list; 'all')",
+        ),
+    ] = None,
     all_: Annotated[bool, typer.Option("--all", help="every figure and table the database supports")] = False,
-    algos: Annotated[Optional[str], typer.Option("--algos", help="agent configs drawn in the figures and tables, comma list (default: every config in the database)")] = None,
-    pair: Annotated[Optional[str], typer.Option("--pair", help="the two agent configs of figure 4, comma list (default: ppo,gru_ppo)")] = None,
-    trajectory: Annotated[bool, typer.Option("--trajectory", help="one evaluation episode's trajectory (needs --algo --regime --seed)")] = False,
+    algos: Annotated[
+        Optional[str],
+        typer.Option(
+            "--algos",
+            help="agent configs drawn in the figures and tables, comma list (default: every config in the database)",
+        ),
+    ] = None,
+    pair: Annotated[
+        Optional[str],
+        typer.Option("--pair", help="the two agent configs of figure 4, comma list (default: ppo,gru_ppo)"),
+    ] = None,
+    trajectory: Annotated[
+        bool, typer.Option("--trajectory", help="one evaluation episode's trajectory (needs --algo --regime --seed)")
+    ] = False,
     algo: Annotated[Optional[str], typer.Option(help="agent config of the trajectory, e.g. ppo")] = None,
     regime: Annotated[Optional[str], typer.Option(help="regime of the trajectory, e.g. run3")] = None,
     seed: Annotated[Optional[int], typer.Option(help="seed of the trajectory's job")] = None,
     episode: Annotated[int, typer.Option(min=0, help="evaluation episode of the trajectory")] = 0,
-    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="results database: a file path or a SQLAlchemy URL")] = "nutribench.db",
+    db: Annotated[
+        str, typer.Option(envvar="NUTRIBENCH_DB", help="results database: a file path or a SQLAlchemy URL")
+    ] = "nutribench.db",
     out: Annotated[Path, typer.Option(help="folder the files are written to")] = Path("reports"),
-    reference_episodes: Annotated[int, typer.Option(min=1, help="episodes per simple policy and regime for the reference lines of figures 3/4")] = 200,
+    reference_episodes: Annotated[
+        int, typer.Option(min=1, help="episodes per simple policy and regime for the reference lines of figures 3/4")
+    ] = 200,
 ) -> None:
     """Regenerate the paper's figures (PNG + PDF) and tables (Markdown, LaTeX, CSV) from the database."""
     from nutribench.report.build import build_report, build_trajectory
@@ -91,10 +119,18 @@ def report_cmd(
     log = lambda msg: err_console.print(msg, style="yellow", highlight=False, soft_wrap=True)  # noqa: E731
     paths: list[Path] = []
     if figs or tables or all_:
-        paths += build_report(db, out, figs=figs, tables=tables, all=all_, reference_episodes=reference_episodes, log=log,
-                              algos=selected, pair=pair_names)  # fmt: skip
+        paths += build_report(
+            db,
+            out,
+            figs=figs,
+            tables=tables,
+            all=all_,
+            reference_episodes=reference_episodes,
+            log=log,
+            algos=selected,
+            pair=pair_names,
+        )
     if trajectory:
         paths += build_trajectory(db, algo, regime, seed, episode=episode, out=out)
     for p in paths:
         console.print(str(p), highlight=False, soft_wrap=True)
-

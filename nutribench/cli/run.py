@@ -52,26 +52,55 @@ def _check_models_dir(models_dir: Path | None, db: str) -> None:
     if found is None or found.is_dir() and os.access(found, os.W_OK | os.X_OK):
         return
     why = f"{found} is not a writable folder" if found.is_dir() else f"{found} is a file, not a folder"
-    raise RunError(f"{what}: {why}: give a folder for the trained models" + (" (--models-dir)" if models_dir is None else ""))
+    raise RunError(
+        f"{what}: {why}: give a folder for the trained models" + (" (--models-dir)" if models_dir is None else "")
+    )
 
 
 @user_errors
 def run_cmd(
-    preset: Annotated[Optional[str], typer.Option(help=f"grid preset: {', '.join(PRESETS)} (default {DEFAULT_PRESET}); options below override its fields")] = None,
+    preset: Annotated[
+        Optional[str],
+        typer.Option(
+            help=f"grid preset: {', '.join(PRESETS)} (default {DEFAULT_PRESET}); options below override its fields"
+        ),
+    ] = None,
     regimes: Annotated[str, typer.Option(help="'all' or comma-separated regime names (run0..run6)")] = "all",
-    algos: Annotated[str, typer.Option(help="'all' or comma-separated agent config names (mc, ddqn, ppo, sac, gru_ppo)")] = "all",
+    algos: Annotated[
+        str, typer.Option(help="'all' or comma-separated agent config names (mc, ddqn, ppo, sac, gru_ppo)")
+    ] = "all",
     seeds: Annotated[Optional[str], typer.Option(help="comma-separated non-negative integers, e.g. 0,21,9")] = None,
     episodes: Annotated[Optional[int], typer.Option(help="training episodes per job")] = None,
     eval_episodes: Annotated[Optional[int], typer.Option(help="evaluation episodes per job (default 5)")] = None,
-    workers: Annotated[Optional[int], typer.Option(min=1, help="jobs at once (default: core count; never more than jobs)")] = None,
+    workers: Annotated[
+        Optional[int], typer.Option(min=1, help="jobs at once (default: core count; never more than jobs)")
+    ] = None,
     executor: Annotated[str, typer.Option(help="'local' (a process per job) or 'dask://HOST:PORT'")] = "local",
     db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
-    models_dir: Annotated[Optional[Path], typer.Option(help="where trained models go (default: models/ next to the db)")] = None,
-    upgrade_only: Annotated[bool, typer.Option("--upgrade-only", help="create or upgrade the database schema, then exit")] = False,
-    retry_failed: Annotated[bool, typer.Option("--retry-failed", help="try again the jobs that failed 3 times (once their cause is fixed)")] = False,
-    engine: Annotated[str, typer.Option(help="'sb3' (a job per worker) or 'batched' (the jobs of one agent config trained together, one batch per worker)")] = "sb3",
-    batch_size: Annotated[int, typer.Option(min=1, help="--engine batched: at most this many jobs in a batch (a batch's jobs are stored when it ends)")] = 35,
-    device: Annotated[str, typer.Option(help=f"{DEVICE_HELP}; the SB3 engine trains on the CPU (auto or cpu)")] = "auto",
+    models_dir: Annotated[
+        Optional[Path], typer.Option(help="where trained models go (default: models/ next to the db)")
+    ] = None,
+    upgrade_only: Annotated[
+        bool, typer.Option("--upgrade-only", help="create or upgrade the database schema, then exit")
+    ] = False,
+    retry_failed: Annotated[
+        bool, typer.Option("--retry-failed", help="try again the jobs that failed 3 times (once their cause is fixed)")
+    ] = False,
+    engine: Annotated[
+        str,
+        typer.Option(
+            help="'sb3' (a job per worker) or 'batched' (the jobs of one agent config trained together, one batch per worker)"
+        ),
+    ] = "sb3",
+    batch_size: Annotated[
+        int,
+        typer.Option(
+            min=1, help="--engine batched: at most this many jobs in a batch (a batch's jobs are stored when it ends)"
+        ),
+    ] = 35,
+    device: Annotated[
+        str, typer.Option(help=f"{DEVICE_HELP}; the SB3 engine trains on the CPU (auto or cpu)")
+    ] = "auto",
 ) -> None:
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
     from nutribench.store import open_store
@@ -79,23 +108,29 @@ def run_cmd(
     if upgrade_only:
         store = open_store(db, writer=True)
         store.dispose()
-        what = "created" if store.created else (f"upgraded from {store.upgraded_from}" if store.upgraded_from else "already")
+        what = (
+            "created"
+            if store.created
+            else (f"upgraded from {store.upgraded_from}" if store.upgraded_from else "already")
+        )
         console.print(f"{store.display}: schema {what} at revision {store.revision}", highlight=False)
         return
     from nutribench.agents.config import list_agent_configs
     from nutribench.config import list_regimes
+    from nutribench.scheduler.batching import check_engine
     from nutribench.scheduler.driver import default_job_fn, run_grid
+    from nutribench.scheduler.grid import resolve_grid
     from nutribench.scheduler.registration import load_grid_configs
     from nutribench.store.jobs import MAX_FAILURES
-    from nutribench.scheduler.batching import check_engine
-    from nutribench.scheduler.grid import resolve_grid
 
     grid = resolve_grid(
         preset=preset,
         regimes=split_csv(regimes, list_regimes(), "regime"),
         algos=split_csv(algos, list_agent_configs(), "algorithm"),
-        seeds=seeds, episodes=episodes, eval_episodes=eval_episodes,
-    )  # fmt: skip
+        seeds=seeds,
+        episodes=episodes,
+        eval_episodes=eval_episodes,
+    )
     _check_executor(executor)
     check_engine(engine, batch_size, device)
     _check_models_dir(models_dir, db)
@@ -104,17 +139,31 @@ def run_cmd(
     job_fn = default_job_fn()
     try:
         summary = run_grid(
-            db, grid.regimes, grid.algos, grid.seeds, grid.episodes, grid.eval_episodes, workers=workers,
-            executor=executor, job_fn=job_fn, models_dir=models_dir, display=True, retry_failed=retry_failed, engine=engine,
-            max_batch=batch_size, device=device,
-        )  # fmt: skip
+            db,
+            grid.regimes,
+            grid.algos,
+            grid.seeds,
+            grid.episodes,
+            grid.eval_episodes,
+            workers=workers,
+            executor=executor,
+            job_fn=job_fn,
+            models_dir=models_dir,
+            display=True,
+            retry_failed=retry_failed,
+            engine=engine,
+            max_batch=batch_size,
+            device=device,
+        )
     except KeyboardInterrupt:  # before any job started (opening the database, claiming)
         raise typer.Exit(130) from None
     parts = [f"{summary.done} done", f"{summary.failed} failed", f"{summary.skipped} already done"]
     if summary.busy:
         parts.append(f"{summary.busy} running in another driver")
     if summary.given_up:
-        parts.append(f"{summary.given_up} failed {MAX_FAILURES} times (not retried: see `nutribench status`; `--retry-failed` tries them again)")
+        parts.append(
+            f"{summary.given_up} failed {MAX_FAILURES} times (not retried: see `nutribench status`; `--retry-failed` tries them again)"
+        )
     if summary.interrupted:
         parts.append(f"{summary.interrupted} interrupted (the next run resumes them)")
     err_console.print(f"{summary.total} jobs: " + ", ".join(parts), highlight=False)
@@ -146,10 +195,16 @@ def render_status(report) -> None:
     table = Table("regime", "algo", "budget", "done", "run", "fail", "pend", "wall", "left", title="nutribench status")
     for r in report.rows:
         table.add_row(
-            f"{r.regime} v{r.regime_version}", f"{r.algo} v{r.algo_version}", str(r.budget), str(r.done),
-            str(r.running), f"[red]{r.failed}[/]" if r.failed else "0", str(r.pending),
-            format_duration(r.wall_seconds), format_duration(r.remaining_seconds),
-        )  # fmt: skip
+            f"{r.regime} v{r.regime_version}",
+            f"{r.algo} v{r.algo_version}",
+            str(r.budget),
+            str(r.done),
+            str(r.running),
+            f"[red]{r.failed}[/]" if r.failed else "0",
+            str(r.pending),
+            format_duration(r.wall_seconds),
+            format_duration(r.remaining_seconds),
+        )
     console.print(table)
     t = report.totals
     console.print(
@@ -161,10 +216,17 @@ def render_status(report) -> None:
     if t.get("orphaned"):
         console.print(
             f"[yellow]{t['orphaned']} of the pending jobs were running in a driver whose heartbeat stopped "
-            f"(crashed or killed): the next `nutribench run` takes them over[/]", highlight=False,
-        )  # fmt: skip
+            f"(crashed or killed): the next `nutribench run` takes them over[/]",
+            highlight=False,
+        )
     if report.errors:
         errs = Table("regime", "algo", "seed", "failures", "last error", title="failed jobs")
         for e in report.errors:
-            errs.add_row(e["regime"], e["algo"], str(e["seed"]), f"{e['failures']}" + ("" if e["retried"] else " (gave up)"), e["error"])
+            errs.add_row(
+                e["regime"],
+                e["algo"],
+                str(e["seed"]),
+                f"{e['failures']}" + ("" if e["retried"] else " (gave up)"),
+                e["error"],
+            )
         console.print(errs)

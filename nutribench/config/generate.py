@@ -69,7 +69,9 @@ def check_regime_name(name: str) -> str:
 def _parse_range(item: str, option: str) -> tuple[str, dict[str, float]]:
     m = _RANGE.match(item)
     if not m:
-        raise ConfigError(f"{option} '{item}': malformed range: write NUTRIENT=LOW-HIGH, e.g. {option} C=10-12,F=18-20,P=14-16")
+        raise ConfigError(
+            f"{option} '{item}': malformed range: write NUTRIENT=LOW-HIGH, e.g. {option} C=10-12,F=18-20,P=14-16"
+        )
     key, low, high = m.group(1).upper(), float(m.group(2)), float(m.group(3))
     if key not in NUTRIENTS:
         raise ConfigError(f"{option} '{item}': unknown nutrient '{m.group(1)}': use C, F or P")
@@ -113,7 +115,9 @@ def derive_regime(
     reward files, and per-food delays freshly drawn with ``seed`` (default
     :func:`default_seed` of ``name``)."""
     if seed is not None and seed < 0:
-        raise ConfigError(f"new regime {name}: seed {seed} is negative: give a seed >= 0 (or none, to derive it from the name)")
+        raise ConfigError(
+            f"new regime {name}: seed {seed} is negative: give a seed >= 0 (or none, to derive it from the name)"
+        )
     ranges = source.ranges.model_dump(mode="json")
     for what, new in (("tau", tau), ("sigma", sigma)):
         ranges[what].update(new or {})
@@ -153,7 +157,11 @@ def _nutrients(d: dict[str, float]) -> str:
 
 
 def _range_table(d: dict[str, dict[str, float]]) -> str:
-    return "{ " + ", ".join(f"{n} = {{ low = {_num(d[n]['low'])}, high = {_num(d[n]['high'])} }}" for n in NUTRIENTS) + " }"
+    return (
+        "{ "
+        + ", ".join(f"{n} = {{ low = {_num(d[n]['low'])}, high = {_num(d[n]['high'])} }}" for n in NUTRIENTS)
+        + " }"
+    )
 
 
 def regime_to_toml(regime: Regime) -> str:

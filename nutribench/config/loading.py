@@ -41,9 +41,7 @@ def regimes_dir() -> Path:
     for candidate in (package.parent / "regimes", package / "_regimes"):
         if candidate.is_dir():
             return candidate
-    raise ConfigError(
-        "no regimes folder found: set NUTRIBENCH_REGIMES to the folder holding run0.toml .. run6.toml"
-    )
+    raise ConfigError("no regimes folder found: set NUTRIBENCH_REGIMES to the folder holding run0.toml .. run6.toml")
 
 
 def _format_loc(loc: tuple[Any, ...]) -> str:
@@ -177,7 +175,7 @@ def check_regime_name(regime: Regime, path: Path) -> None:
     if regime.name != path.stem:
         raise ConfigError(
             f"{path}: name = \"{regime.name}\" differs from the file name '{path.stem}': "
-            f"set name = \"{path.stem}\" or rename the file to {regime.name}.toml"
+            f'set name = "{path.stem}" or rename the file to {regime.name}.toml'
         )
 
 

@@ -171,7 +171,6 @@ class Regime(_Strict):
                     x, r = getattr(values, n), getattr(ranges, n)
                     if not r.contains(x):
                         raise ValueError(
-                            f"foods.{key}.{what}.{n} = {x} is outside ranges.{what}.{n} "
-                            f"[{r.low}, {r.high}]"
+                            f"foods.{key}.{what}.{n} = {x} is outside ranges.{what}.{n} [{r.low}, {r.high}]"
                         )
         return self

@@ -37,12 +37,16 @@ def supports(cfg: Any, horizon: int | None = None) -> str | None:
     if algo not in BATCHED_ALGOS:
         return f"agent config {name!r} ({algo}): the batched engine trains {', '.join(BATCHED_ALGOS)} only; use --engine sb3"
     if algo in _REPLAY_ALGOS and cfg.normalize_reward:
-        return (f"agent config {name!r} ({algo}): the batched engine does not scale replayed rewards (normalize_reward = true); "
-                "set normalize_reward = false or use --engine sb3")  # fmt: skip
+        return (
+            f"agent config {name!r} ({algo}): the batched engine does not scale replayed rewards (normalize_reward = true); "
+            "set normalize_reward = false or use --engine sb3"
+        )
     if algo == "gru_ppo" and horizon is not None and (cfg.sequence_length != horizon or cfg.n_steps % horizon):
-        return (f"agent config {name!r} (gru_ppo): the batched engine trains on whole days, so sequence_length "
-                f"({cfg.sequence_length}) must be the horizon ({horizon}) and n_steps ({cfg.n_steps}) a multiple of it; "
-                "use --engine sb3")  # fmt: skip
+        return (
+            f"agent config {name!r} (gru_ppo): the batched engine trains on whole days, so sequence_length "
+            f"({cfg.sequence_length}) must be the horizon ({horizon}) and n_steps ({cfg.n_steps}) a multiple of it; "
+            "use --engine sb3"
+        )
     return None
 
 

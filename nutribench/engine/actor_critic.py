@@ -62,22 +62,50 @@ class OnPolicySettings:
         """PPO's fields as written; MC as ``algos.model_arguments`` builds it: a rollout of one
         day, one step on all of it, lambda 1, no advantage normalisation; GRU-PPO's batch in
         whole days."""
-        common = dict(algo=cfg.algo, learning_rate=cfg.learning_rate, gamma=cfg.gamma, ent_coef=cfg.ent_coef,
-                      vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm)  # fmt: skip
+        common = dict(
+            algo=cfg.algo,
+            learning_rate=cfg.learning_rate,
+            gamma=cfg.gamma,
+            ent_coef=cfg.ent_coef,
+            vf_coef=cfg.vf_coef,
+            max_grad_norm=cfg.max_grad_norm,
+        )
         if cfg.algo == "mc":
-            return cls(**common, n_steps=horizon, batch_size=horizon, n_epochs=1, gae_lambda=1.0, clip_range=None,
-                       normalize_advantage=False)  # fmt: skip
+            return cls(
+                **common,
+                n_steps=horizon,
+                batch_size=horizon,
+                n_epochs=1,
+                gae_lambda=1.0,
+                clip_range=None,
+                normalize_advantage=False,
+            )
         if cfg.algo == "ppo":
-            return cls(**common, n_steps=cfg.n_steps, batch_size=cfg.batch_size, n_epochs=cfg.n_epochs,
-                       gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, normalize_advantage=cfg.normalize_advantage)  # fmt: skip
+            return cls(
+                **common,
+                n_steps=cfg.n_steps,
+                batch_size=cfg.batch_size,
+                n_epochs=cfg.n_epochs,
+                gae_lambda=cfg.gae_lambda,
+                clip_range=cfg.clip_range,
+                normalize_advantage=cfg.normalize_advantage,
+            )
         if cfg.algo == "gru_ppo":  # as GRUPPO.sequences_per_batch
-            return cls(**common, n_steps=cfg.n_steps, batch_size=max(1, round(cfg.batch_size / cfg.sequence_length)),
-                       n_epochs=cfg.n_epochs, gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range,
-                       normalize_advantage=cfg.normalize_advantage, sequence_length=cfg.sequence_length)  # fmt: skip
+            return cls(
+                **common,
+                n_steps=cfg.n_steps,
+                batch_size=max(1, round(cfg.batch_size / cfg.sequence_length)),
+                n_epochs=cfg.n_epochs,
+                gae_lambda=cfg.gae_lambda,
+                clip_range=cfg.clip_range,
+                normalize_advantage=cfg.normalize_advantage,
+                sequence_length=cfg.sequence_length,
+            )
         raise ValueError(f"no on-policy settings for {cfg.algo!r}")
 
-    def update(self, net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: Rollout,
-               permutations: np.ndarray) -> dict[str, np.ndarray]:  # fmt: skip
+    def update(
+        self, net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: Rollout, permutations: np.ndarray
+    ) -> dict[str, np.ndarray]:
         """The algorithm's update of the K agents on one rollout."""
         if self.clip_range is None:
             return a2c_update(net, optimizer, rollout, self)
@@ -108,8 +136,15 @@ class StackedActorCritic:
     ``:n_actions`` and ``n_actions``), so that both heads are one batched product.
     """
 
-    def __init__(self, k: int, obs_dim: int, net_arch: list[int], n_actions: int = 2, generators: list[th.Generator] | None = None,
-                 device: th.device | str | None = None):  # fmt: skip
+    def __init__(
+        self,
+        k: int,
+        obs_dim: int,
+        net_arch: list[int],
+        n_actions: int = 2,
+        generators: list[th.Generator] | None = None,
+        device: th.device | str | None = None,
+    ):
         """Initialised on the CPU from ``generators`` (one per agent), then moved to ``device``."""
         sizes = [obs_dim, *net_arch]
         self.n_actions = n_actions
@@ -117,9 +152,17 @@ class StackedActorCritic:
         self.params: list[th.Tensor] = []
 
         for n_in, n_out in zip(sizes[:-1], sizes[1:]):
-            self.params += [orthogonal(k, n_in, n_out, GAINS[0], generators).requires_grad_(), th.zeros(k, 1, n_out, requires_grad=True)]
-        head = th.cat([orthogonal(k, sizes[-1], n_actions, GAINS[2], generators),
-                       orthogonal(k, sizes[-1], 1, GAINS[3], generators)], dim=2)  # fmt: skip
+            self.params += [
+                orthogonal(k, n_in, n_out, GAINS[0], generators).requires_grad_(),
+                th.zeros(k, 1, n_out, requires_grad=True),
+            ]
+        head = th.cat(
+            [
+                orthogonal(k, sizes[-1], n_actions, GAINS[2], generators),
+                orthogonal(k, sizes[-1], 1, GAINS[3], generators),
+            ],
+            dim=2,
+        )
         self.params += [head.requires_grad_(), th.zeros(k, 1, n_actions + 1, requires_grad=True)]
         self.params = leaves_on(self.params, device)
 
@@ -203,8 +246,15 @@ class Rollout:
     returns: th.Tensor  # (K, T)
 
 
-def gae(rewards: np.ndarray, values: np.ndarray, episode_starts: np.ndarray, last_values: np.ndarray, last_dones: np.ndarray,
-        gamma: float, lam: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def gae(
+    rewards: np.ndarray,
+    values: np.ndarray,
+    episode_starts: np.ndarray,
+    last_values: np.ndarray,
+    last_dones: np.ndarray,
+    gamma: float,
+    lam: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """SB3's ``RolloutBuffer.compute_returns_and_advantage`` for ``(K, T)`` arrays: advantages, returns."""
     k, t_max = rewards.shape
     adv = np.zeros((k, t_max), dtype=np.float32)
@@ -222,8 +272,13 @@ def gae(rewards: np.ndarray, values: np.ndarray, episode_starts: np.ndarray, las
     return adv, adv + values
 
 
-def ppo_update(net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: Rollout, s: OnPolicySettings,
-               permutations: np.ndarray) -> dict[str, np.ndarray]:  # fmt: skip
+def ppo_update(
+    net: StackedActorCritic,
+    optimizer: th.optim.Optimizer,
+    rollout: Rollout,
+    s: OnPolicySettings,
+    permutations: np.ndarray,
+) -> dict[str, np.ndarray]:
     """SB3 ``PPO.train()`` for the K agents: ``permutations (n_epochs, K, T)`` order each
     agent's transitions in each epoch (SB3 draws ``np.random.permutation(T)``). Returns the
     last minibatch's per-agent losses."""
@@ -250,7 +305,9 @@ def ppo_update(net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: 
     return out
 
 
-def a2c_update(net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: Rollout, s: OnPolicySettings) -> dict[str, np.ndarray]:
+def a2c_update(
+    net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: Rollout, s: OnPolicySettings
+) -> dict[str, np.ndarray]:
     """SB3 ``A2C.train()`` for the K agents: one gradient step on the whole rollout (MC)."""
     log_prob, entropy, values = _evaluate_actions(net, rollout.obs, rollout.actions)
     adv = rollout.advantages
@@ -261,7 +318,9 @@ def a2c_update(net: StackedActorCritic, optimizer: th.optim.Optimizer, rollout: 
     return _step(net, optimizer, s, policy_loss, value_loss, -entropy.mean(dim=1))
 
 
-def _evaluate_actions(net: StackedActorCritic, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+def _evaluate_actions(
+    net: StackedActorCritic, obs: th.Tensor, actions: th.Tensor
+) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
     """``log pi(a|s)``, the policy's entropy and the values, each ``(K, B)``."""
     logits, values = net.forward(obs)
     logp_all = th.log_softmax(logits, dim=-1)
@@ -270,8 +329,14 @@ def _evaluate_actions(net: StackedActorCritic, obs: th.Tensor, actions: th.Tenso
     return log_prob, entropy, values
 
 
-def _step(net: StackedActorCritic, optimizer: th.optim.Optimizer, s: OnPolicySettings, policy_loss: th.Tensor,
-          value_loss: th.Tensor, entropy_loss: th.Tensor) -> dict[str, np.ndarray]:  # fmt: skip
+def _step(
+    net: StackedActorCritic,
+    optimizer: th.optim.Optimizer,
+    s: OnPolicySettings,
+    policy_loss: th.Tensor,
+    value_loss: th.Tensor,
+    entropy_loss: th.Tensor,
+) -> dict[str, np.ndarray]:
     """One gradient step on the K agents' losses ``(K,)``: SB3's weighting, per-agent clipping."""
     loss = policy_loss + s.ent_coef * entropy_loss + s.vf_coef * value_loss
     optimizer.zero_grad()

@@ -62,8 +62,23 @@ FORMAT = "nutribench-checkpoint/2"
 _BIT_GENERATORS = {c.__name__: c for c in (np.random.PCG64, np.random.MT19937, np.random.Philox, np.random.SFC64)}
 _OPTIMIZERS = {c.__name__: c for c in (th.optim.Adam, th.optim.AdamW, th.optim.SGD)}
 #: the numpy dtypes of the arrays and scalars a checkpoint may hold (numbers), by ``dtype.str``
-_DTYPES = {np.dtype(t).str: np.dtype(t) for t in (np.bool_, np.int8, np.uint8, np.int16, np.uint16, np.int32, np.uint32,
-                                                   np.int64, np.uint64, np.float16, np.float32, np.float64)}  # fmt: skip
+_DTYPES = {
+    np.dtype(t).str: np.dtype(t)
+    for t in (
+        np.bool_,
+        np.int8,
+        np.uint8,
+        np.int16,
+        np.uint16,
+        np.int32,
+        np.uint32,
+        np.int64,
+        np.uint64,
+        np.float16,
+        np.float32,
+        np.float64,
+    )
+}
 
 _JSON_SCALARS = {type(None), bool, int, str}
 _CLASSES: dict[str, type] = {}  # the engine's classes a checkpoint may hold, by name (:func:`register`)
@@ -139,8 +154,12 @@ class _Encoder:
         if kind in (list, dict) and _is_json(value):  # plain data (a day's metrics): as JSON, inner objects copied
             return {"json": value, "id": n}
         if kind is list and len(value) > 1 and _like_arrays(value):  # (the days drawn): one stacked array
-            return {"stack": self._tensor(value, lambda v: th.from_numpy(np.stack(v))), "dtype": value[0].dtype.str,
-                    "shape": [len(value), *value[0].shape], "id": n}  # fmt: skip
+            return {
+                "stack": self._tensor(value, lambda v: th.from_numpy(np.stack(v))),
+                "dtype": value[0].dtype.str,
+                "shape": [len(value), *value[0].shape],
+                "id": n,
+            }
         if kind is list:
             return {"list": [self.encode(v) for v in value], "id": n}
         if kind is dict:
@@ -148,8 +167,12 @@ class _Encoder:
         if isinstance(value, np.random.Generator):
             return {"rng": self.encode(value.bit_generator.state), "id": n}
         if kind.__name__ in _OPTIMIZERS and _OPTIMIZERS[kind.__name__] is kind:
-            return {"optimizer": kind.__name__, "params": self.encode([list(g["params"]) for g in value.param_groups]),
-                    "state_dict": self.encode(value.state_dict()), "id": n}  # fmt: skip
+            return {
+                "optimizer": kind.__name__,
+                "params": self.encode([list(g["params"]) for g in value.param_groups]),
+                "state_dict": self.encode(value.state_dict()),
+                "id": n,
+            }
         if kind.__name__ in _STATEFUL and hasattr(value, "checkpoint_state"):  # read back as the plain state it gives
             state = value.checkpoint_state()
             self._alive.append(state)
@@ -285,8 +308,11 @@ def _is_json(value: dict | list) -> bool:
 def _like_arrays(values: list[Any]) -> bool:
     """Whether ``values`` are numpy arrays of one dtype (a checkpoint's) and one shape."""
     first = values[0]
-    return (type(first) is np.ndarray and first.dtype.str in _DTYPES
-            and all(type(v) is np.ndarray and v.dtype == first.dtype and v.shape == first.shape for v in values))  # fmt: skip
+    return (
+        type(first) is np.ndarray
+        and first.dtype.str in _DTYPES
+        and all(type(v) is np.ndarray and v.dtype == first.dtype and v.shape == first.shape for v in values)
+    )
 
 
 def _plain_dtype(text: Any) -> np.dtype:
@@ -322,7 +348,9 @@ class Checkpoint:
         self.device = th.device(device)
         self.saved_at = time.monotonic()
         found = any(p.exists() for p in (self.path, self.sidecar, _tmp(self.path)))
-        self._read: tuple[dict[str, Any], dict[str, th.Tensor]] | None = self._refused_as_none(self._load) if found else None
+        self._read: tuple[dict[str, Any], dict[str, th.Tensor]] | None = (
+            self._refused_as_none(self._load) if found else None
+        )
         self._state: dict[str, Any] | None = None
         self._onto: th.device | None = None  # the device ``_state`` was rebuilt onto
         self._started = time.monotonic()
@@ -355,8 +383,11 @@ class Checkpoint:
         try:
             return read()
         except Exception as exc:  # anything not written by this code, damaged, or of another version: start afresh
-            print(f"nutribench: {self.path}: checkpoint refused ({_first_line(exc)}); the batch starts over",
-                  file=sys.stderr, flush=True)  # fmt: skip
+            print(
+                f"nutribench: {self.path}: checkpoint refused ({_first_line(exc)}); the batch starts over",
+                file=sys.stderr,
+                flush=True,
+            )
             return None
 
     def _load(self) -> tuple[dict[str, Any], dict[str, th.Tensor]]:
@@ -372,12 +403,18 @@ class Checkpoint:
                 raise CheckpointRefused(f"its tensors do not match {self.sidecar.name}")
             os.replace(tmp, self.path)  # a save stopped between its two renames: finish it
         if tuple(int(x) for x in th.__version__.split("+")[0].split(".")[:2]) < (2, 6):
-            raise CheckpointRefused("torch < 2.6 does not read tensors safely (CVE-2025-32434): upgrade torch to resume")
+            raise CheckpointRefused(
+                "torch < 2.6 does not read tensors safely (CVE-2025-32434): upgrade torch to resume"
+            )
         try:
             tensors = th.load(self.path, map_location="cpu", weights_only=True)
         except pickle.UnpicklingError as exc:
-            raise CheckpointRefused("its .pt is not a plain dict of tensors (torch.load with weights_only refused it)") from exc
-        if not isinstance(tensors, dict) or not all(isinstance(k, str) and isinstance(v, th.Tensor) for k, v in tensors.items()):
+            raise CheckpointRefused(
+                "its .pt is not a plain dict of tensors (torch.load with weights_only refused it)"
+            ) from exc
+        if not isinstance(tensors, dict) or not all(
+            isinstance(k, str) and isinstance(v, th.Tensor) for k, v in tensors.items()
+        ):
             raise CheckpointRefused("its .pt is not a dict of tensors")
         return meta, tensors
 
@@ -415,8 +452,11 @@ class Checkpoint:
         except OSError as exc:
             for p in (sidecar_tmp,) if renamed else (tmp, sidecar_tmp):
                 p.unlink(missing_ok=True)
-            print(f"nutribench: {self.path}: checkpoint not saved ({_first_line(exc)}); training goes on",
-                  file=sys.stderr, flush=True)  # fmt: skip
+            print(
+                f"nutribench: {self.path}: checkpoint not saved ({_first_line(exc)}); training goes on",
+                file=sys.stderr,
+                flush=True,
+            )
         self.saved_at = time.monotonic()
 
     def remove(self) -> None:

@@ -46,8 +46,14 @@ def q_linears(q_net: th.nn.Module) -> list[th.nn.Linear]:
     return linears(q_net.q_net)
 
 
-def ddqn_update(q: StackedMLP, q_target: StackedMLP, optimizer: th.optim.Optimizer, batch: Batch, learning_rate: float,
-                max_grad_norm: float) -> np.ndarray:  # fmt: skip
+def ddqn_update(
+    q: StackedMLP,
+    q_target: StackedMLP,
+    optimizer: th.optim.Optimizer,
+    batch: Batch,
+    learning_rate: float,
+    max_grad_norm: float,
+) -> np.ndarray:
     """One gradient step of :meth:`DoubleDQN.train` for the K agents; their Huber losses ``(K,)``."""
     for group in optimizer.param_groups:
         group["lr"] = learning_rate
@@ -64,10 +70,15 @@ def ddqn_update(q: StackedMLP, q_target: StackedMLP, optimizer: th.optim.Optimiz
     return loss.detach().cpu().numpy()
 
 
-def train_ddqn_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, episodes: int,
-                       on_episode: AgentEpisodeFn | None = None,
-                       on_update: Callable[[dict[str, Any]], None] | None = None,
-                       checkpoint: Checkpoint | None = None, device: str | th.device = "cpu") -> list[TrainedAgent]:  # fmt: skip
+def train_ddqn_batched(
+    jobs: Sequence[tuple[str | EnvConfig, int]],
+    cfg: Any,
+    episodes: int,
+    on_episode: AgentEpisodeFn | None = None,
+    on_update: Callable[[dict[str, Any]], None] | None = None,
+    checkpoint: Checkpoint | None = None,
+    device: str | th.device = "cpu",
+) -> list[TrainedAgent]:
     """Train one DDQN agent of ``cfg`` per ``(regime, seed)`` of ``jobs`` for ``episodes`` days,
     all at once (resuming from ``checkpoint`` if it holds a state), on ``device``
     (:func:`~nutribench.engine.device.resolve_device`).
@@ -82,7 +93,12 @@ def train_ddqn_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, ep
     envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
     k = envs.k
     sizes = [envs.obs_dim, *cfg.net_arch, 2]
-    q = StackedMLP(k, sizes, generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]], device=device)
+    q = StackedMLP(
+        k,
+        sizes,
+        generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]],
+        device=device,
+    )
     q_target = StackedMLP(k, sizes, device=device)
     q_target.copy_from(q)
     optimizer = make_adam(q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
@@ -101,19 +117,42 @@ def train_ddqn_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, ep
         if steps % cfg.target_update_interval == 0:
             q_target.copy_from(q)
             state["copies"] += 1
-        state["epsilon"] = linear_schedule(cfg.exploration_initial_eps, cfg.exploration_final_eps, cfg.exploration_fraction, progress)
+        state["epsilon"] = linear_schedule(
+            cfg.exploration_initial_eps, cfg.exploration_final_eps, cfg.exploration_fraction, progress
+        )
 
     def update(steps: int, progress: float, batch: Batch) -> None:
         lr = linear_schedule(cfg.learning_rate_start, cfg.learning_rate_end, 1.0, progress)
         losses = ddqn_update(q, q_target, optimizer, batch, lr, cfg.max_grad_norm)
         if on_update is not None:
-            on_update({"steps": steps, "learning_rate": lr, "epsilon": state["epsilon"], "target_copies": state["copies"],
-                       "losses": losses})  # fmt: skip
+            on_update(
+                {
+                    "steps": steps,
+                    "learning_rate": lr,
+                    "epsilon": state["epsilon"],
+                    "target_copies": state["copies"],
+                    "losses": losses,
+                }
+            )
 
-    wall = run_off_policy(envs, cfg, episodes * envs.horizon, act, update, after_step, n_step=cfg.n_step,
-                          checkpoint=checkpoint, model=(q, q_target, optimizer, state), device=device)  # fmt: skip
-    return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: _store(q, q_target, j, model), None, wall / k,
-                             str(device)) for j in range(k)]  # fmt: skip
+    wall = run_off_policy(
+        envs,
+        cfg,
+        episodes * envs.horizon,
+        act,
+        update,
+        after_step,
+        n_step=cfg.n_step,
+        checkpoint=checkpoint,
+        model=(q, q_target, optimizer, state),
+        device=device,
+    )
+    return [
+        as_trained_agent(
+            envs, j, cfg, episodes, lambda model, j=j: _store(q, q_target, j, model), None, wall / k, str(device)
+        )
+        for j in range(k)
+    ]
 
 
 def _store(q: StackedMLP, q_target: StackedMLP, j: int, model: Any) -> None:

@@ -42,8 +42,10 @@ def _check_cuda(name: str | th.device, index: int | None) -> None:
         raise DeviceError(f"--device {name}: CUDA is not available here ({why}); use --device cpu or --device auto")
     count = th.cuda.device_count()
     if index is not None and index >= count:
-        raise DeviceError(f"--device {name}: this machine has {count} CUDA device(s), cuda:0 to cuda:{count - 1}; "
-                          "use one of them, or --device auto")  # fmt: skip
+        raise DeviceError(
+            f"--device {name}: this machine has {count} CUDA device(s), cuda:0 to cuda:{count - 1}; "
+            "use one of them, or --device auto"
+        )
 
 
 def check_device(name: str | th.device) -> None:

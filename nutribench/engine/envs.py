@@ -39,8 +39,9 @@ class AgentEnvs:
     """One env per ``(regime, seed)`` of ``jobs``, stepped together; every day starts and
     ends at once for all agents (one horizon)."""
 
-    def __init__(self, jobs: Sequence[tuple[str | EnvConfig, int]], normalize_obs: bool,
-                 on_episode: AgentEpisodeFn | None = None):  # fmt: skip
+    def __init__(
+        self, jobs: Sequence[tuple[str | EnvConfig, int]], normalize_obs: bool, on_episode: AgentEpisodeFn | None = None
+    ):
         self.env_cfgs = [load_env_config(r) for r, _ in jobs]
         self.seeds = [int(s) for _, s in jobs]
         self.k = len(jobs)
@@ -48,14 +49,18 @@ class AgentEnvs:
         if len(horizons) != 1:
             raise ValueError(f"the agents of one batch need one horizon, got {sorted(horizons)}")
         self.horizon = horizons.pop()
-        self.rng = {name: [np.random.default_rng([salt, seed]) for seed in self.seeds] for name, salt in STREAMS.items()}
+        self.rng = {
+            name: [np.random.default_rng([salt, seed]) for seed in self.seeds] for name, salt in STREAMS.items()
+        }
         by_regime: dict[str, list[int]] = {}
         for j, c in enumerate(self.env_cfgs):
             by_regime.setdefault(c.sha256, []).append(j)
         self.groups = [_Group(self.env_cfgs[js[0]], js) for js in by_regime.values()]
         dims = {g.env.single_observation_space.shape[0] for g in self.groups}
         if len(dims) != 1:
-            raise ValueError(f"the agents of one batch need one observation size (one food catalog), got {sorted(dims)}")
+            raise ValueError(
+                f"the agents of one batch need one observation size (one food catalog), got {sorted(dims)}"
+            )
         self.obs_dim = dims.pop()
         self.obs_stats = RunningStats(self.k, (self.obs_dim,)) if normalize_obs else None
         self.on_episode = on_episode
@@ -67,10 +72,16 @@ class AgentEnvs:
         """What a checkpoint keeps of these envs (:mod:`nutribench.engine.checkpoint`), plain
         data only: the jobs (seeds, regime hashes), the random streams, the statistics, the
         days so far, and each env's and recorder's arrays and counters (their ``_`` attributes)."""
-        return {"seeds": list(self.seeds), "regimes": [c.sha256 for c in self.env_cfgs], "rng": self.rng,
-                "obs_stats": self.obs_stats, "days_drawn": self.days_drawn, "episodes": self.episodes,
-                "entropy": self._entropy,
-                "groups": [{"env": _plain_state(g.env), "recorder": _plain_state(g.recorder)} for g in self.groups]}  # fmt: skip
+        return {
+            "seeds": list(self.seeds),
+            "regimes": [c.sha256 for c in self.env_cfgs],
+            "rng": self.rng,
+            "obs_stats": self.obs_stats,
+            "days_drawn": self.days_drawn,
+            "episodes": self.episodes,
+            "entropy": self._entropy,
+            "groups": [{"env": _plain_state(g.env), "recorder": _plain_state(g.recorder)} for g in self.groups],
+        }
 
     def restore(self, saved: dict[str, Any]) -> None:
         """Take over ``saved`` (:meth:`checkpoint_state` of the same jobs, from a checkpoint),
@@ -79,15 +90,22 @@ class AgentEnvs:
         if saved["seeds"] != self.seeds or saved["regimes"] != [c.sha256 for c in self.env_cfgs]:
             raise ValueError("the checkpoint is of other jobs than this batch's")
         rng = saved["rng"]
-        if (not isinstance(rng, dict) or set(rng) != set(STREAMS)
-                or any(len(rs) != self.k or not all(isinstance(r, np.random.Generator) for r in rs) for rs in rng.values())):  # fmt: skip
+        if (
+            not isinstance(rng, dict)
+            or set(rng) != set(STREAMS)
+            or any(len(rs) != self.k or not all(isinstance(r, np.random.Generator) for r in rs) for rs in rng.values())
+        ):
             raise ValueError("the checkpoint's random streams do not fit this batch")
         if type(saved["obs_stats"]) is not type(self.obs_stats) or len(saved["groups"]) != len(self.groups):
             raise ValueError("the checkpoint's envs do not fit this batch")
         for g, s in zip(self.groups, saved["groups"]):
             _set_plain_state(g.env, s["env"])
             _set_plain_state(g.recorder, s["recorder"])
-        self.rng, self.obs_stats, self._entropy = rng, saved["obs_stats"], np.asarray(saved["entropy"], dtype=np.float64)
+        self.rng, self.obs_stats, self._entropy = (
+            rng,
+            saved["obs_stats"],
+            np.asarray(saved["entropy"], dtype=np.float64),
+        )
         self.days_drawn, self.episodes = list(saved["days_drawn"]), [list(e) for e in saved["episodes"]]
 
     def new_days(self) -> np.ndarray:
@@ -156,15 +174,26 @@ def _set_plain_state(obj: Any, state: dict[str, Any]) -> None:
         raise ValueError(f"the checkpoint's {type(obj).__name__} state does not fit this batch")
     for key, value in state.items():
         have = mine[key]
-        fits = (isinstance(value, np.ndarray) and value.dtype == have.dtype and value.shape == have.shape
-                if isinstance(have, np.ndarray) else type(value) is type(have))  # fmt: skip
+        fits = (
+            isinstance(value, np.ndarray) and value.dtype == have.dtype and value.shape == have.shape
+            if isinstance(have, np.ndarray)
+            else type(value) is type(have)
+        )
         if not fits:
             raise ValueError(f"the checkpoint's {type(obj).__name__}.{key} does not fit this batch")
         setattr(obj, key, value)
 
 
-def as_trained_agent(envs: AgentEnvs, j: int, cfg: Any, episodes: int, store_weights: Callable[[Any], None],
-                     ret_stats: RunningStats | None, wall: float, device: str = "cpu") -> TrainedAgent:  # fmt: skip
+def as_trained_agent(
+    envs: AgentEnvs,
+    j: int,
+    cfg: Any,
+    episodes: int,
+    store_weights: Callable[[Any], None],
+    ret_stats: RunningStats | None,
+    wall: float,
+    device: str = "cpu",
+) -> TrainedAgent:
     """Agent ``j`` of ``envs`` as the SB3 model of its config in its ``VecNormalize``, as
     ``agents.train`` returns it: ``store_weights(model)`` puts the trained weights in (the
     model is on the CPU whatever the ``device`` trained it; its provenance names that device)."""
@@ -177,10 +206,25 @@ def as_trained_agent(envs: AgentEnvs, j: int, cfg: Any, episodes: int, store_wei
         mean, var = obs_stats.mean[j].copy(), obs_stats.var[j].copy()
         env.obs_rms.mean, env.obs_rms.var, env.obs_rms.count = mean.copy(), var.copy(), float(obs_stats.count[j])
     if ret_stats is not None:
-        env.ret_rms.mean, env.ret_rms.var, env.ret_rms.count = float(ret_stats.mean[j]), float(ret_stats.var[j]), float(ret_stats.count[j])
-    provenance = {"regime": env_cfg.name, "regime_version": env_cfg.version, "regime_sha256": env_cfg.sha256,
-                  "agent_config": cfg.name, "agent_config_version": cfg.version, "seed": seed, "episodes": episodes,
-                  "engine": "batched", "device": device, "batch_wall_seconds_per_agent": wall}  # fmt: skip
-    agent = TrainedAgent(model, cfg.algo, cfg, mean, var, vec_normalize=env if hasattr(env, "obs_rms") else None, provenance=provenance)
+        env.ret_rms.mean, env.ret_rms.var, env.ret_rms.count = (
+            float(ret_stats.mean[j]),
+            float(ret_stats.var[j]),
+            float(ret_stats.count[j]),
+        )
+    provenance = {
+        "regime": env_cfg.name,
+        "regime_version": env_cfg.version,
+        "regime_sha256": env_cfg.sha256,
+        "agent_config": cfg.name,
+        "agent_config_version": cfg.version,
+        "seed": seed,
+        "episodes": episodes,
+        "engine": "batched",
+        "device": device,
+        "batch_wall_seconds_per_agent": wall,
+    }
+    agent = TrainedAgent(
+        model, cfg.algo, cfg, mean, var, vec_normalize=env if hasattr(env, "obs_rms") else None, provenance=provenance
+    )
     agent.train_episodes = envs.episodes[j]
     return agent

@@ -24,7 +24,13 @@ import math
 import numpy as np
 import torch as th
 
-from nutribench.engine.actor_critic import OnPolicySettings, Rollout, clip_grad_norm_per_agent, losses_on_cpu, orthogonal
+from nutribench.engine.actor_critic import (
+    OnPolicySettings,
+    Rollout,
+    clip_grad_norm_per_agent,
+    losses_on_cpu,
+    orthogonal,
+)
 from nutribench.engine.device import leaves_on
 
 N_NUTRIENTS = 3
@@ -88,8 +94,16 @@ class StackedGRUActorCritic:
     n as nn.GRU), then the heads' first layers side by side ``(K, 2H, 2 x head)`` and bias,
     the actor's last layer ``(K, head, 2)`` and bias, the critic's ``(K, head, 1)`` and bias."""
 
-    def __init__(self, k: int, obs_dim: int, hidden: int = 128, head: int = 128, n_actions: int = 2,
-                 generators: list[th.Generator] | None = None, device: th.device | str | None = None):  # fmt: skip
+    def __init__(
+        self,
+        k: int,
+        obs_dim: int,
+        hidden: int = 128,
+        head: int = 128,
+        n_actions: int = 2,
+        generators: list[th.Generator] | None = None,
+        device: th.device | str | None = None,
+    ):
         """Initialised on the CPU from ``generators`` (one per agent), then moved to ``device``."""
         self.k, self.hidden, self.head, self.n_actions = k, hidden, head, n_actions
         self.n_foods = obs_dim - N_NUTRIENTS
@@ -101,14 +115,27 @@ class StackedGRUActorCritic:
                 cols = slice(gate * hidden, (gate + 1) * hidden)
                 w_ih[stream * k : (stream + 1) * k, :n_in, cols] = orthogonal(k, n_in, hidden, 1.0, generators)
                 w_hh[stream * k : (stream + 1) * k, :, cols] = orthogonal(k, hidden, hidden, 1.0, generators)
-        first = th.cat([orthogonal(k, 2 * hidden, head, math.sqrt(2), generators),
-                        orthogonal(k, 2 * hidden, head, math.sqrt(2), generators)], dim=2)  # fmt: skip
+        first = th.cat(
+            [
+                orthogonal(k, 2 * hidden, head, math.sqrt(2), generators),
+                orthogonal(k, 2 * hidden, head, math.sqrt(2), generators),
+            ],
+            dim=2,
+        )
         actor_out = orthogonal(k, head, n_actions, 0.01, generators)
         critic_out = orthogonal(k, head, 1, 1.0, generators)
         self.params = [
-            w_ih, th.zeros(2 * k, 1, h3), w_hh, th.zeros(2 * k, 1, h3),
-            first, th.zeros(k, 1, 2 * head), actor_out, th.zeros(k, 1, n_actions), critic_out, th.zeros(k, 1, 1),
-        ]  # fmt: skip
+            w_ih,
+            th.zeros(2 * k, 1, h3),
+            w_hh,
+            th.zeros(2 * k, 1, h3),
+            first,
+            th.zeros(k, 1, 2 * head),
+            actor_out,
+            th.zeros(k, 1, n_actions),
+            critic_out,
+            th.zeros(k, 1, 1),
+        ]
         for p in self.params:
             p.requires_grad_()
         self.params = leaves_on(self.params, device)
@@ -141,7 +168,9 @@ class StackedGRUActorCritic:
     def sequences(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """Whole days from the zero state: ``obs (K, S, T, d)`` -> logits ``(K, S, T, n_actions)``, values ``(K, S, T)``."""
         k, s, t_max, _ = obs.shape
-        gi = th.baddbmm(self.params[1], self._inputs(obs.reshape(k, s * t_max, -1)), self.params[0]).reshape(2 * k, s, t_max, -1)
+        gi = th.baddbmm(self.params[1], self._inputs(obs.reshape(k, s * t_max, -1)), self.params[0]).reshape(
+            2 * k, s, t_max, -1
+        )
         out = GRUSequence.apply(gi, self.params[2], self.params[3])  # (2K, S, T, H)
         features = th.cat([out[:k], out[k:]], dim=-1).reshape(k, s * t_max, 2 * self.hidden)
         logits, values = self._heads(features)
@@ -166,12 +195,22 @@ class StackedGRUActorCritic:
         for stream, gru in enumerate((policy.nutrient_gru, policy.food_gru)):
             row = stream * k + j
             n_in = gru.weight_ih_l0.shape[1]
-            pairs += [(p[0][row, :n_in], gru.weight_ih_l0.T), (p[1][row, 0], gru.bias_ih_l0),
-                      (p[2][row], gru.weight_hh_l0.T), (p[3][row, 0], gru.bias_hh_l0)]  # fmt: skip
-        pairs += [(p[4][j, :, : self.head], policy.actor_head[0].weight.T), (p[4][j, :, self.head :], policy.critic_head[0].weight.T),
-                  (p[5][j, 0, : self.head], policy.actor_head[0].bias), (p[5][j, 0, self.head :], policy.critic_head[0].bias),
-                  (p[6][j], policy.actor_head[2].weight.T), (p[7][j, 0], policy.actor_head[2].bias),
-                  (p[8][j], policy.critic_head[2].weight.T), (p[9][j, 0], policy.critic_head[2].bias)]  # fmt: skip
+            pairs += [
+                (p[0][row, :n_in], gru.weight_ih_l0.T),
+                (p[1][row, 0], gru.bias_ih_l0),
+                (p[2][row], gru.weight_hh_l0.T),
+                (p[3][row, 0], gru.bias_hh_l0),
+            ]
+        pairs += [
+            (p[4][j, :, : self.head], policy.actor_head[0].weight.T),
+            (p[4][j, :, self.head :], policy.critic_head[0].weight.T),
+            (p[5][j, 0, : self.head], policy.actor_head[0].bias),
+            (p[5][j, 0, self.head :], policy.critic_head[0].bias),
+            (p[6][j], policy.actor_head[2].weight.T),
+            (p[7][j, 0], policy.actor_head[2].bias),
+            (p[8][j], policy.critic_head[2].weight.T),
+            (p[9][j, 0], policy.critic_head[2].bias),
+        ]
         assert H == policy.hidden_size and a == policy.action_space.n
         return pairs
 
@@ -188,8 +227,13 @@ class StackedGRUActorCritic:
                 theirs.copy_(ours)
 
 
-def gru_ppo_update(net: StackedGRUActorCritic, optimizer: th.optim.Optimizer, rollout: Rollout, s: OnPolicySettings,
-                   permutations: np.ndarray) -> dict[str, np.ndarray]:  # fmt: skip
+def gru_ppo_update(
+    net: StackedGRUActorCritic,
+    optimizer: th.optim.Optimizer,
+    rollout: Rollout,
+    s: OnPolicySettings,
+    permutations: np.ndarray,
+) -> dict[str, np.ndarray]:
     """``GRUPPO.train()`` for the K agents: ``permutations (n_epochs, K, days)`` order each
     agent's days in each epoch; minibatches of ``s.batch_size`` days. Returns the last
     minibatch's per-agent losses."""
@@ -224,4 +268,3 @@ def gru_ppo_update(net: StackedGRUActorCritic, optimizer: th.optim.Optimizer, ro
             optimizer.step()
             out = losses_on_cpu(policy_loss=policy_loss, value_loss=value_loss, entropy_loss=entropy_loss)
     return out
-

@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 import torch as th
 
+from nutribench.engine.actor_critic import RunningStats
 from nutribench.engine.checkpoint import Checkpoint, register
 from nutribench.engine.device import leaves_on
-from nutribench.engine.actor_critic import RunningStats
 from nutribench.engine.envs import AgentEnvs
 
 
@@ -34,14 +34,18 @@ def linear_schedule(start: float, end: float, fraction: float, progress_remainin
     return end if done > fraction else start + done * (end - start) / fraction
 
 
-
 class StackedMLP:
     """K copies of an MLP ``obs -> net_arch -> n_out`` (ReLU): layers ``(W (K, in, out),
     b (K, 1, out))``, each agent initialised as ``torch.nn.Linear`` is, from its own generator
     (None: torch's global one), on the CPU, then moved to ``device``."""
 
-    def __init__(self, k: int, sizes: list[int], generators: list[th.Generator] | None = None,
-                 device: th.device | str | None = None):  # fmt: skip
+    def __init__(
+        self,
+        k: int,
+        sizes: list[int],
+        generators: list[th.Generator] | None = None,
+        device: th.device | str | None = None,
+    ):
         self.params: list[th.Tensor] = []
         for n_in, n_out in zip(sizes[:-1], sizes[1:]):
             w, b = th.empty(k, n_in, n_out), th.empty(k, 1, n_out)
@@ -111,7 +115,9 @@ class StackedReplay:
         self.dones = np.zeros((k, size), dtype=bool)
         self.pos, self.full = 0, False
 
-    def add(self, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray, dones: np.ndarray) -> None:
+    def add(
+        self, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray, dones: np.ndarray
+    ) -> None:
         p = self.pos
         self.obs[:, p], self.actions[:, p], self.rewards[:, p] = obs, actions, rewards
         self.next_obs[:, p], self.dones[:, p] = next_obs, dones
@@ -141,10 +147,13 @@ class StackedReplay:
         r2 = np.arange(k)[:, None]
         on = lambda x: th.as_tensor(x, device=device)  # noqa: E731
         return Batch(
-            obs=on(normalize(self.obs[r2, idx])), actions=on(self.actions[r2, idx]),
-            rewards=on(returns.astype(np.float32)), next_obs=on(normalize(self.next_obs[r2, end])),
-            dones=on(self.dones[r2, end].astype(np.float32)), discounts=on((self.gamma ** steps).astype(np.float32)),
-        )  # fmt: skip
+            obs=on(normalize(self.obs[r2, idx])),
+            actions=on(self.actions[r2, idx]),
+            rewards=on(returns.astype(np.float32)),
+            next_obs=on(normalize(self.next_obs[r2, end])),
+            dones=on(self.dones[r2, end].astype(np.float32)),
+            discounts=on((self.gamma**steps).astype(np.float32)),
+        )
 
 
 register(StackedMLP, StackedReplay, RunningStats)  # what its checkpoints hold
@@ -160,10 +169,18 @@ OFF_POLICY_ADAM_EPS = 1e-8
 ActFn = Callable[[np.ndarray, int, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray | None]]
 
 
-def run_off_policy(envs: AgentEnvs, cfg, total: int, act: ActFn, update: Callable[[int, float, Batch], None],
-                   after_step: Callable[[int, float], None] | None = None, n_step: int = 1,
-                   checkpoint: Checkpoint | None = None, model: Any = None,
-                   device: th.device | str | None = None) -> float:  # fmt: skip
+def run_off_policy(
+    envs: AgentEnvs,
+    cfg,
+    total: int,
+    act: ActFn,
+    update: Callable[[int, float, Batch], None],
+    after_step: Callable[[int, float], None] | None = None,
+    n_step: int = 1,
+    checkpoint: Checkpoint | None = None,
+    model: Any = None,
+    device: th.device | str | None = None,
+) -> float:
     """Run ``total`` env steps of SB3's off-policy loop for the K agents of ``envs``; reads
     ``buffer_size``, ``learning_starts``, ``train_freq``, ``gradient_steps``,
     ``batch_size`` and ``gamma`` from ``cfg``. ``after_step(steps, progress_remaining)``

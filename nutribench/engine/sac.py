@@ -31,10 +31,10 @@ import torch as th
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
 from nutribench.engine import check_supported
+from nutribench.engine.actor_critic import linears, losses_on_cpu, make_adam
 from nutribench.engine.checkpoint import Checkpoint, register, resumed
 from nutribench.engine.device import resolve_device
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
-from nutribench.engine.actor_critic import linears, losses_on_cpu, make_adam
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, StackedMLP, run_off_policy
 
 
@@ -43,8 +43,15 @@ class StackedSAC:
     first critic at ``j``, its second at ``K + j``) and their two optimisers, initialised on
     the CPU and moved to ``device``."""
 
-    def __init__(self, k: int, sizes: list[int], actor_lr: float, critic_lr: float,
-                 generators: list[th.Generator] | None = None, device: th.device | str | None = None):  # fmt: skip
+    def __init__(
+        self,
+        k: int,
+        sizes: list[int],
+        actor_lr: float,
+        critic_lr: float,
+        generators: list[th.Generator] | None = None,
+        device: th.device | str | None = None,
+    ):
         self.k = k
         self.actor = StackedMLP(k, sizes, generators, device)
         self.critic = StackedMLP(2 * k, sizes, None if generators is None else generators + generators, device)
@@ -91,7 +98,9 @@ def sac_update(net: StackedSAC, batch: Batch, alpha: float, gamma: float, tau: f
         y = batch.rewards + gamma * (1.0 - batch.dones) * v_next
     q1, q2 = net.twin_q(batch.obs)
     a = batch.actions.unsqueeze(-1)
-    critic_loss = (q1.gather(-1, a).squeeze(-1) - y).pow(2).mean(dim=1) + (q2.gather(-1, a).squeeze(-1) - y).pow(2).mean(dim=1)
+    critic_loss = (q1.gather(-1, a).squeeze(-1) - y).pow(2).mean(dim=1) + (q2.gather(-1, a).squeeze(-1) - y).pow(
+        2
+    ).mean(dim=1)
     net.critic_optimizer.zero_grad()
     critic_loss.sum().backward()
     net.critic_optimizer.step()
@@ -111,10 +120,15 @@ def sac_update(net: StackedSAC, batch: Batch, alpha: float, gamma: float, tau: f
     return losses_on_cpu(critic_loss=critic_loss, actor_loss=actor_loss)
 
 
-def train_sac_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, episodes: int,
-                      on_episode: AgentEpisodeFn | None = None,
-                      on_update: Callable[[dict[str, Any]], None] | None = None,
-                      checkpoint: Checkpoint | None = None, device: str | th.device = "cpu") -> list[TrainedAgent]:  # fmt: skip
+def train_sac_batched(
+    jobs: Sequence[tuple[str | EnvConfig, int]],
+    cfg: Any,
+    episodes: int,
+    on_episode: AgentEpisodeFn | None = None,
+    on_update: Callable[[dict[str, Any]], None] | None = None,
+    checkpoint: Checkpoint | None = None,
+    device: str | th.device = "cpu",
+) -> list[TrainedAgent]:
     """Train one discrete-SAC agent of ``cfg`` per ``(regime, seed)`` of ``jobs`` for
     ``episodes`` days, all at once (resuming from ``checkpoint`` if it holds a state), on
     ``device`` (:func:`~nutribench.engine.device.resolve_device`); ``on_update`` gets
@@ -126,8 +140,13 @@ def train_sac_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, epi
     envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
     k = envs.k
     net = resumed(checkpoint, "model") or StackedSAC(
-        k, [envs.obs_dim, *cfg.net_arch, 2], cfg.actor_learning_rate, cfg.critic_learning_rate,
-        generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]], device=device)  # fmt: skip
+        k,
+        [envs.obs_dim, *cfg.net_arch, 2],
+        cfg.actor_learning_rate,
+        cfg.critic_learning_rate,
+        generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]],
+        device=device,
+    )
 
     def act(obs: np.ndarray, n: int, uniforms: np.ndarray, random_actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         with th.no_grad():
@@ -143,6 +162,12 @@ def train_sac_batched(jobs: Sequence[tuple[str | EnvConfig, int]], cfg: Any, epi
         if on_update is not None:
             on_update({"steps": steps, **losses})
 
-    wall = run_off_policy(envs, cfg, episodes * envs.horizon, act, update, checkpoint=checkpoint, model=net, device=device)
-    return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), None, wall / k,
-                             str(device)) for j in range(k)]  # fmt: skip
+    wall = run_off_policy(
+        envs, cfg, episodes * envs.horizon, act, update, checkpoint=checkpoint, model=net, device=device
+    )
+    return [
+        as_trained_agent(
+            envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), None, wall / k, str(device)
+        )
+        for j in range(k)
+    ]

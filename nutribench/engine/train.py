@@ -42,7 +42,14 @@ from nutribench.agents.api import CLIP_OBS, NORM_EPS, TrainedAgent
 from nutribench.agents.config import load_agent_config
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.engine import check_supported
-from nutribench.engine.actor_critic import OnPolicySettings, Rollout, RunningStats, StackedActorCritic, gae, make_optimizer
+from nutribench.engine.actor_critic import (
+    OnPolicySettings,
+    Rollout,
+    RunningStats,
+    StackedActorCritic,
+    gae,
+    make_optimizer,
+)
 from nutribench.engine.checkpoint import Checkpoint, register
 from nutribench.engine.device import resolve_device
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
@@ -146,8 +153,14 @@ def train_batched(
     t0 = time.perf_counter()
     for rollout_index in range(first, n_rollouts + 1):
         if checkpoint is not None and rollout_index > first and checkpoint.due():
-            checkpoint.save(rollout=rollout_index, steps=step, envs=envs, obs=obs, start_of_day=start_of_day,
-                            model=(net, policy, optimizer, ret_stats, discounted))  # fmt: skip
+            checkpoint.save(
+                rollout=rollout_index,
+                steps=step,
+                envs=envs,
+                obs=obs,
+                start_of_day=start_of_day,
+                model=(net, policy, optimizer, ret_stats, discounted),
+            )
         T = s.n_steps if rollout_index < n_rollouts else total_steps - step
         if T == 0:
             break
@@ -186,14 +199,34 @@ def train_batched(
         if T < s.n_steps:
             break  # a partial rollout: SB3 stops without updating on it
         with th.no_grad():
-            _, last_values = policy(th.as_tensor(obs, device=device), th.as_tensor(start_of_day, device=device), advance=False)
-        adv, ret = gae(buf_rew, buf_val, buf_start, last_values.cpu().numpy(), start_of_day.astype(bool), s.gamma, s.gae_lambda)
+            _, last_values = policy(
+                th.as_tensor(obs, device=device), th.as_tensor(start_of_day, device=device), advance=False
+            )
+        adv, ret = gae(
+            buf_rew, buf_val, buf_start, last_values.cpu().numpy(), start_of_day.astype(bool), s.gamma, s.gae_lambda
+        )
         if on_rollout is not None:
-            on_rollout({"obs": buf_obs, "actions": buf_act, "rewards": buf_rew, "starts": buf_start, "values": buf_val,
-                        "advantages": adv, "returns": ret, "foods": np.stack(envs.days_drawn)})  # fmt: skip
+            on_rollout(
+                {
+                    "obs": buf_obs,
+                    "actions": buf_act,
+                    "rewards": buf_rew,
+                    "starts": buf_start,
+                    "values": buf_val,
+                    "advantages": adv,
+                    "returns": ret,
+                    "foods": np.stack(envs.days_drawn),
+                }
+            )
         on = lambda x: th.as_tensor(x, device=device)  # noqa: E731
-        rollout = Rollout(obs=on(buf_obs), actions=on(buf_act), log_probs=on(buf_logp), values=on(buf_val),
-                          advantages=on(adv), returns=on(ret))  # fmt: skip
+        rollout = Rollout(
+            obs=on(buf_obs),
+            actions=on(buf_act),
+            log_probs=on(buf_logp),
+            values=on(buf_val),
+            advantages=on(adv),
+            returns=on(ret),
+        )
         units = T if s.sequence_length is None else T // s.sequence_length  # transitions, or days (GRU-PPO)
         perms = np.stack([[r.permutation(units) for r in rng["minibatches"]] for _ in range(s.n_epochs)])
         if s.sequence_length is None:
@@ -201,5 +234,9 @@ def train_batched(
         else:
             gru_ppo_update(net, optimizer, rollout, s, perms)
     wall = time.perf_counter() - t0 + (checkpoint.seconds_before if saved is not None else 0.0)
-    return [as_trained_agent(envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), ret_stats, wall / k,
-                             str(device)) for j in range(k)]  # fmt: skip
+    return [
+        as_trained_agent(
+            envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), ret_stats, wall / k, str(device)
+        )
+        for j in range(k)
+    ]

@@ -76,7 +76,9 @@ class EpisodeRecorder:
         return out
 
 
-def play(env, policy, episodes: int = 1, seed: int | None = None, foods: np.ndarray | None = None) -> list[dict[str, Any]]:
+def play(
+    env, policy, episodes: int = 1, seed: int | None = None, foods: np.ndarray | None = None
+) -> list[dict[str, Any]]:
     """Play ``policy`` for ``episodes`` days on a vector env (one day per env) or a single env.
 
     With a vector env, ``episodes`` must equal ``env.num_envs``; ``foods`` (episodes x H)

@@ -154,7 +154,6 @@ class NutriRLEnv(DynamicsView, gym.Env[np.ndarray, int]):
         self._d = 3.0
         self._eaten = 0
 
-
     @property
     def state(self) -> np.ndarray:
         """Absorbed nutrients s_t (target units)."""
@@ -190,7 +189,13 @@ class NutriRLEnv(DynamicsView, gym.Env[np.ndarray, int]):
         self._d = 3.0
         self._eaten = 0
         obs = self.dyn.obs_template[self._foods[0]].copy()
-        info = {"state": np.zeros(3), "distance": self._d, "overshoot": np.zeros(3, dtype=bool), "foods_consumed": 0, "step": 0}
+        info = {
+            "state": np.zeros(3),
+            "distance": self._d,
+            "overshoot": np.zeros(3, dtype=bool),
+            "foods_consumed": 0,
+            "step": 0,
+        }
         return obs, info
 
     def step(self, action):

@@ -76,7 +76,6 @@ class NutriRLVectorEnv(DynamicsView, VectorEnv):
         self._t = H
         self._needs_reset = True
 
-
     @property
     def state(self) -> np.ndarray:
         return self._s.T.copy()

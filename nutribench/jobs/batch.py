@@ -65,10 +65,13 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
         checkpoint = Checkpoint(path, device=device)
         write_manifest(path, specs)
     agents = train_batched(
-        [(s.regime_config, s.seed) for s in specs], specs[0].agent_config, specs[0].episodes,
-        on_episode=lambda j, row: progress[j].episode(row["episode"] + 1, row["return"]), checkpoint=checkpoint,
+        [(s.regime_config, s.seed) for s in specs],
+        specs[0].agent_config,
+        specs[0].episodes,
+        on_episode=lambda j, row: progress[j].episode(row["episode"] + 1, row["return"]),
+        checkpoint=checkpoint,
         device=device,
-    )  # fmt: skip
+    )
     train_wall = time.perf_counter() - t0 + (checkpoint.seconds_before if checkpoint is not None else 0.0)
     meta = collect_metadata()
     results = []
@@ -80,9 +83,18 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
         model_path = str(agent.save(Path(spec.model_path))) if spec.model_path else None
         # the batch's training time shared out, plus this job's own evaluation
         wall = train_wall / len(specs) + time.perf_counter() - t_eval
-        results.append(JobResult(spec.job_id, agent.train_episodes, evaluation.episodes, evaluation.steps,
-                                 meta | batch | {"started_at": started, "finished_at": utcnow(), "wall_seconds": wall, "engine": "batched"},
-                                 model_path=model_path))  # fmt: skip
+        results.append(
+            JobResult(
+                spec.job_id,
+                agent.train_episodes,
+                evaluation.episodes,
+                evaluation.steps,
+                meta
+                | batch
+                | {"started_at": started, "finished_at": utcnow(), "wall_seconds": wall, "engine": "batched"},
+                model_path=model_path,
+            )
+        )
     if path is not None:
         checkpoint.remove()
         manifest(path).unlink(missing_ok=True)
@@ -98,8 +110,13 @@ def manifest(path: Path) -> Path:
 
 def _job(spec: JobSpec) -> dict[str, object]:
     """What a manifest records of one job: its id and what it is."""
-    return {"job_id": spec.job_id, "algo_sha256": spec.algo_sha256, "regime_sha256": spec.regime_sha256,
-            "seed": spec.seed, "episodes": spec.episodes}  # fmt: skip
+    return {
+        "job_id": spec.job_id,
+        "algo_sha256": spec.algo_sha256,
+        "regime_sha256": spec.regime_sha256,
+        "seed": spec.seed,
+        "episodes": spec.episodes,
+    }
 
 
 def write_manifest(path: Path, specs: list[JobSpec]) -> None:
@@ -146,8 +163,13 @@ def checkpoint_path(specs: list[JobSpec]) -> Path | None:
         return None
     import nutribench
 
-    what = [nutribench.__version__, git_state()[0], specs[0].algo_sha256, specs[0].episodes,
-            [(s.regime_sha256, s.seed) for s in specs]]  # fmt: skip
+    what = [
+        nutribench.__version__,
+        git_state()[0],
+        specs[0].algo_sha256,
+        specs[0].episodes,
+        [(s.regime_sha256, s.seed) for s in specs],
+    ]
     digest = hashlib.sha256(json.dumps(what).encode()).hexdigest()[:16]
     models = Path(specs[0].model_path).parents[2]
     return models / "checkpoints" / f"{specs[0].algo}-v{specs[0].algo_version}-{digest}.pt"

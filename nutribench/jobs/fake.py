@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from nutribench.provenance import collect_metadata
+from nutribench.clock import utcnow
 from nutribench.jobs.spec import JobResult, JobSpec
 from nutribench.jobs.worker import JobProgress, Sink
-from nutribench.clock import utcnow
+from nutribench.provenance import collect_metadata
 
 HORIZON = 50
 
@@ -74,11 +74,25 @@ def fake_run_job(spec: JobSpec, progress: Sink | None = None) -> JobResult:
         evals.append(_metrics(rng, e))
         s = np.cumsum(rng.uniform(0, 0.05, size=(HORIZON, 3)), axis=0)
         for t in range(HORIZON):
-            steps.append({"episode": e, "step": t + 1, "food": int(rng.integers(0, 10)), "action": int(rng.integers(0, 2)),
-                          "C": float(s[t, 0]), "F": float(s[t, 1]), "P": float(s[t, 2]), "reward": float(rng.normal())})  # fmt: skip
+            steps.append(
+                {
+                    "episode": e,
+                    "step": t + 1,
+                    "food": int(rng.integers(0, 10)),
+                    "action": int(rng.integers(0, 2)),
+                    "C": float(s[t, 0]),
+                    "F": float(s[t, 1]),
+                    "P": float(s[t, 2]),
+                    "reward": float(rng.normal()),
+                }
+            )
     Path(spec.model_path).parent.mkdir(parents=True, exist_ok=True)
     Path(spec.model_path).write_text("fake model\n")
-    meta = collect_metadata() | {"started_at": started, "finished_at": utcnow(), "wall_seconds": time.perf_counter() - t0}
+    meta = collect_metadata() | {
+        "started_at": started,
+        "finished_at": utcnow(),
+        "wall_seconds": time.perf_counter() - t0,
+    }
     return JobResult(spec.job_id, train, evals, steps, meta, model_path=spec.model_path)
 
 

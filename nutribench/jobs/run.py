@@ -12,10 +12,10 @@ from pathlib import Path
 from nutribench.agents.api import eval_food_streams, evaluate, train
 from nutribench.agents.config import agent_config_sha256
 from nutribench.agents.registry import entry_point_source
-from nutribench.provenance import collect_metadata
+from nutribench.clock import utcnow
 from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
 from nutribench.jobs.worker import JobProgress, Sink
-from nutribench.clock import utcnow
+from nutribench.provenance import collect_metadata
 
 
 def check_configs(spec: JobSpec) -> None:
@@ -35,17 +35,25 @@ def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
     progress = JobProgress(spec, sink)
     progress.start()
     agent = train(
-        spec.regime_config, spec.agent_config, seed=spec.seed, episodes=spec.episodes,
+        spec.regime_config,
+        spec.agent_config,
+        seed=spec.seed,
+        episodes=spec.episodes,
         on_episode=lambda row: progress.episode(row["episode"] + 1, row["return"]),
-    )  # fmt: skip
+    )
     progress.phase("eval")
     streams = eval_food_streams(spec.regime_config, spec.seed, spec.eval_episodes)
     result = evaluate(agent, spec.regime_config, streams, record_steps=True)
     model_path = None
     if spec.model_path:
         model_path = str(agent.save(Path(spec.model_path)))
-    meta = collect_metadata() | {"started_at": started, "finished_at": utcnow(), "wall_seconds": time.perf_counter() - t0,
-                                 "engine": "sb3", "device": "cpu"}
+    meta = collect_metadata() | {
+        "started_at": started,
+        "finished_at": utcnow(),
+        "wall_seconds": time.perf_counter() - t0,
+        "engine": "sb3",
+        "device": "cpu",
+    }
     if getattr(spec.agent_config, "entry_point", None):  # a plug-in: trained by its own code, in this harness
         meta["engine"] = "external"
         meta["source"], meta["source_sha256"] = entry_point_source(spec.agent_config.entry_point)

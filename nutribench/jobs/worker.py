@@ -88,8 +88,9 @@ def execute(job_fn: JobFn, spec: JobSpec, sink: Sink | None = None) -> JobResult
     return _in_worker(job_fn, spec, sink)
 
 
-def execute_batch(batch_fn: Callable[[list[JobSpec], Sink | None], list[JobResult]], specs: list[JobSpec],
-                  sink: Sink | None = None) -> list[JobResult]:  # fmt: skip
+def execute_batch(
+    batch_fn: Callable[[list[JobSpec], Sink | None], list[JobResult]], specs: list[JobSpec], sink: Sink | None = None
+) -> list[JobResult]:
     """Run one batch of jobs in a worker (the batched engine): one result per spec; an
     exception fails the whole batch."""
     return _in_worker(batch_fn, specs, sink)

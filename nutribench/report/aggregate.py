@@ -34,6 +34,9 @@ optimality gap over all runs pooled, mean and median over the regimes' means).
 Everything is DataFrame in, DataFrame out: :func:`run_scores` (episodes -> scores),
 :func:`aggregate_scores` (scores -> :class:`AggregateResult`); the figure and the table of a
 result: :mod:`nutribench.report.aggregate_view`.
+
+Longer than 400 lines: since ruff formats it (one argument per line); the estimators and
+their bootstrap belong together. To split: the performance profiles and probability of improvement.
 """
 
 from __future__ import annotations
@@ -58,7 +61,12 @@ DELAYED_REGIMES: tuple[str, ...] = tuple(f"run{i}" for i in range(1, 7))
 GROUPS: dict[str, str] = {"all": "all regimes", "delayed": "delayed regimes (run1-run6)"}
 #: The aggregates, in the figure's and the table's order.
 AGGREGATES: tuple[str, ...] = ("iqm", "median", "mean", "optimality_gap")
-AGGREGATE_LABELS: dict[str, str] = {"iqm": "IQM", "median": "median", "mean": "mean", "optimality_gap": "optimality gap"}
+AGGREGATE_LABELS: dict[str, str] = {
+    "iqm": "IQM",
+    "median": "median",
+    "mean": "mean",
+    "optimality_gap": "optimality gap",
+}
 #: The optimality gap's threshold: the planner's score.
 GAMMA = 1.0
 #: Bootstrap resamples (rliable uses 50000 for its published figures; 2000 keeps a report fast).
@@ -93,8 +101,18 @@ def run_scores(ev: pd.DataFrame, references: pd.DataFrame) -> pd.DataFrame:
         never = float(yard["never"].mean()) if complete else float("nan")
         planner = float(yard["planner"].mean()) if complete else float("nan")
         score = gap_closed(ret, never, planner) if complete else float("nan")
-        rows.append({"regime": regime, "algo": algo, "seed": int(seed), "days": len(days), "return": ret, "never": never,
-                     "planner": planner, "score": score})  # fmt: skip
+        rows.append(
+            {
+                "regime": regime,
+                "algo": algo,
+                "seed": int(seed),
+                "days": len(days),
+                "return": ret,
+                "never": never,
+                "planner": planner,
+                "score": score,
+            }
+        )
     return pd.DataFrame(rows, columns=cols)
 
 
@@ -115,7 +133,9 @@ class ScoreSet:
         return np.stack(self.runs[algo], axis=1)
 
 
-def score_set(scores: pd.DataFrame, regimes: Iterable[str], algos: Sequence[str] | None = None, what: str = "") -> ScoreSet:
+def score_set(
+    scores: pd.DataFrame, regimes: Iterable[str], algos: Sequence[str] | None = None, what: str = ""
+) -> ScoreSet:
     """The scores of ``algos`` (default every agent of ``scores``) on those of ``regimes`` that
     every one of them has a score on; a regime left out is named in a note (``what``: the
     group's name, for the note)."""
@@ -132,13 +152,20 @@ def score_set(scores: pd.DataFrame, regimes: Iterable[str], algos: Sequence[str]
         if missing:
             why.append(f"no evaluation of {', '.join(missing)}")
         if unscored:
-            why.append(f"no never/planner yardstick on the days of {', '.join(unscored)}: the regime file is not the version the jobs ran")
+            why.append(
+                f"no never/planner yardstick on the days of {', '.join(unscored)}: the regime file is not the version the jobs ran"
+            )
         if why:
             notes.append(f"{what + ': ' if what else ''}{regime} left out ({'; '.join(why)})")
         else:
             kept.append(regime)
-    runs = {a: [finite[(finite["regime"] == r) & (finite["algo"] == a)].sort_values("seed")["score"].to_numpy(dtype=float)
-                for r in kept] for a in algos}  # fmt: skip
+    runs = {
+        a: [
+            finite[(finite["regime"] == r) & (finite["algo"] == a)].sort_values("seed")["score"].to_numpy(dtype=float)
+            for r in kept
+        ]
+        for a in algos
+    }
     return ScoreSet(kept, runs, notes)
 
 
@@ -195,7 +222,9 @@ def _rng(seed: int, *names: str) -> np.random.Generator:
     return np.random.default_rng([seed, *(zlib.crc32(n.encode()) for n in names)])
 
 
-def interval_estimates(ss: ScoreSet, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE) -> pd.DataFrame:
+def interval_estimates(
+    ss: ScoreSet, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE
+) -> pd.DataFrame:
     """Per agent and aggregate: the point estimate and its stratified-bootstrap interval over
     runs (NaN with one run per regime everywhere: nothing to resample).
 
@@ -207,9 +236,20 @@ def interval_estimates(ss: ScoreSet, reps: int = DEFAULT_REPS, seed: int = 0, co
         resampled = stratified_resamples(runs, reps, _rng(seed, algo, *ss.regimes))
         spread = max(len(x) for x in runs) > 1
         for agg in AGGREGATES:
-            lo, hi = percentile_interval(BATCHED[agg](resampled), confidence) if spread else (float("nan"), float("nan"))
-            rows.append({"algo": algo, "aggregate": agg, "point": point_estimate(agg, runs), "lo": lo, "hi": hi,
-                         "runs": int(sum(len(x) for x in runs)), "regimes": len(runs)})  # fmt: skip
+            lo, hi = (
+                percentile_interval(BATCHED[agg](resampled), confidence) if spread else (float("nan"), float("nan"))
+            )
+            rows.append(
+                {
+                    "algo": algo,
+                    "aggregate": agg,
+                    "point": point_estimate(agg, runs),
+                    "lo": lo,
+                    "hi": hi,
+                    "runs": int(sum(len(x) for x in runs)),
+                    "regimes": len(runs),
+                }
+            )
     return pd.DataFrame(rows, columns=["algo", "aggregate", "point", "lo", "hi", "runs", "regimes"])
 
 
@@ -230,8 +270,9 @@ def score_distribution(pooled: np.ndarray, taus: np.ndarray) -> np.ndarray:
     return np.mean(pooled[..., :, None] > taus, axis=-2)
 
 
-def performance_profiles(ss: ScoreSet, taus: np.ndarray, reps: int = DEFAULT_REPS, seed: int = 0,
-                         confidence: float = CONFIDENCE) -> pd.DataFrame:  # fmt: skip
+def performance_profiles(
+    ss: ScoreSet, taus: np.ndarray, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE
+) -> pd.DataFrame:
     """Per agent and tau: the fraction of its runs scoring above tau, with a stratified
     bootstrap band over runs. Columns: algo, tau, fraction, lo, hi."""
     frames = []
@@ -241,18 +282,27 @@ def performance_profiles(ss: ScoreSet, taus: np.ndarray, reps: int = DEFAULT_REP
             continue
         point = score_distribution(np.concatenate(runs), taus)
         if max(len(x) for x in runs) > 1:
-            boot = score_distribution(_pooled(stratified_resamples(runs, reps, _rng(seed, "profile", algo, *ss.regimes))), taus)
+            boot = score_distribution(
+                _pooled(stratified_resamples(runs, reps, _rng(seed, "profile", algo, *ss.regimes))), taus
+            )
             lo, hi = np.percentile(boot, [100 * alpha, 100 * (1 - alpha)], axis=0)
         else:
             lo = hi = np.full_like(point, np.nan)
         frames.append(pd.DataFrame({"algo": algo, "tau": taus, "fraction": point, "lo": lo, "hi": hi}))
-    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["algo", "tau", "fraction", "lo", "hi"])
+    return (
+        pd.concat(frames, ignore_index=True)
+        if frames
+        else pd.DataFrame(columns=["algo", "tau", "fraction", "lo", "hi"])
+    )
 
 
 def _improvement(x: Runs, y: Runs) -> np.ndarray:
     """P(X > Y) per resample: per regime the share of (run of X, run of Y) pairs where X scores
     higher (ties half), averaged over regimes; ``x``/``y``: one array (resamples, runs) per regime."""
-    per_task = [np.mean((a[:, :, None] > b[:, None, :]) + 0.5 * (a[:, :, None] == b[:, None, :]), axis=(1, 2)) for a, b in zip(x, y)]
+    per_task = [
+        np.mean((a[:, :, None] > b[:, None, :]) + 0.5 * (a[:, :, None] == b[:, None, :]), axis=(1, 2))
+        for a, b in zip(x, y)
+    ]
     return np.mean(np.stack(per_task, axis=1), axis=1)
 
 
@@ -264,7 +314,9 @@ def probability_of_improvement(x: Runs, y: Runs) -> float:
     return float(_improvement([a[None, :] for a in x], [b[None, :] for b in y])[0])
 
 
-def improvement_probabilities(ss: ScoreSet, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE) -> pd.DataFrame:
+def improvement_probabilities(
+    ss: ScoreSet, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE
+) -> pd.DataFrame:
     """P(X > Y) with a 95 % interval for every ordered pair of agents (X's and Y's runs
     redrawn independently within each regime). Columns: x, y, p, lo, hi."""
     algos = [a for a, runs in ss.runs.items() if runs]
@@ -275,10 +327,15 @@ def improvement_probabilities(ss: ScoreSet, reps: int = DEFAULT_REPS, seed: int 
             p = probability_of_improvement(x, y)
             if max(len(r) for r in x + y) > 1:
                 rng = _rng(seed, "improvement", a, b, *ss.regimes)
-                lo, hi = percentile_interval(_improvement(stratified_resamples(x, reps, rng), stratified_resamples(y, reps, rng)), confidence)
+                lo, hi = percentile_interval(
+                    _improvement(stratified_resamples(x, reps, rng), stratified_resamples(y, reps, rng)), confidence
+                )
             else:
                 lo = hi = float("nan")
-            rows += [{"x": a, "y": b, "p": p, "lo": lo, "hi": hi}, {"x": b, "y": a, "p": 1 - p, "lo": 1 - hi, "hi": 1 - lo}]
+            rows += [
+                {"x": a, "y": b, "p": p, "lo": lo, "hi": hi},
+                {"x": b, "y": a, "p": 1 - p, "lo": 1 - hi, "hi": 1 - lo},
+            ]
     return pd.DataFrame(rows, columns=["x", "y", "p", "lo", "hi"])
 
 
@@ -304,8 +361,13 @@ def group_regimes(regimes: Iterable[str]) -> dict[str, list[str]]:
     return {"all": regimes, "delayed": [r for r in regimes if r in DELAYED_REGIMES]}
 
 
-def aggregate_scores(scores: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 0, algos: Sequence[str] | None = None,
-                     groups: Mapping[str, Iterable[str]] | None = None) -> AggregateResult:  # fmt: skip
+def aggregate_scores(
+    scores: pd.DataFrame,
+    reps: int = DEFAULT_REPS,
+    seed: int = 0,
+    algos: Sequence[str] | None = None,
+    groups: Mapping[str, Iterable[str]] | None = None,
+) -> AggregateResult:
     """Interval estimates, performance profiles and probabilities of improvement of the run
     scores (:func:`run_scores`) of ``algos`` (default: every agent of ``scores``), for each
     group of regimes (default :func:`group_regimes`). Deterministic for a given ``seed``."""
@@ -321,7 +383,9 @@ def aggregate_scores(scores: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int =
         used[group] = ss.regimes
         if not ss.regimes:
             if regimes:
-                notes.append(f"{GROUPS.get(group, group)}: no regime with a score for every agent, nothing to aggregate")
+                notes.append(
+                    f"{GROUPS.get(group, group)}: no regime with a score for every agent, nothing to aggregate"
+                )
             continue
         intervals.append(interval_estimates(ss, reps, seed).assign(group=group))
         profiles.append(performance_profiles(ss, taus, reps, seed).assign(group=group))
@@ -332,14 +396,20 @@ def aggregate_scores(scores: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int =
         return out.reindex(columns=cols)
 
     return AggregateResult(
-        scores=scores, regimes=used, algos=algos, reps=reps, notes=list(dict.fromkeys(notes)),
+        scores=scores,
+        regimes=used,
+        algos=algos,
+        reps=reps,
+        notes=list(dict.fromkeys(notes)),
         intervals=frame(intervals, ["group", "algo", "aggregate", "point", "lo", "hi", "runs", "regimes"]),
         profiles=frame(profiles, ["group", "algo", "tau", "fraction", "lo", "hi"]),
         improvement=frame(improvement, ["group", "x", "y", "p", "lo", "hi"]),
-    )  # fmt: skip
+    )
 
 
-def aggregate_from_eval(ev: pd.DataFrame, references: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 0) -> AggregateResult:
+def aggregate_from_eval(
+    ev: pd.DataFrame, references: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 0
+) -> AggregateResult:
     """:func:`aggregate_scores` of the evaluation episodes ``ev`` (one job per run) scored
     against ``references`` (:func:`nutribench.report.references.eval_day_references`)."""
     return aggregate_scores(run_scores(ev, references), reps=reps, seed=seed, algos=sort_algos(ev["algo"]))

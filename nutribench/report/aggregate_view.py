@@ -29,8 +29,12 @@ def _yardstick_lines(ax, vertical: bool = True) -> None:
         (ax.axvline if vertical else ax.axhline)(v, color="0.5", ls=":", lw=0.9, zorder=0)
 
 
-def aggregate_figure(res: AggregateResult, colors: Palette | None = None, title: str = "Aggregate scores over regimes and seeds",
-                     ev: pd.DataFrame | None = None) -> FigureResult:  # fmt: skip
+def aggregate_figure(
+    res: AggregateResult,
+    colors: Palette | None = None,
+    title: str = "Aggregate scores over regimes and seeds",
+    ev: pd.DataFrame | None = None,
+) -> FigureResult:
     """The aggregate figure: (top) IQM, median, mean and optimality gap per agent with 95 %
     intervals, both groups of regimes (solid: all, hatched: delayed); (bottom) the performance
     profile of each group and the probability-of-improvement matrix of each group.
@@ -55,8 +59,17 @@ def aggregate_figure(res: AggregateResult, colors: Palette | None = None, title:
                 color = colors.color(r.algo)
                 if np.isfinite(r.lo):
                     style = _GROUP_STYLE[group]
-                    ax.barh(y, r.hi - r.lo, left=r.lo, height=0.32, color=color, alpha=style["alpha"], hatch=style["hatch"],
-                            edgecolor=color, lw=0.8)  # fmt: skip
+                    ax.barh(
+                        y,
+                        r.hi - r.lo,
+                        left=r.lo,
+                        height=0.32,
+                        color=color,
+                        alpha=style["alpha"],
+                        hatch=style["hatch"],
+                        edgecolor=color,
+                        lw=0.8,
+                    )
                 ax.plot([r.point, r.point], [y - 0.17, y + 0.17], color="k", lw=1.8, solid_capstyle="butt")
                 drawn.append({"panel": agg, "group": group, "algo": r.algo, "point": r.point, "lo": r.lo, "hi": r.hi})
         _yardstick_lines(ax)
@@ -87,7 +100,9 @@ def aggregate_figure(res: AggregateResult, colors: Palette | None = None, title:
         ax.xaxis.set_major_locator(MaxNLocator(6))
         ax.grid(alpha=0.3)
         if prof.empty:
-            ax.text(0.5, 0.5, "no scored regime in this group", ha="center", va="center", transform=ax.transAxes, fontsize=8)
+            ax.text(
+                0.5, 0.5, "no scored regime in this group", ha="center", va="center", transform=ax.transAxes, fontsize=8
+            )
     for j, group in enumerate(GROUPS):
         ax = fig.add_subplot(grid[1, 2 + j])
         imp = res.improvement[res.improvement["group"] == group]
@@ -99,7 +114,15 @@ def aggregate_figure(res: AggregateResult, colors: Palette | None = None, title:
         for i in range(len(algos)):
             for k in range(len(algos)):
                 if np.isfinite(mat[i, k]):
-                    ax.text(k, i, f"{mat[i, k]:.2f}", ha="center", va="center", fontsize=8, color="w" if abs(mat[i, k] - 0.5) > 0.3 else "k")
+                    ax.text(
+                        k,
+                        i,
+                        f"{mat[i, k]:.2f}",
+                        ha="center",
+                        va="center",
+                        fontsize=8,
+                        color="w" if abs(mat[i, k] - 0.5) > 0.3 else "k",
+                    )
         labels = [algo_label(a) for a in algos]
         ax.set_xticks(range(len(algos)), labels, rotation=45, ha="right", fontsize=8)
         ax.set_yticks(range(len(algos)), labels, fontsize=8)
@@ -109,10 +132,17 @@ def aggregate_figure(res: AggregateResult, colors: Palette | None = None, title:
     handles, labels = fig.axes[4].get_legend_handles_labels()
     from matplotlib.patches import Patch
 
-    group_handles = [Patch(facecolor="0.5", alpha=_GROUP_STYLE[g]["alpha"], hatch=_GROUP_STYLE[g]["hatch"], edgecolor="0.4") for g in groups]
+    group_handles = [
+        Patch(facecolor="0.5", alpha=_GROUP_STYLE[g]["alpha"], hatch=_GROUP_STYLE[g]["hatch"], edgecolor="0.4")
+        for g in groups
+    ]
     _legend_rows(fig, [(handles, labels), (group_handles, [f"intervals: {group_title(res, g)}" for g in groups])])
     n_runs = res.scores.groupby(["regime", "algo"]).size() if not res.scores.empty else pd.Series(dtype=int)
-    runs_text = f"{int(n_runs.min())}-{int(n_runs.max())}" if len(n_runs) and n_runs.min() != n_runs.max() else (f"{int(n_runs.max())}" if len(n_runs) else "0")
+    runs_text = (
+        f"{int(n_runs.min())}-{int(n_runs.max())}"
+        if len(n_runs) and n_runs.min() != n_runs.max()
+        else (f"{int(n_runs.max())}" if len(n_runs) else "0")
+    )
     caption = (
         "score of a run (one seed on one regime) = share of the regime's never → planner gap it closes on its own evaluation days "
         "(0 % = never eat, 100 % = the greedy full-information planner);\n"
@@ -123,7 +153,9 @@ def aggregate_figure(res: AggregateResult, colors: Palette | None = None, title:
         caption += f"\n{budget_seeds_text(ev)}"
     set_title(fig, f"{title}\n{caption}")
     draw_notes(fig, res.notes)
-    return FigureResult(fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "point", "lo", "hi"]), list(res.notes))
+    return FigureResult(
+        fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "point", "lo", "hi"]), list(res.notes)
+    )
 
 
 # --------------------------------------------------------------------------- table
@@ -148,7 +180,12 @@ def aggregate_table(res: AggregateResult) -> TableResult:
             mine = iv[iv["algo"] == algo].set_index("aggregate")
             if mine.empty:
                 continue
-            row = {"group": group, "regimes": ",".join(res.regimes[group]), "algo": algo, "runs": int(mine["runs"].iloc[0])}
+            row = {
+                "group": group,
+                "regimes": ",".join(res.regimes[group]),
+                "algo": algo,
+                "runs": int(mine["runs"].iloc[0]),
+            }
             f = {"regimes": group_title(res, group), "algorithm": algo_label(algo), "runs": row["runs"]}
             for agg in AGGREGATES:
                 p, lo, hi = (float(mine.loc[agg, c]) for c in ("point", "lo", "hi"))
@@ -163,17 +200,31 @@ def aggregate_table(res: AggregateResult) -> TableResult:
                 f[f"P(> {algo_label(other)})"] = _cell(p, lo, hi, percent=False)
             rows.append(row)
             fmt_rows.append(f)
-    title = ("Aggregate scores: share of the never -> planner gap per run (seed x regime), over regimes x seeds; point estimate "
-             f"[95 % stratified-bootstrap interval over runs, {res.reps} resamples]; P(> Y): probability that a run of the row's "
-             "agent scores above a run of Y on the same regime, averaged over regimes")  # fmt: skip
+    title = (
+        "Aggregate scores: share of the never -> planner gap per run (seed x regime), over regimes x seeds; point estimate "
+        f"[95 % stratified-bootstrap interval over runs, {res.reps} resamples]; P(> Y): probability that a run of the row's "
+        "agent scores above a run of Y on the same regime, averaged over regimes"
+    )
     if res.notes:
         title += " (note: " + "; ".join(res.notes) + ")"
-    cols = ["regimes", "algorithm", "runs", *(f"{AGGREGATE_LABELS[a]} (%)" for a in AGGREGATES), *(f"P(> {algo_label(a)})" for a in res.algos)]
+    cols = [
+        "regimes",
+        "algorithm",
+        "runs",
+        *(f"{AGGREGATE_LABELS[a]} (%)" for a in AGGREGATES),
+        *(f"P(> {algo_label(a)})" for a in res.algos),
+    ]
     fmt = pd.DataFrame(fmt_rows, columns=cols).fillna("")
     if len(fmt) == 0:
         fmt = fmt[cols[:3]]
-    raw_cols = ["group", "regimes", "algo", "runs", *(f"{a}{s}" for a in AGGREGATES for s in ("", "_lo", "_hi")),
-                *(f"p_gt_{a}{s}" for a in res.algos for s in ("", "_lo", "_hi"))]  # fmt: skip
+    raw_cols = [
+        "group",
+        "regimes",
+        "algo",
+        "runs",
+        *(f"{a}{s}" for a in AGGREGATES for s in ("", "_lo", "_hi")),
+        *(f"p_gt_{a}{s}" for a in res.algos for s in ("", "_lo", "_hi")),
+    ]
     return TableResult("aggregate", title, pd.DataFrame(rows, columns=raw_cols), fmt)
 
 

@@ -25,6 +25,9 @@ Figure / table out). This module adds what those pure builders do not know about
 The names of :mod:`nutribench.report.data` and :mod:`nutribench.report.output` are importable
 from here too. Problems a user can fix raise :class:`ReportError` (one line); a database that
 cannot be read raises :class:`nutribench.store.StoreError`.
+
+Longer than 400 lines: since ruff formats it (one argument per line). To split: the table
+plan and resolution.
 """
 
 from __future__ import annotations
@@ -38,9 +41,6 @@ from nutribench.report.data import (
     Db,
     ReportData,
     ReportError,
-    _keep_largest_budget,
-    _keep_latest_versions,
-    _StoredConfig,
     check_known,
     check_names,
     load_report_data,
@@ -50,7 +50,7 @@ from nutribench.report.data import (
 )
 from nutribench.report.figures import FigureResult, draw_notes, eval_across_regimes, sort_regimes, training_curves
 from nutribench.report.html import page_figure, page_table, write_index
-from nutribench.report.output import AVAILABLE_SHOWN, PNG_DPI, _available, build_trajectory, write_figure, write_table
+from nutribench.report.output import build_trajectory, write_figure, write_table
 from nutribench.report.palette import label as algo_label
 from nutribench.report.references import eval_day_references, simple_policy_references
 from nutribench.report.tables import (
@@ -73,8 +73,13 @@ FIGURES: dict[int, str] = {
 }
 #: Tables: 1 (regimes), 2-6 (the built-in agent configurations), "results", "training"; the
 #: other configs of a database add Tables 7, 8, ... (``table<N>_<name>``).
-TABLES: dict[str, str] = {"1": "table1_regimes", **{str(n): f"table{n}_{a}" for n, a in CONFIG_TABLES.items()}, "results": "table_results",
-                           "training": "table_training_vs_authors", "aggregate": "table_aggregate"}
+TABLES: dict[str, str] = {
+    "1": "table1_regimes",
+    **{str(n): f"table{n}_{a}" for n, a in CONFIG_TABLES.items()},
+    "results": "table_results",
+    "training": "table_training_vs_authors",
+    "aggregate": "table_aggregate",
+}
 #: Figure 4's default pair (its file keeps the name ``fig4_ppo_vs_gru_ppo``).
 FIG4_ALGOS = DEFAULT_PAIR = ("ppo", "gru_ppo")
 
@@ -98,7 +103,9 @@ def figure_stem(number: int, pair: Sequence[str] | None = None) -> str:
     return FIGURES[number]
 
 
-def _eval_figure(number: int, data: ReportData, pair: Sequence[str], reference_episodes: int, log: Log | None) -> FigureResult:
+def _eval_figure(
+    number: int, data: ReportData, pair: Sequence[str], reference_episodes: int, log: Log | None
+) -> FigureResult:
     """Figure 3 (every config of ``data``) or Figure 4 (``pair``)."""
     algos = list(pair) if number == 4 else None
     ev = data.eval if algos is None else data.eval[data.eval["algo"].isin(algos)]
@@ -109,12 +116,22 @@ def _eval_figure(number: int, data: ReportData, pair: Sequence[str], reference_e
     title = "Fixed-policy inference across regimes"
     if number == 4:
         title = f"{algo_label(pair[0])} against {algo_label(pair[1])}: fixed-policy inference across regimes"
-    return eval_across_regimes(data.eval, algos=algos, references=refs, title=title, colors=data.colors,
-                               day_references=_day_references(data, log))
+    return eval_across_regimes(
+        data.eval,
+        algos=algos,
+        references=refs,
+        title=title,
+        colors=data.colors,
+        day_references=_day_references(data, log),
+    )
 
 
 def build_figure(
-    number: int, data: ReportData, reference_episodes: int = 200, log: Log | None = None, pair: Sequence[str] = DEFAULT_PAIR
+    number: int,
+    data: ReportData,
+    reference_episodes: int = 200,
+    log: Log | None = None,
+    pair: Sequence[str] = DEFAULT_PAIR,
 ) -> FigureResult:
     """Figure 1-4 of the paper from ``data`` (Figure 4: ``pair``, which ``data`` must hold);
     :class:`ReportError` when it has nothing to draw."""
@@ -123,7 +140,9 @@ def build_figure(
             if data.train.empty:
                 raise ReportError(f"figure {number}: no training episodes{data.what()} in the database")
             # the dashed "best" line marks the best return (Figure 1); most foods eaten is no "best"
-            res = training_curves(data.train, "return" if number == 1 else "foods", best_line=number == 1, colors=data.colors)
+            res = training_curves(
+                data.train, "return" if number == 1 else "foods", best_line=number == 1, colors=data.colors
+            )
         elif number in (3, 4):
             res = _eval_figure(number, data, pair, reference_episodes, log)
         elif number == 5:
@@ -229,7 +248,9 @@ def _metrics_table(key: str, data: ReportData | None) -> TableResult:
     return _with_notes(table_training(data.train), data)
 
 
-def build_table(key: str, data: ReportData | None = None, db: Db | None = None, stored: dict[str, Any] | None = None) -> TableResult:
+def build_table(
+    key: str, data: ReportData | None = None, db: Db | None = None, stored: dict[str, Any] | None = None
+) -> TableResult:
     """Table ``key``: "1" from the regime files; "2".."6" from the built-in agent config files
     (else the newest config of that name stored in ``db``); "7"... (or a config's name) from
     the configs stored in ``db`` (``stored``: :func:`stored_agent_configs`, read when not
@@ -251,7 +272,9 @@ def build_table(key: str, data: ReportData | None = None, db: Db | None = None, 
     return _config_table(number, numbers[number], db, stored)
 
 
-def _table_plan(tables: Sequence[str], all: bool, stored: dict[str, Any] | None, algos: Sequence[str] | None) -> dict[str, str]:  # noqa: A002
+def _table_plan(
+    tables: Sequence[str], all: bool, stored: dict[str, Any] | None, algos: Sequence[str] | None
+) -> dict[str, str]:  # noqa: A002
     """Table key -> file stem of every table to build, checked. ``all`` (or "all" among
     ``tables``): Table 1, the config tables of ``algos`` (default every config: 2-6 and the
     database's others), the results and the training tables."""
@@ -344,19 +367,27 @@ def build_report(
     paths: list[Path] = []
     page: list[Any] = []  # what index.html shows (with ``all``)
     for f in figs:
-        res = built(lambda: build_figure(f, pair_data if f == 4 else data, reference_episodes=reference_episodes, log=log, pair=pair))
+        res = built(
+            lambda f=f: build_figure(
+                f, pair_data if f == 4 else data, reference_episodes=reference_episodes, log=log, pair=pair
+            )
+        )
         if res is not None:
             written = write_figure(res, out, figure_stem(f, pair))
             paths += written
             page.append(page_figure(f, res, written))
     for key, stem in plan.items():
-        res_t = built(lambda: build_table(key, data, db, stored))
+        res_t = built(lambda key=key: build_table(key, data, db, stored))
         if res_t is not None:
             written = write_table(res_t, out, stem)
             paths += written
             page.append(page_table(stem, res_t, written))
     if all:
-        paths.append(write_index(page, out, title="nutribench report", subtitle=f"from {db}" if isinstance(db, (str, Path)) else ""))
+        paths.append(
+            write_index(
+                page, out, title="nutribench report", subtitle=f"from {db}" if isinstance(db, (str, Path)) else ""
+            )
+        )
     return paths
 
 

@@ -39,7 +39,21 @@ from nutribench.report.palette import order as sort_algos
 #: Bootstrap resamples of the seeds.
 DEFAULT_REPS = 10_000
 CONFIDENCE = 0.95
-COLUMNS = ["regime", "regimes", "seeds", "days", "a_mean", "b_mean", "diff", "diff_lo", "diff_hi", "p_a_better", "p_lo", "p_hi"]
+COLUMNS = [
+    "regime",
+    "regimes",
+    "seeds",
+    "days",
+    "a_mean",
+    "b_mean",
+    "diff",
+    "diff_lo",
+    "diff_hi",
+    "p_a_better",
+    "p_lo",
+    "p_hi",
+]
+
 
 class CompareError(UserError, ValueError):
     """Two agents that cannot be compared as asked; printed as one line."""
@@ -59,7 +73,9 @@ def paired_days(ev: pd.DataFrame, a: str, b: str, regimes: Sequence[str] | None 
         dup = rows.duplicated(key)
         if dup.any():
             r = rows[dup].iloc[0]
-            raise ValueError(f"{name}: several rows for {r['regime']} seed {r['seed']} day {r['episode']}: pick one job per run first (report.build.prepare)")
+            raise ValueError(
+                f"{name}: several rows for {r['regime']} seed {r['seed']} day {r['episode']}: pick one job per run first (report.build.prepare)"
+            )
         sides.append(rows[key + ["return"]].rename(columns={"return": col}))
     out = sides[0].merge(sides[1], on=key, how="inner", validate="one_to_one")
     rank = {r: i for i, r in enumerate(sort_regimes(out["regime"]))}
@@ -71,7 +87,9 @@ def _per_seed(days: pd.DataFrame) -> pd.DataFrame:
     """Per seed of one regime's paired days: the number of days, the sum of A - B, of A, of B
     and of the wins (1 when A is higher, 1/2 on a tie)."""
     d = days.assign(diff=days["a"] - days["b"], win=(days["a"] > days["b"]) + 0.5 * (days["a"] == days["b"]))
-    return d.groupby("seed").agg(n=("diff", "size"), diff=("diff", "sum"), a=("a", "sum"), b=("b", "sum"), win=("win", "sum"))
+    return d.groupby("seed").agg(
+        n=("diff", "size"), diff=("diff", "sum"), a=("a", "sum"), b=("b", "sum"), win=("win", "sum")
+    )
 
 
 def _interval(values: np.ndarray, confidence: float) -> tuple[float, float]:
@@ -85,10 +103,16 @@ def _summary(name: str, regimes: list[str], days: pd.DataFrame, reps: int, seed:
     a bootstrap over seeds stratified by regime."""
     per = {r: _per_seed(days[days["regime"] == r]) for r in regimes}
     n = sum(p["n"].sum() for p in per.values())
-    row = {"regime": name, "regimes": ",".join(regimes), "seeds": int(sum(len(p) for p in per.values())), "days": int(n),
-           "a_mean": float(days["a"].mean()), "b_mean": float(days["b"].mean()),
-           "diff": float((days["a"] - days["b"]).mean()),
-           "p_a_better": float(sum(p["win"].sum() for p in per.values()) / n)}  # fmt: skip
+    row = {
+        "regime": name,
+        "regimes": ",".join(regimes),
+        "seeds": int(sum(len(p) for p in per.values())),
+        "days": int(n),
+        "a_mean": float(days["a"].mean()),
+        "b_mean": float(days["b"].mean()),
+        "diff": float((days["a"] - days["b"]).mean()),
+        "p_a_better": float(sum(p["win"].sum() for p in per.values()) / n),
+    }
     if max(len(p) for p in per.values()) < 2:  # one seed everywhere: nothing to resample
         return {**row, "diff_lo": float("nan"), "diff_hi": float("nan"), "p_lo": float("nan"), "p_hi": float("nan")}
     rng = np.random.default_rng([seed, *(zlib.crc32(r.encode()) for r in regimes)])
@@ -120,8 +144,10 @@ class Comparison:
 
     def title(self) -> str:
         la, lb = algo_label(self.a), algo_label(self.b)
-        return (f"{la} - {lb}: mean paired difference of evaluation returns (same seed, same day), 95 % bootstrap interval over "
-                f"seeds ({self.reps} resamples, a seed's days kept together); P({la} > {lb}) over paired days (ties count half)")
+        return (
+            f"{la} - {lb}: mean paired difference of evaluation returns (same seed, same day), 95 % bootstrap interval over "
+            f"seeds ({self.reps} resamples, a seed's days kept together); P({la} > {lb}) over paired days (ties count half)"
+        )
 
     def formatted(self) -> pd.DataFrame:
         """The rows as text: regime, seeds, days, means, difference [interval], P(A > B) [interval]."""
@@ -133,8 +159,17 @@ class Comparison:
                 name = f"{r.regime} ({regime_span(r.regimes.split(','))})"
             ci = f" [{r.diff_lo:+.2f}, {r.diff_hi:+.2f}]" if np.isfinite(r.diff_lo) else " [single seed]"
             pci = f" [{r.p_lo:.2f}, {r.p_hi:.2f}]" if np.isfinite(r.p_lo) else ""
-            out.append({"regime": name, "seeds": r.seeds, "days": r.days, la: f"{r.a_mean:.2f}", lb: f"{r.b_mean:.2f}",
-                        f"{la} - {lb} [95% CI]": f"{r.diff:+.2f}{ci}", f"P({la} > {lb})": f"{r.p_a_better:.2f}{pci}"})  # fmt: skip
+            out.append(
+                {
+                    "regime": name,
+                    "seeds": r.seeds,
+                    "days": r.days,
+                    la: f"{r.a_mean:.2f}",
+                    lb: f"{r.b_mean:.2f}",
+                    f"{la} - {lb} [95% CI]": f"{r.diff:+.2f}{ci}",
+                    f"P({la} > {lb})": f"{r.p_a_better:.2f}{pci}",
+                }
+            )
         return pd.DataFrame(out)
 
     def to_markdown(self) -> str:
@@ -164,8 +199,15 @@ class Comparison:
         return "\n".join(lines) + "\n"
 
 
-def compare_agents(ev: pd.DataFrame, a: str, b: str, regimes: Sequence[str] | None = None, reps: int = DEFAULT_REPS,
-                   seed: int = 0, confidence: float = CONFIDENCE) -> Comparison:  # fmt: skip
+def compare_agents(
+    ev: pd.DataFrame,
+    a: str,
+    b: str,
+    regimes: Sequence[str] | None = None,
+    reps: int = DEFAULT_REPS,
+    seed: int = 0,
+    confidence: float = CONFIDENCE,
+) -> Comparison:
     """``a`` against ``b`` on the evaluation episodes ``ev`` (columns of ``episode_metrics``;
     one job per run): per regime of ``regimes`` (default: every regime both played) and
     aggregated. :class:`CompareError` when the two cannot be compared."""
@@ -175,17 +217,23 @@ def compare_agents(ev: pd.DataFrame, a: str, b: str, regimes: Sequence[str] | No
     held = sort_algos(ev["algo"])
     unknown = [n for n in (a, b) if n not in held]
     if unknown:
-        raise CompareError(f"{', '.join(unknown)}: no evaluation days in the database, which has them for {', '.join(held) or 'no agent config'}")
+        raise CompareError(
+            f"{', '.join(unknown)}: no evaluation days in the database, which has them for {', '.join(held) or 'no agent config'}"
+        )
     both = sorted(set(ev.loc[ev["algo"] == a, "regime"]) & set(ev.loc[ev["algo"] == b, "regime"]))
     if regimes is not None:
         regimes = list(dict.fromkeys(regimes))
         absent = [r for r in regimes if r not in both]
         if absent:
-            raise CompareError(f"--regimes {', '.join(absent)}: {a} and {b} were not both evaluated there "
-                               f"(both were on {', '.join(sort_regimes(both)) or 'no regime'})")  # fmt: skip
+            raise CompareError(
+                f"--regimes {', '.join(absent)}: {a} and {b} were not both evaluated there "
+                f"(both were on {', '.join(sort_regimes(both)) or 'no regime'})"
+            )
     wanted = sort_regimes(both if regimes is None else regimes)
     if not wanted:
-        raise CompareError(f"{a} and {b} were never evaluated on the same regime ({a}: {_regimes_of(ev, a)}; {b}: {_regimes_of(ev, b)})")
+        raise CompareError(
+            f"{a} and {b} were never evaluated on the same regime ({a}: {_regimes_of(ev, a)}; {b}: {_regimes_of(ev, b)})"
+        )
     days = paired_days(ev, a, b, wanted)
     notes = []
     paired = sort_regimes(days["regime"])
@@ -196,7 +244,9 @@ def compare_agents(ev: pd.DataFrame, a: str, b: str, regimes: Sequence[str] | No
         raise CompareError(f"{a} and {b} share no seed on {', '.join(wanted)}: nothing to pair ({'; '.join(notes)})")
     for r in paired:
         for name in (a, b):
-            lost = set(ev.loc[(ev["algo"] == name) & (ev["regime"] == r), "seed"]) - set(days.loc[days["regime"] == r, "seed"])
+            lost = set(ev.loc[(ev["algo"] == name) & (ev["regime"] == r), "seed"]) - set(
+                days.loc[days["regime"] == r, "seed"]
+            )
             if lost:
                 notes.append(f"{r}: seeds {seed_list(lost)} of {name} have no partner, left out")
     rows = [_summary(r, [r], days[days["regime"] == r], reps, seed, confidence) for r in paired]
@@ -246,11 +296,21 @@ def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, re
     held = sort_algos(ev["algo"])
     unknown = [n for n in (a, b) if n not in held]
     if unknown:
-        raise CompareError(f"{', '.join(unknown)}: no evaluation days in the database, which has them for {', '.join(held)}")
+        raise CompareError(
+            f"{', '.join(unknown)}: no evaluation days in the database, which has them for {', '.join(held)}"
+        )
     data = prepare(ev, [a, b])
     res = compare_agents(data.eval, a, b, regimes, reps)
     res.notes = [*data.notes, *res.notes]
     return res
 
 
-__all__ = ["COLUMNS", "CompareError", "Comparison", "compare_agents", "load_comparison", "paired_days", "read_eval_metrics"]
+__all__ = [
+    "COLUMNS",
+    "CompareError",
+    "Comparison",
+    "compare_agents",
+    "load_comparison",
+    "paired_days",
+    "read_eval_metrics",
+]

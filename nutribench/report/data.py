@@ -41,8 +41,10 @@ def check_names(names: Iterable[Any], what: str, where: str) -> None:
     bad = [n for n in dict.fromkeys(names) if not valid_name(n)]
     if bad:
         shown = repr(bad[0]) if len(repr(bad[0])) <= 80 else repr(bad[0])[:77] + "..."
-        raise ReportError(f"{where}: {what} {shown} is not a name ([a-z][a-z0-9_]*, at most {NAME_MAX} characters): "
-                          "no file is built from it")  # fmt: skip
+        raise ReportError(
+            f"{where}: {what} {shown} is not a name ([a-z][a-z0-9_]*, at most {NAME_MAX} characters): "
+            "no file is built from it"
+        )
 
 
 @dataclass
@@ -87,9 +89,11 @@ def _keep_largest_budget(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
     notes = []
     largest = df.groupby(["regime", "algo"])["budget"].transform("max")
     mixed = df.groupby(["regime", "algo"])["budget"].nunique()
-    for (regime, algo), n in mixed[mixed > 1].items():
+    for regime, algo in mixed[mixed > 1].index:
         budgets = sorted(df[(df["regime"] == regime) & (df["algo"] == algo)]["budget"].unique())
-        notes.append(f"{algo_label(algo)}/{regime}: budgets {', '.join(map(str, budgets))} in the database, the largest ({budgets[-1]}) shown")
+        notes.append(
+            f"{algo_label(algo)}/{regime}: budgets {', '.join(map(str, budgets))} in the database, the largest ({budgets[-1]}) shown"
+        )
     df = df[df["budget"] == largest]
     newest_job = df.groupby(["regime", "algo", "seed"])["job_id"].transform("max")
     if (df["job_id"] != newest_job).any():
@@ -112,7 +116,9 @@ def read_metrics(db: Db) -> pd.DataFrame:
     finally:
         store.dispose()
     if df.empty:
-        raise ReportError(f"{store.display} holds no finished episodes yet: {db_command('nutribench run', store.url)} fills it")
+        raise ReportError(
+            f"{store.display} holds no finished episodes yet: {db_command('nutribench run', store.url)} fills it"
+        )
     check_names(df["regime"].unique(), "regime", store.display)
     check_names(df["algo"].unique(), "agent config", store.display)
     return df
@@ -168,7 +174,9 @@ def check_known(names: Sequence[str], held: Iterable[str], option: str) -> None:
     held = sort_algos(held)
     unknown = [n for n in names if n not in held]
     if unknown:
-        raise ReportError(f"{option} {', '.join(unknown)}: not in the database, which holds {', '.join(held) or 'no agent configs'}")
+        raise ReportError(
+            f"{option} {', '.join(unknown)}: not in the database, which holds {', '.join(held) or 'no agent configs'}"
+        )
 
 
 @dataclass

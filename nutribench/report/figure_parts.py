@@ -116,7 +116,9 @@ def _legend_rows(fig: Figure, rows: list[tuple[list, list[str]]], fontsize: floa
     :data:`LEGEND_COLS` entries takes several rows."""
     from matplotlib.lines import Line2D
 
-    rows = [(hs[k : k + LEGEND_COLS], ls[k : k + LEGEND_COLS]) for hs, ls in rows for k in range(0, len(ls), LEGEND_COLS)]
+    rows = [
+        (hs[k : k + LEGEND_COLS], ls[k : k + LEGEND_COLS]) for hs, ls in rows for k in range(0, len(ls), LEGEND_COLS)
+    ]
     if not rows:
         return
     ncols = max(len(labels) for _, labels in rows)

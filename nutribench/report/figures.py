@@ -15,15 +15,11 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from nutribench.report.palette import Palette, palette
-from nutribench.report.palette import label as algo_label
-from nutribench.report.palette import order as sort_algos
-from nutribench.report.stats import seed_mean_ci
 from nutribench.report.figure_parts import (  # noqa: F401 (re-exported: the figures' shared parts)
     LEGEND_COLS,
-    _span,
     FigureResult,
     _legend_rows,
+    _span,
     _wrap,
     budget_seeds_text,
     default_window,
@@ -33,6 +29,10 @@ from nutribench.report.figure_parts import (  # noqa: F401 (re-exported: the fig
     set_title,
     sort_regimes,
 )
+from nutribench.report.palette import Palette, palette
+from nutribench.report.palette import label as algo_label
+from nutribench.report.palette import order as sort_algos
+from nutribench.report.stats import seed_mean_ci
 
 METRIC_LABELS = {
     "return": "episodic return",
@@ -101,7 +101,11 @@ def training_curves(
             if not np.all(np.isnan(se)):
                 ax.fill_between(x, mean - se, mean + se, color=colors.color(algo), alpha=0.2, lw=0)
             best = max(best, float(np.nanmax(mean)))
-            rows.append(pd.DataFrame({"regime": regime, "algo": algo, "episode": x, "mean": mean, "sem": se, "n_seeds": wide.shape[0]}))
+            rows.append(
+                pd.DataFrame(
+                    {"regime": regime, "algo": algo, "episode": x, "mean": mean, "sem": se, "n_seeds": wide.shape[0]}
+                )
+            )
         if best_line and np.isfinite(best):
             ax.axhline(best, color="k", ls="--", lw=0.9, label="best (smoothed)" if window > 1 else "best")
         ax.set_title(f"{regime}", fontsize=10)
@@ -235,8 +239,10 @@ def eval_across_regimes(
         scores = seed_scores(ev, day_references)
         unscored = sort_regimes(scores.loc[~np.isfinite(scores["score"].to_numpy(dtype=float)), "regime"].unique())
         if unscored:
-            notes.append(f"panel (A) shows returns, not the share of the gap: no never/planner yardsticks for {', '.join(unscored)} "
-                         "(the regime file is not the version the jobs ran)")  # fmt: skip
+            notes.append(
+                f"panel (A) shows returns, not the share of the gap: no never/planner yardsticks for {', '.join(unscored)} "
+                "(the regime file is not the version the jobs ran)"
+            )
             scores = None
     fig = Figure(figsize=(11, 7.6), layout="constrained")
     axes = fig.subplots(2, 2, sharex=True)
@@ -271,10 +277,21 @@ def eval_across_regimes(
                 err = np.array([stats["mean"] - stats["lo"], stats["hi"] - stats["mean"]])
                 ax.errorbar(xd, stats["mean"], yerr=err, fmt="none", ecolor=color, capsize=4, lw=1.2)
             rows.append(
-                pd.DataFrame({"panel": "gap_closed" if gap_panel else metric, "algo": algo, "regime": stats.index, "x": x,
-                              "mean": stats["mean"].to_numpy(), "lo": stats["lo"].to_numpy(), "hi": stats["hi"].to_numpy(),
-                              "sem": stats["sem"].to_numpy(), "n": stats["count"].to_numpy(), "seeds": stats["seeds"].to_numpy()})
-            )  # fmt: skip
+                pd.DataFrame(
+                    {
+                        "panel": "gap_closed" if gap_panel else metric,
+                        "algo": algo,
+                        "regime": stats.index,
+                        "x": x,
+                        "mean": stats["mean"].to_numpy(),
+                        "lo": stats["lo"].to_numpy(),
+                        "hi": stats["hi"].to_numpy(),
+                        "sem": stats["sem"].to_numpy(),
+                        "n": stats["count"].to_numpy(),
+                        "seeds": stats["seeds"].to_numpy(),
+                    }
+                )
+            )
         if references is not None and not references.empty:
             ref = references[references["regime"].isin(regimes)]
             if gap_panel:
@@ -284,7 +301,9 @@ def eval_across_regimes(
                 if r.empty:
                     continue
                 r = r.set_index("regime").loc[sort_regimes(r["regime"])]
-                ax.plot([xs[k] for k in r.index], r[metric], lw=0.8, ms=4, alpha=0.9, label=f"{policy} (reference)", **style)
+                ax.plot(
+                    [xs[k] for k in r.index], r[metric], lw=0.8, ms=4, alpha=0.9, label=f"{policy} (reference)", **style
+                )
         panel_title = GAP_LABEL if gap_panel else METRIC_LABELS[metric]
         ax.set_title(f"({'ABCD'[p]}) {panel_title}", fontsize=10, loc="left")
         ax.grid(alpha=0.3)
@@ -311,11 +330,20 @@ def eval_across_regimes(
             notes.append(f"no evaluation data for {', '.join(absent)}")
     n_seeds = ev.groupby(["regime", "algo"])["seed"].nunique()
     n_days = ev.groupby(["regime", "algo", "seed"]).size()
-    band = ("band (or error bar) = 95 % bootstrap interval over seeds (seed means resampled)" if n_seeds.max() > 1
-            else "one seed: no band")  # fmt: skip
-    panel_a = ("(A) each seed's share of the never -> planner gap closed on its own evaluation days; returns in the results table"
-               if scores is not None else "(A) return")  # fmt: skip
-    set_title(fig, f"{title}\nmean over seeds ({_span(n_seeds)} per point) of each seed's mean over its evaluation days ({_span(n_days)});\n"
-                   f"{band}; {panel_a};\nalgorithms are drawn slightly apart along x so that equal values stay visible\n{budget_seeds_text(ev)}")
+    band = (
+        "band (or error bar) = 95 % bootstrap interval over seeds (seed means resampled)"
+        if n_seeds.max() > 1
+        else "one seed: no band"
+    )
+    panel_a = (
+        "(A) each seed's share of the never -> planner gap closed on its own evaluation days; returns in the results table"
+        if scores is not None
+        else "(A) return"
+    )
+    set_title(
+        fig,
+        f"{title}\nmean over seeds ({_span(n_seeds)} per point) of each seed's mean over its evaluation days ({_span(n_days)});\n"
+        f"{band}; {panel_a};\nalgorithms are drawn slightly apart along x so that equal values stay visible\n{budget_seeds_text(ev)}",
+    )
     draw_notes(fig, notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)

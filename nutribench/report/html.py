@@ -12,8 +12,8 @@ from __future__ import annotations
 import html
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -56,12 +56,17 @@ class PageItem:
 def table_html(frame: pd.DataFrame) -> str:
     """``frame`` as an HTML table, every cell escaped."""
     head = "".join(f"<th>{html.escape(str(c))}</th>" for c in frame.columns)
-    body = "\n".join("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in row) + "</tr>" for row in frame.itertuples(index=False))
+    body = "\n".join(
+        "<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in row) + "</tr>"
+        for row in frame.itertuples(index=False)
+    )
     return f"<table>\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody>\n</table>"
 
 
 def _links(files: Sequence[str]) -> str:
-    return " · ".join(f'<a href="{html.escape(f, quote=True)}">{html.escape(Path(f).suffix.lstrip(".") or f)}</a>' for f in files)
+    return " · ".join(
+        f'<a href="{html.escape(f, quote=True)}">{html.escape(Path(f).suffix.lstrip(".") or f)}</a>' for f in files
+    )
 
 
 def page_html(items: Sequence[PageItem], title: str = "nutribench report", subtitle: str = "") -> str:
@@ -74,18 +79,24 @@ def page_html(items: Sequence[PageItem], title: str = "nutribench report", subti
         files = f'<p class="notes">files: {_links(i.files)}</p>' if i.files else ""
         if i.png is not None:
             src = html.escape(i.png, quote=True)
-            parts.append(f'<section id="{sid}">\n<h2>{html.escape(i.title)}</h2>\n<figure><a href="{src}"><img src="{src}" alt="{sid}"></a>'
-                         f"<figcaption>{html.escape(i.stem)}</figcaption></figure>\n{notes}{files}\n</section>")  # fmt: skip
+            parts.append(
+                f'<section id="{sid}">\n<h2>{html.escape(i.title)}</h2>\n<figure><a href="{src}"><img src="{src}" alt="{sid}"></a>'
+                f"<figcaption>{html.escape(i.stem)}</figcaption></figure>\n{notes}{files}\n</section>"
+            )
         else:
             table = table_html(i.table) if i.table is not None else ""
             parts.append(f'<section id="{sid}">\n<h2>{html.escape(i.title)}</h2>\n{table}\n{notes}{files}\n</section>')
     sub = f"<p>{html.escape(subtitle)}</p>" if subtitle else ""
-    return (f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n<title>{html.escape(title)}</title>\n'
-            f"<style>{_STYLE}</style>\n<script>{_SCRIPT}</script>\n</head>\n<body>\n<h1>{html.escape(title)}</h1>\n{sub}\n"
-            f"<nav>{nav}</nav>\n" + "\n".join(parts) + "\n</body>\n</html>\n")  # fmt: skip
+    return (
+        f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n<title>{html.escape(title)}</title>\n'
+        f"<style>{_STYLE}</style>\n<script>{_SCRIPT}</script>\n</head>\n<body>\n<h1>{html.escape(title)}</h1>\n{sub}\n"
+        f"<nav>{nav}</nav>\n" + "\n".join(parts) + "\n</body>\n</html>\n"
+    )
 
 
-def write_index(items: Sequence[PageItem], out_dir: str | Path, title: str = "nutribench report", subtitle: str = "") -> Path:
+def write_index(
+    items: Sequence[PageItem], out_dir: str | Path, title: str = "nutribench report", subtitle: str = ""
+) -> Path:
     """Write ``<out_dir>/index.html`` with ``items`` (their files relative to ``out_dir``)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -98,8 +109,13 @@ def page_figure(number: int, res: Any, written: Sequence[Path]) -> PageItem:
     """Figure ``number`` on index.html: its PNG, the first line of its title, its notes."""
     sup = getattr(res.figure, "_suptitle", None)
     heading = sup.get_text().splitlines()[0] if sup is not None and sup.get_text() else ""
-    return PageItem(written[0].stem, f"Figure {number}" + (f": {heading}" if heading else ""), png=written[0].name,
-                    notes=list(res.notes), files=[p.name for p in written])  # fmt: skip
+    return PageItem(
+        written[0].stem,
+        f"Figure {number}" + (f": {heading}" if heading else ""),
+        png=written[0].name,
+        notes=list(res.notes),
+        files=[p.name for p in written],
+    )
 
 
 def page_table(stem: str, res: Any, written: Sequence[Path]) -> PageItem:

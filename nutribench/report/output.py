@@ -58,10 +58,15 @@ def build_trajectory(db: Db, algo: str, regime: str, seed: int, episode: int = 0
     check_names([algo], "agent config", "--algo")
     store = open_store(db)
     try:
-        steps = read_eval_trajectories(store.engine, regimes=regime, algos=algo, seeds=seed, episode=episode, latest_only=True)
+        steps = read_eval_trajectories(
+            store.engine, regimes=regime, algos=algo, seeds=seed, episode=episode, latest_only=True
+        )
         if steps.empty:
             have = read_eval_trajectories(store.engine, latest_only=True)
-            raise ReportError(f"no evaluation steps for {algo}/{regime} seed {seed} episode {episode} in {store.display}" + _available(have))
+            raise ReportError(
+                f"no evaluation steps for {algo}/{regime} seed {seed} episode {episode} in {store.display}"
+                + _available(have)
+            )
     finally:
         store.dispose()
     budget = int(steps["budget"].max())
@@ -82,8 +87,14 @@ def _available(steps: pd.DataFrame) -> str:
     if steps.empty:
         return " (the database holds no evaluation steps)"
     cells = steps[["algo", "regime", "seed"]].drop_duplicates()
-    parts = [f"{a}/{r} seeds {','.join(map(str, sorted(g['seed'])))}" for (a, r), g in cells.groupby(["algo", "regime"])]
+    parts = [
+        f"{a}/{r} seeds {','.join(map(str, sorted(g['seed'])))}" for (a, r), g in cells.groupby(["algo", "regime"])
+    ]
     eps = sorted(steps["episode"].unique())
-    shown = "; ".join(parts[:AVAILABLE_SHOWN]) + (f"; ... {len(parts) - AVAILABLE_SHOWN} more" if len(parts) > AVAILABLE_SHOWN else "")
-    return (f"; available: {shown} (episodes {eps[0]}-{eps[-1]}; all of them: "
-            "nutribench status, or SELECT DISTINCT algo, regime, seed FROM episode_metrics WHERE phase = 'eval')")
+    shown = "; ".join(parts[:AVAILABLE_SHOWN]) + (
+        f"; ... {len(parts) - AVAILABLE_SHOWN} more" if len(parts) > AVAILABLE_SHOWN else ""
+    )
+    return (
+        f"; available: {shown} (episodes {eps[0]}-{eps[-1]}; all of them: "
+        "nutribench status, or SELECT DISTINCT algo, regime, seed FROM episode_metrics WHERE phase = 'eval')"
+    )

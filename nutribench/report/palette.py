@@ -23,7 +23,13 @@ from matplotlib.colors import hsv_to_rgb, to_hex, to_rgb
 #: The paper's configs, in the paper's order.
 BUILTIN_ORDER: tuple[str, ...] = ("mc", "ddqn", "ppo", "sac", "gru_ppo")
 BUILTIN_LABELS: dict[str, str] = {"mc": "MC", "ddqn": "DDQN", "ppo": "PPO", "sac": "SAC", "gru_ppo": "GRU-PPO"}
-BUILTIN_COLORS: dict[str, str] = {"mc": "#8c564b", "ddqn": "#1f77b4", "ppo": "#2ca02c", "sac": "#d62728", "gru_ppo": "#9467bd"}
+BUILTIN_COLORS: dict[str, str] = {
+    "mc": "#8c564b",
+    "ddqn": "#1f77b4",
+    "ppo": "#2ca02c",
+    "sac": "#d62728",
+    "gru_ppo": "#9467bd",
+}
 #: Smallest CIELAB (CIE76) distance between a derived colour and any colour placed before it.
 MIN_DISTANCE = 32.0
 #: Candidate colours tried per name before the most distant one is taken.
@@ -126,4 +132,14 @@ def palette(names: Iterable[str] = ()) -> Palette:
     return Palette(colors(names))
 
 
-__all__ = ["BUILTIN_COLORS", "BUILTIN_LABELS", "BUILTIN_ORDER", "Palette", "colors", "distance", "label", "order", "palette"]
+__all__ = [
+    "BUILTIN_COLORS",
+    "BUILTIN_LABELS",
+    "BUILTIN_ORDER",
+    "Palette",
+    "colors",
+    "distance",
+    "label",
+    "order",
+    "palette",
+]

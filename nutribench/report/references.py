@@ -18,7 +18,9 @@ from nutribench.config import ConfigError
 Log = Callable[[str], None]
 
 
-def simple_policy_references(regimes: Iterable[str], episodes: int = 200, seed: int = 0, log: Log | None = None) -> pd.DataFrame:
+def simple_policy_references(
+    regimes: Iterable[str], episodes: int = 200, seed: int = 0, log: Log | None = None
+) -> pd.DataFrame:
     """Reference lines of Figures 3/4: the mean metrics of the four simple policies (random,
     never, always, full-information planner) per regime, on the same ``episodes`` food
     streams drawn with ``seed``. Regimes without a regime file are left out (logged).
@@ -62,7 +64,12 @@ def eval_day_references(ev: pd.DataFrame, log: Log | None = None) -> pd.DataFram
                 log(f"no never/planner yardsticks for {regime} v{version}: the regime file is v{cfg.version}")
             continue
         streams = eval_food_streams(regime, int(seed), int(days["episode"].max()) + 1)
-        played = {name: [float(r["return"]) for r in play_simple_policy(name, regime, streams)] for name in ("never", "planner")}
-        rows += [{"regime": regime, "seed": seed, "episode": e, "never": played["never"][e], "planner": played["planner"][e]}
-                 for e in range(len(streams))]  # fmt: skip
+        played = {
+            name: [float(r["return"]) for r in play_simple_policy(name, regime, streams)]
+            for name in ("never", "planner")
+        }
+        rows += [
+            {"regime": regime, "seed": seed, "episode": e, "never": played["never"][e], "planner": played["planner"][e]}
+            for e in range(len(streams))
+        ]
     return pd.DataFrame(rows, columns=["regime", "seed", "episode", "never", "planner"])

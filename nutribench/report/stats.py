@@ -54,7 +54,9 @@ def iqm_bootstrap_ci(
     return point, float(lo), float(hi)
 
 
-def seed_mean_ci(seed_means: np.ndarray | list[float], reps: int = 2000, alpha: float = 0.05, seed: int = 0) -> tuple[float, float, float]:
+def seed_mean_ci(
+    seed_means: np.ndarray | list[float], reps: int = 2000, alpha: float = 0.05, seed: int = 0
+) -> tuple[float, float, float]:
     """Mean of the seeds' means and its percentile bootstrap interval over **seeds**: each
     resample redraws the seeds with replacement (each seed's mean over its evaluation days is
     one value), as for few-seed RL results (Agarwal et al. 2021). ``(mean, nan, nan)`` with

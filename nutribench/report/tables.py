@@ -67,8 +67,19 @@ class TableResult:
 
 
 #: LaTeX's special characters and what each becomes in running text.
-_LATEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
-                  "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}", "±": r"$\pm$"}  # fmt: skip
+_LATEX_SPECIAL = {
+    "\\": r"\textbackslash{}",
+    "&": r"\&",
+    "%": r"\%",
+    "$": r"\$",
+    "#": r"\#",
+    "_": r"\_",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+    "±": r"$\pm$",
+}
 
 
 def latex_escape(value: object) -> str:
@@ -94,7 +105,9 @@ def table_regimes(configs) -> TableResult:
         for n in ("C", "P", "F"):
             lo, hi = raw[f"{what}_{n}_low"], raw[f"{what}_{n}_high"]
             fmt[f"{what}_{n}"] = [f"{a:g}" if a == b else f"{a:g}-{b:g}" for a, b in zip(lo, hi)]
-    return TableResult("table1", "Table 1: delay regimes (steps; per-food values drawn uniformly from these ranges)", raw, fmt)
+    return TableResult(
+        "table1", "Table 1: delay regimes (steps; per-food values drawn uniformly from these ranges)", raw, fmt
+    )
 
 
 def _flatten(d: dict, prefix: str = "") -> dict:
@@ -124,7 +137,9 @@ def table_agent_config(number: int, config) -> TableResult:
     as ``params.<key>`` rows."""
     content = config.model_dump(mode="json")
     flat = _flatten(content)
-    raw = pd.DataFrame({"hyperparameter": list(flat), "value": [v if not isinstance(v, list) else str(v) for v in flat.values()]})
+    raw = pd.DataFrame(
+        {"hyperparameter": list(flat), "value": [v if not isinstance(v, list) else str(v) for v in flat.values()]}
+    )
     fmt = raw.copy()
     fmt["value"] = [", ".join(map(str, v)) if isinstance(v, list) else str(v) for v in flat.values()]
     return TableResult(f"table{number}", _config_title(number, config.name, content), raw, fmt)
@@ -137,7 +152,11 @@ def mean_sem_cell(values: pd.Series, digits: int) -> tuple[float, float, str]:
 
 
 def _interval(point: float, lo: float, hi: float, fmt: str) -> str:
-    return f"{fmt.format(point)} [{fmt.format(lo)}, {fmt.format(hi)}]" if np.isfinite(lo) else f"{fmt.format(point)} [single seed]"
+    return (
+        f"{fmt.format(point)} [{fmt.format(lo)}, {fmt.format(hi)}]"
+        if np.isfinite(lo)
+        else f"{fmt.format(point)} [single seed]"
+    )
 
 
 def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.DataFrame | None = None) -> TableResult:
@@ -171,36 +190,55 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
             by_seed = [g["return"].to_numpy(dtype=float) for _, g in cell.groupby("seed")]
             point, lo, hi = iqm_bootstrap_ci(by_seed, reps=seeds_bootstrap)
             row["return_iqm"], row["return_iqm_lo"], row["return_iqm_hi"] = point, lo, hi
-            f["return IQM [95% CI]"] = f"{point:.2f} [{lo:.2f}, {hi:.2f}]" if np.isfinite(lo) else f"{point:.2f} [single seed]"
+            f["return IQM [95% CI]"] = (
+                f"{point:.2f} [{lo:.2f}, {hi:.2f}]" if np.isfinite(lo) else f"{point:.2f} [single seed]"
+            )
             if ref is not None:
                 keys = pd.MultiIndex.from_arrays([cell["regime"], cell["seed"], cell["episode"]])
                 days = ref.reindex(keys)
                 complete = not days.isna().any().any()
                 row["never_mean"] = float(days["never"].mean()) if complete else float("nan")
                 row["planner_mean"] = float(days["planner"].mean()) if complete else float("nan")
-                row["gap_closed"] = gap_closed(row["return_mean"], row["never_mean"], row["planner_mean"]) if complete else float("nan")
+                row["gap_closed"] = (
+                    gap_closed(row["return_mean"], row["never_mean"], row["planner_mean"]) if complete else float("nan")
+                )
                 f["never / planner"] = f"{row['never_mean']:.2f} / {row['planner_mean']:.2f}" if complete else "n/a"
                 f["gap closed"] = f"{100 * row['gap_closed']:.0f} %" if np.isfinite(row["gap_closed"]) else "n/a"
                 shares = _seed_shares(cell, days) if complete else np.array([])
-                gap_ci = seed_mean_ci(shares, reps=seeds_bootstrap) if shares.size and np.isfinite(shares).all() else (np.nan,) * 3
+                gap_ci = (
+                    seed_mean_ci(shares, reps=seeds_bootstrap)
+                    if shares.size and np.isfinite(shares).all()
+                    else (np.nan,) * 3
+                )
                 row["gap_closed_seed_mean"], row["gap_closed_seed_lo"], row["gap_closed_seed_hi"] = gap_ci
                 if np.isfinite(gap_ci[0]):
-                    f["gap closed [95% CI over seeds]"] = (f"{100 * gap_ci[0]:.0f} % [{100 * gap_ci[1]:.0f} %, {100 * gap_ci[2]:.0f} %]"
-                                                           if np.isfinite(gap_ci[1]) else f"{100 * gap_ci[0]:.0f} % [single seed]")  # fmt: skip
+                    f["gap closed [95% CI over seeds]"] = (
+                        f"{100 * gap_ci[0]:.0f} % [{100 * gap_ci[1]:.0f} %, {100 * gap_ci[2]:.0f} %]"
+                        if np.isfinite(gap_ci[1])
+                        else f"{100 * gap_ci[0]:.0f} % [single seed]"
+                    )
             row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"] = seed_ci
             rows.append(row)
             fmt_rows.append(f)
-    title = ("Results: fixed-policy inference; first the seed-level 95 % interval (mean over seeds of each seed's mean over its "
-             "evaluation days, percentile bootstrap resampling seeds), then mean ± standard error over seeds x evaluation "
-             "episodes pooled (as the paper reports)")  # fmt: skip
+    title = (
+        "Results: fixed-policy inference; first the seed-level 95 % interval (mean over seeds of each seed's mean over its "
+        "evaluation days, percentile bootstrap resampling seeds), then mean ± standard error over seeds x evaluation "
+        "episodes pooled (as the paper reports)"
+    )
     return TableResult("results", title, pd.DataFrame(rows), pd.DataFrame(fmt_rows))
 
 
 def _seed_shares(cell: pd.DataFrame, days: pd.DataFrame) -> np.ndarray:
     """Each seed's share of the never -> planner gap closed on its own evaluation days
     (``days``: the yardsticks of ``cell``'s rows, in the same order)."""
-    frame = pd.DataFrame({"seed": cell["seed"].to_numpy(), "return": cell["return"].to_numpy(dtype=float),
-                          "never": days["never"].to_numpy(dtype=float), "planner": days["planner"].to_numpy(dtype=float)})  # fmt: skip
+    frame = pd.DataFrame(
+        {
+            "seed": cell["seed"].to_numpy(),
+            "return": cell["return"].to_numpy(dtype=float),
+            "never": days["never"].to_numpy(dtype=float),
+            "planner": days["planner"].to_numpy(dtype=float),
+        }
+    )
     means = frame.groupby("seed")[["return", "never", "planner"]].mean()
     return np.array([gap_closed(r, n, p) for r, n, p in means.itertuples(index=False)], dtype=float)
 
@@ -232,6 +270,8 @@ def table_training(df: pd.DataFrame, last_share: float = 0.1) -> TableResult:
             rows.append(row)
             fmt_rows.append(f)
     pct = round(100 * last_share)
-    title = (f"Training: mean return and foods per day over the last {pct} % of training days, ours (± standard error over "
-             f"seeds) and the authors' logged ones (last 10 % of their {AUTHORS_BUDGET} days)")  # fmt: skip
+    title = (
+        f"Training: mean return and foods per day over the last {pct} % of training days, ours (± standard error over "
+        f"seeds) and the authors' logged ones (last 10 % of their {AUTHORS_BUDGET} days)"
+    )
     return TableResult("training", title, pd.DataFrame(rows), pd.DataFrame(fmt_rows))

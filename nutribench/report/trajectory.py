@@ -37,8 +37,18 @@ def trajectory_figure(steps: pd.DataFrame, dynamics: RegimeDynamics, title: str 
         t = int(m["step"])
         top.axvline(t - 0.5, color="0.6", lw=0.8, ls=":")
         # above the axes, in a strip of their own: inside, labels covered the curves
-        top.text(t - 0.5, 1.01, dynamics.food_names[int(m["food"])].replace("_", " "), rotation=90, va="bottom", ha="center",
-                 fontsize=7, color="0.3", transform=top.get_xaxis_transform(), clip_on=False)  # fmt: skip
+        top.text(
+            t - 0.5,
+            1.01,
+            dynamics.food_names[int(m["food"])].replace("_", " "),
+            rotation=90,
+            va="bottom",
+            ha="center",
+            fontsize=7,
+            color="0.3",
+            transform=top.get_xaxis_transform(),
+            clip_on=False,
+        )
     top.set_ylim(0, ymax)
     top.set_ylabel("absorbed (x daily target)")
     # outside the axes: any spot inside would cover the curves on some day
@@ -58,7 +68,9 @@ def trajectory_figure(steps: pd.DataFrame, dynamics: RegimeDynamics, title: str 
         bottom.axvline(t - 0.5, color="0.6", lw=0.8, ls=":")
     if meals.empty:  # a policy that never eats: say so instead of drawing two empty panels
         for ax in (top, bottom):
-            ax.text(0.5, 0.5, "no meal eaten on this day", transform=ax.transAxes, ha="center", va="center", color="0.4")
+            ax.text(
+                0.5, 0.5, "no meal eaten on this day", transform=ax.transAxes, ha="center", va="center", color="0.4"
+            )
     bottom.set_ylabel("delivered per step\n(x daily target)")
     bottom.set_xlabel(f"step (1 step ~ 30 min; day = {H} steps)")
     bottom.set_xlim(0, H + 0.5)

@@ -28,7 +28,9 @@ def check_engine(engine: str, max_batch: int, device: str = "auto") -> None:
         raise RunError(f"--batch-size {max_batch}: use a positive number of jobs")
     if engine == "sb3":
         if str(device).strip().lower() not in ("auto", "cpu"):
-            raise RunError(f"--device {device}: the SB3 engine trains on the CPU; use --device cpu or auto, or --engine batched")
+            raise RunError(
+                f"--device {device}: the SB3 engine trains on the CPU; use --device cpu or auto, or --engine batched"
+            )
         return
     from nutribench.engine.device import check_device
 
@@ -45,9 +47,15 @@ class Pool:
     batch_size: int = 1
 
 
-def batch_pools(job_ids: list[int], cells: list[tuple[str, str, int]], algo_of: dict[str, str],
-                shape_of: dict[str, tuple[int, int]], claimable: Callable[[list[int]], int], slots: int,
-                max_batch: int = MAX_BATCH) -> list[Pool]:  # fmt: skip
+def batch_pools(
+    job_ids: list[int],
+    cells: list[tuple[str, str, int]],
+    algo_of: dict[str, str],
+    shape_of: dict[str, tuple[int, int]],
+    claimable: Callable[[list[int]], int],
+    slots: int,
+    max_batch: int = MAX_BATCH,
+) -> list[Pool]:
     """``--engine batched``: a pool per agent config the batched engine trains and per regime
     shape (horizon, number of foods: one batch steps its agents in lockstep on one observation
     size), its batches sized so that the runnable jobs fill the slots (at most ``max_batch``:

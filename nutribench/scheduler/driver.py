@@ -18,6 +18,9 @@ One call of :func:`run_grid`:
    in ONE transaction; a failed job gets status ``failed``, ``failures + 1`` and its error;
 7. on Ctrl-C stops the workers and marks their jobs ``interrupted`` (no rows are written
    for them: rows are only written when a job completes).
+
+Longer than 400 lines: since ruff formats it (one argument per line); the driver's state
+machine (:class:`_Run`) is one unit. To split: the signal handling.
 """
 
 from __future__ import annotations
@@ -38,17 +41,34 @@ from sqlalchemy.exc import OperationalError
 
 from nutribench.jobs.spec import JobSpec
 from nutribench.jobs.worker import JobFn, execute, execute_batch
-from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
 from nutribench.scheduler.batching import MAX_BATCH, Pool, batch_pools, check_engine, checkpointed_first
+from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.registration import RunError, load_grid_configs, model_path, register_grid
-from nutribench.scheduler.storing import HeldResults, interrupt_line, one_line, release_quietly, stop_line, store_finished, unless_locked
-from nutribench.scheduler.storing import error_text as _error_text, first_line as _first_line
+from nutribench.scheduler.storing import (
+    HeldResults,
+    interrupt_line,
+    one_line,
+    release_quietly,
+    stop_line,
+    store_finished,
+    unless_locked,
+)
+from nutribench.scheduler.storing import error_text as _error_text
+from nutribench.scheduler.storing import first_line as _first_line
 from nutribench.store import AgentConfig, Job, RegimeConfig, open_store
-from nutribench.store.jobs import (
-    check_not_mixed, claim_jobs, count_claimable, flush_progress, grid_counts, held_elsewhere, release_jobs, reset_given_up, store_failure,
-)  # fmt: skip
 from nutribench.store.engine import StoreError, sqlite_path
+from nutribench.store.jobs import (
+    check_not_mixed,
+    claim_jobs,
+    count_claimable,
+    flush_progress,
+    grid_counts,
+    held_elsewhere,
+    release_jobs,
+    reset_given_up,
+    store_failure,
+)
 from nutribench.store.schema import Store
 
 WAIT_POLL_S = 1.0  # how often a driver with nothing to run looks at jobs held by another
@@ -122,9 +142,19 @@ def driver_token() -> str:
 class _Run:
     """State of one driver loop (in flight futures, live progress, counters)."""
 
-    def __init__(self, store: Store, grid: Grid, job_ids: list[int], specs: Callable[[Job], JobSpec],
-                 handle: ExecutorHandle, job_fn: JobFn, owner: str, view: Any,
-                 pools: list[Pool] | None = None, batch_fn: Callable | None = None):  # fmt: skip
+    def __init__(
+        self,
+        store: Store,
+        grid: Grid,
+        job_ids: list[int],
+        specs: Callable[[Job], JobSpec],
+        handle: ExecutorHandle,
+        job_fn: JobFn,
+        owner: str,
+        view: Any,
+        pools: list[Pool] | None = None,
+        batch_fn: Callable | None = None,
+    ):
         self.store, self.grid, self.job_ids, self.make_spec = store, grid, job_ids, specs
         self.handle, self.job_fn, self.owner, self.view = handle, job_fn, owner, view
         self.pools = pools if pools is not None else [Pool(job_ids)]
@@ -152,7 +182,13 @@ class _Run:
                 specs = [self.make_spec(job) for job in jobs]
                 for spec in specs:
                     self.attempted.add(spec.job_id)
-                    self.live[spec.job_id] = {"spec": spec, "k": 0, "n": spec.episodes, "ret": None, "t0": time.monotonic()}
+                    self.live[spec.job_id] = {
+                        "spec": spec,
+                        "k": 0,
+                        "n": spec.episodes,
+                        "ret": None,
+                        "t0": time.monotonic(),
+                    }
                 submit, sink = self.handle.executor.submit, self.handle.sink
                 if pool.batched:
                     self.in_flight[submit(execute_batch, self.batch_fn, specs, sink)] = specs
@@ -225,7 +261,11 @@ class _Run:
                 self._store(held.spec, held.result)
             if not self.in_flight and not self.held:
                 return
-            finished = wait(list(self.in_flight), timeout=0.25, return_when=FIRST_COMPLETED)[0] if self.in_flight else time.sleep(0.25) or ()
+            finished = (
+                wait(list(self.in_flight), timeout=0.25, return_when=FIRST_COMPLETED)[0]
+                if self.in_flight
+                else time.sleep(0.25) or ()
+            )
             self.events()
             for f in finished:
                 self.finish(f)
@@ -248,8 +288,10 @@ class _Run:
             if not held:
                 return
             if held != said:  # once per change: a live driver moves claimable_at at every heartbeat
-                self.view.log(f"waiting for {held} job{'s' if held != 1 else ''} held by another driver: done there, "
-                              f"or taken over here from {claimable_at:%H:%M:%S} UTC if its heartbeat stops")  # fmt: skip
+                self.view.log(
+                    f"waiting for {held} job{'s' if held != 1 else ''} held by another driver: done there, "
+                    f"or taken over here from {claimable_at:%H:%M:%S} UTC if its heartbeat stops"
+                )
                 said = held
             time.sleep(WAIT_POLL_S)
             self.view.update(self)
@@ -264,7 +306,11 @@ class _Run:
             held = [s.job_id for specs in self.in_flight.values() for s in specs] + list(self.held)
             released = release_quietly(self.store, held, self.owner)
         self.summary.interrupted = released if isinstance(released, int) else 0
-        line = stop_line(self.store.display, error, released, len(held), self.held) if error else interrupt_line(released, len(held), self.held)
+        line = (
+            stop_line(self.store.display, error, released, len(held), self.held)
+            if error
+            else interrupt_line(released, len(held), self.held)
+        )
         if line and not error:
             self.view.log(f"[red]{line}[/]")
         self.summary.user_interrupt = error is None
@@ -354,15 +400,35 @@ def run_grid(
         out = Path(models_dir) if models_dir is not None else default_models_dir(store)
         by_id = {r.name: r for r in regime_cfgs}, {a.name: a for a in agent_cfgs}
         with store.engine.connect() as conn:
-            rid = dict(conn.execute(select(RegimeConfig.id, RegimeConfig.name).where(
-                RegimeConfig.name.in_(grid.regimes))).all())  # fmt: skip
-            aid = dict(conn.execute(select(AgentConfig.id, AgentConfig.name).where(AgentConfig.name.in_(grid.algos))).all())
+            rid = dict(
+                conn.execute(
+                    select(RegimeConfig.id, RegimeConfig.name).where(RegimeConfig.name.in_(grid.regimes))
+                ).all()
+            )
+            aid = dict(
+                conn.execute(select(AgentConfig.id, AgentConfig.name).where(AgentConfig.name.in_(grid.algos))).all()
+            )
 
         def make_spec(job: Job) -> JobSpec:
             r, a = by_id[0][rid[job.regime_id]], by_id[1][aid[job.agent_config_id]]
             path = model_path(out, r, a, job.seed, job.episodes)
-            return JobSpec(job.id, r.name, r.version, r.sha256, a.name, a.version, a.sha256, job.seed, job.episodes,
-                           job.eval_episodes, str(path), r.obj, a.obj, attempt=job.attempt, device=device)  # fmt: skip
+            return JobSpec(
+                job.id,
+                r.name,
+                r.version,
+                r.sha256,
+                a.name,
+                a.version,
+                a.sha256,
+                job.seed,
+                job.episodes,
+                job.eval_episodes,
+                str(path),
+                r.obj,
+                a.obj,
+                attempt=job.attempt,
+                device=device,
+            )
 
         summary = RunSummary(total=len(job_ids))
         held, _ = held_elsewhere(store, job_ids, owner)
@@ -372,9 +438,18 @@ def run_grid(
             pools = None
             if engine == "batched":
                 shapes = {r.name: (r.obj.reward.horizon, len(r.obj.catalog.food)) for r in regime_cfgs}
-                pools = checkpointed_first(batch_pools(job_ids, list(grid.cells()), {a.name: a.algo for a in agent_cfgs},
-                                               shapes, lambda ids: count_claimable(store, ids), handle.slots, max_batch),
-                                           out / "checkpoints")  # fmt: skip
+                pools = checkpointed_first(
+                    batch_pools(
+                        job_ids,
+                        list(grid.cells()),
+                        {a.name: a.algo for a in agent_cfgs},
+                        shapes,
+                        lambda ids: count_claimable(store, ids),
+                        handle.slots,
+                        max_batch,
+                    ),
+                    out / "checkpoints",
+                )
             run = _Run(store, grid, job_ids, make_spec, handle, job_fn, owner, view, pools, batch_fn)
             run.planned = runnable
             view.start(run)
@@ -395,6 +470,8 @@ def run_grid(
         summary.given_up, summary.busy = counts["given_up"], counts["busy"]
         return summary
     except OperationalError as e:  # a write refused before any job was claimed (a read-only file)
-        raise StoreError(f"cannot write to {store.display}: {one_line(e)}: no job was claimed; the next run resumes") from None
+        raise StoreError(
+            f"cannot write to {store.display}: {one_line(e)}: no job was claimed; the next run resumes"
+        ) from None
     finally:
         store.dispose()

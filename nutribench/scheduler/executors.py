@@ -21,6 +21,7 @@ from collections.abc import Callable
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from typing import Any
+
 from nutribench.errors import UserError
 
 # Imported by the fork server once, so that each job's process starts with them loaded.
@@ -96,9 +97,13 @@ def local_executor(workers: int) -> ExecutorHandle:
     events: queue.Queue = queue.Queue()
     ex = LocalProcessExecutor(workers, on_progress=events.put, preload=PRELOAD)
     return ExecutorHandle(
-        ex, workers, f"{workers} local worker process{'es' if workers != 1 else ''}",
-        sink=PipeSink(), events=events, _terminate=ex.terminate_running,
-    )  # fmt: skip
+        ex,
+        workers,
+        f"{workers} local worker process{'es' if workers != 1 else ''}",
+        sink=PipeSink(),
+        events=events,
+        _terminate=ex.terminate_running,
+    )
 
 
 def dask_executor(address: str, workers: int | None) -> ExecutorHandle:
@@ -129,10 +134,13 @@ def dask_executor(address: str, workers: int | None) -> ExecutorHandle:
             client.close()
 
     return ExecutorHandle(
-        client.get_executor(pure=False), slots,
+        client.get_executor(pure=False),
+        slots,
         f"dask cluster {address} ({len(client.nthreads())} workers, {threads} threads)",
-        sink=DaskSink(topic), events=events, _close=close,
-    )  # fmt: skip
+        sink=DaskSink(topic),
+        events=events,
+        _close=close,
+    )
 
 
 def probe_executor(spec: str | None) -> None:
@@ -159,7 +167,7 @@ def make_executor(spec: str | None, workers: int | None, n_jobs: int) -> tuple[E
         return local_executor(n), note
     for prefix in ("dask://", "tcp://", "tls://"):
         if spec.startswith(prefix):
-            address = ("tcp://" + spec[len(prefix):]) if prefix == "dask://" else spec
+            address = ("tcp://" + spec[len(prefix) :]) if prefix == "dask://" else spec
             handle = dask_executor(address, workers)
             handle.slots = max(1, min(handle.slots, n_jobs))
             return handle, None

@@ -15,6 +15,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
+
 from nutribench.errors import UserError
 
 EVAL_EPISODES = 5

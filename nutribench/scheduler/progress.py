@@ -60,9 +60,7 @@ class LiveView(NullView):
     def start(self, run: Any) -> None:
         if self.note:
             self.console.print(f"[yellow]note:[/] {self.note}", highlight=False)
-        self.console.print(
-            f"{run.planned} of {run.summary.total} jobs to run on {self.description}", highlight=False
-        )
+        self.console.print(f"{run.planned} of {run.summary.total} jobs to run on {self.description}", highlight=False)
         self.live.start()
         self.update(run, force=True)
 
@@ -79,8 +77,14 @@ class LiveView(NullView):
         for st in sorted(run.live.values(), key=lambda st: st["spec"].job_id):
             spec = st["spec"]
             ret = "" if st.get("ret") is None else f"{st['ret']:.2f}"
-            table.add_row(spec.regime, spec.algo, str(spec.seed), f"{st.get('k', 0)}/{spec.episodes}", ret,
-                          format_duration(time.monotonic() - st["t0"]))  # fmt: skip
+            table.add_row(
+                spec.regime,
+                spec.algo,
+                str(spec.seed),
+                f"{st.get('k', 0)}/{spec.episodes}",
+                ret,
+                format_duration(time.monotonic() - st["t0"]),
+            )
         return Group(head, table)
 
     def update(self, run: Any, force: bool = False) -> None:

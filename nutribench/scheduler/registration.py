@@ -64,7 +64,9 @@ def load_grid_configs(grid: Grid) -> tuple[list[_Config], list[_Config]]:
     for name in grid.algos:
         cfg = load_agent_config(name)
         source = _shown(resolve_agent_path(name))
-        agents.append(_Config(cfg.name, cfg.version, agent_config_sha256(cfg), agent_config_content(cfg), source, cfg, cfg.algo))
+        agents.append(
+            _Config(cfg.name, cfg.version, agent_config_sha256(cfg), agent_config_content(cfg), source, cfg, cfg.algo)
+        )
     return regimes, agents
 
 
@@ -72,21 +74,29 @@ def _register(session: Session, table: type, configs: Sequence[_Config]) -> dict
     """Ids of ``configs`` in ``table``, inserting the new ones; refuses changed content."""
     ids: dict[str, int] = {}
     for c in configs:
-        row = session.execute(select(table).where(table.name == c.name, table.version == c.version)).scalar_one_or_none()
+        row = session.execute(
+            select(table).where(table.name == c.name, table.version == c.version)
+        ).scalar_one_or_none()
         if row is not None:
             if row.sha256 != c.sha256:
-                raise RunError(f"{c.source}: version {c.version} is already recorded with different content: bump the version")
+                raise RunError(
+                    f"{c.source}: version {c.version} is already recorded with different content: bump the version"
+                )
             ids[c.name] = row.id
             continue
         extra = {"algo": c.algo} if table is AgentConfig else {}
-        new = table(name=c.name, version=c.version, sha256=c.sha256, body=c.body, source=c.source, created_at=utcnow(), **extra)
+        new = table(
+            name=c.name, version=c.version, sha256=c.sha256, body=c.body, source=c.source, created_at=utcnow(), **extra
+        )
         session.add(new)
         session.flush()
         ids[c.name] = new.id
     return ids
 
 
-def register_grid(store: Store, grid: Grid, regimes: list[_Config], agents: list[_Config], fake: bool = False) -> list[int]:
+def register_grid(
+    store: Store, grid: Grid, regimes: list[_Config], agents: list[_Config], fake: bool = False
+) -> list[int]:
     """Record the configs and create the missing job rows, in one transaction; the ids of
     the grid's jobs in grid order. ``fake``: the rows are a dry run's (``jobs.fake``)."""
     with session_scope(store.engine) as s:
@@ -94,27 +104,47 @@ def register_grid(store: Store, grid: Grid, regimes: list[_Config], agents: list
         rids = _register(s, RegimeConfig, regimes)
         aids = _register(s, AgentConfig, agents)
         query = select(Job.id, Job.regime_id, Job.agent_config_id, Job.seed).where(
-            Job.regime_id.in_(rids.values()), Job.agent_config_id.in_(aids.values()),
-            Job.episodes == grid.episodes, Job.eval_episodes == grid.eval_episodes,
-        )  # fmt: skip
+            Job.regime_id.in_(rids.values()),
+            Job.agent_config_id.in_(aids.values()),
+            Job.episodes == grid.episodes,
+            Job.eval_episodes == grid.eval_episodes,
+        )
         existing = {(r.regime_id, r.agent_config_id, r.seed): r.id for r in s.execute(query)}
         keys = [(rids[r], aids[a], seed) for r, a, seed in grid.cells()]
         missing = [k for k in keys if k not in existing]
         if missing:
             now = utcnow()
-            s.execute(insert(Job), [
-                {"regime_id": r, "agent_config_id": a, "seed": seed, "episodes": grid.episodes,
-                 "eval_episodes": grid.eval_episodes, "status": "pending", "attempt": 0, "failures": 0,
-                 "episodes_done": 0, "created_at": now, "fake": fake}
-                for r, a, seed in missing
-            ])  # fmt: skip
+            s.execute(
+                insert(Job),
+                [
+                    {
+                        "regime_id": r,
+                        "agent_config_id": a,
+                        "seed": seed,
+                        "episodes": grid.episodes,
+                        "eval_episodes": grid.eval_episodes,
+                        "status": "pending",
+                        "attempt": 0,
+                        "failures": 0,
+                        "episodes_done": 0,
+                        "created_at": now,
+                        "fake": fake,
+                    }
+                    for r, a, seed in missing
+                ],
+            )
             existing.update({(r.regime_id, r.agent_config_id, r.seed): r.id for r in s.execute(query)})
         return [existing[k] for k in keys]
 
 
 def model_path(models_dir: Path, regime: _Config, agent: _Config, seed: int, episodes: int) -> Path:
     """``<models>/<regime>-v<rv>/<algo>-v<av>/seed<seed>-ep<episodes>.zip``."""
-    return models_dir / f"{regime.name}-v{regime.version}" / f"{agent.name}-v{agent.version}" / f"seed{seed}-ep{episodes}.zip"
+    return (
+        models_dir
+        / f"{regime.name}-v{regime.version}"
+        / f"{agent.name}-v{agent.version}"
+        / f"seed{seed}-ep{episodes}.zip"
+    )
 
 
 @dataclass(frozen=True)
@@ -141,13 +171,17 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
 
     env, cfg = job.regime_config, job.agent_config
     regime = _Config(env.name, env.version, env.sha256, env.content(), _shown(env.path or env.name), env)
-    agent = _Config(cfg.name, cfg.version, agent_config_sha256(cfg), agent_config_content(cfg), "recorded", cfg, cfg.algo)
+    agent = _Config(
+        cfg.name, cfg.version, agent_config_sha256(cfg), agent_config_content(cfg), "recorded", cfg, cfg.algo
+    )
     check_not_mixed(store, fake=False)
     with session_scope(store.engine) as s:
         hold_write_lock(s, REGISTRATION_LOCK)
         rid = _register(s, RegimeConfig, [regime])[regime.name]
         aid = _register(s, AgentConfig, [agent])[agent.name]
-        key = dict(regime_id=rid, agent_config_id=aid, seed=job.seed, episodes=len(job.train), eval_episodes=len(job.eval))
+        key = dict(
+            regime_id=rid, agent_config_id=aid, seed=job.seed, episodes=len(job.train), eval_episodes=len(job.eval)
+        )
         old = s.execute(select(Job.id).filter_by(**key)).scalar_one_or_none()
         if old is not None:
             raise RunError(
@@ -155,12 +189,22 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
                 f"training days is already recorded (job {old}): record another seed, or bump the agent's version"
             )
         meta = {k: job.metadata[k] for k in METADATA_COLUMNS if k in job.metadata}
-        row = Job(**key, status="done", attempt=1, failures=0, episodes_done=len(job.train), created_at=utcnow(),
-                  fake=False, **meta)  # fmt: skip
+        row = Job(
+            **key,
+            status="done",
+            attempt=1,
+            failures=0,
+            episodes_done=len(job.train),
+            created_at=utcnow(),
+            fake=False,
+            **meta,
+        )
         s.add(row)
         s.flush()
         rows = episode_rows(row.id, "train", job.train) + episode_rows(row.id, "eval", job.eval)
         s.execute(insert(Episode), rows)
         if job.eval_steps:
-            s.execute(insert(EvalStep), [{"job_id": row.id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in job.eval_steps])
+            s.execute(
+                insert(EvalStep), [{"job_id": row.id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in job.eval_steps]
+            )
         return row.id

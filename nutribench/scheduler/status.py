@@ -87,12 +87,28 @@ def status_table(db: str | os.PathLike[str]) -> StatusReport:
     store = open_store(db)
     try:
         q = (
-            select(RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version, Job.seed,
-                   Job.episodes, Job.status, Job.heartbeat_at, Job.wall_seconds, Job.episodes_done, Job.failures,
-                   Job.error, Job.owner, Job.worker_pid, Job.started_at)  # fmt: skip
+            select(
+                RegimeConfig.name,
+                RegimeConfig.version,
+                AgentConfig.name,
+                AgentConfig.version,
+                Job.seed,
+                Job.episodes,
+                Job.status,
+                Job.heartbeat_at,
+                Job.wall_seconds,
+                Job.episodes_done,
+                Job.failures,
+                Job.error,
+                Job.owner,
+                Job.worker_pid,
+                Job.started_at,
+            )
             .join(RegimeConfig, RegimeConfig.id == Job.regime_id)
             .join(AgentConfig, AgentConfig.id == Job.agent_config_id)
-            .order_by(RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version, Job.episodes, Job.seed)
+            .order_by(
+                RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version, Job.episodes, Job.seed
+            )
         )
         with store.engine.connect() as conn:
             jobs = conn.execute(q).all()
@@ -143,8 +159,17 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
         elif state in ("pending",) or (state == "failed" and failures < MAX_FAILURES):
             left[key] = left.get(key, 0.0) + 1.0
         if state == "failed":
-            errors.append({"regime": regime, "algo": algo, "seed": seed, "budget": budget, "failures": failures,
-                           "retried": failures < MAX_FAILURES, "error": _last_line(error)})  # fmt: skip
+            errors.append(
+                {
+                    "regime": regime,
+                    "algo": algo,
+                    "seed": seed,
+                    "budget": budget,
+                    "failures": failures,
+                    "retried": failures < MAX_FAILURES,
+                    "error": _last_line(error),
+                }
+            )
     per_algo: dict[tuple, list[float]] = {}
     for (_, _, algo, av, _), rs in rates.items():
         per_algo.setdefault((algo, av), []).extend(rs)

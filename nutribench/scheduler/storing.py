@@ -24,7 +24,13 @@ from nutribench.store.jobs import STALE_AFTER_S, release_jobs, store_result
 
 RETRY_FIRST_S = 1.0  # the first pause before a held result is stored again; doubled each time
 RETRY_MAX_S = 30.0
-LOCK_WORDS = ("database is locked", "database table is locked", "lock timeout", "could not obtain lock", "deadlock detected")
+LOCK_WORDS = (
+    "database is locked",
+    "database table is locked",
+    "lock timeout",
+    "could not obtain lock",
+    "deadlock detected",
+)
 
 
 def one_line(error: BaseException) -> str:
@@ -86,8 +92,10 @@ def released_text(released: int | str, n: int) -> str:
         return "no job was running: nothing was lost"
     if isinstance(released, int):
         return f"{released} running job{'s' if released != 1 else ''} released, the next run resumes them"
-    return (f"its {n} running job{'s' if n != 1 else ''} could not be released either ({released}): the next run "
-            f"takes them over once their heartbeat is {STALE_AFTER_S:.0f} s old")  # fmt: skip
+    return (
+        f"its {n} running job{'s' if n != 1 else ''} could not be released either ({released}): the next run "
+        f"takes them over once their heartbeat is {STALE_AFTER_S:.0f} s old"
+    )
 
 
 def stop_line(where: str, error: BaseException, released: int | str, n: int, held: HeldResults) -> str:
@@ -98,7 +106,11 @@ def stop_line(where: str, error: BaseException, released: int | str, n: int, hel
 
 def interrupt_line(released: int | str, n: int, held: HeldResults) -> str:
     """What a stop signal's line adds: results still held (the lock never cleared), jobs not released."""
-    lost = f"the results of {held.labels()} could not be stored (the database stayed locked): trained again next run" if held else ""
+    lost = (
+        f"the results of {held.labels()} could not be stored (the database stayed locked): trained again next run"
+        if held
+        else ""
+    )
     kept = "" if isinstance(released, int) else released_text(released, n)
     return "; ".join(t for t in (lost, kept) if t)
 
@@ -125,7 +137,9 @@ def store_finished(run: Any, spec: JobSpec, result: JobResult | None) -> bool:
     except OperationalError as e:
         if not is_lock_error(e):
             raise
-        run.view.log(f"[yellow]kept[/] {spec.label}: {one_line(e)}; stored again in {run.held.hold(spec, result):.0f} s")
+        run.view.log(
+            f"[yellow]kept[/] {spec.label}: {one_line(e)}; stored again in {run.held.hold(spec, result):.0f} s"
+        )
         return False
     except Exception as e:  # noqa: BLE001 - recorded as the job's failure, the run goes on
         run._failed(spec, e, "could not be stored: ")

@@ -60,30 +60,23 @@ from sqlalchemy.orm import Session
 
 # the format and the checks live in archive_meta and archive_check; their names are
 # importable from here too (nutribench.store.archive.valid_name, read_archive, ...)
-from nutribench.store.archive_check import _check_arrays, _check_rows, _duplicate, _load, _verify, read_archive, verify_archive
+from nutribench.store.archive_check import (
+    _verify,
+    read_archive,
+    verify_archive,
+)
 from nutribench.store.archive_meta import (
     _CONFIG_SKIP,
-    _INT32,
     _JOB_DEFAULTS,
     _JOB_SKIP,
-    _META_KEYS,
-    _SHA256,
     _TABLES,
     ENGINES,
     FORMAT,
     FORMAT_VERSION,
     NAME_MAX,
     NAME_PATTERN,
-    _check_configs,
-    _check_jobs,
-    _check_row,
-    _check_value,
     _columns,
     _Invalid,
-    _reason,
-    _regime_shape,
-    _short,
-    _unsafe,
     valid_name,
 )
 from nutribench.store.engine import (
@@ -144,8 +137,9 @@ def _check_out(path: Path) -> None:
         raise StoreError(f"db export: cannot write {path}: folder {parent} is not writable")
 
 
-def export_results(db: str, out: str | os.PathLike[str], algos: Sequence[str] | None = None,
-                   regimes: Sequence[str] | None = None) -> dict[str, int]:  # fmt: skip
+def export_results(
+    db: str, out: str | os.PathLike[str], algos: Sequence[str] | None = None, regimes: Sequence[str] | None = None
+) -> dict[str, int]:
     """Write the done jobs of ``db`` (only those of agent configs named in ``algos`` and of
     regimes named in ``regimes``, where given) to the archive ``out``; rows written per table."""
     path = Path(out)
@@ -153,8 +147,13 @@ def export_results(db: str, out: str | os.PathLike[str], algos: Sequence[str] | 
     store = open_store(db)
     try:
         with store.engine.connect() as conn:
-            query = select(Job, RegimeConfig, AgentConfig).join(RegimeConfig, Job.regime_id == RegimeConfig.id).join(
-                AgentConfig, Job.agent_config_id == AgentConfig.id).where(Job.status == "done").order_by(Job.id)  # fmt: skip
+            query = (
+                select(Job, RegimeConfig, AgentConfig)
+                .join(RegimeConfig, Job.regime_id == RegimeConfig.id)
+                .join(AgentConfig, Job.agent_config_id == AgentConfig.id)
+                .where(Job.status == "done")
+                .order_by(Job.id)
+            )
             if algos:
                 query = query.where(AgentConfig.name.in_(list(algos)))
             if regimes:
@@ -169,28 +168,44 @@ def export_results(db: str, out: str | os.PathLike[str], algos: Sequence[str] | 
                 jobs, index = [], {}
                 for job, regime, agent in found:
                     index[job.id] = len(jobs)
-                    jobs.append({**_row(job, _JOB_SKIP), "regime": [regime.name, regime.version], "agent": [agent.name, agent.version]})
+                    jobs.append(
+                        {
+                            **_row(job, _JOB_SKIP),
+                            "regime": [regime.name, regime.version],
+                            "agent": [agent.name, agent.version],
+                        }
+                    )
                 arrays: dict[str, np.ndarray] = {}
                 counts = {"jobs": len(jobs)}
                 for name, table in _TABLES.items():
                     cols = _columns(table)
                     rows = s.execute(
                         select(table.__table__.c.job_id, *[table.__table__.c[c.name] for c in cols])
-                        .where(table.__table__.c.job_id.in_(list(index))).order_by(*table.__table__.primary_key.columns)
-                    ).all()  # fmt: skip
+                        .where(table.__table__.c.job_id.in_(list(index)))
+                        .order_by(*table.__table__.primary_key.columns)
+                    ).all()
                     counts[name] = len(rows)
                     arrays[f"{name}.job"] = np.array([index[r[0]] for r in rows], dtype=np.int32)
                     for i, col in enumerate(cols, start=1):
                         arrays.update(_encode(name, col, [r[i] for r in rows]))
-        meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "source": store.display, "counts": counts,
-                "regimes": list(regimes.values()), "agent_configs": list(agents.values()), "jobs": jobs}  # fmt: skip
+        meta = {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "source": store.display,
+            "counts": counts,
+            "regimes": list(regimes.values()),
+            "agent_configs": list(agents.values()),
+            "jobs": jobs,
+        }
         # what this archive will be checked for on import, checked now: a job of this database
         # that no import would take is named here, and nothing is written
         meta = json.loads(json.dumps(meta, default=str))
         try:
             _verify(meta, arrays)
         except _Invalid as e:
-            raise StoreError(f"db export: {store.display} cannot be exported as it is: {e} (export the other jobs with --algos/--regimes)") from None
+            raise StoreError(
+                f"db export: {store.display} cannot be exported as it is: {e} (export the other jobs with --algos/--regimes)"
+            ) from None
         arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
         tmp = path.with_name(path.name + ".tmp.npz")
         try:
@@ -243,7 +258,9 @@ def _decoded(table: type, name: str, arrays: dict[str, np.ndarray], rows: np.nda
 def _job_values(job: dict[str, Any]) -> dict[str, Any]:
     """The job row to write: every column, those an older archive lacks at their defaults, the
     stored model path dropped (an archive carries no model, and a path is never trusted)."""
-    values = {c.name: job.get(c.name, _JOB_DEFAULTS.get(c.name)) for c in Job.__table__.columns if c.name not in _JOB_SKIP}
+    values = {
+        c.name: job.get(c.name, _JOB_DEFAULTS.get(c.name)) for c in Job.__table__.columns if c.name not in _JOB_SKIP
+    }
     values["model_path"] = None
     return _datetimes(Job, values)
 
@@ -259,7 +276,9 @@ def _remove_new_file(path: Path | None) -> None:
             pass
 
 
-def import_results(path: str | os.PathLike[str], db: str, *, on_job: Callable[[str], None] | None = None) -> dict[str, int]:
+def import_results(
+    path: str | os.PathLike[str], db: str, *, on_job: Callable[[str], None] | None = None
+) -> dict[str, int]:
     """Merge the archive ``path`` into ``db`` (created or upgraded); counts of jobs
     ``imported`` and ``kept`` (already done there) and of rows written per table. The archive
     is checked whole (:func:`read_archive`) before the database is opened."""
@@ -278,23 +297,34 @@ def import_results(path: str | os.PathLike[str], db: str, *, on_job: Callable[[s
             _remove_new_file(new_file)
 
 
-def _write(store: Any, meta: dict[str, Any], arrays: dict[str, np.ndarray], path: Any,
-           on_job: Callable[[str], None] | None) -> dict[str, int]:  # fmt: skip
+def _write(
+    store: Any, meta: dict[str, Any], arrays: dict[str, np.ndarray], path: Any, on_job: Callable[[str], None] | None
+) -> dict[str, int]:
     fake = bool(meta["jobs"] and meta["jobs"][0].get("fake", False))
     with session_scope(store.engine) as s:
         hold_write_lock(s, REGISTRATION_LOCK)
         other = s.execute(select(func.count()).select_from(Job).where(Job.fake == (not fake))).scalar_one()
         if other:
-            kind = ("a dry run's jobs (fake)", f"{other} real jobs") if fake else ("real results", f"{other} dry-run jobs (fake)")
-            raise StoreError(f"db import: {path} holds {kind[0]} and {store.display} holds {kind[1]}: the two are never "
-                             "mixed in one database; import into another --db")  # fmt: skip
+            kind = (
+                ("a dry run's jobs (fake)", f"{other} real jobs")
+                if fake
+                else ("real results", f"{other} dry-run jobs (fake)")
+            )
+            raise StoreError(
+                f"db import: {path} holds {kind[0]} and {store.display} holds {kind[1]}: the two are never "
+                "mixed in one database; import into another --db"
+            )
         config_ids = {}
         for table, rows in ((RegimeConfig, meta["regimes"]), (AgentConfig, meta["agent_configs"])):
             for row in rows:
-                have = s.execute(select(table).where(table.name == row["name"], table.version == row["version"])).scalar_one_or_none()
+                have = s.execute(
+                    select(table).where(table.name == row["name"], table.version == row["version"])
+                ).scalar_one_or_none()
                 if have is not None and have.sha256 != row["sha256"]:
-                    raise StoreError(f"db import: {row['name']} v{row['version']} is recorded in {store.display} with other "
-                                     f"content than in {path}: the two databases disagree on what that version is")  # fmt: skip
+                    raise StoreError(
+                        f"db import: {row['name']} v{row['version']} is recorded in {store.display} with other "
+                        f"content than in {path}: the two databases disagree on what that version is"
+                    )
                 if have is None:
                     have = table(**_datetimes(table, row))
                     s.add(have)
@@ -302,15 +332,23 @@ def _write(store: Any, meta: dict[str, Any], arrays: dict[str, np.ndarray], path
                 config_ids[(table, row["name"], row["version"])] = have.id
         now = db_now(s)
         positions = {name: np.argsort(arrays[f"{name}.job"], kind="stable") for name in _TABLES}
-        bounds = {name: np.searchsorted(arrays[f"{name}.job"][positions[name]], np.arange(len(meta["jobs"]) + 1)) for name in _TABLES}
+        bounds = {
+            name: np.searchsorted(arrays[f"{name}.job"][positions[name]], np.arange(len(meta["jobs"]) + 1))
+            for name in _TABLES
+        }
         counts = {"imported": 0, "kept": 0, "episodes": 0, "eval_steps": 0}
         imported: list[int] = []
         for i, job in enumerate(meta["jobs"]):
             rid = config_ids[(RegimeConfig, *job["regime"])]
             aid = config_ids[(AgentConfig, *job["agent"])]
             label = f"{job['regime'][0]} x {job['agent'][0]} seed {job['seed']}"
-            key = (Job.regime_id == rid, Job.agent_config_id == aid, Job.seed == job["seed"],
-                   Job.episodes == job["episodes"], Job.eval_episodes == job["eval_episodes"])  # fmt: skip
+            key = (
+                Job.regime_id == rid,
+                Job.agent_config_id == aid,
+                Job.seed == job["seed"],
+                Job.episodes == job["episodes"],
+                Job.eval_episodes == job["eval_episodes"],
+            )
             have = s.execute(select(Job).where(*key).order_by(Job.id)).scalars().first()
             values = _job_values(job)
             values.update(regime_id=rid, agent_config_id=aid, owner=None, heartbeat_at=None, worker_pid=None)
@@ -318,14 +356,18 @@ def _write(store: Any, meta: dict[str, Any], arrays: dict[str, np.ndarray], path
                 counts["kept"] += 1
                 continue
             if have is not None and job_state(have.status, have.heartbeat_at, now) == "running":
-                raise StoreError(f"db import: {label} is running in {store.display} (driver {have.owner}): import once that run stops")
+                raise StoreError(
+                    f"db import: {label} is running in {store.display} (driver {have.owner}): import once that run stops"
+                )
             if have is None:
                 job_id = s.execute(insert(Job).values(**values).returning(Job.id)).scalar_one()
             else:
                 job_id = have.id
                 for table in _TABLES.values():
                     s.execute(delete(table).where(table.job_id == job_id))
-                s.execute(update(Job).where(Job.id == job_id).values(**values).execution_options(synchronize_session=False))
+                s.execute(
+                    update(Job).where(Job.id == job_id).values(**values).execution_options(synchronize_session=False)
+                )
             for name, table in _TABLES.items():
                 rows = positions[name][bounds[name][i] : bounds[name][i + 1]]
                 decoded = _decoded(table, name, arrays, rows)
@@ -338,8 +380,12 @@ def _write(store: Any, meta: dict[str, Any], arrays: dict[str, np.ndarray], path
                 on_job(label)
         # compared before the commit: a mismatch rolls the whole import back
         for name, table in _TABLES.items():
-            held = sum(s.execute(select(func.count()).select_from(table).where(table.job_id.in_(chunk))).scalar_one()
-                       for chunk in _chunks(imported))  # fmt: skip
+            held = sum(
+                s.execute(select(func.count()).select_from(table).where(table.job_id.in_(chunk))).scalar_one()
+                for chunk in _chunks(imported)
+            )
             if held != counts[name]:
-                raise StoreError(f"db import: {counts[name]} {name} rows written but {held} found after: nothing imported")
+                raise StoreError(
+                    f"db import: {counts[name]} {name} rows written but {held} found after: nothing imported"
+                )
     return counts

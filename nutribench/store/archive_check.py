@@ -39,7 +39,9 @@ def _load(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.nd
     readable archive (missing, empty, truncated, bit-flipped, not a zip of arrays)."""
     not_archive = f"db import: {path} is not a results archive (`nutribench db export` writes one)"
     if os.path.isdir(path):
-        raise StoreError(f"db import: {path} is a folder, not an archive: give the .npz file `nutribench db export` wrote")
+        raise StoreError(
+            f"db import: {path} is a folder, not an archive: give the .npz file `nutribench db export` wrote"
+        )
     if not os.path.exists(path):
         raise StoreError(f"db import: {path}: no such file")
     try:
@@ -72,17 +74,27 @@ def read_archive(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str
     :mod:`nutribench.store.archive`'s docstring passed; :class:`StoreError` (one line naming
     the archive and what is wrong) otherwise."""
     meta, arrays = _load(path)
-    if meta.get("format") != FORMAT or type(meta.get("format_version")) is not int or meta["format_version"] != FORMAT_VERSION:
+    if (
+        meta.get("format") != FORMAT
+        or type(meta.get("format_version")) is not int
+        or meta["format_version"] != FORMAT_VERSION
+    ):
         if meta.get("format") != FORMAT:
-            raise StoreError(f"db import: {path} is not a results archive (`nutribench db export` writes one): format {_short(meta.get('format'))}")
-        raise StoreError(f"db import: {path} is format {FORMAT} v{_short(meta.get('format_version'), 20)}, "
-                         f"this nutribench reads {FORMAT} v{FORMAT_VERSION}")  # fmt: skip
+            raise StoreError(
+                f"db import: {path} is not a results archive (`nutribench db export` writes one): format {_short(meta.get('format'))}"
+            )
+        raise StoreError(
+            f"db import: {path} is format {FORMAT} v{_short(meta.get('format_version'), 20)}, "
+            f"this nutribench reads {FORMAT} v{FORMAT_VERSION}"
+        )
     try:
         _verify(meta, arrays)
     except _Invalid as e:
         raise StoreError(f"db import: {path} is damaged or was changed: {e}; nothing imported") from None
     except RecursionError:
-        raise StoreError(f"db import: {path} is damaged or was changed: its meta is nested too deeply; nothing imported") from None
+        raise StoreError(
+            f"db import: {path} is damaged or was changed: its meta is nested too deeply; nothing imported"
+        ) from None
     return meta, arrays
 
 
@@ -133,8 +145,10 @@ def _check_arrays(arrays: dict[str, np.ndarray], n_jobs: int) -> dict[str, dict[
                     bad &= ~null
                 if bad.any():
                     row = int(np.argmax(bad))
-                    raise _Invalid(f"column {key} holds {'NaN' if np.isnan(arr[row]) else arr[row]} in row {row} "
-                                   "(a measurement is finite; a NULL is marked in its .null mask)")  # fmt: skip
+                    raise _Invalid(
+                        f"column {key} holds {'NaN' if np.isnan(arr[row]) else arr[row]} in row {row} "
+                        "(a measurement is finite; a NULL is marked in its .null mask)"
+                    )
                 if null is not None:
                     arr = np.where(null, np.nan, arr)
             elif kind is int and n:
@@ -148,7 +162,9 @@ def _check_arrays(arrays: dict[str, np.ndarray], n_jobs: int) -> dict[str, dict[
             cols[col.name] = arr
         if n and (job.min() < 0 or job.max() >= n_jobs):
             bad = int(job.min()) if job.min() < 0 else int(job.max())
-            raise _Invalid(f"{name} row {int(np.argmax(job == bad))} belongs to job {bad}, but the archive has {n_jobs} jobs")
+            raise _Invalid(
+                f"{name} row {int(np.argmax(job == bad))} belongs to job {bad}, but the archive has {n_jobs} jobs"
+            )
         tables[name] = cols
     other = sorted(set(arrays) - expected)
     if other:
@@ -171,7 +187,9 @@ def _duplicate(keys: list[np.ndarray]) -> int | None:
     return int(order[int(np.argmax(same)) + 1])
 
 
-def _check_rows(tables: dict[str, dict[str, np.ndarray]], per_job: dict[str, np.ndarray], jobs: list[dict[str, Any]]) -> None:
+def _check_rows(
+    tables: dict[str, dict[str, np.ndarray]], per_job: dict[str, np.ndarray], jobs: list[dict[str, Any]]
+) -> None:
     """Values in range and every job's rows complete: its budget of training days, its
     evaluation days, and H steps of each."""
     n_jobs = len(jobs)
@@ -186,8 +204,10 @@ def _check_rows(tables: dict[str, dict[str, np.ndarray]], per_job: dict[str, np.
     bad = (ep["episode"] < 0) | (ep["episode"] >= limit)
     if bad.any():
         row = int(np.argmax(bad))
-        raise _Invalid(f"episodes row {row}: {ep['phase'][row]} episode {int(ep['episode'][row])} of job {int(job[row])} "
-                       f"is out of its range 0..{int(limit[row]) - 1}")  # fmt: skip
+        raise _Invalid(
+            f"episodes row {row}: {ep['phase'][row]} episode {int(ep['episode'][row])} of job {int(job[row])} "
+            f"is out of its range 0..{int(limit[row]) - 1}"
+        )
     horizon = per_job["horizon"][job] if job.size else job
     bad = (ep["foods"] < 0) | (ep["foods"] > horizon)
     if bad.any():
@@ -199,24 +219,36 @@ def _check_rows(tables: dict[str, dict[str, np.ndarray]], per_job: dict[str, np.
         bad &= ~ep["first_overshoot_step.null"]
     if bad.any():
         row = int(np.argmax(bad))
-        raise _Invalid(f"episodes row {row}: first_overshoot_step {int(first[row])} is out of its range 1..{int(horizon[row])}")
+        raise _Invalid(
+            f"episodes row {row}: first_overshoot_step {int(first[row])} is out of its range 1..{int(horizon[row])}"
+        )
     row = _duplicate([job, train.astype(np.int8), ep["episode"]])
     if row is not None:
-        raise _Invalid(f"episodes row {row}: job {int(job[row])}'s {ep['phase'][row]} episode {int(ep['episode'][row])} is there twice")
+        raise _Invalid(
+            f"episodes row {row}: job {int(job[row])}'s {ep['phase'][row]} episode {int(ep['episode'][row])} is there twice"
+        )
     st = tables["eval_steps"]
     sjob = st["job"]
     horizon = per_job["horizon"][sjob] if sjob.size else sjob
-    for col, lo, hi in (("episode", 0, per_job["eval_episodes"][sjob] - 1 if sjob.size else sjob), ("step", 1, horizon),
-                        ("food", 0, per_job["foods"][sjob] - 1 if sjob.size else sjob), ("action", 0, 1)):  # fmt: skip
+    for col, lo, hi in (
+        ("episode", 0, per_job["eval_episodes"][sjob] - 1 if sjob.size else sjob),
+        ("step", 1, horizon),
+        ("food", 0, per_job["foods"][sjob] - 1 if sjob.size else sjob),
+        ("action", 0, 1),
+    ):
         bad = (st[col] < lo) | (st[col] > hi)
         if bad.any():
             row = int(np.argmax(bad))
             top = hi if np.isscalar(hi) else int(hi[row])
-            raise _Invalid(f"eval_steps row {row}: {col} {int(st[col][row])} of job {int(sjob[row])} is out of its range {lo}..{top}")
+            raise _Invalid(
+                f"eval_steps row {row}: {col} {int(st[col][row])} of job {int(sjob[row])} is out of its range {lo}..{top}"
+            )
     row = _duplicate([sjob, st["episode"], st["step"]])
     if row is not None:
-        raise _Invalid(f"eval_steps row {row}: job {int(sjob[row])}'s evaluation episode {int(st['episode'][row])} "
-                       f"step {int(st['step'][row])} is there twice")  # fmt: skip
+        raise _Invalid(
+            f"eval_steps row {row}: job {int(sjob[row])}'s evaluation episode {int(st['episode'][row])} "
+            f"step {int(st['step'][row])} is there twice"
+        )
     trains = np.bincount(job[train], minlength=n_jobs)
     evals = np.bincount(job[~train], minlength=n_jobs)
     steps = np.bincount(sjob, minlength=n_jobs)
@@ -229,8 +261,10 @@ def _check_rows(tables: dict[str, dict[str, np.ndarray]], per_job: dict[str, np.
         if evals[i] != per_job["eval_episodes"][i]:
             raise _Invalid(f"{label} has {evals[i]:,} evaluation episodes, not its {per_job['eval_episodes'][i]:,}")
         if steps[i] != want_steps[i]:
-            raise _Invalid(f"{label} has {steps[i]:,} evaluation steps, not {per_job['eval_episodes'][i]} days x "
-                           f"{per_job['horizon'][i]} = {want_steps[i]:,}")  # fmt: skip
+            raise _Invalid(
+                f"{label} has {steps[i]:,} evaluation steps, not {per_job['eval_episodes'][i]} days x "
+                f"{per_job['horizon'][i]} = {want_steps[i]:,}"
+            )
 
 
 def _verify(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:

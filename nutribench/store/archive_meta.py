@@ -31,8 +31,14 @@ _TABLES = {"episodes": Episode, "eval_steps": EvalStep}
 NAME_PATTERN = re.compile(r"[a-z][a-z0-9_]*")
 NAME_MAX = 64
 #: job columns added by schema revision 0004, and what an archive written before them means
-_JOB_DEFAULTS: dict[str, Any] = {"fake": False, "batch_id": None, "batch_size": None, "device": None, "source": None,
-                                 "source_sha256": None}  # fmt: skip
+_JOB_DEFAULTS: dict[str, Any] = {
+    "fake": False,
+    "batch_id": None,
+    "batch_size": None,
+    "device": None,
+    "source": None,
+    "source_sha256": None,
+}
 #: what trained a job (``jobs.engine``); NULL for jobs of databases older than revision 0003
 ENGINES = ("sb3", "batched", "external")
 _SHA256 = re.compile(r"[0-9a-f]{64}")
@@ -104,12 +110,20 @@ def _check_value(col: Any, value: Any, what: str) -> None:
     else:  # pragma: no cover - a column type this module does not know
         ok = False
     if not ok:
-        raise _Invalid(f"{what}: {col.name} = {_short(value)} is not a valid {kind.__name__}"
-                       + (f" (at most {col.type.length} characters)" if kind is str and isinstance(value, str) else ""))  # fmt: skip
+        raise _Invalid(
+            f"{what}: {col.name} = {_short(value)} is not a valid {kind.__name__}"
+            + (f" (at most {col.type.length} characters)" if kind is str and isinstance(value, str) else "")
+        )
 
 
-def _check_row(table: type, row: Any, skip: Sequence[str], what: str, optional: dict[str, Any] | None = None,
-               extra: Sequence[str] = ()) -> None:  # fmt: skip
+def _check_row(
+    table: type,
+    row: Any,
+    skip: Sequence[str],
+    what: str,
+    optional: dict[str, Any] | None = None,
+    extra: Sequence[str] = (),
+) -> None:
     if not isinstance(row, dict):
         raise _Invalid(f"{what} is not a JSON object")
     cols = [c for c in table.__table__.columns if c.name not in skip]
@@ -147,14 +161,20 @@ def _check_configs(meta: dict[str, Any]) -> dict[tuple[str, str, int], dict[str,
                 raise _Invalid(f"{what}: sha256 {_short(row['sha256'], 70)} is not a sha256 (64 lowercase hex digits)")
             body = row["body"]
             if row["sha256"] not in (content_sha256(body), content_sha256(_unsafe(body))):
-                raise _Invalid(f"{what}: its body does not hash to its sha256 {row['sha256'][:12]}... (the content was changed)")
+                raise _Invalid(
+                    f"{what}: its body does not hash to its sha256 {row['sha256'][:12]}... (the content was changed)"
+                )
             named = body.get("regime") if kind == "regime" else body
             if not isinstance(named, dict) or named.get("name") != name or named.get("version") != version:
                 said = named if isinstance(named, dict) else {}
-                raise _Invalid(f"{what}: its body describes {_short(said.get('name'))} v{_short(said.get('version'), 12)}, "
-                               "not the config it is stored as")  # fmt: skip
+                raise _Invalid(
+                    f"{what}: its body describes {_short(said.get('name'))} v{_short(said.get('version'), 12)}, "
+                    "not the config it is stored as"
+                )
             if kind == "agent config" and body.get("algo") != row["algo"]:
-                raise _Invalid(f"{what}: its body's algo {_short(body.get('algo'))} is not its algo {_short(row['algo'])}")
+                raise _Invalid(
+                    f"{what}: its body's algo {_short(body.get('algo'))} is not its algo {_short(row['algo'])}"
+                )
             ident = (kind, name, version)
             if ident in out:
                 raise _Invalid(f"{what} is listed twice")
@@ -190,20 +210,31 @@ def _check_jobs(meta: dict[str, Any], configs: dict[tuple[str, str, int], dict[s
         refs = []
         for field, kind in (("regime", "regime"), ("agent", "agent config")):
             ref = job.get(field)
-            if not (isinstance(ref, list) and len(ref) == 2 and isinstance(ref[0], str) and isinstance(ref[1], int)
-                    and not isinstance(ref[1], bool)):  # fmt: skip
+            if not (
+                isinstance(ref, list)
+                and len(ref) == 2
+                and isinstance(ref[0], str)
+                and isinstance(ref[1], int)
+                and not isinstance(ref[1], bool)
+            ):
                 raise _Invalid(f"{what}: {field} is not [name, version]")
             if (kind, ref[0], ref[1]) not in configs:
                 raise _Invalid(f"{what}: its {kind} {_short(ref[0])} v{ref[1]} is not among the archive's configs")
             refs.append(tuple(ref))
         what = f"job {i} ({refs[0][0]} x {refs[1][0]} seed {job['seed']})"
         if job["status"] != "done":
-            known = "a known status" if job["status"] in JOB_STATUSES else f"an unknown status (known: {', '.join(JOB_STATUSES)})"
+            known = (
+                "a known status"
+                if job["status"] in JOB_STATUSES
+                else f"an unknown status (known: {', '.join(JOB_STATUSES)})"
+            )
             raise _Invalid(f"{what}: status {_short(job['status'])} is {known}; an archive holds done jobs only")
         if job["engine"] is not None and job["engine"] not in ENGINES:
             raise _Invalid(f"{what}: engine {_short(job['engine'])} is unknown (known: {', '.join(ENGINES)})")
         if job["episodes"] < 0 or job["eval_episodes"] < 0:
-            raise _Invalid(f"{what}: a negative budget ({job['episodes']} training, {job['eval_episodes']} evaluation days)")
+            raise _Invalid(
+                f"{what}: a negative budget ({job['episodes']} training, {job['eval_episodes']} evaluation days)"
+            )
         if job.get("source_sha256") is not None and not _SHA256.fullmatch(job["source_sha256"]):
             raise _Invalid(f"{what}: source_sha256 {_short(job['source_sha256'], 70)} is not a sha256")
         key = (*refs, job["seed"], job["episodes"], job["eval_episodes"])

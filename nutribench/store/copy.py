@@ -31,7 +31,10 @@ def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] | 
         if source.url == target.url:
             raise StoreError(f"db copy: source and destination are the same database ({source.display})")
         with target.engine.connect() as conn:
-            held = {t.name: conn.execute(select(func.count()).select_from(t)).scalar_one() for t in Base.metadata.sorted_tables}
+            held = {
+                t.name: conn.execute(select(func.count()).select_from(t)).scalar_one()
+                for t in Base.metadata.sorted_tables
+            }
         if any(held.values()):
             rows = ", ".join(f"{n} {name}" for name, n in held.items() if n)
             raise StoreError(f"db copy: {target.display} already holds rows ({rows}): copy into a new, empty database")
@@ -41,7 +44,9 @@ def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] | 
         with source.engine.connect().execution_options(**read_options) as read, session_scope(target.engine) as write:
             for table in Base.metadata.sorted_tables:  # parents before children
                 n = 0
-                result = read.execution_options(yield_per=BATCH).execute(select(table).order_by(*table.primary_key.columns))
+                result = read.execution_options(yield_per=BATCH).execute(
+                    select(table).order_by(*table.primary_key.columns)
+                )
                 for batch in result.mappings().partitions(BATCH):
                     write.execute(insert(table), [dict(row) for row in batch])
                     n += len(batch)
@@ -51,12 +56,17 @@ def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] | 
             if write.get_bind().dialect.name == "postgresql":
                 for table in Base.metadata.sorted_tables:
                     if "id" in table.columns and table.c.id.primary_key:
-                        write.execute(text(
-                            f"SELECT setval(pg_get_serial_sequence('{table.name}', 'id'), "
-                            f"coalesce((SELECT max(id) FROM {table.name}), 0) + 1, false)"
-                        ))  # fmt: skip
+                        write.execute(
+                            text(
+                                f"SELECT setval(pg_get_serial_sequence('{table.name}', 'id'), "
+                                f"coalesce((SELECT max(id) FROM {table.name}), 0) + 1, false)"
+                            )
+                        )
             # compared before the commit: a mismatch rolls the whole copy back
-            copied = {t.name: write.execute(select(func.count()).select_from(t)).scalar_one() for t in Base.metadata.sorted_tables}
+            copied = {
+                t.name: write.execute(select(func.count()).select_from(t)).scalar_one()
+                for t in Base.metadata.sorted_tables
+            }
             if copied != counts:
                 raise StoreError(f"db copy: row counts differ after the copy (source {counts}, destination {copied})")
         return counts

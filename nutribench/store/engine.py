@@ -17,8 +17,8 @@ import os
 import sqlite3
 import time
 from collections.abc import Iterator
-from datetime import datetime
 from contextlib import contextmanager
+from datetime import datetime
 from pathlib import Path
 
 from sqlalchemy import Connection, Engine, create_engine, event, text
@@ -118,7 +118,11 @@ def make_engine(url: URL | str, *, writer: bool = False, busy_timeout_ms: int = 
         try:
             return create_engine(url, pool_pre_ping=True)
         except (NoSuchModuleError, ImportError) as e:  # unknown dialect, driver not installed
-            hint = " (pip install 'nutribench[postgres]' installs psycopg 3, for URLs postgresql+psycopg://...)" if url.get_backend_name() == "postgresql" else ""
+            hint = (
+                " (pip install 'nutribench[postgres]' installs psycopg 3, for URLs postgresql+psycopg://...)"
+                if url.get_backend_name() == "postgresql"
+                else ""
+            )
             raise StoreError(f"--db {display_url(url)}: cannot use this database URL: {e}{hint}") from None
     engine = create_engine(url, connect_args={"timeout": busy_timeout_ms / 1000})
 

@@ -61,10 +61,14 @@ def check_not_mixed(store: Store, fake: bool) -> None:
         return
     where = display_url(store.url)
     if fake:
-        raise StoreError(f"{where} holds {n} real jobs: a dry run (NUTRIBENCH_JOB=fake) would mix synthetic rows "
-                         "with results; give it a database of its own (--db)")  # fmt: skip
-    raise StoreError(f"{where} holds {n} dry-run jobs (NUTRIBENCH_JOB=fake), which are never results: write real "
-                     "work to another database (--db), or delete this one")  # fmt: skip
+        raise StoreError(
+            f"{where} holds {n} real jobs: a dry run (NUTRIBENCH_JOB=fake) would mix synthetic rows "
+            "with results; give it a database of its own (--db)"
+        )
+    raise StoreError(
+        f"{where} holds {n} dry-run jobs (NUTRIBENCH_JOB=fake), which are never results: write real "
+        "work to another database (--db), or delete this one"
+    )
 
 
 def reset_given_up(store: Store, job_ids: Sequence[int]) -> int:
@@ -72,9 +76,11 @@ def reset_given_up(store: Store, job_ids: Sequence[int]) -> int:
     failure count reset (their last error stays until they succeed); how many."""
     with session_scope(store.engine) as s:
         return s.execute(
-            update(Job).where(Job.id.in_(job_ids), Job.status == "failed", Job.failures >= MAX_FAILURES)
-            .values(failures=0).execution_options(synchronize_session=False)
-        ).rowcount  # fmt: skip
+            update(Job)
+            .where(Job.id.in_(job_ids), Job.status == "failed", Job.failures >= MAX_FAILURES)
+            .values(failures=0)
+            .execution_options(synchronize_session=False)
+        ).rowcount
 
 
 def _claimable(now) -> Any:
@@ -102,19 +108,38 @@ def claim_jobs(store: Store, job_ids: Sequence[int], exclude: set[int], n: int, 
         now = db_now(s)
         # PostgreSQL: lock the rows taken, and pass over rows another claimer has locked (SQLite
         # has one writer at a time and ignores FOR UPDATE). The UPDATE re-checks the rule anyway.
-        ids = s.execute(
-            select(Job.id).where(Job.id.in_(candidates), _claimable(now)).order_by(Job.id).limit(n)
-            .with_for_update(skip_locked=True)
-        ).scalars().all()  # fmt: skip
+        ids = (
+            s.execute(
+                select(Job.id)
+                .where(Job.id.in_(candidates), _claimable(now))
+                .order_by(Job.id)
+                .limit(n)
+                .with_for_update(skip_locked=True)
+            )
+            .scalars()
+            .all()
+        )
         if not ids:
             return []
         s.execute(
-            update(Job).where(Job.id.in_(ids), _claimable(now)).values(
-                status="running", owner=owner, heartbeat_at=now, started_at=now, finished_at=None,
-                attempt=Job.attempt + 1, episodes_done=0, last_return=None, worker_pid=None,
-            ).execution_options(synchronize_session=False)
-        )  # fmt: skip
-        return list(s.execute(select(Job).where(Job.id.in_(ids), Job.owner == owner, Job.status == "running")).scalars())
+            update(Job)
+            .where(Job.id.in_(ids), _claimable(now))
+            .values(
+                status="running",
+                owner=owner,
+                heartbeat_at=now,
+                started_at=now,
+                finished_at=None,
+                attempt=Job.attempt + 1,
+                episodes_done=0,
+                last_return=None,
+                worker_pid=None,
+            )
+            .execution_options(synchronize_session=False)
+        )
+        return list(
+            s.execute(select(Job).where(Job.id.in_(ids), Job.owner == owner, Job.status == "running")).scalars()
+        )
 
 
 def held_elsewhere(store: Store, job_ids: Sequence[int], owner: str) -> tuple[int, datetime | None]:
@@ -122,8 +147,15 @@ def held_elsewhere(store: Store, job_ids: Sequence[int], owner: str) -> tuple[in
     last of them becomes claimable if that driver's heartbeat stops now."""
     with store.engine.connect() as conn:
         fresh = stale_before(db_now(conn))
-        beats = conn.execute(select(Job.heartbeat_at).where(
-            Job.id.in_(job_ids), Job.status == "running", Job.owner != owner, Job.heartbeat_at >= fresh)).scalars().all()  # fmt: skip
+        beats = (
+            conn.execute(
+                select(Job.heartbeat_at).where(
+                    Job.id.in_(job_ids), Job.status == "running", Job.owner != owner, Job.heartbeat_at >= fresh
+                )
+            )
+            .scalars()
+            .all()
+        )
     if not beats:
         return 0, None
     return len(beats), max(beats) + timedelta(seconds=STALE_AFTER_S)
@@ -134,7 +166,9 @@ def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, i
     out = {"done": 0, "given_up": 0, "busy": 0}
     with store.engine.connect() as conn:
         now = db_now(conn)
-        rows = conn.execute(select(Job.status, Job.failures, Job.owner, Job.heartbeat_at).where(Job.id.in_(job_ids))).all()
+        rows = conn.execute(
+            select(Job.status, Job.failures, Job.owner, Job.heartbeat_at).where(Job.id.in_(job_ids))
+        ).all()
     for status, failures, job_owner, beat in rows:
         if status == "done":
             out["done"] += 1
@@ -164,18 +198,29 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
             meta["platform"] = str(meta["platform"])[:255]
         job = s.execute(select(Job).where(Job.id == result.job_id)).scalar_one()
         claimed = s.execute(
-            update(Job).where(Job.id == result.job_id, Job.owner == owner, Job.status == "running").values(
-                status="done", owner=None, heartbeat_at=db_now(s), episodes_done=job.episodes,
-                model_path=result.model_path or model_path, error=None, **meta,
-            ).execution_options(synchronize_session=False)
-        ).rowcount  # fmt: skip
+            update(Job)
+            .where(Job.id == result.job_id, Job.owner == owner, Job.status == "running")
+            .values(
+                status="done",
+                owner=None,
+                heartbeat_at=db_now(s),
+                episodes_done=job.episodes,
+                model_path=result.model_path or model_path,
+                error=None,
+                **meta,
+            )
+            .execution_options(synchronize_session=False)
+        ).rowcount
         if claimed != 1:
             return False
         rows = episode_rows(result.job_id, "train", result.train) + episode_rows(result.job_id, "eval", result.eval)
         if rows:
             s.execute(insert(Episode), rows)
         if result.eval_steps:
-            s.execute(insert(EvalStep), [{"job_id": result.job_id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in result.eval_steps])
+            s.execute(
+                insert(EvalStep),
+                [{"job_id": result.job_id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in result.eval_steps],
+            )
         return True
 
 
@@ -183,10 +228,17 @@ def store_failure(store: Store, job_id: int, owner: str, error: str) -> None:
     """Status ``failed``, one more failure, the error text kept."""
     with session_scope(store.engine) as s:
         s.execute(
-            update(Job).where(Job.id == job_id, Job.owner == owner).values(
-                status="failed", failures=Job.failures + 1, error=error, owner=None, finished_at=db_now(s),
-            ).execution_options(synchronize_session=False)
-        )  # fmt: skip
+            update(Job)
+            .where(Job.id == job_id, Job.owner == owner)
+            .values(
+                status="failed",
+                failures=Job.failures + 1,
+                error=error,
+                owner=None,
+                finished_at=db_now(s),
+            )
+            .execution_options(synchronize_session=False)
+        )
 
 
 def release_jobs(store: Store, job_ids: Sequence[int], owner: str, status: str = "interrupted") -> int:
@@ -195,10 +247,15 @@ def release_jobs(store: Store, job_ids: Sequence[int], owner: str, status: str =
         return 0
     with session_scope(store.engine) as s:
         return s.execute(
-            update(Job).where(Job.id.in_(list(job_ids)), Job.owner == owner, Job.status == "running").values(
-                status=status, owner=None, finished_at=db_now(s),
-            ).execution_options(synchronize_session=False)
-        ).rowcount  # fmt: skip
+            update(Job)
+            .where(Job.id.in_(list(job_ids)), Job.owner == owner, Job.status == "running")
+            .values(
+                status=status,
+                owner=None,
+                finished_at=db_now(s),
+            )
+            .execution_options(synchronize_session=False)
+        ).rowcount
 
 
 def flush_progress(store: Store, owner: str, live: dict[int, dict[str, Any]]) -> None:
@@ -213,6 +270,9 @@ def flush_progress(store: Store, owner: str, live: dict[int, dict[str, Any]]) ->
                 values["last_return"] = float(st["ret"])
             if st.get("pid") is not None:
                 values["worker_pid"] = int(st["pid"])
-            s.execute(update(Job).where(Job.id == job_id, Job.owner == owner).values(**values).execution_options(synchronize_session=False))
-
-
+            s.execute(
+                update(Job)
+                .where(Job.id == job_id, Job.owner == owner)
+                .values(**values)
+                .execution_options(synchronize_session=False)
+            )

@@ -209,13 +209,32 @@ class EvalStep(Base):
 #: Metric columns of ``episodes`` (and of the ``episode_metrics`` view), in order: the
 #: env's metrics (:data:`nutribench.env.metrics.METRIC_KEYS`, tested equal) and the
 #: policy's entropy. Read off the table, so the schema is the one place they are listed.
-EPISODE_METRICS: tuple[str, ...] = tuple(c.name for c in Episode.__table__.columns if c.name not in ("job_id", "phase", "episode"))
+EPISODE_METRICS: tuple[str, ...] = tuple(
+    c.name for c in Episode.__table__.columns if c.name not in ("job_id", "phase", "episode")
+)
 
 #: Columns of ``eval_steps`` a job result fills (all but ``job_id``).
 EVAL_STEP_COLUMNS: tuple[str, ...] = tuple(c.name for c in EvalStep.__table__.columns if c.name != "job_id")
 
 #: Columns of ``jobs`` that record where and with what a job ran (from
 #: :func:`nutribench.provenance.collect_metadata` and the worker's clock).
-METADATA_COLUMNS = ("host", "platform", "python_version", "numpy_version", "torch_version", "sb3_version",
-                    "nutribench_version", "git_commit", "git_dirty", "started_at", "finished_at", "wall_seconds",
-                    "engine", "batch_id", "batch_size", "device", "source", "source_sha256")  # fmt: skip
+METADATA_COLUMNS = (
+    "host",
+    "platform",
+    "python_version",
+    "numpy_version",
+    "torch_version",
+    "sb3_version",
+    "nutribench_version",
+    "git_commit",
+    "git_dirty",
+    "started_at",
+    "finished_at",
+    "wall_seconds",
+    "engine",
+    "batch_id",
+    "batch_size",
+    "device",
+    "source",
+    "source_sha256",
+)

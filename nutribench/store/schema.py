@@ -34,6 +34,7 @@ from nutribench.store.engine import (
     sqlite_path,
 )
 
+
 def migrations_dir() -> Path:
     """``migrations/`` of the source checkout, else the copy shipped in the wheel."""
     env = os.environ.get("NUTRIBENCH_MIGRATIONS")
@@ -154,15 +155,21 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
                 rev = _classify(conn, display)
                 if rev != head:
                     if not upgrade:
-                        raise StoreError(f"{display} is on schema revision {rev}, this nutribench needs {head}: run {_upgrade_cmd(url)}")
+                        raise StoreError(
+                            f"{display} is on schema revision {rev}, this nutribench needs {head}: run {_upgrade_cmd(url)}"
+                        )
                     upgrade_connection(conn)
             return Store(engine, url, head, upgraded_from=rev if rev not in (None, head) else None, created=rev is None)
         with engine.connect() as conn:
             rev = _classify(conn, display)
         if rev is None:
-            raise StoreError(f"{display} is an empty database, nothing has run yet: {db_command('nutribench run', url)} fills it")
+            raise StoreError(
+                f"{display} is an empty database, nothing has run yet: {db_command('nutribench run', url)} fills it"
+            )
         if rev != head:
-            raise StoreError(f"{display} is on schema revision {rev}, this nutribench needs {head}: run {_upgrade_cmd(url)}")
+            raise StoreError(
+                f"{display} is on schema revision {rev}, this nutribench needs {head}: run {_upgrade_cmd(url)}"
+            )
         return Store(engine, url, head)
     except StoreError:
         engine.dispose()

@@ -7,8 +7,6 @@ from typing import Any, ClassVar
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from torch.nn import functional as F
-
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
@@ -16,10 +14,10 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import FloatSchedule, explained_variance, obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv
+from torch.nn import functional as F
 
 from nutribench.agents.gru_ppo.buffer import RecurrentRolloutBuffer, RecurrentRolloutBufferSamples
 from nutribench.agents.gru_ppo.policy import GRUActorCriticPolicy, GRUState
-
 
 
 class GRUPPO(OnPolicyAlgorithm):
@@ -56,7 +54,10 @@ class GRUPPO(OnPolicyAlgorithm):
     entropy over the rollout's minibatches, nats) and ``train/minibatch_sequences``.
     """
 
-    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"GRUPolicy": GRUActorCriticPolicy, "MlpPolicy": GRUActorCriticPolicy}
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "GRUPolicy": GRUActorCriticPolicy,
+        "MlpPolicy": GRUActorCriticPolicy,
+    }
     policy: GRUActorCriticPolicy
     rollout_buffer: RecurrentRolloutBuffer
 
@@ -186,11 +187,17 @@ class GRUPPO(OnPolicyAlgorithm):
             # Bootstrap on time-limit truncation (SB3 issue #633). NutriRL's day end is a true
             # terminal (no "TimeLimit.truncated"), so this never fires there.
             for idx, done in enumerate(dones):
-                if done and infos[idx].get("terminal_observation") is not None and infos[idx].get("TimeLimit.truncated", False):
+                if (
+                    done
+                    and infos[idx].get("terminal_observation") is not None
+                    and infos[idx].get("TimeLimit.truncated", False)
+                ):
                     terminal_obs = self.policy.obs_to_tensor(infos[idx]["terminal_observation"])[0]
                     carried = (new_states[0][:, idx : idx + 1], new_states[1][:, idx : idx + 1])
                     with th.no_grad():
-                        terminal_value = self.policy.predict_values(terminal_obs, carried, th.zeros(1, device=self.device))
+                        terminal_value = self.policy.predict_values(
+                            terminal_obs, carried, th.zeros(1, device=self.device)
+                        )
                     rewards[idx] += self.gamma * terminal_value.item()
 
             rollout_buffer.add(
@@ -298,8 +305,14 @@ class GRUPPO(OnPolicyAlgorithm):
         self.policy.set_training_mode(False)
         obs, vectorized = self.policy.obs_to_tensor(observation)
         n = obs.shape[0]  # type: ignore[union-attr]
-        state_t = self.policy.initial_state(n) if state is None else tuple(th.as_tensor(s, dtype=th.float32) for s in state)
-        starts = th.zeros(n) if episode_start is None else th.as_tensor(np.asarray(episode_start, dtype=np.float32).reshape(n))
+        state_t = (
+            self.policy.initial_state(n) if state is None else tuple(th.as_tensor(s, dtype=th.float32) for s in state)
+        )
+        starts = (
+            th.zeros(n)
+            if episode_start is None
+            else th.as_tensor(np.asarray(episode_start, dtype=np.float32).reshape(n))
+        )
         with th.no_grad():
             dist, new_state = self.policy.get_distribution(obs, state_t, starts)  # type: ignore[arg-type]
             probs = dist.distribution.probs.cpu().numpy()

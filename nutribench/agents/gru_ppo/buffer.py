@@ -8,7 +8,6 @@ from typing import NamedTuple
 import numpy as np
 import torch as th
 from gymnasium import spaces
-
 from stable_baselines3.common.buffers import RolloutBuffer
 
 from nutribench.agents.gru_ppo.policy import GRUState
@@ -93,7 +92,15 @@ class RecurrentRolloutBuffer(RolloutBuffer):
         if not self.generator_ready:  # reshape once per rollout (reset() clears the flag)
             self._sequences = {
                 name: self.to_sequences(getattr(self, name))
-                for name in ("observations", "actions", "values", "log_probs", "advantages", "returns", "episode_starts")
+                for name in (
+                    "observations",
+                    "actions",
+                    "values",
+                    "log_probs",
+                    "advantages",
+                    "returns",
+                    "episode_starts",
+                )
             }
             # state carried into each sequence's first step: (n_seq, 2, H)
             self._sequences["hidden_states"] = self.to_sequences(self.hidden_states)[:, 0]

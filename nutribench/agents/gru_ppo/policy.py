@@ -8,12 +8,11 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from torch import nn
-
 from stable_baselines3.common.distributions import CategoricalDistribution
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.preprocessing import preprocess_obs
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+from torch import nn
 
 GRUState = tuple[th.Tensor, th.Tensor]
 """``(h_nutrient, h_food)``, each ``(1, batch, hidden_size)`` (nn.GRU's layout)."""
@@ -60,7 +59,9 @@ class GRUActorCriticPolicy(BasePolicy):
     ):
         if optimizer_kwargs is None:
             optimizer_kwargs = {"eps": 1e-5} if optimizer_class == th.optim.Adam else {}
-        super().__init__(observation_space, action_space, optimizer_class=optimizer_class, optimizer_kwargs=optimizer_kwargs)
+        super().__init__(
+            observation_space, action_space, optimizer_class=optimizer_class, optimizer_kwargs=optimizer_kwargs
+        )
         if use_sde:
             raise ValueError("GRUActorCriticPolicy does not support gSDE")
         if not isinstance(action_space, spaces.Discrete):
@@ -80,7 +81,9 @@ class GRUActorCriticPolicy(BasePolicy):
         self.nutrient_gru = nn.GRU(self.n_nutrients, self.hidden_size, num_layers=1, batch_first=True)
         self.food_gru = nn.GRU(self.n_foods, self.hidden_size, num_layers=1, batch_first=True)
         features = 2 * self.hidden_size
-        self.actor_head = nn.Sequential(nn.Linear(features, self.head_size), nn.ReLU(), nn.Linear(self.head_size, n_actions))
+        self.actor_head = nn.Sequential(
+            nn.Linear(features, self.head_size), nn.ReLU(), nn.Linear(self.head_size, n_actions)
+        )
         self.critic_head = nn.Sequential(nn.Linear(features, self.head_size), nn.ReLU(), nn.Linear(self.head_size, 1))
         self.action_dist = CategoricalDistribution(n_actions)
 
@@ -199,7 +202,11 @@ class GRUActorCriticPolicy(BasePolicy):
     # ---- SB3 predict API (sb3-contrib RecurrentPPO semantics) ----
 
     def _predict(  # type: ignore[override]
-        self, observation: PyTorchObs, state: GRUState | None = None, episode_starts: th.Tensor | None = None, deterministic: bool = False
+        self,
+        observation: PyTorchObs,
+        state: GRUState | None = None,
+        episode_starts: th.Tensor | None = None,
+        deterministic: bool = False,
     ) -> tuple[th.Tensor, GRUState]:
         obs = observation  # type: ignore[assignment]
         n = obs.shape[0]  # type: ignore[union-attr]
@@ -230,7 +237,11 @@ class GRUActorCriticPolicy(BasePolicy):
         obs_tensor, vectorized = self.obs_to_tensor(observation)
         n = obs_tensor.shape[0]  # type: ignore[union-attr]
         state_t = None if state is None else tuple(th.as_tensor(s, dtype=th.float32, device=self.device) for s in state)
-        starts = None if episode_start is None else th.as_tensor(np.asarray(episode_start, dtype=np.float32).reshape(n), device=self.device)
+        starts = (
+            None
+            if episode_start is None
+            else th.as_tensor(np.asarray(episode_start, dtype=np.float32).reshape(n), device=self.device)
+        )
         with th.no_grad():
             actions, new_state = self._predict(obs_tensor, state_t, starts, deterministic)  # type: ignore[arg-type]
         actions_np = actions.cpu().numpy().reshape((-1, *self.action_space.shape))  # type: ignore[misc]
