@@ -69,8 +69,12 @@ def main() -> None:
     parser.add_argument("--regimes", default="run0", help="comma-separated regimes (default run0)")
     parser.add_argument("--seeds", default="0,1,2,3,4,5,6,7,8,9", help="comma-separated training seeds")
     parser.add_argument("--episodes", type=int, default=500, help="training days (default 500)")
-    parser.add_argument("--engine", choices=("batched", "sb3"), default="batched",
-                        help="batched (all seeds and regimes at once) or sb3 (the reference engine, in turn)")
+    parser.add_argument(
+        "--engine",
+        choices=("batched", "sb3"),
+        default="batched",
+        help="batched (all seeds and regimes at once) or sb3 (the reference engine, in turn)",
+    )
     args = parser.parse_args()
     try:  # the CLI's own parsing, and its one-line errors
         regimes, seeds = split_csv(args.regimes, list_regimes(), "regime"), list(parse_seeds(args.seeds))

@@ -62,17 +62,26 @@ def yardsticks(folder: Path, regime: str, seed: int, n: int) -> tuple[np.ndarray
 def summarise(per_seed: pd.DataFrame) -> dict:
     """per_seed: one row per seed with return, foods, share."""
     point, lo, hi = iqm_bootstrap_ci([np.array([v]) for v in per_seed["share"]], reps=2000, seed=0)
-    return {"seeds": len(per_seed), "return_mean": per_seed["return"].mean(), "foods_mean": per_seed["foods"].mean(),
-            "share_iqm": point, "share_lo": lo, "share_hi": hi,
-            "share_min": per_seed["share"].min(), "share_max": per_seed["share"].max(),
-            # the paper's reading: the share of the gap closed by the mean return over seeds x days
-            "share_of_mean": gap_closed(per_seed["return"].mean(), per_seed["never"].mean(), per_seed["planner"].mean())}
+    return {
+        "seeds": len(per_seed),
+        "return_mean": per_seed["return"].mean(),
+        "foods_mean": per_seed["foods"].mean(),
+        "share_iqm": point,
+        "share_lo": lo,
+        "share_hi": hi,
+        "share_min": per_seed["share"].min(),
+        "share_max": per_seed["share"].max(),
+        # the paper's reading: the share of the gap closed by the mean return over seeds x days
+        "share_of_mean": gap_closed(per_seed["return"].mean(), per_seed["never"].mean(), per_seed["planner"].mean()),
+    }
 
 
 def greedy_rows(ev: pd.DataFrame, steps: pd.DataFrame) -> list[dict]:
     rows = []
     for (algo, version, regime), cell in ev.groupby(["algo", "regime_version", "regime"]):
-        meals = steps[(steps.algo == algo) & (steps.regime_version == version) & (steps.regime == regime) & (steps.action == 1)]
+        meals = steps[
+            (steps.algo == algo) & (steps.regime_version == version) & (steps.regime == regime) & (steps.action == 1)
+        ]
         late = float((meals.step >= 46).mean()) if len(meals) else float("nan")
         level, factor, text, folder = level_of(algo, version)
         per_seed = []
@@ -80,28 +89,54 @@ def greedy_rows(ev: pd.DataFrame, steps: pd.DataFrame) -> list[dict]:
             days = days.sort_values("episode")
             never, planner = yardsticks(folder, regime, int(seed), len(days))
             ret = days["return"].mean()
-            per_seed.append({"seed": seed, "return": ret, "foods": days["foods"].mean(), "never": never.mean(),
-                             "planner": planner.mean(), "share": gap_closed(ret, never.mean(), planner.mean())})
+            per_seed.append(
+                {
+                    "seed": seed,
+                    "return": ret,
+                    "foods": days["foods"].mean(),
+                    "never": never.mean(),
+                    "planner": planner.mean(),
+                    "share": gap_closed(ret, never.mean(), planner.mean()),
+                }
+            )
         per_seed = pd.DataFrame(per_seed)
         evaluation = "greedy" if version == 2 else "greedy, own reward (lo off)"
-        rows.append({"level": level, "factor": factor, "value": text, "regime": regime, "evaluation": evaluation,
-                     **summarise(per_seed), "per_seed": " ".join(f"{100 * s:.0f}" for s in per_seed["share"]),
-                     "late_meals": late})
+        rows.append(
+            {
+                "level": level,
+                "factor": factor,
+                "value": text,
+                "regime": regime,
+                "evaluation": evaluation,
+                **summarise(per_seed),
+                "per_seed": " ".join(f"{100 * s:.0f}" for s in per_seed["share"]),
+                "late_meals": late,
+            }
+        )
     return rows
 
 
 def csv_rows(csv: pd.DataFrame) -> list[dict]:
     rows = []
     for (level, regime, rv, mode), cell in csv[~csv["mode"].isin(["never", "planner"])].groupby(
-            ["level", "regime", "reward_version", "mode"]):
+        ["level", "regime", "reward_version", "mode"]
+    ):
         ys = csv[(csv.level == level) & (csv.regime == regime) & (csv.reward_version == rv)]
         per_seed = []
         for seed, days in cell.groupby("seed"):
             never = ys[(ys.seed == seed) & (ys["mode"] == "never")]["return"].mean()
             planner = ys[(ys.seed == seed) & (ys["mode"] == "planner")]["return"].mean()
             ret = days["return"].mean()  # over draws x days
-            per_seed.append({"seed": seed, "return": ret, "foods": days["foods"].mean(), "never": never, "planner": planner,
-                             "share": gap_closed(ret, never, planner)})
+            per_seed.append(
+                {
+                    "seed": seed,
+                    "return": ret,
+                    "foods": days["foods"].mean(),
+                    "never": never,
+                    "planner": planner,
+                    "share": gap_closed(ret, never, planner),
+                }
+            )
         per_seed = pd.DataFrame(per_seed)
         factor, text = next((v[1], v[2]) for v in LEVELS.values() if v[0] == level)
         draws = cell["draw"].nunique()
@@ -110,8 +145,17 @@ def csv_rows(csv: pd.DataFrame) -> list[dict]:
             evaluation += ", shipped reward"
         if mode == "greedy" and not (rv == 2 and level == "lo0"):
             continue  # the database's own greedy evaluation, replayed as a check (evaluate_models.py --check)
-        rows.append({"level": level, "factor": factor, "value": text, "regime": regime, "evaluation": evaluation,
-                     **summarise(per_seed), "per_seed": " ".join(f"{100 * s:.0f}" for s in per_seed["share"])})
+        rows.append(
+            {
+                "level": level,
+                "factor": factor,
+                "value": text,
+                "regime": regime,
+                "evaluation": evaluation,
+                **summarise(per_seed),
+                "per_seed": " ".join(f"{100 * s:.0f}" for s in per_seed["share"]),
+            }
+        )
     return rows
 
 
@@ -126,9 +170,20 @@ def training_rows(tr: pd.DataFrame, planner_mean: dict) -> list[dict]:
             per_seed = w.groupby("seed")[["return", "foods", "entropy"]].mean()
             point, lo, hi = iqm_bootstrap_ci([np.array([v]) for v in per_seed["return"]], reps=2000, seed=0)
             never, planner = planner_mean[(version, regime)]
-            rows.append({"level": level, "regime": regime, "day": day, "seeds": len(per_seed),
-                         "return_iqm": point, "return_lo": lo, "return_hi": hi, "foods_mean": per_seed["foods"].mean(),
-                         "entropy_mean": per_seed["entropy"].mean(), "share_of_iqm": gap_closed(point, never, planner)})
+            rows.append(
+                {
+                    "level": level,
+                    "regime": regime,
+                    "day": day,
+                    "seeds": len(per_seed),
+                    "return_iqm": point,
+                    "return_lo": lo,
+                    "return_hi": hi,
+                    "foods_mean": per_seed["foods"].mean(),
+                    "entropy_mean": per_seed["entropy"].mean(),
+                    "share_of_iqm": gap_closed(point, never, planner),
+                }
+            )
     return rows
 
 
@@ -143,8 +198,11 @@ def main() -> None:
     con = sqlite3.connect(a.db)
     df = pd.read_sql("select * from episode_metrics where algo like 'ppo%' and budget = ?", con, params=(a.budget,))
     ev, tr = df[df.phase == "eval"], df[df.phase == "train"]
-    steps = pd.read_sql("select algo, regime, regime_version, step, action from eval_trajectories where algo like 'ppo%' and budget = ?",
-                        con, params=(a.budget,))
+    steps = pd.read_sql(
+        "select algo, regime, regime_version, step, action from eval_trajectories where algo like 'ppo%' and budget = ?",
+        con,
+        params=(a.budget,),
+    )
     rows = greedy_rows(ev, steps)
     csv = pd.concat([pd.read_csv(p) for p in a.csv]) if a.csv else pd.DataFrame()
     if not csv.empty:
@@ -160,11 +218,15 @@ def main() -> None:
     def cell(r):
         return f"{100 * r.share_iqm:.0f} % [{100 * r.share_lo:.0f}, {100 * r.share_hi:.0f}]"
 
-    lines = ["| level | factor: value | evaluation | regime | share of the gap, IQM [95 % CI] | seeds' shares (%) | share of the mean return | return (mean) | foods (mean) | meals in the last 5 steps |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| level | factor: value | evaluation | regime | share of the gap, IQM [95 % CI] | seeds' shares (%) | share of the mean return | return (mean) | foods (mean) | meals in the last 5 steps |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in table.itertuples():
-        lines.append(f"| {r.level} | {r.factor}: {r.value} | {r.evaluation} | {r.regime} | {cell(r)} | {r.per_seed} | {100 * r.share_of_mean:.0f} % | "
-                     f"{r.return_mean:.1f} | {r.foods_mean:.1f} | {late(r.late_meals)} |")
+        lines.append(
+            f"| {r.level} | {r.factor}: {r.value} | {r.evaluation} | {r.regime} | {cell(r)} | {r.per_seed} | {100 * r.share_of_mean:.0f} % | "
+            f"{r.return_mean:.1f} | {r.foods_mean:.1f} | {late(r.late_meals)} |"
+        )
     (out / "table_sensitivity.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
@@ -178,19 +240,38 @@ def main() -> None:
             nv.append(n_.mean())
             pl.append(p_.mean())
         planner_mean[(version, regime)] = (float(np.mean(nv)), float(np.mean(pl)))
-    trt = pd.DataFrame(training_rows(tr, planner_mean), columns=["level", "regime", "day", "seeds", "return_iqm", "return_lo",
-                                                                 "return_hi", "foods_mean", "entropy_mean", "share_of_iqm"])
+    trt = pd.DataFrame(
+        training_rows(tr, planner_mean),
+        columns=[
+            "level",
+            "regime",
+            "day",
+            "seeds",
+            "return_iqm",
+            "return_lo",
+            "return_hi",
+            "foods_mean",
+            "entropy_mean",
+            "share_of_iqm",
+        ],
+    )
     trt["_l"] = trt["level"].map(ORDER.index)
     trt = trt.sort_values(["_l", "regime", "day"]).drop(columns="_l")
     trt.to_csv(out / "table_training_length.csv", index=False, float_format="%.4f")
-    lines = ["| level | regime | training day | training return, IQM [95 % CI] over seeds of the 100 days before it | foods a day (mean) | policy entropy (nats, mean) | share of the gap of the IQM |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| level | regime | training day | training return, IQM [95 % CI] over seeds of the 100 days before it | foods a day (mean) | policy entropy (nats, mean) | share of the gap of the IQM |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in trt.itertuples():
-        lines.append(f"| {r.level} | {r.regime} | {r.day} | {r.return_iqm:.1f} [{r.return_lo:.1f}, {r.return_hi:.1f}] | "
-                     f"{r.foods_mean:.1f} | {r.entropy_mean:.2f} | {100 * r.share_of_iqm:.0f} % |")
+        lines.append(
+            f"| {r.level} | {r.regime} | {r.day} | {r.return_iqm:.1f} [{r.return_lo:.1f}, {r.return_hi:.1f}] | "
+            f"{r.foods_mean:.1f} | {r.entropy_mean:.2f} | {100 * r.share_of_iqm:.0f} % |"
+        )
     (out / "table_training_length.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
-    print("yardsticks (never, planner) per regime:", {k: tuple(round(x, 2) for x in v) for k, v in planner_mean.items()})
+    print(
+        "yardsticks (never, planner) per regime:", {k: tuple(round(x, 2) for x in v) for k, v in planner_mean.items()}
+    )
 
     # figure: (A) share of the gap per level x regime; (B, C) training return over days in run3 and run6
     fig, axes = plt.subplots(1, 3, figsize=(17, 6), gridspec_kw={"width_ratios": [1.5, 1, 1]})
@@ -204,8 +285,19 @@ def main() -> None:
         y = 100 * sub["share_iqm"].to_numpy()
         err = np.abs(100 * np.vstack([sub["share_iqm"] - sub["share_lo"], sub["share_hi"] - sub["share_iqm"]]))
         odd = ev_.startswith("stochastic") or "own reward" in ev_
-        ax.bar(x, y, width, yerr=err, capsize=2, color=color[lvl], alpha=0.45 if odd else 1.0, hatch="//" if odd else None,
-               edgecolor="k", lw=0.3, label=f"{lvl}: {ev_}")
+        ax.bar(
+            x,
+            y,
+            width,
+            yerr=err,
+            capsize=2,
+            color=color[lvl],
+            alpha=0.45 if odd else 1.0,
+            hatch="//" if odd else None,
+            edgecolor="k",
+            lw=0.3,
+            label=f"{lvl}: {ev_}",
+        )
     ax.axhline(0, color="k", lw=0.8)
     ax.axhline(100, color="k", lw=0.8, ls="--")
     ax.set_xticks(np.arange(len(REGIMES)), REGIMES)
@@ -213,13 +305,19 @@ def main() -> None:
     ax.set_title("(A) evaluation, 5 fixed days per seed (0 % = never eat, 100 % = planner)")
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=2)
     for ax, regime, tag in ((axes[1], "run3", "B"), (axes[2], "run6", "C")):
-        for i, lvl in enumerate(ORDER):
+        for lvl in ORDER:
             sub = tr[(tr.regime == regime)]
             sub = sub[[level_of(a_, v_)[0] == lvl for a_, v_ in zip(sub.algo, sub.regime_version)]]
             if sub.empty:
                 continue
             curve = sub.groupby("episode")["return"].mean().rolling(100, min_periods=1).mean()
-            ax.plot(curve.index + 1, curve.to_numpy(), lw=1.2, color=color[lvl], label=lvl + (" (its own reward, lo off)" if lvl == "lo0" else ""))
+            ax.plot(
+                curve.index + 1,
+                curve.to_numpy(),
+                lw=1.2,
+                color=color[lvl],
+                label=lvl + (" (its own reward, lo off)" if lvl == "lo0" else ""),
+            )
         nv, pl = planner_mean.get((2, regime), (np.nan, np.nan))
         ax.axhline(nv, color="k", lw=0.8, ls=":", label="never")
         ax.axhline(pl, color="k", lw=0.8, ls="--", label="planner (eval days)")
@@ -229,7 +327,9 @@ def main() -> None:
         ax.set_xlabel("training day")
         ax.set_ylabel("return a day (mean over 5 seeds, 100-day moving mean)")
         ax.legend(fontsize=7)
-    fig.suptitle("PPO sensitivity study: one factor at a time from the shipped PPO (5000 days, batched engine, seeds 0-4)")
+    fig.suptitle(
+        "PPO sensitivity study: one factor at a time from the shipped PPO (5000 days, batched engine, seeds 0-4)"
+    )
     fig.tight_layout()
     fig.savefig(out / "fig_sensitivity.png", dpi=120)
     print(f"wrote {out / 'fig_sensitivity.png'}")

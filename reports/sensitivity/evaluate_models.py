@@ -73,11 +73,16 @@ def main() -> None:
     ap.add_argument("--draws", type=int, default=20)
     ap.add_argument("--regimes-dir", default="regimes", help="the regimes folder to play under")
     ap.add_argument("--budget", type=int, default=None, help="only jobs of this many training days")
-    ap.add_argument("--regime-version", type=int, default=None, help="only jobs trained on this regime version (lo0: 102)")
+    ap.add_argument(
+        "--regime-version", type=int, default=None, help="only jobs trained on this regime version (lo0: 102)"
+    )
     ap.add_argument("--yardsticks", action="store_true", help="also play never and the planner on the same days")
     ap.add_argument("--check", action="store_true", help="greedy returns must equal the database's evaluation returns")
-    ap.add_argument("--models-dir", default=None,
-                    help="read each model from here instead (its path below the job's models/ folder), e.g. the unpacked data/models_*.tar.gz")
+    ap.add_argument(
+        "--models-dir",
+        default=None,
+        help="read each model from here instead (its path below the job's models/ folder), e.g. the unpacked data/models_*.tar.gz",
+    )
     ap.add_argument("--out", required=True)
     a = ap.parse_args()
     th.set_num_threads(1)
@@ -96,14 +101,29 @@ def main() -> None:
         streams = eval_food_streams(env_cfg, int(job.seed), int(job.eval_episodes))
         path = job.model_path
         if a.models_dir is not None:  # the layout of the models/ folder; an imported archive has no model paths
-            path = str(Path(a.models_dir) / f"{job.regime}-v{job.regime_version}" / f"{job.algo}-v{job.algo_version}"
-                       / f"seed{job.seed}-ep{job.budget}.zip")
+            path = str(
+                Path(a.models_dir)
+                / f"{job.regime}-v{job.regime_version}"
+                / f"{job.algo}-v{job.algo_version}"
+                / f"seed{job.seed}-ep{job.budget}.zip"
+            )
         agent = TrainedAgent.load(path)
-        base = {"level": a.level or a.algo, "algo": job.algo, "regime": job.regime, "reward_version": env_cfg.reward.version,
-                "regime_version_played": env_cfg.version, "seed": int(job.seed), "budget": int(job.budget), "job_id": int(job.job_id)}
+        base = {
+            "level": a.level or a.algo,
+            "algo": job.algo,
+            "regime": job.regime,
+            "reward_version": env_cfg.reward.version,
+            "regime_version_played": env_cfg.version,
+            "seed": int(job.seed),
+            "budget": int(job.budget),
+            "job_id": int(job.job_id),
+        }
         if "greedy" in modes:
             played = evaluate(agent, env_cfg, streams, record_steps=False).episodes
-            rows += [{**base, "mode": "greedy", "draw": 0, "episode": e, **{k: r[k] for k in KEYS}} for e, r in enumerate(played)]
+            rows += [
+                {**base, "mode": "greedy", "draw": 0, "episode": e, **{k: r[k] for k in KEYS}}
+                for e, r in enumerate(played)
+            ]
             if a.check:
                 mine = stored[stored.job_id == job.job_id].sort_values("episode")["return"].to_numpy()
                 ours = np.array([r["return"] for r in played])
@@ -114,11 +134,17 @@ def main() -> None:
             for d in range(a.draws):
                 rng = np.random.default_rng([DRAW_SALT, int(job.seed), d])
                 played = play_stochastic(agent, env_cfg, streams, rng)
-                rows += [{**base, "mode": "stochastic", "draw": d, "episode": e, **{k: r[k] for k in KEYS}} for e, r in enumerate(played)]
+                rows += [
+                    {**base, "mode": "stochastic", "draw": d, "episode": e, **{k: r[k] for k in KEYS}}
+                    for e, r in enumerate(played)
+                ]
         if a.yardsticks:
             for name in ("never", "planner"):
                 played = play_simple_policy(name, env_cfg, streams)
-                rows += [{**base, "mode": name, "draw": 0, "episode": e, **{k: r[k] for k in KEYS}} for e, r in enumerate(played)]
+                rows += [
+                    {**base, "mode": name, "draw": 0, "episode": e, **{k: r[k] for k in KEYS}}
+                    for e, r in enumerate(played)
+                ]
     out = pd.DataFrame(rows)
     out.to_csv(a.out, index=False, float_format="%.6f")
     summary = out.groupby(["regime", "mode"])[["return", "foods"]].mean().round(2)
