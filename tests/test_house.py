@@ -15,7 +15,7 @@ PACKAGE = Path(nutribench.__file__).parent
 # Rooms from the bottom of the house to the top: a module may import its own room and the
 # rooms below it. "nutribench" is the package's __init__ (version, env registration).
 LAYERS: list[set[str]] = [
-    {"nutribench", "errors", "clock", "provenance"},
+    {"nutribench", "errors", "clock", "provenance", "diagnostics"},
     {"config"},
     {"env"},
     {"agents", "baselines", "engine"},

@@ -1,0 +1,72 @@
+"""Training diagnostics: the vocabulary of the per-update rows both engines record.
+
+A training job records one row per update, a ``dict[str, float]`` keyed by the names below; a
+quantity an algorithm does not have is absent from the dict (NULL in the database). The store
+writes a job's rows to the ``diagnostics`` table in the same transaction as its episode rows.
+
+Granularity: the on-policy agents (MC, PPO, GRU-PPO) record one row per rollout update; the
+off-policy agents (DDQN, SAC) record one row per training day, each quantity the mean over that
+day's gradient steps (a 5000-day DDQN job makes 62,500 gradient steps; a row each would be 12 M
+rows for the paper grid).
+
+Columns:
+
+- ``update``: the row's index within its job, 0-based, consecutive.
+- ``timestep``: environment steps of that job up to the end of this update.
+- ``policy_loss``: the policy-gradient loss (MC, PPO, GRU-PPO; the clipped surrogate for the PPO
+  family, the REINFORCE loss for MC).
+- ``value_loss``: the value loss (MC, PPO, GRU-PPO), the critic loss (SAC), the TD loss (DDQN).
+- ``entropy_loss``: the entropy term of the loss, minus the mean entropy (MC, PPO, GRU-PPO).
+- ``approx_kl``: the approximate KL divergence between the old and the new policy (PPO, GRU-PPO).
+- ``clip_fraction``: the share of samples whose probability ratio was clipped (PPO, GRU-PPO).
+- ``explained_variance``: 1 - Var(returns - values) / Var(returns) of the rollout (MC, PPO, GRU-PPO).
+- ``grad_norm``: the global gradient norm before clipping (all agents where the engine clips or
+  can read it; the mean over the update's gradient steps).
+- ``learning_rate``: the optimiser's learning rate at this update (all agents).
+- ``epsilon``: the exploration rate of the epsilon-greedy policy (DDQN).
+- ``q_mean``: the mean Q-value of the actions taken in the batch (DDQN; SAC: the mean of the
+  twin critics' minimum).
+- ``actor_loss``: the actor loss (SAC).
+- ``ent_coef``: the entropy coefficient alpha (SAC).
+- ``return_scale``: VecNormalize's reward scale sqrt(ret_rms.var + epsilon) when reward
+  normalisation is on (absent otherwise).
+"""
+
+from __future__ import annotations
+
+UPDATE = "update"
+TIMESTEP = "timestep"
+
+POLICY_LOSS = "policy_loss"
+VALUE_LOSS = "value_loss"
+ENTROPY_LOSS = "entropy_loss"
+APPROX_KL = "approx_kl"
+CLIP_FRACTION = "clip_fraction"
+EXPLAINED_VARIANCE = "explained_variance"
+GRAD_NORM = "grad_norm"
+LEARNING_RATE = "learning_rate"
+EPSILON = "epsilon"
+Q_MEAN = "q_mean"
+ACTOR_LOSS = "actor_loss"
+ENT_COEF = "ent_coef"
+RETURN_SCALE = "return_scale"
+
+#: The float quantities of a row, in the database's column order.
+QUANTITIES: tuple[str, ...] = (
+    POLICY_LOSS,
+    VALUE_LOSS,
+    ENTROPY_LOSS,
+    APPROX_KL,
+    CLIP_FRACTION,
+    EXPLAINED_VARIANCE,
+    GRAD_NORM,
+    LEARNING_RATE,
+    EPSILON,
+    Q_MEAN,
+    ACTOR_LOSS,
+    ENT_COEF,
+    RETURN_SCALE,
+)
+
+#: Every column of a row: the two keys, then the quantities.
+COLUMNS: tuple[str, ...] = (UPDATE, TIMESTEP, *QUANTITIES)
