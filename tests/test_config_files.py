@@ -28,6 +28,37 @@ def test_shipped_regimes_load_and_match_a_fresh_draw():
     assert (run0.tau() == 0).all() and (run0.sigma() == 0).all()
 
 
+#: The shipped regimes' content hashes as the archives of reports/paper and
+#: reports/sensitivity store them: an option added to the files must not change them.
+STORED_SHA256 = {
+    "run0": "c063eb88421b26c24fc4f96a73d46d4524f32d9ff38e9dfdb4c81f1554629418",
+    "run3": "d7c1d49a4e0396aebbbab3dfe1e30340b9c3dfdb2c102b72e4d909ed3e109385",
+    "run6": "8db4cf13a016e92b360a27c11f1d6ec5d014258839a47916c7840be55584ac75",
+}
+
+
+def test_shipped_hashes_are_the_stored_ones_and_the_clock_changes_the_hash(tmp_path):
+    for name, sha in STORED_SHA256.items():
+        assert load_env_config(name).sha256 == sha
+    cfg = load_env_config("run3")
+    assert cfg.observe_clock is False and "observe_clock" not in cfg.content()["regime"]
+    for name in ("foods.toml", "reward.toml"):
+        (tmp_path / name).write_text((cfg.path.parent / name).read_text())
+    text = cfg.path.read_text()
+    (tmp_path / "run3.toml").write_text(
+        text.replace('reward = "reward.toml"', 'reward = "reward.toml"\nobserve_clock = false')
+    )
+    assert load_env_config(tmp_path / "run3.toml").sha256 == cfg.sha256  # written out off: the same regime
+    (tmp_path / "run3.toml").write_text(
+        text.replace('reward = "reward.toml"', 'reward = "reward.toml"\nobserve_clock = true')
+    )
+    clock = load_env_config(tmp_path / "run3.toml")
+    assert clock.observe_clock is True and clock.content()["regime"]["observe_clock"] is True
+    assert clock.sha256 != cfg.sha256
+    (tmp_path / "run3.toml").write_text(regime_to_toml(clock.regime))
+    assert load_env_config(tmp_path / "run3.toml").sha256 == clock.sha256  # the writer keeps the option
+
+
 def test_regime_file_round_trips_through_the_writer(tmp_path):
     cfg = load_env_config("run4")
     for name in ("foods.toml", "reward.toml"):

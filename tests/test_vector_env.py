@@ -6,12 +6,23 @@ import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode
 
+from nutribench.config import EnvConfig, load_env_config
+from nutribench.config.models import Regime
 from nutribench.env import NutriRLEnv, NutriRLVectorEnv
 from nutribench.env.sb3 import NutriRLSB3VecEnv
 
 
-@pytest.mark.parametrize("regime", ["run0", "run2", "run5", "run6"])
+def with_clock(name: str) -> EnvConfig:
+    """The shipped regime ``name`` with ``observe_clock = true``."""
+    cfg = load_env_config(name)
+    regime = Regime.model_validate({**cfg.regime.model_dump(mode="json"), "observe_clock": True})
+    return EnvConfig(regime=regime, catalog=cfg.catalog, reward=cfg.reward)
+
+
+@pytest.mark.parametrize("regime", ["run0", "run2", "run5", "run6", "run3+clock", "run6+clock"])
 def test_vector_env_equals_single_envs(regime):
+    if regime.endswith("+clock"):
+        regime = with_clock(regime.removesuffix("+clock"))
     n, rng = 6, np.random.default_rng(11)
     venv = NutriRLVectorEnv(n, regime=regime)
     H = venv.horizon
@@ -137,3 +148,47 @@ def test_sb3_adapter_passes_each_envs_info_through():
     for i in infos:
         np.testing.assert_allclose(i["episode"]["distance"], np.abs(i["state"] - 1.0).sum())
         assert i["terminal_observation"].shape == (13,)
+
+
+def test_the_clock_is_the_step_of_the_day_over_the_horizon():
+    cfg = with_clock("run3")
+    env, venv = NutriRLEnv(cfg), NutriRLVectorEnv(3, regime=cfg)
+    H = env.horizon
+    assert env.observation_space.shape == venv.single_observation_space.shape == (14,)
+    assert env.observation_space.high[-1] == 1.0
+    obs, _ = env.reset(seed=1)
+    vobs, _ = venv.reset(seed=1)
+    assert obs[-1] == 0.0 and np.all(vobs[:, -1] == 0.0)
+    rng = np.random.default_rng(0)
+    for t in range(1, H + 1):
+        obs, _, _, trunc, info = env.step(int(rng.integers(0, 2)))
+        vobs, *_ = venv.step(rng.integers(0, 2, size=3))
+        assert obs[-1] == np.float32(t / H) and np.all(vobs[:, -1] == np.float32(t / H)), t
+        assert env.observation_space.contains(obs) and info["step"] == t
+        assert obs[3:-1].sum() == (0.0 if t == H else 1.0)  # the food part still one-hot, then empty
+    assert trunc and obs[-1] == 1.0
+    plain = NutriRLEnv("run3")
+    assert plain.observation_space.shape == (13,) and plain.reset(seed=1)[0].shape == (13,)
+
+
+def test_the_sb3_adapter_and_the_batched_engine_see_the_clock():
+    from nutribench.engine.envs import AgentEnvs
+
+    venv = NutriRLSB3VecEnv(num_envs=2, regime=with_clock("run6"))
+    assert venv.observation_space.shape == (14,)
+    venv.seed(0)
+    obs = venv.reset()
+    assert np.all(obs[:, -1] == 0.0)
+    for t in range(1, 51):
+        obs, _, dones, infos = venv.step(np.ones(2, dtype=int))
+        if t < 50:
+            assert np.all(obs[:, -1] == np.float32(t / 50))
+    assert dones.all() and np.all(obs[:, -1] == 0.0)  # the next day's first observation
+    assert all(i["terminal_observation"][-1] == 1.0 for i in infos)
+    envs = AgentEnvs([(with_clock("run3"), 0), (with_clock("run6"), 1)], normalize_obs=True)
+    raw = envs.new_days()
+    assert raw.shape == (2, 14) and np.all(raw[:, -1] == 0.0)
+    raw, _, done = envs.step(np.ones(2, dtype=np.int64))
+    assert np.all(raw[:, -1] == np.float32(1 / 50)) and not done
+    with pytest.raises(ValueError, match="one observation size"):  # the clock is another observation
+        AgentEnvs([(with_clock("run3"), 0), ("run3", 1)], normalize_obs=False)

@@ -178,6 +178,7 @@ def regime_to_toml(regime: Regime) -> str:
         f"seed = {d['seed']}",
         f"catalog = {_toml_str(d['catalog'])}",
         f"reward = {_toml_str(d['reward'])}",
+        *(["observe_clock = true"] if d["observe_clock"] else []),
         "",
         "[ranges]",
         f"tau = {_range_table(d['ranges']['tau'])}",

@@ -96,7 +96,9 @@ class EnvConfig:
     """Everything that fixes the dynamics of one regime: regime + food catalog + reward.
 
     ``sha256`` hashes the semantic content of all three (not the file formatting), so a
-    result row can be traced to the exact dynamics that made it.
+    result row can be traced to the exact dynamics that made it. The regime's
+    ``observe_clock`` enters the content only when it is on, so a regime without it hashes
+    as it did before the option existed.
     """
 
     regime: Regime
@@ -128,9 +130,17 @@ class EnvConfig:
     def version(self) -> int:
         return self.regime.version
 
+    @property
+    def observe_clock(self) -> bool:
+        """Whether the observation ends with the step of the day / horizon."""
+        return self.regime.observe_clock
+
     def content(self) -> dict[str, Any]:
+        regime = self.regime.model_dump(mode="json")
+        if not regime["observe_clock"]:
+            del regime["observe_clock"]
         return {
-            "regime": self.regime.model_dump(mode="json"),
+            "regime": regime,
             "catalog": self.catalog.model_dump(mode="json"),
             "reward": self.reward.model_dump(mode="json"),
         }

@@ -11,7 +11,8 @@ Three kinds of file live in ``regimes/``:
   ``sigma`` written out, so that the file alone fixes the dynamics.
 
 Every model forbids unknown keys and has no defaults for anything that changes the
-dynamics: a missing value is an error, never silently filled in.
+dynamics: a missing value is an error, never silently filled in. The one default,
+a regime's ``observe_clock = false``, changes what the agent observes, not the dynamics.
 """
 
 from __future__ import annotations
@@ -161,6 +162,10 @@ class Regime(_Strict):
     reward: str = Field(description="reward config file, relative to this file")
     ranges: DelayRanges
     foods: dict[Key, FoodDelay]
+    observe_clock: bool = Field(
+        default=False,
+        description="append the step of the day / horizon to the observation (one more dimension)",
+    )
 
     @model_validator(mode="after")
     def _within_ranges(self) -> Regime:

@@ -17,7 +17,10 @@ delay statistics come from a regime file (``regimes/run0.toml`` .. ``run6.toml``
 
 A flat ``Box(0, high, (3 + N,), float32)``: the absorbed nutrients ``s_t = (C, F, P)`` in
 units of the daily target, followed by the one-hot embedding of the food offered next
-(N = 10 for the shipped catalog). A flat Box rather than a Dict so that every
+(N = 10 for the shipped catalog). A regime with ``observe_clock = true`` appends one more
+entry, the clock ``t / H`` (steps taken over the horizon: 0 at reset, 1 in the final
+observation), so the box is ``(3 + N + 1,)``; no shipped regime sets it. The recurrent
+agent's split below assumes no clock (it would feed the clock to its food stream). A flat Box rather than a Dict so that every
 Stable-Baselines3 policy and normaliser works on it unchanged; the recurrent agent splits
 it by index (``obs[:3]`` nutrients, ``obs[3:]`` food). The observation returned by the
 final step has an all-zero food part: the day is over and nothing is offered. The backlog
@@ -99,12 +102,16 @@ class RegimeDynamics:
         self.target = np.ones(3)
         self.schedule = absorption_schedule(self.masses, self.tau, self.sigma, self.horizon)
         self.arrivals = arrivals_by_horizon(self.schedule, self.horizon)
+        #: Whether the observation ends with the clock, steps taken / horizon (0 at reset, 1 at the end).
+        self.observe_clock = cfg.observe_clock
         # Observation bounds: nothing can exceed eating the richest food every step.
-        high = np.concatenate([self.horizon * self.masses.max(axis=0), np.ones(self.n_foods)])
+        clock = [1.0] if self.observe_clock else []
+        high = np.concatenate([self.horizon * self.masses.max(axis=0), np.ones(self.n_foods), clock])
         self.observation_space = spaces.Box(0.0, high.astype(np.float32), dtype=np.float32)
         self.action_space = spaces.Discrete(2)
         # Row j: observation template with food j offered; last row: nothing offered.
-        self.obs_template = np.zeros((self.n_foods + 1, 3 + self.n_foods), dtype=np.float32)
+        width = 3 + self.n_foods + len(clock)
+        self.obs_template = np.zeros((self.n_foods + 1, width), dtype=np.float32)
         self.obs_template[np.arange(self.n_foods), 3 + np.arange(self.n_foods)] = 1.0
 
     def check_foods(self, foods: Any, shape: tuple[int, ...]) -> np.ndarray:
@@ -225,6 +232,8 @@ class NutriRLEnv(DynamicsView, gym.Env[np.ndarray, int]):
         truncated = t == H
         obs = self.dyn.obs_template[-1 if truncated else self._foods[t]].copy()
         obs[0], obs[1], obs[2] = C, F, P
+        if self.dyn.observe_clock:
+            obs[-1] = t / H
         info = {
             "state": np.array(self._s),
             "distance": d,

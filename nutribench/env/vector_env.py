@@ -128,6 +128,8 @@ class NutriRLVectorEnv(DynamicsView, VectorEnv):
         rows = self._foods[:, t] if t < self._H else np.full(self.num_envs, self._N)
         obs = self.dyn.obs_template[rows]
         obs[:, :3] = self._s.T
+        if self.dyn.observe_clock:
+            obs[:, -1] = t / self._H
         return obs
 
     def step(self, actions):
