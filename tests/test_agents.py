@@ -255,7 +255,7 @@ PPO_CI_EACH_BAR = 0.25
 
 def gap_closed(returns: list[float], streams: np.ndarray) -> float:
     from nutribench.baselines import gap_closed as share_of_gap
-    from nutribench.bench_learn import reference_returns
+    from nutribench.bench.learn import reference_returns
 
     ref = reference_returns("run0", streams)
     return share_of_gap(float(np.mean(returns)), float(np.mean(ref["never"])), float(np.mean(ref["planner"])))
@@ -342,7 +342,7 @@ def test_ddqn_learns_on_run0_within_a_ci_budget():
 
 
 def test_bench_train_reports_each_algorithm_and_its_bare_references():
-    from nutribench.bench import bench_train
+    from nutribench.bench.throughput import bench_train
 
     rows = bench_train(["ppo", "ddqn", "mc"], episodes=2, repeats=1)
     assert [r["what"] for r in rows] == [

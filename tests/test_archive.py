@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from nutribench.cli import app
 from nutribench.config.loading import content_sha256
-from nutribench.jobs.fake import fake_run_job
+from nutribench.jobs.synthetic import synthetic_job
 from nutribench.scheduler.driver import run_grid
 from nutribench.store import read_jobs
 
@@ -22,7 +22,7 @@ SORT = ["regime", "algo", "seed", "phase", "episode"]
 
 
 def _grid(db: Path, algos: list[str], seeds: list[int]):
-    return run_grid(db, ["run0", "run3"], algos, seeds, 6, 2, job_fn=fake_run_job, display=False)
+    return run_grid(db, ["run0", "run3"], algos, seeds, 6, 2, job_fn=synthetic_job, display=False)
 
 
 def _out(res) -> str:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from typer.testing import CliRunner
 
-from nutribench.bench_learn import LearnRun, budget_for, iqm, markdown_table, summarize  # iqm: the report's, reused
+from nutribench.bench.learn import LearnRun, budget_for, iqm, markdown_table, summarize  # iqm: the report's, reused
 from nutribench.cli import app
 from nutribench.cli.bench import parse_budgets
 

@@ -208,8 +208,8 @@ def test_batched_training_yields_agents_the_single_agent_api_uses(tmp_path) -> N
 
 def test_bench_engines_and_bench_train_batched_report_their_shape() -> None:
     """The benchmarks' shape, not their figures (timings belong in benchmarks)."""
-    from nutribench.bench import bench_train_batched, flops_per_env_step
-    from nutribench.bench_engines import bench_engines, markdown_table
+    from nutribench.bench.engines import bench_engines, markdown_table
+    from nutribench.bench.throughput import bench_train_batched, flops_per_env_step
 
     rows = bench_engines(["ppo"], ["run0"], [0, 1], episodes=10, eval_episodes=2, workers=1)
     assert [(r["engine"], r["seeds"]) for r in rows] == [("sb3", 2), ("batched", 2)]

@@ -292,7 +292,7 @@ def test_the_batched_ppo_learns_to_eat_on_run0_and_beats_never_eating() -> None:
     "never eat" by more than BATCHED_PPO_EACH_BAR of the never -> planner gap, and the median
     closes at least BATCHED_PPO_MEDIAN_BAR of it."""
     from nutribench.baselines import gap_closed
-    from nutribench.bench_learn import reference_returns
+    from nutribench.bench.learn import reference_returns
 
     agents = train_batched([("run0", s) for s in BATCHED_PPO_SEEDS], "ppo", BATCHED_PPO_DAYS)
     results = []

@@ -21,7 +21,7 @@ from nutribench.cli import app
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.device import DeviceError, check_device, resolve_device
 from nutribench.engine.train import train_batched
-from nutribench.jobs.fake import fake_run_batch
+from nutribench.jobs.synthetic import synthetic_batch
 from nutribench.scheduler.driver import RunError, run_grid
 from tests.test_engine_checkpoint import JOBS, Stopped, same_agents
 
@@ -106,7 +106,7 @@ class DeviceLog:
     def __call__(self, specs, sink=None):
         for spec in specs:
             (Path(self.folder) / f"job{spec.job_id}-{spec.device}").touch()
-        return fake_run_batch(specs, sink)
+        return synthetic_batch(specs, sink)
 
 
 def test_the_device_travels_to_the_workers_in_the_job_specs(tmp_path: Path) -> None:

@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 from nutribench.agents.config import ALGOS, agents_dir, load_agent_config
 from nutribench.engine import UnsupportedConfig, check_supported, supports
 from nutribench.errors import UserError
-from nutribench.jobs.fake import fake_run_batch, fake_run_job
+from nutribench.jobs.synthetic import synthetic_batch, synthetic_job
 from nutribench.scheduler.batching import batch_pools
 from nutribench.scheduler.driver import run_grid
 from nutribench.store import read_jobs
@@ -119,8 +119,8 @@ def test_run_with_the_batched_engine_trains_unsupported_configs_with_the_sb3_eng
         2,
         1,
         workers=1,
-        job_fn=fake_run_job,
-        batch_fn=fake_run_batch,
+        job_fn=synthetic_job,
+        batch_fn=synthetic_batch,
         display=False,
         engine="batched",
     )

@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 
 from nutribench.cli import app
 from nutribench.config import list_regimes
-from nutribench.jobs.fake import fake_run_job
+from nutribench.jobs.synthetic import synthetic_job
 from nutribench.scheduler.driver import STOP_SIGNALS, RunError, run_grid
 from nutribench.scheduler.grid import PRESETS, GridError, parse_seeds, resolve_grid
 from nutribench.scheduler.status import status_table
@@ -43,17 +43,17 @@ class EnvJob:
 
     def __call__(self, spec, sink=None):
         os.environ.update(self.env)
-        return fake_run_job(spec, sink)
+        return synthetic_job(spec, sink)
 
 
 class EnvBatch(EnvJob):
     """The synthetic batch with extra environment variables set in the worker."""
 
     def __call__(self, specs, sink=None):
-        from nutribench.jobs.fake import fake_run_batch
+        from nutribench.jobs.synthetic import synthetic_batch
 
         os.environ.update(self.env)
-        return fake_run_batch(specs, sink)
+        return synthetic_batch(specs, sink)
 
 
 @pytest.fixture
@@ -184,7 +184,7 @@ def test_smoke_grid_stores_every_row_and_rerun_does_nothing(regimes: Path, tmp_p
 
 def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> None:
     db = tmp_path / "r.db"
-    args = dict(seeds=[0], episodes=4, eval_episodes=1, workers=1, job_fn=fake_run_job, display=False)
+    args = dict(seeds=[0], episodes=4, eval_episodes=1, workers=1, job_fn=synthetic_job, display=False)
     assert run_grid(db, ["run0"], ["ppo"], **args).done == 1
     ppo = regimes / "agents" / "ppo.toml"
     ppo.write_text(ppo.read_text().replace("learning_rate = 1e-3", "learning_rate = 2e-3"))
@@ -244,7 +244,7 @@ def test_killed_worker_fails_only_its_job_and_the_next_run_completes_it(regimes:
     df = episode_rows(db)
     assert df.groupby("algo").size().to_dict() == {"mc": 12, "sac": 12}
 
-    s = run_grid(db, ["run0"], ["mc", "ppo", "sac"], job_fn=fake_run_job, **args)
+    s = run_grid(db, ["run0"], ["mc", "ppo", "sac"], job_fn=synthetic_job, **args)
     assert (s.done, s.skipped, s.exit_code) == (1, 2, 0)
     assert set(statuses(db).values()) == {"done"}
     assert len(episode_rows(db)) == 3 * 12
@@ -276,9 +276,9 @@ def test_retry_failed_runs_a_given_up_job_again_and_clears_its_error(regimes: Pa
     for _ in range(MAX_FAILURES):
         run_grid(db, ["run1"], ["sac"], job_fn=EnvJob(NUTRIBENCH_FAKE_FAIL="run1:sac:0"), **args)
     assert (
-        run_grid(db, ["run1"], ["sac"], job_fn=fake_run_job, **args).given_up == 1
+        run_grid(db, ["run1"], ["sac"], job_fn=synthetic_job, **args).given_up == 1
     )  # the cause is fixed, still given up
-    s = run_grid(db, ["run1"], ["sac"], job_fn=fake_run_job, retry_failed=True, **args)
+    s = run_grid(db, ["run1"], ["sac"], job_fn=synthetic_job, retry_failed=True, **args)
     assert (s.done, s.failed, s.given_up, s.exit_code) == (1, 0, 0, 0)
     assert sql(db, "SELECT status, error FROM jobs") == [("done", None)]
     res = CliRunner().invoke(
@@ -313,7 +313,7 @@ def test_a_rerun_after_a_driver_crash_waits_and_takes_the_orphaned_jobs_over(reg
     from nutribench.store.engine import utcnow
 
     db = tmp_path / "r.db"
-    args = dict(seeds=[0, 1], episodes=4, eval_episodes=1, workers=1, job_fn=fake_run_job, display=False)
+    args = dict(seeds=[0, 1], episodes=4, eval_episodes=1, workers=1, job_fn=synthetic_job, display=False)
     assert run_grid(db, ["run0"], ["ppo"], **args).done == 2
     engine = create_engine(f"sqlite:///{db}")
     beat = utcnow() - timedelta(seconds=STALE_AFTER_S - 5)  # the crashed driver's last heartbeat
@@ -525,7 +525,7 @@ def test_dask_executor_runs_jobs_on_a_local_cluster(regimes: Path, tmp_path: Pat
     db = tmp_path / "r.db"
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         address = cluster.scheduler_address.replace("tcp://", "dask://")
-        s = run_grid(db, ["run0"], ["ppo", "sac"], [0], 8, 2, executor=address, job_fn=fake_run_job, display=False)
+        s = run_grid(db, ["run0"], ["ppo", "sac"], [0], 8, 2, executor=address, job_fn=synthetic_job, display=False)
     assert (s.done, s.failed) == (2, 0)
     assert len(episode_rows(db)) == 2 * 10
     assert_views_hide_the_dry_run(db)
@@ -543,7 +543,7 @@ def test_an_unreachable_dask_scheduler_fails_before_the_database_is_touched(regi
     db = tmp_path / "r.db"
     with pytest.raises(ExecutorError, match=f"cannot reach the dask scheduler at tcp://127.0.0.1:{port}"):
         run_grid(
-            db, ["run0"], ["ppo"], [0], 4, 1, executor=f"dask://127.0.0.1:{port}", job_fn=fake_run_job, display=False
+            db, ["run0"], ["ppo"], [0], 4, 1, executor=f"dask://127.0.0.1:{port}", job_fn=synthetic_job, display=False
         )
     assert not db.exists()
 
@@ -576,7 +576,7 @@ def test_status_prices_a_config_with_no_done_job_by_its_running_batch() -> None:
 
 
 def test_bench_status_times_a_given_database(tmp_path: Path) -> None:
-    from nutribench.bench import bench_status
+    from nutribench.bench.throughput import bench_status
 
     db = tmp_path / "r.db"
     run_grid(
@@ -587,7 +587,7 @@ def test_bench_status_times_a_given_database(tmp_path: Path) -> None:
         episodes=4,
         eval_episodes=2,
         workers=1,
-        job_fn=fake_run_job,
+        job_fn=synthetic_job,
         models_dir=tmp_path / "m",
         display=False,
     )
@@ -659,7 +659,7 @@ def test_engine_batched_trains_each_config_in_batches_and_stores_each_job(regime
     assert sql(db, "SELECT count(*) FROM jobs WHERE status = 'done'") == [(12,)]
     assert sql(db, "SELECT count(*) FROM episodes") == [(12 * 7,)]
     with pytest.raises(RunError, match="--engine 'fast'"):
-        run_grid(db, ["run0"], ["ppo"], [0], 6, 1, engine="fast", job_fn=fake_run_job, display=False)
+        run_grid(db, ["run0"], ["ppo"], [0], 6, 1, engine="fast", job_fn=synthetic_job, display=False)
 
 
 def test_batch_size_caps_the_batches(regimes: Path, tmp_path: Path) -> None:
@@ -724,9 +724,9 @@ class HalfBatch(EnvJob):
     """A batch worker that loses the result of its last job (a bug the driver must survive)."""
 
     def __call__(self, specs, sink=None):
-        from nutribench.jobs.fake import fake_run_batch
+        from nutribench.jobs.synthetic import synthetic_batch
 
-        return fake_run_batch(specs, sink)[:-1]
+        return synthetic_batch(specs, sink)[:-1]
 
 
 def test_a_job_missing_from_its_batch_s_results_is_failed_not_left_running(regimes: Path, tmp_path: Path) -> None:
@@ -739,7 +739,7 @@ def test_a_job_missing_from_its_batch_s_results_is_failed_not_left_running(regim
         4,
         1,
         workers=1,
-        job_fn=fake_run_job,
+        job_fn=synthetic_job,
         batch_fn=HalfBatch(),
         display=False,
         engine="batched",

@@ -152,7 +152,7 @@ def test_a_worker_does_not_import_the_database_layer():
     import subprocess
     import sys
 
-    code = "import sys, nutribench.jobs.run, nutribench.jobs.fake; print(sorted(m for m in ('sqlalchemy', 'alembic') if m in sys.modules))"
+    code = "import sys, nutribench.jobs.run, nutribench.jobs.synthetic; print(sorted(m for m in ('sqlalchemy', 'alembic') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]"
 

@@ -25,7 +25,7 @@ def bench_env_cmd(
     repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 5,
 ) -> None:
     """Env-steps per second of the single env and the vector env (random actions)."""
-    from nutribench.bench import bench_env
+    from nutribench.bench.throughput import bench_env
     from nutribench.config import list_regimes
 
     names = split_csv(regimes, list_regimes(), "regime")
@@ -54,7 +54,7 @@ def bench_train_cmd(
     With --engine batched, also the batched engine (7 regimes x 5 seeds at once): its rate,
     FLOPs per env step, this machine's matmul rate and the share of that floor reached."""
     from nutribench.agents.config import ALGOS
-    from nutribench.bench import bench_train
+    from nutribench.bench.throughput import bench_train
     from nutribench.config import load_env_config
 
     check_engine_options(engine, device)
@@ -78,8 +78,8 @@ def bench_train_cmd(
     )
     if engine == "sb3":
         return
-    from nutribench.bench import bench_train_batched
-    from nutribench.bench_engines import BATCHED_ALGOS
+    from nutribench.bench.engines import BATCHED_ALGOS
+    from nutribench.bench.throughput import bench_train_batched
 
     sb3_rate = {r["algo"]: r["steps_per_s"] for r in rows if not r["bare"]}
     table = Table(
@@ -137,7 +137,7 @@ def bench_learn_cmd(
     evaluation days, and state each as the share of the never -> planner gap it closes
     (run0 target: at least 75 % with 3-6 foods a day)."""
     from nutribench.agents.config import ALGOS, list_agent_configs, load_agent_config
-    from nutribench.bench_learn import COLUMNS, DEFAULT_BUDGET, learn_benchmark, markdown_table, row_cells, summarize
+    from nutribench.bench.learn import COLUMNS, DEFAULT_BUDGET, learn_benchmark, markdown_table, row_cells, summarize
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
 
@@ -215,7 +215,7 @@ def bench_status_cmd(
 ) -> None:
     """Time `nutribench status` on a database holding the full paper grid (175 jobs,
     875,000 training-day rows of synthetic jobs; building it takes a few minutes)."""
-    from nutribench.bench import bench_status
+    from nutribench.bench.throughput import bench_status
 
     if db is None:
         console.print("building a synthetic paper-grid database (175 fake jobs x 5000 days) ...")
@@ -256,7 +256,7 @@ def bench_engines_cmd(
     """Train with both engines (SB3 and batched) on the same seeds and budget; per algorithm
     and regime the IQM of the evaluation returns with a 95 % bootstrap interval over seeds;
     the two engines' intervals must overlap."""
-    from nutribench.bench_engines import BATCHED_ALGOS, COLUMNS, bench_engines, markdown_table, row_cells
+    from nutribench.bench.engines import BATCHED_ALGOS, COLUMNS, bench_engines, markdown_table, row_cells
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
 

@@ -247,8 +247,8 @@ def table_training(df: pd.DataFrame, last_share: float = 0.1) -> TableResult:
     """Our training return and foods over the last ``last_share`` of each job's training days
     (mean over days and seeds, with the seeds' spread as a standard error), next to the
     authors' logged ones over the last 10 % of their 5000 days
-    (:mod:`nutribench.report.reference`)."""
-    from nutribench.report.reference import AUTHORS_BUDGET, authors_training
+    (:mod:`nutribench.report.authors`)."""
+    from nutribench.report.authors import AUTHORS_BUDGET, authors_training
 
     tr = df[df["phase"] == "train"]
     if tr.empty:

@@ -104,9 +104,9 @@ class RunSummary:
 def default_batch_fn() -> Callable:
     """The batched engine's worker function (``$NUTRIBENCH_JOB=fake``: the synthetic job per spec)."""
     if os.environ.get("NUTRIBENCH_JOB", "").strip() == "fake":
-        from nutribench.jobs.fake import fake_run_batch
+        from nutribench.jobs.synthetic import synthetic_batch
 
-        return fake_run_batch
+        return synthetic_batch
     from nutribench.jobs.batch import run_batch
 
     return run_batch
@@ -116,9 +116,9 @@ def default_job_fn() -> JobFn:
     """``$NUTRIBENCH_JOB=fake`` (tests, dry runs): the synthetic job; else the real one."""
     choice = os.environ.get("NUTRIBENCH_JOB", "").strip()
     if choice == "fake":
-        from nutribench.jobs.fake import fake_run_job
+        from nutribench.jobs.synthetic import synthetic_job
 
-        return fake_run_job
+        return synthetic_job
     if choice not in ("", "real"):
         raise RunError(f"NUTRIBENCH_JOB={choice}: use 'fake' (synthetic jobs) or leave it unset")
     try:

@@ -29,7 +29,7 @@ import nutribench.agents.gru_ppo.policy as sb3_policy
 import nutribench.engine.gru_ppo as stacked
 import nutribench.engine.train as engine
 from nutribench.agents import load_agent_config
-from nutribench.bench_learn import _one_run, batched_runs, markdown_table, summarize
+from nutribench.bench.learn import _one_run, batched_runs, markdown_table, summarize
 from nutribench.cli.common import UserError, split_csv
 from nutribench.config import list_regimes
 from nutribench.scheduler.grid import parse_seeds

@@ -1,4 +1,4 @@
-"""Throughput benchmarks (``nutribench bench ...``): medians of repeated timed runs."""
+"""Throughput benchmarks (``nutribench bench env|train|status``): medians of repeated timed runs."""
 
 from __future__ import annotations
 
@@ -176,22 +176,22 @@ def bench_train(
     return rows
 
 
-class _InstantFakeJob:
+class _InstantSyntheticJob:
     """The synthetic job without its per-episode sleep (picklable: set in the worker)."""
 
     def __call__(self, spec, sink=None):
         import os
 
-        from nutribench.jobs.fake import fake_run_job
+        from nutribench.jobs.synthetic import synthetic_job
 
         os.environ["NUTRIBENCH_FAKE_SECONDS"] = "0"
-        return fake_run_job(spec, sink)
+        return synthetic_job(spec, sink)
 
 
 def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = None) -> dict:
     """Time ``status_table`` and ``nutribench status --json`` on a database holding the
     full paper grid (7 regimes x 5 algorithms x 5 seeds x 5000 training days = 875,000
-    episode rows), filled with synthetic jobs (``nutribench.jobs.fake``, no training).
+    episode rows), filled with synthetic jobs (``nutribench.jobs.synthetic``, no training).
 
     ``db``: an existing database to time instead of building one (built in a temporary
     folder otherwise; that takes a few minutes). Medians over ``repeats``.
@@ -223,7 +223,7 @@ def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = 
             paper.seeds,
             paper.episodes,
             workers=workers,
-            job_fn=_InstantFakeJob(),
+            job_fn=_InstantSyntheticJob(),
             models_dir=Path(tmp) / "models",
             display=False,
         )

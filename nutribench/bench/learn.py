@@ -13,7 +13,7 @@ learner may exceed 1). A benchmark, not a test: it takes minutes per algorithm.
 
 ::
 
-    from nutribench.bench_learn import learn_benchmark, summarize
+    from nutribench.bench.learn import learn_benchmark, summarize
     runs = learn_benchmark(["ppo"], ["run0"], seeds=[0, 1, 2], budgets={"ppo": 500})
     print(summarize(runs))
 """

@@ -1,9 +1,11 @@
-"""The authors' logged training results, as ../shared/REFERENCE.md reads them from their
-public repository's ``results/Training/*.csv`` (``return_mean`` and ``foods_mean``, the last
-10 % of 5000 training days). Their returns are in their own units (nutrients divided by
-their catalog's column norms, overshoot weight 0 in the published runs), where never eating
-scores about -21.5 a day; ours (reward version 2) give never -21.6, so the two scales are
-comparable but not identical. Used by the report's training table, beside our numbers."""
+"""The authors' figures: the training results logged by the paper's authors, read from the
+``results/Training/*.csv`` files of their public repository
+(<https://github.com/CharithaPalika/NutriRL>): ``return_mean`` and ``foods_mean`` averaged
+over the last 10 % of their 5000 training days. Their returns are in their own units
+(nutrients divided by their catalog's column norms, overshoot weight 0 in the published
+runs), where never eating scores about -21.5 a day; ours (reward version 2) give never
+-21.6, so the two scales are comparable but not identical. Used by the report's training
+table, beside our numbers (our own yardsticks are in :mod:`nutribench.report.references`)."""
 
 from __future__ import annotations
 

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from nutribench.bench_learn import LearnRun, batched_runs, learn_benchmark, summarize
+from nutribench.bench.learn import LearnRun, batched_runs, learn_benchmark, summarize
 from nutribench.engine import BATCHED_ALGOS
 from nutribench.report.stats import iqm_bootstrap_ci
 

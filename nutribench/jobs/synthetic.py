@@ -1,4 +1,8 @@
-"""A synthetic job for tests and dry runs of the scheduler: no torch, no training.
+"""The synthetic job: a stand-in for training that the scheduler runs like a real job, with
+no torch and no training. Production code uses it for dry runs (``NUTRIBENCH_JOB=fake
+nutribench run ...``: the rows are marked ``fake`` and never count as results) and for
+``nutribench bench status``'s synthetic paper-grid database; the scheduler's and the store's
+tests use it to run grids in seconds.
 
 It sleeps ``$NUTRIBENCH_FAKE_SECONDS`` (default 0.001) per training episode and makes
 deterministic metrics from the seed. Environment variables make chosen jobs misbehave
@@ -50,7 +54,9 @@ def _metrics(rng: np.random.Generator, k: int) -> dict:
     }
 
 
-def fake_run_job(spec: JobSpec, progress: Sink | None = None) -> JobResult:
+def synthetic_job(spec: JobSpec, progress: Sink | None = None) -> JobResult:
+    """One job's synthetic result: ``spec.episodes`` training rows, ``spec.eval_episodes``
+    evaluation episodes of HORIZON steps, and a placeholder model file at ``spec.model_path``."""
     started, t0 = utcnow(), time.perf_counter()
     log = os.environ.get("NUTRIBENCH_FAKE_LOG")
     if log:
@@ -96,16 +102,16 @@ def fake_run_job(spec: JobSpec, progress: Sink | None = None) -> JobResult:
     return JobResult(spec.job_id, train, evals, steps, meta, model_path=spec.model_path)
 
 
-fake_run_job.fake = True  # type: ignore[attr-defined]  # the driver marks its jobs as a dry run's
+synthetic_job.fake = True  # type: ignore[attr-defined]  # the driver marks its jobs as a dry run's
 
 
-def fake_run_batch(specs: list[JobSpec], progress: Sink | None = None) -> list[JobResult]:
+def synthetic_batch(specs: list[JobSpec], progress: Sink | None = None) -> list[JobResult]:
     """The synthetic job for each spec of a batch, in turn (the scheduler's batching, tested
     without training); ``NUTRIBENCH_FAKE_FAIL`` on any of them fails the whole batch."""
-    results = [fake_run_job(spec, progress) for spec in specs]
+    results = [synthetic_job(spec, progress) for spec in specs]
     for r in results:
         r.metadata["engine"] = "batched"
     return results
 
 
-fake_run_batch.fake = True  # type: ignore[attr-defined]
+synthetic_batch.fake = True  # type: ignore[attr-defined]
