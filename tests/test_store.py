@@ -41,7 +41,7 @@ def make_0001(db: Path) -> None:
 
 
 def test_revisions_are_linear() -> None:
-    assert revision_chain() == ["0001", "0002", "0003", "0004"] and head_revision() == "0004"
+    assert revision_chain() == ["0001", "0002", "0003", "0004", "0005"] and head_revision() == "0005"
 
 
 def test_create_from_empty_matches_the_models(tmp_path: Path) -> None:
@@ -49,7 +49,7 @@ def test_create_from_empty_matches_the_models(tmp_path: Path) -> None:
     assert (store.created, store.revision) == (True, head_revision())
     with store.engine.connect() as conn:
         names = set(inspect(conn).get_table_names())
-        assert {"regimes", "agent_configs", "jobs", "episodes", "eval_steps", "alembic_version"} <= names
+        assert {"regimes", "agent_configs", "jobs", "episodes", "eval_steps", "diagnostics", "alembic_version"} <= names
         assert set(inspect(conn).get_view_names()) == set(VIEWS)
         diff = compare_metadata(
             MigrationContext.configure(conn, opts={"include_object": _include, "compare_type": True}), Base.metadata
@@ -67,7 +67,7 @@ def test_upgrade_from_0001_keeps_the_data(tmp_path: Path) -> None:
     db = tmp_path / "old.db"
     make_0001(db)
     with pytest.raises(
-        StoreError, match=r"revision 0001, this nutribench needs 0004: run `nutribench run --upgrade-only"
+        StoreError, match=r"revision 0001, this nutribench needs 0005: run `nutribench run --upgrade-only"
     ):
         open_store(db)  # readers refuse, with the command that fixes it
     res = CliRunner().invoke(app, ["run", "--upgrade-only", "--db", str(db)])

@@ -92,12 +92,13 @@ def double_dqn_target(
 
 class DoubleDQN(DQN):
     """SB3 DQN with the double-DQN target; everything else (n-step replay, epsilon-greedy,
-    hard target copies, Huber loss, gradient clipping) is SB3's."""
+    hard target copies, Huber loss, gradient clipping) is SB3's. Each update also logs
+    ``train/q_mean`` (mean Q of the batch's actions) and ``train/grad_norm`` (before clipping)."""
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
-        losses = []
+        losses, grad_norms, q_means = [], [], []
         for _ in range(gradient_steps):
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
             discounts = data.discounts if data.discounts is not None else self.gamma
@@ -112,13 +113,16 @@ class DoubleDQN(DQN):
             current = th.gather(self.q_net(data.observations), dim=1, index=data.actions.long())
             loss = F.smooth_l1_loss(current, target)
             losses.append(loss.item())
+            q_means.append(current.detach().mean().item())
             self.policy.optimizer.zero_grad()
             loss.backward()
-            th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+            grad_norms.append(th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm).item())
             self.policy.optimizer.step()
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/loss", float(np.mean(losses)))
+        self.logger.record("train/q_mean", float(np.mean(q_means)))
+        self.logger.record("train/grad_norm", float(np.mean(grad_norms)))
 
     def day_entropy(self, obs: np.ndarray) -> None:
         """Epsilon-greedy over Q-values: no stochastic policy whose entropy to record."""

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
@@ -41,6 +41,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 from nutribench.agents.algos import episode_entropy
 from nutribench.agents.config import agent_config_content, load_agent_config, parse_agent_config
 from nutribench.agents.registry import ALGORITHMS, algorithm, load_model, loader_entry_point, make_model
+from nutribench.agents.training_log import TrainingDiagnostics
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.env.metrics import EpisodeRecorder
 from nutribench.env.sb3 import NutriRLSB3VecEnv
@@ -102,6 +103,8 @@ class TrainedAgent:
     vec_normalize_file: Path | None = None
     #: where the model came from: regime, regime_version, regime_sha256, seed, episodes
     provenance: dict[str, Any] = field(default_factory=dict)
+    #: one row per training update (:mod:`nutribench.diagnostics`); empty for plug-ins and loaded agents
+    diagnostics: list[dict[str, float]] = field(default_factory=list)
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         """Observations as the policy saw them in training (VecNormalize's formula)."""
@@ -283,11 +286,14 @@ def train(
     seed: int,
     episodes: int,
     on_episode: EpisodeFn | None = None,
+    tensorboard: str | Path | None = None,
 ) -> TrainedAgent:
     """Train ``agent_config`` (name, file or model) on ``regime`` for ``episodes`` days.
 
     :param on_episode: called with each finished training day's metrics dict.
-    :return: the trained agent; its ``train_episodes`` hold every day's metrics.
+    :param tensorboard: a folder for this run's TensorBoard events (built-in algorithms).
+    :return: the trained agent; its ``train_episodes`` hold every day's metrics, its
+        ``diagnostics`` one row per update (built-in algorithms; see :mod:`nutribench.diagnostics`).
     """
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
@@ -296,6 +302,7 @@ def train(
     cfg = load_agent_config(agent_config)
     horizon = env_cfg.reward.horizon
     base, env = make_train_env(env_cfg, cfg)
+    diagnostics = None
     if algorithm(cfg).build is None:  # a plug-in: its days are recorded by the env
         env = recorder = RecordingVecEnv(env, base, episodes, on_episode)
         model = recorder.model = make_model(cfg, env, seed=seed, horizon=horizon)
@@ -305,7 +312,8 @@ def train(
     else:
         model = make_model(cfg, env, seed=seed, horizon=horizon)
         recorder = EpisodeMetrics(base, cfg.algo, episodes, on_episode)
-        model.learn(total_timesteps=episodes * horizon, callback=recorder)
+        diagnostics = TrainingDiagnostics(model, tensorboard)
+        model.learn(total_timesteps=episodes * horizon, callback=CallbackList([recorder, diagnostics]))
     rms: RunningMeanStd | None = env.obs_rms if cfg.normalize_obs else None  # type: ignore[union-attr]
     provenance = {
         "regime": env_cfg.name,
@@ -326,6 +334,7 @@ def train(
         provenance=provenance,
     )
     agent.train_episodes = recorder.episodes
+    agent.diagnostics = diagnostics.rows if diagnostics is not None else []
     return agent
 
 

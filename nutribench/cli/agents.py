@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from nutribench.cli.common import UserError, console, split_csv, user_errors
+from nutribench.cli.common import UserError, check_tensorboard, console, split_csv, user_errors
 
 
 @user_errors
@@ -56,6 +56,13 @@ def train_cmd(
     episodes: Annotated[int, typer.Option(min=1, help="training days (episodes of 50 steps)")] = 300,
     eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days")] = 5,
     save: Annotated[Optional[Path], typer.Option(help="save the trained model here (.zip + .json)")] = None,
+    tensorboard: Annotated[
+        Optional[Path],
+        typer.Option(
+            help="also write the training diagnostics as TensorBoard events under this folder "
+            "(run folder <algo>-<regime>-seed<seed>)"
+        ),
+    ] = None,
 ) -> None:
     """Train one agent in the foreground, then evaluate it greedily and print the metrics."""
     from rich.progress import (
@@ -77,6 +84,10 @@ def train_cmd(
         raise UserError(f"--save {save}: the model file must end in .zip")
     if save is not None and not save.parent.is_dir():
         raise UserError(f"--save {save}: folder {save.parent} does not exist")
+    run_dir = None
+    if tensorboard is not None:
+        check_tensorboard(tensorboard)
+        run_dir = tensorboard / f"{cfg.name}-{env_cfg.name}-seed{seed}"
     recent: list[dict] = []
     columns = (
         TextColumn("{task.description}"),
@@ -96,7 +107,7 @@ def train_cmd(
             foods = sum(r["foods"] for r in last) / len(last)
             progress.update(task, advance=1, stats=f"return {ret:8.2f}  foods {foods:5.2f} (last {len(last)})")
 
-        agent = train(env_cfg, cfg, seed=seed, episodes=episodes, on_episode=on_episode)
+        agent = train(env_cfg, cfg, seed=seed, episodes=episodes, on_episode=on_episode, tensorboard=run_dir)
     result = evaluate(agent, env_cfg, eval_food_streams(env_cfg, seed, eval_episodes), record_steps=False)
     table = Table(
         "eval day", "return", "foods", "final distance", "overshoot ratio", "final C/F/P", title="greedy evaluation"

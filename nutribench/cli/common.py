@@ -9,6 +9,7 @@ Anything else is a bug and keeps its traceback.
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 
 import typer
 from rich.console import Console
@@ -16,7 +17,16 @@ from rich.markup import escape
 
 from nutribench.errors import UserError
 
-__all__ = ["DEVICE_HELP", "UserError", "console", "err_console", "print_error", "split_csv", "user_errors"]
+__all__ = [
+    "DEVICE_HELP",
+    "UserError",
+    "check_tensorboard",
+    "console",
+    "err_console",
+    "print_error",
+    "split_csv",
+    "user_errors",
+]
 
 #: the help of ``--device`` (checked by :mod:`nutribench.engine.device`, which imports torch: not here)
 DEVICE_HELP = "where the batched engine trains: 'auto' (CUDA when available, else the CPU), 'cpu', 'cuda' or 'cuda:N'"
@@ -55,3 +65,17 @@ def split_csv(value: str, known: list[str], what: str) -> list[str]:
     if unknown:
         raise UserError(f"unknown {what} {', '.join(unknown)}: known are {', '.join(known)}")
     return items
+
+
+def check_tensorboard(folder: Path) -> None:
+    """``--tensorboard FOLDER``: a UserError (one line) when the tensorboard package is missing
+    or ``folder`` cannot be a writable folder; the folder itself is created by the runs."""
+    import importlib.util
+    import os
+
+    if importlib.util.find_spec("tensorboard") is None:
+        raise UserError("--tensorboard needs the tensorboard package: pip install 'nutribench[tensorboard]'")
+    found = next((p for p in (folder, *folder.absolute().parents) if p.exists() or p.is_symlink()), None)
+    if found is not None and not (found.is_dir() and os.access(found, os.W_OK | os.X_OK)):
+        why = "is not a writable folder" if found.is_dir() else "is a file, not a folder"
+        raise UserError(f"--tensorboard {folder}: {found} {why}")

@@ -16,7 +16,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import DEVICE_HELP, console, err_console, split_csv, user_errors
+from nutribench.cli.common import DEVICE_HELP, check_tensorboard, console, err_console, split_csv, user_errors
 from nutribench.scheduler.executors import ExecutorError
 from nutribench.scheduler.grid import DEFAULT_PRESET, PRESETS
 
@@ -101,6 +101,13 @@ def run_cmd(
     device: Annotated[
         str, typer.Option(help=f"{DEVICE_HELP}; the SB3 engine trains on the CPU (auto or cpu)")
     ] = "auto",
+    tensorboard: Annotated[
+        Optional[Path],
+        typer.Option(
+            help="also write each job's training diagnostics as TensorBoard events under this folder "
+            "(one run folder per job: job<id>-<algo>-<regime>-seed<seed>)"
+        ),
+    ] = None,
 ) -> None:
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
     from nutribench.store import open_store
@@ -134,6 +141,8 @@ def run_cmd(
     _check_executor(executor)
     check_engine(engine, batch_size, device)
     _check_models_dir(models_dir, db)
+    if tensorboard is not None:
+        check_tensorboard(tensorboard)
     _check_db(db)
     load_grid_configs(grid)  # a broken config file fails here, before the database exists
     job_fn = default_job_fn()
@@ -154,6 +163,7 @@ def run_cmd(
             engine=engine,
             max_batch=batch_size,
             device=device,
+            tensorboard=tensorboard,
         )
     except KeyboardInterrupt:  # before any job started (opening the database, claiming)
         raise typer.Exit(130) from None

@@ -6,7 +6,9 @@ A batch that raises fails all its jobs (the driver records each failure; the nex
 retries them). Progress is reported per job, as for single jobs. Each job's result records
 its batch: ``batch_id`` (one random id per batch run), ``batch_size`` (K) and ``device``
 (the torch device it trained on), since a batched job's numbers depend on both by float
-rounding.
+rounding. Each result carries its agent's training diagnostics (``agent.diagnostics``, one
+row per update, where the engine records them), written as TensorBoard events under
+``spec.tensorboard`` too when it is set (:func:`write_tensorboard`).
 
 A batch saves its training state every few minutes to ``<models>/checkpoints/`` (see
 :mod:`nutribench.engine.checkpoint`); a stopped batch started again by the next ``nutribench
@@ -93,13 +95,38 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
                 | batch
                 | {"started_at": started, "finished_at": utcnow(), "wall_seconds": wall, "engine": "batched"},
                 model_path=model_path,
+                diagnostics=list(getattr(agent, "diagnostics", None) or []),
             )
         )
+        if spec.tensorboard:
+            write_tensorboard(Path(spec.tensorboard) / spec.run_name, results[-1].diagnostics)
     if path is not None:
         checkpoint.remove()
         manifest(path).unlink(missing_ok=True)
         remove_abandoned(path.parent, specs)
     return results
+
+
+def write_tensorboard(folder: Path, rows: list[dict]) -> None:
+    """``rows`` (training diagnostics) as TensorBoard events in ``folder``: each quantity as
+    the scalar ``diagnostics/<name>`` at the row's env step, as the SB3 engine writes them."""
+    from nutribench.diagnostics import QUANTITIES, TIMESTEP
+
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:
+        raise RuntimeError(
+            "--tensorboard needs the tensorboard package: pip install 'nutribench[tensorboard]'"
+        ) from None
+    folder.mkdir(parents=True, exist_ok=True)
+    writer = SummaryWriter(log_dir=str(folder))
+    try:
+        for row in rows:
+            for name in QUANTITIES:
+                if row.get(name) is not None:
+                    writer.add_scalar(f"diagnostics/{name}", float(row[name]), int(row[TIMESTEP]))
+    finally:
+        writer.close()
 
 
 def manifest(path: Path) -> Path:

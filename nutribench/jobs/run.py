@@ -29,7 +29,9 @@ def check_configs(spec: JobSpec) -> None:
 def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
     """Train ``spec.agent_config`` on ``spec.regime_config`` for ``spec.episodes`` days with
     ``spec.seed``, then evaluate greedily on ``spec.eval_episodes`` days drawn from the seed
-    (the same days for every algorithm), and save the model to ``spec.model_path``."""
+    (the same days for every algorithm), and save the model to ``spec.model_path``. The
+    result carries the training diagnostics (one row per update), also written as
+    TensorBoard events under ``spec.tensorboard`` when it is set."""
     check_configs(spec)
     started, t0 = utcnow(), time.perf_counter()
     progress = JobProgress(spec, sink)
@@ -40,6 +42,7 @@ def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
         seed=spec.seed,
         episodes=spec.episodes,
         on_episode=lambda row: progress.episode(row["episode"] + 1, row["return"]),
+        tensorboard=Path(spec.tensorboard) / spec.run_name if spec.tensorboard else None,
     )
     progress.phase("eval")
     streams = eval_food_streams(spec.regime_config, spec.seed, spec.eval_episodes)
@@ -57,4 +60,12 @@ def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
     if getattr(spec.agent_config, "entry_point", None):  # a plug-in: trained by its own code, in this harness
         meta["engine"] = "external"
         meta["source"], meta["source_sha256"] = entry_point_source(spec.agent_config.entry_point)
-    return JobResult(spec.job_id, agent.train_episodes, result.episodes, result.steps, meta, model_path=model_path)
+    return JobResult(
+        spec.job_id,
+        agent.train_episodes,
+        result.episodes,
+        result.steps,
+        meta,
+        model_path=model_path,
+        diagnostics=agent.diagnostics,
+    )

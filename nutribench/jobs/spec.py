@@ -16,6 +16,8 @@ class JobSpec:
     recorded its hash; ``*_sha256`` are those recorded hashes, checked by the worker.
     ``device``: where the batched engine trains the job (``--device``: ``auto``, ``cpu``,
     ``cuda`` or ``cuda:N``, resolved in the worker); the SB3 engine trains on the CPU.
+    ``tensorboard``: a folder (on the worker's machine) under which the job writes its
+    training diagnostics as TensorBoard events, in a folder of its own (:attr:`run_name`).
     """
 
     job_id: int
@@ -33,10 +35,16 @@ class JobSpec:
     agent_config: Any = field(repr=False, compare=False)
     attempt: int = 1
     device: str = "cpu"
+    tensorboard: str | None = None
 
     @property
     def label(self) -> str:
         return f"{self.regime} {self.algo} seed {self.seed}"
+
+    @property
+    def run_name(self) -> str:
+        """The job's TensorBoard run folder: ``job<id>-<algo>-<regime>-seed<seed>``."""
+        return f"job{self.job_id}-{self.algo}-{self.regime}-seed{self.seed}"
 
 
 @dataclass
@@ -47,7 +55,9 @@ class JobResult:
     of :data:`nutribench.env.metrics.METRIC_KEYS` plus ``entropy``. ``eval_steps``: one dict
     per evaluation step (``episode``, ``step`` 1..H, ``food``, ``action``, ``C``, ``F``,
     ``P``, ``reward``). ``metadata``: reproducibility facts (see :mod:`nutribench.provenance`)
-    plus ``started_at``, ``finished_at`` (naive UTC) and ``wall_seconds``.
+    plus ``started_at``, ``finished_at`` (naive UTC) and ``wall_seconds``. ``diagnostics``:
+    one dict per training update, keyed by :data:`nutribench.diagnostics.COLUMNS` (absent
+    quantities are NULL).
     """
 
     job_id: int
@@ -56,6 +66,7 @@ class JobResult:
     eval_steps: list[dict[str, Any]]
     metadata: dict[str, Any]
     model_path: str | None = None
+    diagnostics: list[dict[str, Any]] = field(default_factory=list)
 
 
 class JobFailed(RuntimeError):

@@ -369,6 +369,7 @@ def run_grid(
     batch_fn: Callable | None = None,
     max_batch: int = MAX_BATCH,
     device: str = "auto",
+    tensorboard: str | os.PathLike[str] | None = None,
 ) -> RunSummary:
     """Run every job of the grid regime x algo x seed that is not done yet (see the module
     docstring). Returns counts; ``summary.exit_code`` is what ``nutribench run`` exits with.
@@ -376,6 +377,8 @@ def run_grid(
     ``engine="batched"``: each agent config's jobs train in batches of at most ``max_batch``,
     one per worker (:mod:`nutribench.engine`), each job stored on its own with ``jobs.engine``,
     on ``device`` (``auto``: CUDA where a worker has it; the SB3 engine takes ``auto`` or ``cpu``).
+    ``tensorboard``: a folder; each job writes its training diagnostics there as TensorBoard
+    events, in a run folder of its own (:attr:`~nutribench.jobs.spec.JobSpec.run_name`).
     Raises ConfigError (bad config file), StoreError (bad database), ExecutorError (bad ``executor``),
     DeviceError (bad ``device``) or RunError (config changed without a version bump), all one line.
     """
@@ -428,6 +431,7 @@ def run_grid(
                 a.obj,
                 attempt=job.attempt,
                 device=device,
+                tensorboard=str(Path(tensorboard).absolute()) if tensorboard is not None else None,
             )
 
         summary = RunSummary(total=len(job_ids))

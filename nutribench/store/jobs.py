@@ -1,7 +1,8 @@
 """The job lifecycle, in one place: the only code that changes a job's status.
 
 A job row moves ``pending`` -> ``running`` (claimed by one driver: owner token, heartbeat)
--> ``done`` (its episodes, evaluation steps and metadata written in the same transaction)
+-> ``done`` (its episodes, evaluation steps, training diagnostics and metadata written in the
+same transaction)
 or ``failed`` (one more failure, the error kept) or ``interrupted`` (given back on Ctrl-C).
 Runnable ("claimable") are ``pending``, ``interrupted``, ``failed`` below
 :data:`MAX_FAILURES` failures, and ``running`` jobs whose heartbeat is older than
@@ -18,6 +19,7 @@ token, so a driver that lost a job (taken over as stale) writes nothing for it.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from datetime import datetime, timedelta
 from typing import TYPE_CHECKING, Any
@@ -25,7 +27,16 @@ from typing import TYPE_CHECKING, Any
 from sqlalchemy import and_, func, insert, or_, select, update
 
 from nutribench.store.engine import StoreError, db_now, display_url, session_scope
-from nutribench.store.models import EPISODE_METRICS, EVAL_STEP_COLUMNS, METADATA_COLUMNS, Episode, EvalStep, Job
+from nutribench.store.models import (
+    DIAGNOSTIC_COLUMNS,
+    EPISODE_METRICS,
+    EVAL_STEP_COLUMNS,
+    METADATA_COLUMNS,
+    Diagnostic,
+    Episode,
+    EvalStep,
+    Job,
+)
 from nutribench.store.schema import Store
 
 if TYPE_CHECKING:
@@ -189,9 +200,26 @@ def episode_rows(job_id: int, phase: str, episodes: list[dict[str, Any]]) -> lis
     return rows
 
 
+def diagnostic_rows(job_id: int, diagnostics: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """A job's training diagnostics as ``diagnostics`` rows: every column, None where absent
+    (a non-finite value is stored as NULL too)."""
+    rows = []
+    for diag in diagnostics:
+        row: dict[str, Any] = {"job_id": job_id}
+        for col in DIAGNOSTIC_COLUMNS:
+            value = diag.get(col)
+            if col in ("update", "timestep"):
+                row[col] = int(value)
+            else:
+                row[col] = None if value is None or not math.isfinite(float(value)) else float(value)
+        rows.append(row)
+    return rows
+
+
 def store_result(store: Store, result: JobResult, owner: str, model_path: str | None) -> bool:
-    """Write a finished job in one transaction: its episodes, evaluation steps, metadata and
-    status ``done``. False (nothing written) if this driver no longer owns the job."""
+    """Write a finished job in one transaction: its episodes, evaluation steps, training
+    diagnostics, metadata and status ``done``. False (nothing written) if this driver no
+    longer owns the job."""
     with session_scope(store.engine) as s:
         meta = {k: result.metadata[k] for k in METADATA_COLUMNS if k in result.metadata}
         if meta.get("platform"):
@@ -221,6 +249,9 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
                 insert(EvalStep),
                 [{"job_id": result.job_id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in result.eval_steps],
             )
+        diagnostics = getattr(result, "diagnostics", None)  # a result pickled before it had them: none
+        if diagnostics:
+            s.execute(insert(Diagnostic), diagnostic_rows(result.job_id, diagnostics))
         return True
 
 

@@ -15,6 +15,11 @@
 ``eval_steps``
     Every step of every evaluation episode (food offered, action, absorbed C/F/P after the
     step, reward), for trajectory plots.
+``diagnostics``
+    Training diagnostics, one row per update of a job (losses, KL, clip fraction, explained
+    variance, gradient norm, learning rate, epsilon, mean Q, return scale: the vocabulary of
+    :mod:`nutribench.diagnostics`, NULL where an algorithm has no such quantity); primary key
+    (job, update). Written in the same transaction that marks the job done.
 
 The views ``episode_metrics`` and ``eval_trajectories`` (names joined in) are created by
 the migrations (see :mod:`nutribench.store.views`); views are not ORM models.
@@ -206,6 +211,30 @@ class EvalStep(Base):
     reward: Mapped[float] = mapped_column(Float)
 
 
+class Diagnostic(Base):
+    """One training update of a job (on-policy: a rollout's update; off-policy: a training
+    day, means over its gradient steps): the quantities of :mod:`nutribench.diagnostics`."""
+
+    __tablename__ = "diagnostics"
+
+    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
+    update: Mapped[int] = mapped_column(Integer, primary_key=True, doc="0-based, per job")
+    timestep: Mapped[int] = mapped_column(Integer, doc="env steps of the job up to the end of this update")
+    policy_loss: Mapped[float | None] = mapped_column(Float)
+    value_loss: Mapped[float | None] = mapped_column(Float, doc="critic loss (SAC), TD loss (DDQN)")
+    entropy_loss: Mapped[float | None] = mapped_column(Float)
+    approx_kl: Mapped[float | None] = mapped_column(Float)
+    clip_fraction: Mapped[float | None] = mapped_column(Float)
+    explained_variance: Mapped[float | None] = mapped_column(Float)
+    grad_norm: Mapped[float | None] = mapped_column(Float, doc="before clipping")
+    learning_rate: Mapped[float | None] = mapped_column(Float)
+    epsilon: Mapped[float | None] = mapped_column(Float, doc="DDQN")
+    q_mean: Mapped[float | None] = mapped_column(Float, doc="DDQN, SAC")
+    actor_loss: Mapped[float | None] = mapped_column(Float, doc="SAC")
+    ent_coef: Mapped[float | None] = mapped_column(Float, doc="SAC")
+    return_scale: Mapped[float | None] = mapped_column(Float, doc="VecNormalize's reward scale")
+
+
 #: Metric columns of ``episodes`` (and of the ``episode_metrics`` view), in order: the
 #: env's metrics (:data:`nutribench.env.metrics.METRIC_KEYS`, tested equal) and the
 #: policy's entropy. Read off the table, so the schema is the one place they are listed.
@@ -215,6 +244,10 @@ EPISODE_METRICS: tuple[str, ...] = tuple(
 
 #: Columns of ``eval_steps`` a job result fills (all but ``job_id``).
 EVAL_STEP_COLUMNS: tuple[str, ...] = tuple(c.name for c in EvalStep.__table__.columns if c.name != "job_id")
+
+#: Columns of ``diagnostics`` a job result fills (all but ``job_id``): those of
+#: :data:`nutribench.diagnostics.COLUMNS`, tested equal.
+DIAGNOSTIC_COLUMNS: tuple[str, ...] = tuple(c.name for c in Diagnostic.__table__.columns if c.name != "job_id")
 
 #: Columns of ``jobs`` that record where and with what a job ran (from
 #: :func:`nutribench.provenance.collect_metadata` and the worker's clock).

@@ -11,14 +11,18 @@ each revision keeps a frozen copy of its view text). Columns:
 ``eval_trajectories``
     regime, regime_version, algo, algo_version, seed, budget, episode, step (1..H), food
     (index offered), action (0/1), C, F, P (absorbed after the step), reward, job_id.
+``training_diagnostics``
+    regime, regime_version, algo, algo_version, seed, budget, engine (sb3 | batched), update
+    (0-based), timestep, the quantities of :data:`nutribench.diagnostics.QUANTITIES`, job_id.
 """
 
 from __future__ import annotations
 
-from nutribench.store.models import EPISODE_METRICS, EVAL_STEP_COLUMNS
+from nutribench.store.models import DIAGNOSTIC_COLUMNS, EPISODE_METRICS, EVAL_STEP_COLUMNS
 
-VIEWS = ("episode_metrics", "eval_trajectories")
+VIEWS = ("episode_metrics", "eval_trajectories", "training_diagnostics")
 
 _JOB_COLUMNS = ("regime", "regime_version", "algo", "algo_version", "seed", "budget")
 EPISODE_METRICS_COLUMNS = (*_JOB_COLUMNS, "phase", "episode", *EPISODE_METRICS, "job_id")
 EVAL_TRAJECTORY_COLUMNS = (*_JOB_COLUMNS, *EVAL_STEP_COLUMNS, "job_id")
+TRAINING_DIAGNOSTICS_COLUMNS = (*_JOB_COLUMNS, "engine", *DIAGNOSTIC_COLUMNS, "job_id")

@@ -51,8 +51,12 @@ class GRUPPO(OnPolicyAlgorithm):
     :param _init_setup_model: build the networks now (SB3's ``load`` passes False).
 
     Logged each update: SB3 PPO's ``train/*`` keys plus ``train/entropy`` (mean policy
-    entropy over the rollout's minibatches, nats) and ``train/minibatch_sequences``.
+    entropy over the rollout's minibatches, nats), ``train/grad_norm`` (mean gradient norm
+    before clipping) and ``train/minibatch_sequences``.
     """
+
+    #: the update logs ``train/grad_norm`` itself (no gradient probe needed)
+    records_grad_norm: ClassVar[bool] = True
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
         "GRUPolicy": GRUActorCriticPolicy,
@@ -276,7 +280,8 @@ class GRUPPO(OnPolicyAlgorithm):
                     break
                 self.policy.optimizer.zero_grad()
                 loss.backward()
-                th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+                grad_norm = th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+                history.setdefault("grad_norm", []).append(grad_norm.item())
                 self.policy.optimizer.step()
             self._n_updates += 1
             if not continue_training:

@@ -1,0 +1,184 @@
+"""The SB3 engine's training diagnostics: what SB3's logger records, one row per update.
+
+:class:`DiagnosticsLogger` is SB3's :class:`~stable_baselines3.common.logger.Logger` that also
+keeps, for the keys of :data:`SB3_KEYS`, the running mean of every value recorded since the
+last row (SB3's own ``record`` keeps only the last one). :class:`TrainingDiagnostics` (an SB3
+callback) closes a row at the end of each update and hands it to the logger's output formats:
+
+* on-policy (MC, PPO, GRU-PPO): a row after each rollout's update (closed when the next rollout
+  starts, and when training ends);
+* off-policy (DDQN, SAC): a row at the end of each training day, each quantity the mean over
+  that day's gradient steps (the losses are absent on days before learning starts).
+
+Row keys are the vocabulary of :mod:`nutribench.diagnostics`. The gradient norm before
+clipping is read where it is cheap: DDQN and GRU-PPO record ``train/grad_norm`` themselves
+(the value ``clip_grad_norm_`` returns); for SB3's own PPO and A2C (MC), whose update cannot
+be entered, :class:`GradNormProbe` sums each parameter's gradient as backward accumulates it.
+SAC does not clip and its gradient norm is not recorded. VecNormalize's return scale is read
+off the training env at the end of each update.
+
+``tensorboard``: SB3's own :class:`~stable_baselines3.common.logger.TensorBoardOutputFormat`
+joins the logger, so SB3's keys (``train/*``, ``rollout/*``, ``time/*``) and every row's
+quantities (as ``diagnostics/<name>``) are written as TensorBoard events, at the job's env step.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import KVWriter, Logger
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+from stable_baselines3.dqn import DQN
+
+from nutribench import diagnostics as d
+
+#: SB3 logger keys -> the diagnostics vocabulary (every algorithm; DQN's ``train/loss`` below).
+SB3_KEYS: dict[str, str] = {
+    "train/policy_gradient_loss": d.POLICY_LOSS,  # PPO, GRU-PPO
+    "train/policy_loss": d.POLICY_LOSS,  # A2C (MC)
+    "train/value_loss": d.VALUE_LOSS,
+    "train/critic_loss": d.VALUE_LOSS,  # SAC
+    "train/entropy_loss": d.ENTROPY_LOSS,
+    "train/approx_kl": d.APPROX_KL,
+    "train/clip_fraction": d.CLIP_FRACTION,
+    "train/explained_variance": d.EXPLAINED_VARIANCE,
+    "train/grad_norm": d.GRAD_NORM,
+    "train/learning_rate": d.LEARNING_RATE,
+    "train/critic_learning_rate": d.LEARNING_RATE,  # SAC: the critic's (SB3's lr_schedule)
+    "rollout/exploration_rate": d.EPSILON,  # DQN
+    "train/q_mean": d.Q_MEAN,
+    "train/actor_loss": d.ACTOR_LOSS,
+    "train/alpha": d.ENT_COEF,  # our discrete SAC
+    "train/ent_coef": d.ENT_COEF,  # SB3's SAC
+}
+#: DQN's ``train/loss`` is its TD loss; PPO's is the total loss, which has no column.
+DQN_KEYS: dict[str, str] = {**SB3_KEYS, "train/loss": d.VALUE_LOSS}
+
+
+class DiagnosticsLogger(Logger):
+    """SB3's logger (no folder) that also averages the diagnostics it is given between rows."""
+
+    def __init__(self, keys: dict[str, str], output_formats: list[KVWriter] | None = None):
+        super().__init__(folder=None, output_formats=list(output_formats or []))
+        self.keys = keys
+        self.sums: dict[str, float] = {}
+        self.counts: dict[str, int] = {}
+
+    def record(self, key: str, value: Any, exclude: str | tuple[str, ...] | None = None) -> None:
+        super().record(key, value, exclude)
+        name = self.keys.get(key)
+        if name is not None:
+            self.add(name, value)
+
+    def add(self, name: str, value: Any) -> None:
+        """One more value of quantity ``name`` (non-finite values are left out)."""
+        x = float(value)
+        if math.isfinite(x):
+            self.sums[name] = self.sums.get(name, 0.0) + x
+            self.counts[name] = self.counts.get(name, 0) + 1
+
+    def take(self) -> dict[str, float]:
+        """The means since the last call, then forget them."""
+        out = {k: self.sums[k] / self.counts[k] for k in d.QUANTITIES if k in self.sums}
+        self.sums.clear()
+        self.counts.clear()
+        return out
+
+
+class GradNormProbe:
+    """The global gradient norm of ``params`` before clipping, for an update we cannot enter:
+    each parameter's gradient norm is taken as backward accumulates it, and their global norm
+    is handed to ``logger`` when ``optimizer`` steps (after any clipping, which leaves the
+    recorded norm as it was)."""
+
+    def __init__(self, params: list[th.nn.Parameter], optimizer: th.optim.Optimizer, logger: DiagnosticsLogger):
+        self.logger = logger
+        self.parts: list[th.Tensor] = []
+        self.handles = [p.register_post_accumulate_grad_hook(self._grad) for p in params if p.requires_grad]
+        self.handles.append(optimizer.register_step_pre_hook(self._step))
+
+    def _grad(self, p: th.Tensor) -> None:
+        if p.grad is not None:
+            self.parts.append(th.linalg.vector_norm(p.grad.detach()))
+
+    def _step(self, *_: Any) -> None:
+        if self.parts:
+            self.logger.add(d.GRAD_NORM, th.linalg.vector_norm(th.stack(self.parts)).item())
+            self.parts.clear()
+
+    def remove(self) -> None:
+        for h in self.handles:
+            h.remove()
+        self.handles.clear()
+
+
+def tensorboard_format(folder: str | Path) -> KVWriter:
+    """SB3's TensorBoard writer on ``folder``; a clear error when tensorboard is missing."""
+    try:
+        import tensorboard  # noqa: F401
+    except ImportError:
+        raise RuntimeError(
+            "--tensorboard needs the tensorboard package: pip install 'nutribench[tensorboard]'"
+        ) from None
+    from stable_baselines3.common.logger import TensorBoardOutputFormat
+
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    return TensorBoardOutputFormat(str(folder))
+
+
+class TrainingDiagnostics(BaseCallback):
+    """Records one diagnostics row per update of ``model`` (see the module docstring) into
+    :attr:`rows`; installs its logger on the model when training starts and takes its probes
+    off when training ends. ``tensorboard``: a folder for this job's TensorBoard events."""
+
+    def __init__(self, model: Any, tensorboard: str | Path | None = None):
+        super().__init__()
+        self.rows: list[dict[str, float]] = []
+        self.off_policy = isinstance(model, OffPolicyAlgorithm)
+        formats = [tensorboard_format(tensorboard)] if tensorboard is not None else []
+        self.diag_logger = DiagnosticsLogger(DQN_KEYS if isinstance(model, DQN) else SB3_KEYS, formats)
+        model.set_logger(self.diag_logger)
+        self.probe: GradNormProbe | None = None
+        if isinstance(model, OnPolicyAlgorithm) and not getattr(model, "records_grad_norm", False):
+            policy = model.policy
+            self.probe = GradNormProbe(list(policy.parameters()), policy.optimizer, self.diag_logger)
+
+    def _on_step(self) -> bool:
+        if self.off_policy and any(self.locals["dones"]):
+            self._close_row()
+        return True
+
+    def _on_rollout_start(self) -> None:
+        if not self.off_policy and self.diag_logger.sums:
+            self._close_row()
+
+    def _on_training_end(self) -> None:
+        if not self.off_policy and self.diag_logger.sums:
+            self._close_row()
+        if self.probe is not None:
+            self.probe.remove()
+        self.diag_logger.close()
+
+    def _return_scale(self) -> float | None:
+        venv = self.model.get_vec_normalize_env()
+        if venv is None or not venv.norm_reward:
+            return None
+        return float(math.sqrt(float(venv.ret_rms.var) + venv.epsilon))
+
+    def _close_row(self) -> None:
+        row: dict[str, float] = {d.UPDATE: len(self.rows), d.TIMESTEP: int(self.model.num_timesteps)}
+        row |= self.diag_logger.take()
+        scale = self._return_scale()
+        if scale is not None:
+            row[d.RETURN_SCALE] = scale
+        self.rows.append(row)
+        if self.diag_logger.output_formats:
+            for name in d.QUANTITIES:
+                if name in row:
+                    self.diag_logger.record(f"diagnostics/{name}", row[name])
+        self.diag_logger.dump(step=row[d.TIMESTEP])  # to TensorBoard, if any; clears SB3's values

@@ -1,0 +1,250 @@
+"""Training diagnostics in the results database: a row for every update of a short job of each
+of the five agents (SB3 engine, through ``nutribench run``), stored with the job's rows in one
+transaction, written as TensorBoard events that tensorboard's own reader reads, and the
+migration that adds the table to a revision-0004 database."""
+
+from __future__ import annotations
+
+import shutil
+import sqlite3
+from pathlib import Path
+
+import pytest
+from sqlalchemy import event, text
+from typer.testing import CliRunner
+
+from nutribench import diagnostics as d
+from nutribench.cli import app
+from nutribench.jobs.spec import JobResult
+from nutribench.scheduler.grid import Grid
+from nutribench.scheduler.registration import load_grid_configs, register_grid
+from nutribench.store import make_engine, open_store
+from nutribench.store.engine import database_url
+from nutribench.store.jobs import claim_jobs, store_result
+from nutribench.store.models import DIAGNOSTIC_COLUMNS
+from nutribench.store.schema import upgrade_connection
+from nutribench.store.views import TRAINING_DIAGNOSTICS_COLUMNS
+
+REPO = Path(__file__).resolve().parents[1]
+ALGOS = ("mc", "ppo", "gru_ppo", "ddqn", "sac")
+DAYS = 20  # PPO and GRU-PPO update every 10 days (n_steps 500): two updates
+HORIZON = 50
+
+#: the quantities each agent fills on every update once it learns (the SB3 engine)
+FILLED = {
+    "mc": {"policy_loss", "value_loss", "entropy_loss", "explained_variance", "grad_norm", "learning_rate"},
+    "ppo": {
+        "policy_loss",
+        "value_loss",
+        "entropy_loss",
+        "approx_kl",
+        "clip_fraction",
+        "explained_variance",
+        "grad_norm",
+        "learning_rate",
+    },
+    "ddqn": {"value_loss", "grad_norm", "learning_rate", "epsilon", "q_mean"},
+    "sac": {"value_loss", "learning_rate", "q_mean", "actor_loss", "ent_coef"},
+}
+FILLED["gru_ppo"] = FILLED["ppo"]
+REWARD_NORMALISED = {"mc", "ppo", "gru_ppo"}  # normalize_reward = true in regimes/agents
+
+
+def sql(db: Path, query: str) -> list[tuple]:
+    con = sqlite3.connect(db)
+    try:
+        return con.execute(query).fetchall()
+    finally:
+        con.close()
+
+
+def test_the_table_has_the_vocabulary() -> None:
+    assert DIAGNOSTIC_COLUMNS == d.COLUMNS
+    assert TRAINING_DIAGNOSTICS_COLUMNS[-len(d.COLUMNS) - 1 : -1] == d.COLUMNS
+
+
+@pytest.fixture(scope="module")
+def ran(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """One short job of each agent on run3 through ``nutribench run --tensorboard`` (DDQN
+    learning from day 2 instead of day 200, so that its losses show in 20 days)."""
+    tmp = tmp_path_factory.mktemp("diag")
+    agents = tmp / "agents"
+    shutil.copytree(REPO / "regimes" / "agents", agents)
+    ddqn = agents / "ddqn.toml"
+    ddqn.write_text(ddqn.read_text().replace("learning_starts = 10000", "learning_starts = 100"))
+    mp = pytest.MonkeyPatch()
+    mp.setenv("NUTRIBENCH_AGENTS", str(agents))
+    mp.delenv("NUTRIBENCH_DB", raising=False)
+    db, tb = tmp / "r.db", tmp / "tb"
+    try:
+        res = CliRunner().invoke(
+            app,
+            ["run", "--regimes", "run3", "--algos", ",".join(ALGOS), "--seeds", "0", "--episodes", str(DAYS)]
+            + ["--eval-episodes", "1", "--workers", "2", "--db", str(db), "--tensorboard", str(tb)],
+        )
+    finally:
+        mp.undo()
+    assert res.exit_code == 0, res.output
+    return {"db": db, "tb": tb}
+
+
+def _rows(db: Path, algo: str) -> list[dict]:
+    con = sqlite3.connect(db)
+    con.row_factory = sqlite3.Row
+    try:
+        rows = con.execute('SELECT * FROM training_diagnostics WHERE algo = ? ORDER BY "update"', (algo,)).fetchall()
+    finally:
+        con.close()
+    return [dict(r) for r in rows]
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_a_row_for_every_update_of_each_agent(ran, algo) -> None:
+    rows = _rows(ran["db"], algo)
+    per_update = 500 if algo in ("ppo", "gru_ppo") else HORIZON  # env steps per row
+    n = DAYS * HORIZON // per_update
+    assert [r["update"] for r in rows] == list(range(n))
+    assert [r["timestep"] for r in rows] == [per_update * (u + 1) for u in range(n)]
+    assert {r["engine"] for r in rows} == {"sb3"}
+    learning = [r for r in rows if r["timestep"] > 150]  # DDQN and SAC learn from day 2 or 3
+    assert learning
+    for r in learning:
+        filled = {q for q in d.QUANTITIES if r[q] is not None}
+        expected = FILLED[algo] | ({"return_scale"} if algo in REWARD_NORMALISED else set())
+        assert filled == expected, (algo, r["update"], filled ^ expected)
+    for r in rows:
+        if r["learning_rate"] is not None:
+            assert 0 < r["learning_rate"] <= 0.005
+        if r["grad_norm"] is not None:
+            assert r["grad_norm"] > 0
+        if r["clip_fraction"] is not None:
+            assert 0 <= r["clip_fraction"] <= 1
+    if algo == "ddqn":
+        eps = [r["epsilon"] for r in rows]
+        assert eps[0] > eps[-1] and min(eps) == pytest.approx(0.1)  # decays to exploration_final_eps
+
+
+def test_tensorboard_events_are_read_by_tensorboard(ran) -> None:
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    runs = sorted(p.name for p in ran["tb"].iterdir())
+    assert len(runs) == 5 and all(r.startswith("job") and "-run3-seed0" in r for r in runs), runs
+    for algo in ALGOS:
+        (folder,) = [p for p in ran["tb"].iterdir() if p.name.split("-")[1] == algo]
+        acc = EventAccumulator(str(folder))
+        acc.Reload()
+        tags = set(acc.Tags()["scalars"])
+        rows = _rows(ran["db"], algo)
+        want = {f"diagnostics/{q}" for q in d.QUANTITIES if any(r[q] is not None for r in rows)}
+        assert want and want <= tags, (algo, want - tags)
+        # the same numbers as the database, at the same env steps
+        for q in ("value_loss", "learning_rate"):
+            stored = [(r["timestep"], r[q]) for r in rows if r[q] is not None]
+            events = [(e.step, e.value) for e in acc.Scalars(f"diagnostics/{q}")]
+            assert [s for s, _ in events] == [s for s, _ in stored]
+            assert [v for _, v in events] == pytest.approx([v for _, v in stored], rel=1e-6)
+        if algo == "ppo":  # SB3's own keys too (its logger's TensorBoard output)
+            assert {"train/approx_kl", "train/clip_fraction"} <= tags
+
+
+# --------------------------------------------------------------------------- one transaction
+def _running_job(db: Path) -> tuple[object, int, str]:
+    """A database with one registered job, claimed (running) by owner ``me``."""
+    grid = Grid(("run0",), ("ppo",), (0,), 2, 0)
+    regimes, agents = load_grid_configs(grid)
+    store = open_store(db, writer=True)
+    (job_id,) = register_grid(store, grid, regimes, agents)
+    claim_jobs(store, [job_id], set(), 1, "me")
+    return store, job_id, "me"
+
+
+def _result(job_id: int, n: int) -> JobResult:
+    train = [
+        {
+            "episode": k,
+            "return": -1.0,
+            "foods": 3,
+            "final_distance": 0.5,
+            "overshoot_ratio": 0.1,
+            "final_C": 1.0,
+            "final_F": 1.0,
+            "final_P": 1.0,
+            "first_overshoot_step": None,
+            "entropy": 0.6,
+        }
+        for k in range(2)
+    ]
+    diags = [{"update": u, "timestep": 50 * (u + 1), "value_loss": 1.0 / (u + 1), "grad_norm": 2.0} for u in range(n)]
+    return JobResult(job_id, train, [], [], {}, diagnostics=diags)
+
+
+def test_a_jobs_rows_are_stored_all_at_once(tmp_path) -> None:
+    db = tmp_path / "t.db"
+    store, job_id, owner = _running_job(db)
+
+    def fail_after_diagnostics(conn, clauseelement, multiparams, params, execution_options, result) -> None:
+        if "INSERT INTO diagnostics" in str(clauseelement):
+            raise RuntimeError("injected after the diagnostics insert")
+
+    event.listen(store.engine, "after_execute", fail_after_diagnostics)
+    with pytest.raises(RuntimeError, match="injected"):
+        store_result(store, _result(job_id, 7), owner, None)
+    # nothing of the job was written: no diagnostics, no episodes, still running
+    assert sql(db, "SELECT count(*) FROM diagnostics") == [(0,)]
+    assert sql(db, "SELECT count(*) FROM episodes") == [(0,)]
+    assert sql(db, f"SELECT status FROM jobs WHERE id = {job_id}") == [("running",)]
+    event.remove(store.engine, "after_execute", fail_after_diagnostics)
+    assert store_result(store, _result(job_id, 7), owner, None)
+    assert sql(db, 'SELECT "update", timestep, value_loss, grad_norm, epsilon FROM diagnostics ORDER BY 1')[:2] == [
+        (0, 50, 1.0, 2.0, None),
+        (1, 100, 0.5, 2.0, None),
+    ]
+    assert sql(db, "SELECT count(*) FROM diagnostics") == [(7,)]
+    assert sql(db, f"SELECT status FROM jobs WHERE id = {job_id}") == [("done",)]
+    # deleting the job takes its diagnostics with it (ON DELETE CASCADE)
+    with store.engine.begin() as conn:
+        conn.exec_driver_sql("PRAGMA foreign_keys = ON")
+        conn.execute(text(f"DELETE FROM jobs WHERE id = {job_id}"))
+    assert sql(db, "SELECT count(*) FROM diagnostics") == [(0,)]
+    store.dispose()
+
+
+def test_a_bad_diagnostics_row_fails_the_store_and_writes_nothing(tmp_path) -> None:
+    db = tmp_path / "t.db"
+    store, job_id, owner = _running_job(db)
+    bad = _result(job_id, 3)
+    bad.diagnostics.append(dict(bad.diagnostics[0]))  # update 0 twice: the primary key refuses it
+    with pytest.raises(Exception, match="UNIQUE"):
+        store_result(store, bad, owner, None)
+    assert sql(db, "SELECT count(*) FROM diagnostics") == sql(db, "SELECT count(*) FROM episodes") == [(0,)]
+    store.dispose()
+
+
+# --------------------------------------------------------------------------- migration
+def test_the_migration_upgrades_a_0004_database(tmp_path) -> None:
+    db = tmp_path / "old.db"
+    engine = make_engine(database_url(db), writer=True)
+    with engine.begin() as conn:
+        upgrade_connection(conn, "0004")
+        conn.execute(text("INSERT INTO regimes VALUES (1, 'run0', 1, 'aa', '{}', NULL, '2026-01-01')"))
+        conn.execute(text("INSERT INTO agent_configs VALUES (1, 'ppo', 'ppo', 1, 'bb', '{}', NULL, '2026-01-01')"))
+        conn.execute(
+            text(
+                "INSERT INTO jobs (id, regime_id, agent_config_id, seed, episodes, eval_episodes, status, attempt, "
+                "failures, episodes_done, created_at, fake) VALUES (1, 1, 1, 0, 2, 0, 'done', 1, 0, 2, '2026-01-01', 0)"
+            )
+        )
+    engine.dispose()
+    assert "diagnostics" not in {r[0] for r in sql(db, "SELECT name FROM sqlite_master")}
+    res = CliRunner().invoke(app, ["run", "--upgrade-only", "--db", str(db)])
+    assert res.exit_code == 0 and "upgraded from 0004" in res.output, res.output
+    assert sql(db, "SELECT version_num FROM alembic_version") == [("0005",)]
+    assert sql(db, "SELECT count(*) FROM jobs") == [(1,)]
+    con = sqlite3.connect(db)
+    con.execute('INSERT INTO diagnostics (job_id, "update", timestep, value_loss) VALUES (1, 0, 500, 0.25)')
+    con.commit()
+    con.close()
+    rows = sql(db, 'SELECT regime, algo, seed, "update", timestep, value_loss, policy_loss FROM training_diagnostics')
+    assert rows == [("run0", "ppo", 0, 0, 500, 0.25, None)]
+    cols = [c[1] for c in sql(db, "PRAGMA table_info(training_diagnostics)")]
+    assert tuple(cols) == TRAINING_DIAGNOSTICS_COLUMNS
