@@ -1,47 +1,35 @@
 """Aggregate scores over regimes and seeds, as Agarwal et al. (NeurIPS 2021, "Deep RL at the
 Edge of the Statistical Precipice") recommend and their library ``rliable`` computes.
 
-A **run** is one job: an agent config trained with one seed on one regime. Its **score** is
-the share of the regime's never -> planner gap it closes on its own evaluation days,
-``(mean return - mean never) / (mean planner - mean never)`` over those days (0 = never eat,
-1 = the greedy full-information planner, more than 1 possible; the results table's "gap
-closed", per seed). The regimes are rliable's *tasks*, the seeds its *runs*.
-
-Per agent and per group of regimes (``all``; ``delayed``: run1-run6):
+The scores are run scores (:mod:`nutribench.report.scores`: one per job, the share of the
+regime's never -> planner gap it closes on its evaluation days). Per agent and per group of
+regimes (``all``; ``delayed``: run1-run6):
 
 * the IQM (interquartile mean of all run scores), the median and the mean of the per-regime
   mean scores, and the optimality gap (``1 - mean(min(score, 1))``: how far below the planner,
   lower is better), each with a 95 % percentile interval from a **stratified bootstrap over
-  runs**: every resample redraws, within each regime, that regime's seeds with replacement
-  (rliable's ``StratifiedBootstrap``, ``task_bootstrap=False``);
-* the performance profile: the fraction of runs whose score exceeds tau, with a band from the
-  same bootstrap (rliable's score distribution);
-* the probability of improvement P(X > Y) for every pair: per regime the probability that a
-  run of X scores above a run of Y (a tie counts half: the Mann-Whitney U over the product of
-  the run counts), averaged over regimes, with an interval from rliable's
-  ``StratifiedIndependentBootstrap`` (X's and Y's runs redrawn independently per regime).
+  runs** (:func:`~nutribench.report.scores.stratified_resamples`);
+* the performance profile and the probability of improvement P(X > Y) for every pair
+  (:mod:`nutribench.report.profiles`).
 
-Why rliable is used this way (pyproject.toml, README "Figures and tables"): rliable 1.2.0
-needs ``arch < 8`` for its bootstrap (``rliable.library``), and arch 7.2 fails at import under
-pandas 3 (arch 8 rejects the ``random_state=None`` rliable passes). The point estimates here
-come from ``rliable.metrics`` (numpy/scipy only, imports fine), called on the regimes x seeds
-matrix whenever every regime has the same number of seeds; the bootstrap is the small
-resampling loop below, vectorised over resamples, whose statistics equal rliable's on the
-original sample (tests/test_statistics.py). With different seed counts per regime rliable
-has no matrix to take; the same statistics are then computed on the ragged runs (IQM and
+Why rliable is used this way (pyproject.toml; the documentation's "Seed-level statistics"):
+rliable 1.2.0 needs ``arch < 8`` for its bootstrap (``rliable.library``), and arch 7.2 fails
+at import under pandas 3 (arch 8 rejects the ``random_state=None`` rliable passes). The point
+estimates here come from ``rliable.metrics`` (numpy/scipy only, imports fine), called on the
+regimes x seeds matrix whenever every regime has the same number of seeds; the bootstrap is a
+small resampling loop, vectorised over resamples, whose statistics equal rliable's on the
+original sample (tests/test_statistics.py). With different seed counts per regime rliable has
+no matrix to take; the same statistics are then computed on the ragged runs (IQM and
 optimality gap over all runs pooled, mean and median over the regimes' means).
 
 Everything is DataFrame in, DataFrame out: :func:`run_scores` (episodes -> scores),
 :func:`aggregate_scores` (scores -> :class:`AggregateResult`); the figure and the table of a
-result: :mod:`nutribench.report.aggregate_view`.
-
-Longer than 400 lines: since ruff formats it (one argument per line); the estimators and
-their bootstrap belong together. To split: the performance profiles and probability of improvement.
+result: :mod:`nutribench.report.aggregate_view`. The names of :mod:`~nutribench.report.scores`
+and :mod:`~nutribench.report.profiles` are importable from here too.
 """
 
 from __future__ import annotations
 
-import zlib
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -50,10 +38,28 @@ import pandas as pd
 import scipy.stats
 from rliable import metrics as rly
 
-from nutribench.baselines import gap_closed
 from nutribench.report.figures import sort_regimes
-from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
+from nutribench.report.profiles import (
+    improvement_probabilities,
+    performance_profiles,
+    probability_of_improvement,
+    profile_taus,
+    score_distribution,
+)
+from nutribench.report.scores import (
+    CONFIDENCE,
+    DEFAULT_REPS,
+    GAMMA,
+    Runs,
+    ScoreSet,
+    percentile_interval,
+    pooled,
+    run_scores,
+    score_set,
+    seeded_rng,
+    stratified_resamples,
+)
 
 #: The delayed regimes of the paper (run0 has no delays).
 DELAYED_REGIMES: tuple[str, ...] = tuple(f"run{i}" for i in range(1, 7))
@@ -67,124 +73,20 @@ AGGREGATE_LABELS: dict[str, str] = {
     "mean": "mean",
     "optimality_gap": "optimality gap",
 }
-#: The optimality gap's threshold: the planner's score.
-GAMMA = 1.0
-#: Bootstrap resamples (rliable uses 50000 for its published figures; 2000 keeps a report fast).
-DEFAULT_REPS = 2000
-CONFIDENCE = 0.95
-
-Runs = list[np.ndarray]  # one array of run scores per regime (task)
 
 
-# --------------------------------------------------------------------------- scores
-def run_scores(ev: pd.DataFrame, references: pd.DataFrame) -> pd.DataFrame:
-    """One row per run (regime, algo, seed) of the evaluation episodes ``ev``: its days, its
-    mean return, the mean return of ``never`` and of the ``planner`` on the same days, and its
-    score (the share of that gap it closes; NaN where a day has no yardstick).
-
-    ``references``: columns regime, seed, episode, never, planner
-    (:func:`nutribench.report.references.eval_day_references`). ``ev`` must hold one job per
-    run (:func:`nutribench.report.build.prepare` picks them); several raise ValueError.
-    """
-    ev = ev[ev["phase"] == "eval"] if "phase" in ev else ev
-    cols = ["regime", "algo", "seed", "days", "return", "never", "planner", "score"]
-    if ev.empty:
-        return pd.DataFrame(columns=cols)
-    if "job_id" in ev and (ev.groupby(["regime", "algo", "seed"])["job_id"].nunique() > 1).any():
-        raise ValueError("several jobs for one regime/algo/seed: pick one per run first (report.build.prepare)")
-    ref = references.set_index(["regime", "seed", "episode"])[["never", "planner"]]
-    rows = []
-    for (regime, algo, seed), days in ev.groupby(["regime", "algo", "seed"], sort=True):
-        yard = ref.reindex(pd.MultiIndex.from_arrays([days["regime"], days["seed"], days["episode"]]))
-        complete = not yard.isna().any().any()
-        ret = float(days["return"].mean())
-        never = float(yard["never"].mean()) if complete else float("nan")
-        planner = float(yard["planner"].mean()) if complete else float("nan")
-        score = gap_closed(ret, never, planner) if complete else float("nan")
-        rows.append(
-            {
-                "regime": regime,
-                "algo": algo,
-                "seed": int(seed),
-                "days": len(days),
-                "return": ret,
-                "never": never,
-                "planner": planner,
-                "score": score,
-            }
-        )
-    return pd.DataFrame(rows, columns=cols)
-
-
-@dataclass
-class ScoreSet:
-    """The run scores of one group of regimes: per agent, one array per regime (seed order)."""
-
-    regimes: list[str]
-    runs: dict[str, Runs]
-    notes: list[str] = field(default_factory=list)
-
-    def rectangular(self, algo: str) -> bool:
-        """Whether ``algo`` has the same number of runs on every regime (an rliable matrix)."""
-        return len({len(x) for x in self.runs[algo]}) == 1
-
-    def matrix(self, algo: str) -> np.ndarray:
-        """``algo``'s scores as rliable takes them: ``(runs, regimes)`` (rectangular only)."""
-        return np.stack(self.runs[algo], axis=1)
-
-
-def score_set(
-    scores: pd.DataFrame, regimes: Iterable[str], algos: Sequence[str] | None = None, what: str = ""
-) -> ScoreSet:
-    """The scores of ``algos`` (default every agent of ``scores``) on those of ``regimes`` that
-    every one of them has a score on; a regime left out is named in a note (``what``: the
-    group's name, for the note)."""
-    algos = sort_algos(scores["algo"]) if algos is None else list(algos)
-    finite = scores[np.isfinite(scores["score"].to_numpy(dtype=float))]
-    kept, notes = [], []
-    for regime in sort_regimes(set(regimes) & set(scores["regime"])):
-        missing, unscored = [], []
-        for algo in algos:
-            if finite[(finite["regime"] == regime) & (finite["algo"] == algo)].empty:
-                ran = not scores[(scores["regime"] == regime) & (scores["algo"] == algo)].empty
-                (unscored if ran else missing).append(algo_label(algo))
-        why = []
-        if missing:
-            why.append(f"no evaluation of {', '.join(missing)}")
-        if unscored:
-            why.append(
-                f"no never/planner yardstick on the days of {', '.join(unscored)}: the regime file is not the version the jobs ran"
-            )
-        if why:
-            notes.append(f"{what + ': ' if what else ''}{regime} left out ({'; '.join(why)})")
-        else:
-            kept.append(regime)
-    runs = {
-        a: [
-            finite[(finite["regime"] == r) & (finite["algo"] == a)].sort_values("seed")["score"].to_numpy(dtype=float)
-            for r in kept
-        ]
-        for a in algos
-    }
-    return ScoreSet(kept, runs, notes)
-
-
-# --------------------------------------------------------------------------- statistics
+# --------------------------------------------------------------------------- interval estimates
 # Each statistic takes one array per regime, shaped (resamples, runs of that regime), and
 # returns one value per resample; on the original sample (one "resample") it equals rliable's.
-def _pooled(t: Runs) -> np.ndarray:
-    return np.concatenate(t, axis=1)
-
-
 def _task_means(t: Runs) -> np.ndarray:
     return np.stack([x.mean(axis=1) for x in t], axis=1)
 
 
 BATCHED: dict[str, Callable[[Runs], np.ndarray]] = {
-    "iqm": lambda t: scipy.stats.trim_mean(_pooled(t), proportiontocut=0.25, axis=1),
+    "iqm": lambda t: scipy.stats.trim_mean(pooled(t), proportiontocut=0.25, axis=1),
     "median": lambda t: np.median(_task_means(t), axis=1),
     "mean": lambda t: np.mean(_task_means(t), axis=1),
-    "optimality_gap": lambda t: GAMMA - np.mean(np.minimum(_pooled(t), GAMMA), axis=1),
+    "optimality_gap": lambda t: GAMMA - np.mean(np.minimum(pooled(t), GAMMA), axis=1),
 }
 #: rliable's own estimators, on a (runs x regimes) matrix.
 RLIABLE: dict[str, Callable[[np.ndarray], float]] = {
@@ -203,25 +105,6 @@ def point_estimate(aggregate: str, runs: Runs) -> float:
     return float(BATCHED[aggregate]([x[None, :] for x in runs])[0])
 
 
-def stratified_resamples(runs: Runs, reps: int, rng: np.random.Generator) -> Runs:
-    """``reps`` stratified bootstrap resamples of the runs: within each regime, that regime's
-    runs drawn with replacement (as many as it has), regimes independently; one array
-    ``(reps, runs)`` per regime (rliable's ``StratifiedBootstrap`` over runs)."""
-    return [x[rng.integers(0, len(x), size=(reps, len(x)))] for x in runs]
-
-
-def percentile_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float]:
-    """The percentile bootstrap interval (arch's ``method="percentile"``, rliable's default)."""
-    alpha = (1 - confidence) / 2
-    lo, hi = np.percentile(values, [100 * alpha, 100 * (1 - alpha)], axis=0)
-    return float(lo), float(hi)
-
-
-def _rng(seed: int, *names: str) -> np.random.Generator:
-    """A generator per (seed, names): an agent's intervals do not depend on the other agents."""
-    return np.random.default_rng([seed, *(zlib.crc32(n.encode()) for n in names)])
-
-
 def interval_estimates(
     ss: ScoreSet, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE
 ) -> pd.DataFrame:
@@ -233,7 +116,7 @@ def interval_estimates(
     for algo, runs in ss.runs.items():
         if not runs:
             continue
-        resampled = stratified_resamples(runs, reps, _rng(seed, algo, *ss.regimes))
+        resampled = stratified_resamples(runs, reps, seeded_rng(seed, algo, *ss.regimes))
         spread = max(len(x) for x in runs) > 1
         for agg in AGGREGATES:
             lo, hi = (
@@ -251,92 +134,6 @@ def interval_estimates(
                 }
             )
     return pd.DataFrame(rows, columns=["algo", "aggregate", "point", "lo", "hi", "runs", "regimes"])
-
-
-def profile_taus(scores: Iterable[float], n: int = 201) -> np.ndarray:
-    """The thresholds of a performance profile: from below the lowest score (and 0) to above
-    the highest (and 1), so every profile runs from 1 down to 0."""
-    s = np.asarray(list(scores), dtype=float)
-    s = s[np.isfinite(s)]
-    lo = min(0.0, float(s.min())) if s.size else 0.0
-    hi = max(GAMMA, float(s.max())) if s.size else GAMMA
-    pad = 0.02 * (hi - lo)
-    return np.linspace(lo - pad, hi + pad, n)
-
-
-def score_distribution(pooled: np.ndarray, taus: np.ndarray) -> np.ndarray:
-    """The fraction of runs (the last axis of ``pooled``) scoring above each tau (rliable's
-    ``score_distributions``): shape ``pooled.shape[:-1] + (len(taus),)``."""
-    return np.mean(pooled[..., :, None] > taus, axis=-2)
-
-
-def performance_profiles(
-    ss: ScoreSet, taus: np.ndarray, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE
-) -> pd.DataFrame:
-    """Per agent and tau: the fraction of its runs scoring above tau, with a stratified
-    bootstrap band over runs. Columns: algo, tau, fraction, lo, hi."""
-    frames = []
-    alpha = (1 - confidence) / 2
-    for algo, runs in ss.runs.items():
-        if not runs:
-            continue
-        point = score_distribution(np.concatenate(runs), taus)
-        if max(len(x) for x in runs) > 1:
-            boot = score_distribution(
-                _pooled(stratified_resamples(runs, reps, _rng(seed, "profile", algo, *ss.regimes))), taus
-            )
-            lo, hi = np.percentile(boot, [100 * alpha, 100 * (1 - alpha)], axis=0)
-        else:
-            lo = hi = np.full_like(point, np.nan)
-        frames.append(pd.DataFrame({"algo": algo, "tau": taus, "fraction": point, "lo": lo, "hi": hi}))
-    return (
-        pd.concat(frames, ignore_index=True)
-        if frames
-        else pd.DataFrame(columns=["algo", "tau", "fraction", "lo", "hi"])
-    )
-
-
-def _improvement(x: Runs, y: Runs) -> np.ndarray:
-    """P(X > Y) per resample: per regime the share of (run of X, run of Y) pairs where X scores
-    higher (ties half), averaged over regimes; ``x``/``y``: one array (resamples, runs) per regime."""
-    per_task = [
-        np.mean((a[:, :, None] > b[:, None, :]) + 0.5 * (a[:, :, None] == b[:, None, :]), axis=(1, 2))
-        for a, b in zip(x, y)
-    ]
-    return np.mean(np.stack(per_task, axis=1), axis=1)
-
-
-def probability_of_improvement(x: Runs, y: Runs) -> float:
-    """rliable's average probability of improvement of X over Y (its own function when both
-    have the same number of runs on every regime)."""
-    if len({len(a) for a in x}) == 1 and len({len(b) for b in y}) == 1:
-        return float(rly.probability_of_improvement(np.stack(x, axis=1), np.stack(y, axis=1)))
-    return float(_improvement([a[None, :] for a in x], [b[None, :] for b in y])[0])
-
-
-def improvement_probabilities(
-    ss: ScoreSet, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE
-) -> pd.DataFrame:
-    """P(X > Y) with a 95 % interval for every ordered pair of agents (X's and Y's runs
-    redrawn independently within each regime). Columns: x, y, p, lo, hi."""
-    algos = [a for a, runs in ss.runs.items() if runs]
-    rows = []
-    for i, a in enumerate(algos):
-        for b in algos[i + 1 :]:
-            x, y = ss.runs[a], ss.runs[b]
-            p = probability_of_improvement(x, y)
-            if max(len(r) for r in x + y) > 1:
-                rng = _rng(seed, "improvement", a, b, *ss.regimes)
-                lo, hi = percentile_interval(
-                    _improvement(stratified_resamples(x, reps, rng), stratified_resamples(y, reps, rng)), confidence
-                )
-            else:
-                lo = hi = float("nan")
-            rows += [
-                {"x": a, "y": b, "p": p, "lo": lo, "hi": hi},
-                {"x": b, "y": a, "p": 1 - p, "lo": 1 - hi, "hi": 1 - lo},
-            ]
-    return pd.DataFrame(rows, columns=["x", "y", "p", "lo", "hi"])
 
 
 # --------------------------------------------------------------------------- all of it
@@ -435,19 +232,30 @@ def group_title(res: AggregateResult, group: str) -> str:
 
 __all__ = [
     "AGGREGATES",
+    "AGGREGATE_LABELS",
+    "BATCHED",
+    "CONFIDENCE",
+    "DEFAULT_REPS",
     "DELAYED_REGIMES",
+    "GAMMA",
     "GROUPS",
+    "RLIABLE",
     "AggregateResult",
     "ScoreSet",
     "aggregate_from_eval",
     "aggregate_scores",
     "group_regimes",
+    "group_title",
     "improvement_probabilities",
     "interval_estimates",
+    "percentile_interval",
     "performance_profiles",
     "point_estimate",
     "probability_of_improvement",
+    "profile_taus",
+    "regime_span",
     "run_scores",
+    "score_distribution",
     "score_set",
     "stratified_resamples",
 ]

@@ -18,6 +18,7 @@ Figure / table out). This module adds what those pure builders do not know about
   (:mod:`nutribench.report.references`: the simple policies, played afresh; nothing cached);
 * Tables 2-6 from the five built-in agent config files, Tables 7, 8, ... from the bodies of
   the other configs stored in the database (:func:`nutribench.report.tables.config_table_numbers`);
+  which tables a call builds and what a table key names: :mod:`nutribench.report.table_plan`;
 * writing (:mod:`nutribench.report.output`): figures as PNG (150 dpi) and PDF, tables as
   Markdown, LaTeX and CSV, and the trajectory view of one evaluation episode; with ``all``,
   ``index.html``, the report on one static page (:mod:`nutribench.report.html`).
@@ -26,8 +27,6 @@ The names of :mod:`nutribench.report.data` and :mod:`nutribench.report.output` a
 from here too. Problems a user can fix raise :class:`ReportError` (one line); a database that
 cannot be read raises :class:`nutribench.store.StoreError`.
 
-Longer than 400 lines: since ruff formats it (one argument per line). To split: the table
-plan and resolution.
 """
 
 from __future__ import annotations
@@ -36,7 +35,6 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from nutribench.config import ConfigError
 from nutribench.report.data import (
     Db,
     ReportData,
@@ -53,15 +51,15 @@ from nutribench.report.html import page_figure, page_table, write_index
 from nutribench.report.output import build_trajectory, write_figure, write_table
 from nutribench.report.palette import label as algo_label
 from nutribench.report.references import eval_day_references, simple_policy_references
-from nutribench.report.tables import (
-    CONFIG_TABLES,
-    TableResult,
-    config_table_numbers,
-    table_agent_config,
-    table_regimes,
-    table_results,
-    table_training,
+from nutribench.report.table_plan import (
+    TABLES,
+    config_table,
+    needs_stored_configs,
+    resolve_table,
+    stored_or_none,
+    table_plan,
 )
+from nutribench.report.tables import TableResult, config_table_numbers, table_regimes, table_results, table_training
 
 #: Figures of the paper this command can build, and the file stem each is written to.
 FIGURES: dict[int, str] = {
@@ -70,15 +68,6 @@ FIGURES: dict[int, str] = {
     3: "fig3_eval_across_regimes",
     4: "fig4_ppo_vs_gru_ppo",
     5: "fig5_aggregate",  # not the paper's: aggregate scores with rliable (nutribench.report.aggregate)
-}
-#: Tables: 1 (regimes), 2-6 (the built-in agent configurations), "results", "training"; the
-#: other configs of a database add Tables 7, 8, ... (``table<N>_<name>``).
-TABLES: dict[str, str] = {
-    "1": "table1_regimes",
-    **{str(n): f"table{n}_{a}" for n, a in CONFIG_TABLES.items()},
-    "results": "table_results",
-    "training": "table_training_vs_authors",
-    "aggregate": "table_aggregate",
 }
 #: Figure 4's default pair (its file keeps the name ``fig4_ppo_vs_gru_ppo``).
 FIG4_ALGOS = DEFAULT_PAIR = ("ppo", "gru_ppo")
@@ -166,50 +155,6 @@ def _with_notes(res: TableResult, data: ReportData) -> TableResult:
     return res
 
 
-def _stored_or_none(db: Db | None) -> dict[str, Any]:
-    """:func:`stored_agent_configs` of ``db``; empty when there is no readable database."""
-    from nutribench.store import StoreError
-
-    try:
-        return stored_agent_configs(db) if db is not None else {}
-    except StoreError:
-        return {}
-
-
-def _table_list(numbers: dict[int, str]) -> str:
-    return ", ".join(["1", *(f"{n} ({name})" for n, name in numbers.items()), "results", "training", "aggregate"])
-
-
-def resolve_table(key: str, numbers: dict[int, str]) -> tuple[str, str]:
-    """(key, file stem) of table ``key``: "1", a config table's number or its config's name,
-    "results" or "training"; ``numbers``: :func:`config_table_numbers` of the database."""
-    by_name = {name: n for n, name in numbers.items()}
-    key = str(by_name.get(key, key))
-    if key.isdigit() and int(key) in numbers:
-        return key, f"table{key}_{numbers[int(key)]}"
-    if key in TABLES:
-        return key, TABLES[key]
-    raise ReportError(f"no table {key} (--table {key}): the tables are {_table_list(numbers)}")
-
-
-def _config_table(number: int, name: str, db: Db | None, stored: dict[str, Any] | None) -> TableResult:
-    """Table ``number``: a built-in config from its file (else as stored in ``db``); any other
-    config as stored in ``db`` (the body it ran with)."""
-    config, why = None, ""
-    if name in CONFIG_TABLES.values():
-        try:
-            from nutribench.agents.config import load_agent_config
-
-            config = load_agent_config(name)
-        except (ImportError, ConfigError) as e:
-            why = f" ({e})"
-    if config is None:
-        config = (stored if stored is not None else _stored_or_none(db)).get(name)
-    if config is None:
-        raise ReportError(f"table {number}: no {name} agent config file and none in the database{why}")
-    return table_agent_config(number, config)
-
-
 def _day_references(data: ReportData, log: Log | None = None):
     """The never/planner yardsticks on every evaluation day of ``data`` (Figures 3/4 panel (A),
     the results table, Figure 5), played once per ``data``."""
@@ -266,28 +211,10 @@ def build_table(
     if key in ("results", "training", "aggregate"):
         return _metrics_table(key, data)
     if stored is None and key not in TABLES:
-        stored = _stored_or_none(db)
+        stored = stored_or_none(db)
     numbers = config_table_numbers(stored or ())
     number = int(resolve_table(key, numbers)[0])
-    return _config_table(number, numbers[number], db, stored)
-
-
-def _table_plan(
-    tables: Sequence[str], all: bool, stored: dict[str, Any] | None, algos: Sequence[str] | None
-) -> dict[str, str]:  # noqa: A002
-    """Table key -> file stem of every table to build, checked. ``all`` (or "all" among
-    ``tables``): Table 1, the config tables of ``algos`` (default every config: 2-6 and the
-    database's others), the results and the training tables."""
-    numbers = config_table_numbers(stored or ())
-    keys = [t for t in tables if t != "all"]
-    if all or "all" in tables:
-        configs = [str(n) for n, name in numbers.items() if algos is None or name in algos]
-        keys = ["1", *configs, "results", "training", "aggregate", *keys]
-    plan: dict[str, str] = {}
-    for k in keys:
-        key, stem = resolve_table(k, numbers)
-        plan.setdefault(key, stem)
-    return plan
+    return config_table(number, numbers[number], db, stored)
 
 
 def _check_pair(pair: Sequence[str] | None) -> tuple[str, str]:
@@ -297,14 +224,6 @@ def _check_pair(pair: Sequence[str] | None) -> tuple[str, str]:
         raise ReportError(f"--pair {','.join(pair)}: give two different agent configs, e.g. --pair ppo,gru_ppo")
     check_names(pair, "agent config", "--pair")
     return (pair[0], pair[1])
-
-
-def _needs_stored(figs: list[int], tables: list[str], all: bool, algos: Sequence[str] | None, pair_given: bool) -> bool:  # noqa: A002
-    """Whether the database's agent configs must be read: to check ``algos`` or the pair, or
-    to find the tables of configs other than the five."""
-    if all or any(t not in TABLES for t in tables):
-        return True
-    return (algos is not None and bool(figs or [t for t in tables if t != "1"])) or (pair_given and 4 in figs)
 
 
 def build_report(
@@ -338,12 +257,12 @@ def build_report(
     if not figs and not tables:
         raise ReportError("nothing to build: ask for figures, tables or all")
     pair_given, pair = pair is not None, _check_pair(pair)
-    stored = stored_agent_configs(db) if _needs_stored(figs, tables, all, algos, pair_given) else None
+    stored = stored_agent_configs(db) if needs_stored_configs(figs, tables, all, algos, pair_given) else None
     if stored is not None and algos is not None:
         check_known(algos, stored, "--algos")
     if stored is not None and pair_given and 4 in figs:
         check_known(pair, stored, "--pair")
-    plan = _table_plan(tables, all, stored, algos)
+    plan = table_plan(tables, all, stored, algos)
     # the database is read once, up front, and only when something needs it: a database that
     # cannot be read (missing, empty, outdated) fails the whole command, even with ``all``
     raw = read_metrics(db) if figs or {"results", "training", "aggregate"} & set(plan) else None

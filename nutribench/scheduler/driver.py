@@ -19,32 +19,31 @@ One call of :func:`run_grid`:
 7. on Ctrl-C stops the workers and marks their jobs ``interrupted`` (no rows are written
    for them: rows are only written when a job completes).
 
-Longer than 400 lines: since ruff formats it (one argument per line); the driver's state
-machine (:class:`_Run`) is one unit. To split: the signal handling.
+What a run uses when not told (the job function, the models folder):
+:mod:`nutribench.scheduler.defaults`; the stop signals: :mod:`nutribench.scheduler.signals`.
 """
 
 from __future__ import annotations
 
 import os
-import signal
-import socket
 import time
-import uuid
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import select
 from sqlalchemy.exc import OperationalError
 
 from nutribench.jobs.spec import JobSpec
 from nutribench.jobs.worker import JobFn, execute, execute_batch
 from nutribench.scheduler.batching import MAX_BATCH, Pool, batch_pools, check_engine, checkpointed_first
+from nutribench.scheduler.defaults import default_batch_fn, default_job_fn, default_models_dir, driver_token
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
 from nutribench.scheduler.grid import Grid
-from nutribench.scheduler.registration import RunError, load_grid_configs, model_path, register_grid
+from nutribench.scheduler.registration import RunError, load_grid_configs, register_grid
+from nutribench.scheduler.signals import STOP_SIGNALS, StopSignalsAsCtrlC
+from nutribench.scheduler.specs import spec_maker
 from nutribench.scheduler.storing import (
     HeldResults,
     interrupt_line,
@@ -56,8 +55,8 @@ from nutribench.scheduler.storing import (
 )
 from nutribench.scheduler.storing import error_text as _error_text
 from nutribench.scheduler.storing import first_line as _first_line
-from nutribench.store import AgentConfig, Job, RegimeConfig, open_store
-from nutribench.store.engine import StoreError, sqlite_path
+from nutribench.store import Job, open_store
+from nutribench.store.engine import StoreError
 from nutribench.store.jobs import (
     check_not_mixed,
     claim_jobs,
@@ -96,46 +95,6 @@ class RunSummary:
         if self.user_interrupt:
             return 130
         return 1 if (self.failed or self.given_up) else 0
-
-
-# --------------------------------------------------------------------------- helpers
-
-
-def default_batch_fn() -> Callable:
-    """The batched engine's worker function (``$NUTRIBENCH_JOB=fake``: the synthetic job per spec)."""
-    if os.environ.get("NUTRIBENCH_JOB", "").strip() == "fake":
-        from nutribench.jobs.synthetic import synthetic_batch
-
-        return synthetic_batch
-    from nutribench.jobs.batch import run_batch
-
-    return run_batch
-
-
-def default_job_fn() -> JobFn:
-    """``$NUTRIBENCH_JOB=fake`` (tests, dry runs): the synthetic job; else the real one."""
-    choice = os.environ.get("NUTRIBENCH_JOB", "").strip()
-    if choice == "fake":
-        from nutribench.jobs.synthetic import synthetic_job
-
-        return synthetic_job
-    if choice not in ("", "real"):
-        raise RunError(f"NUTRIBENCH_JOB={choice}: use 'fake' (synthetic jobs) or leave it unset")
-    try:
-        from nutribench.jobs.run import run_job
-    except ImportError as e:
-        raise RunError(f"the training job cannot be imported ({e}): is nutribench fully installed?") from None
-    return run_job
-
-
-def default_models_dir(store: Store) -> Path:
-    """``models/`` next to a SQLite file, else in the current folder."""
-    path = sqlite_path(store.url)
-    return (path.parent if path is not None else Path.cwd()) / "models"
-
-
-def driver_token() -> str:
-    return f"{socket.gethostname()[:80]}:{os.getpid()}:{uuid.uuid4().hex[:12]}"
 
 
 # --------------------------------------------------------------------------- the run
@@ -299,7 +258,7 @@ class _Run:
     def interrupt(self, error: BaseException | None = None) -> str:
         """Ctrl-C (or SIGTERM, SIGHUP), or a storage ``error`` (its one line is returned): stop the
         workers, mark their jobs (and held results' jobs) interrupted, write nothing else.
-        Further signals meanwhile are ignored (:class:`_StopSignalsAsCtrlC`)."""
+        Further signals meanwhile are ignored (:class:`StopSignalsAsCtrlC`)."""
         try:
             self.handle.terminate_running()
         finally:  # whatever stopping the workers did, their jobs are given back
@@ -317,39 +276,6 @@ class _Run:
         self.in_flight.clear()
         self.live.clear()
         return line
-
-
-#: Signals that stop a run as Ctrl-C does: a batch system's preemption (SIGTERM) and a closed
-#: terminal (SIGHUP) release the running jobs as ``interrupted`` at once.
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-
-
-class _StopSignalsAsCtrlC:
-    """Within the block (main thread only), the first stop signal raises KeyboardInterrupt;
-    later ones are ignored: in the block for a second (then the first counts as lost), and
-    after a stop until exit. SIGINT stays ignored where it was (a shell's background job)."""
-
-    def __enter__(self) -> None:
-        self.previous, self.raised_at = {}, None
-        for sig in STOP_SIGNALS if _main_thread() else ():
-            if sig != signal.SIGINT or signal.getsignal(sig) is not signal.SIG_IGN:
-                self.previous[sig] = signal.signal(sig, self._stop)
-
-    def _stop(self, signum: int, frame: Any) -> None:
-        if self.raised_at is None or time.monotonic() - self.raised_at > 1.0:
-            self.raised_at = time.monotonic()
-            raise KeyboardInterrupt(signal.Signals(signum).name)
-
-    def __exit__(self, kind: type[BaseException] | None, *exc: object) -> None:
-        stopped = self.raised_at is not None or (kind is not None and issubclass(kind, KeyboardInterrupt))
-        for sig, handler in self.previous.items():
-            signal.signal(sig, signal.SIG_IGN if stopped else handler)
-
-
-def _main_thread() -> bool:
-    import threading
-
-    return threading.current_thread() is threading.main_thread()
 
 
 def run_grid(
@@ -401,39 +327,7 @@ def run_grid(
         runnable = count_claimable(store, job_ids)
         owner = driver_token()
         out = Path(models_dir) if models_dir is not None else default_models_dir(store)
-        by_id = {r.name: r for r in regime_cfgs}, {a.name: a for a in agent_cfgs}
-        with store.engine.connect() as conn:
-            rid = dict(
-                conn.execute(
-                    select(RegimeConfig.id, RegimeConfig.name).where(RegimeConfig.name.in_(grid.regimes))
-                ).all()
-            )
-            aid = dict(
-                conn.execute(select(AgentConfig.id, AgentConfig.name).where(AgentConfig.name.in_(grid.algos))).all()
-            )
-
-        def make_spec(job: Job) -> JobSpec:
-            r, a = by_id[0][rid[job.regime_id]], by_id[1][aid[job.agent_config_id]]
-            path = model_path(out, r, a, job.seed, job.episodes)
-            return JobSpec(
-                job.id,
-                r.name,
-                r.version,
-                r.sha256,
-                a.name,
-                a.version,
-                a.sha256,
-                job.seed,
-                job.episodes,
-                job.eval_episodes,
-                str(path),
-                r.obj,
-                a.obj,
-                attempt=job.attempt,
-                device=device,
-                tensorboard=str(Path(tensorboard).absolute()) if tensorboard is not None else None,
-            )
-
+        make_spec = spec_maker(store, grid, regime_cfgs, agent_cfgs, out, device, tensorboard)
         summary = RunSummary(total=len(job_ids))
         held, _ = held_elsewhere(store, job_ids, owner)
         if runnable or held:
@@ -458,7 +352,7 @@ def run_grid(
             run.planned = runnable
             view.start(run)
             try:
-                with _StopSignalsAsCtrlC():
+                with StopSignalsAsCtrlC():
                     run.loop()
                     run.wait_for_others()
             except KeyboardInterrupt:
@@ -479,3 +373,17 @@ def run_grid(
         ) from None
     finally:
         store.dispose()
+
+
+__all__ = [
+    "FLUSH_EVERY_S",
+    "STOP_SIGNALS",
+    "WAIT_POLL_S",
+    "RunError",
+    "RunSummary",
+    "default_batch_fn",
+    "default_job_fn",
+    "default_models_dir",
+    "driver_token",
+    "run_grid",
+]

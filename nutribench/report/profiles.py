@@ -1,0 +1,117 @@
+"""Performance profiles and the probability of improvement of run scores
+(:mod:`nutribench.report.scores`), each with a band or interval from the stratified
+bootstrap over runs, as Agarwal et al. (NeurIPS 2021) recommend and ``rliable`` computes:
+
+* the performance profile: the fraction of runs whose score exceeds tau, with a band from
+  the stratified bootstrap (rliable's score distribution);
+* the probability of improvement P(X > Y) for every pair: per regime the probability that a
+  run of X scores above a run of Y (a tie counts half: the Mann-Whitney U over the product of
+  the run counts), averaged over regimes, with an interval from rliable's
+  ``StratifiedIndependentBootstrap`` (X's and Y's runs redrawn independently per regime).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+import pandas as pd
+from rliable import metrics as rly
+
+from nutribench.report.scores import (
+    CONFIDENCE,
+    DEFAULT_REPS,
+    GAMMA,
+    Runs,
+    ScoreSet,
+    percentile_interval,
+    pooled,
+    seeded_rng,
+    stratified_resamples,
+)
+
+
+def profile_taus(scores: Iterable[float], n: int = 201) -> np.ndarray:
+    """The thresholds of a performance profile: from below the lowest score (and 0) to above
+    the highest (and 1), so every profile runs from 1 down to 0."""
+    s = np.asarray(list(scores), dtype=float)
+    s = s[np.isfinite(s)]
+    lo = min(0.0, float(s.min())) if s.size else 0.0
+    hi = max(GAMMA, float(s.max())) if s.size else GAMMA
+    pad = 0.02 * (hi - lo)
+    return np.linspace(lo - pad, hi + pad, n)
+
+
+def score_distribution(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
+    """The fraction of runs (the last axis of ``scores``) scoring above each tau (rliable's
+    ``score_distributions``): shape ``scores.shape[:-1] + (len(taus),)``."""
+    return np.mean(scores[..., :, None] > taus, axis=-2)
+
+
+def performance_profiles(
+    ss: ScoreSet, taus: np.ndarray, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE
+) -> pd.DataFrame:
+    """Per agent and tau: the fraction of its runs scoring above tau, with a stratified
+    bootstrap band over runs. Columns: algo, tau, fraction, lo, hi."""
+    frames = []
+    alpha = (1 - confidence) / 2
+    for algo, runs in ss.runs.items():
+        if not runs:
+            continue
+        point = score_distribution(np.concatenate(runs), taus)
+        if max(len(x) for x in runs) > 1:
+            boot = score_distribution(
+                pooled(stratified_resamples(runs, reps, seeded_rng(seed, "profile", algo, *ss.regimes))), taus
+            )
+            lo, hi = np.percentile(boot, [100 * alpha, 100 * (1 - alpha)], axis=0)
+        else:
+            lo = hi = np.full_like(point, np.nan)
+        frames.append(pd.DataFrame({"algo": algo, "tau": taus, "fraction": point, "lo": lo, "hi": hi}))
+    return (
+        pd.concat(frames, ignore_index=True)
+        if frames
+        else pd.DataFrame(columns=["algo", "tau", "fraction", "lo", "hi"])
+    )
+
+
+def _improvement(x: Runs, y: Runs) -> np.ndarray:
+    """P(X > Y) per resample: per regime the share of (run of X, run of Y) pairs where X scores
+    higher (ties half), averaged over regimes; ``x``/``y``: one array (resamples, runs) per regime."""
+    per_task = [
+        np.mean((a[:, :, None] > b[:, None, :]) + 0.5 * (a[:, :, None] == b[:, None, :]), axis=(1, 2))
+        for a, b in zip(x, y)
+    ]
+    return np.mean(np.stack(per_task, axis=1), axis=1)
+
+
+def probability_of_improvement(x: Runs, y: Runs) -> float:
+    """rliable's average probability of improvement of X over Y (its own function when both
+    have the same number of runs on every regime)."""
+    if len({len(a) for a in x}) == 1 and len({len(b) for b in y}) == 1:
+        return float(rly.probability_of_improvement(np.stack(x, axis=1), np.stack(y, axis=1)))
+    return float(_improvement([a[None, :] for a in x], [b[None, :] for b in y])[0])
+
+
+def improvement_probabilities(
+    ss: ScoreSet, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE
+) -> pd.DataFrame:
+    """P(X > Y) with a 95 % interval for every ordered pair of agents (X's and Y's runs
+    redrawn independently within each regime). Columns: x, y, p, lo, hi."""
+    algos = [a for a, runs in ss.runs.items() if runs]
+    rows = []
+    for i, a in enumerate(algos):
+        for b in algos[i + 1 :]:
+            x, y = ss.runs[a], ss.runs[b]
+            p = probability_of_improvement(x, y)
+            if max(len(r) for r in x + y) > 1:
+                rng = seeded_rng(seed, "improvement", a, b, *ss.regimes)
+                lo, hi = percentile_interval(
+                    _improvement(stratified_resamples(x, reps, rng), stratified_resamples(y, reps, rng)), confidence
+                )
+            else:
+                lo = hi = float("nan")
+            rows += [
+                {"x": a, "y": b, "p": p, "lo": lo, "hi": hi},
+                {"x": b, "y": a, "p": 1 - p, "lo": 1 - hi, "hi": 1 - lo},
+            ]
+    return pd.DataFrame(rows, columns=["x", "y", "p", "lo", "hi"])

@@ -1,0 +1,155 @@
+"""Run scores and their stratified bootstrap: what the aggregate statistics
+(:mod:`nutribench.report.aggregate`) and the performance profiles and probabilities of
+improvement (:mod:`nutribench.report.profiles`) are computed from.
+
+A **run** is one job: an agent config trained with one seed on one regime. Its **score** is
+the share of the regime's never -> planner gap it closes on its own evaluation days,
+``(mean return - mean never) / (mean planner - mean never)`` over those days (0 = never eat,
+1 = the greedy full-information planner, more than 1 possible; the results table's "gap
+closed", per seed). The regimes are rliable's *tasks*, the seeds its *runs*.
+
+The bootstrap is a **stratified bootstrap over runs**: every resample redraws, within each
+regime, that regime's seeds with replacement (rliable's ``StratifiedBootstrap``,
+``task_bootstrap=False``), vectorised over resamples.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from nutribench.baselines import gap_closed
+from nutribench.report.figures import sort_regimes
+from nutribench.report.palette import label as algo_label
+from nutribench.report.palette import order as sort_algos
+
+#: The optimality gap's threshold: the planner's score.
+GAMMA = 1.0
+#: Bootstrap resamples (rliable uses 50000 for its published figures; 2000 keeps a report fast).
+DEFAULT_REPS = 2000
+CONFIDENCE = 0.95
+
+Runs = list[np.ndarray]  # one array of run scores per regime (task)
+
+
+def run_scores(ev: pd.DataFrame, references: pd.DataFrame) -> pd.DataFrame:
+    """One row per run (regime, algo, seed) of the evaluation episodes ``ev``: its days, its
+    mean return, the mean return of ``never`` and of the ``planner`` on the same days, and its
+    score (the share of that gap it closes; NaN where a day has no yardstick).
+
+    ``references``: columns regime, seed, episode, never, planner
+    (:func:`nutribench.report.references.eval_day_references`). ``ev`` must hold one job per
+    run (:func:`nutribench.report.build.prepare` picks them); several raise ValueError.
+    """
+    ev = ev[ev["phase"] == "eval"] if "phase" in ev else ev
+    cols = ["regime", "algo", "seed", "days", "return", "never", "planner", "score"]
+    if ev.empty:
+        return pd.DataFrame(columns=cols)
+    if "job_id" in ev and (ev.groupby(["regime", "algo", "seed"])["job_id"].nunique() > 1).any():
+        raise ValueError("several jobs for one regime/algo/seed: pick one per run first (report.build.prepare)")
+    ref = references.set_index(["regime", "seed", "episode"])[["never", "planner"]]
+    rows = []
+    for (regime, algo, seed), days in ev.groupby(["regime", "algo", "seed"], sort=True):
+        yard = ref.reindex(pd.MultiIndex.from_arrays([days["regime"], days["seed"], days["episode"]]))
+        complete = not yard.isna().any().any()
+        ret = float(days["return"].mean())
+        never = float(yard["never"].mean()) if complete else float("nan")
+        planner = float(yard["planner"].mean()) if complete else float("nan")
+        score = gap_closed(ret, never, planner) if complete else float("nan")
+        rows.append(
+            {
+                "regime": regime,
+                "algo": algo,
+                "seed": int(seed),
+                "days": len(days),
+                "return": ret,
+                "never": never,
+                "planner": planner,
+                "score": score,
+            }
+        )
+    return pd.DataFrame(rows, columns=cols)
+
+
+@dataclass
+class ScoreSet:
+    """The run scores of one group of regimes: per agent, one array per regime (seed order)."""
+
+    regimes: list[str]
+    runs: dict[str, Runs]
+    notes: list[str] = field(default_factory=list)
+
+    def rectangular(self, algo: str) -> bool:
+        """Whether ``algo`` has the same number of runs on every regime (an rliable matrix)."""
+        return len({len(x) for x in self.runs[algo]}) == 1
+
+    def matrix(self, algo: str) -> np.ndarray:
+        """``algo``'s scores as rliable takes them: ``(runs, regimes)`` (rectangular only)."""
+        return np.stack(self.runs[algo], axis=1)
+
+
+def score_set(
+    scores: pd.DataFrame, regimes: Iterable[str], algos: Sequence[str] | None = None, what: str = ""
+) -> ScoreSet:
+    """The scores of ``algos`` (default every agent of ``scores``) on those of ``regimes`` that
+    every one of them has a score on; a regime left out is named in a note (``what``: the
+    group's name, for the note)."""
+    algos = sort_algos(scores["algo"]) if algos is None else list(algos)
+    finite = scores[np.isfinite(scores["score"].to_numpy(dtype=float))]
+    kept, notes = [], []
+    for regime in sort_regimes(set(regimes) & set(scores["regime"])):
+        missing, unscored = [], []
+        for algo in algos:
+            if finite[(finite["regime"] == regime) & (finite["algo"] == algo)].empty:
+                ran = not scores[(scores["regime"] == regime) & (scores["algo"] == algo)].empty
+                (unscored if ran else missing).append(algo_label(algo))
+        why = []
+        if missing:
+            why.append(f"no evaluation of {', '.join(missing)}")
+        if unscored:
+            why.append(
+                f"no never/planner yardstick on the days of {', '.join(unscored)}: the regime file is not the version the jobs ran"
+            )
+        if why:
+            notes.append(f"{what + ': ' if what else ''}{regime} left out ({'; '.join(why)})")
+        else:
+            kept.append(regime)
+    runs = {
+        a: [
+            finite[(finite["regime"] == r) & (finite["algo"] == a)].sort_values("seed")["score"].to_numpy(dtype=float)
+            for r in kept
+        ]
+        for a in algos
+    }
+    return ScoreSet(kept, runs, notes)
+
+
+# Each statistic of the bootstrap takes one array per regime, shaped (resamples, runs of that
+# regime), and returns one value per resample; on the original sample (one "resample") it
+# equals rliable's.
+def pooled(t: Runs) -> np.ndarray:
+    """Every regime's runs side by side: shape (resamples, all runs)."""
+    return np.concatenate(t, axis=1)
+
+
+def stratified_resamples(runs: Runs, reps: int, rng: np.random.Generator) -> Runs:
+    """``reps`` stratified bootstrap resamples of the runs: within each regime, that regime's
+    runs drawn with replacement (as many as it has), regimes independently; one array
+    ``(reps, runs)`` per regime (rliable's ``StratifiedBootstrap`` over runs)."""
+    return [x[rng.integers(0, len(x), size=(reps, len(x)))] for x in runs]
+
+
+def percentile_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float]:
+    """The percentile bootstrap interval (arch's ``method="percentile"``, rliable's default)."""
+    alpha = (1 - confidence) / 2
+    lo, hi = np.percentile(values, [100 * alpha, 100 * (1 - alpha)], axis=0)
+    return float(lo), float(hi)
+
+
+def seeded_rng(seed: int, *names: str) -> np.random.Generator:
+    """A generator per (seed, names): an agent's intervals do not depend on the other agents."""
+    return np.random.default_rng([seed, *(zlib.crc32(n.encode()) for n in names)])

@@ -1,0 +1,54 @@
+"""What a run uses when it is not told: the function that runs one job (the training job, or
+the synthetic one of a dry run with ``$NUTRIBENCH_JOB=fake``), the batched engine's worker
+function, the models folder, and the driver's owner token (:func:`nutribench.scheduler.driver.run_grid`)."""
+
+from __future__ import annotations
+
+import os
+import socket
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+
+from nutribench.jobs.worker import JobFn
+from nutribench.scheduler.registration import RunError
+from nutribench.store.engine import sqlite_path
+from nutribench.store.schema import Store
+
+
+def default_batch_fn() -> Callable:
+    """The batched engine's worker function (``$NUTRIBENCH_JOB=fake``: the synthetic job per spec)."""
+    if os.environ.get("NUTRIBENCH_JOB", "").strip() == "fake":
+        from nutribench.jobs.synthetic import synthetic_batch
+
+        return synthetic_batch
+    from nutribench.jobs.batch import run_batch
+
+    return run_batch
+
+
+def default_job_fn() -> JobFn:
+    """``$NUTRIBENCH_JOB=fake`` (tests, dry runs): the synthetic job; else the real one."""
+    choice = os.environ.get("NUTRIBENCH_JOB", "").strip()
+    if choice == "fake":
+        from nutribench.jobs.synthetic import synthetic_job
+
+        return synthetic_job
+    if choice not in ("", "real"):
+        raise RunError(f"NUTRIBENCH_JOB={choice}: use 'fake' (synthetic jobs) or leave it unset")
+    try:
+        from nutribench.jobs.run import run_job
+    except ImportError as e:
+        raise RunError(f"the training job cannot be imported ({e}): is nutribench fully installed?") from None
+    return run_job
+
+
+def default_models_dir(store: Store) -> Path:
+    """``models/`` next to a SQLite file, else in the current folder."""
+    path = sqlite_path(store.url)
+    return (path.parent if path is not None else Path.cwd()) / "models"
+
+
+def driver_token() -> str:
+    """A unique owner token for one driver: host, process id and a random part (the jobs it claims carry it)."""
+    return f"{socket.gethostname()[:80]}:{os.getpid()}:{uuid.uuid4().hex[:12]}"
