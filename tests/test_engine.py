@@ -12,16 +12,11 @@ from nutribench.agents.algos import build_model
 from nutribench.agents.api import make_train_env
 from nutribench.agents.config import load_agent_config
 from nutribench.config import load_env_config
-from nutribench.engine.actor_critic import (
-    OnPolicySettings,
-    Rollout,
-    RunningStats,
-    StackedActorCritic,
-    clip_grad_norm_per_agent,
-    gae,
-    make_optimizer,
-    ppo_update,
-)
+from nutribench.engine.actor_critic import StackedActorCritic
+from nutribench.engine.mc import a2c_update
+from nutribench.engine.on_policy import OnPolicySettings, Rollout, gae, make_optimizer
+from nutribench.engine.ppo import ppo_update
+from nutribench.engine.stacked import RunningStats, clip_grad_norm_per_agent
 
 
 def _sb3_ppo_after_one_rollout(seed: int, regime: str = "run0", algo: str = "ppo"):
@@ -237,7 +232,7 @@ def test_one_mc_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -> 
     rollout = _rollout_of(models)  # before train(), which flattens SB3's buffer in place
     for m in models:
         m.train()
-    settings.update(net, optimizer, rollout, np.zeros((1, 3, 50), dtype=np.int64))
+    a2c_update(net, optimizer, rollout, settings)
     for j, m in enumerate(models):
         reference = StackedActorCritic(1, 13, list(cfg.net_arch))
         reference.load_sb3(0, m.policy)

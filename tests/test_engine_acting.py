@@ -24,8 +24,8 @@ from nutribench.agents.config import load_agent_config
 from nutribench.engine.actor_critic import StackedActorCritic
 from nutribench.engine.envs import AgentEnvs, as_trained_agent
 from nutribench.engine.gru_ppo import StackedGRUActorCritic
-from nutribench.engine.off_policy import StackedMLP
 from nutribench.engine.sac import StackedSAC
+from nutribench.engine.stacked import StackedMLP
 from nutribench.engine.train import train_batched
 
 JOBS = [("run0", 0), ("run3", 1), ("run0", 2)]

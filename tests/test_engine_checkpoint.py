@@ -266,7 +266,7 @@ def test_a_checkpoint_naming_a_class_outside_the_engine_is_refused(tmp_path, cap
 def test_a_checkpoint_is_a_dict_of_tensors_and_json_and_keeps_shared_objects_shared(tmp_path):
     """The two halves read without pickle (weights_only, plain JSON); a tensor held by a list
     and by an optimiser is one tensor again once read, numpy generators go on where they were."""
-    from nutribench.engine.actor_critic import RunningStats
+    from nutribench.engine.stacked import RunningStats
 
     w = th.randn(3, 2, requires_grad=True)
     params = [w]

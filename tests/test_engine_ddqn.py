@@ -16,10 +16,10 @@ from nutribench.agents.algos import DoubleDQN
 from nutribench.agents.api import TrainedAgent, eval_food_streams, evaluate, make_train_env
 from nutribench.agents.config import load_agent_config
 from nutribench.config import load_env_config
-from nutribench.engine.actor_critic import make_adam
 from nutribench.engine.ddqn import ddqn_update, q_linears, train_ddqn_batched
 from nutribench.engine.envs import AgentEnvs
-from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, StackedMLP, StackedReplay, linear_schedule
+from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, StackedReplay, linear_schedule
+from nutribench.engine.stacked import StackedMLP, make_adam
 from tests.conftest import random_batch, sb3_model, sb3_updates, shake
 
 OBS_DIM, GAMMA, N_STEP = 13, 0.99, 5

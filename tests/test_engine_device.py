@@ -197,7 +197,9 @@ def test_one_ppo_update_on_cuda_equals_the_cpu_update() -> None:
     the learning rate either way (seen on an H100 with the agents' Adam: 1 weight in
     thousands off by up to 0.0036 after one update of 10 epochs); SGD keeps every
     difference the size of float rounding, so the comparison is of the update rule."""
-    from nutribench.engine.actor_critic import OnPolicySettings, Rollout, StackedActorCritic, ppo_update
+    from nutribench.engine.actor_critic import StackedActorCritic
+    from nutribench.engine.on_policy import OnPolicySettings, Rollout
+    from nutribench.engine.ppo import ppo_update
     from tests.test_engine import _rollout_of, _sb3_ppo_after_one_rollout
 
     th.set_num_threads(1)

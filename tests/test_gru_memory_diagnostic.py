@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import torch as th
 
+from nutribench.engine.gru_ppo import RecurrentActor as _Recurrent
 from nutribench.engine.gru_ppo import StackedGRUActorCritic
-from nutribench.engine.train import _Recurrent
 
 SCRIPT = Path(__file__).resolve().parents[1] / "reports" / "gru_memory" / "without_memory.py"
 

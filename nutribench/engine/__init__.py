@@ -1,7 +1,13 @@
 """The batched training engine: K agents of one agent config trained at once, their
-parameters stacked along an agent axis (issue 15). The SB3 agents in
-:mod:`nutribench.agents` stay the reference implementation; each algorithm here is tested
-to make the same update as its SB3 counterpart.
+parameters stacked along an agent axis. The SB3 agents in :mod:`nutribench.agents` stay the
+reference implementation; each algorithm here is tested to make the same update as its SB3
+counterpart. One module per algorithm (:mod:`~nutribench.engine.mc`,
+:mod:`~nutribench.engine.ppo`, :mod:`~nutribench.engine.gru_ppo`,
+:mod:`~nutribench.engine.ddqn`, :mod:`~nutribench.engine.sac`), each a class of the interface
+in :mod:`~nutribench.engine.algorithm` on one of the two loops
+(:mod:`~nutribench.engine.on_policy`, :mod:`~nutribench.engine.off_policy`), built of the
+stacked primitives in :mod:`~nutribench.engine.stacked`; the entry point is
+:func:`nutribench.engine.train.train_batched`.
 
 The engine never silently differs from the reference: a config with a setting it does not
 implement is refused (:func:`supports` says why, :func:`check_supported` raises

@@ -13,13 +13,16 @@ Per agent, everything is what ``algos.build_model`` builds from ``ddqn.toml``:
 * actions: uniformly random for the first ``learning_starts`` steps, then epsilon-greedy with
   epsilon falling linearly from ``exploration_initial_eps`` to ``exploration_final_eps`` over
   the first ``exploration_fraction`` of the budget;
-* SB3's off-policy loop (:func:`~nutribench.engine.off_policy.run_off_policy`), with SB3's
+* SB3's off-policy loop (:class:`~nutribench.engine.off_policy.OffPolicyAlgorithm`), with SB3's
   n-step returns (``NStepReplayBuffer``: rewards summed until the day's end or the newest
   transition, the target discounted by gamma to the number of steps summed); Huber loss; the
   gradient clipped to ``max_grad_norm`` per agent;
 * a hard copy to the target network every ``target_update_interval`` steps.
 
-Randomness is per agent, from its job seed (as in :mod:`nutribench.engine.train`).
+Randomness is per agent, from its job seed (as in :mod:`nutribench.engine.train`). Each
+training day's diagnostics: the means over its gradient steps of the TD (Huber) loss as
+``value_loss``, the gradient norm before clipping, the mean Q of the actions taken, the
+learning rate and epsilon.
 """
 
 from __future__ import annotations
@@ -31,14 +34,13 @@ import numpy as np
 import torch as th
 from torch.nn import functional as F
 
+from nutribench import diagnostics as names
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
-from nutribench.engine import check_supported
-from nutribench.engine.actor_critic import clip_grad_norm_per_agent, linears, make_adam
-from nutribench.engine.checkpoint import Checkpoint, resumed
-from nutribench.engine.device import resolve_device
-from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
-from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, StackedMLP, linear_schedule, run_off_policy
+from nutribench.engine.checkpoint import Checkpoint
+from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn
+from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, OffPolicyAlgorithm, linear_schedule
+from nutribench.engine.stacked import AgentMeans, StackedMLP, clip_grad_norm_per_agent, linears, make_adam
 
 
 def q_linears(q_net: th.nn.Module) -> list[th.nn.Linear]:
@@ -53,8 +55,10 @@ def ddqn_update(
     batch: Batch,
     learning_rate: float,
     max_grad_norm: float,
+    means: AgentMeans | None = None,
 ) -> np.ndarray:
-    """One gradient step of :meth:`DoubleDQN.train` for the K agents; their Huber losses ``(K,)``."""
+    """One gradient step of :meth:`DoubleDQN.train` for the K agents; their Huber losses
+    ``(K,)``. The losses, the gradient norms and the mean Q of the actions taken go to ``means``."""
     for group in optimizer.param_groups:
         group["lr"] = learning_rate
     with th.no_grad():
@@ -65,9 +69,71 @@ def ddqn_update(
     loss = F.smooth_l1_loss(current, target, reduction="none").mean(dim=1)
     optimizer.zero_grad()
     loss.sum().backward()
-    clip_grad_norm_per_agent(q.params, max_grad_norm)
+    norms = clip_grad_norm_per_agent(q.params, max_grad_norm)
     optimizer.step()
+    if means is not None:
+        means.add(**{names.VALUE_LOSS: loss, names.GRAD_NORM: norms, names.Q_MEAN: current.mean(dim=1)})
     return loss.detach().cpu().numpy()
+
+
+class DDQN(OffPolicyAlgorithm):
+    """K double-DQN agents: Q-networks, target networks, one Adam, the epsilon schedule."""
+
+    algo = "ddqn"
+
+    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device):
+        super().__init__(cfg, envs, device)
+        sizes = [envs.obs_dim, *cfg.net_arch, 2]
+        generators = [th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]]
+        self.q = StackedMLP(self.k, sizes, generators=generators, device=device)
+        self.q_target = StackedMLP(self.k, sizes, device=device)
+        self.q_target.copy_from(self.q)
+        self.optimizer = make_adam(self.q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
+        # SB3's DQN: epsilon 0 until its first step's schedule update (read only if learning_starts = 0)
+        self.state = {"epsilon": 0.0, "copies": 0}
+        self.n_step = cfg.n_step
+
+    def act(self, obs: np.ndarray, n: int, uniforms: np.ndarray, random_actions: np.ndarray) -> tuple[np.ndarray, None]:
+        if n < self.cfg.learning_starts:
+            return random_actions, None
+        with th.no_grad():
+            q = self.q.forward(th.as_tensor(obs, device=self.device).unsqueeze(1))
+        greedy = q[:, 0].argmax(dim=1).cpu().numpy()
+        return np.where(uniforms < self.state["epsilon"], random_actions, greedy), None
+
+    def after_step(self, steps: int, progress_remaining: float) -> None:
+        cfg = self.cfg
+        if steps % cfg.target_update_interval == 0:
+            self.q_target.copy_from(self.q)
+            self.state["copies"] += 1
+        self.state["epsilon"] = linear_schedule(
+            cfg.exploration_initial_eps, cfg.exploration_final_eps, cfg.exploration_fraction, progress_remaining
+        )
+
+    def update(self, steps: int, progress_remaining: float, batch: Batch) -> None:
+        cfg = self.cfg
+        lr = linear_schedule(cfg.learning_rate_start, cfg.learning_rate_end, 1.0, progress_remaining)
+        losses = ddqn_update(self.q, self.q_target, self.optimizer, batch, lr, cfg.max_grad_norm, self.means)
+        self.means.add(**{names.LEARNING_RATE: lr, names.EPSILON: self.state["epsilon"]})
+        if self.on_update is not None:
+            self.on_update(
+                {
+                    "steps": steps,
+                    "learning_rate": lr,
+                    "epsilon": self.state["epsilon"],
+                    "target_copies": self.state["copies"],
+                    "losses": losses,
+                }
+            )
+
+    def model_state(self) -> Any:
+        return (self.q, self.q_target, self.optimizer, self.state)
+
+    def restore_model(self, state: Any) -> None:
+        self.q, self.q_target, self.optimizer, self.state = state
+
+    def store_weights(self, j: int, model: Any) -> None:
+        _store(self.q, self.q_target, j, model)
 
 
 def train_ddqn_batched(
@@ -86,73 +152,7 @@ def train_ddqn_batched(
     :param on_update: called after each update with ``steps`` (env steps so far), the
         ``learning_rate`` and ``epsilon`` in force, ``target_copies`` so far and the K ``losses``.
     """
-    check_supported(cfg)  # e.g. normalize_reward, which this replay does not apply
-    device = resolve_device(device)
-    if checkpoint is not None:
-        checkpoint.read_onto(device)
-    envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
-    k = envs.k
-    sizes = [envs.obs_dim, *cfg.net_arch, 2]
-    q = StackedMLP(
-        k,
-        sizes,
-        generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]],
-        device=device,
-    )
-    q_target = StackedMLP(k, sizes, device=device)
-    q_target.copy_from(q)
-    optimizer = make_adam(q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
-    # SB3's DQN: epsilon 0 until its first step's schedule update (read only if learning_starts = 0)
-    state = {"epsilon": 0.0, "copies": 0}
-    q, q_target, optimizer, state = resumed(checkpoint, "model") or (q, q_target, optimizer, state)
-
-    def act(obs: np.ndarray, n: int, uniforms: np.ndarray, random_actions: np.ndarray) -> tuple[np.ndarray, None]:
-        if n < cfg.learning_starts:
-            return random_actions, None
-        with th.no_grad():
-            greedy = q.forward(th.as_tensor(obs, device=device).unsqueeze(1))[:, 0].argmax(dim=1).cpu().numpy()
-        return np.where(uniforms < state["epsilon"], random_actions, greedy), None
-
-    def after_step(steps: int, progress: float) -> None:
-        if steps % cfg.target_update_interval == 0:
-            q_target.copy_from(q)
-            state["copies"] += 1
-        state["epsilon"] = linear_schedule(
-            cfg.exploration_initial_eps, cfg.exploration_final_eps, cfg.exploration_fraction, progress
-        )
-
-    def update(steps: int, progress: float, batch: Batch) -> None:
-        lr = linear_schedule(cfg.learning_rate_start, cfg.learning_rate_end, 1.0, progress)
-        losses = ddqn_update(q, q_target, optimizer, batch, lr, cfg.max_grad_norm)
-        if on_update is not None:
-            on_update(
-                {
-                    "steps": steps,
-                    "learning_rate": lr,
-                    "epsilon": state["epsilon"],
-                    "target_copies": state["copies"],
-                    "losses": losses,
-                }
-            )
-
-    wall = run_off_policy(
-        envs,
-        cfg,
-        episodes * envs.horizon,
-        act,
-        update,
-        after_step,
-        n_step=cfg.n_step,
-        checkpoint=checkpoint,
-        model=(q, q_target, optimizer, state),
-        device=device,
-    )
-    return [
-        as_trained_agent(
-            envs, j, cfg, episodes, lambda model, j=j: _store(q, q_target, j, model), None, wall / k, str(device)
-        )
-        for j in range(k)
-    ]
+    return DDQN.train(jobs, cfg, episodes, on_episode, checkpoint, device, on_update=on_update)
 
 
 def _store(q: StackedMLP, q_target: StackedMLP, j: int, model: Any) -> None:

@@ -14,7 +14,7 @@ import numpy as np
 from nutribench.agents.algos import build_model
 from nutribench.agents.api import CLIP_OBS, NORM_EPS, TrainedAgent, make_train_env
 from nutribench.config import EnvConfig, load_env_config
-from nutribench.engine.actor_critic import RunningStats
+from nutribench.engine.stacked import RunningStats
 from nutribench.env.metrics import EpisodeRecorder
 from nutribench.env.vector_env import NutriRLVectorEnv
 

@@ -1,5 +1,7 @@
 """GRU-PPO for K agents at once: :class:`~nutribench.agents.gru_ppo.GRUPPO`'s policy and
-update with every agent's parameters stacked along a leading agent axis.
+update with every agent's parameters stacked along a leading agent axis. It is PPO
+(:mod:`nutribench.engine.ppo`: the loop, the loss, the gradient step) with another network,
+a hidden state carried while acting, and minibatches of whole days.
 
 Per agent, the policy is ``GRUActorCriticPolicy`` (``gru_ppo.toml``): a GRU over the
 nutrient stream (the first 3 observation dims) and a GRU over the food stream (the rest),
@@ -24,14 +26,12 @@ import math
 import numpy as np
 import torch as th
 
-from nutribench.engine.actor_critic import (
-    OnPolicySettings,
-    Rollout,
-    clip_grad_norm_per_agent,
-    losses_on_cpu,
-    orthogonal,
-)
+from nutribench.engine.actor_critic import log_prob_entropy
+from nutribench.engine.checkpoint import register
 from nutribench.engine.device import leaves_on
+from nutribench.engine.on_policy import OnPolicySettings, Rollout
+from nutribench.engine.ppo import PPO, ppo_step
+from nutribench.engine.stacked import AgentMeans, orthogonal
 
 N_NUTRIENTS = 3
 
@@ -227,16 +227,34 @@ class StackedGRUActorCritic:
                 theirs.copy_(ours)
 
 
+class RecurrentActor:
+    """Acting with the GRU actor-critic, its state carried from step to step (reset where a
+    day starts); ``advance=False`` peeks (the value after the rollout, as SB3's
+    ``predict_values``, which does not keep the new state)."""
+
+    def __init__(self, net: StackedGRUActorCritic):
+        self.net = net
+        self.state = th.zeros(2 * net.k, 1, net.hidden, device=net.params[0].device)
+
+    def __call__(self, obs: th.Tensor, starts: th.Tensor, advance: bool = True) -> tuple[th.Tensor, th.Tensor]:
+        logits, values, state = self.net.step(obs, self.state, starts)
+        if advance:
+            self.state = state
+        return logits, values
+
+
 def gru_ppo_update(
     net: StackedGRUActorCritic,
     optimizer: th.optim.Optimizer,
     rollout: Rollout,
     s: OnPolicySettings,
     permutations: np.ndarray,
-) -> dict[str, np.ndarray]:
+    means: AgentMeans | None = None,
+) -> None:
     """``GRUPPO.train()`` for the K agents: ``permutations (n_epochs, K, days)`` order each
-    agent's days in each epoch; minibatches of ``s.batch_size`` days. Returns the last
-    minibatch's per-agent losses."""
+    agent's days in each epoch; minibatches of ``s.batch_size`` days, each replayed whole
+    through the GRUs, then PPO's loss and step (:func:`~nutribench.engine.ppo.ppo_step`);
+    their losses and gradient norms into ``means``."""
     k, t_all = rollout.actions.shape
     seq = s.sequence_length
     n_seq = t_all // seq
@@ -244,27 +262,49 @@ def gru_ppo_update(
     obs, actions, logp_old = days(rollout.obs), days(rollout.actions), days(rollout.log_probs)
     advantages, returns = days(rollout.advantages), days(rollout.returns)
     rows = th.arange(k, device=rollout.actions.device).unsqueeze(1)
-    out: dict[str, np.ndarray] = {}
     for epoch in range(s.n_epochs):
         perm = th.as_tensor(permutations[epoch], device=rollout.actions.device)
         for start in range(0, n_seq, s.batch_size):
             mb = perm[:, start : start + s.batch_size]
             logits, values = net.sequences(obs[rows, mb])
             b = mb.shape[1] * seq
-            logp_all = th.log_softmax(logits, dim=-1).reshape(k, b, -1)
-            log_prob = logp_all.gather(-1, actions[rows, mb].reshape(k, b, 1)).squeeze(-1)
-            entropy = -(logp_all.exp() * logp_all).sum(-1)
-            adv = advantages[rows, mb].reshape(k, b)
-            if s.normalize_advantage and b > 1:
-                adv = (adv - adv.mean(dim=1, keepdim=True)) / (adv.std(dim=1, keepdim=True) + 1e-8)
-            ratio = th.exp(log_prob - logp_old[rows, mb].reshape(k, b))
-            policy_loss = -th.min(adv * ratio, adv * th.clamp(ratio, 1 - s.clip_range, 1 + s.clip_range)).mean(dim=1)
-            value_loss = (returns[rows, mb].reshape(k, b) - values.reshape(k, b)).pow(2).mean(dim=1)
-            entropy_loss = -entropy.mean(dim=1)
-            loss = policy_loss + s.ent_coef * entropy_loss + s.vf_coef * value_loss
-            optimizer.zero_grad()
-            loss.sum().backward()
-            clip_grad_norm_per_agent(net.params, s.max_grad_norm, k=k)
-            optimizer.step()
-            out = losses_on_cpu(policy_loss=policy_loss, value_loss=value_loss, entropy_loss=entropy_loss)
-    return out
+            flat = lambda x, mb=mb, b=b: x[rows, mb].reshape(k, b)  # noqa: E731
+            log_prob, entropy = log_prob_entropy(logits.reshape(k, b, -1), flat(actions))
+            ppo_step(
+                net.params,
+                optimizer,
+                s,
+                log_prob,
+                entropy,
+                values.reshape(k, b),
+                flat(logp_old),
+                flat(advantages),
+                flat(returns),
+                k=k,
+                means=means,
+            )
+
+
+class GRUPPO(PPO):
+    """K GRU-PPO agents: PPO's loop, loss and step with the stacked GRU actor-critic, its
+    state carried while acting, its update over whole days."""
+
+    algo = "gru_ppo"
+
+    def make_network(self, generators: list[th.Generator]) -> StackedGRUActorCritic:
+        return StackedGRUActorCritic(
+            self.k, self.envs.obs_dim, self.cfg.hidden_size, generators=generators, device=self.device
+        )
+
+    def make_actor(self, net: StackedGRUActorCritic) -> RecurrentActor:
+        return RecurrentActor(net)
+
+    def units(self, steps: int) -> int:
+        """Whole days: a permutation orders the rollout's days."""
+        return steps // self.settings.sequence_length
+
+    def update(self, rollout: Rollout, permutations: np.ndarray) -> None:
+        gru_ppo_update(self.net, self.optimizer, rollout, self.settings, permutations, self.means)
+
+
+register(StackedGRUActorCritic, RecurrentActor)  # what its checkpoints hold

@@ -1,6 +1,6 @@
-"""What the batched engine's off-policy algorithms (DDQN, discrete SAC) share: stacked MLPs,
-one replay per agent with SB3's sampling, SB3's linear schedule, and SB3's
-``OffPolicyAlgorithm.learn`` loop for K agents stepped together.
+"""What the batched engine's off-policy algorithms (DDQN, discrete SAC) share: one replay
+per agent with SB3's sampling, SB3's linear schedule, and SB3's ``OffPolicyAlgorithm.learn``
+loop for K agents stepped together (:class:`OffPolicyAlgorithm`).
 
 The loop, per agent as SB3 runs it with one env: act (the algorithm decides: uniformly
 random during ``learning_starts``), step, store the raw transition (SB3 stores raw
@@ -13,80 +13,23 @@ callback stops SB3 there.
 
 from __future__ import annotations
 
-import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch as th
 
-from nutribench.engine.actor_critic import RunningStats
+from nutribench.engine.algorithm import Algorithm
 from nutribench.engine.checkpoint import Checkpoint, register
-from nutribench.engine.device import leaves_on
 from nutribench.engine.envs import AgentEnvs
+from nutribench.engine.stacked import AgentMeans
 
 
 def linear_schedule(start: float, end: float, fraction: float, progress_remaining: float) -> float:
     """SB3's ``LinearSchedule``: ``start`` to ``end`` over the first ``fraction`` of training."""
     done = 1.0 - progress_remaining
     return end if done > fraction else start + done * (end - start) / fraction
-
-
-class StackedMLP:
-    """K copies of an MLP ``obs -> net_arch -> n_out`` (ReLU): layers ``(W (K, in, out),
-    b (K, 1, out))``, each agent initialised as ``torch.nn.Linear`` is, from its own generator
-    (None: torch's global one), on the CPU, then moved to ``device``."""
-
-    def __init__(
-        self,
-        k: int,
-        sizes: list[int],
-        generators: list[th.Generator] | None = None,
-        device: th.device | str | None = None,
-    ):
-        self.params: list[th.Tensor] = []
-        for n_in, n_out in zip(sizes[:-1], sizes[1:]):
-            w, b = th.empty(k, n_in, n_out), th.empty(k, 1, n_out)
-            bound = 1.0 / math.sqrt(n_in)
-            for j in range(k):
-                g = None if generators is None else generators[j]
-                block = th.empty(n_out, n_in)
-                th.nn.init.kaiming_uniform_(block, a=math.sqrt(5), generator=g)
-                w[j] = block.T
-                th.nn.init.uniform_(b[j], -bound, bound, generator=g)
-            self.params += [w.requires_grad_(), b.requires_grad_()]
-        self.params = leaves_on(self.params, device)
-
-    def forward(self, x: th.Tensor) -> th.Tensor:
-        """``x (K, B, in)`` -> ``(K, B, out)``."""
-        p = self.params
-        n = len(p) // 2
-        for i in range(n):
-            x = th.baddbmm(p[2 * i + 1], x, p[2 * i])
-            if i < n - 1:
-                x = th.relu(x)
-        return x
-
-    def copy_from(self, other: StackedMLP) -> None:
-        with th.no_grad():
-            for mine, theirs in zip(self.params, other.params):
-                mine.copy_(theirs)
-
-    def load_linears(self, j: int, linears: list[th.nn.Linear]) -> None:
-        """Agent ``j``'s weights from a list of ``nn.Linear`` (e.g. an SB3 ``QNetwork``'s)."""
-        with th.no_grad():
-            for i, lin in enumerate(linears):
-                self.params[2 * i][j].copy_(lin.weight.T)
-                self.params[2 * i + 1][j, 0].copy_(lin.bias)
-
-    def store_linears(self, j: int, linears: list[th.nn.Linear]) -> None:
-        """Agent ``j``'s weights into a list of ``nn.Linear`` of the same shapes."""
-        with th.no_grad():
-            for i, lin in enumerate(linears):
-                lin.weight.copy_(self.params[2 * i][j].T)
-                lin.bias.copy_(self.params[2 * i + 1][j, 0])
 
 
 @dataclass
@@ -156,68 +99,97 @@ class StackedReplay:
         )
 
 
-register(StackedMLP, StackedReplay, RunningStats)  # what its checkpoints hold
+register(StackedReplay)  # what its checkpoints hold
 
 
 #: Adam's eps in SB3's off-policy policies (DQN, and DiscreteSAC's): torch's default.
 OFF_POLICY_ADAM_EPS = 1e-8
 
 
-#: ``act(obs, n, uniforms, random_actions)``: the K actions at normalised ``obs`` after ``n``
-#: env steps, given each agent's uniform draw and random action for this step; and the
-#: policy's entropy per agent (None for a policy without one).
-ActFn = Callable[[np.ndarray, int, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray | None]]
+class OffPolicyAlgorithm(Algorithm):
+    """SB3's off-policy loop for the K agents of ``envs`` (the module docstring); subclasses
+    give the acting (:meth:`act`), the update (:meth:`update`), what happens after each env
+    step (:meth:`after_step`), the replay's n-step (:attr:`n_step`) and what a checkpoint
+    keeps of them (:meth:`model_state`, :meth:`restore_model`). Their updates add their
+    quantities to :attr:`means`; each day with updates gives every agent one diagnostics
+    dict of that day's means."""
 
+    #: the replay's n-step returns (SB3's ``NStepReplayBuffer``; 1: one-step transitions)
+    n_step = 1
 
-def run_off_policy(
-    envs: AgentEnvs,
-    cfg,
-    total: int,
-    act: ActFn,
-    update: Callable[[int, float, Batch], None],
-    after_step: Callable[[int, float], None] | None = None,
-    n_step: int = 1,
-    checkpoint: Checkpoint | None = None,
-    model: Any = None,
-    device: th.device | str | None = None,
-) -> float:
-    """Run ``total`` env steps of SB3's off-policy loop for the K agents of ``envs``; reads
-    ``buffer_size``, ``learning_starts``, ``train_freq``, ``gradient_steps``,
-    ``batch_size`` and ``gamma`` from ``cfg``. ``after_step(steps, progress_remaining)``
-    runs after each step (SB3's ``_on_step``), ``update(steps, progress_remaining, batch)``
-    ``gradient_steps`` times at each training point. With a ``checkpoint``, the loop
-    resumes from its state if it has one, and saves itself and ``model`` (everything the
-    caller's ``act``/``update`` change: networks, optimisers, counters) at day boundaries
-    when it is due. Sampled batches go to ``device`` (None: the CPU). Returns the wall
-    seconds (of the processes before a resume too)."""
-    rng = envs.rng
-    saved = checkpoint.state if checkpoint is not None else None
-    if saved is not None:
-        envs.restore(saved["envs"])
-        rng, replay, raw, obs, start = envs.rng, saved["replay"], saved["raw"], saved["obs"], saved["steps"]
-    else:
-        replay = StackedReplay(envs.k, min(cfg.buffer_size, total), envs.obs_dim, n_step, cfg.gamma)
-        raw = envs.new_days()
-        obs, start = envs.seen(raw), 0
-    t0 = time.perf_counter()
-    for n in range(start, total):  # n env steps taken so far
-        t = n % envs.horizon
-        if t == 0 and checkpoint is not None and n > start and checkpoint.due():
-            checkpoint.save(steps=n, envs=envs, replay=replay, raw=raw, obs=obs, model=model)
-        if t == 0:  # each agent's random actions and uniform draws for the day, from its own stream
-            random_actions = np.stack([r.integers(0, 2, size=envs.horizon) for r in rng["actions"]])
-            uniforms = np.stack([r.random(envs.horizon) for r in rng["actions"]])
-        actions, entropy = act(obs, n, uniforms[:, t], random_actions[:, t])
-        raw_next, rewards, day_over = envs.step(actions, entropy)
-        replay.add(raw, actions, rewards, raw_next, np.full(envs.k, day_over))
-        steps = n + 1
-        progress = 1.0 - steps / total
-        if after_step is not None:
-            after_step(steps, progress)
-        raw = envs.new_days() if day_over else raw_next
-        obs = envs.seen(raw)
-        if steps % cfg.train_freq == 0 and steps > cfg.learning_starts and steps < total:
-            for _ in range(cfg.gradient_steps):
-                idx = np.stack([r.integers(0, replay.filled, size=cfg.batch_size) for r in rng["minibatches"]])
-                update(steps, progress, replay.sample(idx, envs.normalize, device))
-    return time.perf_counter() - t0 + (checkpoint.seconds_before if saved is not None else 0.0)
+    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device):
+        super().__init__(cfg, envs, device)
+        self.means = AgentMeans()
+
+    def act(
+        self, obs: np.ndarray, n: int, uniforms: np.ndarray, random_actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The K actions at normalised ``obs`` after ``n`` env steps, given each agent's uniform
+        draw and random action for this step; and the policy's entropy per agent (None for a
+        policy without one)."""
+        raise NotImplementedError
+
+    def after_step(self, steps: int, progress_remaining: float) -> None:
+        """After each env step (SB3's ``_on_step``): nothing unless the algorithm says."""
+
+    def update(self, steps: int, progress_remaining: float, batch: Batch) -> None:
+        """One gradient step of the K agents on ``batch``."""
+        raise NotImplementedError
+
+    def model_state(self) -> Any:
+        """Everything :meth:`act` and :meth:`update` change (networks, optimisers, counters), for a checkpoint."""
+        raise NotImplementedError
+
+    def restore_model(self, state: Any) -> None:
+        """Take over :meth:`model_state` read from a checkpoint."""
+        raise NotImplementedError
+
+    def learn(self, total_steps: int, checkpoint: Checkpoint | None = None) -> float:
+        """Run ``total_steps`` env steps of SB3's off-policy loop; reads ``buffer_size``,
+        ``learning_starts``, ``train_freq``, ``gradient_steps``, ``batch_size`` and ``gamma``
+        from the config. With a ``checkpoint``, resumes from its state if it has one, and
+        saves itself and :meth:`model_state` at day boundaries when it is due. Sampled
+        batches go to the device."""
+        envs, cfg, total = self.envs, self.cfg, total_steps
+        saved = checkpoint.read_onto(self.device) if checkpoint is not None else None
+        if saved is not None:
+            envs.restore(saved["envs"])
+            self.restore_model(saved["model"])
+            self.diagnostics = [list(rows) for rows in saved["diagnostics"]]
+            replay, raw, obs, start = saved["replay"], saved["raw"], saved["obs"], saved["steps"]
+        else:
+            replay = StackedReplay(envs.k, min(cfg.buffer_size, total), envs.obs_dim, self.n_step, cfg.gamma)
+            raw = envs.new_days()
+            obs, start = envs.seen(raw), 0
+        rng = envs.rng
+        t0 = time.perf_counter()
+        for n in range(start, total):  # n env steps taken so far
+            t = n % envs.horizon
+            if t == 0 and checkpoint is not None and n > start and checkpoint.due():
+                checkpoint.save(
+                    steps=n,
+                    envs=envs,
+                    replay=replay,
+                    raw=raw,
+                    obs=obs,
+                    model=self.model_state(),
+                    diagnostics=self.diagnostics,
+                )
+            if t == 0:  # each agent's random actions and uniform draws for the day, from its own stream
+                random_actions = np.stack([r.integers(0, 2, size=envs.horizon) for r in rng["actions"]])
+                uniforms = np.stack([r.random(envs.horizon) for r in rng["actions"]])
+            actions, entropy = self.act(obs, n, uniforms[:, t], random_actions[:, t])
+            raw_next, rewards, day_over = envs.step(actions, entropy)
+            replay.add(raw, actions, rewards, raw_next, np.full(envs.k, day_over))
+            steps = n + 1
+            progress = 1.0 - steps / total
+            self.after_step(steps, progress)
+            raw = envs.new_days() if day_over else raw_next
+            obs = envs.seen(raw)
+            if steps % cfg.train_freq == 0 and steps > cfg.learning_starts and steps < total:
+                for _ in range(cfg.gradient_steps):
+                    idx = np.stack([r.integers(0, replay.filled, size=cfg.batch_size) for r in rng["minibatches"]])
+                    self.update(steps, progress, replay.sample(idx, envs.normalize, self.device))
+            if day_over and self.means:
+                self.record(steps, self.means.means())  # the day's means, one read
+        return time.perf_counter() - t0 + (checkpoint.seconds_before if saved is not None else 0.0)

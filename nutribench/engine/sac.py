@@ -7,7 +7,7 @@ Per agent, everything is what ``algos.build_model`` builds from ``sac.toml``:
   per action), PyTorch's default ``Linear`` initialisation, target critics copied from
   them; one Adam (eps 1e-8) for the actor and one for both critics, each at its own rate;
 * ``VecNormalize`` of the observations; SB3's off-policy loop
-  (:func:`~nutribench.engine.off_policy.run_off_policy`) with its one-step replay: uniformly
+  (:class:`~nutribench.engine.off_policy.OffPolicyAlgorithm`) with its one-step replay: uniformly
   random actions for the first ``learning_starts`` steps, then actions drawn from the policy;
 * each update: the critics regress the soft Bellman target ``r + gamma (1 - done)
   sum_a pi(a|s') (min Q_targ(s', a) - alpha log pi(a|s'))`` (MSE, both critics); then the
@@ -18,6 +18,11 @@ The twin critics of the K agents are one stack of 2K networks (first critics, th
 critics), so that both are one batched product. The day's entropy recorded for each agent
 is the policy's at the moment it acted (the SB3 engine's is the end-of-day policy's on the
 day's observations; SAC's policy moves every step, so the two differ slightly).
+
+Each training day's diagnostics: the means over its gradient steps of the critic loss (as
+``value_loss``), the actor loss, the mean of the twin critics' minimum at the actions taken
+(``q_mean``, before the critics' step), ``ent_coef`` (alpha, fixed) and the actor's learning
+rate. No gradient norm: the engine does not clip SAC's gradients (nor does SAC).
 """
 
 from __future__ import annotations
@@ -28,14 +33,13 @@ from typing import Any
 import numpy as np
 import torch as th
 
+from nutribench import diagnostics as names
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
-from nutribench.engine import check_supported
-from nutribench.engine.actor_critic import linears, losses_on_cpu, make_adam
-from nutribench.engine.checkpoint import Checkpoint, register, resumed
-from nutribench.engine.device import resolve_device
-from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
-from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, StackedMLP, run_off_policy
+from nutribench.engine.checkpoint import Checkpoint, register
+from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn
+from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, OffPolicyAlgorithm
+from nutribench.engine.stacked import AgentMeans, StackedMLP, linears, make_adam
 
 
 class StackedSAC:
@@ -88,9 +92,12 @@ class StackedSAC:
 register(StackedSAC)  # what its checkpoints hold
 
 
-def sac_update(net: StackedSAC, batch: Batch, alpha: float, gamma: float, tau: float) -> dict[str, np.ndarray]:
+def sac_update(
+    net: StackedSAC, batch: Batch, alpha: float, gamma: float, tau: float, means: AgentMeans | None = None
+) -> dict[str, np.ndarray]:
     """One gradient step of :meth:`DiscreteSAC.train` for the K agents: critics, then actor,
-    then targets. Returns each agent's critic and actor loss ``(K,)``."""
+    then targets. Returns each agent's critic and actor loss ``(K,)``; they and the mean of
+    the twin critics' minimum at the actions taken go to ``means``."""
     with th.no_grad():
         probs_next, log_probs_next = net.policy(batch.next_obs)
         q1_next, q2_next = net.twin_q(batch.next_obs, target=True)
@@ -98,9 +105,8 @@ def sac_update(net: StackedSAC, batch: Batch, alpha: float, gamma: float, tau: f
         y = batch.rewards + gamma * (1.0 - batch.dones) * v_next
     q1, q2 = net.twin_q(batch.obs)
     a = batch.actions.unsqueeze(-1)
-    critic_loss = (q1.gather(-1, a).squeeze(-1) - y).pow(2).mean(dim=1) + (q2.gather(-1, a).squeeze(-1) - y).pow(
-        2
-    ).mean(dim=1)
+    q1_taken, q2_taken = q1.gather(-1, a).squeeze(-1), q2.gather(-1, a).squeeze(-1)
+    critic_loss = (q1_taken - y).pow(2).mean(dim=1) + (q2_taken - y).pow(2).mean(dim=1)
     net.critic_optimizer.zero_grad()
     critic_loss.sum().backward()
     net.critic_optimizer.step()
@@ -117,7 +123,59 @@ def sac_update(net: StackedSAC, batch: Batch, alpha: float, gamma: float, tau: f
     with th.no_grad():  # SB3's polyak_update: targ * (1 - tau) + tau * online
         th._foreach_mul_(net.critic_target.params, 1.0 - tau)
         th._foreach_add_(net.critic_target.params, net.critic.params, alpha=tau)
-    return losses_on_cpu(critic_loss=critic_loss, actor_loss=actor_loss)
+    if means is not None:
+        means.add(
+            **{
+                names.VALUE_LOSS: critic_loss,
+                names.ACTOR_LOSS: actor_loss,
+                names.Q_MEAN: th.min(q1_taken, q2_taken).mean(dim=1),
+            }
+        )
+    return {"critic_loss": critic_loss.detach().cpu().numpy(), "actor_loss": actor_loss.detach().cpu().numpy()}
+
+
+class SAC(OffPolicyAlgorithm):
+    """K discrete-SAC agents (:class:`StackedSAC`): actions drawn from the policy, SAC's update."""
+
+    algo = "sac"
+
+    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device):
+        super().__init__(cfg, envs, device)
+        self.net = StackedSAC(
+            self.k,
+            [envs.obs_dim, *cfg.net_arch, 2],
+            cfg.actor_learning_rate,
+            cfg.critic_learning_rate,
+            generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]],
+            device=device,
+        )
+
+    def act(
+        self, obs: np.ndarray, n: int, uniforms: np.ndarray, random_actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        with th.no_grad():
+            probs, log_probs = self.net.policy(th.as_tensor(obs, device=self.device).unsqueeze(1))
+        probs, log_probs = probs[:, 0].cpu().numpy(), log_probs[:, 0].cpu().numpy()
+        entropy = -(probs * log_probs).sum(axis=1)
+        if n < self.cfg.learning_starts:
+            return random_actions, entropy
+        return (uniforms < probs[:, 1]).astype(np.int64), entropy
+
+    def update(self, steps: int, progress_remaining: float, batch: Batch) -> None:
+        cfg = self.cfg
+        losses = sac_update(self.net, batch, cfg.alpha, cfg.gamma, cfg.tau, self.means)
+        self.means.add(**{names.ENT_COEF: cfg.alpha, names.LEARNING_RATE: cfg.actor_learning_rate})
+        if self.on_update is not None:
+            self.on_update({"steps": steps, **losses})
+
+    def model_state(self) -> Any:
+        return self.net
+
+    def restore_model(self, state: Any) -> None:
+        self.net = state
+
+    def store_weights(self, j: int, model: Any) -> None:
+        self.net.store_sb3(j, model.policy)
 
 
 def train_sac_batched(
@@ -133,41 +191,4 @@ def train_sac_batched(
     ``episodes`` days, all at once (resuming from ``checkpoint`` if it holds a state), on
     ``device`` (:func:`~nutribench.engine.device.resolve_device`); ``on_update`` gets
     ``steps`` and the K losses after each update."""
-    check_supported(cfg)  # e.g. normalize_reward, which this replay does not apply
-    device = resolve_device(device)
-    if checkpoint is not None:
-        checkpoint.read_onto(device)
-    envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
-    k = envs.k
-    net = resumed(checkpoint, "model") or StackedSAC(
-        k,
-        [envs.obs_dim, *cfg.net_arch, 2],
-        cfg.actor_learning_rate,
-        cfg.critic_learning_rate,
-        generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]],
-        device=device,
-    )
-
-    def act(obs: np.ndarray, n: int, uniforms: np.ndarray, random_actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        with th.no_grad():
-            probs, log_probs = net.policy(th.as_tensor(obs, device=device).unsqueeze(1))
-        probs, log_probs = probs[:, 0].cpu().numpy(), log_probs[:, 0].cpu().numpy()
-        entropy = -(probs * log_probs).sum(axis=1)
-        if n < cfg.learning_starts:
-            return random_actions, entropy
-        return (uniforms < probs[:, 1]).astype(np.int64), entropy
-
-    def update(steps: int, progress: float, batch: Batch) -> None:
-        losses = sac_update(net, batch, cfg.alpha, cfg.gamma, cfg.tau)
-        if on_update is not None:
-            on_update({"steps": steps, **losses})
-
-    wall = run_off_policy(
-        envs, cfg, episodes * envs.horizon, act, update, checkpoint=checkpoint, model=net, device=device
-    )
-    return [
-        as_trained_agent(
-            envs, j, cfg, episodes, lambda model, j=j: net.store_sb3(j, model.policy), None, wall / k, str(device)
-        )
-        for j in range(k)
-    ]
+    return SAC.train(jobs, cfg, episodes, on_episode, checkpoint, device, on_update=on_update)

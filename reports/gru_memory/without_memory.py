@@ -27,7 +27,6 @@ import torch as th
 
 import nutribench.agents.gru_ppo.policy as sb3_policy
 import nutribench.engine.gru_ppo as stacked
-import nutribench.engine.train as engine
 from nutribench.agents import load_agent_config
 from nutribench.bench.learn import _one_run, batched_runs, markdown_table, summarize
 from nutribench.cli.common import UserError, split_csv
@@ -39,7 +38,7 @@ from nutribench.scheduler.grid import parse_seeds
 def no_memory() -> Iterator[None]:
     """GRU-PPO with its hidden state zeroed before every step, in acting, training and evaluation."""
     sequences = stacked.StackedGRUActorCritic.sequences
-    act = engine._Recurrent.__call__
+    act = stacked.RecurrentActor.__call__
     unroll = sb3_policy.GRUActorCriticPolicy.unroll
 
     def sequences_of_single_steps(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
@@ -54,13 +53,13 @@ def no_memory() -> Iterator[None]:
         return unroll(self, obs, state, th.ones_like(episode_starts))
 
     stacked.StackedGRUActorCritic.sequences = sequences_of_single_steps
-    engine._Recurrent.__call__ = act_from_zero
+    stacked.RecurrentActor.__call__ = act_from_zero
     sb3_policy.GRUActorCriticPolicy.unroll = unroll_from_zero
     try:
         yield
     finally:
         stacked.StackedGRUActorCritic.sequences = sequences
-        engine._Recurrent.__call__ = act
+        stacked.RecurrentActor.__call__ = act
         sb3_policy.GRUActorCriticPolicy.unroll = unroll
 
 

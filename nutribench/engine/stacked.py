@@ -1,0 +1,189 @@
+"""The stacked primitives every batched algorithm is built of: K agents' parameters along a
+leading agent axis, and what keeps each agent's update its own.
+
+* :func:`orthogonal` and :class:`StackedMLP`: stacked layers ``(W (K, in, out), b (K, 1,
+  out))`` initialised per agent from its own generator as SB3 (orthogonal) or
+  ``torch.nn.Linear`` (Kaiming-uniform) initialise one agent's, applied with
+  ``torch.baddbmm``;
+* :func:`clip_grad_norm_per_agent`: ``clip_grad_norm_`` over each agent's own parameters;
+* :func:`make_adam`: Adam over stacked parameters (elementwise, so each agent's step is its own);
+* :class:`RunningStats`: SB3's ``RunningMeanStd`` for K agents (``VecNormalize``'s statistics);
+* :class:`AgentMeans`: per-agent means of a few ``(K,)`` quantities over an update's gradient
+  steps, kept on the device and read back at once (the agents' diagnostics).
+
+Stacking is exact: the loss is the sum of the K agents' losses over disjoint parameters, so
+each agent's gradient is its own loss's gradient.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch as th
+
+from nutribench.engine.checkpoint import register
+from nutribench.engine.device import leaves_on
+
+
+def orthogonal(k: int, n_in: int, n_out: int, gain: float, generators: list[th.Generator] | None = None) -> th.Tensor:
+    """``(k, n_in, n_out)``: each agent's ``(n_out, n_in)`` weight initialised orthogonally as
+    SB3 (and ``GRUActorCriticPolicy``) do, from its own generator, then transposed."""
+    w = th.empty(k, n_in, n_out)
+    for j in range(k):
+        block = th.empty(n_out, n_in)
+        th.nn.init.orthogonal_(block, gain=gain, generator=None if generators is None else generators[j])
+        w[j] = block.T
+    return w
+
+
+def linears(module: th.nn.Module) -> list[th.nn.Linear]:
+    """The ``Linear`` layers of an ``nn.Sequential`` MLP, input to output."""
+    return [m for m in module if isinstance(m, th.nn.Linear)]
+
+
+class StackedMLP:
+    """K copies of an MLP ``obs -> net_arch -> n_out`` (ReLU): layers ``(W (K, in, out),
+    b (K, 1, out))``, each agent initialised as ``torch.nn.Linear`` is, from its own generator
+    (None: torch's global one), on the CPU, then moved to ``device``."""
+
+    def __init__(
+        self,
+        k: int,
+        sizes: list[int],
+        generators: list[th.Generator] | None = None,
+        device: th.device | str | None = None,
+    ):
+        self.params: list[th.Tensor] = []
+        for n_in, n_out in zip(sizes[:-1], sizes[1:]):
+            w, b = th.empty(k, n_in, n_out), th.empty(k, 1, n_out)
+            bound = 1.0 / math.sqrt(n_in)
+            for j in range(k):
+                g = None if generators is None else generators[j]
+                block = th.empty(n_out, n_in)
+                th.nn.init.kaiming_uniform_(block, a=math.sqrt(5), generator=g)
+                w[j] = block.T
+                th.nn.init.uniform_(b[j], -bound, bound, generator=g)
+            self.params += [w.requires_grad_(), b.requires_grad_()]
+        self.params = leaves_on(self.params, device)
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        """``x (K, B, in)`` -> ``(K, B, out)``."""
+        p = self.params
+        n = len(p) // 2
+        for i in range(n):
+            x = th.baddbmm(p[2 * i + 1], x, p[2 * i])
+            if i < n - 1:
+                x = th.relu(x)
+        return x
+
+    def copy_from(self, other: StackedMLP) -> None:
+        with th.no_grad():
+            for mine, theirs in zip(self.params, other.params):
+                mine.copy_(theirs)
+
+    def load_linears(self, j: int, linears: list[th.nn.Linear]) -> None:
+        """Agent ``j``'s weights from a list of ``nn.Linear`` (e.g. an SB3 ``QNetwork``'s)."""
+        with th.no_grad():
+            for i, lin in enumerate(linears):
+                self.params[2 * i][j].copy_(lin.weight.T)
+                self.params[2 * i + 1][j, 0].copy_(lin.bias)
+
+    def store_linears(self, j: int, linears: list[th.nn.Linear]) -> None:
+        """Agent ``j``'s weights into a list of ``nn.Linear`` of the same shapes."""
+        with th.no_grad():
+            for i, lin in enumerate(linears):
+                lin.weight.copy_(self.params[2 * i][j].T)
+                lin.bias.copy_(self.params[2 * i + 1][j, 0])
+
+
+class RunningStats:
+    """SB3's ``RunningMeanStd`` for K agents at once: ``mean``/``var`` ``(K, *shape)``,
+    ``count (K,)``, each agent updated with one sample ``(K, *shape)`` per call."""
+
+    def __init__(self, k: int, shape: tuple[int, ...] = (), epsilon: float = 1e-4):
+        self.mean = np.zeros((k, *shape))
+        self.var = np.ones((k, *shape))
+        self.count = np.full(k, epsilon)
+
+    def update(self, x: np.ndarray) -> None:
+        """One sample per agent (SB3's update with a batch of one: batch variance 0)."""
+        c = self.count.reshape(-1, *([1] * (self.mean.ndim - 1)))
+        delta = x - self.mean
+        tot = c + 1.0
+        self.mean = self.mean + delta / tot
+        self.var = (self.var * c + np.square(delta) * c / tot) / tot
+        self.count = self.count + 1.0
+
+
+def clip_grad_norm_per_agent(params: list[th.Tensor], max_norm: float, k: int | None = None) -> th.Tensor:
+    """``torch.nn.utils.clip_grad_norm_`` applied to each agent's own parameters; the K norms
+    before clipping. A parameter may stack several networks per agent along its first axis
+    (``m * K`` rows: row ``i * K + j`` is agent ``j``'s ``i``-th); ``k`` is K (default: the
+    first parameter's rows)."""
+    k = params[0].shape[0] if k is None else k
+    sq = sum(p.grad.pow(2).reshape(p.shape[0] // k, k, -1).sum(dim=(0, 2)) for p in params)
+    norms = sq.sqrt()
+    if math.isfinite(max_norm):
+        coef = (max_norm / (norms + 1e-6)).clamp(max=1.0)
+        for p in params:
+            p.grad.mul_(coef.repeat(p.shape[0] // k).reshape(-1, *([1] * (p.ndim - 1))))
+    return norms
+
+
+def make_adam(params: list[th.Tensor], learning_rate: float, eps: float) -> th.optim.Adam:
+    """Adam over stacked parameters (elementwise, so each agent's update is its own), in
+    torch's fused form where this torch has it for the CPU (2.4 and later): the per-tensor
+    Adam's formula in one kernel per step, equal to float32 rounding (on this CPU 0.3 ms a
+    step instead of 3.9 ms for K = 35)."""
+    try:
+        return th.optim.Adam(params, lr=learning_rate, eps=eps, fused=True)
+    except RuntimeError:  # pragma: no cover - torch < 2.4 on CPU
+        return th.optim.Adam(params, lr=learning_rate, eps=eps, foreach=True)
+
+
+class AgentMeans:
+    """Means of named quantities over the gradient steps of one update (or one day): a
+    ``(K,)`` tensor per step (each agent's value) or a float (one for all agents).
+    :meth:`add` sums the tensors where they are (on the device, detached, no copy to the
+    CPU); :meth:`means` reads every sum back in one transfer."""
+
+    def __init__(self) -> None:
+        self._sums: dict[str, th.Tensor | float] = {}
+        self._counts: dict[str, int] = {}
+
+    def __bool__(self) -> bool:
+        """Whether anything was added since the last :meth:`means`."""
+        return bool(self._sums)
+
+    def add(self, **values: th.Tensor | float) -> None:
+        for name, v in values.items():
+            if isinstance(v, th.Tensor):
+                v = v.detach()
+                self._sums[name] = v.clone() if name not in self._sums else self._sums[name].add_(v)
+            else:
+                self._sums[name] = self._sums.get(name, 0.0) + float(v)
+            self._counts[name] = self._counts.get(name, 0) + 1
+
+    def means(self) -> dict[str, list[float] | float]:
+        """Each quantity's mean since the last call (K floats for a tensor's, one float for a
+        float's); the sums are then cleared."""
+        stacked = [n for n, v in self._sums.items() if isinstance(v, th.Tensor)]
+        out: dict[str, list[float] | float] = {}
+        if stacked:
+            rows = th.stack([self._sums[n].to(th.float64) / self._counts[n] for n in stacked]).tolist()
+            out.update(zip(stacked, rows))
+        out.update({n: v / self._counts[n] for n, v in self._sums.items() if not isinstance(v, th.Tensor)})
+        self._sums, self._counts = {}, {}
+        return out
+
+
+def explained_variance(values: np.ndarray, returns: np.ndarray) -> np.ndarray:
+    """SB3's ``explained_variance`` per agent: ``1 - Var(returns - values) / Var(returns)``
+    over each row of ``(K, T)`` arrays (NaN where the returns do not vary)."""
+    var_y = returns.var(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(var_y == 0, np.nan, 1.0 - (returns - values).var(axis=1) / var_y)
+
+
+register(StackedMLP, RunningStats)  # what checkpoints hold of them

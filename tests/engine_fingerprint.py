@@ -1,0 +1,74 @@
+"""A fingerprint of short batched runs of all five algorithms, for checking that a change to
+the batched engine changes no result, bit for bit (on the CPU, with one torch version).
+
+Run it before the change and after, and compare the two files::
+
+    python tests/engine_fingerprint.py /tmp/before.json
+    # ... change the engine ...
+    python tests/engine_fingerprint.py /tmp/after.json
+    cmp /tmp/before.json /tmp/after.json
+
+Each run trains three agents (run0 seeds 0 and 21, run6 seed 3) for a few days (short
+rollouts and warm-ups, so that every algorithm updates several times; PPO also with its
+shipped config) and writes, per agent: every training day's metrics, the returns of two
+greedy evaluation days, a hash of every weight tensor of its SB3 model, of its observation
+statistics, its return statistics, and its diagnostics. Not a test: the hashes hold for one
+torch build only.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+import time
+
+import torch as th
+
+from nutribench.agents.api import eval_food_streams, evaluate
+from nutribench.agents.config import load_agent_config
+from nutribench.engine.train import train_batched
+
+JOBS = [("run0", 0), ("run0", 21), ("run6", 3)]
+#: name -> (algorithm, config changes, days)
+SETUPS = {
+    "ppo": ("ppo", dict(n_steps=100, batch_size=50, n_epochs=3), 6),
+    "ppo_default": ("ppo", {}, 11),
+    "mc": ("mc", {}, 4),
+    "gru_ppo": ("gru_ppo", dict(n_steps=100, batch_size=50, n_epochs=2), 4),
+    "ddqn": ("ddqn", dict(learning_starts=60, target_update_interval=40, buffer_size=300), 5),
+    "sac": ("sac", dict(buffer_size=200), 5),
+}
+
+
+def digest(t) -> str:
+    return hashlib.sha256(th.as_tensor(t).detach().cpu().contiguous().numpy().tobytes()).hexdigest()[:16]
+
+
+def fingerprint() -> dict:
+    out = {}
+    for name, (algo, update, days) in SETUPS.items():
+        t0 = time.perf_counter()
+        agents = train_batched(JOBS, load_agent_config(algo).model_copy(update=update), days, device="cpu")
+        rows = []
+        for (regime, seed), agent in zip(JOBS, agents):
+            days_evaluated = evaluate(agent, regime, eval_food_streams(regime, seed, 2), record_steps=False).episodes
+            vn = agent.vec_normalize
+            rows.append(
+                {
+                    "episodes": agent.train_episodes,
+                    "eval": [d["return"] for d in days_evaluated],
+                    "weights": {k: digest(v) for k, v in agent.model.policy.state_dict().items()},
+                    "obs_rms": None if vn is None else [digest(vn.obs_rms.mean), digest(vn.obs_rms.var)],
+                    "ret_rms": None if vn is None else [float(vn.ret_rms.mean), float(vn.ret_rms.var)],
+                    "diagnostics": getattr(agent, "diagnostics", None),
+                }
+            )
+        out[name] = rows
+        print(f"{name}: {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+    return out
+
+
+if __name__ == "__main__":
+    with open(sys.argv[1], "w") as f:
+        json.dump(fingerprint(), f, indent=0, sort_keys=True)
