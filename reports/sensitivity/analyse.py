@@ -6,7 +6,10 @@ over its 5 evaluation days closes (never and the planner played on exactly those
 the regimes the level was evaluated under), the IQM over seeds with a 95 % percentile bootstrap
 interval resampling seeds (nutribench.report.stats.iqm_bootstrap_ci, 2000 resamples, seed 0),
 the mean return and foods a day. Training length: each seed's mean training return over the
-100 days ending at day 500, 1000, 2000 and 5000 (IQM over seeds, same interval).
+100 days ending at day 500, 1000, 2000 and 5000 (IQM over seeds, same interval), and the
+shorter PPO runs' training rows checked against the 5000-day control's first days
+(prefix_check.csv). Levels are told apart by agent config, regime version and training days
+(LEVELS).
 
     python reports/sensitivity/analyse.py --db /tmp/sens/rebuild.db \
         --csv reports/sensitivity/eval_control.csv --csv reports/sensitivity/eval_lo0_shipped.csv \
@@ -33,22 +36,49 @@ from nutribench.report.stats import iqm_bootstrap_ci  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
-#: (agent config, regime version) -> (level id, factor, level text, regimes folder it was trained under)
+#: (agent config, regime version, training days) -> (level id, factor, level text, regimes folder it was trained under)
 LEVELS = {
-    ("ppo", 2): ("control", "none (shipped ppo v1)", "shipped", ROOT / "regimes"),
-    ("ppo", 102): ("lo0", "overshoot weight", "lo 1 -> 1e-6 (off)", HERE / "regimes_lo0"),
-    ("ppo_nonorm", 2): ("nonorm", "reward normalisation", "on -> off", ROOT / "regimes"),
-    ("ppo_lr3e4", 2): ("lr3e4", "learning rate", "1e-3 -> 3e-4", ROOT / "regimes"),
-    ("ppo_g095", 2): ("g095", "discount", "0.99 -> 0.95", ROOT / "regimes"),
+    ("ppo", 2, 5000): ("control", "none (shipped ppo v1)", "shipped", ROOT / "regimes"),
+    ("ppo", 102, 5000): ("lo0", "overshoot weight", "lo 1 -> 1e-6 (off)", HERE / "regimes_lo0"),
+    ("ppo_nonorm", 2, 5000): ("nonorm", "reward normalisation", "on -> off", ROOT / "regimes"),
+    ("ppo_lr3e4", 2, 5000): ("lr3e4", "learning rate", "1e-3 -> 3e-4", ROOT / "regimes"),
+    ("ppo_g095", 2, 5000): ("g095", "discount", "0.99 -> 0.95", ROOT / "regimes"),
+    ("ppo", 103, 5000): ("clock", "clock in the observation", "none -> step of the day / 50", HERE / "regimes_clock"),
+    ("ppo", 2, 500): ("len500", "training length", "5000 -> 500 days", ROOT / "regimes"),
+    ("ppo", 2, 1000): ("len1000", "training length", "5000 -> 1000 days", ROOT / "regimes"),
+    ("ppo", 2, 2000): ("len2000", "training length", "5000 -> 2000 days", ROOT / "regimes"),
+    ("ddqn", 2, 5000): ("ddqn", "none (shipped ddqn v2)", "shipped", ROOT / "regimes"),
+    ("ddqn_eps002", 2, 5000): ("ddqn_eps002", "DDQN final epsilon", "0.1 -> 0.02", ROOT / "regimes"),
+    ("ddqn_tgt4000", 2, 5000): ("ddqn_tgt4000", "DDQN target copy", "every 1000 -> 4000 steps", ROOT / "regimes"),
+    ("sac", 2, 5000): ("sac", "none (shipped sac v1)", "shipped", ROOT / "regimes"),
+    ("sac_a005", 2, 5000): ("sac_a005", "SAC temperature", "fixed alpha 0.2 -> 0.05", ROOT / "regimes"),
 }
-ORDER = ["control", "lo0", "nonorm", "lr3e4", "g095"]
+ORDER = [
+    "control",
+    "lo0",
+    "nonorm",
+    "lr3e4",
+    "g095",
+    "clock",
+    "len500",
+    "len1000",
+    "len2000",
+    "ddqn",
+    "ddqn_eps002",
+    "ddqn_tgt4000",
+    "sac",
+    "sac_a005",
+]
+PPO_LEVELS = ["control", "lo0", "nonorm", "lr3e4", "g095", "clock"]
+LENGTHS = {"len500": 500, "len1000": 1000, "len2000": 2000, "control": 5000}
+OTHER_LEVELS = ["ddqn", "ddqn_eps002", "ddqn_tgt4000", "sac", "sac_a005"]
 REGIMES = ["run0", "run3", "run6"]
 WINDOWS = [500, 1000, 2000, 5000]
 WIDTH = 100
 
 
-def level_of(algo: str, version: int) -> tuple[str, str, str, Path]:
-    return LEVELS[(algo, int(version))]
+def level_of(algo: str, version: int, budget: int) -> tuple[str, str, str, Path]:
+    return LEVELS[(algo, int(version), int(budget))]
 
 
 def yardsticks(folder: Path, regime: str, seed: int, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -78,12 +108,16 @@ def summarise(per_seed: pd.DataFrame) -> dict:
 
 def greedy_rows(ev: pd.DataFrame, steps: pd.DataFrame) -> list[dict]:
     rows = []
-    for (algo, version, regime), cell in ev.groupby(["algo", "regime_version", "regime"]):
+    for (algo, version, budget, regime), cell in ev.groupby(["algo", "regime_version", "budget", "regime"]):
         meals = steps[
-            (steps.algo == algo) & (steps.regime_version == version) & (steps.regime == regime) & (steps.action == 1)
+            (steps.algo == algo)
+            & (steps.regime_version == version)
+            & (steps.budget == budget)
+            & (steps.regime == regime)
+            & (steps.action == 1)
         ]
         late = float((meals.step >= 46).mean()) if len(meals) else float("nan")
-        level, factor, text, folder = level_of(algo, version)
+        level, factor, text, folder = level_of(algo, version, budget)
         per_seed = []
         for seed, days in cell.groupby("seed"):
             days = days.sort_values("episode")
@@ -100,7 +134,7 @@ def greedy_rows(ev: pd.DataFrame, steps: pd.DataFrame) -> list[dict]:
                 }
             )
         per_seed = pd.DataFrame(per_seed)
-        evaluation = "greedy" if version == 2 else "greedy, own reward (lo off)"
+        evaluation = "greedy, own reward (lo off)" if version == 102 else "greedy"
         rows.append(
             {
                 "level": level,
@@ -161,8 +195,10 @@ def csv_rows(csv: pd.DataFrame) -> list[dict]:
 
 def training_rows(tr: pd.DataFrame, planner_mean: dict) -> list[dict]:
     rows = []
-    for (algo, version, regime), cell in tr.groupby(["algo", "regime_version", "regime"]):
-        level = level_of(algo, version)[0]
+    for (algo, version, budget, regime), cell in tr.groupby(["algo", "regime_version", "budget", "regime"]):
+        level = level_of(algo, version, budget)[0]
+        if level in LENGTHS and level != "control":
+            continue  # prefixes of the control's runs (checked by prefix_check)
         for day in WINDOWS:
             if cell["episode"].max() + 1 < day:
                 continue
@@ -192,16 +228,15 @@ def main() -> None:
     ap.add_argument("--db", required=True)
     ap.add_argument("--csv", action="append", default=[])
     ap.add_argument("--out", default=str(HERE))
-    ap.add_argument("--budget", type=int, default=5000, help="the jobs' training days")
     a = ap.parse_args()
     out = Path(a.out)
     con = sqlite3.connect(a.db)
-    df = pd.read_sql("select * from episode_metrics where algo like 'ppo%' and budget = ?", con, params=(a.budget,))
+    df = pd.read_sql("select * from episode_metrics", con)
+    known = [(x, v, b) in LEVELS for x, v, b in zip(df.algo, df.regime_version, df.budget)]
+    df = df[known]
     ev, tr = df[df.phase == "eval"], df[df.phase == "train"]
     steps = pd.read_sql(
-        "select algo, regime, regime_version, step, action from eval_trajectories where algo like 'ppo%' and budget = ?",
-        con,
-        params=(a.budget,),
+        "select algo, regime, regime_version, budget, step, action from eval_trajectories where action = 1", con
     )
     rows = greedy_rows(ev, steps)
     csv = pd.concat([pd.read_csv(p) for p in a.csv]) if a.csv else pd.DataFrame()
@@ -232,8 +267,9 @@ def main() -> None:
 
     # training length: never / planner means over the regime's evaluation days of all seeds (the yardstick)
     planner_mean = {}
+    folders = {2: ROOT / "regimes", 102: HERE / "regimes_lo0", 103: HERE / "regimes_clock"}
     for (version, regime), g in ev.groupby(["regime_version", "regime"]):
-        folder = HERE / "regimes_lo0" if version == 102 else ROOT / "regimes"
+        folder = folders[int(version)]
         nv, pl = [], []
         for seed in sorted(g["seed"].unique()):
             n_, p_ = yardsticks(folder, regime, int(seed), 5)
@@ -273,41 +309,100 @@ def main() -> None:
         "yardsticks (never, planner) per regime:", {k: tuple(round(x, 2) for x in v) for k, v in planner_mean.items()}
     )
 
-    # figure: (A) share of the gap per level x regime; (B, C) training return over days in run3 and run6
-    fig, axes = plt.subplots(1, 3, figsize=(17, 6), gridspec_kw={"width_ratios": [1.5, 1, 1]})
-    color = {lvl: f"C{i}" for i, lvl in enumerate(ORDER)}
-    ax = axes[0]
-    series = [(lvl, ev_) for lvl, ev_ in table[["level", "evaluation"]].drop_duplicates().itertuples(index=False)]
-    width = 0.8 / max(len(series), 1)
-    for i, (lvl, ev_) in enumerate(series):
-        sub = table[(table.level == lvl) & (table.evaluation == ev_)].set_index("regime").reindex(REGIMES)
-        x = np.arange(len(REGIMES)) + (i - (len(series) - 1) / 2) * width
-        y = 100 * sub["share_iqm"].to_numpy()
+    prefix_check(tr, out)
+    figure(table, tr, planner_mean, out)
+
+
+def prefix_check(tr: pd.DataFrame, out: Path) -> None:
+    """Each shorter PPO run's training rows against the 5000-day control's first days: the
+    largest absolute difference per column, and how many rows are exactly equal."""
+    key = ["regime", "seed", "episode"]
+    cols = ["return", "foods", "final_distance", "entropy"]
+    control = tr[(tr.algo == "ppo") & (tr.regime_version == 2) & (tr.budget == 5000)]
+    rows = []
+    for level, days in LENGTHS.items():
+        if level == "control":
+            continue
+        run = tr[(tr.algo == "ppo") & (tr.regime_version == 2) & (tr.budget == days)]
+        if run.empty or control.empty:
+            continue
+        both = run.merge(control[control.episode < days], on=key, suffixes=("", "_c"))
+        row = {"level": level, "rows": len(run), "matched": len(both)}
+        for c in cols:
+            diff = np.abs(both[c].to_numpy(float) - both[c + "_c"].to_numpy(float))
+            row[f"{c}_max_abs_diff"] = float(np.nanmax(diff)) if len(diff) else float("nan")
+            row[f"{c}_equal"] = int(np.sum(diff == 0))
+        rows.append(row)
+    if rows:
+        check = pd.DataFrame(rows)
+        check.to_csv(out / "prefix_check.csv", index=False)
+        print("prefix check (training rows of the shorter runs against the control's first days):")
+        print(check.to_string(index=False))
+
+
+def figure(table: pd.DataFrame, tr: pd.DataFrame, planner_mean: dict, out: Path) -> None:
+    """(A) PPO levels' share of the gap; (B) PPO's greedy share against its training length;
+    (C) DDQN's (and SAC's) levels; (D, E) PPO levels' training return in run3 and run6;
+    (F) DDQN levels' training foods a day in run3 and run6."""
+    fig, axes = plt.subplots(2, 3, figsize=(20, 12), gridspec_kw={"width_ratios": [1.5, 1, 1]})
+    color = {lvl: f"C{i % 10}" for i, lvl in enumerate(ORDER)}
+    color.update({"ddqn": "C0", "ddqn_eps002": "C1", "ddqn_tgt4000": "C2", "sac": "C3", "sac_a005": "C4"})
+
+    def bars(ax, levels, title):
+        sel = table[table.level.isin(levels)]
+        series = [(lvl, ev_) for lvl, ev_ in sel[["level", "evaluation"]].drop_duplicates().itertuples(index=False)]
+        width = 0.8 / max(len(series), 1)
+        for i, (lvl, ev_) in enumerate(series):
+            sub = sel[(sel.level == lvl) & (sel.evaluation == ev_)].set_index("regime").reindex(REGIMES)
+            x = np.arange(len(REGIMES)) + (i - (len(series) - 1) / 2) * width
+            y = 100 * sub["share_iqm"].to_numpy()
+            err = np.abs(100 * np.vstack([sub["share_iqm"] - sub["share_lo"], sub["share_hi"] - sub["share_iqm"]]))
+            odd = ev_.startswith("stochastic") or "own reward" in ev_
+            ax.bar(
+                x,
+                y,
+                width,
+                yerr=err,
+                capsize=2,
+                color=color[lvl],
+                alpha=0.45 if odd else 1.0,
+                hatch="//" if odd else None,
+                edgecolor="k",
+                lw=0.3,
+                label=f"{lvl}: {ev_}",
+            )
+        ax.axhline(0, color="k", lw=0.8)
+        ax.axhline(100, color="k", lw=0.8, ls="--")
+        ax.set_xticks(np.arange(len(REGIMES)), REGIMES)
+        ax.set_ylabel("share of the never -> planner gap (%)\nIQM over 5 seeds, 95 % bootstrap CI")
+        ax.set_title(title, fontsize=10)
+        ax.legend(fontsize=7, loc="lower left", ncol=2)
+
+    bars(axes[0, 0], PPO_LEVELS, "(A) PPO, one factor at a time: evaluation on 5 fixed days per seed")
+    bars(axes[0, 2], OTHER_LEVELS, "(C) DDQN (and SAC): evaluation on 5 fixed days per seed")
+
+    ax = axes[0, 1]
+    greedy = table[(table.evaluation == "greedy") & table.level.isin(list(LENGTHS))]
+    for k, regime in enumerate(REGIMES):
+        sub = greedy[greedy.regime == regime].assign(days=lambda d: d.level.map(LENGTHS)).sort_values("days")
+        if sub.empty:
+            continue
+        x = sub["days"].to_numpy() * (1 + 0.03 * (k - 1))
         err = np.abs(100 * np.vstack([sub["share_iqm"] - sub["share_lo"], sub["share_hi"] - sub["share_iqm"]]))
-        odd = ev_.startswith("stochastic") or "own reward" in ev_
-        ax.bar(
-            x,
-            y,
-            width,
-            yerr=err,
-            capsize=2,
-            color=color[lvl],
-            alpha=0.45 if odd else 1.0,
-            hatch="//" if odd else None,
-            edgecolor="k",
-            lw=0.3,
-            label=f"{lvl}: {ev_}",
-        )
+        ax.errorbar(x, 100 * sub["share_iqm"], yerr=err, marker="o", capsize=3, label=regime, color=f"C{k}")
+    ax.set_xscale("log")
+    ax.set_xticks([500, 1000, 2000, 5000], ["500", "1000", "2000", "5000"])
     ax.axhline(0, color="k", lw=0.8)
     ax.axhline(100, color="k", lw=0.8, ls="--")
-    ax.set_xticks(np.arange(len(REGIMES)), REGIMES)
-    ax.set_ylabel("share of the never -> planner gap (%)\nIQM over 5 seeds, 95 % bootstrap CI")
-    ax.set_title("(A) evaluation, 5 fixed days per seed (0 % = never eat, 100 % = planner)")
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=2)
-    for ax, regime, tag in ((axes[1], "run3", "B"), (axes[2], "run6", "C")):
-        for lvl in ORDER:
+    ax.set_xlabel("training days (5000 = part 1's control)")
+    ax.set_ylabel("share of the gap (%), greedy, IQM [95 % CI]")
+    ax.set_title("(B) shipped PPO: greedy evaluation against training length", fontsize=10)
+    ax.legend(fontsize=8)
+
+    for ax, regime, tag in ((axes[1, 0], "run3", "D"), (axes[1, 1], "run6", "E")):
+        for lvl in PPO_LEVELS:
             sub = tr[(tr.regime == regime)]
-            sub = sub[[level_of(a_, v_)[0] == lvl for a_, v_ in zip(sub.algo, sub.regime_version)]]
+            sub = sub[[level_of(a_, v_, b_)[0] == lvl for a_, v_, b_ in zip(sub.algo, sub.regime_version, sub.budget)]]
             if sub.empty:
                 continue
             curve = sub.groupby("episode")["return"].mean().rolling(100, min_periods=1).mean()
@@ -323,15 +418,30 @@ def main() -> None:
         ax.axhline(pl, color="k", lw=0.8, ls="--", label="planner (eval days)")
         for d in WINDOWS[:-1]:
             ax.axvline(d, color="grey", lw=0.5, alpha=0.5)
-        ax.set_title(f"({tag}) {regime}: training return (stochastic policy)")
+        ax.set_title(f"({tag}) PPO levels, {regime}: training return (stochastic policy)", fontsize=10)
         ax.set_xlabel("training day")
         ax.set_ylabel("return a day (mean over 5 seeds, 100-day moving mean)")
         ax.legend(fontsize=7)
+
+    ax = axes[1, 2]
+    for lvl in OTHER_LEVELS:
+        for regime, ls in (("run3", "-"), ("run6", "--")):
+            sub = tr[(tr.regime == regime)]
+            sub = sub[[level_of(a_, v_, b_)[0] == lvl for a_, v_, b_ in zip(sub.algo, sub.regime_version, sub.budget)]]
+            if sub.empty:
+                continue
+            curve = sub.groupby("episode")["foods"].mean().rolling(100, min_periods=1).mean()
+            ax.plot(curve.index + 1, curve.to_numpy(), lw=1.2, ls=ls, color=color[lvl], label=f"{lvl} {regime}")
+    ax.set_title("(F) DDQN (and SAC) levels: training foods a day (run3 solid, run6 dashed)", fontsize=10)
+    ax.set_xlabel("training day")
+    ax.set_ylabel("foods a day (mean over 5 seeds, 100-day moving mean)")
+    ax.legend(fontsize=7)
     fig.suptitle(
-        "PPO sensitivity study: one factor at a time from the shipped PPO (5000 days, batched engine, seeds 0-4)"
+        "Sensitivity study: one factor at a time from the shipped agents (batched engine, seeds 0-4, 5000 days "
+        "unless a training length)"
     )
     fig.tight_layout()
-    fig.savefig(out / "fig_sensitivity.png", dpi=120)
+    fig.savefig(out / "fig_sensitivity.png", dpi=110)
     print(f"wrote {out / 'fig_sensitivity.png'}")
 
 
