@@ -74,7 +74,7 @@ def test_each_agent_carries_one_dict_per_update_with_its_algorithm_s_finite_quan
             assert eps[0] * (1 - 1e-9) <= r[names.EPSILON] <= eps[1] * (1 + 1e-9)
     if algo == "sac":
         assert first[names.ENT_COEF] == pytest.approx(cfg.alpha)
-        assert first[names.LEARNING_RATE] == pytest.approx(cfg.actor_learning_rate)
+        assert first[names.LEARNING_RATE] == pytest.approx(cfg.critic_learning_rate)
 
 
 @pytest.mark.parametrize("algo", ["ppo", "sac"])

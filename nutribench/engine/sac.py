@@ -21,8 +21,8 @@ day's observations; SAC's policy moves every step, so the two differ slightly).
 
 Each training day's diagnostics: the means over its gradient steps of the critic loss (as
 ``value_loss``), the actor loss, the mean of the twin critics' minimum at the actions taken
-(``q_mean``, before the critics' step), ``ent_coef`` (alpha, fixed) and the actor's learning
-rate. No gradient norm: the engine does not clip SAC's gradients (nor does SAC).
+(``q_mean``, before the critics' step), ``ent_coef`` (alpha, fixed) and the critics' learning
+rate (SB3's ``lr_schedule`` in :class:`~nutribench.agents.sac.DiscreteSAC`). No gradient norm: the engine does not clip SAC's gradients (nor does SAC).
 """
 
 from __future__ import annotations
@@ -164,7 +164,7 @@ class SAC(OffPolicyAlgorithm):
     def update(self, steps: int, progress_remaining: float, batch: Batch) -> None:
         cfg = self.cfg
         losses = sac_update(self.net, batch, cfg.alpha, cfg.gamma, cfg.tau, self.means)
-        self.means.add(**{names.ENT_COEF: cfg.alpha, names.LEARNING_RATE: cfg.actor_learning_rate})
+        self.means.add(**{names.ENT_COEF: cfg.alpha, names.LEARNING_RATE: cfg.critic_learning_rate})
         if self.on_update is not None:
             self.on_update({"steps": steps, **losses})
 
