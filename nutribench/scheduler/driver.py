@@ -17,7 +17,9 @@ One call of :func:`run_grid`:
 6. stores each finished job (its episodes, evaluation steps, metadata, status ``done``)
    in ONE transaction; a failed job gets status ``failed``, ``failures + 1`` and its error;
 7. on Ctrl-C stops the workers and marks their jobs ``interrupted`` (no rows are written
-   for them: rows are only written when a job completes).
+   for them: rows are only written when a job completes);
+8. at its start and end, deletes the batched engine's checkpoints whose jobs are all done
+   (:mod:`nutribench.scheduler.checkpoints`).
 
 What a run uses when not told (the job function, the models folder):
 :mod:`nutribench.scheduler.defaults`; the stop signals: :mod:`nutribench.scheduler.signals`.
@@ -38,6 +40,7 @@ from sqlalchemy.exc import OperationalError
 from nutribench.jobs.spec import JobSpec
 from nutribench.jobs.worker import JobFn, execute, execute_batch
 from nutribench.scheduler.batching import MAX_BATCH, Pool, batch_pools, check_engine, checkpointed_first
+from nutribench.scheduler.checkpoints import remove_finished_checkpoints
 from nutribench.scheduler.defaults import default_batch_fn, default_job_fn, default_models_dir, driver_token
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
 from nutribench.scheduler.grid import Grid
@@ -327,6 +330,7 @@ def run_grid(
         runnable = count_claimable(store, job_ids)
         owner = driver_token()
         out = Path(models_dir) if models_dir is not None else default_models_dir(store)
+        remove_finished_checkpoints(store, out / "checkpoints")  # killed batches whose jobs are done since
         make_spec = spec_maker(store, grid, regime_cfgs, agent_cfgs, out, device, tensorboard)
         summary = RunSummary(total=len(job_ids))
         held, _ = held_elsewhere(store, job_ids, owner)
@@ -363,6 +367,7 @@ def run_grid(
                 view.stop(run)
                 handle.close()
             summary = run.summary
+        remove_finished_checkpoints(store, out / "checkpoints")  # those whose jobs this run finished otherwise
         counts = grid_counts(store, job_ids, owner)
         summary.skipped = max(0, counts["done"] - summary.done)
         summary.given_up, summary.busy = counts["given_up"], counts["busy"]

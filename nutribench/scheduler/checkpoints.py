@@ -1,0 +1,106 @@
+"""Housekeeping of the batched engine's checkpoints folder, ``<models>/checkpoints/``.
+
+A batch writes ``<checkpoint>.jobs.json`` (its jobs: id, agent config and regime hashes,
+seed, budget) beside its checkpoint, and deletes both when it ends
+(:mod:`nutribench.jobs.batch`). A batch that was killed and whose jobs were then finished
+otherwise (by the SB3 engine, by batches formed differently, by another driver) would
+leave them behind for good: nothing resumes them. :func:`remove_finished_checkpoints`
+deletes each such manifest and its checkpoint once every job it names is done in the
+database. A manifest naming a job this database does not hold as named (another database
+sharing the models folder) is left alone, as is one that cannot be read.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import select
+from sqlalchemy.exc import SQLAlchemyError
+
+from nutribench.store import AgentConfig, Job, RegimeConfig
+from nutribench.store.schema import Store
+
+MANIFEST_SUFFIX = ".jobs.json"
+
+
+def _named_jobs(path: Path) -> list[dict[str, Any]]:
+    """The jobs a manifest names: ``{"job_id": ..., ...what it is}``; a manifest of an older
+    nutribench lists job ids only (``{"job_id": ...}``). Raises ValueError when it cannot be read."""
+    data = json.loads(path.read_text())
+    if isinstance(data.get("jobs"), list):
+        jobs = [dict(j) for j in data["jobs"]]
+    else:
+        jobs = [{"job_id": i} for i in data["job_ids"]]
+    for j in jobs:
+        if not isinstance(j.get("job_id"), int) or isinstance(j.get("job_id"), bool):
+            raise ValueError(f"{path.name}: a job id that is not an integer")
+    return jobs
+
+
+def _done(job: dict[str, Any], row: Any, prefix: str) -> bool:
+    """Whether the manifest's ``job`` is ``row`` (the same job, not a namesake id of another
+    database) and it is done."""
+    if row is None or row.status != "done":
+        return False
+    if "algo_sha256" not in job:  # an older manifest: the file name's agent config must match
+        return prefix.startswith(f"{row.name}-v{row.version}-")
+    return (job.get("algo_sha256"), job.get("regime_sha256"), job.get("seed"), job.get("episodes")) == (
+        row.algo_sha256,
+        row.regime_sha256,
+        row.seed,
+        row.episodes,
+    )
+
+
+def remove_finished_checkpoints(store: Store, folder: Path) -> list[Path]:
+    """Delete the batch manifests in ``folder`` every job of which is done in ``store``, and
+    their checkpoints (see the module docstring). Returns the manifests deleted. Never
+    raises for a folder or a database it cannot read: housekeeping waits for the next run."""
+    manifests: dict[Path, list[dict[str, Any]]] = {}
+    try:
+        for path in sorted(folder.glob(f"*{MANIFEST_SUFFIX}")) if folder.is_dir() else []:
+            try:
+                manifests[path] = _named_jobs(path)
+            except (OSError, ValueError, KeyError, TypeError, AttributeError):
+                continue
+    except OSError:
+        return []
+    ids = sorted({j["job_id"] for jobs in manifests.values() for j in jobs})
+    if not ids:
+        return []
+    query = (
+        select(
+            Job.id,
+            Job.status,
+            Job.seed,
+            Job.episodes,
+            AgentConfig.name,
+            AgentConfig.version,
+            AgentConfig.sha256.label("algo_sha256"),
+            RegimeConfig.sha256.label("regime_sha256"),
+        )
+        .join(AgentConfig, Job.agent_config_id == AgentConfig.id)
+        .join(RegimeConfig, Job.regime_id == RegimeConfig.id)
+        .where(Job.id.in_(ids))
+    )
+    try:
+        with store.engine.connect() as conn:
+            rows = {row.id: row for row in conn.execute(query)}
+    except SQLAlchemyError:
+        return []
+    removed = []
+    for path, jobs in manifests.items():
+        prefix = path.name[: -len(MANIFEST_SUFFIX)]
+        if not jobs or not all(_done(j, rows.get(j["job_id"]), prefix) for j in jobs):
+            continue
+        from nutribench.engine.checkpoint import checkpoint_files  # torch: only when there is something to delete
+
+        try:
+            for file in [*checkpoint_files(path.with_name(prefix)), path]:
+                file.unlink(missing_ok=True)
+        except OSError:
+            continue
+        removed.append(path)
+    return removed
