@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from nutribench.cli.common import console, user_errors
+from nutribench.cli.common import UserError, console, user_errors
 
 db_app = typer.Typer(
     no_args_is_help=True,
@@ -20,11 +20,21 @@ db_app = typer.Typer(
 @user_errors
 def db_copy_cmd(
     src: Annotated[str, typer.Argument(help="source: a SQLite file or SQLAlchemy URL, at the newest schema")],
-    dst: Annotated[str, typer.Argument(help="destination: a new, empty database (file or URL); its schema is created")],
+    dst: Annotated[
+        str | None,
+        typer.Argument(
+            envvar="NUTRIBENCH_DB",
+            show_default=False,
+            help="destination: a new, empty database (file or URL); its schema is created [default: $NUTRIBENCH_DB]",
+        ),
+    ] = None,
 ) -> None:
-    """Copy every config, job, episode and evaluation step of SRC into the empty DST, keeping ids."""
+    """Copy every config, job, episode and evaluation step of SRC into the empty DST, keeping ids.
+    DST defaults to $NUTRIBENCH_DB, the database the other commands' --db reads."""
     from nutribench.store.copy import copy_database
 
+    if not dst:
+        raise UserError("db copy: no destination: give DST or set NUTRIBENCH_DB to the database to copy into")
     counts = copy_database(src, dst, on_table=lambda name, n: console.print(f"{name}: {n:,} rows", highlight=False))
     console.print(f"copied {sum(counts.values()):,} rows; {counts.get('jobs', 0)} jobs", highlight=False)
 

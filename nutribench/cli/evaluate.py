@@ -25,12 +25,13 @@ def evaluate_cmd(
     ] = 0,
     version: Annotated[int, typer.Option(min=1, help="the agent's version")] = 1,
     eval_episodes: Annotated[int, typer.Option(min=1, help="evaluation days (5: the paper's)")] = 5,
-    db: Annotated[str, typer.Option(help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
+    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
 ) -> None:
     """Evaluate a saved model greedily and store it as a job (engine 'external', no training rows)."""
     from nutribench.agents.registry import import_entry_point
     from nutribench.provenance import file_sha256
     from nutribench.recorder import Recorder
+    from nutribench.store.engine import database_url, display_url
 
     if not model.exists():
         raise UserError(f"--model {model}: no such file or folder")
@@ -54,5 +55,5 @@ def evaluate_cmd(
     foods = sum(r["foods"] for r in rows) / len(rows)
     console.print(
         f"{name} on {rec.regime_config.name} seed {seed}: {len(rows)} evaluation days, mean return {mean:.2f}, "
-        f"{foods:.1f} foods a day; stored in {db}"
+        f"{foods:.1f} foods a day; stored in {display_url(database_url(db))}"
     )
