@@ -248,3 +248,44 @@ def test_the_migration_upgrades_a_0004_database(tmp_path) -> None:
     assert rows == [("run0", "ppo", 0, 0, 500, 0.25, None)]
     cols = [c[1] for c in sql(db, "PRAGMA table_info(training_diagnostics)")]
     assert tuple(cols) == TRAINING_DIAGNOSTICS_COLUMNS
+
+
+# --------------------------------------------------------------------------- the report
+def test_report_draws_the_diagnostics(ran, tmp_path) -> None:
+    from matplotlib.image import imread
+
+    from nutribench.report.diagnostics import TITLES
+
+    assert set(TITLES) == set(d.QUANTITIES)
+    out = tmp_path / "figs"
+    args = ["report", "--diagnostics", "--algo", "ppo", "--regime", "run3", "--db", str(ran["db"]), "--out", str(out)]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    png = out / "diagnostics_run3_ppo.png"
+    assert png.is_file() and (out / "diagnostics_run3_ppo.pdf").is_file()
+    assert imread(png).shape[0] > 500
+    # no diagnostics for that selection: one line, exit 2, naming what the database has
+    res = CliRunner().invoke(app, [*args[:4], "--regime", "run0", *args[6:]])
+    assert res.exit_code == 2, res.output
+    assert "no training diagnostics for ppo/run0" in res.output and "gru_ppo/run3" in res.output, res.output
+    res = CliRunner().invoke(app, ["report", "--diagnostics", "--algo", "ppo", "--db", str(ran["db"])])
+    assert res.exit_code == 2 and "--diagnostics needs --regime" in res.output, res.output
+
+
+def test_the_figure_has_a_panel_per_quantity_and_a_line_per_seed() -> None:
+    import pandas as pd
+
+    from nutribench.report.diagnostics import diagnostics_figure
+
+    rows = pd.DataFrame(
+        [
+            {"seed": s, "timestep": 500 * (u + 1), "value_loss": 1.0 / (u + 1), "approx_kl": 0.01 * s, "epsilon": None}
+            for s in (0, 21, 9)
+            for u in range(4)
+        ]
+    )
+    fig = diagnostics_figure(rows, 50, title="t")
+    shown = [ax for ax in fig.axes if ax.get_visible()]
+    assert [ax.get_title(loc="left") for ax in shown] == ["value loss (SAC: critic, DDQN: TD)", "approximate KL"]
+    assert all(len(ax.lines) == 3 for ax in shown)
+    assert list(shown[0].lines[0].get_xdata()) == [10.0, 20.0, 30.0, 40.0]  # training days

@@ -89,9 +89,18 @@ def report_cmd(
     trajectory: Annotated[
         bool, typer.Option("--trajectory", help="one evaluation episode's trajectory (needs --algo --regime --seed)")
     ] = False,
-    algo: Annotated[Optional[str], typer.Option(help="agent config of the trajectory, e.g. ppo")] = None,
-    regime: Annotated[Optional[str], typer.Option(help="regime of the trajectory, e.g. run3")] = None,
-    seed: Annotated[Optional[int], typer.Option(help="seed of the trajectory's job")] = None,
+    diagnostics: Annotated[
+        bool,
+        typer.Option(
+            "--diagnostics",
+            help="the training diagnostics of one agent config on one regime, one line per seed (needs --algo --regime)",
+        ),
+    ] = False,
+    algo: Annotated[Optional[str], typer.Option(help="agent config of the trajectory or diagnostics, e.g. ppo")] = None,
+    regime: Annotated[Optional[str], typer.Option(help="regime of the trajectory or diagnostics, e.g. run3")] = None,
+    seed: Annotated[
+        Optional[int], typer.Option(help="seed of the trajectory's job (--diagnostics: only this seed)")
+    ] = None,
     episode: Annotated[int, typer.Option(min=0, help="evaluation episode of the trajectory")] = 0,
     db: Annotated[
         str, typer.Option(envvar="NUTRIBENCH_DB", help="results database: a file path or a SQLAlchemy URL")
@@ -106,16 +115,26 @@ def report_cmd(
 
     figs, tables = parse_figs(fig), parse_tables(table)
     selected, pair_names = parse_algos(algos), parse_pair(pair)
-    if not (figs or tables or all_ or trajectory):
-        raise UserError("nothing to build: pass --fig, --table, --all or --trajectory (see nutribench report --help)")
+    if not (figs or tables or all_ or trajectory or diagnostics):
+        raise UserError(
+            "nothing to build: pass --fig, --table, --all, --trajectory or --diagnostics (see nutribench report --help)"
+        )
+    if trajectory and diagnostics:
+        raise UserError("--trajectory and --diagnostics each take --algo --regime: build one at a time")
     if (selected or pair_names) and not (figs or tables or all_):
         raise UserError("--algos and --pair select what figures and tables draw: add --fig, --table or --all")
     if trajectory:
         missing = [o for o, v in (("--algo", algo), ("--regime", regime), ("--seed", seed)) if v is None]
         if missing:
             raise UserError(f"--trajectory needs {', '.join(missing)}")
+    elif diagnostics:
+        missing = [o for o, v in (("--algo", algo), ("--regime", regime)) if v is None]
+        if missing:
+            raise UserError(f"--diagnostics needs {', '.join(missing)}")
     elif algo is not None or regime is not None or seed is not None:
-        raise UserError("--algo, --regime and --seed pick a trajectory: add --trajectory")
+        raise UserError(
+            "--algo, --regime and --seed pick a trajectory or diagnostics: add --trajectory or --diagnostics"
+        )
     log = lambda msg: err_console.print(msg, style="yellow", highlight=False, soft_wrap=True)  # noqa: E731
     paths: list[Path] = []
     if figs or tables or all_:
@@ -132,5 +151,9 @@ def report_cmd(
         )
     if trajectory:
         paths += build_trajectory(db, algo, regime, seed, episode=episode, out=out)
+    if diagnostics:
+        from nutribench.report.diagnostics import build_diagnostics
+
+        paths += build_diagnostics(db, algo, regime, seeds=None if seed is None else [seed], out=out)
     for p in paths:
         console.print(str(p), highlight=False, soft_wrap=True)

@@ -11,7 +11,12 @@ from nutribench.store.models import (
     Job,
     RegimeConfig,
 )
-from nutribench.store.queries import read_episode_metrics, read_eval_trajectories, read_jobs
+from nutribench.store.queries import (
+    read_episode_metrics,
+    read_eval_trajectories,
+    read_jobs,
+    read_training_diagnostics,
+)
 from nutribench.store.schema import Store, head_revision, open_store
 
 __all__ = [
@@ -31,6 +36,7 @@ __all__ = [
     "read_episode_metrics",
     "read_eval_trajectories",
     "read_jobs",
+    "read_training_diagnostics",
     "session_scope",
     "utcnow",
 ]

@@ -93,6 +93,20 @@ def read_eval_trajectories(
     return _read(db, "eval_trajectories", filters, '"job_id", "episode", "step"', latest_only)
 
 
+def read_training_diagnostics(
+    db: Db,
+    *,
+    regimes: Iterable[str] | str | None = None,
+    algos: Iterable[str] | str | None = None,
+    seeds: Iterable[int] | int | None = None,
+    latest_only: bool = False,
+) -> pd.DataFrame:
+    """Rows of ``training_diagnostics``: one per training update of each job (columns in
+    :mod:`nutribench.store.views`, quantities in :mod:`nutribench.diagnostics`)."""
+    filters = {"regime": regimes, "algo": algos, "seed": seeds}
+    return _read(db, "training_diagnostics", filters, '"job_id", "update"', latest_only)
+
+
 def read_jobs(db: Db) -> pd.DataFrame:
     """The jobs table with regime and algo names and versions joined in."""
     import pandas as pd
