@@ -34,7 +34,7 @@ def evaluate_simple_policy(policy: str, regime: str, episodes: int = 200, seed: 
 
 
 def baseline_table(regimes: list[str], episodes: int = 200, seed: int = 0) -> list[dict]:
-    """One row per (regime, policy): the mean of each SPEC 4 metric."""
+    """One row per (regime, policy): the mean of each per-day metric (:data:`~nutribench.env.metrics.METRIC_KEYS`)."""
     rows = []
     for regime in regimes:
         for policy in POLICY_ORDER:

@@ -40,7 +40,7 @@ class RecorderError(UserError):
 
 
 class RecordingEnv(gym.Wrapper):
-    """A NutriRL env that keeps the SPEC 4 metrics of every whole day played on it (a day cut
+    """A NutriRL env that keeps the per-day metrics of every whole day played on it (a day cut
     short by ``reset`` is not a row)."""
 
     def __init__(self, env: gym.Env):

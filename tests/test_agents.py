@@ -1,4 +1,4 @@
-"""The five agents behind one interface (issue 3): config files, training on the real
+"""The five agents behind one interface: config files, training on the real
 regimes, evaluation on paired food streams, determinism, save/load, double-DQN target,
 and learning on run0 within a CI budget."""
 
@@ -135,7 +135,7 @@ def test_each_algorithm_trains_and_evaluates(algo, regime):
     for k, row in enumerate(agent.train_episodes):
         assert set(row) == EXPECTED_KEYS and row["episode"] == k
         assert 0 <= row["foods"] <= 50 and row["return"] < 0
-        if algo == "ddqn":  # a greedy value learner has no policy entropy (SPEC 4: "where defined")
+        if algo == "ddqn":  # a greedy value learner has no policy entropy (defined only where there is a policy)
             assert row["entropy"] is None
         else:
             assert math.isfinite(row["entropy"]) and 0 <= row["entropy"] <= math.log(2) + 1e-6
@@ -387,8 +387,8 @@ def test_on_policy_jobs_update_on_their_last_rollout(algo, days, updates, monkey
 
 
 def test_ddqn_learning_rate_schedule_is_sb3s_picklable_linear_schedule(tmp_path):
-    """Issue 12, defect 5: a closure as schedule is pickled into the saved model by cloudpickle
-    and breaks loading elsewhere; SB3's LinearSchedule is a plain class."""
+    """No closure as schedule (cloudpickle would pickle it into the saved model and break
+    loading elsewhere): SB3's LinearSchedule is a plain class."""
     import pickle
 
     from stable_baselines3.common.utils import LinearSchedule
@@ -411,7 +411,7 @@ def test_ddqn_learning_rate_schedule_is_sb3s_picklable_linear_schedule(tmp_path)
 
 @pytest.mark.parametrize(("algo", "sb3_class"), [("ppo", "PPO"), ("mc", "A2C"), ("ddqn", "DQN")])
 def test_a_saved_model_plays_the_same_greedy_actions_in_plain_sb3(algo, sb3_class, tmp_path):
-    """Issue 12, defect 2: the README's plain-SB3 recipe (the model's SB3 class, VecNormalize
+    """The plain-SB3 recipe (the model's SB3 class, VecNormalize
     loaded from the pickle beside it) acts exactly as nutribench's own agent does."""
     import json
 

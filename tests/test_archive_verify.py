@@ -1,4 +1,4 @@
-"""Issue 28, items 2, 3 and 6 (archives): an archive is a file from anywhere, so ``db import``
+"""Archives: an archive is a file from anywhere, so ``db import``
 checks it whole before a database is opened. Each tampering below is refused with one line
 naming the archive and what is wrong, exit status 2, no traceback, and no database file
 created (nor an existing one touched); the committed archives of ``reports/paper/`` pass and

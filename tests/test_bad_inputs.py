@@ -1,4 +1,4 @@
-"""Bad inputs to ``nutribench run`` (issue 28, item 4): each is one line, exit 2, no
+"""Bad inputs to ``nutribench run``: each is one line, exit 2, no
 traceback, and nothing created (no database, no models folder), before any job starts."""
 
 from __future__ import annotations

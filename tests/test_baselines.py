@@ -18,7 +18,7 @@ def _mean(eps, key):
 
 
 def test_planner_calibration_in_run0():
-    # SPEC 1: in the no-delay regime a good policy eats about 3-5 foods and ends near target
+    # in the no-delay regime a good policy eats about 3-5 foods and ends near target
     eps = evaluate_simple_policy("planner", "run0", episodes=200, seed=1)
     assert 3.0 <= _mean(eps, "foods") <= 5.5
     assert _mean(eps, "final_distance") < 0.8
@@ -34,7 +34,7 @@ def test_reference_points_are_ordered(regime):
 
 
 def test_reward_version_2_gives_the_authors_landscape_on_run0():
-    """REFERENCE.md: never eating costs about -21.5 a day in the authors' units (d_0 / tau_c
+    """The authors' logs: never eating costs about -21.5 a day in their units (d_0 / tau_c
     = 2.29 / 5), a random-like start about twice that, learned agents -6 to -8. Ours: never
     -50 tanh(3 / 6.5), random worse than twice never, the planner near the top, so "never"
     is far from good (reward version 1 had never -50 and planner -37.5: almost no gap)."""

@@ -156,8 +156,8 @@ def test_regimes_generate_prints_the_file():
     ],
 )
 def test_a_broken_regime_file_fails_check_and_run_instead_of_leaving_the_grid(tmp_path, monkeypatch, mutate, expected):
-    """Issue 13, defect 1: a regime file that did not parse was skipped by the listing, so
-    `regimes check` said ok for the other six and `run` ran a six-regime grid with exit 0."""
+    """A regime file that does not parse is not skipped by the listing (where `regimes check`
+    would say ok for the other six and `run` run a six-regime grid with exit 0)."""
     import re
     import shutil
 
@@ -177,7 +177,7 @@ def test_a_broken_regime_file_fails_check_and_run_instead_of_leaving_the_grid(tm
 
 
 def test_help_keeps_brackets_and_shows_flags_as_flags():
-    """Issue 13 small cut: rich markup ate `[ranges]` and `[foods]`, and flags showed `<bool>`."""
+    """The help shows `[ranges]` and `[foods]` (rich markup would eat them) and no `<bool>` on flags."""
     out = runner.invoke(app, ["regimes", "generate", "--help"]).output
     assert "[ranges]" in out and "[foods]" in out
     assert "<bool>" not in out and "--write / --no-write" in out

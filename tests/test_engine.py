@@ -1,4 +1,4 @@
-"""The batched engine makes the SB3 agents' updates (issue 15): with identical initial
+"""The batched engine makes the SB3 agents' updates: with identical initial
 weights and identical data, one update of K stacked agents gives each agent exactly the
 parameters SB3 gives it alone (float32 tolerance), so there is no cross-talk."""
 

@@ -186,7 +186,7 @@ def test_a_batch_that_left_a_checkpoint_is_claimed_first_and_whole(tmp_path):
     assert checkpointed_first(pools, tmp_path / "none") == pools
 
 
-# --------------------------------------------------------------------------- no pickle (issue 28, item 1)
+# --------------------------------------------------------------------------- no pickle
 class Planted:
     """A pickle payload: unpickling it creates ``marker`` (as the audit's ran ``os.system``)."""
 
@@ -217,7 +217,7 @@ def plant(path, marker, forged_sidecar: bool) -> None:
 
 @pytest.mark.parametrize("forged_sidecar", [False, True])
 def test_a_planted_pickle_checkpoint_never_runs_and_the_batch_completes(tmp_path, capsys, forged_sidecar):
-    """Issue 28: a pickle planted in ``<models>/checkpoints/`` under the name the batch reads
+    """A pickle planted in ``<models>/checkpoints/`` under the name the batch reads
     is refused in one line (its code never runs: no marker); the batch trains from the start,
     gives the results of a batch that found nothing, and leaves no checkpoint file behind."""
     import nutribench.jobs.batch as batch
@@ -365,8 +365,8 @@ def write_manifest(path, specs) -> None:
 
 
 def test_a_finished_batch_removes_the_checkpoints_other_batches_left_of_its_jobs(tmp_path):
-    """Issue 28: a batch killed, then formed otherwise (another code version, other batch
-    sizes), left its files forever. Once its jobs are done, the finished batch deletes them;
+    """A batch killed, then formed otherwise (another code version, other batch sizes),
+    would leave its files forever: once its jobs are done, the finished batch deletes them;
     a checkpoint of other jobs stays."""
     import nutribench.jobs.batch as batch
 
@@ -393,8 +393,8 @@ def test_a_finished_batch_removes_the_checkpoints_other_batches_left_of_its_jobs
 
 
 def test_a_model_save_cut_short_leaves_the_previous_model_whole(tmp_path, monkeypatch):
-    """Issue 28: a model file cut short by a full disk was left in place; each file is now
-    written to a temporary name and renamed."""
+    """A model file cut short by a full disk is not left in place: each file is written to a
+    temporary name and renamed."""
     import errno
 
     agent = train_batched([("run0", 3)], "mc", 1)[0]

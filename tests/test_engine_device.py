@@ -1,4 +1,4 @@
-"""The batched engine's device (``--device auto|cpu|cuda``, issue 15): ``auto`` is the CPU
+"""The batched engine's device (``--device auto|cpu|cuda``): ``auto`` is the CPU
 where there is no CUDA, CUDA asked for where there is none is one line (exit 2, before the
 database is touched), an explicit CPU run is the default run bit for bit, and the device
 travels to the workers in the job specs. The tests marked "needs CUDA" run only where torch

@@ -1,4 +1,4 @@
-"""GRU-PPO (SPEC 3, Table 6): architecture, memory carried in acting/training/evaluation,
+"""GRU-PPO (the paper's Table 6): architecture, memory carried in acting/training/evaluation,
 backpropagation through time, learning, save/load, seeding."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""PostgreSQL as a first-class results database (issue 14), against a real throwaway server
+"""PostgreSQL as a first-class results database, against a real throwaway server
 (tests/pg.py): the alembic chain, the views and the pandas one-liner, claims by two drivers
 at once, a killed driver's jobs taken over, an upgrade from the first revision, and readers
 during a run. The jobs are the synthetic ones (``NUTRIBENCH_JOB=fake``)."""

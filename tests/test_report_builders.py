@@ -169,7 +169,7 @@ def test_training_table_is_the_last_tenth_of_training_beside_the_authors():
         per_seed = cell.groupby("seed")["return"].mean()
         assert raw.loc[(regime, algo), "return_mean"] == pytest.approx(per_seed.mean())
         assert raw.loc[(regime, algo), "return_sem"] == pytest.approx(per_seed.std(ddof=1) / np.sqrt(3))
-    # the authors' logged numbers of REFERENCE.md, run0 and run6
+    # the authors' logged numbers (nutribench/report/authors.py), run0 and run6
     assert (raw.loc[("run0", "ppo"), "authors_return"], raw.loc[("run0", "ppo"), "authors_foods"]) == (-5.9, 5.0)
     assert (raw.loc[("run6", "sac"), "authors_return"], raw.loc[("run6", "sac"), "authors_foods"]) == (-29.0, 25.3)
     assert "authors' return" in res.formatted.columns
@@ -187,7 +187,7 @@ def test_latex_escapes_every_special_character():
 
 
 def test_the_best_line_says_smoothed_only_when_the_curves_are():
-    """Issue 13 small cut: the caption said "no smoothing" while the legend said "best (smoothed)"."""
+    """The caption and the legend agree on smoothing ("no smoothing" beside "best (smoothed)" would not)."""
     for window, label in ((1, "best"), (5, "best (smoothed)")):
         res = training_curves(synthetic(), "return", window=window)
         labels = [l.get_label() for ax in res.figure.axes for l in ax.get_lines()]
@@ -201,8 +201,7 @@ def _day_refs(df, never=-20.0, planner=-4.0):
 
 
 def test_the_return_panel_shows_the_share_of_the_gap_on_a_linear_axis():
-    """Issue 27 item 3 (replaces issue 13's test of the symlog axis, which this item removes):
-    panel (A) shows each seed's share of the never -> planner gap closed, on a linear axis
+    """Panel (A) shows each seed's share of the never -> planner gap closed, on a linear axis
     that says so; the simple policies' reference lines are on the same scale."""
     df = synthetic()
     refs = pd.DataFrame(
@@ -266,7 +265,7 @@ def test_results_table_leads_with_the_seed_level_interval():
 
 
 def test_trajectory_meal_labels_sit_above_the_curves():
-    """Issue 13 small cut: with many meals the labels inside the axes covered the curves."""
+    """With many meals the labels stay out of the axes (inside, they would cover the curves)."""
     from nutribench.env import NutriRLEnv
     from nutribench.report.trajectory import trajectory_figure
 

@@ -1,4 +1,4 @@
-"""Issue 27 item 5: ``nutribench report --all`` writes ``index.html``, one static page with
+"""``nutribench report --all`` writes ``index.html``, one static page with
 the report's figures and tables; a headless Chromium (Debian's ``chromium`` package, installed
 by ``.ci/run``; nothing downloaded at run time) renders it and every figure loads.
 

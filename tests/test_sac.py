@@ -1,4 +1,4 @@
-"""Discrete SAC (SPEC 3): the soft value and target maths, the update, learning, save/load, seeding."""
+"""Discrete SAC (the paper's Table 5): the soft value and target maths, the update, learning, save/load, seeding."""
 
 from __future__ import annotations
 

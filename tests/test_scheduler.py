@@ -269,7 +269,7 @@ def test_failing_job_is_retried_until_the_limit(regimes: Path, tmp_path: Path) -
 
 
 def test_retry_failed_runs_a_given_up_job_again_and_clears_its_error(regimes: Path, tmp_path: Path) -> None:
-    """Issue 13, defect 6: once a job's cause is fixed, `run --retry-failed` tries it again;
+    """Once a job's cause is fixed, `run --retry-failed` tries it again;
     a job that then succeeds no longer shows its old error."""
     db = tmp_path / "r.db"
     args = dict(seeds=[0], episodes=6, eval_episodes=1, workers=1, display=False)
@@ -305,8 +305,8 @@ def test_retry_failed_runs_a_given_up_job_again_and_clears_its_error(regimes: Pa
 
 
 def test_a_rerun_after_a_driver_crash_waits_and_takes_the_orphaned_jobs_over(regimes: Path, tmp_path: Path) -> None:
-    """Issue 13, defect 3: after a driver crash the obvious re-run exited 0 ("2 running in
-    another driver") with work not done. Now it waits until their heartbeat is stale, then
+    """After a driver crash the obvious re-run does not exit 0 ("2 running in another
+    driver") with work not done: it waits until their heartbeat is stale, then
     runs them; it never runs a job whose driver is alive (test_two_concurrent_runs_...)."""
     from datetime import timedelta
 
@@ -365,7 +365,7 @@ def _default_stop_signals() -> None:
     ],
 )  # SIGINT in the fast run
 def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path, tmp_path: Path, sig) -> None:
-    """Ctrl-C, and as it (issue 13, defect 2) a batch system's SIGTERM and a closed terminal's
+    """Ctrl-C, and as it a batch system's SIGTERM and a closed terminal's
     SIGHUP: the running jobs are released as interrupted at once, not left `running`."""
     db = tmp_path / "r.db"
     cmd = [
@@ -532,7 +532,7 @@ def test_dask_executor_runs_jobs_on_a_local_cluster(regimes: Path, tmp_path: Pat
 
 
 def test_an_unreachable_dask_scheduler_fails_before_the_database_is_touched(regimes: Path, tmp_path: Path) -> None:
-    """Issue 13, defect 5: the database file, config rows and pending jobs were written first."""
+    """Nothing is written (database file, config rows, pending jobs) before the executor is reached."""
     import socket
 
     from nutribench.scheduler.executors import ExecutorError

@@ -1,4 +1,4 @@
-"""Stop signals (issue 28, item 5): any number of SIGINT / SIGTERM / SIGHUP end in the one
+"""Stop signals: any number of SIGINT / SIGTERM / SIGHUP end in the one
 graceful stop the first began, and ``nutribench run`` exits 130 with its running jobs
 released as interrupted and no row half-written (a second SIGTERM or SIGHUP during the stop
 used to kill the driver by the signal: exit 143 / 129)."""

@@ -1,4 +1,4 @@
-"""Seed-level statistics (issue 27): the aggregate scores against rliable, the stratified
+"""Seed-level statistics: the aggregate scores against rliable, the stratified
 bootstrap, the paired comparison against a hand computation, pairing by seed and day, and
 ``nutribench compare``'s one-line errors."""
 

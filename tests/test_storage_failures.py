@@ -1,4 +1,4 @@
-"""Storing finished jobs when the database pushes back (issue 28, items 4 and 6): a disk that
+"""Storing finished jobs when the database pushes back: a disk that
 fills or an I/O error while a job is stored, a read-only database, a write lock held past the
 busy timeout, and the printed commands that must work when pasted without showing a password."""
 

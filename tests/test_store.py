@@ -147,8 +147,8 @@ def test_a_reader_does_not_wait_for_a_writer(tmp_path: Path) -> None:
 
 
 def test_a_worker_does_not_import_the_database_layer():
-    """Issue 12: jobs/run.py imported store.engine for a timestamp, loading SQLAlchemy and
-    alembic in every worker process."""
+    """A worker process imports neither SQLAlchemy nor alembic (jobs/run.py once imported
+    store.engine for a timestamp)."""
     import subprocess
     import sys
 
@@ -158,8 +158,8 @@ def test_a_worker_does_not_import_the_database_layer():
 
 
 def test_a_writer_opening_a_new_database_waits_for_a_lock_held_elsewhere(tmp_path):
-    """Issue 13, defect 4: two drivers started at the same moment on a new file; one failed
-    with "database is locked" at open (SQLite does not call the busy handler when switching
+    """Two drivers started at the same moment on a new file: one would fail with "database
+    is locked" at open (SQLite does not call the busy handler when switching
     to WAL). Another connection holds the lock for 0.5 s: the open now waits for it."""
     import sqlite3
     import threading

@@ -117,8 +117,8 @@ def test_sb3_ppo_learns_a_little_on_the_adapter():
 
 @pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
 def test_the_last_steps_info_survives_the_next_days_reset(mode):
-    """Issue 12, defect 1: the day's last info (and SAME_STEP's final_info) kept a reference to
-    the env's distance array, which the next day's reset set back to 3.0 in place."""
+    """The day's last info (and SAME_STEP's final_info) keeps its own copy of the distance,
+    not a reference to the env's array, which the next day's reset sets back to 3.0 in place."""
     env = NutriRLVectorEnv(4, regime="run0", autoreset_mode=mode)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
@@ -133,7 +133,7 @@ def test_the_last_steps_info_survives_the_next_days_reset(mode):
 
 
 def test_sb3_adapter_passes_each_envs_info_through():
-    """Issue 12, defect 3: VecMonitor(info_keywords=...) needs the env's info per env."""
+    """VecMonitor(info_keywords=...) gets the env's info per env."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     base = NutriRLSB3VecEnv(num_envs=3, regime="run0")

@@ -1,4 +1,4 @@
-"""The five agents of SPEC 3 on Stable-Baselines3, their config files, and one interface:
+"""The paper's five agents on Stable-Baselines3, their config files, and one interface:
 :func:`train`, :func:`evaluate`, :func:`eval_food_streams`, :class:`TrainedAgent`."""
 
 from nutribench.agents.api import EvalResult, TrainedAgent, eval_food_streams, evaluate, train

@@ -11,7 +11,7 @@
 
 MC and PPO share one backbone between actor and critic (:class:`Backbone`, the shared
 features extractor; SB3 2.x no longer shares ``net_arch`` layers), with linear policy and
-value heads on it: "shared actor-critic, 1 value head" (SPEC 3).
+value heads on it: "shared actor-critic, 1 value head" (the paper's Tables 2 and 4).
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ def shared_actor_critic_kwargs(net_arch: list[int]) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------- MC
 class MonteCarloAC(A2C):
-    """On-policy Monte Carlo actor-critic (SPEC 3, Table 2) as an A2C whose rollout is one
+    """On-policy Monte Carlo actor-critic (the paper's Table 2) as an A2C whose rollout is one
     whole day (``n_steps`` = horizon, one env) and whose GAE lambda is 1: each update uses
     the complete episode's discounted returns. No gradient clipping when ``max_grad_norm`` is
     ``inf``."""

@@ -10,7 +10,7 @@
 
 Training runs on one environment (one day at a time), so ``episodes`` days are exactly
 ``episodes * horizon`` env steps, and every finished training day is reported with the
-SPEC 4 metrics (:data:`~nutribench.env.metrics.METRIC_KEYS`, plus ``episode`` and
+per-day metrics (:data:`~nutribench.env.metrics.METRIC_KEYS`, plus ``episode`` and
 ``entropy``: the mean policy entropy over the day's steps, None for DDQN).
 
 Reproducible: torch runs single-threaded (jobs run side by side in a process pool), and
@@ -178,7 +178,8 @@ class TrainedAgent:
 
 
 class EpisodeMetrics(BaseCallback):
-    """Records the SPEC 4 metrics of every finished training day and stops after ``episodes``.
+    """Records the per-day metrics (:data:`~nutribench.env.metrics.METRIC_KEYS`) of every
+    finished training day and stops after ``episodes``.
 
     Reads the dones SB3 passes to callbacks and the raw rewards and batched info of the
     NutriRL SB3 adapter (not SB3's rewards, which ``VecNormalize`` may have scaled); the observation each action was taken at is ``model._last_obs``
@@ -219,7 +220,7 @@ class EpisodeMetrics(BaseCallback):
 
 
 class RecordingVecEnv(VecEnvWrapper):
-    """The training env of a plug-in agent: records the SPEC 4 metrics of its first
+    """The training env of a plug-in agent: records the per-day metrics of its first
     ``episodes`` finished days, whatever its ``learn`` does (no SB3 callback needed).
 
     Sits outside ``VecNormalize``, so the observations it keeps for the day's entropy are the

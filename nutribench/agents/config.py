@@ -1,4 +1,4 @@
-"""Agent configurations (SPEC 3, Tables 2-6) as versioned, validated files.
+"""Agent configurations (the paper's Tables 2-6) as versioned, validated files.
 
 One TOML file per configuration in ``regimes/agents/`` (``<name>.toml``); the ``algo`` key
 picks the model (:data:`MODELS`), every hyperparameter of the built-in algorithms is written
@@ -82,7 +82,7 @@ class PPOConfig(_FeedForward, _PPOFields):
 
 
 class GRUPPOConfig(_AgentBase, _PPOFields):
-    """PPO with the recurrent two-GRU policy of Table 6 (heads fixed by SPEC 3)."""
+    """PPO with the recurrent two-GRU policy of the paper's Table 6 (heads fixed by the paper)."""
 
     algo: Literal["gru_ppo"]
     hidden_size: PosInt

@@ -33,11 +33,11 @@ import numpy as np
 from nutribench.baselines import gap_closed
 from nutribench.report.stats import iqm
 
-#: Run0 targets of issue 11: the share of the never -> planner gap, and the foods a day.
+#: The run0 target of every agent: the share of the never -> planner gap it closes, and the foods a day.
 TARGET_GAP = 0.75
 TARGET_FOODS = (3.0, 6.0)
 DEFAULT_BUDGET = 500
-#: DDQN's epsilon schedule and 10k-step warm-up (SPEC 3) make it slower by design.
+#: DDQN's epsilon schedule and 10k-step warm-up (the paper's Table 3) make it slower by design.
 DEFAULT_BUDGETS = {"ddqn": 2000}
 EVAL_EPISODES = 10
 
@@ -163,7 +163,7 @@ def summarize(runs: list[LearnRun]) -> list[dict[str, Any]]:
     """One row per (regime, config) over its seeds x evaluation days: return (mean, IQM),
     foods, final distance, overshoot ratio, the never and planner returns on those days, the
     gap closed (of the means; and its lowest seed), wall seconds per job, and, on run0,
-    whether issue 11's target holds."""
+    whether the run0 target (:data:`TARGET_GAP`, :data:`TARGET_FOODS`) holds."""
     groups: dict[tuple[str, str], list[LearnRun]] = {}
     for run in runs:
         groups.setdefault((run.regime, run.algo), []).append(run)

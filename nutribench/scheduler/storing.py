@@ -1,4 +1,4 @@
-"""Storing finished jobs when the database pushes back (issue 28, item 4); used by the driver.
+"""Storing finished jobs when the database pushes back; used by the driver.
 
 - A lock held past the busy timeout ("database is locked": another writer holds SQLite's one
   write lock for long; PostgreSQL's lock timeouts) is not the job's fault: its result is kept

@@ -96,8 +96,8 @@ def _switch_to_wal(cursor: sqlite3.Cursor, timeout_s: float) -> None:
 
     Switching a new database to WAL needs an exclusive lock, and SQLite reports "database is
     locked" at once, without calling the busy handler, while another connection holds a
-    lock on it: two drivers started at the same moment on a new file failed one time in ten
-    (issue 13, defect 4). So: retry with a growing pause until the busy timeout."""
+    lock on it: two drivers started at the same moment on a new file would fail one time in
+    ten. So: retry with a growing pause until the busy timeout."""
     deadline = time.monotonic() + timeout_s
     pause = 0.002
     while True:

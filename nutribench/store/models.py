@@ -10,7 +10,7 @@
     ``interrupted``; progress and heartbeat while running; reproducibility metadata and the
     trained model's path once done; the last error text if it failed.
 ``episodes``
-    Per-episode metrics of SPEC 4, phase ``train`` or ``eval``; primary key
+    Per-episode metrics (:data:`nutribench.env.metrics.METRIC_KEYS`), phase ``train`` or ``eval``; primary key
     (job, phase, episode). Written in the same transaction that marks the job done.
 ``eval_steps``
     Every step of every evaluation episode (food offered, action, absorbed C/F/P after the
@@ -176,7 +176,7 @@ class Job(Base):
 
 
 class Episode(Base):
-    """Metrics of one training or evaluation episode (SPEC 4)."""
+    """Metrics of one training or evaluation episode (:data:`nutribench.env.metrics.METRIC_KEYS`)."""
 
     __tablename__ = "episodes"
     __table_args__ = (CheckConstraint("phase IN ('train', 'eval')", name="phase"),)

@@ -1,9 +1,9 @@
 """What GRU-PPO's memory costs on run0 and buys in the delayed regimes: a diagnostic, not an agent.
 
 Trains ``gru_ppo.toml`` (batched engine by default, or SB3's) twice over the same seeds and budget, once as
-it is (the GRU state carried from step to step within a day, SPEC 3) and once with the state
-reset before every step (no memory: the length-1, no-carried-state form SPEC 3 names as the
-published implementation's defect). Everything else is identical: file, seeds, initial
+it is (the GRU state carried from step to step within a day, as the paper describes) and once
+with the state reset before every step (no memory: length-1 sequences with no carried state,
+as a published implementation feeds them). Everything else is identical: file, seeds, initial
 weights, food days, evaluation days. Both are evaluated greedily on the seeds' fixed
 evaluation days and summarised as ``nutribench bench learn`` does (share of the never ->
 planner gap closed).

@@ -1,4 +1,5 @@
-"""GRU-PPO: PPO with a recurrent policy whose memory is carried through the whole episode (SPEC 3).
+"""GRU-PPO: PPO with a recurrent policy whose memory is carried through the whole episode
+(the paper's Table 6).
 
 Everything PPO is unchanged (clipped surrogate with ``clip_range`` 0.2, GAE gamma 0.99 and
 lambda 0.95, Adam lr 1e-3, value coefficient 0.5, L2 gradient clip 0.5, advantage

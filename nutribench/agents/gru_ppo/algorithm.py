@@ -188,8 +188,8 @@ class GRUPPO(OnPolicyAlgorithm):
             self._update_info_buffer(infos, dones)
             n_steps += 1
 
-            # Bootstrap on time-limit truncation (SB3 issue #633). NutriRL's day end is a true
-            # terminal (no "TimeLimit.truncated"), so this never fires there.
+            # Bootstrap on time-limit truncation (as SB3's on-policy loop does). NutriRL's day end
+            # is a true terminal (no "TimeLimit.truncated"), so this never fires there.
             for idx, done in enumerate(dones):
                 if (
                     done

@@ -30,7 +30,7 @@ def _orthogonal_gru_init_(gru: nn.GRU, gain: float = 1.0) -> None:
 
 
 class GRUActorCriticPolicy(BasePolicy):
-    """Two-stream GRU actor-critic (SPEC 3, Table 6); see the module docstring.
+    """Two-stream GRU actor-critic (the paper's Table 6); see the module docstring.
 
     :param observation_space: flat ``Box`` of ``n_nutrients + N`` dims (nutrients first).
     :param action_space: ``Discrete`` action space.

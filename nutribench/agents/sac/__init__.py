@@ -1,4 +1,5 @@
-"""Soft Actor-Critic for discrete actions (SPEC 3), on Stable-Baselines3's off-policy machinery.
+"""Soft Actor-Critic for discrete actions (the paper's Table 5), on Stable-Baselines3's
+off-policy machinery.
 
 The discrete form of SAC (Christodoulou 2019; CleanRL's ``sac_atari``), written so that each
 part of the update can be read (and tested) on its own:

@@ -47,7 +47,7 @@ def soft_bellman_target(rewards: th.Tensor, dones: th.Tensor, next_values: th.Te
 
 
 class DiscreteSAC(OffPolicyAlgorithm):
-    """Soft Actor-Critic with a categorical actor (SPEC 3, "SAC (discrete actions)").
+    """Soft Actor-Critic with a categorical actor (the paper's Table 5, "SAC (discrete actions)").
 
     :param policy: ``"MlpPolicy"`` or a policy class (:class:`DiscreteSACPolicy` or a subclass).
     :param env: the environment (a Gymnasium env or an SB3 ``VecEnv``, e.g.
