@@ -15,7 +15,7 @@ import torch as th
 
 from nutribench.engine.checkpoint import register
 from nutribench.engine.device import leaves_on
-from nutribench.engine.on_policy import OnPolicyAlgorithm
+from nutribench.engine.on_policy import OnPolicyAlgorithm, log_prob_entropy
 from nutribench.engine.on_policy import OnPolicySettings as OnPolicySettings  # where nutribench.bench reads it
 from nutribench.engine.stacked import linears, orthogonal
 
@@ -115,15 +115,6 @@ def evaluate_actions(
     logits, values = net.forward(obs)
     log_prob, entropy = log_prob_entropy(logits, actions)
     return log_prob, entropy, values
-
-
-def log_prob_entropy(logits: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-    """``log pi(a|s)`` and the categorical policy's entropy from ``logits (K, B, n_actions)``
-    and ``actions (K, B)``, each ``(K, B)``."""
-    logp_all = th.log_softmax(logits, dim=-1)
-    log_prob = logp_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
-    entropy = -(logp_all.exp() * logp_all).sum(-1)
-    return log_prob, entropy
 
 
 class ActorCriticAlgorithm(OnPolicyAlgorithm):

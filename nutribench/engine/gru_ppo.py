@@ -26,10 +26,9 @@ import math
 import numpy as np
 import torch as th
 
-from nutribench.engine.actor_critic import log_prob_entropy
 from nutribench.engine.checkpoint import register
 from nutribench.engine.device import leaves_on
-from nutribench.engine.on_policy import OnPolicySettings, Rollout
+from nutribench.engine.on_policy import OnPolicySettings, Rollout, log_prob_entropy
 from nutribench.engine.ppo import PPO, ppo_step
 from nutribench.engine.stacked import AgentMeans, orthogonal
 

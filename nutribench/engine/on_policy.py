@@ -120,6 +120,15 @@ def gae(
     return adv, adv + values
 
 
+def log_prob_entropy(logits: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    """``log pi(a|s)`` and the categorical policy's entropy from ``logits (K, B, n_actions)``
+    and ``actions (K, B)``, each ``(K, B)``."""
+    logp_all = th.log_softmax(logits, dim=-1)
+    log_prob = logp_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
+    entropy = -(logp_all.exp() * logp_all).sum(-1)
+    return log_prob, entropy
+
+
 def normalized(adv: th.Tensor) -> th.Tensor:
     """Advantages ``(K, B)`` normalised per agent (SB3's ``normalize_advantage``)."""
     return (adv - adv.mean(dim=1, keepdim=True)) / (adv.std(dim=1, keepdim=True) + 1e-8)

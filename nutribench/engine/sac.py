@@ -22,7 +22,8 @@ day's observations; SAC's policy moves every step, so the two differ slightly).
 Each training day's diagnostics: the means over its gradient steps of the critic loss (as
 ``value_loss``), the actor loss, the mean of the twin critics' minimum at the actions taken
 (``q_mean``, before the critics' step), ``ent_coef`` (alpha, fixed) and the critics' learning
-rate (SB3's ``lr_schedule`` in :class:`~nutribench.agents.sac.DiscreteSAC`). No gradient norm: the engine does not clip SAC's gradients (nor does SAC).
+rate (SB3's ``lr_schedule`` in :class:`~nutribench.agents.sac.DiscreteSAC`). No gradient norm:
+the engine does not clip SAC's gradients (nor does SAC).
 """
 
 from __future__ import annotations
