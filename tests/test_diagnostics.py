@@ -289,3 +289,39 @@ def test_the_figure_has_a_panel_per_quantity_and_a_line_per_seed() -> None:
     assert [ax.get_title(loc="left") for ax in shown] == ["value loss (SAC: critic, DDQN: TD)", "approximate KL"]
     assert all(len(ax.lines) == 3 for ax in shown)
     assert list(shown[0].lines[0].get_xdata()) == [10.0, 20.0, 30.0, 40.0]  # training days
+
+
+# --------------------------------------------------------------------------- archives
+def test_diagnostics_travel_in_an_archive(ran, tmp_path) -> None:
+    import json
+
+    import numpy as np
+
+    archive, dst = tmp_path / "a.npz", tmp_path / "copy.db"
+    res = CliRunner().invoke(app, ["db", "export", "--db", str(ran["db"]), str(archive)])
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(app, ["db", "import", str(archive), "--db", str(dst)])
+    assert res.exit_code == 0, res.output
+    cols = ", ".join(f'"{c}"' for c in ("regime", "algo", "seed", *d.COLUMNS))
+    query = f'SELECT {cols} FROM training_diagnostics ORDER BY algo, "update"'
+    assert sql(dst, query) == sql(ran["db"], query) and len(sql(dst, query)) > 50
+    # an update there twice: refused in one line, nothing imported
+    with np.load(archive, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    meta = json.loads(arrays.pop("meta").tobytes().decode())
+    arrays["diagnostics.update"][1] = arrays["diagnostics.update"][0]
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), **arrays)
+    res = CliRunner().invoke(app, ["db", "import", str(bad), "--db", str(tmp_path / "other.db")])
+    assert res.exit_code == 2 and "update 0 is there twice" in res.output, res.output
+    assert not (tmp_path / "other.db").exists()
+    # an archive written before the table (no diagnostics arrays, not counted) imports without them
+    for k in [k for k in arrays if k.startswith("diagnostics.")]:
+        del arrays[k]
+    del meta["counts"]["diagnostics"]
+    old = tmp_path / "old.npz"
+    np.savez(old, meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), **arrays)
+    res = CliRunner().invoke(app, ["db", "import", str(old), "--db", str(tmp_path / "old.db")])
+    assert res.exit_code == 0, res.output
+    assert sql(tmp_path / "old.db", "SELECT count(*) FROM diagnostics") == [(0,)]
+    assert sql(tmp_path / "old.db", "SELECT count(*) FROM jobs") == [(5,)]

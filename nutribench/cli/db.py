@@ -53,7 +53,7 @@ def db_export_cmd(
         str | None, typer.Option(help="only these regimes (comma-separated names); default: all")
     ] = None,
 ) -> None:
-    """Write DB's done jobs (configs, job rows, episodes, evaluation steps) to one portable file."""
+    """Write DB's done jobs (configs, job rows, episodes, evaluation steps, training diagnostics) to one portable file."""
     from nutribench.store.archive import export_results
 
     def listed(text: str | None) -> list[str] | None:
@@ -62,7 +62,8 @@ def db_export_cmd(
     counts = export_results(db, out, listed(algos), listed(regimes))
     size = out.stat().st_size / 1e6
     console.print(
-        f"{out}: {counts['jobs']} jobs, {counts['episodes']:,} episodes, {counts['eval_steps']:,} evaluation steps ({size:.1f} MB)",
+        f"{out}: {counts['jobs']} jobs, {counts['episodes']:,} episodes, {counts['eval_steps']:,} evaluation steps, "
+        f"{counts.get('diagnostics', 0):,} training diagnostics rows ({size:.1f} MB)",
         highlight=False,
     )
 
@@ -86,6 +87,7 @@ def db_import_cmd(
     # the database as display_url shows it: a URL's password is never printed
     console.print(
         f"{archive} -> {display_url(database_url(db))}: {counts['imported']} jobs imported ({counts['episodes']:,} episodes, "
-        f"{counts['eval_steps']:,} evaluation steps), {counts['kept']} already done there and kept",
+        f"{counts['eval_steps']:,} evaluation steps), {counts['kept']} already done there and kept; "
+        f"{counts.get('diagnostics', 0):,} training diagnostics rows",
         highlight=False,
     )

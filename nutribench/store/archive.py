@@ -13,7 +13,10 @@ job's position in ``meta["jobs"]``. Values are kept exactly (float64); a NULL be
 (floats) or -1 (``first_overshoot_step``) with a ``<column>.null`` mask beside it. The job
 columns of schema revision 0004 (``fake``, ``batch_id``, ``batch_size``, ``device``,
 ``source``, ``source_sha256``) travel too; an archive written before them reads as
-``fake = false`` and NULLs.
+``fake = false`` and NULLs. The training diagnostics of revision 0005 travel as the table
+``diagnostics.<column>`` (``job``, ``update``, ``timestep`` and the quantities, NULL masks
+as above; no update twice per job); an archive written before it has none and imports with
+no diagnostics rows.
 
 An archive is a file from anywhere, so nothing in it is believed (:func:`read_archive`):
 before a database is opened (or created) the whole archive is checked, and the first thing
@@ -336,7 +339,7 @@ def _write(
             name: np.searchsorted(arrays[f"{name}.job"][positions[name]], np.arange(len(meta["jobs"]) + 1))
             for name in _TABLES
         }
-        counts = {"imported": 0, "kept": 0, "episodes": 0, "eval_steps": 0}
+        counts = {"imported": 0, "kept": 0, "episodes": 0, "eval_steps": 0, "diagnostics": 0}
         imported: list[int] = []
         for i, job in enumerate(meta["jobs"]):
             rid = config_ids[(RegimeConfig, *job["regime"])]

@@ -5,7 +5,8 @@ archive of this format and version, or whose content fails a check; :func:`verif
 checks a file alone. Here are the checks of the file and of its arrays (every column there,
 one-dimensional, of its type and length, NULL masks only where allowed, no other array;
 every row's job, phase, episode, step, food and action in range; no key twice; per job its
-training days, evaluation days and steps complete) and :func:`_verify`, which runs them with
+training days, evaluation days and steps complete; a training diagnostics table, which
+archives written before it lack, read as empty) and :func:`_verify`, which runs them with
 the meta's checks (:mod:`nutribench.store.archive_meta`) and compares the meta's counts.
 """
 
@@ -20,6 +21,7 @@ import numpy as np
 from nutribench.store.archive_meta import (
     _INT32,
     _META_KEYS,
+    _OPTIONAL_TABLES,
     _TABLES,
     FORMAT,
     FORMAT_VERSION,
@@ -172,6 +174,18 @@ def _check_arrays(arrays: dict[str, np.ndarray], n_jobs: int) -> dict[str, dict[
     return tables
 
 
+def _fill_optional(arrays: dict[str, np.ndarray]) -> None:
+    """An optional table (:data:`_OPTIONAL_TABLES`) that an archive has no array of at all
+    (written before the table existed) added to ``arrays`` as empty columns."""
+    for name in _OPTIONAL_TABLES:
+        if any(k.startswith(f"{name}.") for k in arrays):
+            continue
+        arrays[f"{name}.job"] = np.zeros(0, dtype=np.int32)
+        for col in _columns(_TABLES[name]):
+            kind = col.type.python_type
+            arrays[f"{name}.{col.name}"] = np.zeros(0, dtype={float: np.float64, int: np.int32, str: "<U1"}[kind])
+
+
 def _duplicate(keys: list[np.ndarray]) -> int | None:
     """A row whose key (the columns ``keys``) another row has too; None if all differ."""
     n = len(keys[0])
@@ -249,6 +263,17 @@ def _check_rows(
             f"eval_steps row {row}: job {int(sjob[row])}'s evaluation episode {int(st['episode'][row])} "
             f"step {int(st['step'][row])} is there twice"
         )
+    dg = tables["diagnostics"]
+    for col in ("update", "timestep"):
+        bad = dg[col] < 0
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise _Invalid(f"diagnostics row {row}: {col} {int(dg[col][row])} is negative")
+    row = _duplicate([dg["job"], dg["update"]])
+    if row is not None:
+        raise _Invalid(
+            f"diagnostics row {row}: job {int(dg['job'][row])}'s update {int(dg['update'][row])} is there twice"
+        )
     trains = np.bincount(job[train], minlength=n_jobs)
     evals = np.bincount(job[~train], minlength=n_jobs)
     steps = np.bincount(sjob, minlength=n_jobs)
@@ -275,10 +300,14 @@ def _verify(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
         raise _Invalid(f"meta: unknown field {_short(unknown[0])}")
     configs = _check_configs(meta)
     per_job = _check_jobs(meta, configs)
+    _fill_optional(arrays)
     tables = _check_arrays(arrays, len(meta["jobs"]))
     _check_rows(tables, per_job, meta["jobs"])
     counts = meta.get("counts")
     have = {"jobs": len(meta["jobs"]), **{name: len(cols["job"]) for name, cols in tables.items()}}
+    for name in _OPTIONAL_TABLES:  # an archive without the table (or without its rows) need not count it
+        if isinstance(counts, dict) and name not in counts and not have[name]:
+            del have[name]
     if not isinstance(counts, dict) or set(counts) != set(have):
         raise _Invalid(f"meta: counts should list {', '.join(have)}")
     for key, n in have.items():

@@ -18,14 +18,16 @@ from typing import Any
 import numpy as np
 
 from nutribench.config.loading import content_sha256
-from nutribench.store.models import JOB_STATUSES, AgentConfig, Episode, EvalStep, Job, RegimeConfig
+from nutribench.store.models import JOB_STATUSES, AgentConfig, Diagnostic, Episode, EvalStep, Job, RegimeConfig
 
 FORMAT = "nutribench-results"
 FORMAT_VERSION = 1
 #: job columns an archive leaves out: ids (remapped on import) and the driver's bookkeeping
 _JOB_SKIP = ("id", "regime_id", "agent_config_id", "owner", "heartbeat_at", "worker_pid")
 _CONFIG_SKIP = ("id",)
-_TABLES = {"episodes": Episode, "eval_steps": EvalStep}
+_TABLES = {"episodes": Episode, "eval_steps": EvalStep, "diagnostics": Diagnostic}
+#: tables an archive written before them lacks: read as empty (revision 0005: diagnostics)
+_OPTIONAL_TABLES = ("diagnostics",)
 
 #: The names of regimes and agent configs: what files, figures and tables are named after.
 NAME_PATTERN = re.compile(r"[a-z][a-z0-9_]*")
