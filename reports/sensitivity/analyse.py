@@ -106,6 +106,10 @@ def summarise(per_seed: pd.DataFrame) -> dict:
     }
 
 
+#: Every greedy-evaluated job's seed row (level, regime, seed, return, foods, share), filled by greedy_rows.
+PER_SEED: list[dict] = []
+
+
 def greedy_rows(ev: pd.DataFrame, steps: pd.DataFrame) -> list[dict]:
     rows = []
     for (algo, version, budget, regime), cell in ev.groupby(["algo", "regime_version", "budget", "regime"]):
@@ -134,6 +138,7 @@ def greedy_rows(ev: pd.DataFrame, steps: pd.DataFrame) -> list[dict]:
                 }
             )
         per_seed = pd.DataFrame(per_seed)
+        PER_SEED.extend({"level": level, "regime": regime, **r} for r in per_seed.to_dict("records"))
         evaluation = "greedy, own reward (lo off)" if version == 102 else "greedy"
         rows.append(
             {
@@ -310,7 +315,48 @@ def main() -> None:
     )
 
     prefix_check(tr, out)
+    length_per_seed(out)
     figure(table, tr, planner_mean, out)
+
+
+def length_per_seed(out: Path) -> None:
+    """The shipped PPO's greedy evaluation per seed at each training length (the shorter runs are
+    prefixes of the control's), and in how many seeds the 5000-day share is below the shorter one's."""
+    ps = pd.DataFrame(PER_SEED)
+    if ps.empty:
+        return
+    ps = ps[ps.level.isin(list(LENGTHS))].assign(days=lambda d: d.level.map(LENGTHS))
+    if ps["days"].nunique() < 2:
+        return
+    share = ps.pivot_table(index=["regime", "seed"], columns="days", values="share")
+    foods = ps.pivot_table(index=["regime", "seed"], columns="days", values="foods")
+    days = list(share.columns)
+    lines = [
+        "| regime | seed | "
+        + " | ".join(f"share at {d} days" for d in days)
+        + " | "
+        + " | ".join(f"foods at {d}" for d in days)
+        + " |",
+        "|---|---|" + "---|" * (2 * len(days)),
+    ]
+    for (regime, seed), r in share.iterrows():
+        f = foods.loc[(regime, seed)]
+        lines.append(
+            f"| {regime} | {seed} | "
+            + " | ".join(f"{100 * r[d]:.0f} %" for d in days)
+            + " | "
+            + " | ".join(f"{f[d]:.1f}" for d in days)
+            + " |"
+        )
+    lines.append("")
+    for regime, g in share.groupby(level="regime"):
+        for d in days[:-1]:
+            lower = int((g[days[-1]] < g[d]).sum())
+            lines.append(
+                f"- {regime}: the {days[-1]}-day share is below the {d}-day share in {lower} of {len(g)} seeds"
+            )
+    (out / "table_length_per_seed.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
 
 
 def prefix_check(tr: pd.DataFrame, out: Path) -> None:
@@ -350,6 +396,17 @@ def figure(table: pd.DataFrame, tr: pd.DataFrame, planner_mean: dict, out: Path)
 
     def bars(ax, levels, title):
         sel = table[table.level.isin(levels)]
+        if sel.empty:
+            ax.text(
+                0.5,
+                0.5,
+                "not run: no compute before the deadline (README)",
+                ha="center",
+                va="center",
+                transform=ax.transAxes,
+            )
+            ax.set_title(title, fontsize=10)
+            return
         series = [(lvl, ev_) for lvl, ev_ in sel[["level", "evaluation"]].drop_duplicates().itertuples(index=False)]
         width = 0.8 / max(len(series), 1)
         for i, (lvl, ev_) in enumerate(series):
@@ -392,6 +449,7 @@ def figure(table: pd.DataFrame, tr: pd.DataFrame, planner_mean: dict, out: Path)
         ax.errorbar(x, 100 * sub["share_iqm"], yerr=err, marker="o", capsize=3, label=regime, color=f"C{k}")
     ax.set_xscale("log")
     ax.set_xticks([500, 1000, 2000, 5000], ["500", "1000", "2000", "5000"])
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.axhline(0, color="k", lw=0.8)
     ax.axhline(100, color="k", lw=0.8, ls="--")
     ax.set_xlabel("training days (5000 = part 1's control)")
@@ -424,6 +482,15 @@ def figure(table: pd.DataFrame, tr: pd.DataFrame, planner_mean: dict, out: Path)
         ax.legend(fontsize=7)
 
     ax = axes[1, 2]
+    if not any(level_of(*k)[0] in OTHER_LEVELS for k in set(zip(tr.algo, tr.regime_version, tr.budget))):
+        ax.text(
+            0.5,
+            0.5,
+            "not run: no compute before the deadline (README)",
+            ha="center",
+            va="center",
+            transform=ax.transAxes,
+        )
     for lvl in OTHER_LEVELS:
         for regime, ls in (("run3", "-"), ("run6", "--")):
             sub = tr[(tr.regime == regime)]
@@ -435,7 +502,8 @@ def figure(table: pd.DataFrame, tr: pd.DataFrame, planner_mean: dict, out: Path)
     ax.set_title("(F) DDQN (and SAC) levels: training foods a day (run3 solid, run6 dashed)", fontsize=10)
     ax.set_xlabel("training day")
     ax.set_ylabel("foods a day (mean over 5 seeds, 100-day moving mean)")
-    ax.legend(fontsize=7)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7)
     fig.suptitle(
         "Sensitivity study: one factor at a time from the shipped agents (batched engine, seeds 0-4, 5000 days "
         "unless a training length)"
