@@ -95,7 +95,7 @@ class FoodCatalog(_Strict):
 
 
 class RewardConfig(_Strict):
-    """Horizon and reward coefficients, shared by every regime (SPEC 1).
+    """Horizon and reward coefficients, shared by every regime (docs: the environment).
 
     r_t = lp (d_{t-1} - d_t) - lc tanh(d_t / tau_c) - lo tanh(|max(0, s_t - T)|_2^2),
     with d_t = |s_t - T|_1 and nutrients in units of the daily target (T = (1, 1, 1)).

@@ -1,4 +1,4 @@
-"""Absorption kernels: pure numpy, computed once per regime (SPEC 1).
+"""Absorption kernels: pure numpy, computed once per regime.
 
 A food consumed at step t with mean delay ``tau`` and spread ``sigma`` (steps) delivers its
 amount over steps u = t+1 .. t+ceil(6 sigma) with weights

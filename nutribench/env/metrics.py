@@ -1,4 +1,4 @@
-"""Per-episode metrics of SPEC 4, recorded from the envs' infos (batched).
+"""Per-episode metrics (the paper's evaluation metrics), recorded from the envs' infos (batched).
 
 ``return``, ``foods`` consumed, ``final_distance`` |s_H - T|_1, ``overshoot_ratio`` (the
 fraction of the episode's steps at which any nutrient is above target), the final state

@@ -6,7 +6,7 @@ Each step (~30 minutes) one food from a catalog of N items is offered; the agent
 or eats it. What it eats is absorbed gradually over later steps through Gaussian kernels,
 overlapping with earlier meals and irreversible, so the observed state lags behind the
 decisions. The agent must bring its cumulative absorbed carbohydrates, fats and proteins
-to a hidden daily target without overshooting. This is the environment of SPEC 1; the
+to a hidden daily target without overshooting. This is the NutriRL environment; the
 delay statistics come from a regime file (``regimes/run0.toml`` .. ``run6.toml``).
 
 ## Action space
