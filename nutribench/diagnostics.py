@@ -5,9 +5,10 @@ quantity an algorithm does not have is absent from the dict (NULL in the databas
 writes a job's rows to the ``diagnostics`` table in the same transaction as its episode rows.
 
 Granularity: the on-policy agents (MC, PPO, GRU-PPO) record one row per rollout update; the
-off-policy agents (DDQN, SAC) record one row per training day, each quantity the mean over that
-day's gradient steps (a 5000-day DDQN job makes 62,500 gradient steps; a row each would be 12 M
-rows for the paper grid).
+off-policy agents (DDQN, SAC) record one row per training day with gradient steps (none before
+learning starts), each quantity the mean over that day's gradient steps (a 5000-day DDQN job
+makes 62,500 gradient steps; a row each would be 12 M rows for the paper grid). Both engines
+follow this.
 
 Columns:
 

@@ -7,8 +7,8 @@ callback) closes a row at the end of each update and hands it to the logger's ou
 
 * on-policy (MC, PPO, GRU-PPO): a row after each rollout's update (closed when the next rollout
   starts, and when training ends);
-* off-policy (DDQN, SAC): a row at the end of each training day, each quantity the mean over
-  that day's gradient steps (the losses are absent on days before learning starts).
+* off-policy (DDQN, SAC): a row at the end of each training day with gradient steps, each
+  quantity the mean over that day's gradient steps (days before learning starts have none).
 
 Row keys are the vocabulary of :mod:`nutribench.diagnostics`. The gradient norm before
 clipping is read where it is cheap: DDQN and GRU-PPO record ``train/grad_norm`` themselves
@@ -68,12 +68,16 @@ class DiagnosticsLogger(Logger):
         self.keys = keys
         self.sums: dict[str, float] = {}
         self.counts: dict[str, int] = {}
+        #: whether a training update recorded anything since the last row (``train/n_updates``)
+        self.updated = False
 
     def record(self, key: str, value: Any, exclude: str | tuple[str, ...] | None = None) -> None:
         super().record(key, value, exclude)
         name = self.keys.get(key)
         if name is not None:
             self.add(name, value)
+        elif key == "train/n_updates":
+            self.updated = True
 
     def add(self, name: str, value: Any) -> None:
         """One more value of quantity ``name`` (non-finite values are left out)."""
@@ -87,6 +91,7 @@ class DiagnosticsLogger(Logger):
         out = {k: self.sums[k] / self.counts[k] for k in d.QUANTITIES if k in self.sums}
         self.sums.clear()
         self.counts.clear()
+        self.updated = False
         return out
 
 
@@ -150,15 +155,18 @@ class TrainingDiagnostics(BaseCallback):
 
     def _on_step(self) -> bool:
         if self.off_policy and any(self.locals["dones"]):
-            self._close_row()
+            if self.diag_logger.updated:
+                self._close_row()
+            else:  # a day before learning starts: no update, no row
+                self.diag_logger.take()
         return True
 
     def _on_rollout_start(self) -> None:
-        if not self.off_policy and self.diag_logger.sums:
+        if not self.off_policy and self.diag_logger.updated:
             self._close_row()
 
     def _on_training_end(self) -> None:
-        if not self.off_policy and self.diag_logger.sums:
+        if not self.off_policy and self.diag_logger.updated:
             self._close_row()
         if self.probe is not None:
             self.probe.remove()

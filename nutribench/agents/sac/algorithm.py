@@ -75,7 +75,8 @@ class DiscreteSAC(OffPolicyAlgorithm):
     :param _init_setup_model: build the networks now (SB3's ``load`` passes False).
 
     Logged each update: ``train/actor_loss``, ``train/critic_loss``, ``train/entropy`` (mean
-    policy entropy on the batch, nats), ``train/q_mean``, ``train/alpha``, ``train/n_updates``.
+    policy entropy on the batch, nats), ``train/q_mean`` (mean of the twin critics' minimum
+    at the batch's actions), ``train/alpha``, ``train/n_updates``.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": DiscreteSACPolicy}
@@ -167,11 +168,11 @@ class DiscreteSAC(OffPolicyAlgorithm):
             return soft_bellman_target(rewards, dones, v_next, self.gamma)
 
     def critic_loss(self, obs: th.Tensor, actions: th.Tensor, targets: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """``MSE(Q1(s,a), y) + MSE(Q2(s,a), y)`` and the mean of ``Q1(s,a)`` (for logging)."""
+        """``MSE(Q1(s,a), y) + MSE(Q2(s,a), y)`` and the mean of ``min(Q1, Q2)(s,a)`` (for logging)."""
         q1, q2 = self.policy.q_values(obs)
         a = actions.long().reshape(-1, 1)
         q1_a, q2_a = q1.gather(1, a).squeeze(1), q2.gather(1, a).squeeze(1)
-        return F.mse_loss(q1_a, targets) + F.mse_loss(q2_a, targets), q1_a.detach().mean()
+        return F.mse_loss(q1_a, targets) + F.mse_loss(q2_a, targets), th.min(q1_a, q2_a).detach().mean()
 
     def actor_loss(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """``E_s sum_a pi(a|s) (alpha log pi(a|s) - min Q(s,a))`` (critics detached) and the mean entropy."""
