@@ -276,7 +276,7 @@ def flops_per_env_step(cfg, obs_dim: int = 13, n_actions: int = 2, horizon: int 
         forward = 2 * sum(a * b for a, b in zip(sizes[:-1], sizes[1:]))
         per_sample = 5 if cfg.algo == "ddqn" else 14
         return forward * (1 + per_sample * cfg.batch_size * cfg.gradient_steps / cfg.train_freq)
-    from nutribench.engine.actor_critic import OnPolicySettings
+    from nutribench.engine.on_policy import OnPolicySettings
 
     if cfg.algo == "gru_ppo":  # two GRU steps (input and recurrent products of 3 gates), two heads
         h, head = cfg.hidden_size, 128

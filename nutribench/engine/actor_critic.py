@@ -16,7 +16,6 @@ import torch as th
 from nutribench.engine.checkpoint import register
 from nutribench.engine.device import leaves_on
 from nutribench.engine.on_policy import OnPolicyAlgorithm, log_prob_entropy
-from nutribench.engine.on_policy import OnPolicySettings as OnPolicySettings  # where nutribench.bench reads it
 from nutribench.engine.stacked import linears, orthogonal
 
 GAINS = (math.sqrt(2), math.sqrt(2), 0.01, 1.0)  # backbone layers, actor head, value head
