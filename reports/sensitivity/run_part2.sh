@@ -8,7 +8,7 @@
 # into its own database /tmp/sens2/<id>.db, then exports it to /tmp/sens2/data/<id>.npz.
 # A level starts only if its estimated wall time fits before the deadline (UTC, today or
 # tomorrow); a level still running at the deadline is stopped (timeout) and is not run.
-# Times go to /tmp/sens2/log.txt.
+# Times go to /tmp/sens2/log.txt. QUEUE_FROM=<n> starts at the queue's entry n (0-based; default 0).
 set -u
 SHA=${1:?plan commit}
 SLOTS=${2:-2}
@@ -81,9 +81,9 @@ slot() {
   done
 }
 
-rm -f "$OUT/.next"
+echo "${QUEUE_FROM:-0}" >"$OUT/.next"
 rmdir "$OUT/.lock" 2>/dev/null
-log "queue of $SHA, $SLOTS slots, deadline $DEADLINE UTC"
+log "queue of $SHA from entry ${QUEUE_FROM:-0}, $SLOTS slots, deadline $DEADLINE UTC"
 for _ in $(seq "$SLOTS"); do
   slot &
   sleep 2
