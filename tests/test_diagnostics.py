@@ -6,6 +6,7 @@ that adds the table to a revision-0004 database."""
 
 from __future__ import annotations
 
+import re
 import shutil
 import sqlite3
 from pathlib import Path
@@ -363,3 +364,55 @@ def test_diagnostics_travel_in_an_archive(ran, tmp_path) -> None:
     assert res.exit_code == 0, res.output
     assert sql(tmp_path / "old.db", "SELECT count(*) FROM diagnostics") == [(0,)]
     assert sql(tmp_path / "old.db", "SELECT count(*) FROM jobs") == [(5,)]
+
+
+def test_grad_norm_probe_reads_the_norm_before_clipping():
+    """The probe's norm (one per gradient step) is the one clip_grad_norm_ returns, not the
+    clipped gradient's; a step whose backward missed a parameter records nothing."""
+    import torch as th
+
+    from nutribench.agents.training_log import DiagnosticsLogger, GradNormProbe
+
+    th.manual_seed(0)
+    net = th.nn.Sequential(th.nn.Linear(4, 8), th.nn.Tanh(), th.nn.Linear(8, 2))
+    opt = th.optim.SGD(net.parameters(), lr=0.1)
+    logger = DiagnosticsLogger({})
+    probe = GradNormProbe(list(net.parameters()), opt, logger)
+    norms = []
+    for _ in range(3):
+        opt.zero_grad()
+        net(th.randn(16, 4)).pow(2).sum().backward()
+        norms.append(float(th.nn.utils.clip_grad_norm_(net.parameters(), 0.01)))  # clips hard
+        opt.step()
+    assert min(norms) > 0.01  # every step was clipped
+    assert logger.counts[d.GRAD_NORM] == 3
+    assert logger.sums[d.GRAD_NORM] == pytest.approx(sum(norms), rel=1e-6)
+    opt.zero_grad(set_to_none=True)
+    net[2](th.randn(16, 8)).sum().backward()  # the first layer gets no gradient
+    opt.step()
+    assert logger.counts[d.GRAD_NORM] == 3
+    probe.remove()
+
+
+@pytest.mark.parametrize("algo", ["ppo", "ddqn"])
+def test_diagnostics_off_trains_the_same_job_without_rows(algo):
+    """``train(..., diagnostics=False)`` (what ``bench train --diagnostics-cost`` times against)
+    records no rows and changes nothing else: the same seed gives the same training days."""
+    from nutribench.agents import load_agent_config, train
+
+    cfg = load_agent_config(algo)
+    cfg = cfg.model_copy(update={"learning_starts": 50} if algo == "ddqn" else {"n_steps": 50})
+    on = train("run0", cfg, seed=3, episodes=3)
+    off = train("run0", cfg, seed=3, episodes=3, diagnostics=False)
+    assert len(on.diagnostics) >= 2 and off.diagnostics == []
+    assert [e["return"] for e in on.train_episodes] == [e["return"] for e in off.train_episodes]
+
+
+def test_bench_train_reports_the_diagnostics_cost():
+    result = CliRunner().invoke(
+        app, ["bench", "train", "--algos", "mc", "--episodes", "2", "--repeats", "2", "--diagnostics-cost"]
+    )
+    assert result.exit_code == 0, result.output
+    out = " ".join(result.output.split())  # rich wraps the table's cells at the runner's width
+    assert "cost" in out
+    assert re.search(r"[+-]\d+\.\d %", out)  # the nutribench row's cost cell is filled

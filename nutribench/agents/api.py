@@ -288,11 +288,14 @@ def train(
     episodes: int,
     on_episode: EpisodeFn | None = None,
     tensorboard: str | Path | None = None,
+    diagnostics: bool = True,
 ) -> TrainedAgent:
     """Train ``agent_config`` (name, file or model) on ``regime`` for ``episodes`` days.
 
     :param on_episode: called with each finished training day's metrics dict.
     :param tensorboard: a folder for this run's TensorBoard events (built-in algorithms).
+    :param diagnostics: record the training diagnostics (False: no callback, logger or gradient
+        probe: what ``nutribench bench train --diagnostics-cost`` compares against).
     :return: the trained agent; its ``train_episodes`` hold every day's metrics, its
         ``diagnostics`` one row per update (built-in algorithms; see :mod:`nutribench.diagnostics`).
     """
@@ -303,6 +306,7 @@ def train(
     cfg = load_agent_config(agent_config)
     horizon = env_cfg.reward.horizon
     base, env = make_train_env(env_cfg, cfg)
+    recording = diagnostics
     diagnostics = None
     if algorithm(cfg).build is None:  # a plug-in: its days are recorded by the env
         env = recorder = RecordingVecEnv(env, base, episodes, on_episode)
@@ -313,8 +317,11 @@ def train(
     else:
         model = make_model(cfg, env, seed=seed, horizon=horizon)
         recorder = EpisodeMetrics(base, cfg.algo, episodes, on_episode)
-        diagnostics = TrainingDiagnostics(model, tensorboard)
-        model.learn(total_timesteps=episodes * horizon, callback=CallbackList([recorder, diagnostics]))
+        callbacks = [recorder]
+        if recording or tensorboard is not None:
+            diagnostics = TrainingDiagnostics(model, tensorboard)
+            callbacks.append(diagnostics)
+        model.learn(total_timesteps=episodes * horizon, callback=CallbackList(callbacks))
     rms: RunningMeanStd | None = env.obs_rms if cfg.normalize_obs else None  # type: ignore[union-attr]
     provenance = {
         "regime": env_cfg.name,

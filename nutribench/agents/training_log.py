@@ -96,25 +96,38 @@ class DiagnosticsLogger(Logger):
 
 
 class GradNormProbe:
-    """The global gradient norm of ``params`` before clipping, for an update we cannot enter:
-    each parameter's gradient norm is taken as backward accumulates it, and their global norm
-    is handed to ``logger`` when ``optimizer`` steps (after any clipping, which leaves the
-    recorded norm as it was)."""
+    """The global gradient norm of ``params`` before clipping, for an update we cannot enter.
+
+    Backward accumulates each parameter's gradient in turn; when the last of them has arrived
+    (a hook counts them), the global norm of all of them is taken in one fused call, before
+    the update clips anything, and handed to ``logger`` when ``optimizer`` steps (so one norm,
+    and one read of it, per gradient step). A step whose backward left some parameter without a
+    gradient gets the norm of those that have one.
+    """
 
     def __init__(self, params: list[th.nn.Parameter], optimizer: th.optim.Optimizer, logger: DiagnosticsLogger):
         self.logger = logger
-        self.parts: list[th.Tensor] = []
-        self.handles = [p.register_post_accumulate_grad_hook(self._grad) for p in params if p.requires_grad]
+        self.params = [p for p in params if p.requires_grad]
+        self.arrived = 0
+        self.norm: th.Tensor | None = None
+        self.handles = [p.register_post_accumulate_grad_hook(self._grad) for p in self.params]
         self.handles.append(optimizer.register_step_pre_hook(self._step))
 
-    def _grad(self, p: th.Tensor) -> None:
-        if p.grad is not None:
-            self.parts.append(th.linalg.vector_norm(p.grad.detach()))
+    def _total(self) -> th.Tensor | None:
+        grads = [p.grad.detach() for p in self.params if p.grad is not None]
+        return th.nn.utils.get_total_norm(grads) if grads else None
+
+    def _grad(self, _: th.Tensor) -> None:
+        self.arrived += 1
+        if self.arrived == len(self.params):  # the last gradient of this backward: none clipped yet
+            self.norm = self._total()
+            self.arrived = 0
 
     def _step(self, *_: Any) -> None:
-        if self.parts:
-            self.logger.add(d.GRAD_NORM, th.linalg.vector_norm(th.stack(self.parts)).item())
-            self.parts.clear()
+        if self.norm is not None:
+            self.logger.add(d.GRAD_NORM, self.norm.item())
+        self.norm = None
+        self.arrived = 0
 
     def remove(self) -> None:
         for h in self.handles:

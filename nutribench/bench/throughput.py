@@ -124,18 +124,28 @@ def _bare_sb3_seconds(algo: str, regime: str, episodes: int, seed: int, bare_cls
 
 
 def bench_train(
-    algos: list[str], regime: str = "run0", episodes: int = 100, repeats: int = 3, seed: int = 0
+    algos: list[str],
+    regime: str = "run0",
+    episodes: int = 100,
+    repeats: int = 3,
+    seed: int = 0,
+    diagnostics_cost: bool = False,
 ) -> list[dict]:
     """Env-steps per second of ``nutribench.agents.train`` for each algorithm, and of bare
     SB3 PPO and DQN on the same env (medians over ``repeats``); plus the CPU-hours the paper
     grid would take at that rate, one job per core. A nutribench row with a bare reference
     has ``vs_bare``: the median over repeats of (bare seconds / nutribench seconds) of the
-    same repeat, i.e. nutribench's throughput as a fraction of bare SB3's."""
+    same repeat, i.e. nutribench's throughput as a fraction of bare SB3's.
+
+    ``diagnostics_cost``: each repeat also trains the same job without the training diagnostics
+    (``train(..., diagnostics=False)``), interleaved, and each nutribench row gets
+    ``diagnostics_cost``: 1 - the median over repeats of (seconds without / seconds with), the
+    share of training time the diagnostics take, paired per repeat."""
     from nutribench.agents.api import train
 
-    def timed_train(cfg) -> float:
+    def timed_train(cfg, diagnostics: bool = True) -> float:
         t0 = time.perf_counter()
-        train(regime, cfg, seed=seed, episodes=episodes)
+        train(regime, cfg, seed=seed, episodes=episodes, diagnostics=diagnostics)
         return time.perf_counter() - t0
 
     steps = episodes * 50
@@ -147,8 +157,13 @@ def bench_train(
         # or slows down during the benchmark shifts both sides alike
         times: list[float] = []
         bare_times: dict[str, list[float]] = {cls_name: [] for cls_name, _ in bare_refs}
-        for _ in range(repeats):
+        without: list[float] = []
+        for i in range(repeats):
+            if diagnostics_cost and i % 2:  # which side goes first alternates between repeats
+                without.append(timed_train(cfg, diagnostics=False))
             times.append(timed_train(cfg))
+            if diagnostics_cost and not i % 2:
+                without.append(timed_train(cfg, diagnostics=False))
             for cls_name, _ in bare_refs:
                 bare_times[cls_name].append(_bare_sb3_seconds(algo, regime, episodes, seed, cls_name))
         row = {
@@ -160,6 +175,9 @@ def bench_train(
         if bare_refs:  # the first bare row is the one the plumbing's overhead is measured against
             ref = bare_times[bare_refs[0][0]]
             row["vs_bare"] = statistics.median(b / t for b, t in zip(ref, times))  # paired, per repeat
+        if diagnostics_cost:
+            row["diagnostics_cost"] = 1 - statistics.median(w / t for w, t in zip(without, times))
+            row["steps_per_s_without"] = steps / statistics.median(without)
         rows.append(row)
         for cls_name, label in bare_refs:
             rows.append(

@@ -48,9 +48,17 @@ def bench_train_cmd(
     repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 3,
     engine: Annotated[str, typer.Option(help="'sb3', or 'batched': the batched engine at K = 35 beside SB3's")] = "sb3",
     device: Annotated[str, typer.Option(help=f"--engine batched: {DEVICE_HELP} (SB3's rows: the CPU)")] = "auto",
+    diagnostics_cost: Annotated[
+        bool,
+        typer.Option(
+            "--diagnostics-cost",
+            help="also time each repeat without the training diagnostics (interleaved) and report their cost",
+        ),
+    ] = False,
 ) -> None:
     """Training env-steps per second of each algorithm, and of bare SB3 PPO / DQN on the same
     env (the overhead of nutribench's plumbing), with the paper grid's CPU-hours at that rate.
+    With --diagnostics-cost, the share of training time the diagnostics take (SB3 engine).
     With --engine batched, also the batched engine (7 regimes x 5 seeds at once): its rate,
     FLOPs per env step, this machine's matmul rate and the share of that floor reached."""
     from nutribench.agents.config import ALGOS
@@ -60,17 +68,17 @@ def bench_train_cmd(
     check_engine_options(engine, device)
     names = split_csv(algos, list(ALGOS), "algorithm")
     load_env_config(regime)
-    rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats)
-    table = Table(
-        "run",
-        "env-steps/s (median)",
-        "vs bare SB3 (paired median)",
-        "paper grid CPU-hours",
-        title=f"training throughput, {regime}, {episodes} days x {repeats}",
-    )
+    rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats, diagnostics_cost=diagnostics_cost)
+    columns = ["run", "env-steps/s (median)", "vs bare SB3 (paired median)", "paper grid CPU-hours"]
+    if diagnostics_cost:
+        columns += ["without diagnostics, env-steps/s", "diagnostics' cost (paired median)"]
+    table = Table(*columns, title=f"training throughput, {regime}, {episodes} days x {repeats}")
     for r in rows:
         ratio = f"{r['vs_bare']:.3f}" if "vs_bare" in r else ""
-        table.add_row(r["what"], f"{r['steps_per_s']:,.0f}", ratio, f"{r['paper_grid_cpu_hours']:.1f}")
+        cells = [r["what"], f"{r['steps_per_s']:,.0f}", ratio, f"{r['paper_grid_cpu_hours']:.1f}"]
+        if "diagnostics_cost" in r:
+            cells += [f"{r['steps_per_s_without']:,.0f}", f"{100 * r['diagnostics_cost']:+.1f} %"]
+        table.add_row(*cells)
     console.print(table)
     total = sum(r["paper_grid_cpu_hours"] for r in rows if not r["bare"])
     console.print(
