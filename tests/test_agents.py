@@ -366,7 +366,7 @@ def test_bench_train_reports_each_algorithm_and_its_bare_references():
 # ---------------------------------------------------------------------- last rollout
 @pytest.mark.parametrize(
     ("algo", "days", "updates"),
-    [("mc", 3, 3), ("ppo", 20, 2), ("gru_ppo", 20, 2), ("ppo", 25, 2)],
+    [("mc", 3, 3), ("ppo", 20, 2), ("gru_ppo", 20, 2), pytest.param("ppo", 25, 2, marks=pytest.mark.slow)],
 )
 def test_on_policy_jobs_update_on_their_last_rollout(algo, days, updates, monkeypatch):
     """MC updates once per day and (GRU-)PPO once per 10-day rollout, the last rollout

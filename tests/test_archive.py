@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 from typer.testing import CliRunner
 
 from nutribench.cli import app
@@ -51,6 +52,7 @@ def _trajectories(db: Path) -> pd.DataFrame:
     return _table(db, "eval_steps").drop(columns="job_id")
 
 
+@pytest.mark.slow
 def test_a_grid_run_in_two_parts_merges_into_one_database(tmp_path, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     part1, part2, merged = (tmp_path / f"{n}.db" for n in ("part1", "part2", "merged"))

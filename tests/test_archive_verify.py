@@ -356,6 +356,7 @@ def test_each_tampering_is_one_line_exit_2_and_no_database(source, tmp_path, nam
     assert not db.exists() and list(tmp_path.iterdir()) == [bad]  # no database, no -wal, nothing
 
 
+@pytest.mark.slow
 def test_no_bit_flip_imports_other_data(source, tmp_path) -> None:
     """A bit flipped anywhere in the file (every 23rd byte, headers, data and the central
     directory): the archive is refused with one line, or, where the flip hit a zip field no
@@ -575,6 +576,7 @@ def test_the_committed_archives_pass_every_check(archive) -> None:
     assert all("fake" not in j for j in meta["jobs"])  # written before revision 0004
 
 
+@pytest.mark.slow
 def test_a_committed_archive_still_imports_and_rebuilds_its_tables(tmp_path) -> None:
     """``sac-run4-run6.npz`` (the smallest part: 15 jobs) into an empty database, then the
     results and the training tables as README's ``report --all`` builds them: the rows of

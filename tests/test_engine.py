@@ -201,6 +201,7 @@ def test_batched_training_yields_agents_the_single_agent_api_uses(tmp_path) -> N
     assert agents[1].provenance["engine"] == "batched"
 
 
+@pytest.mark.slow
 def test_bench_engines_and_bench_train_batched_report_their_shape() -> None:
     """The benchmarks' shape, not their figures (timings belong in benchmarks)."""
     from nutribench.bench.engines import bench_engines, markdown_table
@@ -307,6 +308,7 @@ def test_the_batched_rollout_equals_sb3_s_vecnormalize_and_rollout_buffer_on_the
 
 
 # --------------------------------------------------------------------------- GRU-PPO
+@pytest.mark.slow
 def test_one_gru_ppo_update_of_stacked_agents_equals_gru_ppo_s_update_of_each_alone() -> None:
     """One rollout each (run0, run3, run0), then one ``GRUPPO.train()`` of each alone against
     one stacked update: every weight of both GRUs and both heads, relative tolerance 1e-4.

@@ -72,8 +72,15 @@ def same_agents(a, b) -> None:
 
 
 @pytest.mark.parametrize(
-    "algo,days,stop_day", [("mc", 5, 3), ("ppo", 25, 17), ("gru_ppo", 20, 12), ("ddqn", 8, 5), ("sac", 6, 4)]
-)
+    "algo,days,stop_day",
+    [
+        ("mc", 5, 3),
+        pytest.param("ppo", 25, 17, marks=pytest.mark.slow),
+        pytest.param("gru_ppo", 20, 12, marks=pytest.mark.slow),
+        ("ddqn", 8, 5),
+        pytest.param("sac", 6, 4, marks=pytest.mark.slow),
+    ],
+)  # MC and DDQN (one on-policy loop, one off-policy) in the fast run
 def test_a_stopped_batch_resumes_from_its_checkpoint_and_ends_as_an_uninterrupted_one(algo, days, stop_day, tmp_path):
     cfg = small(algo)
     whole = train_batched(JOBS, cfg, days)

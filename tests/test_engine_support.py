@@ -174,6 +174,7 @@ def test_run_batch_refuses_an_unsupported_config(agents: Path, tmp_path: Path) -
 
 
 # ------------------------------------------------------------------- 4. provenance
+@pytest.mark.slow
 def test_batched_jobs_store_their_batch_and_device_and_sb3_jobs_the_cpu(tmp_path: Path) -> None:
     """A tiny real grid: three PPO jobs in batches of at most two (one of 2, one of 1), then one SB3 job."""
     db = tmp_path / "r.db"

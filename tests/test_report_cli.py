@@ -131,6 +131,7 @@ def one_error_line(result) -> str:
     return lines[0]
 
 
+@pytest.mark.slow
 def test_report_all_writes_every_file(full_db: Path, tmp_path: Path):
     out = tmp_path / "reports"
     result = invoke("--all", "--db", str(full_db), "--out", str(out), *REF_EPISODES)
@@ -168,6 +169,7 @@ def test_results_table_equals_pandas_on_the_view(full_db: Path, tmp_path: Path):
     assert f"{first['return_mean']:.2f} ± {first['return_sem']:.2f}" in md
 
 
+@pytest.mark.slow
 def test_figure_and_table_selection(full_db: Path, tmp_path: Path):
     result = invoke(
         "--fig", "1,3", "--fig", "2", "--table", "1", "--db", str(full_db), "--out", str(tmp_path), *REF_EPISODES
@@ -220,6 +222,7 @@ def test_missing_database_one_line(tmp_path: Path):
     assert "no results database at" in line and "nope.db" in line
 
 
+@pytest.mark.slow
 def test_partial_database_still_draws(tmp_path: Path):
     db = make_db(tmp_path / "partial.db", regimes=("run3",), algos=("ppo",), seeds=(7,), steps=False)
     out = tmp_path / "r"
@@ -239,6 +242,7 @@ def test_partial_database_still_draws(tmp_path: Path):
     assert any("GRU-PPO" in t.get_text() for t in fig4.figure.texts)
 
 
+@pytest.mark.slow
 def test_all_skips_what_the_data_cannot_support(tmp_path: Path):
     db = make_db(tmp_path / "sac.db", regimes=("run0",), algos=("sac",), seeds=(0,), steps=False)
     out = tmp_path / "r"

@@ -63,6 +63,7 @@ def _loaded(page: Path, tmp: Path) -> tuple[int, int, str]:
     return int(images.group(1)), int(loaded.group(1)), dom
 
 
+@pytest.mark.slow
 def test_report_all_page_renders_with_every_figure_loaded(tmp_path: Path):
     db = make_db(tmp_path / "r.db")
     out = tmp_path / "reports"

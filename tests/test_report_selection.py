@@ -161,6 +161,7 @@ def test_unknown_algos_are_one_line_naming_what_the_database_holds(db: Path, tmp
 
 
 # --------------------------------------------------------------------------- --pair
+@pytest.mark.slow
 def test_pair_draws_figure_4_for_another_pair(db: Path, tmp_path: Path):
     result = invoke(db, tmp_path, "--fig", "4", "--pair", "a2c_mine,ppo", *REF)
     assert result.exit_code == 0, result.output
@@ -192,6 +193,7 @@ def test_a_pair_the_database_lacks_is_one_line(db: Path, tmp_path: Path, pair: s
 OTHERS = ["a2c_mine", "ppo_big", "trpo", "rainbow"]
 
 
+@pytest.mark.slow
 def test_colours_are_distinct_for_many_configs_and_keep_the_five():
     c = colors([*OTHERS, "dqn_v2", "impala", "td3", "r2d2", *BUILTIN_ORDER])
     assert {n: c[n] for n in BUILTIN_ORDER} == BUILTIN_COLORS  # the published colours

@@ -490,6 +490,7 @@ def test_bad_database_paths_are_one_line(regimes: Path, tmp_path: Path) -> None:
     assert res.exit_code == 2 and "no results database" in res.output
 
 
+@pytest.mark.slow
 def test_status_json(regimes: Path, tmp_path: Path) -> None:
     db = tmp_path / "r.db"
     run_grid(
@@ -531,6 +532,7 @@ def test_dask_executor_runs_jobs_on_a_local_cluster(regimes: Path, tmp_path: Pat
     assert_views_hide_the_dry_run(db)
 
 
+@pytest.mark.slow
 def test_an_unreachable_dask_scheduler_fails_before_the_database_is_touched(regimes: Path, tmp_path: Path) -> None:
     """Nothing is written (database file, config rows, pending jobs) before the executor is reached."""
     import socket

@@ -154,6 +154,22 @@ def build_model(
     return model
 
 
+def ppo_arguments(cfg: PPOConfig | GRUPPOConfig) -> dict[str, Any]:
+    """The constructor arguments PPO and GRU-PPO share (GRU-PPO's update is PPO's)."""
+    return dict(
+        learning_rate=cfg.learning_rate,
+        n_steps=cfg.n_steps,
+        batch_size=cfg.batch_size,
+        n_epochs=cfg.n_epochs,
+        gae_lambda=cfg.gae_lambda,
+        clip_range=cfg.clip_range,
+        ent_coef=cfg.ent_coef,
+        vf_coef=cfg.vf_coef,
+        max_grad_norm=cfg.max_grad_norm,
+        normalize_advantage=cfg.normalize_advantage,
+    )
+
+
 def model_arguments(cfg: Any, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
     """The algorithm class of config ``cfg`` and its constructor arguments (all but env,
     seed, device, verbosity and gamma, which :func:`build_model` adds)."""
@@ -175,34 +191,10 @@ def model_arguments(cfg: Any, horizon: int) -> tuple[type[BaseAlgorithm], dict[s
         # here than equal minibatches (500 = 7 x 64 + 52).
         warnings.filterwarnings("ignore", message="You have specified a mini-batch size", module="stable_baselines3")
         return PPO, dict(
-            policy="MlpPolicy",
-            learning_rate=cfg.learning_rate,
-            n_steps=cfg.n_steps,
-            batch_size=cfg.batch_size,
-            n_epochs=cfg.n_epochs,
-            gae_lambda=cfg.gae_lambda,
-            clip_range=cfg.clip_range,
-            ent_coef=cfg.ent_coef,
-            vf_coef=cfg.vf_coef,
-            max_grad_norm=cfg.max_grad_norm,
-            normalize_advantage=cfg.normalize_advantage,
-            policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch),
+            policy="MlpPolicy", **ppo_arguments(cfg), policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch)
         )
     if isinstance(cfg, GRUPPOConfig):
-        return GRUPPO, dict(
-            learning_rate=cfg.learning_rate,
-            n_steps=cfg.n_steps,
-            batch_size=cfg.batch_size,
-            n_epochs=cfg.n_epochs,
-            gae_lambda=cfg.gae_lambda,
-            clip_range=cfg.clip_range,
-            ent_coef=cfg.ent_coef,
-            vf_coef=cfg.vf_coef,
-            max_grad_norm=cfg.max_grad_norm,
-            normalize_advantage=cfg.normalize_advantage,
-            hidden_size=cfg.hidden_size,
-            sequence_length=cfg.sequence_length,
-        )
+        return GRUPPO, dict(**ppo_arguments(cfg), hidden_size=cfg.hidden_size, sequence_length=cfg.sequence_length)
     if isinstance(cfg, DDQNConfig):
         return DoubleDQN, dict(
             policy="MlpPolicy",
