@@ -99,7 +99,7 @@ class GradNormProbe:
     """The global gradient norm of ``params`` before clipping, for an update we cannot enter.
 
     Backward accumulates each parameter's gradient in turn; when the last of them has arrived
-    (a hook counts them), the global norm of all of them is taken in one fused call, before
+    (a hook counts them), the global norm of all of them is taken at once, before
     the update clips anything, and handed to ``logger`` when ``optimizer`` steps (so one norm,
     and one read of it, per gradient step). A step whose backward left some parameter without a
     gradient gets the norm of those that have one.
@@ -114,8 +114,10 @@ class GradNormProbe:
         self.handles.append(optimizer.register_step_pre_hook(self._step))
 
     def _total(self) -> th.Tensor | None:
-        grads = [p.grad.detach() for p in self.params if p.grad is not None]
-        return th.nn.utils.get_total_norm(grads) if grads else None
+        # one flat vector and one norm: on the CPU about half the time of get_total_norm for
+        # these small networks (the norms are equal up to float rounding)
+        grads = [p.grad.detach().reshape(-1) for p in self.params if p.grad is not None]
+        return th.linalg.vector_norm(th.cat(grads)) if grads else None
 
     def _grad(self, _: th.Tensor) -> None:
         self.arrived += 1
