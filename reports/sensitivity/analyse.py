@@ -436,7 +436,9 @@ def figure(table: pd.DataFrame, tr: pd.DataFrame, planner_mean: dict, out: Path)
         ax.legend(fontsize=7, loc="lower left", ncol=2)
 
     bars(axes[0, 0], PPO_LEVELS, "(A) PPO, one factor at a time: evaluation on 5 fixed days per seed")
-    bars(axes[0, 2], OTHER_LEVELS, "(C) DDQN (and SAC): evaluation on 5 fixed days per seed")
+    ran = set(table.level)
+    other = "DDQN and SAC" if ran & {"sac", "sac_a005"} else "DDQN (SAC's levels not run)"
+    bars(axes[0, 2], OTHER_LEVELS, f"(C) {other}: evaluation on 5 fixed days per seed")
 
     ax = axes[0, 1]
     greedy = table[(table.evaluation == "greedy") & table.level.isin(list(LENGTHS))]
@@ -499,7 +501,7 @@ def figure(table: pd.DataFrame, tr: pd.DataFrame, planner_mean: dict, out: Path)
                 continue
             curve = sub.groupby("episode")["foods"].mean().rolling(100, min_periods=1).mean()
             ax.plot(curve.index + 1, curve.to_numpy(), lw=1.2, ls=ls, color=color[lvl], label=f"{lvl} {regime}")
-    ax.set_title("(F) DDQN (and SAC) levels: training foods a day (run3 solid, run6 dashed)", fontsize=10)
+    ax.set_title(f"(F) {other}: training foods a day (run3 solid, run6 dashed)", fontsize=10)
     ax.set_xlabel("training day")
     ax.set_ylabel("foods a day (mean over 5 seeds, 100-day moving mean)")
     if ax.get_legend_handles_labels()[0]:
