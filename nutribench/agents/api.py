@@ -306,8 +306,7 @@ def train(
     cfg = load_agent_config(agent_config)
     horizon = env_cfg.reward.horizon
     base, env = make_train_env(env_cfg, cfg)
-    recording = diagnostics
-    diagnostics = None
+    recorded: TrainingDiagnostics | None = None
     if algorithm(cfg).build is None:  # a plug-in: its days are recorded by the env
         env = recorder = RecordingVecEnv(env, base, episodes, on_episode)
         model = recorder.model = make_model(cfg, env, seed=seed, horizon=horizon)
@@ -318,9 +317,9 @@ def train(
         model = make_model(cfg, env, seed=seed, horizon=horizon)
         recorder = EpisodeMetrics(base, cfg.algo, episodes, on_episode)
         callbacks = [recorder]
-        if recording or tensorboard is not None:
-            diagnostics = TrainingDiagnostics(model, tensorboard)
-            callbacks.append(diagnostics)
+        if diagnostics or tensorboard is not None:
+            recorded = TrainingDiagnostics(model, tensorboard)
+            callbacks.append(recorded)
         model.learn(total_timesteps=episodes * horizon, callback=CallbackList(callbacks))
     rms: RunningMeanStd | None = env.obs_rms if cfg.normalize_obs else None  # type: ignore[union-attr]
     provenance = {
@@ -342,7 +341,7 @@ def train(
         provenance=provenance,
     )
     agent.train_episodes = recorder.episodes
-    agent.diagnostics = diagnostics.rows if diagnostics is not None else []
+    agent.diagnostics = recorded.rows if recorded is not None else []
     return agent
 
 
