@@ -437,7 +437,7 @@ def figure(table: pd.DataFrame, tr: pd.DataFrame, planner_mean: dict, out: Path)
 
     bars(axes[0, 0], PPO_LEVELS, "(A) PPO, one factor at a time: evaluation on 5 fixed days per seed")
     ran = set(table.level)
-    other = "DDQN and SAC" if ran & {"sac", "sac_a005"} else "DDQN (SAC's levels not run)"
+    other = "DDQN and SAC" if ran & {"sac", "sac_a005"} else "DDQN (SAC not run)"
     bars(axes[0, 2], OTHER_LEVELS, f"(C) {other}: evaluation on 5 fixed days per seed")
 
     ax = axes[0, 1]
