@@ -52,6 +52,8 @@ LEVELS = {
     ("ddqn_tgt4000", 2, 5000): ("ddqn_tgt4000", "DDQN target copy", "every 1000 -> 4000 steps", ROOT / "regimes"),
     ("sac", 2, 5000): ("sac", "none (shipped sac v1)", "shipped", ROOT / "regimes"),
     ("sac_a005", 2, 5000): ("sac_a005", "SAC temperature", "fixed alpha 0.2 -> 0.05", ROOT / "regimes"),
+    ("sac", 2, 1000): ("sac_1000", "none (shipped sac v1), 1000 days, CUDA", "shipped", ROOT / "regimes"),
+    ("sac_a005", 2, 1000): ("sac_a005_1000", "SAC temperature, 1000 days, CUDA", "fixed alpha 0.2 -> 0.05", ROOT / "regimes"),
 }
 ORDER = [
     "control",
@@ -68,10 +70,12 @@ ORDER = [
     "ddqn_tgt4000",
     "sac",
     "sac_a005",
+    "sac_1000",
+    "sac_a005_1000",
 ]
 PPO_LEVELS = ["control", "lo0", "nonorm", "lr3e4", "g095", "clock"]
 LENGTHS = {"len500": 500, "len1000": 1000, "len2000": 2000, "control": 5000}
-OTHER_LEVELS = ["ddqn", "ddqn_eps002", "ddqn_tgt4000", "sac", "sac_a005"]
+OTHER_LEVELS = ["ddqn", "ddqn_eps002", "ddqn_tgt4000", "sac", "sac_a005", "sac_1000", "sac_a005_1000"]
 REGIMES = ["run0", "run3", "run6"]
 WINDOWS = [500, 1000, 2000, 5000]
 WIDTH = 100
