@@ -53,7 +53,12 @@ LEVELS = {
     ("sac", 2, 5000): ("sac", "none (shipped sac v1)", "shipped", ROOT / "regimes"),
     ("sac_a005", 2, 5000): ("sac_a005", "SAC temperature", "fixed alpha 0.2 -> 0.05", ROOT / "regimes"),
     ("sac", 2, 1000): ("sac_1000", "none (shipped sac v1), 1000 days, CUDA", "shipped", ROOT / "regimes"),
-    ("sac_a005", 2, 1000): ("sac_a005_1000", "SAC temperature, 1000 days, CUDA", "fixed alpha 0.2 -> 0.05", ROOT / "regimes"),
+    ("sac_a005", 2, 1000): (
+        "sac_a005_1000",
+        "SAC temperature, 1000 days, CUDA",
+        "fixed alpha 0.2 -> 0.05",
+        ROOT / "regimes",
+    ),
 }
 ORDER = [
     "control",
