@@ -446,7 +446,12 @@ def figure(table: pd.DataFrame, tr: pd.DataFrame, planner_mean: dict, out: Path)
 
     bars(axes[0, 0], PPO_LEVELS, "(A) PPO, one factor at a time: evaluation on 5 fixed days per seed")
     ran = set(table.level)
-    other = "DDQN and SAC" if ran & {"sac", "sac_a005"} else "DDQN (SAC not run)"
+    if ran & {"sac", "sac_a005"}:
+        other = "DDQN and SAC"
+    elif ran & {"sac_1000", "sac_a005_1000"}:
+        other = "DDQN, and SAC at 1000 days"
+    else:
+        other = "DDQN (SAC not run)"
     bars(axes[0, 2], OTHER_LEVELS, f"(C) {other}: evaluation on 5 fixed days per seed")
 
     ax = axes[0, 1]
@@ -517,7 +522,7 @@ def figure(table: pd.DataFrame, tr: pd.DataFrame, planner_mean: dict, out: Path)
         ax.legend(fontsize=7)
     fig.suptitle(
         "Sensitivity study: one factor at a time from the shipped agents (batched engine, seeds 0-4, 5000 days "
-        "unless a training length)"
+        "unless a training length or a level named _1000)"
     )
     fig.tight_layout()
     fig.savefig(out / "fig_sensitivity.png", dpi=110)
