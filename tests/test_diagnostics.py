@@ -394,6 +394,72 @@ def test_grad_norm_probe_reads_the_norm_before_clipping():
     probe.remove()
 
 
+def test_grad_norm_from_clip_keeps_the_norms_clip_grad_norm_returns():
+    """An update that is not ours logs the mean of the norms its clip_grad_norm_ calls return
+    (before clipping); calls outside an update, or after one that failed, keep nothing."""
+    import torch as th
+
+    from nutribench.agents import training_log as tl
+
+    recorded: list[tuple[str, float]] = []
+
+    class Update:  # stands for SB3's PPO / A2C: clips with th.nn.utils.clip_grad_norm_
+        fail = False
+
+        def train(self):
+            th.manual_seed(0)
+            self.norms = []
+            for _ in range(3):
+                net.zero_grad()
+                net(th.randn(16, 4)).pow(2).sum().backward()
+                self.norms.append(float(th.nn.utils.clip_grad_norm_(net.parameters(), 0.01)))
+            if self.fail:
+                raise RuntimeError("update failed")
+
+    class Recording(tl.GradNormFromClip, Update):
+        class logger:  # noqa: N801
+            record = staticmethod(lambda key, value: recorded.append((key, value)))
+
+    net = th.nn.Sequential(th.nn.Linear(4, 8), th.nn.Tanh(), th.nn.Linear(8, 2))
+    model = Recording()
+    model.train()
+    assert min(model.norms) > 0.01  # every step clipped: the clipped norm would be 0.01
+    assert recorded == [("train/grad_norm", pytest.approx(sum(model.norms) / 3, rel=1e-6))]
+    assert Recording.records_grad_norm  # so TrainingDiagnostics installs no probe beside it
+    th.nn.utils.clip_grad_norm_(net.parameters(), 1.0)  # outside an update: nothing kept
+    assert getattr(tl._clip_norms, "norms", None) is None
+    model.fail = True
+    with pytest.raises(RuntimeError):
+        model.train()
+    assert getattr(tl._clip_norms, "norms", None) is None and len(recorded) == 1
+
+
+def test_ppo_update_logs_the_norm_the_probe_read():
+    """SB3 PPO's logged gradient norm (GradNormFromClip) equals what the gradient probe reads
+    over the same update, and a PPO job's diagnostics install no probe."""
+    import torch as th
+
+    from nutribench.agents.algos import PPOWithGradNorm, build_model
+    from nutribench.agents.api import make_train_env
+    from nutribench.agents.config import load_agent_config
+    from nutribench.agents.training_log import SB3_KEYS, DiagnosticsLogger, GradNormProbe, TrainingDiagnostics
+    from nutribench.config import load_env_config
+
+    th.set_num_threads(1)
+    cfg = load_agent_config("ppo")
+    _, env = make_train_env(load_env_config("run0"), cfg)
+    model = build_model(cfg, env, seed=0, horizon=50)
+    assert isinstance(model, PPOWithGradNorm)
+    assert TrainingDiagnostics(model).probe is None
+    logged, probed = DiagnosticsLogger(SB3_KEYS), DiagnosticsLogger(SB3_KEYS)
+    model.set_logger(logged)
+    probe = GradNormProbe(list(model.policy.parameters()), model.policy.optimizer, probed)
+    model.learn(total_timesteps=500)  # one rollout, one update of 10 epochs x 8 minibatches
+    probe.remove()
+    assert probed.counts[d.GRAD_NORM] == 80 and logged.counts[d.GRAD_NORM] == 1
+    assert logged.sums[d.GRAD_NORM] == pytest.approx(probed.sums[d.GRAD_NORM] / 80, rel=1e-5)
+
+
 @pytest.mark.parametrize("algo", ["ppo", "ddqn"])
 def test_diagnostics_off_trains_the_same_job_without_rows(algo):
     """``train(..., diagnostics=False)`` (what ``bench train --diagnostics-cost`` times against)

@@ -5,7 +5,7 @@
   value baseline; Adam.
 * **DDQN** (:class:`DoubleDQN`): SB3 ``DQN`` whose target is the double-DQN one (the online
   net picks ``argmax_a Q(s', a)``, the target net values it), with SB3's n-step replay.
-* **PPO**: SB3 ``PPO``.
+* **PPO** (:class:`PPOWithGradNorm`): SB3 ``PPO``; its update's gradient norm is logged.
 * **SAC**: :class:`~nutribench.agents.sac.DiscreteSAC`.
 * **GRU-PPO**: :class:`~nutribench.agents.gru_ppo.GRUPPO`.
 
@@ -35,6 +35,7 @@ from torch.nn import functional as F
 from nutribench.agents.config import DDQNConfig, GRUPPOConfig, MCConfig, PPOConfig, SACConfig
 from nutribench.agents.gru_ppo import GRUPPO
 from nutribench.agents.sac import DiscreteSAC
+from nutribench.agents.training_log import GradNormFromClip
 
 
 class Backbone(BaseFeaturesExtractor):
@@ -62,11 +63,18 @@ def shared_actor_critic_kwargs(net_arch: list[int]) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- MC
-class MonteCarloAC(A2C):
+class MonteCarloAC(GradNormFromClip, A2C):
     """On-policy Monte Carlo actor-critic (the paper's Table 2) as an A2C whose rollout is one
     whole day (``n_steps`` = horizon, one env) and whose GAE lambda is 1: each update uses
     the complete episode's discounted returns. No gradient clipping when ``max_grad_norm`` is
-    ``inf``."""
+    ``inf`` (the norm is still logged: :class:`~nutribench.agents.training_log.GradNormFromClip`)."""
+
+
+# ---------------------------------------------------------------------------- PPO
+class PPOWithGradNorm(GradNormFromClip, PPO):
+    """SB3 ``PPO`` unchanged; each update also logs ``train/grad_norm``, the mean over its
+    gradient steps of the norm before clipping (:class:`~nutribench.agents.training_log.GradNormFromClip`).
+    Its saved models are SB3 ``PPO`` models."""
 
 
 # ---------------------------------------------------------------------------- DDQN
@@ -190,7 +198,7 @@ def model_arguments(cfg: Any, horizon: int) -> tuple[type[BaseAlgorithm], dict[s
         # SB3 warns when batch_size does not divide n_steps; whole days per rollout matter more
         # here than equal minibatches (500 = 7 x 64 + 52).
         warnings.filterwarnings("ignore", message="You have specified a mini-batch size", module="stable_baselines3")
-        return PPO, dict(
+        return PPOWithGradNorm, dict(
             policy="MlpPolicy", **ppo_arguments(cfg), policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch)
         )
     if isinstance(cfg, GRUPPOConfig):
@@ -234,7 +242,7 @@ def model_arguments(cfg: Any, horizon: int) -> tuple[type[BaseAlgorithm], dict[s
 MODEL_CLASSES: dict[str, type[BaseAlgorithm]] = {
     "mc": MonteCarloAC,
     "ddqn": DoubleDQN,
-    "ppo": PPO,
+    "ppo": PPOWithGradNorm,
     "sac": DiscreteSAC,
     "gru_ppo": GRUPPO,
 }

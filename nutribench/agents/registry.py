@@ -50,11 +50,12 @@ _BUILD = "nutribench.agents.algos:build_model"
 ALGORITHMS: dict[str, Algorithm] = {
     a.algo: a
     for a in (
-        # MC and DDQN are SB3's A2C and DQN with other settings or another train(): plain SB3
-        # loads and acts with them; discrete SAC and GRU-PPO have policies of their own
+        # MC, DDQN and PPO are SB3's A2C, DQN and PPO with other settings, another train() or
+        # a logged gradient norm: plain SB3 loads and acts with them; discrete SAC and GRU-PPO
+        # have policies of their own
         Algorithm("mc", _BUILD, "nutribench.agents.algos:MonteCarloAC", "stable_baselines3.A2C"),
         Algorithm("ddqn", _BUILD, "nutribench.agents.algos:DoubleDQN", "stable_baselines3.DQN"),
-        Algorithm("ppo", _BUILD, "stable_baselines3:PPO", "stable_baselines3.PPO"),
+        Algorithm("ppo", _BUILD, "nutribench.agents.algos:PPOWithGradNorm", "stable_baselines3.PPO"),
         Algorithm("sac", _BUILD, "nutribench.agents.sac:DiscreteSAC", "nutribench.agents.sac.DiscreteSAC"),
         Algorithm("gru_ppo", _BUILD, "nutribench.agents.gru_ppo:GRUPPO", "nutribench.agents.gru_ppo.GRUPPO"),
         Algorithm("external", None, None),
