@@ -482,3 +482,17 @@ def test_bench_train_reports_the_diagnostics_cost():
     out = " ".join(result.output.split())  # rich wraps the table's cells at the runner's width
     assert "cost" in out
     assert re.search(r"[+-]\d+\.\d %", out)  # the nutribench row's cost cell is filled
+    assert re.search(r"\[[+-]\d+\.\d,", out)  # with its interval (rich may wrap the cell)
+
+
+def test_paired_cost_is_one_minus_the_median_ratio_with_its_interval():
+    from nutribench.bench.throughput import paired_cost
+
+    # every pair 2 % faster without: the cost is 2 %, and so is every resample
+    assert paired_cost([1.0, 2.0, 4.0], [0.98, 1.96, 3.92]) == pytest.approx((0.02, 0.02, 0.02))
+    with_, without = [10.0] * 5, [9.0, 9.5, 10.0, 10.5, 11.0]  # ratios 0.9 ... 1.1
+    cost, lo, hi = paired_cost(with_, without)
+    assert cost == pytest.approx(0.0)  # the median ratio is 1
+    # a resample's median is the largest ratio when 3 or more of its 5 draws are: p = 5.8 % > 2.5 %,
+    # so the interval reaches the extreme ratios
+    assert lo == pytest.approx(-0.1) and hi == pytest.approx(0.1)

@@ -71,13 +71,15 @@ def bench_train_cmd(
     rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats, diagnostics_cost=diagnostics_cost)
     columns = ["run", "env-steps/s (median)", "vs bare SB3 (paired median)", "paper grid CPU-hours"]
     if diagnostics_cost:
-        columns += ["without diagnostics, env-steps/s", "diagnostics' cost (paired median)"]
+        columns += ["without diagnostics, env-steps/s", "diagnostics' cost (paired median) [95 % CI]"]
     table = Table(*columns, title=f"training throughput, {regime}, {episodes} days x {repeats}")
     for r in rows:
         ratio = f"{r['vs_bare']:.3f}" if "vs_bare" in r else ""
         cells = [r["what"], f"{r['steps_per_s']:,.0f}", ratio, f"{r['paper_grid_cpu_hours']:.1f}"]
         if "diagnostics_cost" in r:
-            cells += [f"{r['steps_per_s_without']:,.0f}", f"{100 * r['diagnostics_cost']:+.1f} %"]
+            lo, hi = r["diagnostics_cost_ci"]
+            cost = f"{100 * r['diagnostics_cost']:+.1f} % [{100 * lo:+.1f}, {100 * hi:+.1f}]"
+            cells += [f"{r['steps_per_s_without']:,.0f}", cost]
         table.add_row(*cells)
     console.print(table)
     total = sum(r["paper_grid_cpu_hours"] for r in rows if not r["bare"])
