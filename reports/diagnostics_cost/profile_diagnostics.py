@@ -1,10 +1,12 @@
 """The share of SB3-engine training time spent in the training diagnostics' own code, by profile.
 
 For each algorithm: ``nutribench.agents.train`` of the shipped config on run0 under cProfile,
-and the cumulative time of the entry points of ``nutribench/agents/training_log.py`` (its
-functions that no other function of that module called: the callback's methods, the gradient
-probe's hooks, the logger's ``record``), so that nothing is counted twice, as a share of the
-whole profiled run. Not counted: the few ``.item()`` reads DDQN's, SAC's and GRU-PPO's own
+and the time spent inside ``nutribench/agents/training_log.py`` as entered from outside it
+(each of its functions' cumulative time over the calls from outside the module: the callback's
+methods, the logger's ``record``, the gradient probe's hooks, ``GradNormFromClip``'s update and
+its ``clip_grad_norm_`` wrapper), less the work those hand on and that runs with or without
+the diagnostics (SB3's own update called from ``GradNormFromClip.train``, torch's
+``clip_grad_norm_`` called from the wrapper), as a share of the whole profiled run. Not counted: the few ``.item()`` reads DDQN's, SAC's and GRU-PPO's own
 updates make for their ``train/*`` keys (``nutribench/agents/algos.py``, ``sac/``,
 ``gru_ppo/``). A profile slows small Python calls more than torch's kernels, so the share is an
 upper bound on the cost without the profiler. DDQN starts learning after 200 days, so it gets
@@ -23,6 +25,9 @@ from nutribench.agents import train
 
 DAYS = {"mc": 100, "ppo": 100, "gru_ppo": 60, "ddqn": 300, "sac": 40}
 MODULE = "training_log.py"
+#: (file path part, function or None for any) of the work a diagnostics function hands on (it
+#: runs without them too): SB3's update, torch's clip_grad_norm_ (its _no_grad_wrapper)
+HANDED_ON = (("stable_baselines3", "train"), ("torch/nn/utils/clip_grad", None))
 
 
 def share(algo: str, days: int) -> tuple[float, float]:
@@ -33,9 +38,14 @@ def share(algo: str, days: int) -> tuple[float, float]:
     train("run0", algo, seed=0, episodes=days)
     prof.disable()
     st = pstats.Stats(prof)
-    ours = {k: v for k, v in st.stats.items() if k[0].endswith(MODULE)}  # type: ignore[attr-defined]
-    entry = [v for v in ours.values() if not any(c[0].endswith(MODULE) for c in v[4])]
-    return sum(v[3] for v in entry), st.total_tt  # type: ignore[attr-defined]
+    ours = 0.0
+    for (path, _, name), (_, _, _, _, callers) in st.stats.items():  # type: ignore[attr-defined]
+        inside = {c: v for c, v in callers.items() if c[0].endswith(MODULE)}
+        if path.endswith(MODULE):  # entered from outside: its cumulative time over those calls
+            ours += sum(v[3] for c, v in callers.items() if c not in inside)
+        elif any(part in path and fn in (None, name) for part, fn in HANDED_ON):
+            ours -= sum(v[3] for v in inside.values())  # handed on by the module: not its cost
+    return ours, st.total_tt  # type: ignore[attr-defined]
 
 
 def main() -> None:
