@@ -483,6 +483,22 @@ def test_bench_train_reports_the_diagnostics_cost():
     assert "cost" in out
     assert re.search(r"[+-]\d+\.\d %", out)  # the nutribench row's cost cell is filled
     assert re.search(r"\[[+-]\d+\.\d,", out)  # with its interval (rich may wrap the cell)
+    assert "A/A" in out and len(re.findall(r"[+-]\d+\.\d %", out)) >= 2  # and the A/A control's
+
+
+def test_bench_diagnostics_cost_times_three_arms_in_rotation(monkeypatch):
+    """Each repeat trains with, without and again without the diagnostics, in rotating order;
+    the cost pairs with/without and the A/A control without/again, repeat by repeat."""
+    from nutribench.agents import api
+    from nutribench.bench import throughput
+
+    calls: list[bool] = []
+    monkeypatch.setattr(api, "train", lambda *a, diagnostics=True, **k: calls.append(diagnostics))
+    clock = iter(range(1000))
+    monkeypatch.setattr(throughput.time, "perf_counter", lambda: float(next(clock)))
+    [row] = throughput.bench_train(["mc"], episodes=1, repeats=3, diagnostics_cost=True)
+    assert calls[1:] == [True, False, False, False, False, True, False, True, False]  # after the warm-up
+    assert row["diagnostics_cost"] == 0.0 and row["aa_cost"] == 0.0  # every timed run took 1 s
 
 
 def test_paired_cost_is_one_minus_the_median_ratio_with_its_interval():

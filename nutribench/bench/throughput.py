@@ -155,7 +155,9 @@ def bench_train(
     (``train(..., diagnostics=False)``), interleaved, and each nutribench row gets
     ``diagnostics_cost``: 1 - the median over repeats of (seconds without / seconds with), the
     share of training time the diagnostics take, paired per repeat, and ``diagnostics_cost_ci``
-    its 95 % bootstrap interval over the repeats (:func:`paired_cost`)."""
+    its 95 % bootstrap interval over the repeats (:func:`paired_cost`); ``aa_cost`` (and
+    ``aa_cost_ci``): the same measured between two identical arms without the diagnostics (a
+    third training per repeat; the order of the three rotates), the bench's own resolution."""
     from nutribench.agents.api import train
 
     def timed_train(cfg, diagnostics: bool = True) -> float:
@@ -173,14 +175,16 @@ def bench_train(
         times: list[float] = []
         bare_times: dict[str, list[float]] = {cls_name: [] for cls_name, _ in bare_refs}
         without: list[float] = []
+        again: list[float] = []  # the same run without diagnostics once more: the A/A control
         if diagnostics_cost:  # untimed: the process's first training pays one-off imports and set-up
             train(regime, cfg, seed=seed, episodes=1)
         for i in range(repeats):
-            if diagnostics_cost and i % 2:  # which side goes first alternates between repeats
-                without.append(timed_train(cfg, diagnostics=False))
-            times.append(timed_train(cfg))
-            if diagnostics_cost and not i % 2:
-                without.append(timed_train(cfg, diagnostics=False))
+            if diagnostics_cost:  # with, without, again: which goes first rotates between repeats
+                arms = [(times, True), (without, False), (again, False)]
+                for out, diag in arms[i % 3 :] + arms[: i % 3]:
+                    out.append(timed_train(cfg, diagnostics=diag))
+            else:
+                times.append(timed_train(cfg))
             for cls_name, _ in bare_refs:
                 bare_times[cls_name].append(_bare_sb3_seconds(algo, regime, episodes, seed, cls_name))
         row = {
@@ -196,6 +200,9 @@ def bench_train(
             cost, lo, hi = paired_cost(times, without)
             row["diagnostics_cost"], row["diagnostics_cost_ci"] = cost, (lo, hi)
             row["steps_per_s_without"] = steps / statistics.median(without)
+            # the bench's own resolution: the same cost measured between two identical arms
+            cost, lo, hi = paired_cost(again, without)
+            row["aa_cost"], row["aa_cost_ci"] = cost, (lo, hi)
         rows.append(row)
         for cls_name, label in bare_refs:
             rows.append(

@@ -58,7 +58,8 @@ def bench_train_cmd(
 ) -> None:
     """Training env-steps per second of each algorithm, and of bare SB3 PPO / DQN on the same
     env (the overhead of nutribench's plumbing), with the paper grid's CPU-hours at that rate.
-    With --diagnostics-cost, the share of training time the diagnostics take (SB3 engine).
+    With --diagnostics-cost, the share of training time the diagnostics take (SB3 engine),
+    beside the same measured between two identical runs without them (the bench's resolution).
     With --engine batched, also the batched engine (7 regimes x 5 seeds at once): its rate,
     FLOPs per env step, this machine's matmul rate and the share of that floor reached."""
     from nutribench.agents.config import ALGOS
@@ -71,7 +72,11 @@ def bench_train_cmd(
     rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats, diagnostics_cost=diagnostics_cost)
     columns = ["run", "env-steps/s (median)", "vs bare SB3 (paired median)", "paper grid CPU-hours"]
     if diagnostics_cost:
-        columns += ["without diagnostics, env-steps/s", "diagnostics' cost (paired median) [95 % CI]"]
+        columns += [
+            "without diagnostics, env-steps/s",
+            "diagnostics' cost (paired median) [95 % CI]",
+            "A/A: without vs without again [95 % CI]",
+        ]
     table = Table(*columns, title=f"training throughput, {regime}, {episodes} days x {repeats}")
     for r in rows:
         ratio = f"{r['vs_bare']:.3f}" if "vs_bare" in r else ""
@@ -79,7 +84,9 @@ def bench_train_cmd(
         if "diagnostics_cost" in r:
             lo, hi = r["diagnostics_cost_ci"]
             cost = f"{100 * r['diagnostics_cost']:+.1f} % [{100 * lo:+.1f}, {100 * hi:+.1f}]"
-            cells += [f"{r['steps_per_s_without']:,.0f}", cost]
+            lo, hi = r["aa_cost_ci"]
+            aa = f"{100 * r['aa_cost']:+.1f} % [{100 * lo:+.1f}, {100 * hi:+.1f}]"
+            cells += [f"{r['steps_per_s_without']:,.0f}", cost, aa]
         table.add_row(*cells)
     console.print(table)
     total = sum(r["paper_grid_cpu_hours"] for r in rows if not r["bare"])
