@@ -59,6 +59,23 @@ b = { tau = { C = 0.0, F = 2.0, P = 2.6 }, sigma = { C = 0.0, F = 1.0, P = 0.0 }
 """
 
 
+def run_cli_args(
+    db: Path,
+    *extra: str,
+    regimes: str = "run0",
+    algos: str = "ppo",
+    seeds: str | None = "0",
+    episodes: int = 20,
+    eval_episodes: int = 1,
+) -> list[str]:
+    """``nutribench run``'s arguments for a test: its database and grid (``seeds=None``: the
+    option left out), the budgets, then ``extra``."""
+    args = ["run", "--db", str(db), "--regimes", regimes, "--algos", algos]
+    if seeds is not None:
+        args += ["--seeds", seeds]
+    return [*args, "--episodes", str(episodes), "--eval-episodes", str(eval_episodes), *extra]
+
+
 def wait_for(predicate, timeout: float) -> None:
     """Poll ``predicate`` every 0.1 s until it holds; fail the test after ``timeout`` seconds."""
     end = time.monotonic() + timeout

@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 
 from nutribench.cli import app
 from nutribench.scheduler.grid import MAX_SEED, GridError, parse_seeds
+from tests.conftest import run_cli_args
 from tests.test_scheduler import regimes  # noqa: F401 - the fixture
 
 
@@ -17,20 +18,7 @@ def run(tmp_path: Path, *args: str):
     db = tmp_path / "r.db"
     res = CliRunner().invoke(
         app,
-        [
-            "run",
-            "--db",
-            str(db),
-            "--regimes",
-            "run0",
-            "--algos",
-            "ppo",
-            "--episodes",
-            "2",
-            "--eval-episodes",
-            "1",
-            *args,
-        ],
+        run_cli_args(db, *args, seeds=None, episodes=2),
         env={"NUTRIBENCH_JOB": "fake"},
     )
     return res, db

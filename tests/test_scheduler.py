@@ -24,7 +24,7 @@ from nutribench.scheduler.driver import STOP_SIGNALS, RunError, run_grid
 from nutribench.scheduler.grid import PRESETS, GridError, parse_seeds, resolve_grid
 from nutribench.scheduler.status import status_table
 from nutribench.store.jobs import MAX_FAILURES, STALE_AFTER_S
-from tests.conftest import wait_for
+from tests.conftest import run_cli_args, wait_for
 
 REPO = Path(__file__).resolve().parents[1]
 NUTRIBENCH = str(Path(sys.executable).parent / "nutribench")
@@ -197,21 +197,7 @@ def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> N
     # the CLI says it in one line, exit 2
     res = CliRunner().invoke(
         app,
-        [
-            "run",
-            "--db",
-            str(db),
-            "--regimes",
-            "run0",
-            "--algos",
-            "ppo",
-            "--seeds",
-            "0",
-            "--episodes",
-            "4",
-            "--eval-episodes",
-            "1",
-        ],
+        run_cli_args(db, episodes=4),
         env={"NUTRIBENCH_JOB": "fake"},
     )
     assert res.exit_code == 2 and "bump the version" in res.output and len(res.output.strip().splitlines()) == 1
@@ -283,22 +269,7 @@ def test_retry_failed_runs_a_given_up_job_again_and_clears_its_error(regimes: Pa
     assert sql(db, "SELECT status, error FROM jobs") == [("done", None)]
     res = CliRunner().invoke(
         app,
-        [
-            "run",
-            "--db",
-            str(db),
-            "--regimes",
-            "run1",
-            "--algos",
-            "sac",
-            "--seeds",
-            "0",
-            "--episodes",
-            "6",
-            "--eval-episodes",
-            "1",
-            "--retry-failed",
-        ],
+        run_cli_args(db, "--retry-failed", regimes="run1", algos="sac", episodes=6),
         env={"NUTRIBENCH_JOB": "fake"},
     )
     assert res.exit_code == 0 and "1 already done" in res.output, res.output
@@ -370,21 +341,7 @@ def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path,
     db = tmp_path / "r.db"
     cmd = [
         NUTRIBENCH,
-        "run",
-        "--db",
-        str(db),
-        "--regimes",
-        "run0",
-        "--algos",
-        "ppo,sac",
-        "--seeds",
-        "0,21",
-        "--episodes",
-        "400",
-        "--eval-episodes",
-        "2",
-        "--workers",
-        "2",
+        *run_cli_args(db, "--workers", "2", algos="ppo,sac", seeds="0,21", episodes=400, eval_episodes=2),
     ]
     # The signals' default dispositions in the child, as in a terminal: a shell starts a
     # background command (`pytest ... &`) with SIGINT ignored, and the child would inherit it.
@@ -424,24 +381,7 @@ def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path,
 def test_two_concurrent_runs_never_run_a_job_twice(regimes: Path, tmp_path: Path) -> None:
     db, log = tmp_path / "r.db", tmp_path / "log"
     log.mkdir()
-    cmd = [
-        NUTRIBENCH,
-        "run",
-        "--db",
-        str(db),
-        "--regimes",
-        "run0,run1",
-        "--algos",
-        "mc,ppo,sac",
-        "--seeds",
-        "0",
-        "--episodes",
-        "20",
-        "--eval-episodes",
-        "1",
-        "--workers",
-        "2",
-    ]
+    cmd = [NUTRIBENCH, *run_cli_args(db, "--workers", "2", regimes="run0,run1", algos="mc,ppo,sac")]
     env = _env(regimes, NUTRIBENCH_FAKE_SECONDS="0.01", NUTRIBENCH_FAKE_LOG=str(log))
     procs = [
         subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for _ in range(2)

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from nutribench.scheduler.driver import STOP_SIGNALS
-from tests.conftest import wait_for
+from tests.conftest import run_cli_args, wait_for
 from tests.test_scheduler import NUTRIBENCH, _env, regimes, sql, statuses  # noqa: F401 - regimes: the fixture
 
 
@@ -40,21 +40,7 @@ def test_signals_during_the_graceful_stop_end_in_that_stop_and_exit_130(
     db = tmp_path / "r.db"
     cmd = [
         NUTRIBENCH,
-        "run",
-        "--db",
-        str(db),
-        "--regimes",
-        "run0",
-        "--algos",
-        "ppo,sac",
-        "--seeds",
-        "0,21",
-        "--episodes",
-        "400",
-        "--eval-episodes",
-        "2",
-        "--workers",
-        "2",
+        *run_cli_args(db, "--workers", "2", algos="ppo,sac", seeds="0,21", episodes=400, eval_episodes=2),
     ]
     proc = subprocess.Popen(
         cmd,

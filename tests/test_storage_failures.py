@@ -21,6 +21,7 @@ from nutribench.cli import app
 from nutribench.jobs.synthetic import synthetic_job
 from nutribench.scheduler.driver import run_grid
 from nutribench.store.engine import StoreError, make_engine
+from tests.conftest import run_cli_args
 
 REPO = Path(__file__).resolve().parents[1]
 SECRET = "s3cr3t-pw"
@@ -110,23 +111,7 @@ def test_disk_full_through_the_cli_is_one_line_exit_2(regimes, tmp_path, monkeyp
     patch_store(monkeypatch, full)
     res = CliRunner().invoke(
         app,
-        [
-            "run",
-            "--db",
-            str(db),
-            "--regimes",
-            "run0",
-            "--algos",
-            "ppo",
-            "--seeds",
-            "0",
-            "--episodes",
-            "20",
-            "--eval-episodes",
-            "1",
-            "--workers",
-            "1",
-        ],
+        run_cli_args(db, "--workers", "1"),
     )
     assert res.exit_code == 2, res.output
     assert "Traceback" not in res.output and "database or disk is full" in res.output
@@ -140,21 +125,7 @@ def test_readonly_database_is_one_line_exit_2_and_nothing_is_lost(regimes, tmp_p
     chmod ineffective, so the claim's refusal is simulated."""
     db = tmp_path / "r.db"
     monkeypatch.setenv("NUTRIBENCH_JOB", "fake")
-    args = [
-        "run",
-        "--db",
-        str(db),
-        "--regimes",
-        "run0",
-        "--algos",
-        "ppo",
-        "--episodes",
-        "20",
-        "--eval-episodes",
-        "1",
-        "--workers",
-        "1",
-    ]
+    args = run_cli_args(db, "--workers", "1", seeds=None)
     assert CliRunner().invoke(app, [*args, "--seeds", "0"]).exit_code == 0
     before = sql(db, "SELECT count(*) FROM episodes")
 
@@ -230,23 +201,7 @@ def test_a_result_still_locked_when_the_run_stops_is_named_in_one_line(regimes, 
     patch_store(monkeypatch, locked_then_ctrl_c)
     res = CliRunner().invoke(
         app,
-        [
-            "run",
-            "--db",
-            str(db),
-            "--regimes",
-            "run0",
-            "--algos",
-            "ppo",
-            "--seeds",
-            "0",
-            "--episodes",
-            "20",
-            "--eval-episodes",
-            "1",
-            "--workers",
-            "1",
-        ],
+        run_cli_args(db, "--workers", "1"),
     )
     assert res.exit_code == 130, res.output
     lines = [ln for ln in res.output.splitlines() if "could not be stored" in ln]
