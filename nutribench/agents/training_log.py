@@ -102,15 +102,21 @@ class DiagnosticsLogger(Logger):
 #: Where the recording ``clip_grad_norm_`` puts the norms it returns: a list while a
 #: :class:`GradNormFromClip` update runs in this thread, else None (nothing kept).
 _clip_norms = threading.local()
+_wrapping = threading.Lock()
 
 
 def _record_clip_norms() -> None:
     """Wrap ``torch.nn.utils.clip_grad_norm_`` (once per process) so that, while a
     :class:`GradNormFromClip` update runs in the calling thread, each norm it returns is also
     kept; otherwise the wrapper only calls torch's function and returns its value."""
-    real = th.nn.utils.clip_grad_norm_
-    if getattr(real, "_keeps_norms", False):
-        return
+    with _wrapping:
+        real = th.nn.utils.clip_grad_norm_
+        if not getattr(real, "_keeps_norms", False):
+            th.nn.utils.clip_grad_norm_ = _keeping_norms(real)
+
+
+def _keeping_norms(real: Any) -> Any:
+    """``real`` (torch's ``clip_grad_norm_``) that also hands each norm to this thread's sink."""
 
     @functools.wraps(real)
     def clip_grad_norm_(*args: Any, **kwargs: Any) -> th.Tensor:
@@ -121,7 +127,7 @@ def _record_clip_norms() -> None:
         return norm
 
     clip_grad_norm_._keeps_norms = True  # type: ignore[attr-defined]
-    th.nn.utils.clip_grad_norm_ = clip_grad_norm_
+    return clip_grad_norm_
 
 
 class GradNormFromClip:
