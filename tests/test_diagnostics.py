@@ -408,6 +408,7 @@ def test_grad_norm_from_clip_keeps_the_norms_clip_grad_norm_returns():
 
         def train(self):
             th.manual_seed(0)
+            self.sink = tl._clip_norms.norms  # the list the update's norms go to
             self.norms = []
             for _ in range(3):
                 net.zero_grad()
@@ -426,8 +427,9 @@ def test_grad_norm_from_clip_keeps_the_norms_clip_grad_norm_returns():
     assert min(model.norms) > 0.01  # every step clipped: the clipped norm would be 0.01
     assert recorded == [("train/grad_norm", pytest.approx(sum(model.norms) / 3, rel=1e-6))]
     assert Recording.records_grad_norm  # so TrainingDiagnostics installs no probe beside it
+    assert len(model.sink) == 3
     th.nn.utils.clip_grad_norm_(net.parameters(), 1.0)  # outside an update: nothing kept
-    assert getattr(tl._clip_norms, "norms", None) is None
+    assert getattr(tl._clip_norms, "norms", None) is None and len(model.sink) == 3
     model.fail = True
     with pytest.raises(RuntimeError):
         model.train()
@@ -486,19 +488,28 @@ def test_bench_train_reports_the_diagnostics_cost():
     assert "A/A" in out and len(re.findall(r"[+-]\d+\.\d %", out)) >= 2  # and the A/A control's
 
 
-def test_bench_diagnostics_cost_times_three_arms_in_rotation(monkeypatch):
-    """Each repeat trains with, without and again without the diagnostics, in rotating order;
-    the cost pairs with/without and the A/A control without/again, repeat by repeat."""
+def test_bench_diagnostics_cost_times_three_arms_in_every_order(monkeypatch):
+    """Each repeat trains with, without and again without the diagnostics; 6 repeats take the
+    6 orders, so each arm runs before each other 3 times; the cost pairs with/without and the
+    A/A control without/again, repeat by repeat."""
     from nutribench.agents import api
     from nutribench.bench import throughput
 
     calls: list[bool] = []
-    monkeypatch.setattr(api, "train", lambda *a, diagnostics=True, **k: calls.append(diagnostics))
-    clock = iter(range(1000))
-    monkeypatch.setattr(throughput.time, "perf_counter", lambda: float(next(clock)))
-    [row] = throughput.bench_train(["mc"], episodes=1, repeats=3, diagnostics_cost=True)
-    assert calls[1:] == [True, False, False, False, False, True, False, True, False]  # after the warm-up
-    assert row["diagnostics_cost"] == 0.0 and row["aa_cost"] == 0.0  # every timed run took 1 s
+    now = [0.0]
+
+    def fake_train(*a, diagnostics=True, **k):  # a run with the diagnostics takes 1.1 s, without 1 s
+        calls.append(diagnostics)
+        now[0] += 1.1 if diagnostics else 1.0
+
+    monkeypatch.setattr(api, "train", fake_train)
+    monkeypatch.setattr(throughput.time, "perf_counter", lambda: now[0])
+    [row] = throughput.bench_train(["mc"], episodes=1, repeats=6, diagnostics_cost=True)
+    timed = calls[1:]  # after the untimed warm-up
+    firsts = [timed[3 * r : 3 * r + 3].index(True) for r in range(6)]
+    assert sorted(firsts) == [0, 0, 1, 1, 2, 2]  # "with" first, second and third twice each
+    assert row["diagnostics_cost"] == pytest.approx(1 - 1 / 1.1)  # 9.1 %
+    assert row["aa_cost"] == pytest.approx(0.0)
 
 
 def test_paired_cost_is_one_minus_the_median_ratio_with_its_interval():

@@ -106,9 +106,11 @@ _wrapping = threading.Lock()
 
 
 def _record_clip_norms() -> None:
-    """Wrap ``torch.nn.utils.clip_grad_norm_`` (once per process) so that, while a
-    :class:`GradNormFromClip` update runs in the calling thread, each norm it returns is also
-    kept; otherwise the wrapper only calls torch's function and returns its value."""
+    """Wrap ``torch.nn.utils.clip_grad_norm_`` (once per process, for the rest of it) so that,
+    while a :class:`GradNormFromClip` update runs in the calling thread, each norm it returns is
+    also kept; otherwise the wrapper only calls torch's function and returns its value. Code
+    in the same process that looks the function up afterwards gets the wrapper (same arguments,
+    same result); one that imported it before keeps torch's."""
     with _wrapping:
         real = th.nn.utils.clip_grad_norm_
         if not getattr(real, "_keeps_norms", False):
@@ -149,8 +151,10 @@ class GradNormFromClip:
             super().train(*args, **kwargs)  # type: ignore[misc]
         finally:
             _clip_norms.norms = outer
-        if norms:
-            self.logger.record("train/grad_norm", float(th.stack(norms).mean()))  # type: ignore[attr-defined]
+        kept = th.stack(norms) if norms else th.empty(0)
+        finite = kept[th.isfinite(kept)]
+        if finite.numel():  # a step whose norm is not finite is left out, as the logger does
+            self.logger.record("train/grad_norm", float(finite.mean()))  # type: ignore[attr-defined]
 
 
 class GradNormProbe:
