@@ -513,7 +513,7 @@ def test_bench_diagnostics_cost_times_three_arms_in_every_order(monkeypatch):
 
 
 def test_paired_cost_is_one_minus_the_median_ratio_with_its_interval():
-    from nutribench.bench.throughput import paired_cost
+    from nutribench.bench.paired import paired_cost
 
     # every pair 2 % faster without: the cost is 2 %, and so is every resample
     assert paired_cost([1.0, 2.0, 4.0], [0.98, 1.96, 3.92]) == pytest.approx((0.02, 0.02, 0.02))

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import itertools
 import statistics
 import time
 from pathlib import Path
 
 import numpy as np
 
+from nutribench.bench.paired import ORDERS, paired_cost
 from nutribench.env import NutriRLEnv, NutriRLVectorEnv
 
 
@@ -122,25 +122,6 @@ def _bare_sb3_seconds(algo: str, regime: str, episodes: int, seed: int, bare_cls
     model = algos.build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon, cls=cls)
     model.learn(total_timesteps=episodes * env_cfg.reward.horizon)
     return time.perf_counter() - t0
-
-
-#: The orders of the three arms of ``bench_train(diagnostics_cost=True)`` (with, without, again):
-#: a run of 6k repeats puts each arm before each other equally often.
-ORDERS = list(itertools.permutations(range(3)))
-
-
-def paired_cost(
-    with_: list[float], without: list[float], reps: int = 2000, seed: int = 0
-) -> tuple[float, float, float]:
-    """The share of time that the difference between paired runs takes: ``1 - median(without /
-    with)`` over the pairs, with a 95 % percentile bootstrap interval resampling the pairs
-    (``reps`` resamples, ``seed``). An interval wider than the cost asked of the code says the
-    machine's noise does not resolve it."""
-    ratios = np.asarray(without, dtype=float) / np.asarray(with_, dtype=float)
-    point = 1 - float(np.median(ratios))
-    idx = np.random.default_rng(seed).integers(0, len(ratios), size=(reps, len(ratios)))
-    boot = 1 - np.median(ratios[idx], axis=1)
-    return point, float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5))
 
 
 def bench_train(
