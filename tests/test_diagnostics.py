@@ -508,6 +508,9 @@ def test_bench_diagnostics_cost_times_three_arms_in_every_order(monkeypatch):
     timed = calls[1:]  # after the untimed warm-up
     firsts = [timed[3 * r : 3 * r + 3].index(True) for r in range(6)]
     assert sorted(firsts) == [0, 0, 1, 1, 2, 2]  # "with" first, second and third twice each
+    # and each arm runs before each other arm in half of the 6 orders (a rotation would not)
+    for a, b in [(0, 1), (0, 2), (1, 2)]:
+        assert sum(o.index(a) < o.index(b) for o in throughput.ORDERS) == 3
     assert row["diagnostics_cost"] == pytest.approx(1 - 1 / 1.1)  # 9.1 %
     assert row["aa_cost"] == pytest.approx(0.0)
 

@@ -168,9 +168,9 @@ def bench_train(
         again: list[float] = []  # the same run without diagnostics once more: the A/A control
         if diagnostics_cost:  # untimed: the process's first training pays one-off imports and set-up
             train(regime, cfg, seed=seed, episodes=1)
+        arms = [(times, True), (without, False), (again, False)]
         for i in range(repeats):
             if diagnostics_cost:  # with, without, again in each of their 6 orders in turn
-                arms = [(times, True), (without, False), (again, False)]
                 for k in ORDERS[i % len(ORDERS)]:
                     arms[k][0].append(timed_train(cfg, diagnostics=arms[k][1]))
             else:

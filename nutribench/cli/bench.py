@@ -39,6 +39,12 @@ def bench_env_cmd(
     console.print(table)
 
 
+def _share_ci(row: dict, key: str) -> str:
+    """``row[key]`` and its interval ``row[key + "_ci"]`` as percentages: "+1.2 % [-0.5, +3.0]"."""
+    lo, hi = row[f"{key}_ci"]
+    return f"{100 * row[key]:+.1f} % [{100 * lo:+.1f}, {100 * hi:+.1f}]"
+
+
 @bench_app.command("train")
 @user_errors
 def bench_train_cmd(
@@ -82,11 +88,7 @@ def bench_train_cmd(
         ratio = f"{r['vs_bare']:.3f}" if "vs_bare" in r else ""
         cells = [r["what"], f"{r['steps_per_s']:,.0f}", ratio, f"{r['paper_grid_cpu_hours']:.1f}"]
         if "diagnostics_cost" in r:
-            lo, hi = r["diagnostics_cost_ci"]
-            cost = f"{100 * r['diagnostics_cost']:+.1f} % [{100 * lo:+.1f}, {100 * hi:+.1f}]"
-            lo, hi = r["aa_cost_ci"]
-            aa = f"{100 * r['aa_cost']:+.1f} % [{100 * lo:+.1f}, {100 * hi:+.1f}]"
-            cells += [f"{r['steps_per_s_without']:,.0f}", cost, aa]
+            cells += [f"{r['steps_per_s_without']:,.0f}", _share_ci(r, "diagnostics_cost"), _share_ci(r, "aa_cost")]
         table.add_row(*cells)
     console.print(table)
     total = sum(r["paper_grid_cpu_hours"] for r in rows if not r["bare"])
