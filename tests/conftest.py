@@ -76,6 +76,15 @@ def run_cli_args(
     return [*args, "--episodes", str(episodes), "--eval-episodes", str(eval_episodes), *extra]
 
 
+def one_error_line(result) -> str:
+    """The command failed the user-error way: exit 2, one line starting "error:", no traceback."""
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:"), result.output
+    return lines[0]
+
+
 def wait_for(predicate, timeout: float) -> None:
     """Poll ``predicate`` every 0.1 s until it holds; fail the test after ``timeout`` seconds."""
     end = time.monotonic() + timeout

@@ -16,6 +16,7 @@ import nutribench
 from nutribench.cli import app
 from nutribench.config import ConfigError, load_env_config
 from nutribench.config.generate import default_seed, derive_regime, parse_ranges, regime_to_toml
+from tests.conftest import one_error_line
 
 runner = CliRunner()
 TAU = "C=10-12,F=18-20,P=14-16"
@@ -34,12 +35,6 @@ def folder(tmp_path, monkeypatch) -> Path:
 
 def generate(*args: str):
     return runner.invoke(app, ["regimes", "generate", *args])
-
-
-def one_error_line(result) -> str:
-    lines = result.output.strip().splitlines()
-    assert result.exit_code == 2 and len(lines) == 1 and lines[0].startswith("error: "), result.output
-    return lines[0]
 
 
 def test_create_check_and_play_a_new_regime(folder):

@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 from nutribench.cli import app
 from nutribench.report.build import FIGURES, TABLES, build_report, load_report_data, simple_policy_references
 from nutribench.store import AgentConfig, Episode, EvalStep, Job, RegimeConfig, open_store, session_scope, utcnow
+from tests.conftest import one_error_line
 
 H = 50  # horizon of the shipped reward config
 REF_EPISODES = ["--reference-episodes", "4"]  # the simple-policy references, kept cheap
@@ -119,16 +120,6 @@ def full_db(tmp_path_factory) -> Path:
 
 def invoke(*args: str):
     return runner.invoke(app, ["report", *args])
-
-
-def one_error_line(result) -> str:
-    """The command failed the user-error way: exit 2, one line, no traceback."""
-    assert result.exit_code == 2, result.output
-    assert "Traceback" not in result.output
-    lines = [ln for ln in result.output.splitlines() if ln.strip()]
-    assert len(lines) == 1, result.output
-    assert lines[0].startswith("error:")
-    return lines[0]
 
 
 @pytest.mark.slow

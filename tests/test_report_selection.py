@@ -17,6 +17,7 @@ from nutribench.report.build import build_figure, load_report_data
 from nutribench.report.figures import budget_seeds_text, seed_list
 from nutribench.report.palette import BUILTIN_COLORS, BUILTIN_ORDER, MIN_DISTANCE, colors, distance, label, order
 from nutribench.store import AgentConfig, Episode, Job, RegimeConfig, open_store, session_scope, utcnow
+from tests.conftest import one_error_line
 
 REF = ["--reference-episodes", "2"]  # the simple-policy references of figures 3/4, kept cheap
 EXTERNAL = {
@@ -112,13 +113,6 @@ def db(tmp_path_factory) -> Path:
 
 def invoke(db: Path, out: Path, *args: str):
     return runner.invoke(app, ["report", "--db", str(db), "--out", str(out), *args])
-
-
-def one_error_line(result) -> str:
-    assert result.exit_code == 2, result.output
-    lines = [ln for ln in result.output.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error:"), result.output
-    return lines[0]
 
 
 def figure_text(res) -> str:

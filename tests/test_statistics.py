@@ -31,6 +31,7 @@ from nutribench.report.aggregate import (
 )
 from nutribench.report.aggregate_view import aggregate_figure, aggregate_table
 from nutribench.report.compare import CompareError, compare_agents, paired_days
+from tests.conftest import one_error_line
 
 runner = CliRunner()
 
@@ -378,15 +379,6 @@ def db(tmp_path_factory) -> Path:
 
 def compare(*args: str):
     return runner.invoke(app, ["compare", *args])
-
-
-def one_error_line(result) -> str:
-    assert result.exit_code == 2, result.output
-    assert "Traceback" not in result.output
-    lines = [ln for ln in result.output.splitlines() if ln.strip()]
-    assert len(lines) == 1, result.output
-    assert lines[0].startswith("error:")
-    return lines[0]
 
 
 def test_compare_command_prints_the_library_rows(db: Path):

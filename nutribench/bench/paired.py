@@ -26,3 +26,16 @@ def paired_cost(
     idx = np.random.default_rng(seed).integers(0, len(ratios), size=(reps, len(ratios)))
     boot = 1 - np.median(ratios[idx], axis=1)
     return point, float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5))
+
+
+def total_cost(with_: list[float], without: list[float], reps: int = 4000, seed: int = 0) -> tuple[float, float, float]:
+    """The share of the total time that the difference takes: ``1 - sum(without) / sum(with)``
+    over paired blocks of work, with a 95 % percentile bootstrap interval resampling the pairs
+    (``reps`` resamples, ``seed``). The share of a training's time, each block weighted by its
+    length (a block with an update counts for more than one without); the blocks' noise should
+    be independent of one another (lockstep: a block's arms run within seconds of each other)."""
+    w, wo = np.asarray(with_, dtype=float), np.asarray(without, dtype=float)
+    point = 1 - float(wo.sum() / w.sum())
+    idx = np.random.default_rng(seed).integers(0, len(w), size=(reps, len(w)))
+    boot = 1 - wo[idx].sum(axis=1) / w[idx].sum(axis=1)
+    return point, float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5))

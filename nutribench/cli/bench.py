@@ -45,6 +45,34 @@ def _share_ci(row: dict, key: str) -> str:
     return f"{100 * row[key]:+.1f} % [{100 * lo:+.1f}, {100 * hi:+.1f}]"
 
 
+def _print_lockstep(names: list[str], regime: str, episodes: int, block: int) -> None:
+    from nutribench.bench.lockstep import bench_diagnostics_lockstep
+
+    table = Table(
+        "algo",
+        "clock",
+        "cost: share of the time [95 % CI]",
+        "A/A: without vs without again [95 % CI]",
+        "median of the blocks' ratios",
+        title=f"diagnostics' cost in lockstep, {regime}, {episodes} days per arm, blocks of {block} days",
+    )
+    notes = []
+    for r in bench_diagnostics_lockstep(names, regime=regime, episodes=episodes, block=block):
+        for clock, label in (("wall", "wall"), ("cpu", "CPU")):
+            c = r[clock]
+            table.add_row(
+                r["algo"], label, _share_ci(c, "cost"), _share_ci(c, "aa"), f"{100 * c['median_cost']:+.1f} %"
+            )
+        same = "yes" if r["identical"] else "NO (the pairing is not of equal work)"
+        notes.append(
+            f"{r['algo']}: {r['wall']['blocks']} blocks; the three arms trained the same days: {same}; "
+            f"env-steps/s {r['steps_per_s']:,.0f} with, {r['steps_per_s_without']:,.0f} without"
+        )
+    console.print(table)
+    for line in notes:
+        console.print(line, highlight=False)
+
+
 @bench_app.command("train")
 @user_errors
 def bench_train_cmd(
@@ -61,11 +89,22 @@ def bench_train_cmd(
             help="also time each repeat without the training diagnostics (interleaved) and report their cost",
         ),
     ] = False,
+    lockstep: Annotated[
+        bool,
+        typer.Option(
+            "--lockstep",
+            help="with --diagnostics-cost: train the arms side by side in one process, a day each in turn, "
+            "--episodes days each, paired by blocks of --block days (--repeats is not used)",
+        ),
+    ] = False,
+    block: Annotated[int, typer.Option(min=1, help="--lockstep: days per paired block (PPO's rollout: 10)")] = 10,
 ) -> None:
     """Training env-steps per second of each algorithm, and of bare SB3 PPO / DQN on the same
     env (the overhead of nutribench's plumbing), with the paper grid's CPU-hours at that rate.
     With --diagnostics-cost, the share of training time the diagnostics take (SB3 engine),
     beside the same measured between two identical runs without them (the bench's resolution).
+    With --lockstep, the arms train day by day in turn instead (a drifting machine reaches them
+    alike): the cost and the A/A control on the wall clock and on CPU time.
     With --engine batched, also the batched engine (7 regimes x 5 seeds at once): its rate,
     FLOPs per env step, this machine's matmul rate and the share of that floor reached."""
     from nutribench.agents.config import ALGOS
@@ -75,6 +114,10 @@ def bench_train_cmd(
     check_engine_options(engine, device)
     names = split_csv(algos, list(ALGOS), "algorithm")
     load_env_config(regime)
+    if lockstep:
+        if not diagnostics_cost or engine != "sb3":
+            raise UserError("--lockstep times the --diagnostics-cost arms of the SB3 engine: add --diagnostics-cost")
+        return _print_lockstep(names, regime, episodes, block)
     rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats, diagnostics_cost=diagnostics_cost)
     columns = ["run", "env-steps/s (median)", "vs bare SB3 (paired median)", "paper grid CPU-hours"]
     if diagnostics_cost:

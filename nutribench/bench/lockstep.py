@@ -1,0 +1,215 @@
+"""Lockstep timing: the arms of a paired benchmark trained side by side, a day each in turn.
+
+``bench train --diagnostics-cost`` (:func:`nutribench.bench.throughput.bench_train`) times
+whole runs one after another, so a machine whose speed drifts over minutes (a shared one)
+moves one arm's run and not the other's: on this project's 2-core machine two identical runs
+differed by 2-6 % (its A/A control), more than the 3 % the diagnostics may cost.
+
+Here the three arms (with the diagnostics, without, without again: the A/A control) are three
+training runs in one process, each in its own thread, and only one runs at a time: each arm
+trains one day (its env's day end, ``train``'s ``on_episode``), hands over, and waits for
+its turn in the next round; the rounds take the 6 orders of the arms in turn. A round's three
+segments run within a second or two of each other, so a drift of the machine reaches all
+three alike, and the pairing is by segment: the same seed's day in every arm (the
+diagnostics change no number of training, which :func:`lockstep` checks: ``identical``).
+
+Each arm keeps its own global random state (Python's, NumPy's, torch's: SB3 samples actions
+and shuffles minibatches from them), restored when its turn starts and saved when it ends,
+so an arm trains exactly what it would train alone. Each segment is timed in wall-clock and
+in the thread's CPU time (``time.thread_time``: torch runs on the calling thread at
+``set_num_threads(1)``), which leaves out time the machine gave to other processes.
+
+What lockstep changes: every segment starts with caches warm with another arm's data, in
+every arm alike, so the cost's share is of a slightly longer base time (understated by that
+refill, microseconds against a day of 50-100 ms).
+"""
+
+from __future__ import annotations
+
+import itertools
+import random
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch as th
+
+from nutribench.bench.paired import paired_cost, total_cost
+
+#: A run of one arm: called with the day-end callback it must call after each training day.
+ArmRun = Callable[[Callable[[dict], None]], Any]
+
+
+class _Aborted(BaseException):
+    """Raised in a waiting arm when another arm failed: it stops without running on."""
+
+
+@dataclass
+class Arm:
+    """One arm's timings: ``wall[i]`` and ``cpu[i]`` are the seconds of its segment ``i``
+    (segment 0 runs from the start of the run to the end of day 0, segment ``i`` from the end
+    of day ``i - 1`` to the end of day ``i``; the last, after the last day, to the run's end),
+    ``days`` the metrics each day ended with."""
+
+    name: str
+    wall: list[float] = field(default_factory=list)
+    cpu: list[float] = field(default_factory=list)
+    days: list[dict] = field(default_factory=list)
+    error: BaseException | None = None
+    finished: bool = False
+    go: threading.Event = field(default_factory=threading.Event)
+    _rng: tuple | None = None
+    _t0: tuple[float, float] = (0.0, 0.0)
+
+
+def _save_rng() -> tuple:
+    return random.getstate(), np.random.get_state(), th.get_rng_state()
+
+
+def _restore_rng(state: tuple) -> None:
+    random.setstate(state[0])
+    np.random.set_state(state[1])
+    th.set_rng_state(state[2])
+
+
+def lockstep(runs: dict[str, ArmRun]) -> list[Arm]:
+    """Run ``runs`` (name -> run) side by side, one segment (a training day) each in turn,
+    the rounds in every order of the arms in turn (three arms: :data:`~nutribench.bench.paired.ORDERS`); return each
+    arm's timings.
+
+    An arm that ends before the others sits out the rounds left. An error in an arm stops
+    every arm and is raised here."""
+    handback = threading.Event()
+    abort = threading.Event()
+    arms = [Arm(name) for name in runs]
+    orders = list(itertools.permutations(range(len(arms))))
+
+    def start(arm: Arm) -> None:
+        arm.go.wait()
+        arm.go.clear()
+        if abort.is_set():
+            raise _Aborted
+        if arm._rng is not None:
+            _restore_rng(arm._rng)
+        arm._t0 = (time.perf_counter(), time.thread_time())
+
+    def stop(arm: Arm) -> None:
+        wall, cpu = time.perf_counter(), time.thread_time()
+        arm.wall.append(wall - arm._t0[0])
+        arm.cpu.append(cpu - arm._t0[1])
+        arm._rng = _save_rng()
+        handback.set()
+
+    def body(arm: Arm, run: ArmRun) -> None:
+        def day_end(metrics: dict) -> None:
+            arm.days.append(metrics)
+            stop(arm)
+            start(arm)
+
+        try:
+            start(arm)
+            run(day_end)
+        except _Aborted:
+            pass
+        except BaseException as e:  # noqa: BLE001 - handed to the caller's thread
+            arm.error = e
+        finally:
+            if not abort.is_set() and arm.error is None:
+                arm.finished = True
+                stop(arm)
+            else:
+                arm.finished = True
+                handback.set()
+
+    threads = [threading.Thread(target=body, args=(a, runs[a.name]), daemon=True) for a in arms]
+    for t in threads:
+        t.start()
+    rng = _save_rng()  # the caller's random state, as it was
+    try:
+        r = 0
+        while not all(a.finished for a in arms):
+            for k in orders[r % len(orders)]:
+                arm = arms[k]
+                if arm.finished:
+                    continue
+                handback.clear()
+                arm.go.set()
+                handback.wait()
+                if arm.error is not None:
+                    raise arm.error
+            r += 1
+    finally:
+        abort.set()
+        for a in arms:
+            a.go.set()
+        for t in threads:
+            t.join()
+        _restore_rng(rng)
+    return arms
+
+
+def blocks(seconds: Sequence[float], size: int) -> np.ndarray:
+    """Consecutive sums of ``size`` segments (the last block may be shorter): with ``size`` a
+    PPO rollout's days, every block holds one update."""
+    s = np.asarray(seconds, dtype=float)
+    return np.add.reduceat(s, np.arange(0, len(s), size))
+
+
+def same_days(a: Arm, b: Arm, key: str = "return") -> bool:
+    """Whether two arms trained the same days (their ``key`` equal, day by day)."""
+    return len(a.days) == len(b.days) and all(x[key] == y[key] for x, y in zip(a.days, b.days))
+
+
+def lockstep_cost(with_: Arm, without: Arm, again: Arm, size: int, clock: str = "wall") -> dict:
+    """The diagnostics' cost and the A/A control from one lockstep run on ``clock`` ("wall" or
+    "cpu"): :func:`~nutribench.bench.paired.total_cost` of (with, without) and of (again,
+    without) over blocks of ``size`` segments, and ``median_cost`` (:func:`paired_cost`, the
+    median of the blocks' ratios, which weighs a block without an update like one with)."""
+    w, wo, ag = (blocks(getattr(a, clock), size) for a in (with_, without, again))
+    cost, aa = total_cost(list(w), list(wo)), total_cost(list(ag), list(wo))
+    return {
+        "cost": cost[0],
+        "cost_ci": cost[1:],
+        "aa": aa[0],
+        "aa_ci": aa[1:],
+        "median_cost": paired_cost(list(w), list(wo))[0],
+        "blocks": len(w),
+    }
+
+
+def bench_diagnostics_lockstep(
+    algos: Sequence[str], regime: str = "run0", episodes: int = 300, block: int = 10, seed: int = 0
+) -> list[dict]:
+    """``bench train --diagnostics-cost --lockstep``: for each algorithm, its shipped config
+    (:func:`~nutribench.bench.throughput._bench_config`) trained ``episodes`` days three times
+    in lockstep (with the diagnostics, without, without again), and :func:`lockstep_cost` on
+    the wall clock and on CPU time, paired by blocks of ``block`` days. ``identical``: the three
+    arms trained the same days (the pairing is of equal work)."""
+    from nutribench.agents.api import train
+    from nutribench.bench.throughput import _bench_config
+
+    rows = []
+    for algo in algos:
+        cfg = _bench_config(algo)
+        train(regime, cfg, seed=seed, episodes=1)  # untimed: one-off imports and set-up
+
+        def arm(diagnostics: bool, cfg=cfg) -> ArmRun:
+            return lambda day_end: train(
+                regime, cfg, seed=seed, episodes=episodes, on_episode=day_end, diagnostics=diagnostics
+            )
+
+        w, wo, ag = lockstep({"with": arm(True), "without": arm(False), "again": arm(False)})
+        row: dict[str, Any] = {
+            "algo": algo,
+            "days": episodes,
+            "identical": same_days(w, wo) and same_days(ag, wo),
+            "steps_per_s": episodes * 50 / sum(w.wall),
+            "steps_per_s_without": episodes * 50 / sum(wo.wall),
+        }
+        for clock in ("wall", "cpu"):
+            row[clock] = lockstep_cost(w, wo, ag, block, clock)
+        rows.append(row)
+    return rows

@@ -1,0 +1,127 @@
+"""``bench train --diagnostics-cost --lockstep``: arms trained side by side, a day each in turn."""
+
+from __future__ import annotations
+
+import random
+import re
+import threading
+import types
+
+import numpy as np
+import pytest
+import torch as th
+from typer.testing import CliRunner
+
+from nutribench.bench import lockstep as L
+from nutribench.bench.paired import ORDERS
+from nutribench.cli import app
+from tests.conftest import one_error_line
+
+
+def fake_clock(monkeypatch) -> list[float]:
+    now = [0.0]
+    monkeypatch.setattr(L, "time", types.SimpleNamespace(perf_counter=lambda: now[0], thread_time=lambda: now[0]))
+    return now
+
+
+def test_rounds_take_the_six_orders_and_pair_segment_by_segment(monkeypatch):
+    """Each round runs every arm once, round r in ORDERS[r % 6]; a day "with" takes 1.1 s, one
+    without 1 s: the cost is 1 - 1/1.1 in every block, the A/A control 0."""
+    now = fake_clock(monkeypatch)
+    log: list[str] = []
+
+    def run(name: str, seconds: float, days: int = 12):
+        def go(day_end):
+            for d in range(days):
+                log.append(name)
+                now[0] += seconds
+                day_end({"return": float(d)})
+            log.append(name)  # after the last day: the run's end
+            now[0] += seconds
+
+        return go
+
+    arms = L.lockstep({"with": run("with", 1.1), "without": run("without", 1.0), "again": run("again", 1.0)})
+    names = ["with", "without", "again"]
+    assert [len(a.wall) for a in arms] == [13, 13, 13] and [len(a.days) for a in arms] == [12, 12, 12]
+    rounds = [log[3 * r : 3 * r + 3] for r in range(13)]
+    assert rounds == [[names[k] for k in ORDERS[r % 6]] for r in range(13)]
+    assert arms[0].wall == pytest.approx([1.1] * 13) and arms[2].cpu == pytest.approx([1.0] * 13)
+    assert L.same_days(arms[0], arms[1])
+    c = L.lockstep_cost(*arms, size=5, clock="cpu")
+    assert c["blocks"] == 3  # 5 + 5 + 3 segments
+    assert c["cost"] == pytest.approx(1 - 1 / 1.1) and c["cost_ci"] == pytest.approx((1 - 1 / 1.1,) * 2)
+    assert c["aa"] == pytest.approx(0.0) and c["median_cost"] == pytest.approx(1 - 1 / 1.1)
+    assert list(L.blocks([1, 2, 3, 4, 5], 2)) == [3, 7, 5]
+
+
+def test_an_arm_that_ends_early_sits_out_and_days_that_differ_are_seen(monkeypatch):
+    fake_clock(monkeypatch)
+
+    def run(days: int, offset: float = 0.0):
+        return lambda day_end: [day_end({"return": d + offset}) for d in range(days)]
+
+    short, long_ = L.lockstep({"short": run(2), "long": run(5, offset=0.5)})
+    assert (len(short.wall), len(long_.wall)) == (3, 6)
+    assert not L.same_days(short, long_)
+
+
+def test_each_arm_draws_the_random_numbers_it_would_draw_alone():
+    """Python's, NumPy's and torch's global generators are the arm's own while it runs."""
+
+    def draws(day_end=None) -> list:
+        random.seed(7), np.random.seed(7), th.manual_seed(7)
+        out = []
+        for _ in range(4):
+            out.append((random.random(), float(np.random.rand()), float(th.rand(1))))
+            if day_end is not None:
+                day_end({"return": 0.0})
+        return out
+
+    alone = draws()
+    seen: dict[str, list] = {}
+
+    def arm(name: str):
+        def go(day_end):
+            seen[name] = draws(day_end)
+
+        return go
+
+    np.random.seed(123)
+    before = np.random.get_state()[1].copy()
+    L.lockstep({"a": arm("a"), "b": arm("b"), "c": arm("c")})
+    assert seen["a"] == seen["b"] == seen["c"] == alone
+    assert (np.random.get_state()[1] == before).all()  # the caller's state is given back
+
+
+def test_an_error_in_one_arm_stops_every_arm_and_is_raised():
+    def ok(day_end):
+        for _ in range(10):
+            day_end({"return": 0.0})
+
+    def bad(day_end):
+        day_end({"return": 0.0})
+        raise ValueError("arm b broke on day 1")
+
+    n = threading.active_count()
+    with pytest.raises(ValueError, match="arm b broke"):
+        L.lockstep({"a": ok, "b": bad, "c": ok})
+    assert threading.active_count() == n  # every arm's thread has ended
+
+
+def test_bench_lockstep_trains_the_same_days_in_every_arm():
+    [row] = L.bench_diagnostics_lockstep(["mc"], episodes=3, block=2)
+    assert row["identical"] and row["days"] == 3
+    assert row["wall"]["blocks"] == 2 and row["cpu"]["blocks"] == 2  # 4 segments
+    assert row["steps_per_s"] > 0 and -1 < row["cpu"]["cost"] < 1
+
+
+def test_bench_train_lockstep_cli():
+    args = ["bench", "train", "--algos", "mc", "--episodes", "2", "--diagnostics-cost", "--lockstep", "--block", "1"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    out = " ".join(result.output.split())
+    assert "lockstep" in out and "mc: 3 blocks; the three arms trained the same days: yes" in out
+    assert len(re.findall(r"[+-]\d+\.\d %", out)) == 6  # cost, A/A and median ratio on both clocks
+    line = one_error_line(CliRunner().invoke(app, ["bench", "train", "--algos", "mc", "--lockstep"]))
+    assert "--lockstep" in line and "--diagnostics-cost" in line
