@@ -86,7 +86,8 @@ def bench_train_cmd(
         bool,
         typer.Option(
             "--diagnostics-cost",
-            help="also time each repeat without the training diagnostics (interleaved) and report their cost",
+            help="also time each repeat without the training diagnostics (whole runs, interleaved) "
+            "and report their cost; add --lockstep for the finer bench",
         ),
     ] = False,
     lockstep: Annotated[
