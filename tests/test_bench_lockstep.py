@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import random
 import re
 import threading
@@ -13,14 +14,15 @@ import torch as th
 from typer.testing import CliRunner
 
 from nutribench.bench import lockstep as L
-from nutribench.bench.paired import ORDERS
+from nutribench.bench.paired import ORDERS, seamless_orders
 from nutribench.cli import app
 from tests.conftest import one_error_line
 
 
 def fake_clock(monkeypatch) -> list[float]:
+    """A wall clock that the runs move by hand, and a CPU clock at 90 % of it."""
     now = [0.0]
-    monkeypatch.setattr(L, "time", types.SimpleNamespace(perf_counter=lambda: now[0], thread_time=lambda: now[0]))
+    monkeypatch.setattr(L, "time", types.SimpleNamespace(perf_counter=lambda: now[0], thread_time=lambda: 0.9 * now[0]))
     return now
 
 
@@ -46,7 +48,7 @@ def test_rounds_take_the_six_orders_and_pair_segment_by_segment(monkeypatch):
     assert [len(a.wall) for a in arms] == [13, 13, 13] and [len(a.days) for a in arms] == [12, 12, 12]
     rounds = [log[3 * r : 3 * r + 3] for r in range(13)]
     assert rounds == [[names[k] for k in ORDERS[r % 6]] for r in range(13)]
-    assert arms[0].wall == pytest.approx([1.1] * 13) and arms[2].cpu == pytest.approx([1.0] * 13)
+    assert arms[0].wall == pytest.approx([1.1] * 13) and arms[2].cpu == pytest.approx([0.9] * 13)
     assert L.same_days(arms[0], arms[1])
     c = L.lockstep_cost(*arms, size=5, clock="cpu")
     assert c["blocks"] == 3  # 5 + 5 + 3 segments
@@ -66,19 +68,36 @@ def test_an_arm_that_ends_early_sits_out_and_days_that_differ_are_seen(monkeypat
     assert not L.same_days(short, long_)
 
 
+def test_orders_never_run_an_arm_twice_in_a_row():
+    """Across a round's end (the last round wrapping to the first) no arm runs twice in a row:
+    lexicographic order would let two arms, never the third, run back to back with warm caches."""
+    for n in (3, 4):
+        orders = seamless_orders(n)
+        assert sorted(orders) == sorted(itertools.permutations(range(n)))
+        assert all(orders[i - 1][-1] != orders[i][0] for i in range(len(orders)))
+    assert ORDERS == seamless_orders(3)
+    # each arm first, second and last twice in 6 rounds
+    assert all(sorted(o.index(a) for o in ORDERS) == [0, 0, 1, 1, 2, 2] for a in range(3))
+    lexicographic = list(itertools.permutations(range(3)))
+    assert sum(lexicographic[i - 1][-1] == lexicographic[i][0] for i in range(6)) == 2  # what it fixes
+
+
 def test_each_arm_draws_the_random_numbers_it_would_draw_alone():
-    """Python's, NumPy's and torch's global generators are the arm's own while it runs."""
+    """Python's, NumPy's and torch's global generators are the arm's own while it runs, and
+    each arm starts from the caller's state (draws before any seeding included)."""
 
     def draws(day_end=None) -> list:
+        out = [(random.random(), float(np.random.rand()), float(th.rand(1)))]  # the caller's state
         random.seed(7), np.random.seed(7), th.manual_seed(7)
-        out = []
         for _ in range(4):
             out.append((random.random(), float(np.random.rand()), float(th.rand(1))))
             if day_end is not None:
                 day_end({"return": 0.0})
         return out
 
+    state = (random.getstate(), np.random.get_state(), th.get_rng_state())
     alone = draws()
+    random.setstate(state[0]), np.random.set_state(state[1]), th.set_rng_state(state[2])
     seen: dict[str, list] = {}
 
     def arm(name: str):
@@ -87,32 +106,43 @@ def test_each_arm_draws_the_random_numbers_it_would_draw_alone():
 
         return go
 
-    np.random.seed(123)
     before = np.random.get_state()[1].copy()
     L.lockstep({"a": arm("a"), "b": arm("b"), "c": arm("c")})
     assert seen["a"] == seen["b"] == seen["c"] == alone
     assert (np.random.get_state()[1] == before).all()  # the caller's state is given back
 
 
-def test_an_error_in_one_arm_stops_every_arm_and_is_raised():
-    def ok(day_end):
-        for _ in range(10):
-            day_end({"return": 0.0})
+@pytest.mark.parametrize("broken_after", [0, 1])
+def test_an_error_in_one_arm_stops_every_arm_and_is_raised(broken_after, monkeypatch):
+    """An arm that fails (in its first segment, or later) stops the others at their next day's
+    end, not at their run's: the error is raised, and every arm's thread has ended."""
+    days: dict[str, int] = {"a": 0, "c": 0}
+
+    def ok(name: str):
+        def go(day_end):
+            for _ in range(10):
+                days[name] += 1
+                day_end({"return": 0.0})
+
+        return go
 
     def bad(day_end):
-        day_end({"return": 0.0})
-        raise ValueError("arm b broke on day 1")
+        for _ in range(broken_after):
+            day_end({"return": 0.0})
+        raise ValueError("arm b broke")
 
     n = threading.active_count()
     with pytest.raises(ValueError, match="arm b broke"):
-        L.lockstep({"a": ok, "b": bad, "c": ok})
-    assert threading.active_count() == n  # every arm's thread has ended
+        L.lockstep({"a": ok("a"), "b": bad, "c": ok("c")})
+    assert threading.active_count() == n
+    assert max(days.values()) <= broken_after + 2 < 10
 
 
-def test_bench_lockstep_trains_the_same_days_in_every_arm():
-    [row] = L.bench_diagnostics_lockstep(["mc"], episodes=3, block=2)
-    assert row["identical"] and row["days"] == 3
-    assert row["wall"]["blocks"] == 2 and row["cpu"]["blocks"] == 2  # 4 segments
+@pytest.mark.parametrize("algo, days, blocks", [("mc", 3, 2), ("ppo", 11, 6)])  # PPO: one update after day 10
+def test_bench_lockstep_trains_the_same_days_in_every_arm(algo, days, blocks):
+    [row] = L.bench_diagnostics_lockstep([algo], episodes=days, block=2)
+    assert row["identical"] and row["days"] == days
+    assert row["wall"]["blocks"] == blocks and row["cpu"]["blocks"] == blocks  # days + 1 segments
     assert row["steps_per_s"] > 0 and -1 < row["cpu"]["cost"] < 1
 
 
@@ -124,4 +154,7 @@ def test_bench_train_lockstep_cli():
     assert "lockstep" in out and "mc: 3 blocks; the three arms trained the same days: yes" in out
     assert len(re.findall(r"[+-]\d+\.\d %", out)) == 6  # cost, A/A and median ratio on both clocks
     line = one_error_line(CliRunner().invoke(app, ["bench", "train", "--algos", "mc", "--lockstep"]))
-    assert "--lockstep" in line and "--diagnostics-cost" in line
+    assert "--lockstep" in line and "add --diagnostics-cost" in line
+    batched = ["bench", "train", "--algos", "ppo", "--diagnostics-cost", "--lockstep", "--engine", "batched"]
+    line = one_error_line(CliRunner().invoke(app, batched))
+    assert "not --engine batched" in line and "add --diagnostics-cost" not in line

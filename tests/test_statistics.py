@@ -429,7 +429,7 @@ def test_intervals_match_rliable_library_where_it_imports():
     """rliable.library needs arch < 8, which fails at import under pandas 3 (the reason for
     our own bootstrap); where it does import (pandas 2), our intervals are rliable's up to
     Monte Carlo noise. CI runs this test a second time in an environment where it imports
-    (``.ci/run``: pandas 2 and arch 7 ahead of the project's packages), with
+    (``.ci/run``: pandas 2 ahead of the project's packages; arch 7 comes with rliable), with
     ``NUTRIBENCH_RLIABLE_ORACLE=1``: there a failed import fails the test."""
     try:
         from rliable import library as rl

@@ -21,12 +21,15 @@ in the thread's CPU time (``time.thread_time``: torch runs on the calling thread
 
 What lockstep changes: every segment starts with caches warm with another arm's data, in
 every arm alike, so the cost's share is of a slightly longer base time (understated by that
-refill, microseconds against a day of 50-100 ms).
+refill, microseconds against a day of 50-100 ms). And the arms share one process: Python's
+garbage collector and the memory allocator. Garbage one arm makes may be collected in another
+arm's turn, and a full collection walks all three arms' objects, which spreads a cost that
+is made of garbage over the arms and pulls its estimate toward 0 (the diagnostics make little:
+a dict a row, floats an update).
 """
 
 from __future__ import annotations
 
-import itertools
 import random
 import threading
 import time
@@ -37,7 +40,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from nutribench.bench.paired import paired_cost, total_cost
+from nutribench.bench.paired import paired_cost, seamless_orders, total_cost
 
 #: A run of one arm: called with the day-end callback it must call after each training day.
 ArmRun = Callable[[Callable[[dict], None]], Any]
@@ -61,7 +64,7 @@ class Arm:
     error: BaseException | None = None
     finished: bool = False
     go: threading.Event = field(default_factory=threading.Event)
-    _rng: tuple | None = None
+    _rng: tuple = ()
     _t0: tuple[float, float] = (0.0, 0.0)
 
 
@@ -77,23 +80,26 @@ def _restore_rng(state: tuple) -> None:
 
 def lockstep(runs: dict[str, ArmRun]) -> list[Arm]:
     """Run ``runs`` (name -> run) side by side, one segment (a training day) each in turn,
-    the rounds in every order of the arms in turn (three arms: :data:`~nutribench.bench.paired.ORDERS`); return each
-    arm's timings.
+    the rounds in every order of the arms in turn, no arm twice in a row across a round's end
+    (:func:`~nutribench.bench.paired.seamless_orders`; three arms: :data:`~nutribench.bench.paired.ORDERS`);
+    return each arm's timings. Every arm starts from the caller's random state.
 
     An arm that ends before the others sits out the rounds left. An error in an arm stops
     every arm and is raised here."""
     handback = threading.Event()
     abort = threading.Event()
     arms = [Arm(name) for name in runs]
-    orders = list(itertools.permutations(range(len(arms))))
+    orders = seamless_orders(len(arms))
+    rng = _save_rng()  # the caller's random state: every arm's first, and given back at the end
+    for a in arms:
+        a._rng = rng
 
     def start(arm: Arm) -> None:
         arm.go.wait()
         arm.go.clear()
         if abort.is_set():
             raise _Aborted
-        if arm._rng is not None:
-            _restore_rng(arm._rng)
+        _restore_rng(arm._rng)
         arm._t0 = (time.perf_counter(), time.thread_time())
 
     def stop(arm: Arm) -> None:
@@ -117,17 +123,15 @@ def lockstep(runs: dict[str, ArmRun]) -> list[Arm]:
         except BaseException as e:  # noqa: BLE001 - handed to the caller's thread
             arm.error = e
         finally:
+            arm.finished = True
             if not abort.is_set() and arm.error is None:
-                arm.finished = True
-                stop(arm)
+                stop(arm)  # the last segment: after the last day, to the run's end
             else:
-                arm.finished = True
                 handback.set()
 
     threads = [threading.Thread(target=body, args=(a, runs[a.name]), daemon=True) for a in arms]
     for t in threads:
         t.start()
-    rng = _save_rng()  # the caller's random state, as it was
     try:
         r = 0
         while not all(a.finished for a in arms):
@@ -137,7 +141,9 @@ def lockstep(runs: dict[str, ArmRun]) -> list[Arm]:
                     continue
                 handback.clear()
                 arm.go.set()
-                handback.wait()
+                while not handback.wait(1.0):
+                    if not threads[k].is_alive():
+                        raise RuntimeError(f"lockstep: arm {arm.name!r} ended without handing back")
                 if arm.error is not None:
                     raise arm.error
             r += 1

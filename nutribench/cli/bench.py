@@ -116,8 +116,10 @@ def bench_train_cmd(
     names = split_csv(algos, list(ALGOS), "algorithm")
     load_env_config(regime)
     if lockstep:
-        if not diagnostics_cost or engine != "sb3":
-            raise UserError("--lockstep times the --diagnostics-cost arms of the SB3 engine: add --diagnostics-cost")
+        if not diagnostics_cost:
+            raise UserError("--lockstep times the --diagnostics-cost arms: add --diagnostics-cost")
+        if engine != "sb3":
+            raise UserError(f"--lockstep times the SB3 engine's training, not --engine {engine}: leave --engine out")
         return _print_lockstep(names, regime, episodes, block)
     rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats, diagnostics_cost=diagnostics_cost)
     columns = ["run", "env-steps/s (median)", "vs bare SB3 (paired median)", "paper grid CPU-hours"]
