@@ -158,3 +158,13 @@ def test_bench_train_lockstep_cli():
     batched = ["bench", "train", "--algos", "ppo", "--diagnostics-cost", "--lockstep", "--engine", "batched"]
     line = one_error_line(CliRunner().invoke(app, batched))
     assert "not --engine batched" in line and "add --diagnostics-cost" not in line
+
+
+def test_total_cost_weighs_each_block_by_its_length():
+    """Two short blocks 10 % faster without, one long block equal: the share of the total time
+    is 0.2 / 12, where the median of the blocks' ratios would say 10 %."""
+    from nutribench.bench.paired import paired_cost, total_cost
+
+    cost, lo, hi = total_cost([1.0, 1.0, 10.0], [0.9, 0.9, 10.0])
+    assert cost == pytest.approx(0.2 / 12) and lo <= cost <= hi
+    assert paired_cost([1.0, 1.0, 10.0], [0.9, 0.9, 10.0])[0] == pytest.approx(0.1)

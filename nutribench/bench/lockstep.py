@@ -11,7 +11,8 @@ trains one day (its env's day end, ``train``'s ``on_episode``), hands over, and 
 its turn in the next round; the rounds take the 6 orders of the arms in turn. A round's three
 segments run within a second or two of each other, so a drift of the machine reaches all
 three alike, and the pairing is by segment: the same seed's day in every arm (the
-diagnostics change no number of training, which :func:`lockstep` checks: ``identical``).
+diagnostics change no number of training, which :func:`bench_diagnostics_lockstep` checks:
+``identical``, from :func:`same_days`).
 
 Each arm keeps its own global random state (Python's, NumPy's, torch's: SB3 samples actions
 and shuffles minibatches from them), restored when its turn starts and saved when it ends,
@@ -175,13 +176,13 @@ def lockstep_cost(with_: Arm, without: Arm, again: Arm, size: int, clock: str = 
     without) over blocks of ``size`` segments, and ``median_cost`` (:func:`paired_cost`, the
     median of the blocks' ratios, which weighs a block without an update like one with)."""
     w, wo, ag = (blocks(getattr(a, clock), size) for a in (with_, without, again))
-    cost, aa = total_cost(list(w), list(wo)), total_cost(list(ag), list(wo))
+    cost, aa = total_cost(w, wo), total_cost(ag, wo)
     return {
         "cost": cost[0],
         "cost_ci": cost[1:],
         "aa": aa[0],
         "aa_ci": aa[1:],
-        "median_cost": paired_cost(list(w), list(wo))[0],
+        "median_cost": paired_cost(w, wo)[0],
         "blocks": len(w),
     }
 

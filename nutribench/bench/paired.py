@@ -6,6 +6,7 @@ orders in which it runs its three arms (with, without, without again: the A/A co
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -38,7 +39,7 @@ ORDERS = seamless_orders(3)
 
 
 def paired_cost(
-    with_: list[float], without: list[float], reps: int = 2000, seed: int = 0
+    with_: Sequence[float], without: Sequence[float], reps: int = 2000, seed: int = 0
 ) -> tuple[float, float, float]:
     """The share of time that the difference between paired runs takes: ``1 - median(without /
     with)`` over the pairs, with a 95 % percentile bootstrap interval resampling the pairs
@@ -51,7 +52,9 @@ def paired_cost(
     return point, float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5))
 
 
-def total_cost(with_: list[float], without: list[float], reps: int = 4000, seed: int = 0) -> tuple[float, float, float]:
+def total_cost(
+    with_: Sequence[float], without: Sequence[float], reps: int = 4000, seed: int = 0
+) -> tuple[float, float, float]:
     """The share of the total time that the difference takes: ``1 - sum(without) / sum(with)``
     over paired blocks of work, with a 95 % percentile bootstrap interval resampling the pairs
     (``reps`` resamples, ``seed``). The share of a training's time, each block weighted by its
