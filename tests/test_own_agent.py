@@ -107,7 +107,7 @@ def test_plugin_runs_through_nutribench_run_and_reaches_the_report(plugin_folder
     for path in jobs["model_path"]:  # saved, and loadable by the plug-in's own load()
         from nutribench.agents.api import TrainedAgent
 
-        agent = TrainedAgent.load(path)
+        agent = TrainedAgent.load(path, load_with="my_plugins:load")  # the loader named, never by the sidecar
         assert agent.algo == "external" and agent.config.entry_point == "my_plugins:make_agent"
     out = plugin_folder / "report"
     res = cli(

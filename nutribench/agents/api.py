@@ -20,11 +20,8 @@ call twice gives identical metrics on the same machine.
 
 from __future__ import annotations
 
-import glob
 import json
-import os
 import shutil
-import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,7 +37,16 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
 from nutribench.agents.algos import episode_entropy
 from nutribench.agents.config import agent_config_content, load_agent_config, parse_agent_config
-from nutribench.agents.registry import ALGORITHMS, algorithm, load_model, loader_entry_point, make_model
+from nutribench.agents.model_files import (
+    ModelFileError,
+    _write_atomically,
+    load_saved_model,
+    read_sidecar,
+    spaces_record,
+    vec_normalize_path,
+    vec_normalize_stats,
+)
+from nutribench.agents.registry import ALGORITHMS, algorithm, loader_entry_point, make_model
 from nutribench.agents.training_log import TrainingDiagnostics
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.env.metrics import EpisodeRecorder
@@ -53,27 +59,6 @@ CLIP_OBS = 10.0
 NORM_EPS = 1e-8
 
 EpisodeFn = Callable[[dict[str, Any]], None]
-
-
-def vec_normalize_path(model_path: str | Path) -> Path:
-    """Where the ``VecNormalize`` statistics of a saved model live: ``m.zip`` -> ``m.vecnormalize.pkl``."""
-    return Path(model_path).with_suffix(".vecnormalize.pkl")
-
-
-def _write_atomically(target: Path, write: Callable[[Path], Any]) -> bool:
-    """``write(tmp)`` to a temporary name beside ``target`` (same suffix), then renamed over
-    it, so that a write cut short (a full disk, a kill) never leaves a partial ``target``;
-    whatever it left is deleted. False (nothing renamed) if ``write`` wrote no file at that name."""
-    tmp = target.with_name(f".{target.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp{target.suffix}")
-    try:
-        write(tmp)
-        if tmp.is_file():
-            os.replace(tmp, target)
-            return True
-    finally:
-        for p in target.parent.glob(glob.escape(tmp.name) + "*"):
-            p.unlink(missing_ok=True)
-    return False
 
 
 def eval_food_streams(regime: str | EnvConfig, job_seed: int, n: int = 5) -> np.ndarray:
@@ -99,8 +84,10 @@ class TrainedAgent:
     train_episodes: list[dict[str, Any]] = field(default_factory=list)
     #: the ``VecNormalize`` the model was trained in (saved beside the model for plain SB3)
     vec_normalize: VecNormalize | None = None
-    #: a loaded agent's ``.vecnormalize.pkl``: saving the agent again copies it
+    #: a loaded agent's ``.vecnormalize.pkl``: saving the agent again copies it (never unpickled)
     vec_normalize_file: Path | None = None
+    #: a loaded agent's ``VecNormalize`` statistics, as its sidecar's JSON holds them
+    vec_normalize_stats: dict[str, Any] | None = None
     #: where the model came from: regime, regime_version, regime_sha256, seed, episodes
     provenance: dict[str, Any] = field(default_factory=dict)
     #: one row per training update (:mod:`nutribench.diagnostics`); empty for plug-ins and loaded agents
@@ -125,12 +112,13 @@ class TrainedAgent:
         """Write the model the SB3 way, loadable without nutribench's own code paths:
 
         * ``path`` (.zip): the SB3 model (the registry's ``plain`` class, e.g. ``PPO.load(path)``;
-          an external agent's own ``save``, loaded by ``load`` beside its entry point);
+          an external agent's own ``save``);
         * ``path`` with ``.vecnormalize.pkl``: the observation (and reward) normaliser, as
           ``VecNormalize.save`` writes it (rl-zoo3's habit), if the config normalises;
-        * ``path`` with ``.json``: algo, the class that loads the model, the agent config, the
-          observation statistics, and where the model came from (regime name, version and
-          content hash, seed, training days, nutribench version, git commit).
+        * ``path`` with ``.json``: algo, the class that loads the model with plain SB3, the agent
+          config, the spaces, the observation statistics and ``VecNormalize``'s as JSON, and where
+          the model came from (regime name, version and content hash, seed, training days,
+          nutribench version, git commit): what :meth:`load` reads, never unpickling anything.
         """
         from nutribench.provenance import collect_metadata
 
@@ -143,14 +131,17 @@ class TrainedAgent:
         if self.vec_normalize is not None:
             _write_atomically(target, lambda tmp: self.vec_normalize.save(str(tmp)))
         elif self.vec_normalize_file is not None and self.vec_normalize_file.resolve() != target.resolve():
-            _write_atomically(target, lambda tmp: shutil.copyfile(self.vec_normalize_file, tmp))
+            _write_atomically(target, lambda tmp: shutil.copyfile(self.vec_normalize_file, tmp))  # bytes, not loaded
         has_pickle = self.vec_normalize is not None or self.vec_normalize_file is not None
+        stats = vec_normalize_stats(self.vec_normalize) if self.vec_normalize is not None else self.vec_normalize_stats
         meta = collect_metadata()
         side = {
             "algo": self.algo,
             "load_with": ALGORITHMS[self.algo].plain or loader_entry_point(self.config),
             "vec_normalize": target.name if has_pickle else None,
+            "vec_normalize_stats": stats,
             "config": agent_config_content(self.config),
+            "spaces": spaces_record(self.model) if isinstance(self.model, BaseAlgorithm) else None,
             "obs_mean": None if self.obs_mean is None else self.obs_mean.tolist(),
             "obs_var": None if self.obs_var is None else self.obs_var.tolist(),
             "provenance": {
@@ -162,16 +153,31 @@ class TrainedAgent:
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> TrainedAgent:
-        """Load what :meth:`save` wrote."""
+    def load(
+        cls, path: str | Path, *, load_with: str | Callable[[str], Any] | None = None, trust: bool = False
+    ) -> TrainedAgent:
+        """Load what :meth:`save` wrote, as data: nothing in the files runs.
+
+        A built-in algorithm's model is rebuilt from the agent config in the ``.json`` and gets
+        the zip's weights (``torch.load(weights_only=True)``); the zip's pickled settings and the
+        ``.vecnormalize.pkl`` are not read (:mod:`nutribench.agents.model_files`).
+
+        :param load_with: a plug-in's loader, named by you (``"package.module:load"`` or the
+            function): the entry point in the sidecar is never imported on its own.
+        :param trust: let SB3 unpickle this file (only one you made or trust): needed for a
+            model whose sidecar records no spaces, or a plug-in loaded with an SB3 class.
+        """
         path = Path(path)
-        side = json.loads(path.with_suffix(".json").read_text())
+        side = read_sidecar(path)
         algo = side["algo"]
-        config = parse_agent_config(side["config"], path)
-        model = load_model(ALGORITHMS[algo].load or loader_entry_point(config), path)
+        if algo not in ALGORITHMS:
+            raise ModelFileError(f"{path.with_suffix('.json')}: algo {algo[:40]!r} is not a registered algorithm")
+        config = parse_agent_config(side["config"], path.with_suffix(".json"))
+        model = load_saved_model(path, side, config, load_with, trust)
         arr = lambda v: None if v is None else np.asarray(v, dtype=np.float64)  # noqa: E731
-        agent = cls(model, algo, config, arr(side["obs_mean"]), arr(side["obs_var"]))
+        agent = cls(model, algo, config, arr(side.get("obs_mean")), arr(side.get("obs_var")))
         agent.provenance = dict(side.get("provenance") or {})  # absent in files written before it was recorded
+        agent.vec_normalize_stats = side.get("vec_normalize_stats")
         if side.get("vec_normalize") and vec_normalize_path(path).is_file():
             agent.vec_normalize_file = vec_normalize_path(path)
         return agent

@@ -1,0 +1,281 @@
+"""Saved models read as data: nothing in a model file, or in the files beside it, is executed.
+
+An SB3 ``.zip`` holds its network weights as ``.pth`` tensors and its settings as JSON, some of
+them pickled (``":serialized:"``: the policy class, the spaces, the schedules). Unpickling a
+file runs whatever code it names, so nutribench never unpickles one it is merely asked to
+load: :func:`rebuild_from_weights` builds the model from the agent config (the registry's
+builder, or a plug-in's ``make_agent`` the *caller* names), on a stand-in environment with the
+spaces the ``.json`` sidecar records, and copies the ``.pth`` tensors in with
+``torch.load(weights_only=True)``; the zip's ``data`` entry is never read. The
+``VecNormalize`` statistics are read from the sidecar's JSON (:func:`vec_normalize_from_stats`),
+never from the ``.vecnormalize.pkl`` written beside the model for plain SB3.
+
+The zip's members are sized from its directory before any is decompressed
+(:data:`MAX_MODEL_BYTES` in all), so a zip bomb is refused before it is inflated.
+"""
+
+from __future__ import annotations
+
+import glob
+import io
+import json
+import os
+import uuid
+import zipfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
+
+from nutribench.errors import UserError
+
+#: The most bytes a model zip's weight members may inflate to (their declared sizes, summed).
+MAX_MODEL_BYTES = 1 << 30
+#: The most bytes a sidecar ``.json`` may have.
+MAX_SIDECAR_BYTES = 64 << 20
+
+
+class ModelFileError(UserError):
+    """A saved model that cannot be loaded as data (one line: which file, why, what to do)."""
+
+
+def vec_normalize_path(model_path: str | Path) -> Path:
+    """Where the ``VecNormalize`` statistics of a saved model live: ``m.zip`` -> ``m.vecnormalize.pkl``."""
+    return Path(model_path).with_suffix(".vecnormalize.pkl")
+
+
+def _write_atomically(target: Path, write: Callable[[Path], Any]) -> bool:
+    """``write(tmp)`` to a temporary name beside ``target`` (same suffix), then renamed over
+    it, so that a write cut short (a full disk, a kill) never leaves a partial ``target``;
+    whatever it left is deleted. False (nothing renamed) if ``write`` wrote no file at that name."""
+    tmp = target.with_name(f".{target.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp{target.suffix}")
+    try:
+        write(tmp)
+        if tmp.is_file():
+            os.replace(tmp, target)
+            return True
+    finally:
+        for p in target.parent.glob(glob.escape(tmp.name) + "*"):
+            p.unlink(missing_ok=True)
+    return False
+
+
+def _one_line(e: BaseException, n: int = 200) -> str:
+    text = " ".join(str(e).split())
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def read_sidecar(path: str | Path) -> dict[str, Any]:
+    """The ``.json`` beside model ``path``, parsed as plain data (a JSON object)."""
+    side = Path(path).with_suffix(".json")
+    if not side.is_file():
+        raise ModelFileError(f"{path}: no {side.name} beside it (what TrainedAgent.save writes with every model)")
+    if side.stat().st_size > MAX_SIDECAR_BYTES:
+        raise ModelFileError(f"{side}: larger than {MAX_SIDECAR_BYTES >> 20} MiB, not a model's sidecar")
+    try:
+        data = json.loads(side.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError) as e:
+        raise ModelFileError(f"{side}: not JSON ({type(e).__name__})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("algo"), str) or not isinstance(data.get("config"), dict):
+        raise ModelFileError(f"{side}: not a model sidecar (an object with 'algo' and 'config')")
+    return data
+
+
+def spaces_record(model: BaseAlgorithm) -> dict[str, Any]:
+    """The observation and action spaces of ``model``, as JSON (for :func:`stand_in_env`)."""
+    obs, act = model.observation_space, model.action_space
+    return {
+        "obs_low": np.asarray(obs.low).tolist(),
+        "obs_high": np.asarray(obs.high).tolist(),
+        "obs_dtype": str(obs.dtype),
+        "n_actions": int(act.n),
+    }
+
+
+class _SpacesOnly(gym.Env):
+    """An env that only has spaces: what a model is built on to receive saved weights."""
+
+    def __init__(self, observation_space: gym.spaces.Box, action_space: gym.spaces.Discrete):
+        self.observation_space, self.action_space = observation_space, action_space
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> Any:  # pragma: no cover
+        raise RuntimeError("a stand-in env for loading weights: it cannot be played")
+
+    def step(self, action: Any) -> Any:  # pragma: no cover
+        raise RuntimeError("a stand-in env for loading weights: it cannot be played")
+
+
+def stand_in_env(spaces: Any, where: str) -> VecEnv:
+    """A one-env ``VecEnv`` with the spaces :func:`spaces_record` wrote (checked as data)."""
+    try:
+        low = np.asarray(spaces["obs_low"], dtype=np.float64)
+        high = np.asarray(spaces["obs_high"], dtype=np.float64)
+        dtype = np.dtype(spaces["obs_dtype"])
+        n = spaces["n_actions"]
+        ok = (
+            low.ndim == 1
+            and low.shape == high.shape
+            and 0 < len(low) <= 4096
+            and dtype.kind == "f"
+            and type(n) is int
+            and 1 <= n <= 1024
+            and not np.isnan(low).any()
+            and not np.isnan(high).any()
+        )
+    except (KeyError, TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ModelFileError(f"{where}: its 'spaces' are not an observation box and a number of actions")
+    box = gym.spaces.Box(low.astype(dtype), high.astype(dtype), dtype=dtype)
+    return DummyVecEnv([lambda: _SpacesOnly(box, gym.spaces.Discrete(n))])
+
+
+def read_weights(path: str | Path) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """The ``.pth`` members of an SB3 zip (state dicts, and the ``pytorch_variables``), read
+    with ``torch.load(weights_only=True)``; the pickled ``data`` member is not opened."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            members = [i for i in zf.infolist() if i.filename.endswith(".pth")]
+            declared = sum(i.file_size for i in members)
+            if declared > MAX_MODEL_BYTES:
+                raise ModelFileError(
+                    f"{path}: its weights would inflate to {declared:,} bytes (more than {MAX_MODEL_BYTES:,}): not loaded"
+                )
+            params, variables = {}, None
+            for info in members:
+                with zf.open(info) as fh:
+                    blob = fh.read(info.file_size + 1)
+                if len(blob) != info.file_size:
+                    raise ModelFileError(f"{path}: member {info.filename} is not the size its directory declares")
+                tensors = th.load(io.BytesIO(blob), map_location="cpu", weights_only=True)
+                name = info.filename[: -len(".pth")]
+                if name in ("pytorch_variables", "tensors"):
+                    variables = tensors
+                else:
+                    params[name] = tensors
+    except ModelFileError:
+        raise
+    except Exception as e:  # noqa: BLE001 - bytes from anywhere: a bad zip, a planted pickle, a truncated tensor
+        raise ModelFileError(
+            f"{path}: its weights cannot be read as tensors ({type(e).__name__}: {_one_line(e)})"
+        ) from None
+    if "policy" not in params:
+        raise ModelFileError(f"{path}: no policy weights (policy.pth) in it")
+    return params, variables
+
+
+def rebuild_from_weights(path: str | Path, build: Callable[[VecEnv], BaseAlgorithm], spaces: Any) -> BaseAlgorithm:
+    """The model ``build(env)`` makes, on a stand-in env with ``spaces``, holding the weights
+    of the SB3 zip ``path`` (exactly the tensors it was saved with)."""
+    model = build(stand_in_env(spaces, str(path)))
+    params, variables = read_weights(path)
+    try:
+        model.set_parameters(params, exact_match=True, device="cpu")
+    except (ValueError, RuntimeError, KeyError) as e:
+        raise ModelFileError(f"{path}: its weights do not fit the model its config builds ({_one_line(e)})") from None
+    for name, value in (variables or {}).items():
+        if not isinstance(value, th.Tensor) or not isinstance(getattr(model, name, None), th.Tensor):
+            raise ModelFileError(f"{path}: pytorch variable {name!r} is not one of the model's tensors")
+        getattr(model, name).data = value.data
+    return model
+
+
+def load_plugin_model(path: str | Path, make_agent: Callable[[dict[str, Any], Any, int], Any]) -> Any:
+    """A plug-in's saved model (SB3 algorithm), loaded without unpickling: ``make_agent`` (the
+    plug-in's own builder, named by the code that calls this) is called with the params of the
+    agent config in the sidecar, and the zip's weights are copied in. What a plug-in's
+    ``load(path)`` can be: ``return load_plugin_model(path, make_agent)``."""
+    side = read_sidecar(path)
+    params = side["config"].get("params") or {}
+    if not isinstance(params, dict):
+        raise ModelFileError(f"{path}: its sidecar's params are not a table")
+    if "spaces" not in side:
+        raise ModelFileError(
+            f"{path}: its sidecar records no spaces (saved by an older nutribench): load it with SB3 "
+            "yourself if you trust the file"
+        )
+    return rebuild_from_weights(path, lambda env: make_agent(dict(params), env, 0), side["spaces"])
+
+
+def vec_normalize_stats(vn: VecNormalize) -> dict[str, Any]:
+    """``VecNormalize``'s statistics and settings as JSON (what its pickle holds that matters)."""
+    rms = lambda r: {"mean": np.asarray(r.mean).tolist(), "var": np.asarray(r.var).tolist(), "count": float(r.count)}  # noqa: E731
+    return {
+        "obs_rms": rms(vn.obs_rms) if vn.norm_obs else None,
+        "ret_rms": rms(vn.ret_rms),
+        "norm_obs": bool(vn.norm_obs),
+        "norm_reward": bool(vn.norm_reward),
+        "clip_obs": float(vn.clip_obs),
+        "clip_reward": float(vn.clip_reward),
+        "gamma": float(vn.gamma),
+        "epsilon": float(vn.epsilon),
+    }
+
+
+def vec_normalize_from_stats(stats: dict[str, Any], venv: VecEnv) -> VecNormalize:
+    """A frozen ``VecNormalize`` around ``venv`` with the statistics :func:`vec_normalize_stats`
+    wrote (evaluation: ``training=False``, raw rewards), rebuilt without a pickle."""
+    vn = VecNormalize(
+        venv,
+        training=False,
+        norm_obs=bool(stats["norm_obs"]),
+        norm_reward=False,
+        clip_obs=float(stats["clip_obs"]),
+        clip_reward=float(stats["clip_reward"]),
+        gamma=float(stats["gamma"]),
+        epsilon=float(stats["epsilon"]),
+    )
+    for key in ("obs_rms", "ret_rms"):
+        saved = stats.get(key)
+        if saved is not None:
+            rms = getattr(vn, key)
+            rms.mean = np.asarray(saved["mean"], dtype=np.float64).reshape(np.shape(rms.mean))
+            rms.var = np.asarray(saved["var"], dtype=np.float64).reshape(np.shape(rms.var))
+            rms.count = float(saved["count"])
+    return vn
+
+
+#: The horizon a model is rebuilt with: it sizes MC's rollout buffer only, never a weight.
+LOAD_HORIZON = 50
+
+
+def load_saved_model(
+    path: Path, side: dict[str, Any], config: Any, load_with: str | Callable[[str], Any] | None, trust: bool
+) -> Any:
+    """The model of ``path`` (its sidecar ``side`` and agent ``config`` already read): a
+    built-in algorithm rebuilt from weights; a plug-in's by the loader the caller names; SB3's
+    unpickling ``load`` only where ``trust`` says so (see ``TrainedAgent.load``)."""
+    from nutribench.agents.registry import ALGORITHMS, import_entry_point, load_model
+
+    entry = ALGORITHMS[side["algo"]]
+    if entry.build is not None:
+        if side.get("spaces") is not None:
+            from nutribench.agents.algos import build_model
+
+            build = lambda env: build_model(config, env, seed=0, horizon=LOAD_HORIZON)  # noqa: E731
+            return rebuild_from_weights(path, build, side["spaces"])
+        if not trust:
+            raise ModelFileError(
+                f"{path}: its sidecar records no spaces (saved by an older nutribench), so only SB3's unpickling "
+                "load reads it: pass trust=True if you made this file yourself"
+            )
+        return load_model(entry.load, path)
+    if load_with is None:
+        raise ModelFileError(
+            f"{path}: a plug-in's model: name its loader, TrainedAgent.load(path, load_with='my_agents:load') "
+            "(the sidecar's entry point is never imported on its own)"
+        )
+    loader = import_entry_point(load_with) if isinstance(load_with, str) else load_with
+    if isinstance(loader, type) and issubclass(loader, BaseAlgorithm) and not trust:
+        raise ModelFileError(
+            f"{path}: {loader.__name__}.load unpickles the zip: pass trust=True if you made this file yourself, "
+            "or a load(path) function (nutribench.agents.model_files.load_plugin_model reads weights only)"
+        )
+    if isinstance(loader, type):
+        return loader.load(str(path), device="cpu") if issubclass(loader, BaseAlgorithm) else loader.load(str(path))
+    return loader(str(path))

@@ -1,0 +1,229 @@
+"""Loading never executes data: a crafted SB3 zip, a crafted ``.vecnormalize.pkl`` and a crafted
+sidecar, loaded every way the docs show, run nothing (docs/trust.md)."""
+
+from __future__ import annotations
+
+import base64
+import json
+import pickle
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from nutribench.agents.api import TrainedAgent, eval_food_streams, evaluate, train
+from nutribench.agents.model_files import ModelFileError, load_plugin_model
+from nutribench.cli import app
+
+
+class Payload:
+    """Unpickled, it writes ``marker``: what an attacker plants in a model file."""
+
+    def __init__(self, marker: Path):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (exec, (f"import pathlib; pathlib.Path({self.marker!r}).write_text('ran')",))
+
+
+def plant(model: Path, marker: Path) -> None:
+    """Rewrite the SB3 zip ``model`` so that unpickling its ``data`` runs :class:`Payload`,
+    and replace the ``.vecnormalize.pkl`` beside it by a payload too."""
+    with zipfile.ZipFile(model) as zf:
+        members = {i.filename: zf.read(i) for i in zf.infolist()}
+    data = json.loads(members["data"])
+    data["policy_class"] = {
+        ":type:": "<class 'type'>",
+        ":serialized:": base64.b64encode(pickle.dumps(Payload(marker))).decode(),
+    }
+    members["data"] = json.dumps(data).encode()
+    with zipfile.ZipFile(model, "w") as zf:
+        for name, blob in members.items():
+            zf.writestr(name, blob)
+    model.with_suffix(".vecnormalize.pkl").write_bytes(pickle.dumps(Payload(marker)))
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory) -> tuple[TrainedAgent, Path]:
+    """A PPO agent (observations normalised) trained one day and saved."""
+    agent = train("run3", "ppo", seed=2, episodes=1)
+    assert agent.vec_normalize is not None  # so a .vecnormalize.pkl is written beside it
+    return agent, agent.save(tmp_path_factory.mktemp("m") / "ppo.zip")
+
+
+@pytest.fixture
+def evil(saved, tmp_path: Path) -> tuple[Path, Path]:
+    """A copy of the saved model with payloads planted; the file they would write."""
+    _, path = saved
+    out = tmp_path / "evil.zip"
+    for suffix in (".zip", ".json", ".vecnormalize.pkl"):
+        out.with_suffix(suffix).write_bytes(path.with_suffix(suffix).read_bytes())
+    marker = tmp_path / "PWNED"
+    plant(out, marker)
+    return out, marker
+
+
+def test_the_planted_payload_is_live(evil):
+    """The control: plain SB3 loading the crafted zip (and pickle loading the .pkl) runs it."""
+    from stable_baselines3 import PPO
+
+    path, marker = evil
+    with pytest.raises(TypeError):  # the payload returned None as the policy class, after it ran
+        PPO.load(path, device="cpu")
+    assert marker.read_text() == "ran"
+    marker.unlink()
+    pickle.loads(path.with_suffix(".vecnormalize.pkl").read_bytes())
+    assert marker.exists()
+
+
+def test_trained_agent_load_reads_weights_and_runs_nothing(saved, evil):
+    agent, _ = saved
+    path, marker = evil
+    loaded = TrainedAgent.load(path)
+    assert not marker.exists()
+    streams = eval_food_streams("run3", 2, 2)
+    assert evaluate(loaded, "run3", streams).steps == evaluate(agent, "run3", streams).steps
+    assert loaded.vec_normalize_stats is not None and np.allclose(
+        loaded.vec_normalize_stats["obs_rms"]["mean"], agent.vec_normalize.obs_rms.mean
+    )
+    loaded.save(path.parent / "again.zip")  # saving again copies the pickle's bytes, never loads them
+    assert not marker.exists()
+
+
+def test_a_crafted_sidecar_chooses_no_code(evil, tmp_path: Path, monkeypatch):
+    """A sidecar naming ``pwnmod`` (found in the current folder) imports nothing."""
+    path, marker = evil
+    (tmp_path / "pwnmod.py").write_text(
+        f"import pathlib\npathlib.Path({str(marker)!r}).write_text('ran')\ndef make_agent(*a):\n    pass\ndef load(path):\n    pass\n"
+    )
+    monkeypatch.chdir(tmp_path)
+    side = json.loads(path.with_suffix(".json").read_text())
+    side["load_with"] = "pwnmod:load"  # a built-in's loader named by the sidecar: ignored
+    path.with_suffix(".json").write_text(json.dumps(side))
+    TrainedAgent.load(path)
+    side["algo"] = "external"
+    side["config"] = {
+        "algo": "external",
+        "name": "evil",
+        "version": 1,
+        "description": "x",
+        "entry_point": "pwnmod:make_agent",
+    }
+    path.with_suffix(".json").write_text(json.dumps(side))
+    with pytest.raises(ModelFileError, match="name its loader"):
+        TrainedAgent.load(path)
+    side["algo"] = "pwnmod:make_agent"
+    path.with_suffix(".json").write_text(json.dumps(side))
+    with pytest.raises(ModelFileError, match="not a registered algorithm"):
+        TrainedAgent.load(path)
+    assert not marker.exists() and "pwnmod" not in sys.modules
+
+
+def test_evaluate_with_the_example_loader_runs_nothing(evil, tmp_path: Path, monkeypatch):
+    pytest.importorskip("sb3_contrib", reason="the example's optional extra (pip install -e '.[contrib]')")
+    path, marker = evil
+    monkeypatch.chdir(Path(__file__).resolve().parents[1])  # the docs run it from the repository root
+    args = ["evaluate", "--model", str(path), "--entry-point", "examples.recurrent_ppo:load", "--name", "evil"]
+    db = tmp_path / "lab.db"
+    res = CliRunner().invoke(app, [*args, "--regime", "run3", "--db", str(db)])
+    assert res.exit_code == 2 and len(res.output.strip().splitlines()) == 1, res.output
+    path.with_suffix(".json").unlink()  # a bare crafted zip: refused too
+    res = CliRunner().invoke(app, [*args, "--regime", "run3", "--db", str(db)])
+    assert res.exit_code == 2 and "no evil.json beside it" in res.output, res.output
+    assert not marker.exists()
+
+
+def test_report_trajectory_and_the_recorder_run_nothing(saved, evil, tmp_path: Path, monkeypatch):
+    """The recorder evaluates a model loaded the documented way; the report draws its days
+    from the database with the crafted files beside it."""
+    import nutribench
+
+    path, marker = evil
+    monkeypatch.chdir(path.parent)
+    db = tmp_path / "lab.db"
+    with nutribench.Recorder(db=str(db), name="loaded", regime="run3", seed=0) as rec:
+        rows = rec.evaluate(TrainedAgent.load(path).model)
+    assert len(rows) == 5
+    res = CliRunner().invoke(
+        app,
+        ["report", "--trajectory", "--algo", "loaded", "--regime", "run3", "--seed", "0", "--db", str(db)]
+        + ["--out", str(tmp_path / "out")],
+    )
+    assert res.exit_code == 0, res.output
+    assert not marker.exists()
+
+
+A2C_PLUGIN = """
+from stable_baselines3 import A2C
+from nutribench.agents.model_files import load_plugin_model
+
+
+def make_agent(params, env, seed):
+    return A2C("MlpPolicy", env, seed=seed, device="cpu", **params)
+
+
+def load(path):
+    return load_plugin_model(path, make_agent)
+"""
+
+
+def test_a_plugin_model_loads_by_the_loader_the_user_names(tmp_path: Path, monkeypatch):
+    from stable_baselines3 import A2C
+
+    from nutribench.agents.config import parse_agent_config
+
+    (tmp_path / "trust_plugin.py").write_text(A2C_PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    cfg = parse_agent_config(
+        {
+            "algo": "external",
+            "name": "a2c_t",
+            "version": 1,
+            "description": "x",
+            "entry_point": "trust_plugin:make_agent",
+            "params": {"n_steps": 5},
+        }
+    )
+    agent = train("run3", cfg, seed=1, episodes=1)
+    path = agent.save(tmp_path / "a2c.zip")
+    loaded = TrainedAgent.load(path, load_with="trust_plugin:load")
+    obs = np.random.default_rng(0).uniform(0, 1, size=(16, agent.model.observation_space.shape[0])).astype(np.float32)
+    assert np.array_equal(loaded.act(obs)[0], agent.act(obs)[0])
+    import trust_plugin
+
+    assert np.array_equal(
+        load_plugin_model(path, trust_plugin.make_agent).predict(obs, deterministic=True)[0], agent.act(obs)[0]
+    )
+    with pytest.raises(ModelFileError, match="unpickles"):  # an SB3 class as loader: only when trusted
+        TrainedAgent.load(path, load_with=A2C)
+    assert TrainedAgent.load(path, load_with=A2C, trust=True).algo == "external"
+
+
+def test_an_older_sidecar_needs_trust(saved, tmp_path: Path):
+    agent, original = saved
+    path = tmp_path / "old.zip"
+    path.write_bytes(original.read_bytes())
+    side = json.loads(original.with_suffix(".json").read_text())
+    del side["spaces"]
+    path.with_suffix(".json").write_text(json.dumps(side))
+    with pytest.raises(ModelFileError, match="trust=True"):
+        TrainedAgent.load(path)
+    obs = np.ones((3, agent.model.observation_space.shape[0]), dtype=np.float32)
+    assert np.array_equal(TrainedAgent.load(path, trust=True).act(obs)[0], agent.act(obs)[0])
+
+
+def test_a_zip_bomb_of_weights_is_refused_before_it_inflates(saved, tmp_path: Path, monkeypatch):
+    import nutribench.agents.model_files as mf
+
+    _, original = saved
+    path = tmp_path / "big.zip"
+    for suffix in (".zip", ".json"):
+        path.with_suffix(suffix).write_bytes(original.with_suffix(suffix).read_bytes())
+    with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("zeros.pth", b"\0" * (4 << 20))  # 4 MiB of zeros: a few KiB compressed
+    monkeypatch.setattr(mf, "MAX_MODEL_BYTES", 2 << 20)
+    with pytest.raises(ModelFileError, match="would inflate"):
+        TrainedAgent.load(path)
