@@ -423,8 +423,16 @@ def test_the_untampered_archive_imports_and_carries_the_new_columns(source, tmp_
     assert read_jobs(dst2)["model_path"].isna().all()
 
 
-def test_an_archive_written_before_revision_0004_imports_with_its_defaults(source, tmp_path) -> None:
-    _, good = source
+@pytest.fixture(scope="module")
+def real(tmp_path_factory) -> tuple[Path, Path]:
+    """An archive of real results (two recorded jobs): their evaluation days replay."""
+    from tests.recorded import recorded_archive
+
+    return recorded_archive(tmp_path_factory.mktemp("real"))
+
+
+def test_an_archive_written_before_revision_0004_imports_with_its_defaults(real, tmp_path) -> None:
+    _, good = real
     meta, arrays = _read(good)
     for job in meta["jobs"]:
         for field in ("fake", "batch_id", "batch_size", "device", "source", "source_sha256"):
@@ -438,14 +446,10 @@ def test_an_archive_written_before_revision_0004_imports_with_its_defaults(sourc
     assert jobs[["batch_id", "batch_size", "device", "source", "source_sha256"]].isna().all().all()
 
 
-def test_a_dry_runs_archive_is_not_mixed_into_real_results(source, tmp_path) -> None:
+def test_a_dry_runs_archive_is_not_mixed_into_real_results(source, real, tmp_path) -> None:
     _, good = source
-    meta, arrays = _read(good)
-    for job in meta["jobs"]:
-        job["fake"] = False
-    real, dst = tmp_path / "real.npz", tmp_path / "dst.db"
-    _save(real, meta, arrays)
-    assert runner.invoke(app, ["db", "import", str(real), "--db", str(dst)]).exit_code == 0
+    dst = tmp_path / "dst.db"
+    assert runner.invoke(app, ["db", "import", str(real[1]), "--db", str(dst)]).exit_code == 0
     before = hashlib.sha256(dst.read_bytes()).hexdigest()
     res = runner.invoke(app, ["db", "import", str(good), "--db", str(dst)])
     assert res.exit_code == 2 and len(_lines(res)) == 1 and "never mixed" in _out(res), res.output

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 from typing import Any
 
 import numpy as np
@@ -32,8 +33,15 @@ from nutribench.store.archive_meta import (
     _reason,
     _short,
 )
+from nutribench.store.archive_replay import replay_evaluations
 from nutribench.store.engine import StoreError
 from nutribench.store.models import PHASES
+
+#: The most bytes an archive may inflate to (its members' declared sizes, summed; the committed
+#: ones inflate to 17 MB at most): ``db import`` holds about this much at once, never more.
+MAX_ARCHIVE_BYTES = 1 << 30
+#: The most members (arrays) an archive may have.
+MAX_MEMBERS = 1024
 
 
 def _load(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -49,6 +57,7 @@ def _load(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.nd
     try:
         if os.path.getsize(path) == 0:
             raise StoreError(f"{not_archive}: the file is empty")
+        check_sizes(path)
         loaded = np.load(path, allow_pickle=False)
         if not isinstance(loaded, np.lib.npyio.NpzFile):  # a .npy file: one array
             raise StoreError(f"{not_archive}: a single array, not a set of columns")
@@ -69,6 +78,44 @@ def _load(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.nd
     if not isinstance(meta, dict):
         raise StoreError(f"{not_archive}: its meta is not a JSON object")
     return meta, arrays
+
+
+def check_sizes(path: str | os.PathLike[str]) -> None:
+    """The archive's declared sizes within :data:`MAX_ARCHIVE_BYTES`, before anything is
+    decompressed: each member's size in the zip directory (a reader stops there) and each
+    array's shape in its ``.npy`` header (what NumPy allocates up front), summed; StoreError."""
+    where = f"db import: {path}"
+    if not zipfile.is_zipfile(path):
+        return  # not a zip: np.load reads no more than the file, and the reader refuses it
+    with zipfile.ZipFile(path) as zf:
+        infos = zf.infolist()
+        if len(infos) > MAX_MEMBERS:
+            raise StoreError(f"{where}: {len(infos):,} arrays (at most {MAX_MEMBERS:,}); nothing imported")
+        declared = sum(i.file_size for i in infos)
+        if declared > MAX_ARCHIVE_BYTES:
+            raise StoreError(
+                f"{where}: it would inflate to {declared:,} bytes, more than the {MAX_ARCHIVE_BYTES:,} an archive "
+                "may hold; nothing imported"
+            )
+        for info in infos:
+            with zf.open(info) as fh:
+                try:
+                    version = np.lib.format.read_magic(fh)
+                except ValueError:
+                    continue  # not an array: read as the bytes it declares, and refused as no column
+                if version not in ((1, 0), (2, 0)):
+                    raise StoreError(f"{where}: array {info.filename} is .npy version {version}, not 1.0 or 2.0")
+                read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+                try:
+                    shape, _, dtype = read(fh)
+                except ValueError as e:
+                    raise StoreError(f"{where}: array {info.filename} has a bad header ({_reason(e)})") from None
+            nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+            if nbytes > info.file_size:
+                raise StoreError(
+                    f"{where}: array {info.filename} declares {nbytes:,} bytes in a member of {info.file_size:,}; "
+                    "nothing imported"
+                )
 
 
 def read_archive(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -227,6 +274,11 @@ def _check_rows(
     if bad.any():
         row = int(np.argmax(bad))
         raise _Invalid(f"episodes row {row}: {int(ep['foods'][row])} foods in a day of {int(horizon[row])} steps")
+    for col, lo, hi in (("overshoot_ratio", 0.0, 1.0), ("final_distance", 0.0, np.inf), ("entropy", 0.0, np.inf)):
+        bad = (ep[col] < lo) | (ep[col] > hi)  # NaN (a NULL) compares false
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise _Invalid(f"episodes row {row}: {col} {ep[col][row]:.6g} is out of its range {lo:g}..{hi:g}")
     first = ep["first_overshoot_step"]
     bad = (first < 1) | (first > horizon)
     if "first_overshoot_step.null" in ep:
@@ -303,6 +355,7 @@ def _verify(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
     _fill_optional(arrays)
     tables = _check_arrays(arrays, len(meta["jobs"]))
     _check_rows(tables, per_job, meta["jobs"])
+    replay_evaluations(meta, tables, per_job)
     counts = meta.get("counts")
     have = {"jobs": len(meta["jobs"]), **{name: len(cols["job"]) for name, cols in tables.items()}}
     for name in _OPTIONAL_TABLES:  # an archive without the table (or without its rows) need not count it

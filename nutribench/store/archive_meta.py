@@ -10,6 +10,7 @@ message, without the archive's name; :mod:`nutribench.store.archive_check` adds 
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Sequence
 from datetime import datetime
@@ -46,6 +47,11 @@ ENGINES = ("sb3", "batched", "external")
 _SHA256 = re.compile(r"[0-9a-f]{64}")
 _META_KEYS = {"format", "format_version", "source", "counts", "regimes", "agent_configs", "jobs"}
 _INT32 = (-(2**31), 2**31 - 1)  # an Integer column on PostgreSQL
+#: The longest text an archive may carry in a column without a length of its own (a source
+#: path, an error text): a shared file's strings are read, so they are bounded.
+TEXT_MAX = 65_536
+#: Job columns that count something: never negative (a seed too: the CLI takes none below 0).
+_NON_NEGATIVE = ("seed", "episodes", "eval_episodes", "attempt", "failures", "episodes_done", "wall_seconds")
 
 
 def valid_name(name: Any) -> bool:
@@ -98,10 +104,10 @@ def _check_value(col: Any, value: Any, what: str) -> None:
     elif kind is int:
         ok = isinstance(value, int) and not isinstance(value, bool) and _INT32[0] <= value <= _INT32[1]
     elif kind is float:
-        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
     elif kind is str:
-        length = getattr(col.type, "length", None)
-        ok = isinstance(value, str) and (length is None or len(value) <= length)
+        length = getattr(col.type, "length", None) or TEXT_MAX
+        ok = isinstance(value, str) and len(value) <= length
     elif kind is datetime:
         try:
             ok = isinstance(value, str) and bool(datetime.fromisoformat(value))
@@ -114,7 +120,11 @@ def _check_value(col: Any, value: Any, what: str) -> None:
     if not ok:
         raise _Invalid(
             f"{what}: {col.name} = {_short(value)} is not a valid {kind.__name__}"
-            + (f" (at most {col.type.length} characters)" if kind is str and isinstance(value, str) else "")
+            + (
+                f" (at most {getattr(col.type, 'length', None) or TEXT_MAX:,} characters)"
+                if kind is str and isinstance(value, str)
+                else ""
+            )
         )
 
 
@@ -237,6 +247,11 @@ def _check_jobs(meta: dict[str, Any], configs: dict[tuple[str, str, int], dict[s
             raise _Invalid(
                 f"{what}: a negative budget ({job['episodes']} training, {job['eval_episodes']} evaluation days)"
             )
+        for col in _NON_NEGATIVE:
+            if job.get(col) is not None and job[col] < 0:
+                raise _Invalid(f"{what}: {col} {job[col]} is negative")
+        if job.get("batch_size") is not None and job["batch_size"] < 1:
+            raise _Invalid(f"{what}: batch_size {job['batch_size']} is not a positive integer")
         if job.get("source_sha256") is not None and not _SHA256.fullmatch(job["source_sha256"]):
             raise _Invalid(f"{what}: source_sha256 {_short(job['source_sha256'], 70)} is not a sha256")
         key = (*refs, job["seed"], job["episodes"], job["eval_episodes"])
