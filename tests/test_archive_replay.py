@@ -192,3 +192,32 @@ def test_a_zip_bomb_is_refused_before_it_is_inflated(real, dst, tmp_path, monkey
     assert peak < 32 << 20, f"{peak:,} bytes"
     assert res.exit_code == 2 and "more than the 67,108,864 an archive may hold" in res.output, res.output
     assert hashlib.sha256(dst.read_bytes()).hexdigest() == before
+
+
+# --------------------------------------------------------------------------- the committed files
+ROOT = Path(__file__).resolve().parents[1]
+DATA = sorted(p for p in (ROOT / "reports").glob("*/data") if p.is_dir())
+
+
+@pytest.mark.parametrize("folder", DATA, ids=lambda p: p.parent.name)
+def test_the_committed_files_match_the_sums_listed_beside_them(folder) -> None:
+    """``SHA256SUMS`` (``sha256sum -c SHA256SUMS`` in the folder) lists every archive and model
+    tarball there, and each file hashes to its listed sum."""
+    listed = {}
+    for line in (folder / "SHA256SUMS").read_text().splitlines():
+        digest, name = line.split(maxsplit=1)
+        listed[name.lstrip("*")] = digest
+    assert set(listed) == {p.name for p in folder.iterdir() if p.name != "SHA256SUMS"}
+    for name, digest in listed.items():
+        assert hashlib.sha256((folder / name).read_bytes()).hexdigest() == digest, name
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("archive", sorted((ROOT / "reports").glob("*/data/*.npz")), ids=lambda p: p.name)
+def test_every_committed_archive_replays(archive) -> None:
+    """Every evaluation day of every committed archive replays (the paper's ones also in the
+    default run, by tests/test_archive_verify.py)."""
+    from nutribench.store.archive import read_archive
+
+    meta, _ = read_archive(archive)
+    assert meta["jobs"]
