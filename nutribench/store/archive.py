@@ -32,7 +32,13 @@ evaluation days and ``eval_episodes x H`` evaluation steps (H the regime's horiz
 numbered in range, and foods and actions in range; every config's ``sha256`` recomputed
 from its stored body, which names the same config; every name ``[a-z][a-z0-9_]*`` (64
 characters at most), as files and figures are named after them; the meta's counts equal
-the arrays'. A stored model path is never trusted: the import drops it (``model_path``
+the arrays'; seeds, counts and wall times non-negative, overshoot ratios in 0..1, texts at
+most 65,536 characters, no infinity in the meta. Before anything is decompressed, the
+members' declared sizes (at most 1 GiB in all) and each ``.npy`` header's shape (no larger
+than its member) are read (:func:`~nutribench.store.archive_check.check_sizes`). Every
+evaluation day of a real job is replayed from its stored foods and actions on the archive's
+regime, and its steps and metrics must agree (:mod:`nutribench.store.archive_replay`); the
+training days cannot be replayed. A stored model path is never trusted: the import drops it (``model_path``
 NULL; an archive carries no model files, and a path from another machine names nothing
 here). The configs' and jobs' ``source`` (the file or script they came from on the
 exporting machine) are kept as text: nothing in nutribench opens them. :func:`export_results` runs the same checks before it writes, so a database whose
