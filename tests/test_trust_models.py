@@ -18,6 +18,8 @@ from nutribench.agents.api import TrainedAgent, eval_food_streams, evaluate, tra
 from nutribench.agents.model_files import ModelFileError, load_plugin_model
 from nutribench.cli import app
 
+REPO = Path(__file__).resolve().parents[1]
+
 
 class Payload:
     """Unpickled, it writes ``marker``: what an attacker plants in a model file."""
@@ -202,17 +204,40 @@ def test_a_plugin_model_loads_by_the_loader_the_user_names(tmp_path: Path, monke
     assert TrainedAgent.load(path, load_with=A2C, trust=True).algo == "external"
 
 
-def test_an_older_sidecar_needs_trust(saved, tmp_path: Path):
+def test_an_older_sidecar_loads_by_its_regime_or_with_trust(saved, tmp_path: Path):
+    """A sidecar without spaces (written before they were recorded): the spaces of the regime
+    its provenance names, if that is a regime name here; else only SB3's load, when trusted."""
     agent, original = saved
     path = tmp_path / "old.zip"
     path.write_bytes(original.read_bytes())
     side = json.loads(original.with_suffix(".json").read_text())
     del side["spaces"]
     path.with_suffix(".json").write_text(json.dumps(side))
+    obs = np.ones((3, agent.model.observation_space.shape[0]), dtype=np.float32)
+    assert np.array_equal(TrainedAgent.load(path).act(obs)[0], agent.act(obs)[0])
+    side["provenance"]["regime"] = str(REPO / "regimes" / "run3.toml")  # a path: never looked up
+    path.with_suffix(".json").write_text(json.dumps(side))
     with pytest.raises(ModelFileError, match="trust=True"):
         TrainedAgent.load(path)
-    obs = np.ones((3, agent.model.observation_space.shape[0]), dtype=np.float32)
     assert np.array_equal(TrainedAgent.load(path, trust=True).act(obs)[0], agent.act(obs)[0])
+
+
+def test_a_committed_model_loads_as_data(tmp_path: Path):
+    """A model of reports/sensitivity (saved before the spaces were recorded) loads without trust."""
+    import tarfile
+
+    with tarfile.open(REPO / "reports" / "sensitivity" / "data" / "models_control.tar.gz") as tar:
+        names = [f"run3-v2/ppo-v1/seed0-ep5000{s}" for s in (".zip", ".json")]
+        for name in names:
+            member = tar.getmember(name)
+            (tmp_path / Path(name).name).write_bytes(tar.extractfile(member).read())
+    agent = TrainedAgent.load(tmp_path / "seed0-ep5000.zip")
+    assert agent.algo == "ppo" and agent.obs_mean is not None and agent.provenance["episodes"] == 5000
+    from stable_baselines3 import PPO
+
+    sb3 = PPO.load(tmp_path / "seed0-ep5000.zip", device="cpu")  # a committed file: SB3's own load, to compare
+    obs = np.random.default_rng(0).uniform(0, 2, size=(64, len(agent.obs_mean))).astype(np.float32)
+    assert np.array_equal(agent.act(obs)[0], sb3.predict(agent.normalize(obs), deterministic=True)[0])
 
 
 def test_a_zip_bomb_of_weights_is_refused_before_it_inflates(saved, tmp_path: Path, monkeypatch):

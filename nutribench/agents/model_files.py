@@ -240,6 +240,26 @@ def vec_normalize_from_stats(stats: dict[str, Any], venv: VecEnv) -> VecNormaliz
     return vn
 
 
+def _regime_spaces(side: dict[str, Any]) -> dict[str, Any] | None:
+    """The spaces of the regime a sidecar's provenance names (a sidecar written before the
+    spaces were recorded), if it is a regime of this installation; None otherwise. Only a
+    name is looked up, never a path."""
+    import re
+
+    from nutribench.config.loading import ConfigError
+    from nutribench.env.nutri_env import RegimeDynamics
+
+    regime = (side.get("provenance") or {}).get("regime")
+    if not isinstance(regime, str) or not re.fullmatch(r"[a-z][a-z0-9_]{0,63}", regime):
+        return None
+    try:
+        dyn = RegimeDynamics(regime)
+    except (ConfigError, OSError):
+        return None
+    box = dyn.observation_space
+    return {"obs_low": box.low.tolist(), "obs_high": box.high.tolist(), "obs_dtype": str(box.dtype), "n_actions": 2}
+
+
 #: The horizon a model is rebuilt with: it sizes MC's rollout buffer only, never a weight.
 LOAD_HORIZON = 50
 
@@ -254,15 +274,16 @@ def load_saved_model(
 
     entry = ALGORITHMS[side["algo"]]
     if entry.build is not None:
-        if side.get("spaces") is not None:
+        spaces = side.get("spaces") or _regime_spaces(side)
+        if spaces is not None:
             from nutribench.agents.algos import build_model
 
             build = lambda env: build_model(config, env, seed=0, horizon=LOAD_HORIZON)  # noqa: E731
-            return rebuild_from_weights(path, build, side["spaces"])
+            return rebuild_from_weights(path, build, spaces)
         if not trust:
             raise ModelFileError(
-                f"{path}: its sidecar records no spaces (saved by an older nutribench), so only SB3's unpickling "
-                "load reads it: pass trust=True if you made this file yourself"
+                f"{path}: its sidecar records no spaces nor a regime of this installation (saved by an older "
+                "nutribench), so only SB3's unpickling load reads it: pass trust=True if you made this file yourself"
             )
         return load_model(entry.load, path)
     if load_with is None:

@@ -10,9 +10,12 @@ registry treats a sixth agent as a special case::
     [params]
     n_steps = 500
 
-An external config's builder is its ``entry_point``; its loader is the ``load`` function of
-the same module (``load(path)`` returns the saved model). Entry points are imported by name,
-in each worker, from installed packages or from the current folder (as ``python -m`` does).
+An external config's builder is its ``entry_point``; by convention its loader is the ``load``
+function of the same module (``load(path)`` returns the saved model), noted in a saved model's
+sidecar but imported only when the user names it (``TrainedAgent.load(path, load_with=...)``,
+``nutribench evaluate --entry-point``): a model file never chooses the code that loads it.
+Entry points are imported by name, in each worker, from installed packages or from the
+current folder (as ``python -m`` does).
 """
 
 from __future__ import annotations
@@ -108,7 +111,8 @@ def algorithm(cfg: Any) -> Algorithm:
 
 
 def loader_entry_point(cfg: Any) -> str:
-    """What loads this config's saved model (written into the model's ``.json`` sidecar)."""
+    """What loads this config's saved model (written into the model's ``.json`` sidecar as a
+    note for plain SB3 and the user; ``TrainedAgent.load`` never imports it from there)."""
     entry = algorithm(cfg)
     if entry.load is not None:
         return entry.load
