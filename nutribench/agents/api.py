@@ -164,9 +164,8 @@ class TrainedAgent:
 
         :param load_with: a plug-in's loader, named by you (``"package.module:load"`` or the
             function): the entry point in the sidecar is never imported on its own.
-        :param trust: let SB3 unpickle this file (only one you made or trust): needed for a
-            model whose sidecar records neither spaces nor a regime of this installation, or
-            a plug-in loaded with an SB3 class.
+        :param trust: let SB3 unpickle this file (one you made): needed for a sidecar with
+            neither spaces nor a regime of this installation, or an SB3 class as ``load_with``.
         """
         path = Path(path)
         side = read_sidecar(path)
