@@ -167,6 +167,8 @@ def test_an_array_declaring_gigabytes_is_refused_before_it_is_allocated(real, ds
     assert peak < 64 << 20, f"{peak:,} bytes"
     assert res.exit_code == 2 and "declares 3,200,000,000 bytes in a member of" in res.output, res.output
     assert hashlib.sha256(dst.read_bytes()).hexdigest() == before
+    res = runner.invoke(app, ["db", "import", str(bad), "--db", str(tmp_path / "new.db")])
+    assert res.exit_code == 2 and not (tmp_path / "new.db").exists(), res.output  # no database created either
 
 
 def test_a_zip_bomb_is_refused_before_it_is_inflated(real, dst, tmp_path, monkeypatch) -> None:

@@ -95,6 +95,19 @@ def test_trained_agent_load_reads_weights_and_runs_nothing(saved, evil):
     assert not marker.exists()
 
 
+def test_the_vec_normalize_statistics_are_rebuilt_from_json(saved):
+    from nutribench.agents.model_files import vec_normalize_from_stats
+    from nutribench.env.sb3 import NutriRLSB3VecEnv
+
+    agent, path = saved
+    vn = vec_normalize_from_stats(TrainedAgent.load(path).vec_normalize_stats, NutriRLSB3VecEnv(regime="run3"))
+    obs = np.random.default_rng(1).uniform(0, 2, size=(8, len(agent.obs_mean))).astype(np.float32)
+    assert not vn.training and np.allclose(vn.normalize_obs(obs), agent.normalize(obs))
+    assert (
+        np.array_equal(vn.obs_rms.var, agent.vec_normalize.obs_rms.var) and vn.clip_obs == agent.vec_normalize.clip_obs
+    )
+
+
 def test_a_crafted_sidecar_chooses_no_code(evil, tmp_path: Path, monkeypatch):
     """A sidecar naming ``pwnmod`` (found in the current folder) imports nothing."""
     path, marker = evil
