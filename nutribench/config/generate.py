@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from pydantic import ValidationError
 
-from nutribench.config.loading import ConfigError, format_validation_error
+from nutribench.config.loading import OBSERVATION_OPTIONS, ConfigError, format_validation_error
 from nutribench.config.models import NUTRIENTS, DelayRanges, FoodCatalog, Regime
 
 DECIMALS = 2
@@ -178,7 +178,7 @@ def regime_to_toml(regime: Regime) -> str:
         f"seed = {d['seed']}",
         f"catalog = {_toml_str(d['catalog'])}",
         f"reward = {_toml_str(d['reward'])}",
-        *(["observe_clock = true"] if d["observe_clock"] else []),
+        *[f"{option} = true" for option in OBSERVATION_OPTIONS if d[option]],
         "",
         "[ranges]",
         f"tau = {_range_table(d['ranges']['tau'])}",

@@ -23,6 +23,9 @@ from nutribench.errors import UserError
 
 M = TypeVar("M", bound=BaseModel)
 
+#: A regime's observation options, in ladder order; each enters its content hash only when on.
+OBSERVATION_OPTIONS = ("observe_clock", "observe_pending", "observe_latent")
+
 
 class ConfigError(UserError, ValueError):
     """A configuration file is missing or invalid. The message is one line for users."""
@@ -96,9 +99,9 @@ class EnvConfig:
     """Everything that fixes the dynamics of one regime: regime + food catalog + reward.
 
     ``sha256`` hashes the semantic content of all three (not the file formatting), so a
-    result row can be traced to the exact dynamics that made it. The regime's
-    ``observe_clock`` enters the content only when it is on, so a regime without it hashes
-    as it did before the option existed.
+    result row can be traced to the exact dynamics that made it. The regime's observation
+    options (``observe_clock``, ``observe_pending``, ``observe_latent``) enter the content
+    only when they are on, so a regime without them hashes as it did before they existed.
     """
 
     regime: Regime
@@ -132,13 +135,29 @@ class EnvConfig:
 
     @property
     def observe_clock(self) -> bool:
-        """Whether the observation ends with the step of the day / horizon."""
+        """Whether the observation holds the step of the day / horizon (level 2 and up)."""
         return self.regime.observe_clock
+
+    @property
+    def observe_pending(self) -> bool:
+        """Whether the observation holds the pending amount per nutrient (level 3 and up)."""
+        return self.regime.observe_pending
+
+    @property
+    def observe_latent(self) -> bool:
+        """Whether the observation holds the pending schedule and the target (level 4)."""
+        return self.regime.observe_latent
+
+    @property
+    def observation_level(self) -> int:
+        """The rung of the observation ladder, 1 (the paper's) .. 4 (the full state)."""
+        return self.regime.observation_level
 
     def content(self) -> dict[str, Any]:
         regime = self.regime.model_dump(mode="json")
-        if not regime["observe_clock"]:
-            del regime["observe_clock"]
+        for option in OBSERVATION_OPTIONS:
+            if not regime[option]:
+                del regime[option]
         return {
             "regime": regime,
             "catalog": self.catalog.model_dump(mode="json"),

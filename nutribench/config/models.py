@@ -11,8 +11,12 @@ Three kinds of file live in ``regimes/``:
   ``sigma`` written out, so that the file alone fixes the dynamics.
 
 Every model forbids unknown keys and has no defaults for anything that changes the
-dynamics: a missing value is an error, never silently filled in. The one default,
-a regime's ``observe_clock = false``, changes what the agent observes, not the dynamics.
+dynamics: a missing value is an error, never silently filled in. The only defaults, a
+regime's observation options ``observe_clock``, ``observe_pending`` and ``observe_latent``
+(all ``false``: the paper's observation), change what the agent observes, not the dynamics.
+They climb the observation ladder one rung each (:attr:`Regime.observation_level`): level 1
+the paper's observation, 2 + the clock, 3 + the pending amount per nutrient, 4 + the pending
+schedule and the target (the full state); a rung needs the ones below it.
 """
 
 from __future__ import annotations
@@ -166,6 +170,30 @@ class Regime(_Strict):
         default=False,
         description="append the step of the day / horizon to the observation (one more dimension)",
     )
+    observe_pending: bool = Field(
+        default=False,
+        description="also append what is eaten but not yet absorbed, per nutrient (3 dims; needs observe_clock)",
+    )
+    observe_latent: bool = Field(
+        default=False,
+        description="also append the pending schedule of the next H - 1 steps and the target (needs observe_pending)",
+    )
+
+    @property
+    def observation_level(self) -> int:
+        """The rung of the observation ladder: 1 (the paper's) .. 4 (the full state)."""
+        return 1 + int(self.observe_clock) + int(self.observe_pending) + int(self.observe_latent)
+
+    @model_validator(mode="after")
+    def _a_ladder(self) -> Regime:
+        rungs = (("observe_clock", self.observe_clock), ("observe_pending", self.observe_pending))
+        for (lower, on), upper in zip(rungs, ("observe_pending", "observe_latent")):
+            if getattr(self, upper) and not on:
+                raise ValueError(
+                    f"{upper} = true needs {lower} = true: the observation levels are a ladder "
+                    "(clock, then pending, then latent); set the rungs below it too"
+                )
+        return self
 
     @model_validator(mode="after")
     def _within_ranges(self) -> Regime:

@@ -2,7 +2,9 @@
 regime (rows are agents), each agent's food days from its own seed, its observations
 normalised by its own running statistics (SB3's ``VecNormalize``), and its training days'
 metrics recorded as the SB3 engine records them; and each trained agent handed back as the
-SB3 engine's :class:`~nutribench.agents.api.TrainedAgent`."""
+SB3 engine's :class:`~nutribench.agents.api.TrainedAgent`. The observation is the vector
+env's at each regime's observation level (the ladder of :mod:`nutribench.env.nutri_env`);
+one batch needs one observation size, so its regimes share the catalog and the level."""
 
 from __future__ import annotations
 
@@ -59,7 +61,8 @@ class AgentEnvs:
         dims = {g.env.single_observation_space.shape[0] for g in self.groups}
         if len(dims) != 1:
             raise ValueError(
-                f"the agents of one batch need one observation size (one food catalog), got {sorted(dims)}"
+                f"the agents of one batch need one observation size (one food catalog and observation level), "
+                f"got {sorted(dims)}"
             )
         self.obs_dim = dims.pop()
         self.obs_stats = RunningStats(self.k, (self.obs_dim,)) if normalize_obs else None

@@ -15,16 +15,35 @@ delay statistics come from a regime file (``regimes/run0.toml`` .. ``run6.toml``
 
 ## Observation space
 
-A flat ``Box(0, high, (3 + N,), float32)``: the absorbed nutrients ``s_t = (C, F, P)`` in
+A flat ``Box(low, high, (3 + N,), float32)``: the absorbed nutrients ``s_t = (C, F, P)`` in
 units of the daily target, followed by the one-hot embedding of the food offered next
-(N = 10 for the shipped catalog). A regime with ``observe_clock = true`` appends one more
-entry, the clock ``t / H`` (steps taken over the horizon: 0 at reset, 1 in the final
-observation), so the box is ``(3 + N + 1,)``; no shipped regime sets it. The recurrent
-agent's split below assumes no clock (it would feed the clock to its food stream). A flat Box rather than a Dict so that every
-Stable-Baselines3 policy and normaliser works on it unchanged; the recurrent agent splits
-it by index (``obs[:3]`` nutrients, ``obs[3:]`` food). The observation returned by the
-final step has an all-zero food part: the day is over and nothing is offered. The backlog
-of pending absorption and the target are not observed (a POMDP).
+(N = 10 for the shipped catalog). This is level 1 of the observation ladder, the paper's
+observation: the backlog of pending absorption, the target and the time of day are not
+observed (a POMDP). A regime file climbs the ladder with its observation options (all
+``false`` by default, none set by a shipped regime; a rung needs the ones below it); each
+rung appends its columns, in this order:
+
+* level 2, ``observe_clock = true``: the clock ``t / H`` (steps taken over the horizon: 0 at
+  reset, 1 in the final observation), 1 column;
+* level 3, ``+ observe_pending = true``: per nutrient, what is eaten but not yet absorbed and
+  will still arrive by step H (``pending_by_horizon()``), 3 columns;
+* level 4, ``+ observe_latent = true``: the pending schedule, the amounts of C, F and P due at
+  each of the next W = H - 1 steps, step by step (``[C, F, P]`` due at step t + 1, then at
+  t + 2, ...; zero past step H), 3 W columns, and the target ``T`` (in target units, always
+  (1, 1, 1)), 3 columns. W = H - 1 is every step the day still has after the first, so the
+  schedule holds everything still to arrive and the observation is the full state (the
+  future foods are exogenous and drawn fresh): the task is Markov. One W for every regime
+  (run6's kernels reach past the day, run0 has none) keeps one observation size per catalog.
+
+Sizes for the shipped catalog and horizon: 13, 14, 17, 167. ``columns`` (inspection) names
+each part's slice. Bounds: 0 below; above, nothing can exceed eating the richest food every
+step (nutrients, pending), 1 (one-hot, clock, target), and one meal per earlier step at its
+own offset (each schedule entry). The target's columns are always exactly 1; their lower
+bound is 0, not 1, because Gymnasium warns about a Box whose bounds are equal. A flat Box rather than a Dict
+so that every Stable-Baselines3 policy and normaliser works on it unchanged; the recurrent
+agent splits it by index (``obs[:3]`` nutrients, ``obs[3:]`` the rest: the food one-hot and
+any rungs above level 1 go to its food stream). The observation returned by the final step
+has an all-zero food part: the day is over and nothing is offered.
 
 ## Transition
 
@@ -69,7 +88,8 @@ reward's three signed terms ``reward_progress``, ``reward_comfort``, ``reward_ov
 
 ``masses`` (N x 3, target units), ``tau`` and ``sigma`` (N x 3, steps), ``target`` (3,),
 ``reward_config``, ``horizon``, ``food_names``, ``schedule`` (N x H x 3 absorption per
-offset), ``state`` and ``pending_by_horizon()`` (what is still due by step H).
+offset), ``state`` and ``pending_by_horizon()`` (what is still due by step H); on ``dyn``,
+``observation_level``, ``columns`` and ``window``.
 """
 
 from __future__ import annotations
@@ -102,17 +122,57 @@ class RegimeDynamics:
         self.target = np.ones(3)
         self.schedule = absorption_schedule(self.masses, self.tau, self.sigma, self.horizon)
         self.arrivals = arrivals_by_horizon(self.schedule, self.horizon)
-        #: Whether the observation ends with the clock, steps taken / horizon (0 at reset, 1 at the end).
+        #: The observation options of the regime (the observation ladder, levels 1..4).
         self.observe_clock = cfg.observe_clock
-        # Observation bounds: nothing can exceed eating the richest food every step.
-        clock = [1.0] if self.observe_clock else []
-        high = np.concatenate([self.horizon * self.masses.max(axis=0), np.ones(self.n_foods), clock])
-        self.observation_space = spaces.Box(0.0, high.astype(np.float32), dtype=np.float32)
+        self.observe_pending = cfg.observe_pending
+        self.observe_latent = cfg.observe_latent
+        self.observation_level = cfg.observation_level
+        #: Steps of the pending schedule in a level-4 observation: every step still in the day.
+        self.window = self.horizon - 1 if self.observe_latent else 0
+        self._layout()
         self.action_space = spaces.Discrete(2)
-        # Row j: observation template with food j offered; last row: nothing offered.
-        width = 3 + self.n_foods + len(clock)
-        self.obs_template = np.zeros((self.n_foods + 1, width), dtype=np.float32)
-        self.obs_template[np.arange(self.n_foods), 3 + np.arange(self.n_foods)] = 1.0
+
+    def _layout(self) -> None:
+        """Column slices of the observation's parts, honest bounds, and one template row per
+        food offered (the last row: nothing offered)."""
+        H, N, W = self.horizon, self.n_foods, self.window
+        # Nothing can exceed eating the richest food every step; an amount due at one step is at
+        # most one meal per earlier step, each at its own offset.
+        eaten = H * self.masses.max(axis=0)
+        parts = [("state", np.zeros(3), eaten), ("food", np.zeros(N), np.ones(N))]
+        if self.observe_clock:
+            parts.append(("clock", np.zeros(1), np.ones(1)))
+        if self.observe_pending:
+            parts.append(("pending", np.zeros(3), eaten))
+        if self.observe_latent:
+            parts.append(("schedule", np.zeros(3 * W), np.tile(self.schedule.max(axis=0).sum(axis=0), W)))
+            parts.append(("target", np.zeros(3), self.target.copy()))  # exactly T; 0 below: see the docstring
+        self.columns: dict[str, slice] = {}
+        start = 0
+        for name, low, _ in parts:
+            self.columns[name] = slice(start, start + low.size)
+            start += low.size
+        low = np.concatenate([p[1] for p in parts]).astype(np.float32)
+        high = np.concatenate([p[2] for p in parts]).astype(np.float32)
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+        self.has_extras = self.observe_clock or self.observe_pending or self.observe_latent
+        self.obs_template = np.zeros((N + 1, start), dtype=np.float32)
+        self.obs_template[np.arange(N), 3 + np.arange(N)] = 1.0
+        if self.observe_latent:
+            self.obs_template[:, self.columns["target"]] = self.target
+
+    def write_extras(self, obs: np.ndarray, t: int, pending: np.ndarray) -> None:
+        """Fill the rungs above level 1 into ``obs`` ``(n, width)`` (a template's copies) after
+        ``t`` steps, from ``pending`` ``(H, 3, n)``: row u holds what arrives at step u + 1."""
+        H, cols = self.horizon, self.columns
+        if self.observe_clock:
+            obs[:, cols["clock"]] = t / H
+        if self.observe_pending:
+            obs[:, cols["pending"]] = pending[t:].sum(axis=0).T
+        if self.observe_latent:
+            w = min(self.window, H - t)  # nothing arrives after step H: the rest stays zero
+            start = cols["schedule"].start
+            obs[:, start : start + 3 * w] = pending[t : t + w].transpose(2, 0, 1).reshape(pending.shape[2], 3 * w)
 
     def check_foods(self, foods: Any, shape: tuple[int, ...]) -> np.ndarray:
         arr = np.asarray(foods)
@@ -232,8 +292,8 @@ class NutriRLEnv(DynamicsView, gym.Env[np.ndarray, int]):
         truncated = t == H
         obs = self.dyn.obs_template[-1 if truncated else self._foods[t]].copy()
         obs[0], obs[1], obs[2] = C, F, P
-        if self.dyn.observe_clock:
-            obs[-1] = t / H
+        if self.dyn.has_extras:
+            self.dyn.write_extras(obs[None], t, pending[:, :, None])
         info = {
             "state": np.array(self._s),
             "distance": d,

@@ -5,9 +5,11 @@ subprocesses, no per-env Python objects). Semantics follow SB3's ``DummyVecEnv``
 same-step autoreset, ``infos[j]["terminal_observation"]`` on the last step of a day.
 
 The end of the day (step H) is reported as ``done`` *without* ``TimeLimit.truncated``:
-nothing happens after step H (and time is not in the observation unless the regime sets
-``observe_clock``), so learners must not bootstrap a value past it; the fixed-horizon day
-is a true episode end. The observation space is the vector env's, the clock included.
+nothing happens after step H (and time is not in the observation below level 2 of the
+observation ladder), so learners must not bootstrap a value past it; the fixed-horizon day
+is a true episode end. The observation space is the vector env's, at the regime's
+observation level (:mod:`nutribench.env.nutri_env`: clock, pending amounts, schedule and
+target included where the regime asks for them).
 
 The batched info dict and the raw rewards of the last step are kept as ``last_info`` and
 ``last_rewards`` (arrays of length

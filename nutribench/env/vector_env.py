@@ -2,7 +2,8 @@
 
 Per-env semantics are exactly those of :class:`~nutribench.env.NutriRLEnv` (tests check
 that N single envs fed the same foods and actions give the same observations, rewards and
-infos). All envs share the fixed horizon and never terminate early, so they are always at
+infos, at every level of the observation ladder: both fill the rungs above level 1 with
+:meth:`~nutribench.env.nutri_env.RegimeDynamics.write_extras`). All envs share the fixed horizon and never terminate early, so they are always at
 the same step and end together; the autoreset then resets all of them at once.
 
 Autoreset mode (``metadata["autoreset_mode"]``, chosen by the ``autoreset_mode`` argument):
@@ -128,8 +129,8 @@ class NutriRLVectorEnv(DynamicsView, VectorEnv):
         rows = self._foods[:, t] if t < self._H else np.full(self.num_envs, self._N)
         obs = self.dyn.obs_template[rows]
         obs[:, :3] = self._s.T
-        if self.dyn.observe_clock:
-            obs[:, -1] = t / self._H
+        if self.dyn.has_extras:
+            self.dyn.write_extras(obs, t, self._pending.reshape(self._H, 3, self.num_envs))
         return obs
 
     def step(self, actions):
