@@ -11,6 +11,14 @@ checkpoint when it holds a state), and each agent is then handed back with
 :meth:`Algorithm.store_weights`. While it learns, an algorithm records each agent's
 per-update diagnostics (:attr:`Algorithm.diagnostics`, the vocabulary of
 :mod:`nutribench.diagnostics`).
+
+Its whole training state is explicit, as a torch module's is: :meth:`Algorithm.state_dict`
+gives it as plain data (tensors, numpy arrays, numbers, strings, lists, dicts: the envs and
+random streams, the networks' parameters, the optimisers' ``state_dict``, the statistics,
+the replay, the diagnostics so far), which :class:`~nutribench.engine.checkpoint.Checkpoint`
+writes; :meth:`Algorithm.load_state_dict` puts such a state back into a freshly made
+algorithm of the same jobs and config (in place: parameters copied into the networks the
+optimisers already hold), so that training goes on exactly where it was saved.
 """
 
 from __future__ import annotations
@@ -49,9 +57,11 @@ class Algorithm:
         self.on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None
         #: off-policy: called after each gradient step with its step count and losses (``on_update``)
         self.on_update: Callable[[dict[str, Any]], None] | None = None
+        #: env steps of each agent so far (SB3's ``num_timesteps`` with one env)
+        self.num_timesteps = 0
 
     @classmethod
-    def train(
+    def train_jobs(
         cls,
         jobs: Sequence[tuple[str | EnvConfig, int]],
         cfg: Any,
@@ -100,6 +110,34 @@ class Algorithm:
     def store_weights(self, j: int, model: Any) -> None:
         """Put agent ``j``'s trained weights into ``model``, the SB3 model of its config."""
         raise NotImplementedError
+
+    def resume(self, checkpoint: Checkpoint | None) -> float:
+        """Take over ``checkpoint``'s state when it holds one (read onto this algorithm's
+        device); the training seconds spent before it (0 when there is none)."""
+        saved = checkpoint.read_onto(self.device) if checkpoint is not None else None
+        if saved is None:
+            return 0.0
+        self.load_state_dict(saved)
+        return checkpoint.seconds_before
+
+    def state_dict(self) -> dict[str, Any]:
+        """The training state as plain data (the module docstring): here what every algorithm
+        has (its ``algo``, the env steps, the envs, the diagnostics); each loop adds its own."""
+        return {
+            "algo": self.algo,
+            "steps": self.num_timesteps,
+            "envs": self.envs.state_dict(),
+            "diagnostics": self.diagnostics,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Take over ``state`` (a :meth:`state_dict` of an algorithm of the same jobs and
+        config); ValueError where it does not fit (other jobs, another algorithm)."""
+        if state.get("algo") != self.algo:
+            raise ValueError(f"the checkpoint is of algorithm {state.get('algo')!r}, not {self.algo!r}")
+        self.envs.load_state_dict(state["envs"])
+        self.diagnostics = [list(rows) for rows in state["diagnostics"]]
+        self.num_timesteps = int(state["steps"])
 
     @property
     def return_stats(self) -> RunningStats | None:
