@@ -117,6 +117,35 @@ def test_a_checkpoint_of_other_jobs_is_refused(tmp_path):
         train_batched([("run0", 3), ("run6", 5)], "mc", 4, checkpoint=Checkpoint(path, every_seconds=0))
 
 
+@pytest.mark.parametrize("tamper", ["a key missing", "a network of another shape"])
+def test_a_checkpoint_whose_state_does_not_fit_is_refused_in_one_line_and_the_batch_starts_over(
+    tamper, tmp_path, capsys
+):
+    """A checkpoint that reads (its format, its hash) but whose state does not fit the batch's
+    algorithm is refused in one line; the batch trains from the start and ends as a batch
+    that found nothing."""
+    path = tmp_path / "batch.pt"
+
+    def kill(j: int, row: dict) -> None:
+        if row["episode"] == 2:
+            raise Stopped
+
+    with pytest.raises(Stopped):
+        train_batched(JOBS, "mc", 4, on_episode=kill, checkpoint=Checkpoint(path, every_seconds=0))
+    sidecar = path.with_name("batch.pt.state.json")
+    meta = json.loads(sidecar.read_text())
+    if tamper == "a key missing":
+        del meta["state"]["start_of_day"]
+    else:
+        meta["state"]["params"] = meta["state"]["params"][:-2]
+    sidecar.write_text(json.dumps(meta))
+    capsys.readouterr()
+    again = train_batched(JOBS, "mc", 4, checkpoint=Checkpoint(path, every_seconds=0))
+    err = [line for line in capsys.readouterr().err.splitlines() if "checkpoint" in line]
+    assert len(err) == 1 and "checkpoint refused (its state does not fit this batch" in err[0], err
+    same_agents(train_batched(JOBS, "mc", 4), again)
+
+
 def test_an_unreadable_checkpoint_is_refused_in_one_line(tmp_path, capsys):
     path = tmp_path / "batch.pt"
     path.write_bytes(b"not a checkpoint")

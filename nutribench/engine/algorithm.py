@@ -33,9 +33,9 @@ from nutribench import diagnostics as names
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.engine import check_supported
-from nutribench.engine.checkpoint import Checkpoint
+from nutribench.engine.checkpoint import Checkpoint, CheckpointRefused
 from nutribench.engine.device import resolve_device
-from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
+from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, OtherJobs, as_trained_agent
 from nutribench.engine.stacked import RunningStats
 
 
@@ -77,10 +77,19 @@ class Algorithm:
         (:func:`~nutribench.engine.train.train_batched` says what the arguments do)."""
         check_supported(cfg, load_env_config(jobs[0][0]).reward.horizon if jobs else None)  # before anything trains
         device = resolve_device(device)
-        envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
-        algorithm = cls(cfg, envs, device)
-        algorithm.on_rollout, algorithm.on_update = on_rollout, on_update
-        wall = algorithm.learn(episodes * envs.horizon, checkpoint)
+
+        def made() -> Algorithm:
+            algorithm = cls(cfg, AgentEnvs(jobs, cfg.normalize_obs, on_episode), device)
+            algorithm.on_rollout, algorithm.on_update = on_rollout, on_update
+            return algorithm
+
+        algorithm = made()
+        try:
+            wall = algorithm.learn(episodes * algorithm.envs.horizon, checkpoint)
+        except CheckpointRefused as exc:  # its state did not fit (raised before any step): start over without it
+            checkpoint.refuse(exc)
+            algorithm = made()
+            wall = algorithm.learn(episodes * algorithm.envs.horizon, checkpoint)
         return algorithm.trained_agents(episodes, wall)
 
     def trained_agents(self, episodes: int, wall: float) -> list[TrainedAgent]:
@@ -113,11 +122,17 @@ class Algorithm:
 
     def resume(self, checkpoint: Checkpoint | None) -> float:
         """Take over ``checkpoint``'s state when it holds one (read onto this algorithm's
-        device); the training seconds spent before it (0 when there is none)."""
+        device); the training seconds spent before it (0 when there is none). A state that
+        does not fit raises :class:`~nutribench.engine.checkpoint.CheckpointRefused`."""
         saved = checkpoint.read_onto(self.device) if checkpoint is not None else None
         if saved is None:
             return 0.0
-        self.load_state_dict(saved)
+        try:
+            self.load_state_dict(saved)
+        except OtherJobs:
+            raise  # a checkpoint named for another batch: a bug to see, not a state to drop
+        except (KeyError, IndexError, TypeError, ValueError, RuntimeError) as exc:
+            raise CheckpointRefused(f"its state does not fit this batch: {exc}") from exc
         return checkpoint.seconds_before
 
     def state_dict(self) -> dict[str, Any]:

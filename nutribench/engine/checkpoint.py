@@ -138,9 +138,7 @@ class Checkpoint:
         """What was saved, its tensors on :attr:`device`; None when there is no usable checkpoint."""
         if self._read is not None and self._onto != self.device:
             self._onto = self.device
-            self._state = self._refused_as_none(lambda: self._decode(*self._read))
-            if self._state is None:
-                self._read = None
+            self._state = self._refused_as_none(lambda: self._decode(*self._read))  # refused: no _read
         return self._state if self._read is not None else None
 
     @property
@@ -161,12 +159,14 @@ class Checkpoint:
         try:
             return read()
         except Exception as exc:  # anything not written by this code, damaged, or of another version: start afresh
-            print(
-                f"nutribench: {self.path}: checkpoint refused ({_first_line(exc)}); the batch starts over",
-                file=sys.stderr,
-                flush=True,
-            )
-            return None
+            return self.refuse(exc)
+
+    def refuse(self, exc: BaseException) -> None:
+        """Say in one line why this checkpoint is not used, and hold no state from now on."""
+        print(
+            f"nutribench: {self.path}: checkpoint refused ({_first_line(exc)}); the batch starts over", file=sys.stderr
+        )
+        self._read = self._state = None
 
     def _load(self) -> tuple[Any, dict[str, th.Tensor]]:
         if not self.sidecar.is_file():

@@ -25,6 +25,10 @@ STREAMS = {"foods": 1, "actions": 2, "minibatches": 3, "init": 4}
 AgentEpisodeFn = Callable[[int, dict[str, Any]], None]
 
 
+class OtherJobs(ValueError):
+    """A checkpoint's envs are of other jobs than the batch reading it."""
+
+
 class _Group:
     """The agents of one regime: one natively batched vector env, rows ``agents``."""
 
@@ -90,7 +94,7 @@ class AgentEnvs:
         keeping this one's ``on_episode``; ValueError for a state of other jobs, or one that
         does not fit these envs (another code version)."""
         if saved["seeds"] != self.seeds or saved["regimes"] != [c.sha256 for c in self.env_cfgs]:
-            raise ValueError("the checkpoint is of other jobs than this batch's")
+            raise OtherJobs("the checkpoint is of other jobs than this batch's")
         rng = saved["rng"]
         if not isinstance(rng, dict) or set(rng) != set(STREAMS) or any(len(rs) != self.k for rs in rng.values()):
             raise ValueError("the checkpoint's random streams do not fit this batch")

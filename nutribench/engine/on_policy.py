@@ -57,11 +57,12 @@ ADAM_EPS = 1e-5  # SB3's ActorCriticPolicy passes eps=1e-5 to Adam
 class OnPolicySettings:
     """What the rollout and the update read from an agent config (PPO, MC or GRU-PPO): the
     one place the on-policy loop and updates take their settings from (never the config).
-    Each continuous setting is one float for all K agents; it is read in :func:`gradient_step`
+    Each continuous setting is one float for all K agents, read only in :func:`gradient_step`
     (``ent_coef``, ``vf_coef``, ``max_grad_norm``), :func:`~nutribench.engine.ppo.ppo_step`
-    (``clip_range``), :meth:`OnPolicyAlgorithm.collect_rollouts` (``gamma``, ``gae_lambda``)
-    and :func:`make_optimizer` (``learning_rate``), so a per-agent value (a ``(K,)`` array)
-    changes those reads only."""
+    (``clip_range``), :meth:`OnPolicyAlgorithm.scale_rewards` (``gamma``),
+    :meth:`OnPolicyAlgorithm.compute_returns` (``gamma``, ``gae_lambda``),
+    :func:`make_optimizer` and :meth:`OnPolicyAlgorithm.log_update` (``learning_rate``), so a
+    per-agent value (a ``(K,)`` array) changes those reads only."""
 
     learning_rate: float
     n_steps: int
