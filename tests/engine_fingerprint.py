@@ -8,6 +8,11 @@ Run it before the change and after, and compare the two files::
     python tests/engine_fingerprint.py /tmp/after.json
     cmp /tmp/before.json /tmp/after.json
 
+or, where a change means to change the diagnostics only (what each logged value means), let
+it say what differs, the training numbers apart from the diagnostics::
+
+    python tests/engine_fingerprint.py --compare /tmp/before.json /tmp/after.json
+
 Each run trains three agents (run0 seeds 0 and 21, run6 seed 3) for a few days (short
 rollouts and warm-ups, so that every algorithm updates several times; PPO also with its
 shipped config) and writes, per agent: every training day's metrics, the returns of two
@@ -69,6 +74,29 @@ def fingerprint() -> dict:
     return out
 
 
+def compare(before: dict, after: dict) -> bool:
+    """Print what differs between two fingerprints; whether all but the diagnostics are equal."""
+    same = before.keys() == after.keys()
+    for name in sorted(before.keys() & after.keys()):
+        for i, (x, y) in enumerate(zip(before[name], after[name], strict=True)):
+            for key in sorted(x.keys() | y.keys()):
+                if x.get(key) == y.get(key):
+                    continue
+                if key == "diagnostics":
+                    rows = zip(x[key] or [], y[key] or [])
+                    print(
+                        f"{name} agent {i}: diagnostics differ in",
+                        sorted({k for a, b in rows for k in a if a.get(k) != b.get(k)}),
+                    )
+                else:
+                    same = False
+                    print(f"{name} agent {i}: {key} differs")
+    print("training numbers identical" if same else "TRAINING NUMBERS DIFFER")
+    return same
+
+
 if __name__ == "__main__":
+    if sys.argv[1] == "--compare":
+        sys.exit(0 if compare(*(json.load(open(p)) for p in sys.argv[2:4])) else 1)
     with open(sys.argv[1], "w") as f:
         json.dump(fingerprint(), f, indent=0, sort_keys=True)

@@ -394,50 +394,61 @@ def test_grad_norm_probe_reads_the_norm_before_clipping():
     probe.remove()
 
 
-def test_grad_norm_from_clip_keeps_the_norms_clip_grad_norm_returns():
-    """An update that is not ours logs the mean of the norms its clip_grad_norm_ calls return
-    (before clipping); calls outside an update, or after one that failed, keep nothing."""
+@pytest.mark.parametrize("algo", ["ppo", "mc"])
+def test_ppo_and_a2c_train_is_sb3_s_and_logs_the_norms_clip_grad_norm_returns(algo, monkeypatch):
+    """The SB3 engine's PPO and MC override ``train()`` (as sb3-contrib does): one update of
+    each equals SB3's own ``train()`` on the same rollout (every weight bit for bit, every
+    value SB3 logs), and ``train/grad_norm`` is the mean of the norms ``clip_grad_norm_``
+    returned (before clipping); torch's ``clip_grad_norm_`` is left as it is."""
+    import numpy as np
     import torch as th
+    from stable_baselines3 import A2C, PPO
 
-    from nutribench.agents import training_log as tl
+    from nutribench.agents.algos import build_model
+    from nutribench.agents.api import make_train_env
+    from nutribench.agents.config import load_agent_config
+    from nutribench.config import load_env_config
 
-    recorded: list[tuple[str, float]] = []
+    th.set_num_threads(1)
+    torch_clip = th.nn.utils.clip_grad_norm_
+    cfg = load_agent_config(algo)
 
-    class Update:  # stands for SB3's PPO / A2C: clips with th.nn.utils.clip_grad_norm_
-        fail = False
+    def after_one_rollout(cls=None):
+        _, env = make_train_env(load_env_config("run3"), cfg)
+        model = build_model(cfg, env, seed=5, horizon=50, cls=cls)
+        _, callback = model._setup_learn(model.n_steps, callback=None)
+        callback.on_training_start(locals(), globals())
+        assert model.collect_rollouts(model.env, callback, model.rollout_buffer, n_rollout_steps=model.n_steps)
+        return model
 
-        def train(self):
-            th.manual_seed(0)
-            self.sink = tl._clip_norms.norms  # the list the update's norms go to
-            self.norms = []
-            for _ in range(3):
-                net.zero_grad()
-                net(th.randn(16, 4)).pow(2).sum().backward()
-                self.norms.append(float(th.nn.utils.clip_grad_norm_(net.parameters(), 0.01)))
-            if self.fail:
-                raise RuntimeError("update failed")
+    ours, theirs = after_one_rollout(), after_one_rollout(PPO if algo == "ppo" else A2C)
+    assert type(theirs) in (PPO, A2C) and type(ours) not in (PPO, A2C)
+    np.testing.assert_array_equal(ours.rollout_buffer.observations, theirs.rollout_buffer.observations)
+    norms: list[float] = []
 
-    class Recording(tl.GradNormFromClip, Update):
-        class logger:  # noqa: N801
-            record = staticmethod(lambda key, value: recorded.append((key, value)))
+    def keeping(*args, **kwargs):
+        norm = torch_clip(*args, **kwargs)
+        norms.append(float(norm))
+        return norm
 
-    net = th.nn.Sequential(th.nn.Linear(4, 8), th.nn.Tanh(), th.nn.Linear(8, 2))
-    model = Recording()
-    model.train()
-    assert min(model.norms) > 0.01  # every step clipped: the clipped norm would be 0.01
-    assert recorded == [("train/grad_norm", pytest.approx(sum(model.norms) / 3, rel=1e-6))]
-    assert Recording.records_grad_norm  # so TrainingDiagnostics installs no probe beside it
-    assert len(model.sink) == 3
-    th.nn.utils.clip_grad_norm_(net.parameters(), 1.0)  # outside an update: nothing kept
-    assert getattr(tl._clip_norms, "norms", None) is None and len(model.sink) == 3
-    model.fail = True
-    with pytest.raises(RuntimeError):
-        model.train()
-    assert getattr(tl._clip_norms, "norms", None) is None and len(recorded) == 1
+    np.random.seed(11)
+    ours.train()
+    assert th.nn.utils.clip_grad_norm_ is torch_clip  # nothing wrapped it
+    monkeypatch.setattr(th.nn.utils, "clip_grad_norm_", keeping)  # SB3's own train(), spied on here only
+    np.random.seed(11)
+    theirs.train()
+    monkeypatch.undo()
+    assert len(norms) == (cfg.n_epochs * -(-cfg.n_steps // cfg.batch_size) if algo == "ppo" else 1)
+    mine, reference = ours.policy.state_dict(), theirs.policy.state_dict()
+    assert all(th.equal(mine[k], reference[k]) for k in reference)
+    logged, expected = ours.logger.name_to_value, theirs.logger.name_to_value
+    assert set(logged) == set(expected) | {"train/grad_norm"}
+    assert all(logged[k] == expected[k] for k in expected)
+    assert logged["train/grad_norm"] == pytest.approx(np.mean(norms), rel=1e-6)
 
 
 def test_ppo_update_logs_the_norm_the_probe_read():
-    """SB3 PPO's logged gradient norm (GradNormFromClip) equals what the gradient probe reads
+    """SB3 PPO's logged gradient norm (its own train()'s) equals what the gradient probe reads
     over the same update, and a PPO job's diagnostics install no probe."""
     import torch as th
 

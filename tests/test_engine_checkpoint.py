@@ -117,6 +117,35 @@ def test_a_checkpoint_of_other_jobs_is_refused(tmp_path):
         train_batched([("run0", 3), ("run6", 5)], "mc", 4, checkpoint=Checkpoint(path, every_seconds=0))
 
 
+@pytest.mark.parametrize("tamper", ["a key missing", "a network of another shape"])
+def test_a_checkpoint_whose_state_does_not_fit_is_refused_in_one_line_and_the_batch_starts_over(
+    tamper, tmp_path, capsys
+):
+    """A checkpoint that reads (its format, its hash) but whose state does not fit the batch's
+    algorithm is refused in one line; the batch trains from the start and ends as a batch
+    that found nothing."""
+    path = tmp_path / "batch.pt"
+
+    def kill(j: int, row: dict) -> None:
+        if row["episode"] == 2:
+            raise Stopped
+
+    with pytest.raises(Stopped):
+        train_batched(JOBS, "mc", 4, on_episode=kill, checkpoint=Checkpoint(path, every_seconds=0))
+    sidecar = path.with_name("batch.pt.state.json")
+    meta = json.loads(sidecar.read_text())
+    if tamper == "a key missing":
+        del meta["state"]["start_of_day"]
+    else:
+        meta["state"]["params"] = meta["state"]["params"][:-2]
+    sidecar.write_text(json.dumps(meta))
+    capsys.readouterr()
+    again = train_batched(JOBS, "mc", 4, checkpoint=Checkpoint(path, every_seconds=0))
+    err = [line for line in capsys.readouterr().err.splitlines() if "checkpoint" in line]
+    assert len(err) == 1 and "checkpoint refused (its state does not fit this batch" in err[0], err
+    same_agents(train_batched(JOBS, "mc", 4), again)
+
+
 def test_an_unreadable_checkpoint_is_refused_in_one_line(tmp_path, capsys):
     path = tmp_path / "batch.pt"
     path.write_bytes(b"not a checkpoint")
@@ -246,70 +275,85 @@ def test_a_planted_pickle_checkpoint_never_runs_and_the_batch_completes(tmp_path
     assert list(path.parent.iterdir()) == []
 
 
-def test_a_checkpoint_naming_a_class_outside_the_engine_is_refused(tmp_path, capsys):
-    """The JSON half builds only the engine's own classes, by name: a crafted one naming any
-    other (here ``os.system``) is refused, and nothing is called."""
+def test_a_checkpoint_naming_a_class_is_refused(tmp_path, capsys):
+    """The JSON half is plain data: a crafted one naming a class (here ``os.system``, as the
+    older format named the engine's classes) is refused in one line, and nothing is called."""
     import hashlib
 
     from nutribench.engine.checkpoint import FORMAT
 
     path = tmp_path / "batch.pt"
     th.save({"t0": th.zeros(2)}, path)
-    state = {
-        "dict": [
-            ["seconds", 1.0],
-            ["x", {"object": "system", "attrs": {"dict": [["command", "touch pwned"]], "id": 2}, "id": 1}],
-        ],
-        "id": 0,
-    }
+    state = {"seconds": 1.0, "x": {"$object": "system", "attrs": {"command": "touch pwned"}}}
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     path.with_name("batch.pt.state.json").write_text(
         json.dumps({"format": FORMAT, "tensors_sha256": digest, "state": state})
     )
     assert Checkpoint(path).state is None
-    assert "unknown class 'system'" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "unknown node '$object'" in err, err
+    assert not (tmp_path / "pwned").exists()
 
 
-def test_a_checkpoint_is_a_dict_of_tensors_and_json_and_keeps_shared_objects_shared(tmp_path):
-    """The two halves read without pickle (weights_only, plain JSON); a tensor held by a list
-    and by an optimiser is one tensor again once read, numpy generators go on where they were."""
-    from nutribench.engine.stacked import RunningStats
+def test_a_checkpoint_of_the_older_format_is_refused_in_one_line(tmp_path, capsys):
+    """A checkpoint an older nutribench wrote (its reflective format) is refused: the batch restarts."""
+    path = tmp_path / "batch.pt"
+    Checkpoint(path).save(steps=1)
+    sidecar = path.with_name("batch.pt.state.json")
+    meta = json.loads(sidecar.read_text())
+    sidecar.write_text(json.dumps({**meta, "format": "nutribench-checkpoint/2"}))
+    assert Checkpoint(path).state is None
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "is not of format nutribench-checkpoint/3" in err, err
 
+
+def test_a_checkpoint_is_a_dict_of_tensors_and_json_and_reads_back_what_was_saved(tmp_path):
+    """The two halves read without pickle (weights_only, plain JSON) and give back the state
+    saved: tensors, arrays of their dtype, an optimiser's state_dict (int keys, tuples) that
+    loads and steps as the original, a numpy generator's state that goes on where it was,
+    non-finite floats; anything but plain data is not saved."""
     w = th.randn(3, 2, requires_grad=True)
-    params = [w]
-    opt = th.optim.Adam(params, lr=0.01)
+    opt = th.optim.Adam([w], lr=0.01)
     w.sum().backward()
     opt.step()
     rng = np.random.default_rng(7)
-    stats = RunningStats(2, (3,))
-    stats.update(np.ones((2, 3)))
     path = tmp_path / "batch.pt"
     days = [np.arange(3), np.arange(3) + 1]
     rows = [{"episode": 0, "return": -1.5, "first_overshoot_step": None}]
     Checkpoint(path).save(
-        model=(params, opt),
-        rng=rng,
-        stats=stats,
+        params=[w],
+        optimizer=opt.state_dict(),
+        rng=rng.bit_generator.state,
         counts={1: 2, "n": np.int64(3)},
         inf=float("inf"),
         days=days,
         rows=rows,
-        again=rows,
+        pair=(1, "a"),
     )
     tensors = th.load(path, weights_only=True)
     assert isinstance(tensors, dict) and all(isinstance(t, th.Tensor) for t in tensors.values())
     meta = json.loads((tmp_path / "batch.pt.state.json").read_text())
     assert meta["format"].startswith("nutribench-checkpoint/")
     state = Checkpoint(path).state
-    params2, opt2 = state["model"]
-    assert opt2.param_groups[0]["params"][0] is params2[0] and params2[0].requires_grad
-    assert th.equal(params2[0], w) and opt2.param_groups[0]["lr"] == 0.01
-    assert th.equal(opt2.state[params2[0]]["exp_avg"], opt.state[w]["exp_avg"])
-    assert state["rng"].random() == rng.random()
-    np.testing.assert_array_equal(state["stats"].mean, stats.mean)
-    assert state["counts"] == {1: 2, "n": 3} and type(state["counts"]["n"]) is np.int64 and state["inf"] == float("inf")
+    w2 = th.zeros(3, 2, requires_grad=True)
+    with th.no_grad():
+        w2.copy_(state["params"][0])
+    opt2 = th.optim.Adam([w2], lr=0.5)
+    opt2.load_state_dict(state["optimizer"])
+    assert th.equal(w2, w) and opt2.param_groups[0]["lr"] == 0.01 and opt2.param_groups[0]["betas"] == (0.9, 0.999)
+    for p, o in ((w, opt), (w2, opt2)):
+        o.zero_grad()
+        p.pow(2).sum().backward()
+        o.step()
+    assert th.equal(w2, w)
+    again = np.random.Generator(np.random.PCG64())
+    again.bit_generator.state = state["rng"]
+    assert again.random() == rng.random()
+    assert state["counts"] == {1: 2, "n": 3} and state["inf"] == float("inf") and state["pair"] == (1, "a")
     assert [d.tolist() for d in state["days"]] == [[0, 1, 2], [1, 2, 3]] and state["days"][0].dtype == days[0].dtype
-    assert state["rows"] == rows and state["again"] is state["rows"]
+    assert state["rows"] == rows
+    with pytest.raises(TypeError, match="plain data only"):
+        Checkpoint(tmp_path / "other.pt").save(rng=rng)
 
 
 def test_a_save_killed_between_its_two_renames_is_finished_by_the_next_read(tmp_path, monkeypatch):

@@ -23,7 +23,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch as th
-from stable_baselines3 import A2C, DQN, PPO
+from stable_baselines3 import DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
@@ -35,7 +35,7 @@ from torch.nn import functional as F
 from nutribench.agents.config import DDQNConfig, GRUPPOConfig, MCConfig, PPOConfig, SACConfig
 from nutribench.agents.gru_ppo import GRUPPO
 from nutribench.agents.sac import DiscreteSAC
-from nutribench.agents.training_log import GradNormFromClip
+from nutribench.agents.sb3_train import GradNormA2C, GradNormPPO
 
 
 class Backbone(BaseFeaturesExtractor):
@@ -63,17 +63,17 @@ def shared_actor_critic_kwargs(net_arch: list[int]) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- MC
-class MonteCarloAC(GradNormFromClip, A2C):
+class MonteCarloAC(GradNormA2C):
     """On-policy Monte Carlo actor-critic (the paper's Table 2) as an A2C whose rollout is one
     whole day (``n_steps`` = horizon, one env) and whose GAE lambda is 1: each update uses
     the complete episode's discounted returns. No gradient clipping when ``max_grad_norm`` is
-    ``inf`` (the norm is still logged: :class:`~nutribench.agents.training_log.GradNormFromClip`)."""
+    ``inf`` (the norm is still logged: :class:`~nutribench.agents.sb3_train.GradNormA2C`)."""
 
 
 # ---------------------------------------------------------------------------- PPO
-class PPOWithGradNorm(GradNormFromClip, PPO):
+class PPOWithGradNorm(GradNormPPO):
     """SB3 ``PPO`` unchanged; each update also logs ``train/grad_norm``, the mean over its
-    gradient steps of the norm before clipping (:class:`~nutribench.agents.training_log.GradNormFromClip`).
+    gradient steps of the norm before clipping (:class:`~nutribench.agents.sb3_train.GradNormPPO`).
     Its saved models are SB3 ``PPO`` models."""
 
 

@@ -12,10 +12,10 @@ callback) closes a row at the end of each update and hands it to the logger's ou
 
 Row keys are the vocabulary of :mod:`nutribench.diagnostics`. The gradient norm before
 clipping is the value ``clip_grad_norm_`` returns: DDQN and GRU-PPO record it in updates of
-their own; SB3's PPO and A2C (MC), whose update is SB3's, record it through
-:class:`GradNormFromClip` (their update's own call of ``clip_grad_norm_``, read as it
-returns). An on-policy plug-in algorithm gets :class:`GradNormProbe` instead (the norm taken
-when backward has accumulated every gradient). SAC does not clip and its gradient norm is
+their own, and so do PPO and A2C (MC), whose ``train()`` is SB3's with that value kept
+(:mod:`nutribench.agents.sb3_train`). An on-policy plug-in algorithm whose update does not
+log ``train/grad_norm`` itself gets :class:`GradNormProbe` (the norm taken when backward has
+accumulated every gradient); nothing here changes torch or SB3 for the rest of the process. SAC does not clip and its gradient norm is
 not recorded. VecNormalize's return scale is read
 off the training env at the end of each update.
 
@@ -26,11 +26,9 @@ quantities (as ``diagnostics/<name>``) are written as TensorBoard events, at the
 
 from __future__ import annotations
 
-import functools
 import math
-import threading
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
@@ -99,68 +97,9 @@ class DiagnosticsLogger(Logger):
         return out
 
 
-#: Where the recording ``clip_grad_norm_`` puts the norms it returns: a list while a
-#: :class:`GradNormFromClip` update runs in this thread, else None (nothing kept).
-_clip_norms = threading.local()
-_wrapping = threading.Lock()
-
-
-def _record_clip_norms() -> None:
-    """Wrap ``torch.nn.utils.clip_grad_norm_`` (once per process, for the rest of it) so that,
-    while a :class:`GradNormFromClip` update runs in the calling thread, each norm it returns is
-    also kept; otherwise the wrapper only calls torch's function and returns its value. Code
-    in the same process that looks the function up afterwards gets the wrapper (same arguments,
-    same result); one that imported it before keeps torch's."""
-    with _wrapping:
-        real = th.nn.utils.clip_grad_norm_
-        if not getattr(real, "_keeps_norms", False):
-            th.nn.utils.clip_grad_norm_ = _keeping_norms(real)
-
-
-def _keeping_norms(real: Any) -> Any:
-    """``real`` (torch's ``clip_grad_norm_``) that also hands each norm to this thread's sink."""
-
-    @functools.wraps(real)
-    def clip_grad_norm_(*args: Any, **kwargs: Any) -> th.Tensor:
-        norm = real(*args, **kwargs)
-        sink = getattr(_clip_norms, "norms", None)
-        if sink is not None:
-            sink.append(norm)
-        return norm
-
-    clip_grad_norm_._keeps_norms = True  # type: ignore[attr-defined]
-    return clip_grad_norm_
-
-
-class GradNormFromClip:
-    """Mixin for an SB3 algorithm whose ``train()`` is SB3's and clips its gradients with
-    ``th.nn.utils.clip_grad_norm_`` (PPO, A2C): each update logs ``train/grad_norm``, the mean
-    over its gradient steps of the norm that call returns (before clipping), as DDQN's and
-    GRU-PPO's own updates do. Nothing of the update changes: the call is torch's, its value
-    kept as it returns (one tensor a step, one mean read per update). Put it first:
-    ``class PPOWithGradNorm(GradNormFromClip, PPO)``."""
-
-    #: the update logs ``train/grad_norm`` itself (no :class:`GradNormProbe` needed)
-    records_grad_norm: ClassVar[bool] = True
-
-    def train(self, *args: Any, **kwargs: Any) -> None:
-        _record_clip_norms()
-        outer = getattr(_clip_norms, "norms", None)
-        _clip_norms.norms = norms = []
-        try:
-            super().train(*args, **kwargs)  # type: ignore[misc]
-        finally:
-            _clip_norms.norms = outer
-        kept = th.stack(norms) if norms else th.empty(0)
-        finite = kept[th.isfinite(kept)]
-        if finite.numel():  # a step whose norm is not finite is left out, as the logger does
-            self.logger.record("train/grad_norm", float(finite.mean()))  # type: ignore[attr-defined]
-
-
 class GradNormProbe:
     """The global gradient norm of ``params`` before clipping, for an on-policy plug-in's
-    update (which may not clip with ``clip_grad_norm_``, so :class:`GradNormFromClip` would
-    not see it).
+    update (which may not clip with ``clip_grad_norm_``, nor log what it returns).
 
     Backward accumulates each parameter's gradient in turn; when the last of them has arrived
     (a hook counts them), the global norm of all of them is taken at once, before

@@ -13,7 +13,6 @@ import math
 
 import torch as th
 
-from nutribench.engine.checkpoint import register
 from nutribench.engine.device import leaves_on
 from nutribench.engine.on_policy import OnPolicyAlgorithm, log_prob_entropy
 from nutribench.engine.stacked import linears, orthogonal
@@ -106,6 +105,13 @@ class FeedforwardActor:
         logits, values = self.net.forward(obs.unsqueeze(1))
         return logits[:, 0], values[:, 0]
 
+    def state_dict(self) -> dict:
+        """Nothing to keep: a feedforward actor carries no state."""
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        pass
+
 
 def evaluate_actions(
     net: StackedActorCritic, obs: th.Tensor, actions: th.Tensor
@@ -126,6 +132,3 @@ class ActorCriticAlgorithm(OnPolicyAlgorithm):
 
     def make_actor(self, net: StackedActorCritic) -> FeedforwardActor:
         return FeedforwardActor(net)
-
-
-register(StackedActorCritic, FeedforwardActor)  # what its checkpoints hold

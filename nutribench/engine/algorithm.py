@@ -11,6 +11,14 @@ checkpoint when it holds a state), and each agent is then handed back with
 :meth:`Algorithm.store_weights`. While it learns, an algorithm records each agent's
 per-update diagnostics (:attr:`Algorithm.diagnostics`, the vocabulary of
 :mod:`nutribench.diagnostics`).
+
+Its whole training state is explicit, as a torch module's is: :meth:`Algorithm.state_dict`
+gives it as plain data (tensors, numpy arrays, numbers, strings, lists, dicts: the envs and
+random streams, the networks' parameters, the optimisers' ``state_dict``, the statistics,
+the replay, the diagnostics so far), which :class:`~nutribench.engine.checkpoint.Checkpoint`
+writes; :meth:`Algorithm.load_state_dict` puts such a state back into a freshly made
+algorithm of the same jobs and config (in place: parameters copied into the networks the
+optimisers already hold), so that training goes on exactly where it was saved.
 """
 
 from __future__ import annotations
@@ -25,9 +33,9 @@ from nutribench import diagnostics as names
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.engine import check_supported
-from nutribench.engine.checkpoint import Checkpoint
+from nutribench.engine.checkpoint import Checkpoint, CheckpointRefused
 from nutribench.engine.device import resolve_device
-from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
+from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, OtherJobs, as_trained_agent
 from nutribench.engine.stacked import RunningStats
 
 
@@ -49,9 +57,11 @@ class Algorithm:
         self.on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None
         #: off-policy: called after each gradient step with its step count and losses (``on_update``)
         self.on_update: Callable[[dict[str, Any]], None] | None = None
+        #: env steps of each agent so far (SB3's ``num_timesteps`` with one env)
+        self.num_timesteps = 0
 
     @classmethod
-    def train(
+    def train_jobs(
         cls,
         jobs: Sequence[tuple[str | EnvConfig, int]],
         cfg: Any,
@@ -67,10 +77,19 @@ class Algorithm:
         (:func:`~nutribench.engine.train.train_batched` says what the arguments do)."""
         check_supported(cfg, load_env_config(jobs[0][0]).reward.horizon if jobs else None)  # before anything trains
         device = resolve_device(device)
-        envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
-        algorithm = cls(cfg, envs, device)
-        algorithm.on_rollout, algorithm.on_update = on_rollout, on_update
-        wall = algorithm.learn(episodes * envs.horizon, checkpoint)
+
+        def made() -> Algorithm:
+            algorithm = cls(cfg, AgentEnvs(jobs, cfg.normalize_obs, on_episode), device)
+            algorithm.on_rollout, algorithm.on_update = on_rollout, on_update
+            return algorithm
+
+        algorithm = made()
+        try:
+            wall = algorithm.learn(episodes * algorithm.envs.horizon, checkpoint)
+        except CheckpointRefused as exc:  # its state did not fit (raised before any step): start over without it
+            checkpoint.refuse(exc)
+            algorithm = made()
+            wall = algorithm.learn(episodes * algorithm.envs.horizon, checkpoint)
         return algorithm.trained_agents(episodes, wall)
 
     def trained_agents(self, episodes: int, wall: float) -> list[TrainedAgent]:
@@ -100,6 +119,40 @@ class Algorithm:
     def store_weights(self, j: int, model: Any) -> None:
         """Put agent ``j``'s trained weights into ``model``, the SB3 model of its config."""
         raise NotImplementedError
+
+    def resume(self, checkpoint: Checkpoint | None) -> float:
+        """Take over ``checkpoint``'s state when it holds one (read onto this algorithm's
+        device); the training seconds spent before it (0 when there is none). A state that
+        does not fit raises :class:`~nutribench.engine.checkpoint.CheckpointRefused`."""
+        saved = checkpoint.read_onto(self.device) if checkpoint is not None else None
+        if saved is None:
+            return 0.0
+        try:
+            self.load_state_dict(saved)
+        except OtherJobs:
+            raise  # a checkpoint named for another batch: a bug to see, not a state to drop
+        except (KeyError, IndexError, TypeError, ValueError, RuntimeError) as exc:
+            raise CheckpointRefused(f"its state does not fit this batch: {exc}") from exc
+        return checkpoint.seconds_before
+
+    def state_dict(self) -> dict[str, Any]:
+        """The training state as plain data (the module docstring): here what every algorithm
+        has (its ``algo``, the env steps, the envs, the diagnostics); each loop adds its own."""
+        return {
+            "algo": self.algo,
+            "steps": self.num_timesteps,
+            "envs": self.envs.state_dict(),
+            "diagnostics": self.diagnostics,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Take over ``state`` (a :meth:`state_dict` of an algorithm of the same jobs and
+        config); ValueError where it does not fit (other jobs, another algorithm)."""
+        if state.get("algo") != self.algo:
+            raise ValueError(f"the checkpoint is of algorithm {state.get('algo')!r}, not {self.algo!r}")
+        self.envs.load_state_dict(state["envs"])
+        self.diagnostics = [list(rows) for rows in state["diagnostics"]]
+        self.num_timesteps = int(state["steps"])
 
     @property
     def return_stats(self) -> RunningStats | None:

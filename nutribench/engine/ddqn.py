@@ -40,7 +40,14 @@ from nutribench.config import EnvConfig
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, OffPolicyAlgorithm, linear_schedule
-from nutribench.engine.stacked import AgentMeans, StackedMLP, clip_grad_norm_per_agent, linears, make_adam
+from nutribench.engine.stacked import (
+    AgentMeans,
+    StackedMLP,
+    clip_grad_norm_per_agent,
+    linears,
+    load_params,
+    make_adam,
+)
 
 
 def q_linears(q_net: th.nn.Module) -> list[th.nn.Linear]:
@@ -126,11 +133,20 @@ class DDQN(OffPolicyAlgorithm):
                 }
             )
 
-    def model_state(self) -> Any:
-        return (self.q, self.q_target, self.optimizer, self.state)
+    def model_state_dict(self) -> dict[str, Any]:
+        return {
+            "q": list(self.q.params),
+            "q_target": list(self.q_target.params),
+            "optimizer": self.optimizer.state_dict(),
+            "epsilon": self.state["epsilon"],
+            "copies": self.state["copies"],
+        }
 
-    def restore_model(self, state: Any) -> None:
-        self.q, self.q_target, self.optimizer, self.state = state
+    def load_model_state_dict(self, state: dict[str, Any]) -> None:
+        load_params(self.q.params, state["q"])
+        load_params(self.q_target.params, state["q_target"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.state = {"epsilon": float(state["epsilon"]), "copies": int(state["copies"])}
 
     def store_weights(self, j: int, model: Any) -> None:
         _store(self.q, self.q_target, j, model)
@@ -152,7 +168,7 @@ def train_ddqn_batched(
     :param on_update: called after each update with ``steps`` (env steps so far), the
         ``learning_rate`` and ``epsilon`` in force, ``target_copies`` so far and the K ``losses``.
     """
-    return DDQN.train(jobs, cfg, episodes, on_episode, checkpoint, device, on_update=on_update)
+    return DDQN.train_jobs(jobs, cfg, episodes, on_episode, checkpoint, device, on_update=on_update)
 
 
 def _store(q: StackedMLP, q_target: StackedMLP, j: int, model: Any) -> None:

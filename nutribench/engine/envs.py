@@ -27,6 +27,10 @@ STREAMS = {"foods": 1, "actions": 2, "minibatches": 3, "init": 4}
 AgentEpisodeFn = Callable[[int, dict[str, Any]], None]
 
 
+class OtherJobs(ValueError):
+    """A checkpoint's envs are of other jobs than the batch reading it."""
+
+
 class _Group:
     """The agents of one regime: one natively batched vector env, rows ``agents``."""
 
@@ -71,44 +75,41 @@ class AgentEnvs:
         self.episodes: list[list[dict[str, Any]]] = [[] for _ in range(self.k)]
         self._entropy = np.zeros(self.k)
 
-    def checkpoint_state(self) -> dict[str, Any]:
-        """What a checkpoint keeps of these envs (:mod:`nutribench.engine.checkpoint`), plain
-        data only: the jobs (seeds, regime hashes), the random streams, the statistics, the
-        days so far, and each env's and recorder's arrays and counters (their ``_`` attributes)."""
+    def state_dict(self) -> dict[str, Any]:
+        """What a checkpoint keeps of these envs, plain data only: the jobs (seeds, regime
+        hashes), each random stream's bit generator state, the statistics, the days so far
+        (the foods drawn as one ``(days, K, horizon)`` array), and each env's and recorder's
+        arrays and counters (their ``_`` attributes)."""
+        days = np.stack(self.days_drawn) if self.days_drawn else np.zeros((0, self.k, self.horizon), dtype=np.int64)
         return {
             "seeds": list(self.seeds),
             "regimes": [c.sha256 for c in self.env_cfgs],
-            "rng": self.rng,
-            "obs_stats": self.obs_stats,
-            "days_drawn": self.days_drawn,
+            "rng": {name: [r.bit_generator.state for r in rs] for name, rs in self.rng.items()},
+            "obs_stats": None if self.obs_stats is None else self.obs_stats.state_dict(),
+            "days_drawn": days,
             "episodes": self.episodes,
             "entropy": self._entropy,
             "groups": [{"env": _plain_state(g.env), "recorder": _plain_state(g.recorder)} for g in self.groups],
         }
 
-    def restore(self, saved: dict[str, Any]) -> None:
-        """Take over ``saved`` (:meth:`checkpoint_state` of the same jobs, from a checkpoint),
+    def load_state_dict(self, saved: dict[str, Any]) -> None:
+        """Take over ``saved`` (:meth:`state_dict` of the same jobs, from a checkpoint),
         keeping this one's ``on_episode``; ValueError for a state of other jobs, or one that
         does not fit these envs (another code version)."""
         if saved["seeds"] != self.seeds or saved["regimes"] != [c.sha256 for c in self.env_cfgs]:
-            raise ValueError("the checkpoint is of other jobs than this batch's")
+            raise OtherJobs("the checkpoint is of other jobs than this batch's")
         rng = saved["rng"]
-        if (
-            not isinstance(rng, dict)
-            or set(rng) != set(STREAMS)
-            or any(len(rs) != self.k or not all(isinstance(r, np.random.Generator) for r in rs) for rs in rng.values())
-        ):
+        if not isinstance(rng, dict) or set(rng) != set(STREAMS) or any(len(rs) != self.k for rs in rng.values()):
             raise ValueError("the checkpoint's random streams do not fit this batch")
-        if type(saved["obs_stats"]) is not type(self.obs_stats) or len(saved["groups"]) != len(self.groups):
+        if (saved["obs_stats"] is None) != (self.obs_stats is None) or len(saved["groups"]) != len(self.groups):
             raise ValueError("the checkpoint's envs do not fit this batch")
         for g, s in zip(self.groups, saved["groups"]):
             _set_plain_state(g.env, s["env"])
             _set_plain_state(g.recorder, s["recorder"])
-        self.rng, self.obs_stats, self._entropy = (
-            rng,
-            saved["obs_stats"],
-            np.asarray(saved["entropy"], dtype=np.float64),
-        )
+        self.rng = {name: [_generator(state) for state in states] for name, states in rng.items()}
+        if self.obs_stats is not None:
+            self.obs_stats.load_state_dict(saved["obs_stats"])
+        self._entropy = np.asarray(saved["entropy"], dtype=np.float64)
         self.days_drawn, self.episodes = list(saved["days_drawn"]), [list(e) for e in saved["episodes"]]
 
     def new_days(self) -> np.ndarray:
@@ -162,6 +163,15 @@ class AgentEnvs:
         if day_over:
             self._entropy[:] = 0.0
         return raw_next, rewards, day_over
+
+
+def _generator(state: Any) -> np.random.Generator:
+    """A numpy generator (PCG64, as ``default_rng`` makes them) in ``state``; ValueError for another."""
+    if not isinstance(state, dict) or state.get("bit_generator") != "PCG64":
+        raise ValueError("the checkpoint's random streams do not fit this batch")
+    bit_generator = np.random.PCG64()
+    bit_generator.state = state
+    return np.random.Generator(bit_generator)
 
 
 def _plain_state(obj: Any) -> dict[str, Any]:

@@ -26,9 +26,8 @@ import math
 import numpy as np
 import torch as th
 
-from nutribench.engine.checkpoint import register
 from nutribench.engine.device import leaves_on
-from nutribench.engine.on_policy import OnPolicySettings, Rollout, log_prob_entropy
+from nutribench.engine.on_policy import Minibatch, OnPolicySettings, Rollout, log_prob_entropy
 from nutribench.engine.ppo import PPO, ppo_step
 from nutribench.engine.stacked import AgentMeans, orthogonal
 
@@ -241,47 +240,48 @@ class RecurrentActor:
             self.state = state
         return logits, values
 
+    def state_dict(self) -> dict[str, th.Tensor]:
+        """The carried GRU state (a checkpoint keeps it)."""
+        return {"state": self.state}
+
+    def load_state_dict(self, state: dict[str, th.Tensor]) -> None:
+        if state["state"].shape != self.state.shape:
+            raise ValueError("the checkpoint's GRU state does not fit this batch")
+        self.state = state["state"].to(self.state.device)
+
 
 def gru_ppo_update(
     net: StackedGRUActorCritic,
     optimizer: th.optim.Optimizer,
     rollout: Rollout,
-    s: OnPolicySettings,
+    settings: OnPolicySettings,
     permutations: np.ndarray,
     means: AgentMeans | None = None,
 ) -> None:
     """``GRUPPO.train()`` for the K agents: ``permutations (n_epochs, K, days)`` order each
-    agent's days in each epoch; minibatches of ``s.batch_size`` days, each replayed whole
-    through the GRUs, then PPO's loss and step (:func:`~nutribench.engine.ppo.ppo_step`);
+    agent's days in each epoch; minibatches of ``settings.batch_size`` days, each replayed
+    whole through the GRUs, then PPO's loss and step (:func:`~nutribench.engine.ppo.ppo_step`);
     their losses and gradient norms into ``means``."""
     k, t_all = rollout.actions.shape
-    seq = s.sequence_length
+    seq = settings.sequence_length
     n_seq = t_all // seq
     days = lambda x: x.reshape(k, n_seq, seq, *x.shape[2:])  # noqa: E731
     obs, actions, logp_old = days(rollout.obs), days(rollout.actions), days(rollout.log_probs)
     advantages, returns = days(rollout.advantages), days(rollout.returns)
     rows = th.arange(k, device=rollout.actions.device).unsqueeze(1)
-    for epoch in range(s.n_epochs):
+    for epoch in range(settings.n_epochs):
         perm = th.as_tensor(permutations[epoch], device=rollout.actions.device)
-        for start in range(0, n_seq, s.batch_size):
-            mb = perm[:, start : start + s.batch_size]
+        for start in range(0, n_seq, settings.batch_size):
+            mb = perm[:, start : start + settings.batch_size]
             logits, values = net.sequences(obs[rows, mb])
             b = mb.shape[1] * seq
             flat = lambda x, mb=mb, b=b: x[rows, mb].reshape(k, b)  # noqa: E731
             log_prob, entropy = log_prob_entropy(logits.reshape(k, b, -1), flat(actions))
-            ppo_step(
-                net.params,
-                optimizer,
-                s,
-                log_prob,
-                entropy,
-                values.reshape(k, b),
-                flat(logp_old),
-                flat(advantages),
-                flat(returns),
-                k=k,
-                means=means,
+            minibatch = Minibatch(
+                log_prob, entropy, values.reshape(k, b), flat(logp_old), flat(advantages), flat(returns)
             )
+            last_epoch = epoch == settings.n_epochs - 1
+            ppo_step(net.params, optimizer, settings, minibatch, k=k, means=means, last_epoch=last_epoch)
 
 
 class GRUPPO(PPO):
@@ -302,8 +302,6 @@ class GRUPPO(PPO):
         """Whole days: a permutation orders the rollout's days."""
         return steps // self.settings.sequence_length
 
-    def update(self, rollout: Rollout, permutations: np.ndarray) -> None:
-        gru_ppo_update(self.net, self.optimizer, rollout, self.settings, permutations, self.means)
-
-
-register(StackedGRUActorCritic, RecurrentActor)  # what its checkpoints hold
+    def train(self, rollout: Rollout) -> None:
+        gru_ppo_update(self.net, self.optimizer, rollout, self.settings, self.permutations(rollout), self.means)
+        self.log_update(rollout)

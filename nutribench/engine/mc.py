@@ -12,7 +12,6 @@ of agent k equals SB3's update of that agent alone (``tests/test_engine.py``).
 
 from __future__ import annotations
 
-import numpy as np
 import torch as th
 
 from nutribench.engine.actor_critic import ActorCriticAlgorithm, StackedActorCritic, evaluate_actions
@@ -24,16 +23,16 @@ def a2c_update(
     net: StackedActorCritic,
     optimizer: th.optim.Optimizer,
     rollout: Rollout,
-    s: OnPolicySettings,
+    settings: OnPolicySettings,
     means: AgentMeans | None = None,
 ) -> None:
     """SB3 ``A2C.train()`` for the K agents: one gradient step on the whole rollout; its
     losses and gradient norms into ``means``."""
     log_prob, entropy, values = evaluate_actions(net, rollout.obs, rollout.actions)
-    adv = normalized(rollout.advantages) if s.normalize_advantage else rollout.advantages
+    adv = normalized(rollout.advantages) if settings.normalize_advantage else rollout.advantages
     policy_loss = -(adv * log_prob).mean(dim=1)
     value_loss = (rollout.returns - values).pow(2).mean(dim=1)
-    gradient_step(net.params, optimizer, s, policy_loss, value_loss, -entropy.mean(dim=1), means=means)
+    gradient_step(net.params, optimizer, settings, policy_loss, value_loss, -entropy.mean(dim=1), means=means)
 
 
 class MC(ActorCriticAlgorithm):
@@ -41,5 +40,6 @@ class MC(ActorCriticAlgorithm):
 
     algo = "mc"
 
-    def update(self, rollout: Rollout, permutations: np.ndarray) -> None:
+    def train(self, rollout: Rollout) -> None:
         a2c_update(self.net, self.optimizer, rollout, self.settings, self.means)
+        self.log_update(rollout)

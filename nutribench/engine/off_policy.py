@@ -9,6 +9,13 @@ that moment), then every ``train_freq`` steps after ``learning_starts``,
 ``gradient_steps`` updates on ``batch_size`` transitions drawn uniformly from the agent's
 own replay. The last step of the budget ends the job before its update, as the episode
 callback stops SB3 there.
+
+As SB3's, the loop is three methods: :meth:`~OffPolicyAlgorithm.learn` (resume from a
+checkpoint, then steps until the budget, saving :meth:`~OffPolicyAlgorithm.state_dict` at
+day boundaries when due), :meth:`~OffPolicyAlgorithm.collect_rollouts` (one env step of every
+agent into its replay; it tells whether the day ended) and :meth:`~OffPolicyAlgorithm.train`
+(``gradient_steps`` updates on sampled batches). Each day's end (a day boundary: every
+agent's day ends at once) closes that day's diagnostics row.
 """
 
 from __future__ import annotations
@@ -21,7 +28,7 @@ import numpy as np
 import torch as th
 
 from nutribench.engine.algorithm import Algorithm
-from nutribench.engine.checkpoint import Checkpoint, register
+from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs
 from nutribench.engine.stacked import AgentMeans
 
@@ -48,6 +55,9 @@ class StackedReplay:
     """One replay per agent (raw observations and rewards), filled in step together; SB3's
     ``NStepReplayBuffer`` sampling for given indices."""
 
+    #: the arrays a checkpoint keeps
+    ARRAYS = ("obs", "next_obs", "actions", "rewards", "dones")
+
     def __init__(self, k: int, size: int, obs_dim: int, n_step: int, gamma: float):
         self.size, self.n_step, self.gamma = size, n_step, gamma
         # zeros, not empty: the n-step window reads (masked) entries past the newest one
@@ -66,6 +76,29 @@ class StackedReplay:
         self.next_obs[:, p], self.dones[:, p] = next_obs, dones
         self.pos = (p + 1) % self.size
         self.full = self.full or self.pos == 0
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "arrays": {name: getattr(self, name) for name in self.ARRAYS},
+            "pos": self.pos,
+            "full": self.full,
+            "n_step": self.n_step,
+            "gamma": self.gamma,
+        }
+
+    @classmethod
+    def from_state_dict(cls, state: dict[str, Any]) -> StackedReplay:
+        """The replay of ``state`` (:meth:`state_dict`)."""
+        arrays = state["arrays"]
+        k, size, obs_dim = arrays["obs"].shape
+        replay = cls(k, size, obs_dim, int(state["n_step"]), float(state["gamma"]))
+        for name in cls.ARRAYS:
+            mine = getattr(replay, name)
+            if arrays[name].shape != mine.shape or arrays[name].dtype != mine.dtype:
+                raise ValueError("the checkpoint's replay does not fit this batch")
+            setattr(replay, name, arrays[name])
+        replay.pos, replay.full = int(state["pos"]), bool(state["full"])
+        return replay
 
     @property
     def filled(self) -> int:
@@ -99,9 +132,6 @@ class StackedReplay:
         )
 
 
-register(StackedReplay)  # what its checkpoints hold
-
-
 #: Adam's eps in SB3's off-policy policies (DQN, and DiscreteSAC's): torch's default.
 OFF_POLICY_ADAM_EPS = 1e-8
 
@@ -110,8 +140,8 @@ class OffPolicyAlgorithm(Algorithm):
     """SB3's off-policy loop for the K agents of ``envs`` (the module docstring); subclasses
     give the acting (:meth:`act`), the update (:meth:`update`), what happens after each env
     step (:meth:`after_step`), the replay's n-step (:attr:`n_step`) and what a checkpoint
-    keeps of them (:meth:`model_state`, :meth:`restore_model`). Their updates add their
-    quantities to :attr:`means`; each day with updates gives every agent one diagnostics
+    keeps of them (:meth:`model_state_dict`, :meth:`load_model_state_dict`). Their updates add
+    their quantities to :attr:`means`; each day with updates gives every agent one diagnostics
     dict of that day's means."""
 
     #: the replay's n-step returns (SB3's ``NStepReplayBuffer``; 1: one-step transitions)
@@ -120,6 +150,12 @@ class OffPolicyAlgorithm(Algorithm):
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device):
         super().__init__(cfg, envs, device)
         self.means = AgentMeans()
+        self.replay: StackedReplay | None = None  # made when learning starts (its size depends on the budget)
+        #: the raw observations the agents act on next, and as the policies see them
+        self.raw: np.ndarray | None = None
+        self.last_obs: np.ndarray | None = None
+        #: each agent's random actions and uniform draws for the day (drawn at its start)
+        self.day_draws: tuple[np.ndarray, np.ndarray] | None = None
 
     def act(
         self, obs: np.ndarray, n: int, uniforms: np.ndarray, random_actions: np.ndarray
@@ -136,60 +172,79 @@ class OffPolicyAlgorithm(Algorithm):
         """One gradient step of the K agents on ``batch``."""
         raise NotImplementedError
 
-    def model_state(self) -> Any:
-        """Everything :meth:`act` and :meth:`update` change (networks, optimisers, counters), for a checkpoint."""
+    def model_state_dict(self) -> dict[str, Any]:
+        """Everything :meth:`act` and :meth:`update` change (networks' parameters, optimisers'
+        ``state_dict``, counters), as plain data for a checkpoint."""
         raise NotImplementedError
 
-    def restore_model(self, state: Any) -> None:
-        """Take over :meth:`model_state` read from a checkpoint."""
+    def load_model_state_dict(self, state: dict[str, Any]) -> None:
+        """Take over :meth:`model_state_dict` read from a checkpoint (in place)."""
         raise NotImplementedError
 
     def learn(self, total_steps: int, checkpoint: Checkpoint | None = None) -> float:
         """Run ``total_steps`` env steps of SB3's off-policy loop; reads ``buffer_size``,
         ``learning_starts``, ``train_freq``, ``gradient_steps``, ``batch_size`` and ``gamma``
         from the config. With a ``checkpoint``, resumes from its state if it has one, and
-        saves itself and :meth:`model_state` at day boundaries when it is due. Sampled
-        batches go to the device."""
-        envs, cfg, total = self.envs, self.cfg, total_steps
-        saved = checkpoint.read_onto(self.device) if checkpoint is not None else None
-        if saved is not None:
-            envs.restore(saved["envs"])
-            self.restore_model(saved["model"])
-            self.diagnostics = [list(rows) for rows in saved["diagnostics"]]
-            replay, raw, obs, start = saved["replay"], saved["raw"], saved["obs"], saved["steps"]
-        else:
-            replay = StackedReplay(envs.k, min(cfg.buffer_size, total), envs.obs_dim, self.n_step, cfg.gamma)
-            raw = envs.new_days()
-            obs, start = envs.seen(raw), 0
-        rng = envs.rng
-        t0 = time.perf_counter()
-        for n in range(start, total):  # n env steps taken so far
-            t = n % envs.horizon
-            if t == 0 and checkpoint is not None and n > start and checkpoint.due():
-                checkpoint.save(
-                    steps=n,
-                    envs=envs,
-                    replay=replay,
-                    raw=raw,
-                    obs=obs,
-                    model=self.model_state(),
-                    diagnostics=self.diagnostics,
-                )
-            if t == 0:  # each agent's random actions and uniform draws for the day, from its own stream
-                random_actions = np.stack([r.integers(0, 2, size=envs.horizon) for r in rng["actions"]])
-                uniforms = np.stack([r.random(envs.horizon) for r in rng["actions"]])
-            actions, entropy = self.act(obs, n, uniforms[:, t], random_actions[:, t])
-            raw_next, rewards, day_over = envs.step(actions, entropy)
-            replay.add(raw, actions, rewards, raw_next, np.full(envs.k, day_over))
-            steps = n + 1
-            progress = 1.0 - steps / total
-            self.after_step(steps, progress)
-            raw = envs.new_days() if day_over else raw_next
-            obs = envs.seen(raw)
-            if steps % cfg.train_freq == 0 and steps > cfg.learning_starts and steps < total:
-                for _ in range(cfg.gradient_steps):
-                    idx = np.stack([r.integers(0, replay.filled, size=cfg.batch_size) for r in rng["minibatches"]])
-                    self.update(steps, progress, replay.sample(idx, envs.normalize, self.device))
-            if day_over and self.means:
-                self.record(steps, self.means.means())  # the day's means, one read
-        return time.perf_counter() - t0 + (checkpoint.seconds_before if saved is not None else 0.0)
+        saves :meth:`state_dict` at day boundaries when it is due. Sampled batches go to the device."""
+        envs, cfg = self.envs, self.cfg
+        seconds_before = self.resume(checkpoint)
+        if self.replay is None:
+            self.replay = StackedReplay(envs.k, min(cfg.buffer_size, total_steps), envs.obs_dim, self.n_step, cfg.gamma)
+            self.raw = envs.new_days()
+            self.last_obs = envs.seen(self.raw)
+        first, t0 = self.num_timesteps, time.perf_counter()
+        while self.num_timesteps < total_steps:
+            start_of_day = self.num_timesteps % envs.horizon == 0
+            if start_of_day and checkpoint is not None and self.num_timesteps > first and checkpoint.due():
+                checkpoint.save(**self.state_dict())
+            day_over = self.collect_rollouts(total_steps)
+            steps = self.num_timesteps
+            if steps % cfg.train_freq == 0 and steps > cfg.learning_starts and steps < total_steps:
+                self.train(cfg.gradient_steps, 1.0 - steps / total_steps)
+            if day_over and self.means:  # a day boundary: the day's means, one read
+                self.record(steps, self.means.means())
+        return time.perf_counter() - t0 + seconds_before
+
+    def collect_rollouts(self, total_steps: int) -> bool:
+        """One env step of every agent (of a budget of ``total_steps``), stored in its replay;
+        whether it ended the day."""
+        envs, n = self.envs, self.num_timesteps
+        t = n % envs.horizon
+        if t == 0:  # each agent's random actions and uniform draws for the day, from its own stream
+            random_actions = np.stack([r.integers(0, 2, size=envs.horizon) for r in envs.rng["actions"]])
+            self.day_draws = (random_actions, np.stack([r.random(envs.horizon) for r in envs.rng["actions"]]))
+        random_actions, uniforms = self.day_draws
+        actions, entropy = self.act(self.last_obs, n, uniforms[:, t], random_actions[:, t])
+        raw_next, rewards, day_over = envs.step(actions, entropy)
+        self.replay.add(self.raw, actions, rewards, raw_next, np.full(envs.k, day_over))
+        self.num_timesteps = steps = n + 1
+        self.after_step(steps, 1.0 - steps / total_steps)
+        self.raw = envs.new_days() if day_over else raw_next
+        self.last_obs = envs.seen(self.raw)
+        return day_over
+
+    def train(self, gradient_steps: int, progress_remaining: float) -> None:
+        """``gradient_steps`` updates of the K agents, each on ``batch_size`` transitions drawn
+        uniformly from each agent's replay with its own stream."""
+        replay, batch_size = self.replay, self.cfg.batch_size
+        for _ in range(gradient_steps):
+            idx = np.stack([r.integers(0, replay.filled, size=batch_size) for r in self.envs.rng["minibatches"]])
+            batch = replay.sample(idx, self.envs.normalize, self.device)
+            self.update(self.num_timesteps, progress_remaining, batch)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            **super().state_dict(),
+            "replay": self.replay.state_dict(),
+            "raw": self.raw,
+            "obs": self.last_obs,
+            "model": self.model_state_dict(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        super().load_state_dict(state)
+        if self.num_timesteps % self.envs.horizon:
+            raise ValueError("the checkpoint was not saved at a day boundary")
+        self.replay = StackedReplay.from_state_dict(state["replay"])
+        self.raw, self.last_obs = np.asarray(state["raw"]), np.asarray(state["obs"], dtype=np.float32)
+        self.load_model_state_dict(state["model"])

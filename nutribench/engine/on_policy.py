@@ -11,13 +11,19 @@ end a terminal, then the update. A budget that ends inside a rollout stops there
 partial update, as SB3 does. Actions are drawn from the policy with each agent's own uniform
 draws; the minibatch order of each epoch is each agent's own permutation.
 
-An algorithm subclass gives its network (:meth:`OnPolicyAlgorithm.make_network`), its
-acting (:meth:`~OnPolicyAlgorithm.make_actor`: a callable ``(obs, starts, advance)`` ->
-``(logits, values)``), what a permutation orders (:meth:`~OnPolicyAlgorithm.units`:
-transitions, or whole days) and its update (:meth:`~OnPolicyAlgorithm.update`). After each
-update every agent gets one diagnostics dict: the means over the update's gradient steps of
-its losses and gradient norm (and PPO's approximate KL and clip fraction), the rollout's
-explained variance, the learning rate and, with reward normalisation, the return scale.
+The loop is SB3's three methods: :meth:`~OnPolicyAlgorithm.learn` (resume from a checkpoint,
+then rollouts and updates until the budget, saving :meth:`~OnPolicyAlgorithm.state_dict` at
+rollout boundaries when due), :meth:`~OnPolicyAlgorithm.collect_rollouts` (``n_steps`` env
+steps, reward scaling, a day boundary whenever every agent's day ends, then GAE) and
+:meth:`~OnPolicyAlgorithm.train` (the algorithm's update on one rollout, then its
+diagnostics). An algorithm subclass gives its network
+(:meth:`~OnPolicyAlgorithm.make_network`), its acting (:meth:`~OnPolicyAlgorithm.make_actor`:
+a callable ``(obs, starts, advance)`` -> ``(logits, values)``) and its ``train``. After each
+update every agent gets one diagnostics dict, each value what SB3's logger records for that
+agent's update: the means over the update's gradient steps of its losses, gradient norm and
+clip fraction, PPO's approximate KL over the last epoch's minibatches (``train/approx_kl``),
+the rollout's explained variance, the learning rate and, with reward normalisation, the
+return scale.
 """
 
 from __future__ import annotations
@@ -35,14 +41,28 @@ from nutribench.agents.api import CLIP_OBS, NORM_EPS
 from nutribench.engine.algorithm import Algorithm
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs
-from nutribench.engine.stacked import AgentMeans, RunningStats, clip_grad_norm_per_agent, explained_variance, make_adam
+from nutribench.engine.stacked import (
+    AgentMeans,
+    RunningStats,
+    clip_grad_norm_per_agent,
+    explained_variance,
+    load_params,
+    make_adam,
+)
 
 ADAM_EPS = 1e-5  # SB3's ActorCriticPolicy passes eps=1e-5 to Adam
 
 
 @dataclass
 class OnPolicySettings:
-    """What the rollout and the update read from an agent config (PPO, MC or GRU-PPO)."""
+    """What the rollout and the update read from an agent config (PPO, MC or GRU-PPO): the
+    one place the on-policy loop and updates take their settings from (never the config).
+    Each continuous setting is one float for all K agents, read only in :func:`gradient_step`
+    (``ent_coef``, ``vf_coef``, ``max_grad_norm``), :func:`~nutribench.engine.ppo.ppo_step`
+    (``clip_range``), :meth:`OnPolicyAlgorithm.scale_rewards` (``gamma``),
+    :meth:`OnPolicyAlgorithm.compute_returns` (``gamma``, ``gae_lambda``),
+    :func:`make_optimizer` and :meth:`OnPolicyAlgorithm.log_update` (``learning_rate``), so a
+    per-agent value (a ``(K,)`` array) changes those reads only."""
 
     learning_rate: float
     n_steps: int
@@ -94,6 +114,19 @@ class Rollout:
     returns: th.Tensor  # (K, T)
 
 
+@dataclass
+class Minibatch:
+    """One minibatch of the K agents, ``B`` samples each, every field ``(K, B)``: what the
+    policy gives now (``log_prob``, ``entropy``, ``values``) and what the rollout recorded."""
+
+    log_prob: th.Tensor
+    entropy: th.Tensor
+    values: th.Tensor
+    old_log_prob: th.Tensor
+    advantages: th.Tensor
+    returns: th.Tensor
+
+
 def gae(
     rewards: np.ndarray,
     values: np.ndarray,
@@ -137,7 +170,7 @@ def normalized(adv: th.Tensor) -> th.Tensor:
 def gradient_step(
     params: list[th.Tensor],
     optimizer: th.optim.Optimizer,
-    s: OnPolicySettings,
+    settings: OnPolicySettings,
     policy_loss: th.Tensor,
     value_loss: th.Tensor,
     entropy_loss: th.Tensor,
@@ -147,10 +180,10 @@ def gradient_step(
     """One gradient step on the K agents' losses ``(K,)``: SB3's weighting, per-agent clipping
     (``k``: as :func:`~nutribench.engine.stacked.clip_grad_norm_per_agent`); the losses and
     the gradient norms go to ``means``."""
-    loss = policy_loss + s.ent_coef * entropy_loss + s.vf_coef * value_loss
+    loss = policy_loss + settings.ent_coef * entropy_loss + settings.vf_coef * value_loss
     optimizer.zero_grad()
     loss.sum().backward()  # disjoint parameters: each agent gets its own loss's gradient
-    norms = clip_grad_norm_per_agent(params, s.max_grad_norm, k)
+    norms = clip_grad_norm_per_agent(params, settings.max_grad_norm, k)
     optimizer.step()
     if means is not None:
         means.add(
@@ -170,7 +203,7 @@ def make_optimizer(net: Any, learning_rate: float) -> th.optim.Adam:
 
 class OnPolicyAlgorithm(Algorithm):
     """SB3's on-policy loop for the K agents of ``envs`` (the module docstring); subclasses
-    give the network, the acting and the update."""
+    give the network, the acting and :meth:`train`."""
 
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device):
         super().__init__(cfg, envs, device)
@@ -180,8 +213,12 @@ class OnPolicyAlgorithm(Algorithm):
         self.actor = self.make_actor(self.net)
         self.optimizer = make_optimizer(self.net, self.settings.learning_rate)
         self.ret_stats = RunningStats(self.k) if cfg.normalize_reward else None
-        self.discounted = np.zeros(self.k)
+        self.discounted = np.zeros(self.k)  # each agent's discounted return so far (reward scaling)
         self.means = AgentMeans()
+        #: the observations the agents act on next (None until the first day starts) and
+        #: whether that step starts a day (SB3's ``_last_obs``, ``_last_episode_starts``)
+        self.last_obs: np.ndarray | None = None
+        self.start_of_day = np.ones(self.k, dtype=np.float32)
 
     # ---- what each algorithm gives ----
 
@@ -193,13 +230,14 @@ class OnPolicyAlgorithm(Algorithm):
         """Acting with ``net``: ``(obs (K, d), starts (K,), advance=True)`` -> logits, values."""
         raise NotImplementedError
 
+    def train(self, rollout: Rollout) -> None:
+        """The algorithm's update of the K agents on ``rollout`` (SB3's ``train()``), then
+        :meth:`log_update`."""
+        raise NotImplementedError
+
     def units(self, steps: int) -> int:
         """How many items an epoch's permutation orders in a rollout of ``steps`` steps: its transitions."""
         return steps
-
-    def update(self, rollout: Rollout, permutations: np.ndarray) -> None:
-        """The algorithm's update of the K agents on ``rollout``, its losses into :attr:`means`."""
-        raise NotImplementedError
 
     # ---- the loop ----
 
@@ -211,119 +249,143 @@ class OnPolicyAlgorithm(Algorithm):
         self.net.store_sb3(j, model.policy)
 
     def learn(self, total_steps: int, checkpoint: Checkpoint | None = None) -> float:
-        envs, k, s, device = self.envs, self.k, self.settings, self.device
-        obs_dim = envs.obs_dim
-        n_rollouts = total_steps // s.n_steps
-        saved = checkpoint.read_onto(device) if checkpoint is not None else None
-        if saved is not None:
-            envs.restore(saved["envs"])
-            self.net, self.actor, self.optimizer, self.ret_stats, self.discounted = saved["model"]
-            self.diagnostics = [list(rows) for rows in saved["diagnostics"]]
-            obs, start_of_day, step, first = saved["obs"], saved["start_of_day"], saved["steps"], saved["rollout"]
-        else:
-            obs = envs.seen(envs.new_days())
-            start_of_day = np.ones(k, dtype=np.float32)
-            step = first = 0
-        rng = envs.rng
-        t0 = time.perf_counter()
-        for rollout_index in range(first, n_rollouts + 1):
-            if checkpoint is not None and rollout_index > first and checkpoint.due():
-                checkpoint.save(
-                    rollout=rollout_index,
-                    steps=step,
-                    envs=envs,
-                    obs=obs,
-                    start_of_day=start_of_day,
-                    model=(self.net, self.actor, self.optimizer, self.ret_stats, self.discounted),
-                    diagnostics=self.diagnostics,
-                )
-            T = s.n_steps if rollout_index < n_rollouts else total_steps - step
-            if T == 0:
-                break
-            buf_obs = np.empty((k, T, obs_dim), dtype=np.float32)
-            buf_act = np.empty((k, T), dtype=np.int64)
-            buf_logp = np.empty((k, T), dtype=np.float32)
-            buf_val = np.empty((k, T), dtype=np.float32)
-            buf_rew = np.empty((k, T), dtype=np.float32)
-            buf_start = np.empty((k, T), dtype=np.float32)
-            uniforms = np.stack([r.random(T) for r in rng["actions"]])
-            for t in range(T):
-                with th.no_grad():
-                    logits, values = self.actor(
-                        th.as_tensor(obs, device=device), th.as_tensor(start_of_day, device=device)
-                    )
-                logp = th.log_softmax(logits, dim=-1).cpu().numpy()
-                p_eat = np.exp(logp[:, 1])
-                actions = (uniforms[:, t] < p_eat).astype(np.int64)
-                buf_obs[:, t], buf_act[:, t], buf_start[:, t] = obs, actions, start_of_day
-                buf_logp[:, t] = logp[np.arange(k), actions]
-                buf_val[:, t] = values.cpu().numpy()
-                raw_next, rewards, day_over = envs.step(actions, entropy=-(np.exp(logp) * logp).sum(axis=1))
-                if self.ret_stats is not None:
-                    self.discounted = self.discounted * s.gamma + rewards
-                    self.ret_stats.update(self.discounted)
-                    scaled = np.clip(rewards / np.sqrt(self.ret_stats.var + NORM_EPS), -CLIP_OBS, CLIP_OBS)
-                else:
-                    scaled = rewards
-                buf_rew[:, t] = scaled
-                step += 1
-                if day_over:
-                    self.discounted[:] = 0.0
-                    raw_next = envs.new_days()
-                    start_of_day = np.ones(k, dtype=np.float32)
-                else:
-                    start_of_day = np.zeros(k, dtype=np.float32)
-                obs = envs.seen(raw_next)
-            if T < s.n_steps:
+        seconds_before = self.resume(checkpoint)
+        if self.last_obs is None:
+            self.last_obs = self.envs.seen(self.envs.new_days())
+        first, t0 = self.num_timesteps, time.perf_counter()
+        while self.num_timesteps < total_steps:
+            if checkpoint is not None and self.num_timesteps > first and checkpoint.due():
+                checkpoint.save(**self.state_dict())
+            rollout = self.collect_rollouts(min(self.settings.n_steps, total_steps - self.num_timesteps))
+            if rollout is None:
                 break  # a partial rollout: SB3 stops without updating on it
-            with th.no_grad():
-                _, last_values = self.actor(
-                    th.as_tensor(obs, device=device), th.as_tensor(start_of_day, device=device), advance=False
-                )
-            adv, ret = gae(
-                buf_rew,
-                buf_val,
-                buf_start,
-                last_values.cpu().numpy(),
-                start_of_day.astype(bool),
-                s.gamma,
-                s.gae_lambda,
-            )
-            if self.on_rollout is not None:
-                self.on_rollout(
-                    {
-                        "obs": buf_obs,
-                        "actions": buf_act,
-                        "rewards": buf_rew,
-                        "starts": buf_start,
-                        "values": buf_val,
-                        "advantages": adv,
-                        "returns": ret,
-                        "foods": np.stack(envs.days_drawn),
-                    }
-                )
-            on = lambda x: th.as_tensor(x, device=device)  # noqa: E731
-            rollout = Rollout(
-                obs=on(buf_obs),
-                actions=on(buf_act),
-                log_probs=on(buf_logp),
-                values=on(buf_val),
-                advantages=on(adv),
-                returns=on(ret),
-            )
-            units = self.units(T)
-            perms = np.stack([[r.permutation(units) for r in rng["minibatches"]] for _ in range(s.n_epochs)])
-            self.update(rollout, perms)
-            self._record(step, buf_val, ret)
-        return time.perf_counter() - t0 + (checkpoint.seconds_before if saved is not None else 0.0)
+            self.train(rollout)
+        return time.perf_counter() - t0 + seconds_before
 
-    def _record(self, step: int, values: np.ndarray, returns: np.ndarray) -> None:
-        """The diagnostics of the update just made (one read of the device's sums)."""
+    def collect_rollouts(self, n_steps: int) -> Rollout | None:
+        """``n_steps`` env steps of every agent from :attr:`last_obs`; the rollout with its
+        advantages and returns, or None for a rollout shorter than ``settings.n_steps`` (the
+        budget's end)."""
+        envs, k, device = self.envs, self.k, self.device
+        buf = {
+            "obs": np.empty((k, n_steps, envs.obs_dim), dtype=np.float32),
+            "actions": np.empty((k, n_steps), dtype=np.int64),
+            "log_probs": np.empty((k, n_steps), dtype=np.float32),
+            "values": np.empty((k, n_steps), dtype=np.float32),
+            "rewards": np.empty((k, n_steps), dtype=np.float32),
+            "starts": np.empty((k, n_steps), dtype=np.float32),
+        }
+        uniforms = np.stack([r.random(n_steps) for r in envs.rng["actions"]])
+        obs, start_of_day = self.last_obs, self.start_of_day
+        for t in range(n_steps):
+            with th.no_grad():
+                logits, values = self.actor(th.as_tensor(obs, device=device), th.as_tensor(start_of_day, device=device))
+            logp = th.log_softmax(logits, dim=-1).cpu().numpy()
+            actions = (uniforms[:, t] < np.exp(logp[:, 1])).astype(np.int64)
+            buf["obs"][:, t], buf["actions"][:, t], buf["starts"][:, t] = obs, actions, start_of_day
+            buf["log_probs"][:, t] = logp[np.arange(k), actions]
+            buf["values"][:, t] = values.cpu().numpy()
+            raw_next, rewards, day_over = envs.step(actions, entropy=-(np.exp(logp) * logp).sum(axis=1))
+            buf["rewards"][:, t] = self.scale_rewards(rewards)
+            self.num_timesteps += 1
+            if day_over:  # a day boundary: every agent's day ended at this step
+                self.discounted[:] = 0.0
+                raw_next = envs.new_days()
+                start_of_day = np.ones(k, dtype=np.float32)
+            else:
+                start_of_day = np.zeros(k, dtype=np.float32)
+            obs = envs.seen(raw_next)
+        self.last_obs, self.start_of_day = obs, start_of_day
+        if n_steps < self.settings.n_steps:
+            return None
+        return self.compute_returns(buf)
+
+    def scale_rewards(self, rewards: np.ndarray) -> np.ndarray:
+        """``VecNormalize``'s reward scaling: the running deviation of each agent's discounted
+        return, updated with this step's rewards (the rewards as they are without it)."""
+        if self.ret_stats is None:
+            return rewards
+        self.discounted = self.discounted * self.settings.gamma + rewards
+        self.ret_stats.update(self.discounted)
+        return np.clip(rewards / np.sqrt(self.ret_stats.var + NORM_EPS), -CLIP_OBS, CLIP_OBS)
+
+    def compute_returns(self, buf: dict[str, np.ndarray]) -> Rollout:
+        """The rollout of ``buf`` (the arrays of :meth:`collect_rollouts`) with SB3's GAE
+        from the value after its last step; handed to ``on_rollout`` first, if set."""
+        settings, device = self.settings, self.device
+        with th.no_grad():
+            _, last_values = self.actor(
+                th.as_tensor(self.last_obs, device=device),
+                th.as_tensor(self.start_of_day, device=device),
+                advance=False,
+            )
+        adv, ret = gae(
+            buf["rewards"],
+            buf["values"],
+            buf["starts"],
+            last_values.cpu().numpy(),
+            self.start_of_day.astype(bool),
+            settings.gamma,
+            settings.gae_lambda,
+        )
+        if self.on_rollout is not None:
+            self.on_rollout(
+                {
+                    **{name: buf[name] for name in ("obs", "actions", "rewards", "starts", "values")},
+                    "advantages": adv,
+                    "returns": ret,
+                    "foods": np.stack(self.envs.days_drawn),
+                }
+            )
+        on = lambda x: th.as_tensor(x, device=device)  # noqa: E731
+        return Rollout(
+            obs=on(buf["obs"]),
+            actions=on(buf["actions"]),
+            log_probs=on(buf["log_probs"]),
+            values=on(buf["values"]),
+            advantages=on(adv),
+            returns=on(ret),
+        )
+
+    def permutations(self, rollout: Rollout) -> np.ndarray:
+        """``(n_epochs, K, units)``: each agent's order of the rollout's units in each epoch,
+        from its own stream (SB3 draws ``np.random.permutation`` once per epoch)."""
+        units = self.units(rollout.actions.shape[1])
+        streams = self.envs.rng["minibatches"]
+        return np.stack([[r.permutation(units) for r in streams] for _ in range(self.settings.n_epochs)])
+
+    def log_update(self, rollout: Rollout) -> None:
+        """The diagnostics of the update just made on ``rollout`` (one read of the device's sums)."""
         row: dict[str, Any] = {
             **self.means.means(),
-            names.EXPLAINED_VARIANCE: explained_variance(values, returns),
+            names.EXPLAINED_VARIANCE: explained_variance(rollout.values.cpu().numpy(), rollout.returns.cpu().numpy()),
             names.LEARNING_RATE: self.settings.learning_rate,
         }
         if self.ret_stats is not None:
             row[names.RETURN_SCALE] = np.sqrt(self.ret_stats.var + NORM_EPS)
-        self.record(step, row)
+        self.record(self.num_timesteps, row)
+
+    # ---- its state ----
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            **super().state_dict(),
+            "obs": self.last_obs,
+            "start_of_day": self.start_of_day,
+            "params": list(self.net.params),
+            "actor": self.actor.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "ret_stats": None if self.ret_stats is None else self.ret_stats.state_dict(),
+            "discounted": self.discounted,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        super().load_state_dict(state)
+        load_params(self.net.params, state["params"])
+        self.actor.load_state_dict(state["actor"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        if self.ret_stats is not None:
+            self.ret_stats.load_state_dict(state["ret_stats"])
+        self.discounted = np.asarray(state["discounted"], dtype=np.float64)
+        self.last_obs = np.asarray(state["obs"], dtype=np.float32)
+        self.start_of_day = np.asarray(state["start_of_day"], dtype=np.float32)

@@ -1,5 +1,5 @@
 """PPO for K agents at once: SB3's ``PPO.train()`` with every agent's parameters stacked
-along a leading agent axis; its loss and gradient step (:func:`ppo_step`) are GRU-PPO's too
+along a leading agent axis; its loss and gradient step on a :class:`~nutribench.engine.on_policy.Minibatch` (:func:`ppo_step`) are GRU-PPO's too
 (:mod:`nutribench.engine.gru_ppo`).
 
 Per agent, everything is what :class:`stable_baselines3.PPO` with nutribench's shared
@@ -20,49 +20,45 @@ import torch as th
 
 from nutribench import diagnostics as names
 from nutribench.engine.actor_critic import ActorCriticAlgorithm, StackedActorCritic, evaluate_actions
-from nutribench.engine.on_policy import OnPolicySettings, Rollout, gradient_step, normalized
+from nutribench.engine.on_policy import Minibatch, OnPolicySettings, Rollout, gradient_step, normalized
 from nutribench.engine.stacked import AgentMeans
 
 
 def ppo_step(
     params: list[th.Tensor],
     optimizer: th.optim.Optimizer,
-    s: OnPolicySettings,
-    log_prob: th.Tensor,
-    entropy: th.Tensor,
-    values: th.Tensor,
-    old_log_prob: th.Tensor,
-    advantages: th.Tensor,
-    returns: th.Tensor,
+    settings: OnPolicySettings,
+    minibatch: Minibatch,
     k: int | None = None,
     means: AgentMeans | None = None,
+    last_epoch: bool = True,
 ) -> None:
-    """PPO's loss on one minibatch of the K agents (each ``(K, B)``: the policy's log
-    probabilities, entropy and values now, the rollout's log probabilities, advantages and
-    returns) and one gradient step on it (:func:`~nutribench.engine.on_policy.gradient_step`);
-    the losses, gradient norms, approximate KL and clip fraction into ``means``."""
-    adv = normalized(advantages) if s.normalize_advantage and advantages.shape[1] > 1 else advantages
-    log_ratio = log_prob - old_log_prob
+    """PPO's loss on one minibatch of the K agents and one gradient step on it
+    (:func:`~nutribench.engine.on_policy.gradient_step`); the losses, gradient norms and clip
+    fraction into ``means``, and in the ``last_epoch`` the approximate KL (SB3 logs
+    ``train/approx_kl`` of its last epoch's minibatches only)."""
+    mb = minibatch
+    use_norm = settings.normalize_advantage and mb.advantages.shape[1] > 1
+    adv = normalized(mb.advantages) if use_norm else mb.advantages
+    log_ratio = mb.log_prob - mb.old_log_prob
     ratio = th.exp(log_ratio)
-    surrogate = th.min(adv * ratio, adv * th.clamp(ratio, 1 - s.clip_range, 1 + s.clip_range))
+    clip = settings.clip_range
+    surrogate = th.min(adv * ratio, adv * th.clamp(ratio, 1 - clip, 1 + clip))
     policy_loss = -surrogate.mean(dim=1)
-    value_loss = (returns - values).pow(2).mean(dim=1)
-    gradient_step(params, optimizer, s, policy_loss, value_loss, -entropy.mean(dim=1), k, means)
+    value_loss = (mb.returns - mb.values).pow(2).mean(dim=1)
+    gradient_step(params, optimizer, settings, policy_loss, value_loss, -mb.entropy.mean(dim=1), k, means)
     if means is not None:
         with th.no_grad():  # as SB3 logs them
-            means.add(
-                **{
-                    names.APPROX_KL: ((ratio - 1) - log_ratio).mean(dim=1),
-                    names.CLIP_FRACTION: ((ratio - 1).abs() > s.clip_range).float().mean(dim=1),
-                }
-            )
+            means.add(**{names.CLIP_FRACTION: ((ratio - 1).abs() > clip).float().mean(dim=1)})
+            if last_epoch:
+                means.add(**{names.APPROX_KL: ((ratio - 1) - log_ratio).mean(dim=1)})
 
 
 def ppo_update(
     net: StackedActorCritic,
     optimizer: th.optim.Optimizer,
     rollout: Rollout,
-    s: OnPolicySettings,
+    settings: OnPolicySettings,
     permutations: np.ndarray,
     means: AgentMeans | None = None,
 ) -> None:
@@ -72,26 +68,17 @@ def ppo_update(
     k, t_max = rollout.actions.shape
     device = rollout.actions.device
     rows = th.arange(k, device=device).unsqueeze(1)
-    for epoch in range(s.n_epochs):
+    for epoch in range(settings.n_epochs):
         perm = th.as_tensor(permutations[epoch], device=device)
         # the epoch's order once, then contiguous minibatches of it (SB3's order exactly)
         obs_e, act_e, adv_e = rollout.obs[rows, perm], rollout.actions[rows, perm], rollout.advantages[rows, perm]
         logp_e, ret_e = rollout.log_probs[rows, perm], rollout.returns[rows, perm]
-        for start in range(0, t_max, s.batch_size):
-            mb = slice(start, start + s.batch_size)
+        for start in range(0, t_max, settings.batch_size):
+            mb = slice(start, start + settings.batch_size)
             log_prob, entropy, values = evaluate_actions(net, obs_e[:, mb], act_e[:, mb])
-            ppo_step(
-                net.params,
-                optimizer,
-                s,
-                log_prob,
-                entropy,
-                values,
-                logp_e[:, mb],
-                adv_e[:, mb],
-                ret_e[:, mb],
-                means=means,
-            )
+            minibatch = Minibatch(log_prob, entropy, values, logp_e[:, mb], adv_e[:, mb], ret_e[:, mb])
+            last_epoch = epoch == settings.n_epochs - 1
+            ppo_step(net.params, optimizer, settings, minibatch, means=means, last_epoch=last_epoch)
 
 
 class PPO(ActorCriticAlgorithm):
@@ -99,5 +86,6 @@ class PPO(ActorCriticAlgorithm):
 
     algo = "ppo"
 
-    def update(self, rollout: Rollout, permutations: np.ndarray) -> None:
-        ppo_update(self.net, self.optimizer, rollout, self.settings, permutations, self.means)
+    def train(self, rollout: Rollout) -> None:
+        ppo_update(self.net, self.optimizer, rollout, self.settings, self.permutations(rollout), self.means)
+        self.log_update(rollout)

@@ -37,16 +37,18 @@ import torch as th
 from nutribench import diagnostics as names
 from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
-from nutribench.engine.checkpoint import Checkpoint, register
+from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, OffPolicyAlgorithm
-from nutribench.engine.stacked import AgentMeans, StackedMLP, linears, make_adam
+from nutribench.engine.stacked import AgentMeans, StackedMLP, linears, load_params, make_adam
 
 
 class StackedSAC:
     """The K agents' actors (a K-stack), critics and target critics (2K-stacks: agent ``j``'s
     first critic at ``j``, its second at ``K + j``) and their two optimisers, initialised on
     the CPU and moved to ``device``."""
+
+    NETWORKS = ("actor", "critic", "critic_target")
 
     def __init__(
         self,
@@ -89,8 +91,20 @@ class StackedSAC:
             net.store_linears(j, linears(critic.q1))
             net.store_linears(self.k + j, linears(critic.q2))
 
+    def state_dict(self) -> dict[str, Any]:
+        """The networks' parameters and the optimisers' ``state_dict`` (a checkpoint keeps them)."""
+        return {
+            **{name: list(getattr(self, name).params) for name in self.NETWORKS},
+            "actor_optimizer": self.actor_optimizer.state_dict(),
+            "critic_optimizer": self.critic_optimizer.state_dict(),
+        }
 
-register(StackedSAC)  # what its checkpoints hold
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Take over :meth:`state_dict` (in place); ValueError if it does not fit."""
+        for name in self.NETWORKS:
+            load_params(getattr(self, name).params, state[name])
+        self.actor_optimizer.load_state_dict(state["actor_optimizer"])
+        self.critic_optimizer.load_state_dict(state["critic_optimizer"])
 
 
 def sac_update(
@@ -169,11 +183,11 @@ class SAC(OffPolicyAlgorithm):
         if self.on_update is not None:
             self.on_update({"steps": steps, **losses})
 
-    def model_state(self) -> Any:
-        return self.net
+    def model_state_dict(self) -> dict[str, Any]:
+        return self.net.state_dict()
 
-    def restore_model(self, state: Any) -> None:
-        self.net = state
+    def load_model_state_dict(self, state: dict[str, Any]) -> None:
+        self.net.load_state_dict(state)
 
     def store_weights(self, j: int, model: Any) -> None:
         self.net.store_sb3(j, model.policy)
@@ -192,4 +206,4 @@ def train_sac_batched(
     ``episodes`` days, all at once (resuming from ``checkpoint`` if it holds a state), on
     ``device`` (:func:`~nutribench.engine.device.resolve_device`); ``on_update`` gets
     ``steps`` and the K losses after each update."""
-    return SAC.train(jobs, cfg, episodes, on_episode, checkpoint, device, on_update=on_update)
+    return SAC.train_jobs(jobs, cfg, episodes, on_episode, checkpoint, device, on_update=on_update)

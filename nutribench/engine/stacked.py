@@ -22,7 +22,6 @@ import math
 import numpy as np
 import torch as th
 
-from nutribench.engine.checkpoint import register
 from nutribench.engine.device import leaves_on
 
 
@@ -115,6 +114,26 @@ class RunningStats:
         self.var = (self.var * c + np.square(delta) * c / tot) / tot
         self.count = self.count + 1.0
 
+    def state_dict(self) -> dict[str, np.ndarray]:
+        return {"mean": self.mean, "var": self.var, "count": self.count}
+
+    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
+        """Take over ``state`` (:meth:`state_dict` of statistics of the same shape); ValueError if it does not fit."""
+        arrays = {key: np.asarray(state[key], dtype=np.float64) for key in ("mean", "var", "count")}
+        if any(arrays[key].shape != getattr(self, key).shape for key in arrays):
+            raise ValueError("the checkpoint's running statistics do not fit this batch")
+        self.mean, self.var, self.count = arrays["mean"], arrays["var"], arrays["count"]
+
+
+def load_params(params: list[th.Tensor], saved: list[th.Tensor]) -> None:
+    """Copy ``saved`` (a checkpoint's tensors, any device) into ``params`` in place, so that
+    whatever holds ``params`` (an optimiser) goes on with them; ValueError if they do not fit."""
+    if len(saved) != len(params) or any(tuple(s.shape) != tuple(p.shape) for s, p in zip(saved, params)):
+        raise ValueError("the checkpoint's networks do not fit this batch")
+    with th.no_grad():
+        for p, s in zip(params, saved):
+            p.copy_(s)
+
 
 def clip_grad_norm_per_agent(params: list[th.Tensor], max_norm: float, k: int | None = None) -> th.Tensor:
     """``torch.nn.utils.clip_grad_norm_`` applied to each agent's own parameters; the K norms
@@ -184,6 +203,3 @@ def explained_variance(values: np.ndarray, returns: np.ndarray) -> np.ndarray:
     var_y = returns.var(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(var_y == 0, np.nan, 1.0 - (returns - values).var(axis=1) / var_y)
-
-
-register(StackedMLP, RunningStats)  # what checkpoints hold of them

@@ -83,6 +83,6 @@ def train_batched(
     """
     th.set_num_threads(1)
     cfg = load_agent_config(agent_config)
-    return ALGORITHMS[cfg.algo].train(
+    return ALGORITHMS[cfg.algo].train_jobs(
         jobs, cfg, episodes, on_episode, checkpoint=checkpoint, device=device, on_rollout=on_rollout
     )

@@ -3,12 +3,13 @@
 For each algorithm: ``nutribench.agents.train`` of the shipped config on run0 under cProfile,
 and the time spent inside ``nutribench/agents/training_log.py`` as entered from outside it
 (each of its functions' cumulative time over the calls from outside the module: the callback's
-methods, the logger's ``record``, the gradient probe's hooks, ``GradNormFromClip``'s update and
-its ``clip_grad_norm_`` wrapper), less the work those hand on and that runs with or without
-the diagnostics (SB3's own update called from ``GradNormFromClip.train``, torch's
-``clip_grad_norm_`` called from the wrapper), as a share of the whole profiled run. Not counted: the few ``.item()`` reads DDQN's, SAC's and GRU-PPO's own
-updates make for their ``train/*`` keys (``nutribench/agents/algos.py``, ``sac/``,
-``gru_ppo/``). A profile slows small Python calls more than torch's kernels, so the share is an
+methods, the logger's ``record``, the gradient probe's hooks), less the work those hand on and
+that runs with or without the diagnostics, as a share of the whole profiled run. Not counted:
+the few ``.item()`` reads and the norm PPO's, A2C's, DDQN's, SAC's and GRU-PPO's own updates
+keep for their ``train/*`` keys (``nutribench/agents/sb3_train.py``, ``algos.py``, ``sac/``,
+``gru_ppo/``). The runs in this study's README were made when PPO's and A2C's norm was kept by
+a wrapper of torch's ``clip_grad_norm_`` in ``training_log.py`` (then counted here, the SB3
+update it called not); that wrapper is gone. A profile slows small Python calls more than torch's kernels, so the share is an
 upper bound on the cost without the profiler. DDQN starts learning after 200 days, so it gets
 300 (100 days with updates).
 

@@ -288,6 +288,7 @@ class GRUPPO(OnPolicyAlgorithm):
                 break
 
         explained_var = explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten())
+        history["approx_kl"] = approx_kls  # as SB3's PPO logs it: the last epoch's
         for key, values in history.items():
             self.logger.record(f"train/{key}", float(np.mean(values)))
         if "entropy_loss" in history:
