@@ -41,7 +41,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 from nutribench.agents.algos import episode_entropy
 from nutribench.agents.config import agent_config_content, load_agent_config, parse_agent_config
 from nutribench.agents.registry import ALGORITHMS, algorithm, load_model, loader_entry_point, make_model
-from nutribench.agents.training_log import TrainingDiagnostics
+from nutribench.agents.training_log import TrainingDiagnostics, plugin_tensorboard
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.env.metrics import EpisodeRecorder
 from nutribench.env.sb3 import NutriRLSB3VecEnv
@@ -293,7 +293,8 @@ def train(
     """Train ``agent_config`` (name, file or model) on ``regime`` for ``episodes`` days.
 
     :param on_episode: called with each finished training day's metrics dict.
-    :param tensorboard: a folder for this run's TensorBoard events (built-in algorithms).
+    :param tensorboard: a folder for this run's TensorBoard events (a plug-in's when it is an
+        SB3 algorithm: its own logger writes there).
     :param diagnostics: record the training diagnostics (False: no callback, logger or gradient
         probe: what ``nutribench bench train --diagnostics-cost`` compares against).
     :return: the trained agent; its ``train_episodes`` hold every day's metrics, its
@@ -310,6 +311,8 @@ def train(
     if algorithm(cfg).build is None:  # a plug-in: its days are recorded by the env
         env = recorder = RecordingVecEnv(env, base, episodes, on_episode)
         model = recorder.model = make_model(cfg, env, seed=seed, horizon=horizon)
+        if tensorboard is not None:
+            plugin_tensorboard(model, tensorboard)
         model.learn(total_timesteps=episodes * horizon)
         recorder.check_budget(cfg)
         env = recorder.venv

@@ -47,7 +47,8 @@ def _shown(path: Path | str) -> str:
 
 
 def load_grid_configs(grid: Grid) -> tuple[list[_Config], list[_Config]]:
-    """Load every regime and agent config of the grid (ConfigError on a bad file)."""
+    """Load every regime and agent config of the grid (ConfigError on a bad file, or on a
+    plug-in whose entry point does not import)."""
     from nutribench.agents.config import (
         agent_config_content,
         agent_config_sha256,
@@ -60,9 +61,13 @@ def load_grid_configs(grid: Grid) -> tuple[list[_Config], list[_Config]]:
     for name in grid.regimes:
         env = load_env_config(name)
         regimes.append(_Config(env.name, env.version, env.sha256, env.content(), _shown(env.path or name), env))
+    from nutribench.agents.registry import import_entry_point
+
     agents = []
     for name in grid.algos:
         cfg = load_agent_config(name)
+        if getattr(cfg, "entry_point", None):
+            import_entry_point(cfg.entry_point)  # a plug-in that cannot import is refused before any job runs
         source = _shown(resolve_agent_path(name))
         agents.append(
             _Config(cfg.name, cfg.version, agent_config_sha256(cfg), agent_config_content(cfg), source, cfg, cfg.algo)

@@ -1,0 +1,103 @@
+"""What a newcomer hit bringing an agent of their own beside the paper's (issue 40): plug-in
+params that SB3 mutates, a plug-in that cannot import, TensorBoard for plug-ins, the
+recorder's checks on entry, budgets in the tables and ``compare``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from nutribench.cli import app
+from tests.conftest import one_error_line
+
+REPO = Path(__file__).resolve().parents[1]
+
+QRDQN_PLUGIN = '''
+"""sb3-contrib's QRDQN as a plug-in agent."""
+from sb3_contrib import QRDQN
+
+
+def make_agent(params, env, seed):
+    return QRDQN("MlpPolicy", env, seed=seed, device="cpu", **params)
+
+
+def load(path):
+    return QRDQN.load(path, device="cpu")
+'''
+
+QRDQN_TOML = """
+algo = "external"
+name = "qrdqn_mine"
+version = 1
+description = "sb3-contrib QRDQN, plugged in"
+entry_point = "{module}:make_agent"
+
+[params]
+learning_starts = 10
+buffer_size = 1000
+batch_size = 8
+
+[params.policy_kwargs]
+net_arch = [16]
+n_quantiles = 5
+"""
+
+
+@pytest.fixture
+def qrdqn_folder(tmp_path: Path, monkeypatch) -> Path:
+    """A user's folder: the QRDQN plug-in (a module of its own name) and its agent file."""
+    pytest.importorskip("sb3_contrib")
+    module = f"qrdqn_plugin_{tmp_path.name.replace('-', '_')}"
+    (tmp_path / f"{module}.py").write_text(QRDQN_PLUGIN)
+    agents = tmp_path / "agents"
+    agents.mkdir()
+    (agents / "qrdqn_mine.toml").write_text(QRDQN_TOML.format(module=module))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    return tmp_path
+
+
+def test_plugin_params_are_deep_copied_so_a_mutating_sb3_class_leaves_the_config_whole(qrdqn_folder: Path):
+    """QRDQN writes th.optim.Adam into the policy_kwargs it is given: the config the job stores
+    must not see it (it failed to serialise, after training, in every job)."""
+    from nutribench.agents.api import make_train_env
+    from nutribench.agents.config import agent_config_content, load_agent_config
+    from nutribench.agents.registry import make_model
+    from nutribench.config import load_env_config
+
+    cfg = load_agent_config(qrdqn_folder / "agents" / "qrdqn_mine.toml")
+    before = json.dumps(agent_config_content(cfg), sort_keys=True)
+    _, env = make_train_env(load_env_config("run0"), cfg)
+    model = make_model(cfg, env, seed=0, horizon=50)
+    assert "optimizer_class" in model.policy_kwargs  # the class did write into its kwargs...
+    assert "optimizer_class" not in cfg.params["policy_kwargs"]  # ...a copy of them
+    assert json.dumps(agent_config_content(cfg), sort_keys=True) == before
+    cfg.model_dump_json()  # what the job stores still serialises
+
+
+def test_plugin_trains_and_writes_tensorboard_events(qrdqn_folder: Path, tmp_path: Path):
+    pytest.importorskip("tensorboard")
+    from nutribench.agents.api import train
+    from nutribench.agents.config import load_agent_config
+
+    cfg = load_agent_config(qrdqn_folder / "agents" / "qrdqn_mine.toml")
+    agent = train("run0", cfg, seed=0, episodes=2, tensorboard=tmp_path / "tb")
+    assert len(agent.train_episodes) == 2
+    assert list((tmp_path / "tb").rglob("events.out.tfevents.*")), sorted((tmp_path / "tb").rglob("*"))
+
+
+def test_plugin_that_cannot_import_is_refused_before_the_run(qrdqn_folder: Path, monkeypatch):
+    toml = qrdqn_folder / "agents" / "qrdqn_mine.toml"
+    toml.write_text(toml.read_text().replace("qrdqn_plugin_", "no_such_module_"))
+    monkeypatch.chdir(qrdqn_folder)
+    db = qrdqn_folder / "lab.db"
+    res = CliRunner().invoke(
+        app,
+        ["run", "--regimes", "run0", "--algos", "qrdqn_mine", "--seeds", "0", "--episodes", "1", "--db", str(db)],
+        env={"NUTRIBENCH_AGENTS": str(qrdqn_folder / "agents"), "NUTRIBENCH_JOB": ""},
+    )
+    line = one_error_line(res)
+    assert "cannot import no_such_module_" in line
+    assert not db.exists()  # refused before the database was made, no job failed
