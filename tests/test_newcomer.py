@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+import nutribench
 from nutribench.cli import app
 from tests.conftest import one_error_line
 
@@ -101,3 +102,31 @@ def test_plugin_that_cannot_import_is_refused_before_the_run(qrdqn_folder: Path,
     line = one_error_line(res)
     assert "cannot import no_such_module_" in line
     assert not db.exists()  # refused before the database was made, no job failed
+
+
+# ------------------------------------------------------------------ the recorder, on entry
+def test_recorder_refuses_a_conflict_or_a_duplicate_on_entry_before_the_loop(tmp_path: Path):
+    db = tmp_path / "lab.db"
+    with nutribench.Recorder(db=db, name="loop", regime="run3", seed=0, params={"lr": 0.1}, eval_episodes=1) as rec:
+        rec.evaluate(lambda obs: 0)
+    ran = []
+    cases = [
+        ({"params": {"lr": 0.2}, "seed": 0}, "bump the version"),  # other params, same version
+        ({"params": {"lr": 0.2}, "seed": 5}, "bump the version"),  # whatever the seed
+        ({"params": {"lr": 0.1}, "seed": 0}, "already recorded"),  # the same job again
+    ]
+    for kwargs, expected in cases:
+        with pytest.raises(nutribench.errors.UserError, match=expected) as err:
+            with nutribench.Recorder(db=db, name="loop", regime="run3", eval_episodes=1, **kwargs) as rec:
+                ran.append(kwargs)  # the training loop: never reached
+        message = str(err.value)
+        assert "\n" not in message and "loop v1" in message and "run3" in message
+        assert f"seed {kwargs['seed']}" in message
+    assert ran == []
+    # another seed of the same agent, or a bumped version, is recorded
+    for kwargs in ({"seed": 1, "params": {"lr": 0.1}}, {"seed": 0, "params": {"lr": 0.2}, "version": 2}):
+        with nutribench.Recorder(db=db, name="loop", regime="run3", eval_episodes=1, **kwargs) as rec:
+            rec.evaluate(lambda obs: 0)
+    from nutribench.store import read_jobs
+
+    assert len(read_jobs(db)) == 3

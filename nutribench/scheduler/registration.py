@@ -213,3 +213,47 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
                 insert(EvalStep), [{"job_id": row.id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in job.eval_steps]
             )
         return row.id
+
+
+def check_external_entry(store: Store, regime_config: Any, agent_config: Any, seed: int, eval_episodes: int) -> None:
+    """What :class:`nutribench.Recorder` checks as its ``with`` block opens, before any training:
+    the regime and the agent recorded with other content under the same version, or a job of
+    this agent version on this regime and seed already there (whatever its training days):
+    :class:`RunError` in one line naming agent, regime and seed."""
+    from nutribench.agents.config import agent_config_sha256
+    from nutribench.store.engine import display_url
+
+    env, cfg = regime_config, agent_config
+    what = f"Recorder {cfg.name} v{cfg.version} on {env.name} seed {seed}"
+    where = display_url(store.url)
+    with session_scope(store.engine) as s:
+        agent_row = s.execute(
+            select(AgentConfig).where(AgentConfig.name == cfg.name, AgentConfig.version == cfg.version)
+        ).scalar_one_or_none()
+        if agent_row is not None and agent_row.sha256 != agent_config_sha256(cfg):
+            raise RunError(
+                f"{what}: {where} holds {cfg.name} v{cfg.version} with other params or description: "
+                "bump the version (Recorder(version=...)) or give the stored ones"
+            )
+        regime_row = s.execute(
+            select(RegimeConfig).where(RegimeConfig.name == env.name, RegimeConfig.version == env.version)
+        ).scalar_one_or_none()
+        if regime_row is not None and regime_row.sha256 != env.sha256:
+            raise RunError(
+                f"{what}: {where} holds regime {env.name} v{env.version} with other content: bump the regime file's version"
+            )
+        if agent_row is None or regime_row is None:
+            return
+        old = s.execute(
+            select(Job.id, Job.episodes).where(
+                Job.regime_id == regime_row.id,
+                Job.agent_config_id == agent_row.id,
+                Job.seed == seed,
+                Job.eval_episodes == eval_episodes,
+            )
+        ).first()
+        if old is not None:
+            raise RunError(
+                f"{what}: already recorded in {where} (job {old.id}, {old.episodes} training days): "
+                "record another seed, or bump the agent's version"
+            )
