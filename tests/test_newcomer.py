@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -130,3 +131,57 @@ def test_recorder_refuses_a_conflict_or_a_duplicate_on_entry_before_the_loop(tmp
     from nutribench.store import read_jobs
 
     assert len(read_jobs(db)) == 3
+
+
+# ------------------------------------------------------------------ budgets in the tables
+def _mixed_budgets():
+    """PPO trained 5000 days, a user's agent 50: the newcomer's database."""
+    from tests.test_report_builders import synthetic
+
+    df = synthetic(regimes=("run0", "run3"), algos=("ppo", "mine"), seeds=(0, 21, 9), train_eps=4)
+    df["budget"] = np.where(df["algo"] == "ppo", 5000, 50)
+    df["job_id"] = df.groupby(["regime", "algo", "seed"]).ngroup()
+    return df
+
+
+def test_results_and_aggregate_tables_state_each_budget_and_warn_when_they_differ():
+    from nutribench.report.aggregate import aggregate_from_eval
+    from nutribench.report.aggregate_view import aggregate_table
+    from nutribench.report.tables import table_results
+    from tests.test_report_builders import _day_refs
+
+    df = _mixed_budgets()
+    ev = df[df.phase == "eval"]
+    res = table_results(df, seeds_bootstrap=200, references=_day_refs(df))
+    budgets = dict(zip(res.formatted["algorithm"], res.formatted["budget (days)"]))
+    assert budgets == {"PPO": "5000", "mine": "50"}
+    assert "budgets differ" in res.title and "5000 days" in res.title and "50 days" in res.title
+    agg = aggregate_table(aggregate_from_eval(ev, _day_refs(df), reps=200), ev)
+    assert dict(zip(agg.formatted["algorithm"], agg.formatted["budget (days)"])) == budgets
+    assert "budgets differ" in agg.title and "budget (days)" in agg.to_markdown()
+    same = df[df.algo == "ppo"]
+    assert "budgets differ" not in table_results(same, seeds_bootstrap=200).title
+
+
+def test_compare_warns_when_the_two_budgets_differ():
+    from nutribench.report.compare import compare_agents
+
+    df = _mixed_budgets()
+    res = compare_agents(df[df.phase == "eval"], "ppo", "mine", reps=200)
+    assert res.notes[0].startswith("warning: budgets differ") and "5000" in res.notes[0] and "50 days" in res.notes[0]
+    assert "warning: budgets differ" in res.to_text()
+    even = df.assign(budget=5000)
+    assert not any(
+        "budgets differ" in n for n in compare_agents(even[even.phase == "eval"], "ppo", "mine", reps=200).notes
+    )
+
+
+def test_index_page_names_the_database_file_not_its_folder_and_states_budgets(tmp_path: Path):
+    from nutribench.report.build import _page_subtitle
+    from nutribench.report.data import ReportData
+
+    data = ReportData(_mixed_budgets())
+    text = _page_subtitle(str(tmp_path / "tmpabc" / "paper.db"), data)
+    assert text.startswith("from paper.db;") and str(tmp_path) not in text
+    assert "budgets differ" in text and "5000 days" in text
+    assert _page_subtitle("postgresql://u:secret@host/lab", None) == "from lab"

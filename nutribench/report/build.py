@@ -182,7 +182,7 @@ def _metrics_table(key: str, data: ReportData | None) -> TableResult:
     if key == "aggregate":
         from nutribench.report.aggregate_view import aggregate_table
 
-        return _with_notes(aggregate_table(_aggregate(data, "aggregate table")), data)
+        return _with_notes(aggregate_table(_aggregate(data, "aggregate table"), data.eval), data)
     if key == "results":
         ev = data.eval
         if ev.empty:
@@ -215,6 +215,21 @@ def build_table(
     numbers = config_table_numbers(stored or ())
     number = int(resolve_table(key, numbers)[0])
     return config_table(number, numbers[number], db, stored)
+
+
+def _page_subtitle(db: Db, data: ReportData | None) -> str:
+    """index.html's line under the title: the database's name (never the folder it lay in,
+    which may be a temporary one) and the budgets and seeds of what the page draws."""
+    from sqlalchemy.engine import make_url
+
+    from nutribench.report.figure_parts import budget_caption
+
+    text = str(db)
+    name = Path(text).name if "://" not in text else Path(make_url(text).database or "").name
+    parts = [f"from {name}"] if name else []
+    if data is not None and not data.eval.empty:
+        parts.append(budget_caption(data.eval))
+    return "; ".join(parts)
 
 
 def _check_pair(pair: Sequence[str] | None) -> tuple[str, str]:
@@ -302,11 +317,7 @@ def build_report(
             paths += written
             page.append(page_table(stem, res_t, written))
     if all:
-        paths.append(
-            write_index(
-                page, out, title="nutribench report", subtitle=f"from {db}" if isinstance(db, (str, Path)) else ""
-            )
-        )
+        paths.append(write_index(page, out, title="nutribench report", subtitle=_page_subtitle(db, data)))
     return paths
 
 
