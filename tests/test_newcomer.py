@@ -185,3 +185,50 @@ def test_index_page_names_the_database_file_not_its_folder_and_states_budgets(tm
     assert text.startswith("from paper.db;") and str(tmp_path) not in text
     assert "budgets differ" in text and "5000 days" in text
     assert _page_subtitle("postgresql://u:secret@host/lab", None) == "from lab"
+
+
+# ------------------------------------------------------------------ colours of users' agents
+#: Machado et al. (2009) colour-vision-deficiency matrices (severity 1), on linear RGB.
+CVD = {
+    "protan": [[0.152286, 1.052583, -0.204868], [0.114503, 0.786281, 0.099216], [-0.003882, -0.048116, 1.051998]],
+    "deutan": [[0.367322, 0.860646, -0.227968], [0.280085, 0.672501, 0.047413], [-0.011820, 0.042940, 0.968881]],
+    "tritan": [[1.255528, -0.076749, -0.178779], [-0.078411, 0.930809, 0.147602], [0.004733, 0.691367, 0.303900]],
+}
+
+
+def _as_seen(color: str, kind: str) -> str:
+    from matplotlib.colors import to_hex, to_rgb
+
+    rgb = np.asarray(to_rgb(color))
+    lin = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+    out = np.clip(np.array(CVD[kind]) @ lin, 0, 1)
+    return to_hex(np.clip(np.where(out <= 0.0031308, 12.92 * out, 1.055 * out ** (1 / 2.4) - 0.055), 0, 1))
+
+
+def test_users_agents_get_colour_blind_safe_colours_apart_from_the_five_and_readable_on_white():
+    from nutribench.report.palette import (
+        BUILTIN_COLORS,
+        BUILTIN_ORDER,
+        MAX_LIGHTNESS,
+        MIN_DISTANCE,
+        USER_COLORS,
+        _lab,
+        colors,
+        distance,
+    )
+
+    for i, a in enumerate(USER_COLORS):
+        assert _lab(a)[0] <= MAX_LIGHTNESS, a  # no pale yellow
+        assert min(distance(a, b) for b in BUILTIN_COLORS.values()) >= MIN_DISTANCE, a
+        for b in USER_COLORS[i + 1 :]:
+            assert distance(a, b) >= MIN_DISTANCE, (a, b)
+            assert all(distance(_as_seen(a, k), _as_seen(b, k)) >= 15 for k in CVD), (a, b)
+    # the newcomer's three agents beside the five: the palette's colours, every pair apart
+    c = colors([*BUILTIN_ORDER, "qrdqn_mine", "reinforce_loop", "mine"])
+    users = [c[n] for n in ("qrdqn_mine", "reinforce_loop", "mine")]
+    assert set(users) <= set(USER_COLORS) and len(set(users)) == 3
+    values = list(c.values())
+    assert min(distance(a, b) for i, a in enumerate(values) for b in values[i + 1 :]) >= MIN_DISTANCE
+    # past the palette: derived colours, never pale either
+    many = colors(f"agent{k}" for k in range(30))
+    assert all(_lab(v)[0] <= MAX_LIGHTNESS for v in many.values())
