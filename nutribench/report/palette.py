@@ -37,9 +37,11 @@ BUILTIN_COLORS: dict[str, str] = {
 #: Smallest CIELAB (CIE76) distance between a derived colour and any colour placed before it.
 MIN_DISTANCE = 32.0
 #: The colours configs other than the five take first: Okabe & Ito's orange, Paul Tol's teal,
-#: indigo, wine and olive (colour-blind-safe palettes), each at least :data:`MIN_DISTANCE` from
-#: the five built-in colours and from each other (tests/test_newcomer.py checks).
-USER_COLORS: tuple[str, ...] = ("#e69f00", "#44aa99", "#332288", "#882255", "#999933")
+#: indigo and wine (colour-blind-safe palettes), each at least :data:`MIN_DISTANCE` from the five
+#: built-in colours and from each other, and apart under simulated colour-vision deficiencies
+#: (tests/test_newcomer.py checks). Their other colours are too near one of the five, too pale,
+#: or black (the planner's reference line).
+USER_COLORS: tuple[str, ...] = ("#e69f00", "#44aa99", "#332288", "#882255")
 #: Lightest a derived colour may be (CIELAB L*): a paler line is hard to read on white.
 MAX_LIGHTNESS = 75.0
 #: Candidate colours tried per name before the most distant one is taken.
