@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -232,3 +233,65 @@ def test_users_agents_get_colour_blind_safe_colours_apart_from_the_five_and_read
     # past the palette: derived colours, never pale either
     many = colors(f"agent{k}" for k in range(30))
     assert all(_lab(v)[0] <= MAX_LIGHTNESS for v in many.values())
+
+
+# ------------------------------------------------------------------ figures
+def test_figure_3_draws_no_line_across_a_regime_without_data():
+    from nutribench.report.figures import eval_across_regimes
+    from tests.test_report_builders import synthetic
+
+    df = synthetic(regimes=("run0", "run3", "run6"), algos=("ppo",), seeds=(0, 21), train_eps=1)
+    mine = synthetic(regimes=("run0", "run6"), algos=("mine",), seeds=(0, 21), train_eps=1, seed=1)
+    lone = synthetic(regimes=("run3",), algos=("lone",), seeds=(0, 21), train_eps=1, seed=2)
+    res = eval_across_regimes(pd.concat([df, mine, lone]), bootstrap=200)
+    ax = res.figure.axes[0]
+    line = {ln.get_label(): ln for ln in ax.get_lines()}
+    y = np.asarray(line["mine"].get_ydata(), dtype=float)
+    assert np.isfinite(y[[0, 2]]).all() and np.isnan(y[1])  # broken at run3: no line from run0 to run6
+    assert np.isfinite(np.asarray(line["PPO"].get_ydata(), dtype=float)).all()
+    # the drawn numbers keep only what was evaluated
+    assert sorted(res.data.loc[(res.data.panel == "return") & (res.data.algo == "mine"), "regime"]) == ["run0", "run6"]
+    # a point with no neighbour carries its interval as an error bar
+    from matplotlib.collections import LineCollection
+
+    bars = [c for c in ax.collections if isinstance(c, LineCollection)]
+    assert bars, "the lone agent's interval is drawn"
+
+
+def test_figure_1_gives_each_budget_axes_of_its_own():
+    from nutribench.report.figures import training_curves
+    from tests.test_report_builders import synthetic
+
+    long = synthetic(regimes=("run0", "run3"), algos=("ppo",), seeds=(0, 21), train_eps=400, eval_eps=1).assign(
+        budget=400
+    )
+    short = synthetic(regimes=("run3",), algos=("mine",), seeds=(0,), train_eps=8, eval_eps=1, seed=1).assign(budget=8)
+    res = training_curves(pd.concat([long, short]))
+    titles = [ax.get_title() for ax in res.figure.axes if ax.get_visible()]
+    assert titles == ["run3, budget 8 days", "run0, budget 400 days", "run3, budget 400 days"]
+    short_ax = next(ax for ax in res.figure.axes if ax.get_title() == "run3, budget 8 days")
+    assert short_ax.get_xlim()[1] < 20  # the 8-day run fills its own axis
+    assert {ln.get_label() for ln in short_ax.get_lines()} >= {"mine"} and "PPO" not in {
+        ln.get_label() for ln in short_ax.get_lines()
+    }
+    # one budget: one panel per regime, as before
+    one = training_curves(long)
+    assert [ax.get_title() for ax in one.figure.axes if ax.get_visible()] == ["run0", "run3"]
+
+
+def test_figure_5_with_one_seed_says_why_it_has_no_bars():
+    from nutribench.report.aggregate import aggregate_from_eval
+    from nutribench.report.aggregate_view import aggregate_figure
+    from tests.test_report_builders import _day_refs, synthetic
+
+    df = pd.concat(
+        [
+            synthetic(regimes=("run0", "run3"), algos=("ppo",), seeds=(0, 21, 9), train_eps=1),
+            synthetic(regimes=("run0", "run3"), algos=("mine",), seeds=(0,), train_eps=1, seed=3),
+        ]
+    )
+    ev = df[df.phase == "eval"]
+    res = aggregate_figure(aggregate_from_eval(ev, _day_refs(df), reps=200), ev=ev)
+    why = [n for n in res.notes if "one seed per regime" in n]
+    assert len(why) == 1 and why[0].startswith("mine:") and "PPO" not in why[0]
+    assert "one seed per regime" in res.figure.get_suptitle()

@@ -153,10 +153,36 @@ def aggregate_figure(
     if ev is not None and not ev.empty:
         caption += f"\n{budget_seeds_text(ev)}"
     set_title(fig, f"{title}\n{caption}")
-    draw_notes(fig, res.notes)
-    return FigureResult(
-        fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "point", "lo", "hi"]), list(res.notes)
-    )
+    notes = [*res.notes, *_width_notes(res)]
+    draw_notes(fig, notes)
+    return FigureResult(fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "point", "lo", "hi"]), notes)
+
+
+def _width_notes(res: AggregateResult) -> list[str]:
+    """Why some agents have no bar or a bar of no width: one seed per regime leaves nothing to
+    resample (no interval, the tick alone); seeds that all score alike give every resample the
+    same value (an interval of zero width)."""
+    iv = res.intervals[res.intervals["aggregate"] == "iqm"]
+    single = [a for a in res.algos if (iv["algo"] == a).any() and iv.loc[iv["algo"] == a, "lo"].isna().all()]
+    flat = [
+        a
+        for a in res.algos
+        if a not in single
+        and (iv["algo"] == a).any()
+        and np.allclose(iv.loc[iv["algo"] == a, "hi"], iv.loc[iv["algo"] == a, "lo"], equal_nan=True)
+    ]
+    notes = []
+    if single:
+        notes.append(
+            f"{', '.join(algo_label(a) for a in single)}: one seed per regime, so no interval (nothing to resample): "
+            "the black tick alone is drawn; run more seeds (e.g. --seeds paper) for a bar"
+        )
+    if flat:
+        notes.append(
+            f"{', '.join(algo_label(a) for a in flat)}: every resample of the seeds gives the same IQM, so the "
+            "interval has zero width (the seeds scored alike)"
+        )
+    return notes
 
 
 # --------------------------------------------------------------------------- table
