@@ -1,7 +1,5 @@
 """Results from anywhere (bsuite's idea): an agent trained by any loop, in any framework,
-becomes a job of the results database, beside the built-in agents.
-
-::
+becomes a job of the results database, beside the built-in agents. In short:
 
     import nutribench
 

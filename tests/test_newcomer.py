@@ -295,3 +295,47 @@ def test_figure_5_with_one_seed_says_why_it_has_no_bars():
     why = [n for n in res.notes if "one seed per regime" in n]
     assert len(why) == 1 and why[0].startswith("mine:") and "PPO" not in why[0]
     assert "one seed per regime" in res.figure.get_suptitle()
+
+
+# ------------------------------------------------------------------ smaller items
+def test_progress_lines_stay_whole_without_a_terminal():
+    import io
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from nutribench.scheduler.progress import LiveView
+
+    out = io.StringIO()
+    view = LiveView(35, "2 workers", None, console=Console(file=out, width=60))
+    run = SimpleNamespace(
+        summary=SimpleNamespace(done=1, failed=0, total=35),
+        live={},
+        planned=35,
+        attempted=[],
+        grid=SimpleNamespace(episodes=20),
+    )
+    view.start(run)
+    view.stop(run)
+    head = [ln for ln in out.getvalue().splitlines() if ln.startswith("jobs:")]
+    assert (
+        head
+        and "ETA" in head[-1]
+        and not any(ln.strip().startswith(("ETA", "0s", "s")) for ln in out.getvalue().splitlines())
+    )
+
+
+@pytest.mark.slow  # a real DDQN job through the process pool: about 17 s
+def test_diagnostics_of_a_ddqn_too_short_to_learn_say_why(tmp_path: Path):
+    from nutribench.report.build import ReportError
+    from nutribench.report.diagnostics import build_diagnostics
+
+    db = tmp_path / "lab.db"
+    grid = ["run", "--regimes", "run0", "--algos", "ddqn", "--seeds", "0", "--episodes", "2", "--eval-episodes", "1"]
+    res = CliRunner().invoke(app, [*grid, "--db", str(db), "--workers", "1"], env={"NUTRIBENCH_JOB": ""})
+    assert res.exit_code == 0, res.output
+    with pytest.raises(
+        ReportError,
+        match=r"trained 2 days, and ddqn makes its first update only after learning_starts = 10000 steps \(day 200\)",
+    ):
+        build_diagnostics(db, "ddqn", "run0", out=tmp_path / "out")

@@ -240,3 +240,8 @@ def render_status(report) -> None:
                 e["error"],
             )
         console.print(errs)
+        console.print(
+            "the last line of each error is shown; the whole text (its traceback) is in the jobs table's "
+            "error column (docs/failures.md says how to read it)",
+            highlight=False,
+        )
