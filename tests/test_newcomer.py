@@ -339,3 +339,18 @@ def test_diagnostics_of_a_ddqn_too_short_to_learn_say_why(tmp_path: Path):
         match=r"trained 2 days, and ddqn makes its first update only after learning_starts = 10000 steps \(day 200\)",
     ):
         build_diagnostics(db, "ddqn", "run0", out=tmp_path / "out")
+
+
+def test_report_says_where_it_is_as_each_item_starts(tmp_path: Path):
+    from nutribench.report.build import build_report
+
+    db = tmp_path / "lab.db"
+    for name in ("never_eat", "eat_some"):
+        with nutribench.Recorder(db=db, name=name, regime="run0", seed=0, eval_episodes=1) as rec:
+            rec.env.reset()
+            for t in range(50):
+                rec.env.step(int(name == "eat_some" and t < 3))
+            rec.evaluate(lambda obs: 0)
+    said: list[str] = []
+    paths = build_report(db, tmp_path / "out", figs=[1], tables=["1", "training"], progress=said.append)
+    assert said == ["[1/3] figure 1", "[2/3] table 1", "[3/3] table training"] and paths

@@ -251,6 +251,7 @@ def build_report(
     log: Log | None = None,
     algos: Sequence[str] | None = None,
     pair: Sequence[str] | None = None,
+    progress: Log | None = None,
 ) -> list[Path]:
     """Write the requested figures and tables under ``out`` and return the paths written.
 
@@ -262,7 +263,8 @@ def build_report(
     the database); ``pair``: Figure 4's two configs (default PPO and GRU-PPO; not limited by
     ``algos``); a name the database does not hold raises :class:`ReportError`.
     ``reference_episodes``: episodes per simple policy and regime for the reference lines of
-    Figures 3/4.
+    Figures 3/4. ``progress``: called with ``[k/n] figure 3`` (or ``table results``) as each
+    item starts, so a long ``--all`` shows where it is.
     """
     figs = list(FIGURES) if all else [int(f) for f in figs]
     tables = [str(t) for t in tables]
@@ -300,7 +302,15 @@ def build_report(
 
     paths: list[Path] = []
     page: list[Any] = []  # what index.html shows (with ``all``)
+    steps = len(figs) + len(plan)
+    done = iter(range(1, steps + 1))
+
+    def step(what: str) -> None:
+        if progress:
+            progress(f"[{next(done)}/{steps}] {what}")
+
     for f in figs:
+        step(f"figure {f}")
         res = built(
             lambda f=f: build_figure(
                 f, pair_data if f == 4 else data, reference_episodes=reference_episodes, log=log, pair=pair
@@ -311,6 +321,7 @@ def build_report(
             paths += written
             page.append(page_figure(f, res, written))
     for key, stem in plan.items():
+        step(f"table {key}")
         res_t = built(lambda key=key: build_table(key, data, db, stored))
         if res_t is not None:
             written = write_table(res_t, out, stem)
