@@ -354,3 +354,13 @@ def test_report_says_where_it_is_as_each_item_starts(tmp_path: Path):
     said: list[str] = []
     paths = build_report(db, tmp_path / "out", figs=[1], tables=["1", "training"], progress=said.append)
     assert said == ["[1/3] figure 1", "[2/3] table 1", "[3/3] table training"] and paths
+
+
+def test_seeds_paper_names_the_papers_seeds():
+    from nutribench.scheduler.grid import GridError, parse_seeds, resolve_grid
+
+    assert parse_seeds("paper") == (0, 21, 9, 2003, 1997)
+    grid = resolve_grid(preset="smoke", regimes=["run0"], algos=["ppo"], seeds="paper", episodes=3)
+    assert grid.seeds == (0, 21, 9, 2003, 1997) and grid.episodes == 3
+    with pytest.raises(GridError, match="named set"):
+        parse_seeds("papers")
