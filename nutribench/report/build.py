@@ -21,7 +21,8 @@ Figure / table out). This module adds what those pure builders do not know about
   which tables a call builds and what a table key names: :mod:`nutribench.report.table_plan`;
 * writing (:mod:`nutribench.report.output`): figures as PNG (150 dpi) and PDF, tables as
   Markdown, LaTeX and CSV, and the trajectory view of one evaluation episode; with ``all``,
-  ``index.html``, the report on one static page (:mod:`nutribench.report.html`).
+  ``index.html``, the report on one static page (:mod:`nutribench.report.html`), with the
+  leaderboard (:mod:`nutribench.report.leaderboard`) as its last section.
 
 The names of :mod:`nutribench.report.data` and :mod:`nutribench.report.output` are importable
 from here too. Problems a user can fix raise :class:`ReportError` (one line); a database that
@@ -217,6 +218,13 @@ def build_table(
     return config_table(number, numbers[number], db, stored)
 
 
+def _leaderboard(data: ReportData, db: Db, log: Log | None) -> TableResult:
+    """The leaderboard section of index.html (:mod:`nutribench.report.leaderboard`)."""
+    from nutribench.report.leaderboard import leaderboard_of
+
+    return leaderboard_of(data.eval, _day_references(data, log), db, data.notes)
+
+
 def _page_subtitle(db: Db, data: ReportData | None) -> str:
     """index.html's line under the title: the database's name (never the folder it lay in,
     which may be a temporary one) and the budgets and seeds of what the page draws."""
@@ -302,7 +310,7 @@ def build_report(
 
     paths: list[Path] = []
     page: list[Any] = []  # what index.html shows (with ``all``)
-    steps = len(figs) + len(plan)
+    steps = len(figs) + len(plan) + int(all)
     done = iter(range(1, steps + 1))
 
     def step(what: str) -> None:
@@ -327,6 +335,13 @@ def build_report(
             written = write_table(res_t, out, stem)
             paths += written
             page.append(page_table(stem, res_t, written))
+    if all and data is not None and not data.eval.empty:
+        step("leaderboard")
+        board = built(lambda: _leaderboard(data, db, log))
+        if board is not None:
+            written = write_table(board, out, "leaderboard")
+            paths += written
+            page.append(page_table("leaderboard", board, written))
     if all:
         paths.append(write_index(page, out, title="nutribench report", subtitle=_page_subtitle(db, data)))
     return paths
