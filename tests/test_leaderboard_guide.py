@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import io
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -54,9 +55,8 @@ def test_the_guide_ranks_a_plugin_and_a_recorded_loop_beside_the_imported_baseli
         if lang == "python":
             (cwd / "reinforce.py").write_text(code)  # the page says: save this as reinforce.py
             continue
-        script = code.replace("nutribench ", f"{sys.executable} -m nutribench.cli ").replace(
-            "python ", f"{sys.executable} "
-        )
+        script = re.sub(r"(?<![\w/.-])python ", f"{sys.executable} ", code)
+        script = re.sub(r"(?<![\w/.-])nutribench ", f"{sys.executable} -m nutribench.cli ", script)
         res = subprocess.run(
             ["bash", "-euo", "pipefail", "-c", script], cwd=cwd, env=env, capture_output=True, text=True, timeout=900
         )
