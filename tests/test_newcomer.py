@@ -364,3 +364,38 @@ def test_seeds_paper_names_the_papers_seeds():
     assert grid.seeds == (0, 21, 9, 2003, 1997) and grid.episodes == 3
     with pytest.raises(GridError, match="named set"):
         parse_seeds("papers")
+
+
+def test_status_points_to_a_failed_jobs_whole_error_and_the_docs_snippet_reads_it(tmp_path: Path, monkeypatch):
+    import re
+    import sqlite3
+
+    db = tmp_path / "nutribench.db"
+    with nutribench.Recorder(db=db, name="loop", regime="run0", seed=0, eval_episodes=1) as rec:
+        rec.evaluate(lambda obs: 0)
+    error = "Traceback (most recent call last):\n  File 'x.py', line 1\nValueError: boom"
+    with sqlite3.connect(db) as con:
+        con.execute("UPDATE jobs SET status = 'failed', failures = 1, error = ?", (error,))
+    res = CliRunner().invoke(app, ["status", "--db", str(db)])
+    assert "ValueError: boom" in res.output and "jobs table's error column" in res.output
+    # docs/failures.md shows how to read the whole text: its snippet prints the traceback
+    doc = (REPO / "docs" / "failures.md").read_text()
+    (snippet,) = [b for b in re.findall(r"```python\n(.*?)```", doc, re.S) if "read_jobs" in b]
+    monkeypatch.chdir(tmp_path)
+    import contextlib
+    import io
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        exec(snippet, {})
+    assert "Traceback (most recent call last):" in out.getvalue() and "ValueError: boom" in out.getvalue()
+
+
+def test_the_smaller_docs_items():
+    assert "/site/" in (REPO / ".gitignore").read_text().splitlines()  # mkdocs build's output stays untracked
+    recorder_doc = nutribench.recorder.__doc__
+    assert not any(line.strip() == "::" for line in recorder_doc.splitlines())  # rendered as a stray '::'
+    for page in (REPO / "README.md", REPO / "docs" / "getting-started.md"):
+        text = page.read_text()
+        assert "so that pip takes the CPU build" not in text and "download.pytorch.org/whl/cpu" in text, page
+    assert "the whole suite, the learning tests included" not in (REPO / "docs" / "getting-started.md").read_text()
