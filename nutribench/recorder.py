@@ -1,7 +1,5 @@
 """Results from anywhere (bsuite's idea): an agent trained by any loop, in any framework,
-becomes a job of the results database, beside the built-in agents.
-
-::
+becomes a job of the results database, beside the built-in agents. In short:
 
     import nutribench
 
@@ -18,8 +16,9 @@ and its sha256, host, versions, git commit). An exception, or no ``evaluate``, w
 
 The agent is recorded as an agent config ``algo = "external"`` with no entry point (name,
 version, description, params), hashed like every config: the same name and version with
-other params is refused ("bump the version"), and a (regime, agent, seed, training days) that
-is already in the database is refused rather than overwritten.
+other params is refused ("bump the version"), and a (regime, agent version, seed) that is
+already in the database is refused rather than overwritten; both are checked as the ``with``
+block opens, before the training loop runs, in one line naming agent, regime and seed.
 """
 
 from __future__ import annotations
@@ -176,12 +175,15 @@ class Recorder:
 
     # ------------------------------------------------------------------ the database
     def _check_database(self) -> None:
+        from nutribench.scheduler.registration import check_external_entry
         from nutribench.store import open_store
         from nutribench.store.jobs import check_not_mixed
 
         store = open_store(self.db, writer=True)
         try:
             check_not_mixed(store, fake=False)
+            # a conflict or a duplicate found now, before the training loop, not after it
+            check_external_entry(store, self.regime_config, self.agent_config, self.seed, self.eval_episodes)
         finally:
             store.dispose()
 

@@ -251,7 +251,10 @@ def test_results_table_leads_with_the_seed_level_interval():
 
     df = synthetic()
     t = table_results(df, seeds_bootstrap=300, references=_day_refs(df))
-    assert list(t.formatted.columns[4:6]) == ["return [95% CI over seeds]", "gap closed [95% CI over seeds]"]
+    assert list(t.formatted.columns[5:7]) == [
+        "return [95% CI over seeds]",
+        "gap closed [95% CI over seeds]",
+    ]  # after regime, algorithm, budget, seeds, episodes
     ev = df[df.phase == "eval"]
     per_seed = ev[(ev.regime == "run0") & (ev.algo == "ppo")].groupby("seed")["return"].mean().to_numpy(dtype=float)
     row = t.raw.iloc[0]

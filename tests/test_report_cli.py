@@ -130,6 +130,7 @@ def test_report_all_writes_every_file(full_db: Path, tmp_path: Path):
     expected = {f"{stem}.{ext}" for stem in FIGURES.values() for ext in ("png", "pdf")}
     expected |= {f"{stem}.{ext}" for stem in TABLES.values() for ext in ("md", "tex", "csv")}
     expected |= {"index.html"}  # --all also writes the one page to look at
+    expected |= {f"leaderboard.{ext}" for ext in ("md", "tex", "csv")}  # and the leaderboard, a section of it
     assert {p.name for p in out.iterdir()} == expected
     printed = {Path(line.strip()).name for line in result.stdout.splitlines() if line.strip()}
     assert printed == expected

@@ -47,7 +47,7 @@ from nutribench.agents.model_files import (
     vec_normalize_stats,
 )
 from nutribench.agents.registry import ALGORITHMS, algorithm, loader_entry_point, make_model
-from nutribench.agents.training_log import TrainingDiagnostics
+from nutribench.agents.training_log import TrainingDiagnostics, plugin_tensorboard
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.env.metrics import EpisodeRecorder
 from nutribench.env.sb3 import NutriRLSB3VecEnv
@@ -299,7 +299,7 @@ def train(
     """Train ``agent_config`` (name, file or model) on ``regime`` for ``episodes`` days.
 
     :param on_episode: called with each finished training day's metrics dict.
-    :param tensorboard: a folder for this run's TensorBoard events (built-in algorithms).
+    :param tensorboard: a folder for this run's TensorBoard events (an SB3 plug-in's own logger's too).
     :param diagnostics: record the training diagnostics (False: no callback, logger or gradient
         probe: what ``nutribench bench train --diagnostics-cost`` compares against).
     :return: the trained agent; its ``train_episodes`` hold every day's metrics, its
@@ -316,6 +316,7 @@ def train(
     if algorithm(cfg).build is None:  # a plug-in: its days are recorded by the env
         env = recorder = RecordingVecEnv(env, base, episodes, on_episode)
         model = recorder.model = make_model(cfg, env, seed=seed, horizon=horizon)
+        plugin_tensorboard(model, tensorboard)
         model.learn(total_timesteps=episodes * horizon)
         recorder.check_budget(cfg)
         env = recorder.venv

@@ -20,6 +20,7 @@ current folder (as ``python -m`` does).
 
 from __future__ import annotations
 
+import copy
 import importlib
 import sys
 from dataclasses import dataclass
@@ -132,7 +133,9 @@ def make_model(cfg: Any, env: Any, seed: int, horizon: int) -> Any:
             f"agent config {cfg.name}: algo 'external' without entry_point can only hold recorded results; "
             'add entry_point = "package.module:make_agent" to train it'
         )
-    model = import_entry_point(cfg.entry_point)(dict(cfg.params), env, seed)
+    # a deep copy: SB3 classes write into nested params (QRDQN puts th.optim.Adam into
+    # policy_kwargs), which must never reach the config the job stores
+    model = import_entry_point(cfg.entry_point)(copy.deepcopy(dict(cfg.params)), env, seed)
     for method in ("learn", "predict", "save"):
         if not callable(getattr(model, method, None)):
             raise ConfigError(

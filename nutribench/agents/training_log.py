@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import KVWriter, Logger
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
@@ -148,6 +149,31 @@ def tensorboard_format(folder: str | Path) -> KVWriter:
 
     Path(folder).mkdir(parents=True, exist_ok=True)
     return TensorBoardOutputFormat(str(folder))
+
+
+def plugin_tensorboard(model: Any, folder: str | Path | None) -> None:
+    """Point a plug-in's own SB3 logger at ``folder`` (what ``--tensorboard`` asks for; None:
+    nothing to do): an SB3 algorithm writes its TensorBoard events where ``tensorboard_log``
+    says when ``learn`` starts. A plug-in that is not an SB3 algorithm has no such logger: a
+    warning says so."""
+    if folder is None:
+        return
+    if isinstance(model, BaseAlgorithm):
+        try:
+            import tensorboard  # noqa: F401
+        except ImportError:
+            raise RuntimeError(
+                "--tensorboard needs the tensorboard package: pip install 'nutribench[tensorboard]'"
+            ) from None
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        model.tensorboard_log = str(folder)
+    else:
+        import warnings
+
+        warnings.warn(
+            f"--tensorboard: a {type(model).__name__} is not an SB3 algorithm, so no TensorBoard events are written",
+            stacklevel=2,
+        )
 
 
 class TrainingDiagnostics(BaseCallback):

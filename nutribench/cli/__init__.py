@@ -2,7 +2,8 @@
 
 One module per command group: :mod:`~nutribench.cli.regimes` (``regimes list|check|generate``),
 :mod:`~nutribench.cli.agents` (``baselines``, ``train``), :mod:`~nutribench.cli.run`
-(``run``, ``status``), :mod:`~nutribench.cli.report` (``report``), :mod:`~nutribench.cli.evaluate` (``evaluate``), :mod:`~nutribench.cli.db` (``db copy``, ``db export``, ``db import``) and
+(``run``, ``status``), :mod:`~nutribench.cli.report` (``report``), :mod:`~nutribench.cli.evaluate` (``evaluate``), :mod:`~nutribench.cli.leaderboard`
+(``leaderboard``), :mod:`~nutribench.cli.db` (``db copy``, ``db export``, ``db import``) and
 :mod:`~nutribench.cli.bench` (``bench env|train|learn|status``); :mod:`~nutribench.cli.common`
 holds what they share. Commands import the library they call when they run, so
 ``nutribench --help`` starts fast. Nothing below this package imports from it.
@@ -21,6 +22,7 @@ from nutribench.cli.bench import bench_app
 from nutribench.cli.compare import compare_cmd
 from nutribench.cli.db import db_app
 from nutribench.cli.evaluate import evaluate_cmd
+from nutribench.cli.leaderboard import leaderboard_cmd
 from nutribench.cli.regimes import regimes_app
 from nutribench.cli.report import report_cmd
 from nutribench.cli.run import run_cmd, status_cmd
@@ -38,6 +40,7 @@ app.command("run")(run_cmd)
 app.command("status")(status_cmd)
 app.command("report")(report_cmd)
 app.command("compare")(compare_cmd)
+app.command("leaderboard")(leaderboard_cmd)
 app.command("evaluate")(evaluate_cmd)
 app.add_typer(db_app, name="db")
 app.add_typer(bench_app, name="bench")

@@ -148,6 +148,7 @@ def report_cmd(
             log=log,
             algos=selected,
             pair=pair_names,
+            progress=_progress(),
         )
     if trajectory:
         paths += build_trajectory(db, algo, regime, seed, episode=episode, out=out)
@@ -157,3 +158,13 @@ def report_cmd(
         paths += build_diagnostics(db, algo, regime, seeds=None if seed is None else [seed], out=out)
     for p in paths:
         console.print(str(p), highlight=False, soft_wrap=True)
+
+
+def _progress():
+    """``[3/14] figure 3 (12 s)`` on stderr as each item of the report starts (dim)."""
+    import time
+
+    t0 = time.monotonic()
+    return lambda msg: err_console.print(
+        f"{msg} ({time.monotonic() - t0:.0f} s)", style="dim", highlight=False, soft_wrap=True
+    )

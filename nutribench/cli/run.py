@@ -69,7 +69,13 @@ def run_cmd(
     algos: Annotated[
         str, typer.Option(help="'all' or comma-separated agent config names (mc, ddqn, ppo, sac, gru_ppo)")
     ] = "all",
-    seeds: Annotated[Optional[str], typer.Option(help="comma-separated non-negative integers, e.g. 0,21,9")] = None,
+    seeds: Annotated[
+        Optional[str],
+        typer.Option(
+            help="comma-separated non-negative integers, e.g. 0,21,9, or a named set: paper (0,21,9,2003,1997, "
+            "the published baselines' seeds), quick (0,21), smoke (0)"
+        ),
+    ] = None,
     episodes: Annotated[Optional[int], typer.Option(help="training episodes per job")] = None,
     eval_episodes: Annotated[Optional[int], typer.Option(help="evaluation episodes per job (default 5)")] = None,
     workers: Annotated[
@@ -240,3 +246,8 @@ def render_status(report) -> None:
                 e["error"],
             )
         console.print(errs)
+        console.print(
+            "the last line of each error is shown; the whole text (its traceback) is in the jobs table's "
+            "error column (docs/failures.md says how to read it)",
+            highlight=False,
+        )

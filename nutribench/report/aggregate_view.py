@@ -9,6 +9,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from nutribench.report.aggregate import AGGREGATE_LABELS, AGGREGATES, GAMMA, GROUPS, AggregateResult, group_title
+from nutribench.report.figure_parts import budget_caption, budget_cell
 from nutribench.report.figures import FigureResult, _legend_rows, budget_seeds_text, draw_notes, set_title
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
@@ -152,10 +153,36 @@ def aggregate_figure(
     if ev is not None and not ev.empty:
         caption += f"\n{budget_seeds_text(ev)}"
     set_title(fig, f"{title}\n{caption}")
-    draw_notes(fig, res.notes)
-    return FigureResult(
-        fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "point", "lo", "hi"]), list(res.notes)
-    )
+    notes = [*res.notes, *_width_notes(res)]
+    draw_notes(fig, notes)
+    return FigureResult(fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "point", "lo", "hi"]), notes)
+
+
+def _width_notes(res: AggregateResult) -> list[str]:
+    """Why some agents have no bar or a bar of no width: one seed per regime leaves nothing to
+    resample (no interval, the tick alone); seeds that all score alike give every resample the
+    same value (an interval of zero width)."""
+    iv = res.intervals[res.intervals["aggregate"] == "iqm"]
+    single = [a for a in res.algos if (iv["algo"] == a).any() and iv.loc[iv["algo"] == a, "lo"].isna().all()]
+    flat = [
+        a
+        for a in res.algos
+        if a not in single
+        and (iv["algo"] == a).any()
+        and np.allclose(iv.loc[iv["algo"] == a, "hi"], iv.loc[iv["algo"] == a, "lo"], equal_nan=True)
+    ]
+    notes = []
+    if single:
+        notes.append(
+            f"{', '.join(algo_label(a) for a in single)}: one seed per regime, so no interval (nothing to resample): "
+            "the black tick alone is drawn; run more seeds (e.g. --seeds paper) for a bar"
+        )
+    if flat:
+        notes.append(
+            f"{', '.join(algo_label(a) for a in flat)}: every resample of the seeds gives the same IQM, so the "
+            "interval has zero width (the seeds scored alike)"
+        )
+    return notes
 
 
 # --------------------------------------------------------------------------- table
@@ -166,10 +193,14 @@ def _cell(point: float, lo: float, hi: float, percent: bool) -> str:
     return f"{f(point)} [{f(lo)}, {f(hi)}]" if np.isfinite(lo) else f"{f(point)} [single seed]"
 
 
-def aggregate_table(res: AggregateResult) -> TableResult:
+def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> TableResult:
     """One row per group and agent: the four aggregates (in % of the gap) with their 95 %
     intervals and P(this agent > each other agent) with its interval. ``raw`` has the numbers
-    (columns ``<aggregate>``, ``<aggregate>_lo``, ``_hi``, ``p_gt_<algo>``, ...)."""
+    (columns ``<aggregate>``, ``<aggregate>_lo``, ``_hi``, ``p_gt_<algo>``, ...).
+
+    ``ev``: the evaluation episodes the scores came from: each row then states its agent's
+    training budget (days) and the caption the budgets and seeds (a warning when they differ)."""
+    budgets = {a: budget_cell(ev[ev["algo"] == a]) for a in res.algos} if ev is not None and not ev.empty else {}
     rows, fmt_rows = [], []
     for group in GROUPS:
         if not res.regimes.get(group):
@@ -186,7 +217,11 @@ def aggregate_table(res: AggregateResult) -> TableResult:
                 "algo": algo,
                 "runs": int(mine["runs"].iloc[0]),
             }
+            if budgets:
+                row["budget"] = budgets.get(algo, "?")
             f = {"regimes": group_title(res, group), "algorithm": algo_label(algo), "runs": row["runs"]}
+            if budgets:
+                f["budget (days)"] = budgets.get(algo, "?")
             for agg in AGGREGATES:
                 p, lo, hi = (float(mine.loc[agg, c]) for c in ("point", "lo", "hi"))
                 row[agg], row[f"{agg}_lo"], row[f"{agg}_hi"] = p, lo, hi
@@ -205,22 +240,26 @@ def aggregate_table(res: AggregateResult) -> TableResult:
         f"[95 % stratified-bootstrap interval over runs, {res.reps} resamples]; P(> Y): probability that a run of the row's "
         "agent scores above a run of Y on the same regime, averaged over regimes"
     )
+    if budgets:
+        title += f"; {budget_caption(ev)}"
     if res.notes:
         title += " (note: " + "; ".join(res.notes) + ")"
     cols = [
         "regimes",
         "algorithm",
+        *(["budget (days)"] if budgets else []),
         "runs",
         *(f"{AGGREGATE_LABELS[a]} (%)" for a in AGGREGATES),
         *(f"P(> {algo_label(a)})" for a in res.algos),
     ]
     fmt = pd.DataFrame(fmt_rows, columns=cols).fillna("")
     if len(fmt) == 0:
-        fmt = fmt[cols[:3]]
+        fmt = fmt[cols[: 4 if budgets else 3]]
     raw_cols = [
         "group",
         "regimes",
         "algo",
+        *(["budget"] if budgets else []),
         "runs",
         *(f"{a}{s}" for a in AGGREGATES for s in ("", "_lo", "_hi")),
         *(f"p_gt_{a}{s}" for a in res.algos for s in ("", "_lo", "_hi")),

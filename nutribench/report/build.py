@@ -21,7 +21,8 @@ Figure / table out). This module adds what those pure builders do not know about
   which tables a call builds and what a table key names: :mod:`nutribench.report.table_plan`;
 * writing (:mod:`nutribench.report.output`): figures as PNG (150 dpi) and PDF, tables as
   Markdown, LaTeX and CSV, and the trajectory view of one evaluation episode; with ``all``,
-  ``index.html``, the report on one static page (:mod:`nutribench.report.html`).
+  ``index.html``, the report on one static page (:mod:`nutribench.report.html`), with the
+  leaderboard (:mod:`nutribench.report.leaderboard`) as its last section.
 
 The names of :mod:`nutribench.report.data` and :mod:`nutribench.report.output` are importable
 from here too. Problems a user can fix raise :class:`ReportError` (one line); a database that
@@ -182,7 +183,7 @@ def _metrics_table(key: str, data: ReportData | None) -> TableResult:
     if key == "aggregate":
         from nutribench.report.aggregate_view import aggregate_table
 
-        return _with_notes(aggregate_table(_aggregate(data, "aggregate table")), data)
+        return _with_notes(aggregate_table(_aggregate(data, "aggregate table"), data.eval), data)
     if key == "results":
         ev = data.eval
         if ev.empty:
@@ -217,6 +218,28 @@ def build_table(
     return config_table(number, numbers[number], db, stored)
 
 
+def _leaderboard(data: ReportData, db: Db, log: Log | None) -> TableResult:
+    """The leaderboard section of index.html (:mod:`nutribench.report.leaderboard`)."""
+    from nutribench.report.leaderboard import leaderboard_of
+
+    return leaderboard_of(data.eval, _day_references(data, log), db, data.notes)
+
+
+def _page_subtitle(db: Db, data: ReportData | None) -> str:
+    """index.html's line under the title: the database's name (never the folder it lay in,
+    which may be a temporary one) and the budgets and seeds of what the page draws."""
+    from sqlalchemy.engine import make_url
+
+    from nutribench.report.figure_parts import budget_caption
+
+    text = str(db)
+    name = Path(text).name if "://" not in text else Path(make_url(text).database or "").name
+    parts = [f"from {name}"] if name else []
+    if data is not None and not data.eval.empty:
+        parts.append(budget_caption(data.eval))
+    return "; ".join(parts)
+
+
 def _check_pair(pair: Sequence[str] | None) -> tuple[str, str]:
     if pair is None:
         return DEFAULT_PAIR
@@ -236,6 +259,7 @@ def build_report(
     log: Log | None = None,
     algos: Sequence[str] | None = None,
     pair: Sequence[str] | None = None,
+    progress: Log | None = None,
 ) -> list[Path]:
     """Write the requested figures and tables under ``out`` and return the paths written.
 
@@ -247,7 +271,8 @@ def build_report(
     the database); ``pair``: Figure 4's two configs (default PPO and GRU-PPO; not limited by
     ``algos``); a name the database does not hold raises :class:`ReportError`.
     ``reference_episodes``: episodes per simple policy and regime for the reference lines of
-    Figures 3/4.
+    Figures 3/4. ``progress``: called with ``[k/n] figure 3`` (or ``table results``) as each
+    item starts, so a long ``--all`` shows where it is.
     """
     figs = list(FIGURES) if all else [int(f) for f in figs]
     tables = [str(t) for t in tables]
@@ -285,7 +310,15 @@ def build_report(
 
     paths: list[Path] = []
     page: list[Any] = []  # what index.html shows (with ``all``)
+    steps = len(figs) + len(plan) + int(all)
+    done = iter(range(1, steps + 1))
+
+    def step(what: str) -> None:
+        if progress:
+            progress(f"[{next(done)}/{steps}] {what}")
+
     for f in figs:
+        step(f"figure {f}")
         res = built(
             lambda f=f: build_figure(
                 f, pair_data if f == 4 else data, reference_episodes=reference_episodes, log=log, pair=pair
@@ -296,17 +329,21 @@ def build_report(
             paths += written
             page.append(page_figure(f, res, written))
     for key, stem in plan.items():
+        step(f"table {key}")
         res_t = built(lambda key=key: build_table(key, data, db, stored))
         if res_t is not None:
             written = write_table(res_t, out, stem)
             paths += written
             page.append(page_table(stem, res_t, written))
+    if all and data is not None and not data.eval.empty:
+        step("leaderboard")
+        board = built(lambda: _leaderboard(data, db, log))
+        if board is not None:
+            written = write_table(board, out, "leaderboard")
+            paths += written
+            page.append(page_table("leaderboard", board, written))
     if all:
-        paths.append(
-            write_index(
-                page, out, title="nutribench report", subtitle=f"from {db}" if isinstance(db, (str, Path)) else ""
-            )
-        )
+        paths.append(write_index(page, out, title="nutribench report", subtitle=_page_subtitle(db, data)))
     return paths
 
 

@@ -32,6 +32,7 @@ import pandas as pd
 
 from nutribench.errors import UserError
 from nutribench.report.aggregate import DELAYED_REGIMES, regime_span
+from nutribench.report.figure_parts import budget_cell
 from nutribench.report.figures import budget_seeds_text, seed_list, sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
@@ -256,6 +257,13 @@ def compare_agents(
         if len(delayed) > 1 and len(delayed) < len(paired):
             rows.append(_summary("delayed", delayed, days[days["regime"].isin(delayed)], reps, seed, confidence))
     used = ev[ev["algo"].isin([a, b]) & ev["regime"].isin(paired)]
+    budget_a, budget_b = (budget_cell(used[used["algo"] == n]) for n in (a, b))
+    if budget_a != budget_b:
+        notes.insert(
+            0,
+            f"warning: budgets differ ({a} trained {budget_a} days, {b} {budget_b} days): the difference is "
+            "the agents' and their budgets' together",
+        )
     return Comparison(a, b, pd.DataFrame(rows, columns=COLUMNS), days, reps, notes, budget_seeds_text(used))
 
 

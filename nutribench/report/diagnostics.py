@@ -90,6 +90,31 @@ def diagnostics_figure(rows: pd.DataFrame, horizon: int, title: str = "") -> Fig
     return fig
 
 
+def _too_short(engine, algo: str, regime: str) -> str:
+    """Why jobs of ``algo`` on ``regime`` have no diagnostics when they trained too few days
+    to make an update (an off-policy agent learns only after ``learning_starts`` steps); "" else."""
+    from sqlalchemy import select
+
+    from nutribench.store import AgentConfig, Job, RegimeConfig
+
+    with engine.connect() as conn:
+        rows = conn.execute(
+            select(Job.episodes, AgentConfig.body, RegimeConfig.body)
+            .join(AgentConfig, AgentConfig.id == Job.agent_config_id)
+            .join(RegimeConfig, RegimeConfig.id == Job.regime_id)
+            .where(AgentConfig.name == algo, RegimeConfig.name == regime, Job.status == "done", Job.fake.is_(False))
+        ).all()
+    starts = [(int(d), int(a.get("learning_starts") or 0), int(r["reward"]["horizon"])) for d, a, r in rows]
+    if not starts or any(days * h > ls for days, ls, h in starts):
+        return ""
+    days, ls, h = max(starts)
+    return (
+        f": its jobs trained {'/'.join(str(d) for d in sorted({d for d, _, _ in starts}))} days, and {algo} makes its "
+        f"first update only after learning_starts = {ls} steps (day {ls // h}): no update, so no diagnostics; "
+        "train it longer"
+    )
+
+
 def build_diagnostics(
     db: Db, algo: str, regime: str, seeds: list[int] | None = None, out: Db = "reports"
 ) -> list[Path]:
@@ -105,6 +130,7 @@ def build_diagnostics(
     try:
         rows = read_training_diagnostics(store.engine, regimes=regime, algos=algo, seeds=seeds, latest_only=True)
         have = None if not rows.empty else read_training_diagnostics(store.engine, latest_only=True)
+        why = _too_short(store.engine, algo, regime) if rows.empty else ""
         if not rows.empty:  # the day's length as the stored regime says (it may not be a file here)
             version = int(rows["regime_version"].max())
             with store.engine.connect() as conn:
@@ -122,7 +148,7 @@ def build_diagnostics(
             cells = have[["algo", "regime"]].drop_duplicates().sort_values(["algo", "regime"])
             shown = ", ".join(f"{a}/{r}" for a, r in cells.itertuples(index=False))
             where = f"; it has them for {shown}"
-        raise ReportError(f"no training diagnostics for {which} in {db}{where}")
+        raise ReportError(f"no training diagnostics for {which} in {db}{why or where}")
     # per seed: the job with the largest budget, the newest if several
     jobs = rows[["seed", "budget", "job_id"]].drop_duplicates().sort_values(["seed", "budget", "job_id"])
     keep = jobs.groupby("seed").tail(1)["job_id"]

@@ -76,6 +76,27 @@ def budget_seeds_text(df: pd.DataFrame) -> str:
     return "; ".join(f"{', '.join(algo_label(a) for a, t in per.items() if t == text)}: {text}" for text in texts)
 
 
+def budget_cell(cell: pd.DataFrame) -> str:
+    """The training budget(s) of one config's rows, in days (``5000``, ``50/5000``; ``?`` without
+    the ``budget`` column): the budget column of the results and aggregate tables."""
+    if "budget" not in cell or cell["budget"].isna().all():
+        return "?"
+    return "/".join(str(b) for b in sorted({int(b) for b in cell["budget"].dropna()}))
+
+
+def budgets_differ(df: pd.DataFrame) -> bool:
+    """Whether the configs of ``df`` were trained for different budgets (a caption says so)."""
+    return "budget" in df and len({budget_cell(df[df["algo"] == a]) for a in df["algo"].unique()}) > 1
+
+
+def budget_caption(df: pd.DataFrame) -> str:
+    """The budget and seeds line of a table's caption; it warns when budgets differ."""
+    text = budget_seeds_text(df)
+    if budgets_differ(df):
+        text = "budgets differ, compare across them with care: " + text
+    return text
+
+
 def _span(counts: pd.Series) -> str:
     """``"3"`` when every group has 3, else ``"2-5"``."""
     lo, hi = int(counts.min()), int(counts.max())

@@ -80,18 +80,20 @@ def training_curves(
     colors = colors or palette(algos)
     if window is None:
         window = default_window(int(train["episode"].max()) + 1)
-    ncols = min(4, len(regimes))
-    nrows = int(np.ceil(len(regimes) / ncols))
+    panels = budget_panels(train, regimes)
+    split = any(b is not None for _, b in panels)
+    ncols = min(4, len(panels))
+    nrows = int(np.ceil(len(panels) / ncols))
     fig = Figure(figsize=(max(7.5, 4.2 * ncols), 3.2 * nrows + 0.9), layout="constrained")
-    axes = fig.subplots(nrows, ncols, squeeze=False, sharex=True)
+    axes = fig.subplots(nrows, ncols, squeeze=False, sharex=not split)
     rows = []
-    for k, regime in enumerate(regimes):
+    for k, (regime, budget) in enumerate(panels):
         ax = axes.flat[k]
         sub = train[train["regime"] == regime]
         best = -np.inf
         for algo in algos:
             cell = sub[sub["algo"] == algo]
-            if cell.empty:
+            if cell.empty or (budget is not None and int(cell["budget"].max()) != budget):
                 continue
             wide = cell.pivot_table(index="seed", columns="episode", values=metric, aggfunc="mean").sort_index(axis=1)
             smoothed = wide.T.rolling(window, min_periods=1).mean().T.to_numpy()
@@ -108,16 +110,16 @@ def training_curves(
             )
         if best_line and np.isfinite(best):
             ax.axhline(best, color="k", ls="--", lw=0.9, label="best (smoothed)" if window > 1 else "best")
-        ax.set_title(f"{regime}", fontsize=10)
+        ax.set_title(f"{regime}" + (f", budget {budget} days" if budget is not None else ""), fontsize=10)
         ax.grid(alpha=0.3)
         if k % ncols == 0:
             ax.set_ylabel(METRIC_LABELS.get(metric, metric))
-        if k >= len(regimes) - ncols:  # no panel below: this one carries the x axis
+        if split or k >= len(panels) - ncols:  # no panel below (or axes of their own): an x axis
             ax.set_xlabel("training episode")
             ax.tick_params(labelbottom=True)
-    for ax in list(axes.flat)[len(regimes) :]:
+    for ax in list(axes.flat)[len(panels) :]:
         ax.set_visible(False)
-    _training_legend(fig, list(axes.flat)[: len(regimes)], algos)
+    _training_legend(fig, list(axes.flat)[: len(panels)], algos)
     notes = _missing_note(regimes, algos, train)
     n_seeds = train.groupby(["regime", "algo"])["seed"].nunique()
     smoothing = f"a {window}-episode moving average" if window > 1 else "the per-episode values (no smoothing)"
@@ -126,6 +128,19 @@ def training_curves(
     set_title(fig, (title or f"Training {METRIC_LABELS.get(metric, metric)}") + f"\n{caption}")
     draw_notes(fig, notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)
+
+
+def budget_panels(train: pd.DataFrame, regimes: list[str]) -> list[tuple[str, int | None]]:
+    """The panels of Figures 1/2: one per regime, or, when the configs drawn were trained for
+    different budgets, one per (budget, regime) with its own x axis (a 50-day run is not
+    squeezed into the first 1 % of a 5000-day axis); budget None when there is one."""
+    if "budget" not in train or train["budget"].isna().all():
+        return [(r, None) for r in regimes]
+    cells = train.groupby(["regime", "algo"])["budget"].max()
+    budgets = sorted({int(b) for b in cells})
+    if len(budgets) == 1:
+        return [(r, None) for r in regimes]
+    return [(r, b) for b in budgets for r in regimes if any(int(v) == b for v in cells.loc[r])]
 
 
 def _training_legend(fig: Figure, axes: list, algos: list[str]) -> None:
@@ -189,6 +204,24 @@ def _missing_note(regimes: list[str], algos: list[str], df: pd.DataFrame) -> lis
     present = set(map(tuple, df[["regime", "algo"]].drop_duplicates().to_numpy()))
     missing = [f"{algo_label(a)}/{r}" for r in regimes for a in algos if (r, a) not in present]
     return [f"no data: {', '.join(missing)}"] if missing else []
+
+
+def _draw_gapped(ax, stats: pd.DataFrame, regimes: list[str], xd: list[float], color: str, label: str) -> None:
+    """One agent's line and band over the figure's ``regimes`` (x positions ``xd``), broken
+    where it has no data (no line drawn across a regime it was not evaluated on); a point
+    with no neighbour has no band width, so its interval is drawn as an error bar."""
+    full = stats.reindex(regimes)
+    mean, lo, hi = (full[c].to_numpy(dtype=float) for c in ("mean", "lo", "hi"))
+    x = np.asarray(xd, dtype=float)
+    ax.plot(x, mean, marker="o", ms=4, color=color, label=label)
+    ax.fill_between(x, lo, hi, color=color, alpha=0.2, lw=0)
+    has = np.isfinite(mean)
+    left = np.r_[False, has[:-1]]
+    right = np.r_[has[1:], False]
+    alone = has & ~left & ~right
+    if alone.any():
+        err = np.array([mean[alone] - lo[alone], hi[alone] - mean[alone]])
+        ax.errorbar(x[alone], mean[alone], yerr=err, fmt="none", ecolor=color, capsize=4, lw=1.2)
 
 
 #: Horizontal offset between neighbouring algorithms in Figures 3 and 4 (regime units).
@@ -270,12 +303,7 @@ def eval_across_regimes(
             stats["hi"] = [ci[r][2] for r in stats.index]
             stats["seeds"] = [int(cell[cell["regime"] == r]["seed"].nunique()) for r in stats.index]
             x = np.array([xs[r] for r in stats.index])
-            xd = x + dodge[algo]
-            ax.plot(xd, stats["mean"], marker="o", ms=4, color=color, label=algo_label(algo))
-            ax.fill_between(xd, stats["lo"], stats["hi"], color=color, alpha=0.2, lw=0)
-            if len(x) == 1:  # a band over one x has no width: show the interval as an error bar
-                err = np.array([stats["mean"] - stats["lo"], stats["hi"] - stats["mean"]])
-                ax.errorbar(xd, stats["mean"], yerr=err, fmt="none", ecolor=color, capsize=4, lw=1.2)
+            _draw_gapped(ax, stats, regimes, [xs[r] + dodge[algo] for r in regimes], color, algo_label(algo))
             rows.append(
                 pd.DataFrame(
                     {

@@ -1,14 +1,18 @@
 """Which agent configs a figure draws, in what order, in what colour and under what label.
 
 The five built-in configs keep the paper's order, labels and colours (published figures use
-them). Any other config (a variant, a plug-in agent) comes after them, sorted by name, is
-labelled with its name and gets a colour derived from its name: a hash of the name picks a
-sequence of candidate colours, and the config takes the first candidate that is clearly
-apart (CIELAB distance :data:`MIN_DISTANCE`) from the five built-in colours and from the
-configs placed before it. So a name's colour is a function of the name alone unless it
-would look like a config that sorts before it, and the same set of names always gets the
-same colours. Build one :class:`Palette` per report (over every config the database holds)
-and every figure of it uses the same colour for a name.
+them). Any other config (a variant, a plug-in agent) comes after them, sorted by name, and is
+labelled with its name. Its colour comes first from :data:`USER_COLORS`, colours of the
+colour-blind-safe palettes of Okabe & Ito and of Paul Tol, told apart from each other under the
+common colour-vision deficiencies, each at least :data:`MIN_DISTANCE` (CIELAB) from the five
+built-in colours and dark enough to read on white: a hash of the name picks where in that list
+it starts, and it takes the first one no config sorted before it took. When all are taken, a
+hash of the name picks a sequence of candidate colours (never pale: CIELAB lightness at most
+:data:`MAX_LIGHTNESS`), and the config takes the first candidate clearly apart from every
+colour placed before it. So a name's colour is a function of the name alone unless a config
+that sorts before it holds that colour, and the same set of names always gets the same
+colours. Build one :class:`Palette` per report (over every
+config the database holds) and every figure of it uses the same colour for a name.
 """
 
 from __future__ import annotations
@@ -32,6 +36,14 @@ BUILTIN_COLORS: dict[str, str] = {
 }
 #: Smallest CIELAB (CIE76) distance between a derived colour and any colour placed before it.
 MIN_DISTANCE = 32.0
+#: The colours configs other than the five take first: Okabe & Ito's orange, Paul Tol's teal,
+#: indigo and wine (colour-blind-safe palettes), each at least :data:`MIN_DISTANCE` from the five
+#: built-in colours and from each other, and apart under simulated colour-vision deficiencies
+#: (tests/test_newcomer.py checks). Their other colours are too near one of the five, too pale,
+#: or black (the planner's reference line).
+USER_COLORS: tuple[str, ...] = ("#e69f00", "#44aa99", "#332288", "#882255")
+#: Lightest a derived colour may be (CIELAB L*): a paler line is hard to read on white.
+MAX_LIGHTNESS = 75.0
 #: Candidate colours tried per name before the most distant one is taken.
 CANDIDATES = 96
 _GOLDEN = 0.6180339887498949
@@ -80,6 +92,8 @@ def _pick(name: str, taken: list[str]) -> str:
     the candidate farthest from them."""
     best, best_d = "", -1.0
     for c in candidates(name):
+        if _lab(c)[0] > MAX_LIGHTNESS:
+            continue
         d = min((distance(c, t) for t in taken), default=np.inf)
         if d >= MIN_DISTANCE:
             return c
@@ -89,8 +103,9 @@ def _pick(name: str, taken: list[str]) -> str:
 
 
 def colors(names: Iterable[str]) -> dict[str, str]:
-    """A colour per name, in :func:`order`: the built-in colours for the five, derived
-    colours for the others (distinct from the five's and from each other's)."""
+    """A colour per name, in :func:`order`: the built-in colours for the five, for the others
+    one of :data:`USER_COLORS` while one is free, then derived colours (distinct from every
+    colour before)."""
     names = order(names)
     taken = list(BUILTIN_COLORS.values())
     out: dict[str, str] = {}
@@ -98,9 +113,20 @@ def colors(names: Iterable[str]) -> dict[str, str]:
         if n in BUILTIN_COLORS:
             out[n] = BUILTIN_COLORS[n]
         else:
-            out[n] = _pick(n, taken)
+            out[n] = _user_color(n, taken) or _pick(n, taken)
             taken.append(out[n])
     return out
+
+
+def _user_color(name: str, taken: list[str]) -> str | None:
+    """The first colour of :data:`USER_COLORS` not in ``taken``, from a place the name's hash
+    picks; None when every one is taken."""
+    start = int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "big") % len(USER_COLORS)
+    for k in range(len(USER_COLORS)):
+        c = USER_COLORS[(start + k) % len(USER_COLORS)]
+        if c not in taken:
+            return c
+    return None
 
 
 @dataclass(frozen=True)
@@ -136,6 +162,8 @@ __all__ = [
     "BUILTIN_COLORS",
     "BUILTIN_LABELS",
     "BUILTIN_ORDER",
+    "MAX_LIGHTNESS",
+    "USER_COLORS",
     "Palette",
     "colors",
     "distance",

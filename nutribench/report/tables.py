@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from nutribench.baselines import gap_closed
+from nutribench.report.figure_parts import budget_caption, budget_cell
 from nutribench.report.figures import sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
@@ -179,8 +180,15 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
     for regime in sort_regimes(ev["regime"]):
         for algo in sort_algos(ev[ev["regime"] == regime]["algo"]):
             cell = ev[(ev["regime"] == regime) & (ev["algo"] == algo)]
+            budget = budget_cell(cell)
             row = {"regime": regime, "algo": algo, "seeds": cell["seed"].nunique(), "episodes": len(cell)}
-            f = {"regime": regime, "algorithm": algo_label(algo), "seeds": row["seeds"], "episodes": row["episodes"]}
+            f = {
+                "regime": regime,
+                "algorithm": algo_label(algo),
+                "budget (days)": budget,
+                "seeds": row["seeds"],
+                "episodes": row["episodes"],
+            }
             seed_ci = seed_mean_ci(cell.groupby("seed")["return"].mean().to_numpy(dtype=float), reps=seeds_bootstrap)
             f["return [95% CI over seeds]"] = _interval(*seed_ci, "{:.2f}")
             if ref is not None:
@@ -218,12 +226,13 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
                         else f"{100 * gap_ci[0]:.0f} % [single seed]"
                     )
             row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"] = seed_ci
+            row["budget"] = budget  # last: the CSV's earlier columns keep their places
             rows.append(row)
             fmt_rows.append(f)
     title = (
         "Results: fixed-policy inference; first the seed-level 95 % interval (mean over seeds of each seed's mean over its "
         "evaluation days, percentile bootstrap resampling seeds), then mean ± standard error over seeds x evaluation "
-        "episodes pooled (as the paper reports)"
+        f"episodes pooled (as the paper reports); {budget_caption(ev)}"
     )
     return TableResult("results", title, pd.DataFrame(rows), pd.DataFrame(fmt_rows))
 

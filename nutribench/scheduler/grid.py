@@ -64,16 +64,27 @@ class Grid:
 MAX_SEED = 2**31 - 1
 
 
+#: Named seed sets for ``--seeds``: each preset's seeds (``paper``: the paper's 0, 21, 9, 2003,
+#: 1997, so that a new agent pairs with the published baselines seed for seed).
+SEED_SETS: dict[str, tuple[int, ...]] = {name: p.seeds for name, p in PRESETS.items()}
+
+
 def parse_seeds(text: str) -> tuple[int, ...]:
-    """``"0,21,9"`` -> ``(0, 21, 9)``; anything else (empty items, non-integers, negative
-    numbers, seeds over :data:`MAX_SEED`, repeats) is a :class:`GridError` naming the offending item."""
+    """``"0,21,9"`` -> ``(0, 21, 9)``; a name of :data:`SEED_SETS` (``"paper"``) -> its seeds;
+    anything else (empty items, non-integers, negative numbers, seeds over :data:`MAX_SEED`,
+    repeats) is a :class:`GridError` naming the offending item."""
+    if text.strip() in SEED_SETS:
+        return SEED_SETS[text.strip()]
     items = [s.strip() for s in text.split(",")]
     if not any(items):
         raise GridError(f"--seeds '{text}' is empty: give comma-separated non-negative integers, e.g. 0,21,9")
     seeds: list[int] = []
     for item in items:
         if not (item.isascii() and item.isdigit()):  # rejects '', '-1', '1.5', '0x10', ' 3a', '²'
-            raise GridError(f"--seeds '{text}': '{item}' is not a non-negative integer: give e.g. 0,21,9")
+            raise GridError(
+                f"--seeds '{text}': '{item}' is not a non-negative integer: give e.g. 0,21,9, "
+                f"or a named set ({', '.join(SEED_SETS)})"
+            )
         if len(item) > 10 or int(item) > MAX_SEED:
             raise GridError(f"--seeds '{text}': seed {item[:24]} is too large: seeds go from 0 to {MAX_SEED}")
         value = int(item)

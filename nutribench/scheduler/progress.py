@@ -38,6 +38,10 @@ def eta_seconds(run: Any, elapsed: float) -> float | None:
     return elapsed * max(planned - done, 0) / done
 
 
+#: The width of the progress lines written where there is no terminal (a file, a pipe).
+NO_TERMINAL_WIDTH = 240
+
+
 class NullView:
     """No display (library use, tests)."""
 
@@ -52,6 +56,8 @@ class LiveView(NullView):
 
     def __init__(self, total: int, description: str, note: str | None, console: Console | None = None):
         self.console = console or Console(stderr=True)
+        if not self.console.is_terminal:  # a log file or a pipe: lines whole, not wrapped at 80 columns
+            self.console.width = max(self.console.width, NO_TERMINAL_WIDTH)
         self.total, self.description, self.note = total, description, note
         self.t0 = time.monotonic()
         self._last = 0.0

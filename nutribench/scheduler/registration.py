@@ -47,7 +47,8 @@ def _shown(path: Path | str) -> str:
 
 
 def load_grid_configs(grid: Grid) -> tuple[list[_Config], list[_Config]]:
-    """Load every regime and agent config of the grid (ConfigError on a bad file)."""
+    """Load every regime and agent config of the grid (ConfigError on a bad file, or on a
+    plug-in whose entry point does not import)."""
     from nutribench.agents.config import (
         agent_config_content,
         agent_config_sha256,
@@ -60,9 +61,13 @@ def load_grid_configs(grid: Grid) -> tuple[list[_Config], list[_Config]]:
     for name in grid.regimes:
         env = load_env_config(name)
         regimes.append(_Config(env.name, env.version, env.sha256, env.content(), _shown(env.path or name), env))
+    from nutribench.agents.registry import import_entry_point
+
     agents = []
     for name in grid.algos:
         cfg = load_agent_config(name)
+        if getattr(cfg, "entry_point", None):
+            import_entry_point(cfg.entry_point)  # a plug-in that cannot import is refused before any job runs
         source = _shown(resolve_agent_path(name))
         agents.append(
             _Config(cfg.name, cfg.version, agent_config_sha256(cfg), agent_config_content(cfg), source, cfg, cfg.algo)
@@ -208,3 +213,47 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
                 insert(EvalStep), [{"job_id": row.id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in job.eval_steps]
             )
         return row.id
+
+
+def check_external_entry(store: Store, regime_config: Any, agent_config: Any, seed: int, eval_episodes: int) -> None:
+    """What :class:`nutribench.Recorder` checks as its ``with`` block opens, before any training:
+    the regime and the agent recorded with other content under the same version, or a job of
+    this agent version on this regime and seed already there (whatever its training days):
+    :class:`RunError` in one line naming agent, regime and seed."""
+    from nutribench.agents.config import agent_config_sha256
+    from nutribench.store.engine import display_url
+
+    env, cfg = regime_config, agent_config
+    what = f"Recorder {cfg.name} v{cfg.version} on {env.name} seed {seed}"
+    where = display_url(store.url)
+    with session_scope(store.engine) as s:
+        agent_row = s.execute(
+            select(AgentConfig).where(AgentConfig.name == cfg.name, AgentConfig.version == cfg.version)
+        ).scalar_one_or_none()
+        if agent_row is not None and agent_row.sha256 != agent_config_sha256(cfg):
+            raise RunError(
+                f"{what}: {where} holds {cfg.name} v{cfg.version} with other params or description: "
+                "bump the version (Recorder(version=...)) or give the stored ones"
+            )
+        regime_row = s.execute(
+            select(RegimeConfig).where(RegimeConfig.name == env.name, RegimeConfig.version == env.version)
+        ).scalar_one_or_none()
+        if regime_row is not None and regime_row.sha256 != env.sha256:
+            raise RunError(
+                f"{what}: {where} holds regime {env.name} v{env.version} with other content: bump the regime file's version"
+            )
+        if agent_row is None or regime_row is None:
+            return
+        old = s.execute(
+            select(Job.id, Job.episodes).where(
+                Job.regime_id == regime_row.id,
+                Job.agent_config_id == agent_row.id,
+                Job.seed == seed,
+                Job.eval_episodes == eval_episodes,
+            )
+        ).first()
+        if old is not None:
+            raise RunError(
+                f"{what}: already recorded in {where} (job {old.id}, {old.episodes} training days): "
+                "record another seed, or bump the agent's version"
+            )

@@ -1,0 +1,49 @@
+"""``nutribench leaderboard``: every agent of a results database (or of a folder of archives)
+in one ranked table, budgets and seeds honest (a thin layer over
+:mod:`nutribench.report.leaderboard`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from nutribench.cli.common import UserError, console, err_console, user_errors
+
+FORMATS = ("markdown", "csv", "latex")
+
+
+@user_errors
+def leaderboard_cmd(
+    db: Annotated[
+        str, typer.Option(envvar="NUTRIBENCH_DB", help="results database: a file path or a SQLAlchemy URL")
+    ] = "nutribench.db",
+    archives: Annotated[
+        Optional[Path],
+        typer.Option("--archives", help="a folder of archives (*.npz, `nutribench db export`) instead of --db"),
+    ] = None,
+    out: Annotated[
+        Optional[Path], typer.Option("--out", help="also write leaderboard.md, .tex and .csv into this folder")
+    ] = None,
+    fmt: Annotated[str, typer.Option("--format", help="what to print: markdown, csv or latex")] = "markdown",
+    reps: Annotated[int, typer.Option(min=100, help="bootstrap resamples of the runs")] = 2000,
+) -> None:
+    """Every agent ranked by the IQM of its share of the never -> planner gap (95 % interval)
+    over the regimes it covers, with its per-regime shares, budget, seeds, engine, protocol and
+    code version; rows off the reference grid (5000 days, seeds 0, 21, 9, 2003, 1997, every
+    regime) are flagged."""
+    from nutribench.report.leaderboard import leaderboard_from_archives, leaderboard_from_db
+    from nutribench.report.output import write_table
+
+    if fmt not in FORMATS:
+        raise UserError(f"--format {fmt}: give one of {', '.join(FORMATS)}")
+    log = lambda msg: err_console.print(msg, style="dim", highlight=False, soft_wrap=True)  # noqa: E731
+    table = (
+        leaderboard_from_archives(archives, reps, log) if archives is not None else leaderboard_from_db(db, reps, log)
+    )
+    text = {"markdown": table.to_markdown, "csv": table.to_csv, "latex": table.to_latex}[fmt]()
+    console.print(text, end="" if text.endswith("\n") else "\n", highlight=False, soft_wrap=True, markup=False)
+    if out is not None:
+        for path in write_table(table, out, "leaderboard"):
+            err_console.print(str(path), highlight=False, soft_wrap=True)

@@ -1,0 +1,266 @@
+"""The leaderboard (``nutribench leaderboard``): every agent of a results database (or of a
+folder of archives) in one ranked table, budgets and seeds honest.
+
+Per agent config (the rows the report draws: newest config version, per regime the largest
+training budget, one job per seed, :func:`nutribench.report.data.prepare`):
+
+* the **aggregate score**: the IQM of its run scores (a run = one seed on one regime, scored
+  as the share of the regime's never -> planner gap it closes on its own evaluation days,
+  :func:`nutribench.report.scores.run_scores`) over **the regimes it covers**, with the 95 %
+  stratified-bootstrap interval over runs (:func:`nutribench.report.aggregate.interval_estimates`);
+* its share of the gap per regime (mean over seeds of each run's score);
+* its training budget (days), seeds, engine, protocol and code version;
+* flags where it departs from the reference grid (the paper's: :data:`REFERENCE_BUDGET` days,
+  seeds :data:`REFERENCE_SEEDS`, every regime of the board): another budget, other seeds,
+  regimes it lacks. Rows are ranked by the aggregate IQM; a row covering fewer regimes than
+  the board is ranked on the regimes it has, and its flags say so.
+
+The protocol of a row: ``paper config`` (one of the five built-in configs, as shipped in
+``regimes/agents/``), ``tuned`` (a built-in algorithm with other settings), ``plug-in`` (an
+``algo = "external"`` config with an entry point, trained by ``nutribench run``),
+``recorded`` (an agent trained elsewhere: :class:`nutribench.Recorder`, ``nutribench evaluate``).
+
+DataFrame in, :class:`~nutribench.report.tables.TableResult` out (:func:`leaderboard_table`);
+:func:`load_leaderboard` reads a database or a folder of archives (each archive checked on
+import as ``nutribench db import`` checks it).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from nutribench.report.aggregate import interval_estimates, regime_span, run_scores, score_set
+from nutribench.report.data import ReportError
+from nutribench.report.figure_parts import budget_cell, seed_list, sort_regimes
+from nutribench.report.palette import BUILTIN_ORDER
+from nutribench.report.palette import label as algo_label
+from nutribench.report.palette import order as sort_algos
+from nutribench.report.scores import DEFAULT_REPS
+from nutribench.report.tables import TableResult
+from nutribench.scheduler.grid import PRESETS
+
+#: The reference grid a row is checked against: the paper's budget and seeds.
+REFERENCE_BUDGET: int = PRESETS["paper"].episodes
+REFERENCE_SEEDS: tuple[int, ...] = PRESETS["paper"].seeds
+PROTOCOLS = ("paper config", "tuned", "plug-in", "recorded")
+
+Log = Callable[[str], None]
+
+
+def protocols(configs: pd.DataFrame) -> dict[str, str]:
+    """The protocol of each agent config (columns name, version, sha256, body: the
+    ``agent_configs`` rows of the versions drawn)."""
+    from nutribench.agents.config import agent_config_sha256, parse_agent_config
+    from nutribench.config.loading import read_toml, regimes_dir
+
+    out = {}
+    for r in configs.itertuples(index=False):
+        body = r.body if isinstance(r.body, dict) else {}
+        if body.get("algo") == "external":
+            out[r.name] = "plug-in" if body.get("entry_point") else "recorded"
+            continue
+        shipped = regimes_dir() / "agents" / f"{r.name}.toml"
+        same = False
+        if r.name in BUILTIN_ORDER and shipped.is_file():
+            cfg = parse_agent_config(read_toml(shipped), shipped)
+            same = int(cfg.version) == int(r.version) and agent_config_sha256(cfg) == r.sha256
+        out[r.name] = "paper config" if same else "tuned"
+    return out
+
+
+def _code_version(jobs: pd.DataFrame) -> str:
+    """``0.4.0 (abc1234)`` of the jobs' package version and git commit, several joined by /."""
+    parts = []
+    for version, commit, dirty in (
+        jobs[["nutribench_version", "git_commit", "git_dirty"]].drop_duplicates().itertuples(index=False)
+    ):
+        text = str(version) if isinstance(version, str) and version else "?"
+        if isinstance(commit, str) and commit:
+            text += f" ({commit[:7]}{', dirty' if dirty is True or dirty == 1 else ''})"
+        parts.append(text)
+    return " / ".join(sorted(set(parts))) or "?"
+
+
+def _flags(budget: str, seeds: list[int], covered: list[str], board: list[str]) -> list[str]:
+    flags = []
+    if budget != str(REFERENCE_BUDGET):
+        flags.append(f"budget {budget} days (reference {REFERENCE_BUDGET})")
+    if sorted(seeds) != sorted(REFERENCE_SEEDS):
+        flags.append(f"seeds {seed_list(seeds)} (reference {', '.join(map(str, REFERENCE_SEEDS))})")
+    missing = [r for r in board if r not in covered]
+    if missing:
+        flags.append(f"ranked on {regime_span(covered)} only: no {', '.join(missing)}")
+    return flags
+
+
+def leaderboard_rows(
+    ev: pd.DataFrame, references: pd.DataFrame, jobs: pd.DataFrame, protocol: dict[str, str], reps: int = DEFAULT_REPS
+) -> pd.DataFrame:
+    """One row per agent of the evaluation episodes ``ev`` (one job per run), ranked by the
+    IQM of its run scores over the regimes it covers. ``references``: the never/planner
+    yardsticks of every evaluation day; ``jobs``: the jobs table (id, engine, versions);
+    ``protocol``: agent -> protocol."""
+    scores = run_scores(ev, references)
+    board = sort_regimes(ev["regime"].unique())
+    job_info = jobs.set_index("id")
+    rows = []
+    for algo in sort_algos(ev["algo"]):
+        mine = scores[scores["algo"] == algo]
+        covered = sort_regimes(mine.loc[np.isfinite(mine["score"].to_numpy(dtype=float)), "regime"].unique())
+        cell = ev[ev["algo"] == algo]
+        seeds = sorted({int(s) for s in cell["seed"]})
+        budget = budget_cell(cell)
+        mine_jobs = job_info.loc[sorted(set(cell["job_id"]))]
+        row = {
+            "algo": algo,
+            "protocol": protocol.get(algo, "?"),
+            "iqm": np.nan,
+            "iqm_lo": np.nan,
+            "iqm_hi": np.nan,
+            "regimes": len(covered),
+            "covered": ",".join(covered),
+            "runs": int(np.isfinite(mine["score"].to_numpy(dtype=float)).sum()),
+            "budget": budget,
+            "seeds": " ".join(map(str, seeds)),
+            "engine": "/".join(sorted({str(e) for e in mine_jobs["engine"].dropna()})) or "?",
+            "code": _code_version(mine_jobs),
+        }
+        if covered:
+            iv = interval_estimates(score_set(scores, covered, [algo]), reps=reps)
+            iqm = iv[iv["aggregate"] == "iqm"].iloc[0]
+            row["iqm"], row["iqm_lo"], row["iqm_hi"] = float(iqm["point"]), float(iqm["lo"]), float(iqm["hi"])
+        for regime in board:
+            s = mine.loc[mine["regime"] == regime, "score"].to_numpy(dtype=float)
+            row[f"share_{regime}"] = float(np.mean(s)) if s.size and np.isfinite(s).all() else np.nan
+        row["flags"] = "; ".join(_flags(budget, seeds, covered, board))
+        rows.append(row)
+    out = pd.DataFrame(rows)
+    if out.empty:
+        return out
+    out = out.sort_values("iqm", ascending=False, na_position="last", kind="stable").reset_index(drop=True)
+    out.insert(0, "rank", [i + 1 if np.isfinite(v) else None for i, v in enumerate(out["iqm"])])
+    return out
+
+
+def _pct(v: float) -> str:
+    return f"{100 * v:.0f}" if np.isfinite(v) else "n/a"
+
+
+def leaderboard_table(rows: pd.DataFrame) -> TableResult:
+    """The leaderboard as a table (Markdown, LaTeX, CSV); ``rows``: :func:`leaderboard_rows`."""
+    board = [c.removeprefix("share_") for c in rows.columns if c.startswith("share_")]
+    fmt = []
+    for r in rows.to_dict("records"):
+        ci = f" [{_pct(r['iqm_lo'])}, {_pct(r['iqm_hi'])}]" if np.isfinite(r["iqm_lo"]) else " [single seed]"
+        f = {
+            "rank": "" if r["rank"] is None or pd.isna(r["rank"]) else int(r["rank"]),
+            "agent": algo_label(r["algo"]),
+            "IQM share of gap (%) [95% CI]": (_pct(r["iqm"]) + ci) if np.isfinite(r["iqm"]) else "n/a",
+            "regimes": f"{r['regimes']}/{len(board)}",
+        }
+        f.update({f"{g} (%)": _pct(r[f"share_{g}"]) for g in board})
+        f.update(
+            {
+                "budget (days)": r["budget"],
+                "seeds": r["seeds"].replace(" ", ", "),
+                "engine": r["engine"],
+                "protocol": r["protocol"],
+                "code": r["code"],
+                "flags": r["flags"] or "-",
+            }
+        )
+        fmt.append(f)
+    title = (
+        "Leaderboard: every agent ranked by the IQM of its run scores (one seed on one regime = one run, scored as the "
+        "share of the regime's never -> planner gap it closes on its own evaluation days; 0 % = never eat, 100 % = the "
+        "greedy full-information planner) over the regimes it covers, with a 95 % stratified-bootstrap interval over "
+        f"runs; per regime, the mean share over seeds. Reference grid: {REFERENCE_BUDGET} training days, seeds "
+        f"{', '.join(map(str, REFERENCE_SEEDS))}, every regime of the board ({regime_span(board)}); a row that departs "
+        "from it is flagged, and a row lacking regimes is ranked on those it has"
+    )
+    return TableResult("leaderboard", title, rows, pd.DataFrame(fmt))
+
+
+def leaderboard_from_db(db, reps: int = DEFAULT_REPS, log: Log | None = None) -> TableResult:
+    """The leaderboard of the results database ``db`` (:class:`ReportError` when it holds no
+    evaluation days)."""
+    from nutribench.report.data import check_names, prepare
+    from nutribench.report.references import eval_day_references
+    from nutribench.store import open_store, read_episode_metrics
+
+    store = open_store(db)
+    try:
+        ev = read_episode_metrics(store.engine, phase="eval")  # the training days, by far the most, are not read
+    finally:
+        store.dispose()
+    if ev.empty:
+        raise ReportError(f"{store.display} holds no evaluation days yet: `nutribench run --db {db}` fills it")
+    check_names(ev["algo"].unique(), "agent config", str(db))
+    check_names(ev["regime"].unique(), "regime", str(db))
+    data = prepare(ev)
+    return leaderboard_of(data.eval, eval_day_references(data.eval, log=log), db, data.notes, reps)
+
+
+def leaderboard_of(
+    ev: pd.DataFrame, references: pd.DataFrame, db, notes: list[str] | None = None, reps: int = DEFAULT_REPS
+) -> TableResult:
+    """The leaderboard of the evaluation episodes ``ev`` (chosen as the report chooses them)
+    of the database ``db``, whose jobs and agent configs give each row's engine, code version
+    and protocol; ``notes`` (what the choice left out) go into its caption."""
+    from sqlalchemy import select
+
+    from nutribench.store import AgentConfig, open_store, read_jobs, session_scope
+
+    store = open_store(db)
+    try:
+        with session_scope(store.engine) as s:
+            configs = pd.DataFrame(
+                s.execute(select(AgentConfig.name, AgentConfig.version, AgentConfig.sha256, AgentConfig.body)).all(),
+                columns=["name", "version", "sha256", "body"],
+            )
+        jobs = read_jobs(store.engine)
+    finally:
+        store.dispose()
+    drawn = set(map(tuple, ev[["algo", "algo_version"]].drop_duplicates().to_numpy()))
+    configs = configs[[(n, v) in drawn for n, v in zip(configs["name"], configs["version"])]]
+    rows = leaderboard_rows(ev, references, jobs, protocols(configs), reps=reps)
+    table = leaderboard_table(rows)
+    if notes:
+        table.title += " (note: " + "; ".join(notes) + ")"
+    return table
+
+
+def leaderboard_from_archives(folder: str | Path, reps: int = DEFAULT_REPS, log: Log | None = None) -> TableResult:
+    """The leaderboard of every archive (``*.npz``, written by ``nutribench db export``) in
+    ``folder``, each checked whole on import into a temporary database."""
+    from nutribench.store.archive import import_results
+
+    folder = Path(folder)
+    archives = sorted(folder.glob("*.npz")) if folder.is_dir() else []
+    if not archives:
+        raise ReportError(f"{folder}: no archives (*.npz) there: `nutribench db export FILE.npz` writes one")
+    with tempfile.TemporaryDirectory(prefix="nutribench-leaderboard-") as tmp:
+        db = str(Path(tmp) / "leaderboard.db")
+        for path in archives:
+            import_results(path, db)
+            if log:
+                log(f"imported {path.name}")
+        return leaderboard_from_db(db, reps=reps, log=log)
+
+
+__all__ = [
+    "PROTOCOLS",
+    "REFERENCE_BUDGET",
+    "REFERENCE_SEEDS",
+    "leaderboard_from_archives",
+    "leaderboard_from_db",
+    "leaderboard_of",
+    "leaderboard_rows",
+    "leaderboard_table",
+    "protocols",
+]
