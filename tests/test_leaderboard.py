@@ -134,3 +134,25 @@ def test_the_report_page_has_a_leaderboard_section(tmp_path: Path):
     page = (tmp_path / "out" / "index.html").read_text()
     assert '<section id="leaderboard">' in page and "Leaderboard: every agent ranked" in page
     assert "<td>eat_early</td>" in page and "budget 1 days (reference 5000)" in page
+
+
+def test_the_protocol_tells_paper_tuned_and_variant_configs_apart() -> None:
+    import pandas as pd
+
+    from nutribench.agents.config import agent_config_content, agent_config_sha256, load_agent_config
+    from nutribench.report.leaderboard import protocols
+
+    paper = load_agent_config("ppo")
+    tuned = paper.model_copy(
+        update={
+            "name": "ppo_tuned",
+            "learning_rate": 3e-4,
+            "description": "tuned by nutribench tune: study 's', trial 3",
+        }
+    )
+    variant = paper.model_copy(update={"name": "ppo_lr", "learning_rate": 3e-4})
+    rows = [
+        {"name": c.name, "version": c.version, "sha256": agent_config_sha256(c), "body": agent_config_content(c)}
+        for c in (paper, tuned, variant)
+    ]
+    assert protocols(pd.DataFrame(rows)) == {"ppo": "paper config", "ppo_tuned": "tuned", "ppo_lr": "variant"}

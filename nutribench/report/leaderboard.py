@@ -16,7 +16,8 @@ training budget, one job per seed, :func:`nutribench.report.data.prepare`):
   the board is ranked on the regimes it has, and its flags say so.
 
 The protocol of a row: ``paper config`` (one of the five built-in configs, as shipped in
-``regimes/agents/``), ``tuned`` (a built-in algorithm with other settings), ``plug-in`` (an
+``regimes/agents/``), ``tuned`` (a config written by ``nutribench tune best --write``: its
+description names the study), ``variant`` (a built-in algorithm with other settings), ``plug-in`` (an
 ``algo = "external"`` config with an entry point, trained by ``nutribench run``),
 ``recorded`` (an agent trained elsewhere: :class:`nutribench.Recorder`, ``nutribench evaluate``).
 
@@ -47,7 +48,9 @@ from nutribench.scheduler.grid import PRESETS
 #: The reference grid a row is checked against: the paper's budget and seeds.
 REFERENCE_BUDGET: int = PRESETS["paper"].episodes
 REFERENCE_SEEDS: tuple[int, ...] = PRESETS["paper"].seeds
-PROTOCOLS = ("paper config", "tuned", "plug-in", "recorded")
+PROTOCOLS = ("paper config", "tuned", "variant", "plug-in", "recorded")
+#: how the description of a file written by ``nutribench tune best --write`` begins
+TUNED_PREFIX = "tuned by nutribench tune"
 
 Log = Callable[[str], None]
 
@@ -69,7 +72,8 @@ def protocols(configs: pd.DataFrame) -> dict[str, str]:
         if r.name in BUILTIN_ORDER and shipped.is_file():
             cfg = parse_agent_config(read_toml(shipped), shipped)
             same = int(cfg.version) == int(r.version) and agent_config_sha256(cfg) == r.sha256
-        out[r.name] = "paper config" if same else "tuned"
+        tuned = str(body.get("description", "")).startswith(TUNED_PREFIX)
+        out[r.name] = "paper config" if same else "tuned" if tuned else "variant"
     return out
 
 
