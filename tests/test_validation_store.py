@@ -9,6 +9,7 @@ import shutil
 import sqlite3
 from pathlib import Path
 
+import numpy as np
 import pytest
 from sqlalchemy import text
 from typer.testing import CliRunner
@@ -76,6 +77,34 @@ def test_the_rows_are_written_in_the_job_transaction(tmp_path: Path) -> None:
         (4, 1, 1.0),
     ]
     assert set(df["regime"]) == {"run0"} and set(df["algo"]) == {"ppo"}
+
+
+def test_archives_carry_the_validation_days(tmp_path: Path) -> None:
+    """``db export`` / ``db import`` carry the rows; a bad row in an archive is one line."""
+    from nutribench.store.archive import export_results, import_results, verify_archive
+
+    db = tmp_path / "t.db"
+    store, job_id = _running_job(db)
+    train = [
+        {k: v for k, v in _day(0, e, -1.0).items() if k not in ("train_day", "never", "planner")} for e in range(4)
+    ]
+    rows = [_day(2, 0, -1.0), _day(2, 1, 0.0), _day(4, 0, 1.0)]
+    assert store_result(store, JobResult(job_id, train, [], [], {}, validation=rows), "me", None)
+    store.dispose()
+    out = tmp_path / "a.npz"
+    assert export_results(db, out)["validation_episodes"] == 3
+    assert verify_archive(out)["validation_episodes"] == 3
+    counts = import_results(out, tmp_path / "b.db")
+    assert counts["validation_episodes"] == 3
+    cols = ["regime", "algo", "seed", "train_day", "episode", "return", "never", "planner", "gap_closed"]
+    assert read_learning_curve(tmp_path / "b.db")[cols].equals(read_learning_curve(db)[cols])
+    arrays = dict(np.load(out))
+    arrays["validation_episodes.train_day"] = np.array([2, 2, 2])  # day 0 after training day 2 twice
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, **arrays)
+    res = CliRunner().invoke(app, ["db", "import", str(bad), "--db", str(tmp_path / "c.db")])
+    assert res.exit_code == 2 and "validation_episodes row" in res.output and "twice" in res.output, res.output
+    assert not (tmp_path / "c.db").exists()
 
 
 @pytest.mark.slow
