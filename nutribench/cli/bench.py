@@ -45,6 +45,29 @@ def _share_ci(row: dict, key: str) -> str:
     return f"{100 * row[key]:+.1f} % [{100 * lo:+.1f}, {100 * hi:+.1f}]"
 
 
+def _print_eval_cost(
+    names: list[str], regime: str, episodes: int, repeats: int, every: int, n: int, engine: str
+) -> None:
+    from nutribench.bench.evalcost import bench_eval_cost
+
+    if every > episodes:
+        raise UserError(f"--eval-every {every}: more than --episodes {episodes}, no evaluation would be timed")
+    table = Table(
+        "algo",
+        "without (s, median)",
+        "with (s, median)",
+        "evaluations",
+        "cost: share of the time [95 % CI]",
+        title=f"evaluation during training every {every} days on {n} validation days, {engine} engine, "
+        f"{episodes} days x {repeats}" + (" (K = 35)" if engine == "batched" else f", {regime}"),
+    )
+    for r in bench_eval_cost(names, regime, episodes, repeats, every, n, engine):
+        table.add_row(
+            r["algo"], f"{r['without_s']:.2f}", f"{r['with_s']:.2f}", str(r["evaluations"]), _share_ci(r, "cost")
+        )
+    console.print(table)
+
+
 def _print_lockstep(names: list[str], regime: str, episodes: int, block: int) -> None:
     from nutribench.bench.lockstep import bench_diagnostics_lockstep
 
@@ -99,6 +122,15 @@ def bench_train_cmd(
         ),
     ] = False,
     block: Annotated[int, typer.Option(min=1, help="--lockstep: days per paired block (PPO's rollout: 10)")] = 10,
+    eval_every: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            help="time each repeat with and without an evaluation during training every so many days "
+            "(--engine sb3 or batched) and report its cost instead",
+        ),
+    ] = 0,
+    val_episodes: Annotated[int, typer.Option(min=1, help="--eval-every: validation days per evaluation")] = 5,
 ) -> None:
     """Training env-steps per second of each algorithm, and of bare SB3 PPO / DQN on the same
     env (the overhead of nutribench's plumbing), with the paper grid's CPU-hours at that rate.
@@ -121,6 +153,8 @@ def bench_train_cmd(
         if engine != "sb3":
             raise UserError(f"--lockstep times the SB3 engine's training, not --engine {engine}: leave --engine out")
         return _print_lockstep(names, regime, episodes, block)
+    if eval_every:
+        return _print_eval_cost(names, regime, episodes, repeats, eval_every, val_episodes, engine)
     rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats, diagnostics_cost=diagnostics_cost)
     columns = ["run", "env-steps/s (median)", "vs bare SB3 (paired median)", "paper grid CPU-hours"]
     if diagnostics_cost:
