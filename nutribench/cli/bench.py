@@ -45,23 +45,15 @@ def _share_ci(row: dict, key: str) -> str:
     return f"{100 * row[key]:+.1f} % [{100 * lo:+.1f}, {100 * hi:+.1f}]"
 
 
-def _print_eval_cost(
-    names: list[str], regime: str, episodes: int, repeats: int, every: int, n: int, engine: str
-) -> None:
+def _print_eval_cost(names: list[str], regime: str, days: int, repeats: int, every: int, n: int, engine: str) -> None:
     from nutribench.bench.evalcost import bench_eval_cost
 
-    if every > episodes:
-        raise UserError(f"--eval-every {every}: more than --episodes {episodes}, no evaluation would be timed")
-    table = Table(
-        "algo",
-        "without (s, median)",
-        "with (s, median)",
-        "evaluations",
-        "cost: share of the time [95 % CI]",
-        title=f"evaluation during training every {every} days on {n} validation days, {engine} engine, "
-        f"{episodes} days x {repeats}" + (" (K = 35)" if engine == "batched" else f", {regime}"),
-    )
-    for r in bench_eval_cost(names, regime, episodes, repeats, every, n, engine):
+    if every > days:
+        raise UserError(f"--eval-every {every}: more than --episodes {days}, no evaluation would be timed")
+    where = "K = 35" if engine == "batched" else regime
+    title = f"evaluation every {every} days on {n} validation days, {engine} engine ({where}), {days} days x {repeats}"
+    table = Table("algo", "without (s)", "with (s)", "evaluations", "cost: share of the time [95 % CI]", title=title)
+    for r in bench_eval_cost(names, regime, days, repeats, every, n, engine):
         table.add_row(
             r["algo"], f"{r['without_s']:.2f}", f"{r['with_s']:.2f}", str(r["evaluations"]), _share_ci(r, "cost")
         )
@@ -123,12 +115,7 @@ def bench_train_cmd(
     ] = False,
     block: Annotated[int, typer.Option(min=1, help="--lockstep: days per paired block (PPO's rollout: 10)")] = 10,
     eval_every: Annotated[
-        int,
-        typer.Option(
-            min=0,
-            help="time each repeat with and without an evaluation during training every so many days "
-            "(--engine sb3 or batched) and report its cost instead",
-        ),
+        int, typer.Option(min=0, help="instead: the cost of an evaluation during training every so many days")
     ] = 0,
     val_episodes: Annotated[int, typer.Option(min=1, help="--eval-every: validation days per evaluation")] = 5,
 ) -> None:
