@@ -150,3 +150,29 @@ def test_bad_periods_are_refused() -> None:
         train("run0", "mc", seed=0, episodes=1, eval_every=-1)
     with pytest.raises(ValueError, match="val_episodes"):
         train_batched([("run0", 0)], "mc", 1, eval_every=1, val_episodes=0)
+
+
+def test_a_batch_resumed_from_its_checkpoint_keeps_its_evaluations(tmp_path) -> None:
+    """Stopped in day 3 (MC: a checkpoint at each day boundary, the last one holding the
+    evaluation of day 1), resumed: the evaluations are those of a run never stopped, each once."""
+    from nutribench.engine.checkpoint import Checkpoint
+
+    jobs = [("run3", 1), ("run0", 2)]
+    whole = train_batched(jobs, "mc", 4, eval_every=1, val_episodes=2)
+
+    def stop(j: int, row: dict) -> None:
+        if row["episode"] == 2 and j == 1:
+            raise Pruned("stopped")
+
+    path = tmp_path / "c.pt"
+    every = dict(eval_every=1, val_episodes=2)
+    with pytest.raises(Pruned):
+        train_batched(jobs, "mc", 4, on_episode=stop, checkpoint=Checkpoint(path, every_seconds=0), **every)
+    calls = []
+    resumed = train_batched(
+        jobs, "mc", 4, checkpoint=Checkpoint(path, every_seconds=0), on_validation=lambda *a: calls.append(a), **every
+    )
+    assert sorted({d for _, d, _ in calls}) == [2, 3, 4]  # day 1's came back from the checkpoint
+    for a, b in zip(whole, resumed):
+        assert [r["train_day"] for r in b.validation] == [1, 1, 2, 2, 3, 3, 4, 4]
+        assert a.validation == b.validation
