@@ -52,11 +52,12 @@ def _print_eval_cost(names: list[str], regime: str, days: int, repeats: int, eve
         raise UserError(f"--eval-every {every}: more than --episodes {days}, no evaluation would be timed")
     where = "K = 35" if engine == "batched" else regime
     title = f"evaluation every {every} days on {n} validation days, {engine} engine ({where}), {days} days x {repeats}"
-    table = Table("algo", "without (s)", "with (s)", "evaluations", "cost: share of the time [95 % CI]", title=title)
+    heads = ["algo", "without (s)", "with (s)", "evaluations", "cost, wall [95 % CI]", "cost, CPU", "one alone (CPU s)"]
+    table = Table(*heads, "its share", title=title)
     for r in bench_eval_cost(names, regime, days, repeats, every, n, engine):
-        table.add_row(
-            r["algo"], f"{r['without_s']:.2f}", f"{r['with_s']:.2f}", str(r["evaluations"]), _share_ci(r, "cost")
-        )
+        times = [f"{r['without_s']:.2f}", f"{r['with_s']:.2f}", str(r["evaluations"])]
+        alone = [f"{r['evaluation_cpu_s']:.3f}", f"{100 * r['component_cost']:.1f} %"]
+        table.add_row(r["algo"], *times, _share_ci(r, "cost"), _share_ci(r, "cpu_cost"), *alone)
     console.print(table)
 
 
