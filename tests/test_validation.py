@@ -74,7 +74,7 @@ def _close(during: list[dict], post: list[dict]) -> None:
             assert d["entropy"] == pytest.approx(p["entropy"], abs=1e-5)
 
 
-@pytest.mark.parametrize("algo", ["mc", "ddqn"])
+@pytest.mark.parametrize("algo", ["mc", "ddqn", "gru_ppo", "sac"])
 def test_sb3_evaluation_during_training_leaves_training_unchanged(algo: str) -> None:
     """Same training days, weights and statistics with and without the evaluation; the
     evaluation after the last day is a post-hoc evaluation of the returned agent (MC: after
