@@ -1,4 +1,7 @@
-"""The simple policies' table: every policy on every regime, on the same food streams."""
+"""The simple policies' table: every policy on every regime, on the same food streams; and
+the yardsticks of the share of the never -> planner gap (:func:`gap_closed`) on given days:
+:func:`day_yardsticks` (the test days of a report, the validation days of a tuner) and
+:func:`validation_yardsticks` (a job's validation days)."""
 
 from __future__ import annotations
 
@@ -24,6 +27,28 @@ def play_simple_policy(policy: str, regime: str | EnvConfig, foods: np.ndarray, 
     """Per-episode metrics of ``policy`` on the given days ``(n, horizon)`` of food indices."""
     env = NutriRLVectorEnv(len(foods), regime=regime)
     return play(env, make_policy(policy, seed), episodes=len(foods), foods=foods)
+
+
+#: the two policies the share of the gap is measured between
+YARDSTICKS = ("never", "planner")
+
+
+def day_yardsticks(regime: str | EnvConfig, foods: np.ndarray) -> list[dict]:
+    """The ``never`` and ``planner`` returns on each of the days ``(n, horizon)``: one dict per
+    day (``episode``, ``never``, ``planner``)."""
+    played = {name: [float(r["return"]) for r in play_simple_policy(name, regime, foods)] for name in YARDSTICKS}
+    return [{"episode": e, **{name: played[name][e] for name in YARDSTICKS}} for e in range(len(foods))]
+
+
+def validation_yardsticks(regime: str | EnvConfig, seed: int, n: int = 5) -> dict[str, float]:
+    """The mean returns of ``never`` and ``planner`` over the ``n`` validation days of
+    ``(regime, seed)`` (:func:`~nutribench.agents.days.validation_food_streams`), the
+    yardsticks of an evaluation during training: its share of the gap is
+    ``gap_closed(mean return, never, planner)``."""
+    from nutribench.agents.days import validation_food_streams
+
+    days = day_yardsticks(regime, validation_food_streams(regime, seed, n))
+    return {name: float(np.mean([d[name] for d in days])) for name in YARDSTICKS}
 
 
 def evaluate_simple_policy(policy: str, regime: str, episodes: int = 200, seed: int = 0) -> list[dict]:

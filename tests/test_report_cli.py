@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 from nutribench.cli import app
 from nutribench.report.build import FIGURES, TABLES, build_report, load_report_data, simple_policy_references
 from nutribench.store import AgentConfig, Episode, EvalStep, Job, RegimeConfig, open_store, session_scope, utcnow
+from nutribench.store.models import ValidationEpisode
 from tests.conftest import one_error_line
 
 H = 50  # horizon of the shipped reward config
@@ -28,9 +29,11 @@ def make_db(
     eval_eps: int = 5,
     steps: bool = True,
     rng_seed: int = 0,
+    eval_every: int = 10,
 ) -> Path:
     """A results database with one done job per regime x algo x seed x budget: ``budget``
-    training episodes, ``eval_eps`` evaluation episodes (and their steps)."""
+    training episodes, ``eval_eps`` evaluation episodes (and their steps), and an evaluation
+    during training on 3 validation days every ``eval_every`` days (0: none)."""
     rng = np.random.default_rng(rng_seed)
     store = open_store(path, writer=True)
     now = utcnow()
@@ -86,6 +89,24 @@ def make_db(
                                         final_P=1.0,
                                         first_overshoot_step=None,
                                         entropy=None,
+                                    )
+                                )
+                        for day in range(eval_every, budget + 1, eval_every) if eval_every else ():
+                            for e in range(3):
+                                s.add(
+                                    ValidationEpisode(
+                                        job_id=job.id,
+                                        train_day=day,
+                                        episode=e,
+                                        ret=float(rng.normal(-60 + day, 10)),
+                                        foods=int(rng.integers(0, 12)),
+                                        final_distance=float(rng.random() * 3),
+                                        overshoot_ratio=float(rng.random()),
+                                        final_C=1.0,
+                                        final_F=1.0,
+                                        final_P=1.0,
+                                        never=-20.0,
+                                        planner=-5.0 - e,
                                     )
                                 )
                         if steps:
@@ -183,7 +204,8 @@ def test_table1_needs_no_database(tmp_path: Path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--fig", "6"], "--fig 6: the figures are 1, 2, 3, 4, 5"),
+        (["--fig", "7"], "--fig 7: the figures are 1, 2, 3, 4, 5, 6"),
+        (["--fig", "learn"], "--fig learn: the figures are 1, 2, 3, 4, 5, 6"),
         (["--fig", "1,x"], "--fig x"),
         (["--table", "7"], "--table 7"),
         ([], "nothing to build"),

@@ -8,7 +8,15 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from nutribench.cli.common import UserError, check_tensorboard, console, split_csv, user_errors
+from nutribench.cli.common import (
+    EVAL_EVERY_HELP,
+    VAL_EPISODES_HELP,
+    UserError,
+    check_tensorboard,
+    console,
+    split_csv,
+    user_errors,
+)
 
 
 @user_errors
@@ -48,6 +56,21 @@ def baselines(
     console.print(table)
 
 
+def validation_printer(out, env_cfg, seed: int, n: int):
+    """``train``'s ``on_validation``: one line per evaluation during training (mean return on the
+    validation days, the share of the never -> planner gap it closes there)."""
+    from nutribench.baselines import gap_closed, validation_yardsticks
+
+    yard = validation_yardsticks(env_cfg, seed, n)
+
+    def show(_: int, day: int, rows: list[dict]) -> None:
+        ret = sum(r["return"] for r in rows) / len(rows)
+        share = gap_closed(ret, yard["never"], yard["planner"])
+        out.print(f"validation after day {day}: return {ret:.2f} on {len(rows)} days, gap closed {share:.0%}")
+
+    return show
+
+
 @user_errors
 def train_cmd(
     algo: Annotated[str, typer.Option(help="agent config name (regimes/agents/<name>.toml) or a .toml path")] = "ppo",
@@ -63,6 +86,8 @@ def train_cmd(
             "(run folder <algo>-<regime>-seed<seed>)"
         ),
     ] = None,
+    eval_every: Annotated[int, typer.Option(min=0, help=EVAL_EVERY_HELP)] = 0,
+    val_episodes: Annotated[int, typer.Option(min=1, help=VAL_EPISODES_HELP)] = 5,
 ) -> None:
     """Train one agent in the foreground, then evaluate it greedily and print the metrics."""
     from rich.progress import (
@@ -107,7 +132,18 @@ def train_cmd(
             foods = sum(r["foods"] for r in last) / len(last)
             progress.update(task, advance=1, stats=f"return {ret:8.2f}  foods {foods:5.2f} (last {len(last)})")
 
-        agent = train(env_cfg, cfg, seed=seed, episodes=episodes, on_episode=on_episode, tensorboard=run_dir)
+        on_validation = validation_printer(progress.console, env_cfg, seed, val_episodes) if eval_every else None
+        agent = train(
+            env_cfg,
+            cfg,
+            seed=seed,
+            episodes=episodes,
+            on_episode=on_episode,
+            tensorboard=run_dir,
+            eval_every=eval_every,
+            val_episodes=val_episodes,
+            on_validation=on_validation,
+        )
     result = evaluate(agent, env_cfg, eval_food_streams(env_cfg, seed, eval_episodes), record_steps=False)
     table = Table(
         "eval day", "return", "foods", "final distance", "overshoot ratio", "final C/F/P", title="greedy evaluation"

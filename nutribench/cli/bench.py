@@ -45,6 +45,22 @@ def _share_ci(row: dict, key: str) -> str:
     return f"{100 * row[key]:+.1f} % [{100 * lo:+.1f}, {100 * hi:+.1f}]"
 
 
+def _print_eval_cost(names: list[str], regime: str, days: int, repeats: int, every: int, n: int, engine: str) -> None:
+    from nutribench.bench.evalcost import bench_eval_cost
+
+    if every > days:
+        raise UserError(f"--eval-every {every}: more than --episodes {days}, no evaluation would be timed")
+    where = "K = 35" if engine == "batched" else regime
+    title = f"evaluation every {every} days on {n} validation days, {engine} engine ({where}), {days} days x {repeats}"
+    heads = ["algo", "without (s)", "with (s)", "evaluations", "cost, wall [95 % CI]", "cost, CPU", "one alone (CPU s)"]
+    table = Table(*heads, "its share", title=title)
+    for r in bench_eval_cost(names, regime, days, repeats, every, n, engine):
+        times = [f"{r['without_s']:.2f}", f"{r['with_s']:.2f}", str(r["evaluations"])]
+        alone = [f"{r['evaluation_cpu_s']:.3f}", f"{100 * r['component_cost']:.1f} %"]
+        table.add_row(r["algo"], *times, _share_ci(r, "cost"), _share_ci(r, "cpu_cost"), *alone)
+    console.print(table)
+
+
 def _print_lockstep(names: list[str], regime: str, episodes: int, block: int) -> None:
     from nutribench.bench.lockstep import bench_diagnostics_lockstep
 
@@ -99,6 +115,10 @@ def bench_train_cmd(
         ),
     ] = False,
     block: Annotated[int, typer.Option(min=1, help="--lockstep: days per paired block (PPO's rollout: 10)")] = 10,
+    eval_every: Annotated[
+        int, typer.Option(min=0, help="instead: the cost of an evaluation during training every so many days")
+    ] = 0,
+    val_episodes: Annotated[int, typer.Option(min=1, help="--eval-every: validation days per evaluation")] = 5,
 ) -> None:
     """Training env-steps per second of each algorithm, and of bare SB3 PPO / DQN on the same
     env (the overhead of nutribench's plumbing), with the paper grid's CPU-hours at that rate.
@@ -121,6 +141,8 @@ def bench_train_cmd(
         if engine != "sb3":
             raise UserError(f"--lockstep times the SB3 engine's training, not --engine {engine}: leave --engine out")
         return _print_lockstep(names, regime, episodes, block)
+    if eval_every:
+        return _print_eval_cost(names, regime, episodes, repeats, eval_every, val_episodes, engine)
     rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats, diagnostics_cost=diagnostics_cost)
     columns = ["run", "env-steps/s (median)", "vs bare SB3 (paired median)", "paper grid CPU-hours"]
     if diagnostics_cost:

@@ -31,6 +31,12 @@ __all__ = [
 #: the help of ``--device`` (checked by :mod:`nutribench.engine.device`, which imports torch: not here)
 DEVICE_HELP = "where the batched engine trains: 'auto' (CUDA when available, else the CPU), 'cpu', 'cuda' or 'cuda:N'"
 
+EVAL_EVERY_HELP = (
+    "every so many training days, the greedy policy plays the validation days (evaluation during "
+    "training, disjoint from the test days; 0: never, the default)"
+)
+VAL_EPISODES_HELP = "validation days each evaluation during training plays"
+
 console = Console()
 err_console = Console(stderr=True)
 

@@ -63,7 +63,8 @@ def db_export_cmd(
     size = out.stat().st_size / 1e6
     console.print(
         f"{out}: {counts['jobs']} jobs, {counts['episodes']:,} episodes, {counts['eval_steps']:,} evaluation steps, "
-        f"{counts.get('diagnostics', 0):,} training diagnostics rows ({size:.1f} MB)",
+        f"{counts.get('diagnostics', 0):,} training diagnostics rows, "
+        f"{counts.get('validation_episodes', 0):,} validation days ({size:.1f} MB)",
         highlight=False,
     )
 
@@ -88,6 +89,7 @@ def db_import_cmd(
     console.print(
         f"{archive} -> {display_url(database_url(db))}: {counts['imported']} jobs imported ({counts['episodes']:,} episodes, "
         f"{counts['eval_steps']:,} evaluation steps), {counts['kept']} already done there and kept; "
-        f"{counts.get('diagnostics', 0):,} training diagnostics rows",
+        f"{counts.get('diagnostics', 0):,} training diagnostics rows, "
+        f"{counts.get('validation_episodes', 0):,} validation days",
         highlight=False,
     )

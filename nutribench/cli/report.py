@@ -19,16 +19,18 @@ def _split(values: list[str] | None) -> list[str]:
 
 
 def parse_figs(values: list[str] | None) -> list[int]:
-    """``--fig`` values as figure numbers (``all`` = every figure); bad values raise UserError."""
-    from nutribench.report.build import FIGURES
+    """``--fig`` values as figure numbers (``all`` = every figure; ``aggregate`` = 5, ``learning``
+    = 6); bad values raise UserError."""
+    from nutribench.report.build import FIGURE_NAMES, FIGURES
 
-    items = _split(values)
+    items = [str(FIGURE_NAMES.get(v, v)) for v in _split(values)]
     if "all" in items:
         return list(FIGURES)
     bad = [v for v in items if not (v.isdigit() and int(v) in FIGURES)]
     if bad:
         raise UserError(
-            f"--fig {', '.join(bad)}: the figures are {', '.join(map(str, FIGURES))} (repeat --fig or give a comma list)"
+            f"--fig {', '.join(bad)}: the figures are {', '.join(map(str, FIGURES))} "
+            f"({', '.join(f'{n} = {k}' for n, k in FIGURE_NAMES.items())}; repeat --fig or give a comma list)"
         )
     return list(dict.fromkeys(int(v) for v in items))
 
@@ -64,7 +66,9 @@ def report_cmd(
     fig: Annotated[
         Optional[list[str]],
         typer.Option(
-            "--fig", help="figure 1-4, or 5 (aggregate scores over regimes and seeds) (repeat or comma list; 'all')"
+            "--fig",
+            help="figure 1-4, 5 (aggregate scores over regimes and seeds) or 6 / 'learning' (learning curves of "
+            "the evaluations during training, run --eval-every) (repeat or comma list; 'all')",
         ),
     ] = None,
     table: Annotated[

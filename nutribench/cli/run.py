@@ -16,7 +16,17 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import DEVICE_HELP, check_tensorboard, console, err_console, split_csv, user_errors
+from nutribench.cli.common import (
+    DEVICE_HELP,
+    EVAL_EVERY_HELP,
+    VAL_EPISODES_HELP,
+    UserError,
+    check_tensorboard,
+    console,
+    err_console,
+    split_csv,
+    user_errors,
+)
 from nutribench.scheduler.executors import ExecutorError
 from nutribench.scheduler.grid import DEFAULT_PRESET, PRESETS
 
@@ -35,6 +45,17 @@ def _check_db(db: str) -> None:
     path = sqlite_path(database_url(db))
     if path is not None:
         check_sqlite_file(path, create=True)
+
+
+def _check_eval_every(eval_every: int, agent_cfgs) -> None:
+    """Evaluation during training runs in the built-in algorithms' loops: a plug-in agent
+    (an entry point) is refused, in one line, before anything is written."""
+    plugins = [a.name for a in agent_cfgs if getattr(a.obj, "entry_point", None)]
+    if eval_every and plugins:
+        raise UserError(
+            f"--eval-every: {', '.join(plugins)} trains in its own loop (a plug-in agent), which evaluation "
+            "during training cannot enter; leave them out of this run or drop --eval-every"
+        )
 
 
 def _check_models_dir(models_dir: Path | None, db: str) -> None:
@@ -114,6 +135,8 @@ def run_cmd(
             "(one run folder per job: job<id>-<algo>-<regime>-seed<seed>)"
         ),
     ] = None,
+    eval_every: Annotated[int, typer.Option(min=0, help=EVAL_EVERY_HELP + "; stored in validation_episodes")] = 0,
+    val_episodes: Annotated[int, typer.Option(min=1, help=VAL_EPISODES_HELP)] = 5,
 ) -> None:
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
     from nutribench.store import open_store
@@ -150,7 +173,8 @@ def run_cmd(
     if tensorboard is not None:
         check_tensorboard(tensorboard)
     _check_db(db)
-    load_grid_configs(grid)  # a broken config file fails here, before the database exists
+    _, agent_cfgs = load_grid_configs(grid)  # a broken config file fails here, before the database exists
+    _check_eval_every(eval_every, agent_cfgs)
     job_fn = default_job_fn()
     try:
         summary = run_grid(
@@ -170,6 +194,8 @@ def run_cmd(
             max_batch=batch_size,
             device=device,
             tensorboard=tensorboard,
+            eval_every=eval_every,
+            val_episodes=val_episodes,
         )
     except KeyboardInterrupt:  # before any job started (opening the database, claiming)
         raise typer.Exit(130) from None

@@ -14,6 +14,7 @@ import math
 import torch as th
 
 from nutribench.engine.device import leaves_on
+from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.on_policy import OnPolicyAlgorithm, log_prob_entropy
 from nutribench.engine.stacked import linears, orthogonal
 
@@ -132,3 +133,6 @@ class ActorCriticAlgorithm(OnPolicyAlgorithm):
 
     def make_actor(self, net: StackedActorCritic) -> FeedforwardActor:
         return FeedforwardActor(net)
+
+    def greedy(self) -> Greedy:
+        return lambda obs: greedy_categorical(self.net.forward(obs)[0])

@@ -31,11 +31,13 @@ import torch as th
 
 from nutribench import diagnostics as names
 from nutribench.agents.api import TrainedAgent
+from nutribench.agents.validation import DEFAULT_VAL_EPISODES, ValidationFn, check_eval_every
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.engine import check_supported
 from nutribench.engine.checkpoint import Checkpoint, CheckpointRefused
 from nutribench.engine.device import resolve_device
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, OtherJobs, as_trained_agent
+from nutribench.engine.evaluate import BatchValidator, Greedy
 from nutribench.engine.stacked import RunningStats
 
 
@@ -59,6 +61,8 @@ class Algorithm:
         self.on_update: Callable[[dict[str, Any]], None] | None = None
         #: env steps of each agent so far (SB3's ``num_timesteps`` with one env)
         self.num_timesteps = 0
+        #: the evaluations during training (``train_batched``'s ``eval_every``), None: none
+        self.validator: BatchValidator | None = None
 
     @classmethod
     def train_jobs(
@@ -71,16 +75,23 @@ class Algorithm:
         device: str | th.device = "cpu",
         on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None,
         on_update: Callable[[dict[str, Any]], None] | None = None,
+        eval_every: int | None = None,
+        val_episodes: int = DEFAULT_VAL_EPISODES,
+        on_validation: ValidationFn | None = None,
     ) -> list[TrainedAgent]:
         """Train one agent of ``cfg`` (a config of this algorithm) per ``(regime, seed)`` of
         ``jobs`` for ``episodes`` days, all at once, and hand each back with its diagnostics
         (:func:`~nutribench.engine.train.train_batched` says what the arguments do)."""
         check_supported(cfg, load_env_config(jobs[0][0]).reward.horizon if jobs else None)  # before anything trains
         device = resolve_device(device)
+        every = check_eval_every(eval_every, val_episodes)
 
         def made() -> Algorithm:
-            algorithm = cls(cfg, AgentEnvs(jobs, cfg.normalize_obs, on_episode), device)
+            envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
+            algorithm = cls(cfg, envs, device)
             algorithm.on_rollout, algorithm.on_update = on_rollout, on_update
+            if every:
+                algorithm.validator = BatchValidator(envs, every, val_episodes, on_validation)
             return algorithm
 
         algorithm = made()
@@ -90,6 +101,7 @@ class Algorithm:
             checkpoint.refuse(exc)
             algorithm = made()
             wall = algorithm.learn(episodes * algorithm.envs.horizon, checkpoint)
+        algorithm.day_boundary(episodes * algorithm.envs.horizon)  # the evaluation after the last day
         return algorithm.trained_agents(episodes, wall)
 
     def trained_agents(self, episodes: int, wall: float) -> list[TrainedAgent]:
@@ -108,6 +120,7 @@ class Algorithm:
                 str(self.device),
             )
             agent.diagnostics = self.diagnostics[j]
+            agent.validation = self.envs.validation[j]
             agents.append(agent)
         return agents
 
@@ -153,6 +166,18 @@ class Algorithm:
         self.envs.load_state_dict(state["envs"])
         self.diagnostics = [list(rows) for rows in state["diagnostics"]]
         self.num_timesteps = int(state["steps"])
+
+    def greedy(self) -> Greedy:
+        """A fresh greedy player of the K agents' current policies for days played side by
+        side (:data:`nutribench.engine.evaluate.Greedy`; a recurrent one starts each day from
+        the zero state), as the SB3 model of each agent acts with ``deterministic=True``."""
+        raise NotImplementedError
+
+    def day_boundary(self, steps: int) -> None:
+        """The loops call this before every env step (``steps`` taken so far by each agent):
+        after a day's end, the evaluation during training that is due (:attr:`validator`)."""
+        if self.validator is not None:
+            self.validator.at(steps, self.greedy, self.device)
 
     @property
     def return_stats(self) -> RunningStats | None:

@@ -73,6 +73,8 @@ class AgentEnvs:
         self.on_episode = on_episode
         self.days_drawn: list[np.ndarray] = []  # each day's foods (K, horizon), for tests
         self.episodes: list[list[dict[str, Any]]] = [[] for _ in range(self.k)]
+        #: each agent's validation rows so far (:mod:`nutribench.engine.evaluate`), kept in checkpoints
+        self.validation: list[list[dict[str, Any]]] = [[] for _ in range(self.k)]
         self._entropy = np.zeros(self.k)
 
     def state_dict(self) -> dict[str, Any]:
@@ -88,6 +90,7 @@ class AgentEnvs:
             "obs_stats": None if self.obs_stats is None else self.obs_stats.state_dict(),
             "days_drawn": days,
             "episodes": self.episodes,
+            "validation": self.validation,
             "entropy": self._entropy,
             "groups": [{"env": _plain_state(g.env), "recorder": _plain_state(g.recorder)} for g in self.groups],
         }
@@ -111,6 +114,7 @@ class AgentEnvs:
             self.obs_stats.load_state_dict(saved["obs_stats"])
         self._entropy = np.asarray(saved["entropy"], dtype=np.float64)
         self.days_drawn, self.episodes = list(saved["days_drawn"]), [list(e) for e in saved["episodes"]]
+        self.validation[:] = [list(v) for v in saved.get("validation") or [[] for _ in range(self.k)]]  # in place
 
     def new_days(self) -> np.ndarray:
         """Start a day for every agent (foods from its own stream); the raw observations."""

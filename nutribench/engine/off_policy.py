@@ -194,6 +194,7 @@ class OffPolicyAlgorithm(Algorithm):
             self.last_obs = envs.seen(self.raw)
         first, t0 = self.num_timesteps, time.perf_counter()
         while self.num_timesteps < total_steps:
+            self.day_boundary(self.num_timesteps)  # the evaluation during training that is due, if any
             start_of_day = self.num_timesteps % envs.horizon == 0
             if start_of_day and checkpoint is not None and self.num_timesteps > first and checkpoint.due():
                 checkpoint.save(**self.state_dict())

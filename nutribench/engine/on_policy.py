@@ -278,6 +278,7 @@ class OnPolicyAlgorithm(Algorithm):
         uniforms = np.stack([r.random(n_steps) for r in envs.rng["actions"]])
         obs, start_of_day = self.last_obs, self.start_of_day
         for t in range(n_steps):
+            self.day_boundary(self.num_timesteps)  # the evaluation during training that is due, if any
             with th.no_grad():
                 logits, values = self.actor(th.as_tensor(obs, device=device), th.as_tensor(start_of_day, device=device))
             logp = th.log_softmax(logits, dim=-1).cpu().numpy()

@@ -37,7 +37,7 @@ from nutribench.engine import supports
 from nutribench.engine.checkpoint import Checkpoint, checkpoint_files
 from nutribench.engine.device import resolve_device
 from nutribench.engine.train import train_batched
-from nutribench.jobs.run import check_configs
+from nutribench.jobs.run import check_configs, with_yardsticks
 from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
 from nutribench.jobs.worker import JobProgress, Sink
 from nutribench.provenance import collect_metadata, git_state
@@ -47,8 +47,8 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
     """Train the jobs ``specs`` (one agent config, one budget) at once; one result per job."""
     for spec in specs:
         check_configs(spec)
-    if len({(s.algo, s.algo_version, s.episodes, s.device) for s in specs}) != 1:
-        raise JobFailed("a batch needs one agent config, one budget and one device")
+    if len({(s.algo, s.algo_version, s.episodes, s.device, s.eval_every, s.val_episodes) for s in specs}) != 1:
+        raise JobFailed("a batch needs one agent config, one budget, one device and one evaluation period")
     for spec in specs:  # the scheduler sends such configs to the SB3 engine; never train them otherwise
         reason = supports(spec.agent_config, spec.regime_config.reward.horizon)
         if reason is not None:
@@ -73,6 +73,8 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
         on_episode=lambda j, row: progress[j].episode(row["episode"] + 1, row["return"]),
         checkpoint=checkpoint,
         device=device,
+        eval_every=specs[0].eval_every,
+        val_episodes=specs[0].val_episodes,
     )
     train_wall = time.perf_counter() - t0 + (checkpoint.seconds_before if checkpoint is not None else 0.0)
     meta = collect_metadata()
@@ -96,6 +98,7 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
                 | {"started_at": started, "finished_at": utcnow(), "wall_seconds": wall, "engine": "batched"},
                 model_path=model_path,
                 diagnostics=list(getattr(agent, "diagnostics", None) or []),
+                validation=with_yardsticks(spec, agent.validation),
             )
         )
         if spec.tensorboard:
@@ -197,6 +200,8 @@ def checkpoint_path(specs: list[JobSpec]) -> Path | None:
         specs[0].episodes,
         [(s.regime_sha256, s.seed) for s in specs],
     ]
+    if specs[0].eval_every:  # evaluated during training: another checkpoint (names without it unchanged)
+        what.append([specs[0].eval_every, specs[0].val_episodes])
     digest = hashlib.sha256(json.dumps(what).encode()).hexdigest()[:16]
     models = Path(specs[0].model_path).parents[2]
     return models / "checkpoints" / f"{specs[0].algo}-v{specs[0].algo_version}-{digest}.pt"

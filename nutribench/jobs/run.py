@@ -9,9 +9,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from nutribench.agents.api import eval_food_streams, evaluate, train
+from nutribench.agents.api import eval_food_streams, evaluate, train, validation_food_streams
 from nutribench.agents.config import agent_config_sha256
 from nutribench.agents.registry import entry_point_source
+from nutribench.baselines import day_yardsticks
 from nutribench.clock import utcnow
 from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
 from nutribench.jobs.worker import JobProgress, Sink
@@ -26,10 +27,23 @@ def check_configs(spec: JobSpec) -> None:
         raise JobFailed(f"{spec.label}: agent config content changed since the job was recorded")
 
 
+def with_yardsticks(spec: JobSpec, validation: list[dict]) -> list[dict]:
+    """A job's validation rows, each with the ``never`` and ``planner`` returns on its day (the
+    yardsticks of its share of the gap), as stored in ``validation_episodes``."""
+    if not validation:
+        return []
+    days = day_yardsticks(spec.regime_config, validation_food_streams(spec.regime_config, spec.seed, spec.val_episodes))
+    return [
+        {**row, "never": days[row["episode"]]["never"], "planner": days[row["episode"]]["planner"]}
+        for row in validation
+    ]
+
+
 def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
     """Train ``spec.agent_config`` on ``spec.regime_config`` for ``spec.episodes`` days with
     ``spec.seed``, then evaluate greedily on ``spec.eval_episodes`` days drawn from the seed
-    (the same days for every algorithm), and save the model to ``spec.model_path``. The
+    (the same days for every algorithm), and save the model to ``spec.model_path``; every
+    ``spec.eval_every`` training days, a greedy evaluation on the validation days. The
     result carries the training diagnostics (one row per update), also written as
     TensorBoard events under ``spec.tensorboard`` when it is set."""
     check_configs(spec)
@@ -43,6 +57,8 @@ def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
         episodes=spec.episodes,
         on_episode=lambda row: progress.episode(row["episode"] + 1, row["return"]),
         tensorboard=Path(spec.tensorboard) / spec.run_name if spec.tensorboard else None,
+        eval_every=getattr(spec, "eval_every", 0),
+        val_episodes=getattr(spec, "val_episodes", 5),
     )
     progress.phase("eval")
     streams = eval_food_streams(spec.regime_config, spec.seed, spec.eval_episodes)
@@ -68,4 +84,5 @@ def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
         meta,
         model_path=model_path,
         diagnostics=agent.diagnostics,
+        validation=with_yardsticks(spec, agent.validation),
     )

@@ -18,6 +18,8 @@ class JobSpec:
     ``cuda`` or ``cuda:N``, resolved in the worker); the SB3 engine trains on the CPU.
     ``tensorboard``: a folder (on the worker's machine) under which the job writes its
     training diagnostics as TensorBoard events, in a folder of its own (:attr:`run_name`).
+    ``eval_every``: every so many training days the greedy policy plays ``val_episodes``
+    validation days (:mod:`nutribench.agents.validation`); 0: never (the default).
     """
 
     job_id: int
@@ -36,6 +38,8 @@ class JobSpec:
     attempt: int = 1
     device: str = "cpu"
     tensorboard: str | None = None
+    eval_every: int = 0
+    val_episodes: int = 5
 
     @property
     def label(self) -> str:
@@ -57,7 +61,8 @@ class JobResult:
     ``P``, ``reward``). ``metadata``: reproducibility facts (see :mod:`nutribench.provenance`)
     plus ``started_at``, ``finished_at`` (naive UTC) and ``wall_seconds``. ``diagnostics``:
     one dict per training update, keyed by :data:`nutribench.diagnostics.COLUMNS` (absent
-    quantities are NULL).
+    quantities are NULL). ``validation``: one dict per validation day of each evaluation
+    during training: ``train_day``, ``episode`` and the metric keys of ``eval``.
     """
 
     job_id: int
@@ -67,6 +72,7 @@ class JobResult:
     metadata: dict[str, Any]
     model_path: str | None = None
     diagnostics: list[dict[str, Any]] = field(default_factory=list)
+    validation: list[dict[str, Any]] = field(default_factory=list)
 
 
 class JobFailed(RuntimeError):

@@ -69,7 +69,10 @@ FIGURES: dict[int, str] = {
     3: "fig3_eval_across_regimes",
     4: "fig4_ppo_vs_gru_ppo",
     5: "fig5_aggregate",  # not the paper's: aggregate scores with rliable (nutribench.report.aggregate)
+    6: "fig6_learning_curve",  # not the paper's: evaluation during training (nutribench.report.learning)
 }
+#: ``--fig`` names of figures
+FIGURE_NAMES: dict[str, int] = {"aggregate": 5, "learning": 6}
 #: Figure 4's default pair (its file keeps the name ``fig4_ppo_vs_gru_ppo``).
 FIG4_ALGOS = DEFAULT_PAIR = ("ppo", "gru_ppo")
 
@@ -135,6 +138,10 @@ def build_figure(
             )
         elif number in (3, 4):
             res = _eval_figure(number, data, pair, reference_episodes, log)
+        elif number == 6:
+            raise ReportError(
+                "figure 6 is read from the database: build_report(db, figs=[6]) or learning_figure(db, data)"
+            )
         elif number == 5:
             from nutribench.report.aggregate_view import aggregate_figure
 
@@ -147,6 +154,18 @@ def build_figure(
         raise ReportError(f"figure {number}: {e}") from None
     # what load_report_data left out (older versions, smaller budgets) goes on the figure too
     return _add_notes(res, data.notes)
+
+
+def learning_figure(db: Db, data: ReportData | None, algos: Sequence[str] | None = None) -> FigureResult:
+    """Figure 6: the learning curves of the evaluations during training stored in ``db``
+    (:mod:`nutribench.report.learning`), in ``data``'s colours; :class:`ReportError` without any."""
+    from nutribench.report.learning import learning_curve_figure
+    from nutribench.store import read_learning_curve
+
+    try:
+        return learning_curve_figure(read_learning_curve(db), data.colors if data else None, algos)
+    except ValueError as e:
+        raise ReportError(f"figure 6: {e}") from None
 
 
 def _with_notes(res: TableResult, data: ReportData) -> TableResult:
@@ -320,8 +339,12 @@ def build_report(
     for f in figs:
         step(f"figure {f}")
         res = built(
-            lambda f=f: build_figure(
-                f, pair_data if f == 4 else data, reference_episodes=reference_episodes, log=log, pair=pair
+            lambda f=f: (
+                learning_figure(db, data, algos)
+                if f == 6
+                else build_figure(
+                    f, pair_data if f == 4 else data, reference_episodes=reference_episodes, log=log, pair=pair
+                )
             )
         )
         if res is not None:

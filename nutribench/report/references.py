@@ -48,7 +48,7 @@ def eval_day_references(ev: pd.DataFrame, log: Log | None = None) -> pd.DataFram
     Columns: regime, seed, episode, never, planner.
     """
     from nutribench.agents import eval_food_streams
-    from nutribench.baselines import play_simple_policy
+    from nutribench.baselines import day_yardsticks
     from nutribench.config import load_env_config
 
     rows: list[dict[str, Any]] = []
@@ -64,12 +64,5 @@ def eval_day_references(ev: pd.DataFrame, log: Log | None = None) -> pd.DataFram
                 log(f"no never/planner yardsticks for {regime} v{version}: the regime file is v{cfg.version}")
             continue
         streams = eval_food_streams(regime, int(seed), int(days["episode"].max()) + 1)
-        played = {
-            name: [float(r["return"]) for r in play_simple_policy(name, regime, streams)]
-            for name in ("never", "planner")
-        }
-        rows += [
-            {"regime": regime, "seed": seed, "episode": e, "never": played["never"][e], "planner": played["planner"][e]}
-            for e in range(len(streams))
-        ]
+        rows += [{"regime": regime, "seed": seed, **d} for d in day_yardsticks(regime, streams)]
     return pd.DataFrame(rows, columns=["regime", "seed", "episode", "never", "planner"])

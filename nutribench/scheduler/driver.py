@@ -299,6 +299,8 @@ def run_grid(
     max_batch: int = MAX_BATCH,
     device: str = "auto",
     tensorboard: str | os.PathLike[str] | None = None,
+    eval_every: int | None = None,
+    val_episodes: int = 5,
 ) -> RunSummary:
     """Run every job of the grid regime x algo x seed that is not done yet (see the module
     docstring). Returns counts; ``summary.exit_code`` is what ``nutribench run`` exits with.
@@ -307,7 +309,8 @@ def run_grid(
     one per worker (:mod:`nutribench.engine`), each job stored on its own with ``jobs.engine``,
     on ``device`` (``auto``: CUDA where a worker has it; the SB3 engine takes ``auto`` or ``cpu``).
     ``tensorboard``: a folder; each job writes its training diagnostics there as TensorBoard
-    events, in a run folder of its own (:attr:`~nutribench.jobs.spec.JobSpec.run_name`).
+    events, in a run folder of its own (:attr:`~nutribench.jobs.spec.JobSpec.run_name`). ``eval_every``:
+    every so many training days, a greedy evaluation on ``val_episodes`` validation days (stored).
     Raises ConfigError (bad config file), StoreError (bad database), ExecutorError (bad ``executor``),
     DeviceError (bad ``device``) or RunError (config changed without a version bump), all one line.
     """
@@ -331,7 +334,7 @@ def run_grid(
         owner = driver_token()
         out = Path(models_dir) if models_dir is not None else default_models_dir(store)
         remove_finished_checkpoints(store, out / "checkpoints")  # killed batches whose jobs are done since
-        make_spec = spec_maker(store, grid, regime_cfgs, agent_cfgs, out, device, tensorboard)
+        make_spec = spec_maker(store, grid, regime_cfgs, agent_cfgs, out, device, tensorboard, eval_every, val_episodes)
         summary = RunSummary(total=len(job_ids))
         held, _ = held_elsewhere(store, job_ids, owner)
         if runnable or held:

@@ -24,11 +24,14 @@ def spec_maker(
     models_dir: Path,
     device: str,
     tensorboard: str | os.PathLike[str] | None,
+    eval_every: int = 0,
+    val_episodes: int = 5,
 ) -> Callable[[Job], JobSpec]:
     """A function from a job row of ``grid`` (registered in ``store`` from ``regime_cfgs`` and
     ``agent_cfgs``: :func:`~nutribench.scheduler.registration.load_grid_configs`) to its
     :class:`~nutribench.jobs.spec.JobSpec`: its model file under ``models_dir``, trained on
-    ``device``, its TensorBoard events (if any) under ``tensorboard``."""
+    ``device``, its TensorBoard events (if any) under ``tensorboard``, evaluated on
+    ``val_episodes`` validation days every ``eval_every`` training days (0: never)."""
     regimes, agents = {r.name: r for r in regime_cfgs}, {a.name: a for a in agent_cfgs}
     with store.engine.connect() as conn:
         rid = dict(
@@ -57,6 +60,8 @@ def spec_maker(
             attempt=job.attempt,
             device=device,
             tensorboard=events,
+            eval_every=int(eval_every or 0),
+            val_episodes=val_episodes,
         )
 
     return make_spec

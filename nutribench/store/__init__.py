@@ -15,6 +15,7 @@ from nutribench.store.queries import (
     read_episode_metrics,
     read_eval_trajectories,
     read_jobs,
+    read_learning_curve,
     read_training_diagnostics,
 )
 from nutribench.store.schema import Store, head_revision, open_store
@@ -36,6 +37,7 @@ __all__ = [
     "read_episode_metrics",
     "read_eval_trajectories",
     "read_jobs",
+    "read_learning_curve",
     "read_training_diagnostics",
     "session_scope",
     "utcnow",

@@ -16,7 +16,9 @@ columns of schema revision 0004 (``fake``, ``batch_id``, ``batch_size``, ``devic
 ``fake = false`` and NULLs. The training diagnostics of revision 0005 travel as the table
 ``diagnostics.<column>`` (``job``, ``update``, ``timestep`` and the quantities, NULL masks
 as above; no update twice per job); an archive written before it has none and imports with
-no diagnostics rows.
+no diagnostics rows. The evaluations during training of revision 0006 travel likewise as
+``validation_episodes.<column>`` (no (training day, day) twice per job, training days from 1,
+foods within a day); an older archive has none.
 
 An archive is a file from anywhere, so nothing in it is believed (:func:`read_archive`):
 before a database is opened (or created) the whole archive is checked, and the first thing
@@ -345,7 +347,7 @@ def _write(
             name: np.searchsorted(arrays[f"{name}.job"][positions[name]], np.arange(len(meta["jobs"]) + 1))
             for name in _TABLES
         }
-        counts = {"imported": 0, "kept": 0, "episodes": 0, "eval_steps": 0, "diagnostics": 0}
+        counts = {"imported": 0, "kept": 0, **{name: 0 for name in _TABLES}}
         imported: list[int] = []
         for i, job in enumerate(meta["jobs"]):
             rid = config_ids[(RegimeConfig, *job["regime"])]

@@ -326,6 +326,7 @@ def _check_rows(
         raise _Invalid(
             f"diagnostics row {row}: job {int(dg['job'][row])}'s update {int(dg['update'][row])} is there twice"
         )
+    _check_validation(tables["validation_episodes"], per_job)
     trains = np.bincount(job[train], minlength=n_jobs)
     evals = np.bincount(job[~train], minlength=n_jobs)
     steps = np.bincount(sjob, minlength=n_jobs)
@@ -342,6 +343,23 @@ def _check_rows(
                 f"{label} has {steps[i]:,} evaluation steps, not {per_job['eval_episodes'][i]} days x "
                 f"{per_job['horizon'][i]} = {want_steps[i]:,}"
             )
+
+
+def _check_validation(va: dict[str, np.ndarray], per_job: dict[str, np.ndarray]) -> None:
+    """The rows of ``validation_episodes``: training days from 1, days from 0, foods within a
+    day, no (job, training day, day) twice."""
+    horizon = per_job["horizon"][va["job"]] if va["job"].size else va["job"]
+    for col, lo, hi in (("train_day", 1, None), ("episode", 0, None), ("foods", 0, horizon)):
+        bad = (va[col] < lo) | (va[col] > hi if hi is not None else False)
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise _Invalid(f"validation_episodes row {row}: {col} {int(va[col][row])} is out of its range")
+    row = _duplicate([va["job"], va["train_day"], va["episode"]])
+    if row is not None:
+        raise _Invalid(
+            f"validation_episodes row {row}: job {int(va['job'][row])}'s validation day {int(va['episode'][row])} "
+            f"after training day {int(va['train_day'][row])} is there twice"
+        )
 
 
 def _verify(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:

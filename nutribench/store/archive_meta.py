@@ -19,16 +19,31 @@ from typing import Any
 import numpy as np
 
 from nutribench.config.loading import content_sha256
-from nutribench.store.models import JOB_STATUSES, AgentConfig, Diagnostic, Episode, EvalStep, Job, RegimeConfig
+from nutribench.store.models import (
+    JOB_STATUSES,
+    AgentConfig,
+    Diagnostic,
+    Episode,
+    EvalStep,
+    Job,
+    RegimeConfig,
+    ValidationEpisode,
+)
 
 FORMAT = "nutribench-results"
 FORMAT_VERSION = 1
 #: job columns an archive leaves out: ids (remapped on import) and the driver's bookkeeping
 _JOB_SKIP = ("id", "regime_id", "agent_config_id", "owner", "heartbeat_at", "worker_pid")
 _CONFIG_SKIP = ("id",)
-_TABLES = {"episodes": Episode, "eval_steps": EvalStep, "diagnostics": Diagnostic}
-#: tables an archive written before them lacks: read as empty (revision 0005: diagnostics)
-_OPTIONAL_TABLES = ("diagnostics",)
+_TABLES = {
+    "episodes": Episode,
+    "eval_steps": EvalStep,
+    "diagnostics": Diagnostic,
+    "validation_episodes": ValidationEpisode,
+}
+#: tables an archive written before them lacks: read as empty (revision 0005: diagnostics;
+#: 0006: validation_episodes)
+_OPTIONAL_TABLES = ("diagnostics", "validation_episodes")
 
 #: The names of regimes and agent configs: what files, figures and tables are named after.
 NAME_PATTERN = re.compile(r"[a-z][a-z0-9_]*")

@@ -32,10 +32,12 @@ from nutribench.store.models import (
     EPISODE_METRICS,
     EVAL_STEP_COLUMNS,
     METADATA_COLUMNS,
+    VALIDATION_COLUMNS,
     Diagnostic,
     Episode,
     EvalStep,
     Job,
+    ValidationEpisode,
 )
 from nutribench.store.schema import Store
 
@@ -200,6 +202,14 @@ def episode_rows(job_id: int, phase: str, episodes: list[dict[str, Any]]) -> lis
     return rows
 
 
+def validation_rows(job_id: int, validation: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """A job's evaluations during training as ``validation_episodes`` rows (None where absent)."""
+    return [
+        {"job_id": job_id, **{("ret" if c == "return" else c): v.get(c) for c in VALIDATION_COLUMNS}}
+        for v in validation
+    ]
+
+
 def diagnostic_rows(job_id: int, diagnostics: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """A job's training diagnostics as ``diagnostics`` rows: every column, None where absent
     (a non-finite value is stored as NULL too)."""
@@ -218,7 +228,7 @@ def diagnostic_rows(job_id: int, diagnostics: list[dict[str, Any]]) -> list[dict
 
 def store_result(store: Store, result: JobResult, owner: str, model_path: str | None) -> bool:
     """Write a finished job in one transaction: its episodes, evaluation steps, training
-    diagnostics, metadata and status ``done``. False (nothing written) if this driver no
+    diagnostics, validation days, metadata and status ``done``. False (nothing written) if this driver no
     longer owns the job."""
     with session_scope(store.engine) as s:
         meta = {k: result.metadata[k] for k in METADATA_COLUMNS if k in result.metadata}
@@ -252,6 +262,9 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
         diagnostics = getattr(result, "diagnostics", None)  # a result pickled before it had them: none
         if diagnostics:
             s.execute(insert(Diagnostic), diagnostic_rows(result.job_id, diagnostics))
+        validation = getattr(result, "validation", None)  # likewise: a result pickled before revision 0006
+        if validation:
+            s.execute(insert(ValidationEpisode), validation_rows(result.job_id, validation))
         return True
 
 

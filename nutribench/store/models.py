@@ -20,6 +20,11 @@
     variance, gradient norm, learning rate, epsilon, mean Q, return scale: the vocabulary of
     :mod:`nutribench.diagnostics`, NULL where an algorithm has no such quantity); primary key
     (job, update). Written in the same transaction that marks the job done.
+``validation_episodes``
+    Evaluation during training (revision 0006): one row per validation day of each greedy
+    evaluation a job made every ``--eval-every`` training days, keyed by (job, train_day,
+    episode), the metrics of an evaluation row plus the ``never`` and ``planner`` returns on
+    that day (the yardsticks of the share of the gap). Written with the job's other rows.
 
 The views ``episode_metrics`` and ``eval_trajectories`` (names joined in) are created by
 the migrations (see :mod:`nutribench.store.views`); views are not ORM models.
@@ -235,6 +240,27 @@ class Diagnostic(Base):
     return_scale: Mapped[float | None] = mapped_column(Float, doc="VecNormalize's reward scale")
 
 
+class ValidationEpisode(Base):
+    """One validation day of a greedy evaluation during training (:mod:`nutribench.agents.validation`)."""
+
+    __tablename__ = "validation_episodes"
+
+    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
+    train_day: Mapped[int] = mapped_column(Integer, primary_key=True, doc="training days played before it")
+    episode: Mapped[int] = mapped_column(Integer, primary_key=True, doc="the validation day, 0-based")
+    ret: Mapped[float] = mapped_column("return", Float)
+    foods: Mapped[int] = mapped_column(Integer)
+    final_distance: Mapped[float] = mapped_column(Float)
+    overshoot_ratio: Mapped[float] = mapped_column(Float)
+    final_C: Mapped[float] = mapped_column(Float)
+    final_F: Mapped[float] = mapped_column(Float)
+    final_P: Mapped[float] = mapped_column(Float)
+    first_overshoot_step: Mapped[int | None] = mapped_column(Integer)
+    entropy: Mapped[float | None] = mapped_column(Float)
+    never: Mapped[float | None] = mapped_column(Float, doc="the never-eat policy's return on that day")
+    planner: Mapped[float | None] = mapped_column(Float, doc="the full-information planner's return on that day")
+
+
 #: Metric columns of ``episodes`` (and of the ``episode_metrics`` view), in order: the
 #: env's metrics (:data:`nutribench.env.metrics.METRIC_KEYS`, tested equal) and the
 #: policy's entropy. Read off the table, so the schema is the one place they are listed.
@@ -248,6 +274,9 @@ EVAL_STEP_COLUMNS: tuple[str, ...] = tuple(c.name for c in EvalStep.__table__.co
 #: Columns of ``diagnostics`` a job result fills (all but ``job_id``): those of
 #: :data:`nutribench.diagnostics.COLUMNS`, tested equal.
 DIAGNOSTIC_COLUMNS: tuple[str, ...] = tuple(c.name for c in Diagnostic.__table__.columns if c.name != "job_id")
+
+#: Columns of ``validation_episodes`` a job result fills (all but ``job_id``).
+VALIDATION_COLUMNS: tuple[str, ...] = tuple(c.name for c in ValidationEpisode.__table__.columns if c.name != "job_id")
 
 #: Columns of ``jobs`` that record where and with what a job ran (from
 #: :func:`nutribench.provenance.collect_metadata` and the worker's clock).

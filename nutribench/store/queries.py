@@ -107,6 +107,20 @@ def read_training_diagnostics(
     return _read(db, "training_diagnostics", filters, '"job_id", "update"', latest_only)
 
 
+def read_learning_curve(
+    db: Db,
+    *,
+    regimes: Iterable[str] | str | None = None,
+    algos: Iterable[str] | str | None = None,
+    seeds: Iterable[int] | int | None = None,
+    latest_only: bool = False,
+) -> pd.DataFrame:
+    """Rows of ``learning_curve``: one per validation day of each evaluation during training
+    (columns in :mod:`nutribench.store.views`), ordered by job, training day and day."""
+    filters = {"regime": regimes, "algo": algos, "seed": seeds}
+    return _read(db, "learning_curve", filters, '"job_id", "train_day", "episode"', latest_only)
+
+
 def read_jobs(db: Db) -> pd.DataFrame:
     """The jobs table with regime and algo names and versions joined in."""
     import pandas as pd

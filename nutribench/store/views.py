@@ -14,15 +14,21 @@ each revision keeps a frozen copy of its view text). Columns:
 ``training_diagnostics``
     regime, regime_version, algo, algo_version, seed, budget, engine (sb3 | batched), update
     (0-based), timestep, the quantities of :data:`nutribench.diagnostics.QUANTITIES`, job_id.
+``learning_curve``
+    regime, regime_version, algo, algo_version, seed, budget, engine, train_day (training days
+    before the evaluation), episode (the validation day, 0-based), the metrics of
+    ``episode_metrics``, never and planner (their returns on that day), gap_closed (the day's
+    share of the never -> planner gap; NULL where the two coincide), job_id.
 """
 
 from __future__ import annotations
 
-from nutribench.store.models import DIAGNOSTIC_COLUMNS, EPISODE_METRICS, EVAL_STEP_COLUMNS
+from nutribench.store.models import DIAGNOSTIC_COLUMNS, EPISODE_METRICS, EVAL_STEP_COLUMNS, VALIDATION_COLUMNS
 
-VIEWS = ("episode_metrics", "eval_trajectories", "training_diagnostics")
+VIEWS = ("episode_metrics", "eval_trajectories", "training_diagnostics", "learning_curve")
 
 _JOB_COLUMNS = ("regime", "regime_version", "algo", "algo_version", "seed", "budget")
 EPISODE_METRICS_COLUMNS = (*_JOB_COLUMNS, "phase", "episode", *EPISODE_METRICS, "job_id")
 EVAL_TRAJECTORY_COLUMNS = (*_JOB_COLUMNS, *EVAL_STEP_COLUMNS, "job_id")
 TRAINING_DIAGNOSTICS_COLUMNS = (*_JOB_COLUMNS, "engine", *DIAGNOSTIC_COLUMNS, "job_id")
+LEARNING_CURVE_COLUMNS = (*_JOB_COLUMNS, "engine", *VALIDATION_COLUMNS, "gap_closed", "job_id")

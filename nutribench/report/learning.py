@@ -1,0 +1,124 @@
+"""The learning-curve figure (``nutribench report --fig 6``, alias ``--fig learning``): the
+sample-efficiency view rliable users expect, from the evaluations during training
+(``nutribench run --eval-every N``; the ``learning_curve`` view).
+
+Per run (one job) and evaluation, its score is the share of the never -> planner gap it
+closes on its validation days, as a run's score on its test days is
+(:func:`~nutribench.report.scores.run_scores`, with the ``never`` and ``planner`` returns
+stored with each validation day). Per regime, agent and training day: the IQM of the seeds'
+scores and its 95 % percentile interval from the bootstrap over seeds
+(:func:`~nutribench.report.scores.stratified_resamples` of that one regime), the statistics
+of the aggregate figure (:mod:`nutribench.report.aggregate`). One panel per regime, one line
+per agent. These are validation days, never the test days of the tables.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from nutribench.report.aggregate import BATCHED, point_estimate
+from nutribench.report.figure_parts import FigureResult, draw_notes, seed_list, set_title, sort_regimes
+from nutribench.report.figures import GAP_LABEL, _gap_axis, _training_legend
+from nutribench.report.palette import Palette, palette
+from nutribench.report.palette import order as sort_algos
+from nutribench.report.scores import (
+    CONFIDENCE,
+    DEFAULT_REPS,
+    percentile_interval,
+    run_scores,
+    seeded_rng,
+    stratified_resamples,
+)
+
+COLUMNS = ["regime", "algo", "train_day", "iqm", "lo", "hi", "seeds"]
+
+
+def one_job_per_run(curve: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
+    """Rows of ``learning_curve`` keeping one job per (regime, algo, seed): the one of the
+    largest budget (then the newest); and a note per run that had others."""
+    jobs = curve.drop_duplicates("job_id").sort_values(["budget", "job_id"])
+    keep = jobs.groupby(["regime", "algo", "seed"]).tail(1)["job_id"]
+    left = jobs.loc[~jobs["job_id"].isin(keep)]
+    notes = [f"{len(left)} other jobs of the same runs (smaller budgets or older) left out"] if len(left) else []
+    return curve[curve["job_id"].isin(keep)], notes
+
+
+def learning_scores(curve: pd.DataFrame) -> pd.DataFrame:
+    """Per run and evaluation: ``regime``, ``algo``, ``seed``, ``train_day``, ``score`` (the
+    share of the gap its mean return closes over its validation days that day)."""
+    parts = []
+    for day, rows in curve.groupby("train_day", sort=True):
+        refs = rows[["regime", "seed", "episode", "never", "planner"]].drop_duplicates(["regime", "seed", "episode"])
+        scores = run_scores(rows, refs)
+        parts.append(scores[["regime", "algo", "seed", "score"]].assign(train_day=int(day)))
+    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=["regime", "algo", "seed", "score"])
+
+
+def learning_points(scores: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 0) -> pd.DataFrame:
+    """Per regime, agent and training day: the IQM of the seeds' scores and its bootstrap
+    interval over seeds (NaN with one seed). Columns :data:`COLUMNS`."""
+    rows = []
+    for (regime, algo, day), cell in scores.groupby(["regime", "algo", "train_day"], sort=True):
+        runs = [cell["score"].dropna().to_numpy(dtype=float)]
+        if not runs[0].size:
+            continue
+        lo = hi = float("nan")
+        if runs[0].size > 1:
+            resampled = stratified_resamples(runs, reps, seeded_rng(seed, algo, regime, str(day)))
+            lo, hi = percentile_interval(BATCHED["iqm"](resampled), CONFIDENCE)
+        point = point_estimate("iqm", runs)
+        rows.append(dict(regime=regime, algo=algo, train_day=int(day), iqm=point, lo=lo, hi=hi, seeds=runs[0].size))
+    return pd.DataFrame(rows, columns=COLUMNS)
+
+
+def learning_curve_figure(
+    curve: pd.DataFrame, colors: Palette | None = None, algos: Sequence[str] | None = None, reps: int = DEFAULT_REPS
+) -> FigureResult:
+    """The figure from rows of the ``learning_curve`` view (:func:`~nutribench.store.read_learning_curve`);
+    ValueError when there are none (of ``algos``)."""
+    if algos is not None:
+        curve = curve[curve["algo"].isin(list(algos))]
+    if curve.empty:
+        raise ValueError("no evaluations during training (run with --eval-every N)")
+    curve, notes = one_job_per_run(curve)
+    points = learning_points(learning_scores(curve), reps)
+    regimes, names = sort_regimes(points["regime"]), sort_algos(points["algo"])
+    colors = colors or palette(names)
+    ncols = min(4, len(regimes))
+    nrows = int(np.ceil(len(regimes) / ncols))
+    fig = Figure(figsize=(max(7.5, 4.2 * ncols), 3.2 * nrows + 1.1), layout="constrained")
+    axes = fig.subplots(nrows, ncols, squeeze=False, sharex=True)
+    for k, regime in enumerate(regimes):
+        ax = axes.flat[k]
+        for algo in names:
+            line = points[(points["regime"] == regime) & (points["algo"] == algo)]
+            if line.empty:
+                continue
+            c = colors.color(algo)
+            ax.plot(line["train_day"], line["iqm"], color=c, lw=1.4, marker="o", ms=3, label=colors.label(algo))
+            ax.fill_between(line["train_day"], line["lo"], line["hi"], color=c, alpha=0.2, lw=0)
+        _gap_axis(ax)
+        ax.set_title(regime, fontsize=10)
+        ax.grid(alpha=0.3)
+        if k % ncols:
+            ax.set_ylabel("")
+        if k >= len(regimes) - ncols:
+            ax.set_xlabel("training day")
+            ax.tick_params(labelbottom=True)
+    for ax in list(axes.flat)[len(regimes) :]:
+        ax.set_visible(False)
+    _training_legend(fig, list(axes.flat)[: len(regimes)], names)
+    days = sorted(set(curve.groupby("job_id")["episode"].nunique()))
+    n_days = f"{days[0]}" if len(days) == 1 else f"{days[0]}-{days[-1]}"
+    caption = (
+        f"{GAP_LABEL} on {n_days} validation days per evaluation (never the test days), "
+        f"IQM over seeds with its 95 % bootstrap interval over seeds\n"
+        f"seeds {seed_list(curve['seed'])}; budgets {', '.join(str(b) for b in sorted(set(curve['budget'])))} days"
+    )
+    set_title(fig, f"Learning curves: evaluation during training\n{caption}")
+    draw_notes(fig, notes)
+    return FigureResult(fig, points, notes)
