@@ -333,7 +333,7 @@ def build_report(
     done = iter(range(1, steps + 1))
 
     def step(what: str) -> None:
-        if progress:
+        if progress and steps > 1:  # one item: its own line (or error) says it all
             progress(f"[{next(done)}/{steps}] {what}")
 
     for f in figs:

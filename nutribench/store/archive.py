@@ -13,12 +13,10 @@ job's position in ``meta["jobs"]``. Values are kept exactly (float64); a NULL be
 (floats) or -1 (``first_overshoot_step``) with a ``<column>.null`` mask beside it. The job
 columns of schema revision 0004 (``fake``, ``batch_id``, ``batch_size``, ``device``,
 ``source``, ``source_sha256``) travel too; an archive written before them reads as
-``fake = false`` and NULLs. The training diagnostics of revision 0005 travel as the table
-``diagnostics.<column>`` (``job``, ``update``, ``timestep`` and the quantities, NULL masks
-as above; no update twice per job); an archive written before it has none and imports with
-no diagnostics rows. The evaluations during training of revision 0006 travel likewise as
-``validation_episodes.<column>`` (no (training day, day) twice per job, training days from 1,
-foods within a day); an older archive has none.
+``fake = false`` and NULLs. The tables of revisions 0005 and 0006 travel the same way:
+``diagnostics.<column>`` (``job``, ``update``, ``timestep``, the quantities; no update twice
+per job) and ``validation_episodes.<column>`` (no (training day, day) twice per job, training
+days from 1, foods within a day); an archive written before them imports without those rows.
 
 An archive is a file from anywhere, so nothing in it is believed (:func:`read_archive`):
 before a database is opened (or created) the whole archive is checked, and the first thing
