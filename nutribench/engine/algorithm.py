@@ -48,8 +48,13 @@ class Algorithm:
     #: the agent configs' ``algo`` this class trains
     algo: ClassVar[str]
 
-    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device):
+    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: Sequence[Any] | None = None):
         self.cfg, self.envs, self.device, self.k = cfg, envs, device, envs.k
+        #: each agent's config: ``cfg`` for all, or (tuning trials stacked in one batch) one
+        #: each, differing only in continuous settings (the algorithm checks which it can take)
+        self.cfgs: list[Any] = [cfg] * envs.k if cfgs is None else list(cfgs)
+        if len(self.cfgs) != envs.k:
+            raise ValueError(f"{len(self.cfgs)} agent configs for {envs.k} agents")
         #: per agent, one dict per update (on-policy: rollout; off-policy: training day), keys
         #: from :mod:`nutribench.diagnostics`
         self.diagnostics: list[list[dict[str, float]]] = [[] for _ in range(envs.k)]
@@ -71,15 +76,20 @@ class Algorithm:
         device: str | th.device = "cpu",
         on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None,
         on_update: Callable[[dict[str, Any]], None] | None = None,
+        agent_configs: Sequence[Any] | None = None,
+        active: np.ndarray | None = None,
     ) -> list[TrainedAgent]:
         """Train one agent of ``cfg`` (a config of this algorithm) per ``(regime, seed)`` of
         ``jobs`` for ``episodes`` days, all at once, and hand each back with its diagnostics
         (:func:`~nutribench.engine.train.train_batched` says what the arguments do)."""
-        check_supported(cfg, load_env_config(jobs[0][0]).reward.horizon if jobs else None)  # before anything trains
+        horizon = load_env_config(jobs[0][0]).reward.horizon if jobs else None
+        for c in agent_configs or [cfg]:
+            check_supported(c, horizon)  # before anything trains
         device = resolve_device(device)
 
         def made() -> Algorithm:
-            algorithm = cls(cfg, AgentEnvs(jobs, cfg.normalize_obs, on_episode), device)
+            algorithm = cls(cfg, AgentEnvs(jobs, cfg.normalize_obs, on_episode), device, agent_configs)
+            algorithm.set_active(active)
             algorithm.on_rollout, algorithm.on_update = on_rollout, on_update
             return algorithm
 
@@ -100,7 +110,7 @@ class Algorithm:
             agent = as_trained_agent(
                 self.envs,
                 j,
-                self.cfg,
+                self.cfgs[j],
                 episodes,
                 lambda model, j=j: self.store_weights(j, model),
                 self.return_stats,
@@ -110,6 +120,13 @@ class Algorithm:
             agent.diagnostics = self.diagnostics[j]
             agents.append(agent)
         return agents
+
+    def set_active(self, active: np.ndarray | None) -> None:
+        """Apply updates only to the agents where ``active`` (a ``(K,)`` bool array the caller
+        may change while training: a pruned tuning trial's agents are frozen); None: all. Only
+        algorithms with per-agent settings take it."""
+        if active is not None or any(c != self.cfg for c in self.cfgs):
+            raise ValueError(f"the batched {self.algo} takes neither per-agent settings nor frozen agents yet")
 
     def learn(self, total_steps: int, checkpoint: Checkpoint | None = None) -> float:
         """Train for ``total_steps`` env steps of each agent (from ``checkpoint``'s state if it

@@ -60,6 +60,8 @@ def train_batched(
     on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None,
     checkpoint: Checkpoint | None = None,
     device: str | th.device = "cpu",
+    agent_configs: Sequence[Any] | None = None,
+    active: np.ndarray | None = None,
 ) -> list[TrainedAgent]:
     """Train one agent of ``agent_config`` per ``(regime, seed)`` of ``jobs`` for
     ``episodes`` days, all at once. Each agent comes back with ``diagnostics``: one dict per
@@ -78,11 +80,26 @@ def train_batched(
     :param device: where the networks train (:func:`~nutribench.engine.device.resolve_device`:
         ``"auto"``, ``"cpu"``, ``"cuda"``, ``"cuda:N"``). The default is the CPU, whose runs are
         reproducible bit for bit; the random streams are the CPU's on every device.
+    :param agent_configs: one config per job instead of ``agent_config`` for all (tuning
+        trials stacked in one batch: :mod:`nutribench.tuning.stack`): they may differ only in
+        continuous settings (learning rate, discount, GAE lambda, clip range, entropy and value
+        coefficients, gradient-norm clip), which then go on the agent axis; on-policy
+        algorithms (PPO, MC, GRU-PPO) only. ``agent_config`` is still the batch's structure.
+    :param active: a ``(K,)`` bool array the caller may change while training: the agents
+        where it is False get no more updates (a pruned trial's; on-policy algorithms only).
     :raises nutribench.engine.UnsupportedConfig: (one line, before anything trains) for a
         config this engine would not train as the SB3 engine does (:func:`nutribench.engine.supports`).
     """
     th.set_num_threads(1)
     cfg = load_agent_config(agent_config)
     return ALGORITHMS[cfg.algo].train_jobs(
-        jobs, cfg, episodes, on_episode, checkpoint=checkpoint, device=device, on_rollout=on_rollout
+        jobs,
+        cfg,
+        episodes,
+        on_episode,
+        checkpoint=checkpoint,
+        device=device,
+        on_rollout=on_rollout,
+        agent_configs=None if agent_configs is None else [load_agent_config(c) for c in agent_configs],
+        active=active,
     )
