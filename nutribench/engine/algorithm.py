@@ -50,8 +50,13 @@ class Algorithm:
     #: the agent configs' ``algo`` this class trains
     algo: ClassVar[str]
 
-    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device):
+    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: Sequence[Any] | None = None):
         self.cfg, self.envs, self.device, self.k = cfg, envs, device, envs.k
+        #: each agent's config: ``cfg`` for all, or (tuning trials stacked in one batch) one
+        #: each, differing only in continuous settings (the algorithm checks which it can take)
+        self.cfgs: list[Any] = [cfg] * envs.k if cfgs is None else list(cfgs)
+        if len(self.cfgs) != envs.k:
+            raise ValueError(f"{len(self.cfgs)} agent configs for {envs.k} agents")
         #: per agent, one dict per update (on-policy: rollout; off-policy: training day), keys
         #: from :mod:`nutribench.diagnostics`
         self.diagnostics: list[list[dict[str, float]]] = [[] for _ in range(envs.k)]
@@ -78,17 +83,22 @@ class Algorithm:
         eval_every: int | None = None,
         val_episodes: int = DEFAULT_VAL_EPISODES,
         on_validation: ValidationFn | None = None,
+        agent_configs: Sequence[Any] | None = None,
+        active: np.ndarray | None = None,
     ) -> list[TrainedAgent]:
         """Train one agent of ``cfg`` (a config of this algorithm) per ``(regime, seed)`` of
         ``jobs`` for ``episodes`` days, all at once, and hand each back with its diagnostics
         (:func:`~nutribench.engine.train.train_batched` says what the arguments do)."""
-        check_supported(cfg, load_env_config(jobs[0][0]).reward.horizon if jobs else None)  # before anything trains
+        horizon = load_env_config(jobs[0][0]).reward.horizon if jobs else None
+        for c in agent_configs or [cfg]:
+            check_supported(c, horizon)  # before anything trains
         device = resolve_device(device)
         every = check_eval_every(eval_every, val_episodes)
 
         def made() -> Algorithm:
             envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
-            algorithm = cls(cfg, envs, device)
+            algorithm = cls(cfg, envs, device, agent_configs)
+            algorithm.set_active(active)
             algorithm.on_rollout, algorithm.on_update = on_rollout, on_update
             if every:
                 algorithm.validator = BatchValidator(envs, every, val_episodes, on_validation)
@@ -112,7 +122,7 @@ class Algorithm:
             agent = as_trained_agent(
                 self.envs,
                 j,
-                self.cfg,
+                self.cfgs[j],
                 episodes,
                 lambda model, j=j: self.store_weights(j, model),
                 self.return_stats,
@@ -123,6 +133,13 @@ class Algorithm:
             agent.validation = self.envs.validation[j]
             agents.append(agent)
         return agents
+
+    def set_active(self, active: np.ndarray | None) -> None:
+        """Apply updates only to the agents where ``active`` (a ``(K,)`` bool array the caller
+        may change while training: a pruned tuning trial's agents are frozen); None: all. Only
+        algorithms with per-agent settings take it."""
+        if active is not None or any(c != self.cfg for c in self.cfgs):
+            raise ValueError(f"the batched {self.algo} takes neither per-agent settings nor frozen agents yet")
 
     def learn(self, total_steps: int, checkpoint: Checkpoint | None = None) -> float:
         """Train for ``total_steps`` env steps of each agent (from ``checkpoint``'s state if it

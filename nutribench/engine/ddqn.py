@@ -89,8 +89,8 @@ class DDQN(OffPolicyAlgorithm):
 
     algo = "ddqn"
 
-    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device):
-        super().__init__(cfg, envs, device)
+    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: list[Any] | None = None):
+        super().__init__(cfg, envs, device, cfgs)
         sizes = [envs.obs_dim, *cfg.net_arch, 2]
         generators = [th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]]
         self.q = StackedMLP(self.k, sizes, generators=generators, device=device)

@@ -147,8 +147,8 @@ class OffPolicyAlgorithm(Algorithm):
     #: the replay's n-step returns (SB3's ``NStepReplayBuffer``; 1: one-step transitions)
     n_step = 1
 
-    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device):
-        super().__init__(cfg, envs, device)
+    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: list[Any] | None = None):
+        super().__init__(cfg, envs, device, cfgs)
         self.means = AgentMeans()
         self.replay: StackedReplay | None = None  # made when learning starts (its size depends on the budget)
         #: the raw observations the agents act on next, and as the policies see them

@@ -36,11 +36,11 @@ import numpy as np
 import torch as th
 
 from nutribench import diagnostics as names
-from nutribench.agents.algos import model_arguments
 from nutribench.agents.api import CLIP_OBS, NORM_EPS
 from nutribench.engine.algorithm import Algorithm
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs
+from nutribench.engine.on_policy_settings import OnPolicySettings, per_agent
 from nutribench.engine.stacked import (
     AgentMeans,
     RunningStats,
@@ -48,58 +48,10 @@ from nutribench.engine.stacked import (
     explained_variance,
     load_params,
     make_adam,
+    step_per_agent,
 )
 
 ADAM_EPS = 1e-5  # SB3's ActorCriticPolicy passes eps=1e-5 to Adam
-
-
-@dataclass
-class OnPolicySettings:
-    """What the rollout and the update read from an agent config (PPO, MC or GRU-PPO): the
-    one place the on-policy loop and updates take their settings from (never the config).
-    Each continuous setting is one float for all K agents, read only in :func:`gradient_step`
-    (``ent_coef``, ``vf_coef``, ``max_grad_norm``), :func:`~nutribench.engine.ppo.ppo_step`
-    (``clip_range``), :meth:`OnPolicyAlgorithm.scale_rewards` (``gamma``),
-    :meth:`OnPolicyAlgorithm.compute_returns` (``gamma``, ``gae_lambda``),
-    :func:`make_optimizer` and :meth:`OnPolicyAlgorithm.log_update` (``learning_rate``), so a
-    per-agent value (a ``(K,)`` array) changes those reads only."""
-
-    learning_rate: float
-    n_steps: int
-    batch_size: int
-    n_epochs: int
-    gamma: float
-    gae_lambda: float
-    clip_range: float | None  # None: A2C's update (MC)
-    ent_coef: float
-    vf_coef: float
-    max_grad_norm: float
-    normalize_advantage: bool
-    sequence_length: int | None = None  # GRU-PPO: minibatches of whole days (batch_size counts days)
-
-    @classmethod
-    def from_config(cls, cfg: Any, horizon: int) -> OnPolicySettings:
-        """The settings of the SB3 model that ``algos.model_arguments`` builds for ``cfg``
-        on days of ``horizon`` steps: PPO's fields as written; MC's as A2C gets them (a
-        rollout of one day, one step on all of it, lambda 1, no advantage normalisation);
-        GRU-PPO's batch in whole days (as ``GRUPPO.sequences_per_batch``)."""
-        _, args = model_arguments(cfg, horizon)
-        seq = args.get("sequence_length")
-        batch_size = args.get("batch_size", args["n_steps"])
-        return cls(
-            learning_rate=args["learning_rate"],
-            n_steps=args["n_steps"],
-            batch_size=batch_size if seq is None else max(1, round(batch_size / seq)),
-            n_epochs=args.get("n_epochs", 1),
-            gamma=cfg.gamma,
-            gae_lambda=args["gae_lambda"],
-            clip_range=args.get("clip_range"),
-            ent_coef=args["ent_coef"],
-            vf_coef=args["vf_coef"],
-            max_grad_norm=args["max_grad_norm"],
-            normalize_advantage=args["normalize_advantage"],
-            sequence_length=seq,
-        )
 
 
 @dataclass
@@ -133,11 +85,16 @@ def gae(
     episode_starts: np.ndarray,
     last_values: np.ndarray,
     last_dones: np.ndarray,
-    gamma: float,
-    lam: float,
+    gamma: float | np.ndarray,
+    lam: float | np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """SB3's ``RolloutBuffer.compute_returns_and_advantage`` for ``(K, T)`` arrays: advantages, returns."""
+    """SB3's ``RolloutBuffer.compute_returns_and_advantage`` for ``(K, T)`` arrays: advantages,
+    returns (``gamma``, ``lam``: one for all, or ``(K,)``)."""
     k, t_max = rewards.shape
+    if isinstance(gamma, np.ndarray):  # per agent: float32 as a float setting is (numpy's weak scalars)
+        gamma, lam = gamma.astype(np.float32), np.broadcast_to(lam, (k,)).astype(np.float32)
+    elif isinstance(lam, np.ndarray):
+        lam = lam.astype(np.float32)
     adv = np.zeros((k, t_max), dtype=np.float32)
     last = np.zeros(k, dtype=np.float32)
     for t in reversed(range(t_max)):
@@ -178,13 +135,15 @@ def gradient_step(
     means: AgentMeans | None = None,
 ) -> None:
     """One gradient step on the K agents' losses ``(K,)``: SB3's weighting, per-agent clipping
-    (``k``: as :func:`~nutribench.engine.stacked.clip_grad_norm_per_agent`); the losses and
-    the gradient norms go to ``means``."""
-    loss = policy_loss + settings.ent_coef * entropy_loss + settings.vf_coef * value_loss
+    (``k``: as :func:`~nutribench.engine.stacked.clip_grad_norm_per_agent`), each agent's own
+    coefficients and learning rate where they differ (:meth:`OnPolicySettings.for_agents`);
+    the losses and the gradient norms go to ``means``."""
+    ent_coef, vf_coef = per_agent(settings.ent_coef, policy_loss), per_agent(settings.vf_coef, policy_loss)
+    loss = policy_loss + ent_coef * entropy_loss + vf_coef * value_loss
     optimizer.zero_grad()
     loss.sum().backward()  # disjoint parameters: each agent gets its own loss's gradient
     norms = clip_grad_norm_per_agent(params, settings.max_grad_norm, k)
-    optimizer.step()
+    step_per_agent(optimizer, params, settings.learning_rate, settings.active, k)
     if means is not None:
         means.add(
             **{
@@ -196,18 +155,20 @@ def gradient_step(
         )
 
 
-def make_optimizer(net: Any, learning_rate: float) -> th.optim.Adam:
-    """The on-policy agents' Adam (SB3's actor-critic policies: eps 1e-5) over ``net.params``."""
-    return make_adam(net.params, learning_rate, ADAM_EPS)
+def make_optimizer(net: Any, learning_rate: float | np.ndarray) -> th.optim.Adam:
+    """The on-policy agents' Adam (SB3's actor-critic policies: eps 1e-5) over ``net.params``;
+    with a learning rate per agent, Adam's own rate is 1 and :func:`step_per_agent` scales
+    each agent's step."""
+    return make_adam(net.params, 1.0 if isinstance(learning_rate, np.ndarray) else learning_rate, ADAM_EPS)
 
 
 class OnPolicyAlgorithm(Algorithm):
     """SB3's on-policy loop for the K agents of ``envs`` (the module docstring); subclasses
     give the network, the acting and :meth:`train`."""
 
-    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device):
-        super().__init__(cfg, envs, device)
-        self.settings = OnPolicySettings.from_config(cfg, envs.horizon)
+    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: list[Any] | None = None):
+        super().__init__(cfg, envs, device, cfgs)
+        self.settings = OnPolicySettings.for_agents(self.cfgs, envs.horizon)
         generators = [th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]]
         self.net = self.make_network(generators)
         self.actor = self.make_actor(self.net)
@@ -219,6 +180,11 @@ class OnPolicyAlgorithm(Algorithm):
         #: whether that step starts a day (SB3's ``_last_obs``, ``_last_episode_starts``)
         self.last_obs: np.ndarray | None = None
         self.start_of_day = np.ones(self.k, dtype=np.float32)
+
+    def set_active(self, active: np.ndarray | None) -> None:
+        if active is not None and np.shape(active) != (self.k,):
+            raise ValueError(f"active: a ({self.k},) bool array, got shape {np.shape(active)}")
+        self.settings.active = active
 
     # ---- what each algorithm gives ----
 

@@ -155,8 +155,8 @@ class SAC(OffPolicyAlgorithm):
 
     algo = "sac"
 
-    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device):
-        super().__init__(cfg, envs, device)
+    def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: list[Any] | None = None):
+        super().__init__(cfg, envs, device, cfgs)
         self.net = StackedSAC(
             self.k,
             [envs.obs_dim, *cfg.net_arch, 2],

@@ -135,19 +135,53 @@ def load_params(params: list[th.Tensor], saved: list[th.Tensor]) -> None:
             p.copy_(s)
 
 
-def clip_grad_norm_per_agent(params: list[th.Tensor], max_norm: float, k: int | None = None) -> th.Tensor:
+def clip_grad_norm_per_agent(params: list[th.Tensor], max_norm: float | np.ndarray, k: int | None = None) -> th.Tensor:
     """``torch.nn.utils.clip_grad_norm_`` applied to each agent's own parameters; the K norms
     before clipping. A parameter may stack several networks per agent along its first axis
     (``m * K`` rows: row ``i * K + j`` is agent ``j``'s ``i``-th); ``k`` is K (default: the
-    first parameter's rows)."""
+    first parameter's rows). ``max_norm``: one for all, or a ``(K,)`` array (inf: no clipping)."""
     k = params[0].shape[0] if k is None else k
     sq = sum(p.grad.pow(2).reshape(p.shape[0] // k, k, -1).sum(dim=(0, 2)) for p in params)
     norms = sq.sqrt()
-    if math.isfinite(max_norm):
+    if isinstance(max_norm, np.ndarray):
+        limit = th.as_tensor(max_norm, dtype=norms.dtype, device=norms.device)
+        coef = (limit / (norms + 1e-6)).clamp(max=1.0)  # inf / x = inf -> 1: unclipped
+        for p in params:
+            p.grad.mul_(coef.repeat(p.shape[0] // k).reshape(-1, *([1] * (p.ndim - 1))))
+    elif math.isfinite(max_norm):
         coef = (max_norm / (norms + 1e-6)).clamp(max=1.0)
         for p in params:
             p.grad.mul_(coef.repeat(p.shape[0] // k).reshape(-1, *([1] * (p.ndim - 1))))
     return norms
+
+
+def step_per_agent(
+    optimizer: th.optim.Optimizer,
+    params: list[th.Tensor],
+    learning_rate: float | np.ndarray,
+    active: np.ndarray | None = None,
+    k: int | None = None,
+) -> None:
+    """``optimizer.step()`` with each agent's own learning rate and only for the ``active``
+    agents. One rate for all and every agent active: the plain step (the paper grid's path,
+    unchanged). Otherwise the optimizer runs at rate 1 (:func:`make_adam` is made so) and each
+    agent's step is scaled by its rate, 0 for an inactive agent: Adam's step is its rate times
+    a direction that does not depend on the rate, so this equals a step at that rate up to
+    float rounding (tested against one-agent batches)."""
+    if not isinstance(learning_rate, np.ndarray) and (active is None or active.all()):
+        optimizer.step()
+        return
+    k = params[0].shape[0] if k is None else k
+    # the optimizer's own rate is 1 with per-agent rates (make_optimizer), else the one rate
+    rate = np.broadcast_to(np.asarray(learning_rate, dtype=np.float64), (k,)) / optimizer.param_groups[0]["lr"]
+    if active is not None:
+        rate = np.where(active, rate, 0.0)
+    before = [p.detach().clone() for p in params]
+    optimizer.step()
+    with th.no_grad():
+        for p, p0 in zip(params, before):
+            scale = th.as_tensor(rate, dtype=p.dtype, device=p.device).repeat(p.shape[0] // k)
+            p.copy_(p0 + scale.reshape(-1, *([1] * (p.ndim - 1))) * (p - p0))
 
 
 def make_adam(params: list[th.Tensor], learning_rate: float, eps: float) -> th.optim.Adam:

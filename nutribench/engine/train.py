@@ -64,6 +64,8 @@ def train_batched(
     eval_every: int | None = None,
     val_episodes: int = DEFAULT_VAL_EPISODES,
     on_validation: ValidationFn | None = None,
+    agent_configs: Sequence[Any] | None = None,
+    active: np.ndarray | None = None,
 ) -> list[TrainedAgent]:
     """Train one agent of ``agent_config`` per ``(regime, seed)`` of ``jobs`` for
     ``episodes`` days, all at once. Each agent comes back with ``diagnostics``: one dict per
@@ -87,6 +89,13 @@ def train_batched(
         engine would play, the training unchanged; each agent's rows in ``agent.validation``.
         None or 0: never. ``on_validation(agent_index, train_day, rows)`` after each one (its
         exception stops the training and propagates).
+    :param agent_configs: one config per job instead of ``agent_config`` for all (tuning
+        trials stacked in one batch: :mod:`nutribench.tuning.stack`): they may differ only in
+        continuous settings (learning rate, discount, GAE lambda, clip range, entropy and value
+        coefficients, gradient-norm clip), which then go on the agent axis; on-policy
+        algorithms (PPO, MC, GRU-PPO) only. ``agent_config`` is still the batch's structure.
+    :param active: a ``(K,)`` bool array the caller may change while training: the agents
+        where it is False get no more updates (a pruned trial's; on-policy algorithms only).
     :raises nutribench.engine.UnsupportedConfig: (one line, before anything trains) for a
         config this engine would not train as the SB3 engine does (:func:`nutribench.engine.supports`).
     """
@@ -103,4 +112,6 @@ def train_batched(
         eval_every=eval_every,
         val_episodes=val_episodes,
         on_validation=on_validation,
+        agent_configs=None if agent_configs is None else [load_agent_config(c) for c in agent_configs],
+        active=active,
     )
