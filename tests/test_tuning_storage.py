@@ -181,7 +181,7 @@ def test_bad_search_spaces_are_one_line_and_write_nothing(tmp_path: Path, case: 
         (["--seeds", "x"], "--seeds 'x': give whole numbers"),
         (["--regimes", "run0,run9"], "unknown regime run9"),
         (["--days", "0"], "must be >= 1"),
-        (["--eval-every", "8"], "longer than --days"),
+        (["--eval-every", "3"], "must be a multiple of --eval-every (3)"),
         (["--pruner", "hyperband"], "--pruner: 'hyperband'"),
         (["--trials", "0"], "--trials must be >= 1"),
     ],

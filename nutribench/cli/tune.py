@@ -43,7 +43,7 @@ def tune_cmd(
     trials: Annotated[int, typer.Option(help="finished trials (complete or pruned) the study should hold")] = 32,
     days: Annotated[int, typer.Option(help="training days per agent of a trial")] = 1000,
     eval_every: Annotated[
-        Optional[int], typer.Option(help="training days between validation evaluations (default days/10)")
+        Optional[int], typer.Option(help="training days between validation evaluations, a divisor of --days (default: about days/10)")
     ] = None,
     val_episodes: Annotated[int, typer.Option(help="validation days per evaluation")] = 5,
     sampler_seed: Annotated[int, typer.Option(help="seed of the TPE sampler")] = 0,
@@ -64,7 +64,7 @@ def tune_cmd(
     from nutribench.config import list_regimes
     from nutribench.tuning.objective import ValidationObjective
     from nutribench.tuning.space import load_search_space
-    from nutribench.tuning.study import StudySettings, open_study, parse_seeds, run_study
+    from nutribench.tuning.study import StudySettings, default_eval_every, open_study, parse_seeds, run_study
 
     space = load_search_space(algo)
     names = split_csv(regimes, list_regimes(), "regime")
@@ -75,7 +75,7 @@ def tune_cmd(
         regimes=tuple(names),
         seeds=parse_seeds(seeds),
         days=days,
-        eval_every=eval_every or max(1, days // 10),
+        eval_every=eval_every or default_eval_every(max(1, days)),
         val_episodes=val_episodes,
         sampler_seed=sampler_seed,
         pruner=pruner,

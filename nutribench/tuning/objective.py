@@ -43,13 +43,17 @@ class ValidationObjective:
         self._references: dict[tuple[str, int], tuple[float, float]] = {}
 
     def references(self, regime: str, seed: int) -> tuple[float, float]:
-        """Never eating's and the planner's mean return on the validation days of (regime, seed)."""
-        from nutribench.agents.validation import reference_returns
+        """Never eating's and the greedy planner's mean return on the validation days of (regime, seed)."""
+        from nutribench.agents.days import validation_food_streams
+        from nutribench.baselines import play_simple_policy
 
         key = (regime, seed)
         if key not in self._references:
-            refs = reference_returns(regime, seed, self.settings.val_episodes)
-            self._references[key] = (refs["never"], refs["planner"])
+            days = validation_food_streams(regime, seed, self.settings.val_episodes)
+            never, planner = (
+                float(np.mean([r["return"] for r in play_simple_policy(p, regime, days)])) for p in ("never", "planner")
+            )
+            self._references[key] = (never, planner)
         return self._references[key]
 
     def __call__(self, trial: Any) -> float:
@@ -57,7 +61,7 @@ class ValidationObjective:
 
         values = self.space.suggest(trial)
         cfg = self.space.config(values)
-        k, last = len(self.jobs), self.settings.days - self.settings.days % self.settings.eval_every
+        k, last = len(self.jobs), self.settings.days
         shares: dict[int, dict[int, float]] = {}
 
         def on_validation(j: int, day: int, rows: list[dict[str, Any]]) -> None:
@@ -96,12 +100,18 @@ class ValidationObjective:
                 on_validation=on_validation,
             )
             return
-        from nutribench.agents.api import train
+        from nutribench.agents.api import evaluate, train
+        from nutribench.agents.days import validation_food_streams
 
         for j, (regime, seed) in enumerate(self.jobs):
+            if cfg.algo == "external":  # a plug-in's own loop: its final agent is evaluated, nothing to prune on
+                agent = train(regime, cfg, seed, s.days)
+                days = validation_food_streams(regime, seed, s.val_episodes)
+                on_validation(j, s.days, evaluate(agent, regime, days, record_steps=False).episodes)
+                continue
             train(
-                cfg,
                 regime,
+                cfg,
                 seed,
                 s.days,
                 eval_every=s.eval_every,

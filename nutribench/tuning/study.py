@@ -273,6 +273,11 @@ def run_study(
     return count_trials(study)
 
 
+def default_eval_every(days: int) -> int:
+    """The evaluation period when none is given: the largest divisor of ``days`` up to a tenth of it."""
+    return next(d for d in range(max(1, days // 10), 0, -1) if days % d == 0)
+
+
 def parse_seeds(text: str | None) -> tuple[int, ...]:
     """``--seeds 101,102`` as a tuple (the default tuning seeds for None)."""
     if text is None or not text.strip():
