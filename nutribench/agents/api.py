@@ -33,26 +33,30 @@ from typing import Any
 import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList
-from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.running_mean_std import RunningMeanStd
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from nutribench.agents.algos import episode_entropy
 from nutribench.agents.config import agent_config_content, load_agent_config, parse_agent_config
+from nutribench.agents.days import EVAL_STREAM_SALT, eval_food_streams, validation_food_streams  # noqa: F401 (the API)
+from nutribench.agents.recording import EpisodeFn, EpisodeMetrics, RecordingVecEnv
 from nutribench.agents.registry import ALGORITHMS, algorithm, load_model, loader_entry_point, make_model
 from nutribench.agents.training_log import TrainingDiagnostics
+from nutribench.agents.validation import (
+    DEFAULT_VAL_EPISODES,
+    ValidationCallback,
+    ValidationFn,
+    Validator,
+    check_eval_every,
+)
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.env.metrics import EpisodeRecorder
 from nutribench.env.sb3 import NutriRLSB3VecEnv
 from nutribench.env.vector_env import NutriRLVectorEnv
 
-#: Mixed into the job seed to draw the evaluation days (independent of training's stream).
-EVAL_STREAM_SALT = 20_240_501
 CLIP_OBS = 10.0
 NORM_EPS = 1e-8
-
-EpisodeFn = Callable[[dict[str, Any]], None]
 
 
 def vec_normalize_path(model_path: str | Path) -> Path:
@@ -76,14 +80,6 @@ def _write_atomically(target: Path, write: Callable[[Path], Any]) -> bool:
     return False
 
 
-def eval_food_streams(regime: str | EnvConfig, job_seed: int, n: int = 5) -> np.ndarray:
-    """``n`` evaluation days ``(n, horizon)`` of food indices, drawn from the job seed alone,
-    so every algorithm trained with that seed is evaluated on the same days (paired)."""
-    cfg = load_env_config(regime)
-    rng = np.random.default_rng([EVAL_STREAM_SALT, int(job_seed)])
-    return rng.integers(0, len(cfg.catalog.food), size=(n, cfg.reward.horizon))
-
-
 @dataclass
 class TrainedAgent:
     """A trained SB3 model plus the observation statistics it was trained with.
@@ -105,6 +101,8 @@ class TrainedAgent:
     provenance: dict[str, Any] = field(default_factory=dict)
     #: one row per training update (:mod:`nutribench.diagnostics`); empty for plug-ins and loaded agents
     diagnostics: list[dict[str, float]] = field(default_factory=list)
+    #: one row per validation day of each evaluation during training (:mod:`nutribench.agents.validation`)
+    validation: list[dict[str, Any]] = field(default_factory=list)
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         """Observations as the policy saw them in training (VecNormalize's formula)."""
@@ -177,92 +175,6 @@ class TrainedAgent:
         return agent
 
 
-class EpisodeMetrics(BaseCallback):
-    """Records the per-day metrics (:data:`~nutribench.env.metrics.METRIC_KEYS`) of every
-    finished training day and stops after ``episodes``.
-
-    Reads the dones SB3 passes to callbacks and the raw rewards and batched info of the
-    NutriRL SB3 adapter (not SB3's rewards, which ``VecNormalize`` may have scaled); the observation each action was taken at is ``model._last_obs``
-    during ``on_step`` (on- and off-policy SB3 update it after the callback).
-    """
-
-    def __init__(self, base_env: NutriRLSB3VecEnv, algo: str, episodes: int, on_episode: EpisodeFn | None = None):
-        super().__init__()
-        self.base_env = base_env
-        self.algo = algo
-        self.n_episodes = episodes
-        self.on_episode = on_episode
-        self.recorder = EpisodeRecorder(1)
-        self.episodes: list[dict[str, Any]] = []
-        self._obs: list[np.ndarray] = []
-
-    def _on_step(self) -> bool:
-        self._obs.append(np.array(self.model._last_obs[0], dtype=np.float32))
-        for metrics in self.recorder.record(self.base_env.last_rewards, self.locals["dones"], self.base_env.last_info):
-            row = {
-                "episode": len(self.episodes),
-                **metrics,
-                "entropy": episode_entropy(self.model, np.stack(self._obs)),
-            }
-            self._obs.clear()
-            self.episodes.append(row)
-            if self.on_episode is not None:
-                self.on_episode(row)
-        return len(self.episodes) < self.n_episodes or self._rollout_ends_here()
-
-    def _rollout_ends_here(self) -> bool:
-        """True on the last step of an on-policy rollout: there, stopping would make SB3 drop
-        the rollout without its update, so training goes on and ``learn`` ends after the
-        update (``total_timesteps`` is the budget). A budget that ends mid-rollout stops there:
-        SB3 cannot update on a partial rollout, so those last days teach nothing."""
-        n, n_rollout = self.locals.get("n_steps"), self.locals.get("n_rollout_steps")
-        return isinstance(self.model, OnPolicyAlgorithm) and n is not None and n + 1 == n_rollout
-
-
-class RecordingVecEnv(VecEnvWrapper):
-    """The training env of a plug-in agent: records the per-day metrics of its first
-    ``episodes`` finished days, whatever its ``learn`` does (no SB3 callback needed).
-
-    Sits outside ``VecNormalize``, so the observations it keeps for the day's entropy are the
-    ones the policy saw; the metrics are read from the NutriRL adapter's raw rewards and info.
-    """
-
-    def __init__(self, venv: VecEnv, base: NutriRLSB3VecEnv, episodes: int, on_episode: EpisodeFn | None = None):
-        super().__init__(venv)
-        self.base, self.n_episodes, self.on_episode = base, episodes, on_episode
-        self.model: Any = None
-        self.recorder = EpisodeRecorder(1)
-        self.episodes: list[dict[str, Any]] = []
-        self._obs: list[np.ndarray] = []
-
-    def reset(self) -> np.ndarray:
-        obs = self.venv.reset()
-        self.recorder.clear()
-        self._obs = [np.array(obs[0], dtype=np.float32)]
-        return obs
-
-    def step_wait(self) -> Any:
-        obs, rewards, dones, infos = self.venv.step_wait()
-        for metrics in self.recorder.record(self.base.last_rewards, dones, self.base.last_info):
-            if len(self.episodes) < self.n_episodes:
-                entropy = episode_entropy(self.model, np.stack(self._obs)) if self.model is not None else None
-                row = {"episode": len(self.episodes), **metrics, "entropy": entropy}
-                self.episodes.append(row)
-                if self.on_episode is not None:
-                    self.on_episode(row)
-            self._obs.clear()
-        self._obs.append(np.array(obs[0], dtype=np.float32))
-        return obs, rewards, dones, infos
-
-    def check_budget(self, cfg: Any) -> None:
-        """A plug-in's ``learn(total_timesteps=days x horizon)`` must play its whole budget."""
-        if len(self.episodes) < self.n_episodes:
-            raise RuntimeError(
-                f"{cfg.entry_point}: learn() played {len(self.episodes)} whole days of the {self.n_episodes} asked "
-                "(it must honour total_timesteps)"
-            )
-
-
 def make_train_env(env_cfg: EnvConfig, cfg: Any) -> tuple[NutriRLSB3VecEnv, VecEnv]:
     """The single-day SB3 env a job trains on, and the same wrapped in ``VecNormalize``
     as the config asks (observations and/or rewards; SB3 sees scaled rewards, the
@@ -289,6 +201,9 @@ def train(
     on_episode: EpisodeFn | None = None,
     tensorboard: str | Path | None = None,
     diagnostics: bool = True,
+    eval_every: int | None = None,
+    val_episodes: int = DEFAULT_VAL_EPISODES,
+    on_validation: ValidationFn | None = None,
 ) -> TrainedAgent:
     """Train ``agent_config`` (name, file or model) on ``regime`` for ``episodes`` days.
 
@@ -296,18 +211,26 @@ def train(
     :param tensorboard: a folder for this run's TensorBoard events (built-in algorithms).
     :param diagnostics: record the training diagnostics (False: no callback, logger or gradient
         probe: what ``nutribench bench train --diagnostics-cost`` compares against).
+    :param eval_every: every so many training days, the greedy policy plays ``val_episodes``
+        validation days (:mod:`nutribench.agents.validation`; built-in algorithms); None or 0: never.
+    :param on_validation: called with ``(0, train_day, rows)`` after each such evaluation.
     :return: the trained agent; its ``train_episodes`` hold every day's metrics, its
-        ``diagnostics`` one row per update (built-in algorithms; see :mod:`nutribench.diagnostics`).
+        ``diagnostics`` one row per update (built-in algorithms; see :mod:`nutribench.diagnostics`),
+        its ``validation`` one row per validation day of each evaluation.
     """
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
+    every = check_eval_every(eval_every, val_episodes)
     th.set_num_threads(1)
     env_cfg = load_env_config(regime)
     cfg = load_agent_config(agent_config)
     horizon = env_cfg.reward.horizon
     base, env = make_train_env(env_cfg, cfg)
     recorded: TrainingDiagnostics | None = None
+    validator = Validator(every, 1, on_validation) if every else None
     if algorithm(cfg).build is None:  # a plug-in: its days are recorded by the env
+        if validator is not None:
+            raise ValueError(f"{cfg.name}: evaluation during training needs a built-in algorithm's loop")
         env = recorder = RecordingVecEnv(env, base, episodes, on_episode)
         model = recorder.model = make_model(cfg, env, seed=seed, horizon=horizon)
         model.learn(total_timesteps=episodes * horizon)
@@ -320,6 +243,11 @@ def train(
         if diagnostics or tensorboard is not None:
             recorded = TrainingDiagnostics(model, tensorboard)
             callbacks.append(recorded)
+        if validator is not None:
+            streams = validation_food_streams(env_cfg, seed, val_episodes)
+            snapshot = lambda m, v: TrainedAgent(model, cfg.algo, cfg, m, v)  # noqa: E731
+            play = lambda m, v: evaluate(snapshot(m, v), env_cfg, streams, record_steps=False).episodes  # noqa: E731
+            callbacks.append(ValidationCallback(validator, play))
         model.learn(total_timesteps=episodes * horizon, callback=CallbackList(callbacks))
     rms: RunningMeanStd | None = env.obs_rms if cfg.normalize_obs else None  # type: ignore[union-attr]
     provenance = {
@@ -342,6 +270,7 @@ def train(
     )
     agent.train_episodes = recorder.episodes
     agent.diagnostics = recorded.rows if recorded is not None else []
+    agent.validation = validator.rows[0] if validator is not None else []
     return agent
 
 

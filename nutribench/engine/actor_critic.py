@@ -15,6 +15,7 @@ import torch as th
 
 from nutribench.engine.checkpoint import register
 from nutribench.engine.device import leaves_on
+from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.on_policy import OnPolicyAlgorithm, log_prob_entropy
 from nutribench.engine.stacked import linears, orthogonal
 
@@ -126,6 +127,9 @@ class ActorCriticAlgorithm(OnPolicyAlgorithm):
 
     def make_actor(self, net: StackedActorCritic) -> FeedforwardActor:
         return FeedforwardActor(net)
+
+    def greedy(self) -> Greedy:
+        return lambda obs: greedy_categorical(self.net.forward(obs)[0])
 
 
 register(StackedActorCritic, FeedforwardActor)  # what its checkpoints hold

@@ -23,11 +23,13 @@ import torch as th
 
 from nutribench import diagnostics as names
 from nutribench.agents.api import TrainedAgent
+from nutribench.agents.validation import DEFAULT_VAL_EPISODES, ValidationFn, check_eval_every
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.engine import check_supported
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.device import resolve_device
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, as_trained_agent
+from nutribench.engine.evaluate import BatchValidator, Greedy
 from nutribench.engine.stacked import RunningStats
 
 
@@ -49,6 +51,8 @@ class Algorithm:
         self.on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None
         #: off-policy: called after each gradient step with its step count and losses (``on_update``)
         self.on_update: Callable[[dict[str, Any]], None] | None = None
+        #: the evaluations during training (``train_batched``'s ``eval_every``), None: none
+        self.validator: BatchValidator | None = None
 
     @classmethod
     def train(
@@ -61,16 +65,23 @@ class Algorithm:
         device: str | th.device = "cpu",
         on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None,
         on_update: Callable[[dict[str, Any]], None] | None = None,
+        eval_every: int | None = None,
+        val_episodes: int = DEFAULT_VAL_EPISODES,
+        on_validation: ValidationFn | None = None,
     ) -> list[TrainedAgent]:
         """Train one agent of ``cfg`` (a config of this algorithm) per ``(regime, seed)`` of
         ``jobs`` for ``episodes`` days, all at once, and hand each back with its diagnostics
         (:func:`~nutribench.engine.train.train_batched` says what the arguments do)."""
         check_supported(cfg, load_env_config(jobs[0][0]).reward.horizon if jobs else None)  # before anything trains
         device = resolve_device(device)
+        every = check_eval_every(eval_every, val_episodes)
         envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
         algorithm = cls(cfg, envs, device)
         algorithm.on_rollout, algorithm.on_update = on_rollout, on_update
+        if every:
+            algorithm.validator = BatchValidator(envs, every, val_episodes, on_validation)
         wall = algorithm.learn(episodes * envs.horizon, checkpoint)
+        algorithm.day_boundary(episodes * envs.horizon)  # the evaluation after the last day
         return algorithm.trained_agents(episodes, wall)
 
     def trained_agents(self, episodes: int, wall: float) -> list[TrainedAgent]:
@@ -89,6 +100,7 @@ class Algorithm:
                 str(self.device),
             )
             agent.diagnostics = self.diagnostics[j]
+            agent.validation = self.envs.validation[j]
             agents.append(agent)
         return agents
 
@@ -100,6 +112,18 @@ class Algorithm:
     def store_weights(self, j: int, model: Any) -> None:
         """Put agent ``j``'s trained weights into ``model``, the SB3 model of its config."""
         raise NotImplementedError
+
+    def greedy(self) -> Greedy:
+        """A fresh greedy player of the K agents' current policies for days played side by
+        side (:data:`nutribench.engine.evaluate.Greedy`; a recurrent one starts each day from
+        the zero state), as the SB3 model of each agent acts with ``deterministic=True``."""
+        raise NotImplementedError
+
+    def day_boundary(self, steps: int) -> None:
+        """The loops call this before every env step (``steps`` taken so far by each agent):
+        after a day's end, the evaluation during training that is due (:attr:`validator`)."""
+        if self.validator is not None:
+            self.validator.at(steps, self.greedy, self.device)
 
     @property
     def return_stats(self) -> RunningStats | None:

@@ -39,6 +39,7 @@ from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn
+from nutribench.engine.evaluate import Greedy
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, OffPolicyAlgorithm, linear_schedule
 from nutribench.engine.stacked import AgentMeans, StackedMLP, clip_grad_norm_per_agent, linears, make_adam
 
@@ -100,6 +101,9 @@ class DDQN(OffPolicyAlgorithm):
             q = self.q.forward(th.as_tensor(obs, device=self.device).unsqueeze(1))
         greedy = q[:, 0].argmax(dim=1).cpu().numpy()
         return np.where(uniforms < self.state["epsilon"], random_actions, greedy), None
+
+    def greedy(self) -> Greedy:
+        return lambda obs: (self.q.forward(obs).argmax(dim=-1), None)  # SB3's DQN: argmax Q, no entropy
 
     def after_step(self, steps: int, progress_remaining: float) -> None:
         cfg = self.cfg

@@ -66,6 +66,8 @@ class AgentEnvs:
         self.on_episode = on_episode
         self.days_drawn: list[np.ndarray] = []  # each day's foods (K, horizon), for tests
         self.episodes: list[list[dict[str, Any]]] = [[] for _ in range(self.k)]
+        #: each agent's validation rows so far (:mod:`nutribench.engine.evaluate`), kept in checkpoints
+        self.validation: list[list[dict[str, Any]]] = [[] for _ in range(self.k)]
         self._entropy = np.zeros(self.k)
 
     def checkpoint_state(self) -> dict[str, Any]:
@@ -79,6 +81,7 @@ class AgentEnvs:
             "obs_stats": self.obs_stats,
             "days_drawn": self.days_drawn,
             "episodes": self.episodes,
+            "validation": self.validation,
             "entropy": self._entropy,
             "groups": [{"env": _plain_state(g.env), "recorder": _plain_state(g.recorder)} for g in self.groups],
         }
@@ -107,6 +110,7 @@ class AgentEnvs:
             np.asarray(saved["entropy"], dtype=np.float64),
         )
         self.days_drawn, self.episodes = list(saved["days_drawn"]), [list(e) for e in saved["episodes"]]
+        self.validation[:] = [list(v) for v in saved.get("validation") or [[] for _ in range(self.k)]]  # in place
 
     def new_days(self) -> np.ndarray:
         """Start a day for every agent (foods from its own stream); the raw observations."""

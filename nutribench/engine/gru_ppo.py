@@ -28,6 +28,7 @@ import torch as th
 
 from nutribench.engine.checkpoint import register
 from nutribench.engine.device import leaves_on
+from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.on_policy import OnPolicySettings, Rollout, log_prob_entropy
 from nutribench.engine.ppo import PPO, ppo_step
 from nutribench.engine.stacked import AgentMeans, orthogonal
@@ -184,6 +185,14 @@ class StackedGRUActorCritic:
         logits, values = self._heads(th.cat([h[: self.k], h[self.k :]], dim=-1))
         return logits[:, 0], values[:, 0], h
 
+    def step_days(self, obs: th.Tensor, state: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """One step of ``B`` days side by side per agent: ``obs (K, B, d)``, ``state (2K, B, H)``;
+        logits ``(K, B, n_actions)`` and the new state (no reset: days start from zeros)."""
+        gi = th.baddbmm(self.params[1], self._inputs(obs), self.params[0])
+        h = self._cell(gi, state)
+        logits, _ = self._heads(th.cat([h[: self.k], h[self.k :]], dim=-1))
+        return logits, h
+
     # ---- SB3's policy ----
 
     def _sb3_pairs(self, policy, j: int):
@@ -297,6 +306,17 @@ class GRUPPO(PPO):
 
     def make_actor(self, net: StackedGRUActorCritic) -> RecurrentActor:
         return RecurrentActor(net)
+
+    def greedy(self) -> Greedy:
+        state: list[th.Tensor] = []  # the GRU state of the days played, from zeros
+
+        def play(obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+            if not state:
+                state.append(th.zeros(2 * self.k, obs.shape[1], self.net.hidden, device=obs.device))
+            logits, state[0] = self.net.step_days(obs, state[0])
+            return greedy_categorical(logits)
+
+        return play
 
     def units(self, steps: int) -> int:
         """Whole days: a permutation orders the rollout's days."""

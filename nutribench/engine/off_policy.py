@@ -165,6 +165,7 @@ class OffPolicyAlgorithm(Algorithm):
         t0 = time.perf_counter()
         for n in range(start, total):  # n env steps taken so far
             t = n % envs.horizon
+            self.day_boundary(n)
             if t == 0 and checkpoint is not None and n > start and checkpoint.due():
                 checkpoint.save(
                     steps=n,

@@ -248,6 +248,7 @@ class OnPolicyAlgorithm(Algorithm):
             buf_start = np.empty((k, T), dtype=np.float32)
             uniforms = np.stack([r.random(T) for r in rng["actions"]])
             for t in range(T):
+                self.day_boundary(step)
                 with th.no_grad():
                     logits, values = self.actor(
                         th.as_tensor(obs, device=device), th.as_tensor(start_of_day, device=device)

@@ -39,6 +39,7 @@ from nutribench.agents.api import TrainedAgent
 from nutribench.config import EnvConfig
 from nutribench.engine.checkpoint import Checkpoint, register
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn
+from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, OffPolicyAlgorithm
 from nutribench.engine.stacked import AgentMeans, StackedMLP, linears, make_adam
 
@@ -161,6 +162,9 @@ class SAC(OffPolicyAlgorithm):
         if n < self.cfg.learning_starts:
             return random_actions, entropy
         return (uniforms < probs[:, 1]).astype(np.int64), entropy
+
+    def greedy(self) -> Greedy:
+        return lambda obs: greedy_categorical(self.net.actor.forward(obs))
 
     def update(self, steps: int, progress_remaining: float, batch: Batch) -> None:
         cfg = self.cfg

@@ -38,6 +38,7 @@ import torch as th
 
 from nutribench.agents.api import TrainedAgent
 from nutribench.agents.config import load_agent_config
+from nutribench.agents.validation import DEFAULT_VAL_EPISODES, ValidationFn
 from nutribench.config import EnvConfig
 from nutribench.engine.algorithm import Algorithm
 from nutribench.engine.checkpoint import Checkpoint
@@ -60,6 +61,9 @@ def train_batched(
     on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None,
     checkpoint: Checkpoint | None = None,
     device: str | th.device = "cpu",
+    eval_every: int | None = None,
+    val_episodes: int = DEFAULT_VAL_EPISODES,
+    on_validation: ValidationFn | None = None,
 ) -> list[TrainedAgent]:
     """Train one agent of ``agent_config`` per ``(regime, seed)`` of ``jobs`` for
     ``episodes`` days, all at once. Each agent comes back with ``diagnostics``: one dict per
@@ -78,11 +82,25 @@ def train_batched(
     :param device: where the networks train (:func:`~nutribench.engine.device.resolve_device`:
         ``"auto"``, ``"cpu"``, ``"cuda"``, ``"cuda:N"``). The default is the CPU, whose runs are
         reproducible bit for bit; the random streams are the CPU's on every device.
+    :param eval_every: every so many training days, all K agents' greedy policies play their
+        ``val_episodes`` validation days (:mod:`nutribench.engine.evaluate`), the days the SB3
+        engine would play, the training unchanged; each agent's rows in ``agent.validation``.
+        None or 0: never. ``on_validation(agent_index, train_day, rows)`` after each one (its
+        exception stops the training and propagates).
     :raises nutribench.engine.UnsupportedConfig: (one line, before anything trains) for a
         config this engine would not train as the SB3 engine does (:func:`nutribench.engine.supports`).
     """
     th.set_num_threads(1)
     cfg = load_agent_config(agent_config)
     return ALGORITHMS[cfg.algo].train(
-        jobs, cfg, episodes, on_episode, checkpoint=checkpoint, device=device, on_rollout=on_rollout
+        jobs,
+        cfg,
+        episodes,
+        on_episode,
+        checkpoint=checkpoint,
+        device=device,
+        on_rollout=on_rollout,
+        eval_every=eval_every,
+        val_episodes=val_episodes,
+        on_validation=on_validation,
     )
