@@ -8,6 +8,7 @@ keys, parameters against the base agent, every range's ends), the regimes, the t
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
@@ -43,7 +44,8 @@ def tune_cmd(
     trials: Annotated[int, typer.Option(help="finished trials (complete or pruned) the study should hold")] = 32,
     days: Annotated[int, typer.Option(help="training days per agent of a trial")] = 1000,
     eval_every: Annotated[
-        Optional[int], typer.Option(help="training days between validation evaluations, a divisor of --days (default: about days/10)")
+        Optional[int],
+        typer.Option(help="training days between validation evaluations, a divisor of --days (default: about days/10)"),
     ] = None,
     val_episodes: Annotated[int, typer.Option(help="validation days per evaluation")] = 5,
     sampler_seed: Annotated[int, typer.Option(help="seed of the TPE sampler")] = 0,
@@ -88,7 +90,7 @@ def tune_cmd(
     handle = open_study(db, study, settings)
 
     def evaluation(number: int, day: int, value: float) -> None:
-        console.print(f"trial {number}: day {day}: IQM share of the gap {value:+.3f}", highlight=False)
+        console.print(f"trial {number}: day {day}: IQM share of the gap {value:+.3f}", highlight=False, soft_wrap=True)
 
     def finished(counts) -> None:
         best = "" if counts.best_value is None else f"; best {counts.best_value:+.3f} (trial {counts.best_number})"
@@ -96,11 +98,17 @@ def tune_cmd(
             f"study {counts.name}: {counts.finished} of {trials} finished ({counts.complete} complete, "
             f"{counts.pruned} pruned, {counts.failed} failed){best}",
             highlight=False,
+            soft_wrap=True,
         )
 
     objective = ValidationObjective(space, settings, device=device, on_evaluation=evaluation)
     counts = run_study(handle, objective, trials, on_trial=finished)
-    finished(counts)
+    console.print(
+        f"study {study} holds {counts.finished} finished trials: `nutribench tune best --study {study} --write` "
+        "writes the best as a new agent file",
+        highlight=False,
+        soft_wrap=True,
+    )
 
 
 @tune_app.command("status")
@@ -144,6 +152,9 @@ def best_cmd(
     study: Annotated[str, typer.Option(help="the study")],
     write: Annotated[bool, typer.Option(help="write the agent file into the agents folder")] = False,
     name: Annotated[Optional[str], typer.Option(help="the new agent's name (default <agent>_tuned)")] = None,
+    out: Annotated[
+        Optional[Path], typer.Option(help="the folder --write writes into (default: the agents folder)")
+    ] = None,
     db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help=DB_HELP)] = "nutribench.db",
 ) -> None:
     """The study's best trial as a new agent file: printed, or written with --write (never over an existing file)."""
@@ -153,8 +164,8 @@ def best_cmd(
 
     handle = open_study(db, study, None)
     if write:
-        path = write_tuned(handle, name)
-        console.print(f"wrote {path}: `nutribench run --algos {path.stem}` trains it", highlight=False)
+        path = write_tuned(handle, name, out)
+        console.print(f"wrote {path}: `nutribench run --algos {path}` trains it", highlight=False, soft_wrap=True)
         return
     cfg, header = tuned_config(handle, name)
     typer.echo(header + "\n" + agent_config_to_toml(cfg))
