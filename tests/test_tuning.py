@@ -132,3 +132,19 @@ def test_a_study_killed_with_minus_9_resumes_without_losing_or_repeating_a_trial
     assert states[killed.number] == "FAIL"  # not counted
     (retry,) = [t for t in study.trials if t.system_attrs.get("failed_trial") == killed.number]
     assert retry.state.name == "COMPLETE" and retry.params == killed.params  # not lost
+
+
+def test_the_guide_s_first_commands_run(tmp_path: Path, monkeypatch) -> None:
+    """docs/tuning.md's "Try it in a minute" block, command by command, in an empty folder."""
+    import re
+    import shlex
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "tuning.md").read_text()
+    block = re.search(r"## Try it in a minute\s+```bash\n(.*?)```", page, re.S).group(1)
+    commands = [shlex.split(line)[1:] for line in block.splitlines() if line.startswith("nutribench ")]
+    assert len(commands) == 4
+    monkeypatch.chdir(tmp_path)
+    for args in commands:
+        res = runner.invoke(app, args)
+        assert res.exit_code == 0, (args, res.output)
+    assert load_agent_config(tmp_path / "tuned_agents" / "ppo_tuned.toml").name == "ppo_tuned"
