@@ -148,3 +148,18 @@ def test_the_guide_s_first_commands_run(tmp_path: Path, monkeypatch) -> None:
         res = runner.invoke(app, args)
         assert res.exit_code == 0, (args, res.output)
     assert load_agent_config(tmp_path / "tuned_agents" / "ppo_tuned.toml").name == "ppo_tuned"
+
+
+@pytest.mark.slow
+def test_two_drivers_start_one_new_study_on_sqlite_together(tmp_path: Path) -> None:
+    """Both create Optuna's tables and the study at the same moment: neither fails, and they
+    stop together at the count."""
+    db = tmp_path / "two.db"
+    args = [sys.executable, "-m", "nutribench.cli", "tune", "--algo", "mc", "--study", "two", "--db", str(db)]
+    args += ["--regimes", "run0", "--seeds", "101", "--days", "4", "--eval-every", "2", "--val-episodes", "1"]
+    args += ["--trials", "8"]
+    procs = [subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    errors = [p.communicate(timeout=600)[1] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], errors
+    counts = count_trials(optuna.load_study(study_name="two", storage=f"sqlite:///{db}"))
+    assert 8 <= counts.finished <= 9 and counts.running == 0 and counts.failed == 0

@@ -165,7 +165,11 @@ def best_cmd(
     handle = open_study(db, study, None)
     if write:
         path = write_tuned(handle, name, out)
-        console.print(f"wrote {path}: `nutribench run --algos {path}` trains it", highlight=False, soft_wrap=True)
+        console.print(
+            f"wrote {path}: `NUTRIBENCH_AGENTS={path.parent} nutribench run --algos {path.stem}` trains it",
+            highlight=False,
+            soft_wrap=True,
+        )
         return
     cfg, header = tuned_config(handle, name)
     typer.echo(header + "\n" + agent_config_to_toml(cfg))

@@ -75,6 +75,8 @@ class ValidationObjective:
                 if day < last and trial.should_prune():
                     raise optuna.TrialPruned(f"pruned at day {day}: IQM share {value:.3f}")
 
+        trial.set_user_attr("engine", self.engine(cfg))
+        trial.set_user_attr("device", self.device if self.engine(cfg) == "batched" else "cpu")
         self.train(cfg, on_validation)
         final = shares.get(last, {})
         if len(final) != k:
@@ -82,12 +84,18 @@ class ValidationObjective:
         trial.set_user_attr("shares", {f"{r}/{s}": final[j] for j, (r, s) in enumerate(self.jobs)})
         return iqm(np.array(list(final.values())))
 
-    def train(self, cfg: Any, on_validation: Callable[[int, int, list[dict[str, Any]]], None]) -> None:
-        """Train the trial's K agents with evaluations during training (batched when supported)."""
+    @staticmethod
+    def engine(cfg: Any) -> str:
+        """Which engine trains ``cfg``'s trials: the batched one where it trains the config as
+        the SB3 engine would, else SB3 (a plug-in: its own loop)."""
         from nutribench.engine import supports
 
+        return "batched" if supports(cfg) is None else "sb3"
+
+    def train(self, cfg: Any, on_validation: Callable[[int, int, list[dict[str, Any]]], None]) -> None:
+        """Train the trial's K agents with evaluations during training (batched when supported)."""
         s = self.settings
-        if supports(cfg) is None:
+        if self.engine(cfg) == "batched":
             from nutribench.engine.train import train_batched
 
             train_batched(

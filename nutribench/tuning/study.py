@@ -22,6 +22,7 @@ so the trial is neither lost nor counted twice.
 from __future__ import annotations
 
 import os
+import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -110,15 +111,25 @@ def optuna_storage(db: Any, writer: bool = True) -> Any:
     # the heartbeat is marked experimental since Optuna 2.8; its behaviour here is tested
     warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning, module="nutribench.tuning")
     warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning, module="optuna")
-    try:
-        return RDBStorage(
-            url,
-            heartbeat_interval=max(1, round(HEARTBEAT_SECONDS)),
-            grace_period=max(2, round(GRACE_SECONDS)),
-            heartbeat_stale_trial_callback=RetryHeartbeatStaleTrialCallback(max_retry=3),
-        )
-    except RuntimeError as e:  # Optuna's schema newer or older than this Optuna
-        raise TuneError(f"{store.display}: Optuna's tables: {' '.join(str(e).split())}") from None
+    from sqlalchemy.exc import IntegrityError, OperationalError, ProgrammingError
+
+    for attempt in range(10):
+        try:
+            return RDBStorage(
+                url,
+                heartbeat_interval=max(1, round(HEARTBEAT_SECONDS)),
+                grace_period=max(2, round(GRACE_SECONDS)),
+                heartbeat_stale_trial_callback=RetryHeartbeatStaleTrialCallback(max_retry=3),
+            )
+        except (OperationalError, ProgrammingError, IntegrityError) as e:
+            # two drivers starting on a new database: the other is creating Optuna's tables or
+            # stamping their revision; once it has, this one finds them there
+            if not isinstance(e, IntegrityError) and "already exists" not in str(e) or attempt == 9:
+                raise
+            time.sleep(0.2 * (attempt + 1))
+        except RuntimeError as e:  # Optuna's schema newer or older than this Optuna
+            raise TuneError(f"{store.display}: Optuna's tables: {' '.join(str(e).split())}") from None
+    raise AssertionError("unreachable")
 
 
 def make_sampler(settings: StudySettings) -> Any:
@@ -156,16 +167,20 @@ def open_study(db: Any, name: str, settings: StudySettings | None) -> Any:
             known = ", ".join(sorted(names)) or "(none)"
             raise TuneError(f"no tuning study {name!r} in this database: studies here are {known}")
         settings.check()
-        study = optuna.create_study(
-            study_name=name,
-            storage=storage,
-            sampler=make_sampler(settings),
-            pruner=make_pruner(settings),
-            direction="maximize",
-        )
-        study.set_user_attr(ATTR, settings.as_attr())
-        return study
-    stored = stored_settings(optuna.load_study(study_name=name, storage=storage))
+        try:
+            study = optuna.create_study(
+                study_name=name,
+                storage=storage,
+                sampler=make_sampler(settings),
+                pruner=make_pruner(settings),
+                direction="maximize",
+            )
+        except optuna.exceptions.DuplicatedStudyError:
+            pass  # another driver created it a moment ago: resume it below
+        else:
+            study.set_user_attr(ATTR, settings.as_attr())
+            return study
+    stored = _settings_when_written(optuna.load_study(study_name=name, storage=storage))
     if settings is not None and stored != settings:
         diff = [
             f"{k} {getattr(stored, k)!r} (asked {getattr(settings, k)!r})"
@@ -177,6 +192,19 @@ def open_study(db: Any, name: str, settings: StudySettings | None) -> Any:
             "or name a new --study"
         )
     return optuna.load_study(study_name=name, storage=storage, sampler=make_sampler(stored), pruner=make_pruner(stored))
+
+
+def _settings_when_written(study: Any, wait_s: float = 10.0) -> StudySettings:
+    """The study's settings; a study another driver has just created gets them a moment after
+    its creation, so wait for them a little before calling it foreign."""
+    end = time.monotonic() + wait_s
+    while True:
+        try:
+            return stored_settings(study)
+        except TuneError:
+            if time.monotonic() > end:
+                raise
+            time.sleep(0.2)
 
 
 def stored_settings(study: Any) -> StudySettings:
