@@ -13,6 +13,7 @@ from alembic import context
 
 from nutribench.store.engine import database_url, make_engine
 from nutribench.store.models import Base
+from nutribench.store.schema import OPTUNA_TABLES, VERSION_TABLE
 from nutribench.store.views import VIEWS
 
 config = context.config
@@ -30,11 +31,19 @@ def _url():
 
 
 def _include_object(obj, name, type_, reflected, compare_to):
-    return not (type_ == "table" and name in VIEWS)
+    return not (type_ == "table" and (name in VIEWS or name in OPTUNA_TABLES))
 
 
 def _configure(**kw) -> None:
-    context.configure(target_metadata=target_metadata, include_object=_include_object, compare_type=True, **kw)
+    # nutribench's own version table: Optuna's storage, in the same database, uses alembic's
+    # default ``alembic_version`` (nutribench.store.schema.VERSION_TABLE says why)
+    context.configure(
+        target_metadata=target_metadata,
+        include_object=_include_object,
+        compare_type=True,
+        version_table=config.get_main_option("version_table") or VERSION_TABLE,
+        **kw,
+    )
 
 
 def run_offline() -> None:

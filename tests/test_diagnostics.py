@@ -277,7 +277,7 @@ def test_the_migration_upgrades_a_0004_database(tmp_path) -> None:
     assert "diagnostics" not in {r[0] for r in sql(db, "SELECT name FROM sqlite_master")}
     res = CliRunner().invoke(app, ["run", "--upgrade-only", "--db", str(db)])
     assert res.exit_code == 0 and "upgraded from 0004" in res.output, res.output
-    assert sql(db, "SELECT version_num FROM alembic_version") == [(head_revision(),)]
+    assert sql(db, "SELECT version_num FROM nutribench_alembic_version") == [(head_revision(),)]
     assert sql(db, "SELECT count(*) FROM jobs") == [(1,)]
     con = sqlite3.connect(db)
     con.execute('INSERT INTO diagnostics (job_id, "update", timestep, value_loss) VALUES (1, 0, 500, 0.25)')

@@ -21,7 +21,7 @@ LAYERS: list[set[str]] = [
     {"agents", "baselines", "engine"},
     {"jobs", "store"},
     {"scheduler", "report", "recorder"},
-    {"bench"},
+    {"bench", "tuning"},
     {"cli"},
 ]
 LEVEL = {room: k for k, rooms in enumerate(LAYERS) for room in rooms}

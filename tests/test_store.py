@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 from nutribench.cli import app
 from nutribench.store import Base, StoreError, head_revision, make_engine, open_store, read_episode_metrics
 from nutribench.store.engine import database_url
-from nutribench.store.schema import revision_chain, upgrade_connection
+from nutribench.store.schema import VERSION_TABLE, revision_chain, upgrade_connection
 from nutribench.store.views import EPISODE_METRICS_COLUMNS, EVAL_TRAJECTORY_COLUMNS, VIEWS
 
 
@@ -49,10 +49,13 @@ def test_create_from_empty_matches_the_models(tmp_path: Path) -> None:
     assert (store.created, store.revision) == (True, head_revision())
     with store.engine.connect() as conn:
         names = set(inspect(conn).get_table_names())
-        assert {"regimes", "agent_configs", "jobs", "episodes", "eval_steps", "diagnostics", "alembic_version"} <= names
+        assert {"regimes", "agent_configs", "jobs", "episodes", "eval_steps", "diagnostics", VERSION_TABLE} <= names
         assert set(inspect(conn).get_view_names()) == set(VIEWS)
         diff = compare_metadata(
-            MigrationContext.configure(conn, opts={"include_object": _include, "compare_type": True}), Base.metadata
+            MigrationContext.configure(
+                conn, opts={"include_object": _include, "compare_type": True, "version_table": VERSION_TABLE}
+            ),
+            Base.metadata,
         )
         cols = [c[1] for c in conn.execute(text("PRAGMA table_info(episode_metrics)"))]
         assert tuple(cols) == EPISODE_METRICS_COLUMNS
@@ -75,7 +78,10 @@ def test_upgrade_from_0001_keeps_the_data(tmp_path: Path) -> None:
     store = open_store(db)
     with store.engine.connect() as conn:
         diff = compare_metadata(
-            MigrationContext.configure(conn, opts={"include_object": _include, "compare_type": True}), Base.metadata
+            MigrationContext.configure(
+                conn, opts={"include_object": _include, "compare_type": True, "version_table": VERSION_TABLE}
+            ),
+            Base.metadata,
         )
         assert conn.execute(text("SELECT count(*) FROM eval_steps")).scalar() == 0
     store.dispose()
@@ -99,7 +105,7 @@ def test_bad_databases_are_one_line_errors(tmp_path: Path) -> None:
     open_store(newer, writer=True).dispose()
     e = create_engine(f"sqlite:///{newer}")
     with e.begin() as conn:
-        conn.execute(text("UPDATE alembic_version SET version_num = '0099'"))
+        conn.execute(text("UPDATE nutribench_alembic_version SET version_num = '0099'"))
     e.dispose()
     cases = [
         (dict(db=text_file, writer=True), "is not a SQLite database"),

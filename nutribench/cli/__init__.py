@@ -4,7 +4,7 @@ One module per command group: :mod:`~nutribench.cli.regimes` (``regimes list|che
 :mod:`~nutribench.cli.agents` (``baselines``, ``train``), :mod:`~nutribench.cli.run`
 (``run``, ``status``), :mod:`~nutribench.cli.report` (``report``), :mod:`~nutribench.cli.evaluate` (``evaluate``), :mod:`~nutribench.cli.leaderboard`
 (``leaderboard``), :mod:`~nutribench.cli.db` (``db copy``, ``db export``, ``db import``) and
-:mod:`~nutribench.cli.bench` (``bench env|train|learn|status``); :mod:`~nutribench.cli.common`
+:mod:`~nutribench.cli.bench` (``bench env|train|learn|status|tune``), :mod:`~nutribench.cli.tune` (``tune``, ``tune status|best``); :mod:`~nutribench.cli.common`
 holds what they share. Commands import the library they call when they run, so
 ``nutribench --help`` starts fast. Nothing below this package imports from it.
 
@@ -26,6 +26,7 @@ from nutribench.cli.leaderboard import leaderboard_cmd
 from nutribench.cli.regimes import regimes_app
 from nutribench.cli.report import report_cmd
 from nutribench.cli.run import run_cmd, status_cmd
+from nutribench.cli.tune import tune_app
 
 app = typer.Typer(
     no_args_is_help=True,
@@ -44,6 +45,7 @@ app.command("leaderboard")(leaderboard_cmd)
 app.command("evaluate")(evaluate_cmd)
 app.add_typer(db_app, name="db")
 app.add_typer(bench_app, name="bench")
+app.add_typer(tune_app, name="tune")
 
 
 def main() -> None:  # pragma: no cover

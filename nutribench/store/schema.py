@@ -6,6 +6,15 @@ The driver (``nutribench run``) is the only one that creates or upgrades a schem
 upgrades an older one, under the write lock (a second driver waits, then finds it done).
 Readers (``status``, the report) refuse an older schema with the exact command to run, and
 every opener refuses a schema newer than this nutribench knows.
+
+nutribench's revision lives in its own table, :data:`VERSION_TABLE`
+(``nutribench_alembic_version``), not in alembic's default ``alembic_version``: Optuna's RDB
+storage (``nutribench tune``) keeps its own schema revision in a table of that default name, and
+the two chains would overwrite each other in one database. A database written before the move
+(its nutribench revision in ``alembic_version``) is still read as it is, and the first writer to
+open it moves the revision over (:func:`adopt_legacy_version`), leaving ``alembic_version`` to
+Optuna. Tables of Optuna's storage (:data:`OPTUNA_TABLES`) are not foreign to a nutribench
+database.
 """
 
 from __future__ import annotations
@@ -19,7 +28,7 @@ from alembic import command
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import Connection, Engine, inspect
+from sqlalchemy import Connection, Engine, inspect, text
 from sqlalchemy.engine import URL
 from sqlalchemy.exc import DatabaseError, OperationalError
 
@@ -47,10 +56,36 @@ def migrations_dir() -> Path:
     raise StoreError("no migrations folder found: set NUTRIBENCH_MIGRATIONS to the folder holding env.py")
 
 
+#: the table holding nutribench's schema revision (alembic's ``version_table``)
+VERSION_TABLE = "nutribench_alembic_version"
+#: where nutribench kept its revision before Optuna shared the database (alembic's default)
+LEGACY_VERSION_TABLE = "alembic_version"
+#: the tables Optuna's RDB storage creates (Optuna 3-5); a database holding only these is empty for nutribench
+OPTUNA_TABLES = frozenset(
+    {
+        "studies",
+        "study_directions",
+        "study_user_attributes",
+        "study_system_attributes",
+        "trials",
+        "trial_params",
+        "trial_values",
+        "trial_intermediate_values",
+        "trial_user_attributes",
+        "trial_system_attributes",
+        "trial_heartbeats",
+        "version_info",
+        LEGACY_VERSION_TABLE,
+    }
+)
+
+
 def alembic_config(url: URL | str | None = None) -> Config:
-    """A programmatic alembic Config (no alembic.ini needed)."""
+    """A programmatic alembic Config (no alembic.ini needed); ``migrations/env.py`` reads
+    :data:`VERSION_TABLE` from here."""
     cfg = Config()
     cfg.set_main_option("script_location", str(migrations_dir()))
+    cfg.set_main_option("version_table", VERSION_TABLE)
     if url is not None:
         u = url if isinstance(url, URL) else database_url(url)
         cfg.set_main_option("sqlalchemy.url", u.render_as_string(hide_password=False).replace("%", "%%"))
@@ -68,7 +103,35 @@ def revision_chain() -> list[str]:
 
 
 def current_revision(conn: Connection) -> str | None:
-    return MigrationContext.configure(conn).get_current_revision()
+    """nutribench's schema revision of the database on ``conn`` (None: none yet); a database
+    from before :data:`VERSION_TABLE` is read from alembic's default table when that holds one
+    of nutribench's revisions (not Optuna's)."""
+    rev = MigrationContext.configure(conn, opts={"version_table": VERSION_TABLE}).get_current_revision()
+    if rev is None:
+        rev = _legacy_revision(conn)
+    return rev
+
+
+def _legacy_revision(conn: Connection) -> str | None:
+    """nutribench's revision in ``alembic_version`` (a database from before the move), else None."""
+    if not inspect(conn).has_table(LEGACY_VERSION_TABLE):
+        return None
+    rev = MigrationContext.configure(conn).get_current_revision()
+    return rev if rev in revision_chain() else None
+
+
+def adopt_legacy_version(conn: Connection) -> None:
+    """Move nutribench's revision from ``alembic_version`` to :data:`VERSION_TABLE` (inside the
+    caller's transaction), dropping ``alembic_version`` if nothing else is left in it, so that
+    Optuna's storage can keep its own revision there. Nothing to do on a moved or new database."""
+    rev = _legacy_revision(conn)
+    if rev is None or inspect(conn).has_table(VERSION_TABLE):
+        return
+    context = MigrationContext.configure(conn, opts={"version_table": VERSION_TABLE})
+    context.stamp(ScriptDirectory.from_config(alembic_config()), rev)
+    conn.execute(text(f"DELETE FROM {LEGACY_VERSION_TABLE} WHERE version_num = :rev"), {"rev": rev})
+    if conn.execute(text(f"SELECT COUNT(*) FROM {LEGACY_VERSION_TABLE}")).scalar() == 0:
+        conn.execute(text(f"DROP TABLE {LEGACY_VERSION_TABLE}"))
 
 
 def upgrade_connection(conn: Connection, target: str = "head") -> None:
@@ -118,7 +181,7 @@ def _classify(conn: Connection, display: str) -> str | None:
     """The schema revision, None for an empty database; refuse foreign databases."""
     rev = current_revision(conn)
     if rev is None:
-        tables = set(inspect(conn).get_table_names())
+        tables = set(inspect(conn).get_table_names()) - OPTUNA_TABLES
         if tables:
             raise StoreError(
                 f"{display} holds tables ({', '.join(sorted(tables)[:4])}...) but no nutribench schema: "
@@ -152,6 +215,7 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
         if writer:
             with engine.begin() as conn:  # BEGIN IMMEDIATE on SQLite: one upgrader at a time
                 hold_write_lock(conn, MIGRATION_LOCK)
+                adopt_legacy_version(conn)
                 rev = _classify(conn, display)
                 if rev != head:
                     if not upgrade:

@@ -1,0 +1,175 @@
+"""``nutribench tune``: a tuning study on Optuna in the results database; ``tune status`` and
+``tune best`` read it (docs/tuning.md).
+
+Everything checkable is checked before the database is touched: the search space (file,
+keys, parameters against the base agent, every range's ends), the regimes, the tuning seeds
+(never the seeds results are reported on), the budget; each a one-line error with exit 2.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from nutribench.cli.common import DEVICE_HELP, console, split_csv, user_errors
+
+tune_app = typer.Typer(
+    no_args_is_help=False,
+    add_completion=False,
+    rich_markup_mode=None,
+    invoke_without_command=True,
+    help="Tune an agent's hyperparameters on validation days (Optuna, in the results database).",
+)
+
+DB_HELP = "SQLite file or SQLAlchemy URL (the results database: Optuna's tables go beside nutribench's)"
+
+
+@tune_app.callback(invoke_without_command=True)
+@user_errors
+def tune_cmd(
+    ctx: typer.Context,
+    algo: Annotated[
+        Optional[str],
+        typer.Option(
+            help="search space to tune: a name in regimes/search/ (ppo, mc, ddqn, sac, gru_ppo) or a .toml path"
+        ),
+    ] = None,
+    study: Annotated[Optional[str], typer.Option(help="the study's name (new: created; existing: resumed)")] = None,
+    regimes: Annotated[str, typer.Option(help="tuning regimes, comma-separated")] = "run0,run1,run2,run4",
+    seeds: Annotated[
+        Optional[str], typer.Option(help="tuning seeds, comma-separated (default 101,102,103; never 0,21,9,2003,1997)")
+    ] = None,
+    trials: Annotated[int, typer.Option(help="finished trials (complete or pruned) the study should hold")] = 32,
+    days: Annotated[int, typer.Option(help="training days per agent of a trial")] = 1000,
+    eval_every: Annotated[
+        Optional[int],
+        typer.Option(help="training days between validation evaluations, a divisor of --days (default: about days/10)"),
+    ] = None,
+    val_episodes: Annotated[int, typer.Option(help="validation days per evaluation")] = 5,
+    sampler_seed: Annotated[int, typer.Option(help="seed of the TPE sampler")] = 0,
+    pruner: Annotated[str, typer.Option(help="'median' (after half the days) or 'none'")] = "median",
+    device: Annotated[str, typer.Option(help=DEVICE_HELP)] = "cpu",
+    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help=DB_HELP)] = "nutribench.db",
+) -> None:
+    """Run (or resume) a tuning study until it holds --trials finished trials.
+
+    Each trial trains one agent per (regime, tuning seed) for --days days, evaluated greedily
+    every --eval-every days on validation days; its value is the IQM over those agents of the
+    share of the never -> planner gap. Kill or Ctrl-C it at any time and run the same command
+    again: it goes on from the trials already finished."""
+    if ctx.invoked_subcommand is not None:
+        return
+    if algo is None or study is None:
+        raise typer.BadParameter("give --algo (a search space) and --study (a name); see nutribench tune --help")
+    from nutribench.config import list_regimes
+    from nutribench.tuning.objective import ValidationObjective
+    from nutribench.tuning.space import load_search_space
+    from nutribench.tuning.study import StudySettings, default_eval_every, open_study, parse_seeds, run_study
+
+    space = load_search_space(algo)
+    names = split_csv(regimes, list_regimes(), "regime")
+    settings = StudySettings(
+        space=space.name,
+        space_version=space.version,
+        space_sha256=space.sha256,
+        regimes=tuple(names),
+        seeds=parse_seeds(seeds),
+        days=days,
+        eval_every=eval_every or default_eval_every(max(1, days)),
+        val_episodes=val_episodes,
+        sampler_seed=sampler_seed,
+        pruner=pruner,
+    )
+    settings.check()
+    if trials < 1:
+        from nutribench.tuning.study import TuneError
+
+        raise TuneError("--trials must be >= 1")
+    handle = open_study(db, study, settings)
+
+    def evaluation(number: int, day: int, value: float) -> None:
+        console.print(f"trial {number}: day {day}: IQM share of the gap {value:+.3f}", highlight=False, soft_wrap=True)
+
+    def finished(counts) -> None:
+        best = "" if counts.best_value is None else f"; best {counts.best_value:+.3f} (trial {counts.best_number})"
+        console.print(
+            f"study {counts.name}: {counts.finished} of {trials} finished ({counts.complete} complete, "
+            f"{counts.pruned} pruned, {counts.failed} failed){best}",
+            highlight=False,
+            soft_wrap=True,
+        )
+
+    objective = ValidationObjective(space, settings, device=device, on_evaluation=evaluation)
+    counts = run_study(handle, objective, trials, on_trial=finished)
+    console.print(
+        f"study {study} holds {counts.finished} finished trials: `nutribench tune best --study {study} --write` "
+        "writes the best as a new agent file",
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+@tune_app.command("status")
+@user_errors
+def status_cmd(
+    study: Annotated[Optional[str], typer.Option(help="one study (default: every study in the database)")] = None,
+    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help=DB_HELP)] = "nutribench.db",
+) -> None:
+    """Each tuning study: trials complete, pruned, running, failed, and the best so far."""
+    from nutribench.tuning.study import study_counts
+
+    rows = study_counts(db, study)
+    if not rows:
+        console.print("no tuning studies in this database: `nutribench tune --algo ppo --study NAME` starts one")
+        return
+    for c in rows:
+        s = c.settings
+        what = (
+            "settings unknown"
+            if s is None
+            else (
+                f"{s.space} v{s.space_version} on {','.join(s.regimes)}, seeds {','.join(map(str, s.seeds))}, {s.days} days"
+            )
+        )
+        best = "" if c.best_value is None else f"; best {c.best_value:+.3f} (trial {c.best_number})"
+        console.print(
+            f"study {c.name}: {what}: {c.complete} complete, {c.pruned} pruned, {c.running} running, "
+            f"{c.failed} failed{best}",
+            highlight=False,
+            soft_wrap=True,
+        )
+    for c in rows:
+        if c.best_params:
+            shown = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in c.best_params.items())
+            console.print(f"{c.name}: best trial {c.best_number}: {shown}", highlight=False, soft_wrap=True)
+
+
+@tune_app.command("best")
+@user_errors
+def best_cmd(
+    study: Annotated[str, typer.Option(help="the study")],
+    write: Annotated[bool, typer.Option(help="write the agent file into the agents folder")] = False,
+    name: Annotated[Optional[str], typer.Option(help="the new agent's name (default <agent>_tuned)")] = None,
+    out: Annotated[
+        Optional[Path], typer.Option(help="the folder --write writes into (default: the agents folder)")
+    ] = None,
+    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help=DB_HELP)] = "nutribench.db",
+) -> None:
+    """The study's best trial as a new agent file: printed, or written with --write (never over an existing file)."""
+    from nutribench.agents.config import agent_config_to_toml
+    from nutribench.tuning.export import tuned_config, write_tuned
+    from nutribench.tuning.study import open_study
+
+    handle = open_study(db, study, None)
+    if write:
+        path = write_tuned(handle, name, out)
+        console.print(
+            f"wrote {path}: `NUTRIBENCH_AGENTS={path.parent} nutribench run --algos {path.stem}` trains it",
+            highlight=False,
+            soft_wrap=True,
+        )
+        return
+    cfg, header = tuned_config(handle, name)
+    typer.echo(header + "\n" + agent_config_to_toml(cfg))

@@ -1,0 +1,84 @@
+"""A study's best trial as a new agent file, beside (never over) the paper's.
+
+The file is the search space's base agent with the best trial's values, a new name
+(``<agent>_tuned`` unless told), version 1, and a description naming the study, the trial,
+its objective value and the search space's name, version and hash; the same facts head the
+file as comments. The description is part of the config's content, so every job trained
+from the file records in the database which study chose it. An existing file is never
+overwritten, and a paper agent's name is refused.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from nutribench.agents.config import ALGOS, agent_config_to_toml, agents_dir
+from nutribench.tuning.space import load_search_space
+from nutribench.tuning.study import TuneError, count_trials, stored_settings
+
+
+def tuned_config(study: Any, name: str | None = None) -> tuple[Any, str]:
+    """The best trial's agent config and the comment block that heads its file."""
+    counts = count_trials(study)
+    if counts.best_number is None:
+        raise TuneError(f"study {study.study_name!r} has no complete trial yet: nothing to export")
+    settings = stored_settings(study)
+    space = load_search_space(settings.space)
+    if (space.version, space.sha256) != (settings.space_version, settings.space_sha256):
+        raise TuneError(
+            f"search space {space.name!r} changed since study {study.study_name!r} was created "
+            f"(version {settings.space_version}, sha256 {settings.space_sha256[:12]}; now version {space.version}, "
+            f"{space.sha256[:12]}): restore that file to export this study"
+        )
+    best = study.best_trial
+    name = name or f"{space.base().name}_tuned"
+    if name in ALGOS:
+        raise TuneError(f"--name {name!r} is a paper agent's name; its file is never overwritten: give another name")
+    provenance = (
+        f"tuned by nutribench tune: study {study.study_name!r}, trial {best.number}, objective {best.value:.4f} "
+        f"(IQM share of the never -> planner gap on validation days), search space {space.name} v{space.version} "
+        f"(sha256 {space.sha256[:12]})"
+    )
+    cfg = space.config(_decoded(best.params), name=name, description=provenance)
+    header = "\n".join(
+        [
+            f"# {name}: the best trial of tuning study {study.study_name!r} (docs/tuning.md).",
+            f"# Base agent: {space.base().name}; searched: {', '.join(space.params)}.",
+            f"# Study: regimes {','.join(settings.regimes)}, tuning seeds {','.join(map(str, settings.seeds))}, "
+            f"{settings.days} days per trial, evaluated every {settings.eval_every} days on {settings.val_episodes} "
+            "validation days.",
+            f"# Trial {best.number}: objective {best.value:.4f}; {counts.complete} complete, {counts.pruned} pruned trials.",
+            "# Made by `nutribench tune best --write`; never edit it in place: a changed agent file is a new version.",
+        ]
+    )
+    return cfg, header
+
+
+def _decoded(params: dict[str, Any]) -> dict[str, Any]:
+    """Optuna's stored values as the agent file wants them (list choices from their JSON text)."""
+    return {k: json.loads(v) if isinstance(v, str) and v.startswith("[") else v for k, v in params.items()}
+
+
+def write_tuned(study: Any, name: str | None = None, folder: Path | None = None) -> Path:
+    """Write the best trial's agent file into ``folder`` (the agents folder by default) and
+    return its path; refuse an existing file."""
+    cfg, header = tuned_config(study, name)
+    folder = folder or agents_dir()
+    path = folder / f"{cfg.name}.toml"
+    if path.exists():
+        raise TuneError(f"{path} exists: a tuned file is never overwritten; give another --name or remove it")
+    folder.mkdir(parents=True, exist_ok=True)
+    text = header + "\n" + agent_config_to_toml(cfg)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{cfg.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path

@@ -1,0 +1,128 @@
+"""The tuning objective: how good one trial's agent config is, on validation days only.
+
+A trial trains one agent of its config per (tuning regime, tuning seed) for the study's days,
+all at once in the batched engine (K = regimes x seeds agents; a config the batched engine
+does not train, a plug-in's, trains job by job with the SB3 engine). Every ``eval_every``
+days each agent's greedy policy plays its seed's validation days (never the test days the
+tables report); its mean return there becomes its share of the never -> planner gap on those
+same days, ``(R - R_never) / (R_planner - R_never)``. The trial's value at that day is the
+interquartile mean (IQM) of the K shares; Optuna's pruner reads it at every evaluation, and
+the value at the last day is the trial's objective. Each agent's final share is kept as the
+trial's user attribute ``shares`` (``"<regime>/<seed>"`` -> share).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from nutribench.report.stats import iqm
+from nutribench.tuning.space import SearchSpace
+from nutribench.tuning.study import StudySettings
+
+
+def share_of_gap(ret: float, never: float, planner: float) -> float:
+    """``ret`` as a share of the gap from never eating (0) to the greedy planner (1)."""
+    return (ret - never) / (planner - never)
+
+
+class ValidationObjective:
+    """``objective(trial) -> float`` for :func:`~nutribench.tuning.study.run_study` (module docstring)."""
+
+    def __init__(
+        self,
+        space: SearchSpace,
+        settings: StudySettings,
+        device: str = "cpu",
+        on_evaluation: Callable[[int, int, float], None] | None = None,
+    ):
+        self.space, self.settings, self.device, self.on_evaluation = space, settings, device, on_evaluation
+        self.jobs = [(r, s) for r in settings.regimes for s in settings.seeds]
+        self._references: dict[tuple[str, int], tuple[float, float]] = {}
+
+    def references(self, regime: str, seed: int) -> tuple[float, float]:
+        """Never eating's and the greedy planner's mean return on the validation days of (regime, seed)."""
+        from nutribench.agents.days import validation_food_streams
+        from nutribench.baselines import play_simple_policy
+
+        key = (regime, seed)
+        if key not in self._references:
+            days = validation_food_streams(regime, seed, self.settings.val_episodes)
+            never, planner = (
+                float(np.mean([r["return"] for r in play_simple_policy(p, regime, days)])) for p in ("never", "planner")
+            )
+            self._references[key] = (never, planner)
+        return self._references[key]
+
+    def __call__(self, trial: Any) -> float:
+        import optuna
+
+        values = self.space.suggest(trial)
+        cfg = self.space.config(values)
+        k, last = len(self.jobs), self.settings.days
+        shares: dict[int, dict[int, float]] = {}
+
+        def on_validation(j: int, day: int, rows: list[dict[str, Any]]) -> None:
+            never, planner = self.references(*self.jobs[j])
+            shares.setdefault(day, {})[j] = share_of_gap(float(np.mean([r["return"] for r in rows])), never, planner)
+            if len(shares[day]) == k:
+                value = iqm(np.array(list(shares[day].values())))
+                trial.report(value, day)
+                if self.on_evaluation is not None:
+                    self.on_evaluation(trial.number, day, value)
+                if day < last and trial.should_prune():
+                    raise optuna.TrialPruned(f"pruned at day {day}: IQM share {value:.3f}")
+
+        trial.set_user_attr("engine", self.engine(cfg))
+        trial.set_user_attr("device", self.device if self.engine(cfg) == "batched" else "cpu")
+        self.train(cfg, on_validation)
+        final = shares.get(last, {})
+        if len(final) != k:
+            raise RuntimeError(f"trial {trial.number}: {len(final)} of {k} agents were evaluated at day {last}")
+        trial.set_user_attr("shares", {f"{r}/{s}": final[j] for j, (r, s) in enumerate(self.jobs)})
+        return iqm(np.array(list(final.values())))
+
+    @staticmethod
+    def engine(cfg: Any) -> str:
+        """Which engine trains ``cfg``'s trials: the batched one where it trains the config as
+        the SB3 engine would, else SB3 (a plug-in: its own loop)."""
+        from nutribench.engine import supports
+
+        return "batched" if supports(cfg) is None else "sb3"
+
+    def train(self, cfg: Any, on_validation: Callable[[int, int, list[dict[str, Any]]], None]) -> None:
+        """Train the trial's K agents with evaluations during training (batched when supported)."""
+        s = self.settings
+        if self.engine(cfg) == "batched":
+            from nutribench.engine.train import train_batched
+
+            train_batched(
+                self.jobs,
+                cfg,
+                s.days,
+                device=self.device,
+                eval_every=s.eval_every,
+                val_episodes=s.val_episodes,
+                on_validation=on_validation,
+            )
+            return
+        from nutribench.agents.api import evaluate, train
+        from nutribench.agents.days import validation_food_streams
+
+        for j, (regime, seed) in enumerate(self.jobs):
+            if cfg.algo == "external":  # a plug-in's own loop: its final agent is evaluated, nothing to prune on
+                agent = train(regime, cfg, seed, s.days)
+                days = validation_food_streams(regime, seed, s.val_episodes)
+                on_validation(j, s.days, evaluate(agent, regime, days, record_steps=False).episodes)
+                continue
+            train(
+                regime,
+                cfg,
+                seed,
+                s.days,
+                eval_every=s.eval_every,
+                val_episodes=s.val_episodes,
+                on_validation=lambda _, day, rows, j=j: on_validation(j, day, rows),
+            )

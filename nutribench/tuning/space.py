@@ -1,0 +1,197 @@
+"""Search spaces: which hyperparameters of an agent a tuning study varies, over which ranges.
+
+One versioned TOML file per space in ``regimes/search/`` (``<name>.toml``, or
+``$NUTRIBENCH_REGIMES/search``), validated like the agent files (unknown keys are errors,
+``name`` equals the file name, a content hash is recorded with the study)::
+
+    name = "ppo"
+    version = 1
+    agent = "ppo"              # the agent file every trial starts from
+    description = "..."
+
+    [params.learning_rate]
+    kind = "float"             # float | int | categorical
+    low = 1e-5
+    high = 2e-3
+    log = true                 # sampled uniformly in log space
+    why = "rl-zoo3's sample_ppo_params: log-uniform 1e-5 .. 2e-3"
+
+    [params.n_epochs]
+    kind = "categorical"
+    choices = [5, 10, 20]
+    why = "..."
+
+Every searched name must be a hyperparameter of the base agent's config model (for a plug-in,
+``algo = "external"``, a key of its ``[params]`` table), and every range's ends and every
+choice must make a valid agent config (checked when the file is loaded, so a study never
+starts on a range it would fail in). Whatever the space does not name keeps the base file's
+value. Categorical choices may be lists (``net_arch``); Optuna sees them as their JSON text.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from nutribench.agents.config import load_agent_config, parse_agent_config
+from nutribench.config.loading import ConfigError, content_sha256, format_validation_error, read_toml, regimes_dir
+
+#: the fields of an agent config that name or describe it, never searched
+_IDENTITY = ("algo", "name", "version", "description", "entry_point")
+
+Scalar = bool | int | float | str
+Name = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$", max_length=64)]
+
+
+class Param(BaseModel):
+    """One searched hyperparameter: a float or int range (``low``..``high``, ``log``) or ``choices``."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    kind: Literal["float", "int", "categorical"]
+    low: float | None = None
+    high: float | None = None
+    log: bool = False
+    choices: list[Scalar | list[Scalar]] | None = Field(default=None, min_length=1)
+    why: str = Field(min_length=1, description="where the range comes from (a source, a measurement)")
+
+    @model_validator(mode="after")
+    def _shape(self) -> Param:
+        if self.kind == "categorical":
+            if self.choices is None or self.low is not None or self.high is not None:
+                raise ValueError("a categorical parameter has choices = [...] and no low/high")
+            return self
+        if self.choices is not None or self.low is None or self.high is None:
+            raise ValueError(f"a {self.kind} parameter has low and high and no choices")
+        if not (math.isfinite(self.low) and math.isfinite(self.high)) or self.low >= self.high:
+            raise ValueError(f"low ({self.low}) must be below high ({self.high}), both finite")
+        if self.log and self.low <= 0:
+            raise ValueError(f"log = true needs low > 0 (low = {self.low})")
+        if self.kind == "int" and (self.low != int(self.low) or self.high != int(self.high)):
+            raise ValueError("an int parameter's low and high are whole numbers")
+        return self
+
+    def ends(self) -> list[Any]:
+        """The values that bound the range: low and high, or every choice."""
+        if self.kind == "categorical":
+            return list(self.choices or [])
+        if self.kind == "int":
+            return [int(self.low), int(self.high)]  # type: ignore[arg-type]
+        return [self.low, self.high]
+
+    def suggest(self, trial: Any, name: str) -> Any:
+        """Draw this parameter for an Optuna ``trial``."""
+        if self.kind == "float":
+            return trial.suggest_float(name, self.low, self.high, log=self.log)
+        if self.kind == "int":
+            return trial.suggest_int(name, int(self.low), int(self.high), log=self.log)  # type: ignore[arg-type]
+        encoded = [json.dumps(c) if isinstance(c, list) else c for c in self.choices or []]
+        value = trial.suggest_categorical(name, encoded)
+        return json.loads(value) if isinstance(value, str) and value.startswith("[") else value
+
+
+class SearchSpace(BaseModel):
+    """A tuning study's search space (the module docstring shows the file)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: Name
+    version: Annotated[int, Field(ge=1)]
+    agent: str = Field(min_length=1, description="the agent file (name or path) trials start from")
+    description: str
+    params: dict[Name, Param] = Field(min_length=1)
+
+    @property
+    def sha256(self) -> str:
+        """Content hash of the space (recorded with the study)."""
+        return content_sha256(self.model_dump(mode="json"))
+
+    def base(self) -> Any:
+        """The validated base agent config."""
+        return load_agent_config(self.agent)
+
+    def suggest(self, trial: Any) -> dict[str, Any]:
+        """One trial's values of every searched parameter."""
+        return {name: p.suggest(trial, name) for name, p in self.params.items()}
+
+    def config(self, values: dict[str, Any], *, name: str | None = None, description: str | None = None) -> Any:
+        """The agent config of ``values`` (the base file's, the searched ones replaced), validated."""
+        base = self.base()
+        data = base.model_dump(mode="json")
+        if data["algo"] == "external":
+            data["params"] = {**data["params"], **values}
+        else:
+            data.update(values)
+        data["name"] = name or data["name"]
+        data["description"] = description or data["description"]
+        return parse_agent_config(data, f"search space {self.name!r}")
+
+
+def search_dir() -> Path:
+    """``regimes/search/`` (under ``$NUTRIBENCH_REGIMES`` when set)."""
+    return regimes_dir() / "search"
+
+
+def list_search_spaces(folder: Path | None = None) -> list[str]:
+    """Names of the search-space files."""
+    folder = folder or search_dir()
+    return sorted(p.stem for p in folder.glob("*.toml")) if folder.is_dir() else []
+
+
+def resolve_space_path(name_or_path: str | Path) -> Path:
+    """A space name (``ppo``) or a path to a TOML file."""
+    s = str(name_or_path)
+    if s.endswith(".toml") or "/" in s:
+        path = Path(s)
+        if not path.is_file():
+            raise ConfigError(f"{path}: no such search-space file")
+        return path
+    path = search_dir() / f"{s}.toml"
+    if not path.is_file():
+        known = ", ".join(list_search_spaces()) or "(none)"
+        raise ConfigError(f"unknown search space '{s}': known are {known} (files in {search_dir()})")
+    return path
+
+
+def load_search_space(name_or_path: str | Path) -> SearchSpace:
+    """The validated search space of a name or file: its keys, its parameters against the base
+    agent's config model, and each range's ends as valid configs (one-line :class:`ConfigError`)."""
+    path = resolve_space_path(name_or_path)
+    try:
+        space = SearchSpace.model_validate(read_toml(path))
+    except ValidationError as e:
+        raise ConfigError(format_validation_error(path, e)) from None
+    if space.name != path.stem:
+        raise ConfigError(f"{path}: name: '{space.name}' differs from the file name '{path.stem}' (make them equal)")
+    check_space(space, path)
+    return space
+
+
+def check_space(space: SearchSpace, source: Path | str) -> None:
+    """Every searched name is a hyperparameter of the base agent, and every end of every range
+    gives a valid config (the other parameters at the base file's values)."""
+    try:
+        base = space.base()
+    except ConfigError as e:
+        raise ConfigError(f"{source}: agent: {e}") from None
+    data = base.model_dump(mode="json")
+    known = set(data["params"]) if data["algo"] == "external" else set(data) - set(_IDENTITY)
+    for name, param in space.params.items():
+        if name not in known:
+            where = (
+                f"keys of its [params]: {', '.join(sorted(known)) or '(none)'}"
+                if data["algo"] == "external"
+                else (f"its hyperparameters: {', '.join(sorted(known))}")
+            )
+            raise ConfigError(f"{source}: params.{name}: not a hyperparameter of agent {base.name!r} ({where})")
+        for value in param.ends():
+            try:
+                space.config({name: value})
+            except ConfigError as e:
+                raise ConfigError(
+                    f"{source}: params.{name}: the value {value!r} gives no valid agent config: {e}"
+                ) from None

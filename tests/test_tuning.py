@@ -1,0 +1,165 @@
+"""``nutribench tune`` training for real, at a tiny budget: the objective is the share of the
+never -> planner gap on validation days (never the test days), the best trial becomes a new
+agent file, plug-ins tune through their ``[params]``, and a study killed with -9 resumes
+without losing or double-counting a trial."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import optuna
+import pytest
+from typer.testing import CliRunner
+
+from nutribench.agents import config as agent_config
+from nutribench.agents.api import evaluate
+from nutribench.agents.config import load_agent_config
+from nutribench.agents.days import validation_food_streams
+from nutribench.baselines import play_simple_policy
+from nutribench.cli import app
+from nutribench.engine.train import train_batched
+from nutribench.tuning.space import load_search_space
+from nutribench.tuning.study import TuneError, count_trials, open_study
+from tests.conftest import one_error_line, wait_for
+from tests.test_own_agent import plugin_folder  # noqa: F401 (a fixture)
+
+runner = CliRunner()
+TINY = ["--regimes", "run3", "--seeds", "101", "--days", "4", "--eval-every", "2", "--val-episodes", "2"]
+
+
+def tune(db: Path, *args: str):
+    return runner.invoke(app, ["tune", "--db", str(db), *args])
+
+
+def mean_return(rows) -> float:
+    return float(np.mean([r["return"] for r in rows]))
+
+
+def test_a_trial_is_its_share_of_the_gap_on_validation_days(tmp_path: Path) -> None:
+    db = tmp_path / "lab.db"
+    res = tune(db, "--algo", "ppo", "--study", "s", "--trials", "2", "--pruner", "none", *TINY)
+    assert res.exit_code == 0, res.output
+    assert "trial 0: day 2: IQM share of the gap" in res.output and "holds 2 finished trials" in res.output
+    study = optuna.load_study(study_name="s", storage=f"sqlite:///{db}")
+    trial = study.trials[1]
+    assert sorted(trial.intermediate_values) == [2, 4]
+    # the same config trained again, evaluated post hoc on the validation days: the same share
+    cfg = load_search_space("ppo").config(dict(trial.params))
+    (agent,) = train_batched([("run3", 101)], cfg, 4)
+    days = validation_food_streams("run3", 101, 2)
+    never, planner = (mean_return(play_simple_policy(p, "run3", days)) for p in ("never", "planner"))
+    share = (mean_return(evaluate(agent, "run3", days, record_steps=False).episodes) - never) / (planner - never)
+    assert trial.value == pytest.approx(share, abs=1e-9)
+    assert trial.user_attrs["shares"] == {"run3/101": pytest.approx(share, abs=1e-9)}
+
+
+def test_the_best_trial_becomes_a_new_agent_file(tmp_path: Path, monkeypatch) -> None:
+    agents = tmp_path / "agents"
+    agents.mkdir()
+    for f in (agent_config.regimes_dir() / "agents").glob("*.toml"):
+        (agents / f.name).write_text(f.read_text())
+    monkeypatch.setenv("NUTRIBENCH_AGENTS", str(agents))
+    db = tmp_path / "lab.db"
+    assert tune(db, "--algo", "mc", "--study", "mc_s", "--trials", "2", *TINY).exit_code == 0
+    res = runner.invoke(app, ["tune", "best", "--study", "mc_s", "--write", "--db", str(db)])
+    assert res.exit_code == 0, res.output
+    cfg = load_agent_config(agents / "mc_tuned.toml")
+    best = optuna.load_study(study_name="mc_s", storage=f"sqlite:///{db}").best_trial
+    assert cfg.name == "mc_tuned" and cfg.learning_rate == best.params["learning_rate"]
+    assert f"study 'mc_s', trial {best.number}" in cfg.description and "search space mc v1" in cfg.description
+    assert load_agent_config("mc").version == 2  # the paper's file untouched
+    again = runner.invoke(app, ["tune", "best", "--study", "mc_s", "--write", "--db", str(db)])
+    assert "mc_tuned.toml exists" in one_error_line(again)
+    paper = runner.invoke(app, ["tune", "best", "--study", "mc_s", "--write", "--name", "mc", "--db", str(db)])
+    assert "is a paper agent's name" in one_error_line(paper)
+    with pytest.raises(TuneError, match="no tuning study"):
+        open_study(db, "absent", None)
+
+
+def test_a_plugin_is_tuned_through_its_params(plugin_folder: Path, monkeypatch) -> None:  # noqa: F811
+    monkeypatch.setenv("NUTRIBENCH_AGENTS", str(plugin_folder / "agents"))
+    monkeypatch.syspath_prepend(str(plugin_folder))
+    space = plugin_folder / "a2c_mine.toml"
+    space.write_text(
+        'name = "a2c_mine"\nversion = 1\nagent = "a2c_mine"\ndescription = "x"\n'
+        '[params.learning_rate]\nkind = "float"\nlow = 1e-4\nhigh = 1e-3\nlog = true\nwhy = "test"\n'
+    )
+    db = plugin_folder / "lab.db"
+    res = tune(db, "--algo", str(space), "--study", "p", "--trials", "1", *TINY)
+    assert res.exit_code == 0, res.output
+    (trial,) = optuna.load_study(study_name="p", storage=f"sqlite:///{db}").trials
+    assert trial.state.name == "COMPLETE" and np.isfinite(trial.value) and 1e-4 <= trial.params["learning_rate"] <= 1e-3
+    bad = space.read_text().replace("learning_rate", "gamma_typo")
+    space.write_text(bad)
+    line = one_error_line(tune(db, "--algo", str(space), "--study", "p2", *TINY))
+    assert "not a hyperparameter of agent 'a2c_mine' (keys of its [params]: learning_rate, n_steps)" in line
+
+
+@pytest.mark.slow
+def test_a_study_killed_with_minus_9_resumes_without_losing_or_repeating_a_trial(tmp_path: Path) -> None:
+    db = tmp_path / "lab.db"
+    env = dict(os.environ, NUTRIBENCH_TUNE_HEARTBEAT="1", NUTRIBENCH_TUNE_GRACE="3")
+    args = [sys.executable, "-m", "nutribench.cli", "tune", "--algo", "ppo", "--study", "k", "--db", str(db)]
+    args += ["--trials", "3", "--regimes", "run0", "--seeds", "101", "--days", "60", "--eval-every", "10"]
+    args += ["--val-episodes", "1", "--pruner", "none"]
+    proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    storage = f"sqlite:///{db}"
+
+    def mid_trial() -> bool:
+        try:
+            trials = optuna.load_study(study_name="k", storage=storage).trials
+        except (KeyError, Exception):
+            return False
+        return any(t.state.name == "RUNNING" and t.intermediate_values for t in trials)
+
+    wait_for(mid_trial, timeout=300)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    (killed,) = [t for t in optuna.load_study(study_name="k", storage=storage).trials if t.state.name == "RUNNING"]
+    time.sleep(4)  # past the grace period: its heartbeat has stopped
+    done = subprocess.run(args, env=env, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr
+    study = optuna.load_study(study_name="k", storage=storage)
+    counts = count_trials(study)
+    assert (counts.complete, counts.pruned, counts.running) == (3, 0, 0)
+    states = {t.number: t.state.name for t in study.trials}
+    assert states[killed.number] == "FAIL"  # not counted
+    (retry,) = [t for t in study.trials if t.system_attrs.get("failed_trial") == killed.number]
+    assert retry.state.name == "COMPLETE" and retry.params == killed.params  # not lost
+
+
+def test_the_guide_s_first_commands_run(tmp_path: Path, monkeypatch) -> None:
+    """docs/tuning.md's "Try it in a minute" block, command by command, in an empty folder."""
+    import re
+    import shlex
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "tuning.md").read_text()
+    block = re.search(r"## Try it in a minute\s+```bash\n(.*?)```", page, re.S).group(1)
+    commands = [shlex.split(line)[1:] for line in block.splitlines() if line.startswith("nutribench ")]
+    assert len(commands) == 4
+    monkeypatch.chdir(tmp_path)
+    for args in commands:
+        res = runner.invoke(app, args)
+        assert res.exit_code == 0, (args, res.output)
+    assert load_agent_config(tmp_path / "tuned_agents" / "ppo_tuned.toml").name == "ppo_tuned"
+
+
+@pytest.mark.slow
+def test_two_drivers_start_one_new_study_on_sqlite_together(tmp_path: Path) -> None:
+    """Both create Optuna's tables and the study at the same moment: neither fails, and they
+    stop together at the count."""
+    db = tmp_path / "two.db"
+    args = [sys.executable, "-m", "nutribench.cli", "tune", "--algo", "mc", "--study", "two", "--db", str(db)]
+    args += ["--regimes", "run0", "--seeds", "101", "--days", "4", "--eval-every", "2", "--val-episodes", "1"]
+    args += ["--trials", "8"]
+    procs = [subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    errors = [p.communicate(timeout=600)[1] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], errors
+    counts = count_trials(optuna.load_study(study_name="two", storage=f"sqlite:///{db}"))
+    assert 8 <= counts.finished <= 9 and counts.running == 0 and counts.failed == 0
