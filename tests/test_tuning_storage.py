@@ -183,7 +183,8 @@ def test_bad_search_spaces_are_one_line_and_write_nothing(tmp_path: Path, case: 
         (["--days", "0"], "must be >= 1"),
         (["--eval-every", "3"], "must be a multiple of --eval-every (3)"),
         (["--pruner", "hyperband"], "--pruner: 'hyperband'"),
-        (["--trials", "0"], "--trials must be >= 1"),
+        (["--trials", "0"], "--trials and --stack must be >= 1"),
+        (["--stack", "0"], "--trials and --stack must be >= 1"),
     ],
 )
 def test_bad_study_options_are_one_line_and_write_nothing(tmp_path: Path, args: list[str], expected: str) -> None:

@@ -50,6 +50,12 @@ def tune_cmd(
     val_episodes: Annotated[int, typer.Option(help="validation days per evaluation")] = 5,
     sampler_seed: Annotated[int, typer.Option(help="seed of the TPE sampler")] = 0,
     pruner: Annotated[str, typer.Option(help="'median' (after half the days) or 'none'")] = "median",
+    stack: Annotated[
+        int,
+        typer.Option(
+            help="trials trained together in one batch (PPO, MC, GRU-PPO: those that agree on structure; 1: one at a time)"
+        ),
+    ] = 1,
     device: Annotated[str, typer.Option(help=DEVICE_HELP)] = "cpu",
     db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help=DB_HELP)] = "nutribench.db",
 ) -> None:
@@ -83,10 +89,10 @@ def tune_cmd(
         pruner=pruner,
     )
     settings.check()
-    if trials < 1:
+    if trials < 1 or stack < 1:
         from nutribench.tuning.study import TuneError
 
-        raise TuneError("--trials must be >= 1")
+        raise TuneError("--trials and --stack must be >= 1")
     handle = open_study(db, study, settings)
 
     def evaluation(number: int, day: int, value: float) -> None:
@@ -102,7 +108,12 @@ def tune_cmd(
         )
 
     objective = ValidationObjective(space, settings, device=device, on_evaluation=evaluation)
-    counts = run_study(handle, objective, trials, on_trial=finished)
+    if stack > 1:
+        from nutribench.tuning.stack import StackedTrials
+
+        counts = StackedTrials(objective, stack).run(handle, trials, on_trial=finished)
+    else:
+        counts = run_study(handle, objective, trials, on_trial=finished)
     console.print(
         f"study {study} holds {counts.finished} finished trials: `nutribench tune best --study {study} --write` "
         "writes the best as a new agent file",

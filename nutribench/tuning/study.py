@@ -82,9 +82,10 @@ class StudySettings:
             raise TuneError("--seeds: seeds are whole numbers >= 0")
         if self.days < 1 or self.eval_every < 1 or self.val_episodes < 1:
             raise TuneError("--days, --eval-every and --val-episodes must be >= 1")
-        if self.eval_every > self.days:
+        if self.days % self.eval_every:
             raise TuneError(
-                f"--eval-every ({self.eval_every}) is longer than --days ({self.days}): nothing to evaluate"
+                f"--days ({self.days}) must be a multiple of --eval-every ({self.eval_every}): a trial's value is "
+                "its evaluation at the last day"
             )
         if self.pruner not in PRUNERS:
             raise TuneError(f"--pruner: {self.pruner!r} is not one of {', '.join(PRUNERS)}")

@@ -1,0 +1,55 @@
+"""``nutribench bench tune``: tuning trials per hour, stacked in batched processes against one
+SB3 process per trial, the same trials in one run (:mod:`nutribench.bench.tune`)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Optional
+
+import typer
+from rich.table import Table
+
+from nutribench.cli.common import console, split_csv, user_errors
+
+
+@user_errors
+def bench_tune_cmd(
+    space: Annotated[
+        str, typer.Option("--algo", help="search space whose trials are drawn (ppo, mc, gru_ppo)")
+    ] = "ppo",
+    trials: Annotated[int, typer.Option(min=1, help="trials, the same in both arms")] = 8,
+    days: Annotated[int, typer.Option(min=1, help="training days per agent")] = 20,
+    regimes: Annotated[str, typer.Option(help="tuning regimes, comma-separated")] = "run0,run3",
+    seeds: Annotated[str, typer.Option(help="tuning seeds, comma-separated")] = "101,102",
+    eval_every: Annotated[int, typer.Option(min=1, help="days between validation evaluations")] = 10,
+    val_episodes: Annotated[int, typer.Option(min=1, help="validation days per evaluation")] = 5,
+    workers: Annotated[Optional[int], typer.Option(min=1, help="processes per arm (default: the cores)")] = None,
+    repeats: Annotated[int, typer.Option(min=1, help="repeats of both arms, orders alternating")] = 1,
+) -> None:
+    """Trials per hour: stacked trials in batched processes vs one SB3 process per trial (rl-zoo3's way)."""
+    from nutribench.bench.tune import bench_tune
+    from nutribench.config import list_regimes
+    from nutribench.scheduler.grid import parse_seeds
+
+    names = tuple(split_csv(regimes, list_regimes(), "regime"))
+    with console.status(f"training {trials} trials in each arm"):
+        rows = bench_tune(
+            space, trials, days, names, tuple(parse_seeds(seeds)), eval_every, val_episodes, workers, repeats
+        )
+    r0 = rows[0]
+    table = Table(
+        "arm",
+        "wall s (median)",
+        "walls",
+        "trials/hour",
+        "vs sb3",
+        title=f"{space}: {trials} trials x {r0['agents_per_trial']} agents x {days} days, {r0['workers']} processes",
+    )
+    for r in rows:
+        table.add_row(
+            r["arm"],
+            f"{r['wall_s']:.1f}",
+            " ".join(f"{w:.1f}" for w in r["walls"]),
+            f"{r['trials_per_hour']:.0f}",
+            f"{r.get('ratio', 1.0):.1f}x",
+        )
+    console.print(table)

@@ -1,0 +1,205 @@
+"""Many trials in one process: ``nutribench tune --stack N``.
+
+The driver asks Optuna for up to N trials at once and groups them by structure: trials whose
+configs agree on everything but the continuous settings (learning rate, discount, GAE
+lambda, clip range, entropy and value coefficients, gradient-norm clip) train in one batch,
+each trial's agents (one per tuning regime and seed) with its own settings on the agent axis
+(:meth:`nutribench.engine.on_policy_settings.OnPolicySettings.for_agents`; PPO, MC and GRU-PPO).
+Trials of another structure, and algorithms without per-agent settings (DDQN, SAC, plug-ins),
+train in batches of their own, one trial each, as without ``--stack``.
+
+Every evaluation is scored per trial exactly as a single trial is
+(:class:`~nutribench.tuning.objective.ValidationObjective`): the IQM of its agents' shares of
+the never -> planner gap on validation days, reported to Optuna at that day. A trial the
+pruner stops is told PRUNED and its agents are frozen (no more updates); when every trial of
+a batch is pruned, the batch stops. The trials of a batch keep a heartbeat while it trains, so
+a driver killed with -9 leaves them to be failed and retried by the next driver, as single
+trials are.
+"""
+
+from __future__ import annotations
+
+import threading
+import warnings
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import numpy as np
+
+from nutribench.report.stats import iqm
+from nutribench.tuning.objective import ValidationObjective, share_of_gap
+from nutribench.tuning.study import StudyCounts, TuneError, count_trials
+
+#: the fields of an agent config that name it, not what it trains
+_NAMING = ("name", "version", "description")
+
+
+class _AllPruned(Exception):
+    """Every trial of a batch was pruned: stop training it."""
+
+
+def structure_key(cfg: Any) -> str | None:
+    """What trials must share to train in one batch (their config without its continuous
+    settings), or None for an algorithm whose batched class takes no per-agent settings."""
+    from nutribench.engine import supports
+    from nutribench.engine.on_policy import OnPolicyAlgorithm
+    from nutribench.engine.on_policy_settings import OnPolicySettings
+    from nutribench.engine.train import ALGORITHMS
+
+    if supports(cfg) is not None or not issubclass(ALGORITHMS[cfg.algo], OnPolicyAlgorithm):
+        return None
+    data = cfg.model_dump(mode="json")
+    continuous = set(OnPolicySettings.CONTINUOUS) | {"learning_rate"}
+    return repr(sorted((k, v) for k, v in data.items() if k not in continuous and k not in _NAMING))
+
+
+@contextmanager
+def heartbeats(study: Any, trials: list[Any]) -> Iterator[None]:
+    """Keep the running ``trials``' heartbeats while the block runs (Optuna beats one trial of
+    ``Study.optimize``; a batch of asked trials needs its own)."""
+    storage = study._storage
+    interval = storage.get_heartbeat_interval() if hasattr(storage, "get_heartbeat_interval") else None
+    if not interval:
+        yield
+        return
+    stop = threading.Event()
+
+    def beat() -> None:
+        while True:
+            for t in trials:
+                storage.record_heartbeat(t._trial_id)
+            if stop.wait(interval):
+                return
+
+    thread = threading.Thread(target=beat, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+
+
+class StackedTrials:
+    """Runs a study ``stack`` trials at a time (the module docstring)."""
+
+    def __init__(self, objective: ValidationObjective, stack: int):
+        if stack < 1:
+            raise TuneError("--stack must be >= 1")
+        self.objective, self.stack = objective, stack
+
+    def run(self, study: Any, trials: int, on_trial: Callable[[StudyCounts], None] | None = None) -> StudyCounts:
+        """Ask, train and tell batches of trials until ``study`` holds ``trials`` finished ones."""
+        import optuna
+
+        while True:
+            optuna.storages.fail_stale_trials(study)  # a killed driver's trials: failed, queued again
+            counts = count_trials(study)
+            missing = trials - counts.finished - counts.running
+            if counts.finished >= trials or missing <= 0:
+                return counts
+            asked = self.ask(study, min(self.stack, missing))
+            groups: dict[str, list[tuple[Any, Any]]] = {}
+            for n, (trial, cfg) in enumerate(asked):
+                key = structure_key(cfg)
+                groups.setdefault(f"alone {n}" if key is None else key, []).append((trial, cfg))
+            for group in groups.values():
+                self.train_group(study, group)
+                if on_trial is not None:
+                    on_trial(count_trials(study))
+
+    def ask(self, study: Any, n: int) -> list[tuple[Any, Any]]:
+        """``n`` trials and their configs: the first as the sampler draws it; the others share its
+        structural parameters (enqueued with them fixed, the sampler drawing the rest), so that
+        the stack trains as one batch. A trial Optuna queued (a killed driver's, to retry) keeps
+        its own parameters."""
+        from nutribench.engine.on_policy_settings import OnPolicySettings
+
+        space = self.objective.space
+        out: list[tuple[Any, Any]] = []
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Heartbeat of storage is supposed to be used")
+            for i in range(n):
+                trial = study.ask()
+                out.append((trial, space.config(space.suggest(trial))))
+                if i == 0 and n > 1 and structure_key(out[0][1]) is not None:
+                    fixed = {k: v for k, v in trial.params.items() if k not in OnPolicySettings.CONTINUOUS}
+                    for _ in range(n - 1):
+                        study.enqueue_trial(fixed, skip_if_exists=False)
+        return out
+
+    def train_group(self, study: Any, group: list[tuple[Any, Any]]) -> None:
+        """Train the trials of one group in one batch and tell Optuna each one's outcome."""
+        from optuna.trial import TrialState
+
+        obj, s = self.objective, self.objective.settings
+        n_jobs = len(obj.jobs)
+        trials = [t for t, _ in group]
+        active = np.ones(n_jobs * len(group), dtype=bool)
+        shares: dict[int, dict[int, dict[int, float]]] = {n: {} for n in range(len(group))}
+        pruned: set[int] = set()
+
+        def on_validation(j: int, day: int, rows: list[dict[str, Any]]) -> None:
+            n, job = divmod(j, n_jobs)
+            if n in pruned:
+                return
+            never, planner = obj.references(*obj.jobs[job])
+            per_day = shares[n].setdefault(day, {})
+            per_day[job] = share_of_gap(float(np.mean([r["return"] for r in rows])), never, planner)
+            if len(per_day) < n_jobs:
+                return
+            trial, value = trials[n], iqm(np.array(list(per_day.values())))
+            trial.report(value, day)
+            if obj.on_evaluation is not None:
+                obj.on_evaluation(trial.number, day, value)
+            if day < s.days and trial.should_prune():
+                pruned.add(n)
+                active[n * n_jobs : (n + 1) * n_jobs] = False
+                if len(pruned) == len(group):
+                    raise _AllPruned
+
+        for trial, cfg in group:
+            trial.set_user_attr("engine", obj.engine(cfg))
+            trial.set_user_attr("device", obj.device if obj.engine(cfg) == "batched" else "cpu")
+            trial.set_user_attr("stacked_with", [t.number for t in trials if t is not trial])
+        try:
+            with heartbeats(study, trials):
+                self.train(group, on_validation, active)
+        except _AllPruned:
+            pass
+        except BaseException:
+            for trial in trials:
+                study.tell(trial, state=TrialState.FAIL)
+            raise
+        for n, trial in enumerate(trials):
+            if n in pruned:
+                study.tell(trial, state=TrialState.PRUNED)
+                continue
+            final = shares[n].get(s.days, {})
+            if len(final) != n_jobs:
+                study.tell(trial, state=TrialState.FAIL)
+                raise RuntimeError(f"trial {trial.number}: {len(final)} of {n_jobs} agents evaluated at day {s.days}")
+            trial.set_user_attr("shares", {f"{r}/{seed}": final[j] for j, (r, seed) in enumerate(obj.jobs)})
+            study.tell(trial, iqm(np.array(list(final.values()))))
+
+    def train(self, group: list[tuple[Any, Any]], on_validation: Callable[..., None], active: np.ndarray) -> None:
+        """One batch: every trial's agents, one per (regime, seed), each trial's config for its own."""
+        obj, s = self.objective, self.objective.settings
+        if len(group) == 1 and structure_key(group[0][1]) is None:
+            obj.train(group[0][1], on_validation)  # as a single trial (SB3 engine, plug-in, off-policy)
+            return
+        from nutribench.engine.train import train_batched
+
+        cfgs = [cfg for _, cfg in group for _ in obj.jobs]
+        train_batched(
+            obj.jobs * len(group),
+            group[0][1],
+            s.days,
+            device=obj.device,
+            eval_every=s.eval_every,
+            val_episodes=s.val_episodes,
+            on_validation=on_validation,
+            agent_configs=cfgs,
+            active=active,
+        )
