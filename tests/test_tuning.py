@@ -163,3 +163,36 @@ def test_two_drivers_start_one_new_study_on_sqlite_together(tmp_path: Path) -> N
     assert [p.returncode for p in procs] == [0, 0], errors
     counts = count_trials(optuna.load_study(study_name="two", storage=f"sqlite:///{db}"))
     assert 8 <= counts.finished <= 9 and counts.running == 0 and counts.failed == 0
+
+
+def test_stacked_trials_share_one_batch_and_score_as_single_trials(tmp_path: Path) -> None:
+    """``--stack 3``: three trials asked at once, sharing the first's structure, train in one
+    batch; each trial's value is what its config scores trained alone."""
+    db = tmp_path / "lab.db"
+    args = ["--regimes", "run3", "--seeds", "101", "--days", "2", "--eval-every", "1", "--val-episodes", "2"]
+    res = tune(db, "--algo", "mc", "--study", "st", "--trials", "3", "--stack", "3", "--pruner", "none", *args)
+    assert res.exit_code == 0, res.output
+    study = optuna.load_study(study_name="st", storage=f"sqlite:///{db}")
+    assert [t.state.name for t in study.trials] == ["COMPLETE"] * 3
+    assert sorted(study.trials[0].user_attrs["stacked_with"]) == [1, 2]
+    space = load_search_space("mc")
+    days = validation_food_streams("run3", 101, 2)
+    never, planner = (mean_return(play_simple_policy(p, "run3", days)) for p in ("never", "planner"))
+    for trial in study.trials:
+        (alone,) = train_batched([("run3", 101)], space.config(dict(trial.params)), 2)
+        share = (mean_return(evaluate(alone, "run3", days, record_steps=False).episodes) - never) / (planner - never)
+        assert trial.value == pytest.approx(share, abs=1e-6)
+    assert len({t.params["learning_rate"] for t in study.trials}) == 3  # three settings in the one batch
+
+
+def test_a_pruned_stacked_trial_is_told_pruned(tmp_path: Path) -> None:
+    db = tmp_path / "lab.db"
+    args = ["--regimes", "run3", "--seeds", "101", "--days", "4", "--eval-every", "1", "--val-episodes", "1"]
+    assert tune(db, "--algo", "mc", "--study", "pr", "--trials", "6", "--stack", "1", *args).exit_code == 0
+    res = tune(db, "--algo", "mc", "--study", "pr", "--trials", "12", "--stack", "3", *args)
+    assert res.exit_code == 0, res.output
+    counts = count_trials(optuna.load_study(study_name="pr", storage=f"sqlite:///{db}"))
+    assert counts.finished == 12 and counts.running == 0 and counts.failed == 0
+    study = optuna.load_study(study_name="pr", storage=f"sqlite:///{db}")
+    pruned = [t for t in study.trials if t.state.name == "PRUNED" and t.user_attrs.get("stacked_with")]
+    assert pruned and all(max(t.intermediate_values) < 4 for t in pruned)  # stopped before the last day

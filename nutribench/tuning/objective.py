@@ -24,8 +24,11 @@ from nutribench.tuning.study import StudySettings
 
 
 def share_of_gap(ret: float, never: float, planner: float) -> float:
-    """``ret`` as a share of the gap from never eating (0) to the greedy planner (1)."""
-    return (ret - never) / (planner - never)
+    """``ret`` as a share of the gap from never eating (0) to the greedy planner (1)
+    (:func:`nutribench.baselines.gap_closed`)."""
+    from nutribench.baselines import gap_closed
+
+    return gap_closed(ret, never, planner)
 
 
 class ValidationObjective:
@@ -44,16 +47,12 @@ class ValidationObjective:
 
     def references(self, regime: str, seed: int) -> tuple[float, float]:
         """Never eating's and the greedy planner's mean return on the validation days of (regime, seed)."""
-        from nutribench.agents.days import validation_food_streams
-        from nutribench.baselines import play_simple_policy
+        from nutribench.baselines import validation_yardsticks
 
         key = (regime, seed)
         if key not in self._references:
-            days = validation_food_streams(regime, seed, self.settings.val_episodes)
-            never, planner = (
-                float(np.mean([r["return"] for r in play_simple_policy(p, regime, days)])) for p in ("never", "planner")
-            )
-            self._references[key] = (never, planner)
+            yard = validation_yardsticks(regime, seed, self.settings.val_episodes)
+            self._references[key] = (yard["never"], yard["planner"])
         return self._references[key]
 
     def __call__(self, trial: Any) -> float:
