@@ -24,8 +24,13 @@ from nutribench.config.loading import ConfigError, content_sha256, format_valida
 #: The algorithms nutribench implements, in the paper's order.
 ALGOS: tuple[str, ...] = ("mc", "ddqn", "ppo", "sac", "gru_ppo")
 
-PosFloat = Annotated[float, Field(gt=0)]
-Prob = Annotated[float, Field(ge=0, le=1)]
+# Every float hyperparameter is finite (inf or nan is refused when the file is read: a learning
+# rate of inf trained and was stored as done), but a gradient norm, where inf means no clipping.
+PosFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Prob = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
+GradNorm = Annotated[float, Field(gt=0, allow_inf_nan=True, description="inf: no clipping")]
+Discount = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
 PosInt = Annotated[int, Field(ge=1)]
 Name = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$", max_length=64)]
 
@@ -42,7 +47,7 @@ class _AgentBase(BaseModel):
     normalize_reward: bool = Field(
         description="scale rewards by a running std of the discounted return (SB3 VecNormalize); recorded returns stay raw"
     )
-    gamma: Annotated[float, Field(gt=0, le=1)]
+    gamma: Discount
 
 
 class _FeedForward(_AgentBase):
@@ -55,9 +60,9 @@ class MCConfig(_FeedForward):
     algo: Literal["mc"]
     learning_rate: PosFloat
     gae_lambda: Literal[1.0]
-    ent_coef: Annotated[float, Field(ge=0)]
+    ent_coef: NonNegFloat
     vf_coef: PosFloat
-    max_grad_norm: PosFloat = Field(description="inf: no clipping")
+    max_grad_norm: GradNorm
 
 
 class _PPOFields(BaseModel):
@@ -69,9 +74,9 @@ class _PPOFields(BaseModel):
     n_epochs: PosInt
     gae_lambda: Prob
     clip_range: PosFloat
-    ent_coef: Annotated[float, Field(ge=0)]
+    ent_coef: NonNegFloat
     vf_coef: PosFloat
-    max_grad_norm: PosFloat
+    max_grad_norm: GradNorm
     normalize_advantage: bool
 
 
@@ -105,7 +110,7 @@ class DDQNConfig(_FeedForward):
     learning_starts: Annotated[int, Field(ge=0)]
     batch_size: PosInt
     n_step: PosInt
-    max_grad_norm: PosFloat
+    max_grad_norm: GradNorm
     target_update_interval: PosInt
     train_freq: PosInt
     gradient_steps: PosInt
@@ -124,7 +129,7 @@ class SACConfig(_FeedForward):
     learning_starts: Annotated[int, Field(ge=0)]
     batch_size: PosInt
     tau: Prob
-    alpha: Annotated[float, Field(ge=0)]
+    alpha: NonNegFloat
     train_freq: PosInt
     gradient_steps: PosInt
 
@@ -157,7 +162,7 @@ class ExternalConfig(BaseModel):
     params: dict[str, Any] = Field(default_factory=dict, description="passed to make_agent as its first argument")
     normalize_obs: bool = Field(default=False, description="wrap the env in VecNormalize(norm_obs=True)")
     normalize_reward: bool = Field(default=False, description="wrap the env in VecNormalize(norm_reward=True)")
-    gamma: Annotated[float, Field(gt=0, le=1)] = Field(default=0.99, description="VecNormalize's return discount")
+    gamma: Discount = Field(default=0.99, description="VecNormalize's return discount")
 
 
 AgentConfig = Annotated[

@@ -29,14 +29,28 @@ def bench_env_cmd(
     from nutribench.config import list_regimes
 
     names = split_csv(regimes, list_regimes(), "regime")
-    try:
-        ns = [int(s) for s in sizes.split(",")]
-    except ValueError:
-        raise UserError(f"--sizes must be comma-separated integers, got '{sizes}'") from None
+    ns = parse_sizes(sizes)
     table = Table("regime", "env", "num_envs", "env-steps/s (median)")
     for r in bench_env(names, ns, repeats=repeats):
         table.add_row(r["regime"], r["env"], str(r["num_envs"]), f"{r['steps_per_s']:,.0f}")
     console.print(table)
+
+
+#: the largest vector env ``bench env`` builds (its arrays grow with it: 2**20 envs take about a GB)
+MAX_BENCH_SIZE = 2**20
+
+
+def parse_sizes(text: str) -> list[int]:
+    """``--sizes 1,64,1024``: vector env sizes from 1 to :data:`MAX_BENCH_SIZE`, else a one-line UserError."""
+    items = [s.strip() for s in text.split(",")]
+    if not all(s.isascii() and s.isdigit() for s in items):
+        raise UserError(f"--sizes must be comma-separated positive integers, got '{text}': e.g. --sizes 1,64,1024")
+    for item in items:
+        if not 1 <= int(item) <= MAX_BENCH_SIZE:
+            raise UserError(
+                f"--sizes '{text}': size {item[:24]} is out of range: give sizes from 1 to {MAX_BENCH_SIZE}"
+            )
+    return [int(s) for s in items]
 
 
 def _share_ci(row: dict, key: str) -> str:

@@ -9,6 +9,7 @@ Anything else is a bug and keeps its traceback.
 from __future__ import annotations
 
 import functools
+import os
 from pathlib import Path
 
 import typer
@@ -20,6 +21,7 @@ from nutribench.errors import UserError
 __all__ = [
     "DEVICE_HELP",
     "UserError",
+    "check_out_dir",
     "check_tensorboard",
     "console",
     "err_console",
@@ -79,3 +81,23 @@ def check_tensorboard(folder: Path) -> None:
     if found is not None and not (found.is_dir() and os.access(found, os.W_OK | os.X_OK)):
         why = "is not a writable folder" if found.is_dir() else "is a file, not a folder"
         raise UserError(f"--tensorboard {folder}: {found} {why}")
+
+
+def check_out_dir(folder: Path, option: str = "--out") -> None:
+    """``--out FOLDER``: a one-line UserError, before anything is read or written, when
+    ``folder`` cannot be a folder of new files: it is a file, lies below a file, or its nearest
+    existing folder refuses a new entry (tried for real, then removed: permission bits do not
+    bind root, a read-only or virtual file system does). The folder itself is made by the writer."""
+    import tempfile
+
+    found = next((p for p in (folder, *folder.absolute().parents) if p.exists() or p.is_symlink()), None)
+    if found is None:
+        return
+    if not found.is_dir():
+        raise UserError(f"{option} {folder}: {found} is a file, not a folder: give a folder for the files")
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".nutribench-probe-", dir=found))
+    except OSError as e:
+        raise UserError(
+            f"{option} {folder}: cannot create files in {found} ({e.strerror or e}): give another folder"
+        ) from None

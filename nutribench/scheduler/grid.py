@@ -62,6 +62,8 @@ class Grid:
 
 #: the largest seed: what a database's integer column holds everywhere (PostgreSQL's INTEGER)
 MAX_SEED = 2**31 - 1
+#: the largest training or evaluation budget, in days: the same integer column
+MAX_EPISODES = 2**31 - 1
 
 
 def parse_seeds(text: str) -> tuple[int, ...]:
@@ -105,10 +107,12 @@ def resolve_grid(
         episodes=base.episodes if episodes is None else episodes,
         eval_episodes=base.eval_episodes if eval_episodes is None else eval_episodes,
     )
-    if grid.episodes < 1:
-        raise GridError(f"--episodes {grid.episodes}: the training budget must be at least 1 episode")
-    if grid.eval_episodes < 0:
-        raise GridError(f"--eval-episodes {grid.eval_episodes}: must be 0 or more")
+    for option, value in (("--episodes", grid.episodes), ("--eval-episodes", grid.eval_episodes)):
+        what = "training budget" if option == "--episodes" else "evaluation"
+        if value < 1:
+            raise GridError(f"{option} {value}: the {what} must be at least 1 episode (a day)")
+        if value > MAX_EPISODES:
+            raise GridError(f"{option} {str(value)[:24]}: too large: give at most {MAX_EPISODES} episodes")
     if not grid.regimes or not grid.algos:
         raise GridError("the grid is empty: give at least one regime and one algorithm")
     return grid
