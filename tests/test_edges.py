@@ -209,3 +209,34 @@ def test_a_read_only_database_is_read_by_the_read_only_commands(regimes, tmp_pat
     assert report[0] == 2 and "holds no finished episodes yet" in report[1], report  # read: a dry run is no report
     assert run[0] == 2 and run[1].startswith("error:"), run  # a writer is refused in one line
     assert {p: p.read_bytes() for p in lab.iterdir()} == before
+
+
+# --------------------------------------------------------------------------- the run's summary
+def test_the_progress_after_a_takeover_counts_the_jobs_taken_over(regimes, tmp_path):
+    """A run that takes over a crashed driver's job said "3 done, ... of 2 to run": the jobs to
+    run were counted once, at its start. Those it takes over are its own to run from then on."""
+    from datetime import timedelta
+
+    from sqlalchemy import create_engine, text
+
+    from nutribench.jobs.synthetic import synthetic_job
+    from nutribench.scheduler.driver import run_grid
+    from nutribench.store.engine import utcnow
+    from nutribench.store.jobs import STALE_AFTER_S
+
+    db = tmp_path / "r.db"
+    assert run_grid(db, ["run0"], ["ppo"], [0, 1, 2], 2, 1, workers=1, job_fn=synthetic_job, display=False).done == 3
+    engine = create_engine(f"sqlite:///{db}")
+    with engine.begin() as conn:  # seeds 0 and 1 to run, seed 2 held by a driver whose heartbeat stops now
+        for table in ("episodes", "eval_steps"):
+            conn.execute(text(f"DELETE FROM {table}"))
+        conn.execute(text("UPDATE jobs SET status='pending', owner=NULL WHERE seed < 2"))
+        conn.execute(
+            text("UPDATE jobs SET status='running', owner='crashed', heartbeat_at=:b WHERE seed = 2"),
+            {"b": utcnow() - timedelta(seconds=STALE_AFTER_S - 1)},
+        )
+    engine.dispose()
+    res = runner.invoke(app, run_cli_args(db, "--workers", "1", seeds="0,1,2", episodes=2), env=FAKE)
+    out = " ".join(res.output.split())
+    assert res.exit_code == 0, res.output
+    assert "2 of 3 jobs to run" in out and "jobs: 3 done, 0 failed, 0 running, of 3 to run (grid 3)" in out, out
