@@ -109,6 +109,11 @@ BAD = {
     "report into a file": (["report", "--all", "--db", "new.db", "--out", "a_file"], "a_file"),
     "report into a folder below a file": (["report", "--all", "--db", "new.db", "--out", "a_file/sub"], "a_file"),
     "report into /proc": (["report", "--all", "--db", "new.db", "--out", "/proc/nutribench"], "/proc"),
+    "a database name too long for the file system": (["status", "--db", "x" * 300], "File name too long"),
+    "a report folder name too long for the file system": (
+        ["report", "--all", "--db", "new.db", "--out", "x" * 300],
+        "File name too long",
+    ),
     "new regime with a reversed range": (
         ["regimes", "generate", "run8", "--from", "run6", "--tau", "C=12-10", "--write"],
         "C",

@@ -70,6 +70,17 @@ def test_an_infinite_hyperparameter_is_refused_before_the_database(regimes, tmp_
     assert not db.exists()
 
 
+@pytest.mark.parametrize("target", ["agents/ddqn.toml", "run0.toml"])
+def test_a_config_version_too_large_for_the_database_is_refused_before_it(regimes, tmp_path, target):
+    """Found by the fuzz harness: ``version = 9223372036854775808`` was an OverflowError when stored."""
+    path = regimes / target
+    path.write_text(path.read_text().replace("version = ", "version = 9223372036854775808  # was ", 1))
+    db = tmp_path / "r.db"
+    line = one_error_line(runner.invoke(app, run_cli_args(db, algos="ddqn", episodes=2), env=FAKE))
+    assert f"{target.split('/')[-1]}: version: Input should be less than or equal to 2147483647" in line, line
+    assert not db.exists()
+
+
 def test_an_infinite_gradient_norm_still_means_no_clipping():
     """The one float that may be inf: Table 2's MC has no gradient clipping (max_grad_norm = inf)."""
     from nutribench.agents.config import load_agent_config, parse_agent_config

@@ -33,6 +33,8 @@ GradNorm = Annotated[float, Field(gt=0, allow_inf_nan=True, description="inf: no
 Discount = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
 PosInt = Annotated[int, Field(ge=1)]
 Name = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$", max_length=64)]
+#: a config's version: from 1 to what a database integer holds (the versions are stored in columns)
+Version = Annotated[int, Field(ge=1, le=2**31 - 1)]
 
 
 class _AgentBase(BaseModel):
@@ -41,7 +43,7 @@ class _AgentBase(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     name: Name
-    version: PosInt
+    version: Version
     description: str
     normalize_obs: bool = Field(description="running mean/std normalisation of observations (SB3 VecNormalize)")
     normalize_reward: bool = Field(
@@ -156,7 +158,7 @@ class ExternalConfig(BaseModel):
 
     algo: Literal["external"]
     name: Name
-    version: PosInt
+    version: Version
     description: str
     entry_point: EntryPoint | None = Field(default=None, description="package.module:make_agent")
     params: dict[str, Any] = Field(default_factory=dict, description="passed to make_agent as its first argument")

@@ -8,6 +8,7 @@ Anything else is a bug and keeps its traceback.
 
 from __future__ import annotations
 
+import errno
 import functools
 import os
 from pathlib import Path
@@ -42,8 +43,14 @@ def print_error(e: BaseException | str) -> None:
     err_console.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
 
 
+#: errors of the operating system that only ever mean a path the user gave cannot be one
+PATH_ERRNOS = (errno.ENAMETOOLONG, errno.ELOOP)
+
+
 def user_errors(fn):
-    """Any :class:`UserError` raised by the command -> one line on stderr and exit status 2."""
+    """Any :class:`UserError` raised by the command -> one line on stderr and exit status 2; so is
+    an OSError that can only mean a bad path (a name too long, a loop of symbolic links), met
+    by whichever check looked at the path first."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -51,6 +58,13 @@ def user_errors(fn):
             return fn(*args, **kwargs)
         except UserError as e:
             print_error(e)
+            raise typer.Exit(2) from None
+        except OSError as e:
+            if e.errno not in PATH_ERRNOS:
+                raise
+            name = str(e.filename or "")
+            shown = name if len(name) <= 80 else f"{name[:60]}...({len(name)} characters)"
+            print_error(f"{shown}: {e.strerror}: give another path")
             raise typer.Exit(2) from None
 
     return wrapper

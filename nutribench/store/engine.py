@@ -87,6 +87,13 @@ def display_url(url: URL) -> str:
 
 def check_sqlite_file(path: Path, *, create: bool) -> None:
     """Refuse early, with one line, what SQLite would report obscurely (or too late)."""
+    try:
+        _check_sqlite_file(path, create=create)
+    except OSError as e:  # a name too long, a path through a file the OS refuses to look at
+        raise StoreError(f"--db {str(path)[:200]}: {e.strerror or e}: give another file path") from None
+
+
+def _check_sqlite_file(path: Path, *, create: bool) -> None:
     if path.is_dir():
         raise StoreError(f"{path} is a directory, not a database file: give a file path to --db")
     if path.exists():
