@@ -148,3 +148,18 @@ def test_a_failed_recording_on_an_existing_database_changes_nothing(tmp_path):
         with nutribench.Recorder(db, name="b", regime="run0", eval_episodes=1) as rec:
             rec.evaluate(lambda obs: 2)
     assert db.read_bytes() == before
+
+
+@pytest.mark.parametrize("action", [0.9, 1.9, "1", 2, 0.5])
+def test_the_recorder_s_env_refuses_non_integer_actions_and_records_no_day(tmp_path, action):
+    """The training env of the recorder is the NutriRL env: a bad action raises its ValueError
+    (the Gymnasium contract) before the step counts, so the day is played on; 1.0 is an action."""
+    with nutribench.Recorder(tmp_path / "lab.db", name="a", regime="run0", eval_episodes=1) as rec:
+        rec.env.reset()
+        with pytest.raises(ValueError, match="action must be 0 \\(skip\\) or 1 \\(eat\\)"):
+            rec.env.step(action)
+        for _ in range(50):
+            rec.env.step(1.0)
+        rec.evaluate(lambda obs: 0)
+    assert [day["foods"] for day in rec.env.days] == [50]  # the refused step ate nothing, took no step
+    assert nutribench.store.read_jobs(tmp_path / "lab.db").loc[0, "episodes"] == 1
