@@ -347,6 +347,35 @@ def command_lines(draw) -> list[str]:
     return args
 
 
+#: command lines that succeed in the lab; the fuzzer replaces one of their values or drops one
+GOOD = [
+    ["run", "--db", "r.db", "--regimes", "run0", "--algos", "ppo", "--seeds", "1", "--episodes", "1"],
+    ["status", "--db", "r.db", "--json"],
+    ["db", "export", "out.npz", "--db", "r.db", "--algos", "ppo"],
+    ["db", "import", "r.npz", "--db", "new.db"],
+    ["regimes", "check", "--regimes", "run0,run1"],
+    ["regimes", "generate", "run8", "--from", "run6", "--tau", "C=10-12", "--write"],
+    ["evaluate", "--model", "a_file", "--entry-point", "fuzz_policies:load", "--name", "mine", "--eval-episodes", "1"],
+]
+
+
+@st.composite
+def near_good_command_lines(draw) -> list[str]:
+    """A command line of :data:`GOOD` with one of its values replaced by a nasty one, or one
+    option dropped, or left whole: the paths past the first check."""
+    args = list(draw(st.sampled_from(GOOD)))
+    first = 2 if args[0] in ("db", "regimes") else 1
+    i = draw(st.integers(first, len(args) - 1))
+    change = draw(st.sampled_from(["replace", "replace", "drop", "none"]))
+    if change == "replace" and not args[i].startswith("--"):
+        args[i] = draw(NASTY if args[i - 1] not in ("--episodes", "--eval-episodes") else SMALL)
+    elif change == "drop" and args[i].startswith("--") and i + 1 < len(args) and not args[i + 1].startswith("--"):
+        del args[i : i + 2]
+    if args[0] == "run" and "--episodes" not in args:
+        args += ["--episodes", "1"]  # else the preset's 5000 synthetic days
+    return args
+
+
 def check_command_line(template: Path, where: Path, args: list[str]) -> None:
     lab = fresh_lab(template, where)
     with in_lab(lab):
@@ -355,14 +384,14 @@ def check_command_line(template: Path, where: Path, args: list[str]) -> None:
 
 
 @fuzz(3 * FAST)
-@given(args=command_lines())
+@given(args=st.one_of(command_lines(), near_good_command_lines()))
 def test_fuzz_command_lines(template, tmp_path_factory, args):
     check_command_line(template, tmp_path_factory.getbasetemp() / "fuzz-cli", args)
 
 
 @pytest.mark.slow
 @fuzz(3 * SLOW)
-@given(args=command_lines())
+@given(args=st.one_of(command_lines(), near_good_command_lines()))
 def test_fuzz_command_lines_more(template, tmp_path_factory, args):
     check_command_line(template, tmp_path_factory.getbasetemp() / "fuzz-cli", args)
 
@@ -508,3 +537,12 @@ def test_fuzz_recorder_call_sequences(tmp_path_factory, seed, eval_episodes, in_
 @given(**RECORDER)
 def test_fuzz_recorder_call_sequences_more(tmp_path_factory, seed, eval_episodes, in_block, steps):
     check_recorder(tmp_path_factory.getbasetemp() / "fuzz-recorder", seed, eval_episodes, in_block, steps)
+
+
+def test_the_good_command_lines_succeed_in_the_lab(template, tmp_path_factory):
+    """The fuzzer's starting points work as they are: its refusals are the changes' doing."""
+    for args in GOOD:
+        lab = fresh_lab(template, tmp_path_factory.getbasetemp() / "fuzz-good")
+        with in_lab(lab):
+            res = invoke(args)
+        assert res.exit_code == 0, (args, res.output, res.exception)
