@@ -5,7 +5,8 @@ and a refusal leaves every file as it was (no database created or changed, nothi
 half-written).
 
 Each property runs a few derandomized examples in the default run (CI: reproducible, a few
-seconds each) and many more under ``-m slow``. Nothing trains: ``run`` uses the synthetic
+seconds each) and many more under ``-m slow`` (150 each, 450 command lines; set
+``NUTRIBENCH_FUZZ_EXAMPLES`` for another number). Nothing trains: ``run`` uses the synthetic
 job (``NUTRIBENCH_JOB=fake``) on a thread of this process instead of a worker process, and the
 command lines leave out the commands that train (``train``, ``bench train|learn``).
 """
@@ -30,7 +31,8 @@ from typer.testing import CliRunner
 from nutribench.cli import app
 
 REPO = Path(__file__).resolve().parents[1]
-FAST, SLOW = 6, int(os.environ.get("NB_FUZZ_SLOW", "150"))  # examples per property: the default run, and -m slow
+#: examples per property: the default run, and -m slow
+FAST, SLOW = 6, int(os.environ.get("NUTRIBENCH_FUZZ_EXAMPLES", "150"))
 
 
 def fuzz(examples: int):
