@@ -108,13 +108,17 @@ class PolicyAgent:
         where = f"evaluate(policy): at step {self.step} the policy returned"
         if arr.size != n:
             raise RecorderError(f"{where} {arr.size} actions for {n} observations: return one action per observation")
-        flat = arr.reshape(n)
-        for a in flat:
-            if isinstance(a, (bool, np.bool_)) or (isinstance(a, (int, float, np.number)) and a in (0, 1)):
-                continue
-            shown = repr(a.item() if isinstance(a, np.generic) else a)
-            raise RecorderError(f"{where} {shown}: an action is 0 (skip) or 1 (eat), an integer")
-        return flat.astype(np.int64)
+        values = []
+        for a in arr.reshape(n):
+            if callable(getattr(a, "item", None)) and not isinstance(a, str):
+                try:
+                    a = a.item()  # a numpy scalar, a one-element array or tensor
+                except (ValueError, RuntimeError):  # several elements: refused below
+                    pass
+            if not (isinstance(a, (bool, int, float)) and a in (0, 1)):
+                raise RecorderError(f"{where} {a!r}: an action is 0 (skip) or 1 (eat), an integer")
+            values.append(int(a))
+        return np.array(values, dtype=np.int64)
 
 
 def _caller_source(depth: int = 2) -> tuple[str | None, str | None]:

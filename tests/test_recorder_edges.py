@@ -163,3 +163,24 @@ def test_the_recorder_s_env_refuses_non_integer_actions_and_records_no_day(tmp_p
         rec.evaluate(lambda obs: 0)
     assert [day["foods"] for day in rec.env.days] == [50]  # the refused step ate nothing, took no step
     assert nutribench.store.read_jobs(tmp_path / "lab.db").loc[0, "episodes"] == 1
+
+
+def test_policies_returning_numpy_or_torch_scalars_are_still_taken():
+    """The check refuses values, not containers: what ``int(policy(obs))`` took before (a numpy
+    scalar, a 0-d or one-element array or tensor) is still an action."""
+    import torch
+
+    from nutribench.recorder import PolicyAgent, RecorderError
+
+    agent = PolicyAgent(lambda obs: 0)
+    for actions in (
+        [np.array(1), np.array(0)],
+        [np.array([1]), np.int64(0)],
+        [torch.tensor(1), torch.tensor([0.0])],
+        [True, 0.0],
+        np.array([[1], [0]]),
+    ):
+        assert agent.check_actions(actions, 2).tolist() == [1, 0]
+    for actions in ([np.array([1, 0]), 0], [torch.tensor(1.9), 0], [float("nan"), 1], [1]):
+        with pytest.raises(RecorderError):
+            agent.check_actions(actions, 2)
