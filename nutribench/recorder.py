@@ -161,9 +161,9 @@ class Recorder:
     ):
         from nutribench.agents.config import parse_agent_config
         from nutribench.config import load_env_config
-        from nutribench.scheduler.grid import MAX_EPISODES, MAX_SEED
+        from nutribench.scheduler.grid import MAX_EVAL_DAYS, MAX_SEED
 
-        for what, value, low, high in (("seed", seed, 0, MAX_SEED), ("eval_episodes", eval_episodes, 1, MAX_EPISODES)):
+        for what, value, low, high in (("seed", seed, 0, MAX_SEED), ("eval_episodes", eval_episodes, 1, MAX_EVAL_DAYS)):
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
                 raise RecorderError(f"Recorder({what}={value!r}): {what} is an integer, e.g. {what}={low}")
             if not low <= value <= high:

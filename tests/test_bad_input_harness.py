@@ -114,6 +114,20 @@ BAD = {
         ["report", "--all", "--db", "new.db", "--out", "x" * 300],
         "File name too long",
     ),
+    "baselines with a negative seed": (["baselines", "--regimes", "run0", "--episodes", "1", "--seed", "-1"], "--seed"),
+    "baselines with more days than fit side by side": (
+        ["baselines", "--regimes", "run0", "--episodes", "99999999999999999999"],
+        "side by side",
+    ),
+    "train with a negative seed": (["train", "--seed", "-1", "--episodes", "1"], "--seed -1"),
+    "train with more evaluation days than fit side by side": (
+        ["train", "--episodes", "1", "--eval-episodes", "20000"],
+        "side by side",
+    ),
+    "evaluate with more evaluation days than fit side by side": (
+        ["evaluate", "--model", "a_file", "--entry-point", "os.path:exists", "--name", "a", "--eval-episodes", "20000"],
+        "eval_episodes goes from 1 to 10000",
+    ),
     "new regime with a reversed range": (
         ["regimes", "generate", "run8", "--from", "run6", "--tau", "C=12-10", "--write"],
         "C",

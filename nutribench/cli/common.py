@@ -23,6 +23,7 @@ __all__ = [
     "DEVICE_HELP",
     "UserError",
     "check_out_dir",
+    "check_range",
     "check_tensorboard",
     "console",
     "err_console",
@@ -115,3 +116,9 @@ def check_out_dir(folder: Path, option: str = "--out") -> None:
         raise UserError(
             f"{option} {folder}: cannot create files in {found} ({e.strerror or e}): give another folder"
         ) from None
+
+
+def check_range(option: str, value: int, low: int, high: int, why: str = "") -> None:
+    """``option value`` within ``low..high``, else a one-line UserError (``why``: the reason for ``high``)."""
+    if not low <= value <= high:
+        raise UserError(f"{option} {str(value)[:24]}: give a value from {low} to {high}" + (f" ({why})" if why else ""))

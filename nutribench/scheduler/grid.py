@@ -64,6 +64,9 @@ class Grid:
 MAX_SEED = 2**31 - 1
 #: the largest training or evaluation budget, in days: the same integer column
 MAX_EPISODES = 2**31 - 1
+#: the most evaluation days (or simple-policy days) one command plays side by side, every step
+#: kept (``evaluate``, the recorder, ``train``, ``baselines``)
+MAX_EVAL_DAYS = 10_000
 
 
 def parse_seeds(text: str) -> tuple[int, ...]:
