@@ -251,3 +251,13 @@ def test_the_progress_after_a_takeover_counts_the_jobs_taken_over(regimes, tmp_p
     out = " ".join(res.output.split())
     assert res.exit_code == 0, res.output
     assert "2 of 3 jobs to run" in out and "jobs: 3 done, 0 failed, 0 running, of 3 to run (grid 3)" in out, out
+
+
+@pytest.mark.parametrize("value", ["[]", "{ x = 1 }", "3"])
+def test_an_agent_file_whose_algo_is_not_a_name_is_one_line(regimes, tmp_path, value):
+    """Found by the fuzz harness: ``algo = []`` was a TypeError (unhashable type: 'list')."""
+    path = regimes / "agents" / "ddqn.toml"
+    path.write_text(path.read_text().replace('algo = "ddqn"', f"algo = {value}", 1))
+    line = one_error_line(runner.invoke(app, run_cli_args(tmp_path / "r.db", algos="ddqn", episodes=2), env=FAKE))
+    assert "ddqn.toml: algo: unknown algorithm" in line, line
+    assert not (tmp_path / "r.db").exists()

@@ -321,6 +321,7 @@ COMMANDS: dict[tuple[str, ...], tuple[int, list[str], list[str], list[str]]] = {
     ("db", "import"): (1, ["--db"], [], []),
     ("db", "copy"): (2, [], [], []),
     ("bench", "env"): (0, ["--regimes"], [], []),
+    ("baselines",): (0, ["--regimes", "--seed"], ["--markdown"], ["--episodes"]),
 }
 SMALL = st.sampled_from(["-1", "0", "1", "2", "x", "1.5", "99999999999999999999"])
 

@@ -242,7 +242,7 @@ def agent_config_to_toml(cfg: BaseModel) -> str:
 def parse_agent_config(data: dict[str, Any], source: str | Path = "<dict>") -> Any:
     """Validate plain data as an agent config (one-line :class:`ConfigError` if invalid)."""
     algo = data.get("algo")
-    if algo not in MODELS:
+    if not isinstance(algo, str) or algo not in MODELS:  # a list or a table is no name either
         raise ConfigError(
             f"{source}: algo: unknown algorithm {algo!r}: known are {', '.join(MODELS)} "
             '(an algorithm of your own: algo = "external" with entry_point = "package.module:make_agent")'
