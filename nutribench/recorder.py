@@ -61,11 +61,15 @@ class RecordingEnv(gym.Wrapper):
 
 
 class PolicyAgent:
-    """Any policy, seen as the evaluator sees an agent: ``act`` on raw observations."""
+    """Any policy, seen as the evaluator sees an agent: ``act`` on raw observations. What the
+    policy returns is checked, not coerced: an action is 0 (skip) or 1 (eat), a number (``2``,
+    ``0.9``, ``"1"`` are refused in one line, as the environment refuses ``0.5``); a policy that
+    raises is a one-line :class:`RecorderError` too (its exception chained)."""
 
     def __init__(self, policy: Any):
         self.policy = policy
         self.model = policy if callable(getattr(policy, "predict", None)) else None
+        self.step = 0
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         return np.asarray(obs, dtype=np.float32)
@@ -73,13 +77,47 @@ class PolicyAgent:
     def act(
         self, obs: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None
     ) -> tuple[np.ndarray, Any]:
-        if self.model is not None:
-            return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=True)
-        if not callable(self.policy):
+        self.step = 1 if episode_start is not None and np.all(episode_start) else self.step + 1
+        if self.model is None and not callable(self.policy):
             raise RecorderError(
                 f"evaluate(policy): a {type(self.policy).__name__} is neither callable (obs -> action) nor has predict()"
             )
-        return np.array([int(self.policy(o)) for o in obs]), None
+        try:
+            if self.model is not None:
+                out = self.model.predict(obs, state=state, episode_start=episode_start, deterministic=True)
+                if not (isinstance(out, tuple) and len(out) == 2):
+                    raise RecorderError(
+                        f"evaluate(policy): {type(self.model).__name__}.predict returned a {type(out).__name__}, "
+                        "not (actions, state) as SB3's predict does"
+                    )
+                actions, state = out
+            else:
+                actions = [self.policy(o) for o in obs]
+        except RecorderError:
+            raise
+        except Exception as e:  # the user's policy: its failure in one line, its traceback chained
+            raise RecorderError(
+                f"evaluate(policy): the policy raised at step {self.step}: {type(e).__name__}: {e}"
+            ) from e
+        return self.check_actions(actions, len(obs)), state
+
+    def check_actions(self, actions: Any, n: int) -> np.ndarray:
+        """``actions`` as ``n`` integers 0 or 1; anything else a :class:`RecorderError` naming the step."""
+        arr = np.asarray(actions) if not isinstance(actions, list) else np.asarray(actions, dtype=object)
+        where = f"evaluate(policy): at step {self.step} the policy returned"
+        if arr.size != n:
+            raise RecorderError(f"{where} {arr.size} actions for {n} observations: return one action per observation")
+        values = []
+        for a in arr.reshape(n):
+            if callable(getattr(a, "item", None)) and not isinstance(a, str):
+                try:
+                    a = a.item()  # a numpy scalar, a one-element array or tensor
+                except (ValueError, RuntimeError):  # several elements: refused below
+                    pass
+            if not (isinstance(a, (bool, int, float)) and a in (0, 1)):
+                raise RecorderError(f"{where} {a!r}: an action is 0 (skip) or 1 (eat), an integer")
+            values.append(int(a))
+        return np.array(values, dtype=np.int64)
 
 
 def _caller_source(depth: int = 2) -> tuple[str | None, str | None]:
@@ -122,10 +160,14 @@ class Recorder:
     ):
         from nutribench.agents.config import parse_agent_config
         from nutribench.config import load_env_config
+        from nutribench.scheduler.grid import MAX_EVAL_DAYS, MAX_SEED
 
+        for what, value, low, high in (("seed", seed, 0, MAX_SEED), ("eval_episodes", eval_episodes, 1, MAX_EVAL_DAYS)):
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+                raise RecorderError(f"Recorder({what}={value!r}): {what} is an integer, e.g. {what}={low}")
+            if not low <= value <= high:
+                raise RecorderError(f"Recorder({what}={value}): {what} goes from {low} to {high}")
         self.db, self.seed, self.eval_episodes = db, int(seed), int(eval_episodes)
-        if eval_episodes < 1:
-            raise RecorderError(f"eval_episodes={eval_episodes}: record at least one evaluation day")
         self.regime_config = load_env_config(regime)
         body = {
             "algo": "external",
@@ -138,7 +180,7 @@ class Recorder:
         self.source = source if source is not None else _caller_source()
         self._env: RecordingEnv | None = None
         self._eval: Any = None
-        self._t0 = 0.0
+        self._started, self._t0 = None, 0.0
 
     # ------------------------------------------------------------------ the with block
     def __enter__(self) -> Recorder:
@@ -155,30 +197,47 @@ class Recorder:
         if exc_type is None:
             self.save()
 
+    def _in_block(self, what: str) -> RecordingEnv:
+        if self._env is None:
+            raise RecorderError(
+                f"Recorder.{what}: use the recorder in a with block (with nutribench.Recorder(...) as rec:)"
+            )
+        return self._env
+
     @property
     def env(self) -> RecordingEnv:
         """The Gymnasium env to train on: every whole day played on it is a training row."""
-        if self._env is None:
-            raise RecorderError(
-                "Recorder.env: use the recorder in a with block (with nutribench.Recorder(...) as rec:)"
-            )
-        return self._env
+        return self._in_block("env")
 
     def evaluate(self, policy: Any) -> list[dict[str, Any]]:
         """Play the fixed evaluation days of (regime, seed) greedily with ``policy`` (a
         callable ``obs -> action`` or an object with SB3's ``predict``); their metrics."""
         from nutribench.agents.api import eval_food_streams, evaluate
 
+        self._in_block("evaluate")
         streams = eval_food_streams(self.regime_config, self.seed, self.eval_episodes)
         self._eval = evaluate(PolicyAgent(policy), self.regime_config, streams, record_steps=True)
         return self._eval.episodes
 
     # ------------------------------------------------------------------ the database
     def _check_database(self) -> None:
+        """Refuse a database the job could not be written to, before the loop; a new SQLite
+        file is only checked: it is created when the job is written (a failed recording leaves
+        no empty database behind)."""
         from nutribench.scheduler.registration import check_external_entry
-        from nutribench.store import open_store
+        from nutribench.store import StoreError, open_store
+        from nutribench.store.engine import check_sqlite_file, database_url, in_memory, sqlite_path
         from nutribench.store.jobs import check_not_mixed
 
+        url = database_url(self.db)
+        if in_memory(url):
+            raise StoreError(
+                f"Recorder(db={str(self.db)!r}): an in-memory SQLite database is lost with the process: give a file path"
+            )
+        path = sqlite_path(url)
+        if path is not None and not path.exists():
+            check_sqlite_file(path, create=True)
+            return
         store = open_store(self.db, writer=True)
         try:
             check_not_mixed(store, fake=False)
@@ -189,6 +248,7 @@ class Recorder:
 
     def save(self) -> int:
         """Write the job (called by the with block's end); its id."""
+        self._in_block("save")
         if self._eval is None:
             raise RecorderError(
                 f"Recorder {self.agent_config.name}: call rec.evaluate(policy) before the with block ends (nothing was written)"

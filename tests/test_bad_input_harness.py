@@ -83,6 +83,51 @@ BAD = {
         ["evaluate", "--model", "a_file", "--entry-point", "no_such_mod_xyz:load", "--name", "a", "--db", "new.db"],
         "no_such_mod_xyz",
     ),
+    "no evaluation days": ([*GRID[:11], "--eval-episodes", "0"], "--eval-episodes 0"),
+    "a training budget too large for the database": (
+        [*GRID[:9], "--episodes", "100000000000000000000"],
+        "too large",
+    ),
+    "an evaluation budget too large for the database": ([*GRID[:11], "--eval-episodes", "2147483648"], "too large"),
+    "run into an in-memory database": (["run", "--db", "sqlite://", *GRID[3:]], "in-memory"),
+    "run into an in-memory database by name": (["run", "--db", "sqlite:///:memory:", *GRID[3:]], "in-memory"),
+    "a database URL whose port is not a number": (
+        ["status", "--db", "postgresql://me:secret@host:notaport/lab"],
+        "me:***@host",
+    ),
+    "a database URL with a broken host": (["status", "--db", "postgresql+psycopg://[::1"], "host or port"),
+    "a database URL whose query port is not a number": (
+        ["report", "--all", "--db", "postgresql://me@/lab?host=/tmp&port=abc"],
+        "port",
+    ),
+    "bench env with a negative size": (["bench", "env", "--regimes", "run0", "--sizes", "-1"], "--sizes"),
+    "bench env with a zero size": (["bench", "env", "--regimes", "run0", "--sizes", "0"], "--sizes"),
+    "bench env with a huge size": (
+        ["bench", "env", "--regimes", "run0", "--sizes", "1,99999999999999999999"],
+        "--sizes",
+    ),
+    "report into a file": (["report", "--all", "--db", "new.db", "--out", "a_file"], "a_file"),
+    "report into a folder below a file": (["report", "--all", "--db", "new.db", "--out", "a_file/sub"], "a_file"),
+    "report into /proc": (["report", "--all", "--db", "new.db", "--out", "/proc/nutribench"], "/proc"),
+    "a database name too long for the file system": (["status", "--db", "x" * 300], "File name too long"),
+    "a report folder name too long for the file system": (
+        ["report", "--all", "--db", "new.db", "--out", "x" * 300],
+        "File name too long",
+    ),
+    "baselines with a negative seed": (["baselines", "--regimes", "run0", "--episodes", "1", "--seed", "-1"], "--seed"),
+    "baselines with more days than fit side by side": (
+        ["baselines", "--regimes", "run0", "--episodes", "99999999999999999999"],
+        "side by side",
+    ),
+    "train with a negative seed": (["train", "--seed", "-1", "--episodes", "1"], "--seed -1"),
+    "train with more evaluation days than fit side by side": (
+        ["train", "--episodes", "1", "--eval-episodes", "20000"],
+        "side by side",
+    ),
+    "evaluate with more evaluation days than fit side by side": (
+        ["evaluate", "--model", "a_file", "--entry-point", "os.path:exists", "--name", "a", "--eval-episodes", "20000"],
+        "eval_episodes goes from 1 to 10000",
+    ),
     "new regime with a reversed range": (
         ["regimes", "generate", "run8", "--from", "run6", "--tau", "C=12-10", "--write"],
         "C",

@@ -24,10 +24,17 @@ from nutribench.config.loading import ConfigError, content_sha256, format_valida
 #: The algorithms nutribench implements, in the paper's order.
 ALGOS: tuple[str, ...] = ("mc", "ddqn", "ppo", "sac", "gru_ppo")
 
-PosFloat = Annotated[float, Field(gt=0)]
-Prob = Annotated[float, Field(ge=0, le=1)]
+# Every float hyperparameter is finite (inf or nan is refused when the file is read: a learning
+# rate of inf trained and was stored as done), but a gradient norm, where inf means no clipping.
+PosFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Prob = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
+GradNorm = Annotated[float, Field(gt=0, allow_inf_nan=True, description="inf: no clipping")]
+Discount = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
 PosInt = Annotated[int, Field(ge=1)]
 Name = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$", max_length=64)]
+#: a config's version: from 1 to what a database integer holds (the versions are stored in columns)
+Version = Annotated[int, Field(ge=1, le=2**31 - 1)]
 
 
 class _AgentBase(BaseModel):
@@ -36,13 +43,13 @@ class _AgentBase(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     name: Name
-    version: PosInt
+    version: Version
     description: str
     normalize_obs: bool = Field(description="running mean/std normalisation of observations (SB3 VecNormalize)")
     normalize_reward: bool = Field(
         description="scale rewards by a running std of the discounted return (SB3 VecNormalize); recorded returns stay raw"
     )
-    gamma: Annotated[float, Field(gt=0, le=1)]
+    gamma: Discount
 
 
 class _FeedForward(_AgentBase):
@@ -55,9 +62,9 @@ class MCConfig(_FeedForward):
     algo: Literal["mc"]
     learning_rate: PosFloat
     gae_lambda: Literal[1.0]
-    ent_coef: Annotated[float, Field(ge=0)]
+    ent_coef: NonNegFloat
     vf_coef: PosFloat
-    max_grad_norm: PosFloat = Field(description="inf: no clipping")
+    max_grad_norm: GradNorm
 
 
 class _PPOFields(BaseModel):
@@ -69,9 +76,9 @@ class _PPOFields(BaseModel):
     n_epochs: PosInt
     gae_lambda: Prob
     clip_range: PosFloat
-    ent_coef: Annotated[float, Field(ge=0)]
+    ent_coef: NonNegFloat
     vf_coef: PosFloat
-    max_grad_norm: PosFloat
+    max_grad_norm: GradNorm
     normalize_advantage: bool
 
 
@@ -105,7 +112,7 @@ class DDQNConfig(_FeedForward):
     learning_starts: Annotated[int, Field(ge=0)]
     batch_size: PosInt
     n_step: PosInt
-    max_grad_norm: PosFloat
+    max_grad_norm: GradNorm
     target_update_interval: PosInt
     train_freq: PosInt
     gradient_steps: PosInt
@@ -124,7 +131,7 @@ class SACConfig(_FeedForward):
     learning_starts: Annotated[int, Field(ge=0)]
     batch_size: PosInt
     tau: Prob
-    alpha: Annotated[float, Field(ge=0)]
+    alpha: NonNegFloat
     train_freq: PosInt
     gradient_steps: PosInt
 
@@ -151,13 +158,13 @@ class ExternalConfig(BaseModel):
 
     algo: Literal["external"]
     name: Name
-    version: PosInt
+    version: Version
     description: str
     entry_point: EntryPoint | None = Field(default=None, description="package.module:make_agent")
     params: dict[str, Any] = Field(default_factory=dict, description="passed to make_agent as its first argument")
     normalize_obs: bool = Field(default=False, description="wrap the env in VecNormalize(norm_obs=True)")
     normalize_reward: bool = Field(default=False, description="wrap the env in VecNormalize(norm_reward=True)")
-    gamma: Annotated[float, Field(gt=0, le=1)] = Field(default=0.99, description="VecNormalize's return discount")
+    gamma: Discount = Field(default=0.99, description="VecNormalize's return discount")
 
 
 AgentConfig = Annotated[
@@ -235,7 +242,7 @@ def agent_config_to_toml(cfg: BaseModel) -> str:
 def parse_agent_config(data: dict[str, Any], source: str | Path = "<dict>") -> Any:
     """Validate plain data as an agent config (one-line :class:`ConfigError` if invalid)."""
     algo = data.get("algo")
-    if algo not in MODELS:
+    if not isinstance(algo, str) or algo not in MODELS:  # a list or a table is no name either
         raise ConfigError(
             f"{source}: algo: unknown algorithm {algo!r}: known are {', '.join(MODELS)} "
             '(an algorithm of your own: algo = "external" with entry_point = "package.module:make_agent")'

@@ -19,6 +19,7 @@ import typer
 
 from nutribench.cli.agents import baselines, train_cmd
 from nutribench.cli.bench import bench_app
+from nutribench.cli.bench_engines import bench_engines_cmd
 from nutribench.cli.bench_tune import bench_tune_cmd
 from nutribench.cli.compare import compare_cmd
 from nutribench.cli.db import db_app
@@ -45,6 +46,7 @@ app.command("compare")(compare_cmd)
 app.command("leaderboard")(leaderboard_cmd)
 app.command("evaluate")(evaluate_cmd)
 app.add_typer(db_app, name="db")
+bench_app.command("engines")(bench_engines_cmd)
 bench_app.command("tune")(bench_tune_cmd)
 app.add_typer(bench_app, name="bench")
 app.add_typer(tune_app, name="tune")

@@ -12,6 +12,7 @@ from nutribench.cli.common import (
     EVAL_EVERY_HELP,
     VAL_EPISODES_HELP,
     UserError,
+    check_range,
     check_tensorboard,
     console,
     split_csv,
@@ -29,7 +30,10 @@ def baselines(
     """Mean return, foods eaten, final distance and overshoot ratio of the simple policies."""
     from nutribench.baselines import POLICY_ORDER, baseline_table
     from nutribench.config import list_regimes
+    from nutribench.scheduler.grid import MAX_EVAL_DAYS, MAX_SEED
 
+    check_range("--seed", seed, 0, MAX_SEED)
+    check_range("--episodes", episodes, 1, MAX_EVAL_DAYS, "the days are played side by side")
     names = split_csv(regimes, list_regimes(), "regime")
     rows = baseline_table(names, episodes=episodes, seed=seed)
     headers = ["regime", "policy", "return", "foods", "final distance", "overshoot ratio"]
@@ -102,7 +106,11 @@ def train_cmd(
     from nutribench.agents import eval_food_streams, evaluate, load_agent_config, train
     from nutribench.agents.api import vec_normalize_path
     from nutribench.config import load_env_config
+    from nutribench.scheduler.grid import MAX_EPISODES, MAX_EVAL_DAYS, MAX_SEED
 
+    check_range("--seed", seed, 0, MAX_SEED)
+    check_range("--episodes", episodes, 1, MAX_EPISODES)
+    check_range("--eval-episodes", eval_episodes, 1, MAX_EVAL_DAYS, "the days are played side by side")
     env_cfg = load_env_config(regime)
     cfg = load_agent_config(algo)
     if save is not None and save.suffix != ".zip":

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
@@ -29,14 +28,28 @@ def bench_env_cmd(
     from nutribench.config import list_regimes
 
     names = split_csv(regimes, list_regimes(), "regime")
-    try:
-        ns = [int(s) for s in sizes.split(",")]
-    except ValueError:
-        raise UserError(f"--sizes must be comma-separated integers, got '{sizes}'") from None
+    ns = parse_sizes(sizes)
     table = Table("regime", "env", "num_envs", "env-steps/s (median)")
     for r in bench_env(names, ns, repeats=repeats):
         table.add_row(r["regime"], r["env"], str(r["num_envs"]), f"{r['steps_per_s']:,.0f}")
     console.print(table)
+
+
+#: the largest vector env ``bench env`` builds (its arrays grow with it: 2**20 envs take about a GB)
+MAX_BENCH_SIZE = 2**20
+
+
+def parse_sizes(text: str) -> list[int]:
+    """``--sizes 1,64,1024``: vector env sizes from 1 to :data:`MAX_BENCH_SIZE`, else a one-line UserError."""
+    items = [s.strip() for s in text.split(",")]
+    if not all(s.isascii() and s.isdigit() for s in items):
+        raise UserError(f"--sizes must be comma-separated positive integers, got '{text}': e.g. --sizes 1,64,1024")
+    for item in items:
+        if not 1 <= int(item) <= MAX_BENCH_SIZE:
+            raise UserError(
+                f"--sizes '{text}': size {item[:24]} is out of range: give sizes from 1 to {MAX_BENCH_SIZE}"
+            )
+    return [int(s) for s in items]
 
 
 def _share_ci(row: dict, key: str) -> str:
@@ -313,77 +326,6 @@ def bench_status_cmd(
     console.print(
         f"status_table(): {r['status_table_s']:.3f} s   `nutribench status --json`: {r['status_cli_s']:.2f} s "
         f"(medians of {repeats}; the CLI figure includes Python start-up)"
-    )
-
-
-@bench_app.command("engines")
-@user_errors
-def bench_engines_cmd(
-    algos: Annotated[str, typer.Option(help="comma-separated algorithms the batched engine trains")] = "ppo",
-    regimes: Annotated[str, typer.Option(help="comma-separated regimes")] = "run0,run6",
-    seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2,3,4",
-    episodes: Annotated[int, typer.Option(min=1, help="training days per job, both engines")] = 500,
-    eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")] = 10,
-    markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
-    device: Annotated[
-        str, typer.Option(help=f"the batched engine's: {DEVICE_HELP} (the SB3 engine: the CPU)")
-    ] = "auto",
-    concurrent: Annotated[
-        bool,
-        typer.Option(
-            "--concurrent",
-            help="train each algorithm's batched jobs beside the SB3 pool, not after it (cores to spare)",
-        ),
-    ] = False,
-    workers: Annotated[Optional[int], typer.Option(min=1, help="SB3 jobs trained at once (default: the cores)")] = None,
-    save: Annotated[
-        Optional[Path], typer.Option(help="also write every agent's evaluation returns (JSON) to this file")
-    ] = None,
-) -> None:
-    """Train with both engines (SB3 and batched) on the same seeds and budget; per algorithm
-    and regime the IQM of the evaluation returns with a 95 % bootstrap interval over seeds;
-    the two engines' intervals must overlap."""
-    from nutribench.bench.engines import BATCHED_ALGOS, COLUMNS, bench_engines, markdown_table, row_cells
-    from nutribench.config import list_regimes
-    from nutribench.scheduler.grid import parse_seeds
-
-    check_engine_options("batched", device)
-    names = split_csv(algos, list(BATCHED_ALGOS), "algorithm for the batched engine")
-    regime_names = split_csv(regimes, list_regimes(), "regime")
-    with console.status("training with both engines"):
-        rows = bench_engines(
-            names,
-            regime_names,
-            list(parse_seeds(seeds)),
-            episodes,
-            eval_episodes,
-            workers=workers,
-            device=device,
-            concurrent=concurrent,
-            save=save,
-            on_done=_report_engine_run,
-        )
-    if markdown:
-        console.print(markdown_table(rows), highlight=False, soft_wrap=True)
-    else:
-        table = Table(*COLUMNS, title=f"engines: SB3 vs batched, {episodes} days, seeds {seeds}")
-        for r in rows:
-            table.add_row(*row_cells(r))
-        console.print(table)
-    walls = {r["engine"]: r["total_wall_seconds"] for r in rows}
-    how = "a process per algorithm, beside the SB3 pool" if concurrent else "one process"
-    console.print(
-        f"wall time: SB3 {walls['sb3']:.0f} s (a process per job, one per core), batched {walls['batched']:.0f} s ({how})",
-        highlight=False,
-    )
-
-
-def _report_engine_run(engine: str, run) -> None:
-    mean = sum(e["return"] for e in run.eval_rows) / len(run.eval_rows)
-    console.print(
-        f"{engine} {run.algo} {run.regime} seed {run.seed}: evaluation return {mean:.2f} (mean of "
-        f"{len(run.eval_rows)} days), {run.wall_seconds:.0f} s of training",
-        highlight=False,
     )
 
 

@@ -8,7 +8,9 @@ Anything else is a bug and keeps its traceback.
 
 from __future__ import annotations
 
+import errno
 import functools
+import os
 from pathlib import Path
 
 import typer
@@ -20,6 +22,8 @@ from nutribench.errors import UserError
 __all__ = [
     "DEVICE_HELP",
     "UserError",
+    "check_out_dir",
+    "check_range",
     "check_tensorboard",
     "console",
     "err_console",
@@ -46,8 +50,14 @@ def print_error(e: BaseException | str) -> None:
     err_console.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
 
 
+#: errors of the operating system that only ever mean a path the user gave cannot be one
+PATH_ERRNOS = (errno.ENAMETOOLONG, errno.ELOOP)
+
+
 def user_errors(fn):
-    """Any :class:`UserError` raised by the command -> one line on stderr and exit status 2."""
+    """Any :class:`UserError` raised by the command -> one line on stderr and exit status 2; so is
+    an OSError that can only mean a bad path (a name too long, a loop of symbolic links), met
+    by whichever check looked at the path first."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -55,6 +65,13 @@ def user_errors(fn):
             return fn(*args, **kwargs)
         except UserError as e:
             print_error(e)
+            raise typer.Exit(2) from None
+        except OSError as e:
+            if e.errno not in PATH_ERRNOS:
+                raise
+            name = str(e.filename or "")
+            shown = name if len(name) <= 80 else f"{name[:60]}...({len(name)} characters)"
+            print_error(f"{shown}: {e.strerror}: give another path")
             raise typer.Exit(2) from None
 
     return wrapper
@@ -85,3 +102,29 @@ def check_tensorboard(folder: Path) -> None:
     if found is not None and not (found.is_dir() and os.access(found, os.W_OK | os.X_OK)):
         why = "is not a writable folder" if found.is_dir() else "is a file, not a folder"
         raise UserError(f"--tensorboard {folder}: {found} {why}")
+
+
+def check_out_dir(folder: Path, option: str = "--out") -> None:
+    """``--out FOLDER``: a one-line UserError, before anything is read or written, when
+    ``folder`` cannot be a folder of new files: it is a file, lies below a file, or its nearest
+    existing folder refuses a new entry (tried for real, then removed: permission bits do not
+    bind root, a read-only or virtual file system does). The folder itself is made by the writer."""
+    import tempfile
+
+    found = next((p for p in (folder, *folder.absolute().parents) if p.exists() or p.is_symlink()), None)
+    if found is None:
+        return
+    if not found.is_dir():
+        raise UserError(f"{option} {folder}: {found} is a file, not a folder: give a folder for the files")
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".nutribench-probe-", dir=found))
+    except OSError as e:
+        raise UserError(
+            f"{option} {folder}: cannot create files in {found} ({e.strerror or e}): give another folder"
+        ) from None
+
+
+def check_range(option: str, value: int, low: int, high: int, why: str = "") -> None:
+    """``option value`` within ``low..high``, else a one-line UserError (``why``: the reason for ``high``)."""
+    if not low <= value <= high:
+        raise UserError(f"{option} {str(value)[:24]}: give a value from {low} to {high}" + (f" ({why})" if why else ""))

@@ -10,7 +10,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import UserError, console, err_console, user_errors
+from nutribench.cli.common import UserError, check_out_dir, console, err_console, user_errors
 
 
 def _split(values: list[str] | None) -> list[str]:
@@ -139,6 +139,7 @@ def report_cmd(
         raise UserError(
             "--algo, --regime and --seed pick a trajectory or diagnostics: add --trajectory or --diagnostics"
         )
+    check_out_dir(out)
     log = lambda msg: err_console.print(msg, style="yellow", highlight=False, soft_wrap=True)  # noqa: E731
     paths: list[Path] = []
     if figs or tables or all_:

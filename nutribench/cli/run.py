@@ -39,10 +39,17 @@ def _check_executor(value: str) -> None:
 
 
 def _check_db(db: str) -> None:
-    """Refuse a database path that cannot be created or is not SQLite, before anything runs."""
-    from nutribench.store.engine import check_sqlite_file, database_url, sqlite_path
+    """Refuse a database path that cannot be created or is not SQLite, and an in-memory database
+    (every result would be lost), before anything runs."""
+    from nutribench.store.engine import StoreError, check_sqlite_file, database_url, in_memory, sqlite_path
 
-    path = sqlite_path(database_url(db))
+    url = database_url(db)
+    if in_memory(url):
+        raise StoreError(
+            f"--db {db}: an in-memory SQLite database is lost when `run` ends, with every result: "
+            "give a file path (e.g. --db nutribench.db)"
+        )
+    path = sqlite_path(url)
     if path is not None:
         check_sqlite_file(path, create=True)
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
 from pathlib import Path
 
@@ -192,5 +193,20 @@ def regime_to_toml(regime: Regime) -> str:
 
 
 def write_regime(regime: Regime, path: Path) -> None:
-    """Write ``regime`` to ``path`` in the layout of :func:`regime_to_toml`."""
-    path.write_text(regime_to_toml(regime))
+    """Write ``regime`` to ``path`` in the layout of :func:`regime_to_toml`, atomically: to a
+    temporary file beside it, then renamed over ``path``. A write that fails (a full disk, no
+    permission) leaves ``path`` as it was (no empty file that would block and hide the name)
+    and is a one-line :class:`ConfigError`."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(regime_to_toml(regime))
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise ConfigError(
+            f"cannot write {path}: {e.strerror or e}: nothing was written (free space or fix the folder, then try again)"
+        ) from None

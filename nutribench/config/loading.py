@@ -67,11 +67,25 @@ def format_validation_error(path: Path | str, err: ValidationError) -> str:
 
 
 def read_toml(path: Path) -> dict[str, Any]:
+    """The TOML file at ``path`` as a dict; a missing or unreadable file, a byte that is not
+    UTF-8 and malformed TOML are each a one-line :class:`ConfigError` naming the file (and
+    the line)."""
     try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
+        data = Path(path).read_bytes()
     except FileNotFoundError:
         raise ConfigError(f"{path}: file not found") from None
+    except OSError as e:  # a folder, no permission, an I/O error
+        raise ConfigError(f"{path}: cannot read the file: {e.strerror or e}") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = data[: e.start].count(b"\n") + 1
+        raise ConfigError(
+            f"{path}: line {line}: byte 0x{data[e.start]:02x} is not UTF-8: TOML files are UTF-8, "
+            "save the file as UTF-8"
+        ) from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{path}: not valid TOML: {e}") from None
 

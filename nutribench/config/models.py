@@ -31,6 +31,8 @@ NUTRIENTS: tuple[str, str, str] = ("C", "F", "P")
 
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+#: a config's version: from 1 to what a database integer holds (the versions are stored in columns)
+Version = Annotated[int, Field(ge=1, le=2**31 - 1)]
 Key = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$")]
 
 
@@ -74,7 +76,7 @@ class FoodCatalog(_Strict):
     """The foods on offer and the daily target they are measured against."""
 
     name: str
-    version: Annotated[int, Field(ge=1)]
+    version: Version
     source: str
     target_grams: PositiveNutrients
     food: Annotated[list[Food], Field(min_length=1)]
@@ -106,7 +108,7 @@ class RewardConfig(_Strict):
     """
 
     name: str
-    version: Annotated[int, Field(ge=1)]
+    version: Version
     horizon: Annotated[int, Field(ge=1)]
     lp: NonNeg
     lc: NonNeg
@@ -159,7 +161,7 @@ class Regime(_Strict):
     """A delay regime: the ranges, the seed, and the drawn delays written out."""
 
     name: Key
-    version: Annotated[int, Field(ge=1)]
+    version: Version
     description: str
     seed: Annotated[int, Field(ge=0)]
     catalog: str = Field(description="food catalog file, relative to this file")

@@ -98,11 +98,10 @@ def write_index(
     items: Sequence[PageItem], out_dir: str | Path, title: str = "nutribench report", subtitle: str = ""
 ) -> Path:
     """Write ``<out_dir>/index.html`` with ``items`` (their files relative to ``out_dir``)."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / INDEX
-    path.write_text(page_html(items, title, subtitle), encoding="utf-8")
-    return path
+    from nutribench.report.output import write_atomically
+
+    page = page_html(items, title, subtitle)
+    return write_atomically(Path(out_dir) / INDEX, lambda tmp: tmp.write_text(page, encoding="utf-8"))
 
 
 def page_figure(number: int, res: Any, written: Sequence[Path]) -> PageItem:

@@ -8,7 +8,10 @@ all of it.
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -22,26 +25,39 @@ from nutribench.report.tables import TableResult
 PNG_DPI = 150
 
 
+def write_atomically(path: Path, write: Callable[[Path], Any]) -> Path:
+    """``write(tmp)`` to a temporary file beside ``path``, then renamed to ``path``, its folder
+    made first: a file is whole or absent. A failure to write (a full disk, a read-only folder,
+    a name taken by a folder) is a one-line :class:`ReportError`."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise ReportError(f"cannot write {path}: {e.strerror or e}: give another --out or free the space") from None
+    return path
+
+
 def write_figure(fig_result: FigureResult | Figure, out_dir: Db, stem: str) -> list[Path]:
     """Write ``<out_dir>/<stem>.png`` (150 dpi) and ``.pdf``; return both paths."""
     fig = fig_result.figure if isinstance(fig_result, FigureResult) else fig_result
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = [out / f"{stem}.png", out / f"{stem}.pdf"]
-    fig.savefig(paths[0], dpi=PNG_DPI)
-    fig.savefig(paths[1])
-    return paths
+    return [
+        write_atomically(out / f"{stem}.png", lambda tmp: fig.savefig(tmp, dpi=PNG_DPI, format="png")),
+        write_atomically(out / f"{stem}.pdf", lambda tmp: fig.savefig(tmp, format="pdf")),
+    ]
 
 
 def write_table(table_result: TableResult, out_dir: Db, stem: str) -> list[Path]:
     """Write ``<out_dir>/<stem>.md``, ``.tex`` and ``.csv``; return the three paths."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = [out / f"{stem}.md", out / f"{stem}.tex", out / f"{stem}.csv"]
-    paths[0].write_text(table_result.to_markdown())
-    paths[1].write_text(table_result.to_latex())
-    paths[2].write_text(table_result.to_csv())
-    return paths
+    texts = {"md": table_result.to_markdown(), "tex": table_result.to_latex(), "csv": table_result.to_csv()}
+    return [
+        write_atomically(out / f"{stem}.{ext}", lambda tmp, text=text: tmp.write_text(text))
+        for ext, text in texts.items()
+    ]
 
 
 def build_trajectory(db: Db, algo: str, regime: str, seed: int, episode: int = 0, out: Db = "reports") -> list[Path]:

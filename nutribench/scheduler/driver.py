@@ -243,7 +243,9 @@ class _Run:
         said = None
         while True:
             held, claimable_at = held_elsewhere(self.store, self.job_ids, self.owner)
-            if count_claimable(self.store, [j for j in self.job_ids if j not in self.attempted]):
+            claimable = count_claimable(self.store, [j for j in self.job_ids if j not in self.attempted])
+            if claimable:  # taken over (a stopped heartbeat) or given back by the other driver
+                self.planned += claimable  # they are this run's to run now: "3 done of 2 to run" otherwise
                 self.exhausted = False
                 self.loop()
                 continue

@@ -62,6 +62,11 @@ class Grid:
 
 #: the largest seed: what a database's integer column holds everywhere (PostgreSQL's INTEGER)
 MAX_SEED = 2**31 - 1
+#: the largest training or evaluation budget, in days: the same integer column
+MAX_EPISODES = 2**31 - 1
+#: the most evaluation days (or simple-policy days) one command plays side by side, every step
+#: kept (``evaluate``, the recorder, ``train``, ``baselines``)
+MAX_EVAL_DAYS = 10_000
 
 
 #: Named seed sets for ``--seeds``: each preset's seeds (``paper``: the paper's 0, 21, 9, 2003,
@@ -116,10 +121,12 @@ def resolve_grid(
         episodes=base.episodes if episodes is None else episodes,
         eval_episodes=base.eval_episodes if eval_episodes is None else eval_episodes,
     )
-    if grid.episodes < 1:
-        raise GridError(f"--episodes {grid.episodes}: the training budget must be at least 1 episode")
-    if grid.eval_episodes < 0:
-        raise GridError(f"--eval-episodes {grid.eval_episodes}: must be 0 or more")
+    for option, value in (("--episodes", grid.episodes), ("--eval-episodes", grid.eval_episodes)):
+        what = "training budget" if option == "--episodes" else "evaluation"
+        if value < 1:
+            raise GridError(f"{option} {value}: the {what} must be at least 1 episode (a day)")
+        if value > MAX_EPISODES:
+            raise GridError(f"{option} {str(value)[:24]}: too large: give at most {MAX_EPISODES} episodes")
     if not grid.regimes or not grid.algos:
         raise GridError("the grid is empty: give at least one regime and one algorithm")
     return grid

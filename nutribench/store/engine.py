@@ -14,6 +14,7 @@ deferred ``BEGIN`` and never block the writer.
 from __future__ import annotations
 
 import os
+import re
 import sqlite3
 import time
 from collections.abc import Iterator
@@ -43,11 +44,20 @@ def database_url(db: str | os.PathLike[str]) -> URL:
     if "://" in s:
         try:
             return make_url(s)
-        except ArgumentError as e:
-            raise StoreError(f"--db {s}: not a valid SQLAlchemy URL ({e})") from None
+        except (ArgumentError, ValueError) as e:  # ValueError: a port that is not a number
+            why = "its host or port is malformed" if isinstance(e, ValueError) else str(e)
+            raise StoreError(
+                f"--db {_hide_password(s)}: not a valid SQLAlchemy URL ({why}): "
+                "write dialect+driver://user:password@host:port/database, e.g. postgresql+psycopg://me@localhost:5432/lab"
+            ) from None
     if not s.strip():
         raise StoreError("--db is empty: give a file path or a SQLAlchemy URL")
     return URL.create("sqlite", database=str(Path(s).expanduser().absolute()))
+
+
+def _hide_password(text: str) -> str:
+    """A URL that could not be parsed, with whatever stands between ``user:`` and ``@`` hidden."""
+    return re.sub(r"(://[^:/@]*:)[^@]*@", r"\1***@", text)
 
 
 def sqlite_path(url: URL) -> Path | None:
@@ -60,6 +70,15 @@ def sqlite_path(url: URL) -> Path | None:
     return Path(db)
 
 
+def in_memory(url: URL) -> bool:
+    """Whether ``url`` is an in-memory SQLite database (``sqlite://``, ``:memory:``, ``mode=memory``):
+    it vanishes with the process that opened it."""
+    if url.get_backend_name() != "sqlite":
+        return False
+    db = url.database or ""
+    return db in ("", ":memory:") or "mode=memory" in db or url.query.get("mode") == "memory"
+
+
 def display_url(url: URL) -> str:
     """The URL without a password, or the plain path of a SQLite file."""
     path = sqlite_path(url)
@@ -68,6 +87,13 @@ def display_url(url: URL) -> str:
 
 def check_sqlite_file(path: Path, *, create: bool) -> None:
     """Refuse early, with one line, what SQLite would report obscurely (or too late)."""
+    try:
+        _check_sqlite_file(path, create=create)
+    except OSError as e:  # a name too long, a path through a file the OS refuses to look at
+        raise StoreError(f"--db {str(path)[:200]}: {e.strerror or e}: give another file path") from None
+
+
+def _check_sqlite_file(path: Path, *, create: bool) -> None:
     if path.is_dir():
         raise StoreError(f"{path} is a directory, not a database file: give a file path to --db")
     if path.exists():
@@ -111,6 +137,31 @@ def _switch_to_wal(cursor: sqlite3.Cursor, timeout_s: float) -> None:
             pause = min(2 * pause, 0.1)
 
 
+def read_only_file(path: Path) -> bool:
+    """Whether this process cannot write the SQLite file ``path`` or its folder (where SQLite
+    keeps a WAL database's ``-shm`` and ``-wal`` files): a read-only file, folder or file system."""
+    return path.exists() and not (os.access(path, os.W_OK) and os.access(path.parent, os.W_OK | os.X_OK))
+
+
+def _read_only_connector(path: Path, timeout_s: float):
+    """Connections to a SQLite file this process cannot write, for the read-only commands
+    (``status``, ``report``, ``db export``): ``mode=ro``; where SQLite cannot even create a WAL
+    database's shared-memory file beside it (a read-only folder or file system), ``immutable=1``
+    (then no process can be writing it either)."""
+    uri = path.absolute().as_uri()
+
+    def connect() -> sqlite3.Connection:
+        conn = sqlite3.connect(f"{uri}?mode=ro", uri=True, timeout=timeout_s, check_same_thread=False)
+        try:
+            conn.execute("SELECT count(*) FROM sqlite_master").fetchone()
+            return conn
+        except sqlite3.OperationalError:
+            conn.close()
+        return sqlite3.connect(f"{uri}?immutable=1", uri=True, timeout=timeout_s, check_same_thread=False)
+
+    return connect
+
+
 def make_engine(url: URL | str, *, writer: bool = False, busy_timeout_ms: int = BUSY_TIMEOUT_MS) -> Engine:
     """An engine for ``url``; on SQLite with the pragmas and transaction mode above."""
     url = url if isinstance(url, URL) else database_url(url)
@@ -124,7 +175,13 @@ def make_engine(url: URL | str, *, writer: bool = False, busy_timeout_ms: int = 
                 else ""
             )
             raise StoreError(f"--db {display_url(url)}: cannot use this database URL: {e}{hint}") from None
-    engine = create_engine(url, connect_args={"timeout": busy_timeout_ms / 1000})
+        except (ArgumentError, ValueError, TypeError) as e:  # e.g. ?port=abc
+            raise StoreError(f"--db {display_url(url)}: not a usable database URL: {e}") from None
+    path = sqlite_path(url)
+    if not writer and path is not None and read_only_file(path):
+        engine = create_engine(url, creator=_read_only_connector(path, busy_timeout_ms / 1000))
+    else:
+        engine = create_engine(url, connect_args={"timeout": busy_timeout_ms / 1000})
 
     @event.listens_for(engine, "connect")
     def _on_connect(dbapi_conn, _record):  # pragma: no cover - exercised by every test

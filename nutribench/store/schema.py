@@ -39,6 +39,7 @@ from nutribench.store.engine import (
     database_url,
     display_url,
     hold_write_lock,
+    in_memory,
     make_engine,
     sqlite_path,
 )
@@ -207,6 +208,11 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
     url = db if isinstance(db, URL) else database_url(db)
     display = display_url(url)
     path = sqlite_path(url)
+    if writer and in_memory(url):
+        raise StoreError(
+            f"--db {display}: an in-memory SQLite database is lost when the command ends, with everything "
+            "written to it: give a file path (e.g. --db nutribench.db)"
+        )
     if path is not None:
         check_sqlite_file(path, create=writer)
     engine = make_engine(url, writer=writer)
