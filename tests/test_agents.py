@@ -16,15 +16,17 @@ from nutribench.agents import eval_food_streams, evaluate, load_agent_config, tr
 from nutribench.agents.algos import double_dqn_target
 from nutribench.agents.api import TrainedAgent
 from nutribench.agents.config import (
-    ALGOS,
     agent_config_sha256,
     agent_config_to_toml,
     agents_dir,
     list_agent_configs,
 )
+from nutribench.agents.registry import paper_names
 from nutribench.cli import app
 from nutribench.config.loading import ConfigError
 from nutribench.env.metrics import METRIC_KEYS
+
+ALGOS = tuple(paper_names())
 
 runner = CliRunner()
 EXPECTED_KEYS = {"episode", *METRIC_KEYS, "entropy"}
@@ -372,10 +374,10 @@ def test_on_policy_jobs_update_on_their_last_rollout(algo, days, updates, monkey
     """MC updates once per day and (GRU-)PPO once per 10-day rollout, the last rollout
     included (SB3 skips a rollout's update when a callback stops it). 25 PPO days end in
     the middle of the third rollout, which SB3 cannot update on: 2 updates, 25 days."""
-    from nutribench.agents.algos import MODEL_CLASSES
+    from nutribench.agents.algos import model_arguments
 
     calls = []
-    cls = MODEL_CLASSES[algo]
+    cls, _ = model_arguments(load_agent_config(algo), 50)
     original = cls.train
     monkeypatch.setattr(
         cls, "train", lambda self, *a, **k: (calls.append(self.num_timesteps), original(self, *a, **k))[1]

@@ -113,6 +113,6 @@ def test_bench_learn_with_the_batched_engine_and_its_limits(monkeypatch) -> None
     assert res.exit_code == 0, res.output
     assert all(f"| run0 | {a} | 2 | 2 |" in res.output for a in ("mc", "ppo", "sac"))
     # an algorithm the engine would not train (all five are in it today) is refused in one line
-    monkeypatch.setattr("nutribench.engine.BATCHED_ALGOS", ("ppo", "mc"))
+    monkeypatch.setattr("nutribench.agents.registry.batched_names", lambda: ["ppo", "mc"])
     bad = CliRunner().invoke(app, ["bench", "learn", "--algos", "sac", "--engine", "batched"])
     assert bad.exit_code == 2 and "use --engine sb3" in bad.output

@@ -13,8 +13,10 @@ import pandas as pd
 import pytest
 
 from nutribench.agents.api import TrainedAgent
-from nutribench.agents.config import ALGOS
+from nutribench.agents.registry import paper_names
 from nutribench.config import list_regimes
+
+ALGOS = tuple(paper_names())
 
 NUTRIBENCH = str(Path(sys.executable).parent / "nutribench")
 EPISODES, EVAL, H = 20, 5, 50

@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from nutribench.agents.config import ALGOS, agents_dir, load_agent_config
+from nutribench.agents.config import agents_dir, load_agent_config
+from nutribench.agents.registry import paper_names
 from nutribench.engine import UnsupportedConfig, check_supported, supports
 from nutribench.errors import UserError
 from nutribench.jobs.synthetic import synthetic_batch, synthetic_job
@@ -31,7 +32,7 @@ def agents(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     DDQN and SAC with ``normalize_reward = true``, GRU-PPO with 25-step sequences."""
     folder = tmp_path / "agents"
     folder.mkdir()
-    for algo in ALGOS:
+    for algo in paper_names():
         (folder / f"{algo}.toml").write_text((agents_dir() / f"{algo}.toml").read_text())
     for algo in ("ddqn", "sac"):
         text = (agents_dir() / f"{algo}.toml").read_text().replace(f'name = "{algo}"', f'name = "{algo}_nr"')
@@ -45,7 +46,7 @@ def agents(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
 # ------------------------------------------------------------------- 3. supported settings
 def test_the_paper_configs_are_supported_and_the_variants_refused_in_one_line(agents: Path) -> None:
-    for algo in ALGOS:
+    for algo in paper_names():
         assert supports(load_agent_config(algo), 50) is None and supports(algo) is None
     for name, words in (
         ("ddqn_nr", "normalize_reward"),

@@ -10,10 +10,9 @@ from nutribench.agents.api import (
     train,
     validation_food_streams,
 )
-from nutribench.agents.config import ALGOS, list_agent_configs, load_agent_config
+from nutribench.agents.config import list_agent_configs, load_agent_config
 
 __all__ = [
-    "ALGOS",
     "EvalResult",
     "TrainedAgent",
     "eval_food_streams",

@@ -32,10 +32,12 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 from torch.nn import functional as F
 
+import nutribench.agents.registry as registry
 from nutribench.agents.config import DDQNConfig, GRUPPOConfig, MCConfig, PPOConfig, SACConfig
 from nutribench.agents.gru_ppo import GRUPPO
 from nutribench.agents.sac import DiscreteSAC
 from nutribench.agents.sb3_train import GradNormA2C, GradNormPPO
+from nutribench.config.loading import ConfigError
 
 
 class Backbone(BaseFeaturesExtractor):
@@ -180,72 +182,83 @@ def ppo_arguments(cfg: PPOConfig | GRUPPOConfig) -> dict[str, Any]:
 
 def model_arguments(cfg: Any, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
     """The algorithm class of config ``cfg`` and its constructor arguments (all but env,
-    seed, device, verbosity and gamma, which :func:`build_model` adds)."""
-    if isinstance(cfg, MCConfig):
-        return MonteCarloAC, dict(
-            policy="MlpPolicy",
-            n_steps=horizon,
-            learning_rate=cfg.learning_rate,
-            gae_lambda=1.0,
-            ent_coef=cfg.ent_coef,
-            vf_coef=cfg.vf_coef,
-            max_grad_norm=cfg.max_grad_norm,
-            use_rms_prop=False,
-            normalize_advantage=False,
-            policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch),
+    seed, device, verbosity and gamma, which :func:`build_model` adds): its registry entry's
+    ``arguments`` (:mod:`nutribench.agents.registry`)."""
+    entry = registry.algorithm(cfg)
+    if entry.arguments is None:
+        raise ConfigError(
+            f"algorithm {entry.algo!r}: its registry entry has no arguments, so build_model cannot build it"
         )
-    if isinstance(cfg, PPOConfig):
-        # SB3 warns when batch_size does not divide n_steps; whole days per rollout matter more
-        # here than equal minibatches (500 = 7 x 64 + 52).
-        warnings.filterwarnings("ignore", message="You have specified a mini-batch size", module="stable_baselines3")
-        return PPOWithGradNorm, dict(
-            policy="MlpPolicy", **ppo_arguments(cfg), policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch)
-        )
-    if isinstance(cfg, GRUPPOConfig):
-        return GRUPPO, dict(**ppo_arguments(cfg), hidden_size=cfg.hidden_size, sequence_length=cfg.sequence_length)
-    if isinstance(cfg, DDQNConfig):
-        return DoubleDQN, dict(
-            policy="MlpPolicy",
-            learning_rate=LinearSchedule(cfg.learning_rate_start, cfg.learning_rate_end, end_fraction=1.0),
-            buffer_size=cfg.buffer_size,
-            learning_starts=cfg.learning_starts,
-            batch_size=cfg.batch_size,
-            n_steps=cfg.n_step,
-            max_grad_norm=cfg.max_grad_norm,
-            target_update_interval=cfg.target_update_interval,
-            train_freq=cfg.train_freq,
-            gradient_steps=cfg.gradient_steps,
-            exploration_initial_eps=cfg.exploration_initial_eps,
-            exploration_final_eps=cfg.exploration_final_eps,
-            exploration_fraction=cfg.exploration_fraction,
-            tau=1.0,
-            policy_kwargs=dict(net_arch=list(cfg.net_arch)),
-        )
-    if isinstance(cfg, SACConfig):
-        return DiscreteSAC, dict(
-            policy="MlpPolicy",
-            actor_learning_rate=cfg.actor_learning_rate,
-            critic_learning_rate=cfg.critic_learning_rate,
-            buffer_size=cfg.buffer_size,
-            learning_starts=cfg.learning_starts,
-            batch_size=cfg.batch_size,
-            tau=cfg.tau,
-            alpha=cfg.alpha,
-            train_freq=cfg.train_freq,
-            gradient_steps=cfg.gradient_steps,
-            net_arch=list(cfg.net_arch),
-        )
-    raise TypeError(f"no builder for config {type(cfg).__name__}")
+    return registry.import_entry_point(entry.arguments)(cfg, horizon)
 
 
-#: SB3 classes by algo, for loading saved models.
-MODEL_CLASSES: dict[str, type[BaseAlgorithm]] = {
-    "mc": MonteCarloAC,
-    "ddqn": DoubleDQN,
-    "ppo": PPOWithGradNorm,
-    "sac": DiscreteSAC,
-    "gru_ppo": GRUPPO,
-}
+def mc_arguments(cfg: MCConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+    """MC: an A2C whose rollout is one whole day, GAE lambda 1, Adam, no advantage normalisation."""
+    return MonteCarloAC, dict(
+        policy="MlpPolicy",
+        n_steps=horizon,
+        learning_rate=cfg.learning_rate,
+        gae_lambda=1.0,
+        ent_coef=cfg.ent_coef,
+        vf_coef=cfg.vf_coef,
+        max_grad_norm=cfg.max_grad_norm,
+        use_rms_prop=False,
+        normalize_advantage=False,
+        policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch),
+    )
+
+
+def ppo_model_arguments(cfg: PPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+    """PPO on the shared actor-critic."""
+    # SB3 warns when batch_size does not divide n_steps; whole days per rollout matter more
+    # here than equal minibatches (500 = 7 x 64 + 52).
+    warnings.filterwarnings("ignore", message="You have specified a mini-batch size", module="stable_baselines3")
+    return PPOWithGradNorm, dict(
+        policy="MlpPolicy", **ppo_arguments(cfg), policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch)
+    )
+
+
+def gru_ppo_arguments(cfg: GRUPPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+    """GRU-PPO: PPO's arguments and the recurrent policy's sizes."""
+    return GRUPPO, dict(**ppo_arguments(cfg), hidden_size=cfg.hidden_size, sequence_length=cfg.sequence_length)
+
+
+def ddqn_arguments(cfg: DDQNConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+    """Double DQN: a linear learning-rate schedule, hard target copies (tau 1)."""
+    return DoubleDQN, dict(
+        policy="MlpPolicy",
+        learning_rate=LinearSchedule(cfg.learning_rate_start, cfg.learning_rate_end, end_fraction=1.0),
+        buffer_size=cfg.buffer_size,
+        learning_starts=cfg.learning_starts,
+        batch_size=cfg.batch_size,
+        n_steps=cfg.n_step,
+        max_grad_norm=cfg.max_grad_norm,
+        target_update_interval=cfg.target_update_interval,
+        train_freq=cfg.train_freq,
+        gradient_steps=cfg.gradient_steps,
+        exploration_initial_eps=cfg.exploration_initial_eps,
+        exploration_final_eps=cfg.exploration_final_eps,
+        exploration_fraction=cfg.exploration_fraction,
+        tau=1.0,
+        policy_kwargs=dict(net_arch=list(cfg.net_arch)),
+    )
+
+
+def sac_arguments(cfg: SACConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+    """Discrete SAC, fixed temperature."""
+    return DiscreteSAC, dict(
+        policy="MlpPolicy",
+        actor_learning_rate=cfg.actor_learning_rate,
+        critic_learning_rate=cfg.critic_learning_rate,
+        buffer_size=cfg.buffer_size,
+        learning_starts=cfg.learning_starts,
+        batch_size=cfg.batch_size,
+        tau=cfg.tau,
+        alpha=cfg.alpha,
+        train_freq=cfg.train_freq,
+        gradient_steps=cfg.gradient_steps,
+        net_arch=list(cfg.net_arch),
+    )
 
 
 def episode_entropy(model: Any, obs: np.ndarray) -> float | None:

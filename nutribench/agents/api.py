@@ -47,7 +47,7 @@ from nutribench.agents.model_files import (
     vec_normalize_stats,
 )
 from nutribench.agents.recording import EpisodeFn, EpisodeMetrics, RecordingVecEnv
-from nutribench.agents.registry import ALGORITHMS, algorithm, loader_entry_point, make_model
+from nutribench.agents.registry import algorithm, algorithms, loader_entry_point, make_model
 from nutribench.agents.training_log import TrainingDiagnostics, plugin_tensorboard
 from nutribench.agents.validation import (
     DEFAULT_VAL_EPISODES,
@@ -135,7 +135,7 @@ class TrainedAgent:
         meta = collect_metadata()
         side = {
             "algo": self.algo,
-            "load_with": ALGORITHMS[self.algo].plain or loader_entry_point(self.config),
+            "load_with": algorithm(self.config).plain or loader_entry_point(self.config),
             "vec_normalize": target.name if has_pickle else None,
             "vec_normalize_stats": stats,
             "config": agent_config_content(self.config),
@@ -168,7 +168,7 @@ class TrainedAgent:
         path = Path(path)
         side = read_sidecar(path)
         algo = side["algo"]
-        if algo not in ALGORITHMS:
+        if algo not in algorithms():
             raise ModelFileError(f"{path.with_suffix('.json')}: algo {algo[:40]!r} is not a registered algorithm")
         config = parse_agent_config(side["config"], path.with_suffix(".json"))
         model = load_saved_model(path, side, config, load_with, trust)

@@ -1,10 +1,11 @@
 """Agent configurations (the paper's Tables 2-6) as versioned, validated files.
 
 One TOML file per configuration in ``regimes/agents/`` (``<name>.toml``); the ``algo`` key
-picks the model (:data:`MODELS`), every hyperparameter of the built-in algorithms is written
+picks the model (its config model in :mod:`nutribench.agents.registry`), every hyperparameter of the built-in algorithms is written
 out (nothing is defaulted), unknown keys are errors, and ``name`` must equal the file name. A
 user adds a variant by copying a file, changing ``name`` (and the file name) and the values,
-or brings an algorithm of their own with ``algo = "external"`` (:class:`ExternalConfig`): an
+or brings an algorithm of their own: a registered one with its own config model
+(:mod:`nutribench.agents.registry`), or ``algo = "external"`` (:class:`ExternalConfig`): an
 ``entry_point = "package.module:make_agent"`` and a free ``[params]`` table.
 
 The content hash (:func:`agent_config_sha256`) is what the results database records next
@@ -14,15 +15,13 @@ to ``name`` and ``version``: a file changed without a version bump is refused by
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal
 
 import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+import nutribench.agents.registry as registry
 from nutribench.config.loading import ConfigError, content_sha256, format_validation_error, read_toml, regimes_dir
-
-#: The algorithms nutribench implements, in the paper's order.
-ALGOS: tuple[str, ...] = ("mc", "ddqn", "ppo", "sac", "gru_ppo")
 
 # Every float hyperparameter is finite (inf or nan is refused when the file is read: a learning
 # rate of inf trained and was stored as done), but a gradient norm, where inf means no clipping.
@@ -167,20 +166,6 @@ class ExternalConfig(BaseModel):
     gamma: Discount = Field(default=0.99, description="VecNormalize's return discount")
 
 
-AgentConfig = Annotated[
-    Union[MCConfig, DDQNConfig, PPOConfig, SACConfig, GRUPPOConfig, ExternalConfig], Field(discriminator="algo")
-]
-#: The config model of each ``algo`` key: the five built-in algorithms, then plug-ins.
-MODELS: dict[str, type[BaseModel]] = {
-    "mc": MCConfig,
-    "ddqn": DDQNConfig,
-    "ppo": PPOConfig,
-    "sac": SACConfig,
-    "gru_ppo": GRUPPOConfig,
-    "external": ExternalConfig,
-}
-
-
 def agents_dir() -> Path:
     """``regimes/agents/`` (or ``$NUTRIBENCH_AGENTS``)."""
     import os
@@ -190,10 +175,12 @@ def agents_dir() -> Path:
 
 
 def list_agent_configs(folder: Path | None = None) -> list[str]:
-    """Names of the agent config files, the five paper configs first in the paper's order."""
+    """Names of the agent config files, those named like a registered algorithm first (the
+    paper's five in its order), then the others by name."""
     folder = folder or agents_dir()
     names = sorted(p.stem for p in folder.glob("*.toml")) if folder.is_dir() else []
-    return [a for a in ALGOS if a in names] + [n for n in names if n not in ALGOS]
+    first = [a for a in registry.names() if a in names]
+    return first + [n for n in names if n not in first]
 
 
 def resolve_agent_path(name_or_path: str | Path) -> Path:
@@ -241,13 +228,11 @@ def agent_config_to_toml(cfg: BaseModel) -> str:
 
 def parse_agent_config(data: dict[str, Any], source: str | Path = "<dict>") -> Any:
     """Validate plain data as an agent config (one-line :class:`ConfigError` if invalid)."""
-    algo = data.get("algo")
-    if not isinstance(algo, str) or algo not in MODELS:  # a list or a table is no name either
-        raise ConfigError(
-            f"{source}: algo: unknown algorithm {algo!r}: known are {', '.join(MODELS)} "
-            '(an algorithm of your own: algo = "external" with entry_point = "package.module:make_agent")'
-        )
     try:
-        return MODELS[algo].model_validate(data)
+        model = registry.get(data.get("algo")).config_model()  # a list or a table is no name either
+    except ConfigError as e:
+        raise ConfigError(f"{source}: {e}") from None
+    try:
+        return model.model_validate(data)
     except ValidationError as e:
         raise ConfigError(format_validation_error(source, e)) from None

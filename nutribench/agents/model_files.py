@@ -270,15 +270,13 @@ def load_saved_model(
     """The model of ``path`` (its sidecar ``side`` and agent ``config`` already read): a
     built-in algorithm rebuilt from weights; a plug-in's by the loader the caller names; SB3's
     unpickling ``load`` only where ``trust`` says so (see ``TrainedAgent.load``)."""
-    from nutribench.agents.registry import ALGORITHMS, import_entry_point, load_model
+    from nutribench.agents.registry import get, import_entry_point, load_model, make_model
 
-    entry = ALGORITHMS[side["algo"]]
+    entry = get(side["algo"])
     if entry.build is not None:
         spaces = side.get("spaces") or _regime_spaces(side)
         if spaces is not None:
-            from nutribench.agents.algos import build_model
-
-            build = lambda env: build_model(config, env, seed=0, horizon=LOAD_HORIZON)  # noqa: E731
+            build = lambda env: make_model(config, env, seed=0, horizon=LOAD_HORIZON)  # noqa: E731
             return rebuild_from_weights(path, build, spaces)
         if not trust:
             raise ModelFileError(

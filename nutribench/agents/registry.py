@@ -1,34 +1,51 @@
-"""ONE registry of algorithms: an agent config's ``algo`` -> how to build its model and how to
-load a saved one.
+"""THE registry of algorithms: everything nutribench knows about one algorithm, in one entry.
 
-The five built-in algorithms are registered the way a plug-in is, by entry point strings
-(``"package.module:attribute"``, as Gymnasium's ``entry_point``), so nothing below this
-registry treats a sixth agent as a special case::
+An :class:`Algorithm` says, for the ``algo`` key of its agent config files: the config model
+(pydantic, validated when a file is read), how to build its model and load a saved one, the
+plain SB3 class its models load with, its label and colour in figures, its batched class in
+:mod:`nutribench.engine` (optional) and what of it the batched engine cannot train. Nothing
+outside this module asks an algorithm's name (tests/test_algorithm_registry.py greps for it).
 
-    algo = "external"
-    entry_point = "examples.recurrent_ppo:make_agent"   # make_agent(params, env, seed)
-    [params]
-    n_steps = 500
+Built-ins and plug-ins register the same way: an entry of the entry-point group
+``nutribench.algorithms`` names an :class:`Algorithm` object (as Gymnasium's ``register``);
+the package's own pyproject.toml lists the five built-ins there, and an installed package
+adds its own::
 
-An external config's builder is its ``entry_point``; by convention its loader is the ``load``
-function of the same module (``load(path)`` returns the saved model), noted in a saved model's
-sidecar but imported only when the user names it (``TrainedAgent.load(path, load_with=...)``,
-``nutribench evaluate --entry-point``): a model file never chooses the code that loads it.
-Entry points are imported by name, in each worker, from installed packages or from the
-current folder (as ``python -m`` does).
+    [project.entry-points."nutribench.algorithms"]
+    a2c = "my_package.algo:A2C_ALGORITHM"     # an Algorithm(...) object
+
+The built-ins are also read from :data:`BUILTINS` in this module, so they are there when the
+installed metadata is stale or absent (an editable install of another checkout, a source
+tree on ``PYTHONPATH``); entries of the group that point into nutribench itself are therefore
+skipped. :func:`register` adds one in-process (tests, notebooks).
+
+Besides, ``algo = "external"`` keeps a plug-in without a package: an ``entry_point =
+"package.module:make_agent"`` and a free ``[params]`` table. Its builder is that entry point;
+by convention its loader is the ``load`` function of the same module (``load(path)`` returns
+the saved model), noted in a saved model's sidecar but imported only when the user names it
+(``TrainedAgent.load(path, load_with=...)``, ``nutribench evaluate --entry-point``): a model
+file never chooses the code that loads it. Entry points are imported by name, in each worker,
+from installed packages or from the current folder (as ``python -m`` does).
 """
 
 from __future__ import annotations
 
 import copy
+import functools
 import importlib
 import sys
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from nutribench.config.loading import ConfigError
 from nutribench.provenance import file_sha256
+
+#: the entry-point group algorithms register in
+ENTRY_POINT_GROUP = "nutribench.algorithms"
+#: what builds a model for an algorithm whose ``arguments`` are given (SB3 classes)
+SB3_BUILD = "nutribench.agents.algos:build_model"
 
 
 @dataclass(frozen=True)
@@ -36,35 +53,243 @@ class Algorithm:
     """One registered algorithm.
 
     :param algo: the ``algo`` key of its config files.
-    :param build: entry point of ``f(cfg, env, seed, horizon) -> model`` (None: the config's
-        own ``entry_point``, called as ``make_agent(params, env, seed)``).
+    :param config: its config model (a pydantic model class, or ``"package.module:Class"``);
+        it has ``algo: Literal["<algo>"]``, ``name``, ``version``, ``description``,
+        ``normalize_obs``, ``normalize_reward`` and ``gamma`` (what every job reads).
+    :param build: entry point of ``f(cfg, env, seed, horizon) -> model`` (default
+        :data:`SB3_BUILD`, which needs ``arguments``); None: the config's own ``entry_point``,
+        called as ``make_agent(params, env, seed)`` (``algo = "external"``).
+    :param arguments: entry point of ``f(cfg, horizon) -> (SB3 class, constructor arguments
+        but env, seed, device, verbose and gamma)``, what :data:`SB3_BUILD` builds from.
     :param load: entry point of what loads a saved model: a class with ``.load(path)`` or a
         function ``load(path)`` (None: ``load`` beside the config's entry point).
     :param plain: the class that loads the saved ``.zip`` with plain SB3 (no nutribench code
-        path), written into the model's sidecar for users of other tools.
+        path), written into the model's sidecar for users of other tools (None: ``load``).
+    :param label: its label in figures and tables (default: ``algo``); the config file named
+        like the algorithm is drawn under it.
+    :param color: its colour in figures (None: one derived from the name, as for any config).
+    :param batched: ``"package.module:Class"`` of its class in the batched engine
+        (:class:`nutribench.engine.algorithm.Algorithm`), None if it has none.
+    :param batch_limits: ``f(cfg, horizon) -> reason or None``: what of a config the batched
+        class does not train as the SB3 one does (``horizon`` may be None: unknown); the
+        reason names the setting and the fix (the caller adds the config's name).
+    :param cost: relative cost of a training day against PPO's, for ordering long jobs first.
+    :param bench_days: the learning benchmark's default budget (None: its ``DEFAULT_BUDGET``).
+    :param bare: the throughput benchmark's plain-SB3 references, ``(entry point of a class
+        built with the same arguments, label)``; the first is what the plumbing is timed against.
     """
 
     algo: str
-    build: str | None
-    load: str | None
+    config: type | str
+    build: str | None = SB3_BUILD
+    arguments: str | None = None
+    load: str | None = None
     plain: str | None = None
+    label: str | None = None
+    color: str | None = None
+    batched: str | None = None
+    batch_limits: Callable[[Any, int | None], str | None] | None = field(default=None, compare=False)
+    cost: float = 1.0
+    bench_days: int | None = None
+    bare: tuple[tuple[str, str], ...] = ()
+
+    def config_model(self) -> type:
+        """The config model class."""
+        return import_entry_point(self.config) if isinstance(self.config, str) else self.config
+
+    @property
+    def display(self) -> str:
+        """Its label (``algo`` when none is given)."""
+        return self.label or self.algo
 
 
-_BUILD = "nutribench.agents.algos:build_model"
-ALGORITHMS: dict[str, Algorithm] = {
-    a.algo: a
-    for a in (
-        # MC, DDQN and PPO are SB3's A2C, DQN and PPO with other settings, another train() or
-        # a logged gradient norm: plain SB3 loads and acts with them; discrete SAC and GRU-PPO
-        # have policies of their own
-        Algorithm("mc", _BUILD, "nutribench.agents.algos:MonteCarloAC", "stable_baselines3.A2C"),
-        Algorithm("ddqn", _BUILD, "nutribench.agents.algos:DoubleDQN", "stable_baselines3.DQN"),
-        Algorithm("ppo", _BUILD, "nutribench.agents.algos:PPOWithGradNorm", "stable_baselines3.PPO"),
-        Algorithm("sac", _BUILD, "nutribench.agents.sac:DiscreteSAC", "nutribench.agents.sac.DiscreteSAC"),
-        Algorithm("gru_ppo", _BUILD, "nutribench.agents.gru_ppo:GRUPPO", "nutribench.agents.gru_ppo.GRUPPO"),
-        Algorithm("external", None, None),
-    )
-}
+def _no_replay_scaling(cfg: Any, horizon: int | None) -> str | None:
+    """An off-policy algorithm's replay would have to scale sampled rewards."""
+    if cfg.normalize_reward:
+        return (
+            "the batched engine does not scale replayed rewards (normalize_reward = true); set normalize_reward = false"
+        )
+    return None
+
+
+def _whole_days(cfg: Any, horizon: int | None) -> str | None:
+    """The batched recurrent PPO trains on whole days."""
+    if horizon is not None and (cfg.sequence_length != horizon or cfg.n_steps % horizon):
+        return (
+            f"the batched engine trains on whole days, so sequence_length ({cfg.sequence_length}) must be the "
+            f"horizon ({horizon}) and n_steps ({cfg.n_steps}) a multiple of it"
+        )
+    return None
+
+
+_CFG, _ALGOS, _ENGINE = "nutribench.agents.config:", "nutribench.agents.algos:", "nutribench.engine."
+#: The built-in algorithms, in the paper's order, then ``external`` (a plug-in named by its
+#: config's entry point). MC, DDQN and PPO are SB3's A2C, DQN and PPO with other settings,
+#: another train() or a logged gradient norm: plain SB3 loads and acts with them; discrete SAC
+#: and GRU-PPO have policies of their own. The colours are the paper's figures'.
+BUILTINS: tuple[Algorithm, ...] = (
+    Algorithm(
+        "mc",
+        _CFG + "MCConfig",
+        arguments=_ALGOS + "mc_arguments",
+        load=_ALGOS + "MonteCarloAC",
+        plain="stable_baselines3.A2C",
+        label="MC",
+        color="#8c564b",
+        batched=_ENGINE + "mc:MC",
+    ),
+    Algorithm(
+        "ddqn",
+        _CFG + "DDQNConfig",
+        arguments=_ALGOS + "ddqn_arguments",
+        load=_ALGOS + "DoubleDQN",
+        plain="stable_baselines3.DQN",
+        label="DDQN",
+        color="#1f77b4",
+        batched=_ENGINE + "ddqn:DDQN",
+        batch_limits=_no_replay_scaling,
+        bench_days=2000,  # the epsilon schedule and 10k-step warm-up: slower by design
+        bare=(
+            (_ALGOS + "DoubleDQN", "bare SB3 DQN loop, double target"),
+            ("stable_baselines3:DQN", "bare SB3 DQN, vanilla target"),
+        ),
+    ),
+    Algorithm(
+        "ppo",
+        _CFG + "PPOConfig",
+        arguments=_ALGOS + "ppo_model_arguments",
+        load=_ALGOS + "PPOWithGradNorm",
+        plain="stable_baselines3.PPO",
+        label="PPO",
+        color="#2ca02c",
+        batched=_ENGINE + "ppo:PPO",
+        bare=(("stable_baselines3:PPO", "bare SB3 PPO"),),
+    ),
+    Algorithm(
+        "sac",
+        _CFG + "SACConfig",
+        arguments=_ALGOS + "sac_arguments",
+        load="nutribench.agents.sac:DiscreteSAC",
+        plain="nutribench.agents.sac.DiscreteSAC",
+        label="SAC",
+        color="#d62728",
+        batched=_ENGINE + "sac:SAC",
+        batch_limits=_no_replay_scaling,
+        cost=5.0,
+    ),
+    Algorithm(
+        "gru_ppo",
+        _CFG + "GRUPPOConfig",
+        arguments=_ALGOS + "gru_ppo_arguments",
+        load="nutribench.agents.gru_ppo:GRUPPO",
+        plain="nutribench.agents.gru_ppo.GRUPPO",
+        label="GRU-PPO",
+        color="#9467bd",
+        batched=_ENGINE + "gru_ppo:GRUPPO",
+        batch_limits=_whole_days,
+        cost=5.0,
+    ),
+    Algorithm("external", _CFG + "ExternalConfig", build=None),
+)
+_EXTRA: dict[str, Algorithm] = {}
+
+
+class AlgorithmRegistryError(ConfigError):
+    """An algorithm that cannot be registered: a taken name, an entry point that is no
+    :class:`Algorithm` (one line)."""
+
+
+@functools.cache
+def _installed() -> tuple[Algorithm, ...]:
+    """The algorithms of the entry-point group, but those pointing into nutribench (the
+    built-ins, read from :data:`BUILTINS`: the installed metadata may be another checkout's)."""
+    from importlib.metadata import entry_points
+
+    out = []
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        if ep.value.split(":")[0].split(".")[0] == "nutribench":
+            continue
+        try:
+            obj = ep.load()
+        except Exception as e:  # noqa: BLE001 - a broken plug-in is named, in one line
+            raise AlgorithmRegistryError(
+                f"entry point {ep.name} = {ep.value!r} of group {ENTRY_POINT_GROUP}: cannot load it ({e})"
+            ) from None
+        if not isinstance(obj, Algorithm) or obj.algo != ep.name:
+            raise AlgorithmRegistryError(
+                f"entry point {ep.name} = {ep.value!r} of group {ENTRY_POINT_GROUP}: must name an "
+                f"nutribench.agents.registry.Algorithm whose algo is {ep.name!r}"
+            )
+        out.append(obj)
+    return tuple(out)
+
+
+def algorithms() -> dict[str, Algorithm]:
+    """Every registered algorithm by ``algo``: the built-ins in the paper's order, ``external``,
+    then the installed plug-ins by name, then those :func:`register` added."""
+    table = {a.algo: a for a in BUILTINS}
+    for a in [*sorted(_installed(), key=lambda a: a.algo), *_EXTRA.values()]:
+        if table.get(a.algo, a) != a:
+            raise AlgorithmRegistryError(f"algorithm {a.algo!r} is registered twice, differently: rename one")
+        table[a.algo] = a
+    return table
+
+
+def register(entry: Algorithm) -> Algorithm:
+    """Add an algorithm in this process (as an entry point of group :data:`ENTRY_POINT_GROUP`
+    does for every process); a name already taken by another entry is refused."""
+    if algorithms().get(entry.algo, entry) != entry:
+        raise AlgorithmRegistryError(f"algorithm {entry.algo!r} is already registered: give yours another name")
+    _EXTRA[entry.algo] = entry
+    return entry
+
+
+def unregister(algo: str) -> None:
+    """Remove an algorithm :func:`register` added (tests)."""
+    _EXTRA.pop(algo, None)
+
+
+def reload_installed() -> None:
+    """Read the entry-point group again (after installing a package in this process)."""
+    _installed.cache_clear()
+
+
+def get(algo: str) -> Algorithm:
+    """The entry of ``algo`` (one-line :class:`ConfigError` naming the known ones)."""
+    table = algorithms()
+    if not isinstance(algo, str) or algo not in table:
+        raise ConfigError(
+            f"algo: unknown algorithm {algo!r}: known are {', '.join(table)} (an algorithm of your own: register it "
+            f'in the entry-point group {ENTRY_POINT_GROUP}, or algo = "external" with entry_point = "package.module:make_agent")'
+        )
+    return table[algo]
+
+
+def names() -> list[str]:
+    """The trainable algorithms' names (all but ``external``), the paper's five first in its order."""
+    return [a for a, e in algorithms().items() if e.build is not None]
+
+
+def paper_names() -> list[str]:
+    """The paper's five algorithms (the built-ins but ``external``), in the paper's order."""
+    return [a.algo for a in BUILTINS if a.build is not None]
+
+
+def batched_names() -> list[str]:
+    """The algorithms the batched engine trains (those with a batched class), in :func:`names`' order."""
+    return [a for a, e in algorithms().items() if e.batched is not None]
+
+
+def batched_class(algo: str) -> Any:
+    """The batched engine's class of ``algo`` (imported now); None if it has none."""
+    entry = get(algo)
+    return None if entry.batched is None else import_entry_point(entry.batched)
+
+
+def batch_limit(cfg: Any, horizon: int | None = None) -> str | None:
+    """What of config ``cfg`` its batched class does not train as the SB3 one does (None: nothing)."""
+    entry = get(cfg.algo)
+    return None if entry.batch_limits is None else entry.batch_limits(cfg, horizon)
 
 
 class EntryPointError(ConfigError):
@@ -108,7 +333,7 @@ def entry_point_source(entry_point: str) -> tuple[str, str | None]:
 
 def algorithm(cfg: Any) -> Algorithm:
     """The registry entry of an agent config."""
-    return ALGORITHMS[cfg.algo]
+    return get(cfg.algo)
 
 
 def loader_entry_point(cfg: Any) -> str:
@@ -117,6 +342,8 @@ def loader_entry_point(cfg: Any) -> str:
     entry = algorithm(cfg)
     if entry.load is not None:
         return entry.load
+    if entry.build is not None:
+        raise ConfigError(f"algorithm {entry.algo!r}: its registry entry names no loader (load)")
     if not cfg.entry_point:
         raise ConfigError(f"agent config {cfg.name}: no entry_point, so nothing can load its model")
     return cfg.entry_point.partition(":")[0] + ":load"

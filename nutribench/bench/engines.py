@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from nutribench.agents.registry import batched_names
 from nutribench.bench.learn import LearnRun, batched_runs, learn_benchmark, summarize
-from nutribench.engine import BATCHED_ALGOS
 from nutribench.report.stats import iqm_bootstrap_ci
 
 ENGINES = ("sb3", "batched")
@@ -49,7 +49,7 @@ def _save(path: Path | None, runs: dict[str, list[LearnRun]], episodes: int, dev
 
 
 def bench_engines(
-    algos: Iterable[str] = BATCHED_ALGOS,
+    algos: Iterable[str] | None = None,
     regimes: Iterable[str] = ("run0", "run6"),
     seeds: Iterable[int] = (0, 1, 2, 3, 4),
     episodes: int = 500,
@@ -65,12 +65,11 @@ def bench_engines(
     algorithm's batched training runs in its own process beside the SB3 pool. ``save``: every
     trained agent's evaluation returns and the reference returns on its days, as JSON (the SB3
     engine's as soon as they are in, then all). ``on_done(engine, run)`` as each agent is in."""
-    algos, regimes, seeds = list(algos), list(regimes), list(seeds)
-    unknown = [a for a in algos if a not in BATCHED_ALGOS]
+    known = batched_names()
+    algos, regimes, seeds = known if algos is None else list(algos), list(regimes), list(seeds)
+    unknown = [a for a in algos if a not in known]
     if unknown:
-        raise ValueError(
-            f"the batched engine does not train {', '.join(unknown)} yet (it trains {', '.join(BATCHED_ALGOS)})"
-        )
+        raise ValueError(f"the batched engine does not train {', '.join(unknown)} yet (it trains {', '.join(known)})")
     runs: dict[str, list[LearnRun]] = {"sb3": [], "batched": []}
     batched_walls: list[float] = []
     pool = None

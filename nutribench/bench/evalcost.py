@@ -37,14 +37,14 @@ def _one_evaluation_cpu(algo: str, engine: str, regime: str, n: int, seed: int, 
     from nutribench import SHIPPED_REGIMES
     from nutribench.agents.api import evaluate, train, validation_food_streams
     from nutribench.agents.config import load_agent_config
+    from nutribench.agents.registry import batched_class
     from nutribench.engine.envs import AgentEnvs
     from nutribench.engine.evaluate import BatchValidator
-    from nutribench.engine.train import ALGORITHMS
 
     if engine == "batched":
         cfg = load_agent_config(algo)
         envs = AgentEnvs([(r, s) for r in SHIPPED_REGIMES for s in range(5)], cfg.normalize_obs)
-        algorithm, validator = ALGORITHMS[cfg.algo](cfg, envs, "cpu"), BatchValidator(envs, 1, n)
+        algorithm, validator = batched_class(cfg.algo)(cfg, envs, "cpu"), BatchValidator(envs, 1, n)
         play = lambda: validator.play(algorithm.greedy())  # noqa: E731
     else:
         agent, days = train(regime, algo, seed=seed, episodes=1), validation_food_streams(regime, seed, n)

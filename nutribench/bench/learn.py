@@ -37,9 +37,15 @@ from nutribench.report.stats import iqm
 TARGET_GAP = 0.75
 TARGET_FOODS = (3.0, 6.0)
 DEFAULT_BUDGET = 500
-#: DDQN's epsilon schedule and 10k-step warm-up (the paper's Table 3) make it slower by design.
-DEFAULT_BUDGETS = {"ddqn": 2000}
 EVAL_EPISODES = 10
+
+
+def default_budgets() -> dict[str, int]:
+    """The algorithms whose registry entry gives a budget of its own (``bench_days``: DDQN's
+    epsilon schedule and 10k-step warm-up, the paper's Table 3, make it slower by design)."""
+    from nutribench.agents.registry import algorithms
+
+    return {a: e.bench_days for a, e in algorithms().items() if e.bench_days is not None}
 
 
 @dataclass(frozen=True)
@@ -123,7 +129,7 @@ def learn_benchmark(
     (the SB3 engine trains on the CPU)."""
     from nutribench.agents import load_agent_config
 
-    budgets = dict(DEFAULT_BUDGETS if budgets is None else budgets)
+    budgets = dict(default_budgets() if budgets is None else budgets)
     cfgs = [load_agent_config(c) for c in configs]
     regimes, seeds = list(regimes), list(seeds)
     if engine == "batched":
@@ -141,7 +147,9 @@ def learn_benchmark(
         (c, r, s, budget_for(c.name, c.algo, budgets, default_budget)) for c in cfgs for r in regimes for s in seeds
     ]
     # the longest first, so that no long job starts last
-    jobs.sort(key=lambda j: -j[3] * (5 if j[0].algo in ("sac", "gru_ppo") else 1))
+    from nutribench.agents.registry import get
+
+    jobs.sort(key=lambda j: -j[3] * get(j[0].algo).cost)
     workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
     runs: list[LearnRun] = []
     # forkserver, as the scheduler's pool: a child forked from a parent that touched CUDA

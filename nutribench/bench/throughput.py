@@ -80,15 +80,6 @@ def bench_env(regimes=("run0", "run6"), sizes=(1, 64, 1024, 4096), repeats: int 
 PAPER_GRID = {"regimes": 7, "seeds": 5, "episodes": 5000}
 
 
-#: Bare SB3 runs (no episode recording) per algorithm: (class, label). DDQN's own update
-#: (double target: one more forward pass) is the plumbing reference; SB3's vanilla DQN is
-#: shown beside it for the cost of the double target itself.
-BARE_REFERENCES: dict[str, list[tuple[str, str]]] = {
-    "ppo": [("PPO", "bare SB3 PPO")],
-    "ddqn": [("DoubleDQN", "bare SB3 DQN loop, double target"), ("DQN", "bare SB3 DQN, vanilla target")],
-}
-
-
 def _bench_config(algo: str):
     """The shipped config, with DDQN's and SAC's learning start moved to step 0 so that the
     timed steps are learning steps (as are 96 % of a 5000-episode DDQN job's, and all but 128
@@ -96,20 +87,20 @@ def _bench_config(algo: str):
     from nutribench.agents.config import load_agent_config
 
     cfg = load_agent_config(algo)
-    if cfg.algo in ("ddqn", "sac"):
+    if "learning_starts" in type(cfg).model_fields:  # a replay's warm-up
         cfg = cfg.model_copy(update={"learning_starts": 0})
     return cfg
 
 
-def _bare_sb3_seconds(algo: str, regime: str, episodes: int, seed: int, bare_cls_name: str) -> float:
-    """``model.learn`` of the SB3 class ``bare_cls_name`` (``PPO``, ``DQN`` or our
-    ``DoubleDQN``) with the same hyperparameters on the same env, without nutribench's
-    episode recording."""
+def _bare_sb3_seconds(algo: str, regime: str, episodes: int, seed: int, bare_cls: str) -> float:
+    """``model.learn`` of the SB3 class ``bare_cls`` (an entry point: SB3's ``PPO``, ``DQN``
+    or our ``DoubleDQN``, the registry entry's ``bare``) with the same hyperparameters on the
+    same env, without nutribench's episode recording."""
     import torch
-    from stable_baselines3 import DQN, PPO
 
     from nutribench.agents import algos
     from nutribench.agents.api import make_train_env
+    from nutribench.agents.registry import import_entry_point
     from nutribench.config import load_env_config
 
     torch.set_num_threads(1)
@@ -118,7 +109,7 @@ def _bare_sb3_seconds(algo: str, regime: str, episodes: int, seed: int, bare_cls
     cfg = _bench_config(algo)
     _, env = make_train_env(env_cfg, cfg)
     # same hyperparameters and networks; the class decides the update (DQN: the vanilla max target)
-    cls = {"PPO": PPO, "DQN": DQN, "DoubleDQN": algos.DoubleDQN}[bare_cls_name]
+    cls = import_entry_point(bare_cls)
     model = algos.build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon, cls=cls)
     model.learn(total_timesteps=episodes * env_cfg.reward.horizon)
     return time.perf_counter() - t0
@@ -155,11 +146,13 @@ def bench_train(
         train(regime, cfg, seed=seed, episodes=episodes, diagnostics=diagnostics)
         return time.perf_counter() - t0
 
+    import nutribench.agents.registry as registry
+
     steps = episodes * 50
     rows = []
     for algo in algos:
         cfg = _bench_config(algo)
-        bare_refs = BARE_REFERENCES.get(algo, [])
+        bare_refs = list(registry.get(cfg.algo).bare)
         # repeats interleaved (ours, bare, ours, bare, ...) so that a machine that speeds up
         # or slows down during the benchmark shifts both sides alike
         times: list[float] = []
@@ -235,7 +228,7 @@ def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = 
 
     from sqlalchemy import func, select
 
-    from nutribench.agents.config import ALGOS
+    from nutribench.agents.registry import paper_names
     from nutribench.config import list_regimes
     from nutribench.scheduler.driver import run_grid
     from nutribench.scheduler.grid import PRESETS
@@ -252,7 +245,7 @@ def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = 
         run_grid(
             db,
             list_regimes(),
-            list(ALGOS),
+            paper_names(),
             paper.seeds,
             paper.episodes,
             workers=workers,
@@ -295,30 +288,14 @@ def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = 
 
 def flops_per_env_step(cfg, obs_dim: int = 13, n_actions: int = 2, horizon: int = 50) -> float:
     """Floating-point operations per env step, counting only the matrix products (2 x in x
-    out per sample and layer; a backward pass as 2 forwards). PPO and MC: one forward pass
-    to act, and per step of the rollout ``n_epochs`` (MC: 1) forward + backward passes.
-    DDQN (once learning has started): one forward to act, and per update (every
-    ``train_freq`` steps, ``gradient_steps`` of them) ``batch_size`` samples through the
-    online and target nets at the next states and the online net forward and backward.
-    Discrete SAC (once learning has started): one actor forward to act, and per update and
-    sample 14 network forwards: the actor and the two target critics at the next states (3),
-    both critics forward and backward (6), the actor forward and backward (3), both critics
-    again for the actor's loss (2)."""
-    if cfg.algo in ("ddqn", "sac"):
-        sizes = [obs_dim, *cfg.net_arch, n_actions]
-        forward = 2 * sum(a * b for a, b in zip(sizes[:-1], sizes[1:]))
-        per_sample = 5 if cfg.algo == "ddqn" else 14
-        return forward * (1 + per_sample * cfg.batch_size * cfg.gradient_steps / cfg.train_freq)
-    from nutribench.engine.on_policy import OnPolicySettings
+    out per sample and layer; a backward pass as 2 forwards), as the algorithm's batched class
+    counts them (``flops_per_env_step`` of :mod:`nutribench.engine.on_policy` and
+    :mod:`nutribench.engine.off_policy`: PPO and MC one forward to act and ``n_epochs`` (MC: 1)
+    forward + backward passes per rollout step; DDQN and SAC, once learning has started, one
+    forward to act and per update sample their nets' forwards)."""
+    from nutribench.agents.registry import batched_class
 
-    if cfg.algo == "gru_ppo":  # two GRU steps (input and recurrent products of 3 gates), two heads
-        h, head = cfg.hidden_size, 128
-        grus = sum(2 * n_in * 3 * h + 2 * h * 3 * h for n_in in (3, obs_dim - 3))
-        forward = grus + 2 * (2 * h) * head * 2 + 2 * head * (n_actions + 1)
-    else:
-        sizes = [obs_dim, *cfg.net_arch]
-        forward = 2 * sum(a * b for a, b in zip(sizes[:-1], sizes[1:])) + 2 * sizes[-1] * (n_actions + 1)
-    return forward * (1 + 3 * OnPolicySettings.from_config(cfg, horizon).n_epochs)
+    return batched_class(cfg.algo).flops_per_env_step(cfg, obs_dim, n_actions, horizon)
 
 
 def matmul_flops_per_s(
@@ -371,7 +348,11 @@ def bench_train_batched(
     steps = len(jobs) * episodes * 50
     rate = steps / statistics.median(times)
     flops = flops_per_env_step(cfg)
-    peak = matmul_flops_per_s(k=len(jobs), batch=cfg.batch_size if cfg.algo in ("ddqn", "sac") else 64, device=device)
+    from nutribench.agents.registry import batched_class
+    from nutribench.engine.off_policy import OffPolicyAlgorithm
+
+    off_policy = issubclass(batched_class(cfg.algo), OffPolicyAlgorithm)  # its minibatch is the replay's
+    peak = matmul_flops_per_s(k=len(jobs), batch=cfg.batch_size if off_policy else 64, device=device)
     grid_steps = PAPER_GRID["regimes"] * PAPER_GRID["seeds"] * PAPER_GRID["episodes"] * 50
     # on the CPU, batches side by side on all the cores; on a GPU, the one batch on it
     on_gpu = resolve_device(device).type == "cuda"

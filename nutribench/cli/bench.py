@@ -141,12 +141,12 @@ def bench_train_cmd(
     alike): the cost and the A/A control on the wall clock and on CPU time.
     With --engine batched, also the batched engine (7 regimes x 5 seeds at once): its rate,
     FLOPs per env step, this machine's matmul rate and the share of that floor reached."""
-    from nutribench.agents.config import ALGOS
+    from nutribench.agents.registry import paper_names
     from nutribench.bench.throughput import bench_train
     from nutribench.config import load_env_config
 
     check_engine_options(engine, device)
-    names = split_csv(algos, list(ALGOS), "algorithm")
+    names = split_csv(algos, paper_names(), "algorithm")
     load_env_config(regime)
     if lockstep:
         if not diagnostics_cost:
@@ -178,7 +178,7 @@ def bench_train_cmd(
     )
     if engine == "sb3":
         return
-    from nutribench.bench.engines import BATCHED_ALGOS
+    from nutribench.agents.registry import batched_names
     from nutribench.bench.throughput import bench_train_batched
 
     sb3_rate = {r["algo"]: r["steps_per_s"] for r in rows if not r["bare"]}
@@ -193,7 +193,7 @@ def bench_train_cmd(
         "paper grid wall h",
         title=f"batched engine, {episodes} days x {repeats}, batches on all cores",
     )
-    for algo in [a for a in names if a in BATCHED_ALGOS]:
+    for algo in [a for a in names if a in batched_names()]:
         b = bench_train_batched(algo, episodes=episodes, repeats=repeats, device=device)
         table.add_row(
             algo,
@@ -206,7 +206,7 @@ def bench_train_cmd(
             f"{b['paper_grid_wall_hours']:.2f} (floor {b['paper_grid_floor_hours']:.2f})",
         )
     console.print(table)
-    skipped = [a for a in names if a not in BATCHED_ALGOS]
+    skipped = [a for a in names if a not in batched_names()]
     if skipped:
         console.print(f"not in the batched engine yet: {', '.join(skipped)}", highlight=False)
 
@@ -236,7 +236,9 @@ def bench_learn_cmd(
     """Train every agent for a budget over several seeds, evaluate greedily on the fixed
     evaluation days, and state each as the share of the never -> planner gap it closes
     (run0 target: at least 75 % with 3-6 foods a day)."""
-    from nutribench.agents.config import ALGOS, list_agent_configs, load_agent_config
+    from nutribench.agents.config import list_agent_configs, load_agent_config
+    from nutribench.agents.registry import batched_names
+    from nutribench.agents.registry import names as algo_names
     from nutribench.bench.learn import COLUMNS, DEFAULT_BUDGET, learn_benchmark, markdown_table, row_cells, summarize
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
@@ -245,19 +247,17 @@ def bench_learn_cmd(
     regime_names = split_csv(regimes, list_regimes(), "regime")
     seed_list = list(parse_seeds(seeds))
     default, budgets = parse_budgets(episodes, DEFAULT_BUDGET)
-    unknown = sorted(set(budgets) - set(list_agent_configs()) - set(ALGOS))
+    unknown = sorted(set(budgets) - set(list_agent_configs()) - set(algo_names()))
     if unknown:
         raise UserError(
             f"--episodes {episodes!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})"
         )
     check_engine_options(engine, device)
     if engine == "batched":
-        from nutribench.engine import BATCHED_ALGOS
-
-        other = [n for n in names if load_agent_config(n).algo not in BATCHED_ALGOS]
+        other = [n for n in names if load_agent_config(n).algo not in batched_names()]
         if other:
             raise UserError(
-                f"--engine batched trains {', '.join(BATCHED_ALGOS)} configs, not {', '.join(other)}: use --engine sb3"
+                f"--engine batched trains {', '.join(batched_names())} configs, not {', '.join(other)}: use --engine sb3"
             )
     with console.status("training") as status:
         runs = learn_benchmark(

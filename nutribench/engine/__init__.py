@@ -12,19 +12,17 @@ stacked primitives in :mod:`~nutribench.engine.stacked`; the entry point is
 The engine never silently differs from the reference: a config with a setting it does not
 implement is refused (:func:`supports` says why, :func:`check_supported` raises
 :class:`UnsupportedConfig`), and the scheduler trains such a config's jobs with the SB3
-engine instead. This module imports neither torch nor the engine's code.
+engine instead. Which algorithms have a batched class, and what of a config it cannot train,
+their registry entries say (:mod:`nutribench.agents.registry`: ``batched``, ``batch_limits``).
+This module imports neither torch nor the engine's code.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+import nutribench.agents.registry as registry
 from nutribench.errors import UserError
-
-#: the algorithms the batched engine trains (their agent configs can run with ``--engine batched``)
-BATCHED_ALGOS = ("ppo", "mc", "ddqn", "sac", "gru_ppo")
-#: the off-policy algorithms, whose replay would have to scale sampled rewards for ``normalize_reward``
-_REPLAY_ALGOS = ("ddqn", "sac")
 
 
 class UnsupportedConfig(UserError, ValueError):
@@ -40,20 +38,11 @@ def supports(cfg: Any, horizon: int | None = None) -> str | None:
 
         cfg = load_agent_config(cfg)
     name, algo = getattr(cfg, "name", "?"), cfg.algo
-    if algo not in BATCHED_ALGOS:
-        return f"agent config {name!r} ({algo}): the batched engine trains {', '.join(BATCHED_ALGOS)} only; use --engine sb3"
-    if algo in _REPLAY_ALGOS and cfg.normalize_reward:
-        return (
-            f"agent config {name!r} ({algo}): the batched engine does not scale replayed rewards (normalize_reward = true); "
-            "set normalize_reward = false or use --engine sb3"
-        )
-    if algo == "gru_ppo" and horizon is not None and (cfg.sequence_length != horizon or cfg.n_steps % horizon):
-        return (
-            f"agent config {name!r} (gru_ppo): the batched engine trains on whole days, so sequence_length "
-            f"({cfg.sequence_length}) must be the horizon ({horizon}) and n_steps ({cfg.n_steps}) a multiple of it; "
-            "use --engine sb3"
-        )
-    return None
+    known = registry.batched_names()
+    if algo not in known:
+        return f"agent config {name!r} ({algo}): the batched engine trains {', '.join(known)} only; use --engine sb3"
+    reason = registry.batch_limit(cfg, horizon)
+    return None if reason is None else f"agent config {name!r} ({algo}): {reason}, or use --engine sb3"
 
 
 def check_supported(cfg: Any, horizon: int | None = None) -> None:

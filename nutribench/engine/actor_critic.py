@@ -126,6 +126,12 @@ def evaluate_actions(
 class ActorCriticAlgorithm(OnPolicyAlgorithm):
     """An on-policy algorithm whose agents are the stacked MLP actor-critic (MC and PPO)."""
 
+    @classmethod
+    def forward_flops(cls, cfg, obs_dim: int, n_actions: int) -> float:
+        """The ``net_arch`` backbone, the policy and value heads."""
+        sizes = [obs_dim, *cfg.net_arch]
+        return 2 * sum(a * b for a, b in zip(sizes[:-1], sizes[1:])) + 2 * sizes[-1] * (n_actions + 1)
+
     def make_network(self, generators: list[th.Generator]) -> StackedActorCritic:
         return StackedActorCritic(
             self.k, self.envs.obs_dim, list(self.cfg.net_arch), generators=generators, device=self.device

@@ -24,7 +24,7 @@ optimisers already hold), so that training goes on exactly where it was saved.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -44,14 +44,14 @@ from nutribench.engine.stacked import RunningStats
 class Algorithm:
     """K agents of one algorithm and agent config, trained together on ``envs``.
 
-    Subclasses set :attr:`algo` (the ``algo`` of the agent configs they train) and implement
-    :meth:`learn` (through a loop's base class) and :meth:`store_weights`."""
-
-    #: the agent configs' ``algo`` this class trains
-    algo: ClassVar[str]
+    Subclasses implement :meth:`learn` (through a loop's base class) and
+    :meth:`store_weights`; the algorithm registry names the class for its configs' ``algo``
+    (:mod:`nutribench.agents.registry`)."""
 
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: Sequence[Any] | None = None):
         self.cfg, self.envs, self.device, self.k = cfg, envs, device, envs.k
+        #: the agent configs' ``algo`` (what a checkpoint records)
+        self.algo: str = cfg.algo
         #: each agent's config: ``cfg`` for all, or (tuning trials stacked in one batch) one
         #: each, differing only in continuous settings (the algorithm checks which it can take)
         self.cfgs: list[Any] = [cfg] * envs.k if cfgs is None else list(cfgs)

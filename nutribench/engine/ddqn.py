@@ -87,7 +87,8 @@ def ddqn_update(
 class DDQN(OffPolicyAlgorithm):
     """K double-DQN agents: Q-networks, target networks, one Adam, the epsilon schedule."""
 
-    algo = "ddqn"
+    #: the online and target nets at the next states, the online net forward and backward
+    FORWARDS_PER_SAMPLE = 5
 
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: list[Any] | None = None):
         super().__init__(cfg, envs, device, cfgs)

@@ -297,7 +297,12 @@ class GRUPPO(PPO):
     """K GRU-PPO agents: PPO's loop, loss and step with the stacked GRU actor-critic, its
     state carried while acting, its update over whole days."""
 
-    algo = "gru_ppo"
+    @classmethod
+    def forward_flops(cls, cfg, obs_dim: int, n_actions: int) -> float:
+        """Two GRU steps (input and recurrent products of 3 gates) and the two heads."""
+        h, head = cfg.hidden_size, 128
+        grus = sum(2 * n_in * 3 * h + 2 * h * 3 * h for n_in in (N_NUTRIENTS, obs_dim - N_NUTRIENTS))
+        return grus + 2 * (2 * h) * head * 2 + 2 * head * (n_actions + 1)
 
     def make_network(self, generators: list[th.Generator]) -> StackedGRUActorCritic:
         return StackedGRUActorCritic(

@@ -38,8 +38,6 @@ def a2c_update(
 class MC(ActorCriticAlgorithm):
     """K MC agents: the shared MLP actor-critic, one A2C step per day."""
 
-    algo = "mc"
-
     def train(self, rollout: Rollout) -> None:
         a2c_update(self.net, self.optimizer, rollout, self.settings, self.means)
         self.log_update(rollout)

@@ -146,6 +146,17 @@ class OffPolicyAlgorithm(Algorithm):
 
     #: the replay's n-step returns (SB3's ``NStepReplayBuffer``; 1: one-step transitions)
     n_step = 1
+    #: network forwards (a backward counted as 2) per replayed sample of an update
+    FORWARDS_PER_SAMPLE = 1
+
+    @classmethod
+    def flops_per_env_step(cls, cfg: Any, obs_dim: int = 13, n_actions: int = 2, horizon: int = 50) -> float:
+        """Matrix-product FLOPs per env step once learning has started: one forward to act, and
+        per update (every ``train_freq`` steps, ``gradient_steps`` of them) ``batch_size``
+        samples of :attr:`FORWARDS_PER_SAMPLE` forwards of the ``net_arch`` MLP."""
+        sizes = [obs_dim, *cfg.net_arch, n_actions]
+        forward = 2 * sum(a * b for a, b in zip(sizes[:-1], sizes[1:]))
+        return forward * (1 + cls.FORWARDS_PER_SAMPLE * cfg.batch_size * cfg.gradient_steps / cfg.train_freq)
 
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: list[Any] | None = None):
         super().__init__(cfg, envs, device, cfgs)

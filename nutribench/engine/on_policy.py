@@ -166,6 +166,18 @@ class OnPolicyAlgorithm(Algorithm):
     """SB3's on-policy loop for the K agents of ``envs`` (the module docstring); subclasses
     give the network, the acting and :meth:`train`."""
 
+    @classmethod
+    def forward_flops(cls, cfg: Any, obs_dim: int, n_actions: int) -> float:
+        """Matrix-product FLOPs of one sample's forward pass through the network."""
+        raise NotImplementedError
+
+    @classmethod
+    def flops_per_env_step(cls, cfg: Any, obs_dim: int = 13, n_actions: int = 2, horizon: int = 50) -> float:
+        """Matrix-product FLOPs per env step: one forward to act, and per step of the rollout
+        ``n_epochs`` forward + backward passes (a backward as 2 forwards)."""
+        forward = cls.forward_flops(cfg, obs_dim, n_actions)
+        return forward * (1 + 3 * OnPolicySettings.from_config(cfg, horizon).n_epochs)
+
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: list[Any] | None = None):
         super().__init__(cfg, envs, device, cfgs)
         self.settings = OnPolicySettings.for_agents(self.cfgs, envs.horizon)

@@ -86,8 +86,6 @@ def ppo_update(
 class PPO(ActorCriticAlgorithm):
     """K PPO agents: the shared MLP actor-critic, SB3's PPO update."""
 
-    algo = "ppo"
-
     def train(self, rollout: Rollout) -> None:
         ppo_update(self.net, self.optimizer, rollout, self.settings, self.permutations(rollout), self.means)
         self.log_update(rollout)

@@ -153,7 +153,9 @@ def sac_update(
 class SAC(OffPolicyAlgorithm):
     """K discrete-SAC agents (:class:`StackedSAC`): actions drawn from the policy, SAC's update."""
 
-    algo = "sac"
+    #: the actor and both target critics at the next states (3), both critics forward and
+    #: backward (6), the actor forward and backward (3), both critics for the actor's loss (2)
+    FORWARDS_PER_SAMPLE = 14
 
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: list[Any] | None = None):
         super().__init__(cfg, envs, device, cfgs)

@@ -10,7 +10,8 @@ module: :class:`~nutribench.engine.mc.MC`, :class:`~nutribench.engine.ppo.PPO`,
 :class:`~nutribench.engine.gru_ppo.GRUPPO` on the on-policy loop
 (:mod:`nutribench.engine.on_policy`), :class:`~nutribench.engine.ddqn.DDQN` and
 :class:`~nutribench.engine.sac.SAC` on the off-policy loop
-(:mod:`nutribench.engine.off_policy`); :data:`ALGORITHMS` maps a config's ``algo`` to its class.
+(:mod:`nutribench.engine.off_policy`); a config's ``algo`` names its class in the algorithm
+registry (:func:`nutribench.agents.registry.batched_class`).
 
 Randomness is per agent and comes from its job seed alone (its food days, its action draws,
 its minibatch order, its initial weights), so an agent's run does not depend on which
@@ -36,21 +37,14 @@ from typing import Any
 import numpy as np
 import torch as th
 
+import nutribench.agents.registry as registry
 from nutribench.agents.api import TrainedAgent
 from nutribench.agents.config import load_agent_config
 from nutribench.agents.validation import DEFAULT_VAL_EPISODES, ValidationFn
 from nutribench.config import EnvConfig
-from nutribench.engine.algorithm import Algorithm
+from nutribench.engine import check_supported
 from nutribench.engine.checkpoint import Checkpoint
-from nutribench.engine.ddqn import DDQN
 from nutribench.engine.envs import AgentEpisodeFn
-from nutribench.engine.gru_ppo import GRUPPO
-from nutribench.engine.mc import MC
-from nutribench.engine.ppo import PPO
-from nutribench.engine.sac import SAC
-
-#: the class of each ``algo`` the batched engine trains
-ALGORITHMS: dict[str, type[Algorithm]] = {cls.algo: cls for cls in (MC, PPO, GRUPPO, DDQN, SAC)}
 
 
 def train_batched(
@@ -101,7 +95,8 @@ def train_batched(
     """
     th.set_num_threads(1)
     cfg = load_agent_config(agent_config)
-    return ALGORITHMS[cfg.algo].train_jobs(
+    check_supported(cfg)
+    return registry.batched_class(cfg.algo).train_jobs(
         jobs,
         cfg,
         episodes,

@@ -1,7 +1,8 @@
 """Which agent configs a figure draws, in what order, in what colour and under what label.
 
-The five built-in configs keep the paper's order, labels and colours (published figures use
-them). Any other config (a variant, a plug-in agent) comes after them, sorted by name, and is
+A config named like a registered algorithm (:mod:`nutribench.agents.registry`) takes that
+algorithm's place, label and colour: the five built-in configs keep the paper's order, labels
+and colours (published figures use them). Any other config (a variant, a plug-in agent) comes after them, sorted by name, and is
 labelled with its name. Its colour comes first from :data:`USER_COLORS`, colours of the
 colour-blind-safe palettes of Okabe & Ito and of Paul Tol, told apart from each other under the
 common colour-vision deficiencies, each at least :data:`MIN_DISTANCE` (CIELAB) from the five
@@ -20,20 +21,17 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from matplotlib.colors import hsv_to_rgb, to_hex, to_rgb
 
-#: The paper's configs, in the paper's order.
-BUILTIN_ORDER: tuple[str, ...] = ("mc", "ddqn", "ppo", "sac", "gru_ppo")
-BUILTIN_LABELS: dict[str, str] = {"mc": "MC", "ddqn": "DDQN", "ppo": "PPO", "sac": "SAC", "gru_ppo": "GRU-PPO"}
-BUILTIN_COLORS: dict[str, str] = {
-    "mc": "#8c564b",
-    "ddqn": "#1f77b4",
-    "ppo": "#2ca02c",
-    "sac": "#d62728",
-    "gru_ppo": "#9467bd",
-}
+import nutribench.agents.registry as registry
+
+#: The paper's five algorithms' configs, in the paper's order, and their colours (the
+#: registry's: :mod:`nutribench.agents.registry`)
+BUILTIN_ORDER: tuple[str, ...] = tuple(registry.paper_names())
+BUILTIN_COLORS: dict[str, str] = {a: registry.get(a).color for a in BUILTIN_ORDER}
 #: Smallest CIELAB (CIE76) distance between a derived colour and any colour placed before it.
 MIN_DISTANCE = 32.0
 #: The colours configs other than the five take first: Okabe & Ito's orange, Paul Tol's teal,
@@ -49,15 +47,29 @@ CANDIDATES = 96
 _GOLDEN = 0.6180339887498949
 
 
+def _registered() -> dict[str, Any]:
+    """The registered algorithms that may name a config (all but ``external``), in registry order."""
+    table = registry.algorithms()
+    return {a: table[a] for a in registry.names()}
+
+
+def builtin_colors() -> dict[str, str]:
+    """The colours the registered algorithms state (the paper's five: its figures')."""
+    return {a: e.color for a, e in _registered().items() if e.color}
+
+
 def order(names: Iterable[str]) -> list[str]:
-    """``names`` once each: the built-in configs in the paper's order, then the others by name."""
-    rank = {n: i for i, n in enumerate(BUILTIN_ORDER)}
+    """``names`` once each: those of registered algorithms in the registry's order (the paper's
+    five first, in its order), then the others by name."""
+    rank = {n: i for i, n in enumerate(_registered())}
     return sorted(set(map(str, names)), key=lambda n: (rank.get(n, len(rank)), n))
 
 
 def label(name: str) -> str:
-    """The legend and table label: MC, DDQN, PPO, SAC, GRU-PPO for the five, else the name."""
-    return BUILTIN_LABELS.get(name, name)
+    """The legend and table label: a registered algorithm's label (MC, DDQN, PPO, SAC, GRU-PPO
+    for the five), else the name."""
+    entry = _registered().get(name)
+    return name if entry is None else entry.display
 
 
 def _lab(color: str) -> np.ndarray:
@@ -107,11 +119,12 @@ def colors(names: Iterable[str]) -> dict[str, str]:
     one of :data:`USER_COLORS` while one is free, then derived colours (distinct from every
     colour before)."""
     names = order(names)
-    taken = list(BUILTIN_COLORS.values())
+    fixed = builtin_colors()
+    taken = list(fixed.values())
     out: dict[str, str] = {}
     for n in names:
-        if n in BUILTIN_COLORS:
-            out[n] = BUILTIN_COLORS[n]
+        if n in fixed:
+            out[n] = fixed[n]
         else:
             out[n] = _user_color(n, taken) or _pick(n, taken)
             taken.append(out[n])
@@ -160,8 +173,8 @@ def palette(names: Iterable[str] = ()) -> Palette:
 
 __all__ = [
     "BUILTIN_COLORS",
-    "BUILTIN_LABELS",
     "BUILTIN_ORDER",
+    "builtin_colors",
     "MAX_LIGHTNESS",
     "USER_COLORS",
     "Palette",

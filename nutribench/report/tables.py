@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from nutribench.agents.registry import names
 from nutribench.baselines import gap_closed
 from nutribench.report.figure_parts import budget_caption, budget_cell
 from nutribench.report.figures import sort_regimes
@@ -127,7 +128,8 @@ def _flatten(d: dict, prefix: str = "") -> dict:
 def _config_title(number: int, name: str, content: dict) -> str:
     """``Table 4: PPO configuration (ppo v1)``; a variant or plug-in says its algorithm."""
     algo = content.get("algo", name)
-    kind = "" if algo == name else f", {algo_label(algo)} variant" if algo != "external" else ", external agent"
+    # an algorithm without a builder of its own (algo "external") is a plug-in named by its entry point
+    kind = "" if algo == name else f", {algo_label(algo)} variant" if algo in names() else ", external agent"
     entry = f" {content['entry_point']}" if content.get("entry_point") else ""
     return f"Table {number}: {algo_label(name)} configuration ({name} v{content.get('version')}{kind}{entry})"
 

@@ -65,13 +65,14 @@ def batch_pools(
     (:func:`nutribench.engine.supports`, the config read again by its name), so that
     ``--engine batched`` never trains a job otherwise than the reference would."""
     from nutribench.agents.config import load_agent_config
-    from nutribench.engine import BATCHED_ALGOS, supports
+    from nutribench.agents.registry import batched_names
+    from nutribench.engine import supports
 
     batchable: dict[tuple[str, int], bool] = {}
 
     def batched(config: str, horizon: int) -> bool:
         if (config, horizon) not in batchable:
-            ok = algo_of[config] in BATCHED_ALGOS and supports(load_agent_config(config), horizon) is None
+            ok = algo_of[config] in batched_names() and supports(load_agent_config(config), horizon) is None
             batchable[config, horizon] = ok
         return batchable[config, horizon]
 

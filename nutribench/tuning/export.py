@@ -16,7 +16,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from nutribench.agents.config import ALGOS, agent_config_to_toml, agents_dir
+from nutribench.agents.config import agent_config_to_toml, agents_dir
+from nutribench.agents.registry import paper_names
 from nutribench.tuning.space import load_search_space
 from nutribench.tuning.study import TuneError, count_trials, stored_settings
 
@@ -36,7 +37,7 @@ def tuned_config(study: Any, name: str | None = None) -> tuple[Any, str]:
         )
     best = study.best_trial
     name = name or f"{space.base().name}_tuned"
-    if name in ALGOS:
+    if name in paper_names():
         raise TuneError(f"--name {name!r} is a paper agent's name; its file is never overwritten: give another name")
     provenance = (
         f"tuned by nutribench tune: study {study.study_name!r}, trial {best.number}, objective {best.value:.4f} "

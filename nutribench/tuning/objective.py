@@ -109,9 +109,12 @@ class ValidationObjective:
             return
         from nutribench.agents.api import evaluate, train
         from nutribench.agents.days import validation_food_streams
+        from nutribench.agents.registry import algorithm
 
         for j, (regime, seed) in enumerate(self.jobs):
-            if cfg.algo == "external":  # a plug-in's own loop: its final agent is evaluated, nothing to prune on
+            if (
+                algorithm(cfg).build is None
+            ):  # a plug-in's own loop (algo "external"): its final agent is evaluated, nothing to prune on
                 agent = train(regime, cfg, seed, s.days)
                 days = validation_food_streams(regime, seed, s.val_episodes)
                 on_validation(j, s.days, evaluate(agent, regime, days, record_steps=False).episodes)

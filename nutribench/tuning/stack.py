@@ -42,12 +42,12 @@ class _AllPruned(Exception):
 def structure_key(cfg: Any) -> str | None:
     """What trials must share to train in one batch (their config without its continuous
     settings), or None for an algorithm whose batched class takes no per-agent settings."""
+    from nutribench.agents.registry import batched_class
     from nutribench.engine import supports
     from nutribench.engine.on_policy import OnPolicyAlgorithm
     from nutribench.engine.on_policy_settings import OnPolicySettings
-    from nutribench.engine.train import ALGORITHMS
 
-    if supports(cfg) is not None or not issubclass(ALGORITHMS[cfg.algo], OnPolicyAlgorithm):
+    if supports(cfg) is not None or not issubclass(batched_class(cfg.algo), OnPolicyAlgorithm):
         return None
     data = cfg.model_dump(mode="json")
     continuous = set(OnPolicySettings.CONTINUOUS) | {"learning_rate"}
