@@ -127,70 +127,69 @@ _CFG, _ALGOS, _ENGINE = "nutribench.agents.config:", "nutribench.agents.algos:",
 #: config's entry point). MC, DDQN and PPO are SB3's A2C, DQN and PPO with other settings,
 #: another train() or a logged gradient norm: plain SB3 loads and acts with them; discrete SAC
 #: and GRU-PPO have policies of their own. The colours are the paper's figures'.
-BUILTINS: tuple[Algorithm, ...] = (
-    Algorithm(
-        "mc",
-        _CFG + "MCConfig",
-        arguments=_ALGOS + "mc_arguments",
-        load=_ALGOS + "MonteCarloAC",
-        plain="stable_baselines3.A2C",
-        label="MC",
-        color="#8c564b",
-        batched=_ENGINE + "mc:MC",
-    ),
-    Algorithm(
-        "ddqn",
-        _CFG + "DDQNConfig",
-        arguments=_ALGOS + "ddqn_arguments",
-        load=_ALGOS + "DoubleDQN",
-        plain="stable_baselines3.DQN",
-        label="DDQN",
-        color="#1f77b4",
-        batched=_ENGINE + "ddqn:DDQN",
-        batch_limits=_no_replay_scaling,
-        bench_days=2000,  # the epsilon schedule and 10k-step warm-up: slower by design
-        bare=(
-            (_ALGOS + "DoubleDQN", "bare SB3 DQN loop, double target"),
-            ("stable_baselines3:DQN", "bare SB3 DQN, vanilla target"),
-        ),
-    ),
-    Algorithm(
-        "ppo",
-        _CFG + "PPOConfig",
-        arguments=_ALGOS + "ppo_model_arguments",
-        load=_ALGOS + "PPOWithGradNorm",
-        plain="stable_baselines3.PPO",
-        label="PPO",
-        color="#2ca02c",
-        batched=_ENGINE + "ppo:PPO",
-        bare=(("stable_baselines3:PPO", "bare SB3 PPO"),),
-    ),
-    Algorithm(
-        "sac",
-        _CFG + "SACConfig",
-        arguments=_ALGOS + "sac_arguments",
-        load="nutribench.agents.sac:DiscreteSAC",
-        plain="nutribench.agents.sac.DiscreteSAC",
-        label="SAC",
-        color="#d62728",
-        batched=_ENGINE + "sac:SAC",
-        batch_limits=_no_replay_scaling,
-        cost=5.0,
-    ),
-    Algorithm(
-        "gru_ppo",
-        _CFG + "GRUPPOConfig",
-        arguments=_ALGOS + "gru_ppo_arguments",
-        load="nutribench.agents.gru_ppo:GRUPPO",
-        plain="nutribench.agents.gru_ppo.GRUPPO",
-        label="GRU-PPO",
-        color="#9467bd",
-        batched=_ENGINE + "gru_ppo:GRUPPO",
-        batch_limits=_whole_days,
-        cost=5.0,
-    ),
-    Algorithm("external", _CFG + "ExternalConfig", build=None),
+MC = Algorithm(
+    "mc",
+    _CFG + "MCConfig",
+    arguments=_ALGOS + "mc_arguments",
+    load=_ALGOS + "MonteCarloAC",
+    plain="stable_baselines3.A2C",
+    label="MC",
+    color="#8c564b",
+    batched=_ENGINE + "mc:MC",
 )
+DDQN = Algorithm(
+    "ddqn",
+    _CFG + "DDQNConfig",
+    arguments=_ALGOS + "ddqn_arguments",
+    load=_ALGOS + "DoubleDQN",
+    plain="stable_baselines3.DQN",
+    label="DDQN",
+    color="#1f77b4",
+    batched=_ENGINE + "ddqn:DDQN",
+    batch_limits=_no_replay_scaling,
+    bench_days=2000,  # the epsilon schedule and 10k-step warm-up: slower by design
+    bare=(
+        (_ALGOS + "DoubleDQN", "bare SB3 DQN loop, double target"),
+        ("stable_baselines3:DQN", "bare SB3 DQN, vanilla target"),
+    ),
+)
+PPO = Algorithm(
+    "ppo",
+    _CFG + "PPOConfig",
+    arguments=_ALGOS + "ppo_model_arguments",
+    load=_ALGOS + "PPOWithGradNorm",
+    plain="stable_baselines3.PPO",
+    label="PPO",
+    color="#2ca02c",
+    batched=_ENGINE + "ppo:PPO",
+    bare=(("stable_baselines3:PPO", "bare SB3 PPO"),),
+)
+SAC = Algorithm(
+    "sac",
+    _CFG + "SACConfig",
+    arguments=_ALGOS + "sac_arguments",
+    load="nutribench.agents.sac:DiscreteSAC",
+    plain="nutribench.agents.sac.DiscreteSAC",
+    label="SAC",
+    color="#d62728",
+    batched=_ENGINE + "sac:SAC",
+    batch_limits=_no_replay_scaling,
+    cost=5.0,
+)
+GRU_PPO = Algorithm(
+    "gru_ppo",
+    _CFG + "GRUPPOConfig",
+    arguments=_ALGOS + "gru_ppo_arguments",
+    load="nutribench.agents.gru_ppo:GRUPPO",
+    plain="nutribench.agents.gru_ppo.GRUPPO",
+    label="GRU-PPO",
+    color="#9467bd",
+    batched=_ENGINE + "gru_ppo:GRUPPO",
+    batch_limits=_whole_days,
+    cost=5.0,
+)
+EXTERNAL = Algorithm("external", _CFG + "ExternalConfig", build=None)
+BUILTINS: tuple[Algorithm, ...] = (MC, DDQN, PPO, SAC, GRU_PPO, EXTERNAL)
 _EXTRA: dict[str, Algorithm] = {}
 
 
@@ -268,6 +267,13 @@ def get(algo: str) -> Algorithm:
 def names() -> list[str]:
     """The trainable algorithms' names (all but ``external``), the paper's five first in its order."""
     return [a for a, e in algorithms().items() if e.build is not None]
+
+
+def by_entry_point(algo: str) -> bool:
+    """Whether ``algo`` has no builder of its own (``external``): its configs name their
+    ``entry_point`` and hold a free ``[params]`` table."""
+    entry = algorithms().get(algo)
+    return entry is not None and entry.build is None
 
 
 def paper_names() -> list[str]:

@@ -59,12 +59,13 @@ def protocols(configs: pd.DataFrame) -> dict[str, str]:
     """The protocol of each agent config (columns name, version, sha256, body: the
     ``agent_configs`` rows of the versions drawn)."""
     from nutribench.agents.config import agent_config_sha256, parse_agent_config
+    from nutribench.agents.registry import by_entry_point
     from nutribench.config.loading import read_toml, regimes_dir
 
     out = {}
     for r in configs.itertuples(index=False):
         body = r.body if isinstance(r.body, dict) else {}
-        if body.get("algo") == "external":
+        if by_entry_point(body.get("algo")):
             out[r.name] = "plug-in" if body.get("entry_point") else "recorded"
             continue
         shipped = regimes_dir() / "agents" / f"{r.name}.toml"

@@ -109,12 +109,11 @@ class ValidationObjective:
             return
         from nutribench.agents.api import evaluate, train
         from nutribench.agents.days import validation_food_streams
-        from nutribench.agents.registry import algorithm
+        from nutribench.agents.registry import by_entry_point
 
         for j, (regime, seed) in enumerate(self.jobs):
-            if (
-                algorithm(cfg).build is None
-            ):  # a plug-in's own loop (algo "external"): its final agent is evaluated, nothing to prune on
+            # a plug-in's own loop (algo "external"): its final agent is evaluated, nothing to prune on
+            if by_entry_point(cfg.algo):
                 agent = train(regime, cfg, seed, s.days)
                 days = validation_food_streams(regime, seed, s.val_episodes)
                 on_validation(j, s.days, evaluate(agent, regime, days, record_steps=False).episodes)

@@ -38,6 +38,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from nutribench.agents.config import load_agent_config, parse_agent_config
+from nutribench.agents.registry import by_entry_point
 from nutribench.config.loading import ConfigError, content_sha256, format_validation_error, read_toml, regimes_dir
 
 #: the fields of an agent config that name or describe it, never searched
@@ -122,7 +123,7 @@ class SearchSpace(BaseModel):
         """The agent config of ``values`` (the base file's, the searched ones replaced), validated."""
         base = self.base()
         data = base.model_dump(mode="json")
-        if data["algo"] == "external":
+        if by_entry_point(data["algo"]):
             data["params"] = {**data["params"], **values}
         else:
             data.update(values)
@@ -179,12 +180,12 @@ def check_space(space: SearchSpace, source: Path | str) -> None:
     except ConfigError as e:
         raise ConfigError(f"{source}: agent: {e}") from None
     data = base.model_dump(mode="json")
-    known = set(data["params"]) if data["algo"] == "external" else set(data) - set(_IDENTITY)
+    known = set(data["params"]) if by_entry_point(data["algo"]) else set(data) - set(_IDENTITY)
     for name, param in space.params.items():
         if name not in known:
             where = (
                 f"keys of its [params]: {', '.join(sorted(known)) or '(none)'}"
-                if data["algo"] == "external"
+                if by_entry_point(data["algo"])
                 else (f"its hyperparameters: {', '.join(sorted(known))}")
             )
             raise ConfigError(f"{source}: params.{name}: not a hyperparameter of agent {base.name!r} ({where})")

@@ -1,0 +1,316 @@
+"""One algorithm, one registry entry (nutribench/agents/registry.py): the built-ins are read
+from the registry module, a plug-in package adds an algorithm with its own validated config
+model through the entry-point group ``nutribench.algorithms`` and runs end to end (run,
+report, compare, db export/import) without a line of nutribench changed; and no module
+outside the registry dispatches on an algorithm's name."""
+
+from __future__ import annotations
+
+import ast
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+import nutribench
+import nutribench.agents.registry as registry
+from nutribench.agents.config import load_agent_config, parse_agent_config
+from nutribench.config.loading import ConfigError
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE = Path(nutribench.__file__).parent
+
+PLUGIN = '''
+"""SB3's A2C renamed, registered as algorithm "a2c_test" with a config model of its own."""
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+from stable_baselines3 import A2C
+
+from nutribench.agents.registry import Algorithm
+
+
+class RenamedA2C(A2C):
+    """A2C under another name."""
+
+
+class A2CTestConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    algo: Literal["a2c_test"]
+    name: str
+    version: int
+    description: str
+    normalize_obs: bool = False
+    normalize_reward: bool = False
+    gamma: float = 0.99
+    n_steps: int = Field(ge=1)  # required: no default
+    learning_rate: float = Field(gt=0)
+
+
+def arguments(cfg, horizon):
+    return RenamedA2C, dict(policy="MlpPolicy", n_steps=cfg.n_steps, learning_rate=cfg.learning_rate)
+
+
+ALGORITHM = Algorithm(
+    "a2c_test", A2CTestConfig, arguments="nbtest_a2c:arguments", load="nbtest_a2c:RenamedA2C",
+    plain="stable_baselines3.A2C", label="A2C-T", color="#000080",
+)
+'''
+
+CONFIG = """
+algo = "a2c_test"
+name = "a2c_t"
+version = 1
+description = "SB3 A2C as a registered plug-in algorithm"
+n_steps = 25
+learning_rate = 7e-4
+"""
+
+
+def plugin_package(root: Path) -> Path:
+    """A plug-in "installed" in ``root``: its module and a dist-info whose entry_points.txt
+    names its Algorithm in the group (what ``pip install`` of its package would write)."""
+    (root / "nbtest_a2c.py").write_text(textwrap.dedent(PLUGIN))
+    info = root / "nbtest_a2c-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: nbtest-a2c\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(f"[{registry.ENTRY_POINT_GROUP}]\na2c_test = nbtest_a2c:ALGORITHM\n")
+    return root
+
+
+@pytest.fixture
+def installed(tmp_path: Path, monkeypatch):
+    """The plug-in on sys.path, the entry points read again; both undone afterwards."""
+    monkeypatch.syspath_prepend(str(plugin_package(tmp_path)))
+    registry.reload_installed()
+    yield tmp_path
+    monkeypatch.undo()
+    sys.modules.pop("nbtest_a2c", None)
+    registry.reload_installed()
+
+
+def test_builtins_come_from_the_registry_module_in_the_paper_order():
+    assert registry.paper_names() == ["mc", "ddqn", "ppo", "sac", "gru_ppo"]
+    assert list(registry.algorithms())[:6] == ["mc", "ddqn", "ppo", "sac", "gru_ppo", "external"]
+    assert {a: registry.get(a).color for a in registry.paper_names()} == {  # the published figures' colours
+        "mc": "#8c564b",
+        "ddqn": "#1f77b4",
+        "ppo": "#2ca02c",
+        "sac": "#d62728",
+        "gru_ppo": "#9467bd",
+    }
+    assert registry.batched_names() == registry.paper_names()
+
+
+def test_the_entry_point_group_lists_the_builtins_the_registry_holds():
+    """pyproject.toml's group names the very objects of the registry table (the installed
+    metadata may be another checkout's, so the table, not the metadata, is read for them)."""
+    import tomllib
+
+    group = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["entry-points"][registry.ENTRY_POINT_GROUP]
+    assert {k: registry.import_entry_point(v) for k, v in group.items()} == {a.algo: a for a in registry.BUILTINS}
+
+
+def test_a_plugin_package_registers_an_algorithm_with_its_own_validated_config(installed):
+    entry = registry.get("a2c_test")
+    assert entry.display == "A2C-T" and "a2c_test" in registry.names() and "a2c_test" not in registry.batched_names()
+    data = {"algo": "a2c_test", "name": "x", "version": 1, "description": "d", "n_steps": 5, "learning_rate": 1e-3}
+    assert parse_agent_config(data).n_steps == 5
+    with pytest.raises(ConfigError, match="n_steps"):  # its own schema: the required field
+        parse_agent_config({k: v for k, v in data.items() if k != "n_steps"}, "x.toml")
+    with pytest.raises(ConfigError, match="extra|unknown|not permitted"):
+        parse_agent_config({**data, "net_arch": [8]}, "x.toml")
+    from nutribench.engine import supports
+
+    assert "batched engine trains" in supports(parse_agent_config(data))
+
+
+def test_register_refuses_a_taken_name_and_unknown_algorithms_name_the_known():
+    with pytest.raises(registry.AlgorithmRegistryError, match="already registered"):
+        registry.register(registry.Algorithm("ppo", "x:Y"))
+    with pytest.raises(ConfigError, match="known are mc, ddqn, ppo, sac, gru_ppo"):
+        parse_agent_config({"algo": "nope"}, "f.toml")
+    extra = registry.register(registry.Algorithm("mine_test", "nutribench.agents.config:MCConfig"))
+    try:
+        assert registry.get("mine_test") is extra
+    finally:
+        registry.unregister("mine_test")
+    assert "mine_test" not in registry.algorithms()
+
+
+def cli(*args: str, cwd: Path, env: dict[str, str]) -> subprocess.CompletedProcess:
+    full = dict(os.environ, **env)
+    full.pop("NUTRIBENCH_JOB", None)
+    return subprocess.run(
+        [sys.executable, "-m", "nutribench.cli", *args], cwd=cwd, env=full, capture_output=True, text=True, timeout=900
+    )
+
+
+@pytest.mark.slow
+def test_a_plugin_algorithm_runs_end_to_end(tmp_path: Path):
+    """run (2 days, 1 seed, 1 regime, beside MC), report, compare, db export and import, in
+    fresh processes that find the plug-in only through its installed entry point."""
+    plugin_package(tmp_path / "site")
+    agents = tmp_path / "agents"
+    agents.mkdir()
+    for f in (REPO / "regimes" / "agents").glob("*.toml"):
+        (agents / f.name).write_text(f.read_text())
+    (agents / "a2c_t.toml").write_text(CONFIG)
+    path = os.pathsep.join([str(REPO), str(tmp_path / "site"), os.environ.get("PYTHONPATH", "")])
+    env = {"NUTRIBENCH_AGENTS": str(agents), "PYTHONPATH": path}
+    db = tmp_path / "lab.db"
+    common = ["--regimes", "run0", "--seeds", "0", "--episodes", "2", "--eval-episodes", "2", "--db", str(db)]
+    res = cli("run", "--algos", "a2c_t,mc", *common, "--workers", "1", cwd=tmp_path, env=env)
+    assert res.returncode == 0, res.stdout + res.stderr
+    from nutribench.store import read_episode_metrics, read_jobs
+
+    jobs = read_jobs(db)
+    assert set(jobs["status"]) == {"done"} and sorted(jobs["algo"]) == ["a2c_t", "mc"]
+    df = read_episode_metrics(db)
+    assert df[df["algo"] == "a2c_t"].groupby("phase").size().to_dict() == {"eval": 2, "train": 2}
+    out = tmp_path / "report"
+    res = cli("report", "--all", "--db", str(db), "--out", str(out), "--reference-episodes", "5", cwd=tmp_path, env=env)
+    assert res.returncode == 0, res.stdout + res.stderr
+    text = "".join(p.read_text() for p in out.rglob("*.md"))
+    assert "a2c_t" in text and "A2C-T variant" in text  # its config table says its registered algorithm
+    res = cli("compare", "a2c_t", "mc", "--db", str(db), "--markdown", cwd=tmp_path, env=env)
+    assert res.returncode == 0 and "run0" in res.stdout, res.stdout + res.stderr
+    archive, merged = tmp_path / "a.npz", tmp_path / "merged.db"
+    res = cli("db", "export", str(archive), "--db", str(db), "--algos", "a2c_t", cwd=tmp_path, env=env)
+    assert res.returncode == 0, res.stdout + res.stderr
+    res = cli("db", "import", str(archive), "--db", str(merged), cwd=tmp_path, env=env)
+    assert res.returncode == 0, res.stdout + res.stderr
+    again = read_episode_metrics(merged)
+    assert set(again["algo"]) == {"a2c_t"} and len(again) == (df["algo"] == "a2c_t").sum()
+    # the saved model loads by its registry entry, as a built-in's: rebuilt from weights
+    model_path = jobs.loc[jobs["algo"] == "a2c_t", "model_path"].iloc[0]
+    res = subprocess.run(
+        [sys.executable, "-c", f"from nutribench.agents.api import TrainedAgent; print(type(TrainedAgent.load({model_path!r}).model).__name__)"],
+        env=dict(os.environ, **env), capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.stdout.strip() == "RenamedA2C", res.stderr
+
+
+# ------------------------------------------------------------- no dispatch on names
+#: the modules allowed to hold an algorithm's name, and why
+ALLOWED_MODULES = {
+    "nutribench/agents/registry.py": "the registry itself",
+    "nutribench/report/authors.py": "the paper's published numbers, keyed by its agents",
+    "nutribench/report/tables.py": "the paper's Tables 2-6: which table shows which shipped agent file",
+    "nutribench/report/build.py": "the paper's Figure 4 draws the ppo and gru_ppo agent files",
+}
+
+
+def _docstrings(tree: ast.AST) -> set[int]:
+    return {
+        id(n.body[0].value)
+        for n in ast.walk(tree)
+        if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+        and n.body
+        and isinstance(n.body[0], ast.Expr)
+        and isinstance(n.body[0].value, ast.Constant)
+    }
+
+
+def _defaults(tree: ast.AST) -> set[int]:
+    """Default values of parameters (``algo: str = "ppo"``: the agent file a command starts
+    from when none is given), not a choice of code."""
+    out: set[int] = set()
+    for n in ast.walk(tree):
+        if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            out |= {id(d) for d in [*n.args.defaults, *n.args.kw_defaults] if d is not None}
+    return out
+
+
+def _literal_types(tree: ast.AST) -> set[int]:
+    """The constants of ``Literal["mc"]`` annotations: a config model declaring its own ``algo``
+    key (the model the registry entry names), not a choice of code."""
+    return {
+        id(c)
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Subscript) and isinstance(n.value, ast.Name) and n.value.id == "Literal"
+        for c in ast.walk(n.slice)
+    }
+
+
+def _reads_algo(node: ast.AST) -> bool:
+    return any(
+        (isinstance(x, ast.Attribute) and x.attr == "algo")
+        or (isinstance(x, ast.Name) and x.id == "algo")
+        or (isinstance(x, ast.Constant) and x.value == "algo")
+        for x in ast.walk(node)
+    )
+
+
+def _algo_comparisons(tree: ast.AST) -> list[ast.Constant]:
+    """String constants compared (``==``, ``!=``, ``in``) with an expression that reads an
+    ``algo`` (``cfg.algo``, ``data["algo"]``, ``body.get("algo")``, a variable ``algo``)."""
+    out = []
+    for n in ast.walk(tree):
+        if isinstance(n, ast.Compare) and any(_reads_algo(s) for s in [n.left, *n.comparators]):
+            sides = [n.left, *n.comparators]
+            out += [c for s in sides for c in ast.walk(s) if isinstance(c, ast.Constant) and isinstance(c.value, str)]
+    return out
+
+
+def name_literals(path: Path, names: set[str], compared: frozenset[str] = frozenset()) -> list[str]:
+    """``line: literal`` for each string constant of ``path`` equal to one of ``names`` (but
+    docstrings, parameter defaults and ``Literal[...]`` annotations; comments are no
+    constants), and each one of ``compared`` compared with an ``algo``."""
+    tree = ast.parse(path.read_text(), str(path))
+    skip = _docstrings(tree) | _defaults(tree) | _literal_types(tree)
+    hits = [
+        n
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Constant) and isinstance(n.value, str) and n.value in names and id(n) not in skip
+    ]
+    hits += [c for c in _algo_comparisons(tree) if c.value in compared]
+    return [f"{n.lineno}: {n.value!r}" for n in sorted(hits, key=lambda n: (n.lineno, n.col_offset))]
+
+
+def test_no_module_outside_the_registry_names_an_algorithm():
+    """No string constant equal to a built-in algorithm's name (mc, ddqn, ppo, sac, gru_ppo)
+    in nutribench/ outside the registry, but in docstrings, comments, parameter defaults,
+    ``Literal[...]`` annotations (a config model's own ``algo``) and the modules of
+    :data:`ALLOWED_MODULES` (the paper's data); and no ``"external"`` compared with an
+    ``algo`` (the word is also a job's engine, and a recorded agent's config writes it). So
+    nothing compares ``algo == "gru_ppo"`` or keeps a table keyed by algorithm: a sixth
+    algorithm is its registry entry."""
+    names = set(registry.paper_names())
+    found = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE.parent).as_posix()
+        if rel not in ALLOWED_MODULES and (hits := name_literals(path, names, frozenset({"external"}))):
+            found[rel] = hits
+    assert not found, found
+
+
+def test_the_grep_finds_a_name_check(tmp_path: Path):
+    """The grep sees a comparison, a table key, a tuple of names and "external" compared with
+    an algo; not a docstring, a default, a Literal annotation or "external" as an engine."""
+    src = textwrap.dedent(
+        '''
+        """mentions "ppo" in a docstring"""
+        algo: Literal["ppo"]
+        engine = "external"
+        def f(cfg, data, algo="ppo"):  # a default
+            if cfg.algo == "gru_ppo":
+                return {"sac": 1}
+            if data["algo"] != "external":
+                return 0
+            return cfg.algo in ("ddqn", "mc")
+        '''
+    )
+    p = tmp_path / "probe.py"
+    p.write_text(src)
+    hits = name_literals(p, {"ppo", "gru_ppo", "sac", "ddqn", "mc"}, frozenset({"external"}))
+    assert [h.split(": ")[1] for h in hits] == ["'gru_ppo'", "'sac'", "'external'", "'ddqn'", "'mc'"]
+
+
+def test_load_agent_config_reads_a_builtin_through_its_registered_model():
+    cfg = load_agent_config("gru_ppo")
+    assert type(cfg) is registry.get("gru_ppo").config_model()
