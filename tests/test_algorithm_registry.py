@@ -74,6 +74,7 @@ learning_rate = 7e-4
 def plugin_package(root: Path) -> Path:
     """A plug-in "installed" in ``root``: its module and a dist-info whose entry_points.txt
     names its Algorithm in the group (what ``pip install`` of its package would write)."""
+    root.mkdir(parents=True, exist_ok=True)
     (root / "nbtest_a2c.py").write_text(textwrap.dedent(PLUGIN))
     info = root / "nbtest_a2c-0.1.dist-info"
     info.mkdir()
