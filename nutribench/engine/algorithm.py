@@ -49,6 +49,9 @@ class Algorithm:
 
     #: the agent configs' ``algo`` this class trains
     algo: ClassVar[str]
+    #: the config fields that may differ between the agents of one batch (tuning trials
+    #: stacked: :mod:`nutribench.tuning.stack`); empty: every agent has the batch's config
+    PER_AGENT: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: Sequence[Any] | None = None):
         self.cfg, self.envs, self.device, self.k = cfg, envs, device, envs.k

@@ -166,6 +166,8 @@ class OnPolicyAlgorithm(Algorithm):
     """SB3's on-policy loop for the K agents of ``envs`` (the module docstring); subclasses
     give the network, the acting and :meth:`train`."""
 
+    PER_AGENT = OnPolicySettings.CONTINUOUS
+
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: list[Any] | None = None):
         super().__init__(cfg, envs, device, cfgs)
         self.settings = OnPolicySettings.for_agents(self.cfgs, envs.horizon)
