@@ -315,3 +315,13 @@ def test_the_grep_finds_a_name_check(tmp_path: Path):
 def test_load_agent_config_reads_a_builtin_through_its_registered_model():
     cfg = load_agent_config("gru_ppo")
     assert type(cfg) is registry.get("gru_ppo").config_model()
+
+
+def test_commands_list_the_algorithms_the_registry_holds():
+    """``bench engines`` takes the registry's batched algorithms (no list of its own)."""
+    from typer.testing import CliRunner
+
+    from nutribench.cli import app
+
+    res = CliRunner().invoke(app, ["bench", "engines", "--algos", "nope"])
+    assert res.exit_code == 2 and ", ".join(registry.batched_names()) in res.output, res.output

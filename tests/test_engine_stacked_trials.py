@@ -68,5 +68,29 @@ def test_configs_that_differ_in_structure_or_off_policy_stacks_are_refused() -> 
     with pytest.raises(ValueError, match="must agree on n_epochs"):
         train_batched([("run3", 7)] * 2, ppo, 1, agent_configs=[ppo, ppo.model_copy(update={"n_epochs": 5})])
     sac = load_agent_config("sac")
+    with pytest.raises(ValueError, match="must agree on batch_size"):
+        train_batched([("run3", 7)] * 2, sac, 1, agent_configs=[sac, sac.model_copy(update={"batch_size": 64})])
+    ddqn = load_agent_config("ddqn")
     with pytest.raises(ValueError, match="takes neither per-agent settings"):
-        train_batched([("run3", 7)] * 2, sac, 1, agent_configs=[sac, sac.model_copy(update={"alpha": 0.1})])
+        train_batched([("run3", 7)] * 2, ddqn, 1, agent_configs=[ddqn, ddqn.model_copy(update={"gamma": 0.9})])
+
+
+def test_stacked_sac_trials_train_each_agent_as_a_batch_of_one_does() -> None:
+    """SAC, off-policy: four gradient steps (learning from step 96 of a 100-step budget) with
+    each agent's own learning rates, temperature, target rate and discount."""
+    base = load_agent_config("sac").model_copy(update={"learning_starts": 95})
+    cfgs = [
+        base,
+        base.model_copy(update={"actor_learning_rate": 1e-3, "alpha": 0.05}),
+        base.model_copy(update={"critic_learning_rate": 3e-4, "tau": 0.02, "gamma": 0.95}),
+    ]
+    stacked = train_batched([("run3", 7)] * 3, base, 2, agent_configs=cfgs)
+    for j, cfg in enumerate(cfgs):
+        (alone,) = train_batched([("run3", 7)], cfg, 2)
+        for a, b in zip(weights(stacked[j]), weights(alone)):
+            np.testing.assert_allclose(a, b, rtol=1e-4, atol=2e-6)
+    assert not all(np.allclose(a, b) for a, b in zip(weights(stacked[0]), weights(stacked[2])))
+    frozen = train_batched([("run3", 7)] * 3, base, 2, agent_configs=cfgs, active=np.array([True, False, True]))
+    (first,) = train_batched([("run3", 7)], cfgs[1], 1)  # before learning starts: its first weights
+    for a, b in zip(weights(frozen[1]), weights(first)):
+        np.testing.assert_array_equal(a, b)

@@ -34,11 +34,14 @@ def draw_trials(space_name: str, trials: int, seed: int = 0) -> list[dict[str, A
     drawn at random (seeded), the structural ones at the base agent's values."""
     import optuna
 
-    from nutribench.engine.on_policy_settings import OnPolicySettings
     from nutribench.tuning.space import load_search_space
+    from nutribench.tuning.stack import per_agent_fields
 
     space = load_search_space(space_name)
-    continuous = {k: p for k, p in space.params.items() if k in OnPolicySettings.CONTINUOUS}
+    shared = per_agent_fields(space.base())
+    if not shared:
+        raise ValueError(f"search space {space_name!r}: its algorithm takes no per-agent settings: nothing to stack")
+    continuous = {k: p for k, p in space.params.items() if k in shared}
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=seed))
     out = []

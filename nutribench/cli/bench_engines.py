@@ -39,12 +39,13 @@ def bench_engines_cmd(
     """Train with both engines (SB3 and batched) on the same seeds and budget; per algorithm
     and regime the IQM of the evaluation returns with a 95 % bootstrap interval over seeds;
     the two engines' intervals must overlap."""
-    from nutribench.bench.engines import BATCHED_ALGOS, COLUMNS, bench_engines, markdown_table, row_cells
+    from nutribench.agents.registry import batched_names
+    from nutribench.bench.engines import COLUMNS, bench_engines, markdown_table, row_cells
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
 
     check_engine_options("batched", device)
-    names = split_csv(algos, list(BATCHED_ALGOS), "algorithm for the batched engine")
+    names = split_csv(algos, batched_names(), "algorithm for the batched engine")
     regime_names = split_csv(regimes, list_regimes(), "regime")
     with console.status("training with both engines"):
         rows = bench_engines(

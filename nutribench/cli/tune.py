@@ -53,7 +53,7 @@ def tune_cmd(
     stack: Annotated[
         int,
         typer.Option(
-            help="trials trained together in one batch (PPO, MC, GRU-PPO: those that agree on structure; 1: one at a time)"
+            help="trials trained together in one batch (PPO, MC, GRU-PPO, SAC: those that agree on structure; 1: one at a time)"
         ),
     ] = 1,
     device: Annotated[str, typer.Option(help=DEVICE_HELP)] = "cpu",

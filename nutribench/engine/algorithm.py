@@ -24,7 +24,7 @@ optimisers already hold), so that training goes on exactly where it was saved.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
@@ -47,6 +47,10 @@ class Algorithm:
     Subclasses implement :meth:`learn` (through a loop's base class) and
     :meth:`store_weights`; the algorithm registry names the class for its configs' ``algo``
     (:mod:`nutribench.agents.registry`)."""
+
+    #: the config fields that may differ between the agents of one batch (tuning trials
+    #: stacked: :mod:`nutribench.tuning.stack`); empty: every agent has the batch's config
+    PER_AGENT: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: Sequence[Any] | None = None):
         self.cfg, self.envs, self.device, self.k = cfg, envs, device, envs.k

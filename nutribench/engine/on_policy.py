@@ -166,6 +166,8 @@ class OnPolicyAlgorithm(Algorithm):
     """SB3's on-policy loop for the K agents of ``envs`` (the module docstring); subclasses
     give the network, the acting and :meth:`train`."""
 
+    PER_AGENT = OnPolicySettings.CONTINUOUS
+
     @classmethod
     def forward_flops(cls, cfg: Any, obs_dim: int, n_actions: int) -> float:
         """Matrix-product FLOPs of one sample's forward pass through the network."""

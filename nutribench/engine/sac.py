@@ -29,7 +29,8 @@ the engine does not clip SAC's gradients (nor does SAC).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
@@ -41,7 +42,44 @@ from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn
 from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, OffPolicyAlgorithm
-from nutribench.engine.stacked import AgentMeans, StackedMLP, linears, load_params, make_adam
+from nutribench.engine.stacked import AgentMeans, StackedMLP, linears, load_params, make_adam, step_per_agent
+
+#: the fields of an agent config that name it, not what it trains
+_NAMING = ("name", "version", "description")
+
+
+@dataclass
+class SACSettings:
+    """What SAC's update reads from its agents' configs: one value for all, or (tuning trials
+    stacked in one batch) a ``(K,)`` array where the configs differ (:meth:`for_agents`)."""
+
+    actor_learning_rate: float | np.ndarray
+    critic_learning_rate: float | np.ndarray
+    alpha: float | np.ndarray
+    tau: float | np.ndarray
+    gamma: float | np.ndarray
+    #: agents whose updates are applied (a pruned trial's are not); None: all
+    active: np.ndarray | None = None
+
+    CONTINUOUS: ClassVar[tuple[str, ...]] = ("actor_learning_rate", "critic_learning_rate", "alpha", "tau", "gamma")
+
+    @classmethod
+    def for_agents(cls, cfgs: list[Any]) -> SACSettings:
+        """The settings of K agents, one config each; everything else (networks, replay, loop)
+        must agree (ValueError naming the field)."""
+        data = [c.model_dump(mode="json") for c in cfgs]
+        for name in data[0]:
+            if name not in cls.CONTINUOUS and name not in _NAMING and any(d[name] != data[0][name] for d in data):
+                raise ValueError(f"agents of one batch must agree on {name}")
+        values = {}
+        for name in cls.CONTINUOUS:
+            column = [float(d[name]) for d in data]
+            values[name] = column[0] if len(set(column)) == 1 else np.asarray(column, dtype=np.float64)
+        return cls(**values)
+
+    @property
+    def per_agent(self) -> bool:
+        return any(isinstance(getattr(self, n), np.ndarray) for n in self.CONTINUOUS) or self.active is not None
 
 
 class StackedSAC:
@@ -55,8 +93,8 @@ class StackedSAC:
         self,
         k: int,
         sizes: list[int],
-        actor_lr: float,
-        critic_lr: float,
+        actor_lr: float | np.ndarray,
+        critic_lr: float | np.ndarray,
         generators: list[th.Generator] | None = None,
         device: th.device | str | None = None,
     ):
@@ -65,8 +103,10 @@ class StackedSAC:
         self.critic = StackedMLP(2 * k, sizes, None if generators is None else generators + generators, device)
         self.critic_target = StackedMLP(2 * k, sizes, device=device)
         self.critic_target.copy_from(self.critic)
-        self.actor_optimizer = make_adam(self.actor.params, actor_lr, OFF_POLICY_ADAM_EPS)
-        self.critic_optimizer = make_adam(self.critic.params, critic_lr, OFF_POLICY_ADAM_EPS)
+        # a rate per agent: Adam at rate 1, each agent's step scaled by its own (step_per_agent)
+        rate = lambda lr: 1.0 if isinstance(lr, np.ndarray) else lr  # noqa: E731
+        self.actor_optimizer = make_adam(self.actor.params, rate(actor_lr), OFF_POLICY_ADAM_EPS)
+        self.critic_optimizer = make_adam(self.critic.params, rate(critic_lr), OFF_POLICY_ADAM_EPS)
 
     def twin_q(self, obs: th.Tensor, target: bool = False) -> tuple[th.Tensor, th.Tensor]:
         """``(Q1, Q2)`` at ``obs (K, B, d)``, each ``(K, B, n_actions)``."""
@@ -108,37 +148,59 @@ class StackedSAC:
         self.critic_optimizer.load_state_dict(state["critic_optimizer"])
 
 
+def _column(value: float | np.ndarray, like: th.Tensor, ndim: int) -> float | th.Tensor:
+    """A setting as an operand of ``(K, ...)`` tensors: a float as it is, a ``(K,)`` array as
+    a ``(K, 1, ...)`` tensor of ``ndim`` dimensions."""
+    if not isinstance(value, np.ndarray):
+        return value
+    return th.as_tensor(value, dtype=like.dtype, device=like.device).reshape(-1, *([1] * (ndim - 1)))
+
+
 def sac_update(
-    net: StackedSAC, batch: Batch, alpha: float, gamma: float, tau: float, means: AgentMeans | None = None
+    net: StackedSAC,
+    batch: Batch,
+    alpha: float | np.ndarray,
+    gamma: float | np.ndarray,
+    tau: float | np.ndarray,
+    means: AgentMeans | None = None,
+    settings: SACSettings | None = None,
 ) -> dict[str, np.ndarray]:
     """One gradient step of :meth:`DiscreteSAC.train` for the K agents: critics, then actor,
     then targets. Returns each agent's critic and actor loss ``(K,)``; they and the mean of
-    the twin critics' minimum at the actions taken go to ``means``."""
+    the twin critics' minimum at the actions taken go to ``means``. ``alpha``, ``gamma``,
+    ``tau``: one for all or ``(K,)``; ``settings`` (per-agent learning rates, frozen agents)
+    when the agents' steps differ."""
+    alpha_k, gamma_k = _column(alpha, batch.rewards, 3), _column(gamma, batch.rewards, 2)
     with th.no_grad():
         probs_next, log_probs_next = net.policy(batch.next_obs)
         q1_next, q2_next = net.twin_q(batch.next_obs, target=True)
-        v_next = (probs_next * (th.min(q1_next, q2_next) - alpha * log_probs_next)).sum(dim=-1)
-        y = batch.rewards + gamma * (1.0 - batch.dones) * v_next
+        v_next = (probs_next * (th.min(q1_next, q2_next) - alpha_k * log_probs_next)).sum(dim=-1)
+        y = batch.rewards + gamma_k * (1.0 - batch.dones) * v_next
     q1, q2 = net.twin_q(batch.obs)
     a = batch.actions.unsqueeze(-1)
     q1_taken, q2_taken = q1.gather(-1, a).squeeze(-1), q2.gather(-1, a).squeeze(-1)
     critic_loss = (q1_taken - y).pow(2).mean(dim=1) + (q2_taken - y).pow(2).mean(dim=1)
     net.critic_optimizer.zero_grad()
     critic_loss.sum().backward()
-    net.critic_optimizer.step()
+    _step(net.critic_optimizer, net.critic.params, net.k, settings, "critic_learning_rate")
 
     probs, log_probs = net.policy(batch.obs)
     with th.no_grad():
         q1, q2 = net.twin_q(batch.obs)
         min_q = th.min(q1, q2)
-    actor_loss = (probs * (alpha * log_probs - min_q)).sum(dim=-1).mean(dim=1)
+    actor_loss = (probs * (alpha_k * log_probs - min_q)).sum(dim=-1).mean(dim=1)
     net.actor_optimizer.zero_grad()
     actor_loss.sum().backward()
-    net.actor_optimizer.step()
+    _step(net.actor_optimizer, net.actor.params, net.k, settings, "actor_learning_rate")
 
     with th.no_grad():  # SB3's polyak_update: targ * (1 - tau) + tau * online
-        th._foreach_mul_(net.critic_target.params, 1.0 - tau)
-        th._foreach_add_(net.critic_target.params, net.critic.params, alpha=tau)
+        if isinstance(tau, np.ndarray):  # each agent's rate, on both its critics' rows
+            for targ, online in zip(net.critic_target.params, net.critic.params):
+                rate = _column(np.tile(tau, 2), targ, targ.ndim)
+                targ.mul_(1.0 - rate).add_(rate * online)
+        else:
+            th._foreach_mul_(net.critic_target.params, 1.0 - tau)
+            th._foreach_add_(net.critic_target.params, net.critic.params, alpha=tau)
     if means is not None:
         means.add(
             **{
@@ -150,20 +212,32 @@ def sac_update(
     return {"critic_loss": critic_loss.detach().cpu().numpy(), "actor_loss": actor_loss.detach().cpu().numpy()}
 
 
+def _step(
+    optimizer: th.optim.Optimizer, params: list[th.Tensor], k: int, settings: SACSettings | None, lr: str
+) -> None:
+    """The optimizer's step: plain, or with each agent's rate and only for active agents."""
+    if settings is None or not settings.per_agent:
+        optimizer.step()
+    else:
+        step_per_agent(optimizer, params, getattr(settings, lr), settings.active, k)
+
+
 class SAC(OffPolicyAlgorithm):
     """K discrete-SAC agents (:class:`StackedSAC`): actions drawn from the policy, SAC's update."""
 
     #: the actor and both target critics at the next states (3), both critics forward and
     #: backward (6), the actor forward and backward (3), both critics for the actor's loss (2)
     FORWARDS_PER_SAMPLE = 14
+    PER_AGENT = SACSettings.CONTINUOUS
 
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: list[Any] | None = None):
         super().__init__(cfg, envs, device, cfgs)
+        self.settings = SACSettings.for_agents(self.cfgs)
         self.net = StackedSAC(
             self.k,
             [envs.obs_dim, *cfg.net_arch, 2],
-            cfg.actor_learning_rate,
-            cfg.critic_learning_rate,
+            self.settings.actor_learning_rate,
+            self.settings.critic_learning_rate,
             generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]],
             device=device,
         )
@@ -182,10 +256,17 @@ class SAC(OffPolicyAlgorithm):
     def greedy(self) -> Greedy:
         return lambda obs: greedy_categorical(self.net.actor.forward(obs))
 
+    def set_active(self, active: np.ndarray | None) -> None:
+        if active is not None and np.shape(active) != (self.k,):
+            raise ValueError(f"active: a ({self.k},) bool array, got shape {np.shape(active)}")
+        self.settings.active = active
+
     def update(self, steps: int, progress_remaining: float, batch: Batch) -> None:
-        cfg = self.cfg
-        losses = sac_update(self.net, batch, cfg.alpha, cfg.gamma, cfg.tau, self.means)
-        self.means.add(**{names.ENT_COEF: cfg.alpha, names.LEARNING_RATE: cfg.critic_learning_rate})
+        st = self.settings
+        tau = st.tau if st.active is None else np.where(st.active, st.tau, 0.0)  # a frozen agent's targets stay too
+        losses = sac_update(self.net, batch, st.alpha, st.gamma, tau, self.means, st)
+        as_logged = lambda v: th.as_tensor(v, dtype=th.float32) if isinstance(v, np.ndarray) else v  # noqa: E731
+        self.means.add(**{names.ENT_COEF: as_logged(st.alpha), names.LEARNING_RATE: as_logged(st.critic_learning_rate)})
         if self.on_update is not None:
             self.on_update({"steps": steps, **losses})
 

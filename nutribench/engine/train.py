@@ -86,10 +86,11 @@ def train_batched(
     :param agent_configs: one config per job instead of ``agent_config`` for all (tuning
         trials stacked in one batch: :mod:`nutribench.tuning.stack`): they may differ only in
         continuous settings (learning rate, discount, GAE lambda, clip range, entropy and value
-        coefficients, gradient-norm clip), which then go on the agent axis; on-policy
-        algorithms (PPO, MC, GRU-PPO) only. ``agent_config`` is still the batch's structure.
+        coefficients, gradient-norm clip; SAC: its two learning rates, alpha, tau, discount),
+        which then go on the agent axis (the class's ``PER_AGENT``; not DDQN yet);
+        ``agent_config`` is still the batch's structure.
     :param active: a ``(K,)`` bool array the caller may change while training: the agents
-        where it is False get no more updates (a pruned trial's; on-policy algorithms only).
+        where it is False get no more updates (a pruned trial's; the classes with ``PER_AGENT``).
     :raises nutribench.engine.UnsupportedConfig: (one line, before anything trains) for a
         config this engine would not train as the SB3 engine does (:func:`nutribench.engine.supports`).
     """

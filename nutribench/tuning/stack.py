@@ -2,10 +2,11 @@
 
 The driver asks Optuna for up to N trials at once and groups them by structure: trials whose
 configs agree on everything but the continuous settings (learning rate, discount, GAE
-lambda, clip range, entropy and value coefficients, gradient-norm clip) train in one batch,
+lambda, clip range, entropy and value coefficients, gradient-norm clip; SAC's learning rates,
+alpha and tau) train in one batch,
 each trial's agents (one per tuning regime and seed) with its own settings on the agent axis
-(:meth:`nutribench.engine.on_policy_settings.OnPolicySettings.for_agents`; PPO, MC and GRU-PPO).
-Trials of another structure, and algorithms without per-agent settings (DDQN, SAC, plug-ins),
+(:attr:`nutribench.engine.algorithm.Algorithm.PER_AGENT`: PPO, MC, GRU-PPO and SAC).
+Trials of another structure, and algorithms without per-agent settings (DDQN, plug-ins),
 train in batches of their own, one trial each, as without ``--stack``.
 
 Every evaluation is scored per trial exactly as a single trial is
@@ -39,19 +40,26 @@ class _AllPruned(Exception):
     """Every trial of a batch was pruned: stop training it."""
 
 
-def structure_key(cfg: Any) -> str | None:
-    """What trials must share to train in one batch (their config without its continuous
-    settings), or None for an algorithm whose batched class takes no per-agent settings."""
+def per_agent_fields(cfg: Any) -> tuple[str, ...]:
+    """The settings that may differ between stacked trials of ``cfg``'s algorithm (its batched
+    class's :attr:`~nutribench.engine.algorithm.Algorithm.PER_AGENT`); () where the batched
+    engine does not train ``cfg`` or takes no per-agent settings."""
     from nutribench.agents.registry import batched_class
     from nutribench.engine import supports
-    from nutribench.engine.on_policy import OnPolicyAlgorithm
-    from nutribench.engine.on_policy_settings import OnPolicySettings
 
-    if supports(cfg) is not None or not issubclass(batched_class(cfg.algo), OnPolicyAlgorithm):
+    if supports(cfg) is not None:
+        return ()
+    return batched_class(cfg.algo).PER_AGENT
+
+
+def structure_key(cfg: Any) -> str | None:
+    """What trials must share to train in one batch (their config without the settings that
+    may differ per agent), or None for an algorithm whose batched class takes none."""
+    fields = per_agent_fields(cfg)
+    if not fields:
         return None
     data = cfg.model_dump(mode="json")
-    continuous = set(OnPolicySettings.CONTINUOUS) | {"learning_rate"}
-    return repr(sorted((k, v) for k, v in data.items() if k not in continuous and k not in _NAMING))
+    return repr(sorted((k, v) for k, v in data.items() if k not in fields and k not in _NAMING))
 
 
 @contextmanager
@@ -114,8 +122,6 @@ class StackedTrials:
         structural parameters (enqueued with them fixed, the sampler drawing the rest), so that
         the stack trains as one batch. A trial Optuna queued (a killed driver's, to retry) keeps
         its own parameters."""
-        from nutribench.engine.on_policy_settings import OnPolicySettings
-
         space = self.objective.space
         out: list[tuple[Any, Any]] = []
         with warnings.catch_warnings():
@@ -124,7 +130,8 @@ class StackedTrials:
                 trial = study.ask()
                 out.append((trial, space.config(space.suggest(trial))))
                 if i == 0 and n > 1 and structure_key(out[0][1]) is not None:
-                    fixed = {k: v for k, v in trial.params.items() if k not in OnPolicySettings.CONTINUOUS}
+                    shared = per_agent_fields(out[0][1])
+                    fixed = {k: v for k, v in trial.params.items() if k not in shared}
                     for _ in range(n - 1):
                         study.enqueue_trial(fixed, skip_if_exists=False)
         return out
