@@ -161,7 +161,10 @@ class StackedGRUActorCritic:
         p = self.params
         x = th.relu(th.baddbmm(p[5], features, p[4]))
         logits = th.baddbmm(p[7], x[..., : self.head], p[6])
-        values = th.baddbmm(p[9], x[..., self.head :], p[8])
+        if self.k > 1:
+            values = th.baddbmm(p[9], x[..., self.head :], p[8])
+        else:  # torch rounds a batch of one matrix-vector product (a gemv) unlike a batch of two or more: pad to two
+            values = th.baddbmm(p[9].repeat(2, 1, 1), x[..., self.head :].repeat(2, 1, 1), p[8].repeat(2, 1, 1))[:1]
         return logits, values[..., 0]
 
     def sequences(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:

@@ -141,7 +141,9 @@ def clip_grad_norm_per_agent(params: list[th.Tensor], max_norm: float | np.ndarr
     (``m * K`` rows: row ``i * K + j`` is agent ``j``'s ``i``-th); ``k`` is K (default: the
     first parameter's rows). ``max_norm``: one for all, or a ``(K,)`` array (inf: no clipping)."""
     k = params[0].shape[0] if k is None else k
-    sq = sum(p.grad.pow(2).reshape(p.shape[0] // k, k, -1).sum(dim=(0, 2)) for p in params)
+    # each row's sum over its own contiguous elements, then over an agent's rows: the same
+    # order of additions at every K (a sum over dims (0, 2) at once was blocked by K)
+    sq = sum(p.grad.pow(2).reshape(p.shape[0] // k, k, -1).sum(dim=2).sum(dim=0) for p in params)
     norms = sq.sqrt()
     if isinstance(max_norm, np.ndarray):
         limit = th.as_tensor(max_norm, dtype=norms.dtype, device=norms.device)
@@ -184,13 +186,29 @@ def step_per_agent(
             p.copy_(p0 + scale.reshape(-1, *([1] * (p.ndim - 1))) * (p - p0))
 
 
+#: the most floats one CPU vector register holds (AVX-512); see :func:`make_adam`
+VECTOR_FLOATS = 16
+
+
 def make_adam(params: list[th.Tensor], learning_rate: float, eps: float) -> th.optim.Adam:
     """Adam over stacked parameters (elementwise, so each agent's update is its own), in
     torch's fused form where this torch has it for the CPU (2.4 and later): the per-tensor
     Adam's formula in one kernel per step, equal to float32 rounding (on this CPU 0.3 ms a
-    step instead of 3.9 ms for K = 35)."""
+    step instead of 3.9 ms for K = 35).
+
+    Batch-invariant: the fused CPU kernel rounds the elements of a tensor's whole vectors
+    (8 or 16 floats) and of its tail differently, so an agent's step would depend on where
+    its block falls, that is on K. A parameter whose rows per agent are not a multiple of
+    :data:`VECTOR_FLOATS` floats (the output biases: 2 or 3 per agent) therefore takes
+    torch's foreach Adam, which rounds every element alike (docs/batched-engine.md,
+    "Reproducibility"); every other parameter fills whole vectors at every K."""
+    fused = [p for p in params if math.prod(p.shape[1:]) % VECTOR_FLOATS == 0]
+    rest = [p for p in params if math.prod(p.shape[1:]) % VECTOR_FLOATS != 0]
+    groups = ([{"params": fused}] if fused else []) + (
+        [{"params": rest, "fused": False, "foreach": True}] if rest else []
+    )
     try:
-        return th.optim.Adam(params, lr=learning_rate, eps=eps, fused=True)
+        return th.optim.Adam(groups, lr=learning_rate, eps=eps, fused=True)
     except RuntimeError:  # pragma: no cover - torch < 2.4 on CPU
         return th.optim.Adam(params, lr=learning_rate, eps=eps, foreach=True)
 

@@ -15,11 +15,10 @@ registry (:func:`nutribench.agents.registry.batched_class`).
 
 Randomness is per agent and comes from its job seed alone (its food days, its action draws,
 its minibatch order, its initial weights), so an agent's run does not depend on which
-others share its batch, up to float rounding: the batched matrix kernels round differently
-for different K, and over a long run a rounding difference can flip a sampled action, after
-which the two runs differ as two runs of one seed on two machines may. It is not SB3's
-random stream: the two engines' runs with one seed
-differ as two seeds do; ``nutribench bench engines`` compares them as distributions.
+others share its batch: on the CPU it is the same bit for bit alone or in any batch (the
+kernels whose rounding depended on K are avoided: docs/batched-engine.md, "Reproducibility").
+It is not SB3's random stream: the two engines' runs with one seed differ as two seeds do;
+``nutribench bench engines`` compares them as distributions.
 
 Every engine entry point takes a ``device`` (:mod:`nutribench.engine.device`; default the
 CPU). The networks, optimiser states, GRU states and each update's tensors live there; the
