@@ -135,14 +135,17 @@ def test_a_study_killed_with_minus_9_resumes_without_losing_or_repeating_a_trial
 
 
 def test_the_guide_s_first_commands_run(tmp_path: Path, monkeypatch) -> None:
-    """docs/tuning.md's "Try it in a minute" block, command by command, in an empty folder."""
+    """docs/tuning.md's "Try it in a minute" and ``--stack`` blocks, command by command, in an
+    empty folder (the page's last command, a real study, takes hours and is not run)."""
     import re
     import shlex
 
     page = (Path(__file__).resolve().parents[1] / "docs" / "tuning.md").read_text()
     block = re.search(r"## Try it in a minute\s+```bash\n(.*?)```", page, re.S).group(1)
-    commands = [shlex.split(line)[1:] for line in block.splitlines() if line.startswith("nutribench ")]
-    assert len(commands) == 4
+    stacked = re.search(r"## Many trials in one process: `--stack N`\s+```bash\n(.*?)```", page, re.S).group(1)
+    lines = (block + stacked).splitlines()
+    commands = [shlex.split(line)[1:] for line in lines if line.startswith("nutribench ")]
+    assert len(commands) == 5
     monkeypatch.chdir(tmp_path)
     for args in commands:
         res = runner.invoke(app, args)
