@@ -71,7 +71,7 @@ def test_the_best_trial_becomes_a_new_agent_file(tmp_path: Path, monkeypatch) ->
     assert res.exit_code == 0, res.output
     cfg = load_agent_config(agents / "mc_tuned.toml")
     best = optuna.load_study(study_name="mc_s", storage=f"sqlite:///{db}").best_trial
-    assert cfg.name == "mc_tuned" and cfg.learning_rate == best.params["learning_rate"]
+    assert (cfg.name, cfg.version) == ("mc_tuned", 1) and cfg.learning_rate == best.params["learning_rate"]
     assert f"study 'mc_s', trial {best.number}" in cfg.description and "search space mc v1" in cfg.description
     assert load_agent_config("mc").version == 2  # the paper's file untouched
     again = runner.invoke(app, ["tune", "best", "--study", "mc_s", "--write", "--db", str(db)])

@@ -120,14 +120,16 @@ class SearchSpace(BaseModel):
         return {name: p.suggest(trial, name) for name, p in self.params.items()}
 
     def config(self, values: dict[str, Any], *, name: str | None = None, description: str | None = None) -> Any:
-        """The agent config of ``values`` (the base file's, the searched ones replaced), validated."""
+        """The agent config of ``values`` (the base file's, the searched ones replaced), validated;
+        under a new ``name`` it is that new file's version 1."""
         base = self.base()
         data = base.model_dump(mode="json")
         if by_entry_point(data["algo"]):
             data["params"] = {**data["params"], **values}
         else:
             data.update(values)
-        data["name"] = name or data["name"]
+        if name is not None and name != data["name"]:
+            data["name"], data["version"] = name, 1
         data["description"] = description or data["description"]
         return parse_agent_config(data, f"search space {self.name!r}")
 
