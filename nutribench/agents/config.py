@@ -21,7 +21,14 @@ import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 import nutribench.agents.registry as registry
-from nutribench.config.loading import ConfigError, content_sha256, format_validation_error, read_toml, regimes_dir
+from nutribench.config.loading import (
+    ConfigError,
+    content_sha256,
+    format_validation_error,
+    read_toml,
+    regimes_dir,
+    resolve_named_file,
+)
 
 # Every float hyperparameter is finite (inf or nan is refused when the file is read: a learning
 # rate of inf trained and was stored as done), but a gradient norm, where inf means no clipping.
@@ -185,17 +192,7 @@ def list_agent_configs(folder: Path | None = None) -> list[str]:
 
 def resolve_agent_path(name_or_path: str | Path) -> Path:
     """A config name (``ppo``) or a path to a TOML file."""
-    s = str(name_or_path)
-    if s.endswith(".toml") or "/" in s:
-        path = Path(s)
-        if not path.is_file():
-            raise ConfigError(f"{path}: no such agent config file")
-        return path
-    path = agents_dir() / f"{s}.toml"
-    if not path.is_file():
-        known = ", ".join(list_agent_configs()) or "(none)"
-        raise ConfigError(f"unknown agent config '{s}': known are {known} (files in {agents_dir()})")
-    return path
+    return resolve_named_file(name_or_path, agents_dir(), "agent config", list_agent_configs())
 
 
 def load_agent_config(name_or_path: str | Path | BaseModel) -> Any:

@@ -90,6 +90,22 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: not valid TOML: {e}") from None
 
 
+def resolve_named_file(name_or_path: str | Path, folder: Path, what: str, known: list[str]) -> Path:
+    """A file named by ``name`` (``folder/<name>.toml``) or given as a path to a TOML file;
+    a one-line :class:`ConfigError` naming ``what`` (e.g. "agent config") and the ``known``
+    names when it is not there."""
+    s = str(name_or_path)
+    if s.endswith(".toml") or "/" in s:
+        path = Path(s)
+        if not path.is_file():
+            raise ConfigError(f"{path}: no such {what} file")
+        return path
+    path = folder / f"{s}.toml"
+    if not path.is_file():
+        raise ConfigError(f"unknown {what} '{s}': known are {', '.join(known) or '(none)'} (files in {folder})")
+    return path
+
+
 def load_model(model: type[M], path: Path) -> M:
     """Read a TOML file into ``model``, turning validation errors into one-line ConfigErrors."""
     data = read_toml(path)

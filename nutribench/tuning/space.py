@@ -39,7 +39,14 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from nutribench.agents.config import load_agent_config, parse_agent_config
 from nutribench.agents.registry import by_entry_point
-from nutribench.config.loading import ConfigError, content_sha256, format_validation_error, read_toml, regimes_dir
+from nutribench.config.loading import (
+    ConfigError,
+    content_sha256,
+    format_validation_error,
+    read_toml,
+    regimes_dir,
+    resolve_named_file,
+)
 
 #: the fields of an agent config that name or describe it, never searched
 _IDENTITY = ("algo", "name", "version", "description", "entry_point")
@@ -147,17 +154,7 @@ def list_search_spaces(folder: Path | None = None) -> list[str]:
 
 def resolve_space_path(name_or_path: str | Path) -> Path:
     """A space name (``ppo``) or a path to a TOML file."""
-    s = str(name_or_path)
-    if s.endswith(".toml") or "/" in s:
-        path = Path(s)
-        if not path.is_file():
-            raise ConfigError(f"{path}: no such search-space file")
-        return path
-    path = search_dir() / f"{s}.toml"
-    if not path.is_file():
-        known = ", ".join(list_search_spaces()) or "(none)"
-        raise ConfigError(f"unknown search space '{s}': known are {known} (files in {search_dir()})")
-    return path
+    return resolve_named_file(name_or_path, search_dir(), "search space", list_search_spaces())
 
 
 def load_search_space(name_or_path: str | Path) -> SearchSpace:
