@@ -24,8 +24,10 @@ from nutribench.agents.days import validation_food_streams
 from nutribench.baselines import play_simple_policy
 from nutribench.cli import app
 from nutribench.engine.train import train_batched
+from nutribench.tuning.objective import ValidationObjective
 from nutribench.tuning.space import load_search_space
-from nutribench.tuning.study import TuneError, count_trials, open_study
+from nutribench.tuning.stack import StackedTrials
+from nutribench.tuning.study import TuneError, count_trials, make_pruner, make_sampler, open_study, stored_settings
 from tests.conftest import one_error_line, wait_for
 from tests.test_own_agent import plugin_folder  # noqa: F401 (a fixture)
 
@@ -164,8 +166,11 @@ def test_two_drivers_start_one_new_study_on_sqlite_together(tmp_path: Path) -> N
     procs = [subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) for _ in range(2)]
     errors = [p.communicate(timeout=600)[1] for p in procs]
     assert [p.returncode for p in procs] == [0, 0], errors
-    counts = count_trials(optuna.load_study(study_name="two", storage=f"sqlite:///{db}"))
+    study = optuna.load_study(study_name="two", storage=f"sqlite:///{db}")
+    counts = count_trials(study)
     assert 8 <= counts.finished <= 9 and counts.running == 0 and counts.failed == 0
+    params = [tuple(sorted(t.params.items())) for t in study.trials]
+    assert len(set(params)) == len(params)  # the two drivers drew different trials (one seed each)
 
 
 def test_stacked_trials_share_one_batch_and_score_as_single_trials(tmp_path: Path) -> None:
@@ -192,9 +197,13 @@ def test_a_pruned_stacked_trial_is_told_pruned(tmp_path: Path) -> None:
     db = tmp_path / "lab.db"
     args = ["--regimes", "run3", "--seeds", "101", "--days", "4", "--eval-every", "1", "--val-episodes", "1"]
     assert tune(db, "--algo", "mc", "--study", "pr", "--trials", "6", "--stack", "1", *args).exit_code == 0
-    res = tune(db, "--algo", "mc", "--study", "pr", "--trials", "12", "--stack", "3", *args)
-    assert res.exit_code == 0, res.output
-    counts = count_trials(optuna.load_study(study_name="pr", storage=f"sqlite:///{db}"))
+    # resumed with the creator's seed (a joining driver draws its own), so that the trials are known
+    storage = f"sqlite:///{db}"
+    settings = stored_settings(optuna.load_study(study_name="pr", storage=storage))
+    sampler, pruner = make_sampler(settings), make_pruner(settings)
+    resumed = optuna.load_study(study_name="pr", storage=storage, sampler=sampler, pruner=pruner)
+    StackedTrials(ValidationObjective(load_search_space("mc"), settings), 3).run(resumed, 12)
+    counts = count_trials(optuna.load_study(study_name="pr", storage=storage))
     assert counts.finished == 12 and counts.running == 0 and counts.failed == 0
     study = optuna.load_study(study_name="pr", storage=f"sqlite:///{db}")
     pruned = [t for t in study.trials if t.state.name == "PRUNED" and t.user_attrs.get("stacked_with")]

@@ -28,6 +28,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from nutribench.errors import UserError
 
 #: seeds the project reports results on (the paper's); a tuning study may not tune on them
@@ -133,11 +135,20 @@ def optuna_storage(db: Any, writer: bool = True) -> Any:
     raise AssertionError("unreachable")
 
 
-def make_sampler(settings: StudySettings) -> Any:
-    """A seeded TPE sampler (the first ``startup_trials`` random, as Optuna's default)."""
+def make_sampler(settings: StudySettings, joining: bool = False) -> Any:
+    """A seeded TPE sampler (the first ``startup_trials`` random, as Optuna's default).
+
+    The driver that creates a study seeds it with ``sampler_seed``: a study run by one driver
+    from start to end is reproducible. A driver that joins or resumes an existing study
+    (``joining``) draws a seed of its own from ``sampler_seed``, its process and the clock:
+    two drivers with one seed would draw the same random trials (found in the tuned grid's
+    first studies: trials 0/1, 2/3 and 4/5 were pairs)."""
     import optuna
 
-    return optuna.samplers.TPESampler(seed=settings.sampler_seed, n_startup_trials=settings.startup_trials)
+    seed = settings.sampler_seed
+    if joining:
+        seed = int(np.random.SeedSequence([seed, os.getpid(), time.time_ns()]).generate_state(1)[0])
+    return optuna.samplers.TPESampler(seed=seed, n_startup_trials=settings.startup_trials)
 
 
 def make_pruner(settings: StudySettings) -> Any:
@@ -192,7 +203,8 @@ def open_study(db: Any, name: str, settings: StudySettings | None) -> Any:
             f"study {name!r} was created with other settings: {'; '.join(diff)}; resume it with its own settings "
             "or name a new --study"
         )
-    return optuna.load_study(study_name=name, storage=storage, sampler=make_sampler(stored), pruner=make_pruner(stored))
+    sampler = make_sampler(stored, joining=True)
+    return optuna.load_study(study_name=name, storage=storage, sampler=sampler, pruner=make_pruner(stored))
 
 
 def _settings_when_written(study: Any, wait_s: float = 10.0) -> StudySettings:
