@@ -58,30 +58,23 @@ class ValidationObjective:
     def __call__(self, trial: Any) -> float:
         import optuna
 
-        values = self.space.suggest(trial)
-        cfg = self.space.config(values)
-        k, last = len(self.jobs), self.settings.days
-        shares: dict[int, dict[int, float]] = {}
+        cfg = self.space.config(self.space.suggest(trial))
+        scores = TrialScores(self, trial)
 
         def on_validation(j: int, day: int, rows: list[dict[str, Any]]) -> None:
-            never, planner = self.references(*self.jobs[j])
-            shares.setdefault(day, {})[j] = share_of_gap(float(np.mean([r["return"] for r in rows])), never, planner)
-            if len(shares[day]) == k:
-                value = iqm(np.array(list(shares[day].values())))
-                trial.report(value, day)
-                if self.on_evaluation is not None:
-                    self.on_evaluation(trial.number, day, value)
-                if day < last and trial.should_prune():
-                    raise optuna.TrialPruned(f"pruned at day {day}: IQM share {value:.3f}")
+            value = scores.add(j, day, rows)
+            if value is not None and scores.prune(day):
+                raise optuna.TrialPruned(f"pruned at day {day}: IQM share {value:.3f}")
 
-        trial.set_user_attr("engine", self.engine(cfg))
-        trial.set_user_attr("device", self.device if self.engine(cfg) == "batched" else "cpu")
+        self.record_engine(trial, cfg)
         self.train(cfg, on_validation)
-        final = shares.get(last, {})
-        if len(final) != k:
-            raise RuntimeError(f"trial {trial.number}: {len(final)} of {k} agents were evaluated at day {last}")
-        trial.set_user_attr("shares", {f"{r}/{s}": final[j] for j, (r, s) in enumerate(self.jobs)})
-        return iqm(np.array(list(final.values())))
+        return scores.final()
+
+    def record_engine(self, trial: Any, cfg: Any) -> None:
+        """Which engine and device train ``trial`` (its user attributes)."""
+        engine = self.engine(cfg)
+        trial.set_user_attr("engine", engine)
+        trial.set_user_attr("device", self.device if engine == "batched" else "cpu")
 
     @staticmethod
     def engine(cfg: Any) -> str:
@@ -127,3 +120,43 @@ class ValidationObjective:
                 val_episodes=s.val_episodes,
                 on_validation=lambda _, day, rows, j=j: on_validation(j, day, rows),
             )
+
+
+class TrialScores:
+    """One trial's scores: per evaluation day, each agent's share of the gap on its validation
+    days, the IQM reported to Optuna once every agent of the day is in (the module docstring)."""
+
+    def __init__(self, objective: ValidationObjective, trial: Any):
+        self.objective, self.trial = objective, trial
+        self.shares: dict[int, dict[int, float]] = {}  # day -> agent (its index in objective.jobs) -> share
+
+    def add(self, job: int, day: int, rows: list[dict[str, Any]]) -> float | None:
+        """Agent ``job``'s evaluation after ``day`` days; the trial's value at that day (reported
+        to Optuna and to ``on_evaluation``) once every agent's is in, else None."""
+        obj = self.objective
+        never, planner = obj.references(*obj.jobs[job])
+        per_day = self.shares.setdefault(day, {})
+        per_day[job] = share_of_gap(float(np.mean([r["return"] for r in rows])), never, planner)
+        if len(per_day) < len(obj.jobs):
+            return None
+        value = iqm(np.array(list(per_day.values())))
+        self.trial.report(value, day)
+        if obj.on_evaluation is not None:
+            obj.on_evaluation(self.trial.number, day, value)
+        return value
+
+    def prune(self, day: int) -> bool:
+        """Whether the pruner stops the trial after ``day`` (never at its last day)."""
+        return day < self.objective.settings.days and self.trial.should_prune()
+
+    def final(self) -> float:
+        """The trial's objective: the IQM of its agents' shares at the last day, each share kept
+        as the user attribute ``shares``; RuntimeError if an agent was not evaluated then."""
+        obj, last = self.objective, self.objective.settings.days
+        final = self.shares.get(last, {})
+        if len(final) != len(obj.jobs):
+            raise RuntimeError(
+                f"trial {self.trial.number}: {len(final)} of {len(obj.jobs)} agents evaluated at day {last}"
+            )
+        self.trial.set_user_attr("shares", {f"{r}/{s}": final[j] for j, (r, s) in enumerate(obj.jobs)})
+        return iqm(np.array(list(final.values())))

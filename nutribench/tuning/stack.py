@@ -28,8 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from nutribench.report.stats import iqm
-from nutribench.tuning.objective import ValidationObjective, share_of_gap
+from nutribench.tuning.objective import TrialScores, ValidationObjective
 from nutribench.tuning.study import StudyCounts, TuneError, count_trials
 
 #: the fields of an agent config that name it, not what it trains
@@ -140,35 +139,25 @@ class StackedTrials:
         """Train the trials of one group in one batch and tell Optuna each one's outcome."""
         from optuna.trial import TrialState
 
-        obj, s = self.objective, self.objective.settings
+        obj = self.objective
         n_jobs = len(obj.jobs)
         trials = [t for t, _ in group]
         active = np.ones(n_jobs * len(group), dtype=bool)
-        shares: dict[int, dict[int, dict[int, float]]] = {n: {} for n in range(len(group))}
+        scores = [TrialScores(obj, t) for t in trials]
         pruned: set[int] = set()
 
         def on_validation(j: int, day: int, rows: list[dict[str, Any]]) -> None:
             n, job = divmod(j, n_jobs)
             if n in pruned:
                 return
-            never, planner = obj.references(*obj.jobs[job])
-            per_day = shares[n].setdefault(day, {})
-            per_day[job] = share_of_gap(float(np.mean([r["return"] for r in rows])), never, planner)
-            if len(per_day) < n_jobs:
-                return
-            trial, value = trials[n], iqm(np.array(list(per_day.values())))
-            trial.report(value, day)
-            if obj.on_evaluation is not None:
-                obj.on_evaluation(trial.number, day, value)
-            if day < s.days and trial.should_prune():
+            if scores[n].add(job, day, rows) is not None and scores[n].prune(day):
                 pruned.add(n)
                 active[n * n_jobs : (n + 1) * n_jobs] = False
                 if len(pruned) == len(group):
                     raise _AllPruned
 
         for trial, cfg in group:
-            trial.set_user_attr("engine", obj.engine(cfg))
-            trial.set_user_attr("device", obj.device if obj.engine(cfg) == "batched" else "cpu")
+            obj.record_engine(trial, cfg)
             trial.set_user_attr("stacked_with", [t.number for t in trials if t is not trial])
         try:
             with heartbeats(study, trials):
@@ -183,12 +172,12 @@ class StackedTrials:
             if n in pruned:
                 study.tell(trial, state=TrialState.PRUNED)
                 continue
-            final = shares[n].get(s.days, {})
-            if len(final) != n_jobs:
+            try:
+                value = scores[n].final()
+            except RuntimeError:
                 study.tell(trial, state=TrialState.FAIL)
-                raise RuntimeError(f"trial {trial.number}: {len(final)} of {n_jobs} agents evaluated at day {s.days}")
-            trial.set_user_attr("shares", {f"{r}/{seed}": final[j] for j, (r, seed) in enumerate(obj.jobs)})
-            study.tell(trial, iqm(np.array(list(final.values()))))
+                raise
+            study.tell(trial, value)
 
     def train(self, group: list[tuple[Any, Any]], on_validation: Callable[..., None], active: np.ndarray) -> None:
         """One batch: every trial's agents, one per (regime, seed), each trial's config for its own."""
