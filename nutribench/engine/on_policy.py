@@ -40,7 +40,7 @@ from nutribench.agents.api import CLIP_OBS, NORM_EPS
 from nutribench.engine.algorithm import Algorithm
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs
-from nutribench.engine.on_policy_settings import OnPolicySettings, per_agent
+from nutribench.engine.on_policy_settings import OnPolicySettings
 from nutribench.engine.stacked import (
     AgentMeans,
     RunningStats,
@@ -48,6 +48,7 @@ from nutribench.engine.stacked import (
     explained_variance,
     load_params,
     make_adam,
+    per_agent,
     step_per_agent,
 )
 

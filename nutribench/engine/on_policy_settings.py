@@ -1,6 +1,7 @@
 """The on-policy algorithms' settings (PPO, MC, GRU-PPO): :class:`OnPolicySettings`, read
 from an agent config, one value for all K agents or, for tuning trials stacked in one batch,
-one per agent (:meth:`OnPolicySettings.for_agents`), and :func:`per_agent`, how a loss reads one."""
+one per agent (:meth:`OnPolicySettings.for_agents`; a loss reads one with
+:func:`nutribench.engine.stacked.per_agent`)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,6 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
-import torch as th
 
 from nutribench.agents.algos import model_arguments
 
@@ -94,11 +94,3 @@ class OnPolicySettings:
             normalize_advantage=args["normalize_advantage"],
             sequence_length=seq,
         )
-
-
-def per_agent(value: float | np.ndarray, like: th.Tensor) -> float | th.Tensor:
-    """A setting as ``like``'s operand: a float as it is, a ``(K,)`` array as a tensor of
-    ``like``'s dtype and device."""
-    if isinstance(value, np.ndarray):
-        return th.as_tensor(value, dtype=like.dtype, device=like.device)
-    return value

@@ -20,8 +20,8 @@ import torch as th
 
 from nutribench import diagnostics as names
 from nutribench.engine.actor_critic import ActorCriticAlgorithm, StackedActorCritic, evaluate_actions
-from nutribench.engine.on_policy import Minibatch, OnPolicySettings, Rollout, gradient_step, normalized, per_agent
-from nutribench.engine.stacked import AgentMeans
+from nutribench.engine.on_policy import Minibatch, OnPolicySettings, Rollout, gradient_step, normalized
+from nutribench.engine.stacked import AgentMeans, per_agent
 
 
 def ppo_step(
@@ -42,9 +42,7 @@ def ppo_step(
     adv = normalized(mb.advantages) if use_norm else mb.advantages
     log_ratio = mb.log_prob - mb.old_log_prob
     ratio = th.exp(log_ratio)
-    clip = per_agent(settings.clip_range, ratio)
-    if isinstance(clip, th.Tensor):
-        clip = clip.unsqueeze(1)  # (K, 1): each agent's own range
+    clip = per_agent(settings.clip_range, ratio, ndim=2)  # a (K, 1) tensor: each agent's own range
     surrogate = th.min(adv * ratio, adv * th.clamp(ratio, 1 - clip, 1 + clip))
     policy_loss = -surrogate.mean(dim=1)
     value_loss = (mb.returns - mb.values).pow(2).mean(dim=1)

@@ -42,7 +42,15 @@ from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn
 from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, OffPolicyAlgorithm
-from nutribench.engine.stacked import AgentMeans, StackedMLP, linears, load_params, make_adam, step_per_agent
+from nutribench.engine.stacked import (
+    AgentMeans,
+    StackedMLP,
+    linears,
+    load_params,
+    make_adam,
+    per_agent,
+    step_per_agent,
+)
 
 #: the fields of an agent config that name it, not what it trains
 _NAMING = ("name", "version", "description")
@@ -148,14 +156,6 @@ class StackedSAC:
         self.critic_optimizer.load_state_dict(state["critic_optimizer"])
 
 
-def _column(value: float | np.ndarray, like: th.Tensor, ndim: int) -> float | th.Tensor:
-    """A setting as an operand of ``(K, ...)`` tensors: a float as it is, a ``(K,)`` array as
-    a ``(K, 1, ...)`` tensor of ``ndim`` dimensions."""
-    if not isinstance(value, np.ndarray):
-        return value
-    return th.as_tensor(value, dtype=like.dtype, device=like.device).reshape(-1, *([1] * (ndim - 1)))
-
-
 def sac_update(
     net: StackedSAC,
     batch: Batch,
@@ -170,7 +170,7 @@ def sac_update(
     the twin critics' minimum at the actions taken go to ``means``. ``alpha``, ``gamma``,
     ``tau``: one for all or ``(K,)``; ``settings`` (per-agent learning rates, frozen agents)
     when the agents' steps differ."""
-    alpha_k, gamma_k = _column(alpha, batch.rewards, 3), _column(gamma, batch.rewards, 2)
+    alpha_k, gamma_k = per_agent(alpha, batch.rewards, 3), per_agent(gamma, batch.rewards, 2)
     with th.no_grad():
         probs_next, log_probs_next = net.policy(batch.next_obs)
         q1_next, q2_next = net.twin_q(batch.next_obs, target=True)
@@ -196,7 +196,7 @@ def sac_update(
     with th.no_grad():  # SB3's polyak_update: targ * (1 - tau) + tau * online
         if isinstance(tau, np.ndarray):  # each agent's rate, on both its critics' rows
             for targ, online in zip(net.critic_target.params, net.critic.params):
-                rate = _column(np.tile(tau, 2), targ, targ.ndim)
+                rate = per_agent(np.tile(tau, 2), targ, targ.ndim)
                 targ.mul_(1.0 - rate).add_(rate * online)
         else:
             th._foreach_mul_(net.critic_target.params, 1.0 - tau)

@@ -146,15 +146,22 @@ def clip_grad_norm_per_agent(params: list[th.Tensor], max_norm: float | np.ndarr
     sq = sum(p.grad.pow(2).reshape(p.shape[0] // k, k, -1).sum(dim=2).sum(dim=0) for p in params)
     norms = sq.sqrt()
     if isinstance(max_norm, np.ndarray):
-        limit = th.as_tensor(max_norm, dtype=norms.dtype, device=norms.device)
-        coef = (limit / (norms + 1e-6)).clamp(max=1.0)  # inf / x = inf -> 1: unclipped
-        for p in params:
-            p.grad.mul_(coef.repeat(p.shape[0] // k).reshape(-1, *([1] * (p.ndim - 1))))
-    elif math.isfinite(max_norm):
-        coef = (max_norm / (norms + 1e-6)).clamp(max=1.0)
-        for p in params:
-            p.grad.mul_(coef.repeat(p.shape[0] // k).reshape(-1, *([1] * (p.ndim - 1))))
+        max_norm = per_agent(max_norm, norms)  # inf / x = inf -> 1: unclipped
+    elif not math.isfinite(max_norm):
+        return norms
+    coef = (max_norm / (norms + 1e-6)).clamp(max=1.0)
+    for p in params:
+        p.grad.mul_(coef.repeat(p.shape[0] // k).reshape(-1, *([1] * (p.ndim - 1))))
     return norms
+
+
+def per_agent(value: float | np.ndarray, like: th.Tensor, ndim: int = 1) -> float | th.Tensor:
+    """A setting as an operand of ``like``: a float as it is; a ``(K,)`` array (one value per
+    agent) as a tensor of ``like``'s dtype and device, shaped ``(K, 1, ...)`` with ``ndim``
+    dimensions to broadcast against ``(K, ...)`` tensors."""
+    if not isinstance(value, np.ndarray):
+        return value
+    return th.as_tensor(value, dtype=like.dtype, device=like.device).reshape(-1, *([1] * (ndim - 1)))
 
 
 def step_per_agent(
