@@ -14,7 +14,11 @@ from nutribench.cli.common import console, split_csv, user_errors
 @user_errors
 def bench_tune_cmd(
     space: Annotated[
-        str, typer.Option("--algo", help="search space whose trials are drawn (an algorithm with per-agent settings: ppo, mc, gru_ppo, sac)")
+        str,
+        typer.Option(
+            "--algo",
+            help="search space whose trials are drawn (an algorithm with per-agent settings: ppo, mc, gru_ppo, sac)",
+        ),
     ] = "ppo",
     trials: Annotated[int, typer.Option(min=1, help="trials, the same in both arms")] = 8,
     days: Annotated[int, typer.Option(min=1, help="training days per agent")] = 20,
