@@ -13,6 +13,7 @@ case "$SET" in
   *) echo "tune_all.sh: SET must be 1 or 2, not '$SET'" >&2; exit 2 ;;
 esac
 mkdir -p "$logs"
+{ date -u +%FT%TZ; git rev-parse HEAD; git status --porcelain -- nutribench regimes; } >> "$logs/code_version.txt"
 for algo in "$@"; do
   for driver in 1 2; do
     /usr/bin/time -f "%e s wall" nutribench tune --algo "$algo" --study "${prefix}$algo" \
