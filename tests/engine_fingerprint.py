@@ -19,6 +19,13 @@ shipped config) and writes, per agent: every training day's metrics, the returns
 greedy evaluation days, a hash of every weight tensor of its SB3 model, of its observation
 statistics, its return statistics, and its diagnostics. Not a test: the hashes hold for one
 torch build only.
+
+``--first-of K`` trains each of the three agents first in a batch of K instead (the other K - 1
+places hold filler jobs, run3 seeds 500 on) and writes the same file: on a batch-invariant
+engine it equals the plain fingerprint; on an engine whose rounding depended on the batch it
+shows what each agent's numbers were in that other batch::
+
+    python tests/engine_fingerprint.py --first-of 8 /tmp/first8.json
 """
 
 from __future__ import annotations
@@ -50,11 +57,19 @@ def digest(t) -> str:
     return hashlib.sha256(th.as_tensor(t).detach().cpu().contiguous().numpy().tobytes()).hexdigest()[:16]
 
 
-def fingerprint() -> dict:
+def train(cfg, days: int, first_of: int | None) -> list:
+    """The three agents trained together, or each first in a batch of ``first_of``."""
+    if first_of is None:
+        return train_batched(JOBS, cfg, days, device="cpu")
+    fillers = [("run3", 500 + i) for i in range(first_of - 1)]
+    return [train_batched([job, *fillers], cfg, days, device="cpu")[0] for job in JOBS]
+
+
+def fingerprint(first_of: int | None = None) -> dict:
     out = {}
     for name, (algo, update, days) in SETUPS.items():
         t0 = time.perf_counter()
-        agents = train_batched(JOBS, load_agent_config(algo).model_copy(update=update), days, device="cpu")
+        agents = train(load_agent_config(algo).model_copy(update=update), days, first_of)
         rows = []
         for (regime, seed), agent in zip(JOBS, agents):
             days_evaluated = evaluate(agent, regime, eval_food_streams(regime, seed, 2), record_steps=False).episodes
@@ -98,5 +113,9 @@ def compare(before: dict, after: dict) -> bool:
 if __name__ == "__main__":
     if sys.argv[1] == "--compare":
         sys.exit(0 if compare(*(json.load(open(p)) for p in sys.argv[2:4])) else 1)
-    with open(sys.argv[1], "w") as f:
-        json.dump(fingerprint(), f, indent=0, sort_keys=True)
+    args = sys.argv[1:]
+    first_of = None
+    if args[0] == "--first-of":
+        first_of, args = int(args[1]), args[2:]
+    with open(args[0], "w") as f:
+        json.dump(fingerprint(first_of), f, indent=0, sort_keys=True)
