@@ -1,8 +1,10 @@
-"""One algorithm, one registry entry (nutribench/agents/registry.py): the built-ins are read
-from the registry module, a plug-in package adds an algorithm with its own validated config
-model through the entry-point group ``nutribench.algorithms`` and runs end to end (run,
-report, compare, db export/import) without a line of nutribench changed; and no module
-outside the registry dispatches on an algorithm's name."""
+"""One algorithm, one registry entry (nutribench/agents/registry.py), in one place: a built-in
+is one module of nutribench/agents/builtin/ (its config model, arguments, SB3 class and entry;
+a new one is one new file, found by scanning the package), a plug-in package adds an
+algorithm with its own validated config model through the entry-point group
+``nutribench.algorithms`` and runs end to end (run, report, compare, db export/import) without
+a line of nutribench changed; and no module outside the registry and an algorithm's own module
+dispatches on an algorithm's name."""
 
 from __future__ import annotations
 
@@ -94,7 +96,8 @@ def installed(tmp_path: Path, monkeypatch):
     registry.reload_installed()
 
 
-def test_builtins_come_from_the_registry_module_in_the_paper_order():
+def test_builtins_come_from_the_builtin_package_in_the_paper_order():
+    assert [a.algo for a in registry.builtin_algorithms()] == ["mc", "ddqn", "ppo", "sac", "gru_ppo", "external"]
     assert registry.paper_names() == ["mc", "ddqn", "ppo", "sac", "gru_ppo"]
     assert list(registry.algorithms())[:6] == ["mc", "ddqn", "ppo", "sac", "gru_ppo", "external"]
     assert {a: registry.get(a).color for a in registry.paper_names()} == {  # the published figures' colours
@@ -107,13 +110,133 @@ def test_builtins_come_from_the_registry_module_in_the_paper_order():
     assert registry.batched_names() == registry.paper_names()
 
 
-def test_the_entry_point_group_lists_the_builtins_the_registry_holds():
-    """pyproject.toml's group names the very objects of the registry table (the installed
-    metadata may be another checkout's, so the table, not the metadata, is read for them)."""
+def test_each_builtin_is_one_module_named_like_its_algo():
+    """A built-in's module holds its config model, its arguments function and its entry; the
+    class its arguments build is the one its entry loads with, defined in or imported into that
+    module (the big policies of SAC and GRU-PPO live in their packages)."""
+    from nutribench.agents.algos import model_arguments
+
+    for entry in registry.builtin_algorithms():
+        module = sys.modules[entry.config_model().__module__]
+        assert module.__name__ == f"{registry.BUILTIN_PACKAGE}.{entry.algo}" and module.ALGORITHM is entry
+        assert entry.config_model().model_fields["algo"].annotation.__args__ == (entry.algo,)
+        if entry.build is None:
+            continue
+        arguments = registry.import_entry_point(entry.arguments)
+        assert arguments.__module__ == module.__name__, entry.arguments
+        cls, _ = model_arguments(load_agent_config(entry.algo), 50)
+        assert cls is registry.import_entry_point(entry.load) and getattr(module, cls.__name__) is cls
+
+
+def test_the_hub_modules_name_no_algorithm_and_import_no_builtin():
+    """registry.py, config.py and algos.py hold no algorithm's name (the grep below) and import
+    no built-in's module: they learn of the built-ins by scanning the package only."""
+    hubs = [PACKAGE / "agents" / f for f in ("registry.py", "config.py", "algos.py")]
+    names = {a.algo for a in registry.builtin_algorithms()}
+    for path in hubs:
+        assert not name_literals(path, names), path
+        tree = ast.parse(path.read_text())
+        imported = [
+            n.module if isinstance(n, ast.ImportFrom) else a.name
+            for n in ast.walk(tree)
+            if isinstance(n, (ast.Import, ast.ImportFrom))
+            for a in n.names
+        ]
+        assert not [m for m in imported if m and m.startswith(registry.BUILTIN_PACKAGE)], path
+
+
+def test_old_import_paths_of_the_builtins_still_resolve():
+    """Code and agent files' entry points written before each built-in was one module."""
+    import nutribench.agents.algos as algos
+    import nutribench.agents.config as config
+    from nutribench.agents.builtin import ddqn, external, mc
+
+    assert config.MCConfig is mc.MCConfig and config.ExternalConfig is external.ExternalConfig
+    assert algos.DoubleDQN is ddqn.DoubleDQN and algos.double_dqn_target is ddqn.double_dqn_target
+    assert registry.import_entry_point("nutribench.agents.algos:mc_arguments") is mc.mc_arguments
+    for name in ("ALGORITHM", "Algorithm", "nope", "_FeedForwardless"):  # every module's, or none's
+        with pytest.raises(AttributeError, match=name):
+            getattr(algos, name)
+
+
+NEW_BUILTIN = '''
+"""SB3's A2C as a sixth built-in: this file and nothing else."""
+from typing import Literal
+
+from stable_baselines3 import A2C
+
+from nutribench.agents.config import PosFloat, PosInt, _FeedForward
+from nutribench.agents.registry import Algorithm
+
+
+class NbtestSixthConfig(_FeedForward):
+    algo: Literal["nbtest_sixth"]
+    n_steps: PosInt
+    learning_rate: PosFloat
+
+
+def sixth_arguments(cfg, horizon):
+    return A2C, dict(policy="MlpPolicy", n_steps=cfg.n_steps, learning_rate=cfg.learning_rate)
+
+
+ALGORITHM = Algorithm(
+    "nbtest_sixth", NbtestSixthConfig, arguments=f"{__name__}:sixth_arguments", load="stable_baselines3:A2C",
+    plain="stable_baselines3.A2C", label="Sixth", order=6,
+)
+'''
+
+
+def test_a_new_builtin_is_one_new_file(tmp_path: Path, monkeypatch):
+    """A module dropped into the built-in package (here: a folder added to its path) is a
+    built-in: listed after the paper's five and before ``external``, its files validated by
+    its config model, trained by ``build_model``; no other module changed."""
+    import nutribench.agents.builtin as builtin
+    from nutribench.agents.registry import make_model
+    from nutribench.env.sb3 import NutriRLSB3VecEnv
+
+    (tmp_path / "nbtest_sixth.py").write_text(textwrap.dedent(NEW_BUILTIN))
+    monkeypatch.setattr(builtin, "__path__", [*builtin.__path__, str(tmp_path)])
+    registry.reload_installed()
+    try:
+        assert list(registry.algorithms())[:7] == ["mc", "ddqn", "ppo", "sac", "gru_ppo", "nbtest_sixth", "external"]
+        assert registry.paper_names()[-1] == "nbtest_sixth" and registry.get("nbtest_sixth").display == "Sixth"
+        base = {"name": "s", "version": 1, "description": "d", "normalize_obs": False, "normalize_reward": False}
+        data = {"algo": "nbtest_sixth", **base, "gamma": 0.9, "net_arch": [8], "n_steps": 5, "learning_rate": 1e-3}
+        cfg = parse_agent_config(data)
+        with pytest.raises(ConfigError, match="n_steps"):
+            parse_agent_config({**data, "n_steps": 0})
+        from nutribench.agents.config import NbtestSixthConfig  # found by name as the others'
+
+        assert type(cfg) is NbtestSixthConfig
+        model = make_model(cfg, NutriRLSB3VecEnv(regime="run0"), seed=0, horizon=50)
+        assert type(model).__name__ == "A2C" and model.n_steps == 5
+    finally:
+        monkeypatch.undo()
+        sys.modules.pop(f"{registry.BUILTIN_PACKAGE}.nbtest_sixth", None)
+        registry.reload_installed()
+    assert "nbtest_sixth" not in registry.algorithms()
+
+
+def test_pyproject_lists_no_builtin_and_stale_metadata_is_skipped(tmp_path: Path, monkeypatch):
+    """pyproject.toml's entry-point group holds no built-in (a new built-in needs no line
+    there); an installed metadata that still names the old built-in entries (an editable
+    install of an older checkout) is skipped, the package is read instead."""
     import tomllib
 
-    group = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["entry-points"][registry.ENTRY_POINT_GROUP]
-    assert {k: registry.import_entry_point(v) for k, v in group.items()} == {a.algo: a for a in registry.BUILTINS}
+    groups = tomllib.loads((REPO / "pyproject.toml").read_text())["project"].get("entry-points", {})
+    assert not [v for v in groups.get(registry.ENTRY_POINT_GROUP, {}).values() if v.startswith("nutribench")]
+    info = tmp_path / "nutribench_stale-0.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: nutribench-stale\nVersion: 0.0\n")
+    stale = "".join(f"{a} = nutribench.agents.registry:{a.upper()}\n" for a in registry.paper_names())
+    (info / "entry_points.txt").write_text(f"[{registry.ENTRY_POINT_GROUP}]\n{stale}")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    registry.reload_installed()
+    try:
+        assert list(registry.algorithms())[:6] == ["mc", "ddqn", "ppo", "sac", "gru_ppo", "external"]
+    finally:
+        monkeypatch.undo()
+        registry.reload_installed()
 
 
 def test_a_plugin_package_registers_an_algorithm_with_its_own_validated_config(installed):
@@ -199,7 +322,6 @@ def test_a_plugin_algorithm_runs_end_to_end(tmp_path: Path):
 # ------------------------------------------------------------- no dispatch on names
 #: the modules allowed to hold an algorithm's name, and why
 ALLOWED_MODULES = {
-    "nutribench/agents/registry.py": "the registry itself",
     "nutribench/report/authors.py": "the paper's published numbers, keyed by its agents",
     "nutribench/report/tables.py": "the paper's Tables 2-6: which table shows which shipped agent file",
     "nutribench/report/build.py": "the paper's Figure 4 draws the ppo and gru_ppo agent files",
@@ -273,19 +395,21 @@ def name_literals(path: Path, names: set[str], compared: frozenset[str] = frozen
     return [f"{n.lineno}: {n.value!r}" for n in sorted(hits, key=lambda n: (n.lineno, n.col_offset))]
 
 
-def test_no_module_outside_the_registry_names_an_algorithm():
+def test_no_module_outside_its_own_names_an_algorithm():
     """No string constant equal to a built-in algorithm's name (mc, ddqn, ppo, sac, gru_ppo)
-    in nutribench/ outside the registry, but in docstrings, comments, parameter defaults,
-    ``Literal[...]`` annotations (a config model's own ``algo``) and the modules of
-    :data:`ALLOWED_MODULES` (the paper's data); and no ``"external"`` compared with an
-    ``algo`` (the word is also a job's engine, and a recorded agent's config writes it). So
-    nothing compares ``algo == "gru_ppo"`` or keeps a table keyed by algorithm: a sixth
-    algorithm is its registry entry."""
+    in nutribench/ but in that algorithm's own module (``agents/builtin/<algo>.py``, its entry
+    and config model), docstrings, comments, parameter defaults, ``Literal[...]`` annotations
+    and the modules of :data:`ALLOWED_MODULES` (the paper's data); and no ``"external"``
+    compared with an ``algo`` (the word is also a job's engine, and a recorded agent's config
+    writes it). So nothing compares ``algo == "gru_ppo"`` or keeps a table keyed by algorithm,
+    the registry included: a sixth algorithm is its own module."""
     names = set(registry.paper_names())
+    builtin = PACKAGE / Path(*registry.BUILTIN_PACKAGE.split(".")[1:])
     found = {}
     for path in sorted(PACKAGE.rglob("*.py")):
         rel = path.relative_to(PACKAGE.parent).as_posix()
-        if rel not in ALLOWED_MODULES and (hits := name_literals(path, names, frozenset({"external"}))):
+        own = {path.stem} if path.parent == builtin else set()
+        if rel not in ALLOWED_MODULES and (hits := name_literals(path, names - own, frozenset({"external"}))):
             found[rel] = hits
     assert not found, found
 

@@ -1,4 +1,4 @@
-"""The batched engine's DDQN against SB3's (``nutribench.agents.algos.DoubleDQN``): the
+"""The batched engine's DDQN against SB3's (``nutribench.agents.builtin.ddqn.DoubleDQN``): the
 n-step replay sampling, one update of stacked agents, the schedules, and the loop's timing
 (when it updates, with which learning rate and epsilon, how often it copies the target)."""
 
@@ -12,8 +12,8 @@ from stable_baselines3.common.buffers import NStepReplayBuffer
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.utils import LinearSchedule
 
-from nutribench.agents.algos import DoubleDQN
 from nutribench.agents.api import TrainedAgent, eval_food_streams, evaluate, make_train_env
+from nutribench.agents.builtin.ddqn import DoubleDQN
 from nutribench.agents.config import load_agent_config
 from nutribench.config import load_env_config
 from nutribench.engine.ddqn import ddqn_update, q_linears, train_ddqn_batched

@@ -1,42 +1,31 @@
-"""The five algorithms on Stable-Baselines3, built from their config models.
+"""What the algorithms on Stable-Baselines3 share: how a model is built from a config
+(:func:`build_model`, from the class and arguments its registry entry's ``arguments`` gives),
+the shared actor-critic backbone, PPO's arguments, and the entropy of a day's policy.
 
-* **MC** (:class:`MonteCarloAC`): SB3 ``A2C`` with a rollout of exactly one day and GAE
-  lambda = 1, i.e. one gradient step per complete episode on full-episode returns minus a
-  value baseline; Adam.
-* **DDQN** (:class:`DoubleDQN`): SB3 ``DQN`` whose target is the double-DQN one (the online
-  net picks ``argmax_a Q(s', a)``, the target net values it), with SB3's n-step replay.
-* **PPO** (:class:`PPOWithGradNorm`): SB3 ``PPO``; its update's gradient norm is logged.
-* **SAC**: :class:`~nutribench.agents.sac.DiscreteSAC`.
-* **GRU-PPO**: :class:`~nutribench.agents.gru_ppo.GRUPPO`.
+Each built-in algorithm (its config model, arguments function and SB3 class) is one module of
+:mod:`nutribench.agents.builtin`; its names are found here too, as before
+(``nutribench.agents.algos.DoubleDQN``).
 
-MC and PPO share one backbone between actor and critic (:class:`Backbone`, the shared
-features extractor; SB3 2.x no longer shares ``net_arch`` layers), with linear policy and
-value heads on it: "shared actor-critic, 1 value head" (the paper's Tables 2 and 4).
+The feedforward actor-critics share one backbone between actor and critic (:class:`Backbone`,
+the shared features extractor; SB3 2.x no longer shares ``net_arch`` layers), with linear
+policy and value heads on it: "shared actor-critic, 1 value head" (the paper's Tables 2 and 4).
 """
 
 from __future__ import annotations
 
 import inspect
-import warnings
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch as th
-from stable_baselines3 import DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
-from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
-from torch.nn import functional as F
 
 import nutribench.agents.registry as registry
-from nutribench.agents.config import DDQNConfig, GRUPPOConfig, MCConfig, PPOConfig, SACConfig
-from nutribench.agents.gru_ppo import GRUPPO
-from nutribench.agents.sac import DiscreteSAC
-from nutribench.agents.sb3_train import GradNormA2C, GradNormPPO
 from nutribench.config.loading import ConfigError
 
 
@@ -64,82 +53,6 @@ def shared_actor_critic_kwargs(net_arch: list[int]) -> dict[str, Any]:
     )
 
 
-# ---------------------------------------------------------------------------- MC
-class MonteCarloAC(GradNormA2C):
-    """On-policy Monte Carlo actor-critic (the paper's Table 2) as an A2C whose rollout is one
-    whole day (``n_steps`` = horizon, one env) and whose GAE lambda is 1: each update uses
-    the complete episode's discounted returns. No gradient clipping when ``max_grad_norm`` is
-    ``inf`` (the norm is still logged: :class:`~nutribench.agents.sb3_train.GradNormA2C`)."""
-
-
-# ---------------------------------------------------------------------------- PPO
-class PPOWithGradNorm(GradNormPPO):
-    """SB3 ``PPO`` unchanged; each update also logs ``train/grad_norm``, the mean over its
-    gradient steps of the norm before clipping (:class:`~nutribench.agents.sb3_train.GradNormPPO`).
-    Its saved models are SB3 ``PPO`` models."""
-
-
-# ---------------------------------------------------------------------------- DDQN
-def double_dqn_target(
-    q_online_next: th.Tensor,
-    q_target_next: th.Tensor,
-    rewards: th.Tensor,
-    dones: th.Tensor,
-    discounts: th.Tensor | float,
-) -> th.Tensor:
-    """``r + discount * (1 - done) * Q_target(s', argmax_a Q_online(s', a))``, shape ``(batch, 1)``.
-
-    :param q_online_next: ``(batch, n_actions)`` online network at the next states.
-    :param q_target_next: ``(batch, n_actions)`` target network at the next states.
-    :param rewards: ``(batch, 1)`` (n-step discounted) rewards.
-    :param dones: ``(batch, 1)`` episode ended within the n steps.
-    :param discounts: ``gamma ** n`` per sample ``(batch, 1)`` or a float.
-    """
-    best = q_online_next.argmax(dim=1, keepdim=True)
-    next_q = th.gather(q_target_next, dim=1, index=best)
-    return rewards + (1 - dones) * discounts * next_q
-
-
-class DoubleDQN(DQN):
-    """SB3 DQN with the double-DQN target; everything else (n-step replay, epsilon-greedy,
-    hard target copies, Huber loss, gradient clipping) is SB3's. Each update also logs
-    ``train/q_mean`` (mean Q of the batch's actions) and ``train/grad_norm`` (before clipping)."""
-
-    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
-        self.policy.set_training_mode(True)
-        self._update_learning_rate(self.policy.optimizer)
-        losses, grad_norms, q_means = [], [], []
-        for _ in range(gradient_steps):
-            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            discounts = data.discounts if data.discounts is not None else self.gamma
-            with th.no_grad():
-                target = double_dqn_target(
-                    self.q_net(data.next_observations),
-                    self.q_net_target(data.next_observations),
-                    data.rewards,
-                    data.dones,
-                    discounts,
-                )
-            current = th.gather(self.q_net(data.observations), dim=1, index=data.actions.long())
-            loss = F.smooth_l1_loss(current, target)
-            losses.append(loss.item())
-            q_means.append(current.detach().mean().item())
-            self.policy.optimizer.zero_grad()
-            loss.backward()
-            grad_norms.append(th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm).item())
-            self.policy.optimizer.step()
-        self._n_updates += gradient_steps
-        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/loss", float(np.mean(losses)))
-        self.logger.record("train/q_mean", float(np.mean(q_means)))
-        self.logger.record("train/grad_norm", float(np.mean(grad_norms)))
-
-    def day_entropy(self, obs: np.ndarray) -> None:
-        """Epsilon-greedy over Q-values: no stochastic policy whose entropy to record."""
-        return None
-
-
-# ---------------------------------------------------------------------------- builders
 #: Mixed into the job seed for the action space's random stream (see :func:`build_model`).
 ACTION_STREAM_SALT = 27_182
 
@@ -164,8 +77,9 @@ def build_model(
     return model
 
 
-def ppo_arguments(cfg: PPOConfig | GRUPPOConfig) -> dict[str, Any]:
-    """The constructor arguments PPO and GRU-PPO share (GRU-PPO's update is PPO's)."""
+def ppo_arguments(cfg: Any) -> dict[str, Any]:
+    """The constructor arguments PPO and GRU-PPO share (GRU-PPO's update is PPO's): those of
+    :class:`~nutribench.agents.config._PPOFields`."""
     return dict(
         learning_rate=cfg.learning_rate,
         n_steps=cfg.n_steps,
@@ -192,73 +106,11 @@ def model_arguments(cfg: Any, horizon: int) -> tuple[type[BaseAlgorithm], dict[s
     return registry.import_entry_point(entry.arguments)(cfg, horizon)
 
 
-def mc_arguments(cfg: MCConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
-    """MC: an A2C whose rollout is one whole day, GAE lambda 1, Adam, no advantage normalisation."""
-    return MonteCarloAC, dict(
-        policy="MlpPolicy",
-        n_steps=horizon,
-        learning_rate=cfg.learning_rate,
-        gae_lambda=1.0,
-        ent_coef=cfg.ent_coef,
-        vf_coef=cfg.vf_coef,
-        max_grad_norm=cfg.max_grad_norm,
-        use_rms_prop=False,
-        normalize_advantage=False,
-        policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch),
-    )
-
-
-def ppo_model_arguments(cfg: PPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
-    """PPO on the shared actor-critic."""
-    # SB3 warns when batch_size does not divide n_steps; whole days per rollout matter more
-    # here than equal minibatches (500 = 7 x 64 + 52).
-    warnings.filterwarnings("ignore", message="You have specified a mini-batch size", module="stable_baselines3")
-    return PPOWithGradNorm, dict(
-        policy="MlpPolicy", **ppo_arguments(cfg), policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch)
-    )
-
-
-def gru_ppo_arguments(cfg: GRUPPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
-    """GRU-PPO: PPO's arguments and the recurrent policy's sizes."""
-    return GRUPPO, dict(**ppo_arguments(cfg), hidden_size=cfg.hidden_size, sequence_length=cfg.sequence_length)
-
-
-def ddqn_arguments(cfg: DDQNConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
-    """Double DQN: a linear learning-rate schedule, hard target copies (tau 1)."""
-    return DoubleDQN, dict(
-        policy="MlpPolicy",
-        learning_rate=LinearSchedule(cfg.learning_rate_start, cfg.learning_rate_end, end_fraction=1.0),
-        buffer_size=cfg.buffer_size,
-        learning_starts=cfg.learning_starts,
-        batch_size=cfg.batch_size,
-        n_steps=cfg.n_step,
-        max_grad_norm=cfg.max_grad_norm,
-        target_update_interval=cfg.target_update_interval,
-        train_freq=cfg.train_freq,
-        gradient_steps=cfg.gradient_steps,
-        exploration_initial_eps=cfg.exploration_initial_eps,
-        exploration_final_eps=cfg.exploration_final_eps,
-        exploration_fraction=cfg.exploration_fraction,
-        tau=1.0,
-        policy_kwargs=dict(net_arch=list(cfg.net_arch)),
-    )
-
-
-def sac_arguments(cfg: SACConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
-    """Discrete SAC, fixed temperature."""
-    return DiscreteSAC, dict(
-        policy="MlpPolicy",
-        actor_learning_rate=cfg.actor_learning_rate,
-        critic_learning_rate=cfg.critic_learning_rate,
-        buffer_size=cfg.buffer_size,
-        learning_starts=cfg.learning_starts,
-        batch_size=cfg.batch_size,
-        tau=cfg.tau,
-        alpha=cfg.alpha,
-        train_freq=cfg.train_freq,
-        gradient_steps=cfg.gradient_steps,
-        net_arch=list(cfg.net_arch),
-    )
+def __getattr__(name: str) -> Any:
+    """The built-in algorithms' classes and functions (``MonteCarloAC``, ``DoubleDQN``,
+    ``double_dqn_target``, ``PPOWithGradNorm``, ``mc_arguments``, ...): each lives in its
+    algorithm's module (:mod:`nutribench.agents.builtin`) and is found here too, as before."""
+    return registry.builtin_attribute(__name__, name)
 
 
 def episode_entropy(model: Any, obs: np.ndarray) -> float | None:

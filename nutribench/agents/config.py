@@ -1,12 +1,18 @@
 """Agent configurations (the paper's Tables 2-6) as versioned, validated files.
 
 One TOML file per configuration in ``regimes/agents/`` (``<name>.toml``); the ``algo`` key
-picks the model (its config model in :mod:`nutribench.agents.registry`), every hyperparameter of the built-in algorithms is written
-out (nothing is defaulted), unknown keys are errors, and ``name`` must equal the file name. A
-user adds a variant by copying a file, changing ``name`` (and the file name) and the values,
-or brings an algorithm of their own: a registered one with its own config model
-(:mod:`nutribench.agents.registry`), or ``algo = "external"`` (:class:`ExternalConfig`): an
-``entry_point = "package.module:make_agent"`` and a free ``[params]`` table.
+picks the config model (the one its registry entry names, :mod:`nutribench.agents.registry`),
+every hyperparameter of the built-in algorithms is written out (nothing is defaulted), unknown
+keys are errors, and ``name`` must equal the file name. A user adds a variant by copying a
+file, changing ``name`` (and the file name) and the values, or brings an algorithm of their
+own: a registered one with its own config model, or ``algo = "external"``
+(:class:`~nutribench.agents.builtin.external.ExternalConfig`): an ``entry_point =
+"package.module:make_agent"`` and a free ``[params]`` table.
+
+This module holds what every config model is built from (the field types, ``_AgentBase``,
+``_PPOFields``) and the reading, hashing and writing of the files; each built-in algorithm's
+own model lives in its module of :mod:`nutribench.agents.builtin` (and is found here by name
+too, ``nutribench.agents.config.MCConfig``, as before).
 
 The content hash (:func:`agent_config_sha256`) is what the results database records next
 to ``name`` and ``version``: a file changed without a version bump is refused by ``run``.
@@ -15,10 +21,10 @@ to ``name`` and ``version``: a file changed without a version bump is refused by
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 import tomli_w
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 import nutribench.agents.registry as registry
 from nutribench.config.loading import (
@@ -62,17 +68,6 @@ class _FeedForward(_AgentBase):
     net_arch: list[PosInt] = Field(min_length=1, description="hidden layers of the shared backbone, e.g. [256, 128]")
 
 
-class MCConfig(_FeedForward):
-    """Monte Carlo actor-critic: one update per complete episode, GAE with lambda = 1."""
-
-    algo: Literal["mc"]
-    learning_rate: PosFloat
-    gae_lambda: Literal[1.0]
-    ent_coef: NonNegFloat
-    vf_coef: PosFloat
-    max_grad_norm: GradNorm
-
-
 class _PPOFields(BaseModel):
     """PPO's optimisation fields, shared by the feedforward and the recurrent PPO."""
 
@@ -88,89 +83,11 @@ class _PPOFields(BaseModel):
     normalize_advantage: bool
 
 
-class PPOConfig(_FeedForward, _PPOFields):
-    """PPO, clipped surrogate, shared actor-critic."""
-
-    algo: Literal["ppo"]
-
-
-class GRUPPOConfig(_AgentBase, _PPOFields):
-    """PPO with the recurrent two-GRU policy of the paper's Table 6 (heads fixed by the paper)."""
-
-    algo: Literal["gru_ppo"]
-    hidden_size: PosInt
-    sequence_length: PosInt
-
-    @model_validator(mode="after")
-    def _whole_sequences(self) -> GRUPPOConfig:
-        if self.n_steps % self.sequence_length:
-            raise ValueError(f"n_steps ({self.n_steps}) must be a multiple of sequence_length ({self.sequence_length})")
-        return self
-
-
-class DDQNConfig(_FeedForward):
-    """Double DQN with n-step returns."""
-
-    algo: Literal["ddqn"]
-    learning_rate_start: PosFloat
-    learning_rate_end: PosFloat
-    buffer_size: PosInt
-    learning_starts: Annotated[int, Field(ge=0)]
-    batch_size: PosInt
-    n_step: PosInt
-    max_grad_norm: GradNorm
-    target_update_interval: PosInt
-    train_freq: PosInt
-    gradient_steps: PosInt
-    exploration_initial_eps: Prob
-    exploration_final_eps: Prob
-    exploration_fraction: Prob
-
-
-class SACConfig(_FeedForward):
-    """Discrete-action SAC, fixed temperature."""
-
-    algo: Literal["sac"]
-    actor_learning_rate: PosFloat
-    critic_learning_rate: PosFloat
-    buffer_size: PosInt
-    learning_starts: Annotated[int, Field(ge=0)]
-    batch_size: PosInt
-    tau: Prob
-    alpha: NonNegFloat
-    train_freq: PosInt
-    gradient_steps: PosInt
-
-
-EntryPoint = Annotated[
-    str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*:[A-Za-z_][A-Za-z0-9_]*$")
-]
-
-
-class ExternalConfig(BaseModel):
-    """An agent implemented outside nutribench: a plug-in named by its entry point.
-
-    ``entry_point = "package.module:make_agent"`` names a function
-    ``make_agent(params: dict, env: VecEnv, seed: int)`` returning an object with SB3's
-    algorithm surface (``learn(total_timesteps)``, ``predict(obs, state, episode_start,
-    deterministic)``, ``save(path)``); the same module has ``load(path)`` for a saved one.
-    ``params`` is free (it is hashed with the rest of the file). The other fields have the
-    defaults stated here. An external config without ``entry_point`` describes an agent whose
-    results were recorded (:class:`nutribench.Recorder`, ``nutribench evaluate``): it cannot be
-    trained by ``nutribench run``.
-    """
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    algo: Literal["external"]
-    name: Name
-    version: Version
-    description: str
-    entry_point: EntryPoint | None = Field(default=None, description="package.module:make_agent")
-    params: dict[str, Any] = Field(default_factory=dict, description="passed to make_agent as its first argument")
-    normalize_obs: bool = Field(default=False, description="wrap the env in VecNormalize(norm_obs=True)")
-    normalize_reward: bool = Field(default=False, description="wrap the env in VecNormalize(norm_reward=True)")
-    gamma: Discount = Field(default=0.99, description="VecNormalize's return discount")
+def __getattr__(name: str) -> Any:
+    """The config models of the built-in algorithms (``MCConfig``, ``ExternalConfig``, ...): each
+    lives in its algorithm's module (:mod:`nutribench.agents.builtin`) and is found here too, as
+    it was before (code and agent files' entry points that name ``nutribench.agents.config:``)."""
+    return registry.builtin_attribute(__name__, name)
 
 
 def agents_dir() -> Path:

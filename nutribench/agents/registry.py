@@ -4,20 +4,24 @@ An :class:`Algorithm` says, for the ``algo`` key of its agent config files: the 
 (pydantic, validated when a file is read), how to build its model and load a saved one, the
 plain SB3 class its models load with, its label and colour in figures, its batched class in
 :mod:`nutribench.engine` (optional) and what of it the batched engine cannot train. Nothing
-outside this module asks an algorithm's name (tests/test_algorithm_registry.py greps for it).
+but an algorithm's own module spells out its name, this registry included: every other module
+asks the registry (tests/test_algorithm_registry.py greps for names).
 
-Built-ins and plug-ins register the same way: an entry of the entry-point group
-``nutribench.algorithms`` names an :class:`Algorithm` object (as Gymnasium's ``register``);
-the package's own pyproject.toml lists the five built-ins there, and an installed package
-adds its own::
+Adding a built-in is one new module of :data:`BUILTIN_PACKAGE` (``nutribench/agents/builtin/``),
+named like its ``algo``: its config model, its arguments function, its SB3 class and its entry
+``ALGORITHM = Algorithm(...)``. :func:`builtin_algorithms` finds the entries by scanning that
+package, and lists them by ``order`` (the paper's), ``external`` last; nothing else is touched.
+
+Adding a plug-in is one installed package: an entry of the entry-point group
+``nutribench.algorithms`` names its :class:`Algorithm` object (as Gymnasium's ``register``)::
 
     [project.entry-points."nutribench.algorithms"]
     a2c = "my_package.algo:A2C_ALGORITHM"     # an Algorithm(...) object
 
-The built-ins are also read from :data:`BUILTINS` in this module, so they are there when the
-installed metadata is stale or absent (an editable install of another checkout, a source
-tree on ``PYTHONPATH``); entries of the group that point into nutribench itself are therefore
-skipped. :func:`register` adds one in-process (tests, notebooks).
+nutribench's own pyproject.toml lists no built-in there: they are read from the package, so
+they are there when the installed metadata is stale or absent (an editable install of another
+checkout, a source tree on ``PYTHONPATH``), and entries of the group that point into
+nutribench itself are skipped. :func:`register` adds one in-process (tests, notebooks).
 
 Besides, ``algo = "external"`` keeps a plug-in without a package: an ``entry_point =
 "package.module:make_agent"`` and a free ``[params]`` table. Its builder is that entry point;
@@ -33,6 +37,8 @@ from __future__ import annotations
 import copy
 import functools
 import importlib
+import math
+import pkgutil
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -44,6 +50,8 @@ from nutribench.provenance import file_sha256
 
 #: the entry-point group algorithms register in
 ENTRY_POINT_GROUP = "nutribench.algorithms"
+#: the package of the built-in algorithms, one module each holding its ``ALGORITHM``
+BUILTIN_PACKAGE = "nutribench.agents.builtin"
 #: what builds a model for an algorithm whose ``arguments`` are given (SB3 classes)
 SB3_BUILD = "nutribench.agents.algos:build_model"
 
@@ -68,6 +76,8 @@ class Algorithm:
     :param label: its label in figures and tables (default: ``algo``); the config file named
         like the algorithm is drawn under it.
     :param color: its colour in figures (None: one derived from the name, as for any config).
+    :param order: where a built-in stands in every list of algorithms (the paper's order: MC 1,
+        DDQN 2, PPO 3, SAC 4, GRU-PPO 5; unset: after those, by name).
     :param batched: ``"package.module:Class"`` of its class in the batched engine
         (:class:`nutribench.engine.algorithm.Algorithm`), None if it has none.
     :param batch_limits: ``f(cfg, horizon) -> reason or None``: what of a config the batched
@@ -87,6 +97,7 @@ class Algorithm:
     plain: str | None = None
     label: str | None = None
     color: str | None = None
+    order: float = math.inf
     batched: str | None = None
     batch_limits: Callable[[Any, int | None], str | None] | None = field(default=None, compare=False)
     cost: float = 1.0
@@ -103,8 +114,9 @@ class Algorithm:
         return self.label or self.algo
 
 
-def _no_replay_scaling(cfg: Any, horizon: int | None) -> str | None:
-    """An off-policy algorithm's replay would have to scale sampled rewards."""
+def no_replay_scaling(cfg: Any, horizon: int | None) -> str | None:
+    """``batch_limits`` of an off-policy algorithm: its batched replay would have to scale
+    sampled rewards."""
     if cfg.normalize_reward:
         return (
             "the batched engine does not scale replayed rewards (normalize_reward = true); set normalize_reward = false"
@@ -112,84 +124,6 @@ def _no_replay_scaling(cfg: Any, horizon: int | None) -> str | None:
     return None
 
 
-def _whole_days(cfg: Any, horizon: int | None) -> str | None:
-    """The batched recurrent PPO trains on whole days."""
-    if horizon is not None and (cfg.sequence_length != horizon or cfg.n_steps % horizon):
-        return (
-            f"the batched engine trains on whole days, so sequence_length ({cfg.sequence_length}) must be the "
-            f"horizon ({horizon}) and n_steps ({cfg.n_steps}) a multiple of it"
-        )
-    return None
-
-
-_CFG, _ALGOS, _ENGINE = "nutribench.agents.config:", "nutribench.agents.algos:", "nutribench.engine."
-#: The built-in algorithms, in the paper's order, then ``external`` (a plug-in named by its
-#: config's entry point). MC, DDQN and PPO are SB3's A2C, DQN and PPO with other settings,
-#: another train() or a logged gradient norm: plain SB3 loads and acts with them; discrete SAC
-#: and GRU-PPO have policies of their own. The colours are the paper's figures'.
-MC = Algorithm(
-    "mc",
-    _CFG + "MCConfig",
-    arguments=_ALGOS + "mc_arguments",
-    load=_ALGOS + "MonteCarloAC",
-    plain="stable_baselines3.A2C",
-    label="MC",
-    color="#8c564b",
-    batched=_ENGINE + "mc:MC",
-)
-DDQN = Algorithm(
-    "ddqn",
-    _CFG + "DDQNConfig",
-    arguments=_ALGOS + "ddqn_arguments",
-    load=_ALGOS + "DoubleDQN",
-    plain="stable_baselines3.DQN",
-    label="DDQN",
-    color="#1f77b4",
-    batched=_ENGINE + "ddqn:DDQN",
-    batch_limits=_no_replay_scaling,
-    bench_days=2000,  # the epsilon schedule and 10k-step warm-up: slower by design
-    bare=(
-        (_ALGOS + "DoubleDQN", "bare SB3 DQN loop, double target"),
-        ("stable_baselines3:DQN", "bare SB3 DQN, vanilla target"),
-    ),
-)
-PPO = Algorithm(
-    "ppo",
-    _CFG + "PPOConfig",
-    arguments=_ALGOS + "ppo_model_arguments",
-    load=_ALGOS + "PPOWithGradNorm",
-    plain="stable_baselines3.PPO",
-    label="PPO",
-    color="#2ca02c",
-    batched=_ENGINE + "ppo:PPO",
-    bare=(("stable_baselines3:PPO", "bare SB3 PPO"),),
-)
-SAC = Algorithm(
-    "sac",
-    _CFG + "SACConfig",
-    arguments=_ALGOS + "sac_arguments",
-    load="nutribench.agents.sac:DiscreteSAC",
-    plain="nutribench.agents.sac.DiscreteSAC",
-    label="SAC",
-    color="#d62728",
-    batched=_ENGINE + "sac:SAC",
-    batch_limits=_no_replay_scaling,
-    cost=5.0,
-)
-GRU_PPO = Algorithm(
-    "gru_ppo",
-    _CFG + "GRUPPOConfig",
-    arguments=_ALGOS + "gru_ppo_arguments",
-    load="nutribench.agents.gru_ppo:GRUPPO",
-    plain="nutribench.agents.gru_ppo.GRUPPO",
-    label="GRU-PPO",
-    color="#9467bd",
-    batched=_ENGINE + "gru_ppo:GRUPPO",
-    batch_limits=_whole_days,
-    cost=5.0,
-)
-EXTERNAL = Algorithm("external", _CFG + "ExternalConfig", build=None)
-BUILTINS: tuple[Algorithm, ...] = (MC, DDQN, PPO, SAC, GRU_PPO, EXTERNAL)
 _EXTRA: dict[str, Algorithm] = {}
 
 
@@ -199,9 +133,44 @@ class AlgorithmRegistryError(ConfigError):
 
 
 @functools.cache
+def _builtin_modules() -> tuple[Any, ...]:
+    """The modules of :data:`BUILTIN_PACKAGE` (imported now), but those named ``_...``."""
+    package = importlib.import_module(BUILTIN_PACKAGE)
+    found = pkgutil.iter_modules(package.__path__)
+    return tuple(importlib.import_module(f"{BUILTIN_PACKAGE}.{m.name}") for m in found if not m.name.startswith("_"))
+
+
+@functools.cache
+def builtin_algorithms() -> tuple[Algorithm, ...]:
+    """The built-in algorithms: the ``ALGORITHM`` of each module of :data:`BUILTIN_PACKAGE`, by
+    ``order`` (the paper's), then by name; those without a builder (``external``) last."""
+    out: dict[str, Algorithm] = {}
+    for module in _builtin_modules():
+        entry = getattr(module, "ALGORITHM", None)
+        if not isinstance(entry, Algorithm) or entry.algo in out:
+            raise AlgorithmRegistryError(
+                f"{module.__name__}: a built-in algorithm's module must define ALGORITHM = Algorithm(...) "
+                "with an algo of its own (a module of shared pieces: name it _...)"
+            )
+        out[entry.algo] = entry
+    return tuple(sorted(out.values(), key=lambda a: (a.build is None, a.order, a.algo)))
+
+
+def builtin_attribute(module: str, name: str) -> Any:
+    """What ``module`` answers for a name it lacks (its ``__getattr__``): the attribute ``name``
+    of the one built-in module that has it. :mod:`nutribench.agents.config` and
+    :mod:`nutribench.agents.algos`, which held the built-ins before each was one module, still
+    answer their names so (``nutribench.agents.config.MCConfig``)."""
+    holders = [m for m in _builtin_modules() if hasattr(m, name)] if not name.startswith("_") else []
+    if len(holders) != 1:
+        raise AttributeError(f"module {module!r} has no attribute {name!r}")
+    return getattr(holders[0], name)
+
+
+@functools.cache
 def _installed() -> tuple[Algorithm, ...]:
     """The algorithms of the entry-point group, but those pointing into nutribench (the
-    built-ins, read from :data:`BUILTINS`: the installed metadata may be another checkout's)."""
+    built-ins, read from :data:`BUILTIN_PACKAGE`: the installed metadata may be another checkout's)."""
     from importlib.metadata import entry_points
 
     out = []
@@ -224,9 +193,10 @@ def _installed() -> tuple[Algorithm, ...]:
 
 
 def algorithms() -> dict[str, Algorithm]:
-    """Every registered algorithm by ``algo``: the built-ins in the paper's order, ``external``,
-    then the installed plug-ins by name, then those :func:`register` added."""
-    table = {a.algo: a for a in BUILTINS}
+    """Every registered algorithm by ``algo``: the built-ins (:func:`builtin_algorithms`: the
+    paper's order, ``external`` last), then the installed plug-ins by name, then those
+    :func:`register` added."""
+    table = {a.algo: a for a in builtin_algorithms()}
     for a in [*sorted(_installed(), key=lambda a: a.algo), *_EXTRA.values()]:
         if table.get(a.algo, a) != a:
             raise AlgorithmRegistryError(f"algorithm {a.algo!r} is registered twice, differently: rename one")
@@ -249,8 +219,11 @@ def unregister(algo: str) -> None:
 
 
 def reload_installed() -> None:
-    """Read the entry-point group again (after installing a package in this process)."""
+    """Read the entry-point group and the built-in package again (after installing a package,
+    or adding a module, in this process)."""
     _installed.cache_clear()
+    builtin_algorithms.cache_clear()
+    _builtin_modules.cache_clear()
 
 
 def get(algo: str) -> Algorithm:
@@ -265,7 +238,7 @@ def get(algo: str) -> Algorithm:
 
 
 def names() -> list[str]:
-    """The trainable algorithms' names (all but ``external``), the paper's five first in its order."""
+    """The trainable algorithms' names (all but ``external``), the built-ins first in the paper's order."""
     return [a for a, e in algorithms().items() if e.build is not None]
 
 
@@ -277,8 +250,8 @@ def by_entry_point(algo: str) -> bool:
 
 
 def paper_names() -> list[str]:
-    """The paper's five algorithms (the built-ins but ``external``), in the paper's order."""
-    return [a.algo for a in BUILTINS if a.build is not None]
+    """The built-in algorithms but ``external`` (the paper's five), in the paper's order."""
+    return [a.algo for a in builtin_algorithms() if a.build is not None]
 
 
 def batched_names() -> list[str]:

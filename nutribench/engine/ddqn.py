@@ -1,5 +1,5 @@
 """Double DQN for K agents at once: SB3's ``DQN.learn`` with nutribench's double-DQN target
-(:class:`~nutribench.agents.algos.DoubleDQN`), every agent's parameters stacked along a
+(:class:`~nutribench.agents.builtin.ddqn.DoubleDQN`), every agent's parameters stacked along a
 leading agent axis.
 
 Per agent, everything is what ``algos.build_model`` builds from ``ddqn.toml``:

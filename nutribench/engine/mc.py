@@ -1,5 +1,5 @@
 """MC (Monte Carlo actor-critic) for K agents at once: SB3's ``A2C`` update as
-:class:`~nutribench.agents.algos.MonteCarloAC` makes it, every agent's parameters stacked
+:class:`~nutribench.agents.builtin.mc.MonteCarloAC` makes it, every agent's parameters stacked
 along a leading agent axis.
 
 Per agent, everything is what ``algos.build_model`` builds from ``mc.toml``: the shared MLP

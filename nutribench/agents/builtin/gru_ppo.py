@@ -1,0 +1,61 @@
+"""GRU-PPO: PPO with the recurrent two-GRU policy of the paper's Table 6,
+:class:`~nutribench.agents.gru_ppo.GRUPPO` (its policy, buffer and algorithm live in
+:mod:`nutribench.agents.gru_ppo`), which also loads its saved models. Its optimisation fields
+(:class:`~nutribench.agents.config._PPOFields`) and constructor arguments
+(:func:`~nutribench.agents.algos.ppo_arguments`) are PPO's."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import model_validator
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+from nutribench.agents.algos import ppo_arguments
+from nutribench.agents.config import PosInt, _AgentBase, _PPOFields
+from nutribench.agents.gru_ppo import GRUPPO
+from nutribench.agents.registry import Algorithm
+
+
+class GRUPPOConfig(_AgentBase, _PPOFields):
+    """PPO with the recurrent two-GRU policy of the paper's Table 6 (heads fixed by the paper)."""
+
+    algo: Literal["gru_ppo"]
+    hidden_size: PosInt
+    sequence_length: PosInt
+
+    @model_validator(mode="after")
+    def _whole_sequences(self) -> GRUPPOConfig:
+        if self.n_steps % self.sequence_length:
+            raise ValueError(f"n_steps ({self.n_steps}) must be a multiple of sequence_length ({self.sequence_length})")
+        return self
+
+
+def gru_ppo_arguments(cfg: GRUPPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+    """GRU-PPO: PPO's arguments and the recurrent policy's sizes."""
+    return GRUPPO, dict(**ppo_arguments(cfg), hidden_size=cfg.hidden_size, sequence_length=cfg.sequence_length)
+
+
+def whole_days(cfg: GRUPPOConfig, horizon: int | None) -> str | None:
+    """The batched recurrent PPO trains on whole days."""
+    if horizon is not None and (cfg.sequence_length != horizon or cfg.n_steps % horizon):
+        return (
+            f"the batched engine trains on whole days, so sequence_length ({cfg.sequence_length}) must be the "
+            f"horizon ({horizon}) and n_steps ({cfg.n_steps}) a multiple of it"
+        )
+    return None
+
+
+ALGORITHM = Algorithm(
+    "gru_ppo",
+    GRUPPOConfig,
+    arguments=f"{__name__}:gru_ppo_arguments",
+    load="nutribench.agents.gru_ppo:GRUPPO",
+    plain="nutribench.agents.gru_ppo.GRUPPO",
+    label="GRU-PPO",
+    color="#9467bd",
+    order=5,
+    batched="nutribench.engine.gru_ppo:GRUPPO",
+    batch_limits=whole_days,
+    cost=5.0,
+)

@@ -1,0 +1,63 @@
+"""MC: on-policy Monte Carlo actor-critic (the paper's Table 2), SB3's ``A2C`` with a rollout
+of exactly one day and GAE lambda = 1, i.e. one gradient step per complete episode on
+full-episode returns minus a value baseline; Adam. Actor and critic share one backbone
+(:func:`~nutribench.agents.algos.shared_actor_critic_kwargs`). Plain SB3's ``A2C`` loads and
+acts with its models."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+from nutribench.agents.algos import shared_actor_critic_kwargs
+from nutribench.agents.config import GradNorm, NonNegFloat, PosFloat, _FeedForward
+from nutribench.agents.registry import Algorithm
+from nutribench.agents.sb3_train import GradNormA2C
+
+
+class MCConfig(_FeedForward):
+    """Monte Carlo actor-critic: one update per complete episode, GAE with lambda = 1."""
+
+    algo: Literal["mc"]
+    learning_rate: PosFloat
+    gae_lambda: Literal[1.0]
+    ent_coef: NonNegFloat
+    vf_coef: PosFloat
+    max_grad_norm: GradNorm
+
+
+class MonteCarloAC(GradNormA2C):
+    """On-policy Monte Carlo actor-critic (the paper's Table 2) as an A2C whose rollout is one
+    whole day (``n_steps`` = horizon, one env) and whose GAE lambda is 1: each update uses
+    the complete episode's discounted returns. No gradient clipping when ``max_grad_norm`` is
+    ``inf`` (the norm is still logged: :class:`~nutribench.agents.sb3_train.GradNormA2C`)."""
+
+
+def mc_arguments(cfg: MCConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+    """MC: an A2C whose rollout is one whole day, GAE lambda 1, Adam, no advantage normalisation."""
+    return MonteCarloAC, dict(
+        policy="MlpPolicy",
+        n_steps=horizon,
+        learning_rate=cfg.learning_rate,
+        gae_lambda=1.0,
+        ent_coef=cfg.ent_coef,
+        vf_coef=cfg.vf_coef,
+        max_grad_norm=cfg.max_grad_norm,
+        use_rms_prop=False,
+        normalize_advantage=False,
+        policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch),
+    )
+
+
+ALGORITHM = Algorithm(
+    "mc",
+    MCConfig,
+    arguments=f"{__name__}:mc_arguments",
+    load=f"{__name__}:MonteCarloAC",
+    plain="stable_baselines3.A2C",
+    label="MC",
+    color="#8c564b",
+    order=1,
+    batched="nutribench.engine.mc:MC",
+)

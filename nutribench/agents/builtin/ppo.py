@@ -1,0 +1,53 @@
+"""PPO: SB3's ``PPO`` (clipped surrogate) on the shared actor-critic backbone
+(:func:`~nutribench.agents.algos.shared_actor_critic_kwargs`), unchanged but for a logged
+gradient norm; plain SB3's ``PPO`` loads and acts with its models. Its optimisation fields
+(:class:`~nutribench.agents.config._PPOFields`) and constructor arguments
+(:func:`~nutribench.agents.algos.ppo_arguments`) are shared with GRU-PPO."""
+
+from __future__ import annotations
+
+import warnings
+from typing import Any, Literal
+
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+from nutribench.agents.algos import ppo_arguments, shared_actor_critic_kwargs
+from nutribench.agents.config import _FeedForward, _PPOFields
+from nutribench.agents.registry import Algorithm
+from nutribench.agents.sb3_train import GradNormPPO
+
+
+class PPOConfig(_FeedForward, _PPOFields):
+    """PPO, clipped surrogate, shared actor-critic."""
+
+    algo: Literal["ppo"]
+
+
+class PPOWithGradNorm(GradNormPPO):
+    """SB3 ``PPO`` unchanged; each update also logs ``train/grad_norm``, the mean over its
+    gradient steps of the norm before clipping (:class:`~nutribench.agents.sb3_train.GradNormPPO`).
+    Its saved models are SB3 ``PPO`` models."""
+
+
+def ppo_model_arguments(cfg: PPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+    """PPO on the shared actor-critic."""
+    # SB3 warns when batch_size does not divide n_steps; whole days per rollout matter more
+    # here than equal minibatches (500 = 7 x 64 + 52).
+    warnings.filterwarnings("ignore", message="You have specified a mini-batch size", module="stable_baselines3")
+    return PPOWithGradNorm, dict(
+        policy="MlpPolicy", **ppo_arguments(cfg), policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch)
+    )
+
+
+ALGORITHM = Algorithm(
+    "ppo",
+    PPOConfig,
+    arguments=f"{__name__}:ppo_model_arguments",
+    load=f"{__name__}:PPOWithGradNorm",
+    plain="stable_baselines3.PPO",
+    label="PPO",
+    color="#2ca02c",
+    order=3,
+    batched="nutribench.engine.ppo:PPO",
+    bare=(("stable_baselines3:PPO", "bare SB3 PPO"),),
+)

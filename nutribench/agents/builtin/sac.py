@@ -1,0 +1,61 @@
+"""SAC: discrete-action soft actor-critic with a fixed temperature,
+:class:`~nutribench.agents.sac.DiscreteSAC` (its policy, buffer and update live in
+:mod:`nutribench.agents.sac`), which also loads its saved models."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import Field
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+from nutribench.agents.config import NonNegFloat, PosFloat, PosInt, Prob, _FeedForward
+from nutribench.agents.registry import Algorithm, no_replay_scaling
+from nutribench.agents.sac import DiscreteSAC
+
+
+class SACConfig(_FeedForward):
+    """Discrete-action SAC, fixed temperature."""
+
+    algo: Literal["sac"]
+    actor_learning_rate: PosFloat
+    critic_learning_rate: PosFloat
+    buffer_size: PosInt
+    learning_starts: Annotated[int, Field(ge=0)]
+    batch_size: PosInt
+    tau: Prob
+    alpha: NonNegFloat
+    train_freq: PosInt
+    gradient_steps: PosInt
+
+
+def sac_arguments(cfg: SACConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+    """Discrete SAC, fixed temperature."""
+    return DiscreteSAC, dict(
+        policy="MlpPolicy",
+        actor_learning_rate=cfg.actor_learning_rate,
+        critic_learning_rate=cfg.critic_learning_rate,
+        buffer_size=cfg.buffer_size,
+        learning_starts=cfg.learning_starts,
+        batch_size=cfg.batch_size,
+        tau=cfg.tau,
+        alpha=cfg.alpha,
+        train_freq=cfg.train_freq,
+        gradient_steps=cfg.gradient_steps,
+        net_arch=list(cfg.net_arch),
+    )
+
+
+ALGORITHM = Algorithm(
+    "sac",
+    SACConfig,
+    arguments=f"{__name__}:sac_arguments",
+    load="nutribench.agents.sac:DiscreteSAC",
+    plain="nutribench.agents.sac.DiscreteSAC",
+    label="SAC",
+    color="#d62728",
+    order=4,
+    batched="nutribench.engine.sac:SAC",
+    batch_limits=no_replay_scaling,
+    cost=5.0,
+)
