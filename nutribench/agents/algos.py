@@ -219,8 +219,10 @@ def ppo_model_arguments(cfg: PPOConfig, horizon: int) -> tuple[type[BaseAlgorith
 
 
 def gru_ppo_arguments(cfg: GRUPPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
-    """GRU-PPO: PPO's arguments and the recurrent policy's sizes."""
-    return GRUPPO, dict(**ppo_arguments(cfg), hidden_size=cfg.hidden_size, sequence_length=cfg.sequence_length)
+    """GRU-PPO: PPO's arguments, the recurrent policy's sizes and whether it carries its state."""
+    return GRUPPO, dict(
+        **ppo_arguments(cfg), hidden_size=cfg.hidden_size, sequence_length=cfg.sequence_length, memory=cfg.memory
+    )
 
 
 def ddqn_arguments(cfg: DDQNConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:

@@ -18,7 +18,15 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import tomli_w
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    ValidationError,
+    model_serializer,
+    model_validator,
+)
 
 import nutribench.agents.registry as registry
 from nutribench.config.loading import (
@@ -100,6 +108,20 @@ class GRUPPOConfig(_AgentBase, _PPOFields):
     algo: Literal["gru_ppo"]
     hidden_size: PosInt
     sequence_length: PosInt
+    memory: bool = Field(
+        default=True,
+        description="carry the GRUs' state from step to step within a day; false: zero it before every "
+        "step (no memory: the same network sees only the current observation)",
+    )
+
+    @model_serializer(mode="wrap")
+    def _memory_only_when_off(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """``memory`` enters the content (and the hash) only when false, so that the files
+        written before it existed keep their hash (as a regime's observation options)."""
+        data = handler(self)
+        if self.memory:
+            data.pop("memory", None)
+        return data
 
     @model_validator(mode="after")
     def _whole_sequences(self) -> GRUPPOConfig:
