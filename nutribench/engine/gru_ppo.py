@@ -8,6 +8,9 @@ nutrient stream (the first 3 observation dims) and a GRU over the food stream (t
 their hidden states concatenated (256) into an actor head 256-128-2 and a critic head
 256-128-1; orthogonal initialisation (each GRU gate block with gain 1, the heads with
 SB3's gains), zero biases; the state is reset at each day's start and carried step to step.
+Without memory (the agent file's ``memory = false``) the state is zeroed before every step,
+in acting, in the update's replay of days and in the greedy evaluation alike: each step's
+output depends on its observation alone, as the SB3 policy's ``memory=False``.
 Training is PPO over whole days: each epoch shuffles the rollout's days and takes
 minibatches of ``round(batch_size / 50)`` days, each replayed through the GRUs from the zero
 state with the gradient through the whole day (backpropagation through time).
@@ -91,7 +94,9 @@ class StackedGRUActorCritic:
     """K copies of ``GRUActorCriticPolicy``. Parameters, in order: the 2K cells' ``W_ih (2K,
     in, 3H)``, ``b_ih (2K, 1, 3H)``, ``W_hh (2K, H, 3H)``, ``b_hh (2K, 1, 3H)`` (gates r, z,
     n as nn.GRU), then the heads' first layers side by side ``(K, 2H, 2 x head)`` and bias,
-    the actor's last layer ``(K, head, 2)`` and bias, the critic's ``(K, head, 1)`` and bias."""
+    the actor's last layer ``(K, head, 2)`` and bias, the critic's ``(K, head, 1)`` and bias.
+    ``memory=False``: every step from the zero state (:meth:`sequences`, :meth:`step`,
+    :meth:`step_days`), the same network without memory."""
 
     def __init__(
         self,
@@ -102,9 +107,11 @@ class StackedGRUActorCritic:
         n_actions: int = 2,
         generators: list[th.Generator] | None = None,
         device: th.device | str | None = None,
+        memory: bool = True,
     ):
         """Initialised on the CPU from ``generators`` (one per agent), then moved to ``device``."""
         self.k, self.hidden, self.head, self.n_actions = k, hidden, head, n_actions
+        self.memory = memory
         self.n_foods = obs_dim - N_NUTRIENTS
         self.width = max(N_NUTRIENTS, self.n_foods)
         h3 = 3 * hidden
@@ -168,8 +175,12 @@ class StackedGRUActorCritic:
         return logits, values[..., 0]
 
     def sequences(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """Whole days from the zero state: ``obs (K, S, T, d)`` -> logits ``(K, S, T, n_actions)``, values ``(K, S, T)``."""
+        """Whole days from the zero state: ``obs (K, S, T, d)`` -> logits ``(K, S, T, n_actions)``, values ``(K, S, T)``
+        (without memory, every step its own sequence of one step)."""
         k, s, t_max, _ = obs.shape
+        if not self.memory and t_max > 1:
+            logits, values = self.sequences(obs.reshape(k, s * t_max, 1, -1))
+            return logits.reshape(k, s, t_max, -1), values.reshape(k, s, t_max)
         gi = th.baddbmm(self.params[1], self._inputs(obs.reshape(k, s * t_max, -1)), self.params[0]).reshape(
             2 * k, s, t_max, -1
         )
@@ -180,7 +191,9 @@ class StackedGRUActorCritic:
 
     def step(self, obs: th.Tensor, state: th.Tensor, starts: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """One acting step: ``obs (K, d)``, ``state (2K, 1, H)`` zeroed where ``starts (K,)``;
-        logits ``(K, n_actions)``, values ``(K,)`` and the new state."""
+        logits ``(K, n_actions)``, values ``(K,)`` and the new state (zeroed everywhere without memory)."""
+        if not self.memory:
+            starts = th.ones_like(starts)
         keep = (1.0 - starts).reshape(1, self.k, 1, 1).expand(2, -1, -1, -1).reshape(2 * self.k, 1, 1)
         gi = th.baddbmm(self.params[1], self._inputs(obs.unsqueeze(1)), self.params[0])
         h = self._cell(gi, state * keep)
@@ -189,7 +202,10 @@ class StackedGRUActorCritic:
 
     def step_days(self, obs: th.Tensor, state: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """One step of ``B`` days side by side per agent: ``obs (K, B, d)``, ``state (2K, B, H)``;
-        logits ``(K, B, n_actions)`` and the new state (no reset: days start from zeros)."""
+        logits ``(K, B, n_actions)`` and the new state (no reset: days start from zeros; without
+        memory every step does)."""
+        if not self.memory:
+            state = th.zeros_like(state)
         gi = th.baddbmm(self.params[1], self._inputs(obs), self.params[0])
         h = self._cell(gi, state)
         logits, _ = self._heads(th.cat([h[: self.k], h[self.k :]], dim=-1))
@@ -308,8 +324,16 @@ class GRUPPO(PPO):
         return grus + 2 * (2 * h) * head * 2 + 2 * head * (n_actions + 1)
 
     def make_network(self, generators: list[th.Generator]) -> StackedGRUActorCritic:
+        memory = {c.memory for c in self.cfgs}
+        if len(memory) > 1:
+            raise ValueError("agents of one batch must agree on memory")
         return StackedGRUActorCritic(
-            self.k, self.envs.obs_dim, self.cfg.hidden_size, generators=generators, device=self.device
+            self.k,
+            self.envs.obs_dim,
+            self.cfg.hidden_size,
+            generators=generators,
+            device=self.device,
+            memory=memory.pop(),
         )
 
     def make_actor(self, net: StackedGRUActorCritic) -> RecurrentActor:

@@ -6,7 +6,8 @@ Everything here is a thin layer over :mod:`nutribench.report.figures`,
 Figure / table out). This module adds what those pure builders do not know about:
 
 * which agent configs a report draws (``algos``: default every config in the database) and
-  which pair Figure 4 compares (``pair``: default PPO and GRU-PPO); colours are one palette
+  which pair Figure 4 compares (``pair``: default PPO and GRU-PPO; and :mod:`~nutribench.report.figure4`'s
+  memory ablation beside it); colours are one palette
   per database (:mod:`nutribench.report.palette`), so a config looks the same in every figure;
 * which rows of the database a figure uses (:mod:`nutribench.report.data`): per regime and
   algorithm the newest config versions (``latest_only``) and, per (regime, algorithm, seed),
@@ -36,6 +37,7 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from nutribench.report import figure4
 from nutribench.report.data import (
     Db,
     ReportData,
@@ -97,25 +99,29 @@ def figure_stem(number: int, pair: Sequence[str] | None = None) -> str:
 
 
 def _eval_figure(
-    number: int, data: ReportData, pair: Sequence[str], reference_episodes: int, log: Log | None
+    number: int,
+    data: ReportData,
+    pair: Sequence[str],
+    reference_episodes: int,
+    log: Log | None,
+    ablation: dict[str, str] | None,
 ) -> FigureResult:
-    """Figure 3 (every config of ``data``) or Figure 4 (``pair``)."""
-    algos = list(pair) if number == 4 else None
+    """Figure 3 (every config of ``data``) or Figure 4 (``pair``, then ``ablation``'s configs)."""
+    ablation = dict(ablation or {})
+    algos = [*pair, *ablation] if number == 4 else None
     ev = data.eval if algos is None else data.eval[data.eval["algo"].isin(algos)]
     if ev.empty:
         what = f" for {', '.join(algo_label(a) for a in algos)}" if algos else data.what()
         raise ReportError(f"figure {number}: no evaluation episodes{what} in the database")
     refs = simple_policy_references(sort_regimes(ev["regime"]), episodes=reference_episodes, log=log)
-    title = "Fixed-policy inference across regimes"
-    if number == 4:
-        title = f"{algo_label(pair[0])} against {algo_label(pair[1])}: fixed-policy inference across regimes"
     return eval_across_regimes(
         data.eval,
         algos=algos,
         references=refs,
-        title=title,
+        title=figure4.title(pair, ablation) if number == 4 else "Fixed-policy inference across regimes",
         colors=data.colors,
         day_references=_day_references(data, log),
+        labels=figure4.labels(ablation),
     )
 
 
@@ -125,9 +131,11 @@ def build_figure(
     reference_episodes: int = 200,
     log: Log | None = None,
     pair: Sequence[str] = DEFAULT_PAIR,
+    ablation: dict[str, str] | None = None,
 ) -> FigureResult:
-    """Figure 1-4 of the paper from ``data`` (Figure 4: ``pair``, which ``data`` must hold);
-    :class:`ReportError` when it has nothing to draw."""
+    """Figure 1-4 of the paper from ``data`` (Figure 4: ``pair``, which ``data`` must hold, and
+    beside it ``ablation``'s configs, each a pair config without memory:
+    :func:`nutribench.report.figure4.without_memory`); :class:`ReportError` when it has nothing to draw."""
     try:
         if number in (1, 2):
             if data.train.empty:
@@ -137,7 +145,7 @@ def build_figure(
                 data.train, "return" if number == 1 else "foods", best_line=number == 1, colors=data.colors
             )
         elif number in (3, 4):
-            res = _eval_figure(number, data, pair, reference_episodes, log)
+            res = _eval_figure(number, data, pair, reference_episodes, log, ablation)
         elif number == 6:
             raise ReportError(
                 "figure 6 is read from the database: build_report(db, figs=[6]) or learning_figure(db, data)"
@@ -259,15 +267,6 @@ def _page_subtitle(db: Db, data: ReportData | None) -> str:
     return "; ".join(parts)
 
 
-def _check_pair(pair: Sequence[str] | None) -> tuple[str, str]:
-    if pair is None:
-        return DEFAULT_PAIR
-    if len(pair) != 2 or pair[0] == pair[1]:
-        raise ReportError(f"--pair {','.join(pair)}: give two different agent configs, e.g. --pair ppo,gru_ppo")
-    check_names(pair, "agent config", "--pair")
-    return (pair[0], pair[1])
-
-
 def build_report(
     db: Db,
     out: Db = "reports",
@@ -288,7 +287,8 @@ def build_report(
     skipped and reported through ``log``. An item asked for by number that cannot be built
     raises :class:`ReportError`. ``algos``: the agent configs drawn (default: every config in
     the database); ``pair``: Figure 4's two configs (default PPO and GRU-PPO; not limited by
-    ``algos``); a name the database does not hold raises :class:`ReportError`.
+    ``algos``; beside them the database's copies of them without memory); a name the database
+    does not hold raises :class:`ReportError`.
     ``reference_episodes``: episodes per simple policy and regime for the reference lines of
     Figures 3/4. ``progress``: called with ``[k/n] figure 3`` (or ``table results``) as each
     item starts, so a long ``--all`` shows where it is.
@@ -300,8 +300,8 @@ def build_report(
             raise ReportError(f"no figure {f}: the figures are {', '.join(map(str, FIGURES))}")
     if not figs and not tables:
         raise ReportError("nothing to build: ask for figures, tables or all")
-    pair_given, pair = pair is not None, _check_pair(pair)
-    stored = stored_agent_configs(db) if needs_stored_configs(figs, tables, all, algos, pair_given) else None
+    pair_given, pair = pair is not None, figure4.check_pair(pair, DEFAULT_PAIR)
+    stored = stored_agent_configs(db) if needs_stored_configs(figs, tables, all, algos) else None
     if stored is not None and algos is not None:
         check_known(algos, stored, "--algos")
     if stored is not None and pair_given and 4 in figs:
@@ -311,7 +311,8 @@ def build_report(
     # cannot be read (missing, empty, outdated) fails the whole command, even with ``all``
     raw = read_metrics(db) if figs or {"results", "training", "aggregate"} & set(plan) else None
     data = prepare(raw, algos) if raw is not None else None
-    pair_data = prepare(raw, pair) if raw is not None and 4 in figs else None
+    ablation = figure4.without_memory(pair, stored, raw) if 4 in figs else {}
+    pair_data = prepare(raw, [*pair, *ablation]) if raw is not None and 4 in figs else None
     if log:
         for note in dict.fromkeys([*(data.notes if data else []), *(pair_data.notes if pair_data else [])]):
             log(f"note: {note}")
@@ -343,7 +344,12 @@ def build_report(
                 learning_figure(db, data, algos)
                 if f == 6
                 else build_figure(
-                    f, pair_data if f == 4 else data, reference_episodes=reference_episodes, log=log, pair=pair
+                    f,
+                    pair_data if f == 4 else data,
+                    reference_episodes=reference_episodes,
+                    log=log,
+                    pair=pair,
+                    ablation=ablation,
                 )
             )
         )

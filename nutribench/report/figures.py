@@ -11,6 +11,8 @@ check them without parsing pixels.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
@@ -236,6 +238,7 @@ def eval_across_regimes(
     colors: Palette | None = None,
     day_references: pd.DataFrame | None = None,
     bootstrap: int = 2000,
+    labels: Mapping[str, str] | None = None,
 ) -> FigureResult:
     """Figures 3 and 4: evaluation metrics per regime, panels (A) return, (B) final distance,
     (C) foods consumed, (D) overshoot ratio; one line per algorithm at the mean of the seeds'
@@ -255,7 +258,8 @@ def eval_across_regimes(
 
     ``references``: optional rows (regime, policy, metric columns) of the simple policies,
     drawn as thin grey lines so the reader sees where no learning and full information lie.
-    ``colors``: the report's palette (default: one over the configs drawn).
+    ``colors``: the report's palette (default: one over the configs drawn). ``labels``: legend
+    labels of some configs instead of :func:`~nutribench.report.palette.label`.
     """
     ev = df[df["phase"] == "eval"]
     if algos is not None:
@@ -303,7 +307,8 @@ def eval_across_regimes(
             stats["hi"] = [ci[r][2] for r in stats.index]
             stats["seeds"] = [int(cell[cell["regime"] == r]["seed"].nunique()) for r in stats.index]
             x = np.array([xs[r] for r in stats.index])
-            _draw_gapped(ax, stats, regimes, [xs[r] + dodge[algo] for r in regimes], color, algo_label(algo))
+            label = (labels or {}).get(algo) or algo_label(algo)
+            _draw_gapped(ax, stats, regimes, [xs[r] + dodge[algo] for r in regimes], color, label)
             rows.append(
                 pd.DataFrame(
                     {

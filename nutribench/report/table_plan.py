@@ -88,11 +88,10 @@ def table_plan(
     return plan
 
 
-def needs_stored_configs(
-    figs: list[int], tables: list[str], all: bool, algos: Sequence[str] | None, pair_given: bool
-) -> bool:  # noqa: A002
-    """Whether the database's agent configs must be read: to check ``algos`` or the pair, or
-    to find the tables of configs other than the five."""
-    if all or any(t not in TABLES for t in tables):
+def needs_stored_configs(figs: list[int], tables: list[str], all: bool, algos: Sequence[str] | None) -> bool:  # noqa: A002
+    """Whether the database's agent configs must be read: to check ``algos`` or the pair, to
+    find Figure 4's configs without memory (:mod:`nutribench.report.figure4`), or to find the
+    tables of configs other than the five."""
+    if all or 4 in figs or any(t not in TABLES for t in tables):
         return True
-    return (algos is not None and bool(figs or [t for t in tables if t != "1"])) or (pair_given and 4 in figs)
+    return algos is not None and bool(figs or [t for t in tables if t != "1"])

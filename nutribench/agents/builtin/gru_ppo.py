@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import model_validator
+from pydantic import Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from nutribench.agents.algos import ppo_arguments
@@ -23,6 +23,20 @@ class GRUPPOConfig(_AgentBase, _PPOFields):
     algo: Literal["gru_ppo"]
     hidden_size: PosInt
     sequence_length: PosInt
+    memory: bool = Field(
+        default=True,
+        description="carry the GRUs' state from step to step within a day; false: zero it before every "
+        "step (no memory: the same network sees only the current observation)",
+    )
+
+    @model_serializer(mode="wrap")
+    def _memory_only_when_off(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """``memory`` enters the content (and the hash) only when false, so that the files
+        written before it existed keep their hash (as a regime's observation options)."""
+        data = handler(self)
+        if self.memory:
+            data.pop("memory", None)
+        return data
 
     @model_validator(mode="after")
     def _whole_sequences(self) -> GRUPPOConfig:
@@ -32,8 +46,10 @@ class GRUPPOConfig(_AgentBase, _PPOFields):
 
 
 def gru_ppo_arguments(cfg: GRUPPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
-    """GRU-PPO: PPO's arguments and the recurrent policy's sizes."""
-    return GRUPPO, dict(**ppo_arguments(cfg), hidden_size=cfg.hidden_size, sequence_length=cfg.sequence_length)
+    """GRU-PPO: PPO's arguments, the recurrent policy's sizes and whether it carries its state."""
+    return GRUPPO, dict(
+        **ppo_arguments(cfg), hidden_size=cfg.hidden_size, sequence_length=cfg.sequence_length, memory=cfg.memory
+    )
 
 
 def whole_days(cfg: GRUPPOConfig, horizon: int | None) -> str | None:

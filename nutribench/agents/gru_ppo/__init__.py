@@ -39,6 +39,12 @@ is set to zero where ``episode_start`` is true and otherwise carried from one st
           obs, reward, done, info = venv.step(action)
           episode_start = done
 
+**Without memory** (``memory=False``; an agent file's ``memory = false``): the same network with
+its state zeroed before every step, in acting, training and evaluation alike, so each step's
+output depends on that step's observation alone (the form of the authors' published GRU
+agent, which fed length-1 sequences with no carried state; ``reports/gru_memory/``). The
+memory ablation; the paper's GRU-PPO carries its state.
+
 **Minibatches.** PPO's minibatch of 64 *transitions* cannot be made of whole 50-step
 episodes. ``batch_size`` keeps PPO's unit (env steps per minibatch) and is rounded to a whole
 number of sequences, ``max(1, round(batch_size / sequence_length))``: the default 64 gives

@@ -39,6 +39,8 @@ class GRUPPO(OnPolicyAlgorithm):
     :param max_grad_norm: L2 gradient-norm clip.
     :param hidden_size: hidden units of each GRU (128).
     :param sequence_length: steps per training sequence: the episode length (50 in NutriRL).
+    :param memory: carry the GRU state from step to step (True, the paper's); False: zero it
+        before every step (no memory: :class:`GRUActorCriticPolicy`'s ``memory``).
     :param normalize_advantage: normalise advantages per minibatch (SB3 PPO default).
     :param target_kl: stop an update early when the approximate KL exceeds 1.5x this (None: never).
     :param policy: ``"GRUPolicy"`` or a policy class (:class:`GRUActorCriticPolicy` or a subclass).
@@ -80,6 +82,7 @@ class GRUPPO(OnPolicyAlgorithm):
         max_grad_norm: float = 0.5,
         hidden_size: int = 128,
         sequence_length: int = 50,
+        memory: bool = True,
         normalize_advantage: bool = True,
         target_kl: float | None = None,
         policy: str | type[GRUActorCriticPolicy] = "GRUPolicy",
@@ -100,6 +103,8 @@ class GRUPPO(OnPolicyAlgorithm):
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
         policy_kwargs = dict(policy_kwargs or {})
         policy_kwargs.setdefault("hidden_size", hidden_size)
+        if not memory:
+            policy_kwargs.setdefault("memory", False)
         super().__init__(
             policy,
             env,  # type: ignore[arg-type]

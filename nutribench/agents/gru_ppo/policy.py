@@ -39,6 +39,9 @@ class GRUActorCriticPolicy(BasePolicy):
     :param head_size: hidden units of the actor and critic heads.
     :param n_nutrients: how many leading observation dims form the nutrient stream.
     :param ortho_init: orthogonal initialisation with zero biases.
+    :param memory: carry the state from step to step (the paper's GRU-PPO); False: zero it
+        before every step, in acting, training and evaluation alike (no memory: each step's
+        output depends on that step's observation alone).
     :param use_sde: must be False (accepted because SB3's on-policy set-up passes it).
     :param optimizer_class: optimiser class (Adam).
     :param optimizer_kwargs: optimiser keyword arguments; default ``eps=1e-5`` for Adam, as SB3's PPO.
@@ -53,6 +56,7 @@ class GRUActorCriticPolicy(BasePolicy):
         head_size: int = 128,
         n_nutrients: int = 3,
         ortho_init: bool = True,
+        memory: bool = True,
         use_sde: bool = False,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
@@ -76,6 +80,7 @@ class GRUActorCriticPolicy(BasePolicy):
         self.n_nutrients = int(n_nutrients)
         self.n_foods = obs_dim - self.n_nutrients
         self.ortho_init = ortho_init
+        self.memory = bool(memory)
         n_actions = int(action_space.n)
 
         self.nutrient_gru = nn.GRU(self.n_nutrients, self.hidden_size, num_layers=1, batch_first=True)
@@ -109,6 +114,7 @@ class GRUActorCriticPolicy(BasePolicy):
                 head_size=self.head_size,
                 n_nutrients=self.n_nutrients,
                 ortho_init=self.ortho_init,
+                memory=self.memory,
                 optimizer_class=self.optimizer_class,
                 optimizer_kwargs=self.optimizer_kwargs,
             )
@@ -128,10 +134,12 @@ class GRUActorCriticPolicy(BasePolicy):
         :param obs: ``(batch, T, obs_dim)`` observations (as the policy sees them).
         :param state: hidden state carried into the first step, each ``(1, batch, hidden)``.
         :param episode_starts: ``(batch, T)``, 1 where the step is the first of an episode
-            (the carried state is zeroed before that step).
+            (the carried state is zeroed before that step; before every step without ``memory``).
         :return: features ``(batch, T, 2 * hidden)`` (both GRUs' hidden states after each step)
             and the state after the last step.
         """
+        if not self.memory:  # every step starts from the zero state
+            episode_starts = th.ones_like(episode_starts)
         obs = preprocess_obs(obs, self.observation_space).float()  # type: ignore[assignment]
         batch, steps = obs.shape[0], obs.shape[1]
         nutrients, foods = obs[..., : self.n_nutrients], obs[..., self.n_nutrients :]
