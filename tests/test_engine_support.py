@@ -20,9 +20,9 @@ from nutribench.agents.config import agents_dir, load_agent_config
 from nutribench.agents.registry import paper_names
 from nutribench.engine import UnsupportedConfig, check_supported, supports
 from nutribench.errors import UserError
-from nutribench.jobs.synthetic import synthetic_batch, synthetic_job
-from nutribench.scheduler.batching import batch_pools
 from nutribench.scheduler.driver import run_grid
+from nutribench.scheduler.pools import batch_pools
+from nutribench.scheduler.synthetic import synthetic_batch, synthetic_job
 from nutribench.store import read_jobs
 
 
@@ -160,10 +160,10 @@ def test_bench_learn_refuses_an_unsupported_config_in_one_line(agents: Path) -> 
 
 def test_run_batch_refuses_an_unsupported_config(agents: Path, tmp_path: Path) -> None:
     """The worker side too: a batch of a config the engine does not support fails, never trains."""
-    from nutribench.jobs.batch import run_batch
-    from nutribench.jobs.spec import JobFailed, JobSpec
+    from nutribench.scheduler.batched_job import run_batch
     from nutribench.scheduler.grid import Grid
     from nutribench.scheduler.registration import load_grid_configs
+    from nutribench.scheduler.spec import JobFailed, JobSpec
 
     regimes, configs = load_grid_configs(Grid(("run0",), ("sac_nr",), (0,), 2, 1))
     r, a = regimes[0], configs[0]

@@ -19,11 +19,11 @@ from typer.testing import CliRunner
 
 from nutribench.cli import app
 from nutribench.config import list_regimes
-from nutribench.jobs.synthetic import synthetic_job
 from nutribench.scheduler.driver import STOP_SIGNALS, RunError, run_grid
 from nutribench.scheduler.grid import PRESETS, GridError, parse_seeds, resolve_grid
+from nutribench.scheduler.lifecycle import MAX_FAILURES, STALE_AFTER_S
 from nutribench.scheduler.status import status_table
-from nutribench.store.jobs import MAX_FAILURES, STALE_AFTER_S
+from nutribench.scheduler.synthetic import synthetic_job
 from tests.conftest import run_cli_args, wait_for
 
 REPO = Path(__file__).resolve().parents[1]
@@ -50,7 +50,7 @@ class EnvBatch(EnvJob):
     """The synthetic batch with extra environment variables set in the worker."""
 
     def __call__(self, specs, sink=None):
-        from nutribench.jobs.synthetic import synthetic_batch
+        from nutribench.scheduler.synthetic import synthetic_batch
 
         os.environ.update(self.env)
         return synthetic_batch(specs, sink)
@@ -666,7 +666,7 @@ class HalfBatch(EnvJob):
     """A batch worker that loses the result of its last job (a bug the driver must survive)."""
 
     def __call__(self, specs, sink=None):
-        from nutribench.jobs.synthetic import synthetic_batch
+        from nutribench.scheduler.synthetic import synthetic_batch
 
         return synthetic_batch(specs, sink)[:-1]
 
@@ -692,7 +692,7 @@ def test_a_job_missing_from_its_batch_s_results_is_failed_not_left_running(regim
 
 
 def test_batches_group_jobs_by_config_and_regime_shape() -> None:
-    from nutribench.scheduler.batching import batch_pools
+    from nutribench.scheduler.pools import batch_pools
 
     # "x": a config of an algorithm the batched engine does not train: its jobs run one by one
     cells = [("a", "ppo", 0), ("a", "ppo", 1), ("b", "ppo", 0), ("a", "x", 0), ("a", "mc", 0)]
