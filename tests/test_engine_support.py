@@ -1,11 +1,11 @@
-"""Review gaps 3 and 4.
+"""What the batched engine trains, and what each batched job records.
 
-3. Settings the batched engine does not implement (``normalize_reward`` for DDQN and SAC,
+1. Settings the batched engine does not implement (``normalize_reward`` for DDQN and SAC,
    whose SB3 replay scales sampled rewards; GRU-PPO sequences that are not whole days; other
    algorithms) are never trained otherwise than the reference would: ``nutribench.engine.supports``
    says why, the engine refuses such a config in one line before training, and ``nutribench
    run --engine batched`` trains its jobs with the SB3 engine instead.
-4. A batched job's result depends by float rounding on its batch and device: each job
+2. A batched job's result depends by float rounding on its batch and device: each job
    stores ``batch_id``, ``batch_size`` and ``device``; an SB3 job stores device ``cpu``.
 """
 
