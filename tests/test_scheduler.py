@@ -187,10 +187,11 @@ def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> N
     args = dict(seeds=[0], episodes=4, eval_episodes=1, workers=1, job_fn=synthetic_job, display=False)
     assert run_grid(db, ["run0"], ["ppo"], **args).done == 1
     ppo = regimes / "agents" / "ppo.toml"
+    v = next(int(ln.split("=")[1]) for ln in ppo.read_text().splitlines() if ln.startswith("version ="))  # as shipped
     ppo.write_text(ppo.read_text().replace("learning_rate = 1e-3", "learning_rate = 2e-3"))
     before = sql(db, "SELECT (SELECT count(*) FROM agent_configs), (SELECT count(*) FROM jobs)")
     with pytest.raises(
-        RunError, match=r"ppo\.toml: version 1 is already recorded with different content: bump the version"
+        RunError, match=rf"ppo\.toml: version {v} is already recorded with different content: bump the version"
     ):
         run_grid(db, ["run0"], ["ppo"], **args)
     assert sql(db, "SELECT (SELECT count(*) FROM agent_configs), (SELECT count(*) FROM jobs)") == before
@@ -202,14 +203,14 @@ def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> N
     )
     assert res.exit_code == 2 and "bump the version" in res.output and len(res.output.strip().splitlines()) == 1
 
-    ppo.write_text(ppo.read_text().replace("version = 1", "version = 2"))
+    ppo.write_text(ppo.read_text().replace(f"version = {v}", f"version = {v + 1}"))
     assert run_grid(db, ["run0"], ["ppo"], **args).done == 1
     rows = sql(
         db, "SELECT a.version, j.status FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id ORDER BY a.version"
     )
-    assert rows == [(1, "done"), (2, "done")]
+    assert rows == [(v, "done"), (v + 1, "done")]
     df = episode_rows(db)
-    assert df.groupby("algo_version").size().to_dict() == {1: 5, 2: 5}
+    assert df.groupby("algo_version").size().to_dict() == {v: 5, v + 1: 5}
     assert_views_hide_the_dry_run(db)
 
     run3 = regimes / "run3.toml"  # a regime file works the same way
