@@ -1,7 +1,8 @@
 """The one time representation nutribench stores: naive UTC (SQLite has no time zones).
 
-A module of its own at the bottom of the house, so that workers (``nutribench.jobs``) can
-stamp times without importing the database layer."""
+A module of its own at the bottom of the house, so that the scheduler's workers
+(``nutribench.scheduler.worker`` and the jobs it runs) can stamp times without importing the
+database layer."""
 
 from __future__ import annotations
 

@@ -224,10 +224,10 @@ class Recorder:
         """Refuse a database the job could not be written to, before the loop; a new SQLite
         file is only checked: it is created when the job is written (a failed recording leaves
         no empty database behind)."""
+        from nutribench.scheduler.lifecycle import check_not_mixed
         from nutribench.scheduler.registration import check_external_entry
         from nutribench.store import StoreError, open_store
         from nutribench.store.engine import check_sqlite_file, database_url, in_memory, sqlite_path
-        from nutribench.store.jobs import check_not_mixed
 
         url = database_url(self.db)
         if in_memory(url):

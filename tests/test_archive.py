@@ -14,8 +14,8 @@ from typer.testing import CliRunner
 
 from nutribench.cli import app
 from nutribench.config.loading import content_sha256
-from nutribench.jobs.synthetic import synthetic_job
 from nutribench.scheduler.driver import run_grid
+from nutribench.scheduler.synthetic import synthetic_job
 from nutribench.store import read_jobs
 
 runner = CliRunner()

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from nutribench.jobs.synthetic import synthetic_job
 from nutribench.scheduler.driver import run_grid
+from nutribench.scheduler.synthetic import synthetic_job
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -49,7 +49,7 @@ def grid(db: Path, models: Path, seeds=(0, 1), job_fn=synthetic_job):
 
 
 def jobs_of(db: Path) -> list[dict]:
-    """What a batch's manifest records of each job of ``db`` (as nutribench.jobs.batch writes it)."""
+    """What a batch's manifest records of each job of ``db`` (as nutribench.scheduler.batched_job writes it)."""
     con = sqlite3.connect(db)
     try:
         rows = con.execute(

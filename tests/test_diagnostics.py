@@ -17,12 +17,12 @@ from typer.testing import CliRunner
 
 from nutribench import diagnostics as d
 from nutribench.cli import app
-from nutribench.jobs.spec import JobResult
 from nutribench.scheduler.grid import Grid
+from nutribench.scheduler.lifecycle import claim_jobs, store_result
 from nutribench.scheduler.registration import load_grid_configs, register_grid
+from nutribench.scheduler.spec import JobResult
 from nutribench.store import head_revision, make_engine, open_store
 from nutribench.store.engine import database_url
-from nutribench.store.jobs import claim_jobs, store_result
 from nutribench.store.models import DIAGNOSTIC_COLUMNS
 from nutribench.store.schema import upgrade_connection
 from nutribench.store.views import TRAINING_DIAGNOSTICS_COLUMNS

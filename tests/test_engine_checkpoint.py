@@ -24,7 +24,7 @@ def batch_specs(models, jobs=JOBS, episodes: int = 5, first_id: int = 1):
     """The JobSpecs of a batch of MC jobs whose models go to ``models`` (as ``nutribench run`` makes them)."""
     from nutribench.agents.config import agent_config_sha256
     from nutribench.config import load_env_config
-    from nutribench.jobs.spec import JobSpec
+    from nutribench.scheduler.spec import JobSpec
 
     cfg = load_agent_config("mc")
     out = []
@@ -163,9 +163,9 @@ def test_run_batch_resumes_a_stopped_batch_and_removes_its_checkpoint(tmp_path, 
     of an uninterrupted batch, and deletes it."""
     from functools import partial
 
-    import nutribench.jobs.batch as batch
-    from nutribench.jobs.spec import JobSpec
-    from nutribench.jobs.worker import JobProgress
+    import nutribench.scheduler.batched_job as batch
+    from nutribench.scheduler.spec import JobSpec
+    from nutribench.scheduler.worker import JobProgress
 
     def specs(models: str) -> list[JobSpec]:
         return batch_specs(tmp_path / models)
@@ -204,7 +204,8 @@ def test_run_batch_resumes_a_stopped_batch_and_removes_its_checkpoint(tmp_path, 
 
 
 def test_a_batch_that_left_a_checkpoint_is_claimed_first_and_whole(tmp_path):
-    from nutribench.scheduler.batching import Pool, checkpointed_first
+    from nutribench.scheduler.pools import Pool
+    from nutribench.scheduler.resume import checkpointed_first
 
     folder = tmp_path / "checkpoints"
     folder.mkdir()
@@ -256,7 +257,7 @@ def test_a_planted_pickle_checkpoint_never_runs_and_the_batch_completes(tmp_path
     """A pickle planted in ``<models>/checkpoints/`` under the name the batch reads
     is refused in one line (its code never runs: no marker); the batch trains from the start,
     gives the results of a batch that found nothing, and leaves no checkpoint file behind."""
-    import nutribench.jobs.batch as batch
+    import nutribench.scheduler.batched_job as batch
 
     whole = batch.run_batch(batch_specs(tmp_path / "a"))
     specs = batch_specs(tmp_path / "b")
@@ -419,7 +420,7 @@ def test_a_finished_batch_removes_the_checkpoints_other_batches_left_of_its_jobs
     """A batch killed, then formed otherwise (another code version, other batch sizes),
     would leave its files forever: once its jobs are done, the finished batch deletes them;
     a checkpoint of other jobs stays."""
-    import nutribench.jobs.batch as batch
+    import nutribench.scheduler.batched_job as batch
 
     specs = batch_specs(tmp_path / "m")
     folder = batch.checkpoint_path(specs).parent

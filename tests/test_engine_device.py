@@ -21,8 +21,8 @@ from nutribench.cli import app
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.device import DeviceError, check_device, resolve_device
 from nutribench.engine.train import train_batched
-from nutribench.jobs.synthetic import synthetic_batch
 from nutribench.scheduler.driver import RunError, run_grid
+from nutribench.scheduler.synthetic import synthetic_batch
 from tests.test_engine_checkpoint import JOBS, Stopped, same_agents
 
 needs_cuda = pytest.mark.skipif(not th.cuda.is_available(), reason="needs CUDA")

@@ -1,4 +1,4 @@
-"""Review gap 2: a PPO rollout that ends inside a day bootstraps from the value of the next
+"""A PPO rollout that ends inside a day bootstraps from the value of the next
 observation. With ``n_steps = 30`` and 50-step days most rollouts end mid-day; with a
 learning rate of 0 the network never moves, so the value the engine bootstrapped from is
 the next rollout's first value (the same observation, the same network). Each rollout's

@@ -1,11 +1,11 @@
-"""Review gaps 3 and 4.
+"""What the batched engine trains, and what each batched job records.
 
-3. Settings the batched engine does not implement (``normalize_reward`` for DDQN and SAC,
+1. Settings the batched engine does not implement (``normalize_reward`` for DDQN and SAC,
    whose SB3 replay scales sampled rewards; GRU-PPO sequences that are not whole days; other
    algorithms) are never trained otherwise than the reference would: ``nutribench.engine.supports``
    says why, the engine refuses such a config in one line before training, and ``nutribench
    run --engine batched`` trains its jobs with the SB3 engine instead.
-4. A batched job's result depends by float rounding on its batch and device: each job
+2. A batched job's result depends by float rounding on its batch and device: each job
    stores ``batch_id``, ``batch_size`` and ``device``; an SB3 job stores device ``cpu``.
 """
 
@@ -20,9 +20,9 @@ from nutribench.agents.config import agents_dir, load_agent_config
 from nutribench.agents.registry import paper_names
 from nutribench.engine import UnsupportedConfig, check_supported, supports
 from nutribench.errors import UserError
-from nutribench.jobs.synthetic import synthetic_batch, synthetic_job
-from nutribench.scheduler.batching import batch_pools
 from nutribench.scheduler.driver import run_grid
+from nutribench.scheduler.pools import batch_pools
+from nutribench.scheduler.synthetic import synthetic_batch, synthetic_job
 from nutribench.store import read_jobs
 
 
@@ -160,10 +160,10 @@ def test_bench_learn_refuses_an_unsupported_config_in_one_line(agents: Path) -> 
 
 def test_run_batch_refuses_an_unsupported_config(agents: Path, tmp_path: Path) -> None:
     """The worker side too: a batch of a config the engine does not support fails, never trains."""
-    from nutribench.jobs.batch import run_batch
-    from nutribench.jobs.spec import JobFailed, JobSpec
+    from nutribench.scheduler.batched_job import run_batch
     from nutribench.scheduler.grid import Grid
     from nutribench.scheduler.registration import load_grid_configs
+    from nutribench.scheduler.spec import JobFailed, JobSpec
 
     regimes, configs = load_grid_configs(Grid(("run0",), ("sac_nr",), (0,), 2, 1))
     r, a = regimes[0], configs[0]

@@ -13,14 +13,17 @@ import nutribench
 PACKAGE = Path(nutribench.__file__).parent
 
 # Rooms from the bottom of the house to the top: a module may import its own room and the
-# rooms below it. "nutribench" is the package's __init__ (version, env registration).
+# rooms below it (and those of its own floor). "nutribench" is the package's __init__
+# (version, env registration). The store and the scheduler share a floor: the scheduler
+# writes jobs through the store's tables, and importing an archive (store) asks the
+# scheduler's job lifecycle whether a job is still running.
 LAYERS: list[set[str]] = [
     {"nutribench", "errors", "clock", "provenance", "diagnostics"},
     {"config"},
     {"env"},
     {"agents", "baselines", "engine"},
-    {"jobs", "store"},
-    {"scheduler", "report", "recorder"},
+    {"store", "scheduler"},
+    {"report", "recorder"},
     {"bench", "tuning"},
     {"cli"},
 ]

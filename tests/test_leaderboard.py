@@ -156,3 +156,20 @@ def test_the_protocol_tells_paper_tuned_and_variant_configs_apart() -> None:
         for c in (paper, tuned, variant)
     ]
     assert protocols(pd.DataFrame(rows)) == {"ppo": "paper config", "ppo_tuned": "tuned", "ppo_lr": "variant"}
+
+
+def test_an_older_version_that_differs_only_in_its_description_is_the_paper_config() -> None:
+    """A shipped file whose new version rewrote only its description leaves the results of the
+    older version (an archive of reports/paper/) paper configs; a changed setting does not."""
+    import pandas as pd
+
+    from nutribench.agents.config import agent_config_content, agent_config_sha256, load_agent_config
+    from nutribench.report.leaderboard import protocols
+
+    shipped = load_agent_config("mc")
+    older = shipped.model_copy(update={"version": shipped.version - 1, "description": "an older text"})
+    changed = older.model_copy(update={"learning_rate": 1e-3})
+    for cfg, protocol in ((older, "paper config"), (changed, "variant")):
+        body = agent_config_content(cfg) | {"max_grad_norm": "inf"}  # as JSON stores it
+        row = {"name": "mc", "version": cfg.version, "sha256": agent_config_sha256(cfg), "body": body}
+        assert protocols(pd.DataFrame([row])) == {"mc": protocol}

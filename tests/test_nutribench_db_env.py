@@ -14,8 +14,8 @@ import typer
 from typer.testing import CliRunner
 
 from nutribench.cli import app
-from nutribench.jobs.synthetic import synthetic_job
 from nutribench.scheduler.driver import run_grid
+from nutribench.scheduler.synthetic import synthetic_job
 
 runner = CliRunner()
 REPO = Path(__file__).resolve().parents[1]

@@ -20,9 +20,9 @@ from sqlalchemy import create_engine, inspect, text
 from typer.testing import CliRunner
 
 from nutribench.cli import app
+from nutribench.scheduler.lifecycle import STALE_AFTER_S
 from nutribench.scheduler.status import status_table
 from nutribench.store import StoreError, head_revision, open_store, read_episode_metrics
-from nutribench.store.jobs import STALE_AFTER_S
 from nutribench.store.views import EPISODE_METRICS_COLUMNS, VIEWS
 from tests.conftest import wait_for
 from tests.test_store import make_0001
@@ -241,8 +241,8 @@ def test_db_copy_moves_a_sqlite_database_into_postgres(
 ) -> None:
     """README "Running on several machines": an existing SQLite database's results moved
     into PostgreSQL, then the grid goes on there."""
-    from nutribench.jobs.synthetic import synthetic_job
     from nutribench.scheduler.driver import run_grid
+    from nutribench.scheduler.synthetic import synthetic_job
 
     monkeypatch.chdir(tmp_path)
     db = tmp_path / "lab.db"

@@ -19,11 +19,11 @@ from typer.testing import CliRunner
 
 from nutribench.cli import app
 from nutribench.config import list_regimes
-from nutribench.jobs.synthetic import synthetic_job
 from nutribench.scheduler.driver import STOP_SIGNALS, RunError, run_grid
 from nutribench.scheduler.grid import PRESETS, GridError, parse_seeds, resolve_grid
+from nutribench.scheduler.lifecycle import MAX_FAILURES, STALE_AFTER_S
 from nutribench.scheduler.status import status_table
-from nutribench.store.jobs import MAX_FAILURES, STALE_AFTER_S
+from nutribench.scheduler.synthetic import synthetic_job
 from tests.conftest import run_cli_args, wait_for
 
 REPO = Path(__file__).resolve().parents[1]
@@ -50,7 +50,7 @@ class EnvBatch(EnvJob):
     """The synthetic batch with extra environment variables set in the worker."""
 
     def __call__(self, specs, sink=None):
-        from nutribench.jobs.synthetic import synthetic_batch
+        from nutribench.scheduler.synthetic import synthetic_batch
 
         os.environ.update(self.env)
         return synthetic_batch(specs, sink)
@@ -187,10 +187,11 @@ def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> N
     args = dict(seeds=[0], episodes=4, eval_episodes=1, workers=1, job_fn=synthetic_job, display=False)
     assert run_grid(db, ["run0"], ["ppo"], **args).done == 1
     ppo = regimes / "agents" / "ppo.toml"
+    v = next(int(ln.split("=")[1]) for ln in ppo.read_text().splitlines() if ln.startswith("version ="))  # as shipped
     ppo.write_text(ppo.read_text().replace("learning_rate = 1e-3", "learning_rate = 2e-3"))
     before = sql(db, "SELECT (SELECT count(*) FROM agent_configs), (SELECT count(*) FROM jobs)")
     with pytest.raises(
-        RunError, match=r"ppo\.toml: version 1 is already recorded with different content: bump the version"
+        RunError, match=rf"ppo\.toml: version {v} is already recorded with different content: bump the version"
     ):
         run_grid(db, ["run0"], ["ppo"], **args)
     assert sql(db, "SELECT (SELECT count(*) FROM agent_configs), (SELECT count(*) FROM jobs)") == before
@@ -202,14 +203,14 @@ def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> N
     )
     assert res.exit_code == 2 and "bump the version" in res.output and len(res.output.strip().splitlines()) == 1
 
-    ppo.write_text(ppo.read_text().replace("version = 1", "version = 2"))
+    ppo.write_text(ppo.read_text().replace(f"version = {v}", f"version = {v + 1}"))
     assert run_grid(db, ["run0"], ["ppo"], **args).done == 1
     rows = sql(
         db, "SELECT a.version, j.status FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id ORDER BY a.version"
     )
-    assert rows == [(1, "done"), (2, "done")]
+    assert rows == [(v, "done"), (v + 1, "done")]
     df = episode_rows(db)
-    assert df.groupby("algo_version").size().to_dict() == {1: 5, 2: 5}
+    assert df.groupby("algo_version").size().to_dict() == {v: 5, v + 1: 5}
     assert_views_hide_the_dry_run(db)
 
     run3 = regimes / "run3.toml"  # a regime file works the same way
@@ -666,7 +667,7 @@ class HalfBatch(EnvJob):
     """A batch worker that loses the result of its last job (a bug the driver must survive)."""
 
     def __call__(self, specs, sink=None):
-        from nutribench.jobs.synthetic import synthetic_batch
+        from nutribench.scheduler.synthetic import synthetic_batch
 
         return synthetic_batch(specs, sink)[:-1]
 
@@ -692,7 +693,7 @@ def test_a_job_missing_from_its_batch_s_results_is_failed_not_left_running(regim
 
 
 def test_batches_group_jobs_by_config_and_regime_shape() -> None:
-    from nutribench.scheduler.batching import batch_pools
+    from nutribench.scheduler.pools import batch_pools
 
     # "x": a config of an algorithm the batched engine does not train: its jobs run one by one
     cells = [("a", "ppo", 0), ("a", "ppo", 1), ("b", "ppo", 0), ("a", "x", 0), ("a", "mc", 0)]

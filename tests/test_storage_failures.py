@@ -18,8 +18,8 @@ from typer.testing import CliRunner
 import nutribench.scheduler.driver as driver
 import nutribench.store.schema as schema
 from nutribench.cli import app
-from nutribench.jobs.synthetic import synthetic_job
 from nutribench.scheduler.driver import run_grid
+from nutribench.scheduler.synthetic import synthetic_job
 from nutribench.store.engine import StoreError, make_engine
 from tests.conftest import run_cli_args
 
@@ -156,7 +156,7 @@ def test_a_result_that_meets_the_write_lock_is_kept_and_stored_when_it_clears(re
     real = (
         driver.store_result
         if hasattr(driver, "store_result")
-        else __import__("nutribench.store.jobs").store.jobs.store_result
+        else __import__("nutribench.scheduler.lifecycle").scheduler.lifecycle.store_result
     )
     holding, blocker = threading.Event(), []
 

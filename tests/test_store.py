@@ -153,12 +153,12 @@ def test_a_reader_does_not_wait_for_a_writer(tmp_path: Path) -> None:
 
 
 def test_a_worker_does_not_import_the_database_layer():
-    """A worker process imports neither SQLAlchemy nor alembic (jobs/run.py once imported
+    """A worker process imports neither SQLAlchemy nor alembic (the single job once imported
     store.engine for a timestamp)."""
     import subprocess
     import sys
 
-    code = "import sys, nutribench.jobs.run, nutribench.jobs.synthetic; print(sorted(m for m in ('sqlalchemy', 'alembic') if m in sys.modules))"
+    code = "import sys, nutribench.scheduler.single_job, nutribench.scheduler.synthetic; print(sorted(m for m in ('sqlalchemy', 'alembic') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]"
 

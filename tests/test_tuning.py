@@ -75,7 +75,7 @@ def test_the_best_trial_becomes_a_new_agent_file(tmp_path: Path, monkeypatch) ->
     best = optuna.load_study(study_name="mc_s", storage=f"sqlite:///{db}").best_trial
     assert (cfg.name, cfg.version) == ("mc_tuned", 1) and cfg.learning_rate == best.params["learning_rate"]
     assert f"study 'mc_s', trial {best.number}" in cfg.description and "search space mc v1" in cfg.description
-    assert load_agent_config("mc").version == 2  # the paper's file untouched
+    assert load_agent_config("mc").version == 3  # the paper's file untouched (v3 as shipped)
     again = runner.invoke(app, ["tune", "best", "--study", "mc_s", "--write", "--db", str(db)])
     assert "mc_tuned.toml exists" in one_error_line(again)
     paper = runner.invoke(app, ["tune", "best", "--study", "mc_s", "--write", "--name", "mc", "--db", str(db)])

@@ -17,12 +17,12 @@ from typer.testing import CliRunner
 from nutribench.agents.api import validation_food_streams
 from nutribench.baselines import day_yardsticks, gap_closed, validation_yardsticks
 from nutribench.cli import app
-from nutribench.jobs.spec import JobResult
 from nutribench.scheduler.grid import Grid
+from nutribench.scheduler.lifecycle import claim_jobs, store_result
 from nutribench.scheduler.registration import load_grid_configs, register_grid
+from nutribench.scheduler.spec import JobResult
 from nutribench.store import make_engine, open_store, read_episode_metrics, read_learning_curve
 from nutribench.store.engine import database_url
-from nutribench.store.jobs import claim_jobs, store_result
 from nutribench.store.schema import upgrade_connection
 from nutribench.store.views import LEARNING_CURVE_COLUMNS
 

@@ -208,7 +208,7 @@ class _InstantSyntheticJob:
     def __call__(self, spec, sink=None):
         import os
 
-        from nutribench.jobs.synthetic import synthetic_job
+        from nutribench.scheduler.synthetic import synthetic_job
 
         os.environ["NUTRIBENCH_FAKE_SECONDS"] = "0"
         return synthetic_job(spec, sink)
@@ -217,7 +217,7 @@ class _InstantSyntheticJob:
 def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = None) -> dict:
     """Time ``status_table`` and ``nutribench status --json`` on a database holding the
     full paper grid (7 regimes x 5 algorithms x 5 seeds x 5000 training days = 875,000
-    episode rows), filled with synthetic jobs (``nutribench.jobs.synthetic``, no training).
+    episode rows), filled with synthetic jobs (``nutribench.scheduler.synthetic``, no training).
 
     ``db``: an existing database to time instead of building one (built in a temporary
     folder otherwise; that takes a few minutes). Medians over ``repeats``.

@@ -332,6 +332,6 @@ def bench_status_cmd(
 def check_engine_options(engine: str, device: str) -> None:
     """Refuse an unknown ``--engine``, an unknown ``--device``, CUDA where there is none, or a
     GPU asked of the SB3 engine, in one line, before anything trains."""
-    from nutribench.scheduler.batching import check_engine
+    from nutribench.scheduler.pools import check_engine
 
     check_engine(engine, 1, device)

@@ -160,11 +160,11 @@ def run_cmd(
         return
     from nutribench.agents.config import list_agent_configs
     from nutribench.config import list_regimes
-    from nutribench.scheduler.batching import check_engine
     from nutribench.scheduler.driver import default_job_fn, run_grid
     from nutribench.scheduler.grid import resolve_grid
+    from nutribench.scheduler.lifecycle import MAX_FAILURES
+    from nutribench.scheduler.pools import check_engine
     from nutribench.scheduler.registration import load_grid_configs
-    from nutribench.store.jobs import MAX_FAILURES
 
     grid = resolve_grid(
         preset=preset,

@@ -15,8 +15,10 @@ training budget, one job per seed, :func:`nutribench.report.data.prepare`):
   regimes it lacks. Rows are ranked by the aggregate IQM; a row covering fewer regimes than
   the board is ranked on the regimes it has, and its flags say so.
 
-The protocol of a row: ``paper config`` (one of the five built-in configs, as shipped in
-``regimes/agents/``), ``tuned`` (a config written by ``nutribench tune best --write``: its
+The protocol of a row: ``paper config`` (one of the five built-in configs with the settings
+shipped in ``regimes/agents/``: the shipped version, or an older one that differs from it
+only in its description, e.g. the archives of ``reports/paper/`` after a version that rewrote
+only the prose), ``tuned`` (a config written by ``nutribench tune best --write``: its
 description names the study), ``variant`` (a built-in algorithm with other settings), ``plug-in`` (an
 ``algo = "external"`` config with an entry point, trained by ``nutribench run``),
 ``recorded`` (an agent trained elsewhere: :class:`nutribench.Recorder`, ``nutribench evaluate``).
@@ -55,6 +57,30 @@ TUNED_PREFIX = "tuned by nutribench tune"
 Log = Callable[[str], None]
 
 
+#: what of an agent config is no setting: its version and its description (prose)
+NOT_SETTINGS = ("version", "description")
+
+
+def same_settings(shipped: object, body: object) -> bool:
+    """Whether a stored config ``body`` (its content as recorded) has the settings of the
+    config ``shipped``: equal but for :data:`NOT_SETTINGS`, read through the config model
+    (so a value stored as JSON text, ``"inf"``, is the number it names). A body that does not
+    validate has not."""
+    from nutribench.agents.config import agent_config_content, parse_agent_config
+    from nutribench.config.loading import ConfigError, content_sha256
+
+    def settings(cfg: object) -> str:
+        return content_sha256({k: v for k, v in agent_config_content(cfg).items() if k not in NOT_SETTINGS})
+
+    if not isinstance(body, dict):
+        return False
+    try:
+        stored = parse_agent_config(body)
+    except (ConfigError, ValueError, TypeError):
+        return False
+    return settings(stored) == settings(shipped)
+
+
 def protocols(configs: pd.DataFrame) -> dict[str, str]:
     """The protocol of each agent config (columns name, version, sha256, body: the
     ``agent_configs`` rows of the versions drawn)."""
@@ -72,7 +98,8 @@ def protocols(configs: pd.DataFrame) -> dict[str, str]:
         same = False
         if r.name in BUILTIN_ORDER and shipped.is_file():
             cfg = parse_agent_config(read_toml(shipped), shipped)
-            same = int(cfg.version) == int(r.version) and agent_config_sha256(cfg) == r.sha256
+            exact = int(cfg.version) == int(r.version) and agent_config_sha256(cfg) == r.sha256
+            same = exact or same_settings(cfg, body)
         tuned = str(body.get("description", "")).startswith(TUNED_PREFIX)
         out[r.name] = "paper config" if same else "tuned" if tuned else "variant"
     return out
@@ -268,4 +295,5 @@ __all__ = [
     "leaderboard_rows",
     "leaderboard_table",
     "protocols",
+    "same_settings",
 ]

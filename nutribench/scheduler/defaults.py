@@ -10,8 +10,8 @@ import uuid
 from collections.abc import Callable
 from pathlib import Path
 
-from nutribench.jobs.worker import JobFn
 from nutribench.scheduler.registration import RunError
+from nutribench.scheduler.worker import JobFn
 from nutribench.store.engine import sqlite_path
 from nutribench.store.schema import Store
 
@@ -19,10 +19,10 @@ from nutribench.store.schema import Store
 def default_batch_fn() -> Callable:
     """The batched engine's worker function (``$NUTRIBENCH_JOB=fake``: the synthetic job per spec)."""
     if os.environ.get("NUTRIBENCH_JOB", "").strip() == "fake":
-        from nutribench.jobs.synthetic import synthetic_batch
+        from nutribench.scheduler.synthetic import synthetic_batch
 
         return synthetic_batch
-    from nutribench.jobs.batch import run_batch
+    from nutribench.scheduler.batched_job import run_batch
 
     return run_batch
 
@@ -31,13 +31,13 @@ def default_job_fn() -> JobFn:
     """``$NUTRIBENCH_JOB=fake`` (tests, dry runs): the synthetic job; else the real one."""
     choice = os.environ.get("NUTRIBENCH_JOB", "").strip()
     if choice == "fake":
-        from nutribench.jobs.synthetic import synthetic_job
+        from nutribench.scheduler.synthetic import synthetic_job
 
         return synthetic_job
     if choice not in ("", "real"):
         raise RunError(f"NUTRIBENCH_JOB={choice}: use 'fake' (synthetic jobs) or leave it unset")
     try:
-        from nutribench.jobs.run import run_job
+        from nutribench.scheduler.single_job import run_job
     except ImportError as e:
         raise RunError(f"the training job cannot be imported ({e}): is nutribench fully installed?") from None
     return run_job

@@ -9,8 +9,8 @@ One call of :func:`run_grid`:
 3. creates the missing job rows (unique on regime, agent config, seed, budget, eval
    episodes), so a re-run finds the done ones and skips them;
 4. claims runnable jobs just in time, one short transaction per batch: ``pending``,
-   ``interrupted``, ``failed`` below :data:`~nutribench.store.jobs.MAX_FAILURES` failures, and ``running`` ones
-   whose driver stopped heartbeating :data:`~nutribench.store.jobs.STALE_AFTER_S` ago. A claim sets status,
+   ``interrupted``, ``failed`` below :data:`~nutribench.scheduler.lifecycle.MAX_FAILURES` failures, and ``running`` ones
+   whose driver stopped heartbeating :data:`~nutribench.scheduler.lifecycle.STALE_AFTER_S` ago. A claim sets status,
    owner token and heartbeat under the write lock, so two drivers never run one job;
 5. keeps at most ``slots`` jobs in flight on the executor, shows their progress, writes
    progress and a heartbeat of its running jobs every :data:`FLUSH_EVERY_S` seconds;
@@ -19,7 +19,7 @@ One call of :func:`run_grid`:
 7. on Ctrl-C stops the workers and marks their jobs ``interrupted`` (no rows are written
    for them: rows are only written when a job completes);
 8. at its start and end, deletes the batched engine's checkpoints whose jobs are all done
-   (:mod:`nutribench.scheduler.checkpoints`).
+   (:mod:`nutribench.scheduler.resume`).
 
 What a run uses when not told (the job function, the models folder):
 :mod:`nutribench.scheduler.defaults`; the stop signals: :mod:`nutribench.scheduler.signals`.
@@ -37,16 +37,25 @@ from typing import Any
 
 from sqlalchemy.exc import OperationalError
 
-from nutribench.jobs.spec import JobSpec
-from nutribench.jobs.worker import JobFn, execute, execute_batch
-from nutribench.scheduler.batching import MAX_BATCH, Pool, batch_pools, check_engine, checkpointed_first
-from nutribench.scheduler.checkpoints import remove_finished_checkpoints
 from nutribench.scheduler.defaults import default_batch_fn, default_job_fn, default_models_dir, driver_token
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
 from nutribench.scheduler.grid import Grid
-from nutribench.scheduler.registration import RunError, load_grid_configs, register_grid
+from nutribench.scheduler.lifecycle import (
+    check_not_mixed,
+    claim_jobs,
+    count_claimable,
+    flush_progress,
+    grid_counts,
+    held_elsewhere,
+    release_jobs,
+    reset_given_up,
+    store_failure,
+)
+from nutribench.scheduler.pools import MAX_BATCH, Pool, batch_pools, check_engine
+from nutribench.scheduler.registration import RunError, load_grid_configs, register_grid, spec_maker
+from nutribench.scheduler.resume import checkpointed_first, remove_finished_checkpoints
 from nutribench.scheduler.signals import STOP_SIGNALS, StopSignalsAsCtrlC
-from nutribench.scheduler.specs import spec_maker
+from nutribench.scheduler.spec import JobSpec
 from nutribench.scheduler.storing import (
     HeldResults,
     interrupt_line,
@@ -58,19 +67,9 @@ from nutribench.scheduler.storing import (
 )
 from nutribench.scheduler.storing import error_text as _error_text
 from nutribench.scheduler.storing import first_line as _first_line
+from nutribench.scheduler.worker import JobFn, execute, execute_batch
 from nutribench.store import Job, open_store
 from nutribench.store.engine import StoreError
-from nutribench.store.jobs import (
-    check_not_mixed,
-    claim_jobs,
-    count_claimable,
-    flush_progress,
-    grid_counts,
-    held_elsewhere,
-    release_jobs,
-    reset_given_up,
-    store_failure,
-)
 from nutribench.store.schema import Store
 
 WAIT_POLL_S = 1.0  # how often a driver with nothing to run looks at jobs held by another
@@ -80,7 +79,7 @@ FLUSH_EVERY_S = 3.0  # progress + heartbeat writes
 @dataclass
 class RunSummary:
     """What one ``run`` did. ``skipped``: already done before it started; ``busy``: being
-    run by another driver; ``given_up``: failed :data:`~nutribench.store.jobs.MAX_FAILURES` times, not retried."""
+    run by another driver; ``given_up``: failed :data:`~nutribench.scheduler.lifecycle.MAX_FAILURES` times, not retried."""
 
     total: int = 0
     done: int = 0
@@ -239,7 +238,7 @@ class _Run:
     def wait_for_others(self) -> None:
         """Jobs of the grid held by another driver: wait until that driver has finished them,
         or, if its heartbeat stops (a crashed driver), take them over once they are
-        :data:`~nutribench.store.jobs.STALE_AFTER_S` old, so that a re-run after a crash finishes the grid."""
+        :data:`~nutribench.scheduler.lifecycle.STALE_AFTER_S` old, so that a re-run after a crash finishes the grid."""
         said = None
         while True:
             held, claimable_at = held_elsewhere(self.store, self.job_ids, self.owner)
@@ -306,12 +305,12 @@ def run_grid(
 ) -> RunSummary:
     """Run every job of the grid regime x algo x seed that is not done yet (see the module
     docstring). Returns counts; ``summary.exit_code`` is what ``nutribench run`` exits with.
-    ``retry_failed``: jobs that failed :data:`~nutribench.store.jobs.MAX_FAILURES` times are tried again.
+    ``retry_failed``: jobs that failed :data:`~nutribench.scheduler.lifecycle.MAX_FAILURES` times are tried again.
     ``engine="batched"``: each agent config's jobs train in batches of at most ``max_batch``,
     one per worker (:mod:`nutribench.engine`), each job stored on its own with ``jobs.engine``,
     on ``device`` (``auto``: CUDA where a worker has it; the SB3 engine takes ``auto`` or ``cpu``).
     ``tensorboard``: a folder; each job writes its training diagnostics there as TensorBoard
-    events, in a run folder of its own (:attr:`~nutribench.jobs.spec.JobSpec.run_name`). ``eval_every``:
+    events, in a run folder of its own (:attr:`~nutribench.scheduler.spec.JobSpec.run_name`). ``eval_every``:
     every so many training days, a greedy evaluation on ``val_episodes`` validation days (stored).
     Raises ConfigError (bad config file), StoreError (bad database), ExecutorError (bad ``executor``),
     DeviceError (bad ``device``) or RunError (config changed without a version bump), all one line.

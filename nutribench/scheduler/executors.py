@@ -25,7 +25,7 @@ from typing import Any
 from nutribench.errors import UserError
 
 # Imported by the fork server once, so that each job's process starts with them loaded.
-PRELOAD = ("nutribench.jobs.preload",)
+PRELOAD = ("nutribench.scheduler.preload",)
 
 
 class ExecutorError(UserError):

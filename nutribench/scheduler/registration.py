@@ -1,12 +1,16 @@
 """A grid's configs and job rows: load every regime and agent config it names, record
 their content in the database (refusing a changed file whose version was not bumped), and
 create the job rows it lacks. Used by :func:`nutribench.scheduler.driver.run_grid` before
-any job runs.
+any job runs; then :func:`spec_maker` turns each job row the driver claims into what a
+worker is given (:class:`~nutribench.scheduler.spec.JobSpec`: the configs it runs with, their
+hashes, its model file's path, its device). The recorder's jobs (:class:`ExternalJob`) are
+registered here too.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import os
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,6 +20,7 @@ from sqlalchemy.orm import Session
 
 from nutribench.errors import UserError
 from nutribench.scheduler.grid import Grid
+from nutribench.scheduler.spec import JobSpec
 from nutribench.store import AgentConfig, Job, RegimeConfig, session_scope, utcnow
 from nutribench.store.engine import REGISTRATION_LOCK, hold_write_lock
 from nutribench.store.schema import Store
@@ -152,6 +157,57 @@ def model_path(models_dir: Path, regime: _Config, agent: _Config, seed: int, epi
     )
 
 
+def spec_maker(
+    store: Store,
+    grid: Grid,
+    regime_cfgs: Sequence,
+    agent_cfgs: Sequence,
+    models_dir: Path,
+    device: str,
+    tensorboard: str | os.PathLike[str] | None,
+    eval_every: int = 0,
+    val_episodes: int = 5,
+) -> Callable[[Job], JobSpec]:
+    """A function from a job row of ``grid`` (registered in ``store`` from ``regime_cfgs`` and
+    ``agent_cfgs``: :func:`~nutribench.scheduler.registration.load_grid_configs`) to its
+    :class:`~nutribench.scheduler.spec.JobSpec`: its model file under ``models_dir``, trained on
+    ``device``, its TensorBoard events (if any) under ``tensorboard``, evaluated on
+    ``val_episodes`` validation days every ``eval_every`` training days (0: never)."""
+    regimes, agents = {r.name: r for r in regime_cfgs}, {a.name: a for a in agent_cfgs}
+    with store.engine.connect() as conn:
+        rid = dict(
+            conn.execute(select(RegimeConfig.id, RegimeConfig.name).where(RegimeConfig.name.in_(grid.regimes))).all()
+        )
+        aid = dict(conn.execute(select(AgentConfig.id, AgentConfig.name).where(AgentConfig.name.in_(grid.algos))).all())
+    events = str(Path(tensorboard).absolute()) if tensorboard is not None else None
+
+    def make_spec(job: Job) -> JobSpec:
+        r, a = regimes[rid[job.regime_id]], agents[aid[job.agent_config_id]]
+        path = model_path(models_dir, r, a, job.seed, job.episodes)
+        return JobSpec(
+            job.id,
+            r.name,
+            r.version,
+            r.sha256,
+            a.name,
+            a.version,
+            a.sha256,
+            job.seed,
+            job.episodes,
+            job.eval_episodes,
+            str(path),
+            r.obj,
+            a.obj,
+            attempt=job.attempt,
+            device=device,
+            tensorboard=events,
+            eval_every=int(eval_every or 0),
+            val_episodes=val_episodes,
+        )
+
+    return make_spec
+
+
 @dataclass(frozen=True)
 class ExternalJob:
     """A job trained outside nutribench (:class:`nutribench.Recorder`, ``nutribench evaluate``):
@@ -170,8 +226,8 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
     """Record ``job``'s configs and write it as a done job with its rows, in one transaction;
     its id. A job with the same regime, agent, seed and budget already there is refused."""
     from nutribench.agents.config import agent_config_content, agent_config_sha256
+    from nutribench.scheduler.lifecycle import check_not_mixed, episode_rows
     from nutribench.store.engine import display_url
-    from nutribench.store.jobs import check_not_mixed, episode_rows
     from nutribench.store.models import EVAL_STEP_COLUMNS, METADATA_COLUMNS, Episode, EvalStep
 
     env, cfg = job.regime_config, job.agent_config

@@ -67,8 +67,9 @@ import numpy as np
 from sqlalchemy import delete, func, insert, select, update
 from sqlalchemy.orm import Session
 
-# the format and the checks live in archive_meta and archive_check; their names are
-# importable from here too (nutribench.store.archive.valid_name, read_archive, ...)
+from nutribench.scheduler.lifecycle import job_state
+
+# the format and the checks live in archive_meta and archive_check; importable here too (valid_name, ...)
 from nutribench.store.archive_check import (
     _verify,
     read_archive,
@@ -97,7 +98,6 @@ from nutribench.store.engine import (
     session_scope,
     sqlite_path,
 )
-from nutribench.store.jobs import job_state
 from nutribench.store.models import AgentConfig, Job, RegimeConfig
 from nutribench.store.schema import open_store
 

@@ -1,6 +1,6 @@
 """The worker side of a batch: several jobs of one agent config trained at once by the
 batched engine (:mod:`nutribench.engine`), each then evaluated, saved and returned as the
-single-job worker does (:func:`nutribench.jobs.run.run_job`), with ``engine = "batched"``.
+single-job worker does (:func:`nutribench.scheduler.single_job.run_job`), with ``engine = "batched"``.
 
 A batch that raises fails all its jobs (the driver records each failure; the next run
 retries them). Progress is reported per job, as for single jobs. Each job's result records
@@ -37,10 +37,10 @@ from nutribench.engine import supports
 from nutribench.engine.checkpoint import Checkpoint, checkpoint_files
 from nutribench.engine.device import resolve_device
 from nutribench.engine.train import train_batched
-from nutribench.jobs.run import check_configs, with_yardsticks
-from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
-from nutribench.jobs.worker import JobProgress, Sink
 from nutribench.provenance import collect_metadata, git_state
+from nutribench.scheduler.single_job import check_configs, with_yardsticks
+from nutribench.scheduler.spec import JobFailed, JobResult, JobSpec
+from nutribench.scheduler.worker import JobProgress, Sink
 
 
 def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]:
@@ -134,7 +134,7 @@ def write_tensorboard(folder: Path, rows: list[dict]) -> None:
 
 def manifest(path: Path) -> Path:
     """``<checkpoint>.jobs.json``: the job ids of the batch, so that the next run claims the
-    same batch and it resumes (:func:`nutribench.scheduler.batching.checkpointed_first`)."""
+    same batch and it resumes (:func:`nutribench.scheduler.resume.checkpointed_first`)."""
     return path.with_name(path.name + ".jobs.json")
 
 

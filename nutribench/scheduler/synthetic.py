@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from nutribench.clock import utcnow
-from nutribench.jobs.spec import JobResult, JobSpec
-from nutribench.jobs.worker import JobProgress, Sink
 from nutribench.provenance import collect_metadata
+from nutribench.scheduler.spec import JobResult, JobSpec
+from nutribench.scheduler.worker import JobProgress, Sink
 
 HORIZON = 50
 

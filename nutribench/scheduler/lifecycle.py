@@ -8,7 +8,8 @@ Runnable ("claimable") are ``pending``, ``interrupted``, ``failed`` below
 :data:`MAX_FAILURES` failures, and ``running`` jobs whose heartbeat is older than
 :data:`STALE_AFTER_S` (their driver is gone). The driver (:mod:`nutribench.scheduler.driver`)
 writes through these functions and ``nutribench status`` reads the same rule
-(:func:`job_state`), so the two never disagree on which job is orphaned.
+(:func:`job_state`), so the two never disagree on which job is orphaned; ``nutribench db
+import`` (:mod:`nutribench.store.archive`) asks the same rule before it replaces a job.
 
 A claim takes the write lock (``BEGIN IMMEDIATE`` on SQLite; on PostgreSQL it locks the rows it
 takes with ``SELECT ... FOR UPDATE SKIP LOCKED``, and its UPDATE re-checks the rule), so two
@@ -42,7 +43,7 @@ from nutribench.store.models import (
 from nutribench.store.schema import Store
 
 if TYPE_CHECKING:
-    from nutribench.jobs.spec import JobResult
+    from nutribench.scheduler.spec import JobResult
 
 MAX_FAILURES = 3  # a job that failed this often is no longer retried
 STALE_AFTER_S = 120.0  # a running job whose heartbeat is older belongs to a dead driver

@@ -1,7 +1,7 @@
 """The real job: train one agent on one regime with one seed, evaluate it, save the model.
 
 Runs in a worker process; never touches the database. Progress goes to ``sink`` (see
-:mod:`nutribench.jobs.worker`); the result is a :class:`~nutribench.jobs.spec.JobResult`.
+:mod:`nutribench.scheduler.worker`); the result is a :class:`~nutribench.scheduler.spec.JobResult`.
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from nutribench.agents.config import agent_config_sha256
 from nutribench.agents.registry import entry_point_source
 from nutribench.baselines import day_yardsticks
 from nutribench.clock import utcnow
-from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
-from nutribench.jobs.worker import JobProgress, Sink
 from nutribench.provenance import collect_metadata
+from nutribench.scheduler.spec import JobFailed, JobResult, JobSpec
+from nutribench.scheduler.worker import JobProgress, Sink
 
 
 def check_configs(spec: JobSpec) -> None:

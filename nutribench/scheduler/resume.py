@@ -1,13 +1,17 @@
-"""Housekeeping of the batched engine's checkpoints folder, ``<models>/checkpoints/``.
+"""The driver's side of resuming stopped batches, through the batched engine's checkpoints
+folder, ``<models>/checkpoints/`` (the checkpoint files themselves:
+:mod:`nutribench.engine.checkpoint`).
 
 A batch writes ``<checkpoint>.jobs.json`` (its jobs: id, agent config and regime hashes,
 seed, budget) beside its checkpoint, and deletes both when it ends
-(:mod:`nutribench.jobs.batch`). A batch that was killed and whose jobs were then finished
-otherwise (by the SB3 engine, by batches formed differently, by another driver) would
-leave them behind for good: nothing resumes them. :func:`remove_finished_checkpoints`
-deletes each such manifest and its checkpoint once every job it names is done in the
-database. A manifest naming a job this database does not hold as named (another database
-sharing the models folder) is left alone, as is one that cannot be read.
+(:mod:`nutribench.scheduler.batched_job`). The next run claims the jobs of each such manifest
+as one batch before it forms new ones (:func:`checkpointed_first`), so that the batch resumes
+from its checkpoint. A batch that was killed and whose jobs were then finished otherwise (by
+the SB3 engine, by batches formed differently, by another driver) would leave them behind
+for good: nothing resumes them. :func:`remove_finished_checkpoints` deletes each such
+manifest and its checkpoint once every job it names is done in the database. A manifest
+naming a job this database does not hold as named (another database sharing the models
+folder) is left alone, as is one that cannot be read.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from typing import Any
 from sqlalchemy import select
 from sqlalchemy.exc import SQLAlchemyError
 
+from nutribench.scheduler.pools import Pool
 from nutribench.store import AgentConfig, Job, RegimeConfig
 from nutribench.store.schema import Store
 
@@ -104,3 +109,22 @@ def remove_finished_checkpoints(store: Store, folder: Path) -> list[Path]:
             continue
         removed.append(path)
     return removed
+
+
+def checkpointed_first(pools: list[Pool], folder: Path) -> list[Pool]:
+    """``pools`` with, first, one pool per batch that left a checkpoint in ``folder``
+    (``*.jobs.json``: its job ids), taken out of the pool that held its jobs: the next run
+    claims the same batch again and it resumes from its checkpoint. A batch whose jobs are
+    no longer all in one pool (another grid, or some were done since) is left alone."""
+    first: list[Pool] = []
+    for path in sorted(folder.glob(f"*{MANIFEST_SUFFIX}")) if folder.is_dir() else []:
+        try:
+            ids = [int(i) for i in json.loads(path.read_text())["job_ids"]]
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        for pool in pools:
+            if pool.batched and ids and set(ids) <= set(pool.job_ids):
+                pool.job_ids = [i for i in pool.job_ids if i not in set(ids)]
+                first.append(Pool(ids, True, len(ids)))
+                break
+    return first + pools

@@ -17,7 +17,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from nutribench.jobs.spec import JobFailed, JobResult, JobSpec
+from nutribench.scheduler.spec import JobFailed, JobResult, JobSpec
 
 PROGRESS_INTERVAL_S = 1.0  # at most one progress event per job per second
 RECENT_EPISODES = 20  # "recent return" = mean over this many training episodes

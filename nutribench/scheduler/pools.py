@@ -3,10 +3,8 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 from nutribench.scheduler.registration import RunError
 
@@ -85,22 +83,3 @@ def batch_pools(
             singles.append(job_id)
     pools = [Pool(ids, True, max(1, min(max_batch, -(-claimable(ids) // max(slots, 1))))) for ids in groups.values()]
     return pools + [Pool(singles)]
-
-
-def checkpointed_first(pools: list[Pool], folder: Path) -> list[Pool]:
-    """``pools`` with, first, one pool per batch that left a checkpoint in ``folder``
-    (``*.jobs.json``: its job ids), taken out of the pool that held its jobs: the next run
-    claims the same batch again and it resumes from its checkpoint. A batch whose jobs are
-    no longer all in one pool (another grid, or some were done since) is left alone."""
-    first: list[Pool] = []
-    for path in sorted(folder.glob("*.jobs.json")) if folder.is_dir() else []:
-        try:
-            ids = [int(i) for i in json.loads(path.read_text())["job_ids"]]
-        except (OSError, ValueError, KeyError, TypeError):
-            continue
-        for pool in pools:
-            if pool.batched and ids and set(ids) <= set(pool.job_ids):
-                pool.job_ids = [i for i in pool.job_ids if i not in set(ids)]
-                first.append(Pool(ids, True, len(ids)))
-                break
-    return first + pools
