@@ -185,6 +185,7 @@ def test_bad_search_spaces_are_one_line_and_write_nothing(tmp_path: Path, case: 
         (["--pruner", "hyperband"], "--pruner: 'hyperband'"),
         (["--trials", "0"], "--trials and --stack must be >= 1"),
         (["--stack", "0"], "--trials and --stack must be >= 1"),
+        (["--startup-trials", "0"], "--startup-trials must be >= 1"),
     ],
 )
 def test_bad_study_options_are_one_line_and_write_nothing(tmp_path: Path, args: list[str], expected: str) -> None:
@@ -217,3 +218,12 @@ def test_status_lists_the_studies(tmp_path: Path) -> None:
     res = runner.invoke(app, ["tune", "status", "--db", str(db)])
     assert res.exit_code == 0, res.output
     assert "lr" in res.output and "ppo v1" in res.output and "best trial" in res.output
+
+
+def test_startup_trials_reach_the_sampler_and_the_pruner_and_belong_to_the_study(tmp_path: Path) -> None:
+    db = tmp_path / "lab.db"
+    study = open_study(db, "s", settings(startup_trials=12))
+    assert study.sampler._n_startup_trials == 12 and study.pruner._n_startup_trials == 12
+    run_study(study, quick, 2)
+    with pytest.raises(TuneError, match="created with other settings"):
+        open_study(db, "s", settings())  # 5, the default: another study's settings

@@ -50,6 +50,10 @@ def tune_cmd(
     val_episodes: Annotated[int, typer.Option(help="validation days per evaluation")] = 5,
     sampler_seed: Annotated[int, typer.Option(help="seed of the TPE sampler")] = 0,
     pruner: Annotated[str, typer.Option(help="'median' (after half the days) or 'none'")] = "median",
+    startup_trials: Annotated[
+        int,
+        typer.Option(help="random trials before TPE models the values (and before the median pruner prunes)"),
+    ] = 5,
     stack: Annotated[
         int,
         typer.Option(
@@ -87,6 +91,7 @@ def tune_cmd(
         val_episodes=val_episodes,
         sampler_seed=sampler_seed,
         pruner=pruner,
+        startup_trials=startup_trials,
     )
     settings.check()
     if trials < 1 or stack < 1:

@@ -89,6 +89,8 @@ class StudySettings:
                 f"--days ({self.days}) must be a multiple of --eval-every ({self.eval_every}): a trial's value is "
                 "its evaluation at the last day"
             )
+        if self.startup_trials < 1:
+            raise TuneError("--startup-trials must be >= 1 (the random trials TPE starts from)")
         if self.pruner not in PRUNERS:
             raise TuneError(f"--pruner: {self.pruner!r} is not one of {', '.join(PRUNERS)}")
 
