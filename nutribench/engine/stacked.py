@@ -249,7 +249,10 @@ class AgentMeans:
         stacked = [n for n, v in self._sums.items() if isinstance(v, th.Tensor)]
         out: dict[str, list[float] | float] = {}
         if stacked:
-            rows = th.stack([self._sums[n].to(th.float64) / self._counts[n] for n in stacked]).tolist()
+            # on one device (a plug-in's or a stacked setting's values may be CPU tensors
+            # beside the network's CUDA ones), then one transfer
+            device = self._sums[stacked[0]].device
+            rows = th.stack([self._sums[n].to(device, th.float64) / self._counts[n] for n in stacked]).tolist()
             out.update(zip(stacked, rows))
         out.update({n: v / self._counts[n] for n, v in self._sums.items() if not isinstance(v, th.Tensor)})
         self._sums, self._counts = {}, {}
