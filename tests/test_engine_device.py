@@ -223,3 +223,21 @@ def test_one_ppo_update_on_cuda_equals_the_cpu_update() -> None:
     assert all(p.device.type == "cuda" for p in nets["cuda"].params)
     for a, b in zip(nets["cpu"].params, nets["cuda"].params, strict=True):
         np.testing.assert_allclose(b.detach().cpu().numpy(), a.detach().numpy(), rtol=1e-4, atol=1e-5)
+
+
+@needs_cuda
+def test_stacked_sac_trials_train_on_cuda(tmp_path: Path) -> None:
+    """Stacked SAC trials hold their per-agent settings (alpha, learning rates) as CPU arrays;
+    on CUDA the logged means of those meet the networks' CUDA tensors at each day's record (a
+    stacked SAC study on a GPU once failed every trial there). Two stacked trials train past
+    SAC's first updates (day 3) on CUDA and finish."""
+    import optuna
+
+    db = tmp_path / "lab.db"
+    args = ["tune", "--algo", "sac", "--study", "cu", "--db", str(db), "--regimes", "run3", "--seeds", "101"]
+    args += ["--days", "4", "--eval-every", "2", "--val-episodes", "1", "--trials", "2", "--stack", "2"]
+    res = CliRunner().invoke(app, [*args, "--pruner", "none", "--device", "cuda"])
+    assert res.exit_code == 0, res.output
+    trials = optuna.load_study(study_name="cu", storage=f"sqlite:///{db}").trials
+    assert [t.state.name for t in trials] == ["COMPLETE", "COMPLETE"]
+    assert all(t.user_attrs["device"].startswith("cuda") and t.user_attrs["stacked_with"] for t in trials)
