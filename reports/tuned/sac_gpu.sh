@@ -4,6 +4,12 @@
 # Usage, on the GPU machine, from the repository root, with OUT set to a folder for the results:
 #   CODE=<checkout of the set-2 commit> DB=<copy of reports/tuned/data/tuning.db> bash reports/tuned/sac_gpu.sh
 # The optional WHL folder holds the wheels of the dependencies the machine lacks (it has no network).
+# As run on 2026-11-26 (addendum 3): CODE=.devrun/code (`git archive bce897c nutribench regimes
+# migrations pyproject.toml alembic.ini`, plus engine/stacked.py's fix of 0f5ea0b), DB=.devrun/tuning.db
+# (an sqlite backup of the study database), WHL=.whl (pip download of gymnasium, stable-baselines3,
+# pydantic, sqlalchemy, alembic, optuna, typer and their missing needs, for cp312 manylinux), both
+# folders git-ignored and carried to the machine, DEADLINE=450, after a smoke study on a scratch copy
+# (STUDY=smoke DAYS=4 EVERY=2 TRIALS=4 STACK=2). The trial records come back in $OUT/tuning.db.
 # A deadline (DEADLINE s, default 500) stops the drivers with SIGINT: a trial running then is
 # recorded as failed (not counted) and the study is finished later with tune_all.sh (SET=2).
 set -uo pipefail
