@@ -45,11 +45,10 @@ def summary(df: pd.DataFrame) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     for name, g in df.groupby("study"):
-        done = g[g.state == "COMPLETE"]
+        done, counts = g[g.state == "COMPLETE"], g.state.value_counts()
         best = done.loc[done.value.idxmax()] if len(done) else None
         lines.append(
-            f"| {name} | {len(done)} | {(g.state == 'PRUNED').sum()} | {(g.state == 'FAIL').sum()} | "
-            + f"{(g.state == 'RUNNING').sum()} | "
+            f"| {name} | {len(done)} | {counts.get('PRUNED', 0)} | {counts.get('FAIL', 0)} | {counts.get('RUNNING', 0)} | "
             + (f"{best.value:+.3f} ({best.number})" if best is not None else "-")
             + (f" | {done.value.median():+.3f}" if len(done) else " | -")
             + f" | {g.wall_seconds.sum():.0f} s |"
@@ -68,8 +67,9 @@ def figure(df: pd.DataFrame, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
-    fig, axes = plt.subplots(1, len(ALGOS), figsize=(4 * len(ALGOS), 4.2), sharey=False)
+    fig, axes = plt.subplots(1, len(ALGOS), figsize=(4 * len(ALGOS), 4.2))
     for ax, algo in zip(axes, ALGOS, strict=True):
         for study, colour in ((f"tuned_{algo}", "tab:grey"), (f"tuned2_{algo}", "tab:blue")):
             g = df[df.study == study].sort_values("number")
@@ -87,8 +87,6 @@ def figure(df: pd.DataFrame, path: Path) -> None:
         ax.set_xlabel("trial number")
         ax.axhline(0, color="k", lw=0.5, ls=":")
     axes[0].set_ylabel("IQM share of the gap, validation days, day 500")
-    from matplotlib.lines import Line2D
-
     keys = [
         Line2D([], [], color="tab:grey", marker="o", ls="", label="first set (tuned_<algo>)"),
         Line2D([], [], color="tab:blue", marker="o", ls="", label="second set (tuned2_<algo>: the grid's)"),
