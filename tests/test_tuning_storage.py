@@ -178,7 +178,9 @@ def test_bad_search_spaces_are_one_line_and_write_nothing(tmp_path: Path, case: 
     "args, expected",
     [
         (["--seeds", "101,21"], "21 are seeds results are reported on"),
-        (["--seeds", "x"], "--seeds 'x': give whole numbers"),
+        (["--seeds", "x"], "--seeds 'x': 'x' is not a non-negative integer"),
+        (["--seeds", "101,101"], "seed 101 is given twice"),
+        (["--seeds", "paper"], "are seeds results are reported on"),
         (["--regimes", "run0,run9"], "unknown regime run9"),
         (["--days", "0"], "must be >= 1"),
         (["--eval-every", "3"], "must be a multiple of --eval-every (3)"),

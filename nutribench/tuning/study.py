@@ -322,10 +322,15 @@ def default_eval_every(days: int) -> int:
 
 
 def parse_seeds(text: str | None) -> tuple[int, ...]:
-    """``--seeds 101,102`` as a tuple (the default tuning seeds for None)."""
+    """``--seeds 101,102`` checked as ``nutribench run`` checks its seeds
+    (:func:`nutribench.scheduler.grid.parse_seeds`: non-negative, in range, no repeats), as a
+    tuple; the default tuning seeds for None or an empty text."""
+    from nutribench.scheduler.grid import GridError
+    from nutribench.scheduler.grid import parse_seeds as grid_seeds
+
     if text is None or not text.strip():
         return DEFAULT_TUNING_SEEDS
     try:
-        return tuple(int(s) for s in text.split(",") if s.strip())
-    except ValueError:
-        raise TuneError(f"--seeds {text!r}: give whole numbers separated by commas, e.g. 101,102,103") from None
+        return grid_seeds(text)
+    except GridError as e:
+        raise TuneError(str(e)) from None
