@@ -122,3 +122,9 @@ def test_tables_and_figure_from_real_archives_at_two_levels(ladder, tmp_path: Pa
     text = (out / "table_ladder.md").read_text()
     assert "not the plan's jobs" in text and "obs4_gru_ppo" in text
     assert (out / "fig_ladder.png").stat().st_size > 10_000
+
+
+def test_the_tuned_ppo_arm_runs_the_tuning_study_s_file_unchanged():
+    """Addendum 1: the tuned PPO arm is ``reports/tuned/agents/ppo_tuned.toml`` copied byte for byte."""
+    copy = ROOT / "reports" / "ladder" / "agents" / "ppo_tuned.toml"
+    assert copy.read_bytes() == (ROOT / "reports" / "tuned" / "agents" / "ppo_tuned.toml").read_bytes()
