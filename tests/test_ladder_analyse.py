@@ -64,6 +64,16 @@ def test_the_rule_moves_only_where_intervals_are_apart_and_pairs_by_seed(ladder)
     assert c6["reading"] == "not yet run: needs obs1_gru_ppo" and "a_text" not in c6
 
 
+def test_a_seed_without_a_score_is_left_out_not_counted(ladder):
+    shares = [0.1 * i for i in range(1, 10)] + [float("nan")]
+    row = ladder.cell_row(_batch(ladder, ("ppo", 1), {"run3": shares}), "run3", 500)
+    assert row["seeds"] == 9 and row["iqm"] == pytest.approx(0.5) and np.isfinite(row["lo"])
+    assert row["per_seed"].endswith("n/a")
+    other = _batch(ladder, ("ppo", 2), {"run3": [0.5] * 10})
+    c1 = _comparison(ladder, "C1", "run3", {b.arm: b for b in (other, _batch(ladder, ("ppo", 1), {"run3": shares}))})
+    assert c1["paired_seeds"] == 9 and c1["reading"].endswith("with 9 seeds")
+
+
 def test_late_meals_count_the_last_five_steps_of_the_day(ladder):
     steps = pd.DataFrame(dict(regime="run3", seed=3800, step=[1, 10, 45, 46, 50, 50], action=[1, 1, 1, 1, 1, 0]))
     late = ladder.late_share(steps)
@@ -91,7 +101,7 @@ def test_a_folder_without_the_plan_s_archives_is_one_line(ladder, tmp_path: Path
 
 
 @pytest.mark.slow
-def test_tables_and_figure_from_real_archives_at_two_levels(ladder, tmp_path: Path, monkeypatch):
+def test_tables_and_figure_from_real_archives_at_two_levels(ladder, tmp_path: Path, monkeypatch, capsys):
     from typer.testing import CliRunner
 
     from nutribench.cli import app
@@ -122,6 +132,12 @@ def test_tables_and_figure_from_real_archives_at_two_levels(ladder, tmp_path: Pa
     text = (out / "table_ladder.md").read_text()
     assert "not the plan's jobs" in text and "obs4_gru_ppo" in text
     assert (out / "fig_ladder.png").stat().st_size > 10_000
+    # an archive under another level's name is refused in one line (its regimes are level 1's)
+    wrong = tmp_path / "wrong"
+    wrong.mkdir()
+    (wrong / "obs2_ppo.npz").write_bytes((data / "obs1_ppo.npz").read_bytes())
+    assert ladder.main(["--archives-dir", str(wrong), "--out", str(tmp_path / "out2")]) == 2
+    assert "run0 v2, run3 v2, run6 v2, but level 2's files" in capsys.readouterr().err
 
 
 def test_the_tuned_ppo_arm_runs_the_tuning_study_s_file_unchanged():

@@ -132,6 +132,59 @@ def late_share(steps: pd.DataFrame) -> pd.DataFrame:
     return late.rename("late").reset_index()
 
 
+def expected_versions(arm: Arm) -> tuple[dict[str, int], int]:
+    """The regime versions of ``arm``'s level (run0, run3, run6) and its agent file's version."""
+    from nutribench.agents.config import load_agent_config
+    from nutribench.config import load_env_config
+
+    with regimes_of(arm[1]):
+        regimes = {r: int(load_env_config(r).version) for r in REGIMES}
+    return regimes, int(load_agent_config(HERE / "agents" / f"{arm[0]}.toml").version)
+
+
+def check_archive(path: Path, arm: Arm, ev: pd.DataFrame) -> None:
+    """One line (AnalysisError) unless ``ev`` is ``arm``'s agent file at ``arm``'s level."""
+    algos = sorted(ev["algo"].unique())
+    if algos != [arm[0]]:
+        raise AnalysisError(f"{path}: holds agent(s) {', '.join(algos) or 'none'}, expected {arm[0]} (its name)")
+    regimes, agent_version = expected_versions(arm)
+    got = sorted({(r, int(v)) for r, v in zip(ev["regime"], ev["regime_version"]) if r in regimes})
+    wrong = [f"{r} v{v}" for r, v in got if v != regimes[r]]
+    if wrong:
+        raise AnalysisError(
+            f"{path}: regimes {', '.join(wrong)}, but level {arm[1]}'s files ({level_folder(arm[1])}) are "
+            f"{', '.join(f'{r} v{v}' for r, v in regimes.items())}: the archive is not this level's"
+        )
+    versions = sorted({int(v) for v in ev["algo_version"]})
+    if versions != [agent_version]:
+        raise AnalysisError(
+            f"{path}: {arm[0]} version(s) {versions}, but reports/ladder/agents/{arm[0]}.toml is v{agent_version}"
+        )
+
+
+def plan_notes(arm: Arm, ev: pd.DataFrame, per_seed: pd.DataFrame) -> list[str]:
+    """Where the batch's jobs are not the plan's (regimes, seeds per regime, budget, test days),
+    and seeds without a score or without a meal: notes, not errors (short test runs are not the plan's)."""
+    name, notes = archive_name(arm), []
+    extra = sorted(set(ev["regime"]) - set(REGIMES))
+    if extra:
+        notes.append(f"{name}: regimes outside the plan, left out: {', '.join(extra)}")
+    for r in REGIMES:
+        d = per_seed[per_seed["regime"] == r]
+        if sorted(d["seed"]) != list(SEEDS):
+            notes.append(f"{name}: not the plan's jobs on {r}: seeds {sorted(map(int, d['seed'])) or 'none'}")
+        if (d["days"] != 10).any():
+            notes.append(f"{name}: not the plan's jobs on {r}: {sorted(set(map(int, d['days'])))} test days, not 10")
+        if d["score"].isna().any():
+            notes.append(f"{name}: {int(d['score'].isna().sum())} seed(s) without a score on {r} (no yardsticks)")
+        if d["late"].isna().any():
+            notes.append(f"{name}: {int(d['late'].isna().sum())} seed(s) never ate on {r} (no late-meal share)")
+    budgets = sorted({int(b) for b in ev["budget"]})
+    if budgets != [5000]:
+        notes.append(f"{name}: not the plan's jobs: budget {budgets} days, not 5000")
+    return notes
+
+
 def read_batch(path: Path, arm: Arm, db: str, reps: int) -> Batch:
     """Import ``path`` into ``db`` and score it (the yardsticks with ``arm``'s level's regimes)."""
     from nutribench.report.data import prepare
@@ -144,33 +197,38 @@ def read_batch(path: Path, arm: Arm, db: str, reps: int) -> Batch:
     with regimes_of(arm[1]):
         import_results(path, db)
         ev = read_episode_metrics(db, phase="eval")
-        algos = sorted(ev["algo"].unique())
-        if algos != [arm[0]]:
-            raise AnalysisError(f"{path}: holds agent(s) {', '.join(algos) or 'none'}, expected {arm[0]} (its name)")
+        check_archive(path, arm, ev)
         data = prepare(ev)
+        evals = data.eval[data.eval["regime"].isin(REGIMES)]
+        jobs = set(evals["job_id"])
         notes = [f"{archive_name(arm)}: {n}" for n in data.notes]
         log: list[str] = []
-        refs = eval_day_references(data.eval, log=log.append)
+        refs = eval_day_references(evals, log=log.append)
         notes += [f"{archive_name(arm)}: {n}" for n in log]
-        scores = run_scores(data.eval, refs)
-        foods = data.eval.groupby(["regime", "seed"])["foods"].mean().rename("foods").reset_index()
+        scores = run_scores(evals, refs)
+        foods = evals.groupby(["regime", "seed"])["foods"].mean().rename("foods").reset_index()
+        steps = read_eval_trajectories(db)
         per_seed = scores.merge(foods, on=["regime", "seed"]).merge(
-            late_share(read_eval_trajectories(db)), on=["regime", "seed"], how="left"
+            late_share(steps[steps["job_id"].isin(jobs)]), on=["regime", "seed"], how="left"
         )
         curve, more = one_job_per_run(read_learning_curve(db))
+        curve = curve[curve["job_id"].isin(jobs)]
         learning = learning_points(learning_scores(curve), reps) if not curve.empty else pd.DataFrame()
-        devices = sorted(read_jobs(db)["device"].dropna().astype(str).unique())
-    missing = sorted(set(REGIMES) - set(per_seed["regime"]))
-    seeds = sorted(set(per_seed["seed"]))
-    if missing or seeds != list(SEEDS):
-        notes.append(f"{archive_name(arm)}: not the plan's jobs (regimes missing: {missing or 'none'}; seeds {seeds})")
+        job_rows = read_jobs(db)
+        devices = sorted(job_rows.loc[job_rows["id"].isin(jobs), "device"].dropna().astype(str).unique())
+    notes += plan_notes(arm, ev, per_seed)
     return Batch(arm, per_seed, learning, "/".join(devices) or "unknown", notes + more)
 
 
 # --------------------------------------------------------------------------- statistics
 def interval(values: np.ndarray, reps: int) -> tuple[float, float, float]:
-    """IQM of one value per seed and its 95 % percentile bootstrap interval over seeds."""
-    return iqm_bootstrap_ci([np.array([v]) for v in values], reps=reps, seed=0)
+    """IQM of one value per seed and its 95 % percentile bootstrap interval over seeds, over
+    the finite values only (a seed without a score is left out, and noted by plan_notes): NaN
+    for none, no interval for one."""
+    finite = [np.array([v]) for v in values if np.isfinite(v)]
+    if not finite:
+        return float("nan"), float("nan"), float("nan")
+    return iqm_bootstrap_ci(finite, reps=reps, seed=0)
 
 
 def text(point: float, lo: float, hi: float) -> str:
@@ -187,10 +245,13 @@ def cell_row(batch: Batch, regime: str, reps: int) -> dict:
     arm, level = batch.arm
     d = batch.per_seed[batch.per_seed["regime"] == regime].sort_values("seed")
     point, lo, hi = interval(d["score"].to_numpy(dtype=float), reps)
-    row = dict(arm=arm, level=level, regime=regime, seeds=len(d), iqm=point, lo=lo, hi=hi)
+    scored = d[np.isfinite(d["score"].to_numpy(dtype=float))]
+    row = dict(arm=arm, level=level, regime=regime, seeds=len(scored), iqm=point, lo=lo, hi=hi)
     row |= dict(
-        share_of_mean=gap_closed(d["return"].mean(), d["never"].mean(), d["planner"].mean()),
-        per_seed=" ".join(f"{100 * s:.0f}" for s in d["score"]),
+        share_of_mean=gap_closed(scored["return"].mean(), scored["never"].mean(), scored["planner"].mean())
+        if len(scored)
+        else float("nan"),
+        per_seed=" ".join(pct(s) for s in d["score"]),
         mean_return=d["return"].mean(),
         foods=d["foods"].mean(),
         late_meals=d["late"].mean(),
@@ -241,7 +302,7 @@ def comparison_row(
     return row | dict(
         a_text=text(ca["iqm"], ca["lo"], ca["hi"]),
         b_text=text(cb["iqm"], cb["lo"], cb["hi"]) if b != PLANNER else "100",
-        reading=rule((ca["lo"], ca["hi"]), (cb["lo"], cb["hi"]), min(len(sa), len(sb))),
+        reading=rule((ca["lo"], ca["hi"]), (cb["lo"], cb["hi"]), min(ca["seeds"], cb.get("seeds", ca["seeds"]))),
         paired_seeds=len(diffs),
         median_diff=float(diffs.median()) if len(diffs) else float("nan"),
         seeds_in_direction=int((np.sign(diffs) == sign).sum()) if sign != 0 else 0,
