@@ -6,7 +6,8 @@
 # Usage, on the GPU machine, from the repository root (the plan's order: the next batch not run):
 #   OUT=<results folder> WHL=.whl DEADLINE=540 bash reports/ladder/gpu_batch.sh ppo 4
 # Measured (speed_gpu.md, an H200): a PPO batch trains 5000 days in about 7.5 minutes there;
-# GRU-PPO's take about twice as long, more than one call: run those on the CPU.
+# GRU-PPO's take about twice as long, more than one call: run those on the CPU. The tuned PPO
+# makes twice the gradient steps (n_epochs 20): time it first (measure_speed.py --device cuda).
 # A batch stopped at DEADLINE (SIGINT) is not a result (addendum 1): say so, keep its log.
 set -uo pipefail
 : "${OUT:?OUT: a results folder}"
