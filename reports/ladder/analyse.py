@@ -379,7 +379,7 @@ def comparisons_markdown(comps: pd.DataFrame) -> str:
             rows.append([r["id"], r["regime"], r["a"], r["b"], "", "", r["reading"], "", ""])
             continue
         paired = (
-            f"median {100 * r['median_diff']:+.0f}, {r['seeds_in_direction']}/{r['paired_seeds']} seeds, "
+            f"median {100 * r['median_diff']:+.0f}, {int(r['seeds_in_direction'])}/{int(r['paired_seeds'])} seeds, "
             f"IQM {text(r['diff_iqm'], r['diff_lo'], r['diff_hi'])}"
         )
         rows.append(
