@@ -424,9 +424,10 @@ def figure(cells: pd.DataFrame, batches: dict[Arm, Batch]):
             if lc.empty:
                 continue
             color = STYLE[arm[0]][0]
-            alpha = {1: 1.0, 2: 0.75, 3: 0.55, 4: 0.4}[arm[1]]
-            ax.plot(lc["train_day"], 100 * lc["iqm"], color=color, alpha=alpha, label=f"{LABELS[arm[0]]} L{arm[1]}")
-            ax.fill_between(lc["train_day"], 100 * lc["lo"], 100 * lc["hi"], color=color, alpha=alpha * 0.15, lw=0)
+            shade, dash = {1: (1.0, "-"), 2: (0.8, "--"), 3: (0.7, "-."), 4: (0.6, ":")}[arm[1]]
+            label = f"{LABELS[arm[0]]} L{arm[1]}"
+            ax.plot(lc["train_day"], 100 * lc["iqm"], color=color, alpha=shade, ls=dash, lw=1.4, label=label)
+            ax.fill_between(lc["train_day"], 100 * lc["lo"], 100 * lc["hi"], color=color, alpha=0.08, lw=0)
         ax.axhline(0, color="0.4", lw=1, ls="--")
         ax.axhline(100, color="0.2", lw=1, ls=":")
         ax.set_title(f"{regime}: validation days during training")
