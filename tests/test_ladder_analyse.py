@@ -144,3 +144,21 @@ def test_the_tuned_ppo_arm_runs_the_tuning_study_s_file_unchanged():
     """Addendum 1: the tuned PPO arm is ``reports/tuned/agents/ppo_tuned.toml`` copied byte for byte."""
     copy = ROOT / "reports" / "ladder" / "agents" / "ppo_tuned.toml"
     assert copy.read_bytes() == (ROOT / "reports" / "tuned" / "agents" / "ppo_tuned.toml").read_bytes()
+
+
+def test_the_figure_draws_every_arm_of_the_plan(ladder):
+    """All twelve batches (GRU-PPO arms as markers at levels 1 and 4, learning curves per batch)."""
+    curve = pd.DataFrame(
+        [dict(regime=r, algo="x", train_day=d, iqm=0.5, lo=0.4, hi=0.6) for r in ladder.REGIMES for d in (100, 200)]
+    )
+    batches = {
+        (arm, level): _batch(ladder, (arm, level), {r: [0.1 * level] * 10 for r in ladder.REGIMES}, learning=curve)
+        for arm, levels in ladder.ARMS.items()
+        for level in levels
+    }
+    cells = pd.DataFrame([ladder.cell_row(b, r, 100) for b in batches.values() for r in ladder.REGIMES])
+    fig = ladder.figure(cells, batches)
+    top, bottom = fig.axes[0], fig.axes[len(ladder.REGIMES)]
+    labels = top.get_legend_handles_labels()[1]
+    assert {"PPO", "tuned PPO", "GRU-PPO", "GRU-PPO without memory"} <= set(labels)
+    assert len(bottom.get_lines()) == 12 + 2  # one curve per batch, never and the planner
