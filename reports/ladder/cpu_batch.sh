@@ -5,6 +5,7 @@
 # Usage, from a clean checkout with the project installed as the README says (the plan's order:
 # the next batch not run; two free cores: one queue each):
 #   bash reports/ladder/cpu_batch.sh ppo 4
+# A stopped batch resumes from its checkpoints when started again: the log keeps every start.
 set -u
 cd "$(dirname "$0")/../.."
 [ $# -eq 2 ] || { echo "cpu_batch.sh: give the agent and the level, e.g. ppo 4" >&2; exit 2; }
@@ -18,9 +19,9 @@ mkdir -p /tmp/ladder reports/ladder/data reports/ladder/logs
 { date -u +%FT%TZ
   echo "batch $name, device cpu, code $(git rev-parse HEAD) $(git status --porcelain -- nutribench regimes reports/ladder/agents 'reports/ladder/regimes_obs*' | wc -l) changed files"
   nproc
-  python -c "import torch,numpy,stable_baselines3 as s;print('torch',torch.__version__,'numpy',numpy.__version__,'sb3',s.__version__)"; } > "$log.txt"
+  python -c "import torch,numpy,stable_baselines3 as s;print('torch',torch.__version__,'numpy',numpy.__version__,'sb3',s.__version__)"; } >> "$log.txt"
 t0=$SECONDS
-NUTRIBENCH_REGIMES=$folder $RUN --algos "$1" --db "/tmp/ladder/$name.db" > "${log}_run.log" 2>&1
+NUTRIBENCH_REGIMES=$folder $RUN --algos "$1" --db "/tmp/ladder/$name.db" >> "${log}_run.log" 2>&1
 rc=$?
 echo "run rc $rc after $((SECONDS - t0)) s" >> "$log.txt"
 [ "$rc" -eq 0 ] || exit "$rc"
