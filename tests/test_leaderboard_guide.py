@@ -1,6 +1,6 @@
 """docs/leaderboard.md, run as a newcomer runs it: every bash and Python block in order, from
 an empty folder, at a tiny budget (two training days, two regimes, two of the paper's
-archives), and the leaderboard ranks the QRDQN plug-in and the recorded loop beside the
+archives and one tuned one), and the leaderboard ranks the QRDQN plug-in and the recorded loop beside the
 imported baselines, flagging their shorter budget."""
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ GUIDE = REPO / "docs" / "leaderboard.md"
 #: What makes the guide's flow tiny: the text the page shows -> what the test runs.
 TINY = {
     '"$PAPER_DATA"/*.npz': '"$PAPER_DATA"/{mc,gru_ppo}.npz',  # two of the six archives
+    '"$TUNED_DATA"/*_tuned.npz': '"$TUNED_DATA"/ppo_tuned.npz',  # one of the five tuned ones
     "--regimes all": "--regimes run0,run3",
     "--episodes 5000": "--episodes 2",
     "DAYS = 5000": "DAYS = 2",
@@ -42,10 +43,11 @@ def test_the_guide_is_made_tiny_by_substitutions_that_match():
     assert langs.count("bash") >= 4 and langs.count("python") == 1
 
 
-@pytest.mark.slow  # two archives imported (twice), 10 plug-in jobs, 10 recorded jobs, a report: a few minutes
+@pytest.mark.slow  # three archives imported (twice), 10 plug-in jobs, 10 recorded jobs, a report: a few minutes
 def test_the_guide_ranks_a_plugin_and_a_recorded_loop_beside_the_imported_baselines(tmp_path: Path):
     pytest.importorskip("sb3_contrib")
     env = dict(os.environ, PYTHONPATH=str(REPO), PAPER_DATA=str(REPO / "reports" / "paper" / "data"))
+    env["TUNED_DATA"] = str(REPO / "reports" / "tuned" / "data")
     for key in ("NUTRIBENCH_JOB", "NUTRIBENCH_DB", "NUTRIBENCH_AGENTS"):
         env.pop(key, None)
     outputs = []
@@ -66,7 +68,7 @@ def test_the_guide_ranks_a_plugin_and_a_recorded_loop_beside_the_imported_baseli
     rows = {
         r["algo"]: r for r in csv.DictReader(io.StringIO((board / "reports" / "board" / "leaderboard.csv").read_text()))
     }
-    assert {"mc", "gru_ppo", "qrdqn_mine", "reinforce_loop"} == set(rows)
+    assert {"mc", "gru_ppo", "ppo_tuned", "qrdqn_mine", "reinforce_loop"} == set(rows)
     for mine in ("qrdqn_mine", "reinforce_loop"):
         assert rows[mine]["budget"] == "2" and "budget 2 days (reference 5000)" in rows[mine]["flags"]
         assert rows[mine]["seeds"] == "0 9 21 1997 2003" and "seeds" not in rows[mine]["flags"]  # --seeds paper
@@ -74,7 +76,9 @@ def test_the_guide_ranks_a_plugin_and_a_recorded_loop_beside_the_imported_baseli
     assert rows["qrdqn_mine"]["protocol"] == "plug-in" and rows["reinforce_loop"]["protocol"] == "recorded"
     for base in ("mc", "gru_ppo"):
         assert rows[base]["flags"] == "" and rows[base]["protocol"] == "paper config" and rows[base]["regimes"] == "7"
-    assert sorted(int(r["rank"]) for r in rows.values()) == [1, 2, 3, 4]
+    assert rows["ppo_tuned"]["flags"] == "" and rows["ppo_tuned"]["protocol"] == "tuned"
+    assert rows["ppo_tuned"]["regimes"] == "7"
+    assert sorted(int(r["rank"]) for r in rows.values()) == [1, 2, 3, 4, 5]
     # the shared archives, ranked by whoever receives them: the same table
     table = lambda out: [ln for ln in out.splitlines() if ln.startswith("| ")]  # noqa: E731
     assert table(outputs[-1]) == table((board / "reports" / "board" / "leaderboard.md").read_text())
