@@ -193,10 +193,16 @@ def test_run_batch_resumes_a_stopped_batch_and_removes_its_checkpoint(tmp_path, 
     class Counted(JobProgress):
         def episode(self, k_done: int, ret: float | None) -> None:
             seen.append(k_done)
+            super().episode(k_done, ret)
 
     monkeypatch.setattr(batch, "JobProgress", Counted)
-    again = batch.run_batch(b)
+    events: list[dict] = []
+    again = batch.run_batch(b, events.append)
     assert seen and min(seen) > 1  # it resumed: only the days after the checkpoint were trained
+    # its progress says from which day it trained, and its training seconds, the killed run's included
+    days = [e for e in events if e["kind"] == "episode"]
+    assert days and {e["k0"] for e in days} == {min(seen) - 1}
+    assert all(e["wall"] > 0 for e in days) and days[-1]["wall"] >= days[0]["wall"]
     assert [r.train for r in again] == [r.train for r in whole]
     assert [r.eval for r in again] == [r.eval for r in whole]
     assert not files[0].exists() and not manifest.exists()

@@ -518,6 +518,85 @@ def test_status_prices_a_config_with_no_done_job_by_its_running_batch() -> None:
     assert rep.eta_seconds == pytest.approx(1400.0)
 
 
+def test_status_prices_a_resumed_batch_by_its_own_training_time() -> None:
+    """A batch resumed from a checkpoint at day 2800 of 5000, 25 minutes ago: its days before
+    the resume took their own time (the worker reports each job's training seconds so far),
+    so the rest is priced by those seconds, not by 2800 days in 25 minutes."""
+    from datetime import timedelta
+
+    from nutribench.scheduler.status import summarize
+
+    now = datetime(2026, 1, 1, 12, 0, 0)
+    claimed = now - timedelta(minutes=25)
+
+    def job(seed, wall):  # the tuple status_table selects; one batch of two jobs (one worker)
+        return ("run0", 1, "sac", 1, seed, 5000, "running", now, wall, 2800, 0, None, "host:1:tok", 7, claimed)
+
+    resumed = summarize([job(0, 2800 * 3.5), job(1, 2800 * 3.5)], now)  # 3.5 worker-seconds a day and job
+    assert resumed.eta_seconds == pytest.approx(2 * 2200 * 3.5)
+    # a worker that reports no training seconds (an older driver's row): priced since its claim
+    unreported = summarize([job(0, None), job(1, None)], now)
+    assert unreported.eta_seconds == pytest.approx(2 * 2200 * 25 * 60 / (2800 * 2))
+
+
+def test_run_s_eta_leaves_out_the_days_a_resumed_batch_did_not_train() -> None:
+    from types import SimpleNamespace
+
+    from nutribench.scheduler.progress import eta_seconds
+
+    run = SimpleNamespace(
+        grid=SimpleNamespace(episodes=100),
+        planned=2,
+        attempted={1, 2},
+        summary=SimpleNamespace(done=0, failed=0),
+        live={1: {"k": 60}, 2: {"k": 60}},
+        resumed={1: 50, 2: 50},  # both resumed at day 50: this run trained 20 days in 20 s
+    )
+    assert eta_seconds(run, 20.0) == pytest.approx(80.0)
+    run.resumed = {}
+    assert eta_seconds(run, 20.0) == pytest.approx(20.0 * 80 / 120)
+
+
+def test_the_driver_keeps_a_resumed_batch_s_first_day_and_training_seconds() -> None:
+    from types import SimpleNamespace
+
+    from nutribench.scheduler.driver import _Run
+
+    events = [
+        {"job_id": 1, "kind": "episode", "k": 2801, "k0": 2800, "ret": -3.0, "wall": 9800.0},
+        {"job_id": 2, "kind": "episode", "k": 3, "k0": 0, "ret": None, "wall": None},
+        {"job_id": 9, "kind": "episode", "k": 5, "k0": 4},  # not this run's: ignored
+    ]
+    run = _Run(None, None, [1, 2], None, SimpleNamespace(drain=lambda: events), None, "me", None)
+    run.live = {1: {"k": 0, "ret": None}, 2: {"k": 0, "ret": None}}
+    run.events()
+    assert run.live[1] == {"k": 2801, "ret": -3.0, "wall": 9800.0} and run.live[2] == {"k": 3, "ret": None}
+    assert run.resumed == {1: 2800, 2: 0}
+
+
+def test_progress_flushes_training_seconds_and_a_new_claim_clears_them(tmp_path: Path) -> None:
+    from nutribench.scheduler.grid import Grid
+    from nutribench.scheduler.lifecycle import claim_jobs, flush_progress, release_jobs
+    from nutribench.scheduler.registration import load_grid_configs, register_grid
+    from nutribench.store import open_store
+
+    grid = Grid(("run0",), ("mc",), (0,), 4, 1)
+    regimes, agents = load_grid_configs(grid)
+    store = open_store(tmp_path / "p.db", writer=True)
+    try:
+        (job_id,) = register_grid(store, grid, regimes, agents)
+        claim_jobs(store, [job_id], set(), 1, "me")
+        flush_progress(store, "me", {job_id: {"k": 3, "ret": -1.0, "wall": 12.5}})
+        with store.engine.connect() as c:
+            assert c.execute(text("SELECT episodes_done, wall_seconds FROM jobs")).one() == (3, 12.5)
+        release_jobs(store, [job_id], "me", "interrupted")
+        claim_jobs(store, [job_id], set(), 1, "me")
+        with store.engine.connect() as c:
+            assert c.execute(text("SELECT episodes_done, wall_seconds FROM jobs")).one() == (0, None)
+    finally:
+        store.dispose()
+
+
 def test_bench_status_times_a_given_database(tmp_path: Path) -> None:
     from nutribench.bench.throughput import bench_status
 

@@ -57,15 +57,21 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
     # what a batched job's result depends on by float rounding, stored with each job (jobs.batch_*, jobs.device)
     batch = {"batch_id": uuid.uuid4().hex, "batch_size": len(specs), "device": str(device)}
     started, t0 = utcnow(), time.perf_counter()
-    progress = [JobProgress(spec, sink) for spec in specs]
-    for p in progress:
-        p.start()
     specs = sorted(specs, key=lambda s: s.job_id)  # one agent order for the batch, whatever the claim's
     path = checkpoint_path(specs)
     checkpoint = None
     if path is not None:
         checkpoint = Checkpoint(path, device=device)
         write_manifest(path, specs)
+
+    def wall() -> float:
+        """Each job's share of the batch's training seconds so far, those before a resume included."""
+        before = checkpoint.seconds_before if checkpoint is not None else 0.0  # read once: cached with the state
+        return (time.perf_counter() - t0 + before) / len(specs)
+
+    progress = [JobProgress(spec, sink, wall=wall) for spec in specs]
+    for p in progress:
+        p.start()
     agents = train_batched(
         [(s.regime_config, s.seed) for s in specs],
         specs[0].agent_config,

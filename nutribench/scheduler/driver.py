@@ -123,6 +123,7 @@ class _Run:
         self.in_flight: dict[Future, list[JobSpec]] = {}
         self.held = HeldResults()  # finished jobs' results that met the write lock, stored again later
         self.live: dict[int, dict[str, Any]] = {}
+        self.resumed: dict[int, int] = {}  # job id -> days trained before this run (resumed batches)
         self.attempted: set[int] = set()
         self.exhausted = False
         self.planned = 0  # jobs runnable when the run started (for the ETA)
@@ -210,9 +211,10 @@ class _Run:
             st = self.live.get(ev.get("job_id"))
             if st is None:
                 continue
-            for key in ("k", "ret", "pid"):
+            for key in ("k", "ret", "pid", "wall"):
                 if ev.get(key) is not None:
                     st[key] = ev[key]
+            self.resumed[ev["job_id"]] = int(ev.get("k0") or 0)  # a resumed batch: days this run did not train
 
     def loop(self) -> None:
         last_flush = time.monotonic()

@@ -148,6 +148,7 @@ def claim_jobs(store: Store, job_ids: Sequence[int], exclude: set[int], n: int, 
                 episodes_done=0,
                 last_return=None,
                 worker_pid=None,
+                wall_seconds=None,
             )
             .execution_options(synchronize_session=False)
         )
@@ -304,13 +305,16 @@ def release_jobs(store: Store, job_ids: Sequence[int], owner: str, status: str =
 
 
 def flush_progress(store: Store, owner: str, live: dict[int, dict[str, Any]]) -> None:
-    """Heartbeat every job this driver runs, with its episodes done and recent return."""
+    """Heartbeat every job this driver runs, with its episodes done, recent return and (where
+    its worker reports it) its training seconds so far in ``wall_seconds``."""
     if not live:
         return
     with session_scope(store.engine) as s:
         now = db_now(s)
         for job_id, st in live.items():
             values: dict[str, Any] = {"heartbeat_at": now, "episodes_done": int(st.get("k", 0))}
+            if st.get("wall") is not None:  # training seconds so far (a resumed batch's earlier runs included)
+                values["wall_seconds"] = float(st["wall"])
             if st.get("ret") is not None:
                 values["last_return"] = float(st["ret"])
             if st.get("pid") is not None:

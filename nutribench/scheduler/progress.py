@@ -29,13 +29,15 @@ def format_duration(seconds: float | None) -> str:
 
 def eta_seconds(run: Any, elapsed: float) -> float | None:
     """Remaining time of this run, from the episodes trained so far (finished jobs count
-    their whole budget, running ones their progress) and the time they took."""
+    their whole budget, running ones their progress) and the time this run took for those it
+    trained itself (a batch resumed from a checkpoint did not train the days before it)."""
     budget = run.grid.episodes
     planned = max(run.planned, len(run.attempted)) * budget
     done = (run.summary.done + run.summary.failed) * budget + sum(int(st.get("k", 0)) for st in run.live.values())
-    if done <= 0 or planned <= 0:
+    trained_here = done - sum(run.resumed.values())
+    if trained_here <= 0 or planned <= 0:
         return None
-    return elapsed * max(planned - done, 0) / done
+    return elapsed * max(planned - done, 0) / trained_here
 
 
 #: The width of the progress lines written where there is no terminal (a file, a pipe).

@@ -130,11 +130,11 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
     Work left is priced in worker-seconds per training episode of the done jobs: of the same
     cell (regime x algo config), else of the same algo config in any regime (the algorithm,
     not the regime, sets the cost: a SAC day costs about nine MC days), else of the running
-    jobs of that algo config (time since claimed / episodes done, shared among the jobs of
-    one batch: one worker process), else of every done job. The workers are the distinct
-    worker processes of the running jobs (a batch of the batched engine is one). A batch
-    resumed from a checkpoint counts its days from before the resume: its rate looks faster
-    than it is until the batch ends.
+    jobs of that algo config (their training seconds so far / episodes done, where the worker
+    reports them: a batch's share, the runs before a resume from a checkpoint included; else
+    time since claimed / episodes done, shared among the jobs of one batch: one worker
+    process), else of every done job. The workers are the distinct worker processes of the
+    running jobs (a batch of the batched engine is one).
     """
     now = now or utcnow()
     rows: dict[tuple, StatusRow] = {}
@@ -142,7 +142,8 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
     left: dict[tuple, float] = {}  # jobs' worth of work left
     errors = []
     orphaned = 0  # `running` with a stopped heartbeat: counted as pending, and said so
-    running: list[tuple[tuple, int, datetime | None, tuple]] = []  # (algo, av), episodes done, claimed, worker
+    # (algo, av), episodes done, claimed, worker, training seconds so far
+    running: list[tuple[tuple, int, datetime | None, tuple, float | None]] = []
     for n, (regime, rv, algo, av, seed, budget, status, beat, wall, k, failures, error, *more) in enumerate(jobs):
         owner, pid, started = (list(more) + [None, None, None])[:3]
         key = (regime, rv, algo, av, budget)
@@ -155,7 +156,7 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
             rates.setdefault(key, []).append(wall / max(budget, 1))
         elif state == "running":
             left[key] = left.get(key, 0.0) + max(0.0, 1.0 - (k or 0) / max(budget, 1))
-            running.append(((algo, av), k or 0, started, (owner, pid) if pid is not None else ("job", n)))
+            running.append(((algo, av), k or 0, started, (owner, pid) if pid is not None else ("job", n), wall))
         elif state in ("pending",) or (state == "failed" and failures < MAX_FAILURES):
             left[key] = left.get(key, 0.0) + 1.0
         if state == "failed":
@@ -174,10 +175,12 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
     for (_, _, algo, av, _), rs in rates.items():
         per_algo.setdefault((algo, av), []).extend(rs)
     overall = _mean([r for rs in rates.values() for r in rs])
-    sharing = Counter(worker for *_, worker in running)
+    sharing = Counter(worker for *_, worker, _ in running)
     running_rates: dict[tuple, list[float]] = {}
-    for config, k, started, worker in running:
-        if k > 0 and started is not None:
+    for config, k, started, worker, wall in running:
+        if k > 0 and wall is not None:  # reported by the worker: resumed days priced by their own time
+            running_rates.setdefault(config, []).append(wall / k)
+        elif k > 0 and started is not None:
             elapsed = max(0.0, (now - started).total_seconds())
             running_rates.setdefault(config, []).append(elapsed / (k * sharing[worker]))
     remaining, unknown = 0.0, False

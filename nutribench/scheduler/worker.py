@@ -38,13 +38,26 @@ def limit_threads() -> None:
 
 class JobProgress:
     """Throttled progress events of one job: ``start``, then ``episode`` (k done of n, mean
-    recent return) at most every ``interval`` seconds and at the last episode."""
+    recent return) at most every ``interval`` seconds and at the last episode.
 
-    def __init__(self, spec: JobSpec, sink: Sink | None, interval: float = PROGRESS_INTERVAL_S):
+    An ``episode`` event also says from which day this process trained (``k0``: the days done
+    before it, by a batch resumed from a checkpoint; 0 otherwise) and, given ``wall`` (a
+    callable), this job's training seconds so far, those before a resume included: what
+    ``nutribench run`` and ``nutribench status`` price the rest of a resumed batch by."""
+
+    def __init__(
+        self,
+        spec: JobSpec,
+        sink: Sink | None,
+        interval: float = PROGRESS_INTERVAL_S,
+        wall: Callable[[], float] | None = None,
+    ):
         self.spec = spec
         self.sink = sink
         self.interval = interval
+        self.wall = wall
         self.recent: deque[float] = deque(maxlen=RECENT_EPISODES)
+        self.k0: int | None = None  # the days done before this process trained its first
         self._last = 0.0
 
     def _send(self, event: dict[str, Any]) -> None:
@@ -60,13 +73,18 @@ class JobProgress:
         self._send({"kind": "start", "pid": os.getpid(), "host": socket.gethostname(), "k": 0, "n": self.spec.episodes})
 
     def episode(self, k_done: int, ret: float | None) -> None:
+        if self.k0 is None:
+            self.k0 = k_done - 1
         if ret is not None:
             self.recent.append(float(ret))
         now = time.monotonic()
         if now - self._last >= self.interval or k_done >= self.spec.episodes:
             self._last = now
             mean = sum(self.recent) / len(self.recent) if self.recent else None
-            self._send({"kind": "episode", "k": k_done, "n": self.spec.episodes, "ret": mean})
+            wall = self.wall() if self.wall is not None else None
+            self._send(
+                {"kind": "episode", "k": k_done, "k0": self.k0, "n": self.spec.episodes, "ret": mean, "wall": wall}
+            )
 
     def phase(self, name: str) -> None:
         self._send({"kind": "phase", "phase": name})

@@ -155,7 +155,9 @@ class Job(Base):
     created_at: Mapped[datetime] = mapped_column(DateTime)
     started_at: Mapped[datetime | None] = mapped_column(DateTime)
     finished_at: Mapped[datetime | None] = mapped_column(DateTime)
-    wall_seconds: Mapped[float | None] = mapped_column(Float)
+    wall_seconds: Mapped[float | None] = mapped_column(
+        Float, doc="seconds the job took (a batch's share); while running, its training seconds so far"
+    )
     # reproducibility metadata, from the worker that ran it
     host: Mapped[str | None] = mapped_column(String(255))
     platform: Mapped[str | None] = mapped_column(String(255))
