@@ -555,6 +555,10 @@ def test_run_s_eta_leaves_out_the_days_a_resumed_batch_did_not_train() -> None:
     assert eta_seconds(run, 20.0) == pytest.approx(80.0)
     run.resumed = {}
     assert eta_seconds(run, 20.0) == pytest.approx(20.0 * 80 / 120)
+    # both done now, a third job to go: their resumed days still did not cost this run anything
+    run.planned, run.attempted, run.live, run.resumed = 3, {1, 2, 3}, {}, {1: 50, 2: 50}
+    run.summary.done = 2
+    assert eta_seconds(run, 20.0) == pytest.approx(20.0)
 
 
 def test_the_driver_keeps_a_resumed_batch_s_first_day_and_training_seconds() -> None:
@@ -564,6 +568,7 @@ def test_the_driver_keeps_a_resumed_batch_s_first_day_and_training_seconds() -> 
 
     events = [
         {"job_id": 1, "kind": "episode", "k": 2801, "k0": 2800, "ret": -3.0, "wall": 9800.0},
+        {"job_id": 1, "kind": "phase", "phase": "eval"},  # says nothing of the resumed days
         {"job_id": 2, "kind": "episode", "k": 3, "k0": 0, "ret": None, "wall": None},
         {"job_id": 9, "kind": "episode", "k": 5, "k0": 4},  # not this run's: ignored
     ]
@@ -572,6 +577,24 @@ def test_the_driver_keeps_a_resumed_batch_s_first_day_and_training_seconds() -> 
     run.events()
     assert run.live[1] == {"k": 2801, "ret": -3.0, "wall": 9800.0} and run.live[2] == {"k": 3, "ret": None}
     assert run.resumed == {1: 2800, 2: 0}
+
+
+def test_a_failed_batch_s_jobs_go_back_and_forget_their_resumed_days(monkeypatch) -> None:
+    """A batch that fails is split and its jobs run again alone, from day 0: the days they
+    had before this run no longer count against its ETA."""
+    from concurrent.futures import Future
+    from types import SimpleNamespace
+
+    import nutribench.scheduler.driver as driver
+
+    monkeypatch.setattr(driver, "release_jobs", lambda *a, **k: 2)
+    run = driver._Run(None, None, [1, 2, 3], None, None, None, "me", SimpleNamespace(log=lambda m: None))
+    run.resumed = {1: 2800, 2: 2800, 3: 100}
+    failed: Future = Future()
+    failed.set_exception(RuntimeError("out of memory"))
+    specs = [SimpleNamespace(job_id=1), SimpleNamespace(job_id=2)]
+    run._settle(failed, specs)  # type: ignore[arg-type]
+    assert run.resumed == {3: 100} and run.pools[0].job_ids == [1, 2]
 
 
 def test_progress_flushes_training_seconds_and_a_new_claim_clears_them(tmp_path: Path) -> None:
@@ -590,6 +613,8 @@ def test_progress_flushes_training_seconds_and_a_new_claim_clears_them(tmp_path:
         with store.engine.connect() as c:
             assert c.execute(text("SELECT episodes_done, wall_seconds FROM jobs")).one() == (3, 12.5)
         release_jobs(store, [job_id], "me", "interrupted")
+        with store.engine.connect() as c:
+            assert c.execute(text("SELECT status, wall_seconds FROM jobs")).one() == ("interrupted", None)
         claim_jobs(store, [job_id], set(), 1, "me")
         with store.engine.connect() as c:
             assert c.execute(text("SELECT episodes_done, wall_seconds FROM jobs")).one() == (0, None)

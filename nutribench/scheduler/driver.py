@@ -52,6 +52,7 @@ from nutribench.scheduler.lifecycle import (
     store_failure,
 )
 from nutribench.scheduler.pools import MAX_BATCH, Pool, batch_pools, check_engine
+from nutribench.scheduler.progress import note_event
 from nutribench.scheduler.registration import RunError, load_grid_configs, register_grid, spec_maker
 from nutribench.scheduler.resume import checkpointed_first, remove_finished_checkpoints
 from nutribench.scheduler.signals import STOP_SIGNALS, StopSignalsAsCtrlC
@@ -183,6 +184,7 @@ class _Run:
                 ids = [spec.job_id for spec in specs]
                 release_jobs(self.store, ids, self.owner, status="pending")
                 self.attempted.difference_update(ids)
+                self.resumed = {j: k0 for j, k0 in self.resumed.items() if j not in ids}  # they start over
                 self.pools.insert(0, Pool(ids, True, 1))
                 self.exhausted = False
                 self.view.log(f"[yellow]batch failed[/] ({_first_line(e)}): its {len(ids)} jobs are tried one by one")
@@ -208,13 +210,7 @@ class _Run:
 
     def events(self) -> None:
         for ev in self.handle.drain():
-            st = self.live.get(ev.get("job_id"))
-            if st is None:
-                continue
-            for key in ("k", "ret", "pid", "wall"):
-                if ev.get(key) is not None:
-                    st[key] = ev[key]
-            self.resumed[ev["job_id"]] = int(ev.get("k0") or 0)  # a resumed batch: days this run did not train
+            note_event(self.live, self.resumed, ev)
 
     def loop(self) -> None:
         last_flush = time.monotonic()

@@ -282,6 +282,7 @@ def store_failure(store: Store, job_id: int, owner: str, error: str) -> None:
                 error=error,
                 owner=None,
                 finished_at=db_now(s),
+                wall_seconds=None,  # a running job's training seconds so far: not what a failure took
             )
             .execution_options(synchronize_session=False)
         )
@@ -299,6 +300,7 @@ def release_jobs(store: Store, job_ids: Sequence[int], owner: str, status: str =
                 status=status,
                 owner=None,
                 finished_at=db_now(s),
+                wall_seconds=None,  # a running job's training seconds so far: no longer running
             )
             .execution_options(synchronize_session=False)
         ).rowcount

@@ -27,6 +27,21 @@ def format_duration(seconds: float | None) -> str:
     return f"{s}s"
 
 
+def note_event(live: dict[int, dict[str, Any]], resumed: dict[int, int], ev: dict[str, Any]) -> None:
+    """A worker's progress event ``ev`` into the driver's view of its running jobs: ``live``
+    (days done ``k``, recent return, worker pid, training seconds ``wall``) and ``resumed``
+    (days a batch resumed from a checkpoint had trained before this run: kept after the job
+    ends, for :func:`eta_seconds`). Events of jobs not in ``live`` are not this run's."""
+    st = live.get(ev.get("job_id"))
+    if st is None:
+        return
+    for key in ("k", "ret", "pid", "wall"):
+        if ev.get(key) is not None:
+            st[key] = ev[key]
+    if ev.get("k0") is not None:  # episode events only: a phase event says nothing of it
+        resumed[ev["job_id"]] = int(ev["k0"])
+
+
 def eta_seconds(run: Any, elapsed: float) -> float | None:
     """Remaining time of this run, from the episodes trained so far (finished jobs count
     their whole budget, running ones their progress) and the time this run took for those it
