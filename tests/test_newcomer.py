@@ -311,6 +311,7 @@ def test_progress_lines_stay_whole_without_a_terminal():
     run = SimpleNamespace(
         summary=SimpleNamespace(done=1, failed=0, total=35),
         live={},
+        resumed={},
         planned=35,
         attempted=[],
         grid=SimpleNamespace(episodes=20),
