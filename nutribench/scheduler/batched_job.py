@@ -66,7 +66,7 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
 
     def wall() -> float:
         """Each job's share of the batch's training seconds so far, those before a resume included."""
-        before = checkpoint.seconds_before if checkpoint is not None else 0.0  # read once: cached with the state
+        before = checkpoint.seconds_before if checkpoint is not None else 0.0  # cheap: the state is decoded once
         return (time.perf_counter() - t0 + before) / len(specs)
 
     progress = [JobProgress(spec, sink, wall=wall) for spec in specs]
