@@ -478,3 +478,39 @@ def test_a_model_save_cut_short_leaves_the_previous_model_whole(tmp_path, monkey
     assert {p.name: p.read_bytes() for p in path.parent.iterdir()} == before
     monkeypatch.undo()
     assert type(agent).load(path).algo == "mc"
+
+
+def test_checkpoint_seconds_from_the_environment(monkeypatch):
+    """``$NUTRIBENCH_CHECKPOINT_SECONDS`` sets the seconds between saves; a bad value is one line."""
+    from nutribench.engine.checkpoint import DEFAULT_EVERY_SECONDS, every_seconds_from_env
+
+    monkeypatch.delenv("NUTRIBENCH_CHECKPOINT_SECONDS", raising=False)
+    assert every_seconds_from_env() == DEFAULT_EVERY_SECONDS
+    monkeypatch.setenv("NUTRIBENCH_CHECKPOINT_SECONDS", "60")
+    assert every_seconds_from_env() == 60.0
+    for bad in ("0", "-5", "soon", "inf", "nan"):
+        monkeypatch.setenv("NUTRIBENCH_CHECKPOINT_SECONDS", bad)
+        with pytest.raises(ValueError, match="NUTRIBENCH_CHECKPOINT_SECONDS=.*positive number"):
+            every_seconds_from_env()
+
+
+def test_run_refuses_a_bad_checkpoint_interval(tmp_path, monkeypatch):
+    """``nutribench run`` says so in one line (exit 2) before the database is made."""
+    from typer.testing import CliRunner
+
+    from nutribench.cli import app
+
+    monkeypatch.setenv("NUTRIBENCH_CHECKPOINT_SECONDS", "soon")
+    db = tmp_path / "r.db"
+    result = CliRunner().invoke(
+        app, ["run", "--regimes", "run0", "--algos", "mc", "--seeds", "1", "--episodes", "2", "--db", str(db)]
+    )
+    assert result.exit_code == 2, result.output
+    assert "NUTRIBENCH_CHECKPOINT_SECONDS='soon'" in result.output
+    assert not db.exists()
+
+
+def test_a_checkpoint_saves_as_often_as_the_environment_says(tmp_path, monkeypatch):
+    monkeypatch.setenv("NUTRIBENCH_CHECKPOINT_SECONDS", "60")
+    assert Checkpoint(tmp_path / "c.pt").every_seconds == 60.0
+    assert Checkpoint(tmp_path / "c.pt", every_seconds=0).every_seconds == 0  # a caller's value wins

@@ -86,6 +86,17 @@ def _check_models_dir(models_dir: Path | None, db: str) -> None:
 
 
 @user_errors
+def _check_checkpoint_seconds() -> None:
+    """A bad ``$NUTRIBENCH_CHECKPOINT_SECONDS`` is one line before any job starts."""
+    from nutribench.engine.checkpoint import every_seconds_from_env
+    from nutribench.scheduler.registration import RunError
+
+    try:
+        every_seconds_from_env()
+    except ValueError as exc:
+        raise RunError(str(exc)) from None
+
+
 def run_cmd(
     preset: Annotated[
         Optional[str],
@@ -180,6 +191,7 @@ def run_cmd(
     if tensorboard is not None:
         check_tensorboard(tensorboard)
     _check_db(db)
+    _check_checkpoint_seconds()
     _, agent_cfgs = load_grid_configs(grid)  # a broken config file fails here, before the database exists
     _check_eval_every(eval_every, agent_cfgs)
     job_fn = default_job_fn()

@@ -43,6 +43,8 @@ import torch as th
 
 #: how often a batch saves its state (seconds of wall time, checked at day boundaries)
 DEFAULT_EVERY_SECONDS = 300.0
+#: the environment variable that sets the seconds between saves (a short call on a lent machine)
+EVERY_SECONDS_ENV = "NUTRIBENCH_CHECKPOINT_SECONDS"
 
 #: the JSON half's ``format``: a checkpoint of another (an older nutribench's) is refused
 FORMAT = "nutribench-checkpoint/3"
@@ -117,14 +119,32 @@ def _first_line(exc: BaseException) -> str:
     return line if isinstance(exc, CheckpointRefused) else f"{type(exc).__name__}: {line}".rstrip(": ")
 
 
+def every_seconds_from_env() -> float:
+    """The seconds between a batch's saves: ``$NUTRIBENCH_CHECKPOINT_SECONDS`` when set (a positive
+    number), else :data:`DEFAULT_EVERY_SECONDS`. A value that is not raises ``ValueError`` (one line)."""
+    raw = os.environ.get(EVERY_SECONDS_ENV, "").strip()
+    if not raw:
+        return DEFAULT_EVERY_SECONDS
+    try:
+        seconds = float(raw)
+    except ValueError:
+        seconds = float("nan")
+    if not seconds > 0 or seconds == float("inf"):
+        raise ValueError(
+            f"{EVERY_SECONDS_ENV}={raw!r} is not a positive number of seconds: set it to e.g. 60, or unset it"
+        )
+    return seconds
+
+
 class Checkpoint:
     """The checkpoint of one batch (``path``, its ``.state.json`` beside it): :attr:`state` holds
     what was saved (checked and read at once, decoded when first asked for), :meth:`save` writes
     when :meth:`due`, :meth:`remove` once the batch ends."""
 
-    def __init__(self, path: str | Path, every_seconds: float = DEFAULT_EVERY_SECONDS, device: str | th.device = "cpu"):
+    def __init__(self, path: str | Path, every_seconds: float | None = None, device: str | th.device = "cpu"):
         self.path = Path(path)
-        self.every_seconds = every_seconds
+        #: seconds between saves (None: :func:`every_seconds_from_env`)
+        self.every_seconds = every_seconds_from_env() if every_seconds is None else every_seconds
         self.device = th.device(device)
         self.saved_at = time.monotonic()
         found = any(p.exists() for p in (self.path, self.sidecar, _tmp(self.path)))

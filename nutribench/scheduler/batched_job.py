@@ -10,7 +10,8 @@ rounding. Each result carries its agent's training diagnostics (``agent.diagnost
 row per update, where the engine records them), written as TensorBoard events under
 ``spec.tensorboard`` too when it is set (:func:`write_tensorboard`).
 
-A batch saves its training state every few minutes to ``<models>/checkpoints/`` (see
+A batch saves its training state every few minutes (``$NUTRIBENCH_CHECKPOINT_SECONDS``,
+default 300) to ``<models>/checkpoints/`` (see
 :mod:`nutribench.engine.checkpoint`); a stopped batch started again by the next ``nutribench
 run`` resumes from there. The file's name says what the batch is (agent config, budget,
 regimes and seeds, code version), so another batch or another code version never reads it;
@@ -197,17 +198,24 @@ def checkpoint_path(specs: list[JobSpec]) -> Path | None:
     each job's regime hash and seed, and the code version."""
     if not specs[0].model_path:
         return None
-    import nutribench
-
-    what = [
-        nutribench.__version__,
-        git_state()[0],
-        specs[0].algo_sha256,
-        specs[0].episodes,
-        [(s.regime_sha256, s.seed) for s in specs],
-    ]
-    if specs[0].eval_every:  # evaluated during training: another checkpoint (names without it unchanged)
-        what.append([specs[0].eval_every, specs[0].val_episodes])
-    digest = hashlib.sha256(json.dumps(what).encode()).hexdigest()[:16]
+    digest = batch_digest(git_state()[0], [_job(s) for s in specs], specs[0].eval_every, specs[0].val_episodes)
     models = Path(specs[0].model_path).parents[2]
     return models / "checkpoints" / f"{specs[0].algo}-v{specs[0].algo_version}-{digest}.pt"
+
+
+def batch_digest(commit: str | None, jobs: list[dict], eval_every: int | None, val_episodes: int) -> str:
+    """The 16 hex digits of a checkpoint's name: the nutribench version, the code ``commit``, and
+    what the batch is (``jobs`` as a manifest lists them, :func:`_job`; the evaluation period)."""
+    import nutribench
+
+    first = jobs[0]
+    what = [
+        nutribench.__version__,
+        commit,
+        first["algo_sha256"],
+        first["episodes"],
+        [(j["regime_sha256"], j["seed"]) for j in jobs],
+    ]
+    if eval_every:  # evaluated during training: another checkpoint (names without it unchanged)
+        what.append([eval_every, val_episodes])
+    return hashlib.sha256(json.dumps(what).encode()).hexdigest()[:16]
