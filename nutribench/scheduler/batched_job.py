@@ -203,14 +203,17 @@ def checkpoint_path(specs: list[JobSpec]) -> Path | None:
     return models / "checkpoints" / f"{specs[0].algo}-v{specs[0].algo_version}-{digest}.pt"
 
 
-def batch_digest(commit: str | None, jobs: list[dict], eval_every: int | None, val_episodes: int) -> str:
-    """The 16 hex digits of a checkpoint's name: the nutribench version, the code ``commit``, and
-    what the batch is (``jobs`` as a manifest lists them, :func:`_job`; the evaluation period)."""
+def batch_digest(
+    commit: str | None, jobs: list[dict], eval_every: int | None, val_episodes: int, version: str | None = None
+) -> str:
+    """The 16 hex digits of a checkpoint's name: the nutribench ``version`` (default: this
+    one's), the code ``commit``, and what the batch is (``jobs`` as a manifest lists them,
+    :func:`_job`; the evaluation period)."""
     import nutribench
 
     first = jobs[0]
     what = [
-        nutribench.__version__,
+        version or nutribench.__version__,
         commit,
         first["algo_sha256"],
         first["episodes"],

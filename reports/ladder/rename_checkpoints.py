@@ -4,11 +4,13 @@ A checkpoint's name covers the code commit (``batched_job.checkpoint_path``); th
 machine's copy of the working tree reports another commit for the same files, so a batch
 started there would not resume here. For each ``<name>.pt.jobs.json`` in FOLDER, the digest is
 recomputed from its manifest with ``--from`` (the machine's ``git rev-parse HEAD``, written in
-its machine.txt): only when that reproduces the file's name exactly are the checkpoint's three
+its machine.txt) and ``--from-version`` (the nutribench version there: ``0.0.0+unknown`` where
+the tree runs uninstalled, from PYTHONPATH): only when that reproduces the file's name exactly are the checkpoint's three
 files renamed to the digest with ``--to`` (default: this checkout's commit). Nothing else
 changes. Usage:
 
-    python reports/ladder/rename_checkpoints.py /tmp/ladder/models/checkpoints --from <commit>
+    python reports/ladder/rename_checkpoints.py /tmp/ladder/models/checkpoints --from <commit> \\
+        --from-version 0.0.0+unknown
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--from", dest="old", required=True, help="the commit the checkpoints' names cover (none: a copy without git)"
     )
+    parser.add_argument("--from-version", default=None, help="the nutribench version there (default: this one's)")
     parser.add_argument("--to", dest="new", default=None, help="the commit to name them for (default: this checkout's)")
     args = parser.parse_args(argv)
     old = None if args.old.lower() == "none" else args.old  # a copy without git: the name covers no commit
@@ -39,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
         stem = manifest.name.removesuffix(".pt.jobs.json")
         prefix, _, digest = stem.rpartition("-")
         jobs = json.loads(manifest.read_text())["jobs"]
-        if batch_digest(old, jobs, EVAL_EVERY, VAL_EPISODES) != digest:
+        if batch_digest(old, jobs, EVAL_EVERY, VAL_EPISODES, args.from_version) != digest:
             print(f"{manifest.name}: its name is not the digest for commit {args.old}: left as it is", file=sys.stderr)
             continue
         target = f"{prefix}-{batch_digest(new, jobs, EVAL_EVERY, VAL_EPISODES)}"
