@@ -162,3 +162,15 @@ def test_the_figure_draws_every_arm_of_the_plan(ladder):
     labels = top.get_legend_handles_labels()[1]
     assert {"PPO", "tuned PPO", "GRU-PPO", "GRU-PPO without memory"} <= set(labels)
     assert len(bottom.get_lines()) == 12 + 2  # one curve per batch, never and the planner
+
+
+def test_a_batch_started_on_a_gpu_says_so(ladder, tmp_path: Path):
+    """Addendum 2: a batch whose log says it started on a lent GPU is labelled with both devices."""
+    log = tmp_path / "obs1_gru_ppo.txt"
+    assert ladder.started_on("cpu", log) == "cpu"  # no log
+    log.write_text("2026-11-27\nbatch obs1_gru_ppo, device cpu\n")
+    assert ladder.started_on("cpu", log) == "cpu"
+    log.write_text(
+        "== GPU start (addendum 2): ...\n== checkpoint brought back: 151,500 of 250,000 steps (day 3030 of 5000)\n"
+    )
+    assert ladder.started_on("cpu", log) == "cuda to day 3030, then cpu"

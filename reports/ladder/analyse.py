@@ -8,7 +8,8 @@ with that level's regime files, and then:
   the never -> planner gap with its 95 % percentile bootstrap interval over seeds
   (``iqm_bootstrap_ci``, 2000 resamples, seed 0), the seeds' shares, the share of the mean
   return (the paper's reading), the mean return, foods a day, the share of meals eaten in the
-  last 5 steps of the day, the device that trained it, and the learning-curve read-offs (the
+  last 5 steps of the day, the device that trained it ("cuda to day N, then cpu" for a batch
+  started on a lent GPU, addendum 2), and the learning-curve read-offs (the
   evaluation day of the highest validation IQM, that IQM and the day-5000 one with their
   intervals, "late drift" where the day-5000 interval lies wholly below the best one's);
 * ``table_comparisons.md/.csv``: the plan's named comparisons C1-C11 and T1-T7 on each regime:
@@ -28,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 import tempfile
 from collections.abc import Iterator, Sequence
@@ -217,7 +219,18 @@ def read_batch(path: Path, arm: Arm, db: str, reps: int) -> Batch:
         job_rows = read_jobs(db)
         devices = sorted(job_rows.loc[job_rows["id"].isin(jobs), "device"].dropna().astype(str).unique())
     notes += plan_notes(arm, ev, per_seed)
-    return Batch(arm, per_seed, learning, "/".join(devices) or "unknown", notes + more)
+    device = started_on("/".join(devices) or "unknown", HERE / "logs" / f"{archive_name(arm)}.txt")
+    return Batch(arm, per_seed, learning, device, notes + more)
+
+
+def started_on(device: str, log: Path) -> str:
+    """``device`` (where the jobs ended, as their rows say), preceded by where a batch started
+    when its log says it began on a lent GPU and was resumed here (addendum 2)."""
+    text = log.read_text(encoding="utf-8") if log.is_file() else ""
+    day = re.search(r"\(day (\d+) of 5000\)", text)
+    if "GPU start (addendum 2)" not in text or day is None:
+        return device
+    return f"cuda to day {day.group(1)}, then {device}"
 
 
 # --------------------------------------------------------------------------- statistics
@@ -370,7 +383,8 @@ def comparisons_markdown(comps: pd.DataFrame) -> str:
         "",
         "Shares of the gap in %; paired: per-seed differences A - B (median, seeds moving in the",
         "direction of the IQM difference, IQM of the differences [95 % CI]). Devices: where A and B",
-        "trained (addendum 1: a difference of devices is float rounding, mixed into the arms').",
+        "trained (addendum 1: a difference of devices is float rounding, mixed into the arms';",
+        "addendum 2: a batch started on a lent GPU and ended on the CPU says at which day).",
         "",
     ]
     rows = []
