@@ -85,7 +85,6 @@ def _check_models_dir(models_dir: Path | None, db: str) -> None:
     )
 
 
-@user_errors
 def _check_checkpoint_seconds() -> None:
     """A bad ``$NUTRIBENCH_CHECKPOINT_SECONDS`` is one line before any job starts."""
     from nutribench.engine.checkpoint import every_seconds_from_env
@@ -97,6 +96,7 @@ def _check_checkpoint_seconds() -> None:
         raise RunError(str(exc)) from None
 
 
+@user_errors
 def run_cmd(
     preset: Annotated[
         Optional[str],
