@@ -174,3 +174,7 @@ def test_a_batch_started_on_a_gpu_says_so(ladder, tmp_path: Path):
         "== GPU start (addendum 2): ...\n== checkpoint brought back: 151,500 of 250,000 steps (day 3030 of 5000)\n"
     )
     assert ladder.started_on("cpu", log) == "cuda to day 3030, then cpu"
+    log.write_text("== GPU start (addendum 2): ...\n== checkpoint brought back: (day 1200 of 5000)\n")
+    assert ladder.started_on("cpu", log) == "cuda to day 1200, then cpu"  # the day is read, not assumed
+    log.write_text("resumed from a checkpoint (day 1200 of 5000)\n")
+    assert ladder.started_on("cpu", log) == "cpu"  # a day without the GPU start is not a GPU batch

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import pickle
 import sys
@@ -129,7 +130,7 @@ def every_seconds_from_env() -> float:
         seconds = float(raw)
     except ValueError:
         seconds = float("nan")
-    if not seconds > 0 or seconds == float("inf"):
+    if not (math.isfinite(seconds) and seconds > 0):
         raise ValueError(
             f"{EVERY_SECONDS_ENV}={raw!r} is not a positive number of seconds: set it to e.g. 60, or unset it"
         )
