@@ -175,6 +175,29 @@ def test_training_table_is_the_last_tenth_of_training_beside_the_authors():
     assert "authors' return" in res.formatted.columns
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_training_table_of_short_or_unfinished_jobs_holds_their_last_day_or_says_n_a():
+    """Days are numbered from 0: a 1- or 5-day job's last tenth is its last day; a job still
+    running (no day in its window yet) reads n/a, without numpy's empty-mean warning."""
+    from nutribench.report.tables import table_training
+
+    short = pd.concat(
+        [
+            synthetic(regimes=("run0",), algos=("ppo",), train_eps=1).assign(budget=1),
+            synthetic(regimes=("run3",), algos=("ppo",), train_eps=5).assign(budget=5),
+            synthetic(regimes=("run6",), algos=("ppo",), train_eps=30).assign(budget=5000),
+        ]
+    )
+    res = table_training(short)
+    raw = res.raw.set_index("regime")
+    for regime, last in (("run0", 0), ("run3", 4)):
+        day = short[(short.regime == regime) & (short.phase == "train") & (short.episode == last)]
+        assert raw.loc[regime, "seeds"] == 3
+        assert raw.loc[regime, "return_mean"] == pytest.approx(day["return"].mean())
+    assert raw.loc["run6", "seeds"] == 0 and np.isnan(raw.loc["run6", "return_mean"])
+    assert res.formatted.set_index("regime").loc["run6", "our return"] == "n/a"
+
+
 def test_latex_escapes_every_special_character():
     from nutribench.report.tables import TableResult, latex_escape
 

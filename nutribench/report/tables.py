@@ -149,7 +149,10 @@ def table_agent_config(number: int, config) -> TableResult:
 
 
 def mean_sem_cell(values: pd.Series, digits: int) -> tuple[float, float, str]:
-    """Mean, standard error, and the table's text ``mean ± se`` (the mean alone for one value)."""
+    """Mean, standard error, and the table's text ``mean ± se`` (the mean alone for one value,
+    ``n/a`` for none)."""
+    if values.empty:  # a job with no training day in its window yet (still running): said, not averaged
+        return float("nan"), float("nan"), "n/a"
     mean, se = float(np.mean(values.to_numpy(dtype=float))), sem(values)
     return mean, se, f"{mean:.{digits}f} ± {se:.{digits}f}" if np.isfinite(se) else f"{mean:.{digits}f}"
 
@@ -269,7 +272,8 @@ def table_training(df: pd.DataFrame, last_share: float = 0.1) -> TableResult:
         for algo in sort_algos(tr[tr["regime"] == regime]["algo"]):
             cell = tr[(tr["regime"] == regime) & (tr["algo"] == algo)]
             budget = int(cell["budget"].max())
-            tail = cell[cell["episode"] >= budget * (1 - last_share)]
+            # days are numbered from 0: the window always holds the last day (a 1- or 5-day job has one)
+            tail = cell[cell["episode"] >= min(budget * (1 - last_share), budget - 1)]
             per_seed = tail.groupby("seed")[["return", "foods"]].mean()
             theirs = authors_training(algo, regime)
             row = {"regime": regime, "algo": algo, "days": budget, "seeds": len(per_seed)}
