@@ -178,3 +178,30 @@ def test_a_batch_started_on_a_gpu_says_so(ladder, tmp_path: Path):
     assert ladder.started_on("cpu", log) == "cuda to day 1200, then cpu"  # the day is read, not assumed
     log.write_text("resumed from a checkpoint (day 1200 of 5000)\n")
     assert ladder.started_on("cpu", log) == "cpu"  # a day without the GPU start is not a GPU batch
+
+
+def test_addendum_3_s_files_are_ppo_with_one_setting_changed():
+    """Addendum 3: ``ppo_nonorm`` and ``ppo_mb250`` are the plan's ``ppo.toml`` with their own name
+    and description and one setting each (observation normalisation off; five-day minibatches)."""
+    from nutribench.agents.config import load_agent_config
+
+    agents = ROOT / "reports" / "ladder" / "agents"
+    base = load_agent_config(agents / "ppo.toml").model_dump()
+    for name, changed in (("ppo_nonorm", {"normalize_obs": False}), ("ppo_mb250", {"batch_size": 250})):
+        cfg = load_agent_config(agents / f"{name}.toml").model_dump()
+        differs = {k for k in base if cfg[k] != base[k]}
+        assert differs == {"name", "description", *changed}, name
+        assert all(cfg[k] == v for k, v in changed.items()) and cfg["name"] == name
+
+
+def test_the_follow_up_refuses_a_folder_without_its_archives_in_one_line(ladder, tmp_path: Path, capsys):
+    spec = importlib.util.spec_from_file_location("ladder_followup", ROOT / "reports" / "ladder" / "followup.py")
+    followup = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(followup)
+    assert followup.main(["--archives-dir", str(tmp_path / "nowhere")]) == 2
+    assert "no such folder" in capsys.readouterr().err
+    assert followup.main(["--archives-dir", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
+    assert "neither of addendum 3's archives" in capsys.readouterr().err
+    # its own copy of analyse.py: the plan's comparisons are untouched
+    assert set(followup.ladder.COMPARISONS) == {"F1", "F2", "F3", "F4"} and followup.ladder is not ladder
+    assert len(ladder.COMPARISONS) == 18 and "F1" not in ladder.COMPARISONS

@@ -1,0 +1,114 @@
+"""Addendum 3's exploratory follow-up (README.md), written before any of its runs: PPO at level 4
+without observation normalisation (``agents/ppo_nonorm.toml``) and with five-day minibatches
+(``agents/ppo_mb250.toml``), each against the plan's PPO at levels 4 and 3 (F1-F4 on run0, run3
+and run6), with the plan's statistics and rule (``analyse.py``'s functions, unchanged):
+
+* ``followup/table_followup.md/.csv``: the four arms' rows, as ``table_ladder``'s;
+* ``followup/table_followup_comparisons.md/.csv``: F1-F4, as ``table_comparisons``'s.
+
+    python reports/ladder/followup.py [--archives-dir reports/ladder/data] [--out reports/ladder/followup]
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import pandas as pd
+
+HERE = Path(__file__).resolve().parent
+# a copy of analyse.py of its own (its comparisons and labels are set to the follow-up's below)
+_spec = importlib.util.spec_from_file_location("ladder_analyse_followup", HERE / "analyse.py")
+ladder = sys.modules["ladder_analyse_followup"] = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(ladder)
+
+#: the follow-up's arms (level 4 only), then the plan's archives it is compared with
+FOLLOW: tuple[tuple[str, int], ...] = (("ppo_nonorm", 4), ("ppo_mb250", 4))
+BASE: tuple[tuple[str, int], ...] = (("ppo", 4), ("ppo", 3))
+LABELS = {"ppo_nonorm": "PPO without obs. normalisation", "ppo_mb250": "PPO, 5-day minibatches"}
+COMPARISONS = {
+    "F1": (("ppo_nonorm", 4), ("ppo", 4), "is observation normalisation what costs PPO at level 4?"),
+    "F2": (("ppo_mb250", 4), ("ppo", 4), "is the minibatch what costs PPO at level 4?"),
+    "F3": (("ppo_nonorm", 4), ("ppo", 3), "without normalisation, does level 4 reach level 3?"),
+    "F4": (("ppo_mb250", 4), ("ppo", 3), "with five-day minibatches, does level 4 reach level 3?"),
+}
+TITLES = {
+    "# The information ladder: share of the never -> planner gap (%), test days": (
+        "# Addendum 3 (exploratory): PPO at level 4 without normalisation / with 5-day minibatches, beside the"
+        " plan's PPO at levels 4 and 3"
+    ),
+    "Made by `python reports/ladder/analyse.py` from the archives in `data/`.": (
+        "Made by `python reports/ladder/followup.py` from the archives in `data/`."
+    ),
+    "# The ladder's named comparisons (the plan's list; rule: two 95 % intervals apart)": (
+        "# Addendum 3's comparisons F1-F4 (exploratory; the plan's rule: two 95 % intervals apart)"
+    ),
+}
+
+
+def retitle(markdown: str) -> str:
+    for old, new in TITLES.items():
+        markdown = markdown.replace(old, new)
+    return markdown
+
+
+def followup(folder: Path, out: Path, reps: int = ladder.REPS) -> list[Path]:
+    ladder.LABELS.update(LABELS)
+    ladder.COMPARISONS.clear()
+    ladder.COMPARISONS.update(COMPARISONS)
+    arms = [*FOLLOW, *BASE]
+    present = [a for a in arms if (folder / f"{ladder.archive_name(a)}.npz").is_file()]
+    absent = [ladder.archive_name(a) for a in arms if a not in present]
+    if not any(a in present for a in FOLLOW):
+        raise ladder.AnalysisError(f"{folder}: neither of addendum 3's archives (obs4_ppo_nonorm, obs4_ppo_mb250)")
+    print(f"archives present: {', '.join(map(ladder.archive_name, present))}; absent: {', '.join(absent) or 'none'}")
+    with tempfile.TemporaryDirectory(prefix="nutribench-ladder-f-") as tmp:
+        batches = {
+            arm: ladder.read_batch(
+                folder / f"{ladder.archive_name(arm)}.npz", arm, str(Path(tmp) / f"{ladder.archive_name(arm)}.db"), reps
+            )
+            for arm in present
+        }
+    notes = [n for b in batches.values() for n in b.notes]
+    cell = {(arm, r): ladder.cell_row(batches[arm], r, reps) for arm in present for r in ladder.REGIMES}
+    cells = pd.DataFrame(list(cell.values()))
+    comps = pd.DataFrame(
+        [ladder.comparison_row(c, r, cell, batches, reps) for c in COMPARISONS for r in ladder.REGIMES]
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, frame, md in (
+        ("table_followup", cells, ladder.ladder_markdown(cells, absent, notes)),
+        ("table_followup_comparisons", comps, ladder.comparisons_markdown(comps)),
+    ):
+        frame.to_csv(out / f"{name}.csv", index=False, float_format="%.4f")
+        (out / f"{name}.md").write_text(retitle(md))
+        written += [out / f"{name}.csv", out / f"{name}.md"]
+    return written
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--archives-dir", default=str(HERE / "data"), help="the archives (obs<level>_<agent>.npz)")
+    ap.add_argument("--out", default=str(HERE / "followup"), help="where the tables go")
+    ap.add_argument("--reps", type=int, default=ladder.REPS, help="bootstrap resamples of the IQM intervals")
+    a = ap.parse_args(argv)
+    try:
+        folder = Path(a.archives_dir)
+        if not folder.is_dir():
+            raise ladder.AnalysisError(f"--archives-dir {folder}: no such folder")
+        written = followup(folder, Path(a.out), a.reps)
+    except ladder.UserError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    for p in written:
+        print(f"wrote {p}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
