@@ -1,10 +1,12 @@
-"""Addendum 3's exploratory follow-up (README.md), written before any of its runs: PPO at level 4
+"""Addenda 3 and 4's exploratory follow-up (README.md), each written before its runs: PPO
 without observation normalisation (``agents/ppo_nonorm.toml``) and with five-day minibatches
-(``agents/ppo_mb250.toml``), each against the plan's PPO at levels 4 and 3 (F1-F4 on run0, run3
-and run6), with the plan's statistics and rule (``analyse.py``'s functions, unchanged):
+(``agents/ppo_mb250.toml``), at level 4 against the plan's PPO at levels 4 and 3 (F1-F4,
+addendum 3) and at level 1 against the plan's PPO and GRU-PPO there (F5-F7, addendum 4), on
+run0, run3 and run6, with the plan's statistics and rule (``analyse.py``'s functions, unchanged):
 
-* ``followup/table_followup.md/.csv``: the four arms' rows, as ``table_ladder``'s;
-* ``followup/table_followup_comparisons.md/.csv``: F1-F4, as ``table_comparisons``'s.
+* ``followup/table_followup.md/.csv``: the follow-up's arms and those they are compared with, as
+  ``table_ladder``'s rows;
+* ``followup/table_followup_comparisons.md/.csv``: F1-F7, as ``table_comparisons``'s.
 
     python reports/ladder/followup.py [--archives-dir reports/ladder/data] [--out reports/ladder/followup]
 """
@@ -26,26 +28,29 @@ _spec = importlib.util.spec_from_file_location("ladder_analyse_followup", HERE /
 ladder = sys.modules["ladder_analyse_followup"] = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(ladder)
 
-#: the follow-up's arms (level 4 only), then the plan's archives it is compared with
-FOLLOW: tuple[tuple[str, int], ...] = (("ppo_nonorm", 4), ("ppo_mb250", 4))
-BASE: tuple[tuple[str, int], ...] = (("ppo", 4), ("ppo", 3))
+#: the follow-up's arms (addendum 3: level 4; addendum 4: level 1), then the plan's archives it is compared with
+FOLLOW: tuple[tuple[str, int], ...] = (("ppo_nonorm", 4), ("ppo_mb250", 4), ("ppo_mb250", 1), ("ppo_nonorm", 1))
+BASE: tuple[tuple[str, int], ...] = (("ppo", 4), ("ppo", 3), ("ppo", 1), ("gru_ppo", 1))
 LABELS = {"ppo_nonorm": "PPO without obs. normalisation", "ppo_mb250": "PPO, 5-day minibatches"}
 COMPARISONS = {
     "F1": (("ppo_nonorm", 4), ("ppo", 4), "is observation normalisation what costs PPO at level 4?"),
     "F2": (("ppo_mb250", 4), ("ppo", 4), "is the minibatch what costs PPO at level 4?"),
     "F3": (("ppo_nonorm", 4), ("ppo", 3), "without normalisation, does level 4 reach level 3?"),
     "F4": (("ppo_mb250", 4), ("ppo", 3), "with five-day minibatches, does level 4 reach level 3?"),
+    "F5": (("ppo_mb250", 1), ("ppo", 1), "what five-day minibatches do at the paper's observation"),
+    "F6": (("ppo_nonorm", 1), ("ppo", 1), "what observation normalisation does at the paper's observation"),
+    "F7": (("gru_ppo", 1), ("ppo_mb250", 1), "GRU-PPO over PPO with the same minibatch (C6 without it)"),
 }
 TITLES = {
     "# The information ladder: share of the never -> planner gap (%), test days": (
-        "# Addendum 3 (exploratory): PPO at level 4 without normalisation / with 5-day minibatches, beside the"
-        " plan's PPO at levels 4 and 3"
+        "# Addenda 3 and 4 (exploratory): PPO without observation normalisation / with 5-day minibatches,"
+        " beside the plan's arms they are compared with"
     ),
     "Made by `python reports/ladder/analyse.py` from the archives in `data/`.": (
         "Made by `python reports/ladder/followup.py` from the archives in `data/`."
     ),
     "# The ladder's named comparisons (the plan's list; rule: two 95 % intervals apart)": (
-        "# Addendum 3's comparisons F1-F4 (exploratory; the plan's rule: two 95 % intervals apart)"
+        "# Addenda 3 and 4's comparisons F1-F7 (exploratory; the plan's rule: two 95 % intervals apart)"
     ),
 }
 
@@ -64,7 +69,8 @@ def followup(folder: Path, out: Path, reps: int = ladder.REPS) -> list[Path]:
     present = [a for a in arms if (folder / f"{ladder.archive_name(a)}.npz").is_file()]
     absent = [ladder.archive_name(a) for a in arms if a not in present]
     if not any(a in present for a in FOLLOW):
-        raise ladder.AnalysisError(f"{folder}: neither of addendum 3's archives (obs4_ppo_nonorm, obs4_ppo_mb250)")
+        names = ", ".join(map(ladder.archive_name, FOLLOW))
+        raise ladder.AnalysisError(f"{folder}: none of the follow-up's archives ({names})")
     print(f"archives present: {', '.join(map(ladder.archive_name, present))}; absent: {', '.join(absent) or 'none'}")
     with tempfile.TemporaryDirectory(prefix="nutribench-ladder-f-") as tmp:
         batches = {
