@@ -6,7 +6,8 @@ run0, run3 and run6, with the plan's statistics and rule (``analyse.py``'s funct
 
 * ``followup/table_followup.md/.csv``: the follow-up's arms and those they are compared with, as
   ``table_ladder``'s rows;
-* ``followup/table_followup_comparisons.md/.csv``: F1-F7, as ``table_comparisons``'s.
+* ``followup/table_followup_comparisons.md/.csv``: F1-F7, as ``table_comparisons``'s;
+* ``followup/fig_followup.png``: per regime, every arm's share of the gap (IQM, 95 % interval).
 
     python reports/ladder/followup.py [--archives-dir reports/ladder/data] [--out reports/ladder/followup]
 """
@@ -94,7 +95,36 @@ def followup(folder: Path, out: Path, reps: int = ladder.REPS) -> list[Path]:
         frame.to_csv(out / f"{name}.csv", index=False, float_format="%.4f")
         (out / f"{name}.md").write_text(retitle(md))
         written += [out / f"{name}.csv", out / f"{name}.md"]
-    return written
+    fig = figure(cells)
+    fig.savefig(out / "fig_followup.png", dpi=110)
+    ladder.plt.close(fig)
+    return [*written, out / "fig_followup.png"]
+
+
+def figure(cells: pd.DataFrame):
+    """One panel per regime: each arm x level a row, its IQM share of the gap with the 95 % interval;
+    never (0 %) and the planner (100 %) as lines; the follow-up's arms in orange, the plan's in blue."""
+    plt = ladder.plt
+    order = [(a, lv) for a, lv in [*FOLLOW, *BASE] if ((cells["arm"] == a) & (cells["level"] == lv)).any()]
+    order.sort(key=lambda x: (x[1], x[0] not in dict(FOLLOW)))
+    fig, axes = plt.subplots(1, len(ladder.REGIMES), figsize=(15, 0.45 * len(order) + 1.8), sharey=True)
+    for ax, regime in zip(axes, ladder.REGIMES):
+        for y, (arm, level) in enumerate(order):
+            r = cells[(cells["arm"] == arm) & (cells["level"] == level) & (cells["regime"] == regime)].iloc[0]
+            colour = "tab:orange" if (arm, level) in FOLLOW else "tab:blue"
+            point = 100 * r["iqm"]
+            err = [[point - 100 * r["lo"]], [100 * r["hi"] - point]]
+            ax.errorbar(point, y, xerr=err, fmt="o", color=colour, capsize=3)
+        ax.axvline(0, color="grey", ls="--", lw=1)
+        ax.axvline(100, color="black", ls=":", lw=1)
+        ax.set_title(f"{regime}: test days, IQM [95 % CI]")
+        ax.set_xlabel("share of the never -> planner gap (%)")
+        ax.grid(axis="x", alpha=0.3)
+    axes[0].set_yticks(range(len(order)), [f"{ladder.LABELS[a]}, level {lv}" for a, lv in order])
+    axes[0].invert_yaxis()
+    fig.suptitle("Addenda 3 and 4 (exploratory, orange) beside the plan's arms (blue): reports/ladder/")
+    fig.tight_layout()
+    return fig
 
 
 def main(argv: Sequence[str] | None = None) -> int:
