@@ -32,7 +32,7 @@ import os
 import re
 import sys
 import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -457,6 +457,33 @@ def figure(cells: pd.DataFrame, batches: dict[Arm, Batch]):
 
 
 # --------------------------------------------------------------------------- main
+def read_batches(folder: Path, arms: Sequence[Arm], reps: int) -> dict[Arm, Batch]:
+    """Each of ``arms``' archives in ``folder``, imported into its own temporary database and read."""
+    with tempfile.TemporaryDirectory(prefix="nutribench-ladder-") as tmp:
+        return {
+            arm: read_batch(folder / f"{archive_name(arm)}.npz", arm, str(Path(tmp) / f"{archive_name(arm)}.db"), reps)
+            for arm in arms
+        }
+
+
+def tabulate(batches: dict[Arm, Batch], comparisons: Sequence[str], reps: int) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The table_ladder rows of ``batches`` (arm by arm, regime by regime) and the rows of the
+    comparisons whose ids (keys of :data:`COMPARISONS`) are ``comparisons``."""
+    cell = {(arm, r): cell_row(batch, r, reps) for arm, batch in batches.items() for r in REGIMES}
+    comps = pd.DataFrame([comparison_row(c, r, cell, batches, reps) for c in comparisons for r in REGIMES])
+    return pd.DataFrame(list(cell.values())), comps
+
+
+def write_tables(out: Path, tables: Sequence[tuple[str, pd.DataFrame, str]]) -> list[Path]:
+    """Each ``(name, frame, markdown)`` as ``out/<name>.csv`` and ``out/<name>.md``."""
+    written = []
+    for name, frame, md in tables:
+        frame.to_csv(out / f"{name}.csv", index=False, float_format="%.4f")
+        (out / f"{name}.md").write_text(md)
+        written += [out / f"{name}.csv", out / f"{name}.md"]
+    return written
+
+
 def analyse(folder: Path, out: Path, reps: int = REPS) -> list[Path]:
     arms = [(agent, level) for agent, levels in ARMS.items() for level in sorted(levels)]
     present = [a for a in arms if (folder / f"{archive_name(a)}.npz").is_file()]
@@ -465,34 +492,30 @@ def analyse(folder: Path, out: Path, reps: int = REPS) -> list[Path]:
     if not present:
         raise AnalysisError(f"{folder}: none of the plan's archives (obs<level>_<agent>.npz) is there")
     print(f"archives present: {', '.join(map(archive_name, present))}; absent: {', '.join(absent) or 'none'}")
-    batches: dict[Arm, Batch] = {}
-    with tempfile.TemporaryDirectory(prefix="nutribench-ladder-") as tmp:
-        for arm in present:
-            batches[arm] = read_batch(
-                folder / f"{archive_name(arm)}.npz", arm, str(Path(tmp) / f"{archive_name(arm)}.db"), reps
-            )
+    batches = read_batches(folder, present, reps)
     notes = [n for b in batches.values() for n in b.notes] + [f"not the plan's, left out: {o}" for o in other]
-    cell = {(arm, r): cell_row(batches[arm], r, reps) for arm in present for r in REGIMES}
-    cells = pd.DataFrame(list(cell.values()))
-    comps = pd.DataFrame([comparison_row(c, r, cell, batches, reps) for c in COMPARISONS for r in REGIMES])
-    written = []
-    for name, frame, md in (
-        ("table_ladder", cells, ladder_markdown(cells, absent, notes)),
-        ("table_comparisons", comps, comparisons_markdown(comps)),
-    ):
-        frame.to_csv(out / f"{name}.csv", index=False, float_format="%.4f")
-        (out / f"{name}.md").write_text(md)
-        written += [out / f"{name}.csv", out / f"{name}.md"]
+    cells, comps = tabulate(batches, list(COMPARISONS), reps)
+    written = write_tables(
+        out,
+        [
+            ("table_ladder", cells, ladder_markdown(cells, absent, notes)),
+            ("table_comparisons", comps, comparisons_markdown(comps)),
+        ],
+    )
     fig = figure(cells, batches)
     fig.savefig(out / "fig_ladder.png", dpi=110)
     plt.close(fig)
     return [*written, out / "fig_ladder.png"]
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--archives-dir", default=str(HERE / "data"), help="the plan's archives (obs<level>_<agent>.npz)")
-    ap.add_argument("--out", default=str(HERE), help="where the tables and the figure go")
+def cli(
+    argv: Sequence[str] | None, run: Callable[[Path, Path, int], list[Path]], description: str, default_out: Path
+) -> int:
+    """The command line of this script and of ``followup.py``: ``run(archives_dir, out, reps)``,
+    a bad path or archive as one line (exit 2), then the files written."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--archives-dir", default=str(HERE / "data"), help="the archives (obs<level>_<agent>.npz)")
+    ap.add_argument("--out", default=str(default_out), help="where the tables and the figure go")
     ap.add_argument("--reps", type=int, default=REPS, help="bootstrap resamples of the IQM intervals")
     a = ap.parse_args(argv)
     try:
@@ -502,13 +525,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         if out.exists() and not out.is_dir():
             raise AnalysisError(f"--out {out}: not a folder")
         out.mkdir(parents=True, exist_ok=True)
-        written = analyse(folder, out, a.reps)
+        written = run(folder, out, a.reps)
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     for p in written:
         print(f"wrote {p}")
     return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return cli(argv, analyse, __doc__.split("\n\n")[0], HERE)
 
 
 if __name__ == "__main__":

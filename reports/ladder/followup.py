@@ -14,10 +14,8 @@ run0, run3 and run6, with the plan's statistics and rule (``analyse.py``'s funct
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import sys
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -73,28 +71,16 @@ def followup(folder: Path, out: Path, reps: int = ladder.REPS) -> list[Path]:
         names = ", ".join(map(ladder.archive_name, FOLLOW))
         raise ladder.AnalysisError(f"{folder}: none of the follow-up's archives ({names})")
     print(f"archives present: {', '.join(map(ladder.archive_name, present))}; absent: {', '.join(absent) or 'none'}")
-    with tempfile.TemporaryDirectory(prefix="nutribench-ladder-f-") as tmp:
-        batches = {
-            arm: ladder.read_batch(
-                folder / f"{ladder.archive_name(arm)}.npz", arm, str(Path(tmp) / f"{ladder.archive_name(arm)}.db"), reps
-            )
-            for arm in present
-        }
+    batches = ladder.read_batches(folder, present, reps)
     notes = [n for b in batches.values() for n in b.notes]
-    cell = {(arm, r): ladder.cell_row(batches[arm], r, reps) for arm in present for r in ladder.REGIMES}
-    cells = pd.DataFrame(list(cell.values()))
-    comps = pd.DataFrame(
-        [ladder.comparison_row(c, r, cell, batches, reps) for c in COMPARISONS for r in ladder.REGIMES]
+    cells, comps = ladder.tabulate(batches, list(COMPARISONS), reps)
+    written = ladder.write_tables(
+        out,
+        [
+            ("table_followup", cells, retitle(ladder.ladder_markdown(cells, absent, notes))),
+            ("table_followup_comparisons", comps, retitle(ladder.comparisons_markdown(comps))),
+        ],
     )
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, frame, md in (
-        ("table_followup", cells, ladder.ladder_markdown(cells, absent, notes)),
-        ("table_followup_comparisons", comps, ladder.comparisons_markdown(comps)),
-    ):
-        frame.to_csv(out / f"{name}.csv", index=False, float_format="%.4f")
-        (out / f"{name}.md").write_text(retitle(md))
-        written += [out / f"{name}.csv", out / f"{name}.md"]
     fig = figure(cells)
     fig.savefig(out / "fig_followup.png", dpi=110)
     ladder.plt.close(fig)
@@ -128,22 +114,7 @@ def figure(cells: pd.DataFrame):
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--archives-dir", default=str(HERE / "data"), help="the archives (obs<level>_<agent>.npz)")
-    ap.add_argument("--out", default=str(HERE / "followup"), help="where the tables go")
-    ap.add_argument("--reps", type=int, default=ladder.REPS, help="bootstrap resamples of the IQM intervals")
-    a = ap.parse_args(argv)
-    try:
-        folder = Path(a.archives_dir)
-        if not folder.is_dir():
-            raise ladder.AnalysisError(f"--archives-dir {folder}: no such folder")
-        written = followup(folder, Path(a.out), a.reps)
-    except ladder.UserError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    for p in written:
-        print(f"wrote {p}")
-    return 0
+    return ladder.cli(argv, followup, __doc__.split("\n\n")[0], HERE / "followup")
 
 
 if __name__ == "__main__":
