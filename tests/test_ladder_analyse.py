@@ -202,6 +202,9 @@ def test_the_follow_up_refuses_a_folder_without_its_archives_in_one_line(ladder,
     assert "no such folder" in capsys.readouterr().err
     assert followup.main(["--archives-dir", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
     assert "none of the follow-up's archives" in capsys.readouterr().err
+    (tmp_path / "a_file").write_text("")  # analyse.py's command line, shared: an --out that is a file is one line
+    assert followup.main(["--archives-dir", str(tmp_path), "--out", str(tmp_path / "a_file")]) == 2
+    assert "not a folder" in capsys.readouterr().err
     # its own copy of analyse.py: the plan's comparisons are untouched
     assert set(followup.ladder.COMPARISONS) == {f"F{i}" for i in range(1, 8)} and followup.ladder is not ladder
     assert len(ladder.COMPARISONS) == 18 and "F1" not in ladder.COMPARISONS
