@@ -1,7 +1,14 @@
 """Tuning trials stacked in one batch: agents whose configs differ in continuous settings
 (learning rate, discount, GAE lambda, clip range, entropy and value coefficients,
-gradient-norm clip) train side by side as each trains alone, and a frozen (pruned) agent
-gets no more updates."""
+gradient-norm clip) train side by side bit for bit as each trains alone, and a frozen (pruned)
+agent gets no more updates.
+
+Bit for bit, not within a tolerance: each per-agent setting enters the arithmetic exactly as
+the same setting given as one float does (StackedAdam takes each agent's rate into its own
+step; GAE's gamma * lambda and the clip's max_norm round alike either way), so nothing is left
+to differ but what batch invariance already pins (tests/test_engine_batch_invariance.py). A
+tolerance was no bound here: a last-bit difference grows through Adam's normalised steps
+(on an AMD EPYC to 0.7 % of a weight within one GRU-PPO update, docs/batched-engine.md)."""
 
 from __future__ import annotations
 
@@ -45,7 +52,7 @@ def test_stacked_trials_train_each_agent_as_a_batch_of_one_does(algo: str) -> No
     for j, cfg in enumerate(cfgs):
         (alone,) = train_batched([("run3", 7)], cfg, days)
         for a, b in zip(weights(stacked[j]), weights(alone)):
-            np.testing.assert_allclose(a, b, rtol=1e-4, atol=2e-6)  # the engine's update-equality tolerance
+            np.testing.assert_array_equal(a, b)
         assert stacked[j].config == cfg
     # the settings did differ: the agents' weights differ from the first's
     assert not all(np.allclose(a, b) for a, b in zip(weights(stacked[0]), weights(stacked[1])))
@@ -60,7 +67,7 @@ def test_a_frozen_agent_gets_no_more_updates() -> None:
         np.testing.assert_array_equal(a, b)
     (trained,) = train_batched([("run3", 7)], cfgs[2], 10)  # the others train as they would alone
     for a, b in zip(weights(stacked[2]), weights(trained)):
-        np.testing.assert_allclose(a, b, rtol=1e-4, atol=2e-6)
+        np.testing.assert_array_equal(a, b)
 
 
 def test_configs_that_differ_in_structure_or_off_policy_stacks_are_refused() -> None:
@@ -88,7 +95,7 @@ def test_stacked_sac_trials_train_each_agent_as_a_batch_of_one_does() -> None:
     for j, cfg in enumerate(cfgs):
         (alone,) = train_batched([("run3", 7)], cfg, 2)
         for a, b in zip(weights(stacked[j]), weights(alone)):
-            np.testing.assert_allclose(a, b, rtol=1e-4, atol=2e-6)
+            np.testing.assert_array_equal(a, b)
     assert not all(np.allclose(a, b) for a, b in zip(weights(stacked[0]), weights(stacked[2])))
     frozen = train_batched([("run3", 7)] * 3, base, 2, agent_configs=cfgs, active=np.array([True, False, True]))
     (first,) = train_batched([("run3", 7)], cfgs[1], 1)  # before learning starts: its first weights

@@ -43,6 +43,7 @@ from nutribench.engine.evaluate import Greedy
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, OffPolicyAlgorithm, linear_schedule
 from nutribench.engine.stacked import (
     AgentMeans,
+    StackedAdam,
     StackedMLP,
     clip_grad_norm_per_agent,
     linears,
@@ -59,7 +60,7 @@ def q_linears(q_net: th.nn.Module) -> list[th.nn.Linear]:
 def ddqn_update(
     q: StackedMLP,
     q_target: StackedMLP,
-    optimizer: th.optim.Optimizer,
+    optimizer: StackedAdam,
     batch: Batch,
     learning_rate: float,
     max_grad_norm: float,
@@ -67,8 +68,7 @@ def ddqn_update(
 ) -> np.ndarray:
     """One gradient step of :meth:`DoubleDQN.train` for the K agents; their Huber losses
     ``(K,)``. The losses, the gradient norms and the mean Q of the actions taken go to ``means``."""
-    for group in optimizer.param_groups:
-        group["lr"] = learning_rate
+    optimizer.rate = learning_rate  # the schedule's rate for this step (StackedAdam scales its rate-1 step)
     with th.no_grad():
         best = q.forward(batch.next_obs).argmax(dim=2, keepdim=True)
         next_q = th.gather(q_target.forward(batch.next_obs), 2, best).squeeze(2)

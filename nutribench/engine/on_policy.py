@@ -44,6 +44,7 @@ from nutribench.engine.on_policy_settings import OnPolicySettings
 from nutribench.engine.stacked import (
     AgentMeans,
     RunningStats,
+    StackedAdam,
     clip_grad_norm_per_agent,
     explained_variance,
     load_params,
@@ -92,10 +93,15 @@ def gae(
     """SB3's ``RolloutBuffer.compute_returns_and_advantage`` for ``(K, T)`` arrays: advantages,
     returns (``gamma``, ``lam``: one for all, or ``(K,)``)."""
     k, t_max = rewards.shape
-    if isinstance(gamma, np.ndarray):  # per agent: float32 as a float setting is (numpy's weak scalars)
-        gamma, lam = gamma.astype(np.float32), np.broadcast_to(lam, (k,)).astype(np.float32)
-    elif isinstance(lam, np.ndarray):
-        lam = lam.astype(np.float32)
+    # gamma * lam in float64 as two float settings multiply, then each factor float32 as a float
+    # setting is against a float32 array (numpy's weak scalars): one agent's numbers are the
+    # same whether its settings come as floats or as a (K,) array beside other agents'
+    gamma_lam = np.multiply(gamma, lam, dtype=np.float64)
+    if gamma_lam.ndim:
+        gamma = np.broadcast_to(gamma, (k,)).astype(np.float32)
+        gamma_lam = np.broadcast_to(gamma_lam, (k,)).astype(np.float32)
+    else:  # a Python float: a np.float64 would not be weak, and would turn the arrays float64
+        gamma_lam = float(gamma_lam)
     adv = np.zeros((k, t_max), dtype=np.float32)
     last = np.zeros(k, dtype=np.float32)
     for t in reversed(range(t_max)):
@@ -106,7 +112,7 @@ def gae(
             non_terminal = 1.0 - episode_starts[:, t + 1]
             next_values = values[:, t + 1]
         delta = rewards[:, t] + gamma * next_values * non_terminal - values[:, t]
-        last = delta + gamma * lam * non_terminal * last
+        last = delta + gamma_lam * non_terminal * last
         adv[:, t] = last
     return adv, adv + values
 
@@ -156,10 +162,10 @@ def gradient_step(
         )
 
 
-def make_optimizer(net: Any, learning_rate: float | np.ndarray) -> th.optim.Adam:
+def make_optimizer(net: Any, learning_rate: float | np.ndarray) -> StackedAdam:
     """The on-policy agents' Adam (SB3's actor-critic policies: eps 1e-5) over ``net.params``;
-    with a learning rate per agent, Adam's own rate is 1 and :func:`step_per_agent` scales
-    each agent's step."""
+    with a learning rate per agent, :func:`step_per_agent` hands each step the agents' rates
+    (the optimizer's own rate, 1, is then unused)."""
     return make_adam(net.params, 1.0 if isinstance(learning_rate, np.ndarray) else learning_rate, ADAM_EPS)
 
 

@@ -111,7 +111,7 @@ class StackedSAC:
         self.critic = StackedMLP(2 * k, sizes, None if generators is None else generators + generators, device)
         self.critic_target = StackedMLP(2 * k, sizes, device=device)
         self.critic_target.copy_from(self.critic)
-        # a rate per agent: Adam at rate 1, each agent's step scaled by its own (step_per_agent)
+        # a rate per agent: step_per_agent hands each step the agents' rates (the optimizer's own, 1, unused)
         rate = lambda lr: 1.0 if isinstance(lr, np.ndarray) else lr  # noqa: E731
         self.actor_optimizer = make_adam(self.actor.params, rate(actor_lr), OFF_POLICY_ADAM_EPS)
         self.critic_optimizer = make_adam(self.critic.params, rate(critic_lr), OFF_POLICY_ADAM_EPS)
@@ -194,13 +194,11 @@ def sac_update(
     _step(net.actor_optimizer, net.actor.params, net.k, settings, "actor_learning_rate")
 
     with th.no_grad():  # SB3's polyak_update: targ * (1 - tau) + tau * online
-        if isinstance(tau, np.ndarray):  # each agent's rate, on both its critics' rows
-            for targ, online in zip(net.critic_target.params, net.critic.params):
-                rate = per_agent(np.tile(tau, 2), targ, targ.ndim)
-                targ.mul_(1.0 - rate).add_(rate * online)
-        else:
-            th._foreach_mul_(net.critic_target.params, 1.0 - tau)
-            th._foreach_add_(net.critic_target.params, net.critic.params, alpha=tau)
+        # each agent's rate on both its critics' rows, 1 - tau in float64 as for one float tau: an
+        # agent's numbers are the same whether its tau comes alone or in a (K,) array
+        taus = np.tile(np.broadcast_to(np.asarray(tau, dtype=np.float64), (net.k,)), 2)
+        for targ, online in zip(net.critic_target.params, net.critic.params):
+            targ.mul_(per_agent(1.0 - taus, targ, targ.ndim)).add_(per_agent(taus, targ, targ.ndim) * online)
     if means is not None:
         means.add(
             **{

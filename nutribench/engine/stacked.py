@@ -6,7 +6,8 @@ leading agent axis, and what keeps each agent's update its own.
   ``torch.nn.Linear`` (Kaiming-uniform) initialise one agent's, applied with
   ``torch.baddbmm``;
 * :func:`clip_grad_norm_per_agent`: ``clip_grad_norm_`` over each agent's own parameters;
-* :func:`make_adam`: Adam over stacked parameters (elementwise, so each agent's step is its own);
+* :class:`StackedAdam` (:func:`make_adam`): Adam over stacked parameters, each agent at its own
+  rate, batch-invariant by construction (one IEEE operation per element, no fused kernels);
 * :class:`RunningStats`: SB3's ``RunningMeanStd`` for K agents (``VecNormalize``'s statistics);
 * :class:`AgentMeans`: per-agent means of a few ``(K,)`` quantities over an update's gradient
   steps, kept on the device and read back at once (the agents' diagnostics).
@@ -149,7 +150,9 @@ def clip_grad_norm_per_agent(params: list[th.Tensor], max_norm: float | np.ndarr
         max_norm = per_agent(max_norm, norms)  # inf / x = inf -> 1: unclipped
     elif not math.isfinite(max_norm):
         return norms
-    coef = (max_norm / (norms + 1e-6)).clamp(max=1.0)
+    # max_norm * (1 / (norm + 1e-6)), as torch's clip_grad_norm_ rounds it (a float over a tensor is
+    # a reciprocal times the float), for one max_norm and for a max_norm per agent alike
+    coef = ((norms + 1e-6).reciprocal() * max_norm).clamp(max=1.0)
     for p in params:
         p.grad.mul_(coef.repeat(p.shape[0] // k).reshape(-1, *([1] * (p.ndim - 1))))
     return norms
@@ -165,59 +168,86 @@ def per_agent(value: float | np.ndarray, like: th.Tensor, ndim: int = 1) -> floa
 
 
 def step_per_agent(
-    optimizer: th.optim.Optimizer,
+    optimizer: StackedAdam,
     params: list[th.Tensor],
     learning_rate: float | np.ndarray,
     active: np.ndarray | None = None,
     k: int | None = None,
 ) -> None:
-    """``optimizer.step()`` with each agent's own learning rate and only for the ``active``
-    agents. One rate for all and every agent active: the plain step (the paper grid's path,
-    unchanged). Otherwise the optimizer runs at rate 1 (:func:`make_adam` is made so) and each
-    agent's step is scaled by its rate, 0 for an inactive agent: Adam's step is its rate times
-    a direction that does not depend on the rate, so this equals a step at that rate up to
-    float rounding (tested against one-agent batches)."""
-    if not isinstance(learning_rate, np.ndarray) and (active is None or active.all()):
-        optimizer.step()
-        return
+    """``optimizer.step()`` with each agent's own learning rate (a ``(K,)`` array, or one rate
+    for all) and only for the ``active`` agents (an inactive agent's rate is 0: its weights
+    stay as they are). ``params`` and ``k`` as :func:`clip_grad_norm_per_agent`: a parameter's
+    row ``i * K + j`` is agent ``j``'s."""
     k = params[0].shape[0] if k is None else k
-    # the optimizer's own rate is 1 with per-agent rates (make_optimizer), else the one rate
-    rate = np.broadcast_to(np.asarray(learning_rate, dtype=np.float64), (k,)) / optimizer.param_groups[0]["lr"]
+    rates = np.array(np.broadcast_to(np.asarray(learning_rate, dtype=np.float64), (k,)))
     if active is not None:
-        rate = np.where(active, rate, 0.0)
-    before = [p.detach().clone() for p in params]
-    optimizer.step()
-    with th.no_grad():
-        for p, p0 in zip(params, before):
-            scale = th.as_tensor(rate, dtype=p.dtype, device=p.device).repeat(p.shape[0] // k)
-            p.copy_(p0 + scale.reshape(-1, *([1] * (p.ndim - 1))) * (p - p0))
+        rates = np.where(active, rates, 0.0)
+    optimizer.step(rates=rates)
 
 
-#: the most floats one CPU vector register holds (AVX-512); see :func:`make_adam`
+#: the most floats one CPU vector register holds (AVX-512); see :class:`StackedAdam`
 VECTOR_FLOATS = 16
 
 
-def make_adam(params: list[th.Tensor], learning_rate: float, eps: float) -> th.optim.Adam:
-    """Adam over stacked parameters (elementwise, so each agent's update is its own), in
-    torch's fused form where this torch has it for the CPU (2.4 and later): the per-tensor
-    Adam's formula in one kernel per step, equal to float32 rounding (on this CPU 0.3 ms a
-    step instead of 3.9 ms for K = 35).
+class StackedAdam(th.optim.Adam):
+    """Adam over stacked parameters, each agent at its own rate, batch-invariant: an agent's
+    step is bit for bit the same at every K, in every place of the batch, and alone at one
+    float rate or beside agents at other rates.
 
-    Batch-invariant: the fused CPU kernel rounds the elements of a tensor's whole vectors
-    (8 or 16 floats) and of its tail differently, so an agent's step would depend on where
-    its block falls, that is on K. A parameter whose rows per agent are not a multiple of
-    :data:`VECTOR_FLOATS` floats (the output biases: 2 or 3 per agent) therefore takes
-    torch's foreach Adam, which rounds every element alike (docs/batched-engine.md,
-    "Reproducibility"); every other parameter fills whole vectors at every K."""
-    fused = [p for p in params if math.prod(p.shape[1:]) % VECTOR_FLOATS == 0]
-    rest = [p for p in params if math.prod(p.shape[1:]) % VECTOR_FLOATS != 0]
-    groups = ([{"params": fused}] if fused else []) + (
-        [{"params": rest, "fused": False, "foreach": True}] if rest else []
-    )
-    try:
-        return th.optim.Adam(groups, lr=learning_rate, eps=eps, fused=True)
-    except RuntimeError:  # pragma: no cover - torch < 2.4 on CPU
-        return th.optim.Adam(params, lr=learning_rate, eps=eps, foreach=True)
+    Every step is torch's Adam at rate 1, then each row's move scaled by its agent's rate:
+    ``p = p0 + rate * (p1 - p0)`` (Adam's move is its rate times a direction that does not
+    depend on the rate, so this is a step at that rate up to float rounding; SB3's Adam, to
+    which the engine is tested equal within a tolerance). Every agent takes this arithmetic,
+    with one rate for all or a rate each: a step at rate 1e-3 taken directly rounds unlike
+    one scaled afterwards, and when the batch scaled (a rate per agent, stacked tuning
+    trials) while a batch of one stepped directly, the last-bit difference grew through
+    Adam's normalised steps to 0.7 % of a weight within one GRU-PPO update on an AMD EPYC
+    (docs/batched-engine.md, "Reproducibility").
+
+    torch's fused CPU Adam steps a tensor in whole vectors (8 or 16 floats) and a scalar tail
+    that round differently, so an agent's step would depend on where its block falls, that
+    is on K: a parameter whose rows per agent are not a multiple of :data:`VECTOR_FLOATS`
+    floats (the output biases: 1 to 3 per agent) takes torch's foreach Adam, which rounds
+    every element alike; every other parameter fills whole vectors at every K and is fused
+    (on this CPU 0.3 ms a step instead of 3.9 ms for K = 35).
+
+    :meth:`step` takes ``rates``: a ``(K,)`` array of per-agent rates (0: no move), the row
+    ``i * K + j`` of a parameter being agent ``j``'s; without it, ``rate`` for all. The state
+    and its ``state_dict`` are torch Adam's (its own rate, 1, in the groups)."""
+
+    def __init__(self, params: list[th.Tensor], rate: float, eps: float):
+        fused = [p for p in params if math.prod(p.shape[1:]) % VECTOR_FLOATS == 0]
+        rest = [p for p in params if math.prod(p.shape[1:]) % VECTOR_FLOATS != 0]
+        groups = ([{"params": fused}] if fused else []) + (
+            [{"params": rest, "fused": False, "foreach": True}] if rest else []
+        )
+        try:
+            super().__init__(groups, lr=1.0, eps=eps, fused=True)
+        except RuntimeError:  # pragma: no cover - torch < 2.4 on CPU
+            super().__init__(params, lr=1.0, eps=eps, foreach=True)
+        self.rate = rate
+        self._before = [th.empty_like(p) for p in params]
+        self._params = list(params)
+
+    @th.no_grad()
+    def step(self, closure: None = None, rates: np.ndarray | None = None) -> None:  # type: ignore[override]
+        if closure is not None:
+            raise ValueError("StackedAdam takes no closure")
+        rates = np.array([self.rate], dtype=np.float64) if rates is None else rates
+        for p, p0 in zip(self._params, self._before):
+            if p.shape[0] % len(rates):
+                raise ValueError(f"a parameter of {p.shape[0]} rows does not stack {len(rates)} agents")
+            p0.copy_(p)
+        super().step()
+        for p, p0 in zip(self._params, self._before):
+            per_row = th.as_tensor(np.tile(rates, p.shape[0] // len(rates)), dtype=p.dtype, device=p.device)
+            p.sub_(p0).mul_(per_row.reshape(-1, *([1] * (p.ndim - 1)))).add_(p0)
+
+
+def make_adam(params: list[th.Tensor], learning_rate: float, eps: float) -> StackedAdam:
+    """Adam over stacked parameters (:class:`StackedAdam`) at ``learning_rate`` (the rate
+    when one rate serves every agent; :func:`step_per_agent` passes per-agent rates)."""
+    return StackedAdam(params, learning_rate, eps)
 
 
 class AgentMeans:
