@@ -13,7 +13,8 @@ Training runs on one environment (one day at a time), so ``episodes`` days are e
 per-day metrics (:data:`~nutribench.env.metrics.METRIC_KEYS`, plus ``episode`` and
 ``entropy``: the mean policy entropy over the day's steps, None for DDQN).
 
-Reproducible: torch runs single-threaded (jobs run side by side in a process pool), and
+Reproducible: torch runs single-threaded while training (jobs run side by side in a process
+pool; the caller's thread count is restored afterwards: :func:`single_threaded`), and
 the seed fixes network initialisation, exploration and the env's food stream, so the same
 call twice gives identical metrics on the same machine.
 """
@@ -22,7 +23,8 @@ from __future__ import annotations
 
 import json
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -181,6 +183,19 @@ class TrainedAgent:
         return agent
 
 
+@contextmanager
+def single_threaded() -> Iterator[None]:
+    """torch on one thread while the block runs (what makes a run reproducible), the caller's
+    thread count restored afterwards, an exception or not: a library does not change its
+    caller's process. Used as a decorator too (``@single_threaded()``)."""
+    threads = th.get_num_threads()
+    th.set_num_threads(1)
+    try:
+        yield
+    finally:
+        th.set_num_threads(threads)
+
+
 def make_train_env(env_cfg: EnvConfig, cfg: Any) -> tuple[NutriRLSB3VecEnv, VecEnv]:
     """The single-day SB3 env a job trains on, and the same wrapped in ``VecNormalize``
     as the config asks (observations and/or rewards; SB3 sees scaled rewards, the
@@ -199,6 +214,7 @@ def make_train_env(env_cfg: EnvConfig, cfg: Any) -> tuple[NutriRLSB3VecEnv, VecE
     return base, env
 
 
+@single_threaded()
 def train(
     regime: str | EnvConfig,
     agent_config: Any,
@@ -227,7 +243,6 @@ def train(
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     every = check_eval_every(eval_every, val_episodes)
-    th.set_num_threads(1)
     env_cfg = load_env_config(regime)
     cfg = load_agent_config(agent_config)
     horizon = env_cfg.reward.horizon

@@ -293,14 +293,23 @@ def import_entry_point(entry_point: str) -> Any:
 
 
 def _import(module_name: str) -> Any:
+    """``module_name``, installed or beside the user's scripts (the current folder, searched as
+    ``python -m`` does). A module found there keeps the folder on ``sys.path``, as under
+    ``python -m``: it may import its neighbours later (in ``make_agent`` or ``load``, or SB3
+    unpickling its classes); a failed import leaves ``sys.path`` as it was."""
     try:
         return importlib.import_module(module_name)
     except ModuleNotFoundError as e:
         cwd = str(Path.cwd())
         if cwd in sys.path or not (e.name and module_name.startswith(e.name)):
             raise
-        sys.path.append(cwd)  # a module beside the user's scripts, as `python -m` finds it
-        return importlib.import_module(module_name)
+        sys.path.append(cwd)
+        try:
+            return importlib.import_module(module_name)
+        except BaseException:
+            if cwd in sys.path:  # unless the module's own code took it out
+                sys.path.remove(cwd)
+            raise
 
 
 def entry_point_source(entry_point: str) -> tuple[str, str | None]:

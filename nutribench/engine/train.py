@@ -37,7 +37,7 @@ import numpy as np
 import torch as th
 
 import nutribench.agents.registry as registry
-from nutribench.agents.api import TrainedAgent
+from nutribench.agents.api import TrainedAgent, single_threaded
 from nutribench.agents.config import load_agent_config
 from nutribench.agents.validation import DEFAULT_VAL_EPISODES, ValidationFn
 from nutribench.config import EnvConfig
@@ -46,6 +46,7 @@ from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEpisodeFn
 
 
+@single_threaded()
 def train_batched(
     jobs: Sequence[tuple[str | EnvConfig, int]],
     agent_config: Any,
@@ -93,7 +94,6 @@ def train_batched(
     :raises nutribench.engine.UnsupportedConfig: (one line, before anything trains) for a
         config this engine would not train as the SB3 engine does (:func:`nutribench.engine.supports`).
     """
-    th.set_num_threads(1)
     cfg = load_agent_config(agent_config)
     check_supported(cfg)
     return registry.batched_class(cfg.algo).train_jobs(

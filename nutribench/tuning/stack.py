@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from nutribench.tuning.objective import TrialScores, ValidationObjective
-from nutribench.tuning.study import StudyCounts, TuneError, count_trials
+from nutribench.tuning.study import StudyCounts, TuneError, count_trials, quiet_experimental
 
 #: the fields of an agent config that name it, not what it trains
 _NAMING = ("name", "version", "description")
@@ -101,7 +101,8 @@ class StackedTrials:
         import optuna
 
         while True:
-            optuna.storages.fail_stale_trials(study)  # a killed driver's trials: failed, queued again
+            with quiet_experimental():
+                optuna.storages.fail_stale_trials(study)  # a killed driver's trials: failed, queued again
             counts = count_trials(study)
             missing = trials - counts.finished - counts.running
             if counts.finished >= trials or missing <= 0:

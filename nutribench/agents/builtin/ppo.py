@@ -28,12 +28,18 @@ class PPOWithGradNorm(GradNormPPO):
     gradient steps of the norm before clipping (:class:`~nutribench.agents.sb3_train.GradNormPPO`).
     Its saved models are SB3 ``PPO`` models."""
 
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        # SB3 warns when batch_size does not divide n_steps; whole days per rollout matter more
+        # here than equal minibatches (500 = 7 x 64 + 52). Silenced while it builds, not in the caller.
+        with warnings.catch_warnings():
+            warnings.filterwarnings(
+                "ignore", message="You have specified a mini-batch size", module="stable_baselines3"
+            )
+            super().__init__(*args, **kwargs)
+
 
 def ppo_model_arguments(cfg: PPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
     """PPO on the shared actor-critic."""
-    # SB3 warns when batch_size does not divide n_steps; whole days per rollout matter more
-    # here than equal minibatches (500 = 7 x 64 + 52).
-    warnings.filterwarnings("ignore", message="You have specified a mini-batch size", module="stable_baselines3")
     return PPOWithGradNorm, dict(
         policy="MlpPolicy", **ppo_arguments(cfg), policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch)
     )
