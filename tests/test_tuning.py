@@ -208,3 +208,27 @@ def test_a_pruned_stacked_trial_is_told_pruned(tmp_path: Path) -> None:
     study = optuna.load_study(study_name="pr", storage=f"sqlite:///{db}")
     pruned = [t for t in study.trials if t.state.name == "PRUNED" and t.user_attrs.get("stacked_with")]
     assert pruned and all(max(t.intermediate_values) < 4 for t in pruned)  # stopped before the last day
+
+
+def test_a_late_mean_objective_is_the_mean_of_the_values_after_half_the_days(tmp_path: Path) -> None:
+    """``--objective late-mean``: the trial's value is the mean of its IQMs at the evaluations
+    after half its days (days 3 and 4 of 4), not its last one; a study made before the setting
+    existed (no ``objective`` in its settings) resumes as ``last``."""
+    db = tmp_path / "lab.db"
+    args = ["--regimes", "run3", "--seeds", "101", "--days", "4", "--eval-every", "1", "--val-episodes", "1"]
+    res = tune(
+        db, "--algo", "ppo", "--study", "late", "--trials", "1", "--pruner", "none", "--objective", "late-mean", *args
+    )
+    assert res.exit_code == 0, res.output
+    (trial,) = optuna.load_study(study_name="late", storage=f"sqlite:///{db}").trials
+    values = trial.intermediate_values
+    assert sorted(values) == [1, 2, 3, 4]
+    assert trial.value == pytest.approx((values[3] + values[4]) / 2, abs=1e-12)
+    study = optuna.load_study(study_name="late", storage=f"sqlite:///{db}")
+    assert stored_settings(study).objective == "late-mean"
+    attr = dict(study.user_attrs["nutribench"])
+    del attr["objective"]
+    study.set_user_attr("nutribench", attr)
+    assert stored_settings(study).objective == "last"
+    bad = tune(db, "--algo", "ppo", "--study", "x", "--objective", "best", *args)
+    assert "--objective" in one_error_line(bad)

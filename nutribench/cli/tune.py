@@ -54,6 +54,13 @@ def tune_cmd(
         int,
         typer.Option(help="random trials before TPE models the values (and before the median pruner prunes)"),
     ] = 5,
+    objective_rule: Annotated[
+        str,
+        typer.Option(
+            "--objective",
+            help="a trial's objective: 'last' (its value at the last day) or 'late-mean' (the mean of its values after half its days)",
+        ),
+    ] = "last",
     stack: Annotated[
         int,
         typer.Option(
@@ -92,6 +99,7 @@ def tune_cmd(
         sampler_seed=sampler_seed,
         pruner=pruner,
         startup_trials=startup_trials,
+        objective=objective_rule,
     )
     settings.check()
     if trials < 1 or stack < 1:

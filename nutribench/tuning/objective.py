@@ -6,8 +6,11 @@ does not train, a plug-in's, trains job by job with the SB3 engine). Every ``eva
 days each agent's greedy policy plays its seed's validation days (never the test days the
 tables report); its mean return there becomes its share of the never -> planner gap on those
 same days, ``(R - R_never) / (R_planner - R_never)``. The trial's value at that day is the
-interquartile mean (IQM) of the K shares; Optuna's pruner reads it at every evaluation, and
-the value at the last day is the trial's objective. Each agent's final share is kept as the
+interquartile mean (IQM) of the K shares; Optuna's pruner reads it at every evaluation. The
+trial's objective is, as the study's ``objective`` setting says, its value at the last day
+(``last``) or the mean of its values at the evaluations after half its days (``late-mean``:
+a setting that learns slowly and ends well is not ranked below one that starts fast and
+stops, and one lucky last evaluation weighs less). Each agent's final share is kept as the
 trial's user attribute ``shares`` (``"<regime>/<seed>"`` -> share).
 """
 
@@ -150,13 +153,24 @@ class TrialScores:
         return day < self.objective.settings.days and self.trial.should_prune()
 
     def final(self) -> float:
-        """The trial's objective: the IQM of its agents' shares at the last day, each share kept
-        as the user attribute ``shares``; RuntimeError if an agent was not evaluated then."""
-        obj, last = self.objective, self.objective.settings.days
-        final = self.shares.get(last, {})
-        if len(final) != len(obj.jobs):
-            raise RuntimeError(
-                f"trial {self.trial.number}: {len(final)} of {len(obj.jobs)} agents evaluated at day {last}"
-            )
-        self.trial.set_user_attr("shares", {f"{r}/{s}": final[j] for j, (r, s) in enumerate(obj.jobs)})
-        return iqm(np.array(list(final.values())))
+        """The trial's objective (the module docstring): the IQM of its agents' shares at the
+        last day, or the mean of those IQMs over the evaluations after half its days; each
+        agent's last share kept as the user attribute ``shares``. RuntimeError if an agent was
+        not evaluated on a day the objective reads."""
+        obj, settings = self.objective, self.objective.settings
+        days = [settings.days]
+        if settings.objective == "late-mean":
+            days = [
+                d for d in range(settings.eval_every, settings.days + 1, settings.eval_every) if 2 * d > settings.days
+            ]
+        values = [self._value(d) for d in days]
+        last = self.shares[settings.days]
+        self.trial.set_user_attr("shares", {f"{r}/{s}": last[j] for j, (r, s) in enumerate(obj.jobs)})
+        return float(np.mean(values))
+
+    def _value(self, day: int) -> float:
+        """The IQM of the agents' shares at ``day``, every agent evaluated then."""
+        per_day, n = self.shares.get(day, {}), len(self.objective.jobs)
+        if len(per_day) != n:
+            raise RuntimeError(f"trial {self.trial.number}: {len(per_day)} of {n} agents evaluated at day {day}")
+        return iqm(np.array(list(per_day.values())))

@@ -21,6 +21,9 @@ One versioned TOML file per space in ``regimes/search/`` (``<name>.toml``, or
     choices = [5, 10, 20]
     why = "..."
 
+    [kept]                     # a hyperparameter another agent's space searches, kept here
+    gae_lambda = "lambda = 1 is what makes MC Monte Carlo"
+
 Every searched name must be a hyperparameter of the base agent's config model (for a plug-in,
 ``algo = "external"``, a key of its ``[params]`` table), and every range's ends and every
 choice must make a valid agent config (checked when the file is loaded, so a study never
@@ -112,11 +115,19 @@ class SearchSpace(BaseModel):
     agent: str = Field(min_length=1, description="the agent file (name or path) trials start from")
     description: str
     params: dict[Name, Param] = Field(min_length=1)
+    kept: dict[Name, str] = Field(
+        default_factory=dict,
+        description="hyperparameters another agent's space searches that this one keeps at its base value, and why",
+    )
 
     @property
     def sha256(self) -> str:
-        """Content hash of the space (recorded with the study)."""
-        return content_sha256(self.model_dump(mode="json"))
+        """Content hash of the space (recorded with the study; a space without ``kept`` hashes
+        as before the field existed, so its studies resume)."""
+        data = self.model_dump(mode="json")
+        if not data["kept"]:
+            del data["kept"]
+        return content_sha256(data)
 
     def base(self) -> Any:
         """The validated base agent config."""
@@ -180,6 +191,12 @@ def check_space(space: SearchSpace, source: Path | str) -> None:
         raise ConfigError(f"{source}: agent: {e}") from None
     data = base.model_dump(mode="json")
     known = set(data["params"]) if by_entry_point(data["algo"]) else set(data) - set(_IDENTITY)
+    for name in space.kept:
+        if name not in known or name in space.params:
+            raise ConfigError(
+                f"{source}: kept.{name}: not a hyperparameter of agent {base.name!r} it keeps"
+                + (" (it is searched in [params])" if name in space.params else "")
+            )
     for name, param in space.params.items():
         if name not in known:
             where = (

@@ -24,7 +24,8 @@ from __future__ import annotations
 import os
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -42,6 +43,8 @@ GRACE_SECONDS = float(os.environ.get("NUTRIBENCH_TUNE_GRACE", "120"))
 #: the attribute holding the study's fixed settings
 ATTR = "nutribench"
 PRUNERS = ("median", "none")
+#: a trial's objective: its value at the last day, or the mean of its values after half its days
+OBJECTIVES = ("last", "late-mean")
 
 
 class TuneError(UserError, ValueError):
@@ -63,6 +66,7 @@ class StudySettings:
     sampler_seed: int
     pruner: str
     startup_trials: int = 5
+    objective: str = "last"  # a study made before the setting existed scored its last day
 
     def as_attr(self) -> dict[str, Any]:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in self.__dict__.items()}
@@ -93,6 +97,22 @@ class StudySettings:
             raise TuneError("--startup-trials must be >= 1 (the random trials TPE starts from)")
         if self.pruner not in PRUNERS:
             raise TuneError(f"--pruner: {self.pruner!r} is not one of {', '.join(PRUNERS)}")
+        if self.objective not in OBJECTIVES:
+            raise TuneError(f"--objective: {self.objective!r} is not one of {', '.join(OBJECTIVES)}")
+        if self.objective == "late-mean" and self.days // self.eval_every < 2:
+            raise TuneError("--objective late-mean needs two evaluations or more: lower --eval-every")
+
+
+@contextmanager
+def quiet_experimental() -> Iterator[None]:
+    """Optuna's ``ExperimentalWarning`` silenced while the block runs, the caller's warnings
+    filters restored afterwards: the heartbeat and the stale-trial retry are marked
+    experimental since Optuna 2.8; their behaviour here is tested."""
+    import optuna
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+        yield
 
 
 def optuna_storage(db: Any, writer: bool = True) -> Any:
@@ -113,19 +133,17 @@ def optuna_storage(db: Any, writer: bool = True) -> Any:
     if not writer and not has_studies:
         return None
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    # the heartbeat is marked experimental since Optuna 2.8; its behaviour here is tested
-    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning, module="nutribench.tuning")
-    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning, module="optuna")
     from sqlalchemy.exc import IntegrityError, OperationalError, ProgrammingError
 
     for attempt in range(10):
         try:
-            return RDBStorage(
-                url,
-                heartbeat_interval=max(1, round(HEARTBEAT_SECONDS)),
-                grace_period=max(2, round(GRACE_SECONDS)),
-                heartbeat_stale_trial_callback=RetryHeartbeatStaleTrialCallback(max_retry=3),
-            )
+            with quiet_experimental():
+                return RDBStorage(
+                    url,
+                    heartbeat_interval=max(1, round(HEARTBEAT_SECONDS)),
+                    grace_period=max(2, round(GRACE_SECONDS)),
+                    heartbeat_stale_trial_callback=RetryHeartbeatStaleTrialCallback(max_retry=3),
+                )
         except (OperationalError, ProgrammingError, IntegrityError) as e:
             # two drivers starting on a new database: the other is creating Optuna's tables or
             # stamping their revision; once it has, this one finds them there
