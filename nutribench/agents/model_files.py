@@ -33,6 +33,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
 from nutribench.errors import UserError
+from nutribench.safe_write import check_regular_file
 
 #: The most bytes a model zip's weight members may inflate to (their declared sizes, summed).
 MAX_MODEL_BYTES = 1 << 30
@@ -52,7 +53,10 @@ def vec_normalize_path(model_path: str | Path) -> Path:
 def _write_atomically(target: Path, write: Callable[[Path], Any]) -> bool:
     """``write(tmp)`` to a temporary name beside ``target`` (same suffix), then renamed over
     it, so that a write cut short (a full disk, a kill) never leaves a partial ``target``;
-    whatever it left is deleted. False (nothing renamed) if ``write`` wrote no file at that name."""
+    whatever it left is deleted. False (nothing renamed) if ``write`` wrote no file at that name.
+    A device node, a FIFO or a folder at ``target`` is refused first
+    (:func:`nutribench.safe_write.check_regular_file`)."""
+    check_regular_file(target, "model file", ModelFileError)
     tmp = target.with_name(f".{target.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp{target.suffix}")
     try:
         write(tmp)

@@ -30,6 +30,7 @@ import numpy as np
 from nutribench.agents.registry import batched_names
 from nutribench.bench.learn import LearnRun, batched_runs, learn_benchmark, summarize
 from nutribench.report.stats import iqm_bootstrap_ci
+from nutribench.safe_write import atomic_write
 
 ENGINES = ("sb3", "batched")
 
@@ -45,7 +46,8 @@ def _timed_batched_runs(
 def _save(path: Path | None, runs: dict[str, list[LearnRun]], episodes: int, device: str) -> None:
     if path is not None:
         records = [{"engine": e, **dataclasses.asdict(r)} for e in ENGINES for r in runs[e]]
-        path.write_text(json.dumps({"episodes": episodes, "device": device, "runs": records}, default=float))
+        with atomic_write(path, "--save") as tmp:
+            tmp.write_text(json.dumps({"episodes": episodes, "device": device, "runs": records}, default=float))
 
 
 def bench_engines(

@@ -106,6 +106,7 @@ def train_cmd(
     from nutribench.agents import eval_food_streams, evaluate, load_agent_config, train
     from nutribench.agents.api import vec_normalize_path
     from nutribench.config import load_env_config
+    from nutribench.safe_write import check_file_target
     from nutribench.scheduler.grid import MAX_EPISODES, MAX_EVAL_DAYS, MAX_SEED
 
     check_range("--seed", seed, 0, MAX_SEED)
@@ -117,6 +118,9 @@ def train_cmd(
         raise UserError(f"--save {save}: the model file must end in .zip")
     if save is not None and not save.parent.is_dir():
         raise UserError(f"--save {save}: folder {save.parent} does not exist")
+    if save is not None:
+        for written in (save, vec_normalize_path(save), save.with_suffix(".json")):
+            check_file_target(written, "--save", UserError)
     run_dir = None
     if tensorboard is not None:
         check_tensorboard(tensorboard)

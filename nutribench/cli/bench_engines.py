@@ -11,6 +11,7 @@ from rich.table import Table
 
 from nutribench.cli.bench import check_engine_options
 from nutribench.cli.common import DEVICE_HELP, console, split_csv, user_errors
+from nutribench.safe_write import check_file_target
 
 
 @user_errors
@@ -45,6 +46,8 @@ def bench_engines_cmd(
     from nutribench.scheduler.grid import parse_seeds
 
     check_engine_options("batched", device)
+    if save is not None:
+        check_file_target(save, "--save")
     names = split_csv(algos, batched_names(), "algorithm for the batched engine")
     regime_names = split_csv(regimes, list_regimes(), "regime")
     with console.status("training with both engines"):

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import errno
 import functools
-import os
 from pathlib import Path
 
 import typer
@@ -18,6 +17,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from nutribench.errors import UserError
+from nutribench.safe_write import check_folder_target
 
 __all__ = [
     "DEVICE_HELP",
@@ -94,34 +94,18 @@ def check_tensorboard(folder: Path) -> None:
     """``--tensorboard FOLDER``: a UserError (one line) when the tensorboard package is missing
     or ``folder`` cannot be a writable folder; the folder itself is created by the runs."""
     import importlib.util
-    import os
 
     if importlib.util.find_spec("tensorboard") is None:
         raise UserError("--tensorboard needs the tensorboard package: pip install 'nutribench[tensorboard]'")
-    found = next((p for p in (folder, *folder.absolute().parents) if p.exists() or p.is_symlink()), None)
-    if found is not None and not (found.is_dir() and os.access(found, os.W_OK | os.X_OK)):
-        why = "is not a writable folder" if found.is_dir() else "is a file, not a folder"
-        raise UserError(f"--tensorboard {folder}: {found} {why}")
+    check_folder_target(folder, "--tensorboard", UserError, "give a folder for the TensorBoard events")
 
 
 def check_out_dir(folder: Path, option: str = "--out") -> None:
     """``--out FOLDER``: a one-line UserError, before anything is read or written, when
-    ``folder`` cannot be a folder of new files: it is a file, lies below a file, or its nearest
-    existing folder refuses a new entry (tried for real, then removed: permission bits do not
-    bind root, a read-only or virtual file system does). The folder itself is made by the writer."""
-    import tempfile
-
-    found = next((p for p in (folder, *folder.absolute().parents) if p.exists() or p.is_symlink()), None)
-    if found is None:
-        return
-    if not found.is_dir():
-        raise UserError(f"{option} {folder}: {found} is a file, not a folder: give a folder for the files")
-    try:
-        os.rmdir(tempfile.mkdtemp(prefix=".nutribench-probe-", dir=found))
-    except OSError as e:
-        raise UserError(
-            f"{option} {folder}: cannot create files in {found} ({e.strerror or e}): give another folder"
-        ) from None
+    ``folder`` cannot be a folder of new files (:func:`nutribench.safe_write.check_folder_target`:
+    it is a file, a device or a FIFO, lies below one, or its nearest existing folder refuses a
+    new entry). The folder itself is made by the writer."""
+    check_folder_target(folder, option, UserError)
 
 
 def check_range(option: str, value: int, low: int, high: int, why: str = "") -> None:

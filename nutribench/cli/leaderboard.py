@@ -9,7 +9,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import UserError, console, err_console, user_errors
+from nutribench.cli.common import UserError, check_out_dir, console, err_console, user_errors
 
 FORMATS = ("markdown", "csv", "latex")
 
@@ -34,10 +34,15 @@ def leaderboard_cmd(
     code version; rows off the reference grid (5000 days, seeds 0, 21, 9, 2003, 1997, every
     regime) are flagged."""
     from nutribench.report.leaderboard import leaderboard_from_archives, leaderboard_from_db
-    from nutribench.report.output import write_table
+    from nutribench.report.output import TABLE_SUFFIXES, write_table
+    from nutribench.safe_write import check_regular_file
 
     if fmt not in FORMATS:
         raise UserError(f"--format {fmt}: give one of {', '.join(FORMATS)}")
+    if out is not None:  # checked before the table is computed: it takes a while
+        check_out_dir(out)
+        for suffix in TABLE_SUFFIXES:
+            check_regular_file(out / f"leaderboard.{suffix}", "--out", UserError)
     log = lambda msg: err_console.print(msg, style="dim", highlight=False, soft_wrap=True)  # noqa: E731
     table = (
         leaderboard_from_archives(archives, reps, log) if archives is not None else leaderboard_from_db(db, reps, log)

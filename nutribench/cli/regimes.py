@@ -147,6 +147,7 @@ def _create(
     """Regime ``name`` from ``source`` with new ranges: printed, or written to the regimes folder."""
     from nutribench.config import EnvConfig, FoodCatalog, RewardConfig, load_env_config, load_model, regimes_dir
     from nutribench.config.generate import check_regime_name, derive_regime, parse_ranges, regime_to_toml, write_regime
+    from nutribench.safe_write import check_regular_file
 
     check_regime_name(name)
     new_tau = parse_ranges(tau, "--tau") if tau is not None else None
@@ -163,6 +164,7 @@ def _create(
     if not write:
         typer.echo(regime_to_toml(new), nl=False)
         return
+    check_regular_file(path, error=UserError)
     replaced = path.exists()
     if replaced and not force:
         raise UserError(f"{path} already exists: pass --force to overwrite it, or choose another NAME")

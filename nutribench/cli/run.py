@@ -10,7 +10,6 @@ is created and reported as one red line with exit status 2.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -68,6 +67,7 @@ def _check_eval_every(eval_every: int, agent_cfgs) -> None:
 def _check_models_dir(models_dir: Path | None, db: str) -> None:
     """Refuse a models folder that cannot be one (a file, or a path through a file, or not
     writable) before anything runs: each job would train and then fail to save."""
+    from nutribench.safe_write import check_folder_target
     from nutribench.scheduler.registration import RunError
     from nutribench.store.engine import database_url, sqlite_path
 
@@ -75,14 +75,9 @@ def _check_models_dir(models_dir: Path | None, db: str) -> None:
         path = sqlite_path(database_url(db))
         folder, what = (path.parent if path is not None else Path.cwd()) / "models", "the models folder"
     else:
-        folder, what = Path(models_dir), f"--models-dir {models_dir}"
-    found = next((p for p in (folder, *folder.absolute().parents) if p.exists() or p.is_symlink()), None)
-    if found is None or found.is_dir() and os.access(found, os.W_OK | os.X_OK):
-        return
-    why = f"{found} is not a writable folder" if found.is_dir() else f"{found} is a file, not a folder"
-    raise RunError(
-        f"{what}: {why}: give a folder for the trained models" + (" (--models-dir)" if models_dir is None else "")
-    )
+        folder, what = Path(models_dir), "--models-dir"
+    hint = "give a folder for the trained models" + (" (--models-dir)" if models_dir is None else "")
+    check_folder_target(folder, what, RunError, hint)
 
 
 def _check_checkpoint_seconds() -> None:

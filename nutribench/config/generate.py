@@ -24,6 +24,7 @@ from pydantic import ValidationError
 
 from nutribench.config.loading import OBSERVATION_OPTIONS, ConfigError, format_validation_error
 from nutribench.config.models import NUTRIENTS, DelayRanges, FoodCatalog, Regime
+from nutribench.safe_write import atomic_write
 
 DECIMALS = 2
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
@@ -193,20 +194,13 @@ def regime_to_toml(regime: Regime) -> str:
 
 
 def write_regime(regime: Regime, path: Path) -> None:
-    """Write ``regime`` to ``path`` in the layout of :func:`regime_to_toml`, atomically: to a
-    temporary file beside it, then renamed over ``path``. A write that fails (a full disk, no
-    permission) leaves ``path`` as it was (no empty file that would block and hide the name)
-    and is a one-line :class:`ConfigError`."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(regime_to_toml(regime))
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except OSError as e:
-        tmp.unlink(missing_ok=True)
-        raise ConfigError(
-            f"cannot write {path}: {e.strerror or e}: nothing was written (free space or fix the folder, then try again)"
-        ) from None
+    """Write ``regime`` to ``path`` in the layout of :func:`regime_to_toml`, atomically
+    (:func:`nutribench.safe_write.atomic_write`: a unique temporary file beside it, then renamed
+    over ``path``). A device node, a FIFO or a folder at ``path`` is refused, and a write that
+    fails (a full disk, no permission) leaves ``path`` as it was (no empty file that would block
+    and hide the name): each a one-line :class:`ConfigError`."""
+    hint = "nothing was written (free space or fix the folder, then try again)"
+    with atomic_write(path, error=ConfigError, hint=hint) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(regime_to_toml(regime))
+        fh.flush()
+        os.fsync(fh.fileno())

@@ -8,7 +8,6 @@ all of it.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -21,22 +20,20 @@ from nutribench.report.data import Db, ReportError, check_names
 from nutribench.report.figures import FigureResult
 from nutribench.report.palette import label as algo_label
 from nutribench.report.tables import TableResult
+from nutribench.safe_write import atomic_write
 
 PNG_DPI = 150
+#: The files :func:`write_table` writes: ``<stem>.<suffix>`` for each.
+TABLE_SUFFIXES = ("md", "tex", "csv")
 
 
 def write_atomically(path: Path, write: Callable[[Path], Any]) -> Path:
-    """``write(tmp)`` to a temporary file beside ``path``, then renamed to ``path``, its folder
-    made first: a file is whole or absent. A failure to write (a full disk, a read-only folder,
-    a name taken by a folder) is a one-line :class:`ReportError`."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+    """``write(tmp)`` to a unique temporary file beside ``path``, then renamed to ``path``, its
+    folder made first (:func:`nutribench.safe_write.atomic_write`): a file is whole or absent,
+    and a device node, a FIFO or a folder at ``path`` is never replaced. A failure to write (a
+    full disk, a read-only folder) is a one-line :class:`ReportError`."""
+    with atomic_write(path, error=ReportError, hint="give another --out or free the space") as tmp:
         write(tmp)
-        os.replace(tmp, path)
-    except OSError as e:
-        tmp.unlink(missing_ok=True)
-        raise ReportError(f"cannot write {path}: {e.strerror or e}: give another --out or free the space") from None
     return path
 
 
@@ -53,7 +50,7 @@ def write_figure(fig_result: FigureResult | Figure, out_dir: Db, stem: str) -> l
 def write_table(table_result: TableResult, out_dir: Db, stem: str) -> list[Path]:
     """Write ``<out_dir>/<stem>.md``, ``.tex`` and ``.csv``; return the three paths."""
     out = Path(out_dir)
-    texts = {"md": table_result.to_markdown(), "tex": table_result.to_latex(), "csv": table_result.to_csv()}
+    texts = dict(zip(TABLE_SUFFIXES, (table_result.to_markdown(), table_result.to_latex(), table_result.to_csv())))
     return [
         write_atomically(out / f"{stem}.{ext}", lambda tmp, text=text: tmp.write_text(text))
         for ext, text in texts.items()

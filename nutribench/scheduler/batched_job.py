@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import time
 import uuid
 from pathlib import Path
@@ -39,6 +38,7 @@ from nutribench.engine.checkpoint import Checkpoint, checkpoint_files
 from nutribench.engine.device import resolve_device
 from nutribench.engine.train import train_batched
 from nutribench.provenance import collect_metadata, git_state
+from nutribench.safe_write import atomic_write
 from nutribench.scheduler.single_job import check_configs, with_yardsticks
 from nutribench.scheduler.spec import JobFailed, JobResult, JobSpec
 from nutribench.scheduler.worker import JobProgress, Sink
@@ -158,11 +158,8 @@ def _job(spec: JobSpec) -> dict[str, object]:
 
 def write_manifest(path: Path, specs: list[JobSpec]) -> None:
     """Write :func:`manifest` of the batch ``specs`` (to a temporary name, then renamed)."""
-    target = manifest(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps({"job_ids": [s.job_id for s in specs], "jobs": [_job(s) for s in specs]}))
-    os.replace(tmp, target)
+    with atomic_write(manifest(path), "checkpoint manifest") as tmp:
+        tmp.write_text(json.dumps({"job_ids": [s.job_id for s in specs], "jobs": [_job(s) for s in specs]}))
 
 
 def remove_abandoned(folder: Path, specs: list[JobSpec]) -> list[Path]:

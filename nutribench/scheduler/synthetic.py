@@ -25,6 +25,7 @@ import numpy as np
 
 from nutribench.clock import utcnow
 from nutribench.provenance import collect_metadata
+from nutribench.safe_write import atomic_write
 from nutribench.scheduler.spec import JobResult, JobSpec
 from nutribench.scheduler.worker import JobProgress, Sink
 
@@ -92,8 +93,8 @@ def synthetic_job(spec: JobSpec, progress: Sink | None = None) -> JobResult:
                     "reward": float(rng.normal()),
                 }
             )
-    Path(spec.model_path).parent.mkdir(parents=True, exist_ok=True)
-    Path(spec.model_path).write_text("fake model\n")
+    with atomic_write(spec.model_path, "model file") as tmp:
+        tmp.write_text("fake model\n")
     meta = collect_metadata() | {
         "started_at": started,
         "finished_at": utcnow(),

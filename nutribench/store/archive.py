@@ -67,6 +67,7 @@ import numpy as np
 from sqlalchemy import delete, func, insert, select, update
 from sqlalchemy.orm import Session
 
+from nutribench.safe_write import atomic_write, check_file_target
 from nutribench.scheduler.lifecycle import job_state
 
 # the format and the checks live in archive_meta and archive_check; importable here too (valid_name, ...)
@@ -136,14 +137,13 @@ def _datetimes(table: type, row: dict[str, Any]) -> dict[str, Any]:
 
 
 def _check_out(path: Path) -> None:
-    """Refuse, before the database is read, an archive path that cannot be written."""
+    """Refuse, before the database is read, an archive path that cannot be written: a folder,
+    a device node or a FIFO (:func:`nutribench.safe_write.check_file_target`), a missing folder."""
     if path.is_dir():
         raise StoreError(f"db export: {path} is a folder: give the archive's file name, e.g. {path / 'results.npz'}")
-    parent = path.parent
-    if not parent.is_dir():
-        raise StoreError(f"db export: cannot write {path}: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise StoreError(f"db export: cannot write {path}: folder {parent} is not writable")
+    check_file_target(path, "db export", StoreError)
+    if not path.parent.is_dir():
+        raise StoreError(f"db export: cannot write {path}: folder {path.parent} does not exist")
 
 
 def export_results(
@@ -216,13 +216,11 @@ def export_results(
                 f"db export: {store.display} cannot be exported as it is: {e} (export the other jobs with --algos/--regimes)"
             ) from None
         arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        try:
-            np.savez_compressed(tmp, **arrays)
-            os.replace(tmp, path)
-        except OSError as e:
-            tmp.unlink(missing_ok=True)
-            raise StoreError(f"db export: cannot write {path}: {e.strerror or e}") from None
+        with (
+            atomic_write(path, "db export", StoreError, "free space or give another path") as tmp,
+            open(tmp, "wb") as fh,
+        ):
+            np.savez_compressed(fh, **arrays)  # to the open file: numpy adds no .npz to its name
         return counts
     finally:
         store.dispose()

@@ -29,6 +29,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from nutribench.clock import utcnow
 from nutribench.errors import UserError
+from nutribench.safe_write import check_regular_file
 
 BUSY_TIMEOUT_MS = 30_000
 SQLITE_HEADER = b"SQLite format 3\x00"
@@ -96,6 +97,7 @@ def check_sqlite_file(path: Path, *, create: bool) -> None:
 def _check_sqlite_file(path: Path, *, create: bool) -> None:
     if path.is_dir():
         raise StoreError(f"{path} is a directory, not a database file: give a file path to --db")
+    check_regular_file(path, "--db", StoreError)  # a device node or a FIFO: never opened as a database
     if path.exists():
         if path.stat().st_size > 0:
             try:

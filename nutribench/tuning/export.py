@@ -11,13 +11,12 @@ overwritten, and a paper agent's name is refused.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 from nutribench.agents.config import agent_config_to_toml, agents_dir
 from nutribench.agents.registry import paper_names
+from nutribench.safe_write import atomic_write, check_folder_target, check_regular_file
 from nutribench.tuning.space import load_search_space
 from nutribench.tuning.study import TuneError, count_trials, stored_settings
 
@@ -68,18 +67,13 @@ def write_tuned(study: Any, name: str | None = None, folder: Path | None = None)
     """Write the best trial's agent file into ``folder`` (the agents folder by default) and
     return its path; refuse an existing file."""
     cfg, header = tuned_config(study, name)
+    what = "--out" if folder is not None else "the agents folder"
     folder = folder or agents_dir()
+    check_folder_target(folder, what, TuneError, "give a folder for the agent file (--out)")
     path = folder / f"{cfg.name}.toml"
-    if path.exists():
+    check_regular_file(path, what, TuneError)
+    if path.exists() or path.is_symlink():
         raise TuneError(f"{path} exists: a tuned file is never overwritten; give another --name or remove it")
-    folder.mkdir(parents=True, exist_ok=True)
-    text = header + "\n" + agent_config_to_toml(cfg)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{cfg.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with atomic_write(path, what, TuneError, "free space or give another --out") as tmp:
+        tmp.write_text(header + "\n" + agent_config_to_toml(cfg))
     return path
