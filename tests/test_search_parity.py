@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from nutribench.config.loading import ConfigError
-from nutribench.tuning.parity import SHARED_KNOBS, parity_breaches
+from nutribench.tuning.parity import parity_breaches, shared_knobs
 from nutribench.tuning.space import SearchSpace, check_space, load_search_space
 
 AGENTS = ("ppo", "gru_ppo", "mc", "ddqn", "sac")
@@ -42,7 +42,7 @@ def test_every_shared_field_is_a_field_of_its_agent() -> None:
     """The table names real config fields (a typo would make a knob silently unshared)."""
     from nutribench.agents.config import load_agent_config
 
-    for knob, fields_of in SHARED_KNOBS.items():
+    for knob, fields_of in shared_knobs().items():
         for agent, fields in fields_of.items():
             model = type(load_agent_config(agent))
             assert set(fields) <= set(model.model_fields), (knob, agent, fields)
