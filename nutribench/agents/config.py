@@ -90,26 +90,51 @@ def __getattr__(name: str) -> Any:
     return registry.builtin_attribute(__name__, name)
 
 
-def agents_dir() -> Path:
-    """``regimes/agents/`` (or ``$NUTRIBENCH_AGENTS``)."""
+def agent_folders() -> list[Path]:
+    """The folders agent files are looked up in, first match wins: ``$NUTRIBENCH_AGENTS`` (one
+    folder or several, separated as ``PATH`` is) before the shipped ``regimes/agents/``, so a
+    folder of one's own adds to the shipped agents."""
     import os
 
     env = os.environ.get("NUTRIBENCH_AGENTS")
-    return Path(env) if env else regimes_dir() / "agents"
+    own = [Path(p) for p in env.split(os.pathsep) if p] if env else []
+    shipped = regimes_dir() / "agents"
+    return [*own, *([shipped] if shipped not in own else [])]
+
+
+def agents_dir() -> Path:
+    """The first agent folder (:func:`agent_folders`): ``$NUTRIBENCH_AGENTS``'s first, else
+    ``regimes/agents/``; where ``tune best --write`` writes by default."""
+    return agent_folders()[0]
 
 
 def list_agent_configs(folder: Path | None = None) -> list[str]:
-    """Names of the agent config files, those named like a registered algorithm first (the
-    paper's five in its order), then the others by name."""
-    folder = folder or agents_dir()
-    names = sorted(p.stem for p in folder.glob("*.toml")) if folder.is_dir() else []
+    """Names of the agent config files (of ``folder``, or of every agent folder), those named
+    like a registered algorithm first (the paper's five in its order), then the others by name."""
+    folders = [folder] if folder is not None else agent_folders()
+    names = sorted({p.stem for f in folders if f.is_dir() for p in f.glob("*.toml")})
     first = [a for a in registry.names() if a in names]
     return first + [n for n in names if n not in first]
 
 
 def resolve_agent_path(name_or_path: str | Path) -> Path:
-    """A config name (``ppo``) or a path to a TOML file."""
-    return resolve_named_file(name_or_path, agents_dir(), "agent config", list_agent_configs())
+    """A config name (``ppo``: the first agent folder that has ``ppo.toml``; a name in two
+    folders warns which file is used) or a path to a TOML file."""
+    import warnings
+
+    s = str(name_or_path)
+    if s.endswith(".toml") or "/" in s:
+        return resolve_named_file(s, agents_dir(), "agent config", [])
+    found = [f / f"{s}.toml" for f in agent_folders() if (f / f"{s}.toml").is_file()]
+    if not found:
+        folders = ", ".join(map(str, agent_folders()))
+        raise ConfigError(
+            f"unknown agent config '{s}': known are {', '.join(list_agent_configs()) or '(none)'} (files in "
+            f"{folders}; NUTRIBENCH_AGENTS=<folder> adds a folder of your own)"
+        )
+    if len(found) > 1:
+        warnings.warn(f"agent config '{s}': {found[0]} is used, not {found[1]}", stacklevel=2)
+    return found[0]
 
 
 def load_agent_config(name_or_path: str | Path | BaseModel) -> Any:
