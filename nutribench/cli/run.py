@@ -40,12 +40,19 @@ def _check_executor(value: str) -> None:
 def _check_db(db: str) -> None:
     """Refuse a database path that cannot be created or is not SQLite, and an in-memory database
     (every result would be lost), before anything runs."""
-    from nutribench.store.engine import StoreError, check_sqlite_file, database_url, in_memory, sqlite_path
+    from nutribench.store.engine import (
+        StoreError,
+        check_sqlite_file,
+        database_url,
+        hide_secrets,
+        in_memory,
+        sqlite_path,
+    )
 
     url = database_url(db)
     if in_memory(url):
         raise StoreError(
-            f"--db {db}: an in-memory SQLite database is lost when `run` ends, with every result: "
+            f"--db {hide_secrets(db)}: an in-memory SQLite database is lost when `run` ends, with every result: "
             "give a file path (e.g. --db nutribench.db)"
         )
     path = sqlite_path(url)
@@ -150,6 +157,9 @@ def run_cmd(
     ] = None,
     eval_every: Annotated[int, typer.Option(min=0, help=EVAL_EVERY_HELP + "; stored in validation_episodes")] = 0,
     val_episodes: Annotated[int, typer.Option(min=1, help=VAL_EPISODES_HELP)] = 5,
+    yes: Annotated[
+        bool, typer.Option("--yes", "-y", help="start a bare `nutribench run` (the paper grid) without asking")
+    ] = False,
 ) -> None:
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
     from nutribench.store import open_store
@@ -180,6 +190,8 @@ def run_cmd(
         episodes=episodes,
         eval_episodes=eval_episodes,
     )
+    if preset is None and seeds is None and episodes is None and regimes == algos == "all" and not yes:
+        _confirm_paper_grid(grid)
     _check_executor(executor)
     check_engine(engine, batch_size, device)
     _check_models_dir(models_dir, db)
@@ -225,6 +237,32 @@ def run_cmd(
     err_console.print(f"{summary.total} jobs: " + ", ".join(parts), highlight=False)
     if summary.exit_code:
         raise typer.Exit(summary.exit_code)
+
+
+def _interactive() -> bool:
+    """Whether a person can answer a question (standard input is a terminal)."""
+    import sys
+
+    return sys.stdin.isatty()
+
+
+def _confirm_paper_grid(grid) -> None:
+    """A bare ``nutribench run`` starts the paper grid (about 30 CPU-hours): say what it starts
+    and ask on a terminal; elsewhere (a script) refuse in one line unless ``--yes`` or a
+    ``--preset`` is given."""
+    import nutribench.agents.registry as registry
+    from nutribench.agents.config import load_agent_config
+
+    hours = grid.cpu_hours(lambda name: registry.algorithm(load_agent_config(name)).cost)
+    what = (
+        f"the paper grid: {len(grid.cells())} jobs ({len(grid.regimes)} regimes x {len(grid.algos)} agents x "
+        f"{len(grid.seeds)} seeds) x {grid.episodes} days, about {hours:.0f} CPU-hours with the SB3 engine "
+        "(an estimate from the agents' relative costs)"
+    )
+    if not _interactive():
+        raise UserError(f"a bare `nutribench run` starts {what}: pass --yes, or name a smaller --preset (smoke, quick)")
+    if not typer.confirm(f"Start {what}?", default=False, err=True):
+        raise typer.Exit(1)
 
 
 @user_errors

@@ -13,13 +13,18 @@ Every preset evaluates each trained agent on ``EVAL_EPISODES`` = 5 episodes.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from nutribench.errors import UserError
 
 EVAL_EPISODES = 5
 DEFAULT_PRESET = "paper"
+
+#: CPU seconds of one training day of relative cost 1 (PPO's) with the SB3 engine, calibrated on
+#: the paper grid's measured 30 CPU-hours (docs/reproduce.md: 35 regime-seed pairs x 5000 days x
+#: the five agents' costs 1 + 1 + 1 + 5 + 5) on the project's 2-core machine
+SB3_SECONDS_PER_COST_DAY = 30 * 3600 / (35 * 5000 * 13)
 
 
 class GridError(UserError, ValueError):
@@ -55,6 +60,13 @@ class Grid:
     def cells(self) -> list[tuple[str, str, int]]:
         """(regime, algo, seed) for every job of the grid, regime-major."""
         return expand(self.regimes, self.algos, self.seeds)
+
+    def cpu_hours(self, cost_of: Callable[[str], float]) -> float:
+        """An estimate of the grid's CPU time with the SB3 engine: each job's days times its
+        agent's relative cost (``cost_of(agent config name)``, PPO's day = 1) times
+        :data:`SB3_SECONDS_PER_COST_DAY`."""
+        units = sum(cost_of(algo) for _, algo, _ in self.cells()) * self.episodes
+        return units * SB3_SECONDS_PER_COST_DAY / 3600
 
     def __len__(self) -> int:
         return len(self.regimes) * len(self.algos) * len(self.seeds)
