@@ -39,6 +39,7 @@ import scipy.stats
 from rliable import metrics as rly
 
 from nutribench.report.figures import sort_regimes
+from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
 from nutribench.report.profiles import (
     improvement_probabilities,
@@ -149,6 +150,9 @@ class AggregateResult:
     improvement: pd.DataFrame  # group, x, y, p, lo, hi
     algos: list[str]
     reps: int
+    #: group -> agent -> its own regimes, for an agent that lacks regimes the others have: it is
+    #: aggregated over its own (its rows in ``intervals``), apart from the others
+    partial: dict[str, dict[str, list[str]]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
 
@@ -174,34 +178,57 @@ def aggregate_scores(
     used: dict[str, list[str]] = {}
     intervals, profiles, improvement = [], [], []
     taus = profile_taus(scores["score"])
+    partial: dict[str, dict[str, list[str]]] = {}
     for group, regimes in groups.items():
-        ss = score_set(scores, regimes, algos)
+        full, short = _full_and_partial(scores, regimes, algos)
+        ss = score_set(scores, regimes, full)
         notes += ss.notes  # a regime left out is named once, whichever groups it is in
         used[group] = ss.regimes
-        if not ss.regimes:
-            if regimes:
-                notes.append(
-                    f"{GROUPS.get(group, group)}: no regime with a score for every agent, nothing to aggregate"
-                )
-            continue
-        intervals.append(interval_estimates(ss, reps, seed).assign(group=group))
-        profiles.append(performance_profiles(ss, taus, reps, seed).assign(group=group))
-        improvement.append(improvement_probabilities(ss, reps, seed).assign(group=group))
+        if not ss.regimes and regimes and full:
+            notes.append(f"{GROUPS.get(group, group)}: no regime with a score for every agent, nothing to aggregate")
+        if ss.regimes:
+            intervals.append(interval_estimates(ss, reps, seed).assign(group=group))
+            profiles.append(performance_profiles(ss, taus, reps, seed).assign(group=group))
+            improvement.append(improvement_probabilities(ss, reps, seed).assign(group=group))
+        for algo in short:  # over its own regimes, apart: it never shrinks the others' regimes
+            own = score_set(scores, regimes, [algo])
+            if own.regimes:
+                partial.setdefault(group, {})[algo] = own.regimes
+                intervals.append(interval_estimates(own, reps, seed).assign(group=group))
 
     def frame(parts: list[pd.DataFrame], cols: list[str]) -> pd.DataFrame:
         out = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=[c for c in cols if c != "group"])
         return out.reindex(columns=cols)
 
+    for algo in [a for a in algos if any(a in by for by in partial.values())]:
+        spans = "; ".join(
+            f"{GROUPS.get(g, g).split(' (')[0]}: {regime_span(by[algo])}" for g, by in partial.items() if algo in by
+        )
+        notes.append(
+            f"{algo_label(algo)} lacks regimes the others have: aggregated over its own ({spans}), "
+            "not comparable with the others' aggregates nor in their profiles and P(X > Y)"
+        )
     return AggregateResult(
         scores=scores,
         regimes=used,
         algos=algos,
         reps=reps,
+        partial=partial,
         notes=list(dict.fromkeys(notes)),
         intervals=frame(intervals, ["group", "algo", "aggregate", "point", "lo", "hi", "runs", "regimes"]),
         profiles=frame(profiles, ["group", "algo", "tau", "fraction", "lo", "hi"]),
         improvement=frame(improvement, ["group", "x", "y", "p", "lo", "hi"]),
     )
+
+
+def _full_and_partial(scores: pd.DataFrame, regimes: Iterable[str], algos: Sequence[str]) -> tuple[list, list]:
+    """The agents with a score on every one of ``regimes`` that any agent has one on, and the
+    others (a recorded agent run on one regime, say), in ``algos``' order."""
+    finite = scores[np.isfinite(scores["score"].to_numpy(dtype=float)) & scores["regime"].isin(list(regimes))]
+    have = finite.groupby("algo")["regime"].agg(set).to_dict()
+    wanted = set().union(*have.values()) if have else set()
+    full = [a for a in algos if have.get(a, set()) >= wanted]
+    return full, [a for a in algos if a not in full and have.get(a)]
 
 
 def aggregate_from_eval(
@@ -222,9 +249,14 @@ def regime_span(regimes: Sequence[str]) -> str:
     return ", ".join(regimes)
 
 
-def group_title(res: AggregateResult, group: str) -> str:
+def group_title(res: AggregateResult, group: str, algo: str | None = None) -> str:
     """``all regimes (run0-run6)``, ``delayed regimes (run1-run6)``, or with the regimes
-    actually aggregated over where some were left out (``delayed regimes (run1, run3)``)."""
+    actually aggregated over where some were left out (``delayed regimes (run1, run3)``); for an
+    ``algo`` aggregated over its own regimes (:attr:`AggregateResult.partial`), those, marked
+    (``all regimes (run3 only: this agent's)``)."""
+    own = res.partial.get(group, {}).get(algo) if algo is not None else None
+    if own:
+        return f"{GROUPS.get(group, group).split(' (')[0]} ({regime_span(own)} only: this agent's)"
     regimes = res.regimes.get(group, [])
     name = GROUPS.get(group, group).split(" (")[0]
     return f"{name} ({regime_span(regimes)})" if regimes else name

@@ -8,7 +8,15 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from nutribench.report.aggregate import AGGREGATE_LABELS, AGGREGATES, GAMMA, GROUPS, AggregateResult, group_title
+from nutribench.report.aggregate import (
+    AGGREGATE_LABELS,
+    AGGREGATES,
+    GAMMA,
+    GROUPS,
+    AggregateResult,
+    group_title,
+    regime_span,
+)
 from nutribench.report.figure_parts import budget_caption, budget_cell
 from nutribench.report.figures import FigureResult, _legend_rows, budget_seeds_text, draw_notes, set_title
 from nutribench.report.palette import Palette, palette
@@ -45,7 +53,7 @@ def aggregate_figure(
 
     colors = colors or palette(res.algos)
     algos = res.algos
-    groups = [g for g in GROUPS if res.regimes.get(g)]
+    groups = [g for g in GROUPS if res.regimes.get(g) or res.partial.get(g)]
     fig = Figure(figsize=(16, 9.6), layout="constrained")
     grid = fig.add_gridspec(2, 4, height_ratios=[1, 1.15])
     ypos = {a: len(algos) - 1 - i for i, a in enumerate(algos)}
@@ -74,7 +82,7 @@ def aggregate_figure(
                 ax.plot([r.point, r.point], [y - 0.17, y + 0.17], color="k", lw=1.8, solid_capstyle="butt")
                 drawn.append({"panel": agg, "group": group, "algo": r.algo, "point": r.point, "lo": r.lo, "hi": r.hi})
         _yardstick_lines(ax)
-        ax.set_yticks(list(ypos.values()), [algo_label(a) for a in ypos] if k == 0 else [""] * len(ypos))
+        ax.set_yticks(list(ypos.values()), [_agent_label(res, a) for a in ypos] if k == 0 else [""] * len(ypos))
         ax.set_ylim(-0.6, len(algos) - 0.4)
         _percent_axis(ax.xaxis)
         ax.set_title(AGGREGATE_LABELS[agg] + (" (lower is better)" if agg == "optimality_gap" else ""), fontsize=10)
@@ -158,6 +166,12 @@ def aggregate_figure(
     return FigureResult(fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "point", "lo", "hi"]), notes)
 
 
+def _agent_label(res: AggregateResult, algo: str) -> str:
+    """The agent's name, flagged with its own regimes when it lacks some the others have."""
+    own = next((by[algo] for by in res.partial.values() if algo in by), None)
+    return algo_label(algo) + (f"\n(own regimes: {regime_span(own)})" if own else "")
+
+
 def _width_notes(res: AggregateResult) -> list[str]:
     """Why some agents have no bar or a bar of no width: one seed per regime leaves nothing to
     resample (no interval, the tick alone); seeds that all score alike give every resample the
@@ -203,7 +217,7 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
     budgets = {a: budget_cell(ev[ev["algo"] == a]) for a in res.algos} if ev is not None and not ev.empty else {}
     rows, fmt_rows = [], []
     for group in GROUPS:
-        if not res.regimes.get(group):
+        if not res.regimes.get(group) and not res.partial.get(group):
             continue
         iv = res.intervals[res.intervals["group"] == group]
         imp = res.improvement[res.improvement["group"] == group]
@@ -213,13 +227,13 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
                 continue
             row = {
                 "group": group,
-                "regimes": ",".join(res.regimes[group]),
+                "regimes": ",".join(res.partial.get(group, {}).get(algo) or res.regimes[group]),
                 "algo": algo,
                 "runs": int(mine["runs"].iloc[0]),
             }
             if budgets:
                 row["budget"] = budgets.get(algo, "?")
-            f = {"regimes": group_title(res, group), "algorithm": algo_label(algo), "runs": row["runs"]}
+            f = {"regimes": group_title(res, group, algo), "algorithm": algo_label(algo), "runs": row["runs"]}
             if budgets:
                 f["budget (days)"] = budgets.get(algo, "?")
             for agg in AGGREGATES:
