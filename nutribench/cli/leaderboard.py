@@ -27,18 +27,20 @@ def leaderboard_cmd(
         Optional[Path], typer.Option("--out", help="also write leaderboard.md, .tex and .csv into this folder")
     ] = None,
     fmt: Annotated[str, typer.Option("--format", help="what to print: markdown, csv or latex")] = "markdown",
-    reps: Annotated[int, typer.Option(min=100, help="bootstrap resamples of the runs")] = 2000,
+    reps: Annotated[int, typer.Option(help="bootstrap resamples of the runs (100 to 100,000)")] = 2000,
 ) -> None:
     """Every agent ranked by the IQM of its share of the never -> planner gap (95 % interval)
     over the regimes it covers, with its per-regime shares, budget, seeds, engine, protocol and
     code version; rows off the reference grid (5000 days, seeds 0, 21, 9, 2003, 1997, every
-    regime) are flagged."""
-    from nutribench.report.leaderboard import leaderboard_from_archives, leaderboard_from_db
+    regime) are flagged. With --archives, an archive that fails a check is refused (named,
+    with its reason, on stderr and in the caption) and the others are ranked."""
+    from nutribench.report.leaderboard import check_reps, leaderboard_from_archives, leaderboard_from_db
     from nutribench.report.output import TABLE_SUFFIXES, write_table
     from nutribench.safe_write import check_regular_file
 
     if fmt not in FORMATS:
         raise UserError(f"--format {fmt}: give one of {', '.join(FORMATS)}")
+    check_reps(reps)  # a trillion resamples would be a MemoryError after minutes of reading
     if out is not None:  # checked before the table is computed: it takes a while
         check_out_dir(out)
         for suffix in TABLE_SUFFIXES:

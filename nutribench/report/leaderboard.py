@@ -23,9 +23,17 @@ description names the study), ``variant`` (a built-in algorithm with other setti
 ``algo = "external"`` config with an entry point, trained by ``nutribench run``),
 ``recorded`` (an agent trained elsewhere: :class:`nutribench.Recorder`, ``nutribench evaluate``).
 
+Each row says how its evaluation days were checked (``checked``): ``replayed, not re-run``: an
+archive's days are replayed from their stored foods and actions on import (the foods the
+seed's test days, the regime the installed one where it bears a shipped name and version),
+which proves the actions fit the regime, not that an agent chose them; no model is re-run.
+
 DataFrame in, :class:`~nutribench.report.tables.TableResult` out (:func:`leaderboard_table`);
-:func:`load_leaderboard` reads a database or a folder of archives (each archive checked on
-import as ``nutribench db import`` checks it).
+:func:`leaderboard_from_db` reads a database, :func:`leaderboard_from_archives` a folder of
+archives, each checked on import as ``nutribench db import`` checks it: an archive refused is
+listed (its one-line reason) and the others are ranked. A regime of a database that bears a
+shipped regime's name and version but other content is never scored on the shipped
+yardsticks (its days are left out of the ranking, and the caption says so).
 """
 
 from __future__ import annotations
@@ -46,6 +54,7 @@ from nutribench.report.palette import order as sort_algos
 from nutribench.report.scores import DEFAULT_REPS
 from nutribench.report.tables import TableResult
 from nutribench.scheduler.grid import PRESETS
+from nutribench.store.archive_installed import disagreeing_archives, forged_regimes
 
 #: The reference grid a row is checked against: the paper's budget and seeds.
 REFERENCE_BUDGET: int = PRESETS["paper"].episodes
@@ -55,6 +64,22 @@ PROTOCOLS = ("paper config", "tuned", "variant", "plug-in", "recorded")
 TUNED_PREFIX = "tuned by nutribench tune"
 
 Log = Callable[[str], None]
+#: The most bootstrap resamples a leaderboard draws (``--reps``): each agent's interval holds
+#: resamples x runs numbers, and 100,000 already pins a 95 % interval far below its rounding.
+MAX_REPS = 100_000
+MIN_REPS = 100
+#: How each row's evaluation days were checked (the ``checked`` column): replayed from the stored
+#: foods and actions, which proves they fit the regime; no model was run again.
+CHECKED = "replayed, not re-run"
+
+
+def check_reps(reps: object) -> int:
+    """``reps`` as a number of bootstrap resamples (:data:`MIN_REPS` .. :data:`MAX_REPS`);
+    :class:`ReportError` in one line otherwise (a trillion would be a MemoryError)."""
+    if not isinstance(reps, int) or isinstance(reps, bool) or not MIN_REPS <= reps <= MAX_REPS:
+        shown = f"{reps:,}" if isinstance(reps, int) else repr(reps)
+        raise ReportError(f"--reps {shown}: give {MIN_REPS:,} to {MAX_REPS:,} bootstrap resamples")
+    return reps
 
 
 #: what of an agent config is no setting: its version and its description (prose)
@@ -161,6 +186,7 @@ def leaderboard_rows(
             "seeds": " ".join(map(str, seeds)),
             "engine": "/".join(sorted({str(e) for e in mine_jobs["engine"].dropna()})) or "?",
             "code": _code_version(mine_jobs),
+            "checked": CHECKED,
         }
         if covered:
             iv = interval_estimates(score_set(scores, covered, [algo]), reps=reps)
@@ -203,6 +229,7 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
                 "engine": r["engine"],
                 "protocol": r["protocol"],
                 "code": r["code"],
+                "checked": r.get("checked", CHECKED),
                 "flags": r["flags"] or "-",
             }
         )
@@ -213,7 +240,8 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
         "greedy full-information planner) over the regimes it covers, with a 95 % stratified-bootstrap interval over "
         f"runs; per regime, the mean share over seeds. Reference grid: {REFERENCE_BUDGET} training days, seeds "
         f"{', '.join(map(str, REFERENCE_SEEDS))}, every regime of the board ({regime_span(board)}); a row that departs "
-        "from it is flagged, and a row lacking regimes is ranked on those it has"
+        "from it is flagged, and a row lacking regimes is ranked on those it has. Checked: every row's evaluation days "
+        "are stored foods and actions, replayed on the regime (an archive's, on import), not re-run from a model"
     )
     return TableResult("leaderboard", title, rows, pd.DataFrame(fmt))
 
@@ -225,9 +253,11 @@ def leaderboard_from_db(db, reps: int = DEFAULT_REPS, log: Log | None = None) ->
     from nutribench.report.references import eval_day_references
     from nutribench.store import open_store, read_episode_metrics
 
+    reps = check_reps(reps)
     store = open_store(db)
     try:
         ev = read_episode_metrics(store.engine, phase="eval")  # the training days, by far the most, are not read
+        forged = forged_regimes(store.engine)
     finally:
         store.dispose()
     if ev.empty:
@@ -235,7 +265,17 @@ def leaderboard_from_db(db, reps: int = DEFAULT_REPS, log: Log | None = None) ->
     check_names(ev["algo"].unique(), "agent config", str(db))
     check_names(ev["regime"].unique(), "regime", str(db))
     data = prepare(ev)
-    return leaderboard_of(data.eval, eval_day_references(data.eval, log=log), db, data.notes, reps)
+    notes = list(data.notes)
+    scored = data.eval
+    if forged:
+        keep = [(r, int(v)) not in forged for r, v in zip(scored["regime"], scored["regime_version"])]
+        scored = scored[keep]
+        notes.append(
+            ", ".join(f"{r} v{v}" for r, v in sorted(forged))
+            + " of this database has other content than the installed regime file of that name and version: "
+            "its days are not scored on the installed yardsticks"
+        )
+    return leaderboard_of(data.eval, eval_day_references(scored, log=log), db, notes, reps)
 
 
 def leaderboard_of(
@@ -269,23 +309,49 @@ def leaderboard_of(
 
 def leaderboard_from_archives(folder: str | Path, reps: int = DEFAULT_REPS, log: Log | None = None) -> TableResult:
     """The leaderboard of every archive (``*.npz``, written by ``nutribench db export``) in
-    ``folder``, each checked whole on import into a temporary database."""
+    ``folder``, each checked whole on import into a temporary database. An archive that fails
+    a check is refused (logged, and listed in the caption with its one-line reason) and the
+    others are ranked; so are all the archives that disagree on the content of a config of
+    one name and version that this installation does not ship (which of them is right
+    cannot be told; a shipped one is held against the installed file on import).
+    :class:`ReportError` when no archive is left."""
     from nutribench.store.archive import import_results
+    from nutribench.store.engine import StoreError
 
+    reps = check_reps(reps)
     folder = Path(folder)
     archives = sorted(folder.glob("*.npz")) if folder.is_dir() else []
     if not archives:
         raise ReportError(f"{folder}: no archives (*.npz) there: `nutribench db export FILE.npz` writes one")
+    refused = dict(disagreeing_archives(archives))  # path -> one line, naming the archive
     with tempfile.TemporaryDirectory(prefix="nutribench-leaderboard-") as tmp:
         db = str(Path(tmp) / "leaderboard.db")
         for path in archives:
-            import_results(path, db)
+            if path in refused:
+                continue
+            try:
+                import_results(path, db)
+            except StoreError as e:
+                reason = str(e).removeprefix("db import: ").removesuffix("; nothing imported")
+                refused[path] = reason.replace(str(path), path.name, 1)
+                continue
             if log:
                 log(f"imported {path.name}")
-        return leaderboard_from_db(db, reps=reps, log=log)
+        listed = [refused[p] for p in archives if p in refused]
+        if len(refused) == len(archives):
+            raise ReportError(f"{folder}: every archive was refused ({'; '.join(listed)})")
+        for reason in listed:
+            if log:
+                log(f"refused: {reason}")
+        table = leaderboard_from_db(db, reps=reps, log=log)
+    if refused:
+        table.title += f" (refused, not ranked: {'; '.join(listed)})"
+    return table
 
 
 __all__ = [
+    "CHECKED",
+    "MAX_REPS",
     "PROTOCOLS",
     "REFERENCE_BUDGET",
     "REFERENCE_SEEDS",
@@ -294,6 +360,7 @@ __all__ = [
     "leaderboard_of",
     "leaderboard_rows",
     "leaderboard_table",
+    "check_reps",
     "protocols",
     "same_settings",
 ]

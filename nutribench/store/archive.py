@@ -35,9 +35,11 @@ characters at most), as files and figures are named after them; the meta's count
 the arrays'; seeds, counts and wall times non-negative, overshoot ratios in 0..1, texts at
 most 65,536 characters, no infinity in the meta. Before anything is decompressed, the
 members' declared sizes (at most 1 GiB in all) and each ``.npy`` header's shape (no larger
-than its member) are read (:func:`~nutribench.store.archive_check.check_sizes`). Every
-evaluation day of a real job is replayed from its stored foods and actions on the archive's
-regime, and its steps and metrics must agree (:mod:`nutribench.store.archive_replay`); the
+than its member) are read, no member name twice (:mod:`~nutribench.store.archive_zip`). No
+text may hold a NUL (PostgreSQL stores none; refused on every backend). A config bearing a
+shipped name and version must have the shipped content (:mod:`~nutribench.store.archive_installed`).
+Every evaluation day's foods must be the seed's test days, and each is replayed from its
+stored foods and actions on the archive's regime, and its steps and metrics must agree (:mod:`nutribench.store.archive_replay`); the
 training days cannot be replayed. A stored model path is never trusted: the import drops it (``model_path``
 NULL; an archive carries no model files, and a path from another machine names nothing
 here). The configs' and jobs' ``source`` (the file or script they came from on the

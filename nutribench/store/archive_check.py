@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import json
 import os
-import zipfile
 from typing import Any
 
 import numpy as np
 
+from nutribench.store.archive_installed import check_installed
 from nutribench.store.archive_meta import (
     _INT32,
     _META_KEYS,
@@ -32,16 +32,12 @@ from nutribench.store.archive_meta import (
     _Invalid,
     _reason,
     _short,
+    inner_nul,
 )
 from nutribench.store.archive_replay import replay_evaluations
+from nutribench.store.archive_zip import check_sizes
 from nutribench.store.engine import StoreError
 from nutribench.store.models import PHASES
-
-#: The most bytes an archive may inflate to (its members' declared sizes, summed; the committed
-#: ones inflate to 17 MB at most): ``db import`` holds about this much at once, never more.
-MAX_ARCHIVE_BYTES = 1 << 30
-#: The most members (arrays) an archive may have.
-MAX_MEMBERS = 1024
 
 
 def _load(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -78,44 +74,6 @@ def _load(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.nd
     if not isinstance(meta, dict):
         raise StoreError(f"{not_archive}: its meta is not a JSON object")
     return meta, arrays
-
-
-def check_sizes(path: str | os.PathLike[str]) -> None:
-    """The archive's declared sizes within :data:`MAX_ARCHIVE_BYTES`, before anything is
-    decompressed: each member's size in the zip directory (a reader stops there) and each
-    array's shape in its ``.npy`` header (what NumPy allocates up front), summed; StoreError."""
-    where = f"db import: {path}"
-    if not zipfile.is_zipfile(path):
-        return  # not a zip: np.load reads no more than the file, and the reader refuses it
-    with zipfile.ZipFile(path) as zf:
-        infos = zf.infolist()
-        if len(infos) > MAX_MEMBERS:
-            raise StoreError(f"{where}: {len(infos):,} arrays (at most {MAX_MEMBERS:,}); nothing imported")
-        declared = sum(i.file_size for i in infos)
-        if declared > MAX_ARCHIVE_BYTES:
-            raise StoreError(
-                f"{where}: it would inflate to {declared:,} bytes, more than the {MAX_ARCHIVE_BYTES:,} an archive "
-                "may hold; nothing imported"
-            )
-        for info in infos:
-            with zf.open(info) as fh:
-                try:
-                    version = np.lib.format.read_magic(fh)
-                except ValueError:
-                    continue  # not an array: read as the bytes it declares, and refused as no column
-                if version not in ((1, 0), (2, 0)):
-                    raise StoreError(f"{where}: array {info.filename} is .npy version {version}, not 1.0 or 2.0")
-                read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-                try:
-                    shape, _, dtype = read(fh)
-                except ValueError as e:
-                    raise StoreError(f"{where}: array {info.filename} has a bad header ({_reason(e)})") from None
-            nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
-            if nbytes > info.file_size:
-                raise StoreError(
-                    f"{where}: array {info.filename} declares {nbytes:,} bytes in a member of {info.file_size:,}; "
-                    "nothing imported"
-                )
 
 
 def read_archive(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -208,6 +166,11 @@ def _check_arrays(arrays: dict[str, np.ndarray], n_jobs: int) -> dict[str, dict[
                 length = getattr(col.type, "length", None)
                 if length is not None and arr.dtype.itemsize // 4 > length and (np.char.str_len(arr) > length).any():
                     raise _Invalid(f"column {key} holds strings longer than {length} characters")
+                nul = np.flatnonzero(inner_nul(arr))
+                if nul.size:
+                    raise _Invalid(
+                        f"column {key} row {nul[0]} holds a NUL byte, which no text column stores (PostgreSQL refuses it)"
+                    )
             cols[col.name] = arr
         if n and (job.min() < 0 or job.max() >= n_jobs):
             bad = int(job.min()) if job.min() < 0 else int(job.max())
@@ -369,6 +332,7 @@ def _verify(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
     if unknown:
         raise _Invalid(f"meta: unknown field {_short(unknown[0])}")
     configs = _check_configs(meta)
+    check_installed(meta)
     per_job = _check_jobs(meta, configs)
     _fill_optional(arrays)
     tables = _check_arrays(arrays, len(meta["jobs"]))

@@ -107,8 +107,36 @@ def _unsafe(value: Any) -> Any:
     return value
 
 
+def _nul(value: Any) -> str | None:
+    """Where ``value`` (a string, or a JSON body's keys and strings) holds a NUL character, which
+    PostgreSQL stores in no text or JSON column (and SQLite would, so it is refused on both):
+    ``"character 12"`` or ``"key 'a' character 3"``; None if it holds none."""
+    if isinstance(value, str):
+        k = value.find("\x00")
+        return None if k < 0 else f"character {k}"
+    if isinstance(value, dict):
+        for key, v in value.items():
+            where = _nul(key) if isinstance(key, str) else None
+            if where is not None:
+                return f"a key, {where}"
+            where = _nul(v)
+            if where is not None:
+                return f"{_short(key, 30)} {where}"
+    if isinstance(value, list):
+        for n, v in enumerate(value):
+            where = _nul(v)
+            if where is not None:
+                return f"[{n}] {where}"
+    return None
+
+
 def _check_value(col: Any, value: Any, what: str) -> None:
-    """``value`` (from the meta's JSON) fits column ``col``."""
+    """``value`` (from the meta's JSON) fits column ``col``; no NUL character in a text."""
+    where = _nul(value)
+    if where is not None:
+        raise _Invalid(
+            f"{what}: {col.name} holds a NUL byte ({where}), which no text column stores (PostgreSQL refuses it)"
+        )
     if value is None:
         if not col.nullable:
             raise _Invalid(f"{what}: {col.name} is null")
@@ -281,3 +309,14 @@ def _check_jobs(meta: dict[str, Any], configs: dict[tuple[str, str, int], dict[s
     if len(fakes) > 1:
         raise _Invalid("it mixes a dry run's jobs (fake) with real results")
     return out
+
+
+def inner_nul(arr: np.ndarray) -> np.ndarray:
+    """Which strings of a ``<U`` column hold a NUL character: NumPy pads with NULs and drops
+    the trailing ones, so a NUL is one followed by another character of the string."""
+    width = arr.dtype.itemsize // 4
+    if not len(arr) or not width:
+        return np.zeros(len(arr), dtype=bool)
+    filled = np.ascontiguousarray(arr).view(np.uint32).reshape(len(arr), width) != 0
+    last = np.where(filled.any(axis=1), width - np.argmax(filled[:, ::-1], axis=1), 0)
+    return filled.sum(axis=1) < last

@@ -7,8 +7,12 @@ replay gives. The first disagreement is one line naming the job and the day.
 
 Not replayed: the training days (the agent's own exploration, which only the agent can play
 again), the entropy (the policy's, which the archive does not carry) and a dry run's synthetic
-jobs (``fake``: never results). A replayed day proves that the stored steps are a day of that
-regime, not which agent played it nor that it was the job's evaluation stream.
+jobs (``fake``: never results). Before a day is replayed its foods are checked to be the
+job's test days: a job of seed ``s`` evaluates on ``eval_food_streams(regime, s, n)``
+(:mod:`nutribench.agents.days`), drawn from the seed alone, so the stored foods of every
+evaluation day must be that stream's, drawn again here from the archive's regime and the
+job's seed (easier days chosen by hand are refused). A replayed day proves that the stored
+steps are a day of that regime on the seed's test days, not which agent played it.
 """
 
 from __future__ import annotations
@@ -48,6 +52,21 @@ def _env_config(row: dict[str, Any]) -> EnvConfig:
     return cfg
 
 
+def _check_test_days(cfg: EnvConfig, i: int, job: dict[str, Any], stored: np.ndarray) -> None:
+    """The stored foods ``(n, H)`` of job ``i``'s evaluation days are its seed's test days."""
+    from nutribench.agents.days import eval_food_streams
+
+    expected = eval_food_streams(cfg, int(job["seed"]), len(stored))
+    bad = (stored != expected).any(axis=1)
+    if bad.any():
+        d = int(np.argmax(bad))
+        raise _Invalid(
+            f"job {i} ({job['regime'][0]} x {job['agent'][0]} seed {job['seed']}) evaluation day {d}: its foods are "
+            f"not the test day {d} of seed {job['seed']} (eval_food_streams draws a job's evaluation days from its "
+            "seed alone; the days were changed)"
+        )
+
+
 def _close(stored: np.ndarray, replayed: np.ndarray) -> np.ndarray:
     return np.isclose(stored, replayed, rtol=RTOL, atol=ATOL) | (np.isnan(stored) & np.isnan(replayed))
 
@@ -74,6 +93,10 @@ def replay_evaluations(
     for key, members in by_regime.items():
         cfg = _env_config(regimes[key])
         H = cfg.reward.horizon
+        for i in members:
+            n = int(per_job["eval_episodes"][i])
+            stored = st["food"][order[step_start[i] : step_start[i] + n * H]].reshape(n, H)
+            _check_test_days(cfg, i, jobs[i], stored)
         days = [(i, d) for i in members for d in range(int(per_job["eval_episodes"][i]))]
         for lo in range(0, len(days), CHUNK):
             chunk = days[lo : lo + CHUNK]

@@ -1,0 +1,230 @@
+"""An archive's configs held against the installed ones: a regime, a reward, a food catalog
+or a built-in agent config that an archive names with the **name and version of a file
+this installation ships** must have that file's content. The report and the leaderboard
+score a regime's days on the installed file's never/planner yardsticks (looked up by name
+and version), so a ``run0`` v2 with other reward weights, its sha256 recomputed, would be
+scored on the real ``run0``'s yardsticks, and in a folder of archives it would make the
+genuine ``run0`` v2 clash. Same name and version with other content is the error that says
+"bump the version": refused here, in one line, before anything is written.
+
+A built-in agent config is held to the installed file's settings (its description may
+differ: prose). A config whose name the installation does not ship, or whose version differs from the
+installed file's (an older ``run0`` v1, a regime of the observation ladder), is not compared:
+nothing of the installation describes it, and the yardsticks leave it out (by version).
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nutribench.store.archive_meta import _Invalid, _short
+
+#: (kind, name, version) -> (sha256 of the installed content, the file it comes from)
+Installed = dict[tuple[str, str, int], tuple[str, str]]
+
+
+def _signature(folder: Path) -> tuple[tuple[str, int, int], ...]:
+    """The installed files' names, sizes and times: a changed file is read again."""
+    out = []
+    for p in sorted([*folder.glob("*.toml"), *(folder / "agents").glob("*.toml")]):
+        try:
+            st = p.stat()
+        except OSError:
+            continue
+        out.append((str(p), st.st_size, st.st_mtime_ns))
+    return tuple(out)
+
+
+def installed_configs() -> Installed:
+    """Every config this installation ships: its regimes (and the reward and food catalog
+    each names) and its built-in agent configs (``regimes/agents/``); a file that does not
+    load is left out (nothing to compare with). Empty without a regimes folder."""
+    from nutribench.config.loading import ConfigError, regimes_dir
+
+    try:
+        folder = regimes_dir()
+    except ConfigError:
+        return {}
+    return _installed(str(folder), _signature(folder))
+
+
+@lru_cache(maxsize=4)
+def _installed(folder_name: str, signature: tuple[tuple[str, int, int], ...]) -> Installed:
+    from nutribench.agents.config import agent_config_sha256, parse_agent_config
+    from nutribench.config.loading import ConfigError, content_sha256, list_regimes, load_env_config, read_toml
+
+    folder = Path(folder_name)
+    out: Installed = {}
+    try:
+        names = list_regimes(folder)
+    except ConfigError:
+        names = []
+    for name in names:
+        try:
+            cfg = load_env_config(folder / f"{name}.toml")
+        except (ConfigError, OSError, ValueError):
+            continue
+        where = f"{folder.name}/{name}.toml"
+        out[("regime", cfg.name, int(cfg.version))] = (cfg.sha256, where)
+        for kind, part in (("reward", cfg.reward), ("food catalog", cfg.catalog)):
+            out.setdefault((kind, part.name, int(part.version)), (content_sha256(part.model_dump(mode="json")), where))
+    for path in sorted((folder / "agents").glob("*.toml")):
+        try:
+            cfg = parse_agent_config(read_toml(path), path)
+        except (ConfigError, OSError, ValueError):
+            continue
+        out[("agent config", str(cfg.name), int(cfg.version))] = (
+            agent_config_sha256(cfg),
+            f"{folder.name}/agents/{path.name}",
+        )
+        out[("agent settings", str(cfg.name), int(cfg.version))] = (_settings_sha256(cfg), "")
+    return out
+
+
+#: what of an agent config is no setting: its version and its description (prose)
+NOT_SETTINGS = ("version", "description")
+
+
+def _settings_sha256(cfg: Any) -> str:
+    from nutribench.agents.config import agent_config_content
+    from nutribench.config.loading import content_sha256
+
+    return content_sha256({k: v for k, v in agent_config_content(cfg).items() if k not in NOT_SETTINGS})
+
+
+def _body_settings_sha256(body: Any) -> str | None:
+    """The settings hash of a stored agent config body, read through its model; None for one
+    that does not validate."""
+    from nutribench.agents.config import parse_agent_config
+    from nutribench.config.loading import ConfigError
+
+    if not isinstance(body, dict):
+        return None
+    try:
+        return _settings_sha256(parse_agent_config(body))
+    except (ConfigError, ValueError, TypeError):
+        return None
+
+
+def _part_sha256(kind: str, body: Any) -> str | None:
+    """The content hash of a regime body's reward or catalog, read through its model (as the
+    installed one is); None for one that does not validate (the replay refuses it)."""
+    from nutribench.config.loading import content_sha256
+    from nutribench.config.models import FoodCatalog, RewardConfig
+
+    model = RewardConfig if kind == "reward" else FoodCatalog
+    try:
+        return content_sha256(model.model_validate(body).model_dump(mode="json"))
+    except (TypeError, ValueError):
+        return None
+
+
+def check_installed(meta: dict[str, Any], installed: Installed | None = None) -> None:
+    """Every config of the (checked) ``meta`` that bears an installed config's name and
+    version has its content; :class:`_Invalid` naming the first that has not."""
+    installed = installed_configs() if installed is None else installed
+    if not installed:
+        return
+
+    def clash(kind: str, name: Any, version: Any, sha: str | None, what: str) -> None:
+        have = installed.get((kind, name, version)) if isinstance(name, str) and isinstance(version, int) else None
+        if have is not None and sha is not None and sha != have[0]:
+            raise _Invalid(
+                f"{what} has other content than the installed {kind} {name} v{version} ({have[1]}): a config "
+                "with a shipped name and version must be the shipped one (a changed config bumps its version)"
+            )
+
+    for row in meta["regimes"]:
+        what = f"regime {_short(row['name'])} v{row['version']}"
+        clash("regime", row["name"], row["version"], row["sha256"], what)
+        body = row["body"]
+        for kind, key in (("reward", "reward"), ("food catalog", "catalog")):
+            part = body.get(key)
+            if isinstance(part, dict):
+                name, version = part.get("name"), part.get("version")
+                if isinstance(name, str) and isinstance(version, int) and (kind, name, version) in installed:
+                    clash(kind, name, version, _part_sha256(kind, part), f"{what}'s {kind} {_short(name)} v{version}")
+    for row in meta["agent_configs"]:
+        # a built-in agent's config: its settings must be the shipped file's (the prose may differ)
+        ident = ("agent config", row["name"], row["version"])
+        if ident in installed and row["sha256"] != installed[ident][0]:
+            settings = installed[("agent settings", row["name"], row["version"])][0]
+            if _body_settings_sha256(row["body"]) != settings:
+                raise _Invalid(
+                    f"agent config {_short(row['name'])} v{row['version']} has other settings than the installed "
+                    f"{installed[ident][1]} of that name and version: a config with a shipped name and version must "
+                    "be the shipped one (a changed config bumps its version)"
+                )
+
+
+def forged_regimes(engine) -> set[tuple[str, int]]:
+    """(name, version) of the regimes of a database that bear an installed regime's name and
+    version but other content (:mod:`nutribench.store.archive_installed`)."""
+    from sqlalchemy import select
+    from sqlalchemy.orm import Session
+
+    from nutribench.store import RegimeConfig
+
+    installed = installed_configs()
+    with Session(bind=engine) as s:
+        rows = s.execute(select(RegimeConfig.name, RegimeConfig.version, RegimeConfig.sha256)).all()
+    return {
+        (name, int(version))
+        for name, version, sha in rows
+        if ("regime", name, int(version)) in installed and installed[("regime", name, int(version))][0] != sha
+    }
+
+
+def _peek_configs(path: Path) -> set[tuple[str, str, int, str]] | None:
+    """(kind, name, version, sha256) of the configs an archive's meta lists, read without the
+    full check (sizes first); None for a file whose meta cannot be read (its import says why)."""
+    from nutribench.store.archive_zip import check_sizes
+
+    try:
+        check_sizes(path)
+        with zipfile.ZipFile(path) as zf, zf.open("meta.npy") as fh:
+            raw = np.lib.format.read_array(fh, allow_pickle=False)
+        meta = json.loads(raw.tobytes().decode())
+        out = set()
+        for key, kind in (("regimes", "regime"), ("agent_configs", "agent config")):
+            for row in meta[key]:
+                ident = (kind, row["name"], row["version"], row["sha256"])
+                if all(isinstance(x, str) for x in (ident[1], ident[3])) and type(ident[2]) is int:
+                    out.add(ident)
+        return out
+    except Exception:  # noqa: BLE001 - bytes from anywhere: the import refuses it with the reason
+        return None
+
+
+def disagreeing_archives(archives: list[Path]) -> list[tuple[Path, str]]:
+    """The archives that list a config (name and version not shipped with this installation)
+    whose content another archive of the folder lists otherwise, each with the reason."""
+
+    installed = installed_configs()
+    holders: dict[tuple[str, str, int], dict[str, list[Path]]] = {}
+    for path in archives:
+        for kind, name, version, sha in _peek_configs(path) or ():
+            if kind != "regime" or (kind, name, version) not in installed:  # an installed regime: held to its file
+                holders.setdefault((kind, name, version), {}).setdefault(sha, []).append(path)
+    out: dict[Path, str] = {}
+    for (kind, name, version), by_sha in sorted(holders.items()):
+        if len(by_sha) < 2:
+            continue
+        every = sorted({p for paths in by_sha.values() for p in paths})
+        shipped = installed.get((kind, name, version), ("", ""))[0]
+        for path in every:
+            if path in by_sha.get(shipped, ()):
+                continue  # the installed config's content: the others are refused
+            others = ", ".join(p.name for p in every if p != path)
+            out.setdefault(
+                path,
+                f"{path.name}: its {kind} {name} v{version} has other content in {others}: the archives disagree on what that "
+                "version is, and which is right cannot be told (a changed config bumps its version)",
+            )
+    return sorted(out.items())
