@@ -54,7 +54,7 @@ def study_rows(study) -> dict:
         "pruned: value when stopped": (
             f"{np.median(at_half):+.3f} median, {max(at_half):+.3f} best" if at_half else "n/a"
         ),
-        "pruned above the v1 pick at day %d" % half: sum(v >= v1.intermediate_values.get(half, np.inf) for v in at_half),
+        f"pruned above the v1 pick at day {half}": sum(v >= v1.intermediate_values.get(half, np.inf) for v in at_half),
     }
 
 
