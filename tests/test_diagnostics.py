@@ -71,7 +71,10 @@ def _run(tmp: Path, engine: str, days: int) -> dict:
     agents = tmp / "agents"
     shutil.copytree(REPO / "regimes" / "agents", agents)
     ddqn = agents / "ddqn.toml"
-    ddqn.write_text(ddqn.read_text().replace("learning_starts = 10000", "learning_starts = 100"))
+    # a changed config is a new version (a shipped name and version holds the shipped content:
+    # `db export` and `db import` refuse another)
+    text = ddqn.read_text().replace("learning_starts = 10000", "learning_starts = 100")
+    ddqn.write_text(re.sub(r"(?m)^version = \d+", "version = 900", text, count=1))
     mp = pytest.MonkeyPatch()
     mp.setenv("NUTRIBENCH_AGENTS", str(agents))
     mp.delenv("NUTRIBENCH_DB", raising=False)

@@ -223,13 +223,18 @@ def test_a_read_only_database_is_read_by_the_read_only_commands(regimes, tmp_pat
 
 
 # --------------------------------------------------------------------------- the run's summary
-def test_the_progress_after_a_takeover_counts_the_jobs_taken_over(regimes, tmp_path):
+@pytest.mark.parametrize("stops", ["while it runs the others", "while it waits"])
+def test_the_progress_after_a_takeover_counts_the_jobs_taken_over(regimes, tmp_path, monkeypatch, stops):
     """A run that takes over a crashed driver's job said "3 done, ... of 2 to run": the jobs to
-    run were counted once, at its start. Those it takes over are its own to run from then on."""
+    run were counted once, at its start. Those it takes over are its own to run from then on,
+    whether the job goes stale while the run still has others to claim (a claim takes it with
+    them: issue 53, which a heartbeat set to go stale a second later hit only on a busy machine)
+    or while the run waits for it. The stale rule reads a clock the test moves, not the wall's."""
     from datetime import timedelta
 
     from sqlalchemy import create_engine, text
 
+    from nutribench.scheduler import driver, lifecycle
     from nutribench.scheduler.driver import run_grid
     from nutribench.scheduler.lifecycle import STALE_AFTER_S
     from nutribench.scheduler.synthetic import synthetic_job
@@ -237,16 +242,40 @@ def test_the_progress_after_a_takeover_counts_the_jobs_taken_over(regimes, tmp_p
 
     db = tmp_path / "r.db"
     assert run_grid(db, ["run0"], ["ppo"], [0, 1, 2], 2, 1, workers=1, job_fn=synthetic_job, display=False).done == 3
+    t0 = utcnow()
+    clock = {"now": t0}  # the database's clock, as the driver's lifecycle reads it
+    monkeypatch.setattr(lifecycle, "db_now", lambda conn: clock["now"])
     engine = create_engine(f"sqlite:///{db}")
-    with engine.begin() as conn:  # seeds 0 and 1 to run, seed 2 held by a driver whose heartbeat stops now
+    with engine.begin() as conn:  # seeds 0 and 1 to run, seed 2 held by a driver alive at t0
         for table in ("episodes", "eval_steps"):
             conn.execute(text(f"DELETE FROM {table}"))
         conn.execute(text("UPDATE jobs SET status='pending', owner=NULL WHERE seed < 2"))
         conn.execute(
-            text("UPDATE jobs SET status='running', owner='crashed', heartbeat_at=:b WHERE seed = 2"),
-            {"b": utcnow() - timedelta(seconds=STALE_AFTER_S - 1)},
+            text("UPDATE jobs SET status='running', owner='crashed', heartbeat_at=:b WHERE seed = 2"), {"b": t0}
         )
     engine.dispose()
+
+    def heartbeat_stops() -> None:
+        clock["now"] = t0 + timedelta(seconds=STALE_AFTER_S + 1)
+
+    if stops == "while it runs the others":  # once the run claimed seed 0: its next claims take seed 1, then seed 2
+        claim = driver.claim_jobs
+
+        def claim_then_stop(*args, **kwargs):
+            jobs = claim(*args, **kwargs)
+            if jobs:
+                heartbeat_stops()
+            return jobs
+
+        monkeypatch.setattr(driver, "claim_jobs", claim_then_stop)
+    else:  # once seeds 0 and 1 are done and the run waits for seed 2
+        wait = driver._Run.wait_for_others
+
+        def stop_then_wait(run):
+            heartbeat_stops()
+            return wait(run)
+
+        monkeypatch.setattr(driver._Run, "wait_for_others", stop_then_wait)
     res = runner.invoke(app, run_cli_args(db, "--workers", "1", seeds="0,1,2", episodes=2), env=FAKE)
     out = " ".join(res.output.split())
     assert res.exit_code == 0, res.output
@@ -261,3 +290,39 @@ def test_an_agent_file_whose_algo_is_not_a_name_is_one_line(regimes, tmp_path, v
     line = one_error_line(runner.invoke(app, run_cli_args(tmp_path / "r.db", algos="ddqn", episodes=2), env=FAKE))
     assert "ddqn.toml: algo: unknown algorithm" in line, line
     assert not (tmp_path / "r.db").exists()
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [
+        ("--episode", "1000000000000000000000000000000"),
+        ("--episode", str(2**63)),
+        ("--episode", str(2**31)),
+        ("--seed", "1000000000000000000000000000000"),
+        ("--seed", "-1"),
+    ],
+)
+def test_a_trajectory_number_past_the_database_integer_is_one_line(regimes, tmp_path, option, value):
+    """Issue 52: ``report --trajectory --episode 1000000000000000000000000000000`` was an
+    OverflowError traceback (the number met the database's integer in the query)."""
+    from nutribench.scheduler.driver import run_grid
+    from nutribench.scheduler.synthetic import synthetic_job
+
+    db = tmp_path / "r.db"
+    assert run_grid(db, ["run0"], ["ppo"], [0], 2, 1, workers=1, job_fn=synthetic_job, display=False).done == 1
+    picked = {"--seed": "0", "--episode": "0", option: value}
+    args = [
+        "report",
+        "--trajectory",
+        "--algo",
+        "ppo",
+        "--regime",
+        "run0",
+        "--db",
+        str(db),
+        "--out",
+        str(tmp_path / "o"),
+    ]
+    line = one_error_line(runner.invoke(app, [*args, "--seed", picked["--seed"], "--episode", picked["--episode"]]))
+    assert line.startswith(f"error: {option} {value[:24]}: give a value from 0 to "), line
+    assert not (tmp_path / "o").exists()

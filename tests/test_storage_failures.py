@@ -246,3 +246,78 @@ def test_the_db_option_reads_nutribench_db(tmp_path, monkeypatch) -> None:
     monkeypatch.setenv("NUTRIBENCH_DB", str(where))
     res = CliRunner().invoke(app, ["status"])
     assert res.exit_code == 2 and str(where) in res.output.replace("\n", ""), res.output
+
+
+# --------------------------------------------------------------------------- every secret a URL holds (issue 52)
+@pytest.mark.parametrize(
+    ("given", "shown"),
+    [
+        (f"postgresql://lab:p@ss@{SECRET}@localhost/db", "postgresql://lab:***@localhost/db"),
+        (f"postgresql://lab:p%40ss%40{SECRET}@localhost/db", "postgresql://lab:***@localhost/db"),
+        (
+            f"postgresql://localhost/db?password={SECRET}&sslmode=require",
+            "postgresql://localhost/db?password=***&sslmode=require",
+        ),
+        (
+            f"postgresql+psycopg://lab@h:5432/db?sslpassword={SECRET}&passfile={SECRET}&connect_timeout=3",
+            "postgresql+psycopg://lab@h:5432/db?connect_timeout=3&passfile=***&sslpassword=***",
+        ),
+        (f"postgresql://h/db?sslkey={SECRET}&access_token={SECRET}", "postgresql://h/db?access_token=***&sslkey=***"),
+        (
+            f"postgresql://lab:{SECRET}@/db?host=/tmp&client_secret={SECRET}",
+            "postgresql://lab:***@/db?client_secret=***&host=%2Ftmp",
+        ),
+    ],
+)
+def test_a_url_is_shown_without_any_of_its_secrets(given: str, shown: str) -> None:
+    """A password as ``?password=`` was printed as is, and an unencoded ``@`` in one showed its
+    end (``lab:***@ss@SECRET@...``): the host starts after the last ``@``, and every query
+    parameter named like a secret is hidden, wherever the URL is shown."""
+    from nutribench.store.engine import database_url, display_url, hide_secrets
+
+    url = database_url(given)
+    assert display_url(url) == shown
+    assert SECRET not in hide_secrets(given) and hide_secrets(given).count("***") == shown.count("***")  # as given
+    assert url.host in (None, "localhost", "h")  # the driver is given the host, not a part of the password
+    cmd = schema.db_command("nutribench status", url)
+    assert SECRET not in cmd and '--db "$NUTRIBENCH_DB"' in cmd
+
+
+def test_an_unencoded_at_belongs_to_the_password() -> None:
+    from nutribench.store.engine import database_url
+
+    url = database_url(f"postgresql+psycopg://lab:p@ss@{SECRET}@localhost:5433/db")
+    assert (url.username, url.password, url.host, url.port) == ("lab", f"p@ss@{SECRET}", "localhost", 5433)
+    url = database_url("postgresql://me@corp@localhost/db")  # no password: the user name holds it
+    assert (url.username, url.password, url.host) == ("me@corp", None, "localhost")
+    plain = schema.db_command("nutribench status", database_url("postgresql://lab@h/db?sslmode=require"))
+    assert "--db 'postgresql://lab@h/db?sslmode=require'" in plain  # nothing secret: as given, to paste
+
+
+@pytest.mark.parametrize(
+    ("command", "url"),
+    [
+        (["status"], f"postgresql+psycopg://lab:p@ss@{SECRET}@127.0.0.1:1/db?password={SECRET}&connect_timeout=2"),
+        (["status"], f"postgresql://lab:p@ss@{SECRET}@localhost:notaport/db?password={SECRET}"),
+        (["status"], f"postgresql+nope://lab:p@ss@{SECRET}@localhost/db?sslpassword={SECRET}"),
+        (["run", "--regimes", "run0", "--algos", "ppo"], f"sqlite:///:memory:?password={SECRET}"),
+    ],
+)
+def test_an_error_about_a_url_shows_none_of_its_secrets(command, url) -> None:
+    """The refused URL (unparsable, unknown driver, nobody listening, in memory) in one line,
+    its secrets hidden."""
+    res = CliRunner().invoke(app, [*command, "--db", url])
+    assert res.exit_code == 2 and res.output.startswith("error:"), res.output
+    assert SECRET not in res.output and "***" in res.output and "Traceback" not in res.output, res.output
+
+
+def test_an_error_line_hides_the_secrets_of_any_url_in_it(capsys) -> None:
+    """The last line of defence: a message that formats a ``--db`` URL as given (one place
+    might) is printed without its secrets."""
+    from nutribench.cli.common import print_error
+
+    print_error(
+        f"x holds no evaluation days yet: `nutribench run --db postgresql://lab:p@ss@{SECRET}@h/db?token={SECRET}`"
+    )
+    err = capsys.readouterr().err
+    assert SECRET not in err and "postgresql://lab:***@h/db?token=***" in err, err

@@ -265,3 +265,59 @@ def test_a_zip_bomb_of_weights_is_refused_before_it_inflates(saved, tmp_path: Pa
     monkeypatch.setattr(mf, "MAX_MODEL_BYTES", 2 << 20)
     with pytest.raises(ModelFileError, match="would inflate"):
         TrainedAgent.load(path)
+
+
+@pytest.mark.parametrize(
+    ("edit", "named"),
+    [
+        (lambda cfg: cfg.update(net_arch=[40000, 40000, 40000]), "net_arch [40000, 40000, 40000]"),
+        (lambda cfg: cfg.update(net_arch=[10**12]), "net_arch [1000000000000]"),
+    ],
+)
+def test_a_sidecar_whose_layers_the_weights_do_not_hold_is_refused_before_building(
+    saved, tmp_path: Path, monkeypatch, edit, named
+):
+    """Issue 52: ``net_arch = [40000, 40000, 40000]`` in a sidecar built a network of 3.2 billion
+    parameters before its weights were looked at (``RuntimeError ... tried to allocate 6400000000
+    bytes``). The parameters the config implies are weighed against the zip's tensors first."""
+    import nutribench.agents.registry as registry
+
+    _, original = saved
+    path = tmp_path / "big.zip"
+    path.write_bytes(original.read_bytes())
+    side = json.loads(original.with_suffix(".json").read_text())
+    edit(side["config"])
+    path.with_suffix(".json").write_text(json.dumps(side))
+
+    def never(*args, **kwargs):
+        raise AssertionError("a model was built")
+
+    monkeypatch.setattr(registry, "make_model", never)
+    with pytest.raises(ModelFileError) as refused:
+        TrainedAgent.load(path)
+    line = str(refused.value)
+    assert "\n" not in line and line.startswith(f"{path.with_suffix('.json')}: its config's layers ({named})"), line
+    assert "parameters, but the weights of big.zip hold" in line and "not built" in line, line
+
+    side["algo"] = "external"  # a plug-in's SB3 policy_kwargs, through load_plugin_model
+    side["config"] = {"algo": "external", "name": "big", "version": 1, "description": "x", "entry_point": "m:make"}
+    side["config"]["params"] = {"policy_kwargs": {"net_arch": {"pi": [40000, 40000], "vf": [40000, 40000]}}}
+    path.with_suffix(".json").write_text(json.dumps(side))
+    with pytest.raises(ModelFileError, match=r"at least 3,200,160,000 parameters, but the weights of big\.zip hold"):
+        load_plugin_model(path, never)
+
+
+def test_the_shipped_agents_layers_are_within_their_weights():
+    """The check above never refuses a model its config built: the fewest parameters each
+    shipped agent file's layers imply are no more than its built policy holds."""
+    from nutribench.agents.config import load_agent_config
+    from nutribench.agents.model_files import _regime_spaces, implied_parameters, stand_in_env
+    from nutribench.agents.registry import make_model, names
+
+    spaces = _regime_spaces({"provenance": {"regime": "run3"}})
+    for algo in names():
+        cfg = load_agent_config(algo)
+        model = make_model(cfg, stand_in_env(spaces, algo), seed=0, horizon=50)
+        named, fewest = implied_parameters(cfg.model_dump(mode="json"))
+        held = sum(t.numel() for t in model.policy.state_dict().values())
+        assert named and 0 < fewest <= held, (algo, named, fewest, held)

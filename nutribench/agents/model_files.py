@@ -173,11 +173,81 @@ def read_weights(path: str | Path) -> tuple[dict[str, Any], dict[str, Any] | Non
     return params, variables
 
 
-def rebuild_from_weights(path: str | Path, build: Callable[[VecEnv], BaseAlgorithm], spaces: Any) -> BaseAlgorithm:
+def _is_width(v: Any) -> bool:
+    return type(v) is int and v > 0
+
+
+def _mlp_fewest(widths: Any) -> int:
+    """The fewest weights an MLP with hidden layers ``widths`` holds: each layer's weights from
+    the one before (at least one input, at least one output after the last); 0 if ``widths``
+    is not a list of positive integers."""
+    if not isinstance(widths, list) or not widths or not all(map(_is_width, widths)):
+        return 0
+    return widths[0] + sum(a * b for a, b in zip(widths, widths[1:])) + widths[-1]
+
+
+def implied_parameters(config: Any) -> tuple[str, int]:
+    """The layer sizes an agent config (a sidecar's ``config``, as data) names, and the fewest
+    parameters a model built from them holds: the built-in agents' ``net_arch`` (an MLP) and
+    ``hidden_size`` (a GRU: 3 x hidden x hidden recurrent weights), a plug-in's
+    ``params.policy_kwargs.net_arch`` (SB3's: a list, or a table of lists such as ``pi``/``vf``).
+    ``("", 0)`` when it names none."""
+    if not isinstance(config, dict):
+        return "", 0
+    named, fewest = [], 0
+    params = config.get("params")
+    kwargs = params.get("policy_kwargs") if isinstance(params, dict) else None
+    plugin_arch = kwargs.get("net_arch") if isinstance(kwargs, dict) else None
+    for where, arch in (("net_arch", config.get("net_arch")), ("policy_kwargs.net_arch", plugin_arch)):
+        lists = arch.values() if isinstance(arch, dict) else [arch]
+        n = sum(_mlp_fewest(v) for v in lists)
+        if n:
+            named.append(f"{where} {arch}")
+            fewest += n
+    hidden = config.get("hidden_size")
+    if _is_width(hidden):
+        named.append(f"hidden_size {hidden}")
+        fewest += 3 * hidden * hidden
+    return ", ".join(named), fewest
+
+
+def _numel(tensors: Any) -> int:
+    if isinstance(tensors, th.Tensor):
+        return tensors.numel()
+    if isinstance(tensors, dict):
+        return sum(_numel(v) for v in tensors.values())
+    if isinstance(tensors, (list, tuple)):
+        return sum(_numel(v) for v in tensors)
+    return 0
+
+
+def check_layer_sizes(path: str | Path, config: Any, policy: Any) -> None:
+    """Refuse, in one line and before anything is built, a sidecar whose layer sizes
+    (:func:`implied_parameters`) make more parameters than the zip's ``policy`` weights hold:
+    ``net_arch = [40000, 40000, 40000]`` beside a small model was a network of 3.2 billion
+    parameters allocated (a RuntimeError traceback, or the memory of the machine) before the
+    weights were compared with it."""
+    named, fewest = implied_parameters(config)
+    held = _numel(policy)
+    if fewest > held:
+        raise ModelFileError(
+            f"{Path(path).with_suffix('.json')}: its config's layers ({_one_line(named, 120)}) make at least {fewest:,} "
+            f"parameters, but the weights of {Path(path).name} hold {held:,}: the sidecar does not describe "
+            "this model; not built"
+        )
+
+
+def rebuild_from_weights(
+    path: str | Path, build: Callable[[VecEnv], BaseAlgorithm], spaces: Any, config: Any = None
+) -> BaseAlgorithm:
     """The model ``build(env)`` makes, on a stand-in env with ``spaces``, holding the weights
-    of the SB3 zip ``path`` (exactly the tensors it was saved with)."""
-    model = build(stand_in_env(spaces, str(path)))
+    of the SB3 zip ``path`` (exactly the tensors it was saved with). The weights are read
+    first (their size is bounded), and ``config`` (the sidecar's agent config, as data) is
+    checked against them before anything is built (:func:`check_layer_sizes`)."""
+    env = stand_in_env(spaces, str(path))
     params, variables = read_weights(path)
+    check_layer_sizes(path, config, params["policy"])
+    model = build(env)
     try:
         model.set_parameters(params, exact_match=True, device="cpu")
     except (ValueError, RuntimeError, KeyError) as e:
@@ -203,7 +273,7 @@ def load_plugin_model(path: str | Path, make_agent: Callable[[dict[str, Any], An
             f"{path}: its sidecar records no spaces (saved by an older nutribench): load it with SB3 "
             "yourself if you trust the file"
         )
-    return rebuild_from_weights(path, lambda env: make_agent(dict(params), env, 0), side["spaces"])
+    return rebuild_from_weights(path, lambda env: make_agent(dict(params), env, 0), side["spaces"], side["config"])
 
 
 def vec_normalize_stats(vn: VecNormalize) -> dict[str, Any]:
@@ -281,7 +351,7 @@ def load_saved_model(
         spaces = side.get("spaces") or _regime_spaces(side)
         if spaces is not None:
             build = lambda env: make_model(config, env, seed=0, horizon=LOAD_HORIZON)  # noqa: E731
-            return rebuild_from_weights(path, build, spaces)
+            return rebuild_from_weights(path, build, spaces, side["config"])
         if not trust:
             raise ModelFileError(
                 f"{path}: its sidecar records no spaces nor a regime of this installation (saved by an older "

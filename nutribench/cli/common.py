@@ -46,8 +46,15 @@ err_console = Console(stderr=True)
 
 
 def print_error(e: BaseException | str) -> None:
-    """One red ``error:`` line on stderr; the message is printed as is (no rich markup)."""
-    err_console.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
+    """One red ``error:`` line on stderr; the message is printed as is (no rich markup), but
+    for the secrets of any URL in it (:func:`nutribench.store.engine.hide_secrets`: a message
+    that formats a ``--db`` URL as given still shows no password)."""
+    text = str(e)
+    if "://" in text:
+        from nutribench.store.engine import hide_secrets_in
+
+        text = hide_secrets_in(text)
+    err_console.print(f"[bold red]error:[/] {escape(text)}", highlight=False, soft_wrap=True)
 
 
 #: errors of the operating system that only ever mean a path the user gave cannot be one

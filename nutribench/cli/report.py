@@ -10,7 +10,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import UserError, check_out_dir, console, err_console, user_errors
+from nutribench.cli.common import UserError, check_out_dir, check_range, console, err_console, user_errors
 
 
 def _split(values: list[str] | None) -> list[str]:
@@ -139,6 +139,11 @@ def report_cmd(
         raise UserError(
             "--algo, --regime and --seed pick a trajectory or diagnostics: add --trajectory or --diagnostics"
         )
+    from nutribench.scheduler.grid import MAX_EPISODES, MAX_SEED
+
+    if seed is not None:  # past the database's integer: an OverflowError traceback where it was compared
+        check_range("--seed", seed, 0, MAX_SEED)
+    check_range("--episode", episode, 0, MAX_EPISODES - 1, "an evaluation episode's number as the database holds it")
     check_out_dir(out)
     log = lambda msg: err_console.print(msg, style="yellow", highlight=False, soft_wrap=True)  # noqa: E731
     paths: list[Path] = []

@@ -190,8 +190,6 @@ def run_cmd(
         episodes=episodes,
         eval_episodes=eval_episodes,
     )
-    if preset is None and seeds is None and episodes is None and regimes == algos == "all" and not yes:
-        _confirm_paper_grid(grid)
     _check_executor(executor)
     check_engine(engine, batch_size, device)
     _check_models_dir(models_dir, db)
@@ -201,6 +199,8 @@ def run_cmd(
     _check_checkpoint_seconds()
     _, agent_cfgs = load_grid_configs(grid)  # a broken config file fails here, before the database exists
     _check_eval_every(eval_every, agent_cfgs)
+    if preset is None and seeds is None and episodes is None and regimes == algos == "all" and not yes:
+        _confirm_paper_grid(grid)  # after every check of the options, before the database exists
     job_fn = default_job_fn()
     try:
         summary = run_grid(

@@ -280,6 +280,7 @@ def read_eval_metrics(db) -> pd.DataFrame:
     are not read). :class:`nutribench.store.StoreError` for a database that cannot be read,
     :class:`CompareError` when it holds no evaluation days."""
     from nutribench.store import open_store, read_episode_metrics
+    from nutribench.store.schema import db_command
 
     store = open_store(db)
     try:
@@ -287,7 +288,9 @@ def read_eval_metrics(db) -> pd.DataFrame:
     finally:
         store.dispose()
     if ev.empty:
-        raise CompareError(f"{store.display} holds no evaluation days yet: `nutribench run --db {db}` fills it")
+        raise CompareError(
+            f"{store.display} holds no evaluation days yet: {db_command('nutribench run', store.url)} fills it"
+        )
     return ev
 
 

@@ -148,7 +148,7 @@ def build_diagnostics(
             cells = have[["algo", "regime"]].drop_duplicates().sort_values(["algo", "regime"])
             shown = ", ".join(f"{a}/{r}" for a, r in cells.itertuples(index=False))
             where = f"; it has them for {shown}"
-        raise ReportError(f"no training diagnostics for {which} in {db}{why or where}")
+        raise ReportError(f"no training diagnostics for {which} in {store.display}{why or where}")
     # per seed: the job with the largest budget, the newest if several
     jobs = rows[["seed", "budget", "job_id"]].drop_duplicates().sort_values(["seed", "budget", "job_id"])
     keep = jobs.groupby("seed").tail(1)["job_id"]

@@ -127,7 +127,7 @@ class _Run:
         self.resumed: dict[int, int] = {}  # job id -> days trained before this run (resumed batches)
         self.attempted: set[int] = set()
         self.exhausted = False
-        self.planned = 0  # jobs runnable when the run started (for the ETA)
+        self.planned = 0  # jobs this run runs: runnable at its start, and any it took over since
         self.summary = RunSummary(total=len(job_ids))
 
     def fill(self) -> None:
@@ -152,6 +152,7 @@ class _Run:
                         "ret": None,
                         "t0": time.monotonic(),
                     }
+                self.planned = max(self.planned, len(self.attempted))  # a job taken over here: "3 done of 2 to run"
                 submit, sink = self.handle.executor.submit, self.handle.sink
                 if pool.batched:
                     self.in_flight[submit(execute_batch, self.batch_fn, specs, sink)] = specs
@@ -242,7 +243,9 @@ class _Run:
             held, claimable_at = held_elsewhere(self.store, self.job_ids, self.owner)
             claimable = count_claimable(self.store, [j for j in self.job_ids if j not in self.attempted])
             if claimable:  # taken over (a stopped heartbeat) or given back by the other driver
-                self.planned += claimable  # they are this run's to run now: "3 done of 2 to run" otherwise
+                # they are this run's to run now: those it ran and these (a job counted at the start, taken
+                # by another driver and left again, counts once)
+                self.planned = max(self.planned, len(self.attempted) + claimable)
                 self.exhausted = False
                 self.loop()
                 continue

@@ -21,6 +21,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from datetime import datetime
 from pathlib import Path
+from urllib.parse import unquote_plus
 
 from sqlalchemy import Connection, Engine, create_engine, event, text
 from sqlalchemy.engine import URL, make_url
@@ -40,15 +41,18 @@ class StoreError(UserError):
 
 
 def database_url(db: str | os.PathLike[str]) -> URL:
-    """A SQLAlchemy URL from ``--db``: a URL as is, anything else a SQLite file path."""
+    """A SQLAlchemy URL from ``--db``: a URL as is, anything else a SQLite file path. An ``@``
+    left unencoded in the user part (``lab:p@ss@host``) belongs to it: the host starts after the
+    last ``@`` (SQLAlchemy alone would take ``ss@host`` for the host, and the driver would show
+    it in its errors)."""
     s = str(db)
     if "://" in s:
         try:
-            return make_url(s)
+            return _host_after_last_at(make_url(s))
         except (ArgumentError, ValueError) as e:  # ValueError: a port that is not a number
             why = "its host or port is malformed" if isinstance(e, ValueError) else str(e)
             raise StoreError(
-                f"--db {_hide_password(s)}: not a valid SQLAlchemy URL ({why}): "
+                f"--db {hide_secrets(s)}: not a valid SQLAlchemy URL ({why}): "
                 "write dialect+driver://user:password@host:port/database, e.g. postgresql+psycopg://me@localhost:5432/lab"
             ) from None
     if not s.strip():
@@ -56,9 +60,51 @@ def database_url(db: str | os.PathLike[str]) -> URL:
     return URL.create("sqlite", database=str(Path(s).expanduser().absolute()))
 
 
-def _hide_password(text: str) -> str:
-    """A URL that could not be parsed, with whatever stands between ``user:`` and ``@`` hidden."""
-    return re.sub(r"(://[^:/@]*:)[^@]*@", r"\1***@", text)
+def _host_after_last_at(url: URL) -> URL:
+    """``url`` with what SQLAlchemy parsed as the start of its host, up to the host's last ``@``,
+    moved back into the user part it came from (a host name never holds an ``@``)."""
+    if not url.host or "@" not in url.host:
+        return url
+    more, _, host = url.host.rpartition("@")
+    if url.password is not None:
+        return url.set(password=f"{url.password}@{more}", host=host)
+    return url.set(username=f"{url.username or ''}@{more}", host=host)
+
+
+#: Query parameters whose value is a secret, by a part of their name (lower case): ``password``,
+#: ``sslpassword``, ``passfile``, ``sslkey``, ``token``, ``client_secret``, ...
+SECRET_PARAMETERS = ("pass", "pwd", "secret", "token", "key", "credential")
+_URL_START = re.compile(r"[A-Za-z][A-Za-z0-9+.\-]*://")
+_QUERY_ITEM = re.compile(r"([?&;])([^=&;#]*)=([^&;#]*)")
+
+
+def _secret_item(m: re.Match[str]) -> str:
+    name = unquote_plus(m.group(2)).lower()
+    return f"{m.group(1)}{m.group(2)}=***" if any(k in name for k in SECRET_PARAMETERS) else m.group(0)
+
+
+def hide_secrets(url: str) -> str:
+    """The database URL ``url`` (as given, parsed or not) with every secret it may hold shown as
+    ``***``: the password of its user part, everything between ``user:`` and the LAST ``@`` (an
+    unencoded ``@`` in a password does not end it), and the value of every query parameter whose
+    name says it is one (:data:`SECRET_PARAMETERS`: ``?password=``, ``?sslpassword=``, ...).
+    The one function that masks a URL: :func:`display_url` shows a parsed one through it, and
+    :func:`hide_secrets_in` every URL of a message."""
+    m = _URL_START.match(url)
+    if m is None:
+        return _QUERY_ITEM.sub(_secret_item, url)
+    rest = url[m.end() :]
+    if "@" in rest:
+        user, _, host = rest.rpartition("@")
+        name, colon, _ = user.partition(":")
+        rest = f"{name}:***@{host}" if colon else f"{user}@{host}"
+    return m.group(0) + _QUERY_ITEM.sub(_secret_item, rest)
+
+
+def hide_secrets_in(text: str) -> str:
+    """``text`` (an error line, a hint) with each URL in it, up to the next blank, through
+    :func:`hide_secrets`."""
+    return re.sub(r"[A-Za-z][A-Za-z0-9+.\-]*://\S*", lambda m: hide_secrets(m.group(0)), text)
 
 
 def sqlite_path(url: URL) -> Path | None:
@@ -81,9 +127,10 @@ def in_memory(url: URL) -> bool:
 
 
 def display_url(url: URL) -> str:
-    """The URL without a password, or the plain path of a SQLite file."""
+    """The URL without its secrets (:func:`hide_secrets`: the password, ``?password=`` and the
+    like), or the plain path of a SQLite file."""
     path = sqlite_path(url)
-    return str(path) if path is not None else url.render_as_string(hide_password=True)
+    return str(path) if path is not None else hide_secrets(url.render_as_string(hide_password=False))
 
 
 def check_sqlite_file(path: Path, *, create: bool) -> None:

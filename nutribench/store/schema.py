@@ -38,6 +38,7 @@ from nutribench.store.engine import (
     check_sqlite_file,
     database_url,
     display_url,
+    hide_secrets,
     hold_write_lock,
     in_memory,
     make_engine,
@@ -165,12 +166,16 @@ DB_ENV = "NUTRIBENCH_DB"
 
 
 def db_command(command: str, url: URL) -> str:
-    """```command --db DB``` as it can be pasted, no password printed: a SQLite file's path or a
-    URL without a password as given; a URL with a password as ``"$NUTRIBENCH_DB"``, saying to
-    set that variable (the password is never shown: ``***`` would fail when pasted)."""
+    """```command --db DB``` as it can be pasted, no secret printed: a SQLite file's path or a
+    URL without secrets as given; a URL with a password (in its user part or as a query
+    parameter such as ``?password=``: :func:`~nutribench.store.engine.hide_secrets`) as
+    ``"$NUTRIBENCH_DB"``, saying to set that variable (``***`` would fail when pasted)."""
     path = sqlite_path(url)
-    if path is not None or url.password is None:
-        return f"`{command} --db {shlex.quote(str(path) if path is not None else url.render_as_string(hide_password=False))}`"
+    if path is not None:
+        return f"`{command} --db {shlex.quote(str(path))}`"
+    given = url.render_as_string(hide_password=False)
+    if hide_secrets(given) == given:
+        return f"`{command} --db {shlex.quote(given)}`"
     return f'`{command} --db "${DB_ENV}"` (with {DB_ENV} set to the database URL, password included)'
 
 
