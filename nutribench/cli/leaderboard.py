@@ -28,12 +28,23 @@ def leaderboard_cmd(
     ] = None,
     fmt: Annotated[str, typer.Option("--format", help="what to print: markdown, csv or latex")] = "markdown",
     reps: Annotated[int, typer.Option(help="bootstrap resamples of the runs (100 to 100,000)")] = 2000,
+    verify: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--verify",
+            help="a folder of the jobs' trained models as `nutribench run --models-dir` writes it "
+            "(<regime>-v<rv>/<agent>-v<av>/seed<seed>-ep<budget>.zip): each model supplied is loaded as data, "
+            "played greedily on its job's test days and compared action for action (the `checked` column)",
+        ),
+    ] = None,
 ) -> None:
     """Every agent ranked by the IQM of its share of the never -> planner gap (95 % interval)
     over the regimes it covers, with its per-regime shares, budget, seeds, engine, protocol and
     code version; rows off the reference grid (5000 days, seeds 0, 21, 9, 2003, 1997, every
     regime) are flagged. With --archives, an archive that fails a check is refused (named,
-    with its reason, on stderr and in the caption) and the others are ranked."""
+    with its reason, on stderr and in the caption) and the others are ranked. With --verify,
+    the entries whose models are supplied are re-run: `verified (re-run)` or `re-run: differs`;
+    the others stay `replayed, not re-run`."""
     from nutribench.report.leaderboard import check_reps, leaderboard_from_archives, leaderboard_from_db
     from nutribench.report.output import TABLE_SUFFIXES, write_table
     from nutribench.safe_write import check_regular_file
@@ -41,13 +52,17 @@ def leaderboard_cmd(
     if fmt not in FORMATS:
         raise UserError(f"--format {fmt}: give one of {', '.join(FORMATS)}")
     check_reps(reps)  # a trillion resamples would be a MemoryError after minutes of reading
+    if verify is not None and not verify.is_dir():
+        raise UserError(f"--verify {verify}: not a folder (give the folder `nutribench run --models-dir` wrote)")
     if out is not None:  # checked before the table is computed: it takes a while
         check_out_dir(out)
         for suffix in TABLE_SUFFIXES:
             check_regular_file(out / f"leaderboard.{suffix}", "--out", UserError)
     log = lambda msg: err_console.print(msg, style="dim", highlight=False, soft_wrap=True)  # noqa: E731
     table = (
-        leaderboard_from_archives(archives, reps, log) if archives is not None else leaderboard_from_db(db, reps, log)
+        leaderboard_from_archives(archives, reps, log, verify)
+        if archives is not None
+        else leaderboard_from_db(db, reps, log, verify)
     )
     text = {"markdown": table.to_markdown, "csv": table.to_csv, "latex": table.to_latex}[fmt]()
     console.print(text, end="" if text.endswith("\n") else "\n", highlight=False, soft_wrap=True, markup=False)

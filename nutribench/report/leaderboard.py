@@ -27,6 +27,9 @@ Each row says how its evaluation days were checked (``checked``): ``replayed, no
 archive's days are replayed from their stored foods and actions on import (the foods the
 seed's test days, the regime the installed one where it bears a shipped name and version),
 which proves the actions fit the regime, not that an agent chose them; no model is re-run.
+With trained models supplied (``--verify MODELS``, :mod:`nutribench.report.leaderboard_verify`)
+each job whose model is there is played again from it and compared action for action:
+``verified (re-run)``, ``re-run: differs (...)`` or ``re-run: failed (...)``.
 
 DataFrame in, :class:`~nutribench.report.tables.TableResult` out (:func:`leaderboard_table`);
 :func:`leaderboard_from_db` reads a database, :func:`leaderboard_from_archives` a folder of
@@ -156,12 +159,18 @@ def _flags(budget: str, seeds: list[int], covered: list[str], board: list[str]) 
 
 
 def leaderboard_rows(
-    ev: pd.DataFrame, references: pd.DataFrame, jobs: pd.DataFrame, protocol: dict[str, str], reps: int = DEFAULT_REPS
+    ev: pd.DataFrame,
+    references: pd.DataFrame,
+    jobs: pd.DataFrame,
+    protocol: dict[str, str],
+    reps: int = DEFAULT_REPS,
+    checked: dict[str, str] | None = None,
 ) -> pd.DataFrame:
     """One row per agent of the evaluation episodes ``ev`` (one job per run), ranked by the
     IQM of its run scores over the regimes it covers. ``references``: the never/planner
     yardsticks of every evaluation day; ``jobs``: the jobs table (id, engine, versions);
-    ``protocol``: agent -> protocol."""
+    ``protocol``: agent -> protocol; ``checked``: agent -> its ``checked`` cell where its
+    models were re-run (:func:`nutribench.report.leaderboard_verify.verify_entries`)."""
     scores = run_scores(ev, references)
     board = sort_regimes(ev["regime"].unique())
     job_info = jobs.set_index("id")
@@ -186,7 +195,7 @@ def leaderboard_rows(
             "seeds": " ".join(map(str, seeds)),
             "engine": "/".join(sorted({str(e) for e in mine_jobs["engine"].dropna()})) or "?",
             "code": _code_version(mine_jobs),
-            "checked": CHECKED,
+            "checked": (checked or {}).get(algo, CHECKED),
         }
         if covered:
             iv = interval_estimates(score_set(scores, covered, [algo]), reps=reps)
@@ -241,14 +250,18 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
         f"runs; per regime, the mean share over seeds. Reference grid: {REFERENCE_BUDGET} training days, seeds "
         f"{', '.join(map(str, REFERENCE_SEEDS))}, every regime of the board ({regime_span(board)}); a row that departs "
         "from it is flagged, and a row lacking regimes is ranked on those it has. Checked: every row's evaluation days "
-        "are stored foods and actions, replayed on the regime (an archive's, on import), not re-run from a model"
+        "are stored foods and actions, replayed on the regime (an archive's, on import); 'verified (re-run)': every "
+        "job's trained model, supplied, played those actions again on this machine"
     )
     return TableResult("leaderboard", title, rows, pd.DataFrame(fmt))
 
 
-def leaderboard_from_db(db, reps: int = DEFAULT_REPS, log: Log | None = None) -> TableResult:
+def leaderboard_from_db(
+    db, reps: int = DEFAULT_REPS, log: Log | None = None, verify: str | Path | None = None
+) -> TableResult:
     """The leaderboard of the results database ``db`` (:class:`ReportError` when it holds no
-    evaluation days)."""
+    evaluation days); ``verify``: a folder of the jobs' trained models, re-run to fill the
+    ``checked`` column (:mod:`nutribench.report.leaderboard_verify`)."""
     from nutribench.report.data import check_names, prepare
     from nutribench.report.references import eval_day_references
     from nutribench.store import open_store, read_episode_metrics
@@ -275,11 +288,17 @@ def leaderboard_from_db(db, reps: int = DEFAULT_REPS, log: Log | None = None) ->
             + " of this database has other content than the installed regime file of that name and version: "
             "its days are not scored on the installed yardsticks"
         )
-    return leaderboard_of(data.eval, eval_day_references(scored, log=log), db, notes, reps)
+    return leaderboard_of(data.eval, eval_day_references(scored, log=log), db, notes, reps, verify, log)
 
 
 def leaderboard_of(
-    ev: pd.DataFrame, references: pd.DataFrame, db, notes: list[str] | None = None, reps: int = DEFAULT_REPS
+    ev: pd.DataFrame,
+    references: pd.DataFrame,
+    db,
+    notes: list[str] | None = None,
+    reps: int = DEFAULT_REPS,
+    verify: str | Path | None = None,
+    log: Log | None = None,
 ) -> TableResult:
     """The leaderboard of the evaluation episodes ``ev`` (chosen as the report chooses them)
     of the database ``db``, whose jobs and agent configs give each row's engine, code version
@@ -300,14 +319,21 @@ def leaderboard_of(
         store.dispose()
     drawn = set(map(tuple, ev[["algo", "algo_version"]].drop_duplicates().to_numpy()))
     configs = configs[[(n, v) in drawn for n, v in zip(configs["name"], configs["version"])]]
-    rows = leaderboard_rows(ev, references, jobs, protocols(configs), reps=reps)
+    checked = None
+    if verify is not None:
+        from nutribench.report.leaderboard_verify import verify_entries
+
+        checked = verify_entries(db, ev, verify, log)
+    rows = leaderboard_rows(ev, references, jobs, protocols(configs), reps=reps, checked=checked)
     table = leaderboard_table(rows)
     if notes:
         table.title += " (note: " + "; ".join(notes) + ")"
     return table
 
 
-def leaderboard_from_archives(folder: str | Path, reps: int = DEFAULT_REPS, log: Log | None = None) -> TableResult:
+def leaderboard_from_archives(
+    folder: str | Path, reps: int = DEFAULT_REPS, log: Log | None = None, verify: str | Path | None = None
+) -> TableResult:
     """The leaderboard of every archive (``*.npz``, written by ``nutribench db export``) in
     ``folder``, each checked whole on import into a temporary database. An archive that fails
     a check is refused (logged, and listed in the caption with its one-line reason) and the
@@ -343,7 +369,7 @@ def leaderboard_from_archives(folder: str | Path, reps: int = DEFAULT_REPS, log:
         for reason in listed:
             if log:
                 log(f"refused: {reason}")
-        table = leaderboard_from_db(db, reps=reps, log=log)
+        table = leaderboard_from_db(db, reps=reps, log=log, verify=verify)
     if refused:
         table.title += f" (refused, not ranked: {'; '.join(listed)})"
     return table
