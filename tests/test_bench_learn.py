@@ -55,7 +55,7 @@ def test_budgets_by_name_then_algorithm():
 @pytest.mark.parametrize("bad", ["abc", "ppo=x", "0", "ppo=-3", "500,pp0=300"])
 def test_a_bad_budget_is_one_line_and_exit_2(bad):
     res = runner.invoke(app, ["bench", "learn", "--episodes", bad])
-    assert res.exit_code == 2 and "--episodes" in res.output and len(res.output.strip().splitlines()) == 1, res.output
+    assert res.exit_code == 2 and "--days" in res.output and len(res.output.strip().splitlines()) == 1, res.output
 
 
 def test_bench_learn_runs_and_prints_its_table():

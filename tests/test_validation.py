@@ -195,4 +195,4 @@ def test_bench_eval_every_past_the_budget_is_one_line() -> None:
     line = one_error_line(
         CliRunner().invoke(app, ["bench", "train", "--algos", "mc", "--episodes", "5", "--eval-every", "10"])
     )
-    assert "--eval-every 10: more than --episodes 5" in line
+    assert "--eval-every 10: more than --days 5" in line

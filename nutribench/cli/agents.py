@@ -15,6 +15,7 @@ from nutribench.cli.common import (
     check_range,
     check_tensorboard,
     console,
+    old_spelling,
     split_csv,
     user_errors,
 )
@@ -80,7 +81,10 @@ def train_cmd(
     algo: Annotated[str, typer.Option(help="agent config name (regimes/agents/<name>.toml) or a .toml path")] = "ppo",
     regime: Annotated[str, typer.Option(help="regime name or file")] = "run0",
     seed: Annotated[int, typer.Option(help="training seed; the evaluation days derive from it")] = 0,
-    episodes: Annotated[int, typer.Option(min=1, help="training days (episodes of 50 steps)")] = 300,
+    days: Annotated[
+        Optional[int], typer.Option("--days", min=1, help="training days (episodes of 50 steps) [default: 300]")
+    ] = None,
+    episodes_alias: Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)] = None,
     eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days")] = 5,
     save: Annotated[Optional[Path], typer.Option(help="save the trained model here (.zip + .json)")] = None,
     tensorboard: Annotated[
@@ -94,6 +98,7 @@ def train_cmd(
     val_episodes: Annotated[int, typer.Option(min=1, help=VAL_EPISODES_HELP)] = 5,
 ) -> None:
     """Train one agent in the foreground, then evaluate it greedily and print the metrics."""
+    episodes = old_spelling(days, episodes_alias, "--days", "--episodes", 300)
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -110,7 +115,7 @@ def train_cmd(
     from nutribench.scheduler.grid import MAX_EPISODES, MAX_EVAL_DAYS, MAX_SEED
 
     check_range("--seed", seed, 0, MAX_SEED)
-    check_range("--episodes", episodes, 1, MAX_EPISODES)
+    check_range("--days", episodes, 1, MAX_EPISODES)
     check_range("--eval-episodes", eval_episodes, 1, MAX_EVAL_DAYS, "the days are played side by side")
     env_cfg = load_env_config(regime)
     cfg = load_agent_config(algo)

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from nutribench.cli.common import DEVICE_HELP, UserError, console, split_csv, user_errors
+from nutribench.cli.common import DEVICE_HELP, UserError, console, old_spelling, split_csv, user_errors
 
 bench_app = typer.Typer(
     no_args_is_help=True,
@@ -62,7 +62,7 @@ def _print_eval_cost(names: list[str], regime: str, days: int, repeats: int, eve
     from nutribench.bench.evalcost import bench_eval_cost
 
     if every > days:
-        raise UserError(f"--eval-every {every}: more than --episodes {days}, no evaluation would be timed")
+        raise UserError(f"--eval-every {every}: more than --days {days}, no evaluation would be timed")
     where = "K = 35" if engine == "batched" else regime
     title = f"evaluation every {every} days on {n} validation days, {engine} engine ({where}), {days} days x {repeats}"
     heads = ["algo", "without (s)", "with (s)", "evaluations", "cost, wall [95 % CI]", "cost, CPU", "one alone (CPU s)"]
@@ -107,7 +107,10 @@ def _print_lockstep(names: list[str], regime: str, episodes: int, block: int) ->
 def bench_train_cmd(
     algos: Annotated[str, typer.Option(help="'all' or comma-separated algorithms")] = "all",
     regime: Annotated[str, typer.Option(help="regime")] = "run0",
-    episodes: Annotated[int, typer.Option(min=1, help="training days per timed run")] = 100,
+    days: Annotated[
+        Optional[int], typer.Option("--days", min=1, help="training days per timed run [default: 100]")
+    ] = None,
+    episodes_alias: Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)] = None,
     repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 3,
     engine: Annotated[str, typer.Option(help="'sb3', or 'batched': the batched engine at K = 35 beside SB3's")] = "sb3",
     device: Annotated[str, typer.Option(help=f"--engine batched: {DEVICE_HELP} (SB3's rows: the CPU)")] = "auto",
@@ -124,7 +127,7 @@ def bench_train_cmd(
         typer.Option(
             "--lockstep",
             help="with --diagnostics-cost: train the arms side by side in one process, a day each in turn, "
-            "--episodes days each, paired by blocks of --block days (--repeats is not used)",
+            "--days days each, paired by blocks of --block days (--repeats is not used)",
         ),
     ] = False,
     block: Annotated[int, typer.Option(min=1, help="--lockstep: days per paired block (PPO's rollout: 10)")] = 10,
@@ -141,6 +144,7 @@ def bench_train_cmd(
     alike): the cost and the A/A control on the wall clock and on CPU time.
     With --engine batched, also the batched engine (7 regimes x 5 seeds at once): its rate,
     FLOPs per env step, this machine's matmul rate and the share of that floor reached."""
+    episodes = old_spelling(days, episodes_alias, "--days", "--episodes", 100)
     from nutribench.agents.registry import paper_names
     from nutribench.bench.throughput import bench_train
     from nutribench.config import load_env_config
@@ -219,9 +223,13 @@ def bench_learn_cmd(
         str, typer.Option(help="'all' or comma-separated regimes; run0 carries the targets")
     ] = "run0,run3,run6",
     seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2",
-    episodes: Annotated[
-        str, typer.Option(help="training days: a default, then NAME=N for a config or algorithm")
-    ] = "500,ddqn=2000",
+    days: Annotated[
+        Optional[str],
+        typer.Option(
+            "--days", help="training days: a default, then NAME=N for a config or algorithm [default: 500,ddqn=2000]"
+        ),
+    ] = None,
+    episodes_alias: Annotated[Optional[str], typer.Option("--episodes", hidden=True)] = None,
     eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")] = 10,
     workers: Annotated[Optional[int], typer.Option(min=1, help="agents trained at once (default: the cores)")] = None,
     markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
@@ -236,6 +244,7 @@ def bench_learn_cmd(
     """Train every agent for a budget over several seeds, evaluate greedily on the fixed
     evaluation days, and state each as the share of the never -> planner gap it closes
     (run0 target: at least 75 % with 3-6 foods a day)."""
+    episodes = old_spelling(days, episodes_alias, "--days", "--episodes", "500,ddqn=2000")
     from nutribench.agents.config import list_agent_configs, load_agent_config
     from nutribench.agents.registry import batched_names
     from nutribench.agents.registry import names as algo_names
@@ -250,7 +259,7 @@ def bench_learn_cmd(
     unknown = sorted(set(budgets) - set(list_agent_configs()) - set(algo_names()))
     if unknown:
         raise UserError(
-            f"--episodes {episodes!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})"
+            f"--days {episodes!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})"
         )
     check_engine_options(engine, device)
     if engine == "batched":
@@ -294,10 +303,10 @@ def parse_budgets(value: str, default: int) -> tuple[int, dict[str, int]]:
             days = int(n)
         except ValueError:
             raise UserError(
-                f"--episodes {item!r}: expected N or NAME=N with N a whole number of days, e.g. 500,ddqn=2000"
+                f"--days {item!r}: expected N or NAME=N with N a whole number of days, e.g. 500,ddqn=2000"
             ) from None
         if days < 1:
-            raise UserError(f"--episodes {item!r}: the number of days must be >= 1")
+            raise UserError(f"--days {item!r}: the number of days must be >= 1")
         if name:
             budgets[name] = days
         else:

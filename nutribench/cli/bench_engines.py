@@ -10,7 +10,7 @@ import typer
 from rich.table import Table
 
 from nutribench.cli.bench import check_engine_options
-from nutribench.cli.common import DEVICE_HELP, console, split_csv, user_errors
+from nutribench.cli.common import DEVICE_HELP, console, old_spelling, split_csv, user_errors
 from nutribench.safe_write import check_file_target
 
 
@@ -19,7 +19,10 @@ def bench_engines_cmd(
     algos: Annotated[str, typer.Option(help="comma-separated algorithms the batched engine trains")] = "ppo",
     regimes: Annotated[str, typer.Option(help="comma-separated regimes")] = "run0,run6",
     seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2,3,4",
-    episodes: Annotated[int, typer.Option(min=1, help="training days per job, both engines")] = 500,
+    days: Annotated[
+        Optional[int], typer.Option("--days", min=1, help="training days per job, both engines [default: 500]")
+    ] = None,
+    episodes_alias: Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)] = None,
     eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")] = 10,
     markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
     device: Annotated[
@@ -40,6 +43,7 @@ def bench_engines_cmd(
     """Train with both engines (SB3 and batched) on the same seeds and budget; per algorithm
     and regime the IQM of the evaluation returns with a 95 % bootstrap interval over seeds;
     the two engines' intervals must overlap."""
+    episodes = old_spelling(days, episodes_alias, "--days", "--episodes", 500)
     from nutribench.agents.registry import batched_names
     from nutribench.bench.engines import COLUMNS, bench_engines, markdown_table, row_cells
     from nutribench.config import list_regimes

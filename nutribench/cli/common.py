@@ -119,3 +119,13 @@ def check_range(option: str, value: int, low: int, high: int, why: str = "") -> 
     """``option value`` within ``low..high``, else a one-line UserError (``why``: the reason for ``high``)."""
     if not low <= value <= high:
         raise UserError(f"{option} {str(value)[:24]}: give a value from {low} to {high}" + (f" ({why})" if why else ""))
+
+
+def old_spelling(value, old, option: str, old_option: str, default=None):
+    """An option given under its name or under its old spelling (a hidden alias that still
+    works: ``--episodes`` for ``--days``); both with different values is one line."""
+    if value is not None and old is not None and value != old:
+        raise UserError(
+            f"{option} {value} and {old_option} {old}: give one ({old_option} is the old spelling of {option})"
+        )
+    return value if value is not None else old if old is not None else default

@@ -23,6 +23,7 @@ from nutribench.cli.common import (
     check_tensorboard,
     console,
     err_console,
+    old_spelling,
     split_csv,
     user_errors,
 )
@@ -117,7 +118,8 @@ def run_cmd(
             "the published baselines' seeds), quick (0,21), smoke (0)"
         ),
     ] = None,
-    episodes: Annotated[Optional[int], typer.Option(help="training episodes per job")] = None,
+    days: Annotated[Optional[int], typer.Option("--days", help="training days per job (episodes of 50 steps)")] = None,
+    episodes_alias: Annotated[Optional[int], typer.Option("--episodes", hidden=True)] = None,
     eval_episodes: Annotated[Optional[int], typer.Option(help="evaluation episodes per job (default 5)")] = None,
     workers: Annotated[
         Optional[int], typer.Option(min=1, help="jobs at once (default: core count; never more than jobs)")
@@ -162,6 +164,7 @@ def run_cmd(
     ] = False,
 ) -> None:
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
+    episodes = old_spelling(days, episodes_alias, "--days", "--episodes")
     from nutribench.store import open_store
 
     if upgrade_only:

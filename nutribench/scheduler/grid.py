@@ -133,8 +133,8 @@ def resolve_grid(
         episodes=base.episodes if episodes is None else episodes,
         eval_episodes=base.eval_episodes if eval_episodes is None else eval_episodes,
     )
-    for option, value in (("--episodes", grid.episodes), ("--eval-episodes", grid.eval_episodes)):
-        what = "training budget" if option == "--episodes" else "evaluation"
+    for option, value in (("--days", grid.episodes), ("--eval-episodes", grid.eval_episodes)):
+        what = "training budget" if option == "--days" else "evaluation"
         if value < 1:
             raise GridError(f"{option} {value}: the {what} must be at least 1 episode (a day)")
         if value > MAX_EPISODES:

@@ -1,0 +1,36 @@
+"""One name per idea (issue 54): training days are ``--days`` in ``run``, ``train``, ``bench
+train``, ``bench learn`` and ``bench engines``, as in ``tune``; ``--episodes``, the old
+spelling, still works and is hidden from the help; both at once with different values is one
+line."""
+
+from __future__ import annotations
+
+import pytest
+from typer.testing import CliRunner
+
+from nutribench.cli import app
+from tests.conftest import one_error_line
+
+runner = CliRunner()
+COMMANDS = [["run"], ["train"], ["bench", "train"], ["bench", "learn"], ["bench", "engines"], ["tune"]]
+
+
+@pytest.mark.parametrize("command", COMMANDS, ids=" ".join)
+def test_training_days_are_days_everywhere(command: list[str]) -> None:
+    res = runner.invoke(app, [*command, "--help"], terminal_width=200)
+    assert res.exit_code == 0 and "--days" in res.output, res.output
+    assert "--episodes " not in res.output  # the old spelling is hidden (--eval-episodes is another idea)
+
+
+def test_the_old_spelling_still_works_and_both_must_agree(tmp_path) -> None:
+    ok = runner.invoke(app, ["train", "--algo", "mc", "--episodes", "1", "--eval-episodes", "1"])
+    assert ok.exit_code == 0, ok.output
+    line = one_error_line(runner.invoke(app, ["train", "--algo", "mc", "--days", "1", "--episodes", "2"]))
+    assert "--days 1 and --episodes 2: give one" in line
+    db = tmp_path / "x.db"
+    line = one_error_line(
+        runner.invoke(
+            app, ["run", "--regimes", "run0", "--algos", "mc", "--days", "2", "--episodes", "3", "--db", str(db)]
+        )
+    )
+    assert "old spelling of --days" in line and not db.exists()
