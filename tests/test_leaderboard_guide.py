@@ -24,7 +24,7 @@ TINY = {
     '"$PAPER_DATA"/*.npz': '"$PAPER_DATA"/{mc,gru_ppo}.npz',  # two of the six archives
     '"$TUNED_DATA"/*_tuned.npz': '"$TUNED_DATA"/ppo_tuned.npz',  # one of the five tuned ones
     "--regimes all": "--regimes run0,run3",
-    "--episodes 5000": "--episodes 2",
+    "--days 5000": "--days 2",
     "DAYS = 5000": "DAYS = 2",
     'REGIMES = [f"run{i}" for i in range(7)]': 'REGIMES = ["run0", "run3"]',
 }
