@@ -53,3 +53,14 @@ def test_an_unknown_agent_says_where_agents_are_looked_for(tmp_path: Path, monke
     msg = str(e.value)
     assert str(folder) in msg and str(regimes_dir() / "agents") in msg and "NUTRIBENCH_AGENTS=" in msg
     shutil.rmtree(folder)
+
+
+def test_a_copy_of_a_shipped_file_is_no_clash(tmp_path: Path, monkeypatch) -> None:
+    import warnings
+
+    folder = tmp_path / "agents"
+    shutil.copytree(regimes_dir() / "agents", folder)
+    monkeypatch.setenv("NUTRIBENCH_AGENTS", str(folder))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert resolve_agent_path("ppo") == folder / "ppo.toml"

@@ -119,7 +119,7 @@ def list_agent_configs(folder: Path | None = None) -> list[str]:
 
 def resolve_agent_path(name_or_path: str | Path) -> Path:
     """A config name (``ppo``: the first agent folder that has ``ppo.toml``; a name in two
-    folders warns which file is used) or a path to a TOML file."""
+    folders with other contents warns which file is used) or a path to a TOML file."""
     import warnings
 
     s = str(name_or_path)
@@ -132,7 +132,7 @@ def resolve_agent_path(name_or_path: str | Path) -> Path:
             f"unknown agent config '{s}': known are {', '.join(list_agent_configs()) or '(none)'} (files in "
             f"{folders}; NUTRIBENCH_AGENTS=<folder> adds a folder of your own)"
         )
-    if len(found) > 1:
+    if len(found) > 1 and found[0].read_bytes() != found[1].read_bytes():  # a copy is no clash
         warnings.warn(f"agent config '{s}': {found[0]} is used, not {found[1]}", stacklevel=2)
     return found[0]
 
