@@ -32,6 +32,8 @@ def test_an_own_folder_adds_to_the_shipped_agents(tmp_path: Path, monkeypatch) -
 
 def test_a_name_in_two_folders_says_which_file_is_used(tmp_path: Path, monkeypatch) -> None:
     folder = own_folder(tmp_path, "gru_ppo", base="gru_ppo")
+    mine = folder / "gru_ppo.toml"
+    mine.write_text(mine.read_text() + "# my own copy, changed\n")
     monkeypatch.setenv("NUTRIBENCH_AGENTS", str(folder))
     with pytest.warns(UserWarning, match=f"agent config 'gru_ppo': {folder / 'gru_ppo.toml'} is used, not "):
         assert resolve_agent_path("gru_ppo") == folder / "gru_ppo.toml"
