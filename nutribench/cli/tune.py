@@ -81,10 +81,20 @@ def tune_cmd(
     if algo is None or study is None:
         raise typer.BadParameter("give --algo (a search space) and --study (a name); see nutribench tune --help")
     from nutribench.config import list_regimes
+    from nutribench.tuning.export import space_file_attr
     from nutribench.tuning.objective import ValidationObjective
-    from nutribench.tuning.space import load_search_space
-    from nutribench.tuning.study import StudySettings, default_eval_every, open_study, parse_seeds, run_study
+    from nutribench.tuning.space import check_space_memory, load_search_space, resolve_space_path
+    from nutribench.tuning.study import (
+        StudySettings,
+        TuneError,
+        check_study_name,
+        default_eval_every,
+        heartbeat_settings,
+        open_study,
+        parse_seeds,
+    )
 
+    check_study_name(study)
     space = load_search_space(algo)
     names = split_csv(regimes, list_regimes(), "regime")
     settings = StudySettings(
@@ -94,7 +104,7 @@ def tune_cmd(
         regimes=tuple(names),
         seeds=parse_seeds(seeds),
         days=days,
-        eval_every=eval_every or default_eval_every(max(1, days)),
+        eval_every=eval_every or default_eval_every(days),
         val_episodes=val_episodes,
         sampler_seed=sampler_seed,
         pruner=pruner,
@@ -103,10 +113,14 @@ def tune_cmd(
     )
     settings.check()
     if trials < 1 or stack < 1:
-        from nutribench.tuning.study import TuneError
-
         raise TuneError("--trials and --stack must be >= 1")
-    handle = open_study(db, study, settings)
+    # what would only fail inside a trial, refused before the database is opened
+    check_space_memory(space, len(settings.regimes) * len(settings.seeds) * min(stack, trials))
+    from nutribench.engine.device import check_device
+
+    check_device(device)
+    _, grace = heartbeat_settings()
+    handle = open_study(db, study, settings, space_file_attr(resolve_space_path(algo)))
 
     def evaluation(number: int, day: int, value: float) -> None:
         console.print(f"trial {number}: day {day}: IQM share of the gap {value:+.3f}", highlight=False, soft_wrap=True)
@@ -120,13 +134,22 @@ def tune_cmd(
             soft_wrap=True,
         )
 
-    objective = ValidationObjective(space, settings, device=device, on_evaluation=evaluation)
-    if stack > 1:
-        from nutribench.tuning.stack import StackedTrials
+    def waiting(counts) -> None:
+        console.print(
+            f"study {counts.name}: {counts.finished} of {trials} finished, {counts.running} running: waiting for "
+            f"them (another driver's finish; a killed driver's is failed {grace} s after its last heartbeat and "
+            "its parameters run again)",
+            highlight=False,
+            soft_wrap=True,
+        )
 
-        counts = StackedTrials(objective, stack).run(handle, trials, on_trial=finished)
+    objective = ValidationObjective(space, settings, device=device, on_evaluation=evaluation)
+    from nutribench.tuning.stack import StackedTrials, run_study
+
+    if stack > 1:
+        counts = StackedTrials(objective, stack).run(handle, trials, on_trial=finished, on_wait=waiting)
     else:
-        counts = run_study(handle, objective, trials, on_trial=finished)
+        counts = run_study(handle, objective, trials, on_trial=finished, on_wait=waiting)
     console.print(
         f"study {study} holds {counts.finished} finished trials: `nutribench tune best --study {study} --write` "
         "writes the best as a new agent file",

@@ -8,13 +8,23 @@ databases' ids is not attempted. The source must be at the newest schema (``nutr
 transaction: a failed copy leaves the destination as it was. Afterwards the row counts of
 both are compared, and PostgreSQL's id sequences are moved past the copied ids so that new
 jobs can be added.
+
+The tuning studies in the source (Optuna's tables, :mod:`nutribench.tuning.study`) are copied
+after the results, one by one with :func:`optuna.copy_study` (Optuna's supported copy: the
+study's direction, user and system attributes, and every trial with its parameters, values,
+intermediate values and attributes, under the same numbers); the destination must hold no
+study of the same name (checked before anything is written), and each copy is checked trial
+state by trial state. A trial running in the source is copied running, without its heartbeat:
+the next driver of that study fails it once its grace period has passed and runs its
+parameters again.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
-from sqlalchemy import func, insert, select, text
+from sqlalchemy import func, insert, inspect, select, text
 
 from nutribench.store.engine import StoreError, session_scope
 from nutribench.store.models import Base
@@ -38,6 +48,13 @@ def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] | 
         if any(held.values()):
             rows = ", ".join(f"{n} {name}" for name, n in held.items() if n)
             raise StoreError(f"db copy: {target.display} already holds rows ({rows}): copy into a new, empty database")
+        studies = _study_names(source.engine)
+        clash = sorted(set(studies) & set(_study_names(target.engine)))
+        if clash:
+            raise StoreError(
+                f"db copy: {target.display} already holds the tuning studies {', '.join(clash)}: copy into a new, "
+                "empty database"
+            )
         counts: dict[str, int] = {}
         # one snapshot of the source for every table (a PostgreSQL source may be written meanwhile)
         read_options = {"isolation_level": "REPEATABLE READ"} if source.engine.dialect.name == "postgresql" else {}
@@ -69,7 +86,61 @@ def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] | 
             }
             if copied != counts:
                 raise StoreError(f"db copy: row counts differ after the copy (source {counts}, destination {copied})")
+        if studies:
+            n = _copy_studies(source, target, studies)
+            if on_table:
+                on_table(f"tuning studies ({len(studies)}): trials", n)
         return counts
     finally:
         source.dispose()
         target.dispose()
+
+
+def _study_names(engine: Any) -> list[str]:
+    """The names of the Optuna studies in a database ([] without Optuna's tables)."""
+    with engine.connect() as conn:
+        if not inspect(conn).has_table("studies"):
+            return []
+        return sorted(conn.execute(text("SELECT study_name FROM studies")).scalars())
+
+
+def _copy_studies(source: Any, target: Any, names: list[str]) -> int:
+    """Copy the studies ``names`` of ``source`` into ``target`` (:func:`optuna.copy_study`),
+    each checked by its trials' states; the trials copied."""
+    from collections import Counter
+
+    import optuna
+    from optuna.storages import RDBStorage
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    try:
+        src = RDBStorage(source.url.render_as_string(hide_password=False), skip_table_creation=True)
+        dst = RDBStorage(target.url.render_as_string(hide_password=False))
+    except RuntimeError as e:  # Optuna's schema newer or older than this Optuna
+        raise StoreError(
+            f"db copy: the results were copied, the tuning studies were not: {' '.join(str(e).split())}"
+        ) from None
+    n = 0
+    try:
+        for name in names:
+            try:
+                optuna.copy_study(from_study_name=name, from_storage=src, to_storage=dst)
+            except Exception as e:
+                raise StoreError(
+                    f"db copy: the results were copied, the tuning study {name!r} was not ({type(e).__name__}: "
+                    f"{' '.join(str(e).split())[:200]})"
+                ) from None
+            before, after = (
+                Counter(t.state.name for t in optuna.load_study(study_name=name, storage=s).get_trials(deepcopy=False))
+                for s in (src, dst)
+            )
+            if before != after:
+                raise StoreError(
+                    f"db copy: tuning study {name!r}: trials differ after the copy (source {dict(before)}, "
+                    f"destination {dict(after)})"
+                )
+            n += sum(after.values())
+    finally:
+        for storage in (src, dst):
+            storage.engine.dispose()
+    return n

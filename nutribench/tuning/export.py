@@ -6,19 +6,25 @@ its objective value and the search space's name, version and hash; the same fact
 file as comments. The description is part of the config's content, so every job trained
 from the file records in the database which study chose it. An existing file is never
 overwritten, and a paper agent's name is refused.
+
+The search space is the study's own (:func:`~nutribench.tuning.study.study_space`): the file
+whose path the study kept, else the text it kept (a plug-in's space given by path, moved
+since), else the space of its name in ``regimes/search/``; its version and hash must be those
+the study was created with.
 """
 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
 from nutribench.agents.config import agent_config_to_toml, agents_dir
 from nutribench.agents.registry import paper_names
 from nutribench.safe_write import atomic_write, check_folder_target, check_regular_file
-from nutribench.tuning.space import load_search_space
-from nutribench.tuning.study import TuneError, count_trials, stored_settings
+from nutribench.tuning.space import SearchSpace, check_space, load_search_space
+from nutribench.tuning.study import SPACE_ATTR, TuneError, count_trials, stored_settings
 
 
 def tuned_config(study: Any, name: str | None = None) -> tuple[Any, str]:
@@ -27,13 +33,7 @@ def tuned_config(study: Any, name: str | None = None) -> tuple[Any, str]:
     if counts.best_number is None:
         raise TuneError(f"study {study.study_name!r} has no complete trial yet: nothing to export")
     settings = stored_settings(study)
-    space = load_search_space(settings.space)
-    if (space.version, space.sha256) != (settings.space_version, settings.space_sha256):
-        raise TuneError(
-            f"search space {space.name!r} changed since study {study.study_name!r} was created "
-            f"(version {settings.space_version}, sha256 {settings.space_sha256[:12]}; now version {space.version}, "
-            f"{space.sha256[:12]}): restore that file to export this study"
-        )
+    space = study_space(study)
     best = study.best_trial
     name = name or f"{space.base().name}_tuned"
     if name in paper_names():
@@ -56,6 +56,76 @@ def tuned_config(study: Any, name: str | None = None) -> tuple[Any, str]:
         ]
     )
     return cfg, header
+
+
+def space_file_attr(path: Any) -> dict[str, str]:
+    """What a study keeps of its search space's file: its absolute path and its text."""
+    path = Path(path)
+    return {"path": str(path.resolve()), "toml": path.read_text(encoding="utf-8")}
+
+
+def study_space(study: Any) -> Any:
+    """The study's search space, as it was when the study was created (version and hash
+    checked): from the file at its kept path, else from its kept text (the file moved or
+    gone), else by its name in ``regimes/search/`` (a study made before the file was kept)."""
+    import tomllib
+
+    from pydantic import ValidationError
+
+    from nutribench.config.loading import ConfigError, format_validation_error
+
+    settings = stored_settings(study)
+    kept = study.user_attrs.get(SPACE_ATTR)
+    kept = kept if isinstance(kept, dict) else {}
+    found: list[Any] = []
+    problems: list[str] = []
+
+    def matches(space: Any) -> bool:
+        found.append(space)
+        return (space.name, space.version, space.sha256) == (
+            settings.space,
+            settings.space_version,
+            settings.space_sha256,
+        )
+
+    path = kept.get("path")
+    if isinstance(path, str) and os.path.isfile(path):
+        try:
+            space = load_search_space(path)
+            if matches(space):
+                return space
+        except ConfigError as e:
+            problems.append(str(e))
+    text = kept.get("toml")
+    if isinstance(text, str):
+        source = f"study {study.study_name!r}'s kept search space {settings.space!r}"
+        try:
+            space = SearchSpace.model_validate(tomllib.loads(text))
+        except tomllib.TOMLDecodeError as e:
+            problems.append(f"{source}: {e}")
+        except ValidationError as e:
+            problems.append(format_validation_error(source, e))
+        else:
+            try:
+                check_space(space, source)
+                if matches(space):
+                    return space
+            except ConfigError as e:
+                problems.append(str(e))
+    try:
+        space = load_search_space(settings.space)
+        if matches(space):
+            return space
+    except ConfigError as e:
+        problems.append(str(e))
+    if found:
+        space = found[-1]
+        raise TuneError(
+            f"search space {settings.space!r} changed since study {study.study_name!r} was created "
+            f"(version {settings.space_version}, sha256 {settings.space_sha256[:12]}; now version {space.version}, "
+            f"{space.sha256[:12]}): restore that file to export this study"
+        )
+    raise TuneError(f"study {study.study_name!r}: its search space is not found: {'; '.join(problems)}")
 
 
 def _decoded(params: dict[str, Any]) -> dict[str, Any]:

@@ -35,7 +35,7 @@ def share_of_gap(ret: float, never: float, planner: float) -> float:
 
 
 class ValidationObjective:
-    """``objective(trial) -> float`` for :func:`~nutribench.tuning.study.run_study` (module docstring)."""
+    """``objective(trial) -> float`` for :func:`~nutribench.tuning.stack.run_study` (module docstring)."""
 
     def __init__(
         self,

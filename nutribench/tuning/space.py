@@ -212,3 +212,69 @@ def check_space(space: SearchSpace, source: Path | str) -> None:
                 raise ConfigError(
                     f"{source}: params.{name}: the value {value!r} gives no valid agent config: {e}"
                 ) from None
+
+
+#: floats per observation the memory estimate assumes: the environments observe tens of
+#: floats; a generous bound, so that the estimate errs high
+OBS_FLOATS = 256
+#: copies of a network's parameters a trial holds: weights, gradients, two Adam moments, for up to
+#: five networks (SAC: actor, two critics and their targets)
+_PARAM_COPIES = 4 * 5
+
+
+def estimate_bytes(values: dict[str, Any], agents: int) -> int:
+    """A rough upper estimate of the memory ``agents`` agents of the hyperparameters ``values``
+    need: their networks (``net_arch``, a GRU's ``hidden_size``) with gradients and optimiser
+    state, and their rollout buffers (``n_steps`` steps of observations and a GRU's states)."""
+    arch = values.get("net_arch")
+    widths = [OBS_FLOATS, *[int(w) for w in arch]] if isinstance(arch, list) else [OBS_FLOATS, 64]
+    hidden = int(values.get("hidden_size", 0) or 0)
+    params = sum(a * b + b for a, b in zip(widths, widths[1:])) + 3 * (
+        widths[-1] * hidden + hidden * hidden + 2 * hidden
+    )
+    params += (hidden or widths[-1]) * 8  # the heads
+    steps = int(values.get("n_steps", 1) or 1)
+    rollout = steps * (OBS_FLOATS + 8 + hidden)
+    return agents * 4 * (params * _PARAM_COPIES + rollout)
+
+
+def memory_limit() -> int | None:
+    """This machine's memory in bytes (None where the system does not say)."""
+    import os
+
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_space_memory(space: SearchSpace, agents: int, limit: int | None = None) -> None:
+    """Refuse in one line a space whose largest trial (each parameter at the end of its range
+    that needs the most memory, the others at the base file's values) would need more memory
+    than this machine has (:func:`estimate_bytes`: its networks and rollout buffers), before a
+    study is opened: such a trial would fail with a MemoryError and be left failed in it."""
+    limit = limit if limit is not None else memory_limit()
+    if limit is None:
+        return
+    data = space.base().model_dump(mode="json")
+    base = dict(data["params"]) if by_entry_point(data["algo"]) else data
+    worst = dict(base)
+    for name, param in space.params.items():
+        worst[name] = max(param.ends(), key=lambda v, n=name: estimate_bytes({**base, n: v}, agents))
+    need = estimate_bytes(worst, agents)
+    if need > limit:
+        shown = ", ".join(
+            f"{k} {worst[k]}" for k in ("net_arch", "hidden_size", "n_steps") if k in space.params and k in worst
+        )
+        raise ConfigError(
+            f"search space {space.name!r}: its largest trial ({shown or 'the base values'}, {agents} agents) would "
+            f"need about {_size(need)} of memory, more than this machine's {_size(limit)}: narrow its ranges"
+        )
+
+
+def _size(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if n < 1024 or unit == "PiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} PiB"

@@ -1,9 +1,18 @@
-"""Many trials in one process: ``nutribench tune --stack N``.
+"""Running a study's trials (docs/tuning.md, "Stopping and resuming"): one at a time
+(:func:`run_study`) or many in one process (``--stack N``: :class:`StackedTrials`).
 
-The driver asks Optuna for up to N trials at once and groups them by structure: trials whose
-configs agree on everything but the continuous settings (learning rate, discount, GAE
-lambda, clip range, entropy and value coefficients, gradient-norm clip; SAC's learning rates,
-alpha and tau) train in one batch,
+Drivers stop at ``trials`` finished (complete or pruned) exactly, however many share the
+study: a driver claims a trial only while the study holds fewer finished and running trials
+(:func:`claim`), and waits while the missing trials all run elsewhere (:func:`wait_for_room`).
+Ctrl-C fails the running trial (not counted). A driver killed with -9 leaves its trial RUNNING
+with a stopped heartbeat; after the grace period (:func:`~nutribench.tuning.study.heartbeat_settings`)
+any driver fails it and queues its parameters (:func:`fail_stale`), run by the next claim, so
+that a rerun started at once waits for it and leaves no trial running.
+
+With ``--stack N`` the driver claims up to N trials at once (never more than the study still
+misses) and groups them by structure: trials whose configs agree on everything but the
+continuous settings (learning rate, discount, GAE lambda, clip range, entropy and value
+coefficients, gradient-norm clip; SAC's learning rates, alpha and tau) train in one batch,
 each trial's agents (one per tuning regime and seed) with its own settings on the agent axis
 (:attr:`nutribench.engine.algorithm.Algorithm.PER_AGENT`: PPO, MC, GRU-PPO and SAC).
 Trials of another structure, and algorithms without per-agent settings (DDQN, plug-ins),
@@ -13,15 +22,13 @@ Every evaluation is scored per trial exactly as a single trial is
 (:class:`~nutribench.tuning.objective.ValidationObjective`): the IQM of its agents' shares of
 the never -> planner gap on validation days, reported to Optuna at that day. A trial the
 pruner stops is told PRUNED and its agents are frozen (no more updates); when every trial of
-a batch is pruned, the batch stops. The trials of a batch keep a heartbeat while it trains, so
-a driver killed with -9 leaves them to be failed and retried by the next driver, as single
-trials are.
+a batch is pruned, the batch stops. Every claimed trial beats from its claim until told (a
+later group's too, while an earlier one trains); an error or Ctrl-C fails those not yet told.
 """
 
 from __future__ import annotations
 
-import threading
-import warnings
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -33,6 +40,191 @@ from nutribench.tuning.study import StudyCounts, TuneError, count_trials, quiet_
 
 #: the fields of an agent config that name it, not what it trains
 _NAMING = ("name", "version", "description")
+
+
+def _backend(study: Any) -> Any:
+    """The study's RDB storage (under Optuna's cache)."""
+    return getattr(study._storage, "_backend", study._storage)
+
+
+def fail_stale(study: Any) -> None:
+    """Fail the study's stale trials (a killed driver's) and queue their parameters again:
+    those whose heartbeat is older than the grace period (Optuna's
+    :func:`~optuna.storages.fail_stale_trials`), and a RUNNING trial that never beat (its
+    driver killed between asking it and its first beat) once it started that long ago."""
+    import datetime
+
+    import optuna
+    from optuna.trial import TrialState
+
+    with quiet_experimental():
+        optuna.storages.fail_stale_trials(study)
+    storage = _backend(study)
+    if not hasattr(storage, "scoped_session") or not storage.get_heartbeat_interval():
+        return
+    from optuna.storages._rdb import models
+
+    grace = datetime.timedelta(seconds=storage.grace_period or 2 * storage.heartbeat_interval)
+    session = storage.scoped_session()
+    try:
+        never_beat = [
+            t.trial_id
+            for t in session.query(models.TrialModel)
+            .filter(models.TrialModel.study_id == study._study_id, models.TrialModel.state == TrialState.RUNNING)
+            .all()
+            if not t.heartbeats and t.datetime_start is not None and datetime.datetime.now() - t.datetime_start > grace
+        ]
+    finally:
+        session.close()
+    callback = storage.get_heartbeat_stale_trial_callback()
+    for trial_id in never_beat:
+        try:
+            if not storage.set_trial_state_values(trial_id, state=TrialState.FAIL):
+                continue
+        except optuna.exceptions.UpdateFinishedTrialError:
+            continue  # another driver failed it first
+        if callback is not None:
+            with quiet_experimental():
+                callback(study, storage.get_trial(trial_id))
+
+
+@contextmanager
+def heartbeats(study: Any, trials: list[Any]) -> Iterator[None]:
+    """Keep the running ``trials``' heartbeats while the block runs (the first beat before the
+    block starts); a driver killed with -9 stops them, and its trials go stale."""
+    import threading
+
+    storage = study._storage
+    interval = storage.get_heartbeat_interval() if hasattr(storage, "get_heartbeat_interval") else None
+    if not interval:
+        yield
+        return
+    for t in trials:
+        storage.record_heartbeat(t._trial_id)
+    stop = threading.Event()
+
+    def beat() -> None:
+        while not stop.wait(interval):
+            for t in trials:
+                storage.record_heartbeat(t._trial_id)
+
+    thread = threading.Thread(target=beat, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+
+
+def _pop_waiting(study: Any) -> int | None:
+    """The id of a queued (WAITING) trial this driver set RUNNING, or None when none is queued:
+    in one conditional UPDATE, which one driver wins (Study.ask reads, then writes: on SQLite
+    two drivers could both take one trial, and one trial was told twice)."""
+    import datetime
+
+    import sqlalchemy
+    from optuna.storages._rdb import models
+    from optuna.trial import TrialState
+
+    storage = _backend(study)
+    for frozen in study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
+        if not hasattr(storage, "engine"):  # not an RDB storage: Optuna's own pop
+            return study._pop_waiting_trial_id()
+        with storage.engine.begin() as conn:
+            won = conn.execute(
+                sqlalchemy.update(models.TrialModel)
+                .where(models.TrialModel.trial_id == frozen._trial_id, models.TrialModel.state == TrialState.WAITING)
+                .values(state=TrialState.RUNNING, datetime_start=datetime.datetime.now())
+            ).rowcount
+        if won == 1:
+            return frozen._trial_id
+    return None
+
+
+def claim(study: Any, trials: int) -> Any | None:
+    """A trial of ``study`` to run (a queued one first: a killed driver's parameters to retry),
+    or None when the study holds ``trials`` finished and running trials once it is asked.
+
+    The count is taken after the ask, the new trial among the running: of drivers asking at
+    once none runs a trial past the count (each one's count holds every trial asked before it;
+    one over the count goes back to the queue, WAITING, never run nor counted, never beaten)."""
+    import optuna
+    from optuna.trial import TrialState
+
+    study._thread_local.cached_all_trials = None  # as Study.ask: the trials read afresh
+    trial_id = _pop_waiting(study)
+    if trial_id is None:
+        trial_id = study._storage.create_new_trial(study._study_id)
+    trial = optuna.Trial(study, trial_id)
+    held = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED, TrialState.RUNNING))
+    if len(held) <= trials:
+        return trial
+    study._storage.set_trial_state_values(trial._trial_id, state=TrialState.WAITING)
+    return None
+
+
+def wait_for_room(
+    study: Any, trials: int, on_wait: Callable[[StudyCounts], None] | None = None
+) -> tuple[StudyCounts, int]:
+    """(the study's counts, how many trials a driver may claim now): 0 once the study holds
+    ``trials`` finished trials. While every missing trial is running (another driver's, or a
+    killed driver's not yet stale), it waits, failing stale trials as their grace period ends
+    (their parameters queued again, and claimed next); ``on_wait`` is told once. Since no
+    driver claims past the count, a study that reaches it has no trial left running (a driver
+    with a higher ``--trials`` aside)."""
+    told = False
+    interval = study._storage.get_heartbeat_interval() if hasattr(study._storage, "get_heartbeat_interval") else None
+    while True:
+        fail_stale(study)
+        counts = count_trials(study)
+        if counts.finished >= trials:
+            return counts, 0
+        room = trials - counts.finished - counts.running
+        if room > 0:
+            return counts, room
+        if on_wait is not None and not told:
+            on_wait(counts)
+            told = True
+        time.sleep(min(5.0, float(interval or 1)) * (0.5 + np.random.random()))
+
+
+def run_study(
+    study: Any,
+    objective: Callable[[Any], float],
+    trials: int,
+    on_trial: Callable[[StudyCounts], None] | None = None,
+    on_wait: Callable[[StudyCounts], None] | None = None,
+) -> StudyCounts:
+    """Run trials of ``objective`` until ``study`` holds exactly ``trials`` finished (complete
+    or pruned) trials, none left running; other drivers on the same study share the work
+    (:func:`claim`, :func:`wait_for_room`). An exception in the objective (Ctrl-C included)
+    fails its trial and is raised; :class:`optuna.TrialPruned` prunes it."""
+    import optuna
+    from optuna.trial import TrialState
+
+    if trials < 1:
+        raise TuneError("--trials must be >= 1")
+    while True:
+        counts, room = wait_for_room(study, trials, on_wait)
+        if not room:
+            return counts
+        trial = claim(study, trials)
+        if trial is None:
+            time.sleep(0.05 + 0.2 * np.random.random())  # another driver asked at the same moment
+            continue
+        with heartbeats(study, [trial]):
+            try:
+                value = objective(trial)
+            except optuna.TrialPruned:
+                study.tell(trial, state=TrialState.PRUNED)
+            except BaseException:
+                study.tell(trial, state=TrialState.FAIL)
+                raise
+            else:
+                study.tell(trial, value)
+        if on_trial is not None:
+            on_trial(count_trials(study))
 
 
 class _AllPruned(Exception):
@@ -61,33 +253,6 @@ def structure_key(cfg: Any) -> str | None:
     return repr(sorted((k, v) for k, v in data.items() if k not in fields and k not in _NAMING))
 
 
-@contextmanager
-def heartbeats(study: Any, trials: list[Any]) -> Iterator[None]:
-    """Keep the running ``trials``' heartbeats while the block runs (Optuna beats one trial of
-    ``Study.optimize``; a batch of asked trials needs its own)."""
-    storage = study._storage
-    interval = storage.get_heartbeat_interval() if hasattr(storage, "get_heartbeat_interval") else None
-    if not interval:
-        yield
-        return
-    stop = threading.Event()
-
-    def beat() -> None:
-        while True:
-            for t in trials:
-                storage.record_heartbeat(t._trial_id)
-            if stop.wait(interval):
-                return
-
-    thread = threading.Thread(target=beat, daemon=True)
-    thread.start()
-    try:
-        yield
-    finally:
-        stop.set()
-        thread.join()
-
-
 class StackedTrials:
     """Runs a study ``stack`` trials at a time (the module docstring)."""
 
@@ -96,45 +261,78 @@ class StackedTrials:
             raise TuneError("--stack must be >= 1")
         self.objective, self.stack = objective, stack
 
-    def run(self, study: Any, trials: int, on_trial: Callable[[StudyCounts], None] | None = None) -> StudyCounts:
-        """Ask, train and tell batches of trials until ``study`` holds ``trials`` finished ones."""
-        import optuna
-
+    def run(
+        self,
+        study: Any,
+        trials: int,
+        on_trial: Callable[[StudyCounts], None] | None = None,
+        on_wait: Callable[[StudyCounts], None] | None = None,
+    ) -> StudyCounts:
+        """Ask, train and tell batches of trials until ``study`` holds exactly ``trials`` finished
+        ones: each batch asks only as many trials as the study still misses
+        (none of them running), and claims each as a single trial does
+        (:func:`~nutribench.tuning.study.claim`, :func:`~nutribench.tuning.study.wait_for_room`:
+        a killed driver's stale trials are failed and their parameters run again)."""
         while True:
-            with quiet_experimental():
-                optuna.storages.fail_stale_trials(study)  # a killed driver's trials: failed, queued again
-            counts = count_trials(study)
-            missing = trials - counts.finished - counts.running
-            if counts.finished >= trials or missing <= 0:
+            counts, room = wait_for_room(study, trials, on_wait)
+            if not room:
                 return counts
-            asked = self.ask(study, min(self.stack, missing))
+            asked = self.ask(study, min(self.stack, room), trials)
+            if not asked:
+                time.sleep(0.05 + 0.2 * np.random.random())  # another driver asked at the same moment
+                continue
             groups: dict[str, list[tuple[Any, Any]]] = {}
             for n, (trial, cfg) in enumerate(asked):
                 key = structure_key(cfg)
                 groups.setdefault(f"alone {n}" if key is None else key, []).append((trial, cfg))
-            for group in groups.values():
-                self.train_group(study, group)
-                if on_trial is not None:
-                    on_trial(count_trials(study))
+            with heartbeats(study, [t for t, _ in asked]):  # the groups waiting their turn beat too
+                try:
+                    for group in groups.values():
+                        self.train_group(study, group)
+                        if on_trial is not None:
+                            on_trial(count_trials(study))
+                except BaseException:
+                    self.fail_unfinished(study, [t for t, _ in asked])
+                    raise
 
-    def ask(self, study: Any, n: int) -> list[tuple[Any, Any]]:
-        """``n`` trials and their configs: the first as the sampler draws it; the others share its
-        structural parameters (enqueued with them fixed, the sampler drawing the rest), so that
-        the stack trains as one batch. A trial Optuna queued (a killed driver's, to retry) keeps
-        its own parameters."""
+    def ask(self, study: Any, n: int, trials: int | None = None) -> list[tuple[Any, Any]]:
+        """Up to ``n`` claimed trials and their configs (fewer where other drivers claimed the
+        study's last places first: never past ``trials`` finished and running): the first as
+        the sampler draws it; the others share its structural parameters (enqueued with them
+        fixed, the sampler drawing the rest), so that the stack trains as one batch. A trial
+        Optuna queued (a killed driver's, to retry) keeps its own parameters."""
+        from optuna.trial import TrialState
+
         space = self.objective.space
+        count = trials if trials is not None else 2**62
         out: list[tuple[Any, Any]] = []
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message="Heartbeat of storage is supposed to be used")
-            for i in range(n):
-                trial = study.ask()
+        for i in range(n):
+            trial = claim(study, count)
+            if trial is None:
+                break
+            try:
                 out.append((trial, space.config(space.suggest(trial))))
-                if i == 0 and n > 1 and structure_key(out[0][1]) is not None:
-                    shared = per_agent_fields(out[0][1])
-                    fixed = {k: v for k, v in trial.params.items() if k not in shared}
-                    for _ in range(n - 1):
-                        study.enqueue_trial(fixed, skip_if_exists=False)
+            except BaseException:
+                study.tell(trial, state=TrialState.FAIL)
+                for t, _ in out:
+                    study.tell(t, state=TrialState.FAIL)
+                raise
+            if i == 0 and n > 1 and structure_key(out[0][1]) is not None:
+                shared = per_agent_fields(out[0][1])
+                fixed = {k: v for k, v in trial.params.items() if k not in shared}
+                for _ in range(n - 1):
+                    study.enqueue_trial(fixed, skip_if_exists=False)
         return out
+
+    @staticmethod
+    def fail_unfinished(study: Any, trials: list[Any]) -> None:
+        """Tell FAIL to those of ``trials`` not finished (a batch stopped by an error or Ctrl-C:
+        the groups after it never ran)."""
+        from optuna.trial import TrialState
+
+        for trial in trials:
+            if study._storage.get_trial(trial._trial_id).state == TrialState.RUNNING:
+                study.tell(trial, state=TrialState.FAIL)
 
     def train_group(self, study: Any, group: list[tuple[Any, Any]]) -> None:
         """Train the trials of one group in one batch and tell Optuna each one's outcome."""

@@ -8,15 +8,14 @@ Optuna's RDB storage on the same URL.
 A study is fixed when it is created: its search space (name, version, content hash), tuning
 regimes and seeds, training days per trial, evaluation period, validation days, sampler seed
 and pruner are stored as the study's user attribute ``nutribench``; resuming it with other
-settings is refused in one line. ``trials`` counts finished trials (complete or pruned): a
-driver runs until the study holds that many, so a resumed or second driver only adds what is
-missing (:class:`optuna.study.MaxTrialsCallback`).
+settings is refused in one line. The space's file (its path and its text) is kept too, as the
+user attribute ``nutribench_space``, so that ``tune best`` finds a plug-in's space given by
+path, even moved (:func:`nutribench.tuning.export.study_space`).
 
-Stopping: Ctrl-C fails the running trial (Optuna records it as FAIL; it is not counted) and
-exits. A driver killed with -9 leaves its trial RUNNING; its heartbeat stops, and once the
-grace period has passed the next driver to start a trial marks it FAIL and queues a copy of
-its parameters (Optuna's heartbeat and :class:`~optuna.storages.RetryHeartbeatStaleTrialCallback`),
-so the trial is neither lost nor counted twice.
+``trials`` counts finished trials (complete or pruned); how drivers claim, run and retry trials
+(stopping at that count exactly, a killed driver's trial failed and run again) is
+:mod:`nutribench.tuning.stack`'s. The heartbeat's interval and grace period are
+:func:`heartbeat_settings`.
 """
 
 from __future__ import annotations
@@ -24,7 +23,7 @@ from __future__ import annotations
 import os
 import time
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
@@ -37,11 +36,23 @@ from nutribench.errors import UserError
 REPORTED_SEEDS: tuple[int, ...] = (0, 21, 9, 2003, 1997)
 #: the tuning seeds a study uses when none are given (fresh: no study reports on them)
 DEFAULT_TUNING_SEEDS: tuple[int, ...] = (101, 102, 103)
-#: Optuna heartbeat: seconds between a running trial's beats, and how long without one makes it stale
-HEARTBEAT_SECONDS = float(os.environ.get("NUTRIBENCH_TUNE_HEARTBEAT", "30"))
-GRACE_SECONDS = float(os.environ.get("NUTRIBENCH_TUNE_GRACE", "120"))
+#: Optuna heartbeat: seconds between a running trial's beats, and how long without one makes it
+#: stale (a killed driver's trial is failed and retried then): :func:`heartbeat_settings`
+HEARTBEAT_SECONDS = 30
+GRACE_SECONDS = 120
 #: the attribute holding the study's fixed settings
 ATTR = "nutribench"
+#: the attribute holding the search space's file: {"path": absolute path, "toml": its text}
+SPACE_ATTR = "nutribench_space"
+#: the longest --days: 100 times the paper's 1000-day budget per agent
+MAX_DAYS = 100_000
+#: the most --val-episodes: validation days are played side by side, one environment each
+#: (as ``nutribench agents evaluate --episodes``: :data:`nutribench.scheduler.grid.MAX_EVAL_DAYS`)
+MAX_VAL_EPISODES = 10_000
+#: the largest --sampler-seed: numpy's seeds (TPE's) are 0 .. 2**32 - 1
+MAX_SAMPLER_SEED = 2**32 - 1
+#: the longest study name: Optuna's ``studies.study_name`` column is VARCHAR(512)
+MAX_STUDY_NAME = 512
 PRUNERS = ("median", "none")
 #: a trial's objective: its value at the last day, or the mean of its values after half its days
 OBJECTIVES = ("last", "late-mean")
@@ -75,6 +86,9 @@ class StudySettings:
         """Refuse settings a study cannot run on (one line each)."""
         if not self.regimes:
             raise TuneError("--regimes: name at least one regime")
+        twice = sorted({r for r in self.regimes if self.regimes.count(r) > 1})
+        if twice:
+            raise TuneError(f"--regimes: {', '.join(twice)} given twice: name each tuning regime once")
         if not self.seeds:
             raise TuneError("--seeds: name at least one tuning seed")
         reported = sorted(set(self.seeds) & set(REPORTED_SEEDS))
@@ -88,6 +102,20 @@ class StudySettings:
             raise TuneError("--seeds: seeds are whole numbers >= 0")
         if self.days < 1 or self.eval_every < 1 or self.val_episodes < 1:
             raise TuneError("--days, --eval-every and --val-episodes must be >= 1")
+        if self.days > MAX_DAYS:
+            raise TuneError(
+                f"--days {str(self.days)[:24]}: give at most {MAX_DAYS} (100 times the paper's 1000 days per agent)"
+            )
+        if self.val_episodes > MAX_VAL_EPISODES:
+            raise TuneError(
+                f"--val-episodes {str(self.val_episodes)[:24]}: give at most {MAX_VAL_EPISODES} (the validation days "
+                "are played side by side, one environment each)"
+            )
+        if not 0 <= self.sampler_seed <= MAX_SAMPLER_SEED:
+            raise TuneError(
+                f"--sampler-seed {str(self.sampler_seed)[:24]}: give a seed from 0 to {MAX_SAMPLER_SEED} "
+                "(numpy's seeds, which TPE draws from)"
+            )
         if self.days % self.eval_every:
             raise TuneError(
                 f"--days ({self.days}) must be a multiple of --eval-every ({self.eval_every}): a trial's value is "
@@ -115,6 +143,21 @@ def quiet_experimental() -> Iterator[None]:
         yield
 
 
+def heartbeat_settings() -> tuple[int, int]:
+    """(seconds between heartbeats, grace period in seconds): ``NUTRIBENCH_TUNE_HEARTBEAT`` and
+    ``NUTRIBENCH_TUNE_GRACE`` where set, else :data:`HEARTBEAT_SECONDS` and :data:`GRACE_SECONDS`;
+    the grace period is longer than the interval (a live trial is never stale)."""
+    out = []
+    for var, default in (("NUTRIBENCH_TUNE_HEARTBEAT", HEARTBEAT_SECONDS), ("NUTRIBENCH_TUNE_GRACE", GRACE_SECONDS)):
+        text = os.environ.get(var, "").strip() or str(default)
+        value = float(text) if text.replace(".", "", 1).isdigit() else float("nan")
+        if not 1 <= value <= 86_400:
+            raise TuneError(f"{var}={text[:24]!r}: give whole seconds from 1 to 86400")
+        out.append(round(value))
+    interval, grace = out
+    return interval, max(grace, interval + 1)
+
+
 def optuna_storage(db: Any, writer: bool = True) -> Any:
     """Open nutribench's schema on ``db`` (``writer``: created or upgraded, else it must be there:
     :func:`nutribench.store.open_store`), then Optuna's RDB storage on the same URL, with
@@ -125,6 +168,7 @@ def optuna_storage(db: Any, writer: bool = True) -> Any:
 
     from nutribench.store.schema import open_store
 
+    heartbeat_settings()  # a bad setting refused before anything is opened
     store = open_store(db, writer=writer)
     url = store.url.render_as_string(hide_password=False)
     with store.engine.connect() as conn:
@@ -135,13 +179,14 @@ def optuna_storage(db: Any, writer: bool = True) -> Any:
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     from sqlalchemy.exc import IntegrityError, OperationalError, ProgrammingError
 
+    interval, grace = heartbeat_settings()
     for attempt in range(10):
         try:
             with quiet_experimental():
                 return RDBStorage(
                     url,
-                    heartbeat_interval=max(1, round(HEARTBEAT_SECONDS)),
-                    grace_period=max(2, round(GRACE_SECONDS)),
+                    heartbeat_interval=interval,
+                    grace_period=grace,
                     heartbeat_stale_trial_callback=RetryHeartbeatStaleTrialCallback(max_retry=3),
                 )
         except (OperationalError, ProgrammingError, IntegrityError) as e:
@@ -187,11 +232,29 @@ def make_pruner(settings: StudySettings) -> Any:
     )
 
 
-def open_study(db: Any, name: str, settings: StudySettings | None) -> Any:
+def check_study_name(name: str) -> None:
+    """A study name Optuna can store: not empty, at most :data:`MAX_STUDY_NAME` characters
+    (its column's width), no control characters (one line)."""
+    if not name.strip():
+        raise TuneError("--study: give the study a name (it is empty)")
+    if len(name) > MAX_STUDY_NAME:
+        raise TuneError(
+            f"--study {name[:40]!r}... ({len(name)} characters): give at most {MAX_STUDY_NAME} "
+            "(Optuna's study_name column)"
+        )
+    if any(ord(c) < 32 or ord(c) == 127 for c in name):
+        raise TuneError(f"--study {name[:40]!r}: a name without control characters (tabs, new lines)")
+
+
+def open_study(db: Any, name: str, settings: StudySettings | None, space_file: dict[str, str] | None = None) -> Any:
     """The study ``name`` in ``db``: created with ``settings`` if new; if it exists, its stored
-    settings must equal ``settings`` (None: whatever it holds, for status and export)."""
+    settings must equal ``settings`` (None: whatever it holds, for status and export).
+    ``space_file`` (``{"path": ..., "toml": ...}``: :func:`nutribench.tuning.export.space_file_attr`)
+    is kept with the study (a study made before it was kept gets it on its next resume)."""
     import optuna
 
+    if settings is not None:
+        check_study_name(name)
     storage = optuna_storage(db, writer=settings is not None)
     names = set() if storage is None else {s.study_name for s in optuna.get_all_study_summaries(storage, False)}
     if name not in names:
@@ -210,6 +273,8 @@ def open_study(db: Any, name: str, settings: StudySettings | None) -> Any:
         except optuna.exceptions.DuplicatedStudyError:
             pass  # another driver created it a moment ago: resume it below
         else:
+            if space_file is not None:
+                study.set_user_attr(SPACE_ATTR, space_file)
             study.set_user_attr(ATTR, settings.as_attr())
             return study
     stored = _settings_when_written(optuna.load_study(study_name=name, storage=storage))
@@ -224,7 +289,10 @@ def open_study(db: Any, name: str, settings: StudySettings | None) -> Any:
             "or name a new --study"
         )
     sampler = make_sampler(stored, joining=True)
-    return optuna.load_study(study_name=name, storage=storage, sampler=sampler, pruner=make_pruner(stored))
+    study = optuna.load_study(study_name=name, storage=storage, sampler=sampler, pruner=make_pruner(stored))
+    if space_file is not None and SPACE_ATTR not in study.user_attrs:
+        study.set_user_attr(SPACE_ATTR, space_file)
+    return study
 
 
 def _settings_when_written(study: Any, wait_s: float = 10.0) -> StudySettings:
@@ -309,33 +377,11 @@ def study_counts(db: Any, name: str | None = None) -> list[StudyCounts]:
     return [count_trials(optuna.load_study(study_name=n, storage=storage)) for n in names]
 
 
-def run_study(
-    study: Any,
-    objective: Callable[[Any], float],
-    trials: int,
-    on_trial: Callable[[StudyCounts], None] | None = None,
-) -> StudyCounts:
-    """Run trials of ``objective`` until ``study`` holds ``trials`` finished (complete or pruned)
-    trials; other drivers on the same study share the work."""
-    from optuna.study import MaxTrialsCallback
-    from optuna.trial import TrialState
-
-    if trials < 1:
-        raise TuneError("--trials must be >= 1")
-    counts = count_trials(study)
-    missing = trials - counts.finished
-    if missing <= 0:
-        return counts
-    stop = MaxTrialsCallback(trials, states=(TrialState.COMPLETE, TrialState.PRUNED))
-    report: list[Callable[..., None]] = [] if on_trial is None else [lambda s, t: on_trial(count_trials(s))]
-    # no n_trials: the callback stops this driver as soon as the study (all drivers) holds enough
-    # finished trials; retried stale trials and failed ones do not count
-    study.optimize(objective, n_trials=None, callbacks=[stop, *report], catch=())
-    return count_trials(study)
-
-
 def default_eval_every(days: int) -> int:
-    """The evaluation period when none is given: the largest divisor of ``days`` up to a tenth of it."""
+    """The evaluation period when none is given: the largest divisor of ``days`` up to a tenth of
+    it (1 for days beyond :data:`MAX_DAYS`, which :meth:`StudySettings.check` refuses)."""
+    if not 1 <= days <= MAX_DAYS:
+        return 1
     return next(d for d in range(max(1, days // 10), 0, -1) if days % d == 0)
 
 
