@@ -3,6 +3,7 @@ paired by seed and day (a thin layer over :mod:`nutribench.report.compare`)."""
 
 from __future__ import annotations
 
+import json
 from typing import Annotated, Optional
 
 import typer
@@ -19,6 +20,9 @@ def compare_cmd(
         typer.Option("--regimes", help="regimes, comma list (default: every regime both were evaluated on)"),
     ] = None,
     markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="print JSON: the rows' numbers (differences in returns), the notes")
+    ] = False,
     db: Annotated[
         str, typer.Option(envvar="NUTRIBENCH_DB", help="results database: a file path or a SQLAlchemy URL")
     ] = "nutribench.db",
@@ -35,5 +39,9 @@ def compare_cmd(
         if not names:
             raise UserError("--regimes: give a comma list of regimes, e.g. --regimes run1,run3")
     res = load_comparison(db, a, b, regimes=names, reps=reps)
+    if as_json:
+        rows = json.loads(res.rows.to_json(orient="records"))
+        typer.echo(json.dumps({"a": res.a, "b": res.b, "reps": res.reps, "rows": rows, "notes": res.notes}, indent=2))
+        return
     text = res.to_markdown() if markdown else res.to_text()
     console.print(text, end="", highlight=False, soft_wrap=True, markup=False)

@@ -11,7 +11,7 @@ import typer
 
 from nutribench.cli.common import UserError, check_out_dir, console, err_console, user_errors
 
-FORMATS = ("markdown", "csv", "latex")
+FORMATS = ("markdown", "csv", "latex", "json")
 
 
 @user_errors
@@ -26,7 +26,7 @@ def leaderboard_cmd(
     out: Annotated[
         Optional[Path], typer.Option("--out", help="also write leaderboard.md, .tex and .csv into this folder")
     ] = None,
-    fmt: Annotated[str, typer.Option("--format", help="what to print: markdown, csv or latex")] = "markdown",
+    fmt: Annotated[str, typer.Option("--format", help="what to print: markdown, csv, latex or json")] = "markdown",
     reps: Annotated[int, typer.Option(help="bootstrap resamples of the runs (100 to 100,000)")] = 2000,
     verify: Annotated[
         Optional[Path],
@@ -64,8 +64,19 @@ def leaderboard_cmd(
         if archives is not None
         else leaderboard_from_db(db, reps, log, verify)
     )
-    text = {"markdown": table.to_markdown, "csv": table.to_csv, "latex": table.to_latex}[fmt]()
+    text = {"markdown": table.to_markdown, "csv": table.to_csv, "latex": table.to_latex, "json": _json(table)}[fmt]()
     console.print(text, end="" if text.endswith("\n") else "\n", highlight=False, soft_wrap=True, markup=False)
     if out is not None:
         for path in write_table(table, out, "leaderboard"):
             err_console.print(str(path), highlight=False, soft_wrap=True)
+
+
+def _json(table):
+    """``--format json``: the caption and the rows' numbers (shares as fractions), for scripts."""
+    import json
+
+    def text() -> str:
+        rows = json.loads(table.raw.to_json(orient="records"))
+        return json.dumps({"caption": table.title, "rows": rows}, indent=2) + "\n"
+
+    return text

@@ -8,6 +8,7 @@ keys, parameters against the base agent, every range's ends), the regimes, the t
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -123,10 +124,10 @@ def tune_cmd(
     handle = open_study(db, study, settings, space_file_attr(resolve_space_path(algo)))
 
     def evaluation(number: int, day: int, value: float) -> None:
-        console.print(f"trial {number}: day {day}: IQM share of the gap {value:+.3f}", highlight=False, soft_wrap=True)
+        console.print(f"trial {number}: day {day}: IQM share of the gap {value:+.1%}", highlight=False, soft_wrap=True)
 
     def finished(counts) -> None:
-        best = "" if counts.best_value is None else f"; best {counts.best_value:+.3f} (trial {counts.best_number})"
+        best = "" if counts.best_value is None else f"; best {counts.best_value:+.1%} (trial {counts.best_number})"
         console.print(
             f"study {counts.name}: {counts.finished} of {trials} finished ({counts.complete} complete, "
             f"{counts.pruned} pruned, {counts.failed} failed){best}",
@@ -163,11 +164,16 @@ def tune_cmd(
 def status_cmd(
     study: Annotated[Optional[str], typer.Option(help="one study (default: every study in the database)")] = None,
     db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help=DB_HELP)] = "nutribench.db",
+    as_json: Annotated[bool, typer.Option("--json", help="print JSON instead of lines")] = False,
 ) -> None:
-    """Each tuning study: trials complete, pruned, running, failed, and the best so far."""
+    """Each tuning study: trials complete, pruned, running, failed, and the best so far
+    (values: the IQM share of the never -> planner gap, in percent; a fraction in --json)."""
     from nutribench.tuning.study import study_counts
 
     rows = study_counts(db, study)
+    if as_json:
+        typer.echo(json.dumps([_counts_dict(c) for c in rows], indent=2, default=str))
+        return
     if not rows:
         console.print("no tuning studies in this database: `nutribench tune --algo ppo --study NAME` starts one")
         return
@@ -180,7 +186,7 @@ def status_cmd(
                 f"{s.space} v{s.space_version} on {','.join(s.regimes)}, seeds {','.join(map(str, s.seeds))}, {s.days} days"
             )
         )
-        best = "" if c.best_value is None else f"; best {c.best_value:+.3f} (trial {c.best_number})"
+        best = "" if c.best_value is None else f"; best {c.best_value:+.1%} (trial {c.best_number})"
         console.print(
             f"study {c.name}: {what}: {c.complete} complete, {c.pruned} pruned, {c.running} running, "
             f"{c.failed} failed{best}",
@@ -220,3 +226,16 @@ def best_cmd(
         return
     cfg, header = tuned_config(handle, name)
     typer.echo(header + "\n" + agent_config_to_toml(cfg))
+
+
+def _counts_dict(c) -> dict:
+    """One study's counts and settings as plain data (``tune status --json``)."""
+    settings = None if c.settings is None else c.settings.as_attr()
+    return {
+        "study": c.name,
+        "settings": settings,
+        **{
+            k: getattr(c, k)
+            for k in ("complete", "pruned", "running", "failed", "best_value", "best_number", "best_params")
+        },
+    }

@@ -182,7 +182,7 @@ class Comparison:
         lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
         lines += ["| " + " | ".join(str(v) for v in row) + " |" for row in fmt.itertuples(index=False)]
         if self.notes:
-            lines += ["", *(f"note: {n}" for n in self.notes)]
+            lines += ["", *map(_note_line, self.notes)]
         return "\n".join(lines) + "\n"
 
     def to_text(self) -> str:
@@ -196,8 +196,13 @@ class Comparison:
             lines.append(self.provenance)
         lines += ["", "  ".join(cell(c, c) for c in cols).rstrip()]
         lines += ["  ".join(cell(c, v) for c, v in zip(cols, row)).rstrip() for row in fmt.itertuples(index=False)]
-        lines += [f"note: {n}" for n in self.notes]
+        lines += list(map(_note_line, self.notes))
         return "\n".join(lines) + "\n"
+
+
+def _note_line(note: str) -> str:
+    """A note as printed: a warning as ``warning: ...``, any other as ``note: ...``."""
+    return note if note.startswith("warning: ") else f"note: {note}"
 
 
 def compare_agents(
