@@ -3,7 +3,8 @@
 # checkout of COMMIT (a git worktree under /work/frozen), so that work on main does not change a
 # running study. Resumable: the same command with the same COMMIT goes on where a study stopped.
 # Usage: bash reports/tuned_v2/tune_v2.sh COMMIT AGENT [AGENT ...]   (agents run side by side)
-#   e.g. bash reports/tuned_v2/tune_v2.sh 1a2b3c4 ppo gru_ppo
+#   e.g. PYTHON=/work/venv/bin/python bash reports/tuned_v2/tune_v2.sh 1a2b3c4 ppo gru_ppo
+#   (PYTHON: the interpreter of the project's environment; default: python on PATH)
 # Stop with SIGINT (kill -INT) before a session ends; commit data/tuning.db (an sqlite3 .backup
 # copy) and the logs.
 set -u
@@ -20,7 +21,7 @@ for agent in "$@"; do
   {
     echo "$(date -u +%FT%TZ) start $agent: commit $commit, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores"
   } >> "$out/logs/code_version.txt"
-  ( cd "$frozen" && PYTHONPATH="$frozen" /usr/bin/time -f "%e s wall" python -m nutribench.cli tune \
+  ( cd "$frozen" && PYTHONPATH="$frozen" /usr/bin/time -f "%e s wall" "${PYTHON:-python}" -m nutribench.cli tune \
       --algo "${agent}_v2" --study "v2_$agent" --regimes run0,run2,run4,run5 --seeds 101,102 \
       --days 1000 --eval-every 100 --val-episodes 5 --trials 24 --startup-trials 8 \
       --sampler-seed 0 --pruner none --objective late-mean --stack "$stack" \
