@@ -30,6 +30,7 @@ import nutribench.agents.registry as registry
 from nutribench.config.loading import (
     ConfigError,
     content_sha256,
+    file_digest,
     format_validation_error,
     read_toml,
     regimes_dir,
@@ -142,10 +143,19 @@ def load_agent_config(name_or_path: str | Path | BaseModel) -> Any:
     if isinstance(name_or_path, BaseModel):
         return name_or_path
     path = resolve_agent_path(name_or_path)
+    key = file_digest(path)  # each file's content parsed once (the models are frozen)
+    if key is not None and (str(path), key) in _LOADED:
+        return _LOADED[(str(path), key)]
     cfg = parse_agent_config(read_toml(path), path)
     if cfg.name != path.stem:
         raise ConfigError(f"{path}: name: '{cfg.name}' differs from the file name '{path.stem}' (make them equal)")
+    if key is not None:
+        _LOADED[(str(path), key)] = cfg
     return cfg
+
+
+#: agent files parsed: (the path, its content digest) -> the config
+_LOADED: dict[tuple[str, bytes], Any] = {}
 
 
 def agent_config_content(cfg: BaseModel) -> dict[str, Any]:

@@ -106,13 +106,36 @@ def resolve_named_file(name_or_path: str | Path, folder: Path, what: str, known:
     return path
 
 
+#: validated files: (model, the file's content digest) -> the model instance (frozen)
+_MODELS: dict[tuple[Any, bytes], Any] = {}
+
+
+def file_digest(path: Path) -> bytes | None:
+    """A digest of the file's bytes, the key of a cache of what was parsed from it: a file
+    changed in any way (even within one tick of the file system's clock, its size kept) is
+    parsed again; None where it cannot be read (then :func:`read_toml` raises its one line)."""
+    try:
+        return hashlib.blake2b(Path(path).read_bytes(), digest_size=20).digest()
+    except OSError:
+        return None
+
+
 def load_model(model: type[M], path: Path) -> M:
-    """Read a TOML file into ``model``, turning validation errors into one-line ConfigErrors."""
+    """Read a TOML file into ``model``, turning validation errors into one-line ConfigErrors.
+
+    Each content is parsed and validated once per process (the models are frozen): a tuning
+    study loaded its regime files thousands of times (issue 51); reading the bytes is cheap."""
+    key = file_digest(path)
+    if key is not None and (model, key) in _MODELS:
+        return _MODELS[(model, key)]
     data = read_toml(path)
     try:
-        return model.model_validate(data)
+        out = model.model_validate(data)
     except ValidationError as e:
         raise ConfigError(format_validation_error(path, e)) from None
+    if key is not None:
+        _MODELS[(model, key)] = out
+    return out
 
 
 def canonical_json(obj: Any) -> str:

@@ -89,10 +89,12 @@ class Algorithm:
         on_validation: ValidationFn | None = None,
         agent_configs: Sequence[Any] | None = None,
         active: np.ndarray | None = None,
+        return_agents: bool = True,
     ) -> list[TrainedAgent]:
         """Train one agent of ``cfg`` (a config of this algorithm) per ``(regime, seed)`` of
         ``jobs`` for ``episodes`` days, all at once, and hand each back with its diagnostics
-        (:func:`~nutribench.engine.train.train_batched` says what the arguments do)."""
+        (:func:`~nutribench.engine.train.train_batched` says what the arguments do; with
+        ``return_agents`` False none: ``[]``, no SB3 model built)."""
         horizon = load_env_config(jobs[0][0]).reward.horizon if jobs else None
         for c in agent_configs or [cfg]:
             check_supported(c, horizon)  # before anything trains
@@ -116,7 +118,7 @@ class Algorithm:
             algorithm = made()
             wall = algorithm.learn(episodes * algorithm.envs.horizon, checkpoint)
         algorithm.day_boundary(episodes * algorithm.envs.horizon)  # the evaluation after the last day
-        return algorithm.trained_agents(episodes, wall)
+        return algorithm.trained_agents(episodes, wall) if return_agents else []
 
     def trained_agents(self, episodes: int, wall: float) -> list[TrainedAgent]:
         """Each agent as the SB3 engine's :class:`~nutribench.agents.api.TrainedAgent` of its

@@ -60,6 +60,7 @@ def train_batched(
     on_validation: ValidationFn | None = None,
     agent_configs: Sequence[Any] | None = None,
     active: np.ndarray | None = None,
+    return_agents: bool = True,
 ) -> list[TrainedAgent]:
     """Train one agent of ``agent_config`` per ``(regime, seed)`` of ``jobs`` for
     ``episodes`` days, all at once. Each agent comes back with ``diagnostics``: one dict per
@@ -91,6 +92,8 @@ def train_batched(
         ``agent_config`` is still the batch's structure.
     :param active: a ``(K,)`` bool array the caller may change while training: the agents
         where it is False get no more updates (a pruned trial's; the classes with ``PER_AGENT``).
+    :param return_agents: False: build no SB3 model and return ``[]`` (a tuning trial's score
+        is its ``on_validation`` rows alone: :mod:`nutribench.tuning.stack`).
     :raises nutribench.engine.UnsupportedConfig: (one line, before anything trains) for a
         config this engine would not train as the SB3 engine does (:func:`nutribench.engine.supports`).
     """
@@ -109,4 +112,5 @@ def train_batched(
         on_validation=on_validation,
         agent_configs=None if agent_configs is None else [load_agent_config(c) for c in agent_configs],
         active=active,
+        return_agents=return_agents,
     )

@@ -101,6 +101,7 @@ class ValidationObjective:
                 eval_every=s.eval_every,
                 val_episodes=s.val_episodes,
                 on_validation=on_validation,
+                return_agents=False,  # the score is the validation rows: no SB3 model built
             )
             return
         from nutribench.agents.api import evaluate, train

@@ -29,22 +29,17 @@ later group's too, while an earlier one trains); an error or Ctrl-C fails those 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from nutribench.tuning.asking import StackView, _backend, claim, heartbeats
 from nutribench.tuning.objective import TrialScores, ValidationObjective
 from nutribench.tuning.study import StudyCounts, TuneError, count_trials, quiet_experimental
 
 #: the fields of an agent config that name it, not what it trains
 _NAMING = ("name", "version", "description")
-
-
-def _backend(study: Any) -> Any:
-    """The study's RDB storage (under Optuna's cache)."""
-    return getattr(study._storage, "_backend", study._storage)
 
 
 def fail_stale(study: Any) -> None:
@@ -86,82 +81,6 @@ def fail_stale(study: Any) -> None:
         if callback is not None:
             with quiet_experimental():
                 callback(study, storage.get_trial(trial_id))
-
-
-@contextmanager
-def heartbeats(study: Any, trials: list[Any]) -> Iterator[None]:
-    """Keep the running ``trials``' heartbeats while the block runs (the first beat before the
-    block starts); a driver killed with -9 stops them, and its trials go stale."""
-    import threading
-
-    storage = study._storage
-    interval = storage.get_heartbeat_interval() if hasattr(storage, "get_heartbeat_interval") else None
-    if not interval:
-        yield
-        return
-    for t in trials:
-        storage.record_heartbeat(t._trial_id)
-    stop = threading.Event()
-
-    def beat() -> None:
-        while not stop.wait(interval):
-            for t in trials:
-                storage.record_heartbeat(t._trial_id)
-
-    thread = threading.Thread(target=beat, daemon=True)
-    thread.start()
-    try:
-        yield
-    finally:
-        stop.set()
-        thread.join()
-
-
-def _pop_waiting(study: Any) -> int | None:
-    """The id of a queued (WAITING) trial this driver set RUNNING, or None when none is queued:
-    in one conditional UPDATE, which one driver wins (Study.ask reads, then writes: on SQLite
-    two drivers could both take one trial, and one trial was told twice)."""
-    import datetime
-
-    import sqlalchemy
-    from optuna.storages._rdb import models
-    from optuna.trial import TrialState
-
-    storage = _backend(study)
-    for frozen in study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
-        if not hasattr(storage, "engine"):  # not an RDB storage: Optuna's own pop
-            return study._pop_waiting_trial_id()
-        with storage.engine.begin() as conn:
-            won = conn.execute(
-                sqlalchemy.update(models.TrialModel)
-                .where(models.TrialModel.trial_id == frozen._trial_id, models.TrialModel.state == TrialState.WAITING)
-                .values(state=TrialState.RUNNING, datetime_start=datetime.datetime.now())
-            ).rowcount
-        if won == 1:
-            return frozen._trial_id
-    return None
-
-
-def claim(study: Any, trials: int) -> Any | None:
-    """A trial of ``study`` to run (a queued one first: a killed driver's parameters to retry),
-    or None when the study holds ``trials`` finished and running trials once it is asked.
-
-    The count is taken after the ask, the new trial among the running: of drivers asking at
-    once none runs a trial past the count (each one's count holds every trial asked before it;
-    one over the count goes back to the queue, WAITING, never run nor counted, never beaten)."""
-    import optuna
-    from optuna.trial import TrialState
-
-    study._thread_local.cached_all_trials = None  # as Study.ask: the trials read afresh
-    trial_id = _pop_waiting(study)
-    if trial_id is None:
-        trial_id = study._storage.create_new_trial(study._study_id)
-    trial = optuna.Trial(study, trial_id)
-    held = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED, TrialState.RUNNING))
-    if len(held) <= trials:
-        return trial
-    study._storage.set_trial_state_values(trial._trial_id, state=TrialState.WAITING)
-    return None
 
 
 def wait_for_room(
@@ -305,23 +224,29 @@ class StackedTrials:
 
         space = self.objective.space
         count = trials if trials is not None else 2**62
+        view = StackView.of(study)  # the study read once; the stack's trials kept as written (asking.py)
         out: list[tuple[Any, Any]] = []
-        for i in range(n):
-            trial = claim(study, count)
-            if trial is None:
-                break
-            try:
-                out.append((trial, space.config(space.suggest(trial))))
-            except BaseException:
-                study.tell(trial, state=TrialState.FAIL)
-                for t, _ in out:
-                    study.tell(t, state=TrialState.FAIL)
-                raise
-            if i == 0 and n > 1 and structure_key(out[0][1]) is not None:
-                shared = per_agent_fields(out[0][1])
-                fixed = {k: v for k, v in trial.params.items() if k not in shared}
-                for _ in range(n - 1):
-                    study.enqueue_trial(fixed, skip_if_exists=False)
+        try:
+            for i in range(n):
+                trial = claim(view, count)
+                if trial is None:
+                    break
+                try:
+                    out.append((trial, space.config(space.suggest(trial))))
+                except BaseException:
+                    for t in [trial, *(t for t, _ in out)]:
+                        t.study, t.storage = study, study._storage
+                        study.tell(t, state=TrialState.FAIL)
+                    out.clear()
+                    raise
+                if i == 0 and n > 1 and structure_key(out[0][1]) is not None:
+                    shared = per_agent_fields(out[0][1])
+                    fixed = {k: v for k, v in trial.params.items() if k not in shared}
+                    for _ in range(n - 1):
+                        view.enqueue_trial(fixed, skip_if_exists=False)
+        finally:
+            for trial, _ in out:  # asked: from now on the study's own (reports, prunes, tells)
+                trial.study, trial.storage = study, study._storage
         return out
 
     @staticmethod
@@ -358,9 +283,8 @@ class StackedTrials:
         for trial, cfg in group:
             obj.record_engine(trial, cfg)
             trial.set_user_attr("stacked_with", [t.number for t in trials if t is not trial])
-        try:
-            with heartbeats(study, trials):
-                self.train(group, on_validation, active)
+        try:  # beating since their claim (run's heartbeats)
+            self.train(group, on_validation, active)
         except _AllPruned:
             pass
         except BaseException:
@@ -397,4 +321,5 @@ class StackedTrials:
             on_validation=on_validation,
             agent_configs=cfgs,
             active=active,
+            return_agents=False,  # a trial's score is its validation rows: no SB3 model built
         )
