@@ -1,5 +1,5 @@
 """What every command module of the CLI shares: the consoles, the one-line error
-decorator and the parsing of comma lists.
+decorator, the parsing of comma lists and the progress line of the long commands.
 
 Errors a user can fix derive from :class:`nutribench.errors.UserError` in whichever room
 raises them; :func:`user_errors` prints them as one red line and exits with status 2.
@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import errno
 import functools
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import typer
@@ -28,6 +31,7 @@ __all__ = [
     "console",
     "err_console",
     "print_error",
+    "progress",
     "split_csv",
     "user_errors",
 ]
@@ -129,3 +133,50 @@ def old_spelling(value, old, option: str, old_option: str, default=None):
             f"{option} {value} and {old_option} {old}: give one ({old_option} is the old spelling of {option})"
         )
     return value if value is not None else old if old is not None else default
+
+
+@contextmanager
+def progress(
+    total: int | None, description: str, *, text: str = "", lines: bool = False, console: Console | None = None
+) -> Iterator[Callable[..., None]]:
+    """What a long command is doing, on stderr, while the block runs; yields ``advance(text,
+    done=None, total=None)``: the step now under way (``done``: steps finished, default one
+    more than before; ``total``: the steps there are, where it becomes known).
+
+    On a terminal: one rich line (a spinner, ``description: text``, a bar of ``done`` of
+    ``total`` where a total is known, the time elapsed), gone when the block ends. Where
+    stderr is no terminal (a file, a pipe, a test's runner) nothing is shown, or with
+    ``lines`` one plain dim line per step: ``text (12 s)``. Stdout is never touched."""
+    out = console or err_console
+    t0 = time.monotonic()
+    if not out.is_terminal:
+
+        def plain(step: str, done: int | None = None, total: int | None = None) -> None:
+            if lines:
+                out.print(f"{step} ({time.monotonic() - t0:.0f} s)", style="dim", highlight=False, soft_wrap=True)
+
+        yield plain
+        return
+    from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+    from rich.table import Column
+
+    bar = Progress(
+        SpinnerColumn(),
+        TextColumn("{task.description}", table_column=Column(ratio=1, no_wrap=True, overflow="ellipsis")),
+        BarColumn(bar_width=16),  # the text is cut on a narrow terminal, never the bar or the time
+        TimeElapsedColumn(),
+        console=out,
+        expand=True,
+        transient=True,
+        redirect_stdout=False,  # the results printed meanwhile stay on stdout
+        redirect_stderr=False,
+    )
+    task = bar.add_task(f"{description}: {text}" if text else description, total=total)
+
+    def advance(step: str, done: int | None = None, total: int | None = None) -> None:
+        finished = bar.tasks[0].completed + 1 if done is None else done
+        bar.update(task, description=f"{description}: {step}", completed=finished, total=total)  # None: kept
+        bar.refresh()  # each step is shown, however quickly the next one comes
+
+    with bar:
+        yield advance

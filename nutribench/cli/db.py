@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from nutribench.cli.common import UserError, console, user_errors
+from nutribench.cli.common import UserError, console, progress, user_errors
 
 db_app = typer.Typer(
     no_args_is_help=True,
@@ -84,7 +84,10 @@ def db_import_cmd(
     from nutribench.store.archive import import_results
     from nutribench.store.engine import database_url, display_url
 
-    counts = import_results(archive, db)
+    with progress(None, f"db import {archive.name}") as advance:
+        counts = import_results(
+            archive, db, on_step=lambda phase, done, total: advance(_step(phase, done, total), done, total or None)
+        )
     # the database as display_url shows it: a URL's password is never printed
     console.print(
         f"{archive} -> {display_url(database_url(db))}: {counts['imported']} jobs imported ({counts['episodes']:,} episodes, "
@@ -93,3 +96,10 @@ def db_import_cmd(
         f"{counts.get('validation_episodes', 0):,} validation days",
         highlight=False,
     )
+
+
+def _step(phase: str, done: int, total: int) -> str:
+    """What ``db import`` is doing, for its progress line (:func:`nutribench.store.archive.import_results`'s steps)."""
+    if phase == "checking":
+        return "checking, replaying the evaluation days"
+    return f"writing job {done + 1} of {total}"

@@ -9,7 +9,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import UserError, check_out_dir, console, err_console, user_errors
+from nutribench.cli.common import UserError, check_out_dir, console, err_console, progress, user_errors
 
 FORMATS = ("markdown", "csv", "latex", "json")
 
@@ -58,17 +58,47 @@ def leaderboard_cmd(
         check_out_dir(out)
         for suffix in TABLE_SUFFIXES:
             check_regular_file(out / f"leaderboard.{suffix}", "--out", UserError)
-    log = lambda msg: err_console.print(msg, style="dim", highlight=False, soft_wrap=True)  # noqa: E731
-    table = (
-        leaderboard_from_archives(archives, reps, log, verify)
-        if archives is not None
-        else leaderboard_from_db(db, reps, log, verify)
-    )
+    ranking = f"ranking ({reps:,} bootstrap resamples)"
+    with progress(None, "leaderboard", text=ranking) as advance:
+        steps = _steps(archives, ranking, advance)
+
+        def log(msg: str) -> None:
+            err_console.print(msg, style="dim", highlight=False, soft_wrap=True)
+            steps(msg)
+
+        table = (
+            leaderboard_from_archives(archives, reps, log, verify)
+            if archives is not None
+            else leaderboard_from_db(db, reps, log, verify)
+        )
     text = {"markdown": table.to_markdown, "csv": table.to_csv, "latex": table.to_latex, "json": _json(table)}[fmt]()
     console.print(text, end="" if text.endswith("\n") else "\n", highlight=False, soft_wrap=True, markup=False)
     if out is not None:
         for path in write_table(table, out, "leaderboard"):
             err_console.print(str(path), highlight=False, soft_wrap=True)
+
+
+def _steps(folder: Path | None, ranking: str, advance):
+    """The progress line's steps from the log of :func:`~nutribench.report.leaderboard.leaderboard_from_archives`
+    (``imported NAME`` after each archive, ``refused: ...`` once all are read): importing k of
+    n, then the ranking; archive 1's step is shown at once."""
+    names = [p.name for p in sorted(folder.glob("*.npz"))] if folder is not None and folder.is_dir() else []
+    n = len(names)
+
+    def step(k: int) -> None:  # k archives read
+        advance(f"importing {k + 1} of {n}: {names[k]}" if k < n else ranking, k, n + 1)
+
+    if names:
+        step(0)
+
+    def seen(msg: str) -> None:
+        name = msg.removeprefix("imported ")
+        if name != msg and name in names:
+            step(names.index(name) + 1)
+        elif msg.startswith("refused: ") and names:
+            step(n)
+
+    return seen
 
 
 def _json(table):

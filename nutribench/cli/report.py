@@ -10,7 +10,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import UserError, check_out_dir, check_range, console, err_console, user_errors
+from nutribench.cli.common import UserError, check_out_dir, check_range, console, err_console, progress, user_errors
 
 
 def _split(values: list[str] | None) -> list[str]:
@@ -148,18 +148,19 @@ def report_cmd(
     log = lambda msg: err_console.print(msg, style="yellow", highlight=False, soft_wrap=True)  # noqa: E731
     paths: list[Path] = []
     if figs or tables or all_:
-        paths += build_report(
-            db,
-            out,
-            figs=figs,
-            tables=tables,
-            all=all_,
-            reference_episodes=reference_episodes,
-            log=log,
-            algos=selected,
-            pair=pair_names,
-            progress=_progress(),
-        )
+        with progress(None, "report", text="reading the database", lines=True) as advance:
+            paths += build_report(
+                db,
+                out,
+                figs=figs,
+                tables=tables,
+                all=all_,
+                reference_episodes=reference_episodes,
+                log=log,
+                algos=selected,
+                pair=pair_names,
+                progress=lambda msg: advance(msg, *_counted(msg)),
+            )
     if trajectory:
         paths += build_trajectory(db, algo, regime, seed, episode=episode, out=out)
     if diagnostics:
@@ -170,11 +171,9 @@ def report_cmd(
         console.print(str(p), highlight=False, soft_wrap=True)
 
 
-def _progress():
-    """``[3/14] figure 3 (12 s)`` on stderr as each item of the report starts (dim)."""
-    import time
+def _counted(msg: str) -> tuple[int | None, int | None]:
+    """Items done and items in all of ``build_report``'s ``[3/14] figure 3``: (2, 14)."""
+    import re
 
-    t0 = time.monotonic()
-    return lambda msg: err_console.print(
-        f"{msg} ({time.monotonic() - t0:.0f} s)", style="dim", highlight=False, soft_wrap=True
-    )
+    m = re.match(r"\[(\d+)/(\d+)\]", msg)
+    return (int(m[1]) - 1, int(m[2])) if m else (None, None)

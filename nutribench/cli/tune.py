@@ -9,12 +9,13 @@ keys, parameters against the base agent, every range's ends), the regimes, the t
 from __future__ import annotations
 
 import json
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import DEVICE_HELP, console, split_csv, user_errors
+from nutribench.cli.common import DEVICE_HELP, console, progress, split_csv, user_errors
 
 tune_app = typer.Typer(
     no_args_is_help=False,
@@ -124,9 +125,11 @@ def tune_cmd(
     handle = open_study(db, study, settings, space_file_attr(resolve_space_path(algo)))
 
     def evaluation(number: int, day: int, value: float) -> None:
+        shown.close()
         console.print(f"trial {number}: day {day}: IQM share of the gap {value:+.1%}", highlight=False, soft_wrap=True)
 
     def finished(counts) -> None:
+        shown.close()
         best = "" if counts.best_value is None else f"; best {counts.best_value:+.1%} (trial {counts.best_number})"
         console.print(
             f"study {counts.name}: {counts.finished} of {trials} finished ({counts.complete} complete, "
@@ -136,6 +139,7 @@ def tune_cmd(
         )
 
     def waiting(counts) -> None:
+        shown.close()
         console.print(
             f"study {counts.name}: {counts.finished} of {trials} finished, {counts.running} running: waiting for "
             f"them (another driver's finish; a killed driver's is failed {grace} s after its last heartbeat and "
@@ -147,16 +151,37 @@ def tune_cmd(
     objective = ValidationObjective(space, settings, device=device, on_evaluation=evaluation)
     from nutribench.tuning.stack import StackedTrials, run_study
 
-    if stack > 1:
-        counts = StackedTrials(objective, stack).run(handle, trials, on_trial=finished, on_wait=waiting)
-    else:
-        counts = run_study(handle, objective, trials, on_trial=finished, on_wait=waiting)
+    with ExitStack() as shown:  # the progress line on stderr, until the first line on stdout
+        _show_training(objective, shown.enter_context(progress(None, f"tune {study}", text="asking for a trial")))
+        if stack > 1:
+            counts = StackedTrials(objective, stack).run(handle, trials, on_trial=finished, on_wait=waiting)
+        else:
+            counts = run_study(handle, objective, trials, on_trial=finished, on_wait=waiting)
     console.print(
         f"study {study} holds {counts.finished} finished trials: `nutribench tune best --study {study} --write` "
         "writes the best as a new agent file",
         highlight=False,
         soft_wrap=True,
     )
+
+
+def _show_training(objective, advance) -> None:
+    """The progress line says which trials train (each trial's engine is recorded as its
+    training starts, stacked trials one after the other) and when their first evaluation comes."""
+    record, numbers = objective.record_engine, []
+    s = objective.settings
+
+    def record_engine(trial, cfg) -> None:
+        record(trial, cfg)
+        numbers.append(trial.number)
+        which = f"trial {numbers[0]}" if len(numbers) == 1 else f"trials {min(numbers)}..{max(numbers)}"
+        agents = f"{len(objective.jobs)} agent{'s' if len(objective.jobs) != 1 else ''}"
+        advance(
+            f"training {which}: {agents} each, {s.days:,} days, first evaluation at day {min(s.eval_every, s.days):,}",
+            0,
+        )
+
+    objective.record_engine = record_engine
 
 
 @tune_app.command("status")

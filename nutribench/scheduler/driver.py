@@ -341,7 +341,7 @@ def run_grid(
         held, _ = held_elsewhere(store, job_ids, owner)
         if runnable or held:
             handle, note = make_executor(executor, workers, max(runnable, held))
-            view = make_view(display, grid, len(job_ids), handle.description, note)
+            view = make_view(display, grid, len(job_ids), handle.description, note, agent_cfgs)
             pools = None
             if engine == "batched":
                 shapes = {r.name: (r.obj.reward.horizon, len(r.obj.catalog.food)) for r in regime_cfgs}

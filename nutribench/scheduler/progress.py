@@ -1,10 +1,16 @@
 """What ``nutribench run`` shows while it works: a rich Live panel (overall jobs done of
 total with an ETA, one line per running job: regime, algo, seed, episode k/n, recent
-return) and one log line per finished or failed job. ``display=False`` shows nothing."""
+return) and one log line per finished or failed job. ``display=False`` shows nothing.
+
+The ETA: until a job of this run has finished, an estimate from the agents' relative costs
+(:func:`estimate_seconds`: ``ETA ~4m (estimate)``); the first days of a run also pay for
+starting the workers, so the days trained so far would price the rest many times too high.
+Once a job has finished, the time this run took for the days it trained (:func:`eta_seconds`)."""
 
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from typing import Any
 
 from rich.console import Console, Group
@@ -55,6 +61,45 @@ def eta_seconds(run: Any, elapsed: float) -> float | None:
     return elapsed * max(planned - done, 0) / trained_here
 
 
+def estimate_seconds(run: Any, costs: dict[str, float], workers: int) -> float | None:
+    """Remaining time of this run from the agents' relative costs (``costs``: agent config
+    name -> its registry entry's ``cost``, PPO's day = 1) at
+    :data:`~nutribench.scheduler.grid.SB3_SECONDS_PER_COST_DAY` a cost-day (the SB3 engine's
+    calibration), shared by ``workers`` (at most one per job left): the running jobs' days still
+    to train at their agent's cost, the jobs not started yet at the grid's mean cost."""
+    from nutribench.scheduler.grid import SB3_SECONDS_PER_COST_DAY
+
+    algos = list(getattr(run.grid, "algos", ())) or list(costs)
+    if not algos:
+        return None
+    mean = sum(costs.get(a, 1.0) for a in algos) / len(algos)
+    running = sum(
+        max(st["spec"].episodes - int(st.get("k", 0)), 0) * costs.get(st["spec"].algo, mean) for st in run.live.values()
+    )
+    waiting = max(run.planned - len(run.attempted), 0)
+    jobs_left = len(run.live) + waiting
+    if jobs_left == 0:
+        return 0.0
+    cost_days = running + waiting * run.grid.episodes * mean
+    return cost_days * SB3_SECONDS_PER_COST_DAY / max(1, min(workers, jobs_left))
+
+
+def rough_duration(seconds: float) -> str:
+    """An estimate, no more precise than it is: ``<1m``, ``~12m``, ``~1h05m``."""
+    m = int(round(seconds / 60))
+    return "<1m" if m == 0 else f"~{m}m" if m < 60 else f"~{m // 60}h{m % 60:02d}m"
+
+
+def eta_text(run: Any, elapsed: float, costs: dict[str, float], workers: int) -> str:
+    """The ETA shown: :func:`estimate_seconds` (said to be one) until a job of this run has
+    finished (done or failed), then :func:`eta_seconds`, measured."""
+    if not run.summary.done and not run.summary.failed:
+        estimate = estimate_seconds(run, costs, workers) if costs else None
+        if estimate is not None:
+            return f"{rough_duration(estimate)} (estimate)"
+    return format_duration(eta_seconds(run, elapsed))
+
+
 #: The width of the progress lines written where there is no terminal (a file, a pipe).
 NO_TERMINAL_WIDTH = 240
 
@@ -71,8 +116,16 @@ class NullView:
 class LiveView(NullView):
     """The rich Live panel on stderr."""
 
-    def __init__(self, total: int, description: str, note: str | None, console: Console | None = None):
+    def __init__(
+        self,
+        total: int,
+        description: str,
+        note: str | None,
+        console: Console | None = None,
+        costs: dict[str, float] | None = None,
+    ):
         self.console = console or Console(stderr=True)
+        self.costs = costs or {}  # agent config name -> relative cost of a day, for the first ETA
         if not self.console.is_terminal:  # a log file or a pipe: lines whole, not wrapped at 80 columns
             self.console.width = max(self.console.width, NO_TERMINAL_WIDTH)
         self.total, self.description, self.note = total, description, note
@@ -90,9 +143,10 @@ class LiveView(NullView):
     def render(self, run: Any) -> Group:
         elapsed = time.monotonic() - self.t0
         s = run.summary
+        workers = getattr(getattr(run, "handle", None), "slots", 1)
         head = Text(
             f"jobs: {s.done} done, {s.failed} failed, {len(run.live)} running, of {run.planned} to run "
-            f"(grid {s.total})   elapsed {format_duration(elapsed)}   ETA {format_duration(eta_seconds(run, elapsed))}"
+            f"(grid {s.total})   elapsed {format_duration(elapsed)}   ETA {eta_text(run, elapsed, self.costs, workers)}"
         )
         if not run.live:
             return Group(head)
@@ -126,6 +180,13 @@ class LiveView(NullView):
             self.console.line()
 
 
-def make_view(display: bool, grid: Any, total: int, description: str, note: str | None) -> NullView:
-    """A :class:`LiveView` when ``display``, else a :class:`NullView`."""
-    return LiveView(total, description, note) if display else NullView()
+def make_view(
+    display: bool, grid: Any, total: int, description: str, note: str | None, agents: Sequence[Any] = ()
+) -> NullView:
+    """A :class:`LiveView` when ``display``, else a :class:`NullView`. ``agents``: the grid's
+    agent configs as the driver loaded them (``.name``, ``.algo``), priced for the first ETA."""
+    if not display:
+        return NullView()
+    from nutribench.agents import registry
+
+    return LiveView(total, description, note, costs={a.name: registry.get(a.algo).cost for a in agents})

@@ -286,18 +286,19 @@ def _remove_new_file(path: Path | None) -> None:
 
 
 def import_results(
-    path: str | os.PathLike[str], db: str, *, on_job: Callable[[str], None] | None = None
+    path: str | os.PathLike[str], db: str, *, on_step: Callable[[str, int, int], None] = lambda *_: None
 ) -> dict[str, int]:
-    """Merge the archive ``path`` into ``db`` (created or upgraded); counts of jobs
-    ``imported`` and ``kept`` (already done there) and of rows written per table. The archive
-    is checked whole (:func:`read_archive`) before the database is opened."""
+    """Merge the archive ``path`` into ``db`` (created or upgraded); counts of jobs ``imported`` and ``kept``
+    (already done there) and of rows written per table. The archive is checked whole (:func:`read_archive`)
+    before the database is opened. ``on_step(phase, done, total)``: ("checking", 0, 0), ("writing", i, n)."""
+    on_step("checking", 0, 0)  # the checks, the evaluation days' replay included
     meta, arrays = read_archive(path)
     file = sqlite_path(database_url(db))
     new_file = file if file is not None and not file.exists() else None
     store = open_store(db, writer=True)
     ok = False
     try:
-        counts = _write(store, meta, arrays, path, on_job)
+        counts = _write(store, meta, arrays, path, on_step)
         ok = True
         return counts
     finally:
@@ -307,7 +308,7 @@ def import_results(
 
 
 def _write(
-    store: Any, meta: dict[str, Any], arrays: dict[str, np.ndarray], path: Any, on_job: Callable[[str], None] | None
+    store: Any, meta: dict[str, Any], arrays: dict[str, np.ndarray], path: Any, on_step: Callable[[str, int, int], None]
 ) -> dict[str, int]:
     fake = bool(meta["jobs"] and meta["jobs"][0].get("fake", False))
     with session_scope(store.engine) as s:
@@ -348,6 +349,7 @@ def _write(
         counts = {"imported": 0, "kept": 0, **{name: 0 for name in _TABLES}}
         imported: list[int] = []
         for i, job in enumerate(meta["jobs"]):
+            on_step("writing", i, len(meta["jobs"]))
             rid = config_ids[(RegimeConfig, *job["regime"])]
             aid = config_ids[(AgentConfig, *job["agent"])]
             label = f"{job['regime'][0]} x {job['agent'][0]} seed {job['seed']}"
@@ -385,8 +387,6 @@ def _write(
                 counts[name] += len(decoded)
             counts["imported"] += 1
             imported.append(job_id)
-            if on_job:
-                on_job(label)
         # compared before the commit: a mismatch rolls the whole import back
         for name, table in _TABLES.items():
             held = sum(

@@ -1,0 +1,186 @@
+"""Issue 54, "nothing silent, no wrong estimate": the long commands (db import, leaderboard,
+report --all, tune until its first evaluation) say on stderr what they are doing, on a
+terminal only (stdout and a pipe's stderr stay as they were); ``nutribench run``'s first ETA
+is an estimate from the agents' costs, said to be one, until a job has finished."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from rich.console import Console
+
+from nutribench.cli.common import progress
+
+
+def _terminal() -> tuple[Console, io.StringIO]:
+    out = io.StringIO()
+    return Console(force_terminal=True, file=out, width=160), out
+
+
+# ------------------------------------------------------------------ the one helper
+def test_the_progress_line_shows_each_step_on_a_terminal_and_goes_at_the_end() -> None:
+    console, out = _terminal()
+    with progress(None, "db import a.npz", text="checking the archive", console=console) as advance:
+        advance("writing job 1 of 3", 0, 3)
+        advance("writing job 2 of 3")
+    shown = out.getvalue()
+    for step in ("db import a.npz: checking the archive", "writing job 1 of 3", "db import a.npz: writing job 2 of 3"):
+        assert step in shown
+    assert "0:00:0" in shown  # the time elapsed
+    assert shown.endswith("\x1b[2K")  # transient: the line is erased when the block ends
+
+
+def test_no_terminal_no_progress_line_or_one_plain_line_per_step() -> None:
+    out = io.StringIO()
+    with progress(3, "leaderboard", text="ranking", console=Console(file=out)) as advance:
+        advance("importing archive 1 of 2", 0)
+    assert out.getvalue() == ""
+    with progress(None, "report", text="reading the database", lines=True, console=Console(file=out)) as advance:
+        advance("[1/2] figure 1", 0, 2)
+        advance("[2/2] table 1", 1, 2)
+    assert out.getvalue().splitlines() == ["[1/2] figure 1 (0 s)", "[2/2] table 1 (0 s)"]
+
+
+def test_an_error_inside_ends_the_line_and_is_raised() -> None:
+    console, out = _terminal()
+    with pytest.raises(KeyError), progress(None, "tune s", console=console):
+        raise KeyError("x")
+    assert out.getvalue().endswith("\x1b[2K")
+
+
+# ------------------------------------------------------------------ the commands' steps
+def test_db_import_shows_checking_then_each_job_on_a_terminal(tmp_path, monkeypatch) -> None:
+    from typer.testing import CliRunner
+
+    import nutribench.cli.common as common
+    from nutribench.cli import app
+    from nutribench.scheduler.driver import run_grid
+    from nutribench.scheduler.synthetic import synthetic_job
+
+    monkeypatch.chdir(tmp_path)
+    assert run_grid(tmp_path / "a.db", ["run0", "run3"], ["mc"], [0], 4, 1, job_fn=synthetic_job, display=False).done
+    runner = CliRunner()
+    res = runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(tmp_path / "a.db")])
+    assert res.exit_code == 0, res.output
+    quiet = runner.invoke(app, ["db", "import", str(tmp_path / "a.npz"), "--db", str(tmp_path / "b.db")])
+    console, out = _terminal()
+    monkeypatch.setattr(common, "err_console", console)
+    res = runner.invoke(app, ["db", "import", str(tmp_path / "a.npz"), "--db", str(tmp_path / "c.db")])
+    assert res.exit_code == 0, res.output
+    shown = out.getvalue()
+    assert "db import a.npz: checking, replaying the evaluation days" in shown
+    assert "db import a.npz: writing job 1 of 2" in shown and "writing job 2 of 2" in shown
+    # stdout is what it was without a terminal: the one result line, no progress
+    assert res.stdout.replace("c.db", "b.db") == quiet.stdout and "writing job" not in res.output
+
+
+def test_the_leaderboard_steps_follow_its_archives_then_the_ranking(tmp_path) -> None:
+    from nutribench.cli.leaderboard import _steps
+
+    for name in ("b.npz", "a.npz", "c.npz"):
+        (tmp_path / name).write_bytes(b"")
+    said: list[tuple[str, int, int]] = []
+    seen = _steps(tmp_path, "ranking", lambda text, done, total: said.append((text, done, total)))
+    seen("imported a.npz")
+    seen("imported b.npz")  # c.npz is refused: said once every archive is read
+    seen("refused: c.npz is damaged")
+    seen("no reference lines for run9: ...")  # any other log line: no step
+    assert said == [
+        ("importing 1 of 3: a.npz", 0, 4),
+        ("importing 2 of 3: b.npz", 1, 4),
+        ("importing 3 of 3: c.npz", 2, 4),
+        ("ranking", 3, 4),
+    ]
+    said.clear()
+    _steps(None, "ranking", lambda *a: said.append(a))("anything")  # --db: the ranking alone
+    assert said == []
+
+
+def test_report_items_are_counted_from_build_report_s_lines() -> None:
+    from nutribench.cli.report import _counted
+
+    assert _counted("[3/14] figure 3") == (2, 14) and _counted("[1/2] table results") == (0, 2)
+    assert _counted("reading") == (None, None)
+
+
+def test_tune_says_which_trials_train_until_the_first_evaluation() -> None:
+    from nutribench.cli.tune import _show_training
+
+    recorded, said = [], []
+    objective = SimpleNamespace(
+        record_engine=lambda trial, cfg: recorded.append(trial.number),
+        settings=SimpleNamespace(days=1000, eval_every=100),
+        jobs=[("run0", 101), ("run0", 102)],
+    )
+    _show_training(objective, lambda text, done=None: said.append(text))
+    objective.record_engine(SimpleNamespace(number=4), None)
+    objective.record_engine(SimpleNamespace(number=5), None)  # stacked with trial 4
+    assert recorded == [4, 5]  # the engine is still recorded
+    assert said == [
+        "training trial 4: 2 agents each, 1,000 days, first evaluation at day 100",
+        "training trials 4..5: 2 agents each, 1,000 days, first evaluation at day 100",
+    ]
+
+
+# ------------------------------------------------------------------ nutribench run's ETA
+def _run(done: int = 0, k: int = 0, planned: int = 1) -> SimpleNamespace:
+    """One PPO job of 1000 days on 2 workers (``k`` days trained), ``planned`` jobs in all."""
+    spec = SimpleNamespace(job_id=1, algo="ppo", episodes=1000, regime="run0", seed=0)
+    live = {} if done else {1: {"spec": spec, "k": k, "t0": 0.0}}
+    return SimpleNamespace(
+        grid=SimpleNamespace(episodes=1000, algos=("ppo",)),
+        planned=planned,
+        attempted={1},
+        summary=SimpleNamespace(done=done, failed=0, total=planned),
+        live=live,
+        resumed={},
+        handle=SimpleNamespace(slots=2),
+    )
+
+
+def test_the_first_eta_is_an_estimate_from_the_agents_cost_then_measured() -> None:
+    """The issue's run: one PPO job of about a minute, whose first day came 40 s in (the
+    worker's start): the days so far priced the rest at 12m49s."""
+    from nutribench.scheduler.grid import SB3_SECONDS_PER_COST_DAY
+    from nutribench.scheduler.progress import estimate_seconds, eta_seconds, eta_text
+
+    costs = {"ppo": 1.0}
+    before = _run()
+    assert estimate_seconds(before, costs, 2) == pytest.approx(1000 * SB3_SECONDS_PER_COST_DAY)  # one job: one worker
+    assert eta_text(before, 0.0, costs, 2) == "~1m (estimate)"
+    first_day = _run(k=1)
+    assert eta_seconds(first_day, 40.0) == pytest.approx(39960.0)  # what the measured ETA would say
+    assert eta_text(first_day, 40.0, costs, 2) == "~1m (estimate)"
+    # a job has finished: measured progress replaces the estimate (one job of two left)
+    after = _run(done=1, planned=2)
+    after.attempted = {1}
+    assert eta_text(after, 60.0, costs, 2) == "1m00s"
+
+
+def test_the_estimate_prices_each_agent_by_its_cost_and_shares_the_workers() -> None:
+    from nutribench.scheduler.grid import SB3_SECONDS_PER_COST_DAY
+    from nutribench.scheduler.progress import estimate_seconds
+
+    run = _run(k=500, planned=3)  # PPO half done; two jobs not started, of the grid's mean cost
+    run.grid.algos = ("ppo", "sac")
+    costs = {"ppo": 1.0, "sac": 5.0}
+    cost_days = 500 * 1.0 + 2 * 1000 * 3.0
+    assert estimate_seconds(run, costs, 2) == pytest.approx(cost_days * SB3_SECONDS_PER_COST_DAY / 2)
+    assert estimate_seconds(run, costs, 8) == pytest.approx(cost_days * SB3_SECONDS_PER_COST_DAY / 3)
+
+
+def test_the_live_panel_says_its_eta_is_an_estimate(tmp_path: Path) -> None:
+    from nutribench.scheduler.progress import LiveView, make_view
+
+    agents = [SimpleNamespace(name="ppo", algo="ppo"), SimpleNamespace(name="sac_fast", algo="sac")]
+    view = make_view(True, None, 1, "2 workers", None, agents)
+    assert isinstance(view, LiveView) and view.costs == {"ppo": 1.0, "sac_fast": 5.0}
+    out = io.StringIO()
+    view = LiveView(1, "2 workers", None, console=Console(file=out, width=80), costs={"ppo": 1.0})
+    run = _run()
+    view.start(run)
+    view.stop(run)
+    assert "ETA ~1m (estimate)" in out.getvalue()
