@@ -1,5 +1,5 @@
 """Every trial of protocol v2's studies as one CSV, and a line per study:
-``python reports/tuned_v2/trials.py`` (reads reports/tuned_v2/data/tuning.db, writes
+``python reports/tuned_v2/trials.py [DB]`` (reads DB, default reports/tuned_v2/data/tuning.db, writes
 reports/tuned_v2/trials.csv and prints per study its trials by state, its best trial and how
 many distinct structural settings (minibatch, epochs) its trials had)."""
 
@@ -42,10 +42,10 @@ def trials(db: str = DB) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def main() -> None:
+def main(db: str = DB) -> None:
     optuna.logging.set_verbosity(optuna.logging.ERROR)
     warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
-    df = trials()
+    df = trials(db)
     df.to_csv(HERE / "trials.csv", index=False)
     for study, part in df.groupby("study"):
         states = Counter(part["state"])
@@ -61,4 +61,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    main(f"sqlite:///{Path(sys.argv[1]).resolve()}" if len(sys.argv) > 1 else DB)
