@@ -34,3 +34,18 @@ def test_the_old_spelling_still_works_and_both_must_agree(tmp_path) -> None:
         )
     )
     assert "old spelling of --days" in line and not db.exists()
+
+
+def test_tune_names_its_search_space_space(tmp_path) -> None:
+    """``--algo`` names an agent file in ``run`` and ``train``; ``tune`` takes a search space,
+    ``--space`` (``--algo`` still works there, hidden)."""
+    res = runner.invoke(app, ["tune", "--help"], terminal_width=200)
+    assert "--space" in res.output and "--algo " not in res.output
+    args = ["--regimes", "run3", "--seeds", "101", "--days", "2", "--eval-every", "1", "--val-episodes", "1"]
+    db = tmp_path / "t.db"
+    ok = runner.invoke(app, ["tune", "--db", str(db), "--algo", "mc", "--study", "s", "--trials", "1", *args])
+    assert ok.exit_code == 0, ok.output
+    line = one_error_line(
+        runner.invoke(app, ["tune", "--db", str(db), "--space", "mc", "--algo", "ppo", "--study", "s"])
+    )
+    assert "old spelling of --space" in line

@@ -15,7 +15,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import DEVICE_HELP, console, progress, split_csv, user_errors
+from nutribench.cli.common import DEVICE_HELP, console, old_spelling, progress, split_csv, user_errors
 
 tune_app = typer.Typer(
     no_args_is_help=False,
@@ -32,12 +32,14 @@ DB_HELP = "SQLite file or SQLAlchemy URL (the results database: Optuna's tables 
 @user_errors
 def tune_cmd(
     ctx: typer.Context,
-    algo: Annotated[
+    space: Annotated[
         Optional[str],
         typer.Option(
-            help="search space to tune: a name in regimes/search/ (ppo, mc, ddqn, sac, gru_ppo) or a .toml path"
+            "--space",
+            help="search space to tune: a name in regimes/search/ (ppo, mc, ddqn, sac, gru_ppo, ppo_v2, ...) or a .toml path",
         ),
     ] = None,
+    algo: Annotated[Optional[str], typer.Option("--algo", hidden=True)] = None,
     study: Annotated[Optional[str], typer.Option(help="the study's name (new: created; existing: resumed)")] = None,
     regimes: Annotated[str, typer.Option(help="tuning regimes, comma-separated")] = "run0,run1,run2,run4",
     seeds: Annotated[
@@ -80,8 +82,9 @@ def tune_cmd(
     again: it goes on from the trials already finished."""
     if ctx.invoked_subcommand is not None:
         return
+    algo = old_spelling(space, algo, "--space", "--algo")  # --algo names an agent file elsewhere
     if algo is None or study is None:
-        raise typer.BadParameter("give --algo (a search space) and --study (a name); see nutribench tune --help")
+        raise typer.BadParameter("give --space (a search space) and --study (a name); see nutribench tune --help")
     from nutribench.config import list_regimes
     from nutribench.tuning.export import space_file_attr
     from nutribench.tuning.objective import ValidationObjective
@@ -200,7 +203,7 @@ def status_cmd(
         typer.echo(json.dumps([_counts_dict(c) for c in rows], indent=2, default=str))
         return
     if not rows:
-        console.print("no tuning studies in this database: `nutribench tune --algo ppo --study NAME` starts one")
+        console.print("no tuning studies in this database: `nutribench tune --space ppo --study NAME` starts one")
         return
     for c in rows:
         s = c.settings
