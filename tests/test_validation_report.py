@@ -57,5 +57,9 @@ def test_the_figure_has_a_panel_per_regime_and_a_line_per_agent(tmp_path: Path) 
     res = learning_curve_figure(read_learning_curve(db), reps=200)
     panels = [ax for ax in res.figure.axes if ax.get_visible()]
     assert [ax.get_title() for ax in panels] == ["run0", "run3"]
-    assert all(len([ln for ln in ax.get_lines() if ln.get_marker() == "o"]) == 2 for ax in panels)
+    # one line per agent, each with its own marker (the palette's second cue)
+    assert all(
+        len({ln.get_marker() for ln in ax.get_lines() if ln.get_marker() not in ("None", "", " ")}) == 2
+        for ax in panels
+    )
     assert isinstance(res.data, pd.DataFrame) and np.isfinite(res.data["iqm"]).all()

@@ -17,14 +17,18 @@ from nutribench.report.aggregate import (
     group_title,
     regime_span,
 )
-from nutribench.report.figure_parts import budget_caption, budget_cell
-from nutribench.report.figures import FigureResult, _legend_rows, budget_seeds_text, draw_notes, set_title
+from nutribench.report.figure_parts import agent_labels, budget_caption, budget_cell, budget_seeds_line
+from nutribench.report.figures import FigureResult, _legend_rows, draw_notes, set_title
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.tables import TableResult
 
 # --------------------------------------------------------------------------- figure
 _GROUP_STYLE = {"all": dict(alpha=0.85, hatch=None), "delayed": dict(alpha=0.35, hatch="////")}
+#: The point estimate's tick per group: solid above the agent's row, dotted below, so that
+#: with one seed (no bars, ticks alone) the two still read apart; the legend names each.
+_TICK_STYLE = {"all": dict(ls="-"), "delayed": dict(ls=":")}
+_PLACE = {0.18: "upper", -0.18: "lower", 0.0: ""}
 
 
 def _percent_axis(axis) -> None:
@@ -45,7 +49,8 @@ def aggregate_figure(
     ev: pd.DataFrame | None = None,
 ) -> FigureResult:
     """The aggregate figure: (top) IQM, median, mean and optimality gap per agent with 95 %
-    intervals, both groups of regimes (solid: all, hatched: delayed); (bottom) the performance
+    intervals, both groups of regimes (all: upper row, solid bar and tick; delayed: lower row,
+    hatched bar, dotted tick; the legend says which is which); (bottom) the performance
     profile of each group and the probability-of-improvement matrix of each group.
 
     ``ev``: the evaluation episodes the scores came from, for the budget and seeds line."""
@@ -53,6 +58,8 @@ def aggregate_figure(
 
     colors = colors or palette(res.algos)
     algos = res.algos
+    names = agent_labels(ev) if ev is not None and not ev.empty else {}
+    names = {a: names.get(a) or algo_label(a) for a in algos}
     groups = [g for g in GROUPS if res.regimes.get(g) or res.partial.get(g)]
     fig = Figure(figsize=(16, 9.6), layout="constrained")
     grid = fig.add_gridspec(2, 4, height_ratios=[1, 1.15])
@@ -79,10 +86,20 @@ def aggregate_figure(
                         edgecolor=color,
                         lw=0.8,
                     )
-                ax.plot([r.point, r.point], [y - 0.17, y + 0.17], color="k", lw=1.8, solid_capstyle="butt")
-                drawn.append({"panel": agg, "group": group, "algo": r.algo, "point": r.point, "lo": r.lo, "hi": r.hi})
+                ax.plot(
+                    [r.point, r.point],
+                    [y - 0.17, y + 0.17],
+                    color="k",
+                    lw=1.8,
+                    solid_capstyle="butt",
+                    dash_capstyle="butt",
+                    **_TICK_STYLE[group],
+                )
+                drawn.append(
+                    {"panel": agg, "group": group, "algo": r.algo, "y": y, "point": r.point, "lo": r.lo, "hi": r.hi}
+                )
         _yardstick_lines(ax)
-        ax.set_yticks(list(ypos.values()), [_agent_label(res, a) for a in ypos] if k == 0 else [""] * len(ypos))
+        ax.set_yticks(list(ypos.values()), [_agent_label(res, a, names) for a in ypos] if k == 0 else [""] * len(ypos))
         ax.set_ylim(-0.6, len(algos) - 0.4)
         _percent_axis(ax.xaxis)
         ax.set_title(AGGREGATE_LABELS[agg] + (" (lower is better)" if agg == "optimality_gap" else ""), fontsize=10)
@@ -96,7 +113,17 @@ def aggregate_figure(
             if p.empty:
                 continue
             color = colors.color(algo)
-            ax.plot(p["tau"], p["fraction"], color=color, lw=1.5, label=algo_label(algo))
+            every = max(1, len(p) // 6)
+            ax.plot(
+                p["tau"],
+                p["fraction"],
+                color=color,
+                lw=1.5,
+                label=names[algo],
+                marker=colors.marker(algo),
+                ms=5,
+                markevery=(algos.index(algo) * every // len(algos), every),
+            )
             if p["lo"].notna().any():
                 ax.fill_between(p["tau"], p["lo"], p["hi"], color=color, alpha=0.15, lw=0)
         _yardstick_lines(ax)
@@ -139,13 +166,17 @@ def aggregate_figure(
         if j == 1:
             fig.colorbar(im, ax=ax, shrink=0.8, label="probability of improvement")
     handles, labels = fig.axes[4].get_legend_handles_labels()
+    from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
     group_handles = [
-        Patch(facecolor="0.5", alpha=_GROUP_STYLE[g]["alpha"], hatch=_GROUP_STYLE[g]["hatch"], edgecolor="0.4")
+        (
+            Patch(facecolor="0.5", alpha=_GROUP_STYLE[g]["alpha"], hatch=_GROUP_STYLE[g]["hatch"], edgecolor="0.4"),
+            Line2D([], [], color="k", lw=1.8, marker="|", ms=0, **_TICK_STYLE[g]),
+        )
         for g in groups
     ]
-    _legend_rows(fig, [(handles, labels), (group_handles, [f"intervals: {group_title(res, g)}" for g in groups])])
+    _legend_rows(fig, [(handles, labels), (group_handles, [_group_entry(res, g, offset[g]) for g in groups])])
     n_runs = res.scores.groupby(["regime", "algo"]).size() if not res.scores.empty else pd.Series(dtype=int)
     runs_text = (
         f"{int(n_runs.min())}-{int(n_runs.max())}"
@@ -159,17 +190,30 @@ def aggregate_figure(
         f"({res.reps} resamples, seeds redrawn within each regime), black tick = point estimate (rliable.metrics); dotted: never (0 %), planner (100 %)"
     )
     if ev is not None and not ev.empty:
-        caption += f"\n{budget_seeds_text(ev)}"
+        caption += f"\n{budget_seeds_line(ev)}"
     set_title(fig, f"{title}\n{caption}")
     notes = [*res.notes, *_width_notes(res)]
     draw_notes(fig, notes)
-    return FigureResult(fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "point", "lo", "hi"]), notes)
+    return FigureResult(fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "y", "point", "lo", "hi"]), notes)
 
 
-def _agent_label(res: AggregateResult, algo: str) -> str:
-    """The agent's name, flagged with its own regimes when it lacks some the others have."""
+def _group_entry(res: AggregateResult, group: str, offset: float) -> str:
+    """The legend entry of one group of regimes: which of each agent's two rows (upper or
+    lower) and which tick (solid or dotted) is it, so that a figure of ticks alone (one seed)
+    reads too: ``all regimes (run0-6): upper row, solid tick, solid bar``."""
+    place = _PLACE.get(offset, "")
+    tick = "solid" if group == "all" else "dotted"
+    bar = "hatched bar" if _GROUP_STYLE[group]["hatch"] else "solid bar"
+    return f"{group_title(res, group)}: " + ", ".join(
+        p for p in (f"{place} row" if place else "", f"{tick} tick", bar) if p
+    )
+
+
+def _agent_label(res: AggregateResult, algo: str, names: dict[str, str] | None = None) -> str:
+    """The agent's legend label (``names``, else its name), flagged with its own regimes when
+    it lacks some the others have."""
     own = next((by[algo] for by in res.partial.values() if algo in by), None)
-    return algo_label(algo) + (f"\n(own regimes: {regime_span(own)})" if own else "")
+    return (names or {}).get(algo, algo_label(algo)) + (f"\n(own regimes: {regime_span(own)})" if own else "")
 
 
 def _width_notes(res: AggregateResult) -> list[str]:

@@ -1,6 +1,7 @@
 """What every report figure shares: :class:`FigureResult` (a figure and the numbers it drew),
-regime and seed formatting, the "budget ... days, seeds ..." line every figure states, and the
-title, notes and legend rows drawn around the panels."""
+regime and seed formatting, the "budget ... days, seeds ..." line every figure states, each
+agent's legend label (with its budget and seed count when the agents drawn differ in them),
+and the title, notes and legend rows drawn around the panels."""
 
 from __future__ import annotations
 
@@ -13,6 +14,10 @@ from matplotlib.figure import Figure
 
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
+from nutribench.scheduler.grid import PRESETS
+
+#: The paper's seeds: a legend entry counts an agent's seeds when it has fewer.
+PAPER_SEEDS: tuple[int, ...] = PRESETS["paper"].seeds
 
 
 @dataclass
@@ -76,6 +81,45 @@ def budget_seeds_text(df: pd.DataFrame) -> str:
     return "; ".join(f"{', '.join(algo_label(a) for a, t in per.items() if t == text)}: {text}" for text in texts)
 
 
+def budgets_seeds_alike(df: pd.DataFrame) -> bool:
+    """Whether every config of ``df`` has the same budget and the same seeds (one title line
+    then says them for all)."""
+    return len({_budget_seeds(df[df["algo"] == a]) for a in df["algo"].unique()}) <= 1
+
+
+def agent_tag(cell: pd.DataFrame) -> str:
+    """One config's budget and, when it has fewer seeds than the paper's five, its seed count:
+    ``20 days, 1 seed`` (no budget without the ``budget`` column)."""
+    parts = [f"{budget_cell(cell)} days"] if "budget" in cell and cell["budget"].notna().any() else []
+    n = int(cell["seed"].nunique())
+    if n < len(PAPER_SEEDS):
+        parts.append(f"{n} seed{'s' if n != 1 else ''}")
+    return ", ".join(parts)
+
+
+def agent_labels(df: pd.DataFrame, labels: dict[str, str] | None = None) -> dict[str, str]:
+    """The legend label of each config of ``df`` (``labels`` or the palette's): when the configs
+    differ in budget or seeds, with its :func:`agent_tag`, ``trpo_mine_tuned (20 days, 1 seed)``,
+    so that a 20-day agent beside 5000-day baselines says so where it is drawn."""
+    names = sort_algos(df["algo"])
+    base = {a: (labels or {}).get(a) or algo_label(a) for a in names}
+    if budgets_seeds_alike(df):
+        return base
+    tags = {a: agent_tag(df[df["algo"] == a]) for a in names}
+    return {a: f"{base[a]} ({tags[a]})" if tags[a] else base[a] for a in names}
+
+
+def budget_seeds_line(df: pd.DataFrame) -> str:
+    """The budget and seeds line of a figure's title: :func:`budget_seeds_text` when every
+    config has the same; else one short line (each config's are in its legend entry,
+    :func:`agent_labels`): ``budgets 20, 5000 days, seeds 0-2, 9 (per agent in the legend)``."""
+    if budgets_seeds_alike(df):
+        return budget_seeds_text(df)
+    budgets = sorted({int(b) for b in df["budget"].dropna()}) if "budget" in df else []
+    text = f"budgets {', '.join(map(str, budgets))} days, " if budgets else ""
+    return text + f"seeds {seed_list(df['seed'])} (each agent's in its legend entry)"
+
+
 def budget_cell(cell: pd.DataFrame) -> str:
     """The training budget(s) of one config's rows, in days (``5000``, ``50/5000``; ``?`` without
     the ``budget`` column): the budget column of the results and aggregate tables."""
@@ -133,13 +177,15 @@ def _legend_rows(fig: Figure, rows: list[tuple[list, list[str]]], fontsize: floa
     """One figure legend under the panels with one row per group (learners, references).
 
     Matplotlib fills legend columns first, so the entries are interleaved column by column
-    and short rows are padded with invisible entries; a group of more than
-    :data:`LEGEND_COLS` entries takes several rows."""
+    and short rows are padded with invisible entries; a group of more entries than fit across
+    the figure (at most :data:`LEGEND_COLS`) takes several rows."""
     from matplotlib.lines import Line2D
 
-    rows = [
-        (hs[k : k + LEGEND_COLS], ls[k : k + LEGEND_COLS]) for hs, ls in rows for k in range(0, len(ls), LEGEND_COLS)
-    ]
+    # as many columns as the figure's width holds at the longest label (agents' labels carry
+    # their budgets), at most LEGEND_COLS
+    longest = max((len(lab) for _, ls in rows for lab in ls), default=1)
+    cap = max(1, min(LEGEND_COLS, int(fig.get_figwidth() * 72 / (fontsize * 0.6 * longest + 30))))
+    rows = [(hs[k : k + cap], ls[k : k + cap]) for hs, ls in rows for k in range(0, len(ls), cap)]
     if not rows:
         return
     ncols = max(len(labels) for _, labels in rows)
@@ -150,3 +196,23 @@ def _legend_rows(fig: Figure, rows: list[tuple[list, list[str]]], fontsize: floa
             handles.append(hs[c] if c < len(hs) else blank)
             labels.append(ls[c] if c < len(ls) else "")
     fig.legend(handles, labels, loc="outside lower center", ncols=ncols, fontsize=fontsize, frameon=False)
+
+
+#: Legend text of the dashed "best" line of Figure 1 (its line keeps the short label).
+BEST_TEXT = "{label}: highest point of any line in its panel"
+#: Markers per line on a training curve (one every len/MARKS episodes).
+MARKS = 8
+
+
+def _training_legend(fig: Figure, axes: list, learners: list[str]) -> None:
+    """The legend of Figures 1/2 and 6: the configs' labels in palette order, then the "best"
+    line, explained (:data:`BEST_TEXT`), in a row of its own."""
+    found: dict[str, object] = {}
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            found.setdefault(lab, h)
+    learners = [lab for lab in learners if lab in found]
+    rest = [lab for lab in found if lab not in learners]
+    text = {lab: BEST_TEXT.format(label=lab) if lab.startswith("best") else lab for lab in found}
+    groups = [learners, rest] if rest else [learners]
+    _legend_rows(fig, [([found[lab] for lab in g], [text[lab] for lab in g]) for g in groups])

@@ -18,11 +18,16 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from nutribench.report.figure_parts import (  # noqa: F401 (re-exported: the figures' shared parts)
+    BEST_TEXT,
     LEGEND_COLS,
+    MARKS,
     FigureResult,
     _legend_rows,
     _span,
+    _training_legend,
     _wrap,
+    agent_labels,
+    budget_seeds_line,
     budget_seeds_text,
     default_window,
     draw_notes,
@@ -71,7 +76,9 @@ def training_curves(
 ) -> FigureResult:
     """Figures 1 and 2: a training metric per episode, one panel per regime present, one line
     per algorithm (mean over seeds of the per-seed moving average, shaded standard error
-    across seeds), and a dashed line at the best smoothed value of the panel.
+    across seeds, the agent's marker every few episodes), and a dashed line at the best value
+    of the panel: the highest point any agent's (smoothed) mean curve reaches there, so the
+    reader sees how far each line ends below it; its legend entry says so.
 
     ``colors``: the report's palette (default: one over the configs drawn)."""
     train = df[df["phase"] == "train"]
@@ -80,6 +87,7 @@ def training_curves(
     regimes = sort_regimes(train["regime"])
     algos = sort_algos(train["algo"])
     colors = colors or palette(algos)
+    legend = agent_labels(train)
     if window is None:
         window = default_window(int(train["episode"].max()) + 1)
     panels = budget_panels(train, regimes)
@@ -101,7 +109,17 @@ def training_curves(
             smoothed = wide.T.rolling(window, min_periods=1).mean().T.to_numpy()
             mean, se = _seed_band(smoothed)
             x = wide.columns.to_numpy()
-            ax.plot(x, mean, color=colors.color(algo), lw=1.4, label=algo_label(algo))
+            step = max(1, len(x) // MARKS)
+            ax.plot(
+                x,
+                mean,
+                color=colors.color(algo),
+                lw=1.4,
+                label=legend[algo],
+                marker=colors.marker(algo),
+                ms=5,
+                markevery=(algos.index(algo) * step // len(algos), step),
+            )
             if not np.all(np.isnan(se)):
                 ax.fill_between(x, mean - se, mean + se, color=colors.color(algo), alpha=0.2, lw=0)
             best = max(best, float(np.nanmax(mean)))
@@ -121,12 +139,12 @@ def training_curves(
             ax.tick_params(labelbottom=True)
     for ax in list(axes.flat)[len(panels) :]:
         ax.set_visible(False)
-    _training_legend(fig, list(axes.flat)[: len(panels)], algos)
+    _training_legend(fig, list(axes.flat)[: len(panels)], [legend[a] for a in algos])
     notes = _missing_note(regimes, algos, train)
     n_seeds = train.groupby(["regime", "algo"])["seed"].nunique()
     smoothing = f"a {window}-episode moving average" if window > 1 else "the per-episode values (no smoothing)"
     band = "band = standard error across seeds" if n_seeds.max() > 1 else "one seed: no band"
-    caption = f"mean over seeds ({_span(n_seeds)} per line) of {smoothing}; {band}\n{budget_seeds_text(train)}"
+    caption = f"mean over seeds ({_span(n_seeds)} per line) of {smoothing}; {band}\n{budget_seeds_line(train)}"
     set_title(fig, (title or f"Training {METRIC_LABELS.get(metric, metric)}") + f"\n{caption}")
     draw_notes(fig, notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)
@@ -143,19 +161,6 @@ def budget_panels(train: pd.DataFrame, regimes: list[str]) -> list[tuple[str, in
     if len(budgets) == 1:
         return [(r, None) for r in regimes]
     return [(r, b) for b in budgets for r in regimes if any(int(v) == b for v in cells.loc[r])]
-
-
-def _training_legend(fig: Figure, axes: list, algos: list[str]) -> None:
-    """The legend of Figures 1/2: the configs in palette order, then the "best" line; in one
-    row when it fits, else the configs' rows and the "best" row."""
-    found: dict[str, object] = {}
-    for ax in axes:
-        for h, lab in zip(*ax.get_legend_handles_labels()):
-            found.setdefault(lab, h)
-    learners = [algo_label(a) for a in algos if algo_label(a) in found]
-    rest = [lab for lab in found if lab not in learners]
-    groups = [learners + rest] if len(found) <= LEGEND_COLS else [learners, rest]
-    _legend_rows(fig, [([found[lab] for lab in g], g) for g in groups])
 
 
 #: Label of Figures 3/4 panel (A) when it shows the share of the never -> planner gap.
@@ -208,14 +213,16 @@ def _missing_note(regimes: list[str], algos: list[str], df: pd.DataFrame) -> lis
     return [f"no data: {', '.join(missing)}"] if missing else []
 
 
-def _draw_gapped(ax, stats: pd.DataFrame, regimes: list[str], xd: list[float], color: str, label: str) -> None:
+def _draw_gapped(
+    ax, stats: pd.DataFrame, regimes: list[str], xd: list[float], color: str, label: str, marker: str = "o"
+) -> None:
     """One agent's line and band over the figure's ``regimes`` (x positions ``xd``), broken
     where it has no data (no line drawn across a regime it was not evaluated on); a point
     with no neighbour has no band width, so its interval is drawn as an error bar."""
     full = stats.reindex(regimes)
     mean, lo, hi = (full[c].to_numpy(dtype=float) for c in ("mean", "lo", "hi"))
     x = np.asarray(xd, dtype=float)
-    ax.plot(x, mean, marker="o", ms=4, color=color, label=label)
+    ax.plot(x, mean, marker=marker, ms=5, color=color, label=label)
     ax.fill_between(x, lo, hi, color=color, alpha=0.2, lw=0)
     has = np.isfinite(mean)
     left = np.r_[False, has[:-1]]
@@ -270,6 +277,7 @@ def eval_across_regimes(
     xs = {r: (regime_index(r) if regime_index(r) is not None else i) for i, r in enumerate(regimes)}
     present_algos = sort_algos(ev["algo"])
     colors = colors or palette(present_algos)
+    legend = agent_labels(ev, dict(labels or {}))
     notes: list[str] = []
     scores = None
     if day_references is not None:
@@ -307,8 +315,8 @@ def eval_across_regimes(
             stats["hi"] = [ci[r][2] for r in stats.index]
             stats["seeds"] = [int(cell[cell["regime"] == r]["seed"].nunique()) for r in stats.index]
             x = np.array([xs[r] for r in stats.index])
-            label = (labels or {}).get(algo) or algo_label(algo)
-            _draw_gapped(ax, stats, regimes, [xs[r] + dodge[algo] for r in regimes], color, label)
+            xd = [xs[r] + dodge[algo] for r in regimes]
+            _draw_gapped(ax, stats, regimes, xd, color, legend[algo], colors.marker(algo))
             rows.append(
                 pd.DataFrame(
                     {
@@ -376,7 +384,7 @@ def eval_across_regimes(
     set_title(
         fig,
         f"{title}\nmean over seeds ({_span(n_seeds)} per point) of each seed's mean over its evaluation days ({_span(n_days)});\n"
-        f"{band}; {panel_a};\nalgorithms are drawn slightly apart along x so that equal values stay visible\n{budget_seeds_text(ev)}",
+        f"{band}; {panel_a};\nalgorithms are drawn slightly apart along x so that equal values stay visible\n{budget_seeds_line(ev)}",
     )
     draw_notes(fig, notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)

@@ -24,7 +24,7 @@ body { font-family: sans-serif; margin: 1.5em auto; max-width: 1200px; padding: 
 nav a { margin-right: 0.8em; }
 figure { margin: 1.5em 0; }
 figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
-figcaption, .notes { font-size: 0.9em; color: #555; }
+figcaption, .notes, .caption { font-size: 0.9em; color: #555; }
 table { border-collapse: collapse; font-size: 0.85em; margin: 0.5em 0 1.5em; }
 th, td { border: 1px solid #ccc; padding: 0.2em 0.5em; text-align: left; vertical-align: top; }
 th { background: #f2f2f2; }
@@ -51,6 +51,7 @@ class PageItem:
     table: pd.DataFrame | None = None
     notes: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)
+    caption: str = ""  # a table's whole caption, a paragraph under its short heading
 
 
 def table_html(frame: pd.DataFrame) -> str:
@@ -76,6 +77,7 @@ def page_html(items: Sequence[PageItem], title: str = "nutribench report", subti
     for i in items:
         sid = html.escape(i.stem, quote=True)
         notes = "".join(f'<p class="notes">note: {html.escape(n)}</p>' for n in i.notes)
+        caption = f'<p class="caption">{html.escape(i.caption)}</p>\n' if i.caption else ""
         files = f'<p class="notes">files: {_links(i.files)}</p>' if i.files else ""
         if i.png is not None:
             src = html.escape(i.png, quote=True)
@@ -85,7 +87,9 @@ def page_html(items: Sequence[PageItem], title: str = "nutribench report", subti
             )
         else:
             table = table_html(i.table) if i.table is not None else ""
-            parts.append(f'<section id="{sid}">\n<h2>{html.escape(i.title)}</h2>\n{table}\n{notes}{files}\n</section>')
+            parts.append(
+                f'<section id="{sid}">\n<h2>{html.escape(i.title)}</h2>\n{caption}{table}\n{notes}{files}\n</section>'
+            )
     sub = f"<p>{html.escape(subtitle)}</p>" if subtitle else ""
     return (
         f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n<title>{html.escape(title)}</title>\n'
@@ -117,6 +121,22 @@ def page_figure(number: int, res: Any, written: Sequence[Path]) -> PageItem:
     )
 
 
+#: Longest table heading taken from a caption's head (``Leaderboard: every agent ranked ...``).
+HEADING_CHARS = 40
+
+
+def table_heading(stem: str, title: str) -> str:
+    """A table's short heading: its caption's head before the first ``: `` (``Leaderboard``,
+    ``Table 1``, ``Results``) when short, else the file stem (``table_results``) made readable."""
+    head = title.split(": ", 1)[0].strip()
+    if head and head != title.strip() and len(head) <= HEADING_CHARS and "\n" not in head:
+        return head
+    return stem.replace("_", " ").capitalize()
+
+
 def page_table(stem: str, res: Any, written: Sequence[Path]) -> PageItem:
-    """A table on index.html: its formatted frame as an HTML table under its title."""
-    return PageItem(stem, res.title, table=res.formatted, files=[p.name for p in written])
+    """A table on index.html: a short heading (:func:`table_heading`), its whole caption as a
+    paragraph under it, and its formatted frame as an HTML table."""
+    return PageItem(
+        stem, table_heading(stem, res.title), table=res.formatted, files=[p.name for p in written], caption=res.title
+    )

@@ -21,7 +21,14 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from nutribench.report.aggregate import BATCHED, point_estimate
-from nutribench.report.figure_parts import FigureResult, draw_notes, seed_list, set_title, sort_regimes
+from nutribench.report.figure_parts import (
+    FigureResult,
+    agent_labels,
+    budget_seeds_line,
+    draw_notes,
+    set_title,
+    sort_regimes,
+)
 from nutribench.report.figures import GAP_LABEL, _gap_axis, _training_legend
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import order as sort_algos
@@ -88,6 +95,7 @@ def learning_curve_figure(
     points = learning_points(learning_scores(curve), reps)
     regimes, names = sort_regimes(points["regime"]), sort_algos(points["algo"])
     colors = colors or palette(names)
+    legend = agent_labels(curve.drop_duplicates(["algo", "seed", "budget"])[["algo", "seed", "budget"]])
     ncols = min(4, len(regimes))
     nrows = int(np.ceil(len(regimes) / ncols))
     fig = Figure(figsize=(max(7.5, 4.2 * ncols), 3.2 * nrows + 1.1), layout="constrained")
@@ -99,7 +107,9 @@ def learning_curve_figure(
             if line.empty:
                 continue
             c = colors.color(algo)
-            ax.plot(line["train_day"], line["iqm"], color=c, lw=1.4, marker="o", ms=3, label=colors.label(algo))
+            ax.plot(
+                line["train_day"], line["iqm"], color=c, lw=1.4, marker=colors.marker(algo), ms=4, label=legend[algo]
+            )
             ax.fill_between(line["train_day"], line["lo"], line["hi"], color=c, alpha=0.2, lw=0)
         _gap_axis(ax)
         ax.set_title(regime, fontsize=10)
@@ -111,13 +121,13 @@ def learning_curve_figure(
             ax.tick_params(labelbottom=True)
     for ax in list(axes.flat)[len(regimes) :]:
         ax.set_visible(False)
-    _training_legend(fig, list(axes.flat)[: len(regimes)], names)
+    _training_legend(fig, list(axes.flat)[: len(regimes)], [legend[a] for a in names])
     days = sorted(set(curve.groupby("job_id")["episode"].nunique()))
     n_days = f"{days[0]}" if len(days) == 1 else f"{days[0]}-{days[-1]}"
     caption = (
         f"{GAP_LABEL} on {n_days} validation days per evaluation (never the test days), "
         f"IQM over seeds with its 95 % bootstrap interval over seeds\n"
-        f"seeds {seed_list(curve['seed'])}; budgets {', '.join(str(b) for b in sorted(set(curve['budget'])))} days"
+        f"{budget_seeds_line(curve)}"
     )
     set_title(fig, f"Learning curves: evaluation during training\n{caption}")
     draw_notes(fig, notes)

@@ -3,10 +3,10 @@
 A config named like a registered algorithm (:mod:`nutribench.agents.registry`) takes that
 algorithm's place, label and colour: the five built-in configs keep the paper's order, labels
 and colours (published figures use them). Any other config (a variant, a plug-in agent) comes after them, sorted by name, and is
-labelled with its name. Its colour comes first from :data:`USER_COLORS`, colours of the
-colour-blind-safe palettes of Okabe & Ito and of Paul Tol, told apart from each other under the
-common colour-vision deficiencies, each at least :data:`MIN_DISTANCE` (CIELAB) from the five
-built-in colours and dark enough to read on white: a hash of the name picks where in that list
+labelled with its name. Its colour comes first from :data:`USER_COLORS`, four colours chosen
+by measured distance (a search over the sRGB cube) to stay apart from the five built-in colours,
+from black (the planner's reference line) and from each other, for normal vision and under
+simulated deuteranopia and protanopia, and dark enough to read on white: a hash of the name picks where in that list
 it starts, and it takes the first one no config sorted before it took. When all are taken, a
 hash of the name picks a sequence of candidate colours (never pale: CIELAB lightness at most
 :data:`MAX_LIGHTNESS`), and the config takes the first candidate clearly apart from every
@@ -14,13 +14,17 @@ colour placed before it. So a name's colour is a function of the name alone unle
 that sorts before it holds that colour, and the same set of names always gets the same
 colours. Build one :class:`Palette` per report (over every
 config the database holds) and every figure of it uses the same colour for a name.
+
+Colour is not the only cue: each config also has a marker (:meth:`Palette.marker`), the five
+their own (:data:`BUILTIN_MARKERS`), the others one of :data:`USER_MARKERS` picked as their
+colour is, so two agents whose colours a reader cannot tell apart still differ by marker.
 """
 
 from __future__ import annotations
 
 import hashlib
 from collections.abc import Iterable, Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -34,12 +38,24 @@ BUILTIN_ORDER: tuple[str, ...] = tuple(registry.paper_names())
 BUILTIN_COLORS: dict[str, str] = {a: registry.get(a).color for a in BUILTIN_ORDER}
 #: Smallest CIELAB (CIE76) distance between a derived colour and any colour placed before it.
 MIN_DISTANCE = 32.0
-#: The colours configs other than the five take first: Okabe & Ito's orange, Paul Tol's teal,
-#: indigo and wine (colour-blind-safe palettes), each at least :data:`MIN_DISTANCE` from the five
-#: built-in colours and from each other, and apart under simulated colour-vision deficiencies
-#: (tests/test_newcomer.py checks). Their other colours are too near one of the five, too pale,
-#: or black (the planner's reference line).
-USER_COLORS: tuple[str, ...] = ("#e69f00", "#44aa99", "#332288", "#882255")
+#: The colours configs other than the five take first: pink, plum, deep blue and cyan, chosen over
+#: the sRGB cube (CIELAB lightness 25-72, chroma at least 30) to maximise the smallest CIEDE2000
+#: distance to the five, to black and to each other, for normal vision and (weighted 1.5) under
+#: simulated deuteranopia and protanopia, keeping CIE76 distances of at least
+#: :data:`USER_MIN_DISTANCE`. The palettes of Okabe & Ito and of Paul Tol (the teal, orange,
+#: indigo and wine used before) each hold a colour near one of the five: Tol's teal is 22
+#: CIEDE2000 from PPO's green, the wine 20 from MC's brown. tests/test_figures_legible.py checks.
+USER_COLORS: tuple[str, ...] = ("#ff8899", "#770055", "#0011cc", "#44bbcc")
+#: Smallest CIE76 distance of a user colour to each of the five built-in colours and to each other.
+USER_MIN_DISTANCE = 38.0
+#: Smallest CIEDE2000 distance of a user colour to each of the five and to each other: for normal
+#: vision, and under simulated deuteranopia or protanopia (Machado et al. 2009, severity 1).
+USER_MIN_DE2000 = 24.0
+USER_MIN_DE2000_CVD = 15.0
+#: Markers of the five (paper order) and those the other configs take, as colours are taken;
+#: none is a reference line's (``x``, ``.``, ``+``, ``*``: :data:`nutribench.report.figures.POLICY_STYLES`).
+BUILTIN_MARKERS: dict[str, str] = dict(zip(BUILTIN_ORDER, ("o", "s", "^", "D", "v")))
+USER_MARKERS: tuple[str, ...] = ("P", "X", "h", "<", ">", "p", "d", "8")
 #: Lightest a derived colour may be (CIELAB L*): a paler line is hard to read on white.
 MAX_LIGHTNESS = 75.0
 #: Candidate colours tried per name before the most distant one is taken.
@@ -87,6 +103,33 @@ def distance(a: str, b: str) -> float:
     return float(np.linalg.norm(_lab(a) - _lab(b)))
 
 
+def distance2000(a: str, b: str) -> float:
+    """Perceptual distance of two colours (CIEDE2000), nearer to what a reader sees than CIE76,
+    which overstates differences between saturated blues and greens."""
+    (l1, a1, b1), (l2, a2, b2) = _lab(a), _lab(b)
+    cbar = (np.hypot(a1, b1) + np.hypot(a2, b2)) / 2
+    g = 0.5 * (1 - np.sqrt(cbar**7 / (cbar**7 + 25.0**7)))
+    a1, a2 = (1 + g) * a1, (1 + g) * a2
+    c1, c2 = np.hypot(a1, b1), np.hypot(a2, b2)
+    h1, h2 = np.degrees(np.arctan2(b1, a1)) % 360, np.degrees(np.arctan2(b2, a2)) % 360
+    dh = 0.0 if c1 * c2 == 0 else (h2 - h1 + 180) % 360 - 180
+    d_h = 2 * np.sqrt(c1 * c2) * np.sin(np.radians(dh / 2))
+    lbar, cbar_p = (l1 + l2) / 2, (c1 + c2) / 2
+    hbar = h1 + h2 if c1 * c2 == 0 else ((h1 + h2) / 2 + (180 if abs(h1 - h2) > 180 else 0)) % 360
+    t = (
+        1
+        - 0.17 * np.cos(np.radians(hbar - 30))
+        + 0.24 * np.cos(np.radians(2 * hbar))
+        + 0.32 * np.cos(np.radians(3 * hbar + 6))
+        - 0.20 * np.cos(np.radians(4 * hbar - 63))
+    )
+    s_l = 1 + 0.015 * (lbar - 50) ** 2 / np.sqrt(20 + (lbar - 50) ** 2)
+    s_c, s_h = 1 + 0.045 * cbar_p, 1 + 0.015 * cbar_p * t
+    r_t = -2 * np.sqrt(cbar_p**7 / (cbar_p**7 + 25.0**7)) * np.sin(np.radians(60 * np.exp(-(((hbar - 275) / 25) ** 2))))
+    dl, dc, dh_ = (l2 - l1) / s_l, (c2 - c1) / s_c, d_h / s_h
+    return float(np.sqrt(dl**2 + dc**2 + dh_**2 + r_t * dc * dh_))
+
+
 def candidates(name: str) -> Iterator[str]:
     """The colours ``name`` may take, in order: hue from a hash of the name, then steps of the
     golden angle; saturation and brightness vary, never grey and never pale."""
@@ -131,6 +174,21 @@ def colors(names: Iterable[str]) -> dict[str, str]:
     return out
 
 
+def markers(names: Iterable[str]) -> dict[str, str]:
+    """A marker per name, in :func:`order`: the five's own, for the others one of
+    :data:`USER_MARKERS` from a place the name's hash picks, the first free one (as colours);
+    when all are taken, the one the hash picks (the colour still differs)."""
+    out: dict[str, str] = {}
+    for n in order(names):
+        if n in BUILTIN_MARKERS:
+            out[n] = BUILTIN_MARKERS[n]
+            continue
+        start = int.from_bytes(hashlib.sha256(n.encode()).digest()[:8], "big") % len(USER_MARKERS)
+        ring = [USER_MARKERS[(start + k) % len(USER_MARKERS)] for k in range(len(USER_MARKERS))]
+        out[n] = next((m for m in ring if m not in out.values()), ring[0])
+    return out
+
+
 def _user_color(name: str, taken: list[str]) -> str | None:
     """The first colour of :data:`USER_COLORS` not in ``taken``, from a place the name's hash
     picks; None when every one is taken."""
@@ -144,9 +202,16 @@ def _user_color(name: str, taken: list[str]) -> str | None:
 
 @dataclass(frozen=True)
 class Palette:
-    """The colours of one report's configs; a name it does not know is added to it."""
+    """The colours and markers of one report's configs; a name it does not know is added to it."""
 
     colors: Mapping[str, str]
+    markers: Mapping[str, str] = field(default_factory=dict)
+
+    def marker(self, name: str) -> str:
+        """``name``'s marker (as in :func:`markers` over the palette's names and ``name``)."""
+        if name in self.markers:
+            return self.markers[name]
+        return markers([*self.colors, *self.markers, name])[name]
 
     def color(self, name: str) -> str:
         """``name``'s colour (as in :func:`colors` over the palette's names and ``name``)."""
@@ -168,7 +233,8 @@ class Palette:
 def palette(names: Iterable[str] = ()) -> Palette:
     """The :class:`Palette` of ``names`` (give every config of the report, so that each
     figure colours a name the same way)."""
-    return Palette(colors(names))
+    names = list(names)
+    return Palette(colors(names), markers(names))
 
 
 __all__ = [
@@ -176,7 +242,12 @@ __all__ = [
     "BUILTIN_ORDER",
     "builtin_colors",
     "MAX_LIGHTNESS",
+    "BUILTIN_MARKERS",
     "USER_COLORS",
+    "USER_MARKERS",
+    "USER_MIN_DISTANCE",
+    "distance2000",
+    "markers",
     "Palette",
     "colors",
     "distance",
