@@ -188,3 +188,25 @@ def postgres():
 def pg_url(postgres) -> str:
     """The SQLAlchemy URL of a new empty database on the throwaway server."""
     return postgres.create_database()
+
+
+def tiny_study_settings(space: str = "ppo", **kw):
+    """The settings of a tiny tuning study (run0, tuning seed 101, 4 days, evaluated every 2, no
+    pruning) for the tuning tests; ``kw`` replaces any of them."""
+    from nutribench.tuning.space import load_search_space
+    from nutribench.tuning.study import StudySettings
+
+    s = load_search_space(space)
+    base = dict(
+        space=space,
+        space_version=s.version,
+        space_sha256=s.sha256,
+        regimes=("run0",),
+        seeds=(101,),
+        days=4,
+        eval_every=2,
+        val_episodes=1,
+        sampler_seed=0,
+        pruner="none",
+    )
+    return StudySettings(**{**base, **kw})

@@ -18,23 +18,11 @@ from nutribench.tuning.objective import ValidationObjective
 from nutribench.tuning.space import load_search_space
 from nutribench.tuning.stack import StackedTrials
 from nutribench.tuning.study import StudySettings, count_trials, open_study
+from tests.conftest import tiny_study_settings
 
 
 def settings(n_startup: int = 5) -> StudySettings:
-    s = load_search_space("ppo")
-    return StudySettings(
-        space="ppo",
-        space_version=s.version,
-        space_sha256=s.sha256,
-        regimes=("run0",),
-        seeds=(101,),
-        days=4,
-        eval_every=2,
-        val_episodes=1,
-        sampler_seed=0,
-        pruner="none",
-        startup_trials=n_startup,
-    )
+    return tiny_study_settings(startup_trials=n_startup)
 
 
 @pytest.fixture

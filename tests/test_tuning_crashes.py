@@ -25,7 +25,7 @@ from nutribench.tuning.export import space_file_attr
 from nutribench.tuning.space import load_search_space
 from nutribench.tuning.stack import StackedTrials, claim, run_study
 from nutribench.tuning.study import MAX_STUDY_NAME, StudySettings, count_trials, open_study, stored_settings
-from tests.conftest import one_error_line
+from tests.conftest import one_error_line, tiny_study_settings
 from tests.test_own_agent import plugin_folder  # noqa: F401 (a fixture)
 
 runner = CliRunner()
@@ -34,20 +34,7 @@ TINY = ["--regimes", "run3", "--seeds", "101", "--days", "4", "--eval-every", "2
 
 
 def settings(space: str = "ppo", **kw) -> StudySettings:
-    s = load_search_space(space)
-    base = dict(
-        space=space,
-        space_version=s.version,
-        space_sha256=s.sha256,
-        regimes=("run0",),
-        seeds=(101,),
-        days=4,
-        eval_every=2,
-        val_episodes=1,
-        sampler_seed=0,
-        pruner="none",
-    )
-    return StudySettings(**{**base, **kw})
+    return tiny_study_settings(space, **kw)
 
 
 def quick(trial) -> float:

@@ -17,26 +17,14 @@ from nutribench.store.schema import LEGACY_VERSION_TABLE, VERSION_TABLE
 from nutribench.tuning.space import load_search_space
 from nutribench.tuning.stack import run_study
 from nutribench.tuning.study import StudySettings, TuneError, count_trials, open_study, optuna_storage
-from tests.conftest import one_error_line
+from tests.conftest import one_error_line, tiny_study_settings
 
 runner = CliRunner()
 SPACES = ("mc", "ddqn", "ppo", "sac", "gru_ppo")
 
 
 def settings(**kw) -> StudySettings:
-    base = dict(
-        space="ppo",
-        space_version=1,
-        space_sha256=load_search_space("ppo").sha256,
-        regimes=("run0",),
-        seeds=(101,),
-        days=4,
-        eval_every=2,
-        val_episodes=1,
-        sampler_seed=0,
-        pruner="median",
-    )
-    return StudySettings(**{**base, **kw})
+    return tiny_study_settings(**{"pruner": "median", **kw})
 
 
 def tables(url: str) -> set[str]:
