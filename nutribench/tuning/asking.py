@@ -161,11 +161,28 @@ def claim(study: Any, trials: int) -> Any | None:
     trial_id = _pop_waiting(study)
     if trial_id is None:
         trial_id = study._storage.create_new_trial(study._study_id)
+    else:  # a queued trial, perhaps another driver's: Optuna's cached storage must know it first
+        _know(study, trial_id)
     trial = optuna.Trial(study, trial_id)
     if _count_held(study) <= trials:
         return trial
     study._storage.set_trial_state_values(trial._trial_id, state=TrialState.WAITING)
     return None
+
+
+def _know(study: Any, trial_id: int) -> None:
+    """Make ``study``'s storage hold ``trial_id``, a queued trial this driver took (another
+    driver may have queued it): Optuna's cached storage writes a trial's parameters only for
+    trials it has read, so it reads the study's trials once more; a :class:`StackView` also adds
+    it to the trials the sampler sees. Nothing is read for a trial the view already holds (one
+    this driver queued for its stack)."""
+    storage = study._storage
+    if isinstance(storage, StackView):
+        if trial_id not in storage.trials:
+            storage.inner.get_all_trials(study._study_id, deepcopy=False)
+            storage.refresh(trial_id)
+    else:
+        storage.get_all_trials(study._study_id, deepcopy=False)
 
 
 class StackView:
@@ -207,7 +224,11 @@ class StackView:
         return trial_id
 
     def set_trial_param(self, trial_id: int, name: str, internal: float, distribution: Any) -> None:
-        self.inner.set_trial_param(trial_id, name, internal, distribution)
+        try:
+            self.inner.set_trial_param(trial_id, name, internal, distribution)
+        except KeyError:  # Optuna's cache has not read this trial (another driver's, queued): read, retry
+            self.inner.get_all_trials(self.study_id, deepcopy=False)
+            self.inner.set_trial_param(trial_id, name, internal, distribution)
         if trial_id in self.trials:
             self.trials[trial_id].params[name] = distribution.to_external_repr(internal)
             self.trials[trial_id].distributions[name] = distribution
