@@ -7,7 +7,8 @@ leading agent axis, and what keeps each agent's update its own.
   ``torch.baddbmm``;
 * :func:`clip_grad_norm_per_agent`: ``clip_grad_norm_`` over each agent's own parameters;
 * :class:`StackedAdam` (:func:`make_adam`): Adam over stacked parameters, each agent at its own
-  rate, batch-invariant by construction (one IEEE operation per element, no fused kernels);
+  rate: torch's Adam at rate 1 (fused where that is batch-invariant), each row's move scaled by
+  its agent's rate, alone or stacked alike;
 * :class:`RunningStats`: SB3's ``RunningMeanStd`` for K agents (``VecNormalize``'s statistics);
 * :class:`AgentMeans`: per-agent means of a few ``(K,)`` quantities over an update's gradient
   steps, kept on the device and read back at once (the agents' diagnostics).
