@@ -18,6 +18,7 @@ mkdir -p "$out/data" "$out/logs"
 for agent in "$@"; do
   stack=4
   [ "$agent" = ddqn ] && stack=1  # DDQN's batched engine takes no per-agent settings
+  [ "$agent" = sac ] && stack=1  # addendum 2: the replay minibatch drawn for every trial, as DDQN's
   {
     echo "$(date -u +%FT%TZ) start $agent: commit $commit, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores"
   } >> "$out/logs/code_version.txt"
