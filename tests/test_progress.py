@@ -106,23 +106,64 @@ def test_report_items_are_counted_from_build_report_s_lines() -> None:
     assert _counted("reading") == (None, None)
 
 
-def test_tune_says_which_trials_train_until_the_first_evaluation() -> None:
+def test_tune_says_which_trials_train_and_their_day_until_the_first_evaluation() -> None:
     from nutribench.cli.tune import _show_training
 
     recorded, said = [], []
     objective = SimpleNamespace(
         record_engine=lambda trial, cfg: recorded.append(trial.number),
+        on_day=None,
         settings=SimpleNamespace(days=1000, eval_every=100),
         jobs=[("run0", 101), ("run0", 102)],
     )
-    _show_training(objective, lambda text, done=None: said.append(text))
+    _show_training(objective, lambda text, done=None, total=None: said.append((text, done, total)))
     objective.record_engine(SimpleNamespace(number=4), None)
     objective.record_engine(SimpleNamespace(number=5), None)  # stacked with trial 4
+    for day in range(1, 21):
+        objective.on_day(day, None)  # a batch: its agents in step
+    objective.on_day(30, 1)  # one agent after another (the SB3 engine): the second agent's day 30
     assert recorded == [4, 5]  # the engine is still recorded
     assert said == [
-        "training trial 4: 2 agents each, 1,000 days, first evaluation at day 100",
-        "training trials 4..5: 2 agents each, 1,000 days, first evaluation at day 100",
+        ("training trial 4: 2 agents each, 1,000 days, first evaluation at day 100", 0, 1000),
+        ("training trials 4..5: 2 agents each, 1,000 days, first evaluation at day 100", 0, 1000),
+        # every 10th day of 1000 (about 100 updates a trial), the bar at that day
+        ("training trials 4..5: 2 agents each: day 10 of 1,000, first evaluation at day 100", 10, 1000),
+        ("training trials 4..5: 2 agents each: day 20 of 1,000, first evaluation at day 100", 20, 1000),
+        ("training trials 4..5: 2 agents each: agent 2 of 2, day 30 of 1,000, first evaluation at day 100", 30, 1000),
     ]
+
+
+@pytest.mark.parametrize("stack", [1, 2])
+def test_a_trial_reports_each_training_day_batched_stacked_or_alone(tmp_path, stack) -> None:
+    """The objective's ``on_day`` hears every day of a real trial: the batched engine (one
+    trial, or two stacked) once per day of the batch, in order."""
+    from nutribench.tuning.objective import ValidationObjective
+    from nutribench.tuning.space import load_search_space
+    from nutribench.tuning.stack import StackedTrials, run_study
+    from nutribench.tuning.study import StudySettings, open_study
+
+    space = load_search_space("mc")
+    settings = StudySettings(
+        space=space.name,
+        space_version=space.version,
+        space_sha256=space.sha256,
+        regimes=("run0",),
+        seeds=(101,),
+        days=4,
+        eval_every=2,
+        val_episodes=1,
+        sampler_seed=0,
+        pruner="none",
+    )
+    handle = open_study(f"sqlite:///{tmp_path / 't.db'}", "s", settings)
+    objective = ValidationObjective(space, settings)
+    heard: list[tuple[int, int | None]] = []
+    objective.on_day = lambda day, job: heard.append((day, job))
+    if stack > 1:
+        StackedTrials(objective, stack).run(handle, stack)
+    else:
+        run_study(handle, objective, 1)
+    assert heard == [(1, None), (2, None), (3, None), (4, None)]
 
 
 # ------------------------------------------------------------------ nutribench run's ETA

@@ -170,21 +170,28 @@ def tune_cmd(
 
 def _show_training(objective, advance) -> None:
     """The progress line says which trials train (each trial's engine is recorded as its
-    training starts, stacked trials one after the other) and when their first evaluation comes."""
-    record, numbers = objective.record_engine, []
+    training starts, stacked trials one after the other), the day their training has reached
+    and when their first evaluation comes."""
+    record, numbers, shown = objective.record_engine, [], {"which": "", "day": -1}
     s = objective.settings
+    n_jobs = len(objective.jobs)
+    first = f"first evaluation at day {min(s.eval_every, s.days):,}"
 
     def record_engine(trial, cfg) -> None:
         record(trial, cfg)
         numbers.append(trial.number)
         which = f"trial {numbers[0]}" if len(numbers) == 1 else f"trials {min(numbers)}..{max(numbers)}"
-        agents = f"{len(objective.jobs)} agent{'s' if len(objective.jobs) != 1 else ''}"
-        advance(
-            f"training {which}: {agents} each, {s.days:,} days, first evaluation at day {min(s.eval_every, s.days):,}",
-            0,
-        )
+        shown["which"] = f"training {which}: {n_jobs} agent{'s' if n_jobs != 1 else ''} each"
+        advance(f"{shown['which']}, {s.days:,} days, {first}", 0, s.days)
 
-    objective.record_engine = record_engine
+    def on_day(day: int, job: int | None) -> None:
+        step = max(1, s.days // 100)  # at most about 100 updates of the line per trial
+        if day % step and day != s.days:
+            return
+        agent = "" if job is None else f"agent {job + 1} of {n_jobs}, "
+        advance(f"{shown['which']}: {agent}day {day:,} of {s.days:,}, {first}", day, s.days)
+
+    objective.record_engine, objective.on_day = record_engine, on_day
 
 
 @tune_app.command("status")

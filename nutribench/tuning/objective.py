@@ -46,6 +46,9 @@ class ValidationObjective:
     ):
         self.space, self.settings, self.device, self.on_evaluation = space, settings, device, on_evaluation
         self.jobs = [(r, s) for r in settings.regimes for s in settings.seeds]
+        #: ``on_day(day, job)``: a trial's training reached ``day`` (its agents train in step in a
+        #: batch: ``job`` None; one after another with SB3: the 0-based job); a plug-in's own loop says nothing
+        self.on_day: Callable[[int, int | None], None] | None = None
         self._references: dict[tuple[str, int], tuple[float, float]] = {}
 
     def references(self, regime: str, seed: int) -> tuple[float, float]:
@@ -87,6 +90,21 @@ class ValidationObjective:
 
         return "batched" if supports(cfg) is None else "sb3"
 
+    def batch_days(self) -> Callable[[int, dict[str, Any]], None] | None:
+        """The batched engine's ``on_episode``: :attr:`on_day` each time the batch's furthest
+        agent ends a day (a batch's agents end their days together, a pruned trial's stop)."""
+        if self.on_day is None:
+            return None
+        on_day, days, reached = self.on_day, {}, [0]
+
+        def on_episode(j: int, _metrics: dict[str, Any]) -> None:
+            days[j] = days.get(j, 0) + 1
+            if days[j] > reached[0]:
+                reached[0] = days[j]
+                on_day(reached[0], None)
+
+        return on_episode
+
     def train(self, cfg: Any, on_validation: Callable[[int, int, list[dict[str, Any]]], None]) -> None:
         """Train the trial's K agents with evaluations during training (batched when supported)."""
         s = self.settings
@@ -101,6 +119,7 @@ class ValidationObjective:
                 eval_every=s.eval_every,
                 val_episodes=s.val_episodes,
                 on_validation=on_validation,
+                on_episode=self.batch_days(),
                 return_agents=False,  # the score is the validation rows: no SB3 model built
             )
             return
@@ -111,7 +130,7 @@ class ValidationObjective:
         for j, (regime, seed) in enumerate(self.jobs):
             # a plug-in's own loop (algo "external"): its final agent is evaluated, nothing to prune on
             if by_entry_point(cfg.algo):
-                agent = train(regime, cfg, seed, s.days)
+                agent = train(regime, cfg, seed, s.days, on_episode=self.job_days(j))
                 days = validation_food_streams(regime, seed, s.val_episodes)
                 on_validation(j, s.days, evaluate(agent, regime, days, record_steps=False).episodes)
                 continue
@@ -123,7 +142,20 @@ class ValidationObjective:
                 eval_every=s.eval_every,
                 val_episodes=s.val_episodes,
                 on_validation=lambda _, day, rows, j=j: on_validation(j, day, rows),
+                on_episode=self.job_days(j),
             )
+
+    def job_days(self, j: int) -> Callable[[dict[str, Any]], None] | None:
+        """The SB3 engine's ``on_episode`` for job ``j`` (trained alone): :attr:`on_day` at each day."""
+        if self.on_day is None:
+            return None
+        on_day, days = self.on_day, [0]
+
+        def on_episode(_metrics: dict[str, Any]) -> None:
+            days[0] += 1
+            on_day(days[0], j)
+
+        return on_episode
 
 
 class TrialScores:

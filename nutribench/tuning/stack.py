@@ -321,5 +321,6 @@ class StackedTrials:
             on_validation=on_validation,
             agent_configs=cfgs,
             active=active,
+            on_episode=obj.batch_days(),
             return_agents=False,  # a trial's score is its validation rows: no SB3 model built
         )
