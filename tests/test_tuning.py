@@ -238,3 +238,24 @@ def test_a_late_mean_objective_is_the_mean_of_the_values_after_half_the_days(tmp
     assert stored_settings(study).objective == "last"
     bad = tune(db, "--algo", "ppo", "--study", "x", "--objective", "best", *args)
     assert "--objective" in one_error_line(bad)
+
+
+def test_a_new_study_draws_with_the_constant_liar_and_an_old_one_resumes_without(tmp_path: Path) -> None:
+    """A study made by ``nutribench tune`` stores ``constant_liar`` and its drivers' TPE uses it
+    (a stack's trials, asked at once, see each other running); a study made before the setting
+    existed (no ``constant_liar`` in its settings) resumes without it, by the same command."""
+    db = tmp_path / "lab.db"
+    args = ["--regimes", "run3", "--seeds", "101", "--days", "2", "--eval-every", "1", "--val-episodes", "1"]
+    assert tune(db, "--algo", "mc", "--study", "new", "--trials", "1", *args).exit_code == 0
+    study = optuna.load_study(study_name="new", storage=f"sqlite:///{db}")
+    assert stored_settings(study).constant_liar is True
+    assert make_sampler(stored_settings(study))._constant_liar is True  # optuna 5's TPESampler attribute
+    attr = dict(study.user_attrs["nutribench"])
+    del attr["constant_liar"]  # as the studies made before it
+    study.set_user_attr("nutribench", attr)
+    assert stored_settings(study).constant_liar is False
+    assert make_sampler(stored_settings(study))._constant_liar is False
+    res = tune(db, "--algo", "mc", "--study", "new", "--trials", "2", *args)
+    assert res.exit_code == 0, res.output  # resumed: no "created with other settings"
+    study = optuna.load_study(study_name="new", storage=f"sqlite:///{db}")
+    assert "constant_liar" not in study.user_attrs["nutribench"] and len(study.trials) == 2

@@ -115,6 +115,7 @@ def tune_cmd(
         pruner=pruner,
         startup_trials=startup_trials,
         objective=objective_rule,
+        constant_liar=True,  # a new study's; one made before keeps its sampler (open_study)
     )
     settings.check()
     if trials < 1 or stack < 1:

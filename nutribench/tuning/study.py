@@ -25,12 +25,11 @@ import time
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
-import numpy as np
-
 from nutribench.errors import UserError
+from nutribench.tuning.sampling import make_pruner, make_sampler  # noqa: F401 (here since the first studies)
 
 #: seeds the project reports results on (the paper's); a tuning study may not tune on them
 REPORTED_SEEDS: tuple[int, ...] = (0, 21, 9, 2003, 1997)
@@ -78,6 +77,7 @@ class StudySettings:
     pruner: str
     startup_trials: int = 5
     objective: str = "last"  # a study made before the setting existed scored its last day
+    constant_liar: bool = False  # one made before it drew its stacked trials without (sampling.py)
 
     def as_attr(self) -> dict[str, Any]:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in self.__dict__.items()}
@@ -200,38 +200,6 @@ def optuna_storage(db: Any, writer: bool = True) -> Any:
     raise AssertionError("unreachable")
 
 
-def make_sampler(settings: StudySettings, joining: bool = False) -> Any:
-    """A seeded TPE sampler (the first ``startup_trials`` random, as Optuna's default).
-
-    The driver that creates a study seeds it with ``sampler_seed``: a study run by one driver
-    from start to end is reproducible. A driver that joins or resumes an existing study
-    (``joining``) draws a seed of its own from ``sampler_seed``, its process and the clock:
-    two drivers with one seed would draw the same random trials (found in the tuned grid's
-    first studies: trials 0/1, 2/3 and 4/5 were pairs)."""
-    import optuna
-
-    seed = settings.sampler_seed
-    if joining:
-        seed = int(np.random.SeedSequence([seed, os.getpid(), time.time_ns()]).generate_state(1)[0])
-    return optuna.samplers.TPESampler(seed=seed, n_startup_trials=settings.startup_trials)
-
-
-def make_pruner(settings: StudySettings) -> Any:
-    """The median rule on the periodic validation evaluations, not before half the budget.
-
-    Median, not successive halving: a study here has tens of trials, and halving's rungs would
-    stop most of them on their first evaluations, when delayed-regime curves still cross
-    (reports/sensitivity: PPO at 1e-3 looks as good as 3e-4 early and drifts later). No trial
-    is pruned before half its days or before ``startup_trials`` trials have finished."""
-    import optuna
-
-    if settings.pruner == "none":
-        return optuna.pruners.NopPruner()
-    return optuna.pruners.MedianPruner(
-        n_startup_trials=settings.startup_trials, n_warmup_steps=settings.days // 2, interval_steps=1
-    )
-
-
 def check_study_name(name: str) -> None:
     """A study name Optuna can store: not empty, at most :data:`MAX_STUDY_NAME` characters
     (its column's width), no control characters (one line)."""
@@ -278,6 +246,8 @@ def open_study(db: Any, name: str, settings: StudySettings | None, space_file: d
             study.set_user_attr(ATTR, settings.as_attr())
             return study
     stored = _settings_when_written(optuna.load_study(study_name=name, storage=storage))
+    if settings is not None:  # a study resumes with the sampler it was made with
+        settings = replace(settings, constant_liar=stored.constant_liar)
     if settings is not None and stored != settings:
         diff = [
             f"{k} {getattr(stored, k)!r} (asked {getattr(settings, k)!r})"
