@@ -7,6 +7,12 @@ trial. :class:`StackView` serves the sampler's reads while a stack of trials is 
 one read of the study plus the stack's own trials, kept as they are written (issue 51: with
 ``--stack 256`` each ask read every running trial several times, Optuna's cached storage
 reading its unfinished trials afresh on each call, and the stack's asks cost N squared).
+
+Optuna's public API has no such reads, so this module (and a few lines of ``stack.py``) use its
+internals: ``Study._storage``, ``_study_id``, ``_thread_local``, ``_pop_waiting_trial_id``,
+``Trial._trial_id``, the cached storage's ``_backend`` and the RDB table models.
+``tests/test_optuna_internals.py`` checks each of them against the installed Optuna (pinned
+``>=5.0,<6``), so that an upgrade which moves one fails there, by name.
 """
 
 from __future__ import annotations
