@@ -37,3 +37,35 @@ def test_the_estimate_scales_with_the_agents_costs() -> None:
     grid = Grid(("run0",), ("a", "b"), paper.seeds, paper.episodes, paper.eval_episodes)
     cheap, dear = grid.cpu_hours(lambda _: 1.0), grid.cpu_hours(lambda name: 5.0 if name == "b" else 1.0)
     assert cheap > 0 and dear == pytest.approx(3 * cheap, rel=1e-12)
+
+
+@pytest.mark.parametrize(("argv", "answer"), [(["--yes"], None), ([], "y\n")])
+def test_yes_or_a_yes_answer_starts_the_paper_grid(tmp_path: Path, monkeypatch, argv, answer) -> None:
+    """``--yes`` starts the paper grid without a question, and so does "y" on a terminal (the
+    grid itself replaced by a recorder: what reaches it is the paper's grid)."""
+    started = []
+
+    def recorder(db, regimes, algos, seeds, episodes, *args, **kwargs):
+        started.append((tuple(regimes), tuple(algos), tuple(seeds), episodes))
+        raise SystemExit(0)
+
+    monkeypatch.setattr("nutribench.scheduler.driver.run_grid", recorder)
+    monkeypatch.setattr(run_cli, "_interactive", lambda: answer is not None)
+    res = runner.invoke(app, ["run", "--db", str(tmp_path / "lab.db"), *argv], input=answer)
+    assert res.exit_code == 0, res.output
+    paper = PRESETS["paper"]
+    ((regimes, algos, seeds, days),) = started
+    assert len(regimes) == 7 and algos == ("mc", "ddqn", "ppo", "sac", "gru_ppo")
+    assert seeds == tuple(paper.seeds) and days == paper.episodes == 5000
+    assert ("Start the paper grid" in res.output) == (answer is not None)  # asked only without --yes
+
+
+def test_an_unknown_algorithm_says_where_agent_files_are_looked_for(tmp_path: Path, monkeypatch) -> None:
+    mine = tmp_path / "my_agents"
+    mine.mkdir()
+    monkeypatch.setenv("NUTRIBENCH_AGENTS", str(mine))
+    db = tmp_path / "lab.db"
+    line = one_error_line(runner.invoke(app, ["run", "--algos", "bogus", "--preset", "smoke", "--db", str(db)]))
+    assert line.startswith("error: unknown algorithm bogus: known are mc, ddqn, ppo, sac, gru_ppo"), line
+    assert str(mine) in line and "regimes/agents" in line and "NUTRIBENCH_AGENTS=<folder>" in line
+    assert not db.exists()

@@ -118,6 +118,12 @@ def list_agent_configs(folder: Path | None = None) -> list[str]:
     return first + [n for n in names if n not in first]
 
 
+def where_agents_are() -> str:
+    """Where agent files are looked for, and how to add a folder (for an unknown name's error)."""
+    folders = ", ".join(map(str, agent_folders()))
+    return f"(files in {folders}; NUTRIBENCH_AGENTS=<folder> adds a folder of your own)"
+
+
 def resolve_agent_path(name_or_path: str | Path) -> Path:
     """A config name (``ppo``: the first agent folder that has ``ppo.toml``; a name in two
     folders with other contents warns which file is used) or a path to a TOML file."""
@@ -128,10 +134,8 @@ def resolve_agent_path(name_or_path: str | Path) -> Path:
         return resolve_named_file(s, agents_dir(), "agent config", [])
     found = [f / f"{s}.toml" for f in agent_folders() if (f / f"{s}.toml").is_file()]
     if not found:
-        folders = ", ".join(map(str, agent_folders()))
         raise ConfigError(
-            f"unknown agent config '{s}': known are {', '.join(list_agent_configs()) or '(none)'} (files in "
-            f"{folders}; NUTRIBENCH_AGENTS=<folder> adds a folder of your own)"
+            f"unknown agent config '{s}': known are {', '.join(list_agent_configs()) or '(none)'} {where_agents_are()}"
         )
     if len(found) > 1 and found[0].read_bytes() != found[1].read_bytes():  # a copy is no clash
         warnings.warn(f"agent config '{s}': {found[0]} is used, not {found[1]}", stacklevel=2)

@@ -245,14 +245,15 @@ def bench_learn_cmd(
     evaluation days, and state each as the share of the never -> planner gap it closes
     (run0 target: at least 75 % with 3-6 foods a day)."""
     episodes = old_spelling(days, episodes_alias, "--days", "--episodes", "500,ddqn=2000")
-    from nutribench.agents.config import list_agent_configs, load_agent_config
+    from nutribench.agents.config import list_agent_configs, load_agent_config, where_agents_are
     from nutribench.agents.registry import batched_names
     from nutribench.agents.registry import names as algo_names
     from nutribench.bench.learn import COLUMNS, DEFAULT_BUDGET, learn_benchmark, markdown_table, row_cells, summarize
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
 
-    names = split_csv(algos, list_agent_configs()[:5] if algos == "all" else list_agent_configs(), "agent config")
+    known = list_agent_configs()[:5] if algos == "all" else list_agent_configs()
+    names = split_csv(algos, known, "agent config", where_agents_are())
     regime_names = split_csv(regimes, list_regimes(), "regime")
     seed_list = list(parse_seeds(seeds))
     default, budgets = parse_budgets(episodes, DEFAULT_BUDGET)

@@ -88,8 +88,9 @@ def user_errors(fn):
     return wrapper
 
 
-def split_csv(value: str, known: list[str], what: str) -> list[str]:
-    """``"all"`` or a comma-separated subset of ``known``; unknown names are a UserError."""
+def split_csv(value: str, known: list[str], what: str, where: str = "") -> list[str]:
+    """``"all"`` or a comma-separated subset of ``known``; unknown names are a UserError (its
+    line ends with ``where``: where the names come from, how to add one)."""
     if value.strip() == "all":
         return list(known)
     items = [v.strip() for v in value.split(",") if v.strip()]
@@ -97,7 +98,9 @@ def split_csv(value: str, known: list[str], what: str) -> list[str]:
         raise UserError(f"no {what} given: pass 'all' or a comma-separated list of {', '.join(known)}")
     unknown = [v for v in items if v not in known]
     if unknown:
-        raise UserError(f"unknown {what} {', '.join(unknown)}: known are {', '.join(known)}")
+        raise UserError(
+            f"unknown {what} {', '.join(unknown)}: known are {', '.join(known)}{' ' + where if where else ''}"
+        )
     return items
 
 

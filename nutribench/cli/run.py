@@ -177,7 +177,7 @@ def run_cmd(
         )
         console.print(f"{store.display}: schema {what} at revision {store.revision}", highlight=False)
         return
-    from nutribench.agents.config import list_agent_configs
+    from nutribench.agents.config import list_agent_configs, where_agents_are
     from nutribench.config import list_regimes
     from nutribench.scheduler.driver import default_job_fn, run_grid
     from nutribench.scheduler.grid import resolve_grid
@@ -188,7 +188,7 @@ def run_cmd(
     grid = resolve_grid(
         preset=preset,
         regimes=split_csv(regimes, list_regimes(), "regime"),
-        algos=split_csv(algos, list_agent_configs(), "algorithm"),
+        algos=split_csv(algos, list_agent_configs(), "algorithm", where_agents_are()),
         seeds=seeds,
         episodes=episodes,
         eval_episodes=eval_episodes,
