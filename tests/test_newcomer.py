@@ -170,7 +170,9 @@ def test_compare_warns_when_the_two_budgets_differ():
     df = _mixed_budgets()
     res = compare_agents(df[df.phase == "eval"], "ppo", "mine", reps=200)
     assert res.notes[0].startswith("warning: budgets differ") and "5000" in res.notes[0] and "50 days" in res.notes[0]
-    assert "warning: budgets differ" in res.to_text()
+    for shown in (res.to_text(), res.to_markdown()):  # one "warning:", never "note: warning:"
+        assert "warning: budgets differ" in shown and "note: warning" not in shown
+        assert any(line.lstrip("*_ ").startswith("warning: budgets differ") for line in shown.splitlines()), shown
     even = df.assign(budget=5000)
     assert not any(
         "budgets differ" in n for n in compare_agents(even[even.phase == "eval"], "ppo", "mine", reps=200).notes

@@ -225,3 +225,57 @@ def test_the_live_panel_says_its_eta_is_an_estimate(tmp_path: Path) -> None:
     view.start(run)
     view.stop(run)
     assert "ETA ~1m (estimate)" in out.getvalue()
+
+
+# ------------------------------------------------------------------ through the commands
+def _forced_terminal(monkeypatch) -> io.StringIO:
+    import nutribench.cli.common as common
+
+    console, out = _terminal()
+    monkeypatch.setattr(common, "err_console", console)
+    return out
+
+
+def test_leaderboard_and_report_all_show_their_steps_on_a_terminal(tmp_path, monkeypatch) -> None:
+    """The commands themselves draw the line (not only their helpers): ``leaderboard
+    --archives`` its imports then the ranking, ``report --all`` its items; stdout as without."""
+    from typer.testing import CliRunner
+
+    from nutribench.cli import app
+    from tests.test_archive_poison import _export, _record
+
+    runner = CliRunner()
+    folder = tmp_path / "lb"
+    folder.mkdir()
+    _record(tmp_path / "g.db", "eat_early", seeds=(0, 21))
+    _export(tmp_path / "g.db", folder / "eat_early.npz")
+    args = ["leaderboard", "--archives", str(folder), "--reps", "200"]
+    quiet = runner.invoke(app, [*args, "--out", str(tmp_path / "o1")])
+    out = _forced_terminal(monkeypatch)
+    res = runner.invoke(app, [*args, "--out", str(tmp_path / "o2")])
+    assert res.exit_code == 0 == quiet.exit_code, res.output
+    shown = out.getvalue()
+    assert "importing 1 of 1: eat_early.npz" in shown and "ranking" in shown, shown
+    assert res.stdout.replace("o2", "o1") == quiet.stdout and "importing 1 of 1" not in res.stdout
+    out.truncate(0)
+    res = runner.invoke(app, ["report", "--all", "--db", str(tmp_path / "g.db"), "--out", str(tmp_path / "rep")])
+    assert res.exit_code == 0, res.output
+    assert "[1/" in out.getvalue(), out.getvalue()
+
+
+def test_tune_shows_the_trials_and_their_day_on_a_terminal_until_the_first_evaluation(tmp_path, monkeypatch) -> None:
+    from typer.testing import CliRunner
+
+    from nutribench.cli import app
+
+    out = _forced_terminal(monkeypatch)
+    args = ["--regimes", "run3", "--seeds", "101", "--days", "4", "--eval-every", "2", "--val-episodes", "1"]
+    res = CliRunner().invoke(
+        app, ["tune", "--space", "mc", "--study", "s", "--trials", "1", *args, "--db", str(tmp_path / "t.db")]
+    )
+    assert res.exit_code == 0, res.output
+    shown = out.getvalue()
+    assert "tune s: training trial 0: 1 agent each, 4 days, first evaluation at day 2" in shown, shown
+    assert "day 1 of 4" in shown and "day 2 of 4" in shown
+    assert "day 3 of 4" not in shown  # the line ended with the first evaluation's line on stdout
+    assert "trial 0: day 2: IQM share of the gap" in res.stdout and "training trial" not in res.stdout

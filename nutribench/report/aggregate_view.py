@@ -310,7 +310,7 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
         *(f"{AGGREGATE_LABELS[a]} (%)" for a in AGGREGATES),
         *(f"P(> {algo_label(a)})" for a in res.algos),
     ]
-    fmt = pd.DataFrame(fmt_rows, columns=cols).fillna("")
+    fmt = pd.DataFrame(fmt_rows, columns=cols).astype(object).fillna("")  # a column all None is float64
     if len(fmt) == 0:
         fmt = fmt[cols[: 4 if budgets else 3]]
     raw_cols = [
