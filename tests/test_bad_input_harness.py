@@ -115,7 +115,10 @@ BAD = {
         ["report", "--all", "--db", "new.db", "--out", "x" * 300],
         "File name too long",
     ),
-    "baselines with a negative seed": (["baselines", "--regimes", "run0", "--episodes", "1", "--seed", "-1"], "--seed"),
+    "baselines with a negative seed": (
+        ["baselines", "--regimes", "run0", "--eval-episodes", "1", "--seed", "-1"],
+        "--seed",
+    ),
     "baselines with more days than fit side by side": (
         ["baselines", "--regimes", "run0", "--episodes", "99999999999999999999"],
         "side by side",

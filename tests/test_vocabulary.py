@@ -49,3 +49,20 @@ def test_tune_names_its_search_space_space(tmp_path) -> None:
         runner.invoke(app, ["tune", "--db", str(db), "--space", "mc", "--algo", "ppo", "--study", "s"])
     )
     assert "old spelling of --space" in line
+
+
+def test_bench_tune_also_takes_a_space_and_baselines_evaluation_days() -> None:
+    """``bench tune`` draws from a search space: ``--space``, as ``tune`` (``--algo`` hidden);
+    ``baselines`` plays evaluation days: ``--eval-episodes``, as ``run`` and ``train``
+    (``--episodes`` hidden); both spellings at once with different values is one line."""
+    res = runner.invoke(app, ["bench", "tune", "--help"], terminal_width=200)
+    assert "--space" in res.output and "--algo " not in res.output
+    line = one_error_line(runner.invoke(app, ["bench", "tune", "--space", "mc", "--algo", "ppo"]))
+    assert "old spelling of --space" in line
+    res = runner.invoke(app, ["baselines", "--help"], terminal_width=200)
+    assert "--eval-episodes" in res.output and "--episodes " not in res.output
+    new = runner.invoke(app, ["baselines", "--regimes", "run0", "--eval-episodes", "2", "--markdown"])
+    old = runner.invoke(app, ["baselines", "--regimes", "run0", "--episodes", "2", "--markdown"])
+    assert new.exit_code == 0 == old.exit_code and new.output == old.output, new.output
+    line = one_error_line(runner.invoke(app, ["baselines", "--episodes", "2", "--eval-episodes", "3"]))
+    assert "old spelling of --eval-episodes" in line

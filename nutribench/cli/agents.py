@@ -24,7 +24,10 @@ from nutribench.cli.common import (
 @user_errors
 def baselines(
     regimes: Annotated[str, typer.Option(help="'all' or comma-separated regime names")] = "all",
-    episodes: Annotated[int, typer.Option(min=1, help="episodes per policy and regime")] = 200,
+    episodes: Annotated[
+        Optional[int], typer.Option("--eval-episodes", min=1, help="days played per policy and regime [default: 200]")
+    ] = None,
+    old_episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)] = None,
     seed: Annotated[int, typer.Option(help="seed of the food streams (the same for every policy)")] = 0,
     markdown: Annotated[bool, typer.Option(help="print a Markdown table instead of a rich one")] = False,
 ) -> None:
@@ -33,8 +36,9 @@ def baselines(
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import MAX_EVAL_DAYS, MAX_SEED
 
+    episodes = old_spelling(episodes, old_episodes, "--eval-episodes", "--episodes", 200)
     check_range("--seed", seed, 0, MAX_SEED)
-    check_range("--episodes", episodes, 1, MAX_EVAL_DAYS, "the days are played side by side")
+    check_range("--eval-episodes", episodes, 1, MAX_EVAL_DAYS, "the days are played side by side")
     names = split_csv(regimes, list_regimes(), "regime")
     rows = baseline_table(names, episodes=episodes, seed=seed)
     headers = ["regime", "policy", "return", "foods", "final distance", "overshoot ratio"]

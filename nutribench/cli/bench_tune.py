@@ -8,18 +8,19 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from nutribench.cli.common import console, split_csv, user_errors
+from nutribench.cli.common import console, old_spelling, split_csv, user_errors
 
 
 @user_errors
 def bench_tune_cmd(
     space: Annotated[
-        str,
+        Optional[str],
         typer.Option(
-            "--algo",
-            help="search space whose trials are drawn (an algorithm with per-agent settings: ppo, mc, gru_ppo, sac)",
+            "--space",
+            help="search space whose trials are drawn (an algorithm with per-agent settings: ppo, mc, gru_ppo, sac) [default: ppo]",
         ),
-    ] = "ppo",
+    ] = None,
+    algo: Annotated[Optional[str], typer.Option("--algo", hidden=True)] = None,
     trials: Annotated[int, typer.Option(min=1, help="trials, the same in both arms")] = 8,
     days: Annotated[int, typer.Option(min=1, help="training days per agent")] = 20,
     regimes: Annotated[str, typer.Option(help="tuning regimes, comma-separated")] = "run0,run3",
@@ -30,6 +31,7 @@ def bench_tune_cmd(
     repeats: Annotated[int, typer.Option(min=1, help="repeats of both arms, orders alternating")] = 1,
 ) -> None:
     """Trials per hour: stacked trials in batched processes vs one SB3 process per trial (rl-zoo3's way)."""
+    space = old_spelling(space, algo, "--space", "--algo", "ppo")  # as tune's --space
     from nutribench.bench.tune import bench_tune
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
