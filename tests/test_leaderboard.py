@@ -173,3 +173,9 @@ def test_an_older_version_that_differs_only_in_its_description_is_the_paper_conf
         body = agent_config_content(cfg) | {"max_grad_norm": "inf"}  # as JSON stores it
         row = {"name": "mc", "version": cfg.version, "sha256": agent_config_sha256(cfg), "body": body}
         assert protocols(pd.DataFrame([row])) == {"mc": protocol}
+
+
+def test_a_share_just_below_zero_reads_0_not_minus_0() -> None:
+    from nutribench.report.leaderboard import _pct
+
+    assert [_pct(v) for v in (-0.004, 0.0, 0.004, -0.006, 0.555, float("nan"))] == ["0", "0", "0", "-1", "56", "n/a"]

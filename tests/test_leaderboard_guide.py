@@ -25,6 +25,7 @@ TINY = {
     '"$TUNED_DATA"/*_tuned.npz': '"$TUNED_DATA"/ppo_tuned.npz',  # one of the five tuned ones
     "--regimes all": "--regimes run0,run3",
     "--days 5000": "--days 2",
+    "--days 500 --val-episodes 5 --trials 8": "--days 2 --val-episodes 1 --trials 2",
     "DAYS = 5000": "DAYS = 2",
     'REGIMES = [f"run{i}" for i in range(7)]': 'REGIMES = ["run0", "run3"]',
 }
@@ -68,17 +69,20 @@ def test_the_guide_ranks_a_plugin_and_a_recorded_loop_beside_the_imported_baseli
     rows = {
         r["algo"]: r for r in csv.DictReader(io.StringIO((board / "reports" / "board" / "leaderboard.csv").read_text()))
     }
-    assert {"mc", "gru_ppo", "ppo_tuned", "qrdqn_mine", "reinforce_loop"} == set(rows)
-    for mine in ("qrdqn_mine", "reinforce_loop"):
+    assert {"mc", "gru_ppo", "ppo_tuned", "qrdqn_mine", "qrdqn_mine_tuned", "reinforce_loop"} == set(rows)
+    for mine in ("qrdqn_mine", "qrdqn_mine_tuned", "reinforce_loop"):
         assert rows[mine]["budget"] == "2" and "budget 2 days (reference 5000)" in rows[mine]["flags"]
         assert rows[mine]["seeds"] == "0 9 21 1997 2003" and "seeds" not in rows[mine]["flags"]  # --seeds paper
         assert "ranked on run0, run3 only" in rows[mine]["flags"] and rows[mine]["regimes"] == "2"
     assert rows["qrdqn_mine"]["protocol"] == "plug-in" and rows["reinforce_loop"]["protocol"] == "recorded"
+    assert rows["qrdqn_mine_tuned"]["protocol"] == "tuned"  # tuned through the plug-in's own space file
+    header = (board / "tuned_agents" / "qrdqn_mine_tuned.toml").read_text()
+    assert "each agent scored once, after its last day, on 1 validation day (a plug-in's own loop)" in header
     for base in ("mc", "gru_ppo"):
         assert rows[base]["flags"] == "" and rows[base]["protocol"] == "paper config" and rows[base]["regimes"] == "7"
     assert rows["ppo_tuned"]["flags"] == "" and rows["ppo_tuned"]["protocol"] == "tuned"
     assert rows["ppo_tuned"]["regimes"] == "7"
-    assert sorted(int(r["rank"]) for r in rows.values()) == [1, 2, 3, 4, 5]
+    assert sorted(int(r["rank"]) for r in rows.values()) == [1, 2, 3, 4, 5, 6]
     # the shared archives, ranked by whoever receives them: the same table
     table = lambda out: [ln for ln in out.splitlines() if ln.startswith("| ")]  # noqa: E731
     assert table(outputs[-1]) == table((board / "reports" / "board" / "leaderboard.md").read_text())

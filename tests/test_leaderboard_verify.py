@@ -171,3 +171,20 @@ def test_the_cell_of_an_entry_from_its_jobs():
     assert entry_cell([ok, bad, missing]) == (
         "re-run: differs (c day 2 step 7: stored action 1, the model plays 0; 9 of 10 days match)"
     )
+
+
+def test_a_plug_ins_models_are_not_loaded_and_its_entry_says_why(tmp_path: Path):
+    """A plug-in's model loads only through its own code, which the leaderboard never imports:
+    its job is not re-run (no load tried), and the entry says replayed, not re-run, and why,
+    not "re-run: failed"."""
+    from nutribench.report.leaderboard_verify import PLUGIN_NOTE, JobCheck, entry_cell, rerun_job
+
+    model = tmp_path / "seed0-ep50.zip"
+    model.write_bytes(b"not even a zip: never opened")
+    job = {"regime": "run0", "algo": "qrdqn_mine", "seed": 0, "eval_episodes": 2}
+    with mock.patch("nutribench.agents.api.TrainedAgent.load", side_effect=AssertionError("loaded")):
+        check = rerun_job(model, job, {"plugin": True}, None, None)
+    assert check.status == "plugin"
+    cell = entry_cell([check, JobCheck("b", "missing")])
+    assert cell == "replayed, not re-run" + PLUGIN_NOTE and "evaluate --entry-point" in cell
+    assert entry_cell([JobCheck("a", "match", 5, 5), check]) == "replayed; re-run on 1 of 2 jobs: match"

@@ -319,6 +319,7 @@ def test_guide_code_blocks_run(tmp_path: Path):
     blocks = _blocks(text)
     assert [lang for lang, _ in blocks].count("python") >= 2 and [lang for lang, _ in blocks].count("bash") >= 2
     env = dict(os.environ, NUTRIBENCH_GUIDE_TINY="1", PYTHONPATH=str(REPO))
+    env["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), env.get("PATH", "")])  # the blocks' `python`
     env.pop("NUTRIBENCH_JOB", None)
     for k, (lang, code) in enumerate(blocks):
         if lang == "python":

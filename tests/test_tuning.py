@@ -96,6 +96,24 @@ def test_a_plugin_is_tuned_through_its_params(plugin_folder: Path, monkeypatch) 
     assert res.exit_code == 0, res.output
     (trial,) = optuna.load_study(study_name="p", storage=f"sqlite:///{db}").trials
     assert trial.state.name == "COMPLETE" and np.isfinite(trial.value) and 1e-4 <= trial.params["learning_rate"] <= 1e-3
+    # the written file says how a plug-in's trial was scored (once, at its end), and the
+    # leaderboard labels it tuned, as a built-in agent's tuned file
+    out = plugin_folder / "tuned"
+    res = runner.invoke(app, ["tune", "best", "--study", "p", "--write", "--out", str(out), "--db", str(db)])
+    assert res.exit_code == 0, res.output
+    text = (out / "a2c_mine_tuned.toml").read_text()
+    assert "each agent scored once, after its last day, on 2 validation days (a plug-in's own loop)" in text
+    assert "evaluated every" not in text and "(last)" in text
+    import pandas as pd
+
+    from nutribench.config.loading import read_toml
+    from nutribench.report.leaderboard import protocols
+
+    body = read_toml(out / "a2c_mine_tuned.toml")
+    rows = pd.DataFrame([{"name": "a2c_mine_tuned", "version": 1, "sha256": "x", "body": body}])
+    assert protocols(rows) == {"a2c_mine_tuned": "tuned"}
+    plain = rows.assign(name="a2c_mine", body=[{**body, "description": "mine"}])
+    assert protocols(plain) == {"a2c_mine": "plug-in"}
     bad = space.read_text().replace("learning_rate", "gamma_typo")
     space.write_text(bad)
     line = one_error_line(tune(db, "--algo", str(space), "--study", "p2", *TINY))

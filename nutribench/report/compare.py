@@ -266,7 +266,8 @@ def compare_agents(
     if budget_a != budget_b:
         notes.insert(
             0,
-            f"warning: budgets differ ({a} trained {budget_a} days, {b} {budget_b} days): the difference is "
+            f"warning: budgets differ ({algo_label(a)} trained {budget_a} days, {algo_label(b)} {budget_b} days): "
+            "the difference is "
             "the agents' and their budgets' together",
         )
     return Comparison(a, b, pd.DataFrame(rows, columns=COLUMNS), days, reps, notes, budget_seeds_text(used))

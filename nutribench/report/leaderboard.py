@@ -119,8 +119,9 @@ def protocols(configs: pd.DataFrame) -> dict[str, str]:
     out = {}
     for r in configs.itertuples(index=False):
         body = r.body if isinstance(r.body, dict) else {}
+        tuned = str(body.get("description", "")).startswith(TUNED_PREFIX)
         if by_entry_point(body.get("algo")):
-            out[r.name] = "plug-in" if body.get("entry_point") else "recorded"
+            out[r.name] = ("tuned" if tuned else "plug-in") if body.get("entry_point") else "recorded"
             continue
         shipped = regimes_dir() / "agents" / f"{r.name}.toml"
         same = False
@@ -128,7 +129,6 @@ def protocols(configs: pd.DataFrame) -> dict[str, str]:
             cfg = parse_agent_config(read_toml(shipped), shipped)
             exact = int(cfg.version) == int(r.version) and agent_config_sha256(cfg) == r.sha256
             same = exact or same_settings(cfg, body)
-        tuned = str(body.get("description", "")).startswith(TUNED_PREFIX)
         out[r.name] = "paper config" if same else "tuned" if tuned else "variant"
     return out
 
@@ -215,7 +215,7 @@ def leaderboard_rows(
 
 
 def _pct(v: float) -> str:
-    return f"{100 * v:.0f}" if np.isfinite(v) else "n/a"
+    return str(round(100 * v)) if np.isfinite(v) else "n/a"  # an int: -0.4 % reads 0, not -0
 
 
 def leaderboard_table(rows: pd.DataFrame) -> TableResult:

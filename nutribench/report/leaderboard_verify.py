@@ -51,6 +51,8 @@ REPLAYED = "replayed, not re-run"
 VERIFIED = "verified (re-run)"
 DIFFERS = "re-run: differs"
 FAILED = "re-run: failed"
+#: Added to :data:`REPLAYED` when the entry's supplied models are a plug-in's.
+PLUGIN_NOTE = " (a plug-in's models: their loader is its own code, not imported here; nutribench evaluate --entry-point re-runs one)"
 #: How far a re-run return may be from the stored one (the replay's tolerance: float64 sums).
 RETURN_TOL = 1e-9
 
@@ -59,8 +61,8 @@ Log = Callable[[str], None]
 
 @dataclass
 class JobCheck:
-    """One job re-run from its model: ``status`` is ``missing`` (no model supplied), ``match``,
-    ``differs`` or ``failed``; ``days``/``matching``: its evaluation days and how many match;
+    """One job re-run from its model: ``status`` is ``missing`` (no model supplied), ``plugin``
+    (a plug-in's model: not loaded), ``match``, ``differs`` or ``failed``; ``days``/``matching``: its evaluation days and how many match;
     ``first``: where the first difference (or the failure) is, in words."""
 
     label: str
@@ -108,6 +110,8 @@ def rerun_job(path: Path, job: dict[str, Any], configs: dict[str, Any], steps: p
     label = f"{job['regime']} x {job['algo']} seed {int(job['seed'])}"
     if not path.is_file():
         return JobCheck(label, "missing")
+    if configs.get("plugin"):
+        return JobCheck(label, "plugin")
     n = int(job["eval_episodes"])
     try:
         cfg = _regime(configs["regime_body"], configs["regime_sha256"])
@@ -145,9 +149,9 @@ def rerun_job(path: Path, job: dict[str, Any], configs: dict[str, Any], steps: p
 
 def entry_cell(checks: list[JobCheck]) -> str:
     """The ``checked`` cell of an entry from its jobs' checks."""
-    run = [c for c in checks if c.status != "missing"]
+    run = [c for c in checks if c.status not in ("missing", "plugin")]
     if not run:
-        return REPLAYED
+        return REPLAYED + (PLUGIN_NOTE if any(c.status == "plugin" for c in checks) else "")
     failed = [c for c in run if c.status == "failed"]
     if failed:
         return f"{FAILED} ({failed[0].first})"
@@ -167,6 +171,7 @@ def verify_entries(db, ev: pd.DataFrame, models_dir: str | Path, log: Log | None
     ``models_dir`` (:func:`model_file`)."""
     from sqlalchemy import select
 
+    from nutribench.agents.registry import by_entry_point
     from nutribench.store import AgentConfig, RegimeConfig, open_store, read_eval_trajectories, read_jobs, session_scope
 
     job_ids = sorted({int(j) for j in ev["job_id"]})
@@ -175,7 +180,7 @@ def verify_entries(db, ev: pd.DataFrame, models_dir: str | Path, log: Log | None
         jobs = read_jobs(store.engine).set_index("id")
         with session_scope(store.engine) as s:
             regimes = {r.id: (r.body, r.sha256) for r in s.execute(select(RegimeConfig)).scalars()}
-            agents = {a.id: a.sha256 for a in s.execute(select(AgentConfig)).scalars()}
+            agents = {a.id: (a.sha256, a.body) for a in s.execute(select(AgentConfig)).scalars()}
         steps = read_eval_trajectories(store.engine, algos=sorted(ev["algo"].unique()))
     finally:
         store.dispose()
@@ -185,13 +190,15 @@ def verify_entries(db, ev: pd.DataFrame, models_dir: str | Path, log: Log | None
     for jid in job_ids:
         job = {"id": jid, **jobs.loc[jid].to_dict()}
         body, sha = regimes[int(job["regime_id"])]
-        configs = {"regime_body": body, "regime_sha256": sha, "agent_sha256": agents[int(job["agent_config_id"])]}
+        agent_sha, agent_body = agents[int(job["agent_config_id"])]
+        plugin = isinstance(agent_body, dict) and by_entry_point(agent_body.get("algo"))
+        configs = {"regime_body": body, "regime_sha256": sha, "agent_sha256": agent_sha, "plugin": plugin}
         days = ev[(ev["job_id"] == jid)]
         returns = dict(zip(days["episode"].astype(int), days["return"].astype(float)))
         path = model_file(models_dir, job)
         mine = by_job.get(jid, pd.DataFrame(columns=["episode", "step", "action"]))
         checks[jid] = rerun_job(path, job, configs, mine, returns)
-        if log and checks[jid].status != "missing":
+        if log and checks[jid].status not in ("missing", "plugin"):
             log(f"re-ran {checks[jid].label} from {path}: {checks[jid].status}")
     out = {}
     for algo in ev["algo"].unique():
@@ -203,6 +210,7 @@ def verify_entries(db, ev: pd.DataFrame, models_dir: str | Path, log: Log | None
 __all__ = [
     "DIFFERS",
     "FAILED",
+    "PLUGIN_NOTE",
     "REPLAYED",
     "VERIFIED",
     "JobCheck",

@@ -49,13 +49,23 @@ def tuned_config(study: Any, name: str | None = None) -> tuple[Any, str]:
             f"# {name}: the best trial of tuning study {study.study_name!r} (docs/tuning.md).",
             f"# Base agent: {space.base().name}; searched: {', '.join(space.params)}.",
             f"# Study: regimes {','.join(settings.regimes)}, tuning seeds {','.join(map(str, settings.seeds))}, "
-            f"{settings.days} days per trial, evaluated every {settings.eval_every} days on {settings.val_episodes} "
-            "validation days.",
-            f"# Trial {best.number}: objective {best.value:.4f}; {counts.complete} complete, {counts.pruned} pruned trials.",
+            f"{settings.days} days per trial, {_scored(cfg, settings)}.",
+            f"# Trial {best.number}: objective {best.value:.4f} ({settings.objective}); {counts.complete} complete, "
+            f"{counts.pruned} pruned trials.",
             "# Made by `nutribench tune best --write`; never edit it in place: a changed agent file is a new version.",
         ]
     )
     return cfg, header
+
+
+def _scored(cfg: Any, settings: Any) -> str:
+    """How the study scored a trial: periodic evaluations, or once at its end (a plug-in's own loop)."""
+    from nutribench.agents.registry import by_entry_point
+
+    days = f"{settings.val_episodes} validation day{'s' if settings.val_episodes != 1 else ''}"
+    if by_entry_point(cfg.algo):
+        return f"each agent scored once, after its last day, on {days} (a plug-in's own loop)"
+    return f"evaluated every {settings.eval_every} days on {days}"
 
 
 def space_file_attr(path: Any) -> dict[str, str]:
