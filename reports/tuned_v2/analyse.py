@@ -1,0 +1,218 @@
+"""Protocol v2's pre-registered comparisons (README.md, "Pre-registered comparisons"), for the
+v2 archives present: the paper protocol's archives (``reports/paper/data/``), v1's tuned grid's
+(``reports/tuned/data/<agent>_tuned.npz``) and v2's (``data/<agent>_tuned_v2.npz``) in one
+database, then ``results.md`` / ``results.csv``:
+
+* per agent and regime, and over the delayed tuning regimes (run2, run4, run5) and the held-out
+  ones (run1, run3, run6): the IQM over seeds of the share of the never -> planner gap with its
+  95 % stratified-bootstrap interval, paper file, v1 file and v2 file side by side;
+* G1 (v2 GRU-PPO - v2 PPO), G2 (v2 - paper), G3 (v2 - v1): mean paired differences of the
+  share of the gap (by seed and test day) with 95 % bootstrap intervals over seeds;
+* G4: each v2 file, per regime, "below never" only where the IQM's interval lies below 0;
+* G5 (transfer): the mean share over the delayed tuning regimes minus the mean share over the
+  held-out regimes, for the v2 file and for the paper file, each with its interval.
+
+Each comparison is computed where its archives are present and said "not yet run" otherwise.
+The statistics are the project's own, through ``reports/tuned/analyse.py``'s helpers (the same
+code as v1's analysis): ``run_scores``, rliable's IQM with stratified bootstrap,
+``compare_agents`` on each day's share of the gap.
+
+    python reports/tuned_v2/analyse.py [--db KEEP.db] [--reps 2000] [--out reports/tuned_v2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+_spec = importlib.util.spec_from_file_location("tuned_v1_analyse", ROOT / "reports" / "tuned" / "analyse.py")
+v1 = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(v1)
+
+ALGOS = ("mc", "ddqn", "ppo", "sac", "gru_ppo")
+REGIMES = tuple(f"run{i}" for i in range(7))
+TUNING_DELAYED = ("run2", "run4", "run5")  # the tuning regimes with a delay (run0 has none)
+HELD_OUT = ("run1", "run3", "run6")
+GROUPS = {
+    "delayed tuning (run2, run4, run5)": TUNING_DELAYED,
+    "held out (run1, run3, run6)": HELD_OUT,
+    "delayed (run1-run6, README.md's column)": REGIMES[1:],
+}
+
+
+def names(algo: str) -> dict[str, str]:
+    return {"paper": algo, "v1": f"{algo}_tuned", "v2": f"{algo}_tuned_v2"}
+
+
+def transfer(scores: pd.DataFrame, name: str, reps: int) -> dict | None:
+    """G5: mean share over the delayed tuning regimes minus the mean over the held-out ones
+    (each regime's mean over seeds), with a 95 % interval from resampling seeds within regimes."""
+    tuning, held = v1.covered(scores, name, TUNING_DELAYED), v1.covered(scores, name, HELD_OUT)
+    if not tuning or not held:
+        return None
+    runs = v1.runs_of(scores, name, [*tuning, *held])
+    k = len(tuning)
+
+    def stat(t):
+        return v1.BATCHED["mean"](t[:k]) - v1.BATCHED["mean"](t[k:])
+
+    point, boot = v1.resampled_stat(runs, stat, reps, name, "transfer v2")
+    lo, hi = v1.percentile_interval(boot)
+    return {"point": point, "lo": lo, "hi": hi, "seeds": min(map(len, runs)), "partial": len(runs) < 6}
+
+
+def drop_reading(lo: float, hi: float) -> str:
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return "no interval (one seed)"
+    if lo > 0:
+        return "lower on the held-out regimes (interval above 0)"
+    if hi < 0:
+        return "higher on the held-out regimes (interval below 0)"
+    return "holds 0: not distinguishable"
+
+
+def analyse(db: str, out: Path, reps: int) -> list[Path]:
+    from nutribench.report.references import eval_day_references
+
+    ev, notes, _ = v1.read_db(db)
+    refs = eval_day_references(ev, log=print)
+    scores = v1.run_scores(ev, refs)
+    shares = v1.day_shares(ev, refs)
+    held = set(ev["algo"])
+    lines = ["# Protocol v2: results of the pre-registered comparisons", ""]
+    lines += [
+        "Written by `python reports/tuned_v2/analyse.py`; shares of the never -> planner gap in %, "
+        "IQM over seeds [95 % stratified-bootstrap interval]; comparisons are mean paired differences "
+        "(by seed and test day) [95 % bootstrap interval over seeds]. Read by the plan's rules: an "
+        'interval that holds 0 is "not distinguishable with N seeds", never "equal".',
+        "",
+        f"v2 files present: {', '.join(n for a in ALGOS if (n := names(a)['v2']) in held) or 'none'}; "
+        f"absent: {', '.join(n for a in ALGOS if (n := names(a)['v2']) not in held) or 'none'}.",
+        "",
+    ]
+    rows: list[dict] = []
+
+    lines += ["## Scores per regime and group", ""]
+    table = []
+    for algo in ALGOS:
+        for where, regs in [*((r, (r,)) for r in REGIMES), *GROUPS.items()]:
+            cells = {}
+            for proto, name in names(algo).items():
+                c = v1.iqm_of(scores, name, regs, reps) if name in held else None
+                cells[proto] = v1.iqm_text(c, regs if len(regs) > 1 else ())
+                if c is not None:
+                    rows.append({"what": "iqm", "agent": name, "protocol": proto, "regimes": where, **c})
+            if names(algo)["v2"] in held:
+                table.append([algo, where, cells["paper"], cells["v1"], cells["v2"]])
+    lines += v1.md_table(["agent", "regimes", "paper file", "v1 tuned", "v2 tuned"], table) + [""]
+
+    def paired_row(q: str, a: str, b: str, regs: Sequence[str], label: str) -> list[str]:
+        if a not in held or b not in held:
+            return [q, label, v1.needs(a, b, held=held), ""]
+        p = v1.paired(ev, shares, a, b, regs)
+        if p is None:
+            return [q, label, "no regime both played", ""]
+        s = p["share"]
+        seeds = int(s["seeds"]) // len(p["regimes"])
+        rows.append({"what": q, "agent": a, "protocol": b, "regimes": ",".join(p["regimes"]), **s})
+        text = v1.interval_text(s["diff"], s["diff_lo"], s["diff_hi"], signed=True)
+        return [q, label, f"{text} ({seeds} seeds)", v1.paired_reading(s["diff_lo"], s["diff_hi"], seeds, a, b)]
+
+    lines += ["## G1-G3: paired comparisons", ""]
+    comp = []
+    g1 = ("gru_ppo_tuned_v2", "ppo_tuned_v2")
+    for regs, label in [
+        *(((r,), r) for r in REGIMES),
+        (HELD_OUT, "held out, pooled"),
+        (TUNING_DELAYED, "delayed tuning, pooled"),
+    ]:
+        comp.append(paired_row("G1", *g1, regs, f"v2 GRU-PPO - v2 PPO, {label}"))
+    for algo in ALGOS:
+        n = names(algo)
+        comp.append(paired_row("G2", n["v2"], n["paper"], HELD_OUT, f"{algo}: v2 - paper, held out pooled"))
+        for r in REGIMES:
+            comp.append(paired_row("G2", n["v2"], n["paper"], (r,), f"{algo}: v2 - paper, {r}"))
+        comp.append(paired_row("G3", n["v2"], n["v1"], HELD_OUT, f"{algo}: v2 - v1, held out pooled"))
+    lines += v1.md_table(["", "comparison", "difference (points of the gap)", "reading"], comp) + [""]
+
+    lines += ["## G4: below never (v2 files)", ""]
+    below = []
+    for algo in ALGOS:
+        name = names(algo)["v2"]
+        if name not in held:
+            continue
+        for r in REGIMES:
+            c = v1.iqm_of(scores, name, (r,), reps)
+            if c is not None:
+                below.append([name, r, v1.iqm_text(c), v1.zero_reading(c["lo"], c["hi"])])
+    lines += v1.md_table(["agent", "regime", "IQM", "reading"], below) + [""]
+
+    lines += ["## G5: transfer (delayed tuning regimes minus held-out regimes, mean share)", ""]
+    tr = []
+    for algo in ALGOS:
+        if names(algo)["v2"] not in held:
+            continue
+        for proto in ("v2", "paper"):
+            t = transfer(scores, names(algo)[proto], reps) if names(algo)[proto] in held else None
+            if t is None:
+                tr.append([algo, proto, "n/a", ""])
+                continue
+            rows.append(
+                {
+                    "what": "G5",
+                    "agent": names(algo)[proto],
+                    "protocol": proto,
+                    **{k: t[k] for k in ("point", "lo", "hi", "seeds")},
+                }
+            )
+            text = f"{v1.interval_text(t['point'], t['lo'], t['hi'], signed=True)} ({t['seeds']} seeds)"
+            tr.append([algo, proto, text, drop_reading(t["lo"], t["hi"])])
+    lines += v1.md_table(["agent", "file", "drop from tuning to held-out regimes", "reading"], tr)
+    lines += ["", "(G5 is read against the same agent's paper-file drop, not against 0.)", ""]
+    if notes:
+        lines += ["## Notes from the data", "", *(f"- {n}" for n in notes), ""]
+    (out / "results.md").write_text("\n".join(lines))
+    pd.DataFrame(rows).to_csv(out / "results.csv", index=False, float_format="%.4f")
+    return [out / "results.md", out / "results.csv"]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--db", default=None, help="import into this database and keep it (default: a temporary one)")
+    ap.add_argument("--reps", type=int, default=v1.REPS, help="bootstrap resamples of the IQM intervals")
+    ap.add_argument("--out", default=str(HERE), help="where results.md and results.csv go")
+    a = ap.parse_args(argv)
+    paper = sorted((ROOT / "reports" / "paper" / "data").glob("*.npz"))
+    tuned_v1 = [ROOT / "reports" / "tuned" / "data" / f"{x}_tuned.npz" for x in ALGOS]
+    tuned_v2 = sorted(HERE.glob("data/*_tuned_v2.npz"))
+    try:
+        with tempfile.TemporaryDirectory(prefix="nutribench-tuned-v2-") as tmp:
+            db = a.db or str(Path(tmp) / "v2.db")
+            have = set()
+            if Path(db).exists():
+                from nutribench.store import read_episode_metrics
+
+                have = set(read_episode_metrics(db, phase="eval")["algo"].unique())
+            todo = [p for p in [*paper, *tuned_v1, *tuned_v2] if p.is_file() and p.stem not in have]
+            todo = [p for p in todo if not (p.stem.startswith("sac-") and "sac" in have)]
+            v1.import_archives(todo, db)
+            written = analyse(db, Path(a.out), a.reps)
+    except v1.UserError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    for p in written:
+        print(f"wrote {p}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
