@@ -172,3 +172,18 @@ def test_the_page_gives_a_table_a_short_heading_and_its_caption_beneath(tmp_path
     # a caption with no short head: the file stem
     plain = TableResult("x", "a caption without a head", pd.DataFrame(), pd.DataFrame())
     assert page_table("table_results", plain, []).title == "Table results"
+
+
+def test_past_the_four_user_colours_the_markers_keep_every_agent_apart():
+    """The colour guarantee (apart for normal vision and under deutan/protan) covers four user
+    agents (USER_COLORS); with eight, the derived colours still differ for normal vision
+    (CIE76 >= 32) and every agent keeps a marker of its own, the second cue where two
+    colours look alike to a colour-blind reader."""
+    users = (*USERS, "ppo_lr3e4", "sac_mine", "a2c_mine", "zz_last")
+    names = [*BUILTIN_ORDER, *users]
+    chosen = colors(names)
+    pal = palette(names)
+    assert len(set(chosen.values())) == len(names)
+    for a, b in itertools.combinations(chosen.values(), 2):
+        assert distance(a, b) >= 32, (a, b)
+    assert len({pal.marker(n) for n in names}) == len(names)

@@ -401,3 +401,23 @@ def test_the_smaller_docs_items():
         text = page.read_text()
         assert "so that pip takes the CPU build" not in text and "download.pytorch.org/whl/cpu" in text, page
     assert "the whole suite, the learning tests included" not in (REPO / "docs" / "getting-started.md").read_text()
+
+
+def test_an_agent_with_fewer_seeds_says_so_in_its_table_cells():
+    """The results table's cell for an agent on one seed reads 1 (PPO's 3), and the aggregate
+    table counts each agent's own runs (2 against PPO's 6) and marks a single seed's interval."""
+    from nutribench.report.aggregate import aggregate_from_eval
+    from nutribench.report.aggregate_view import aggregate_table
+    from nutribench.report.tables import table_results
+    from tests.test_report_builders import _day_refs
+
+    df = _mixed_budgets()
+    df = df[~((df.algo == "mine") & (df.seed != 0))]  # the user's agent on seed 0 only
+    res = table_results(df, seeds_bootstrap=200, references=_day_refs(df))
+    cells = {(r.regime, r.algorithm): str(r.seeds) for r in res.formatted.itertuples()}
+    assert cells == {("run0", "PPO"): "3", ("run0", "mine"): "1", ("run3", "PPO"): "3", ("run3", "mine"): "1"}
+    ev = df[df.phase == "eval"]
+    agg = aggregate_table(aggregate_from_eval(ev, _day_refs(df), reps=200), ev).formatted
+    first = agg[agg["regimes"].str.startswith("all regimes")]
+    assert dict(zip(first["algorithm"], first["runs"].astype(str))) == {"PPO": "6", "mine": "2"}
+    assert first.loc[first["algorithm"] == "mine", "IQM (%)"].iloc[0].endswith("[single seed]")
