@@ -48,6 +48,11 @@ def test_the_figure_and_table_flag_the_partial_agent() -> None:
     fig = aggregate_figure(res)
     labels = [t.get_text() for t in fig.figure.axes[0].get_yticklabels()]
     assert "torch_rand\n(own regimes: run3)" in labels, labels
+    titles = [ax.get_title() for ax in fig.figure.axes] + [
+        fig.figure._suptitle.get_text() if fig.figure._suptitle else ""
+    ]
+    assert not any("(run3)" in t for t in titles), titles  # the panels pool every regime, not the partial agent's one
+    assert any("run0" in t for t in titles), titles
     assert {d["algo"] for d in fig.data.to_dict("records")} >= {"torch_rand", "ppo", "gru_ppo"}
     table = aggregate_table(res)
     rows = table.raw[table.raw["algo"] == "torch_rand"]
