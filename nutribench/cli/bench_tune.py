@@ -31,7 +31,7 @@ def bench_tune_cmd(
     repeats: Annotated[int, typer.Option(min=1, help="repeats of both arms, orders alternating")] = 1,
 ) -> None:
     """Trials per hour: stacked trials in batched processes vs one SB3 process per trial (rl-zoo3's way)."""
-    space = old_spelling(space, algo, "--space", "--algo", "ppo")  # as tune's --space
+    space = old_spelling(space, algo, "--space", "--algo")  # as tune's --space; None: bench_tune's default
     from nutribench.bench.tune import bench_tune
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
@@ -39,7 +39,15 @@ def bench_tune_cmd(
     names = tuple(split_csv(regimes, list_regimes(), "regime"))
     with console.status(f"training {trials} trials in each arm"):
         rows = bench_tune(
-            space, trials, days, names, tuple(parse_seeds(seeds)), eval_every, val_episodes, workers, repeats
+            **({"space": space} if space is not None else {}),
+            trials=trials,
+            days=days,
+            regimes=names,
+            seeds=tuple(parse_seeds(seeds)),
+            eval_every=eval_every,
+            val_episodes=val_episodes,
+            workers=workers,
+            repeats=repeats,
         )
     r0 = rows[0]
     table = Table(
@@ -48,7 +56,7 @@ def bench_tune_cmd(
         "walls",
         "trials/hour",
         "vs sb3",
-        title=f"{space}: {trials} trials x {r0['agents_per_trial']} agents x {days} days, {r0['workers']} processes",
+        title=f"{r0['space']}: {trials} trials x {r0['agents_per_trial']} agents x {days} days, {r0['workers']} processes",
     )
     for r in rows:
         table.add_row(
