@@ -59,8 +59,11 @@ def transfer(scores: pd.DataFrame, name: str, reps: int) -> dict | None:
     tuning, held = v1.covered(scores, name, TUNING_DELAYED), v1.covered(scores, name, HELD_OUT)
     if not tuning or not held:
         return None
-    runs = v1.runs_of(scores, name, [*tuning, *held])
-    k = len(tuning)
+    # each set read apart: score_set sorts the regimes it is given (run1 before run2), so one
+    # call over both sets would interleave tuning and held-out regimes
+    first = v1.runs_of(scores, name, tuning)
+    runs = [*first, *v1.runs_of(scores, name, held)]
+    k = len(first)
 
     def stat(t):
         return v1.BATCHED["mean"](t[:k]) - v1.BATCHED["mean"](t[k:])
