@@ -19,19 +19,26 @@ REPO = Path(__file__).resolve().parents[1]
 DATABASES = [REPO / "reports" / "tuned" / "data" / "tuning.db", REPO / "reports" / "tuned_v2" / "data" / "tuning.db"]
 
 
+def _read_only(db: Path) -> sqlite3.Connection:
+    """The committed file opened immutable: nothing written beside it (no -wal or -shm files,
+    which a WAL-mode database otherwise gets even when opened read-only)."""
+    return sqlite3.connect(f"file:{db}?mode=ro&immutable=1", uri=True)
+
+
 def _studies() -> list[tuple[Path, str]]:
     out = []
     for db in DATABASES:
-        for s in optuna.get_all_study_summaries(f"sqlite:///{db}", include_best_trial=False):
-            out.append((db, s.study_name))
+        with _read_only(db) as conn:
+            out += [(db, name) for (name,) in conn.execute("SELECT study_name FROM studies ORDER BY study_id")]
     return out
 
 
 @pytest.mark.parametrize(("db", "name"), _studies(), ids=lambda v: v if isinstance(v, str) else v.parent.parent.name)
 def test_a_committed_study_resumes_unchanged(tmp_path: Path, db: Path, name: str) -> None:
     copy = tmp_path / "tuning.db"
-    with sqlite3.connect(f"file:{db}?mode=ro", uri=True) as src, sqlite3.connect(copy) as dst:
-        src.backup(dst)  # as committed (a backup copy), also while a study writes to the file
+    with _read_only(db) as src, sqlite3.connect(copy) as dst:
+        src.backup(dst)  # as committed (a backup copy)
+    before = sorted(p.name for p in db.parent.iterdir())
     study = optuna.load_study(study_name=name, storage=f"sqlite:///{copy}")
     attr = dict(study.user_attrs["nutribench"])
     states = [t.state.name for t in study.trials]
@@ -57,3 +64,4 @@ def test_a_committed_study_resumes_unchanged(tmp_path: Path, db: Path, name: str
     after = optuna.load_study(study_name=name, storage=f"sqlite:///{copy}")
     assert dict(after.user_attrs["nutribench"]) == attr
     assert [t.state.name for t in after.trials] == states
+    assert sorted(p.name for p in db.parent.iterdir()) == before  # nothing written beside the committed file
