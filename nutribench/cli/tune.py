@@ -173,7 +173,7 @@ def _show_training(objective, advance) -> None:
     """The progress line says which trials train (each trial's engine is recorded as its
     training starts, stacked trials one after the other), the day their training has reached
     and when their first evaluation comes."""
-    record, numbers, shown = objective.record_engine, [], {"which": "", "day": -1}
+    record, numbers, shown = objective.record_engine, [], {"which": ""}
     s = objective.settings
     n_jobs = len(objective.jobs)
     first = f"first evaluation at day {min(s.eval_every, s.days):,}"

@@ -47,7 +47,7 @@ class ValidationObjective:
         self.space, self.settings, self.device, self.on_evaluation = space, settings, device, on_evaluation
         self.jobs = [(r, s) for r in settings.regimes for s in settings.seeds]
         #: ``on_day(day, job)``: a trial's training reached ``day`` (its agents train in step in a
-        #: batch: ``job`` None; one after another with SB3: the 0-based job); a plug-in's own loop says nothing
+        #: batch: ``job`` None; one after another with SB3 or a plug-in's loop: the 0-based job)
         self.on_day: Callable[[int, int | None], None] | None = None
         self._references: dict[tuple[str, int], tuple[float, float]] = {}
 
