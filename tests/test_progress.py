@@ -140,21 +140,11 @@ def test_a_trial_reports_each_training_day_batched_stacked_or_alone(tmp_path, st
     from nutribench.tuning.objective import ValidationObjective
     from nutribench.tuning.space import load_search_space
     from nutribench.tuning.stack import StackedTrials, run_study
-    from nutribench.tuning.study import StudySettings, open_study
+    from nutribench.tuning.study import open_study
+    from tests.conftest import tiny_study_settings
 
     space = load_search_space("mc")
-    settings = StudySettings(
-        space=space.name,
-        space_version=space.version,
-        space_sha256=space.sha256,
-        regimes=("run0",),
-        seeds=(101,),
-        days=4,
-        eval_every=2,
-        val_episodes=1,
-        sampler_seed=0,
-        pruner="none",
-    )
+    settings = tiny_study_settings("mc")  # run0, seed 101, 4 days, evaluated every 2, no pruning
     handle = open_study(f"sqlite:///{tmp_path / 't.db'}", "s", settings)
     objective = ValidationObjective(space, settings)
     heard: list[tuple[int, int | None]] = []
