@@ -219,3 +219,14 @@ def test_evaluation_during_training_on_test_days_and_after_loading_is_without_me
     assert loaded.config.memory is False and loaded.model.policy.memory is False
     again = evaluate(loaded, regime, eval_food_streams(regime, seed, 3))
     assert again.episodes == tested.episodes
+
+
+def test_part3_copy_without_memory_differs_from_the_v2_tuned_file_in_memory_only() -> None:
+    """reports/tuned_v2's arm C is its arm B (``gru_ppo_tuned_v2``) with memory off, nothing else."""
+    folder = ROOT / "reports" / "tuned_v2" / "agents"
+    tuned, nomem = (load_agent_config(folder / f"{n}.toml") for n in ("gru_ppo_tuned_v2", "gru_ppo_tuned_v2_nomem"))
+    assert tuned.memory is True and nomem.memory is False
+    own = ("name", "description", "memory")
+    strip = lambda c: {k: v for k, v in agent_config_content(c).items() if k not in own}  # noqa: E731
+    assert strip(nomem) == strip(tuned) and nomem.name == "gru_ppo_tuned_v2_nomem"
+    assert agent_config_sha256(nomem) != agent_config_sha256(tuned)
