@@ -10,7 +10,10 @@ database, then ``results.md`` / ``results.csv``:
   share of the gap (by seed and test day) with 95 % bootstrap intervals over seeds;
 * G4: each v2 file, per regime, "below never" only where the IQM's interval lies below 0;
 * G5 (transfer): the mean share over the delayed tuning regimes minus the mean share over the
-  held-out regimes, for the v2 file and for the paper file, each with its interval.
+  held-out regimes, for the v2 file and for the paper file, each with its interval;
+* part 3 (``data/part3_<agent>.npz``, run5 and run6 x seeds 3900-3909, read in a database of
+  their own, since arm A's and arm D's names are also the grid's and the paper's): each arm's
+  IQM per regime, and M1 (B - C), M2 (B - A), M3 (B - D) per regime, paired over the seeds.
 
 Each comparison is computed where its archives are present and said "not yet run" otherwise.
 The statistics are the project's own, through ``reports/tuned/analyse.py``'s helpers (the same
@@ -42,6 +45,19 @@ ALGOS = ("mc", "ddqn", "ppo", "sac", "gru_ppo")
 REGIMES = tuple(f"run{i}" for i in range(7))
 TUNING_DELAYED = ("run2", "run4", "run5")  # the tuning regimes with a delay (run0 has none)
 HELD_OUT = ("run1", "run3", "run6")
+#: part 3's arms (README.md, "Memory or settings?") and its comparisons, B minus each other arm
+ARMS = {
+    "A": "ppo_tuned_v2",
+    "B": "gru_ppo_tuned_v2",
+    "C": "gru_ppo_tuned_v2_nomem",
+    "D": "gru_ppo",
+}
+PART3_REGIMES = ("run5", "run6")
+MS = {
+    "M1": ("B", "C", "memory at the v2 GRU-PPO's settings"),
+    "M2": ("B", "A", "v2 GRU-PPO against v2 PPO"),
+    "M3": ("B", "D", "v2 GRU-PPO against the paper's GRU-PPO"),
+}
 GROUPS = {
     "delayed tuning (run2, run4, run5)": TUNING_DELAYED,
     "held out (run1, run3, run6)": HELD_OUT,
@@ -83,13 +99,56 @@ def drop_reading(lo: float, hi: float) -> str:
     return "holds 0: not distinguishable"
 
 
-def analyse(db: str, out: Path, reps: int) -> list[Path]:
+def paired_cells(ev, shares, held: set, rows: list[dict], q: str, a: str, b: str, regs: Sequence[str], label: str):
+    """One comparison's table row (and its results.csv row): ``a - b`` paired over seeds and days."""
+    if a not in held or b not in held:
+        return [q, label, v1.needs(a, b, held=held), ""]
+    p = v1.paired(ev, shares, a, b, regs)
+    if p is None:
+        return [q, label, "no regime both played", ""]
+    s = p["share"]
+    seeds = int(s["seeds"]) // len(p["regimes"])
+    rows.append({"what": q, "agent": a, "protocol": b, "regimes": ",".join(p["regimes"]), **s})
+    text = v1.interval_text(s["diff"], s["diff_lo"], s["diff_hi"], signed=True)
+    return [q, label, f"{text} ({seeds} seeds)", v1.paired_reading(s["diff_lo"], s["diff_hi"], seeds, a, b)]
+
+
+def read_scores(db: str):
+    """The eval rows of ``db`` with their per-run scores and per-day shares of the gap."""
     from nutribench.report.references import eval_day_references
 
     ev, notes, _ = v1.read_db(db)
     refs = eval_day_references(ev, log=print)
-    scores = v1.run_scores(ev, refs)
-    shares = v1.day_shares(ev, refs)
+    return ev, notes, v1.run_scores(ev, refs), v1.day_shares(ev, refs)
+
+
+def part3(db: str | None, reps: int, rows: list[dict]) -> list[str]:
+    """Part 3's section of results.md: the arms' IQMs per regime and M1-M3 (``db`` None: not yet run)."""
+    lines = ["## Part 3: memory or settings? (run5, run6; seeds 3900-3909; 5000 days)", ""]
+    if db is None:
+        return [*lines, "Not yet run: no `data/part3_*.npz`.", ""]
+    ev, _, scores, shares = read_scores(db)
+    held = set(ev["algo"])
+    lines += [f"Arms present: {', '.join(f'{k} {n}' for k, n in ARMS.items() if n in held) or 'none'}.", ""]
+    table = []
+    for key, name in ARMS.items():
+        for r in PART3_REGIMES:
+            c = v1.iqm_of(scores, name, (r,), reps) if name in held else None
+            if c is not None:
+                rows.append({"what": "part3 iqm", "agent": name, "protocol": key, "regimes": r, **c})
+                table.append([f"{key} {name}", r, v1.iqm_text(c), v1.zero_reading(c["lo"], c["hi"])])
+            else:
+                table.append([f"{key} {name}", r, "not yet run", ""])
+    lines += v1.md_table(["arm", "regime", "IQM", "against never"], table) + [""]
+    comp = []
+    for q, (a, b, what) in MS.items():
+        for r in PART3_REGIMES:
+            comp.append(paired_cells(ev, shares, held, rows, q, ARMS[a], ARMS[b], (r,), f"{a} - {b} ({what}), {r}"))
+    return lines + v1.md_table(["", "comparison", "difference (points of the gap)", "reading"], comp) + [""]
+
+
+def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]:
+    ev, notes, scores, shares = read_scores(db)
     held = set(ev["algo"])
     lines = ["# Protocol v2: results of the pre-registered comparisons", ""]
     lines += [
@@ -119,16 +178,7 @@ def analyse(db: str, out: Path, reps: int) -> list[Path]:
     lines += v1.md_table(["agent", "regimes", "paper file", "v1 tuned", "v2 tuned"], table) + [""]
 
     def paired_row(q: str, a: str, b: str, regs: Sequence[str], label: str) -> list[str]:
-        if a not in held or b not in held:
-            return [q, label, v1.needs(a, b, held=held), ""]
-        p = v1.paired(ev, shares, a, b, regs)
-        if p is None:
-            return [q, label, "no regime both played", ""]
-        s = p["share"]
-        seeds = int(s["seeds"]) // len(p["regimes"])
-        rows.append({"what": q, "agent": a, "protocol": b, "regimes": ",".join(p["regimes"]), **s})
-        text = v1.interval_text(s["diff"], s["diff_lo"], s["diff_hi"], signed=True)
-        return [q, label, f"{text} ({seeds} seeds)", v1.paired_reading(s["diff_lo"], s["diff_hi"], seeds, a, b)]
+        return paired_cells(ev, shares, held, rows, q, a, b, regs, label)
 
     lines += ["## G1-G3: paired comparisons", ""]
     comp = []
@@ -181,6 +231,7 @@ def analyse(db: str, out: Path, reps: int) -> list[Path]:
             tr.append([algo, proto, text, drop_reading(t["lo"], t["hi"])])
     lines += v1.md_table(["agent", "file", "drop from tuning to held-out regimes", "reading"], tr)
     lines += ["", "(G5 is read against the same agent's paper-file drop, not against 0.)", ""]
+    lines += part3(db3, reps, rows)
     if notes:
         lines += ["## Notes from the data", "", *(f"- {n}" for n in notes), ""]
     (out / "results.md").write_text("\n".join(lines))
@@ -208,7 +259,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             todo = [p for p in [*paper, *tuned_v1, *tuned_v2] if p.is_file() and p.stem not in have]
             todo = [p for p in todo if not (p.stem.startswith("sac-") and "sac" in have)]
             v1.import_archives(todo, db)
-            written = analyse(db, Path(a.out), a.reps)
+            arms = sorted(HERE.glob("data/part3_*.npz"))
+            db3 = str(Path(tmp) / "part3.db") if arms else None  # always afresh: four archives
+            if arms:
+                v1.import_archives(arms, db3)
+            written = analyse(db, Path(a.out), a.reps, db3)
     except v1.UserError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
