@@ -269,3 +269,26 @@ def test_tune_shows_the_trials_and_their_day_on_a_terminal_until_the_first_evalu
     assert "day 1 of 4" in shown and "day 2 of 4" in shown
     assert "day 3 of 4" not in shown  # the line ended with the first evaluation's line on stdout
     assert "trial 0: day 2: IQM share of the gap" in res.stdout and "training trial" not in res.stdout
+
+
+def test_without_a_terminal_run_writes_a_progress_line_now_and_then(monkeypatch) -> None:
+    """A long run logged to a file says how far it is every few minutes, not only at the end."""
+    import nutribench.scheduler.progress as progress_mod
+    from nutribench.scheduler.progress import LiveView
+
+    clock = [1000.0]
+    monkeypatch.setattr(progress_mod.time, "monotonic", lambda: clock[0])
+    out = io.StringIO()
+    view = LiveView(1, "1 local worker process", None, console=Console(file=out, width=80), costs={"ppo": 1.0})
+    run = _run(k=10)
+    view.start(run)
+    run.live[1]["k"] = 400
+    clock[0] += progress_mod.NO_TERMINAL_EVERY_S - 1
+    view.update(run)
+    assert "running: day" not in out.getvalue()  # not yet: one line per period
+    clock[0] += 2
+    view.update(run)
+    lines = [ln for ln in out.getvalue().splitlines() if "running: day" in ln]
+    assert len(lines) == 1 and lines[0].startswith("jobs: 0 done") and lines[0].endswith("running: day 400 of 1000")
+    view.update(run)
+    assert sum("running: day" in ln for ln in out.getvalue().splitlines()) == 1

@@ -1,6 +1,8 @@
 """What ``nutribench run`` shows while it works: a rich Live panel (overall jobs done of
 total with an ETA, one line per running job: regime, algo, seed, episode k/n, recent
 return) and one log line per finished or failed job. ``display=False`` shows nothing.
+Without a terminal (stderr to a log file or a pipe), where the panel would show only at the
+end, one plain progress line every :data:`NO_TERMINAL_EVERY_S` seconds instead.
 
 The ETA: until a job of this run has finished, an estimate from the agents' relative costs
 (:func:`estimate_seconds`: ``ETA ~4m (estimate)``); the first days of a run also pay for
@@ -102,6 +104,8 @@ def eta_text(run: Any, elapsed: float, costs: dict[str, float], workers: int) ->
 
 #: The width of the progress lines written where there is no terminal (a file, a pipe).
 NO_TERMINAL_WIDTH = 240
+#: Where there is no terminal (a log file, a pipe), one progress line this often (seconds)
+NO_TERMINAL_EVERY_S = 300.0
 
 
 class NullView:
@@ -131,6 +135,7 @@ class LiveView(NullView):
         self.total, self.description, self.note = total, description, note
         self.t0 = time.monotonic()
         self._last = 0.0
+        self._last_line = self.t0  # no terminal: the time of the last progress line
         self.live = Live(console=self.console, auto_refresh=False, transient=False)
 
     def start(self, run: Any) -> None:
@@ -164,8 +169,24 @@ class LiveView(NullView):
             )
         return Group(head, table)
 
+    def line(self, run: Any) -> str:
+        """The progress as one plain line (for a log file): the head and the running jobs' days."""
+        text = self.render(run).renderables[0].plain
+        days = [int(st.get("k", 0)) for st in run.live.values()]
+        if days:
+            budget = max(st["spec"].episodes for st in run.live.values())
+            span = f"{min(days)}" if min(days) == max(days) else f"{min(days)}-{max(days)}"
+            text += f"   running: day {span} of {budget}"
+        return text
+
     def update(self, run: Any, force: bool = False) -> None:
         now = time.monotonic()
+        if not self.console.is_terminal:  # a log: Live draws nothing until the end, so a line now and then
+            if now - self._last_line >= NO_TERMINAL_EVERY_S:
+                self._last_line = now
+                self.log(self.line(run))
+            if not force:
+                return
         if force or now - self._last >= REFRESH_S:
             self._last = now
             self.live.update(self.render(run), refresh=True)
