@@ -247,7 +247,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     a = ap.parse_args(argv)
     paper = sorted((ROOT / "reports" / "paper" / "data").glob("*.npz"))
     tuned_v1 = [ROOT / "reports" / "tuned" / "data" / f"{x}_tuned.npz" for x in ALGOS]
-    tuned_v2 = sorted(HERE.glob("data/*_tuned_v2.npz"))
+    tuned_v2 = [HERE / "data" / f"{x}_tuned_v2.npz" for x in ALGOS]  # the grid's (not part 3's: part3_*)
     try:
         with tempfile.TemporaryDirectory(prefix="nutribench-tuned-v2-") as tmp:
             db = a.db or str(Path(tmp) / "v2.db")
