@@ -173,8 +173,7 @@ def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]
                 cells[proto] = v1.iqm_text(c, regs if len(regs) > 1 else ())
                 if c is not None:
                     rows.append({"what": "iqm", "agent": name, "protocol": proto, "regimes": where, **c})
-            if names(algo)["v2"] in held:
-                table.append([algo, where, cells["paper"], cells["v1"], cells["v2"]])
+            table.append([algo, where, cells["paper"], cells["v1"], cells["v2"]])
     lines += v1.md_table(["agent", "regimes", "paper file", "v1 tuned", "v2 tuned"], table) + [""]
 
     def paired_row(q: str, a: str, b: str, regs: Sequence[str], label: str) -> list[str]:
