@@ -22,7 +22,7 @@ GUIDE = REPO / "docs" / "leaderboard.md"
 #: What makes the guide's flow tiny: the text the page shows -> what the test runs.
 TINY = {
     '"$PAPER_DATA"/*.npz': '"$PAPER_DATA"/{mc,gru_ppo}.npz',  # two of the six archives
-    '"$TUNED_DATA"/*_tuned.npz': '"$TUNED_DATA"/ppo_tuned.npz',  # one of the five tuned ones
+    '"$TUNED_DATA"/{mc,ppo,ddqn,gru_ppo}_tuned_v2.npz "$SAC_V1"': '"$TUNED_DATA"/ppo_tuned_v2.npz',  # one tuned
     "--regimes all": "--regimes run0,run3",
     "--days 5000": "--days 2",
     "--days 500 --val-episodes 5 --trials 8": "--days 2 --val-episodes 1 --trials 2",
@@ -48,7 +48,8 @@ def test_the_guide_is_made_tiny_by_substitutions_that_match():
 def test_the_guide_ranks_a_plugin_and_a_recorded_loop_beside_the_imported_baselines(tmp_path: Path):
     pytest.importorskip("sb3_contrib")
     env = dict(os.environ, PYTHONPATH=str(REPO), PAPER_DATA=str(REPO / "reports" / "paper" / "data"))
-    env["TUNED_DATA"] = str(REPO / "reports" / "tuned" / "data")
+    env["TUNED_DATA"] = str(REPO / "reports" / "tuned_v2" / "data")
+    env["SAC_V1"] = str(REPO / "reports" / "tuned" / "data" / "sac_tuned.npz")
     for key in ("NUTRIBENCH_JOB", "NUTRIBENCH_DB", "NUTRIBENCH_AGENTS"):
         env.pop(key, None)
     outputs = []
@@ -69,7 +70,7 @@ def test_the_guide_ranks_a_plugin_and_a_recorded_loop_beside_the_imported_baseli
     rows = {
         r["algo"]: r for r in csv.DictReader(io.StringIO((board / "reports" / "board" / "leaderboard.csv").read_text()))
     }
-    assert {"mc", "gru_ppo", "ppo_tuned", "qrdqn_mine", "qrdqn_mine_tuned", "reinforce_loop"} == set(rows)
+    assert {"mc", "gru_ppo", "ppo_tuned_v2", "qrdqn_mine", "qrdqn_mine_tuned", "reinforce_loop"} == set(rows)
     for mine in ("qrdqn_mine", "qrdqn_mine_tuned", "reinforce_loop"):
         assert rows[mine]["budget"] == "2" and "budget 2 days (reference 5000)" in rows[mine]["flags"]
         assert rows[mine]["seeds"] == "0 9 21 1997 2003" and "seeds" not in rows[mine]["flags"]  # --seeds paper
@@ -80,8 +81,8 @@ def test_the_guide_ranks_a_plugin_and_a_recorded_loop_beside_the_imported_baseli
     assert "each agent scored once, after its last day, on 1 validation day (a plug-in's own loop)" in header
     for base in ("mc", "gru_ppo"):
         assert rows[base]["flags"] == "" and rows[base]["protocol"] == "paper config" and rows[base]["regimes"] == "7"
-    assert rows["ppo_tuned"]["flags"] == "" and rows["ppo_tuned"]["protocol"] == "tuned"
-    assert rows["ppo_tuned"]["regimes"] == "7"
+    assert rows["ppo_tuned_v2"]["flags"] == "" and rows["ppo_tuned_v2"]["protocol"] == "tuned"
+    assert rows["ppo_tuned_v2"]["regimes"] == "7"
     assert sorted(int(r["rank"]) for r in rows.values()) == [1, 2, 3, 4, 5, 6]
     # the shared archives, ranked by whoever receives them: the same table
     table = lambda out: [ln for ln in out.splitlines() if ln.startswith("| ")]  # noqa: E731
