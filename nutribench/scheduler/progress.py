@@ -145,14 +145,18 @@ class LiveView(NullView):
         self.live.start()
         self.update(run, force=True)
 
-    def render(self, run: Any) -> Group:
+    def head(self, run: Any) -> str:
+        """The panel's first line: jobs done, failed, running and to run, elapsed time, ETA."""
         elapsed = time.monotonic() - self.t0
         s = run.summary
         workers = getattr(getattr(run, "handle", None), "slots", 1)
-        head = Text(
+        return (
             f"jobs: {s.done} done, {s.failed} failed, {len(run.live)} running, of {run.planned} to run "
             f"(grid {s.total})   elapsed {format_duration(elapsed)}   ETA {eta_text(run, elapsed, self.costs, workers)}"
         )
+
+    def render(self, run: Any) -> Group:
+        head = Text(self.head(run))
         if not run.live:
             return Group(head)
         table = Table("regime", "algo", "seed", "episode", "recent return", "time", box=None, pad_edge=False)
@@ -171,7 +175,7 @@ class LiveView(NullView):
 
     def line(self, run: Any) -> str:
         """The progress as one plain line (for a log file): the head and the running jobs' days."""
-        text = self.render(run).renderables[0].plain
+        text = self.head(run)
         days = [int(st.get("k", 0)) for st in run.live.values()]
         if days:
             budget = max(st["spec"].episodes for st in run.live.values())
