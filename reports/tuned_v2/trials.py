@@ -1,7 +1,12 @@
 """Every trial of protocol v2's studies as one CSV, and a line per study:
 ``python reports/tuned_v2/trials.py [DB]`` (reads DB, default reports/tuned_v2/data/tuning.db, writes
 reports/tuned_v2/trials.csv and prints per study its trials by state, its best trial and how
-many distinct structural settings (minibatch, epochs) its trials had)."""
+many distinct structural settings (minibatch, epochs) its trials had).
+
+Per trial also: how it was drawn (``drawn``: ``random`` while fewer than the study's start-up
+trials had finished when it started, as Optuna's TPE decides; ``tpe`` after; ``retry of N``
+for the parameters of failed trial N queued again), and, for complete trials, their place in
+the order of completion (``completed_rank``): addendum 3 chooses among the first 24 by it."""
 
 from __future__ import annotations
 
@@ -16,12 +21,29 @@ import pandas as pd
 HERE = Path(__file__).resolve().parent
 DB = f"sqlite:///{HERE / 'data' / 'tuning.db'}"
 STRUCTURAL = ("batch_size", "n_epochs")
+#: complete trials per study in the plan (README.md, "Protocol v2"); a later one is an overshoot
+PLANNED = 24
+
+
+def drawn(t: optuna.trial.FrozenTrial, finished_at: list, startup: int) -> str:
+    """How ``t``'s parameters were drawn: a retry's come from the trial it retries; otherwise
+    TPE draws at random until ``startup`` trials (complete or pruned) have finished."""
+    retried = t.system_attrs.get("retry_history")
+    if retried:
+        return f"retry of {retried[-1]}"
+    before = sum(1 for c in finished_at if c <= t.datetime_start)
+    return "random" if before < startup else "tpe"
 
 
 def trials(db: str = DB) -> pd.DataFrame:
     rows = []
     for summary in sorted(optuna.get_all_study_summaries(db, include_best_trial=False), key=lambda s: s.study_name):
         study = optuna.load_study(study_name=summary.study_name, storage=db)
+        startup = study.user_attrs.get("nutribench", {}).get("startup_trials", 0)
+        finished = [t for t in study.trials if t.state.name in ("COMPLETE", "PRUNED")]
+        finished_at = [t.datetime_complete for t in finished]
+        order = sorted((t.datetime_complete, t.number) for t in study.trials if t.state.name == "COMPLETE")
+        rank = {n: i + 1 for i, (_, n) in enumerate(order)}
         for t in study.trials:
             wall = (t.datetime_complete - t.datetime_start).total_seconds() if t.datetime_complete else None
             rows.append(
@@ -37,6 +59,10 @@ def trials(db: str = DB) -> pd.DataFrame:
                     "engine": t.user_attrs.get("engine"),
                     "device": t.user_attrs.get("device"),
                     "wall_seconds": wall,
+                    "started": t.datetime_start,
+                    "completed": t.datetime_complete,
+                    "drawn": drawn(t, finished_at, startup),
+                    "completed_rank": rank.get(t.number),
                 }
             )
     return pd.DataFrame(rows)
@@ -50,13 +76,17 @@ def main(db: str = DB) -> None:
     for study, part in df.groupby("study"):
         states = Counter(part["state"])
         done = part[part["state"] == "COMPLETE"]
-        best = done.loc[done["value"].idxmax()] if len(done) else None
+        eligible = done[done["completed_rank"] <= PLANNED]
+        best = eligible.loc[eligible["value"].idxmax()] if len(eligible) else None
+        over = list(done[done["completed_rank"] > PLANNED]["number"])
         params = [json.loads(p) for p in part["params"]]
         structure = Counter(tuple(p.get(k) for k in STRUCTURAL) for p in params)
         print(
             f"{study}: {dict(states)}; best "
             + (f"trial {best['number']} {best['value']:+.3f}" if best is not None else "none")
             + f"; (batch_size, n_epochs) drawn: {dict(structure)}"
+            + f"; drawn: {dict(Counter(d.split(' of ')[0] for d in part['drawn']))}"
+            + (f"; completed after the {PLANNED}th (not chosen): {over}" if over else "")
         )
 
 
