@@ -40,8 +40,7 @@ def trials(db: str = DB) -> pd.DataFrame:
     for summary in sorted(optuna.get_all_study_summaries(db, include_best_trial=False), key=lambda s: s.study_name):
         study = optuna.load_study(study_name=summary.study_name, storage=db)
         startup = study.user_attrs.get("nutribench", {}).get("startup_trials", 0)
-        finished = [t for t in study.trials if t.state.name in ("COMPLETE", "PRUNED")]
-        finished_at = [t.datetime_complete for t in finished]
+        finished_at = [t.datetime_complete for t in study.trials if t.state.name in ("COMPLETE", "PRUNED")]
         order = sorted((t.datetime_complete, t.number) for t in study.trials if t.state.name == "COMPLETE")
         rank = {n: i + 1 for i, (_, n) in enumerate(order)}
         for t in study.trials:
