@@ -26,12 +26,13 @@ fi
 agent="$here/agents/sac_tuned_v2.toml"
 if [ ! -e "$agent" ]; then
   pick="$db"
-  late=$(sqlite3 "$db" "select t.trial_id from trials t join studies s using(study_id) where s.study_name='v2_sac' and t.state='COMPLETE' order by t.datetime_complete, t.number limit -1 offset 24")
+  late=$("$py" "$here/trials.py" "$db" --late v2_sac)
   if [ -n "$late" ]; then
     pick="$(mktemp -d)/tuning_first24.db"
     sqlite3 "$db" ".backup '$pick'"
-    sqlite3 "$pick" "update trials set state='FAIL' where trial_id in ($(echo $late | tr ' ' ,))"
-    echo "sac_rest.sh: trial ids $late completed after the 24th: not chosen (addendum 3)"
+    sqlite3 "$pick" "update trials set state='FAIL' where number in ($(echo $late | tr ' ' ,))
+      and study_id = (select study_id from studies where study_name = 'v2_sac')"
+    echo "sac_rest.sh: trials $late completed after the 24th: not chosen (addendum 3)"
   fi
   ( cd "$frozen" && PYTHONPATH="$frozen" "$py" -m nutribench.cli tune best --study v2_sac --name sac_tuned_v2 \
       --write --out "$here/agents" --db "$pick" )

@@ -2,6 +2,9 @@
 ``python reports/tuned_v2/trials.py [DB]`` (reads DB, default reports/tuned_v2/data/tuning.db, writes
 reports/tuned_v2/trials.csv and prints per study its trials by state, its best trial and how
 many distinct structural settings (minibatch, epochs) its trials had).
+``python reports/tuned_v2/trials.py DB --late STUDY`` prints only the numbers of STUDY's complete
+trials after the first 24 by completion time (addendum 3: reported, not chosen; sac_rest.sh
+fails them in a copy of DB before ``tune best``).
 
 Per trial also: how it was drawn (``drawn``: ``random`` while fewer than the study's start-up
 trials had finished when it started, as Optuna's TPE decides; ``tpe`` after; ``retry of N``
@@ -35,14 +38,24 @@ def drawn(t: optuna.trial.FrozenTrial, finished_at: list, startup: int) -> str:
     return "random" if before < startup else "tpe"
 
 
+def completion_order(study: optuna.Study) -> list[int]:
+    """The numbers of ``study``'s complete trials in the order they completed (ties by number):
+    addendum 3's order, by which the first :data:`PLANNED` are the ones the choice is among."""
+    return [n for _, n in sorted((t.datetime_complete, t.number) for t in study.trials if t.state.name == "COMPLETE")]
+
+
+def late(db: str, study_name: str) -> list[int]:
+    """Numbers of ``study_name``'s complete trials after the first :data:`PLANNED` by completion."""
+    return completion_order(optuna.load_study(study_name=study_name, storage=db))[PLANNED:]
+
+
 def trials(db: str = DB) -> pd.DataFrame:
     rows = []
     for summary in sorted(optuna.get_all_study_summaries(db, include_best_trial=False), key=lambda s: s.study_name):
         study = optuna.load_study(study_name=summary.study_name, storage=db)
         startup = study.user_attrs.get("nutribench", {}).get("startup_trials", 0)
         finished_at = [t.datetime_complete for t in study.trials if t.state.name in ("COMPLETE", "PRUNED")]
-        order = sorted((t.datetime_complete, t.number) for t in study.trials if t.state.name == "COMPLETE")
-        rank = {n: i + 1 for i, (_, n) in enumerate(order)}
+        rank = {n: i + 1 for i, n in enumerate(completion_order(study))}
         for t in study.trials:
             wall = (t.datetime_complete - t.datetime_start).total_seconds() if t.datetime_complete else None
             rows.append(
@@ -90,6 +103,15 @@ def main(db: str = DB) -> None:
 
 
 if __name__ == "__main__":
-    import sys
+    import argparse
 
-    main(f"sqlite:///{Path(sys.argv[1]).resolve()}" if len(sys.argv) > 1 else DB)
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("db", nargs="?", help="the study database (default reports/tuned_v2/data/tuning.db)")
+    ap.add_argument("--late", metavar="STUDY", help="print only STUDY's trials completed after the first 24")
+    a = ap.parse_args()
+    url = f"sqlite:///{Path(a.db).resolve()}" if a.db else DB
+    if a.late:
+        optuna.logging.set_verbosity(optuna.logging.ERROR)
+        print(" ".join(str(n) for n in late(url, a.late)))
+    else:
+        main(url)
