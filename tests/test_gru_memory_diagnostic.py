@@ -3,23 +3,16 @@ leaving the diagnostic restores the real agent."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import torch as th
+from report_scripts import load_script
 
 from nutribench.engine.gru_ppo import RecurrentActor as _Recurrent
 from nutribench.engine.gru_ppo import StackedGRUActorCritic
 
-SCRIPT = Path(__file__).resolve().parents[1] / "reports" / "gru_memory" / "without_memory.py"
-
 
 def _diagnostic():
-    spec = importlib.util.spec_from_file_location("without_memory", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("gru_memory", "without_memory")
 
 
 def _day_outputs(net: StackedGRUActorCritic, obs: th.Tensor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -5,13 +5,13 @@ a config's content only when false, so every GRU-PPO file written before it keep
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch as th
+from report_scripts import load_script
 
 from nutribench.agents.api import TrainedAgent, eval_food_streams, evaluate, train, validation_food_streams
 from nutribench.agents.config import (
@@ -159,12 +159,7 @@ def test_a_batch_must_agree_on_memory() -> None:
 
 # --------------------------------------------------------------------------- the same runs as the diagnostic
 def _diagnostic():
-    spec = importlib.util.spec_from_file_location(
-        "without_memory", ROOT / "reports" / "gru_memory" / "without_memory.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("gru_memory", "without_memory")
 
 
 def _same_weights(a: TrainedAgent, b: TrainedAgent) -> None:

@@ -4,25 +4,19 @@ say "not yet run" for an absent archive, read the late meals and the learning-cu
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from report_scripts import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "reports" / "ladder" / "analyse.py"
 
 
 @pytest.fixture(scope="module")
 def ladder():
-    spec = importlib.util.spec_from_file_location("ladder_analyse", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclass looks its module up
-    spec.loader.exec_module(module)
-    return module
+    return load_script("ladder", "analyse")
 
 
 def _batch(ladder, arm, shares: dict[str, list[float]], device: str = "cpu", learning=None):
@@ -195,9 +189,7 @@ def test_addendum_3_s_files_are_ppo_with_one_setting_changed():
 
 
 def test_the_follow_up_refuses_a_folder_without_its_archives_in_one_line(ladder, tmp_path: Path, capsys):
-    spec = importlib.util.spec_from_file_location("ladder_followup", ROOT / "reports" / "ladder" / "followup.py")
-    followup = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(followup)
+    followup = load_script("ladder", "followup")
     assert followup.main(["--archives-dir", str(tmp_path / "nowhere")]) == 2
     assert "no such folder" in capsys.readouterr().err
     assert followup.main(["--archives-dir", str(tmp_path), "--out", str(tmp_path / "out")]) == 2

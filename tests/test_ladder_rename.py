@@ -3,13 +3,13 @@ machine is renamed only when its manifest reproduces its name for the machine's 
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
+from report_scripts import load_script
+
 from nutribench.scheduler.batched_job import batch_digest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "reports" / "ladder" / "rename_checkpoints.py"
 JOBS = [
     {"job_id": i, "algo_sha256": "a" * 64, "regime_sha256": r * 64, "seed": s, "episodes": 5000}
     for i, (r, s) in enumerate([("b", 3800), ("b", 3801), ("c", 3800)], start=1)
@@ -17,10 +17,7 @@ JOBS = [
 
 
 def rename(*argv: str) -> int:
-    spec = importlib.util.spec_from_file_location("ladder_rename", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.main(list(argv))
+    return load_script("ladder", "rename_checkpoints").main(list(argv))
 
 
 def checkpoint(folder: Path, digest: str) -> None:

@@ -4,24 +4,20 @@ and one line for a bad path."""
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from report_scripts import load_script
 
-SCRIPT = Path(__file__).resolve().parents[1] / "reports" / "tuned" / "analyse.py"
 SEEDS = (0, 21, 9, 2003, 1997)
 NEVER, PLANNER = -20.0, -4.0
 
 
 @pytest.fixture(scope="module")
 def analyse():
-    spec = importlib.util.spec_from_file_location("tuned_analyse", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("tuned", "analyse")
 
 
 def _grid(shares: dict[str, float]) -> tuple[pd.DataFrame, pd.DataFrame]:

@@ -4,24 +4,20 @@ completion time (two drivers can complete more, and not in the order of their nu
 from __future__ import annotations
 
 import datetime as dt
-import importlib.util
 import warnings
 from pathlib import Path
 
 import optuna
 import pytest
 from optuna.trial import FrozenTrial, TrialState
+from report_scripts import load_script
 
-SCRIPT = Path(__file__).resolve().parents[1] / "reports" / "tuned_v2" / "trials.py"
 T0 = dt.datetime(2026, 1, 1)
 
 
 @pytest.fixture(scope="module")
 def trials_py():
-    spec = importlib.util.spec_from_file_location("tuned_v2_trials", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("tuned_v2", "trials")
 
 
 def _study(tmp_path: Path, finished: list[tuple[int, TrialState, float | None]]) -> str:
