@@ -89,6 +89,32 @@ def transfer(scores: pd.DataFrame, name: str, reps: int) -> dict | None:
     return {"point": point, "lo": lo, "hi": hi, "seeds": min(map(len, runs)), "partial": len(runs) < 6}
 
 
+def transfer_difference(scores: pd.DataFrame, a: str, b: str, reps: int) -> dict | None:
+    """G5 of ``a`` minus G5 of ``b`` (the v2 file's drop minus its paper file's), paired by seed:
+    each run of ``a`` is taken with the run of ``b`` on the same regime and seed (the two grids
+    share the paper's seeds and test days) and the pairs are redrawn together within each
+    regime. None unless both files have the same seeds on every tuning and held-out regime."""
+    regimes = [*TUNING_DELAYED, *HELD_OUT]
+    if set(v1.covered(scores, a, regimes)) != set(regimes) or set(v1.covered(scores, b, regimes)) != set(regimes):
+        return None
+    runs = []
+    for r in regimes:  # in the order given (tuning first), one regime at a time
+        pair = scores[(scores["regime"] == r) & scores["algo"].isin([a, b])].pivot(
+            index="seed", columns="algo", values="score"
+        )
+        if pair.isna().to_numpy().any():
+            return None  # a seed one file played and the other did not
+        runs.append((pair[a] - pair[b]).to_numpy(dtype=float))
+    k = len(TUNING_DELAYED)
+
+    def stat(t):
+        return v1.BATCHED["mean"](t[:k]) - v1.BATCHED["mean"](t[k:])
+
+    point, boot = v1.resampled_stat(runs, stat, reps, a, b, "transfer difference")
+    lo, hi = v1.percentile_interval(boot)
+    return {"point": point, "lo": lo, "hi": hi, "seeds": min(map(len, runs))}
+
+
 def drop_reading(lo: float, hi: float) -> str:
     if not (np.isfinite(lo) and np.isfinite(hi)):
         return "no interval (one seed)"
@@ -96,6 +122,14 @@ def drop_reading(lo: float, hi: float) -> str:
         return "lower on the held-out regimes (interval above 0)"
     if hi < 0:
         return "higher on the held-out regimes (interval below 0)"
+    return "holds 0: not distinguishable"
+
+
+def difference_reading(lo: float, hi: float) -> str:
+    if lo > 0:
+        return "the v2 file drops more than its paper file (interval above 0)"
+    if hi < 0:
+        return "the v2 file drops less than its paper file (interval below 0)"
     return "holds 0: not distinguishable"
 
 
@@ -228,8 +262,22 @@ def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]
             )
             text = f"{v1.interval_text(t['point'], t['lo'], t['hi'], signed=True)} ({t['seeds']} seeds)"
             tr.append([algo, proto, text, drop_reading(t["lo"], t["hi"])])
+        d = (
+            transfer_difference(scores, names(algo)["v2"], names(algo)["paper"], reps)
+            if names(algo)["paper"] in held
+            else None
+        )
+        if d is not None:
+            rows.append({"what": "G5 v2 - paper", "agent": names(algo)["v2"], "protocol": "paper", **d})
+            text = f"{v1.interval_text(d['point'], d['lo'], d['hi'], signed=True)} ({d['seeds']} seeds)"
+            tr.append([algo, "v2 - paper", text, difference_reading(d["lo"], d["hi"])])
     lines += v1.md_table(["agent", "file", "drop from tuning to held-out regimes", "reading"], tr)
-    lines += ["", "(G5 is read against the same agent's paper-file drop, not against 0.)", ""]
+    lines += [
+        "",
+        "(G5 is read against the same agent's paper-file drop, not against 0: the row `v2 - paper` is the"
+        " v2 file's drop minus the paper file's, paired by seed on the same regimes and test days.)",
+        "",
+    ]
     lines += part3(db3, reps, rows)
     if notes:
         lines += ["## Notes from the data", "", *(f"- {n}" for n in notes), ""]

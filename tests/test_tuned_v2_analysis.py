@@ -1,0 +1,53 @@
+"""reports/tuned_v2/analyse.py's G5 difference: the v2 file's drop from the delayed tuning regimes
+to the held-out ones minus its paper file's, the runs paired by seed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from report_scripts import load_script
+
+SEEDS = (0, 21, 9, 2003, 1997)
+
+
+@pytest.fixture(scope="module")
+def analyse():
+    return load_script("tuned_v2", "analyse")
+
+
+def _scores(analyse, lift_on_tuning: float) -> pd.DataFrame:
+    """The paper file's scores drawn at random per regime and seed; the v2 file's the same runs
+    plus ``lift_on_tuning`` on the delayed tuning regimes."""
+    rng = np.random.default_rng(3)
+    rows = []
+    for r in (*analyse.TUNING_DELAYED, *analyse.HELD_OUT):
+        for seed in SEEDS:
+            paper = float(rng.normal(0.3, 0.4))
+            lift = lift_on_tuning if r in analyse.TUNING_DELAYED else 0.0
+            rows += [
+                {"regime": r, "algo": "ppo", "seed": seed, "score": paper},
+                {"regime": r, "algo": "ppo_tuned_v2", "seed": seed, "score": paper + lift},
+            ]
+    return pd.DataFrame(rows)
+
+
+def test_the_difference_of_drops_pairs_each_run_with_its_seed(analyse):
+    scores = _scores(analyse, 0.25)
+    d = analyse.transfer_difference(scores, "ppo_tuned_v2", "ppo", reps=500)
+    a, b = (analyse.transfer(scores, n, 500) for n in ("ppo_tuned_v2", "ppo"))
+    assert d["point"] == pytest.approx(a["point"] - b["point"], abs=1e-12)
+    # paired by seed, each pair differs by exactly the lift: every resample gives 0.25 (to the
+    # rounding of a mean of five numbers), where the two files' own drops vary by tenths
+    assert d["lo"] == pytest.approx(0.25, abs=1e-9) and d["hi"] == pytest.approx(0.25, abs=1e-9)
+    assert a["hi"] - a["lo"] > 0.1
+    assert analyse.difference_reading(d["lo"], d["hi"]).startswith("the v2 file drops more")
+
+
+def test_no_difference_without_the_same_seeds_on_every_regime(analyse):
+    scores = _scores(analyse, 0.0)
+    one_fewer = scores[~((scores["algo"] == "ppo") & (scores["regime"] == "run3") & (scores["seed"] == 9))]
+    assert analyse.transfer_difference(one_fewer, "ppo_tuned_v2", "ppo", reps=50) is None
+    no_held = scores[scores["regime"] != "run6"]
+    assert analyse.transfer_difference(no_held, "ppo_tuned_v2", "ppo", reps=50) is None
+    assert analyse.difference_reading(-0.1, 0.2) == "holds 0: not distinguishable"
