@@ -79,14 +79,19 @@ def transfer(scores: pd.DataFrame, name: str, reps: int) -> dict | None:
     # call over both sets would interleave tuning and held-out regimes
     first = v1.runs_of(scores, name, tuning)
     runs = [*first, *v1.runs_of(scores, name, held)]
-    k = len(first)
+    return {**drop_interval(runs, len(first), reps, name, "transfer v2"), "partial": len(runs) < 6}
+
+
+def drop_interval(runs: list[np.ndarray], k: int, reps: int, *names: str) -> dict:
+    """The mean over the first ``k`` regimes' runs minus the mean over the rest, with its 95 %
+    interval from stratified resamples (``names`` seed the resampling)."""
 
     def stat(t):
         return v1.BATCHED["mean"](t[:k]) - v1.BATCHED["mean"](t[k:])
 
-    point, boot = v1.resampled_stat(runs, stat, reps, name, "transfer v2")
+    point, boot = v1.resampled_stat(runs, stat, reps, *names)
     lo, hi = v1.percentile_interval(boot)
-    return {"point": point, "lo": lo, "hi": hi, "seeds": min(map(len, runs)), "partial": len(runs) < 6}
+    return {"point": point, "lo": lo, "hi": hi, "seeds": min(map(len, runs))}
 
 
 def transfer_difference(scores: pd.DataFrame, a: str, b: str, reps: int) -> dict | None:
@@ -105,14 +110,7 @@ def transfer_difference(scores: pd.DataFrame, a: str, b: str, reps: int) -> dict
         if pair.isna().to_numpy().any():
             return None  # a seed one file played and the other did not
         runs.append((pair[a] - pair[b]).to_numpy(dtype=float))
-    k = len(TUNING_DELAYED)
-
-    def stat(t):
-        return v1.BATCHED["mean"](t[:k]) - v1.BATCHED["mean"](t[k:])
-
-    point, boot = v1.resampled_stat(runs, stat, reps, a, b, "transfer difference")
-    lo, hi = v1.percentile_interval(boot)
-    return {"point": point, "lo": lo, "hi": hi, "seeds": min(map(len, runs))}
+    return drop_interval(runs, len(TUNING_DELAYED), reps, a, b, "transfer difference")
 
 
 def drop_reading(lo: float, hi: float) -> str:
