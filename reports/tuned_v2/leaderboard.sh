@@ -3,7 +3,8 @@
 # the paper's archives (reports/paper/data/) and the tuned files', protocol v2's
 # (data/<agent>_tuned_v2.npz), with v1's sac_tuned (reports/tuned/data/) in SAC's place while its
 # v2 grid has no archive yet; ranked by `nutribench leaderboard --archives`, which checks each
-# archive (SHA256SUMS aside: it replays every evaluation day on import).
+# archive by replaying its evaluation days on import (the folders' SHA256SUMS it does not read:
+# `sha256sum -c SHA256SUMS` in each data/ folder checks those).
 # Usage: bash reports/tuned_v2/leaderboard.sh   (PYTHON=... to name the interpreter)
 set -eu
 here="$(cd "$(dirname "$0")" && pwd)"
