@@ -539,6 +539,33 @@ def test_status_prices_a_resumed_batch_by_its_own_training_time() -> None:
     assert unreported.eta_seconds == pytest.approx(2 * 2200 * 25 * 60 / (2800 * 2))
 
 
+def test_status_prices_an_orphaned_batch_by_what_its_worker_last_reported() -> None:
+    """A SAC batch whose driver was stopped (its heartbeat old): its jobs count as pending,
+    whole, but the training seconds a day its worker last reported still price them, not the
+    done jobs of a cheaper algorithm."""
+    from datetime import timedelta
+
+    from nutribench.scheduler.status import summarize
+
+    now = datetime(2026, 1, 1, 12, 0, 0)
+    stale = now - timedelta(hours=1)
+
+    def job(algo, seed, status, wall=None, k=0, beat=None):  # the tuple status_table selects
+        return ("run0", 1, algo, 1, seed, 100, status, beat, wall, k, 0, None, "host:1:tok", 7, stale)
+
+    jobs = [
+        job("mc", 0, "done", wall=1.0),  # 0.01 s/day
+        job("sac", 0, "running", wall=40 * 5.0, k=40, beat=stale),  # 5 worker-seconds a day and job
+        job("sac", 1, "running", wall=40 * 7.0, k=40, beat=stale),  # 7
+    ]
+    rep = summarize(jobs, now)
+    assert rep.totals["orphaned"] == 2 and rep.totals["pending"] == 2 and rep.workers == 0
+    assert rep.eta_seconds == pytest.approx(2 * 100 * 6.0)  # whole jobs, at their mean reported rate
+    # a stopped job that reported no training seconds: priced as before, by the done jobs
+    unreported = summarize([jobs[0], job("sac", 0, "running", k=40, beat=stale)], now)
+    assert unreported.eta_seconds == pytest.approx(100 * 0.01)
+
+
 def test_run_s_eta_leaves_out_the_days_a_resumed_batch_did_not_train() -> None:
     from types import SimpleNamespace
 

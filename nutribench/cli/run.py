@@ -313,7 +313,8 @@ def render_status(report) -> None:
     if t.get("orphaned"):
         console.print(
             f"[yellow]{t['orphaned']} of the pending jobs were running in a driver whose heartbeat stopped "
-            f"(crashed or killed): the next `nutribench run` takes them over[/]",
+            f"(crashed or killed): the next `nutribench run` takes them over (the ETA prices them as whole jobs; "
+            f"a batch that resumes from its checkpoint has less left)[/]",
             highlight=False,
         )
     if report.errors:

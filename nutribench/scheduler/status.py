@@ -133,8 +133,10 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
     jobs of that algo config (their training seconds so far / episodes done, where the worker
     reports them: a batch's share, the runs before a resume from a checkpoint included; else
     time since claimed / episodes done, shared among the jobs of one batch: one worker
-    process), else of every done job. The workers are the distinct worker processes of the
-    running jobs (a batch of the batched engine is one).
+    process), else of its orphaned jobs (``running`` with a stopped heartbeat: the training
+    seconds / episodes their worker last reported, a measure of the config's cost though the
+    job itself counts as pending, whole), else of every done job. The workers are the distinct
+    worker processes of the running jobs (a batch of the batched engine is one).
     """
     now = now or utcnow()
     rows: dict[tuple, StatusRow] = {}
@@ -144,12 +146,15 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
     orphaned = 0  # `running` with a stopped heartbeat: counted as pending, and said so
     # (algo, av), episodes done, claimed, worker, training seconds so far
     running: list[tuple[tuple, int, datetime | None, tuple, float | None]] = []
+    orphan_rates: dict[tuple, list[float]] = {}  # (algo, av) -> reported seconds per day of orphaned jobs
     for n, (regime, rv, algo, av, seed, budget, status, beat, wall, k, failures, error, *more) in enumerate(jobs):
         owner, pid, started = (list(more) + [None, None, None])[:3]
         key = (regime, rv, algo, av, budget)
         row = rows.setdefault(key, StatusRow(regime, rv, algo, av, budget))
         state = job_state(status, beat, now)
         orphaned += status == "running" and state == "pending"
+        if status == "running" and state == "pending" and k and wall is not None:
+            orphan_rates.setdefault((algo, av), []).append(wall / k)
         setattr(row, state, getattr(row, state) + 1)
         if state == "done" and wall is not None:
             row.wall_seconds += wall
@@ -186,7 +191,13 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
     remaining, unknown = 0.0, False
     for key, row in rows.items():
         config = (row.algo, row.algo_version)
-        guesses = (_mean(rates.get(key)), _mean(per_algo.get(config)), _mean(running_rates.get(config)), overall)
+        guesses = (
+            _mean(rates.get(key)),
+            _mean(per_algo.get(config)),
+            _mean(running_rates.get(config)),
+            _mean(orphan_rates.get(config)),
+            overall,
+        )
         rate = next((r for r in guesses if r is not None), None)
         jobs_left = left.get(key, 0.0)
         if jobs_left and rate is None:
