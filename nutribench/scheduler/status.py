@@ -152,8 +152,9 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
         key = (regime, rv, algo, av, budget)
         row = rows.setdefault(key, StatusRow(regime, rv, algo, av, budget))
         state = job_state(status, beat, now)
-        orphaned += status == "running" and state == "pending"
-        if status == "running" and state == "pending" and k and wall is not None:
+        orphan = status == "running" and state == "pending"
+        orphaned += orphan
+        if orphan and k and wall is not None:
             orphan_rates.setdefault((algo, av), []).append(wall / k)
         setattr(row, state, getattr(row, state) + 1)
         if state == "done" and wall is not None:
