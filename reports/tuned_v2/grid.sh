@@ -4,7 +4,7 @@
 # training every 250 days (as v1's grid), from the frozen checkout of COMMIT (the studies'
 # code); then one archive per agent in data/ and SHA256SUMS remade. Resumable: the database
 # keeps finished batches. Usage: bash reports/tuned_v2/grid.sh COMMIT AGENT [AGENT ...]
-#   (WORKERS=n: batches at once, default the cores)  e.g. PYTHON=/work/venv/bin/python WORKERS=1 bash reports/tuned_v2/grid.sh 58584e9 ppo_tuned_v2 mc_tuned_v2
+#   (WORKERS=n: batches at once, default the cores; BATCH=n: at most n jobs a batch, default 35)  e.g. PYTHON=/work/venv/bin/python WORKERS=1 bash reports/tuned_v2/grid.sh 58584e9 ppo_tuned_v2 mc_tuned_v2
 set -eu
 main="$(cd "$(dirname "$0")/../.." && pwd)"
 commit="$(git -C "$main" rev-parse --verify "${1:?usage: grid.sh COMMIT AGENT...}^{commit}")"
@@ -18,10 +18,10 @@ export NUTRIBENCH_AGENTS="$out/agents"
 DB="$out/grid.db"
 algos=$(IFS=,; echo "$*")
 mkdir -p "$out/logs/grid" "$out/data"
-echo "$(date -u +%FT%TZ) start $algos: commit $commit, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores" >> "$out/logs/grid/code_version.txt"
+echo "$(date -u +%FT%TZ) start $algos: commit $commit, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores${BATCH:+, batches of at most $BATCH}" >> "$out/logs/grid/code_version.txt"
 cd "$frozen"
 PYTHONPATH="$frozen" /usr/bin/time -f "%e s wall" "$py" -m nutribench.cli run --algos "$algos" --regimes all \
-  --seeds 0,21,9,2003,1997 --episodes 5000 --engine batched --device cpu --eval-every 250 --db "$DB" ${WORKERS:+--workers "$WORKERS"} \
+  --seeds 0,21,9,2003,1997 --episodes 5000 --engine batched --device cpu --eval-every 250 --db "$DB" ${WORKERS:+--workers "$WORKERS"} ${BATCH:+--batch-size "$BATCH"} \
   >> "$out/logs/grid/run_$(echo "$*" | tr ' ' '_').log" 2>&1
 for a in "$@"; do
   PYTHONPATH="$frozen" "$py" -m nutribench.cli db export "$out/data/$a.npz" --db "$DB" --algos "$a"

@@ -2,8 +2,9 @@
 # What is left of the plan for SAC, in order, each step resumable (run the same command again
 # after a session's end): its study with two drivers (addendum 3) until 24 trials are complete;
 # `tune best` by addendum 3's rule (the best of the first 24 complete trials by completion
-# time) -> agents/sac_tuned_v2.toml, once; its grid batch (grid.sh, two batches on the two
-# cores); analyse.py. Everything runs from the frozen checkout of COMMIT, as the other agents'.
+# time) -> agents/sac_tuned_v2.toml, once; its grid (grid.sh, batches of 2 jobs, two at once on
+# the two cores: addendum 5); analyse.py. Everything runs from the frozen checkout of COMMIT,
+# as the other agents'.
 # Usage: PYTHON=/work/venv/bin/python bash reports/tuned_v2/sac_rest.sh 58584e9
 set -eu
 here="$(cd "$(dirname "$0")" && pwd)"
@@ -39,6 +40,17 @@ if [ ! -e "$agent" ]; then
   echo "$(date -u +%FT%TZ) tune best v2_sac -> agents/sac_tuned_v2.toml: commit $commit" >> "$here/logs/code_version.txt"
 fi
 
-# 3. the grid batch (resumable: grid.db keeps finished batches, a batch its checkpoint), then 4.
-WORKERS="${WORKERS:-2}" PYTHON="$py" bash "$here/grid.sh" "$commit" sac_tuned_v2
+# 3. the grid (resumable: grid.db keeps finished batches, a batch its checkpoint), in batches of
+# at most 2 jobs that each end within a session (addendum 5); a machine without grid.db first
+# takes the jobs saved at earlier sessions' ends (`sac_save.sh` -> data/sac_tuned_v2.partial.npz)
+partial="$here/data/sac_tuned_v2.partial.npz"
+if [ ! -e "$here/grid.db" ] && [ -e "$partial" ]; then
+  [ -d "$frozen" ] || git -C "$main" worktree add --detach "$frozen" "$commit" >/dev/null
+  ( cd "$frozen" && PYTHONPATH="$frozen" "$py" -m nutribench.cli db import "$partial" --db "$here/grid.db" )
+  echo "$(date -u +%FT%TZ) imported data/sac_tuned_v2.partial.npz into a new grid.db: commit $commit" >> "$here/logs/grid/code_version.txt"
+fi
+BATCH="${BATCH:-2}" WORKERS="${WORKERS:-2}" PYTHON="$py" bash "$here/grid.sh" "$commit" sac_tuned_v2
+# 4. the whole archive replaces the partial one, then the comparisons
+rm -f "$partial"
+(cd "$here/data" && sha256sum -- * | grep -v ' SHA256SUMS$' > SHA256SUMS)
 "$py" "$here/analyse.py"
