@@ -11,6 +11,9 @@ commit="$(git -C "$main" rev-parse --verify "${1:?usage: sac_save.sh COMMIT}^{co
 frozen="/work/frozen/$commit"
 py="${PYTHON:-python}"
 [ -e "$here/grid.db" ] || { echo "sac_save.sh: no $here/grid.db: nothing to save" >&2; exit 1; }
+done=$(sqlite3 -readonly "$here/grid.db" "select count(*) from jobs j join agent_configs a on a.id = j.agent_config_id
+  where a.name = 'sac_tuned_v2' and j.status = 'done'")
+[ "$done" -gt 0 ] || { echo "sac_save.sh: grid.db holds no done sac_tuned_v2 job yet: nothing to save" >&2; exit 1; }
 tmp="$here/data/.sac_tuned_v2.partial.tmp.npz"
 ( cd "$frozen" && PYTHONPATH="$frozen" "$py" -m nutribench.cli db export "$tmp" --db "$here/grid.db" --algos sac_tuned_v2 )
 mv "$tmp" "$here/data/sac_tuned_v2.partial.npz"
