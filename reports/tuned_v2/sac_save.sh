@@ -14,8 +14,9 @@ py="${PYTHON:-python}"
 done=$(sqlite3 -readonly "$here/grid.db" "select count(*) from jobs j join agent_configs a on a.id = j.agent_config_id
   where a.name = 'sac_tuned_v2' and j.status = 'done'")
 [ "$done" -gt 0 ] || { echo "sac_save.sh: grid.db holds no done sac_tuned_v2 job yet: nothing to save" >&2; exit 1; }
-# written beside data/, then moved in: a failed export leaves no file there that SHA256SUMS lacks
+# written in a temporary folder outside data/, then moved in: a failed export leaves no file
+# there that SHA256SUMS lacks
 tmp="$(mktemp -d)/sac_tuned_v2.partial.npz"
 ( cd "$frozen" && PYTHONPATH="$frozen" "$py" -m nutribench.cli db export "$tmp" --db "$here/grid.db" --algos sac_tuned_v2 )
-mv "$tmp" "$here/data/sac_tuned_v2.partial.npz"
+mv "$tmp" "$here/data/sac_tuned_v2.partial.npz" && rmdir "$(dirname "$tmp")"
 (cd "$here/data" && sha256sum -- * | grep -v ' SHA256SUMS$' > SHA256SUMS)
