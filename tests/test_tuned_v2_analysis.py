@@ -51,3 +51,19 @@ def test_no_difference_without_the_same_seeds_on_every_regime(analyse):
     no_held = scores[scores["regime"] != "run6"]
     assert analyse.transfer_difference(no_held, "ppo_tuned_v2", "ppo", reps=50) is None
     assert analyse.difference_reading(-0.1, 0.2) == "holds 0: not distinguishable"
+
+
+def test_out_may_name_a_folder_not_yet_there(analyse, tmp_path, monkeypatch):
+    """``--out`` to a new folder makes it (as ``--db`` makes its database), not a traceback at the
+    first write after minutes of imports; the imports and tables are stubbed out here."""
+    seen = []
+
+    def tables(db, out, reps, db3):
+        seen.append(out.is_dir())
+        return []
+
+    monkeypatch.setattr(analyse.v1, "import_archives", lambda paths, db: None)
+    monkeypatch.setattr(analyse, "analyse", tables)
+    out = tmp_path / "new" / "deeper"
+    assert analyse.main(["--out", str(out), "--db", str(tmp_path / "v2.db")]) == 0
+    assert seen == [True]

@@ -308,7 +308,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             db3 = str(Path(tmp) / "part3.db") if arms else None  # always afresh: four archives
             if arms:
                 v1.import_archives(arms, db3)
-            written = analyse(db, Path(a.out), a.reps, db3)
+            out = Path(a.out)
+            out.mkdir(parents=True, exist_ok=True)  # a new folder, as --db's database is
+            written = analyse(db, out, a.reps, db3)
     except v1.UserError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
