@@ -67,3 +67,6 @@ def test_out_may_name_a_folder_not_yet_there(analyse, tmp_path, monkeypatch):
     out = tmp_path / "new" / "deeper"
     assert analyse.main(["--out", str(out), "--db", str(tmp_path / "v2.db")]) == 0
     assert seen == [True]
+    in_the_way = tmp_path / "a_file"
+    in_the_way.write_text("")
+    assert analyse.main(["--out", str(in_the_way)]) == 2 and seen == [True]
