@@ -85,6 +85,14 @@ def archives_in(folder: Path, option: str) -> list[Path]:
     return sorted(folder.glob("*.npz"))
 
 
+def out_folder(out: Path) -> Path:
+    """``--out``: made if not there yet (its parents too), refused as one line if a file is in the way."""
+    if out.exists() and not out.is_dir():
+        raise AnalysisError(f"--out {out}: not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
 def import_archives(paths: Sequence[Path], db: str) -> None:
     from nutribench.store.archive import import_results
 
@@ -680,10 +688,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         paper = archives_in(Path(a.paper_dir), "--paper-dir")
         if not paper:
             raise AnalysisError(f"--paper-dir {a.paper_dir}: no archives (*.npz) there: the paper protocol is needed")
-        out = Path(a.out)
-        if out.exists() and not out.is_dir():
-            raise AnalysisError(f"--out {out}: not a folder")
-        out.mkdir(parents=True, exist_ok=True)
+        out = out_folder(Path(a.out))
         expected = [*TUNED.values(), *EXPLORATORY]
         present = [n for n in expected if (Path(a.archives_dir) / f"{n}.npz").is_file()]
         absent = [n for n in expected if n not in present]

@@ -294,10 +294,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     tuned_v1 = [ROOT / "reports" / "tuned" / "data" / f"{x}_tuned.npz" for x in ALGOS]
     tuned_v2 = [HERE / "data" / f"{x}_tuned_v2.npz" for x in ALGOS]  # the grid's (not part 3's: part3_*)
     try:
-        out = Path(a.out)  # made before minutes of imports, as v1's analysis makes it
-        if out.exists() and not out.is_dir():
-            raise v1.AnalysisError(f"--out {out}: not a folder")
-        out.mkdir(parents=True, exist_ok=True)
+        out = v1.out_folder(Path(a.out))  # made before minutes of imports, as v1's analysis makes it
         with tempfile.TemporaryDirectory(prefix="nutribench-tuned-v2-") as tmp:
             db = a.db or str(Path(tmp) / "v2.db")
             have = set()
