@@ -206,3 +206,33 @@ def test_a_job_another_driver_runs_is_not_overwritten(tmp_path, monkeypatch) -> 
     assert res.exit_code == 2 and "is running" in _out(res) and "elsewhere" in _out(res)
     with sqlite3.connect(dst) as c:
         assert c.execute("SELECT count(*) FROM episodes WHERE job_id = 1").fetchone() == (0,)
+
+
+def test_an_import_writes_each_jobs_rows_in_one_statement_whatever_is_null(tmp_path, monkeypatch) -> None:
+    """Rows that differ in which values are NULL share one executemany (the ORM's bulk insert left a
+    None out of its row's INSERT and so split them, a statement every few rows on a real archive)."""
+    from sqlalchemy import event
+    from sqlalchemy.engine import Engine
+
+    monkeypatch.chdir(tmp_path)
+    src, dst = tmp_path / "src.db", tmp_path / "dst.db"
+    _grid(src, ["mc"], [0])
+    with sqlite3.connect(src) as c:  # every other episode with no entropy and no overshoot step
+        c.execute("UPDATE episodes SET entropy = NULL, first_overshoot_step = NULL WHERE episode % 2 = 0")
+        c.execute("UPDATE episodes SET first_overshoot_step = 3 WHERE episode % 2 = 1")
+    runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src)])
+    statements: list[tuple[str, int]] = []
+
+    def seen(conn, cursor, statement, parameters, context, executemany):
+        if statement.startswith("INSERT INTO episodes"):
+            statements.append((statement, len(parameters) if executemany else 1))
+
+    event.listen(Engine, "before_cursor_execute", seen)
+    try:
+        assert runner.invoke(app, ["db", "import", str(tmp_path / "a.npz"), "--db", str(dst)]).exit_code == 0
+    finally:
+        event.remove(Engine, "before_cursor_execute", seen)
+    assert len(_metrics(src)) == 2 * 8
+    assert [n for _, n in statements] == [8, 8]  # two jobs (run0, run3), their 8 episodes each at once
+    pd.testing.assert_frame_equal(_metrics(dst), _metrics(src), check_exact=True, check_dtype=False)
+    assert _metrics(dst)["entropy"].isna().sum() == 8

@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from datetime import datetime, timedelta
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import and_, func, insert, or_, select, update
+from sqlalchemy import and_, func, or_, select, update
 
 from nutribench.store.engine import StoreError, db_now, display_url, session_scope
 from nutribench.store.models import (
@@ -39,6 +39,7 @@ from nutribench.store.models import (
     EvalStep,
     Job,
     ValidationEpisode,
+    insert_rows,
 )
 from nutribench.store.schema import Store
 
@@ -255,18 +256,19 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
             return False
         rows = episode_rows(result.job_id, "train", result.train) + episode_rows(result.job_id, "eval", result.eval)
         if rows:
-            s.execute(insert(Episode), rows)
+            insert_rows(s, Episode, rows)
         if result.eval_steps:
-            s.execute(
-                insert(EvalStep),
+            insert_rows(
+                s,
+                EvalStep,
                 [{"job_id": result.job_id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in result.eval_steps],
             )
         diagnostics = getattr(result, "diagnostics", None)  # a result pickled before it had them: none
         if diagnostics:
-            s.execute(insert(Diagnostic), diagnostic_rows(result.job_id, diagnostics))
+            insert_rows(s, Diagnostic, diagnostic_rows(result.job_id, diagnostics))
         validation = getattr(result, "validation", None)  # likewise: a result pickled before revision 0006
         if validation:
-            s.execute(insert(ValidationEpisode), validation_rows(result.job_id, validation))
+            insert_rows(s, ValidationEpisode, validation_rows(result.job_id, validation))
         return True
 
 

@@ -228,7 +228,7 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
     from nutribench.agents.config import agent_config_content, agent_config_sha256
     from nutribench.scheduler.lifecycle import check_not_mixed, episode_rows
     from nutribench.store.engine import display_url
-    from nutribench.store.models import EVAL_STEP_COLUMNS, METADATA_COLUMNS, Episode, EvalStep
+    from nutribench.store.models import EVAL_STEP_COLUMNS, METADATA_COLUMNS, Episode, EvalStep, insert_rows
 
     env, cfg = job.regime_config, job.agent_config
     regime = _Config(env.name, env.version, env.sha256, env.content(), _shown(env.path or env.name), env)
@@ -263,10 +263,10 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
         s.add(row)
         s.flush()
         rows = episode_rows(row.id, "train", job.train) + episode_rows(row.id, "eval", job.eval)
-        s.execute(insert(Episode), rows)
+        insert_rows(s, Episode, rows)
         if job.eval_steps:
-            s.execute(
-                insert(EvalStep), [{"job_id": row.id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in job.eval_steps]
+            insert_rows(
+                s, EvalStep, [{"job_id": row.id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in job.eval_steps]
             )
         return row.id
 

@@ -101,7 +101,7 @@ from nutribench.store.engine import (
     session_scope,
     sqlite_path,
 )
-from nutribench.store.models import AgentConfig, Job, RegimeConfig
+from nutribench.store.models import AgentConfig, Job, RegimeConfig, insert_rows
 from nutribench.store.schema import open_store
 
 _BATCH = 20_000
@@ -383,7 +383,7 @@ def _write(
                 rows = positions[name][bounds[name][i] : bounds[name][i + 1]]
                 decoded = _decoded(table, name, arrays, rows)
                 for start in range(0, len(decoded), _BATCH):
-                    s.execute(insert(table), [{"job_id": job_id, **r} for r in decoded[start : start + _BATCH]])
+                    insert_rows(s, table, [{"job_id": job_id, **r} for r in decoded[start : start + _BATCH]])
                 counts[name] += len(decoded)
             counts["imported"] += 1
             imported.append(job_id)
