@@ -153,15 +153,19 @@ def test_external_config_needs_few_keys_and_states_its_defaults():
 
 
 # ------------------------------------------------------------------ the RecurrentPPO example
-def test_recurrent_ppo_example_trains_and_evaluation_carries_its_lstm_state(monkeypatch):
+def test_recurrent_ppo_example_trains_and_evaluation_carries_its_lstm_state(monkeypatch, tmp_path: Path):
     pytest.importorskip("sb3_contrib", reason="the example's optional extra (pip install -e '.[contrib]')")
+    import tempfile
+
     from nutribench.agents.api import eval_food_streams, evaluate, train
     from nutribench.agents.config import load_agent_config, parse_agent_config
 
     data = load_agent_config(REPO / "examples" / "agents" / "recurrent_ppo.toml").model_dump()
     data["params"] = {**data["params"], "n_steps": 50, "batch_size": 50, "n_epochs": 1}  # a tiny budget
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # where SB3's default logger makes its folder
     agent = train("run3", parse_agent_config(data), seed=0, episodes=2)
     assert len(agent.train_episodes) == 2 and all(r["entropy"] is not None for r in agent.train_episodes)
+    assert not list(tmp_path.glob("SB3-*"))  # a plug-in's job leaves no empty SB3-<date> folder behind
 
     calls = []
     predict = agent.model.predict

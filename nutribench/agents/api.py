@@ -50,7 +50,7 @@ from nutribench.agents.model_files import (
 )
 from nutribench.agents.recording import EpisodeFn, EpisodeMetrics, RecordingVecEnv
 from nutribench.agents.registry import algorithm, algorithms, loader_entry_point, make_model
-from nutribench.agents.training_log import TrainingDiagnostics, plugin_tensorboard
+from nutribench.agents.training_log import TrainingDiagnostics, plugin_logger
 from nutribench.agents.validation import (
     DEFAULT_VAL_EPISODES,
     ValidationCallback,
@@ -254,7 +254,7 @@ def train(
             raise ValueError(f"{cfg.name}: evaluation during training needs a built-in algorithm's loop")
         env = recorder = RecordingVecEnv(env, base, episodes, on_episode)
         model = recorder.model = make_model(cfg, env, seed=seed, horizon=horizon)
-        plugin_tensorboard(model, tensorboard)
+        plugin_logger(model, tensorboard)
         model.learn(total_timesteps=episodes * horizon)
         recorder.check_budget(cfg)
         env = recorder.venv

@@ -27,13 +27,14 @@ quantities (as ``diagnostics/<name>``) are written as TensorBoard events, at the
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.logger import KVWriter, Logger
+from stable_baselines3.common.logger import HumanOutputFormat, KVWriter, Logger
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.dqn import DQN
@@ -151,12 +152,21 @@ def tensorboard_format(folder: str | Path) -> KVWriter:
     return TensorBoardOutputFormat(str(folder))
 
 
-def plugin_tensorboard(model: Any, folder: str | Path | None) -> None:
-    """Point a plug-in's own SB3 logger at ``folder`` (what ``--tensorboard`` asks for; None:
-    nothing to do): an SB3 algorithm writes its TensorBoard events where ``tensorboard_log``
-    says when ``learn`` starts. A plug-in that is not an SB3 algorithm has no such logger: a
-    warning says so."""
+def plugin_logger(model: Any, folder: str | Path | None) -> None:
+    """Point a plug-in's own SB3 logger at ``folder`` (what ``--tensorboard`` asks for): an SB3
+    algorithm writes its TensorBoard events where ``tensorboard_log`` says when ``learn`` starts.
+    Without a folder (None) and without a logger of its own, an SB3 plug-in gets SB3's default
+    logger (stdout when ``verbose`` > 0) minus the empty folder tempdir/SB3-<date> that SB3 makes for
+    it at every ``learn``, one per job. A plug-in that is not an SB3 algorithm has no such logger:
+    a ``folder`` then gets a warning saying so."""
     if folder is None:
+        if (
+            isinstance(model, BaseAlgorithm)
+            and not getattr(model, "_custom_logger", False)
+            and model.tensorboard_log is None
+        ):
+            formats = [HumanOutputFormat(sys.stdout)] if getattr(model, "verbose", 0) >= 1 else []
+            model.set_logger(Logger(folder=None, output_formats=formats))
         return
     if isinstance(model, BaseAlgorithm):
         try:
