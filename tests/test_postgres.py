@@ -165,7 +165,7 @@ def test_a_killed_driver_s_jobs_are_taken_over_on_postgres(pg_url: str, tmp_path
                 bool(sql(pg_url, "SELECT 1 FROM information_schema.tables WHERE table_name = 'jobs'"))
                 and sql(pg_url, "SELECT count(*) FROM jobs WHERE status = 'running' AND episodes_done > 0") == [(2,)]
             ),
-            timeout=60,
+            timeout=120,  # a precondition (workers started, torch imported): as test_scheduler's Ctrl-C test
         )
     finally:
         os.killpg(victim.pid, signal.SIGKILL)

@@ -57,7 +57,7 @@ def test_signals_during_the_graceful_stop_end_in_that_stop_and_exit_130(
                 and sql(db, "SELECT count(*) FROM sqlite_master WHERE name='jobs'")[0][0]
                 and sql(db, "SELECT count(*) FROM jobs WHERE status='running' AND episodes_done > 0")[0][0] == 2
             ),
-            timeout=60,
+            timeout=120,  # a precondition (workers started, torch imported): as test_scheduler's Ctrl-C test
         )
         proc.send_signal(first)
         sent, end = 1, time.monotonic() + 30
