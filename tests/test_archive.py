@@ -221,11 +221,11 @@ def test_an_import_writes_each_jobs_rows_in_one_statement_whatever_is_null(tmp_p
         c.execute("UPDATE episodes SET entropy = NULL, first_overshoot_step = NULL WHERE episode % 2 = 0")
         c.execute("UPDATE episodes SET first_overshoot_step = 3 WHERE episode % 2 = 1")
     runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(src)])
-    statements: list[tuple[str, int]] = []
+    rows_per_statement: list[int] = []
 
     def seen(conn, cursor, statement, parameters, context, executemany):
         if statement.startswith("INSERT INTO episodes"):
-            statements.append((statement, len(parameters) if executemany else 1))
+            rows_per_statement.append(len(parameters) if executemany else 1)
 
     event.listen(Engine, "before_cursor_execute", seen)
     try:
@@ -233,6 +233,6 @@ def test_an_import_writes_each_jobs_rows_in_one_statement_whatever_is_null(tmp_p
     finally:
         event.remove(Engine, "before_cursor_execute", seen)
     assert len(_metrics(src)) == 2 * 8
-    assert [n for _, n in statements] == [8, 8]  # two jobs (run0, run3), their 8 episodes each at once
+    assert rows_per_statement == [8, 8]  # two jobs (run0, run3), their 8 episodes each at once
     pd.testing.assert_frame_equal(_metrics(dst), _metrics(src), check_exact=True, check_dtype=False)
     assert _metrics(dst)["entropy"].isna().sum() == 8

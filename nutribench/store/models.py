@@ -313,9 +313,8 @@ def insert_rows(session: Any, model: type[Base], rows: list[dict[str, Any]]) -> 
     archive's 175,000 episodes took 58,000 statements that way."""
     if not rows:
         return
-    renamed = [(a.key, a.columns[0].key) for a in model.__mapper__.column_attrs if a.key != a.columns[0].key]
-    renamed = [(key, column) for key, column in renamed if key in rows[0]]
-    for row in rows if renamed else ():
-        for key, column in renamed:
-            row[column] = row.pop(key)
+    renamed = {a.key: a.columns[0].key for a in model.__mapper__.column_attrs if a.key != a.columns[0].key}
+    for key in renamed.keys() & rows[0].keys():
+        for row in rows:
+            row[renamed[key]] = row.pop(key)
     session.execute(model.__table__.insert(), rows)
