@@ -77,6 +77,7 @@ def loader(tmp_path: Path):
     (tmp_path / "loaders.py").write_text("def load(path):\n    return lambda obs: 0\n")
     (tmp_path / "model.bin").write_text("a model\n")
     sys.path.insert(0, str(tmp_path))
+    sys.modules.pop("loaders", None)  # a test file run earlier in this process may have imported its own
     yield ["evaluate", "--model", str(tmp_path / "model.bin"), "--entry-point", "loaders:load", "--name", "never_eats"]
     sys.path.remove(str(tmp_path))
     sys.modules.pop("loaders", None)

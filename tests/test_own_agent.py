@@ -280,6 +280,7 @@ def test_nutribench_evaluate_stores_a_saved_model(tmp_path: Path):
         res = CliRunner().invoke(app, args)
     finally:
         sys.path.remove(str(tmp_path))
+        sys.modules.pop("loaders", None)  # another test file in this process may write its own loaders.py
     assert res.exit_code == 0, res.output
     jobs = read_jobs(db)
     assert list(jobs["algo"]) == ["my_agent"] and jobs.loc[0, "episodes"] == 0 and jobs.loc[0, "engine"] == "external"
