@@ -30,7 +30,8 @@ from tests.test_store import make_0001
 REPO = Path(__file__).resolve().parents[1]
 NUTRIBENCH = str(Path(sys.executable).parent / "nutribench")
 
-pytestmark = pytest.mark.slow  # a throwaway server for the session, drivers in subprocesses: minutes in all
+# a throwaway server for the session, drivers in subprocesses (one killed): minutes in all
+pytestmark = [pytest.mark.slow, pytest.mark.serial]
 runner = CliRunner()
 
 

@@ -381,6 +381,7 @@ def test_ctrl_c_marks_running_jobs_interrupted_and_writes_no_rows(regimes: Path,
 
 
 @pytest.mark.slow
+@pytest.mark.serial
 def test_two_concurrent_runs_never_run_a_job_twice(regimes: Path, tmp_path: Path) -> None:
     db, log = tmp_path / "r.db", tmp_path / "log"
     log.mkdir()

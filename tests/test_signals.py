@@ -23,6 +23,7 @@ def _default_stop_signals() -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.serial
 @pytest.mark.parametrize(
     ("first", "then"),
     [

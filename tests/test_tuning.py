@@ -121,6 +121,7 @@ def test_a_plugin_is_tuned_through_its_params(plugin_folder: Path, monkeypatch) 
 
 
 @pytest.mark.slow
+@pytest.mark.serial
 def test_a_study_killed_with_minus_9_resumes_without_losing_or_repeating_a_trial(tmp_path: Path) -> None:
     db = tmp_path / "lab.db"
     # a grace period longer than the rerun takes to start, so that it meets the killed trial fresh
@@ -180,6 +181,7 @@ def test_the_guide_s_first_commands_run(tmp_path: Path, monkeypatch) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.serial
 def test_two_drivers_start_one_new_study_on_sqlite_together(tmp_path: Path) -> None:
     """Both create Optuna's tables and the study at the same moment: neither fails, and they
     stop together at the count."""
