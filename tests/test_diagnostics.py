@@ -29,6 +29,9 @@ from nutribench.store.views import TRAINING_DIAGNOSTICS_COLUMNS
 
 REPO = Path(__file__).resolve().parents[1]
 ALGOS = ("mc", "ppo", "gru_ppo", "ddqn", "sac")
+#: the order the fixtures' runs take them in (jobs start in registration order): the longest
+#: first, so that the two workers end together instead of SAC running alone at the end
+RUN_ORDER = ("sac", "gru_ppo", "ppo", "ddqn", "mc")
 DAYS = 20  # PPO and GRU-PPO update every 10 days (n_steps 500): two updates
 HORIZON = 50
 
@@ -82,7 +85,7 @@ def _run(tmp: Path, engine: str, days: int) -> dict:
     try:
         res = CliRunner().invoke(
             app,
-            ["run", "--regimes", "run3", "--algos", ",".join(ALGOS), "--seeds", "0", "--episodes", str(days)]
+            ["run", "--regimes", "run3", "--algos", ",".join(RUN_ORDER), "--seeds", "0", "--episodes", str(days)]
             + ["--eval-episodes", "1", "--workers", "2", "--db", str(db), "--tensorboard", str(tb)]
             + ["--engine", engine, "--device", "cpu"],
         )
