@@ -25,35 +25,11 @@ from nutribench.scheduler.lifecycle import MAX_FAILURES, STALE_AFTER_S
 from nutribench.scheduler.status import status_table
 from nutribench.scheduler.synthetic import synthetic_job
 from tests.conftest import run_cli_args, wait_for
+from tests.fake_jobs import EnvBatch, EnvJob, HalfBatch
 
 REPO = Path(__file__).resolve().parents[1]
 NUTRIBENCH = str(Path(sys.executable).parent / "nutribench")
 H = 50  # steps per fake evaluation episode
-
-
-class EnvJob:
-    """The fake job with extra environment variables set in the worker (a picklable
-    callable: the fork server's environment is fixed when it starts). A dry run's job, as
-    the fake job it wraps: its jobs are marked ``fake``, never mixed with real ones."""
-
-    fake = True
-
-    def __init__(self, **env: str):
-        self.env = env
-
-    def __call__(self, spec, sink=None):
-        os.environ.update(self.env)
-        return synthetic_job(spec, sink)
-
-
-class EnvBatch(EnvJob):
-    """The synthetic batch with extra environment variables set in the worker."""
-
-    def __call__(self, specs, sink=None):
-        from nutribench.scheduler.synthetic import synthetic_batch
-
-        os.environ.update(self.env)
-        return synthetic_batch(specs, sink)
 
 
 @pytest.fixture
@@ -797,15 +773,6 @@ def test_engine_batched_with_real_training(regimes: Path, tmp_path: Path) -> Non
         check=True,
     ).stdout.strip()
     assert sql(db, "SELECT DISTINCT git_commit FROM jobs") == [(head,)]
-
-
-class HalfBatch(EnvJob):
-    """A batch worker that loses the result of its last job (a bug the driver must survive)."""
-
-    def __call__(self, specs, sink=None):
-        from nutribench.scheduler.synthetic import synthetic_batch
-
-        return synthetic_batch(specs, sink)[:-1]
 
 
 def test_a_job_missing_from_its_batch_s_results_is_failed_not_left_running(regimes: Path, tmp_path: Path) -> None:
