@@ -241,11 +241,17 @@ def test_the_level_4_observation_determines_the_rest_of_the_day(name):
 def test_a_short_training_at_every_level_through_both_engines(level):
     from nutribench.agents import eval_food_streams, evaluate
     from nutribench.agents.api import train
+    from nutribench.agents.config import load_agent_config
     from nutribench.engine.train import train_batched
 
     cfg = at_level("run3", level)
-    days = 11 if level == 4 else 2  # 11 days: one update (PPO's n_steps = 500) at the top of the ladder
-    for algo in ("ppo", "gru_ppo"):
+    # at the top of the ladder, one update each: rollouts of 2 days (n_steps 100, minibatches of
+    # one whole day) instead of the files' 10, so that 3 days hold exactly one update
+    days = 3 if level == 4 else 2
+    for name in ("ppo", "gru_ppo"):
+        algo = load_agent_config(name)
+        if level == 4:
+            algo = algo.model_copy(update={"n_steps": 100, "batch_size": 50})
         sb3 = train(cfg, algo, 0, days)
         batched = train_batched([(cfg, 0), (at_level("run6", level), 1)], algo, days)
         assert len(sb3.train_episodes) == days and all(len(b.train_episodes) == days for b in batched)
@@ -253,5 +259,5 @@ def test_a_short_training_at_every_level_through_both_engines(level):
             assert agent.provenance["regime_sha256"] == cfg.sha256
             result = evaluate(agent, cfg, eval_food_streams(cfg, 0, 2))
             assert len(result.episodes) == 2 and all(np.isfinite(e["return"]) for e in result.episodes)
-        if days == 11:
+        if level == 4:
             assert len(sb3.diagnostics) == 1 and len(batched[0].diagnostics) == 1  # one update each
