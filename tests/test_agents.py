@@ -368,21 +368,32 @@ def test_bench_train_reports_each_algorithm_and_its_bare_references():
 # ---------------------------------------------------------------------- last rollout
 @pytest.mark.parametrize(
     ("algo", "days", "updates"),
-    [("mc", 3, 3), ("ppo", 20, 2), ("gru_ppo", 20, 2), pytest.param("ppo", 25, 2, marks=pytest.mark.slow)],
+    [
+        ("mc", 3, 3),
+        ("ppo", 4, 2),
+        ("gru_ppo", 4, 2),
+        pytest.param("ppo", 25, 2, marks=pytest.mark.slow),
+    ],
 )
 def test_on_policy_jobs_update_on_their_last_rollout(algo, days, updates, monkeypatch):
-    """MC updates once per day and (GRU-)PPO once per 10-day rollout, the last rollout
-    included (SB3 skips a rollout's update when a callback stops it). 25 PPO days end in
-    the middle of the third rollout, which SB3 cannot update on: 2 updates, 25 days."""
+    """MC updates once per day and (GRU-)PPO once per rollout, the last rollout included (SB3
+    skips a rollout's update when a callback stops it). The fast cases take rollouts of 2 days
+    (n_steps 100, minibatches of a day): 4 days, 2 updates. The slow case takes the file's
+    10-day rollouts: 25 PPO days end in the middle of the third rollout, which SB3 cannot
+    update on: 2 updates, 25 days. (The files' 10-day rollouts over 20 days, 2 updates each:
+    tests/test_diagnostics.py, a row per update of each agent.)"""
     from nutribench.agents.algos import model_arguments
 
     calls = []
-    cls, _ = model_arguments(load_agent_config(algo), 50)
+    cfg = load_agent_config(algo)
+    if algo != "mc" and days < 10:
+        cfg = cfg.model_copy(update={"n_steps": 100, "batch_size": 50})
+    cls, _ = model_arguments(cfg, 50)
     original = cls.train
     monkeypatch.setattr(
         cls, "train", lambda self, *a, **k: (calls.append(self.num_timesteps), original(self, *a, **k))[1]
     )
-    agent = train("run0", algo, seed=0, episodes=days)
+    agent = train("run0", cfg, seed=0, episodes=days)
     assert len(agent.train_episodes) == days
     assert len(calls) == updates
     assert agent.model.num_timesteps == days * 50
