@@ -112,6 +112,13 @@ def sb3_model(algo: str, seed: int, regime: str = "run0"):
     return cfg, model
 
 
+def two_day_rollouts(cfg):
+    """A copy of an on-policy ``cfg`` (PPO, GRU-PPO) with rollouts of 2 days (``n_steps`` 100)
+    and minibatches of one whole day (50), so that a short test reaches its updates in a few
+    days instead of the files' 10-day rollouts."""
+    return cfg.model_copy(update={"n_steps": 100, "batch_size": 50})
+
+
 def shake(params, seed: int, scale: float = 0.05) -> None:
     """Add seeded noise to ``params`` in place (a target network unlike its online one)."""
     import torch as th

@@ -383,11 +383,12 @@ def test_on_policy_jobs_update_on_their_last_rollout(algo, days, updates, monkey
     update on: 2 updates, 25 days. (The files' 10-day rollouts over 20 days, 2 updates each:
     tests/test_diagnostics.py, a row per update of each agent.)"""
     from nutribench.agents.algos import model_arguments
+    from tests.conftest import two_day_rollouts
 
     calls = []
     cfg = load_agent_config(algo)
     if algo != "mc" and days < 10:
-        cfg = cfg.model_copy(update={"n_steps": 100, "batch_size": 50})
+        cfg = two_day_rollouts(cfg)
     cls, _ = model_arguments(cfg, 50)
     original = cls.train
     monkeypatch.setattr(

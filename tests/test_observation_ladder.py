@@ -243,6 +243,7 @@ def test_a_short_training_at_every_level_through_both_engines(level):
     from nutribench.agents.api import train
     from nutribench.agents.config import load_agent_config
     from nutribench.engine.train import train_batched
+    from tests.conftest import two_day_rollouts
 
     cfg = at_level("run3", level)
     # at the top of the ladder, one update each: rollouts of 2 days (n_steps 100, minibatches of
@@ -251,7 +252,7 @@ def test_a_short_training_at_every_level_through_both_engines(level):
     for name in ("ppo", "gru_ppo"):
         algo = load_agent_config(name)
         if level == 4:
-            algo = algo.model_copy(update={"n_steps": 100, "batch_size": 50})
+            algo = two_day_rollouts(algo)
         sb3 = train(cfg, algo, 0, days)
         batched = train_batched([(cfg, 0), (at_level("run6", level), 1)], algo, days)
         assert len(sb3.train_episodes) == days and all(len(b.train_episodes) == days for b in batched)
