@@ -70,3 +70,21 @@ def test_out_may_name_a_folder_not_yet_there(analyse, tmp_path, monkeypatch):
     in_the_way = tmp_path / "a_file"
     in_the_way.write_text("")
     assert analyse.main(["--out", str(in_the_way)]) == 2 and seen == [True]
+
+
+def test_per_run_counts_the_delayed_runs_that_ate_nothing_on_every_test_day(analyse):
+    """A run counts as never eating only when every test day ate nothing: one day with a food
+    keeps it out, run0's runs are not counted, and each cell shows the run's share and foods."""
+    rows, ev = [], []
+    for r in ("run0", "run1", "run2"):
+        for seed in (0, 9):
+            empty = (r, seed) in {("run0", 0), ("run1", 0), ("run2", 9)}
+            rows.append({"regime": r, "algo": "sac_tuned_v2", "seed": seed, "score": 0.0 if empty else -1.5})
+            foods = [0, 0] if empty else [3, 5]
+            if (r, seed) == ("run2", 9):
+                foods = [0, 1]  # one food on one day: it ate
+            ev += [{"regime": r, "algo": "sac_tuned_v2", "seed": seed, "foods": f} for f in foods]
+    lines = analyse.per_run(pd.DataFrame(ev), pd.DataFrame(rows), ["sac_tuned_v2"])
+    assert "**sac_tuned_v2**: 1 of 4 delayed runs ate nothing on every test day." in lines
+    assert "| run1 | 0 (0.0) | -150 (4.0) |" in lines
+    assert "| run2 | -150 (4.0) | 0 (0.5) |" in lines

@@ -179,6 +179,27 @@ def part3(db: str | None, reps: int, rows: list[dict]) -> list[str]:
     return lines + v1.md_table(["", "comparison", "difference (points of the gap)", "reading"], comp) + [""]
 
 
+def per_run(ev: pd.DataFrame, scores: pd.DataFrame, agents: Sequence[str]) -> list[str]:
+    """Each v2 file's runs one by one, behind the IQMs: the share of the gap (%) and the foods
+    eaten per test day, means over the run's test days, a row per regime and a column per seed;
+    and how many delayed runs never ate on any test day (share exactly 0)."""
+    lines = ["## Per run (v2 files): share of the gap in % (foods per test day)", ""]
+    for name in agents:
+        sc = scores[scores["algo"] == name].set_index(["regime", "seed"])["score"]
+        foods = ev[ev["algo"] == name].groupby(["regime", "seed"])["foods"]
+        eaten, most = foods.mean(), foods.max()
+        seeds = sorted(sc.index.get_level_values("seed").unique())
+        table = [
+            [r, *(f"{100 * sc[r, s]:.0f} ({eaten[r, s]:.1f})" if (r, s) in sc.index else "" for s in seeds)]
+            for r in REGIMES
+        ]
+        never = sum(most[r, s] == 0 for r, s in sc.index if r != REGIMES[0])
+        delayed = sum(r != REGIMES[0] for r, _ in sc.index)
+        lines += [f"**{name}**: {never} of {delayed} delayed runs ate nothing on every test day.", ""]
+        lines += v1.md_table(["regime", *(f"seed {s}" for s in seeds)], table) + [""]
+    return lines
+
+
 def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]:
     ev, notes, scores, shares = read_scores(db)
     held = set(ev["algo"])
@@ -239,6 +260,7 @@ def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]
             if c is not None:
                 below.append([name, r, v1.iqm_text(c), v1.zero_reading(c["lo"], c["hi"])])
     lines += v1.md_table(["agent", "regime", "IQM", "reading"], below) + [""]
+    lines += per_run(ev, scores, [names(a)["v2"] for a in ALGOS if names(a)["v2"] in held])
 
     lines += ["## G5: transfer (delayed tuning regimes minus held-out regimes, mean share)", ""]
     tr = []
