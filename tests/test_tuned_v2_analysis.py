@@ -88,3 +88,19 @@ def test_per_run_counts_the_delayed_runs_that_ate_nothing_on_every_test_day(anal
     assert "**sac_tuned_v2**: 1 of 4 delayed runs ate nothing on every test day." in lines
     assert "| run1 | 0 (0.0) | -150 (4.0) |" in lines
     assert "| run2 | -150 (4.0) | 0 (0.5) |" in lines
+
+
+def test_modes_counts_runs_that_switch_between_eating_nothing_and_much():
+    """A run's validation points read as nothing (0 foods), much (>= 20) or neither (skipped):
+    one that goes nothing -> much -> (10, skipped) -> nothing changes twice; one that stays at
+    much, or only touches 10, never changes."""
+    modes = load_script("tuned_v2", "modes").modes
+    rows = []
+    for seed, foods in {0: [0, 25, 10, 0], 1: [30, 22, 40, 21], 2: [0, 10, 0, 0]}.items():
+        rows += [{"regime": "run5", "seed": seed, "train_day": 250 * (k + 1), "foods": f} for k, f in enumerate(foods)]
+    # two validation days at one point: their mean (0 and 40 -> 20, much) is the point's
+    rows += [{"regime": "run6", "seed": 0, "train_day": 250, "foods": f} for f in (0, 40)]
+    rows += [{"regime": "run6", "seed": 0, "train_day": 500, "foods": 0}]
+    table = modes(pd.DataFrame(rows))
+    assert table.loc["run5"].tolist() == [3, 1, 0]  # 3 runs, 1 at both, median changes of (2, 0, 0)
+    assert table.loc["run6"].tolist() == [1, 1, 1]
