@@ -6,7 +6,7 @@ Written for SAC's v2 file, whose test days split its delayed runs between eating
 overeating (README.md, "SAC, v2"): do its runs settle into one of the two, or switch?
 
 Usage: python reports/tuned_v2/modes.py [AGENT]   (default sac_tuned_v2; reads
-data/AGENT.npz, imported into a temporary database: about a minute)
+data/AGENT.npz, imported into a temporary database: about 12 s on the 2-core machine)
 """
 
 from __future__ import annotations
