@@ -219,6 +219,31 @@ def test_stacked_trials_share_one_batch_and_score_as_single_trials(tmp_path: Pat
     assert len({t.params["learning_rate"] for t in study.trials}) == 3  # three settings in the one batch
 
 
+def test_a_stack_of_8_draws_every_knob_as_8_lone_trials_do(tmp_path: Path) -> None:
+    """Issue 73: ``--stack 8`` draws each trial's structural knobs (epochs, minibatch) as 8
+    trials asked one at a time do (a stack used to share its first trial's structure, so 24
+    stacked trials searched minibatch and epochs 6 times); the stack still trains trials of one
+    structure as one batch."""
+    args = ["--regimes", "run3", "--seeds", "101", "--days", "1", "--eval-every", "1", "--val-episodes", "1"]
+    args += ["--trials", "8", "--startup-trials", "8", "--sampler-seed", "3", "--pruner", "none"]
+    drawn = {}
+    for stack in ("1", "8"):
+        db = tmp_path / f"stack{stack}.db"
+        res = tune(db, "--space", "ppo_v2", "--study", "s", "--stack", stack, *args)
+        assert res.exit_code == 0, res.output
+        study = optuna.load_study(study_name="s", storage=f"sqlite:///{db}")
+        assert [t.state.name for t in study.trials] == ["COMPLETE"] * 8
+        drawn[stack] = [dict(t.params) for t in study.trials]
+    assert drawn["8"] == drawn["1"]  # every knob, the structural ones included, trial by trial
+    structures = [(p["n_epochs"], p["batch_size"]) for p in drawn["8"]]
+    assert len(set(structures)) > 1  # not one structure for the whole stack
+    trials = optuna.load_study(study_name="s", storage=f"sqlite:///{tmp_path / 'stack8.db'}").trials
+    for trial, structure in zip(trials, structures):  # stacked exactly with its structure's trials
+        same = [t.number for t, s in zip(trials, structures) if s == structure and t.number != trial.number]
+        assert sorted(trial.user_attrs["stacked_with"]) == same
+    assert any(trial.user_attrs["stacked_with"] for trial in trials)  # (seed 3: two pairs share a structure)
+
+
 def test_a_pruned_stacked_trial_is_told_pruned(tmp_path: Path) -> None:
     db = tmp_path / "lab.db"
     args = ["--regimes", "run3", "--seeds", "101", "--days", "4", "--eval-every", "1", "--val-episodes", "1"]

@@ -60,8 +60,9 @@ def reads_to_ask(tmp_path: Path, rows_read: list[int], n: int, done: int) -> int
     before = rows_read[0]
     asked = stack.ask(study, n, done + n)
     assert len(asked) == n
-    assert len({t.params["learning_rate"] for t, _ in asked}) == n  # n settings, one structure
-    assert len({repr(c.model_dump(exclude={"learning_rate"} | set(stack_fields(c)))) for _, c in asked}) == 1
+    assert len({t.params["learning_rate"] for t, _ in asked}) == n  # n settings
+    # each trial's structure drawn as a lone trial's (issue 73), not the stack's first one's
+    assert len({repr(c.model_dump(exclude={"learning_rate"} | set(stack_fields(c)))) for _, c in asked}) > 1
     for trial, _ in asked:  # the trials are the study's: what they report lands in it
         trial.report(0.5, 1)
         study.tell(trial, 0.5)

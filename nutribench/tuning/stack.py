@@ -10,7 +10,7 @@ any driver fails it and queues its parameters (:func:`fail_stale`), run by the n
 that a rerun started at once waits for it and leaves no trial running.
 
 With ``--stack N`` the driver claims up to N trials at once (never more than the study still
-misses) and groups them by structure: trials whose configs agree on everything but the
+misses), each drawn as a lone trial is (structure included), and groups them by structure: trials whose configs agree on everything but the
 continuous settings (learning rate, discount, GAE lambda, clip range, entropy and value
 coefficients, gradient-norm clip; SAC's learning rates, alpha and tau) train in one batch,
 each trial's agents (one per tuning regime and seed) with its own settings on the agent axis
@@ -216,10 +216,11 @@ class StackedTrials:
 
     def ask(self, study: Any, n: int, trials: int | None = None) -> list[tuple[Any, Any]]:
         """Up to ``n`` claimed trials and their configs (fewer where other drivers claimed the
-        study's last places first: never past ``trials`` finished and running): the first as
-        the sampler draws it; the others share its structural parameters (enqueued with them
-        fixed, the sampler drawing the rest), so that the stack trains as one batch. A trial
-        Optuna queued (a killed driver's, to retry) keeps its own parameters."""
+        study's last places first: never past ``trials`` finished and running), each drawn by
+        the sampler as a lone trial is, its structural knobs included (issue 73: a stack that
+        shared its first trial's structure searched minibatch and epochs once per stack).
+        :meth:`run` then trains trials of one structure together. A trial Optuna queued (a
+        killed driver's, to retry) keeps its own parameters."""
         from optuna.trial import TrialState
 
         space = self.objective.space
@@ -227,7 +228,7 @@ class StackedTrials:
         view = StackView.of(study)  # the study read once; the stack's trials kept as written (asking.py)
         out: list[tuple[Any, Any]] = []
         try:
-            for i in range(n):
+            for _ in range(n):
                 trial = claim(view, count)
                 if trial is None:
                     break
@@ -239,11 +240,6 @@ class StackedTrials:
                         study.tell(t, state=TrialState.FAIL)
                     out.clear()
                     raise
-                if i == 0 and n > 1 and structure_key(out[0][1]) is not None:
-                    shared = per_agent_fields(out[0][1])
-                    fixed = {k: v for k, v in trial.params.items() if k not in shared}
-                    for _ in range(n - 1):
-                        view.enqueue_trial(fixed, skip_if_exists=False)
         finally:
             for trial, _ in out:  # asked: from now on the study's own (reports, prunes, tells)
                 trial.study, trial.storage = study, study._storage
