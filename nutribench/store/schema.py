@@ -15,19 +15,23 @@ the two chains would overwrite each other in one database. A database written be
 open it moves the revision over (:func:`adopt_legacy_version`), leaving ``alembic_version`` to
 Optuna. Tables of Optuna's storage (:data:`OPTUNA_TABLES`) are not foreign to a nutribench
 database.
+
+Checking a schema imports no alembic (a fifth of ``nutribench status``'s start-up): the
+revision is read from the version table with plain SQL and the chain from the revision files'
+``revision`` / ``down_revision`` lines (:func:`revision_chain`); alembic is imported only to
+upgrade or to move a legacy revision.
 """
 
 from __future__ import annotations
 
+import ast
 import os
 import shlex
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from alembic import command
-from alembic.config import Config
-from alembic.runtime.migration import MigrationContext
-from alembic.script import ScriptDirectory
 from sqlalchemy import Connection, Engine, inspect, text
 from sqlalchemy.engine import URL
 from sqlalchemy.exc import DatabaseError, OperationalError
@@ -44,6 +48,9 @@ from nutribench.store.engine import (
     make_engine,
     sqlite_path,
 )
+
+if TYPE_CHECKING:
+    from alembic.config import Config
 
 
 def migrations_dir() -> Path:
@@ -85,6 +92,8 @@ OPTUNA_TABLES = frozenset(
 def alembic_config(url: URL | str | None = None) -> Config:
     """A programmatic alembic Config (no alembic.ini needed); ``migrations/env.py`` reads
     :data:`VERSION_TABLE` from here."""
+    from alembic.config import Config
+
     cfg = Config()
     cfg.set_main_option("script_location", str(migrations_dir()))
     cfg.set_main_option("version_table", VERSION_TABLE)
@@ -95,20 +104,72 @@ def alembic_config(url: URL | str | None = None) -> Config:
 
 
 def head_revision() -> str:
-    return ScriptDirectory.from_config(alembic_config()).get_current_head()
+    """The newest schema revision this nutribench knows."""
+    return revision_chain()[-1]
 
 
 def revision_chain() -> list[str]:
-    """Revisions from the first to the head."""
+    """Revisions from the first to the head, read from the ``revision`` and ``down_revision``
+    lines of ``migrations/versions/*.py`` without importing alembic; anything but one straight
+    chain of literal ids (a branch, a merge) is left to alembic's own reading."""
+    return list(_revision_chain(migrations_dir()))
+
+
+@cache
+def _revision_chain(folder: Path) -> tuple[str, ...]:
+    links = [_revision_link(path) for path in sorted((folder / "versions").glob("*.py"))]
+    parent_of = dict(link for link in links if link is not None)
+    children: dict[str | None, list[str]] = {}
+    for rev, down in parent_of.items():
+        children.setdefault(down, []).append(rev)
+    chain: list[str] = []
+    down: str | None = None
+    while down in children and len(children[down]) == 1:
+        down = children[down][0]
+        chain.append(down)
+    if None in links or len(chain) != len(parent_of) or not chain:
+        return tuple(_alembic_chain())
+    return tuple(chain)
+
+
+def _revision_link(path: Path) -> tuple[str, str | None] | None:
+    """``(revision, down_revision)`` of one revision file, None unless both are literals (a
+    string, and a string or None)."""
+    found: dict[str, object] = {}
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
+            if node.targets[0].id in ("revision", "down_revision") and isinstance(node.value, ast.Constant):
+                found[node.targets[0].id] = node.value.value
+    rev, down = found.get("revision"), found.get("down_revision", ...)
+    if not isinstance(rev, str) or not (down is None or isinstance(down, str)):
+        return None
+    return rev, down
+
+
+def _alembic_chain() -> list[str]:
+    from alembic.script import ScriptDirectory
+
     script = ScriptDirectory.from_config(alembic_config())
     return [s.revision for s in reversed(list(script.walk_revisions()))]
+
+
+def _stored_revision(conn: Connection, table: str) -> str | None:
+    """The one revision in alembic version table ``table`` (None: no table, or no row)."""
+    if not inspect(conn).has_table(table):
+        return None
+    rows = [r[0] for r in conn.execute(text(f"SELECT version_num FROM {table}"))]
+    if len(rows) > 1:
+        raise StoreError(
+            f"the schema version table {table} holds {len(rows)} revisions ({', '.join(rows)}): expected one"
+        )
+    return rows[0] if rows else None
 
 
 def current_revision(conn: Connection) -> str | None:
     """nutribench's schema revision of the database on ``conn`` (None: none yet); a database
     from before :data:`VERSION_TABLE` is read from alembic's default table when that holds one
     of nutribench's revisions (not Optuna's)."""
-    rev = MigrationContext.configure(conn, opts={"version_table": VERSION_TABLE}).get_current_revision()
+    rev = _stored_revision(conn, VERSION_TABLE)
     if rev is None:
         rev = _legacy_revision(conn)
     return rev
@@ -116,9 +177,7 @@ def current_revision(conn: Connection) -> str | None:
 
 def _legacy_revision(conn: Connection) -> str | None:
     """nutribench's revision in ``alembic_version`` (a database from before the move), else None."""
-    if not inspect(conn).has_table(LEGACY_VERSION_TABLE):
-        return None
-    rev = MigrationContext.configure(conn).get_current_revision()
+    rev = _stored_revision(conn, LEGACY_VERSION_TABLE)
     return rev if rev in revision_chain() else None
 
 
@@ -129,6 +188,9 @@ def adopt_legacy_version(conn: Connection) -> None:
     rev = _legacy_revision(conn)
     if rev is None or inspect(conn).has_table(VERSION_TABLE):
         return
+    from alembic.runtime.migration import MigrationContext
+    from alembic.script import ScriptDirectory
+
     context = MigrationContext.configure(conn, opts={"version_table": VERSION_TABLE})
     context.stamp(ScriptDirectory.from_config(alembic_config()), rev)
     conn.execute(text(f"DELETE FROM {LEGACY_VERSION_TABLE} WHERE version_num = :rev"), {"rev": rev})
@@ -138,6 +200,8 @@ def adopt_legacy_version(conn: Connection) -> None:
 
 def upgrade_connection(conn: Connection, target: str = "head") -> None:
     """Run the migrations up to ``target`` on ``conn``, inside its current transaction."""
+    from alembic import command
+
     cfg = alembic_config()
     cfg.attributes["connection"] = conn
     command.upgrade(cfg, target)

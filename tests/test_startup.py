@@ -1,0 +1,84 @@
+"""Start-up: what a command imports before it does anything.
+
+``nutribench status`` on an up-to-date database checks the schema revision with plain SQL and
+reads the revision chain from the migration files, so it imports no alembic (a fifth of its
+start-up); alembic comes in only to upgrade.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from alembic.script import ScriptDirectory
+
+from nutribench.store.schema import alembic_config, head_revision, open_store, revision_chain
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _alembic_chain() -> list[str]:
+    script = ScriptDirectory.from_config(alembic_config())
+    return [s.revision for s in reversed(list(script.walk_revisions()))]
+
+
+def test_the_revision_chain_read_from_the_files_is_alembics() -> None:
+    assert revision_chain() == _alembic_chain()
+    assert head_revision() == ScriptDirectory.from_config(alembic_config()).get_current_head()
+
+
+def test_a_new_revision_file_is_the_new_head(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    folder = tmp_path / "migrations"
+    shutil.copytree(REPO / "migrations", folder, ignore=shutil.ignore_patterns("__pycache__"))
+    head = revision_chain()[-1]
+    (folder / "versions" / "9999_next.py").write_text(
+        f'"""A later revision."""\n\nrevision = "nbtest9"\ndown_revision = "{head}"\n'
+        "branch_labels = None\ndepends_on = None\n\n\ndef upgrade():\n    pass\n\n\ndef downgrade():\n    pass\n"
+    )
+    monkeypatch.setenv("NUTRIBENCH_MIGRATIONS", str(folder))
+    assert revision_chain() == [*_alembic_chain()[:-1], "nbtest9"] == _alembic_chain()
+    assert head_revision() == "nbtest9"
+
+
+_STATUS = """
+import sys
+from nutribench.cli import main
+sys.argv = ["nutribench", "status", "--db", sys.argv[1], "--json"]
+try:
+    main()
+finally:
+    print("ALEMBIC" if any(n == "alembic" or n.startswith("alembic.") for n in sys.modules) else "NO-ALEMBIC")
+"""
+
+
+def test_status_on_an_up_to_date_database_imports_no_alembic(tmp_path: Path) -> None:
+    db = tmp_path / "nb.db"
+    open_store(db, writer=True).dispose()
+    result = subprocess.run(
+        [sys.executable, "-c", _STATUS, str(db)], cwd=tmp_path, capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+    *report, verdict = result.stdout.strip().splitlines()
+    assert json.loads("\n".join(report))["totals"]["jobs"] == 0
+    assert verdict == "NO-ALEMBIC"
+
+
+def test_an_older_database_still_upgrades(tmp_path: Path) -> None:
+    """The other side: a writer opening an older schema imports alembic and upgrades it."""
+    from nutribench.store.engine import make_engine
+    from nutribench.store.schema import upgrade_connection
+
+    db = tmp_path / "old.db"
+    engine = make_engine(f"sqlite:///{db}", writer=True)
+    with engine.begin() as conn:
+        upgrade_connection(conn, revision_chain()[0])
+    engine.dispose()
+    store = open_store(db, writer=True)
+    try:
+        assert (store.upgraded_from, store.revision) == (revision_chain()[0], revision_chain()[-1])
+    finally:
+        store.dispose()
