@@ -14,13 +14,6 @@ environment truncates each day at its regime's horizon itself; the ``TimeLimit``
 at the same step (or earlier, with a smaller ``max_episode_steps``), never a second time.
 """
 
-from importlib.metadata import PackageNotFoundError, version
-
-try:
-    __version__ = version("nutribench")
-except PackageNotFoundError:  # running from a source tree without installing
-    __version__ = "0.0.0+unknown"
-
 ENV_ID = "nutribench/NutriRL-v0"
 SHIPPED_REGIMES = tuple(f"run{k}" for k in range(7))
 #: Steps in a day: the ``horizon`` of ``regimes/reward.toml``, shared by every regime.
@@ -48,8 +41,22 @@ def register_envs() -> None:
 register_envs()
 
 
+def _version() -> str:
+    """The installed distribution's version (``0.0.0+unknown`` in a source tree not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("nutribench")
+    except PackageNotFoundError:  # running from a source tree without installing
+        return "0.0.0+unknown"
+
+
 def __getattr__(name: str):
-    """``nutribench.Recorder`` (imported on first use: ``import nutribench`` stays light)."""
+    """``nutribench.__version__`` and ``nutribench.Recorder``, read or imported on first use
+    (``import nutribench`` stays light: importlib.metadata is a twentieth of a command's start-up)."""
+    if name == "__version__":
+        value = globals()["__version__"] = _version()
+        return value
     if name == "Recorder":
         from nutribench.recorder import Recorder
 

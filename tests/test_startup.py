@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 from alembic.script import ScriptDirectory
 
+from nutribench.cli import COMMANDS, build_app, get_app
 from nutribench.store.schema import alembic_config, head_revision, open_store, revision_chain
 
 REPO = Path(__file__).resolve().parents[1]
@@ -52,19 +53,22 @@ try:
     main()
 finally:
     print("ALEMBIC" if any(n == "alembic" or n.startswith("alembic.") for n in sys.modules) else "NO-ALEMBIC")
+    print(" ".join(sorted(n for n in sys.modules if n.startswith("nutribench.cli."))))
 """
 
 
-def test_status_on_an_up_to_date_database_imports_no_alembic(tmp_path: Path) -> None:
+def test_status_on_an_up_to_date_database_imports_no_alembic_nor_other_commands(tmp_path: Path) -> None:
     db = tmp_path / "nb.db"
     open_store(db, writer=True).dispose()
     result = subprocess.run(
         [sys.executable, "-c", _STATUS, str(db)], cwd=tmp_path, capture_output=True, text=True, timeout=120
     )
     assert result.returncode == 0, result.stderr
-    *report, verdict = result.stdout.strip().splitlines()
+    *report, verdict, commands = result.stdout.strip().splitlines()
     assert json.loads("\n".join(report))["totals"]["jobs"] == 0
     assert verdict == "NO-ALEMBIC"
+    # the one command's module and what it imports, not the other commands'
+    assert commands.split() == ["nutribench.cli.common", "nutribench.cli.run"]
 
 
 def test_an_older_database_still_upgrades(tmp_path: Path) -> None:
@@ -82,3 +86,26 @@ def test_an_older_database_still_upgrades(tmp_path: Path) -> None:
         assert (store.upgraded_from, store.revision) == (revision_chain()[0], revision_chain()[-1])
     finally:
         store.dispose()
+
+
+@pytest.mark.parametrize("name", [name for name, _ in COMMANDS])
+def test_one_command_app_says_what_the_whole_app_says(name: str) -> None:
+    """``nutribench NAME ...`` builds only NAME's command (:func:`build_app` with ``only``); its
+    help, and its subcommands' list, are the whole app's."""
+    from typer.testing import CliRunner
+
+    runner = CliRunner()
+    whole = runner.invoke(get_app(), [name, "--help"], prog_name="nutribench", terminal_width=100)
+    alone = runner.invoke(build_app(only=name), [name, "--help"], prog_name="nutribench", terminal_width=100)
+    assert whole.exit_code == alone.exit_code == 0, (whole.output, alone.output)
+    assert alone.output == whole.output
+
+
+def test_the_whole_app_lists_every_command() -> None:
+    import typer
+
+    app = get_app()
+    listed = [c.name for c in app.registered_commands] + [g.name for g in app.registered_groups]
+    assert sorted(listed) == sorted(name for name, _ in COMMANDS)
+    assert isinstance(build_app(only="status"), typer.Typer)
+    assert [c.name for c in build_app(only="status").registered_commands] == ["status"]

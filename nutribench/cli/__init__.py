@@ -59,23 +59,31 @@ def missing_experiment_modules() -> list[str]:
     return [name for name in EXPERIMENT_MODULES if not _installed(name)]
 
 
-def build_app() -> typer.Typer:
-    """The typer app with every command group (imports typer and the command modules)."""
-    import typer
+#: Each command of the app: its name, the module and attribute of its function (a command) or
+#: of its typer app (a group, ``:group``), in the order ``nutribench --help`` lists them.
+COMMANDS: tuple[tuple[str, str], ...] = (
+    ("regimes", "nutribench.cli.regimes:regimes_app:group"),
+    ("baselines", "nutribench.cli.agents:baselines"),
+    ("train", "nutribench.cli.agents:train_cmd"),
+    ("run", "nutribench.cli.run:run_cmd"),
+    ("status", "nutribench.cli.run:status_cmd"),
+    ("report", "nutribench.cli.report:report_cmd"),
+    ("compare", "nutribench.cli.compare:compare_cmd"),
+    ("leaderboard", "nutribench.cli.leaderboard:leaderboard_cmd"),
+    ("evaluate", "nutribench.cli.evaluate:evaluate_cmd"),
+    ("db", "nutribench.cli.db:db_app:group"),
+    ("bench", "nutribench.cli.bench:bench_app:group"),
+    ("tune", "nutribench.cli.tune:tune_app:group"),
+)
 
-    from nutribench import __version__
-    from nutribench.cli.agents import baselines, train_cmd
-    from nutribench.cli.bench import bench_app
-    from nutribench.cli.bench_engines import bench_engines_cmd
-    from nutribench.cli.bench_tune import bench_tune_cmd
-    from nutribench.cli.compare import compare_cmd
-    from nutribench.cli.db import db_app
-    from nutribench.cli.evaluate import evaluate_cmd
-    from nutribench.cli.leaderboard import leaderboard_cmd
-    from nutribench.cli.regimes import regimes_app
-    from nutribench.cli.report import report_cmd
-    from nutribench.cli.run import run_cmd, status_cmd
-    from nutribench.cli.tune import tune_app
+
+def build_app(only: str | None = None) -> typer.Typer:
+    """The typer app with every command group (imports typer and the command modules); with
+    ``only`` (a name of :data:`COMMANDS`), the app with that one command: what ``nutribench
+    NAME ...`` runs, so that one command's start-up does not build (nor import) the others."""
+    import importlib
+
+    import typer
 
     app = typer.Typer(
         no_args_is_help=True,
@@ -86,6 +94,8 @@ def build_app() -> typer.Typer:
 
     def print_version(value: bool) -> None:
         if value:
+            from nutribench import __version__
+
             typer.echo(f"nutribench {__version__}")
             raise typer.Exit()
 
@@ -97,20 +107,22 @@ def build_app() -> typer.Typer:
     ) -> None:
         pass
 
-    app.add_typer(regimes_app, name="regimes")
-    app.command("baselines")(baselines)
-    app.command("train")(train_cmd)
-    app.command("run")(run_cmd)
-    app.command("status")(status_cmd)
-    app.command("report")(report_cmd)
-    app.command("compare")(compare_cmd)
-    app.command("leaderboard")(leaderboard_cmd)
-    app.command("evaluate")(evaluate_cmd)
-    app.add_typer(db_app, name="db")
-    bench_app.command("engines")(bench_engines_cmd)
-    bench_app.command("tune")(bench_tune_cmd)
-    app.add_typer(bench_app, name="bench")
-    app.add_typer(tune_app, name="tune")
+    for name, where in COMMANDS:
+        if only is not None and name != only:
+            continue
+        module, attribute, *group = where.split(":")
+        target = getattr(importlib.import_module(module), attribute)
+        if not group:
+            app.command(name)(target)
+            continue
+        if name == "bench":
+            from nutribench.cli.bench_engines import bench_engines_cmd
+            from nutribench.cli.bench_tune import bench_tune_cmd
+
+            if not any(info.name == "engines" for info in target.registered_commands):
+                target.command("engines")(bench_engines_cmd)
+                target.command("tune")(bench_tune_cmd)
+        app.add_typer(target, name=name)
     return app
 
 
@@ -140,4 +152,8 @@ def main() -> None:
             file=sys.stderr,
         )
         sys.exit(2)
+    name = sys.argv[1] if len(sys.argv) > 1 else None
+    if name in dict(COMMANDS) and "app" not in globals():
+        build_app(only=name)()
+        return
     get_app()()
