@@ -1,7 +1,15 @@
-"""The simple policies' table: every policy on every regime, on the same food streams; and
+"""The reference policies' table: every policy on every regime, on the same food streams; and
 the yardsticks of the share of the never -> planner gap (:func:`gap_closed`) on given days:
 :func:`day_yardsticks` (the test days of a report, the validation days of a tuner) and
-:func:`validation_yardsticks` (a job's validation days)."""
+:func:`validation_yardsticks` (a job's validation days).
+
+Beside the simple policies (random, never, always, the greedy planner), two stronger ones say
+how far above the planner's 100 % the optimum lies (:mod:`nutribench.env.search`):
+``lookahead`` (the planner's information, sampled futures) and ``clairvoyant`` (the day's
+foods known; exact where its branch and bound proves the day's best return, a beam
+otherwise): :func:`play_strong_policy`, and :func:`test_day_references` on the paper's test
+days (``regimes/references.csv`` holds them, remade by ``nutribench baselines --test-days
+--out regimes/references.csv``)."""
 
 from __future__ import annotations
 
@@ -11,9 +19,20 @@ from nutribench.config import EnvConfig, load_env_config
 from nutribench.env import NutriRLVectorEnv
 from nutribench.env.metrics import play
 from nutribench.env.policies import make_policy
+from nutribench.env.search import DayModel, clairvoyant_actions, lookahead_actions
 
 POLICY_ORDER = ("random", "never", "always", "planner")
+#: The two references above the planner, slower to play (:mod:`nutribench.env.search`).
+STRONG_POLICIES = ("lookahead", "clairvoyant")
 SUMMARY_KEYS = ("return", "foods", "final_distance", "overshoot_ratio")
+#: Sampled futures a lookahead step weighs each action on (``nutribench baselines``' default:
+#: 0.8 s a day on this project's 2-core machine; :data:`TEST_DAY_SAMPLES` for the test days).
+LOOKAHEAD_SAMPLES = 64
+#: The lookahead's samples on the paper's test days (``regimes/references.csv``).
+TEST_DAY_SAMPLES = 256
+#: The clairvoyant beam's width and the most nodes its proof may hold at one step.
+BEAM_WIDTH = 64
+MAX_NODES = 20_000
 
 
 def gap_closed(value: float, never: float, planner: float) -> float:
@@ -27,6 +46,43 @@ def play_simple_policy(policy: str, regime: str | EnvConfig, foods: np.ndarray, 
     """Per-episode metrics of ``policy`` on the given days ``(n, horizon)`` of food indices."""
     env = NutriRLVectorEnv(len(foods), regime=regime)
     return play(env, make_policy(policy, seed), episodes=len(foods), foods=foods)
+
+
+class _Replay:
+    """Plays given actions ``(n, H)``: column t at step t."""
+
+    def __init__(self, actions: np.ndarray):
+        self.actions = actions
+
+    def __call__(self, env):
+        return self.actions[:, env.steps_taken]
+
+
+def play_strong_policy(
+    policy: str,
+    regime: str | EnvConfig,
+    foods: np.ndarray,
+    samples: int = LOOKAHEAD_SAMPLES,
+    seed: int = 0,
+    width: int = BEAM_WIDTH,
+    max_nodes: int = MAX_NODES,
+) -> list[dict]:
+    """Per-episode metrics of ``lookahead`` (``samples`` futures a step, ``seed``) or
+    ``clairvoyant`` (beam ``width``, proof of at most ``max_nodes`` nodes a step) on the days
+    ``foods`` ``(n, horizon)``: the actions planned on :class:`~nutribench.env.search.DayModel`,
+    played in the env. Each dict also has ``search``: ``"exact"`` or ``"beam"`` (clairvoyant),
+    ``"sampled"`` (lookahead)."""
+    model = DayModel(regime)
+    foods = np.asarray(foods, dtype=np.int64)
+    if policy == "lookahead":
+        actions, how = lookahead_actions(model, foods, samples, seed), ["sampled"] * len(foods)
+    elif policy == "clairvoyant":
+        actions, how = clairvoyant_actions(model, foods, width, max_nodes)
+    else:
+        raise ValueError(f"unknown strong policy '{policy}': known ones are {', '.join(STRONG_POLICIES)}")
+    env = NutriRLVectorEnv(len(foods), regime=model.dyn.config)
+    played = play(env, _Replay(actions), episodes=len(foods), foods=foods)
+    return [{**p, "search": h} for p, h in zip(played, how)]
 
 
 #: the two policies the share of the gap is measured between
@@ -58,13 +114,101 @@ def evaluate_simple_policy(policy: str, regime: str, episodes: int = 200, seed: 
     return play_simple_policy(policy, cfg, foods, seed)
 
 
-def baseline_table(regimes: list[str], episodes: int = 200, seed: int = 0) -> list[dict]:
-    """One row per (regime, policy): the mean of each per-day metric (:data:`~nutribench.env.metrics.METRIC_KEYS`)."""
+def _summary(eps: list[dict]) -> dict[str, float]:
+    return {k: float(np.mean([e[k] for e in eps])) for k in SUMMARY_KEYS}
+
+
+def baseline_table(
+    regimes: list[str], episodes: int = 200, seed: int = 0, strong_days: int = 0, samples: int = LOOKAHEAD_SAMPLES
+) -> list[dict]:
+    """One row per (regime, policy): the mean of each per-day metric
+    (:data:`~nutribench.env.metrics.METRIC_KEYS`) over ``episodes`` days, with ``days`` and
+    ``gap`` (the share of the never -> planner gap the mean return closes on those days).
+    ``strong_days`` > 0 adds ``lookahead`` (``samples`` futures a step) and ``clairvoyant``
+    on the first ``strong_days`` of the same days, their ``gap`` against never and the
+    planner on those days, and ``search`` (clairvoyant: ``exact k/n`` days proven)."""
     rows = []
     for regime in regimes:
+        played = {policy: evaluate_simple_policy(policy, regime, episodes, seed) for policy in POLICY_ORDER}
+        never, planner = (float(np.mean([e["return"] for e in played[p]])) for p in YARDSTICKS)
         for policy in POLICY_ORDER:
-            eps = evaluate_simple_policy(policy, regime, episodes, seed)
+            s = _summary(played[policy])
             rows.append(
-                {"regime": regime, "policy": policy, **{k: float(np.mean([e[k] for e in eps])) for k in SUMMARY_KEYS}}
+                {
+                    "regime": regime,
+                    "policy": policy,
+                    **s,
+                    "days": episodes,
+                    "gap": gap_closed(s["return"], never, planner),
+                }
+            )
+        if strong_days <= 0:
+            continue
+        n = min(strong_days, episodes)
+        cfg = load_env_config(regime)
+        foods = np.random.default_rng(seed).integers(0, len(cfg.catalog.food), size=(episodes, cfg.reward.horizon))[:n]
+        never_n, planner_n = (float(np.mean([e["return"] for e in played[p][:n]])) for p in YARDSTICKS)
+        for policy in STRONG_POLICIES:
+            eps = play_strong_policy(policy, cfg, foods, samples=samples, seed=seed)
+            s = _summary(eps)
+            exact = sum(e["search"] == "exact" for e in eps)
+            rows.append(
+                {
+                    "regime": regime,
+                    "policy": policy,
+                    **s,
+                    "days": n,
+                    "gap": gap_closed(s["return"], never_n, planner_n),
+                    "search": f"exact {exact}/{n}" if policy == "clairvoyant" else f"{samples} futures",
+                }
+            )
+    return rows
+
+
+#: Columns of ``regimes/references.csv`` (:func:`test_day_references`).
+REFERENCE_COLUMNS = (
+    "regime",
+    "version",
+    "sha256",
+    "seed",
+    "episode",
+    "never",
+    "planner",
+    "lookahead",
+    "clairvoyant",
+    "search",
+)
+
+
+def test_day_references(
+    regime: str | EnvConfig, seeds: tuple[int, ...], days: int = 5, samples: int = TEST_DAY_SAMPLES
+) -> list[dict]:
+    """The four yardsticks' returns on each test day of ``regime`` (the first ``days`` of
+    :func:`~nutribench.agents.days.eval_food_streams` of each seed, the days every job of
+    that seed is scored on): one dict per day with :data:`REFERENCE_COLUMNS` (``sha256``: the
+    regime's content, so a changed regime file is seen; ``search``: the clairvoyant's)."""
+    from nutribench.agents.days import eval_food_streams
+
+    cfg = load_env_config(regime)
+    rows = []
+    for seed in seeds:
+        foods = eval_food_streams(cfg, seed, days)
+        simple = day_yardsticks(cfg, foods)
+        look = play_strong_policy("lookahead", cfg, foods, samples=samples, seed=0)
+        clair = play_strong_policy("clairvoyant", cfg, foods)
+        for e in range(days):
+            rows.append(
+                {
+                    "regime": cfg.name,
+                    "version": int(cfg.version),
+                    "sha256": cfg.sha256,
+                    "seed": int(seed),
+                    "episode": e,
+                    "never": simple[e]["never"],
+                    "planner": simple[e]["planner"],
+                    "lookahead": float(look[e]["return"]),
+                    "clairvoyant": float(clair[e]["return"]),
+                    "search": clair[e]["search"],
+                }
             )
     return rows

@@ -61,10 +61,12 @@ def test_policies_work_on_the_single_env_too():
 
 
 def test_baselines_cli_markdown():
-    result = CliRunner().invoke(app, ["baselines", "--regimes", "run0", "--episodes", "20", "--markdown"])
+    result = CliRunner().invoke(
+        app, ["baselines", "--regimes", "run0", "--episodes", "20", "--strong-days", "0", "--markdown"]
+    )
     assert result.exit_code == 0, result.output
     lines = result.output.strip().splitlines()
-    assert lines[0].startswith("| regime | policy | return")
+    assert lines[0].startswith("| regime | policy | days | return")
     assert len(lines) == 2 + 4
 
 

@@ -29,10 +29,32 @@ def baselines(
     ] = None,
     old_episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)] = None,
     seed: Annotated[int, typer.Option(help="seed of the food streams (the same for every policy)")] = 0,
+    strong_days: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            help="days (the first of the same streams) that lookahead and clairvoyant play per regime; 0: neither",
+        ),
+    ] = 10,
+    samples: Annotated[int, typer.Option(min=1, help="sampled futures a lookahead step weighs each action on")] = 64,
+    test_days: Annotated[
+        bool,
+        typer.Option(
+            "--test-days",
+            help="instead: never, planner, lookahead (256 futures) and clairvoyant on the paper's test days "
+            "(seeds 0,21,9,2003,1997 x their 5 evaluation days), the shares of the gap per regime",
+        ),
+    ] = False,
+    out: Annotated[
+        Optional[Path],
+        typer.Option(help="with --test-days: write the per-day returns to this CSV (regimes/references.csv)"),
+    ] = None,
     markdown: Annotated[bool, typer.Option(help="print a Markdown table instead of a rich one")] = False,
 ) -> None:
-    """Mean return, foods eaten, final distance and overshoot ratio of the simple policies."""
-    from nutribench.baselines import POLICY_ORDER, baseline_table
+    """Mean return, foods eaten, final distance, overshoot ratio and share of the never -> planner
+    gap of the reference policies (random, never, always, planner; lookahead and clairvoyant on
+    the first --strong-days days)."""
+    from nutribench.baselines import baseline_table
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import MAX_EVAL_DAYS, MAX_SEED
 
@@ -40,29 +62,96 @@ def baselines(
     check_range("--seed", seed, 0, MAX_SEED)
     check_range("--eval-episodes", episodes, 1, MAX_EVAL_DAYS, "the days are played side by side")
     names = split_csv(regimes, list_regimes(), "regime")
-    rows = baseline_table(names, episodes=episodes, seed=seed)
-    headers = ["regime", "policy", "return", "foods", "final distance", "overshoot ratio"]
+    if out is not None and not test_days:
+        raise UserError("--out writes the test days' references: add --test-days")
+    if test_days:
+        return _test_day_table(names, out, markdown)
+    rows = baseline_table(names, episodes=episodes, seed=seed, strong_days=strong_days, samples=samples)
+    headers = [
+        "regime",
+        "policy",
+        "days",
+        "return",
+        "foods",
+        "final distance",
+        "overshoot ratio",
+        "gap closed",
+        "search",
+    ]
     cells = [
         [
             r["regime"],
             r["policy"],
+            str(r["days"]),
             f"{r['return']:.2f}",
             f"{r['foods']:.2f}",
             f"{r['final_distance']:.3f}",
             f"{r['overshoot_ratio']:.3f}",
+            f"{100 * r['gap']:.1f} %",
+            r.get("search", ""),
         ]
         for r in rows
     ]
+    title = (
+        f"Reference policies on the days of seed {seed} (lookahead and clairvoyant on the first {strong_days}); means; "
+        "gap closed: share of the never -> planner gap on the row's days"
+    )
+    _print_table(headers, cells, [r["regime"] for r in rows], title, markdown)
+
+
+def _print_table(headers: list[str], cells: list[list[str]], groups: list[str], title: str, markdown: bool) -> None:
+    """A Markdown table, or a rich one with a rule between ``groups``."""
     if markdown:
         typer.echo("| " + " | ".join(headers) + " |")
         typer.echo("|" + "---|" * len(headers))
         for c in cells:
             typer.echo("| " + " | ".join(c) + " |")
         return
-    table = Table(*headers, title=f"Simple policies, {episodes} episodes each (seed {seed}); means")
+    table = Table(*headers, title=title)
     for i, c in enumerate(cells):
-        table.add_row(*c, end_section=(i + 1) % len(POLICY_ORDER) == 0)
+        table.add_row(*c, end_section=i + 1 == len(cells) or groups[i + 1] != groups[i])
     console.print(table)
+
+
+def _test_day_table(names: list[str], out: Path | None, markdown: bool) -> None:
+    """``baselines --test-days``: the four yardsticks on the paper's test days, per regime."""
+    import time
+
+    import pandas as pd
+
+    from nutribench.baselines import REFERENCE_COLUMNS, TEST_DAY_SAMPLES, gap_closed, test_day_references
+    from nutribench.safe_write import atomic_write, check_file_target
+    from nutribench.scheduler.grid import PRESETS
+
+    seeds = PRESETS["paper"].seeds
+    if out is not None:
+        check_file_target(out, "--out")  # before the minutes of planning, not after
+    rows, cells = [], []
+    for regime in names:
+        start = time.perf_counter()
+        days = test_day_references(regime, seeds)
+        wall = time.perf_counter() - start
+        rows += days
+        mean = {k: sum(d[k] for d in days) / len(days) for k in ("never", "planner", "lookahead", "clairvoyant")}
+        exact = sum(d["search"] == "exact" for d in days)
+        cells.append(
+            [regime, str(len(days))]
+            + [f"{mean[k]:.3f}" for k in ("never", "planner", "lookahead", "clairvoyant")]
+            + [
+                f"{100 * gap_closed(mean[k], mean['never'], mean['planner']):.1f} %"
+                for k in ("lookahead", "clairvoyant")
+            ]
+            + [f"exact {exact}/{len(days)}", f"{wall:.0f} s"]
+        )
+    if out is not None:
+        with atomic_write(out, "--out") as tmp:
+            pd.DataFrame(rows, columns=list(REFERENCE_COLUMNS)).to_csv(tmp, index=False)
+    headers = ["regime", "days", "never", "planner", "lookahead", "clairvoyant", "lookahead %", "clairvoyant %"]
+    title = (
+        f"The paper's test days (seeds {','.join(map(str, seeds))} x 5): mean returns; % = share of the never -> "
+        f"planner gap; lookahead {TEST_DAY_SAMPLES} futures a step"
+    )
+    _print_table(headers + ["clairvoyant search", "time"], cells, names, title, markdown)
 
 
 def validation_printer(out, env_cfg, seed: int, n: int):
