@@ -75,7 +75,7 @@ def aggregate_figure(
                 color = colors.color(r.algo)
                 if np.isfinite(r.lo):
                     style = _GROUP_STYLE[group]
-                    ax.barh(
+                    bars = ax.barh(
                         y,
                         r.hi - r.lo,
                         left=r.lo,
@@ -86,6 +86,11 @@ def aggregate_figure(
                         edgecolor=color,
                         lw=0.8,
                     )
+                    # a bar's ends are "sticky" to autoscaling: the panel's edge fell exactly on
+                    # the widest interval's end, which then read as cut off; with a margin
+                    # beyond every end, each interval is seen to end where it ends
+                    for bar in bars:
+                        bar.sticky_edges.x.clear()
                 ax.plot(
                     [r.point, r.point],
                     [y - 0.17, y + 0.17],
@@ -105,8 +110,10 @@ def aggregate_figure(
         ax.set_title(AGGREGATE_LABELS[agg] + (" (lower is better)" if agg == "optimality_gap" else ""), fontsize=10)
         ax.set_xlabel("share of the never → planner gap", fontsize=8)
         ax.grid(axis="x", alpha=0.3)
+    profile_axes = []
     for j, group in enumerate(GROUPS):
         ax = fig.add_subplot(grid[1, j])
+        profile_axes.append(ax)
         prof = res.profiles[res.profiles["group"] == group]
         for algo in algos:
             p = prof[prof["algo"] == algo]
@@ -165,7 +172,13 @@ def aggregate_figure(
         ax.set_title(f"P(row > column), {group_title(res, group)}", fontsize=9)
         if j == 1:
             fig.colorbar(im, ax=ax, shrink=0.8, label="probability of improvement")
-    handles, labels = fig.axes[4].get_legend_handles_labels()
+    # every agent drawn in either profile (one of the delayed regimes alone is in the second only)
+    found: dict[str, object] = {}
+    for ax in profile_axes:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            found.setdefault(lab, h)
+    labels = [names[a] for a in algos if names[a] in found]
+    handles = [found[lab] for lab in labels]
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 

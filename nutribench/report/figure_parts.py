@@ -41,12 +41,15 @@ def default_window(n_episodes: int) -> int:
     return int(min(100, max(1, round(n_episodes / 50))))
 
 
-def _wrap(text: str, fig: Figure, fontsize: float) -> str:
+def wrap_text(text: str, fig: Figure, fontsize: float) -> str:
     """Wrap ``text`` (each of its lines) to the figure's width at ``fontsize``."""
     import textwrap
 
     chars = max(40, int(fig.get_figwidth() * 72 / (fontsize * 0.55)))
     return "\n".join(textwrap.fill(line, chars) for line in text.split("\n"))
+
+
+_wrap = wrap_text
 
 
 def seed_list(seeds: Iterable[int]) -> str:

@@ -213,15 +213,24 @@ def _missing_note(regimes: list[str], algos: list[str], df: pd.DataFrame) -> lis
     return [f"no data: {', '.join(missing)}"] if missing else []
 
 
+def _with_breaks(x: np.ndarray, *ys: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``x`` and ``ys`` with a NaN point inserted wherever two neighbouring x positions are
+    more than one regime apart (run0 next to run3: run1 and run2 were not run), so that no
+    line or band is drawn across regimes that have no data."""
+    x = np.asarray(x, dtype=float)
+    cuts = np.flatnonzero(np.diff(np.round(x)) > 1) + 1
+    return tuple(np.insert(np.asarray(v, dtype=float), cuts, np.nan) for v in (x, *ys))
+
+
 def _draw_gapped(
     ax, stats: pd.DataFrame, regimes: list[str], xd: list[float], color: str, label: str, marker: str = "o"
 ) -> None:
     """One agent's line and band over the figure's ``regimes`` (x positions ``xd``), broken
-    where it has no data (no line drawn across a regime it was not evaluated on); a point
-    with no neighbour has no band width, so its interval is drawn as an error bar."""
+    where it has no data (no line drawn across a regime it was not evaluated on, nor across
+    a regime number no agent ran); a point with no neighbour has no band width, so its
+    interval is drawn as an error bar."""
     full = stats.reindex(regimes)
-    mean, lo, hi = (full[c].to_numpy(dtype=float) for c in ("mean", "lo", "hi"))
-    x = np.asarray(xd, dtype=float)
+    x, mean, lo, hi = _with_breaks(xd, *(full[c].to_numpy(dtype=float) for c in ("mean", "lo", "hi")))
     ax.plot(x, mean, marker=marker, ms=5, color=color, label=label)
     ax.fill_between(x, lo, hi, color=color, alpha=0.2, lw=0)
     has = np.isfinite(mean)
@@ -343,7 +352,12 @@ def eval_across_regimes(
                     continue
                 r = r.set_index("regime").loc[sort_regimes(r["regime"])]
                 ax.plot(
-                    [xs[k] for k in r.index], r[metric], lw=0.8, ms=4, alpha=0.9, label=f"{policy} (reference)", **style
+                    *_with_breaks([xs[k] for k in r.index], r[metric].to_numpy(dtype=float)),
+                    lw=0.8,
+                    ms=4,
+                    alpha=0.9,
+                    label=f"{policy} (reference)",
+                    **style,
                 )
         panel_title = GAP_LABEL if gap_panel else METRIC_LABELS[metric]
         ax.set_title(f"({'ABCD'[p]}) {panel_title}", fontsize=10, loc="left")
@@ -352,6 +366,9 @@ def eval_across_regimes(
             _gap_axis(ax)
         elif metric == "return":
             ax.set_ylabel("return (linear)", fontsize=8)
+        # half a regime beyond the outermost: a figure of one regime has its points in the
+        # middle of the panel (autoscaling put two dodged points at its two edges)
+        ax.set_xlim(min(xs.values()) - 0.5, max(xs.values()) + 0.5)
         if p >= 2:
             ax.set_xlabel("regime (run)")
             ax.set_xticks(sorted(xs.values()), [str(k) for k in sorted(xs.values())])

@@ -9,6 +9,7 @@ from matplotlib.figure import Figure
 
 from nutribench.config import NUTRIENTS
 from nutribench.env import RegimeDynamics
+from nutribench.report.figure_parts import wrap_text
 
 NUTRIENT_COLORS = {"C": "#4c72b0", "F": "#dd8452", "P": "#55a868"}
 NUTRIENT_NAMES = {"C": "carbohydrate", "F": "fat", "P": "protein"}
@@ -51,11 +52,12 @@ def trajectory_figure(steps: pd.DataFrame, dynamics: RegimeDynamics, title: str 
         )
     top.set_ylim(0, ymax)
     top.set_ylabel("absorbed (x daily target)")
-    # outside the axes: any spot inside would cover the curves on some day
-    fig.legend(*top.get_legend_handles_labels(), loc="outside right upper", fontsize=8, frameon=False)
+    # outside the axes (any spot inside would cover the curves on some day) and under the
+    # panels: at the upper right it lay beside the title, and covered a long title's end
+    fig.legend(*top.get_legend_handles_labels(), loc="outside lower center", ncols=4, fontsize=8, frameon=False)
     top.grid(alpha=0.3)
     if title:
-        fig.suptitle(title, fontsize=10)
+        fig.suptitle(wrap_text(title, fig, 10), fontsize=10)
     # absorption curves: a meal eaten at step t delivers schedule[food, k] at step t + k
     for _, m in meals.iterrows():
         t, food = int(m["step"]), int(m["food"])
