@@ -1,8 +1,11 @@
 """Training diagnostics: the vocabulary of the per-update rows both engines record.
 
 A training job records one row per update, a ``dict[str, float]`` keyed by the names below; a
-quantity an algorithm does not have is absent from the dict (NULL in the database). The store
-writes a job's rows to the ``diagnostics`` table in the same transaction as its episode rows.
+quantity an algorithm does not have is absent from the dict. The store writes a job's rows to
+the ``diagnostics`` table in the same transaction as its episode rows, as a long table: one
+row per (job, update, name) with its value (``timestep`` included; an absent quantity has no
+row), so an algorithm of a plug-in may record a quantity of its own under a new name
+(:func:`valid_name`) and the database stores it without a schema change.
 
 Granularity: the on-policy agents (MC, PPO, GRU-PPO) record one row per rollout update; the
 off-policy agents (DDQN, SAC) record one row per training day with gradient steps (none before
@@ -34,6 +37,9 @@ Columns:
 """
 
 from __future__ import annotations
+
+import re
+from typing import Any
 
 UPDATE = "update"
 TIMESTEP = "timestep"
@@ -71,3 +77,16 @@ QUANTITIES: tuple[str, ...] = (
 
 #: Every column of a row: the two keys, then the quantities.
 COLUMNS: tuple[str, ...] = (UPDATE, TIMESTEP, *QUANTITIES)
+
+#: What a quantity's name may be (the built-in ones and a plug-in's): what the database, an
+#: archive's column and a TensorBoard tag are named by.
+NAME_PATTERN = re.compile(r"[a-z][a-z0-9_]*")
+NAME_MAX = 64
+
+
+def valid_name(name: Any) -> bool:
+    """Whether ``name`` may name a diagnostics quantity: ``[a-z][a-z0-9_]*``, at most
+    :data:`NAME_MAX` characters, and not ``update`` (a row's index, not a quantity)."""
+    return (
+        isinstance(name, str) and len(name) <= NAME_MAX and NAME_PATTERN.fullmatch(name) is not None and name != UPDATE
+    )

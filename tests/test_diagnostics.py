@@ -23,7 +23,6 @@ from nutribench.scheduler.registration import load_grid_configs, register_grid
 from nutribench.scheduler.spec import JobResult
 from nutribench.store import head_revision, make_engine, open_store
 from nutribench.store.engine import database_url
-from nutribench.store.models import DIAGNOSTIC_COLUMNS
 from nutribench.store.schema import upgrade_connection
 from nutribench.store.views import TRAINING_DIAGNOSTICS_COLUMNS
 
@@ -64,7 +63,6 @@ def sql(db: Path, query: str) -> list[tuple]:
 
 
 def test_the_table_has_the_vocabulary() -> None:
-    assert DIAGNOSTIC_COLUMNS == d.COLUMNS
     assert TRAINING_DIAGNOSTICS_COLUMNS[-len(d.COLUMNS) - 1 : -1] == d.COLUMNS
 
 
@@ -240,11 +238,10 @@ def test_a_jobs_rows_are_stored_all_at_once(tmp_path) -> None:
     assert sql(db, f"SELECT status FROM jobs WHERE id = {job_id}") == [("running",)]
     event.remove(store.engine, "after_execute", fail_after_diagnostics)
     assert store_result(store, _result(job_id, 7), owner, None)
-    assert sql(db, 'SELECT "update", timestep, value_loss, grad_norm, epsilon FROM diagnostics ORDER BY 1')[:2] == [
-        (0, 50, 1.0, 2.0, None),
-        (1, 100, 0.5, 2.0, None),
-    ]
-    assert sql(db, "SELECT count(*) FROM diagnostics") == [(7,)]
+    query = 'SELECT "update", timestep, value_loss, grad_norm, epsilon FROM training_diagnostics ORDER BY 1'
+    assert sql(db, query)[:2] == [(0, 50, 1.0, 2.0, None), (1, 100, 0.5, 2.0, None)]
+    assert sql(db, "SELECT count(*) FROM training_diagnostics") == [(7,)]
+    assert sql(db, "SELECT count(*) FROM diagnostics") == [(7 * 3,)]  # timestep, value_loss, grad_norm
     assert sql(db, f"SELECT status FROM jobs WHERE id = {job_id}") == [("done",)]
     # deleting the job takes its diagnostics with it (ON DELETE CASCADE)
     with store.engine.begin() as conn:
@@ -286,7 +283,7 @@ def test_the_migration_upgrades_a_0004_database(tmp_path) -> None:
     assert sql(db, "SELECT version_num FROM nutribench_alembic_version") == [(head_revision(),)]
     assert sql(db, "SELECT count(*) FROM jobs") == [(1,)]
     con = sqlite3.connect(db)
-    con.execute('INSERT INTO diagnostics (job_id, "update", timestep, value_loss) VALUES (1, 0, 500, 0.25)')
+    con.execute("INSERT INTO diagnostics VALUES (1, 0, 'timestep', 500), (1, 0, 'value_loss', 0.25)")
     con.commit()
     con.close()
     rows = sql(db, 'SELECT regime, algo, seed, "update", timestep, value_loss, policy_loss FROM training_diagnostics')

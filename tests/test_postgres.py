@@ -199,7 +199,7 @@ def test_a_killed_driver_s_jobs_are_taken_over_on_postgres(pg_url: str, tmp_path
 def test_upgrade_from_the_first_revision_on_postgres(pg_url: str) -> None:
     make_0001(pg_url)
     with pytest.raises(
-        StoreError, match=r"revision 0001, this nutribench needs 0006: run `nutribench run --upgrade-only"
+        StoreError, match=r"revision 0001, this nutribench needs 0007: run `nutribench run --upgrade-only"
     ):
         open_store(pg_url)
     res = runner.invoke(app, ["run", "--upgrade-only", "--db", pg_url])

@@ -41,7 +41,7 @@ def make_0001(db: Path) -> None:
 
 
 def test_revisions_are_linear() -> None:
-    assert revision_chain() == ["0001", "0002", "0003", "0004", "0005", "0006"] and head_revision() == "0006"
+    assert revision_chain() == ["0001", "0002", "0003", "0004", "0005", "0006", "0007"] and head_revision() == "0007"
 
 
 def test_create_from_empty_matches_the_models(tmp_path: Path) -> None:
@@ -70,7 +70,7 @@ def test_upgrade_from_0001_keeps_the_data(tmp_path: Path) -> None:
     db = tmp_path / "old.db"
     make_0001(db)
     with pytest.raises(
-        StoreError, match=r"revision 0001, this nutribench needs 0006: run `nutribench run --upgrade-only"
+        StoreError, match=r"revision 0001, this nutribench needs 0007: run `nutribench run --upgrade-only"
     ):
         open_store(db)  # readers refuse, with the command that fixes it
     res = CliRunner().invoke(app, ["run", "--upgrade-only", "--db", str(db)])

@@ -165,7 +165,7 @@ def test_the_migration_upgrades_a_0005_database(tmp_path: Path) -> None:
     assert "validation_episodes" not in {r[0] for r in sql(db, "SELECT name FROM sqlite_master")}
     res = CliRunner().invoke(app, ["run", "--upgrade-only", "--db", str(db)])
     assert res.exit_code == 0 and "upgraded from 0005" in res.output, res.output
-    assert sql(db, "SELECT version_num FROM nutribench_alembic_version") == [("0006",)]
+    assert sql(db, "SELECT version_num FROM nutribench_alembic_version") == [("0007",)]
     assert sql(db, "SELECT count(*) FROM jobs") == sql(db, "SELECT count(*) FROM diagnostics") == [(1,)]
     con = sqlite3.connect(db)
     con.execute(

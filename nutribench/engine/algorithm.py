@@ -210,7 +210,14 @@ class Algorithm:
     def record(self, timestep: int, values: dict[str, Any]) -> None:
         """Append one diagnostics dict to each agent's list: ``update`` (its index), ``timestep``
         (env steps of each agent so far) and ``values``: per name, K floats (a list or array:
-        agent ``j`` gets the ``j``-th) or one float (every agent gets it)."""
+        agent ``j`` gets the ``j``-th) or one float (every agent gets it). A name of a
+        subclass's own is stored as it is (:func:`nutribench.diagnostics.valid_name`; ValueError
+        at the first update for another, not once the job has trained)."""
+        bad = [n for n in values if not names.valid_name(n) or n == names.TIMESTEP]
+        if bad:
+            raise ValueError(
+                f"diagnostics: {bad[0]!r} is not a quantity's name ([a-z][a-z0-9_]*, at most 64 characters)"
+            )
         update = len(self.diagnostics[0])
         shared = {n: float(v) for n, v in values.items() if np.ndim(v) == 0}
         columns = {n: np.asarray(v, dtype=np.float64).tolist() for n, v in values.items() if n not in shared}

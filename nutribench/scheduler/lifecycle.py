@@ -20,7 +20,6 @@ token, so a driver that lost a job (taken over as stale) writes nothing for it.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from datetime import datetime, timedelta
 from typing import TYPE_CHECKING, Any
@@ -29,7 +28,6 @@ from sqlalchemy import and_, func, or_, select, update
 
 from nutribench.store.engine import StoreError, db_now, display_url, session_scope
 from nutribench.store.models import (
-    DIAGNOSTIC_COLUMNS,
     EPISODE_METRICS,
     EVAL_STEP_COLUMNS,
     METADATA_COLUMNS,
@@ -39,6 +37,7 @@ from nutribench.store.models import (
     EvalStep,
     Job,
     ValidationEpisode,
+    diagnostic_rows,
     insert_rows,
 )
 from nutribench.store.schema import Store
@@ -211,22 +210,6 @@ def validation_rows(job_id: int, validation: list[dict[str, Any]]) -> list[dict[
         {"job_id": job_id, **{("ret" if c == "return" else c): v.get(c) for c in VALIDATION_COLUMNS}}
         for v in validation
     ]
-
-
-def diagnostic_rows(job_id: int, diagnostics: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """A job's training diagnostics as ``diagnostics`` rows: every column, None where absent
-    (a non-finite value is stored as NULL too)."""
-    rows = []
-    for diag in diagnostics:
-        row: dict[str, Any] = {"job_id": job_id}
-        for col in DIAGNOSTIC_COLUMNS:
-            value = diag.get(col)
-            if col in ("update", "timestep"):
-                row[col] = int(value)
-            else:
-                row[col] = None if value is None or not math.isfinite(float(value)) else float(value)
-        rows.append(row)
-    return rows
 
 
 def store_result(store: Store, result: JobResult, owner: str, model_path: str | None) -> bool:

@@ -14,8 +14,9 @@ job's position in ``meta["jobs"]``. Values are kept exactly (float64); a NULL be
 columns of schema revision 0004 (``fake``, ``batch_id``, ``batch_size``, ``device``,
 ``source``, ``source_sha256``) travel too; an archive written before them reads as
 ``fake = false`` and NULLs. The tables of revisions 0005 and 0006 travel the same way:
-``diagnostics.<column>`` (``job``, ``update``, ``timestep``, the quantities; no update twice
-per job) and ``validation_episodes.<column>`` (no (training day, day) twice per job, training
+``diagnostics.<column>`` (``job``, ``update``, ``timestep``, the quantities, and a column per
+other name a plug-in recorded; one row per update, the long table pivoted, as before revision
+0007; no update twice per job) and ``validation_episodes.<column>`` (no (training day, day) twice per job, training
 days from 1, foods within a day); an archive written before them imports without those rows.
 
 An archive is a file from anywhere, so nothing in it is believed (:func:`read_archive`):
@@ -88,10 +89,10 @@ from nutribench.store.archive_meta import (
     FORMAT_VERSION,
     NAME_MAX,
     NAME_PATTERN,
-    _columns,
     _Invalid,
     valid_name,
 )
+from nutribench.store.archive_tables import archive_rows, database_rows
 from nutribench.store.engine import (
     REGISTRATION_LOCK,
     StoreError,
@@ -188,13 +189,8 @@ def export_results(
                     )
                 arrays: dict[str, np.ndarray] = {}
                 counts = {"jobs": len(jobs)}
-                for name, table in _TABLES.items():
-                    cols = _columns(table)
-                    rows = s.execute(
-                        select(table.__table__.c.job_id, *[table.__table__.c[c.name] for c in cols])
-                        .where(table.__table__.c.job_id.in_(list(index)))
-                        .order_by(*table.__table__.primary_key.columns)
-                    ).all()
+                for name in _TABLES:
+                    cols, rows = archive_rows(s, name, list(index))
                     counts[name] = len(rows)
                     arrays[f"{name}.job"] = np.array([index[r[0]] for r in rows], dtype=np.int32)
                     for i, col in enumerate(cols, start=1):
@@ -250,20 +246,6 @@ def _chunks(ids: list[int], n: int = 500) -> list[list[int]]:
 
 
 # --------------------------------------------------------------------------- importing
-def _decoded(table: type, name: str, arrays: dict[str, np.ndarray], rows: np.ndarray) -> list[dict[str, Any]]:
-    """Rows ``rows`` (positions) of table ``name`` as insert dicts (without job_id)."""
-    cols = {}
-    for col in _columns(table):
-        arr = arrays[f"{name}.{col.name}"][rows]
-        values = arr.tolist()
-        null = arrays.get(f"{name}.{col.name}.null")
-        if null is not None:
-            values = [None if n else v for v, n in zip(values, null[rows].tolist(), strict=True)]
-        cols[table.__mapper__.get_property_by_column(col).key] = values
-    keys = list(cols)
-    return [dict(zip(keys, vals, strict=True)) for vals in zip(*cols.values(), strict=True)]
-
-
 def _job_values(job: dict[str, Any]) -> dict[str, Any]:
     """The job row to write: every column, those an older archive lacks at their defaults, the
     stored model path dropped (an archive carries no model, and a path is never trusted)."""
@@ -346,7 +328,8 @@ def _write(
             name: np.searchsorted(arrays[f"{name}.job"][positions[name]], np.arange(len(meta["jobs"]) + 1))
             for name in _TABLES
         }
-        counts = {"imported": 0, "kept": 0, **{name: 0 for name in _TABLES}}
+        counts = {"imported": 0, "kept": 0, **{name: 0 for name in _TABLES}}  # the archive's rows
+        written = {name: 0 for name in _TABLES}  # the database's (diagnostics: a row per quantity)
         imported: list[int] = []
         for i, job in enumerate(meta["jobs"]):
             on_step("writing", i, len(meta["jobs"]))
@@ -381,10 +364,11 @@ def _write(
                 )
             for name, table in _TABLES.items():
                 rows = positions[name][bounds[name][i] : bounds[name][i + 1]]
-                decoded = _decoded(table, name, arrays, rows)
+                n, decoded = database_rows(name, arrays, rows, job_id)
+                counts[name] += n
                 for start in range(0, len(decoded), _BATCH):
-                    insert_rows(s, table, [{"job_id": job_id, **r} for r in decoded[start : start + _BATCH]])
-                counts[name] += len(decoded)
+                    insert_rows(s, table, decoded[start : start + _BATCH])
+                written[name] += len(decoded)
             counts["imported"] += 1
             imported.append(job_id)
         # compared before the commit: a mismatch rolls the whole import back
@@ -393,8 +377,8 @@ def _write(
                 s.execute(select(func.count()).select_from(table).where(table.job_id.in_(chunk))).scalar_one()
                 for chunk in _chunks(imported)
             )
-            if held != counts[name]:
+            if held != written[name]:
                 raise StoreError(
-                    f"db import: {counts[name]} {name} rows written but {held} found after: nothing imported"
+                    f"db import: {written[name]} {name} rows written but {held} found after: nothing imported"
                 )
     return counts

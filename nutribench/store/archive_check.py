@@ -35,6 +35,7 @@ from nutribench.store.archive_meta import (
     inner_nul,
 )
 from nutribench.store.archive_replay import replay_evaluations
+from nutribench.store.archive_tables import archive_table
 from nutribench.store.archive_zip import check_sizes
 from nutribench.store.engine import StoreError
 from nutribench.store.models import PHASES
@@ -116,7 +117,8 @@ def _check_arrays(arrays: dict[str, np.ndarray], n_jobs: int) -> dict[str, dict[
     allows NULL; no other array. The columns by table (``job`` included, masks applied as NaN)."""
     expected: set[str] = set()
     tables: dict[str, dict[str, np.ndarray]] = {}
-    for name, table in _TABLES.items():
+    for name in _TABLES:
+        table = archive_table(name, arrays)
         job = arrays.get(f"{name}.job")
         if not isinstance(job, np.ndarray) or job.ndim != 1 or job.dtype.kind != "i":
             raise _Invalid(f"column {name}.job is missing or not a column of integers")
@@ -191,7 +193,7 @@ def _fill_optional(arrays: dict[str, np.ndarray]) -> None:
         if any(k.startswith(f"{name}.") for k in arrays):
             continue
         arrays[f"{name}.job"] = np.zeros(0, dtype=np.int32)
-        for col in _columns(_TABLES[name]):
+        for col in _columns(archive_table(name, {})):
             kind = col.type.python_type
             arrays[f"{name}.{col.name}"] = np.zeros(0, dtype={float: np.float64, int: np.int32, str: "<U1"}[kind])
 

@@ -19,15 +19,12 @@ from typing import Any
 import numpy as np
 
 from nutribench.config.loading import content_sha256
+from nutribench.store.archive_tables import OPTIONAL_TABLES, TABLES, columns
 from nutribench.store.models import (
     JOB_STATUSES,
     AgentConfig,
-    Diagnostic,
-    Episode,
-    EvalStep,
     Job,
     RegimeConfig,
-    ValidationEpisode,
 )
 
 FORMAT = "nutribench-results"
@@ -35,15 +32,10 @@ FORMAT_VERSION = 1
 #: job columns an archive leaves out: ids (remapped on import) and the driver's bookkeeping
 _JOB_SKIP = ("id", "regime_id", "agent_config_id", "owner", "heartbeat_at", "worker_pid")
 _CONFIG_SKIP = ("id",)
-_TABLES = {
-    "episodes": Episode,
-    "eval_steps": EvalStep,
-    "diagnostics": Diagnostic,
-    "validation_episodes": ValidationEpisode,
-}
-#: tables an archive written before them lacks: read as empty (revision 0005: diagnostics;
-#: 0006: validation_episodes)
-_OPTIONAL_TABLES = ("diagnostics", "validation_episodes")
+# the tables an archive carries, and how (moved to archive_tables; these names kept for the other modules)
+_TABLES = TABLES
+_OPTIONAL_TABLES = OPTIONAL_TABLES
+_columns = columns
 
 #: The names of regimes and agent configs: what files, figures and tables are named after.
 NAME_PATTERN = re.compile(r"[a-z][a-z0-9_]*")
@@ -78,10 +70,6 @@ def valid_name(name: Any) -> bool:
 
 class _Invalid(Exception):
     """What is wrong with an archive (the message, without the archive's name)."""
-
-
-def _columns(table: type) -> list[Any]:
-    return [c for c in table.__table__.columns if c.name != "job_id"]
 
 
 def _short(value: Any, n: int = 60) -> str:

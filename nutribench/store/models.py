@@ -16,10 +16,11 @@
     Every step of every evaluation episode (food offered, action, absorbed C/F/P after the
     step, reward), for trajectory plots.
 ``diagnostics``
-    Training diagnostics, one row per update of a job (losses, KL, clip fraction, explained
-    variance, gradient norm, learning rate, epsilon, mean Q, return scale: the vocabulary of
-    :mod:`nutribench.diagnostics`, NULL where an algorithm has no such quantity); primary key
-    (job, update). Written in the same transaction that marks the job done.
+    Training diagnostics as a long table (revision 0007): one row per (job, update, name) with
+    its value (losses, KL, clip fraction, explained variance, gradient norm, learning rate,
+    epsilon, mean Q, return scale, the update's timestep: the vocabulary of
+    :mod:`nutribench.diagnostics`, or a plug-in's own name; none where an algorithm has no such
+    quantity). Written in the same transaction that marks the job done.
 ``validation_episodes``
     Evaluation during training (revision 0006): one row per validation day of each greedy
     evaluation a job made every ``--eval-every`` training days, keyed by (job, train_day,
@@ -52,6 +53,8 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 from sqlalchemy.types import TypeDecorator
+
+from nutribench.diagnostics import TIMESTEP, UPDATE, valid_name
 
 #: Job states. ``interrupted`` jobs (Ctrl-C) and ``failed`` ones (below the retry limit)
 #: are picked up again by the next ``run``; stale ``running`` ones too.
@@ -219,27 +222,20 @@ class EvalStep(Base):
 
 
 class Diagnostic(Base):
-    """One training update of a job (on-policy: a rollout's update; off-policy: a training
-    day, means over its gradient steps): the quantities of :mod:`nutribench.diagnostics`."""
+    """One quantity of one training update of a job (on-policy: a rollout's update; off-policy:
+    a training day, means over its gradient steps): a long table, one row per (job, update,
+    name), so that a quantity of a new algorithm needs no migration. The names are those of
+    :mod:`nutribench.diagnostics` (``timestep`` one of them) or a plug-in's own
+    (:func:`nutribench.diagnostics.valid_name`); a quantity an update lacks has no row. The
+    ``training_diagnostics`` view and :func:`~nutribench.store.queries.read_training_diagnostics`
+    read it as one row per update."""
 
     __tablename__ = "diagnostics"
 
     job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
     update: Mapped[int] = mapped_column(Integer, primary_key=True, doc="0-based, per job")
-    timestep: Mapped[int] = mapped_column(Integer, doc="env steps of the job up to the end of this update")
-    policy_loss: Mapped[float | None] = mapped_column(Float)
-    value_loss: Mapped[float | None] = mapped_column(Float, doc="critic loss (SAC), TD loss (DDQN)")
-    entropy_loss: Mapped[float | None] = mapped_column(Float)
-    approx_kl: Mapped[float | None] = mapped_column(Float)
-    clip_fraction: Mapped[float | None] = mapped_column(Float)
-    explained_variance: Mapped[float | None] = mapped_column(Float)
-    grad_norm: Mapped[float | None] = mapped_column(Float, doc="before clipping")
-    learning_rate: Mapped[float | None] = mapped_column(Float)
-    epsilon: Mapped[float | None] = mapped_column(Float, doc="DDQN")
-    q_mean: Mapped[float | None] = mapped_column(Float, doc="DDQN, SAC")
-    actor_loss: Mapped[float | None] = mapped_column(Float, doc="SAC")
-    ent_coef: Mapped[float | None] = mapped_column(Float, doc="SAC")
-    return_scale: Mapped[float | None] = mapped_column(Float, doc="VecNormalize's reward scale")
+    name: Mapped[str] = mapped_column(String(64), primary_key=True, doc="the quantity: timestep, value_loss, ...")
+    value: Mapped[float] = mapped_column(Float, doc="finite (timestep: env steps up to the end of this update)")
 
 
 class ValidationEpisode(Base):
@@ -273,10 +269,6 @@ EPISODE_METRICS: tuple[str, ...] = tuple(
 #: Columns of ``eval_steps`` a job result fills (all but ``job_id``).
 EVAL_STEP_COLUMNS: tuple[str, ...] = tuple(c.name for c in EvalStep.__table__.columns if c.name != "job_id")
 
-#: Columns of ``diagnostics`` a job result fills (all but ``job_id``): those of
-#: :data:`nutribench.diagnostics.COLUMNS`, tested equal.
-DIAGNOSTIC_COLUMNS: tuple[str, ...] = tuple(c.name for c in Diagnostic.__table__.columns if c.name != "job_id")
-
 #: Columns of ``validation_episodes`` a job result fills (all but ``job_id``).
 VALIDATION_COLUMNS: tuple[str, ...] = tuple(c.name for c in ValidationEpisode.__table__.columns if c.name != "job_id")
 
@@ -302,6 +294,30 @@ METADATA_COLUMNS = (
     "source",
     "source_sha256",
 )
+
+
+def diagnostic_rows(job_id: int, diagnostics: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """A job's training diagnostics (one dict per update) as rows of the long ``diagnostics``
+    table: one per (update, name) with a finite value (``timestep``, which every update has,
+    included); a quantity that is absent, None or not finite has none. Any name
+    :func:`nutribench.diagnostics.valid_name` allows is stored (a plug-in's own quantity);
+    ValueError for another."""
+    rows = []
+    for diag in diagnostics:
+        index = int(diag[UPDATE])
+        rows.append({"job_id": job_id, "update": index, "name": TIMESTEP, "value": float(int(diag[TIMESTEP]))})
+        for name, value in diag.items():
+            if name in (UPDATE, TIMESTEP):
+                continue
+            if not valid_name(name):
+                raise ValueError(
+                    f"training diagnostics of job {job_id}: {name!r} is not a quantity's name ([a-z][a-z0-9_]*, "
+                    "at most 64 characters)"
+                )
+            if value is None or not math.isfinite(float(value)):
+                continue
+            rows.append({"job_id": job_id, "update": index, "name": name, "value": float(value)})
+    return rows
 
 
 def insert_rows(session: Any, model: type[Base], rows: list[dict[str, Any]]) -> None:

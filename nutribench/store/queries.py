@@ -102,9 +102,32 @@ def read_training_diagnostics(
     latest_only: bool = False,
 ) -> pd.DataFrame:
     """Rows of ``training_diagnostics``: one per training update of each job (columns in
-    :mod:`nutribench.store.views`, quantities in :mod:`nutribench.diagnostics`)."""
+    :mod:`nutribench.store.views`, quantities in :mod:`nutribench.diagnostics`), and before
+    ``job_id`` a column per other quantity a plug-in's algorithm recorded (from
+    ``diagnostic_values``; NaN for an update without it)."""
+    import pandas as pd
+
+    from nutribench.diagnostics import COLUMNS
+
     filters = {"regime": regimes, "algo": algos, "seed": seeds}
-    return _read(db, "training_diagnostics", filters, '"job_id", "update"', latest_only)
+    df = _read(db, "training_diagnostics", filters, '"job_id", "update"', latest_only)
+    where, params = _where(filters)
+    known = ", ".join(f"'{n}'" for n in COLUMNS)  # the vocabulary's names: constants, not input
+    where = f"{where} AND" if where else " WHERE"
+    sql = f'SELECT "job_id", "update", "name", "value" FROM diagnostic_values{where} "name" NOT IN ({known})'
+    engine, owned = _engine(db)
+    try:
+        with engine.connect() as conn:
+            other = pd.read_sql(text(sql), conn, params=params)
+    finally:
+        if owned:
+            engine.dispose()
+    if other.empty or df.empty:
+        return df
+    wide = other.pivot(index=["job_id", "update"], columns="name", values="value")
+    extra = sorted(wide.columns)
+    out = df.merge(wide[extra].astype("float64").reset_index(), on=["job_id", "update"], how="left")
+    return out[[*(c for c in df.columns if c != "job_id"), *extra, "job_id"]]
 
 
 def read_learning_curve(

@@ -13,7 +13,12 @@ each revision keeps a frozen copy of its view text). Columns:
     (index offered), action (0/1), C, F, P (absorbed after the step), reward, job_id.
 ``training_diagnostics``
     regime, regime_version, algo, algo_version, seed, budget, engine (sb3 | batched), update
-    (0-based), timestep, the quantities of :data:`nutribench.diagnostics.QUANTITIES`, job_id.
+    (0-based), timestep, the quantities of :data:`nutribench.diagnostics.QUANTITIES`, job_id:
+    one row per update, the long ``diagnostics`` table pivoted (a plug-in's own names are in
+    ``diagnostic_values`` and in :func:`~nutribench.store.queries.read_training_diagnostics`).
+``diagnostic_values``
+    regime, regime_version, algo, algo_version, seed, budget, engine, update, name, value,
+    job_id: the ``diagnostics`` table with the names joined in, every quantity's name.
 ``learning_curve``
     regime, regime_version, algo, algo_version, seed, budget, engine, train_day (training days
     before the evaluation), episode (the validation day, 0-based), the metrics of
@@ -23,12 +28,14 @@ each revision keeps a frozen copy of its view text). Columns:
 
 from __future__ import annotations
 
-from nutribench.store.models import DIAGNOSTIC_COLUMNS, EPISODE_METRICS, EVAL_STEP_COLUMNS, VALIDATION_COLUMNS
+from nutribench.diagnostics import COLUMNS as DIAGNOSTIC_COLUMNS
+from nutribench.store.models import EPISODE_METRICS, EVAL_STEP_COLUMNS, VALIDATION_COLUMNS
 
-VIEWS = ("episode_metrics", "eval_trajectories", "training_diagnostics", "learning_curve")
+VIEWS = ("episode_metrics", "eval_trajectories", "training_diagnostics", "diagnostic_values", "learning_curve")
 
 _JOB_COLUMNS = ("regime", "regime_version", "algo", "algo_version", "seed", "budget")
 EPISODE_METRICS_COLUMNS = (*_JOB_COLUMNS, "phase", "episode", *EPISODE_METRICS, "job_id")
 EVAL_TRAJECTORY_COLUMNS = (*_JOB_COLUMNS, *EVAL_STEP_COLUMNS, "job_id")
 TRAINING_DIAGNOSTICS_COLUMNS = (*_JOB_COLUMNS, "engine", *DIAGNOSTIC_COLUMNS, "job_id")
+DIAGNOSTIC_VALUES_COLUMNS = (*_JOB_COLUMNS, "engine", "update", "name", "value", "job_id")
 LEARNING_CURVE_COLUMNS = (*_JOB_COLUMNS, "engine", *VALIDATION_COLUMNS, "gap_closed", "job_id")
