@@ -61,6 +61,7 @@ from nutribench.report.table_plan import (
     resolve_table,
     stored_or_none,
     table_plan,
+    unheld_tables,
 )
 from nutribench.report.tables import TableResult, config_table_numbers, table_regimes, table_results, table_training
 
@@ -110,6 +111,14 @@ def _eval_figure(
     ablation = dict(ablation or {})
     algos = [*pair, *ablation] if number == 4 else None
     ev = data.eval if algos is None else data.eval[data.eval["algo"].isin(algos)]
+    # Figure 4 compares its pair: with one of them missing there is no comparison to draw
+    missing = [a for a in pair if a not in set(ev["algo"])] if number == 4 else []
+    if missing and not ev.empty:
+        raise ReportError(
+            f"figure {number}: no evaluation episodes for {', '.join(algo_label(a) for a in missing)} in the "
+            f"database (the figure compares {algo_label(pair[0])} against {algo_label(pair[1])}; "
+            "--pair A,B compares two it holds)"
+        )
     if ev.empty:
         what = f" for {', '.join(algo_label(a) for a in algos)}" if algos else data.what()
         raise ReportError(f"figure {number}: no evaluation episodes{what} in the database")
@@ -281,10 +290,12 @@ def build_report(
 ) -> list[Path]:
     """Write the requested figures and tables under ``out`` and return the paths written.
 
-    ``all=True`` builds Figures 1-5, Table 1, the config tables, the results, the training and
-    the aggregate tables, and ``index.html``: those figures and tables on one static page
-    (:mod:`nutribench.report.html`); what the database cannot support (e.g. Figure 4 without PPO or GRU-PPO results) is
-    skipped and reported through ``log``. An item asked for by number that cannot be built
+    ``all=True`` builds Figures 1-6, Table 1, the config tables of the agents the database
+    holds results of, the results, the training and the aggregate tables, and ``index.html``:
+    those figures and tables on one static page (:mod:`nutribench.report.html`); what the
+    database cannot support (Figure 4 without results of both PPO and GRU-PPO, Figure 6
+    without evaluations during training, the table of a config without results) is skipped,
+    each with one line through ``log``: ``skipped: <item>: <why>``. An item asked for by number that cannot be built
     raises :class:`ReportError`. ``algos``: the agent configs drawn (default: every config in
     the database); ``pair``: Figure 4's two configs (default PPO and GRU-PPO; not limited by
     ``algos``; beside them the database's copies of them without memory); a name the database
@@ -311,6 +322,11 @@ def build_report(
     # cannot be read (missing, empty, outdated) fails the whole command, even with ``all``
     raw = read_metrics(db) if figs or {"results", "training", "aggregate"} & set(plan) else None
     data = prepare(raw, algos) if raw is not None else None
+    if all and raw is not None:
+        for key, why in unheld_tables(plan, stored, raw, tables).items():
+            del plan[key]
+            if log:
+                log(f"skipped: {why}")
     ablation = figure4.without_memory(pair, stored, raw) if 4 in figs else {}
     pair_data = prepare(raw, [*pair, *ablation]) if raw is not None and 4 in figs else None
     if log:

@@ -88,6 +88,23 @@ def table_plan(
     return plan
 
 
+def unheld_tables(
+    plan: dict[str, str], stored: dict[str, Any] | None, metrics: Any, asked: Sequence[str] = ()
+) -> dict[str, str]:
+    """Key -> why, for the config tables of ``plan`` whose agent config has no episodes in
+    ``metrics`` (rows of ``episode_metrics``): ``--all`` leaves them out (a report draws what
+    the database holds); a table asked for by its key or name (``asked``) is kept."""
+    numbers = config_table_numbers(stored or ())
+    held = set(metrics["algo"]) if len(metrics) else set()
+    out = {}
+    for key in plan:
+        name = numbers.get(int(key)) if key.isdigit() and key != "1" else None
+        if name is None or name in held or key in asked or name in asked:
+            continue
+        out[key] = f"table {key} ({name}): no results of {name} in the database (--table {key} builds it all the same)"
+    return out
+
+
 def needs_stored_configs(figs: list[int], tables: list[str], all: bool, algos: Sequence[str] | None) -> bool:  # noqa: A002
     """Whether the database's agent configs must be read: to check ``algos`` or the pair, to
     find Figure 4's configs without memory (:mod:`nutribench.report.figure4`), or to find the
