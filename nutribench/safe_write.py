@@ -57,15 +57,18 @@ def _stat(path: Path) -> os.stat_result | None:
         return None
 
 
-def check_regular_file(path: Path | str, what: str = "", error: type[UserError] = WriteError) -> None:
+def check_regular_file(
+    path: Path | str,
+    what: str = "",
+    error: type[UserError] = WriteError,
+    hint: str = "give the path of a regular file or of a new one",
+) -> None:
     """Refuse ``path`` if it exists and is not a regular file (after symbolic links): a device
-    node, a FIFO, a socket or a folder is never replaced, truncated or read as a file."""
+    node, a FIFO, a socket or a folder is never replaced, truncated or read as a file. The line
+    ends with ``hint`` (what to do)."""
     found = _stat(Path(path))
     if found is not None and not stat.S_ISREG(found.st_mode):
-        raise error(
-            f"{_label(Path(path), what)}: is {_kind(found.st_mode)}, not a regular file: "
-            "give the path of a regular file or of a new one"
-        )
+        raise error(f"{_label(Path(path), what)}: is {_kind(found.st_mode)}, not a regular file: {hint}")
 
 
 def check_folder_target(

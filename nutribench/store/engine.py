@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 import re
 import sqlite3
+import stat
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -145,6 +146,7 @@ def _check_sqlite_file(path: Path, *, create: bool) -> None:
     if path.is_dir():
         raise StoreError(f"{path} is a directory, not a database file: give a file path to --db")
     check_regular_file(path, "--db", StoreError)  # a device node or a FIFO: never opened as a database
+    check_side_files(path)
     if path.exists():
         if path.stat().st_size > 0:
             try:
@@ -164,6 +166,42 @@ def _check_sqlite_file(path: Path, *, create: bool) -> None:
         raise StoreError(f"cannot create {path}: folder {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise StoreError(f"cannot create {path}: folder {parent} is not writable")
+
+
+#: the files SQLite keeps beside a database ``DB``: its rollback journal (looked at on every open,
+#: for a hot journal to roll back), its write-ahead log and the log's shared-memory index (both
+#: removed when the last connection closes)
+SIDE_FILES = ("-journal", "-wal", "-shm")
+
+
+def side_files(path: Path) -> list[Path]:
+    """The paths of SQLite's own files beside the database file ``path`` (:data:`SIDE_FILES`),
+    beside the file a symbolic link points to, where SQLite keeps them."""
+    real = Path(os.path.realpath(path))
+    return [real.with_name(real.name + suffix) for suffix in SIDE_FILES]
+
+
+def check_side_files(path: Path) -> None:
+    """Refuse the database ``path`` when one of SQLite's own files beside it (:func:`side_files`)
+    is there and is not a regular file: SQLite would block reading a FIFO, and delete a device
+    node, a FIFO or a socket when it closes. A symbolic link there is refused too, wherever it
+    points: SQLite opens its WAL and shared-memory files without following links (and fails,
+    "unable to open database file"), and would write a rollback journal through one and then
+    delete the link. (The database file itself is the user's to name: a link to it is followed.)
+    Nothing is opened, changed or removed."""
+    hint = "SQLite would block on it or delete it; move it away, or give another --db"
+    for side in side_files(path):
+        what = f"--db {path}: SQLite's own file"
+        try:
+            link = stat.S_ISLNK(os.lstat(side).st_mode)
+        except (FileNotFoundError, NotADirectoryError):
+            continue
+        if link:
+            raise StoreError(
+                f"{what} {side}: is a symbolic link (to {os.readlink(side)}), which SQLite does not follow "
+                f"for its own files: move it away, or give another --db"
+            )
+        check_regular_file(side, what, StoreError, hint)
 
 
 def _switch_to_wal(cursor: sqlite3.Cursor, timeout_s: float) -> None:
