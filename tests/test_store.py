@@ -185,3 +185,67 @@ def test_a_writer_opening_a_new_database_waits_for_a_lock_held_elsewhere(tmp_pat
     with store.engine.connect() as conn:
         assert conn.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
     store.dispose()
+
+
+#: issue 74: every command that opens the database, on one whose version table holds two rows
+TWO_HEADS_COMMANDS = [
+    ["status"],
+    ["run", "--regimes", "run0", "--algos", "mc", "--seeds", "0", "--days", "1"],
+    ["run", "--upgrade-only"],
+    ["report", "--table", "results", "--out", "rep"],
+    ["tune", "--study", "s", "--space", "ppo", "--trials", "1"],
+    ["tune", "status", "--study", "s"],
+    ["tune", "best", "--study", "s"],
+    ["db", "import", "real.npz"],
+    ["db", "export", "out.npz"],
+    ["leaderboard", "--reps", "100"],
+]
+
+
+@pytest.fixture(scope="module")
+def two_heads(tmp_path_factory) -> Path:
+    """A recorded database and its archive; a second row, a revision from nowhere, in the version table."""
+    from tests.recorded import recorded_archive
+
+    folder = tmp_path_factory.mktemp("two-heads")
+    db, _ = recorded_archive(folder)
+    e = create_engine(f"sqlite:///{db}")
+    with e.begin() as conn:
+        conn.execute(text(f"INSERT INTO {VERSION_TABLE} VALUES ('zzzz9999future')"))
+    e.dispose()
+    return folder
+
+
+@pytest.mark.parametrize("args", TWO_HEADS_COMMANDS, ids=[" ".join(a[:2]) for a in TWO_HEADS_COMMANDS])
+def test_two_rows_in_the_version_table_are_one_line(two_heads: Path, args, monkeypatch) -> None:
+    """Two revisions in ``nutribench_alembic_version``: one line naming the table and what to do (it
+    was alembic's 84-line "more than one head present" traceback), nothing written."""
+    from tests.conftest import one_error_line
+
+    monkeypatch.chdir(two_heads)
+    monkeypatch.setenv("NUTRIBENCH_JOB", "fake")
+    monkeypatch.setenv("NUTRIBENCH_DB", "real.db")
+    line = one_error_line(CliRunner().invoke(app, args))
+    assert f"version table {VERSION_TABLE} holds 2 revisions (0006, zzzz9999future)" in line, line
+    assert "delete the rows that are not the database's schema revision" in line, line
+    e = create_engine(f"sqlite:///{two_heads / 'real.db'}")
+    with e.connect() as conn:
+        assert conn.execute(text(f"SELECT count(*) FROM {VERSION_TABLE}")).scalar() == 2
+        assert conn.execute(text("SELECT count(*) FROM jobs")).scalar() == 2
+    e.dispose()
+    assert not (two_heads / "out.npz").exists() and not (two_heads / "rep").exists()
+
+
+def test_two_of_nutribenchs_revisions_in_the_old_version_table_are_one_line(tmp_path: Path) -> None:
+    """A database from before the move (its revision in ``alembic_version``) holding two of
+    nutribench's revisions there: refused the same way, naming that table."""
+    db = tmp_path / "legacy.db"
+    make_0001(db)
+    e = create_engine(f"sqlite:///{db}")
+    with e.begin() as conn:
+        conn.execute(text(f"ALTER TABLE {VERSION_TABLE} RENAME TO alembic_version"))
+        conn.execute(text("INSERT INTO alembic_version VALUES ('0002')"))
+    e.dispose()
+    for writer in (False, True):
+        with pytest.raises(StoreError, match=r"version table alembic_version holds 2 revisions \(0001, 0002\)"):
+            open_store(db, writer=writer)

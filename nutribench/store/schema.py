@@ -153,39 +153,44 @@ def _alembic_chain() -> list[str]:
     return [s.revision for s in reversed(list(script.walk_revisions()))]
 
 
-def _stored_revision(conn: Connection, table: str) -> str | None:
-    """The one revision in alembic version table ``table`` (None: no table, or no row)."""
+def _stored_revision(conn: Connection, table: str, display: str) -> str | None:
+    """The one revision in alembic version table ``table`` (None: no table, or no row); more than
+    one is refused in one line naming the database (``display``) and the table."""
     if not inspect(conn).has_table(table):
         return None
     rows = [r[0] for r in conn.execute(text(f"SELECT version_num FROM {table}"))]
     if len(rows) > 1:
         raise StoreError(
-            f"the schema version table {table} holds {len(rows)} revisions ({', '.join(rows)}): expected one"
+            f"{display}: its schema version table {table} holds {len(rows)} revisions ({', '.join(sorted(rows))}) "
+            "where nutribench keeps exactly one: delete the rows that are not the database's schema revision "
+            f"(this nutribench's newest is {head_revision()}), or use a copy of the database from before they "
+            "were added"
         )
     return rows[0] if rows else None
 
 
-def current_revision(conn: Connection) -> str | None:
+def current_revision(conn: Connection, display: str = "the database") -> str | None:
     """nutribench's schema revision of the database on ``conn`` (None: none yet); a database
     from before :data:`VERSION_TABLE` is read from alembic's default table when that holds one
-    of nutribench's revisions (not Optuna's)."""
-    rev = _stored_revision(conn, VERSION_TABLE)
+    of nutribench's revisions (not Optuna's). A version table holding more than one revision is
+    refused in one line (``display``: the database as the line names it)."""
+    rev = _stored_revision(conn, VERSION_TABLE, display)
     if rev is None:
-        rev = _legacy_revision(conn)
+        rev = _legacy_revision(conn, display)
     return rev
 
 
-def _legacy_revision(conn: Connection) -> str | None:
+def _legacy_revision(conn: Connection, display: str = "the database") -> str | None:
     """nutribench's revision in ``alembic_version`` (a database from before the move), else None."""
-    rev = _stored_revision(conn, LEGACY_VERSION_TABLE)
+    rev = _stored_revision(conn, LEGACY_VERSION_TABLE, display)
     return rev if rev in revision_chain() else None
 
 
-def adopt_legacy_version(conn: Connection) -> None:
+def adopt_legacy_version(conn: Connection, display: str = "the database") -> None:
     """Move nutribench's revision from ``alembic_version`` to :data:`VERSION_TABLE` (inside the
     caller's transaction), dropping ``alembic_version`` if nothing else is left in it, so that
     Optuna's storage can keep its own revision there. Nothing to do on a moved or new database."""
-    rev = _legacy_revision(conn)
+    rev = _legacy_revision(conn, display)
     if rev is None or inspect(conn).has_table(VERSION_TABLE):
         return
     from alembic.runtime.migration import MigrationContext
@@ -249,7 +254,7 @@ def _upgrade_cmd(url: URL) -> str:
 
 def _classify(conn: Connection, display: str) -> str | None:
     """The schema revision, None for an empty database; refuse foreign databases."""
-    rev = current_revision(conn)
+    rev = current_revision(conn, display)
     if rev is None:
         tables = set(inspect(conn).get_table_names()) - OPTUNA_TABLES
         if tables:
@@ -290,7 +295,7 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
         if writer:
             with engine.begin() as conn:  # BEGIN IMMEDIATE on SQLite: one upgrader at a time
                 hold_write_lock(conn, MIGRATION_LOCK)
-                adopt_legacy_version(conn)
+                adopt_legacy_version(conn, display)
                 rev = _classify(conn, display)
                 if rev != head:
                     if not upgrade:
