@@ -38,6 +38,7 @@ def _board_data():
             "git_dirty": False,
         }
     )
+    df["algo_version"] = 1
     return df[df.phase == "eval"], _day_refs(df, never=-150.0, planner=-50.0), jobs
 
 

@@ -13,8 +13,14 @@ from nutribench.cli.common import UserError, console, user_errors
 
 @user_errors
 def compare_cmd(
-    a: Annotated[str, typer.Argument(help="agent config A (a name in the database, e.g. gru_ppo)")],
-    b: Annotated[str, typer.Argument(help="agent config B, compared with A")],
+    a: Annotated[
+        str,
+        typer.Argument(
+            help="agent A: a config name in the database (gru_ppo: its largest budget, then newest version), "
+            "or one entry of it, NAME@vVERSION, NAME@DAYS or NAME@vVERSION@DAYS (ppo@v1, ppo@v2@150)"
+        ),
+    ],
+    b: Annotated[str, typer.Argument(help="agent B, compared with A (the same forms)")],
     regimes: Annotated[
         Optional[str],
         typer.Option("--regimes", help="regimes, comma list (default: every regime both were evaluated on)"),

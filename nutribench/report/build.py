@@ -255,10 +255,13 @@ def build_table(
 
 
 def _leaderboard(data: ReportData, db: Db, log: Log | None) -> TableResult:
-    """The leaderboard section of index.html (:mod:`nutribench.report.leaderboard`)."""
-    from nutribench.report.leaderboard import leaderboard_of
+    """The leaderboard section of index.html (:mod:`nutribench.report.leaderboard`): every
+    entry (name, version, budget) of the configs the report draws, as ``nutribench
+    leaderboard`` ranks them, none hidden by another (the figures' choice of the newest
+    version and largest budget is not the leaderboard's)."""
+    from nutribench.report.leaderboard import leaderboard_from_db
 
-    return leaderboard_of(data.eval, _day_references(data, log), db, data.notes)
+    return leaderboard_from_db(db, log=log, algos=data.selected)
 
 
 def _page_subtitle(db: Db, data: ReportData | None) -> str:

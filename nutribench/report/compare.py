@@ -16,13 +16,15 @@ regimes (``all`` compared regimes; the ``delayed`` ones, run1-run6, when run0 is
 * how many seeds and days were paired.
 
 DataFrame in, :class:`Comparison` out (:func:`compare_agents`; :func:`paired_days` is the
-pairing alone); :func:`load_comparison` reads a results database the way ``nutribench
-report`` does (newest config versions, largest budget, newest job per seed). Errors a user
-can fix raise :class:`CompareError` (one line).
+pairing alone); :func:`load_comparison` reads a results database, each side one entry (an
+agent config's name, version and training budget, as the leaderboard's rows: ``ppo@v1@5000``;
+by default the largest budget, then the newest version, and a note lists the others). Errors
+a user can fix raise :class:`CompareError` (one line).
 """
 
 from __future__ import annotations
 
+import re
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -300,25 +302,109 @@ def read_eval_metrics(db) -> pd.DataFrame:
     return ev
 
 
-def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, reps: int = DEFAULT_REPS) -> Comparison:
-    """:func:`compare_agents` on the results database ``db``, its rows chosen as the report
-    chooses them (:func:`nutribench.report.build.prepare`: newest config versions, largest
-    budget, newest job per seed; what that leaves out becomes a note). Agent configs without
-    evaluation days raise :class:`CompareError` naming those the database has."""
-    from nutribench.report.build import prepare
+@dataclass(frozen=True)
+class EntrySpec:
+    """An agent as ``compare`` is given it: ``NAME``, ``NAME@vVERSION``, ``NAME@DAYS`` or
+    ``NAME@vVERSION@DAYS`` (``ppo``, ``ppo@v1``, ``ppo@5000``, ``ppo@v2@150``); what is left
+    out is chosen by default (:func:`choose_entry`)."""
 
-    if a == b:
+    name: str
+    version: int | None = None
+    budget: int | None = None
+
+    @classmethod
+    def parse(cls, text: str) -> EntrySpec:
+        """The spec ``text`` names; :class:`CompareError` in one line for one it does not."""
+        name, *parts = text.strip().split("@")
+        version = budget = None
+        for part in parts:
+            m = re.fullmatch(r"v(\d+)|(\d+)d?", part.strip())
+            if not name or not m or (m.group(1) and version is not None) or (m.group(2) and budget is not None):
+                raise CompareError(
+                    f"{text!r}: give an agent as NAME, NAME@vVERSION, NAME@DAYS or NAME@vVERSION@DAYS "
+                    "(e.g. ppo, ppo@v1, ppo@5000, ppo@v2@150)"
+                )
+            if m.group(1):
+                version = int(m.group(1))
+            else:
+                budget = int(m.group(2))
+        return cls(name.strip(), version, budget)
+
+    def __str__(self) -> str:
+        return "@".join(
+            [
+                self.name,
+                *([f"v{self.version}"] if self.version is not None else []),
+                *([str(self.budget)] if self.budget is not None else []),
+            ]
+        )
+
+
+def choose_entry(ev: pd.DataFrame, spec: EntrySpec) -> tuple[tuple[str, int, int], str | None]:
+    """The entry (name, version, budget) of the evaluation rows ``ev`` that ``spec`` names, and
+    a note when ``spec`` left a choice: by default the largest training budget, then the newest
+    version of it (the published grid's 5000 days before a short run of one's own), the other
+    entries listed with the spec that picks each. :class:`CompareError` naming what exists when
+    none matches."""
+    from nutribench.report.data import entries, entry_label
+
+    held = entries(ev[ev["algo"] == spec.name])
+    match = [
+        e for e in held if spec.version in (None, e[1]) and spec.budget in (None, e[2])
+    ]  # entries() lists the largest budget, then the newest version, first
+    listed = "; ".join(f"{entry_label(e)} ({_spec_of(e)})" for e in held)
+    if not match:
+        raise CompareError(f"{spec}: no such entry in the database; {spec.name} has {listed}")
+    chosen = match[0]
+    note = None
+    if len(held) > 1:
+        how = "as asked" if len(match) == 1 else "by default the largest budget, then the newest version"
+        others = "; ".join(f"{entry_label(e)} ({_spec_of(e)})" for e in held if e != chosen)
+        note = f"{spec.name}: compared {entry_label(chosen)} ({how}); also in the database: {others}"
+    return chosen, note
+
+
+def _spec_of(entry: tuple[str, int, int]) -> str:
+    return f"{entry[0]}@v{entry[1]}@{entry[2]}"
+
+
+def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, reps: int = DEFAULT_REPS) -> Comparison:
+    """:func:`compare_agents` on the results database ``db``. ``a`` and ``b`` are agents as
+    :class:`EntrySpec` reads them (``ppo``, ``ppo@v1``, ``ppo@5000``, ``ppo@v2@150``); each is
+    one entry (name, version, training budget: :func:`choose_entry`), never a blend of
+    several, and a note says which was compared and what else the database holds; per
+    (regime, seed) its newest job (:func:`nutribench.report.data.prepare_entries`). Agent
+    configs without evaluation days raise :class:`CompareError` naming those the database has."""
+    from nutribench.report.data import ENTRY, prepare_entries
+
+    spec_a, spec_b = EntrySpec.parse(a), EntrySpec.parse(b)
+    if spec_a == spec_b:
         raise CompareError(f"compare {a} {b}: give two different agent configs")
     ev = read_eval_metrics(db)
     held = sort_algos(ev["algo"])
-    unknown = [n for n in (a, b) if n not in held]
+    unknown = [s.name for s in (spec_a, spec_b) if s.name not in held]
     if unknown:
         raise CompareError(
             f"{', '.join(unknown)}: no evaluation days in the database, which has them for {', '.join(held)}"
         )
-    data = prepare(ev, [a, b])
-    res = compare_agents(data.eval, a, b, regimes, reps)
-    res.notes = [*data.notes, *res.notes]
+    data = prepare_entries(ev, [spec_a.name, spec_b.name])
+    picked, notes = [], list(data.notes)
+    for spec in (spec_a, spec_b):
+        entry, note = choose_entry(data.eval, spec)
+        picked.append(entry)
+        if note and note not in notes:
+            notes.append(note)
+    if picked[0] == picked[1]:
+        raise CompareError(f"compare {a} {b}: both name {_spec_of(picked[0])}; give two different entries")
+    names = [spec_a.name, spec_b.name]
+    if names[0] == names[1]:  # two entries of one config: each is named by its spec
+        names = [_spec_of(e) for e in picked]
+    parts = []
+    for entry, name in zip(picked, names):
+        rows = data.eval[(data.eval[list(ENTRY)] == pd.Series(entry, index=list(ENTRY))).all(axis=1)]
+        parts.append(rows.assign(algo=name))
+    res = compare_agents(pd.concat(parts, ignore_index=True), names[0], names[1], regimes, reps)
+    res.notes = [*notes, *res.notes]
     return res
 
 
@@ -327,6 +413,8 @@ __all__ = [
     "CompareError",
     "Comparison",
     "compare_agents",
+    "EntrySpec",
+    "choose_entry",
     "load_comparison",
     "paired_days",
     "read_eval_metrics",

@@ -3,7 +3,10 @@
 of ``episode_metrics``), :func:`prepare` (the rows of the configs asked for; per regime and
 algorithm the newest config versions, per (regime, algorithm, seed) the job with the largest
 training budget, the newest such job if several; a palette over every config of the
-database) and :func:`load_report_data` (both), :func:`stored_agent_configs` (the newest body
+database) and :func:`load_report_data` (both); :func:`prepare_entries` (the rows the
+leaderboard and ``compare`` draw: every entry, an agent config's name, version and training
+budget, kept apart, none hidden by another; per entry and (regime, seed) the newest job),
+:func:`stored_agent_configs` (the newest body
 of each agent config recorded), and the checks of names read from a database or given on the
 command line (:func:`check_names`, :func:`check_known`), which raise :class:`ReportError`, the
 one-line error of every report problem a user can fix. :mod:`nutribench.report.build`
@@ -139,6 +142,62 @@ def prepare(df: pd.DataFrame, algos: Sequence[str] | None = None, latest_only: b
         df, notes = _keep_latest_versions(df)
     df, budget_notes = _keep_largest_budget(df)
     return ReportData(df.reset_index(drop=True), notes + budget_notes, selected, colors)
+
+
+#: What one entry of the leaderboard and of ``compare`` is: an agent config's name, its
+#: version and the training budget of its jobs (days). Entries are never merged: the paper
+#: archives' ``ppo`` v1 at 5000 days and a user's ``ppo`` v2 at 150 days are two entries.
+ENTRY: tuple[str, ...] = ("algo", "algo_version", "budget")
+
+
+def _keep_latest_regime_versions(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
+    """Per regime the newest regime version present (an older version is another task, its
+    days not scored on today's yardsticks); note what was dropped."""
+    newest = df.groupby("regime")["regime_version"].transform("max")
+    old = df[df["regime_version"] < newest]
+    notes = []
+    if len(old):
+        dropped = sorted(
+            {f"{n} v{v}" for n, v in old[["regime", "regime_version"]].drop_duplicates().itertuples(index=False)}
+        )
+        notes.append(f"older regime versions left out: {', '.join(dropped)}")
+    return df[df["regime_version"] == newest], notes
+
+
+def prepare_entries(df: pd.DataFrame, algos: Sequence[str] | None = None) -> ReportData:
+    """The rows of ``df`` (``episode_metrics``) the leaderboard and ``compare`` draw: those of
+    ``algos`` (default every config), every :data:`ENTRY` (name, version, budget) kept, none
+    hidden by another (unlike :func:`prepare`, which keeps each config's newest version and
+    largest budget); per regime the newest regime version; per entry and (regime, seed) the
+    newest job. The notes say what was left out."""
+    colors = palette(df["algo"].unique())
+    selected = tuple(sort_algos(algos)) if algos is not None else None
+    if selected is not None:
+        df = df[df["algo"].isin(selected)]
+    if df.empty:
+        return ReportData(df.reset_index(drop=True), [], selected, colors)
+    df, notes = _keep_latest_regime_versions(df)
+    key = [*ENTRY, "regime", "seed"]
+    newest_job = df.groupby(key)["job_id"].transform("max")
+    if (df["job_id"] != newest_job).any():
+        notes.append(
+            "several jobs for one entry (agent, version, budget) on one regime and seed: the newest of each shown"
+        )
+    return ReportData(df[df["job_id"] == newest_job].reset_index(drop=True), notes, selected, colors)
+
+
+def entries(df: pd.DataFrame) -> list[tuple[str, int, int]]:
+    """The entries (name, version, budget) of ``df``, in palette order of the names, then by
+    budget and version, the largest first."""
+    keys = {(str(a), int(v), int(b)) for a, v, b in df[list(ENTRY)].drop_duplicates().itertuples(index=False)}
+    rank = {a: i for i, a in enumerate(sort_algos({k[0] for k in keys}))}
+    return sorted(keys, key=lambda k: (rank[k[0]], -k[2], -k[1]))
+
+
+def entry_label(entry: tuple[str, int, int]) -> str:
+    """``ppo v1, 5000 days``: how captions and notes name an entry."""
+    name, version, budget = entry
+    return f"{name} v{version}, {budget} days"
 
 
 def load_report_data(db: Db, latest_only: bool = True, algos: Sequence[str] | None = None) -> ReportData:

@@ -1,8 +1,10 @@
 """The leaderboard (``nutribench leaderboard``): every agent of a results database (or of a
 folder of archives) in one ranked table, budgets and seeds honest.
 
-Per agent config (the rows the report draws: newest config version, per regime the largest
-training budget, one job per seed, :func:`nutribench.report.data.prepare`):
+One row per entry: an agent config's name, version and training budget
+(:func:`nutribench.report.data.prepare_entries`; one job per entry, regime and seed), none
+hidden by another: the paper archives' ``ppo`` v1 at 5000 days and a user's run of the shipped
+``ppo`` v2 at 150 days are two rows, the second flagged by its budget. Per entry:
 
 * the **aggregate score**: the IQM of its run scores (a run = one seed on one regime, scored
   as the share of the regime's never -> planner gap it closes on its own evaluation days,
@@ -42,18 +44,17 @@ yardsticks (its days are left out of the ranking, and the caption says so).
 from __future__ import annotations
 
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from nutribench.report.aggregate import interval_estimates, regime_span, run_scores, score_set
-from nutribench.report.data import ReportError
+from nutribench.report.data import ENTRY, ReportError, entries
 from nutribench.report.figure_parts import budget_cell, seed_list, sort_regimes
 from nutribench.report.palette import BUILTIN_ORDER
 from nutribench.report.palette import label as algo_label
-from nutribench.report.palette import order as sort_algos
 from nutribench.report.scores import DEFAULT_REPS
 from nutribench.report.tables import TableResult
 from nutribench.scheduler.grid import PRESETS
@@ -158,47 +159,60 @@ def _flags(budget: str, seeds: list[int], covered: list[str], board: list[str]) 
     return flags
 
 
+def _lookup(by: dict, entry: tuple[str, int, int], default: str) -> str:
+    """``by``'s value for an entry (name, version, budget), else for (name, version), else for
+    the name alone (a map of one row per name, as :func:`protocols` gives), else ``default``."""
+    for key in (entry, entry[:2], entry[0]):
+        if key in by:
+            return by[key]
+    return default
+
+
 def leaderboard_rows(
     ev: pd.DataFrame,
     references: pd.DataFrame,
     jobs: pd.DataFrame,
-    protocol: dict[str, str],
+    protocol: dict,
     reps: int = DEFAULT_REPS,
-    checked: dict[str, str] | None = None,
+    checked: dict | None = None,
 ) -> pd.DataFrame:
-    """One row per agent of the evaluation episodes ``ev`` (one job per run), ranked by the
-    IQM of its run scores over the regimes it covers. ``references``: the never/planner
-    yardsticks of every evaluation day; ``jobs``: the jobs table (id, engine, versions);
-    ``protocol``: agent -> protocol; ``checked``: agent -> its ``checked`` cell where its
-    models were re-run (:func:`nutribench.report.leaderboard_verify.verify_entries`)."""
-    scores = run_scores(ev, references)
+    """One row per entry (agent config name, version, training budget:
+    :data:`nutribench.report.data.ENTRY`) of the evaluation episodes ``ev`` (one job per entry
+    and run), ranked by the IQM of its run scores over the regimes it covers; no entry hides
+    another (a short run of a shipped agent is a row of its own, flagged by its budget, beside
+    the published one). ``references``: the never/planner yardsticks of every evaluation day;
+    ``jobs``: the jobs table (id, engine, versions); ``protocol``: entry, (name, version) or
+    name -> protocol; ``checked``: the same keys -> the ``checked`` cell where models were
+    re-run (:func:`nutribench.report.leaderboard_verify.verify_entries`)."""
     board = sort_regimes(ev["regime"].unique())
     job_info = jobs.set_index("id")
     rows = []
-    for algo in sort_algos(ev["algo"]):
-        mine = scores[scores["algo"] == algo]
+    for entry in entries(ev):
+        algo, version, _ = entry
+        cell = ev[(ev[list(ENTRY)] == pd.Series(entry, index=list(ENTRY))).all(axis=1)]
+        mine = run_scores(cell, references)
         covered = sort_regimes(mine.loc[np.isfinite(mine["score"].to_numpy(dtype=float)), "regime"].unique())
-        cell = ev[ev["algo"] == algo]
         seeds = sorted({int(s) for s in cell["seed"]})
         budget = budget_cell(cell)
         mine_jobs = job_info.loc[sorted(set(cell["job_id"]))]
         row = {
             "algo": algo,
-            "protocol": protocol.get(algo, "?"),
+            "protocol": _lookup(protocol, entry, "?"),
             "iqm": np.nan,
             "iqm_lo": np.nan,
             "iqm_hi": np.nan,
             "regimes": len(covered),
             "covered": ",".join(covered),
             "runs": int(np.isfinite(mine["score"].to_numpy(dtype=float)).sum()),
+            "version": version,
             "budget": budget,
             "seeds": " ".join(map(str, seeds)),
             "engine": "/".join(sorted({str(e) for e in mine_jobs["engine"].dropna()})) or "?",
             "code": _code_version(mine_jobs),
-            "checked": (checked or {}).get(algo, CHECKED),
+            "checked": _lookup(checked or {}, entry, CHECKED),
         }
         if covered:
-            iv = interval_estimates(score_set(scores, covered, [algo]), reps=reps)
+            iv = interval_estimates(score_set(mine, covered, [algo]), reps=reps)
             iqm = iv[iv["aggregate"] == "iqm"].iloc[0]
             row["iqm"], row["iqm_lo"], row["iqm_hi"] = float(iqm["point"]), float(iqm["lo"]), float(iqm["hi"])
         for regime in board:
@@ -233,6 +247,7 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
         f.update({f"{g} (%)": _pct(r[f"share_{g}"]) for g in board})
         f.update(
             {
+                "version": f"v{r['version']}" if "version" in r else "?",
                 "budget (days)": r["budget"],
                 "seeds": r["seeds"].replace(" ", ", "),
                 "engine": r["engine"],
@@ -257,12 +272,18 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
 
 
 def leaderboard_from_db(
-    db, reps: int = DEFAULT_REPS, log: Log | None = None, verify: str | Path | None = None
+    db,
+    reps: int = DEFAULT_REPS,
+    log: Log | None = None,
+    verify: str | Path | None = None,
+    algos: Sequence[str] | None = None,
 ) -> TableResult:
     """The leaderboard of the results database ``db`` (:class:`ReportError` when it holds no
-    evaluation days); ``verify``: a folder of the jobs' trained models, re-run to fill the
-    ``checked`` column (:mod:`nutribench.report.leaderboard_verify`)."""
-    from nutribench.report.data import check_names, prepare
+    evaluation days): every entry (name, version, budget) of ``algos`` (default every agent
+    config), none hidden by another (:func:`nutribench.report.data.prepare_entries`);
+    ``verify``: a folder of the jobs' trained models, re-run to fill the ``checked`` column
+    (:mod:`nutribench.report.leaderboard_verify`)."""
+    from nutribench.report.data import check_names, prepare_entries
     from nutribench.report.references import eval_day_references
     from nutribench.store import open_store, read_episode_metrics
 
@@ -277,7 +298,11 @@ def leaderboard_from_db(
         raise ReportError(f"{store.display} holds no evaluation days yet: `nutribench run --db {db}` fills it")
     check_names(ev["algo"].unique(), "agent config", str(db))
     check_names(ev["regime"].unique(), "regime", str(db))
-    data = prepare(ev)
+    data = prepare_entries(ev, algos)
+    if data.eval.empty:
+        from nutribench.report.data import check_known
+
+        check_known(list(algos or ()), ev["algo"].unique(), "--algos")
     notes = list(data.notes)
     scored = data.eval
     if forged:
@@ -324,7 +349,11 @@ def leaderboard_of(
         from nutribench.report.leaderboard_verify import verify_entries
 
         checked = verify_entries(db, ev, verify, log)
-    rows = leaderboard_rows(ev, references, jobs, protocols(configs), reps=reps, checked=checked)
+    protocol = {
+        (name, int(version)): protocols(configs[(configs["name"] == name) & (configs["version"] == version)])[name]
+        for name, version in configs[["name", "version"]].drop_duplicates().itertuples(index=False)
+    }
+    rows = leaderboard_rows(ev, references, jobs, protocol, reps=reps, checked=checked)
     table = leaderboard_table(rows)
     if notes:
         table.title += " (note: " + "; ".join(notes) + ")"

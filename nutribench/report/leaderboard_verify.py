@@ -45,6 +45,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from nutribench.report.data import ENTRY
+
 #: The ``checked`` cell of an entry none of whose models was supplied (replayed only).
 REPLAYED = "replayed, not re-run"
 #: The ``checked`` cell of an entry whose every job's model played the stored actions.
@@ -165,9 +167,12 @@ def entry_cell(checks: list[JobCheck]) -> str:
     return f"replayed; re-run on {len(run)} of {len(checks)} jobs: match"
 
 
-def verify_entries(db, ev: pd.DataFrame, models_dir: str | Path, log: Log | None = None) -> dict[str, str]:
-    """The ``checked`` cell of every agent of the evaluation episodes ``ev`` (one job per run,
-    as the leaderboard drew them) of the database ``db``, its jobs re-run from the models in
+def verify_entries(
+    db, ev: pd.DataFrame, models_dir: str | Path, log: Log | None = None
+) -> dict[tuple[str, int, int], str]:
+    """The ``checked`` cell of every entry (name, version, budget:
+    :data:`nutribench.report.data.ENTRY`) of the evaluation episodes ``ev`` (one job per entry
+    and run, as the leaderboard drew them) of the database ``db``, its jobs re-run from the models in
     ``models_dir`` (:func:`model_file`)."""
     from sqlalchemy import select
 
@@ -201,9 +206,9 @@ def verify_entries(db, ev: pd.DataFrame, models_dir: str | Path, log: Log | None
         if log and checks[jid].status not in ("missing", "plugin"):
             log(f"re-ran {checks[jid].label} from {path}: {checks[jid].status}")
     out = {}
-    for algo in ev["algo"].unique():
-        mine = sorted({int(j) for j in ev.loc[ev["algo"] == algo, "job_id"]})
-        out[algo] = entry_cell([checks[j] for j in mine])
+    for entry, rows in ev.groupby(list(ENTRY)):
+        mine = sorted({int(j) for j in rows["job_id"]})
+        out[(str(entry[0]), int(entry[1]), int(entry[2]))] = entry_cell([checks[j] for j in mine])
     return out
 
 
