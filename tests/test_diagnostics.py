@@ -478,7 +478,7 @@ def test_ppo_update_logs_the_norm_the_probe_read():
 
 @pytest.mark.parametrize("algo", ["ppo", "ddqn"])
 def test_diagnostics_off_trains_the_same_job_without_rows(algo):
-    """``train(..., diagnostics=False)`` (what ``bench train --diagnostics-cost`` times against)
+    """``train(..., diagnostics=False)`` (what reports/diagnostics_cost's benches time against)
     records no rows and changes nothing else: the same seed gives the same training days."""
     from nutribench.agents import load_agent_config, train
 
@@ -488,45 +488,6 @@ def test_diagnostics_off_trains_the_same_job_without_rows(algo):
     off = train("run0", cfg, seed=3, episodes=3, diagnostics=False)
     assert len(on.diagnostics) >= 2 and off.diagnostics == []
     assert [e["return"] for e in on.train_episodes] == [e["return"] for e in off.train_episodes]
-
-
-def test_bench_train_reports_the_diagnostics_cost():
-    result = CliRunner().invoke(
-        app, ["bench", "train", "--algos", "mc", "--episodes", "2", "--repeats", "2", "--diagnostics-cost"]
-    )
-    assert result.exit_code == 0, result.output
-    out = " ".join(result.output.split())  # rich wraps the table's cells at the runner's width
-    assert "cost" in out
-    assert re.search(r"[+-]\d+\.\d %", out)  # the nutribench row's cost cell is filled
-    assert re.search(r"\[[+-]\d+\.\d,", out)  # with its interval (rich may wrap the cell)
-    assert "A/A" in out and len(re.findall(r"[+-]\d+\.\d %", out)) >= 2  # and the A/A control's
-
-
-def test_bench_diagnostics_cost_times_three_arms_in_every_order(monkeypatch):
-    """Each repeat trains with, without and again without the diagnostics; 6 repeats take the
-    6 orders, so each arm runs before each other 3 times; the cost pairs with/without and the
-    A/A control without/again, repeat by repeat."""
-    from nutribench.agents import api
-    from nutribench.bench import throughput
-
-    calls: list[bool] = []
-    now = [0.0]
-
-    def fake_train(*a, diagnostics=True, **k):  # a run with the diagnostics takes 1.1 s, without 1 s
-        calls.append(diagnostics)
-        now[0] += 1.1 if diagnostics else 1.0
-
-    monkeypatch.setattr(api, "train", fake_train)
-    monkeypatch.setattr(throughput.time, "perf_counter", lambda: now[0])
-    [row] = throughput.bench_train(["mc"], episodes=1, repeats=6, diagnostics_cost=True)
-    timed = calls[1:]  # after the untimed warm-up
-    firsts = [timed[3 * r : 3 * r + 3].index(True) for r in range(6)]
-    assert sorted(firsts) == [0, 0, 1, 1, 2, 2]  # "with" first, second and third twice each
-    # and each arm runs before each other arm in half of the 6 orders (a rotation would not)
-    for a, b in [(0, 1), (0, 2), (1, 2)]:
-        assert sum(o.index(a) < o.index(b) for o in throughput.ORDERS) == 3
-    assert row["diagnostics_cost"] == pytest.approx(1 - 1 / 1.1)  # 9.1 %
-    assert row["aa_cost"] == pytest.approx(0.0)
 
 
 def test_paired_cost_is_one_minus_the_median_ratio_with_its_interval():

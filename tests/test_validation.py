@@ -176,23 +176,3 @@ def test_a_batch_resumed_from_its_checkpoint_keeps_its_evaluations(tmp_path) -> 
     for a, b in zip(whole, resumed):
         assert [r["train_day"] for r in b.validation] == [1, 1, 2, 2, 3, 3, 4, 4]
         assert a.validation == b.validation
-
-
-def test_bench_eval_cost_times_both_arms() -> None:
-    from nutribench.bench.evalcost import bench_eval_cost
-
-    (row,) = bench_eval_cost(["mc"], episodes=2, repeats=2, eval_every=1, val_episodes=1)
-    assert row["evaluations"] == 2 and row["with_s"] > 0 and row["without_s"] > 0
-    assert row["cost_ci"][0] <= row["cost"] <= row["cost_ci"][1] and "cpu_cost" in row
-
-
-def test_bench_eval_every_past_the_budget_is_one_line() -> None:
-    from typer.testing import CliRunner
-
-    from nutribench.cli import app
-    from tests.conftest import one_error_line
-
-    line = one_error_line(
-        CliRunner().invoke(app, ["bench", "train", "--algos", "mc", "--episodes", "5", "--eval-every", "10"])
-    )
-    assert "--eval-every 10: more than --days 5" in line

@@ -232,7 +232,7 @@ def train(
     :param on_episode: called with each finished training day's metrics dict.
     :param tensorboard: a folder for this run's TensorBoard events (an SB3 plug-in's own logger's too).
     :param diagnostics: record the training diagnostics (False: no callback, logger or gradient
-        probe: what ``nutribench bench train --diagnostics-cost`` compares against).
+        probe: what the benches of ``reports/diagnostics_cost`` compare against).
     :param eval_every: every so many training days, the greedy policy plays ``val_episodes``
         validation days (:mod:`nutribench.agents.validation`; built-in algorithms); None or 0: never.
     :param on_validation: called with ``(0, train_day, rows)`` after each such evaluation.

@@ -72,7 +72,10 @@ def reference_returns(regime: str, streams: np.ndarray) -> dict[str, list[float]
     }
 
 
-def _one_run(config: Any, regime: str, seed: int, episodes: int, eval_episodes: int) -> LearnRun:
+def one_run(config: Any, regime: str, seed: int, episodes: int, eval_episodes: int) -> LearnRun:
+    """One learnability run: ``config`` trained on ``regime`` with ``seed`` for ``episodes``
+    days (SB3 engine), then played greedily on the seed's first ``eval_episodes`` evaluation
+    days; its :class:`LearnRun` (returns, share of the gap, wall time)."""
     from nutribench.agents import eval_food_streams, evaluate, train
 
     start = time.perf_counter()
@@ -158,7 +161,7 @@ def learn_benchmark(
         "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
     )
     with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-        futures = [pool.submit(_one_run, c, r, s, n, eval_episodes) for c, r, s, n in jobs]
+        futures = [pool.submit(one_run, c, r, s, n, eval_episodes) for c, r, s, n in jobs]
         for fut in as_completed(futures):
             runs.append(fut.result())
             if on_done is not None:

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-from nutribench.bench.paired import ORDERS, paired_cost
 from nutribench.env import NutriRLEnv, NutriRLVectorEnv
 
 
@@ -80,7 +79,7 @@ def bench_env(regimes=("run0", "run6"), sizes=(1, 64, 1024, 4096), repeats: int 
 PAPER_GRID = {"regimes": 7, "seeds": 5, "episodes": 5000}
 
 
-def _bench_config(algo: str):
+def bench_config(algo: str):
     """The shipped config, with DDQN's and SAC's learning start moved to step 0 so that the
     timed steps are learning steps (as are 96 % of a 5000-episode DDQN job's, and all but 128
     of a SAC job's)."""
@@ -106,7 +105,7 @@ def _bare_sb3_seconds(algo: str, regime: str, episodes: int, seed: int, bare_cls
     torch.set_num_threads(1)
     t0 = time.perf_counter()  # like the timed train(): config, env and model set-up included
     env_cfg = load_env_config(regime)
-    cfg = _bench_config(algo)
+    cfg = bench_config(algo)
     _, env = make_train_env(env_cfg, cfg)
     # same hyperparameters and networks; the class decides the update (DQN: the vanilla max target)
     cls = import_entry_point(bare_cls)
@@ -121,29 +120,18 @@ def bench_train(
     episodes: int = 100,
     repeats: int = 3,
     seed: int = 0,
-    diagnostics_cost: bool = False,
 ) -> list[dict]:
     """Env-steps per second of ``nutribench.agents.train`` for each algorithm, and of bare
     SB3 PPO and DQN on the same env (medians over ``repeats``); plus the CPU-hours the paper
     grid would take at that rate, one job per core. A nutribench row with a bare reference
     has ``vs_bare``: the median over repeats of (bare seconds / nutribench seconds) of the
-    same repeat, i.e. nutribench's throughput as a fraction of bare SB3's.
-
-    ``diagnostics_cost``: each repeat also trains the same job without the training diagnostics
-    (``train(..., diagnostics=False)``), interleaved, and each nutribench row gets
-    ``diagnostics_cost``: 1 - the median over repeats of (seconds without / seconds with), the
-    share of training time the diagnostics take, paired per repeat, and ``diagnostics_cost_ci``
-    its 95 % bootstrap interval over the repeats (:func:`paired_cost`); ``aa_cost`` (and
-    ``aa_cost_ci``): the same measured between two identical arms without the diagnostics (a
-    third training per repeat; the three take their 6 orders in turn, so 6k repeats balance
-    which runs first), the bench's own resolution. Both arms without the diagnostics still
-    build the same model: what an update records for itself (the gradient norm it keeps,
-    ``.item()`` reads of its losses) is in every arm, and only the profile counts it."""
+    same repeat, i.e. nutribench's throughput as a fraction of bare SB3's. (What the training
+    diagnostics cost is a finished study's bench: ``reports/diagnostics_cost/``.)"""
     from nutribench.agents.api import train
 
-    def timed_train(cfg, diagnostics: bool = True) -> float:
+    def timed_train(cfg) -> float:
         t0 = time.perf_counter()
-        train(regime, cfg, seed=seed, episodes=episodes, diagnostics=diagnostics)
+        train(regime, cfg, seed=seed, episodes=episodes)
         return time.perf_counter() - t0
 
     import nutribench.agents.registry as registry
@@ -151,23 +139,14 @@ def bench_train(
     steps = episodes * 50
     rows = []
     for algo in algos:
-        cfg = _bench_config(algo)
+        cfg = bench_config(algo)
         bare_refs = list(registry.get(cfg.algo).bare)
         # repeats interleaved (ours, bare, ours, bare, ...) so that a machine that speeds up
         # or slows down during the benchmark shifts both sides alike
         times: list[float] = []
         bare_times: dict[str, list[float]] = {cls_name: [] for cls_name, _ in bare_refs}
-        without: list[float] = []
-        again: list[float] = []  # the same run without diagnostics once more: the A/A control
-        if diagnostics_cost:  # untimed: the process's first training pays one-off imports and set-up
-            train(regime, cfg, seed=seed, episodes=1)
-        arms = [(times, True), (without, False), (again, False)]
-        for i in range(repeats):
-            if diagnostics_cost:  # with, without, again in each of their 6 orders in turn
-                for k in ORDERS[i % len(ORDERS)]:
-                    arms[k][0].append(timed_train(cfg, diagnostics=arms[k][1]))
-            else:
-                times.append(timed_train(cfg))
+        for _ in range(repeats):
+            times.append(timed_train(cfg))
             for cls_name, _ in bare_refs:
                 bare_times[cls_name].append(_bare_sb3_seconds(algo, regime, episodes, seed, cls_name))
         row = {
@@ -179,13 +158,6 @@ def bench_train(
         if bare_refs:  # the first bare row is the one the plumbing's overhead is measured against
             ref = bare_times[bare_refs[0][0]]
             row["vs_bare"] = statistics.median(b / t for b, t in zip(ref, times))  # paired, per repeat
-        if diagnostics_cost:
-            cost, lo, hi = paired_cost(times, without)
-            row["diagnostics_cost"], row["diagnostics_cost_ci"] = cost, (lo, hi)
-            row["steps_per_s_without"] = steps / statistics.median(without)
-            # the bench's own resolution: the same cost measured between two identical arms
-            cost, lo, hi = paired_cost(again, without)
-            row["aa_cost"], row["aa_cost_ci"] = cost, (lo, hi)
         rows.append(row)
         for cls_name, label in bare_refs:
             rows.append(
@@ -338,7 +310,7 @@ def bench_train_batched(
     from nutribench.engine.train import train_batched
     from nutribench.scheduler.executors import core_count
 
-    cfg = _bench_config(algo)  # DDQN and SAC learning from the first step, as in the SB3 engine's rows
+    cfg = bench_config(algo)  # DDQN and SAC learning from the first step, as in the SB3 engine's rows
     jobs = [(r, s) for r in SHIPPED_REGIMES[:k_regimes] for s in range(k_seeds)]
     times = []
     for _ in range(repeats):

@@ -52,56 +52,6 @@ def parse_sizes(text: str) -> list[int]:
     return [int(s) for s in items]
 
 
-def _share_ci(row: dict, key: str) -> str:
-    """``row[key]`` and its interval ``row[key + "_ci"]`` as percentages: "+1.2 % [-0.5, +3.0]"."""
-    lo, hi = row[f"{key}_ci"]
-    return f"{100 * row[key]:+.1f} % [{100 * lo:+.1f}, {100 * hi:+.1f}]"
-
-
-def _print_eval_cost(names: list[str], regime: str, days: int, repeats: int, every: int, n: int, engine: str) -> None:
-    from nutribench.bench.evalcost import bench_eval_cost
-
-    if every > days:
-        raise UserError(f"--eval-every {every}: more than --days {days}, no evaluation would be timed")
-    where = "K = 35" if engine == "batched" else regime
-    title = f"evaluation every {every} days on {n} validation days, {engine} engine ({where}), {days} days x {repeats}"
-    heads = ["algo", "without (s)", "with (s)", "evaluations", "cost, wall [95 % CI]", "cost, CPU", "one alone (CPU s)"]
-    table = Table(*heads, "its share", title=title)
-    for r in bench_eval_cost(names, regime, days, repeats, every, n, engine):
-        times = [f"{r['without_s']:.2f}", f"{r['with_s']:.2f}", str(r["evaluations"])]
-        alone = [f"{r['evaluation_cpu_s']:.3f}", f"{100 * r['component_cost']:.1f} %"]
-        table.add_row(r["algo"], *times, _share_ci(r, "cost"), _share_ci(r, "cpu_cost"), *alone)
-    console.print(table)
-
-
-def _print_lockstep(names: list[str], regime: str, episodes: int, block: int) -> None:
-    from nutribench.bench.lockstep import bench_diagnostics_lockstep
-
-    table = Table(
-        "algo",
-        "clock",
-        "cost: share of the time [95 % CI]",
-        "A/A: without vs without again [95 % CI]",
-        "median of the blocks' ratios",
-        title=f"diagnostics' cost in lockstep, {regime}, {episodes} days per arm, blocks of {block} days",
-    )
-    notes = []
-    for r in bench_diagnostics_lockstep(names, regime=regime, episodes=episodes, block=block):
-        for clock, label in (("wall", "wall"), ("cpu", "CPU")):
-            c = r[clock]
-            table.add_row(
-                r["algo"], label, _share_ci(c, "cost"), _share_ci(c, "aa"), f"{100 * c['median_cost']:+.1f} %"
-            )
-        same = "yes" if r["identical"] else "NO (the pairing is not of equal work)"
-        notes.append(
-            f"{r['algo']}: {r['wall']['blocks']} blocks; the three arms trained the same days: {same}; "
-            f"env-steps/s {r['steps_per_s']:,.0f} with, {r['steps_per_s_without']:,.0f} without"
-        )
-    console.print(table)
-    for line in notes:
-        console.print(line, highlight=False)
-
-
 @bench_app.command("train")
 @user_errors
 def bench_train_cmd(
@@ -114,36 +64,30 @@ def bench_train_cmd(
     repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 3,
     engine: Annotated[str, typer.Option(help="'sb3', or 'batched': the batched engine at K = 35 beside SB3's")] = "sb3",
     device: Annotated[str, typer.Option(help=f"--engine batched: {DEVICE_HELP} (SB3's rows: the CPU)")] = "auto",
-    diagnostics_cost: Annotated[
-        bool,
-        typer.Option(
-            "--diagnostics-cost",
-            help="also time each repeat without the training diagnostics (whole runs, interleaved) "
-            "and report their cost; add --lockstep for the finer bench",
-        ),
-    ] = False,
-    lockstep: Annotated[
-        bool,
-        typer.Option(
-            "--lockstep",
-            help="with --diagnostics-cost: train the arms side by side in one process, a day each in turn, "
-            "--days days each, paired by blocks of --block days (--repeats is not used)",
-        ),
-    ] = False,
-    block: Annotated[int, typer.Option(min=1, help="--lockstep: days per paired block (PPO's rollout: 10)")] = 10,
-    eval_every: Annotated[
-        int, typer.Option(min=0, help="instead: the cost of an evaluation during training every so many days")
-    ] = 0,
-    val_episodes: Annotated[int, typer.Option(min=1, help="--eval-every: validation days per evaluation")] = 5,
+    diagnostics_cost: Annotated[bool, typer.Option("--diagnostics-cost", hidden=True)] = False,
+    lockstep: Annotated[bool, typer.Option("--lockstep", hidden=True)] = False,
+    eval_every: Annotated[int, typer.Option("--eval-every", hidden=True)] = 0,
+    _block: Annotated[Optional[int], typer.Option("--block", hidden=True)] = None,
+    _val_episodes: Annotated[Optional[int], typer.Option("--val-episodes", hidden=True)] = None,
 ) -> None:
     """Training env-steps per second of each algorithm, and of bare SB3 PPO / DQN on the same
     env (the overhead of nutribench's plumbing), with the paper grid's CPU-hours at that rate.
-    With --diagnostics-cost, the share of training time the diagnostics take (SB3 engine),
-    beside the same measured between two identical runs without them (the bench's resolution).
-    With --lockstep, the arms train day by day in turn instead (a drifting machine reaches them
-    alike): the cost and the A/A control on the wall clock and on CPU time.
     With --engine batched, also the batched engine (7 regimes x 5 seeds at once): its rate,
     FLOPs per env step, this machine's matmul rate and the share of that floor reached."""
+    # the finished studies' cost benches (hidden options: one line saying where they went)
+    moved = [
+        (
+            diagnostics_cost or lockstep or _block is not None,
+            "--diagnostics-cost",
+            "reports/diagnostics_cost/README.md",
+        ),
+        (eval_every or _val_episodes is not None, "--eval-every", "reports/eval_cost/README.md"),
+    ]
+    for given, option, where in moved:
+        if given:
+            raise UserError(
+                f"bench train {option}: that bench moved out of the package with the finished study that used it: see {where}"
+            )
     episodes = old_spelling(days, episodes_alias, "--days", "--episodes", 100)
     from nutribench.agents.registry import paper_names
     from nutribench.bench.throughput import bench_train
@@ -152,28 +96,12 @@ def bench_train_cmd(
     check_engine_options(engine, device)
     names = split_csv(algos, paper_names(), "algorithm")
     load_env_config(regime)
-    if lockstep:
-        if not diagnostics_cost:
-            raise UserError("--lockstep times the --diagnostics-cost arms: add --diagnostics-cost")
-        if engine != "sb3":
-            raise UserError(f"--lockstep times the SB3 engine's training, not --engine {engine}: leave --engine out")
-        return _print_lockstep(names, regime, episodes, block)
-    if eval_every:
-        return _print_eval_cost(names, regime, episodes, repeats, eval_every, val_episodes, engine)
-    rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats, diagnostics_cost=diagnostics_cost)
+    rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats)
     columns = ["run", "env-steps/s (median)", "vs bare SB3 (paired median)", "paper grid CPU-hours"]
-    if diagnostics_cost:
-        columns += [
-            "without diagnostics, env-steps/s",
-            "diagnostics' cost (paired median) [95 % CI]",
-            "A/A: without vs without again [95 % CI]",
-        ]
     table = Table(*columns, title=f"training throughput, {regime}, {episodes} days x {repeats}")
     for r in rows:
         ratio = f"{r['vs_bare']:.3f}" if "vs_bare" in r else ""
         cells = [r["what"], f"{r['steps_per_s']:,.0f}", ratio, f"{r['paper_grid_cpu_hours']:.1f}"]
-        if "diagnostics_cost" in r:
-            cells += [f"{r['steps_per_s_without']:,.0f}", _share_ci(r, "diagnostics_cost"), _share_ci(r, "aa_cost")]
         table.add_row(*cells)
     console.print(table)
     total = sum(r["paper_grid_cpu_hours"] for r in rows if not r["bare"])

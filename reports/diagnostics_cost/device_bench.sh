@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# `bench train --diagnostics-cost` for the five algorithms at once on a 16-core machine (the lent GPU
+# whole_runs.py (once `bench train --diagnostics-cost`) for the five algorithms at once on a 16-core machine (the lent GPU
 # machine's CPU, nothing else running there), one process per algorithm pinned to its own core.
 # Usage (on that machine, the dependencies as wheels in .whl/): OUT=<folder> bash reports/diagnostics_cost/device_bench.sh
 # SPECS="algo days repeats,..." and LIMIT (seconds per process) change the runs (defaults below).
@@ -19,8 +19,8 @@ IFS=, read -r -a specs <<<"$SPECS"
 for spec in "${specs[@]}"; do
   read -r algo days reps <<<"$spec"
   ( t0=$SECONDS
-    taskset -c $((2 * i)) timeout "$LIMIT" python3 -m nutribench.cli bench train --algos "$algo" --episodes "$days" \
-      --repeats "$reps" --diagnostics-cost > "$OUT/bench_$algo.txt" 2>&1
+    taskset -c $((2 * i)) timeout "$LIMIT" python3 reports/diagnostics_cost/whole_runs.py --algos "$algo" --days "$days" \
+      --repeats "$reps" > "$OUT/bench_$algo.txt" 2>&1
     echo "exit $? after $((SECONDS - t0)) s" >> "$OUT/bench_$algo.txt" ) &
   i=$((i + 1))
 done

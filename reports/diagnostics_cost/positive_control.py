@@ -1,6 +1,6 @@
 """A positive control for the lockstep bench: does it find a cost that is known to be there?
 
-Four arms of SB3 PPO on run0 in lockstep (``nutribench.bench.lockstep``): with the diagnostics,
+Four arms of SB3 PPO on run0 in lockstep (``lockstep.py``, this folder's): with the diagnostics,
 without, without again (the A/A control), and without the diagnostics but with a busy wait of
 ``--wait-ms`` added to every training day (inside the day's timed segment). The known cost of
 the last arm is the waits' share of its time, ``n_days x wait / (its total)``; the bench's
@@ -16,11 +16,11 @@ import argparse
 import time
 
 import numpy as np
+from lockstep import blocks, lockstep, same_days  # this folder's: the script runs by path
 
 from nutribench.agents.api import train
-from nutribench.bench.lockstep import blocks, lockstep, same_days
 from nutribench.bench.paired import total_cost
-from nutribench.bench.throughput import _bench_config
+from nutribench.bench.throughput import bench_config
 
 
 def busy(seconds: float) -> None:
@@ -35,7 +35,7 @@ def main() -> None:
     ap.add_argument("--wait-ms", type=float, default=3.0)
     ap.add_argument("--block", type=int, default=10)
     args = ap.parse_args()
-    cfg, wait = _bench_config("ppo"), args.wait_ms / 1000
+    cfg, wait = bench_config("ppo"), args.wait_ms / 1000
 
     def arm(diagnostics: bool, waits: bool = False):
         def run(day_end):

@@ -28,7 +28,7 @@ import torch as th
 import nutribench.agents.gru_ppo.policy as sb3_policy
 import nutribench.engine.gru_ppo as stacked
 from nutribench.agents import load_agent_config
-from nutribench.bench.learn import _one_run, batched_runs, markdown_table, summarize
+from nutribench.bench.learn import batched_runs, markdown_table, one_run, summarize
 from nutribench.cli.common import UserError, split_csv
 from nutribench.config import list_regimes
 from nutribench.scheduler.grid import parse_seeds
@@ -85,7 +85,7 @@ def main() -> None:
     def runs() -> list:
         if args.engine == "batched":
             return batched_runs(cfg, regimes, seeds, args.episodes, 10)
-        return [_one_run(cfg, r, s, args.episodes, 10) for r in regimes for s in seeds]
+        return [one_run(cfg, r, s, args.episodes, 10) for r in regimes for s in seeds]
 
     rows = summarize(runs())
     with no_memory():

@@ -1,14 +1,23 @@
-"""reports/gru_memory/without_memory.py: its memoryless GRU-PPO has no memory anywhere, and
-leaving the diagnostic restores the real agent."""
+"""reports/gru_memory/without_memory.py: its memoryless GRU-PPO has no memory anywhere, leaving
+the diagnostic restores the real agent, and the package's ``memory = false`` option trains what
+its patch of ``gru_ppo`` trained, bit for bit. This study's own check, run from the checkout:
+``python -m pytest -p no:cacheprovider reports/gru_memory``."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import torch as th
 from report_scripts import load_script
 
+from nutribench.agents.api import TrainedAgent, train
+from nutribench.agents.config import load_agent_config
 from nutribench.engine.gru_ppo import RecurrentActor as _Recurrent
 from nutribench.engine.gru_ppo import StackedGRUActorCritic
+from nutribench.engine.train import train_batched
+
+NOMEM = Path(__file__).resolve().parents[1] / "ladder" / "agents" / "gru_ppo_nomem.toml"
 
 
 def _diagnostic():
@@ -55,3 +64,25 @@ def _spaces():
     from gymnasium import spaces
 
     return spaces.Box(-np.inf, np.inf, shape=(13,), dtype=np.float32), spaces.Discrete(2)
+
+
+# --------------------------------------------------------------------------- the same runs as the diagnostic
+def _same_weights(a: TrainedAgent, b: TrainedAgent) -> None:
+    assert a.train_episodes == b.train_episodes
+    wa, wb = a.model.policy.state_dict(), b.model.policy.state_dict()
+    assert wa.keys() == wb.keys() and all(th.equal(wa[k], wb[k]) for k in wa)
+
+
+def test_both_engines_train_the_diagnostic_s_patched_agent_bit_for_bit() -> None:
+    """``memory = false`` trains what ``without_memory.py``'s patch of ``gru_ppo`` trained
+    (the same food days, actions and weights), in each engine, on one rollout and update."""
+    th.set_num_threads(1)
+    jobs = [("run0", 0), ("run6", 1)]
+    option = train_batched(jobs, load_agent_config(NOMEM), 10)
+    sb3_option = train("run6", load_agent_config(NOMEM), seed=2, episodes=10, diagnostics=False)
+    with _diagnostic().no_memory():
+        patched = train_batched(jobs, "gru_ppo", 10)
+        sb3_patched = train("run6", "gru_ppo", seed=2, episodes=10, diagnostics=False)
+    for a, b in [*zip(option, patched), (sb3_option, sb3_patched)]:
+        _same_weights(a, b)
+    assert not option[0].model.policy.memory and option[0].config.memory is False

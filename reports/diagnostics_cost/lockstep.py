@@ -1,7 +1,9 @@
-"""Lockstep timing: the arms of a paired benchmark trained side by side, a day each in turn.
+"""Lockstep timing: the arms of a paired benchmark trained side by side, a day each in turn
+(this study's bench, once ``nutribench bench train --diagnostics-cost --lockstep``)::
 
-``bench train --diagnostics-cost`` (:func:`nutribench.bench.throughput.bench_train`) times
-whole runs one after another, so a machine whose speed drifts over minutes (a shared one)
+    python reports/diagnostics_cost/lockstep.py --algos ppo --days 1200 --block 10
+
+``whole_runs.py`` (once ``bench train --diagnostics-cost``) times whole runs one after another, so a machine whose speed drifts over minutes (a shared one)
 moves one arm's run and not the other's: on this project's 2-core machine two identical runs
 differed by 2-6 % (its A/A control), more than the 3 % the diagnostics may cost.
 
@@ -32,6 +34,7 @@ a dict a row, floats an update).
 from __future__ import annotations
 
 import random
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -190,17 +193,17 @@ def lockstep_cost(with_: Arm, without: Arm, again: Arm, size: int, clock: str = 
 def bench_diagnostics_lockstep(
     algos: Sequence[str], regime: str = "run0", episodes: int = 300, block: int = 10, seed: int = 0
 ) -> list[dict]:
-    """``bench train --diagnostics-cost --lockstep``: for each algorithm, its shipped config
-    (:func:`~nutribench.bench.throughput._bench_config`) trained ``episodes`` days three times
+    """This script's bench: for each algorithm, its shipped config
+    (:func:`~nutribench.bench.throughput.bench_config`) trained ``episodes`` days three times
     in lockstep (with the diagnostics, without, without again), and :func:`lockstep_cost` on
     the wall clock and on CPU time, paired by blocks of ``block`` days. ``identical``: the three
     arms trained the same days (the pairing is of equal work)."""
     from nutribench.agents.api import train
-    from nutribench.bench.throughput import _bench_config
+    from nutribench.bench.throughput import bench_config
 
     rows = []
     for algo in algos:
-        cfg = _bench_config(algo)
+        cfg = bench_config(algo)
         train(regime, cfg, seed=seed, episodes=1)  # untimed: one-off imports and set-up
 
         def arm(diagnostics: bool, cfg=cfg) -> ArmRun:
@@ -220,3 +223,65 @@ def bench_diagnostics_lockstep(
             row[clock] = lockstep_cost(w, wo, ag, block, clock)
         rows.append(row)
     return rows
+
+
+def share_ci(row: dict, key: str) -> str:
+    """``row[key]`` and its interval ``row[key + "_ci"]`` as percentages: "+1.2 % [-0.5, +3.0]"."""
+    lo, hi = row[f"{key}_ci"]
+    return f"{100 * row[key]:+.1f} % [{100 * lo:+.1f}, {100 * hi:+.1f}]"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """The table and notes ``bench train --diagnostics-cost --lockstep`` printed."""
+    import argparse
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from nutribench.agents.registry import paper_names
+    from nutribench.config import load_env_config
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--algos", default="all", help="'all' or comma-separated algorithms")
+    ap.add_argument("--regime", default="run0")
+    ap.add_argument("--days", type=int, default=100, help="training days of each arm")
+    ap.add_argument("--block", type=int, default=10, help="days per paired block (PPO's rollout: 10)")
+    args = ap.parse_args(argv)
+    names = paper_names() if args.algos == "all" else [a.strip() for a in args.algos.split(",")]
+    unknown = sorted(set(names) - set(paper_names()))
+    if unknown or args.days < 1 or args.block < 1:
+        what = (
+            f"unknown algorithm {unknown[0]!r} (known: {', '.join(paper_names())})"
+            if unknown
+            else "--days and --block: 1 or more"
+        )
+        print(f"lockstep.py: {what}", file=sys.stderr)
+        return 2
+    load_env_config(args.regime)
+    console = Console()
+    table = Table(
+        "algo",
+        "clock",
+        "cost: share of the time [95 % CI]",
+        "A/A: without vs without again [95 % CI]",
+        "median of the blocks' ratios",
+        title=f"diagnostics' cost in lockstep, {args.regime}, {args.days} days per arm, blocks of {args.block} days",
+    )
+    notes = []
+    for r in bench_diagnostics_lockstep(names, regime=args.regime, episodes=args.days, block=args.block):
+        for clock, label in (("wall", "wall"), ("cpu", "CPU")):
+            c = r[clock]
+            table.add_row(r["algo"], label, share_ci(c, "cost"), share_ci(c, "aa"), f"{100 * c['median_cost']:+.1f} %")
+        same = "yes" if r["identical"] else "NO (the pairing is not of equal work)"
+        notes.append(
+            f"{r['algo']}: {r['wall']['blocks']} blocks; the three arms trained the same days: {same}; "
+            f"env-steps/s {r['steps_per_s']:,.0f} with, {r['steps_per_s_without']:,.0f} without"
+        )
+    console.print(table)
+    for line in notes:
+        console.print(line, highlight=False)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

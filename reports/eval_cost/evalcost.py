@@ -1,8 +1,14 @@
-"""``nutribench bench train --eval-every N``: what the evaluation during training costs. Each
+"""What the evaluation during training costs (this folder's bench, once ``nutribench bench train
+--eval-every N``)::
+
+    python reports/eval_cost/evalcost.py --algos ppo,mc --days 100 --repeats 4 --eval-every 50
+    python reports/eval_cost/evalcost.py --algos ppo,mc --engine batched --days 50 --repeats 2 --eval-every 50
+
+Each
 repeat trains the same job (SB3 engine) or batch (batched engine: 7 regimes x 5 seeds at
 once) twice, with and without ``eval_every``, in alternating order; the cost is the share of
 the training time the evaluations take, paired per repeat
-(:func:`~nutribench.bench.paired.paired_cost`, 95 % bootstrap interval over the repeats),
+(:func:`nutribench.bench.paired.paired_cost`, 95 % bootstrap interval over the repeats),
 on the wall clock and on the process's CPU time (which other work on a shared machine moves
 less). The two arms train identically (tests/test_validation.py), so the difference is the
 evaluations alone."""
@@ -10,7 +16,9 @@ evaluations alone."""
 from __future__ import annotations
 
 import statistics
+import sys
 import time
+from collections.abc import Sequence
 
 from nutribench.bench.paired import paired_cost
 
@@ -95,3 +103,62 @@ def bench_eval_cost(
         row["component_cost"] = spent / (statistics.median(c for _, c in without) + spent)
         rows.append(row)
     return rows
+
+
+def share_ci(row: dict, key: str) -> str:
+    """``row[key]`` and its interval ``row[key + "_ci"]`` as percentages: "+1.2 % [-0.5, +3.0]"."""
+    lo, hi = row[f"{key}_ci"]
+    return f"{100 * row[key]:+.1f} % [{100 * lo:+.1f}, {100 * hi:+.1f}]"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """The table ``bench train --eval-every`` printed."""
+    import argparse
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from nutribench.agents.registry import batched_names, paper_names
+    from nutribench.config import load_env_config
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--algos", default="all", help="'all' or comma-separated algorithms")
+    ap.add_argument("--regime", default="run0", help="the SB3 engine's regime (batched: all seven, 5 seeds)")
+    ap.add_argument("--days", type=int, default=100, help="training days per timed run")
+    ap.add_argument("--repeats", type=int, default=4)
+    ap.add_argument("--eval-every", type=int, default=50, help="an evaluation every so many training days")
+    ap.add_argument("--val-episodes", type=int, default=5, help="validation days per evaluation")
+    ap.add_argument("--engine", default="sb3", choices=("sb3", "batched"))
+    args = ap.parse_args(argv)
+    known = batched_names() if args.engine == "batched" else paper_names()
+    names = list(known) if args.algos == "all" else [a.strip() for a in args.algos.split(",")]
+    unknown = sorted(set(names) - set(known))
+    problem = None
+    if unknown:
+        problem = f"unknown algorithm {unknown[0]!r} for the {args.engine} engine (known: {', '.join(known)})"
+    elif min(args.days, args.repeats, args.eval_every, args.val_episodes) < 1:
+        problem = "--days, --repeats, --eval-every and --val-episodes: 1 or more"
+    elif args.eval_every > args.days:
+        problem = f"--eval-every {args.eval_every}: more than --days {args.days}, no evaluation would be timed"
+    if problem:
+        print(f"evalcost.py: {problem}", file=sys.stderr)
+        return 2
+    load_env_config(args.regime)
+    where = "K = 35" if args.engine == "batched" else args.regime
+    title = (
+        f"evaluation every {args.eval_every} days on {args.val_episodes} validation days, {args.engine} engine "
+        f"({where}), {args.days} days x {args.repeats}"
+    )
+    heads = ["algo", "without (s)", "with (s)", "evaluations", "cost, wall [95 % CI]", "cost, CPU", "one alone (CPU s)"]
+    table = Table(*heads, "its share", title=title)
+    rows = bench_eval_cost(names, args.regime, args.days, args.repeats, args.eval_every, args.val_episodes, args.engine)
+    for r in rows:
+        times = [f"{r['without_s']:.2f}", f"{r['with_s']:.2f}", str(r["evaluations"])]
+        alone = [f"{r['evaluation_cpu_s']:.3f}", f"{100 * r['component_cost']:.1f} %"]
+        table.add_row(r["algo"], *times, share_ci(r, "cost"), share_ci(r, "cpu_cost"), *alone)
+    Console().print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

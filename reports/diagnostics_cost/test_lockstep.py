@@ -1,8 +1,9 @@
-"""``bench train --diagnostics-cost --lockstep``: arms trained side by side, a day each in turn."""
+"""reports/diagnostics_cost/lockstep.py (once ``bench train --diagnostics-cost --lockstep``): arms
+trained side by side, a day each in turn. This study's own check:
+``python -m pytest -p no:cacheprovider reports/diagnostics_cost``."""
 
 from __future__ import annotations
 
-import itertools
 import random
 import re
 import threading
@@ -11,12 +12,11 @@ import types
 import numpy as np
 import pytest
 import torch as th
-from typer.testing import CliRunner
+from report_scripts import load_script
 
-from nutribench.bench import lockstep as L
-from nutribench.bench.paired import ORDERS, seamless_orders
-from nutribench.cli import app
-from tests.conftest import one_error_line
+from nutribench.bench.paired import ORDERS
+
+L = load_script("diagnostics_cost", "lockstep")
 
 
 def fake_clock(monkeypatch) -> list[float]:
@@ -66,20 +66,6 @@ def test_an_arm_that_ends_early_sits_out_and_days_that_differ_are_seen(monkeypat
     short, long_ = L.lockstep({"short": run(2), "long": run(5, offset=0.5)})
     assert (len(short.wall), len(long_.wall)) == (3, 6)
     assert not L.same_days(short, long_)
-
-
-def test_orders_never_run_an_arm_twice_in_a_row():
-    """Across a round's end (the last round wrapping to the first) no arm runs twice in a row:
-    lexicographic order would let two arms, never the third, run back to back with warm caches."""
-    for n in (3, 4):
-        orders = seamless_orders(n)
-        assert sorted(orders) == sorted(itertools.permutations(range(n)))
-        assert all(orders[i - 1][-1] != orders[i][0] for i in range(len(orders)))
-    assert ORDERS == seamless_orders(3)
-    # each arm first, second and last twice in 6 rounds
-    assert all(sorted(o.index(a) for o in ORDERS) == [0, 0, 1, 1, 2, 2] for a in range(3))
-    lexicographic = list(itertools.permutations(range(3)))
-    assert sum(lexicographic[i - 1][-1] == lexicographic[i][0] for i in range(6)) == 2  # what it fixes
 
 
 def test_each_arm_draws_the_random_numbers_it_would_draw_alone():
@@ -146,25 +132,10 @@ def test_bench_lockstep_trains_the_same_days_in_every_arm(algo, days, blocks):
     assert row["steps_per_s"] > 0 and -1 < row["cpu"]["cost"] < 1
 
 
-def test_bench_train_lockstep_cli():
-    args = ["bench", "train", "--algos", "mc", "--episodes", "2", "--diagnostics-cost", "--lockstep", "--block", "1"]
-    result = CliRunner().invoke(app, args)
-    assert result.exit_code == 0, result.output
-    out = " ".join(result.output.split())
+def test_the_script_prints_the_table_and_refuses_bad_input_in_one_line(capsys):
+    assert L.main(["--algos", "mc", "--days", "2", "--block", "1"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
     assert "lockstep" in out and "mc: 3 blocks; the three arms trained the same days: yes" in out
     assert len(re.findall(r"[+-]\d+\.\d %", out)) == 6  # cost, A/A and median ratio on both clocks
-    line = one_error_line(CliRunner().invoke(app, ["bench", "train", "--algos", "mc", "--lockstep"]))
-    assert "--lockstep" in line and "add --diagnostics-cost" in line
-    batched = ["bench", "train", "--algos", "ppo", "--diagnostics-cost", "--lockstep", "--engine", "batched"]
-    line = one_error_line(CliRunner().invoke(app, batched))
-    assert "not --engine batched" in line and "add --diagnostics-cost" not in line
-
-
-def test_total_cost_weighs_each_block_by_its_length():
-    """Two short blocks 10 % faster without, one long block equal: the share of the total time
-    is 0.2 / 12, where the median of the blocks' ratios would say 10 %."""
-    from nutribench.bench.paired import paired_cost, total_cost
-
-    cost, lo, hi = total_cost([1.0, 1.0, 10.0], [0.9, 0.9, 10.0])
-    assert cost == pytest.approx(0.2 / 12) and lo <= cost <= hi
-    assert paired_cost([1.0, 1.0, 10.0], [0.9, 0.9, 10.0])[0] == pytest.approx(0.1)
+    assert L.main(["--algos", "nope"]) == 2
+    assert capsys.readouterr().err.startswith("lockstep.py: unknown algorithm 'nope'")

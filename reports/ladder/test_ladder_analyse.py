@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 from report_scripts import load_script
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

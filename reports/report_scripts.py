@@ -1,5 +1,6 @@
 """The report scripts (``reports/<folder>/<name>.py``) are files run by path, not an installed
-package: the tests load them the same way, through :func:`load_script`."""
+package: the studies' own checks (``reports/<folder>/test_*.py``) load them the same way,
+through :func:`load_script`."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
-REPORTS = Path(__file__).resolve().parents[1] / "reports"
+REPORTS = Path(__file__).resolve().parent
 
 
 def load_script(folder: str, name: str) -> ModuleType:
