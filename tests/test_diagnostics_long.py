@@ -55,17 +55,28 @@ def _wide_rows(rng: np.random.Generator, n: int) -> list[tuple]:
     return rows
 
 
-def test_the_migration_carries_every_value_of_a_0006_database_and_back(tmp_path: Path) -> None:
-    db = tmp_path / "old.db"
-    engine = make_engine(database_url(db), writer=True)
+def _rows(url: str, query: str) -> list[tuple]:
+    engine = make_engine(url)
+    try:
+        with engine.connect() as conn:
+            return [tuple(r) for r in conn.execute(text(query))]
+    finally:
+        engine.dispose()
+
+
+def check_the_0007_migration(url: str) -> None:
+    """A revision-0006 database at ``url`` with 162 wide rows (three jobs, one a dry run's)
+    upgraded to the head and downgraded again: every value kept, both ways."""
+    engine = make_engine(url, writer=True)
     rng = np.random.default_rng(7)
-    cols = ", ".join(f'"{c}"' for c in ("job_id", *d.COLUMNS))
-    marks = ", ".join(["?"] * (len(d.COLUMNS) + 1))
+    names = ("job_id", *d.COLUMNS)
+    cols = ", ".join(f'"{c}"' for c in names)
+    marks = ", ".join(f":p{i}" for i in range(len(names)))
     with engine.begin() as conn:
         upgrade_connection(conn, "0006")
         conn.execute(text("INSERT INTO regimes VALUES (1, 'run0', 1, 'aa', '{}', NULL, '2026-01-01')"))
         conn.execute(text("INSERT INTO agent_configs VALUES (1, 'ppo', 'ppo', 1, 'bb', '{}', NULL, '2026-01-01')"))
-        for job, seed, fake in ((1, 0, 0), (2, 1, 0), (3, 2, 1)):
+        for job, seed, fake in ((1, 0, "false"), (2, 1, "false"), (3, 2, "true")):
             conn.execute(
                 text(
                     "INSERT INTO jobs (id, regime_id, agent_config_id, seed, episodes, eval_episodes, status, attempt, "
@@ -73,46 +84,64 @@ def test_the_migration_carries_every_value_of_a_0006_database_and_back(tmp_path:
                     f"VALUES ({job}, 1, 1, {seed}, 2, 0, 'done', 1, 0, 2, '2026-01-01', {fake}, 'sb3')"
                 )
             )
-        raw = conn.connection.driver_connection
         for job, n in ((1, 120), (2, 37), (3, 5)):
-            raw.executemany(
-                f"INSERT INTO diagnostics ({cols}) VALUES ({marks})", [(job, *r) for r in _wide_rows(rng, n)]
-            )
+            rows = [dict(zip([f"p{i}" for i in range(len(names))], (job, *r))) for r in _wide_rows(rng, n)]
+            conn.execute(text(f"INSERT INTO diagnostics ({cols}) VALUES ({marks})"), rows)
     engine.dispose()
-    table = sql(db, f'SELECT {cols} FROM diagnostics ORDER BY job_id, "update"')
-    view = sql(db, 'SELECT * FROM training_diagnostics ORDER BY job_id, "update"')
+    table = _rows(url, f'SELECT {cols} FROM diagnostics ORDER BY job_id, "update"')
+    view = _rows(url, 'SELECT * FROM training_diagnostics ORDER BY job_id, "update"')
     assert len(table) == 162 and len(view) == 157  # the dry run's job is in the table, not the view
     filled = sum(v is not None for row in table for v in row[3:])
 
-    res = CliRunner().invoke(app, ["run", "--upgrade-only", "--db", str(db)])
-    assert res.exit_code == 0 and "upgraded from 0006" in res.output, res.output
-    assert sql(db, "SELECT version_num FROM nutribench_alembic_version") == [(head_revision(),)]
+    res = CliRunner().invoke(app, ["run", "--upgrade-only", "--db", url])
+    assert res.exit_code == 0 and "upgraded from 0006" in " ".join(res.output.split()), res.output
+    assert _rows(url, "SELECT version_num FROM nutribench_alembic_version") == [(head_revision(),)]
     # every value kept, exactly: the view reads as it did (same columns, same rows), and the
     # long table holds a timestep per update and a row per non-NULL value, nothing else
-    assert sql(db, 'SELECT * FROM training_diagnostics ORDER BY job_id, "update"') == view
-    assert tuple(c[1] for c in sql(db, "PRAGMA table_info(training_diagnostics)")) == TRAINING_DIAGNOSTICS_COLUMNS
-    assert tuple(c[1] for c in sql(db, "PRAGMA table_info(diagnostic_values)")) == DIAGNOSTIC_VALUES_COLUMNS
-    assert sql(db, "SELECT count(*) FROM diagnostics") == [(len(table) + filled,)]
-    long = {(j, u, n): v for j, u, n, v in sql(db, 'SELECT job_id, "update", name, value FROM diagnostics')}
+    assert _rows(url, 'SELECT * FROM training_diagnostics ORDER BY job_id, "update"') == view
+    assert _rows(url, "SELECT count(*) FROM diagnostics") == [(len(table) + filled,)]
+    long = {(j, u, n): v for j, u, n, v in _rows(url, 'SELECT job_id, "update", name, value FROM diagnostics')}
     for row in table:
         job, update, timestep = row[:3]
         assert long[(job, update, "timestep")] == timestep
         for q, v in zip(d.QUANTITIES, row[3:]):
             assert long.get((job, update, q)) == v
-    df = read_training_diagnostics(db)
+    df = read_training_diagnostics(url)
     assert tuple(df.columns) == TRAINING_DIAGNOSTICS_COLUMNS and len(df) == len(view)
     assert df["timestep"].dtype.kind == "i"
+    values = read_sql_columns(url, "diagnostic_values")
+    assert values == DIAGNOSTIC_VALUES_COLUMNS
 
     # and back: the wide table as it was
-    engine = make_engine(database_url(db), writer=True)
+    engine = make_engine(url, writer=True)
     with engine.begin() as conn:
         cfg = alembic_config()
         cfg.attributes["connection"] = conn
         command.downgrade(cfg, "0006")
     engine.dispose()
-    assert sql(db, f'SELECT {cols} FROM diagnostics ORDER BY job_id, "update"') == table
-    assert sql(db, 'SELECT * FROM training_diagnostics ORDER BY job_id, "update"') == view
-    assert "diagnostic_values" not in {r[0] for r in sql(db, "SELECT name FROM sqlite_master")}
+    assert _rows(url, f'SELECT {cols} FROM diagnostics ORDER BY job_id, "update"') == table
+    assert _rows(url, 'SELECT * FROM training_diagnostics ORDER BY job_id, "update"') == view
+
+
+def read_sql_columns(url: str, view: str) -> tuple[str, ...]:
+    engine = make_engine(url)
+    try:
+        with engine.connect() as conn:
+            return tuple(conn.execute(text(f"SELECT * FROM {view} WHERE 1 = 0")).keys())
+    finally:
+        engine.dispose()
+
+
+def test_the_migration_carries_every_value_of_a_0006_database_and_back(tmp_path: Path) -> None:
+    db = tmp_path / "old.db"
+    check_the_0007_migration(str(database_url(db)))
+    assert "diagnostic_values" not in {r[0] for r in sql(db, "SELECT name FROM sqlite_master")}  # downgraded
+
+
+@pytest.mark.slow
+@pytest.mark.serial
+def test_the_migration_carries_every_value_on_postgres(pg_url: str) -> None:
+    check_the_0007_migration(pg_url)
 
 
 # --------------------------------------------------------------------------- a plug-in's name
