@@ -96,6 +96,12 @@ def test_a_plugin_is_tuned_through_its_params(plugin_folder: Path, monkeypatch) 
     assert res.exit_code == 0, res.output
     (trial,) = optuna.load_study(study_name="p", storage=f"sqlite:///{db}").trials
     assert trial.state.name == "COMPLETE" and np.isfinite(trial.value) and 1e-4 <= trial.params["learning_rate"] <= 1e-3
+    # scored once after its last day, never pruned: the study records that, not --eval-every 2 and the median rule
+    settings = stored_settings(optuna.load_study(study_name="p", storage=f"sqlite:///{db}"))
+    assert (settings.eval_every, settings.pruner, settings.days) == (4, "none", 4)
+    assert "late-mean" in one_error_line(
+        tune(db, "--algo", str(space), "--study", "p3", "--objective", "late-mean", *TINY)
+    )
     # the written file says how a plug-in's trial was scored (once, at its end), and the
     # leaderboard labels it tuned, as a built-in agent's tuned file
     out = plugin_folder / "tuned"
@@ -304,3 +310,20 @@ def test_a_new_study_draws_with_the_constant_liar_and_an_old_one_resumes_without
     assert res.exit_code == 0, res.output  # resumed: no "created with other settings"
     study = optuna.load_study(study_name="new", storage=f"sqlite:///{db}")
     assert "constant_liar" not in study.user_attrs["nutribench"] and len(study.trials) == 2
+
+
+def test_a_plugin_study_recorded_before_it_said_scored_once_resumes(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from nutribench.tuning.study import StudySettings, scored_once
+
+    old = StudySettings("s", 1, "0" * 64, ("run3",), (101,), 12, 6, 2, 0, "median")  # what such studies hold
+    db = tmp_path / "lab.db"
+    open_study(db, "p", old)
+    now = scored_once(old)
+    assert (now.eval_every, now.pruner) == (12, "none")
+    with pytest.raises(TuneError, match="created with other settings"):
+        open_study(db, "p", now)  # any other study's settings must match
+    assert stored_settings(open_study(db, "p", now, once=True)) == replace(old, constant_liar=False)
+    with pytest.raises(TuneError, match="created with other settings: days 12"):
+        open_study(db, "p", replace(now, days=24, eval_every=24), once=True)  # what applies must still match

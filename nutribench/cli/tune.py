@@ -85,6 +85,7 @@ def tune_cmd(
     algo = old_spelling(space, algo, "--space", "--algo")  # --algo names an agent file elsewhere
     if algo is None or study is None:
         raise typer.BadParameter("give --space (a search space) and --study (a name); see nutribench tune --help")
+    from nutribench.agents.registry import by_entry_point
     from nutribench.config import list_regimes
     from nutribench.tuning.export import space_file_attr
     from nutribench.tuning.objective import ValidationObjective
@@ -97,6 +98,7 @@ def tune_cmd(
         heartbeat_settings,
         open_study,
         parse_seeds,
+        scored_once,
     )
 
     check_study_name(study)
@@ -117,6 +119,10 @@ def tune_cmd(
         objective=objective_rule,
         constant_liar=True,  # a new study's; one made before keeps its sampler (open_study)
     )
+    # a plug-in's trials are scored once, after their last day, and never pruned: recorded so
+    once = by_entry_point(space.base().algo)
+    if once:
+        settings = scored_once(settings)
     settings.check()
     if trials < 1 or stack < 1:
         raise TuneError("--trials and --stack must be >= 1")
@@ -126,7 +132,7 @@ def tune_cmd(
 
     check_device(device)
     _, grace = heartbeat_settings()
-    handle = open_study(db, study, settings, space_file_attr(resolve_space_path(algo)))
+    handle = open_study(db, study, settings, space_file_attr(resolve_space_path(algo)), once=once)
 
     def evaluation(number: int, day: int, value: float) -> None:
         shown.close()

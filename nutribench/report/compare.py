@@ -268,11 +268,37 @@ def compare_agents(
     if budget_a != budget_b:
         notes.insert(
             0,
-            f"warning: budgets differ ({algo_label(a)} trained {budget_a} days, {algo_label(b)} {budget_b} days): "
+            f"warning: budgets differ ({trained_text(algo_label(a), budget_a)}, "
+            f"{trained_text(algo_label(b), budget_b, verb='')}): "
             "the difference is "
             "the agents' and their budgets' together",
         )
-    return Comparison(a, b, pd.DataFrame(rows, columns=COLUMNS), days, reps, notes, budget_seeds_text(used))
+    return Comparison(a, b, pd.DataFrame(rows, columns=COLUMNS), days, reps, notes, _header(used))
+
+
+#: What a budget of 0 days means: no training day was recorded with the job (a saved model
+#: evaluated by ``nutribench evaluate``, a policy recorded by ``nutribench.Recorder`` without
+#: training days): how long it was trained, the database does not know.
+UNRECORDED = "training not recorded"
+
+
+def trained_text(label: str, budget: str, verb: str = "trained ") -> str:
+    """``PPO trained 150 days`` (``verb`` ""): ``mine 50 days``); ``mine: training not
+    recorded`` for a budget of 0 days (not "trained 0 days": an evaluated model was trained,
+    elsewhere, for a time the database does not hold)."""
+    parts = budget.split("/")
+    if "0" not in parts:
+        return f"{label} {verb}{budget} days"
+    known = [p for p in parts if p != "0"]
+    return f"{label}: {UNRECORDED}" + (f" for some seeds, {'/'.join(known)} days for the others" if known else "")
+
+
+def _header(used: pd.DataFrame) -> str:
+    """The budgets and seeds line of the comparison (:func:`budget_seeds_text`), a budget of 0
+    days said as :data:`UNRECORDED`."""
+    import re
+
+    return re.sub(r"budget 0 days", f"budget unknown ({UNRECORDED})", budget_seeds_text(used))
 
 
 def _regimes_of(ev: pd.DataFrame, name: str) -> str:

@@ -131,14 +131,36 @@ def _config_title(number: int, name: str, content: dict) -> str:
     # an algorithm without a builder of its own (algo "external") is a plug-in named by its entry point
     kind = "" if algo == name else f", {algo_label(algo)} variant" if algo in names() else ", external agent"
     entry = f" {content['entry_point']}" if content.get("entry_point") else ""
+    if algo == "external" and not content.get("entry_point"):
+        entry = ", recorded: trained by its own loop, so only what it declared"
     return f"Table {number}: {algo_label(name)} configuration ({name} v{content.get('version')}{kind}{entry})"
 
 
+#: What ``nutribench run`` reads of an external config to train its plug-in: a recorded loop
+#: (no entry point) never declared or used them.
+RUNNER_SETTINGS = ("entry_point", "params", "normalize_obs", "normalize_reward", "gamma")
+
+
+def declared(content: dict) -> dict:
+    """The keys of a stored config body that were declared: all of them, but for a recorded
+    agent (``algo = "external"`` without an entry point: :class:`nutribench.Recorder`,
+    ``nutribench evaluate``), whose stored body also holds the runner's defaults
+    (``entry_point None``, ``normalize_obs False``, ``gamma 0.99``, empty ``params``), those
+    of :data:`RUNNER_SETTINGS` still at their defaults are left out."""
+    if content.get("algo") != "external" or content.get("entry_point") is not None:
+        return content
+    from nutribench.agents.builtin.external import ExternalConfig
+
+    fields = ExternalConfig.model_fields
+    default = {k: fields[k].get_default(call_default_factory=True) for k in RUNNER_SETTINGS if k in fields}
+    return {k: v for k, v in content.items() if not (k in default and v == default[k])}
+
+
 def table_agent_config(number: int, config) -> TableResult:
-    """Tables 2-6 (and 7, ...): every key of one agent config (a model from its file, or the
-    body stored in the database); nested tables such as an external agent's ``[params]``
-    as ``params.<key>`` rows."""
-    content = config.model_dump(mode="json")
+    """Tables 2-6 (and 7, ...): every declared key of one agent config (a model from its file,
+    or the body stored in the database; :func:`declared`); nested tables such as an external
+    agent's ``[params]`` as ``params.<key>`` rows."""
+    content = declared(config.model_dump(mode="json"))
     flat = _flatten(content)
     raw = pd.DataFrame(
         {"hyperparameter": list(flat), "value": [v if not isinstance(v, list) else str(v) for v in flat.values()]}

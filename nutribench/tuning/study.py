@@ -214,9 +214,13 @@ def check_study_name(name: str) -> None:
         raise TuneError(f"--study {name[:40]!r}: a name without control characters (tabs, new lines)")
 
 
-def open_study(db: Any, name: str, settings: StudySettings | None, space_file: dict[str, str] | None = None) -> Any:
+def open_study(
+    db: Any, name: str, settings: StudySettings | None, space_file: dict[str, str] | None = None, once: bool = False
+) -> Any:
     """The study ``name`` in ``db``: created with ``settings`` if new; if it exists, its stored
     settings must equal ``settings`` (None: whatever it holds, for status and export).
+    ``once``: a plug-in's study (:func:`scored_once`): one made before its settings said so
+    (an ``eval_every`` and ``pruner`` that never applied) resumes with what it holds.
     ``space_file`` (``{"path": ..., "toml": ...}``: :func:`nutribench.tuning.export.space_file_attr`)
     is kept with the study (a study made before it was kept gets it on its next resume)."""
     import optuna
@@ -248,6 +252,8 @@ def open_study(db: Any, name: str, settings: StudySettings | None, space_file: d
     stored = _settings_when_written(optuna.load_study(study_name=name, storage=storage))
     if settings is not None:  # a study resumes with the sampler it was made with
         settings = replace(settings, constant_liar=stored.constant_liar)
+    if settings is not None and once:
+        settings = replace(settings, eval_every=stored.eval_every, pruner=stored.pruner)
     if settings is not None and stored != settings:
         diff = [
             f"{k} {getattr(stored, k)!r} (asked {getattr(settings, k)!r})"
@@ -345,6 +351,19 @@ def study_counts(db: Any, name: str | None = None) -> list[StudyCounts]:
             )
         names = [name]
     return [count_trials(optuna.load_study(study_name=n, storage=storage)) for n in names]
+
+
+def scored_once(settings: StudySettings) -> StudySettings:
+    """The settings of a plug-in's study (``algo = "external"``: its own loop trains each agent
+    and only the final agent is scored, :mod:`nutribench.tuning.objective`), as they apply:
+    one evaluation, after the last day (``eval_every = days``), and no pruner (a trial with
+    one value has nothing to be pruned on). :class:`TuneError` for ``late-mean``, which needs
+    two evaluations."""
+    if settings.objective == "late-mean":
+        raise TuneError(
+            "--objective late-mean: a plug-in's trials are scored once, after their last day; use --objective last"
+        )
+    return replace(settings, eval_every=settings.days, pruner="none")
 
 
 def default_eval_every(days: int) -> int:
