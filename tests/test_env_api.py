@@ -92,3 +92,30 @@ def test_render_modes():
     assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8 and img.std() > 0
     with pytest.raises(ValueError, match="render_mode"):
         NutriRLEnv("run0", render_mode="human")
+
+
+def test_rgb_array_draws_the_nutrients_against_the_target_with_numpy_alone():
+    """The picture: each nutrient's bar grows with what is absorbed (solid) and what is on its
+    way (striped, the nutrient's colour too); the dashed target line sits at 1.0 of the scale."""
+    from nutribench.env.picture import COLORS, SIZE, nutrient_picture
+
+    def colored(img, color):
+        return int((img == np.array(color, dtype=np.uint8)).all(axis=2).sum())
+
+    empty = nutrient_picture([0, 0, 0], [0, 0, 0], 0, 50)
+    assert empty.shape == (*SIZE, 3) and all(colored(empty, c) == 0 for c in COLORS)
+    half = nutrient_picture([0.5, 0.0, 0.0], [0, 0, 0], 10, 50)
+    full = nutrient_picture([1.0, 0.0, 0.0], [0, 0, 0], 10, 50)
+    assert 0 < colored(half, COLORS[0]) < colored(full, COLORS[0]) and colored(full, COLORS[1]) == 0
+    on_way = nutrient_picture([0.5, 0.0, 0.0], [0.5, 0.0, 0.0], 10, 50)
+    assert colored(half, COLORS[0]) < colored(on_way, COLORS[0]) < colored(full, COLORS[0])  # striped: half inked
+    # the target line: black dashes on the row of 1.0, where a full bar's top edge is
+    dark_rows = np.where(((empty == 0).all(axis=2)).sum(axis=1) > 100)[0]
+    c_bar = np.where((full == np.array(COLORS[0], dtype=np.uint8)).all(axis=2).any(axis=1))[0]
+    assert any(abs(int(r) - int(c_bar.min())) <= 1 for r in dark_rows)
+    env = NutriRLEnv("run3", render_mode="rgb_array")
+    env.reset(seed=0)
+    for _ in range(5):
+        env.step(1)
+    assert np.array_equal(env.render(), env.render())
+    assert colored(env.render(), COLORS[0]) > 0

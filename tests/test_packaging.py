@@ -125,10 +125,10 @@ print(" ".join(sorted(loaded)))
     [
         "sys.argv = ['nutribench', 'run', '--regimes', 'run0', '--algos', 'mc']\n"
         "from nutribench.cli import main\nmain()",
-        "sys.argv = ['nutribench', '--version']\nfrom nutribench.cli import main\nmain()",
+        "sys.argv = ['nutribench', 'run', '--version']\nfrom nutribench.cli import main\nmain()",
         "import runpy\nsys.argv = ['nutribench']\nrunpy.run_module('nutribench.cli', run_name='__main__')",
     ],
-    ids=["run", "version", "python -m nutribench.cli"],
+    ids=["run", "run --version", "python -m nutribench.cli"],
 )
 def test_without_the_extra_the_command_says_what_to_install(tmp_path: Path, entry: str) -> None:
     result = _run_blocked(entry, tmp_path)
@@ -139,6 +139,40 @@ def test_without_the_extra_the_command_says_what_to_install(tmp_path: Path, entr
     assert INSTALL_HINT in lines[0] and "experiments extra (typer, " in lines[0]
     assert result.stdout == ""
     assert list(tmp_path.iterdir()) == []  # nothing written (no database)
+
+
+@pytest.mark.parametrize(
+    "entry",
+    [
+        "sys.argv = ['nutribench', '--version']\nfrom nutribench.cli import main\nmain()",
+        "import runpy\nsys.argv = ['nutribench', '--version']\nrunpy.run_module('nutribench.cli', run_name='__main__')",
+    ],
+    ids=["nutribench --version", "python -m nutribench.cli --version"],
+)
+def test_version_works_without_the_extra(tmp_path: Path, entry: str) -> None:
+    """docs/getting-started.md: `nutribench --version` prints the installed version, on the
+    base install too (it exited 2 there, naming the extra)."""
+    result = _run_blocked(entry, tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == f"nutribench {version('nutribench')}" and result.stderr == ""
+
+
+def test_gymnasiums_checker_passes_on_every_regime_without_the_extra(tmp_path: Path) -> None:
+    """Gymnasium's check_env renders every mode of the metadata; rgb_array is drawn with numpy
+    alone, so the base install passes it (it needed matplotlib), with no warning either."""
+    code = """
+import warnings
+warnings.simplefilter("error")
+import gymnasium as gym, nutribench
+from gymnasium.utils.env_checker import check_env
+ids = sorted(i for i in gym.registry if i.startswith("nutribench/"))
+for i in ids:
+    check_env(gym.make(i).unwrapped)
+print(" ".join(ids))
+"""
+    result = _run_blocked(code, tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert len(result.stdout.split()) == 8  # the seven regimes' ids and the generic one
 
 
 def test_one_missing_module_is_named(tmp_path: Path) -> None:

@@ -143,7 +143,13 @@ def __getattr__(name: str):
 
 
 def main() -> None:
-    """The console script's entry point: the app, or one line naming the missing extra (status 2)."""
+    """The console script's entry point: the app, or one line naming the missing extra (status 2).
+    ``nutribench --version`` needs no extra: it prints the installed version on the base install too."""
+    if sys.argv[1:] == ["--version"]:
+        from nutribench import __version__
+
+        print(f"nutribench {__version__}")
+        return
     missing = missing_experiment_modules()
     if missing:
         named = ", ".join(missing[:3]) + (f" and {len(missing) - 3} more" if len(missing) > 3 else "")

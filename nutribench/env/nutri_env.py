@@ -81,7 +81,8 @@ reward's three signed terms ``reward_progress``, ``reward_comfort``, ``reward_ov
 
 ``regime``: a regime name (``"run3"``), a path to a regime file, or an
 :class:`~nutribench.config.EnvConfig`. ``render_mode``: ``None``, ``"ansi"`` or
-``"rgb_array"``. ``reset(seed=...)`` seeds the food stream (the only randomness);
+``"rgb_array"`` (a 240 x 320 picture of the three nutrients against the target, drawn with
+numpy alone). ``reset(seed=...)`` seeds the food stream (the only randomness);
 ``reset(options={"foods": [i_1, ..., i_H]})`` plays a given food stream instead.
 
 ## Inspection
@@ -104,6 +105,7 @@ from gymnasium import spaces
 
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.env.kernels import absorption_schedule, arrivals_by_horizon
+from nutribench.env.picture import nutrient_picture
 
 
 class RegimeDynamics:
@@ -328,20 +330,6 @@ def render_ansi(env: NutriRLEnv) -> str:
 
 
 def render_rgb(env: NutriRLEnv) -> np.ndarray:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(3.2, 2.4), dpi=100)
-    canvas = FigureCanvasAgg(fig)
-    ax = fig.add_subplot()
-    pending = env.pending_by_horizon()
-    ax.bar(["C", "F", "P"], env._s, color=["#4c72b0", "#dd8452", "#55a868"], label="absorbed")
-    ax.bar(["C", "F", "P"], pending, bottom=env._s, color="none", edgecolor="grey", hatch="//", label="pending")
-    ax.axhline(1.0, color="k", ls="--", lw=1, label="target")
-    ax.set_ylim(0, max(1.5, float(np.max(np.asarray(env._s) + pending)) * 1.1))
-    ax.set_title(f"step {env.steps_taken}/{env.horizon}", fontsize=9)
-    ax.set_ylabel("x daily target", fontsize=8)
-    ax.legend(fontsize=6, loc="upper right")
-    fig.tight_layout()
-    canvas.draw()
-    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+    """The ``rgb_array`` picture: the three nutrients, absorbed and on their way, against the
+    target (:func:`nutribench.env.picture.nutrient_picture`; numpy alone)."""
+    return nutrient_picture(env._s, env.pending_by_horizon(), env.steps_taken, env.horizon)
