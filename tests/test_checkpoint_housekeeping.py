@@ -6,7 +6,6 @@ unfinished job, or a job of another database, stays."""
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import sqlite3
 from pathlib import Path
@@ -15,6 +14,7 @@ import pytest
 
 from nutribench.scheduler.driver import run_grid
 from nutribench.scheduler.synthetic import synthetic_job
+from tests.fake_jobs import Faults
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -29,17 +29,12 @@ def regimes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
 
 class FailingJob:
-    """The synthetic job, made to fail (set in the worker: the fork server's environment is
-    fixed when it starts)."""
+    """The synthetic job, made to fail halfway (the tests' :class:`~tests.fake_jobs.Faults`)."""
 
     fake = True
 
     def __call__(self, spec, sink=None):
-        os.environ["NUTRIBENCH_FAKE_FAIL"] = "*"
-        try:
-            return synthetic_job(spec, sink)
-        finally:
-            os.environ.pop("NUTRIBENCH_FAKE_FAIL")
+        return synthetic_job(spec, sink, Faults(fail="*"))
 
 
 def grid(db: Path, models: Path, seeds=(0, 1), job_fn=synthetic_job):

@@ -120,7 +120,7 @@ def test_a_checkpoint_of_other_jobs_is_refused(tmp_path):
 
 @pytest.mark.parametrize("tamper", ["a key missing", "a network of another shape"])
 def test_a_checkpoint_whose_state_does_not_fit_is_refused_in_one_line_and_the_batch_starts_over(
-    tamper, tmp_path, capsys
+    tamper, tmp_path, caplog
 ):
     """A checkpoint that reads (its format, its hash) but whose state does not fit the batch's
     algorithm is refused in one line; the batch trains from the start and ends as a batch
@@ -140,19 +140,21 @@ def test_a_checkpoint_whose_state_does_not_fit_is_refused_in_one_line_and_the_ba
     else:
         meta["state"]["params"] = meta["state"]["params"][:-2]
     sidecar.write_text(json.dumps(meta))
-    capsys.readouterr()
+    caplog.clear()
     again = train_batched(JOBS, "mc", 4, checkpoint=Checkpoint(path, every_seconds=0))
-    err = [line for line in capsys.readouterr().err.splitlines() if "checkpoint" in line]
+    err = [r.getMessage() for r in caplog.records if "checkpoint" in r.getMessage()]
     assert len(err) == 1 and "checkpoint refused (its state does not fit this batch" in err[0], err
     same_agents(train_batched(JOBS, "mc", 4), again)
 
 
-def test_an_unreadable_checkpoint_is_refused_in_one_line(tmp_path, capsys):
+def test_an_unreadable_checkpoint_is_refused_in_one_line(tmp_path, caplog):
     path = tmp_path / "batch.pt"
     path.write_bytes(b"not a checkpoint")
     checkpoint = Checkpoint(path)
     assert checkpoint.state is None
-    err = capsys.readouterr().err
+    (record,) = caplog.records
+    err = record.getMessage()
+    assert record.levelname == "WARNING" and record.name == "nutribench.engine.checkpoint"
     assert len(err.splitlines()) == 1 and "checkpoint refused" in err and "the batch starts over" in err, err
     checkpoint.remove()
     assert not path.exists()
@@ -265,7 +267,7 @@ def plant(path, marker, forged_sidecar: bool) -> None:
 
 
 @pytest.mark.parametrize("forged_sidecar", [False, True])
-def test_a_planted_pickle_checkpoint_never_runs_and_the_batch_completes(tmp_path, capsys, forged_sidecar):
+def test_a_planted_pickle_checkpoint_never_runs_and_the_batch_completes(tmp_path, caplog, forged_sidecar):
     """A pickle planted in ``<models>/checkpoints/`` under the name the batch reads
     is refused in one line (its code never runs: no marker); the batch trains from the start,
     gives the results of a batch that found nothing, and leaves no checkpoint file behind."""
@@ -276,19 +278,19 @@ def test_a_planted_pickle_checkpoint_never_runs_and_the_batch_completes(tmp_path
     path = batch.checkpoint_path(specs)
     marker = tmp_path / "pwned"
     plant(path, marker, forged_sidecar)
-    capsys.readouterr()
+    caplog.clear()
     try:
         again = batch.run_batch(specs)
     finally:
         assert not marker.exists(), "the planted pickle ran"
-    err = [line for line in capsys.readouterr().err.splitlines() if "checkpoint" in line]
+    err = [r.getMessage() for r in caplog.records if "checkpoint" in r.getMessage()]
     assert len(err) == 1 and "checkpoint refused" in err[0] and str(path) in err[0], err
     assert [r.train for r in again] == [r.train for r in whole]
     assert [r.eval for r in again] == [r.eval for r in whole]
     assert list(path.parent.iterdir()) == []
 
 
-def test_a_checkpoint_naming_a_class_is_refused(tmp_path, capsys):
+def test_a_checkpoint_naming_a_class_is_refused(tmp_path, caplog):
     """The JSON half is plain data: a crafted one naming a class (here ``os.system``, as the
     older format named the engine's classes) is refused in one line, and nothing is called."""
     import hashlib
@@ -303,12 +305,12 @@ def test_a_checkpoint_naming_a_class_is_refused(tmp_path, capsys):
         json.dumps({"format": FORMAT, "tensors_sha256": digest, "state": state})
     )
     assert Checkpoint(path).state is None
-    err = capsys.readouterr().err
+    err = caplog.text
     assert len(err.splitlines()) == 1 and "unknown node '$object'" in err, err
     assert not (tmp_path / "pwned").exists()
 
 
-def test_a_checkpoint_of_the_older_format_is_refused_in_one_line(tmp_path, capsys):
+def test_a_checkpoint_of_the_older_format_is_refused_in_one_line(tmp_path, caplog):
     """A checkpoint an older nutribench wrote (its reflective format) is refused: the batch restarts."""
     path = tmp_path / "batch.pt"
     Checkpoint(path).save(steps=1)
@@ -316,7 +318,7 @@ def test_a_checkpoint_of_the_older_format_is_refused_in_one_line(tmp_path, capsy
     meta = json.loads(sidecar.read_text())
     sidecar.write_text(json.dumps({**meta, "format": "nutribench-checkpoint/2"}))
     assert Checkpoint(path).state is None
-    err = capsys.readouterr().err
+    err = caplog.text
     assert len(err.splitlines()) == 1 and "is not of format nutribench-checkpoint/3" in err, err
 
 
@@ -391,7 +393,7 @@ def test_a_save_killed_between_its_two_renames_is_finished_by_the_next_read(tmp_
     assert sorted(p.name for p in tmp_path.iterdir()) == ["batch.pt", "batch.pt.state.json"]
 
 
-def test_a_save_that_finds_the_disk_full_keeps_the_previous_checkpoint(tmp_path, monkeypatch, capsys):
+def test_a_save_that_finds_the_disk_full_keeps_the_previous_checkpoint(tmp_path, monkeypatch, caplog):
     import errno
 
     import nutribench.engine.checkpoint as ckpt
@@ -405,7 +407,7 @@ def test_a_save_that_finds_the_disk_full_keeps_the_previous_checkpoint(tmp_path,
 
     monkeypatch.setattr(ckpt.th, "save", full)
     Checkpoint(path).save(steps=2, x=np.ones(3))  # says so, does not raise: training goes on
-    assert "checkpoint not saved (OSError: [Errno 28] No space left on device)" in capsys.readouterr().err
+    assert "checkpoint not saved (OSError: [Errno 28] No space left on device)" in caplog.text
     monkeypatch.undo()
     assert Checkpoint(path).state["steps"] == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["batch.pt", "batch.pt.state.json"]

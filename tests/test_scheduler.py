@@ -18,8 +18,9 @@ from sqlalchemy import create_engine, text
 from typer.testing import CliRunner
 
 from nutribench.cli import app
+from nutribench.cli.signals import STOP_SIGNALS
 from nutribench.config import list_regimes
-from nutribench.scheduler.driver import STOP_SIGNALS, RunError, run_grid
+from nutribench.scheduler.driver import RunError, run_grid
 from nutribench.scheduler.grid import PRESETS, GridError, parse_seeds, resolve_grid
 from nutribench.scheduler.lifecycle import MAX_FAILURES, STALE_AFTER_S
 from nutribench.scheduler.status import status_table
@@ -199,7 +200,7 @@ def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> N
 def test_killed_worker_fails_only_its_job_and_the_next_run_completes_it(regimes: Path, tmp_path: Path) -> None:
     db = tmp_path / "r.db"
     args = dict(seeds=[0], episodes=10, eval_episodes=2, workers=2, display=False)
-    s = run_grid(db, ["run0"], ["mc", "ppo", "sac"], job_fn=EnvJob(NUTRIBENCH_FAKE_KILL="run0:ppo:0"), **args)
+    s = run_grid(db, ["run0"], ["mc", "ppo", "sac"], job_fn=EnvJob(kill="run0:ppo:0"), **args)
     assert (s.done, s.failed, s.exit_code) == (2, 1, 1)
     assert statuses(db) == {("mc", 0): "done", ("ppo", 0): "failed", ("sac", 0): "done"}
     ((failures, error),) = sql(db, "SELECT failures, error FROM jobs WHERE status = 'failed'")
@@ -216,7 +217,7 @@ def test_killed_worker_fails_only_its_job_and_the_next_run_completes_it(regimes:
 
 def test_failing_job_is_retried_until_the_limit(regimes: Path, tmp_path: Path) -> None:
     db = tmp_path / "r.db"
-    failing = EnvJob(NUTRIBENCH_FAKE_FAIL="run1:sac:0")
+    failing = EnvJob(fail="run1:sac:0")
     args = dict(seeds=[0], episodes=6, eval_episodes=1, workers=1, job_fn=failing, display=False)
     for attempt in range(1, MAX_FAILURES + 1):
         s = run_grid(db, ["run1"], ["sac"], **args)
@@ -237,7 +238,7 @@ def test_retry_failed_runs_a_given_up_job_again_and_clears_its_error(regimes: Pa
     db = tmp_path / "r.db"
     args = dict(seeds=[0], episodes=6, eval_episodes=1, workers=1, display=False)
     for _ in range(MAX_FAILURES):
-        run_grid(db, ["run1"], ["sac"], job_fn=EnvJob(NUTRIBENCH_FAKE_FAIL="run1:sac:0"), **args)
+        run_grid(db, ["run1"], ["sac"], job_fn=EnvJob(fail="run1:sac:0"), **args)
     assert (
         run_grid(db, ["run1"], ["sac"], job_fn=synthetic_job, **args).given_up == 1
     )  # the cause is fixed, still given up
@@ -423,7 +424,7 @@ def test_status_json(regimes: Path, tmp_path: Path) -> None:
         5,
         1,
         workers=2,
-        job_fn=EnvJob(NUTRIBENCH_FAKE_FAIL="run2:sac:1"),
+        job_fn=EnvJob(fail="run2:sac:1"),
         display=False,
     )
     res = CliRunner().invoke(app, ["status", "--db", str(db), "--json"])
@@ -683,7 +684,7 @@ def test_engine_batched_trains_each_config_in_batches_and_stores_each_job(regime
     cause fixed, completes it."""
     db, log = tmp_path / "r.db", tmp_path / "log"
     log.mkdir()
-    env = dict(NUTRIBENCH_FAKE_LOG=str(log), NUTRIBENCH_FAKE_FAIL="run3:ppo:1")
+    env = dict(NUTRIBENCH_FAKE_LOG=str(log), fail="run3:ppo:1")
     args = dict(workers=2, job_fn=EnvJob(**env), batch_fn=EnvBatch(**env), display=False, engine="batched")
     s = run_grid(db, ["run0", "run3"], ["mc", "ppo", "sac"], [0, 1], 6, 1, **args)
     # 4 PPO jobs on 2 slots: batches of 2, in job order (run0 seeds 0,1; run3 seeds 0,1); the
@@ -707,7 +708,7 @@ def test_engine_batched_trains_each_config_in_batches_and_stores_each_job(regime
         pids.setdefault(algo_of[job], set()).add(pid)
     assert (len(pids["mc"]), len(pids["sac"])) == (2, 2)
     assert len(pids["ppo"]) == 4  # the good batch, the failed one, and its two jobs alone
-    env["NUTRIBENCH_FAKE_FAIL"] = ""  # its cause fixed
+    env["fail"] = ""  # its cause fixed
     args.update(job_fn=EnvJob(**env), batch_fn=EnvBatch(**env))
     s = run_grid(db, ["run0", "run3"], ["mc", "ppo", "sac"], [0, 1], 6, 1, **args)
     assert (s.done, s.failed, s.skipped) == (1, 0, 11)
@@ -722,7 +723,7 @@ def test_batch_size_caps_the_batches(regimes: Path, tmp_path: Path) -> None:
     at most 2: 3 processes, not 2); 0 is refused before anything is written."""
     db, log = tmp_path / "r.db", tmp_path / "log"
     log.mkdir()
-    env = dict(NUTRIBENCH_FAKE_LOG=str(log), NUTRIBENCH_FAKE_FAIL="")
+    env = dict(NUTRIBENCH_FAKE_LOG=str(log))
     s = run_grid(
         db,
         ["run0", "run3"],

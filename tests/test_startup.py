@@ -68,7 +68,7 @@ def test_status_on_an_up_to_date_database_imports_no_alembic_nor_other_commands(
     assert json.loads("\n".join(report))["totals"]["jobs"] == 0
     assert verdict == "NO-ALEMBIC"
     # the one command's module and what it imports, not the other commands'
-    assert commands.split() == ["nutribench.cli.common", "nutribench.cli.run"]
+    assert commands.split() == ["nutribench.cli.common", "nutribench.cli.run", "nutribench.cli.signals"]
 
 
 def test_an_older_database_still_upgrades(tmp_path: Path) -> None:

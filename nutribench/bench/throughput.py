@@ -95,23 +95,21 @@ def _bare_sb3_seconds(algo: str, regime: str, episodes: int, seed: int, bare_cls
     """``model.learn`` of the SB3 class ``bare_cls`` (an entry point: SB3's ``PPO``, ``DQN``
     or our ``DoubleDQN``, the registry entry's ``bare``) with the same hyperparameters on the
     same env, without nutribench's episode recording."""
-    import torch
-
     from nutribench.agents import algos
-    from nutribench.agents.api import make_train_env
+    from nutribench.agents.api import make_train_env, single_threaded
     from nutribench.agents.registry import import_entry_point
     from nutribench.config import load_env_config
 
-    torch.set_num_threads(1)
-    t0 = time.perf_counter()  # like the timed train(): config, env and model set-up included
-    env_cfg = load_env_config(regime)
-    cfg = bench_config(algo)
-    _, env = make_train_env(env_cfg, cfg)
-    # same hyperparameters and networks; the class decides the update (DQN: the vanilla max target)
-    cls = import_entry_point(bare_cls)
-    model = algos.build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon, cls=cls)
-    model.learn(total_timesteps=episodes * env_cfg.reward.horizon)
-    return time.perf_counter() - t0
+    with single_threaded():  # the caller's thread count back afterwards
+        t0 = time.perf_counter()  # like the timed train(): config, env and model set-up included
+        env_cfg = load_env_config(regime)
+        cfg = bench_config(algo)
+        _, env = make_train_env(env_cfg, cfg)
+        # same hyperparameters and networks; the class decides the update (DQN: the vanilla max target)
+        cls = import_entry_point(bare_cls)
+        model = algos.build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon, cls=cls)
+        model.learn(total_timesteps=episodes * env_cfg.reward.horizon)
+        return time.perf_counter() - t0
 
 
 def bench_train(
@@ -278,22 +276,23 @@ def matmul_flops_per_s(
     minibatch): median of 5 timings."""
     import torch
 
+    from nutribench.agents.api import single_threaded
     from nutribench.engine.device import resolve_device
 
-    torch.set_num_threads(1)
     dev = resolve_device(device)
     sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
-    a, b = torch.randn(k, batch, n_in).to(dev), torch.randn(k, n_in, n_out).to(dev)
-    out = torch.empty(k, batch, n_out, device=dev)
-    torch.bmm(a, b, out=out)
     rates = []
-    for _ in range(5):
-        sync()
-        t0 = time.perf_counter()
-        for _ in range(repeats):
-            torch.bmm(a, b, out=out)
-        sync()
-        rates.append(2 * k * batch * n_in * n_out * repeats / (time.perf_counter() - t0))
+    with single_threaded():  # the caller's thread count back afterwards
+        a, b = torch.randn(k, batch, n_in).to(dev), torch.randn(k, n_in, n_out).to(dev)
+        out = torch.empty(k, batch, n_out, device=dev)
+        torch.bmm(a, b, out=out)
+        for _ in range(5):
+            sync()
+            t0 = time.perf_counter()
+            for _ in range(repeats):
+                torch.bmm(a, b, out=out)
+            sync()
+            rates.append(2 * k * batch * n_in * n_out * repeats / (time.perf_counter() - t0))
     return statistics.median(rates)
 
 

@@ -53,15 +53,13 @@ def draw_trials(space_name: str, trials: int, seed: int = 0) -> list[dict[str, A
 
 
 def _sb3_trial(cfg: dict[str, Any], jobs: list[tuple[str, int]], days: int, eval_every: int, val: int) -> None:
-    import torch as th
-
-    from nutribench.agents.api import train
+    from nutribench.agents.api import single_threaded, train
     from nutribench.agents.config import parse_agent_config
 
-    th.set_num_threads(1)
     config = parse_agent_config(cfg)
-    for regime, seed in jobs:
-        train(regime, config, seed, days, eval_every=eval_every, val_episodes=val, diagnostics=False)
+    with single_threaded():  # the caller's thread count back afterwards
+        for regime, seed in jobs:
+            train(regime, config, seed, days, eval_every=eval_every, val_episodes=val, diagnostics=False)
 
 
 def _stacked_trials(

@@ -27,6 +27,7 @@ from nutribench.cli.common import (
     split_csv,
     user_errors,
 )
+from nutribench.cli.signals import StopSignalsAsCtrlC
 from nutribench.scheduler.executors import ExecutorError
 from nutribench.scheduler.grid import DEFAULT_PRESET, PRESETS
 
@@ -206,26 +207,27 @@ def run_cmd(
         _confirm_paper_grid(grid)  # after every check of the options, before the database exists
     job_fn = default_job_fn()
     try:
-        summary = run_grid(
-            db,
-            grid.regimes,
-            grid.algos,
-            grid.seeds,
-            grid.episodes,
-            grid.eval_episodes,
-            workers=workers,
-            executor=executor,
-            job_fn=job_fn,
-            models_dir=models_dir,
-            display=True,
-            retry_failed=retry_failed,
-            engine=engine,
-            max_batch=batch_size,
-            device=device,
-            tensorboard=tensorboard,
-            eval_every=eval_every,
-            val_episodes=val_episodes,
-        )
+        with StopSignalsAsCtrlC():  # the program's handlers, not the library's
+            summary = run_grid(
+                db,
+                grid.regimes,
+                grid.algos,
+                grid.seeds,
+                grid.episodes,
+                grid.eval_episodes,
+                workers=workers,
+                executor=executor,
+                job_fn=job_fn,
+                models_dir=models_dir,
+                display=True,
+                retry_failed=retry_failed,
+                engine=engine,
+                max_batch=batch_size,
+                device=device,
+                tensorboard=tensorboard,
+                eval_every=eval_every,
+                val_episodes=val_episodes,
+            )
     except KeyboardInterrupt:  # before any job started (opening the database, claiming)
         raise typer.Exit(130) from None
     parts = [f"{summary.done} done", f"{summary.failed} failed", f"{summary.skipped} already done"]

@@ -18,8 +18,10 @@ dict of the state's tensors and arrays (``torch.save``, read with ``weights_only
 process killed between the two renames leaves the new tensors at the temporary name, and
 the next read puts them in place. A checkpoint that does not read this way (a pickle, a
 damaged file, tensors that do not match their JSON, an older format) is refused in one line
-on stderr and the batch starts over. A save that fails (a full disk) says so in one line,
-the previous checkpoint stays whole, and training goes on.
+(a warning of the ``nutribench.engine.checkpoint`` logger: on stderr where logging is not
+configured, as in a worker process) and the batch starts over. A save that fails (a full
+disk) says so in one line the same way, the previous checkpoint stays whole, and training
+goes on.
 
 A checkpoint is read onto the device the batch trains on (:meth:`Checkpoint.read_onto`): a
 batch stopped on a GPU resumes on the CPU and the other way round, its tensors moved, its
@@ -31,16 +33,18 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import os
 import pickle
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch as th
+
+log = logging.getLogger(__name__)
 
 #: how often a batch saves its state (seconds of wall time, checked at day boundaries)
 DEFAULT_EVERY_SECONDS = 300.0
@@ -184,9 +188,7 @@ class Checkpoint:
 
     def refuse(self, exc: BaseException) -> None:
         """Say in one line why this checkpoint is not used, and hold no state from now on."""
-        print(
-            f"nutribench: {self.path}: checkpoint refused ({_first_line(exc)}); the batch starts over", file=sys.stderr
-        )
+        log.warning("nutribench: %s: checkpoint refused (%s); the batch starts over", self.path, _first_line(exc))
         self._read = self._state = None
 
     def _load(self) -> tuple[Any, dict[str, th.Tensor]]:
@@ -247,11 +249,7 @@ class Checkpoint:
         except OSError as exc:
             for p in (sidecar_tmp,) if renamed else (tmp, sidecar_tmp):
                 p.unlink(missing_ok=True)
-            print(
-                f"nutribench: {self.path}: checkpoint not saved ({_first_line(exc)}); training goes on",
-                file=sys.stderr,
-                flush=True,
-            )
+            log.warning("nutribench: %s: checkpoint not saved (%s); training goes on", self.path, _first_line(exc))
         self.saved_at = time.monotonic()
 
     def remove(self) -> None:

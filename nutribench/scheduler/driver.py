@@ -16,18 +16,19 @@ One call of :func:`run_grid`:
    progress and a heartbeat of its running jobs every :data:`FLUSH_EVERY_S` seconds;
 6. stores each finished job (its episodes, evaluation steps, metadata, status ``done``)
    in ONE transaction; a failed job gets status ``failed``, ``failures + 1`` and its error;
-7. on Ctrl-C stops the workers and marks their jobs ``interrupted`` (no rows are written
-   for them: rows are only written when a job completes);
+7. on Ctrl-C (a KeyboardInterrupt) or its ``stop`` event stops the workers and marks their
+   jobs ``interrupted`` (no rows are written for them: rows are only written when a job completes);
 8. at its start and end, deletes the batched engine's checkpoints whose jobs are all done
    (:mod:`nutribench.scheduler.resume`).
 
 What a run uses when not told (the job function, the models folder):
-:mod:`nutribench.scheduler.defaults`; the stop signals: :mod:`nutribench.scheduler.signals`.
+:mod:`nutribench.scheduler.defaults`. No signal handler (``run``'s: :mod:`nutribench.cli.signals`).
 """
 
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
@@ -55,7 +56,6 @@ from nutribench.scheduler.pools import MAX_BATCH, Pool, batch_pools, check_engin
 from nutribench.scheduler.progress import note_event
 from nutribench.scheduler.registration import RunError, load_grid_configs, register_grid, spec_maker
 from nutribench.scheduler.resume import checkpointed_first, remove_finished_checkpoints
-from nutribench.scheduler.signals import STOP_SIGNALS, StopSignalsAsCtrlC
 from nutribench.scheduler.spec import JobSpec
 from nutribench.scheduler.storing import (
     HeldResults,
@@ -215,7 +215,7 @@ class _Run:
 
     def loop(self) -> None:
         last_flush = time.monotonic()
-        while True:
+        while not self.stop.is_set():
             self.fill()
             for held in self.held.due():
                 self._store(held.spec, held.result)
@@ -239,7 +239,7 @@ class _Run:
         or, if its heartbeat stops (a crashed driver), take them over once they are
         :data:`~nutribench.scheduler.lifecycle.STALE_AFTER_S` old, so that a re-run after a crash finishes the grid."""
         said = None
-        while True:
+        while not self.stop.is_set():
             held, claimable_at = held_elsewhere(self.store, self.job_ids, self.owner)
             claimable = count_claimable(self.store, [j for j in self.job_ids if j not in self.attempted])
             if claimable:  # taken over (a stopped heartbeat) or given back by the other driver
@@ -257,13 +257,12 @@ class _Run:
                     f"or taken over here from {claimable_at:%H:%M:%S} UTC if its heartbeat stops"
                 )
                 said = held
-            time.sleep(WAIT_POLL_S)
+            self.stop.wait(WAIT_POLL_S)
             self.view.update(self)
 
     def interrupt(self, error: BaseException | None = None) -> str:
-        """Ctrl-C (or SIGTERM, SIGHUP), or a storage ``error`` (its one line is returned): stop the
-        workers, mark their jobs (and held results' jobs) interrupted, write nothing else.
-        Further signals meanwhile are ignored (:class:`StopSignalsAsCtrlC`)."""
+        """Ctrl-C (a KeyboardInterrupt), the ``stop`` event or a storage ``error`` (its one line is returned):
+        stop the workers, mark their jobs (and held results' jobs) interrupted, write nothing else."""
         try:
             self.handle.terminate_running()
         finally:  # whatever stopping the workers did, their jobs are given back
@@ -303,6 +302,7 @@ def run_grid(
     tensorboard: str | os.PathLike[str] | None = None,
     eval_every: int | None = None,
     val_episodes: int = 5,
+    stop: threading.Event | None = None,
 ) -> RunSummary:
     """Run every job of the grid regime x algo x seed that is not done yet (see the module
     docstring). Returns counts; ``summary.exit_code`` is what ``nutribench run`` exits with.
@@ -313,6 +313,7 @@ def run_grid(
     ``tensorboard``: a folder; each job writes its training diagnostics there as TensorBoard
     events, in a run folder of its own (:attr:`~nutribench.scheduler.spec.JobSpec.run_name`). ``eval_every``:
     every so many training days, a greedy evaluation on ``val_episodes`` validation days (stored).
+    ``stop``: an event that, once set (by another thread), stops the run as Ctrl-C does; no signal handler is set.
     Raises ConfigError (bad config file), StoreError (bad database), ExecutorError (bad ``executor``),
     DeviceError (bad ``device``) or RunError (config changed without a version bump), all one line.
     """
@@ -358,12 +359,13 @@ def run_grid(
                     out / "checkpoints",
                 )
             run = _Run(store, grid, job_ids, make_spec, handle, job_fn, owner, view, pools, batch_fn)
-            run.planned = runnable
+            run.planned, run.stop = runnable, stop or threading.Event()  # set: stop as Ctrl-C does
             view.start(run)
             try:
-                with StopSignalsAsCtrlC():
-                    run.loop()
-                    run.wait_for_others()
+                run.loop()
+                run.wait_for_others()
+                if run.stop.is_set():
+                    run.interrupt()
             except KeyboardInterrupt:
                 run.interrupt()
             except OperationalError as e:  # disk full, I/O error, read-only file: one line, jobs given back
@@ -387,7 +389,6 @@ def run_grid(
 
 __all__ = [
     "FLUSH_EVERY_S",
-    "STOP_SIGNALS",
     "WAIT_POLL_S",
     "RunError",
     "RunSummary",

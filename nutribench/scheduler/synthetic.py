@@ -5,20 +5,17 @@ nutribench run ...``: the rows are marked ``fake`` and never count as results) a
 tests use it to run grids in seconds.
 
 It sleeps ``$NUTRIBENCH_FAKE_SECONDS`` (default 0.001) per training episode and makes
-deterministic metrics from the seed. Environment variables make chosen jobs misbehave
-(each a comma-separated list of ``regime:algo:seed`` labels, or ``*`` for every job):
-
-``NUTRIBENCH_FAKE_FAIL``   raise an exception halfway through training
-``NUTRIBENCH_FAKE_KILL``   SIGKILL its own process halfway through (a dying worker)
-``NUTRIBENCH_FAKE_LOG``    a folder: each execution drops a file there (to count runs)
+deterministic metrics from the seed; ``$NUTRIBENCH_FAKE_LOG``, a folder, gets a file per
+execution (to count runs). ``before_episode`` is called before each training episode: the
+tests' fault jobs (``tests/fake_jobs.py``) fail or kill their process there; nothing here does.
 """
 
 from __future__ import annotations
 
 import os
-import signal
 import time
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -32,12 +29,8 @@ from nutribench.scheduler.worker import JobProgress, Sink
 HORIZON = 50
 
 
-def _matches(var: str, spec: JobSpec) -> bool:
-    value = os.environ.get(var, "")
-    if not value:
-        return False
-    labels = {v.strip() for v in value.split(",")}
-    return "*" in labels or f"{spec.regime}:{spec.algo}:{spec.seed}" in labels
+#: Called with a job's spec and the training episode about to run (0-based)
+EpisodeHook = Callable[[JobSpec, int], None]
 
 
 def _metrics(rng: np.random.Generator, k: int) -> dict:
@@ -55,9 +48,10 @@ def _metrics(rng: np.random.Generator, k: int) -> dict:
     }
 
 
-def synthetic_job(spec: JobSpec, progress: Sink | None = None) -> JobResult:
+def synthetic_job(spec: JobSpec, progress: Sink | None = None, before_episode: EpisodeHook | None = None) -> JobResult:
     """One job's synthetic result: ``spec.episodes`` training rows, ``spec.eval_episodes``
-    evaluation episodes of HORIZON steps, and a placeholder model file at ``spec.model_path``."""
+    evaluation episodes of HORIZON steps, and a placeholder model file at ``spec.model_path``;
+    ``before_episode(spec, k)`` before training episode ``k``."""
     started, t0 = utcnow(), time.perf_counter()
     log = os.environ.get("NUTRIBENCH_FAKE_LOG")
     if log:
@@ -68,11 +62,8 @@ def synthetic_job(spec: JobSpec, progress: Sink | None = None) -> JobResult:
     reporter.start()
     train = []
     for k in range(spec.episodes):
-        if k == spec.episodes // 2:
-            if _matches("NUTRIBENCH_FAKE_FAIL", spec):
-                raise RuntimeError(f"fake failure in {spec.label} at episode {k}")
-            if _matches("NUTRIBENCH_FAKE_KILL", spec):
-                os.kill(os.getpid(), signal.SIGKILL)
+        if before_episode is not None:
+            before_episode(spec, k)
         time.sleep(seconds)
         train.append(_metrics(rng, k))
         reporter.episode(k + 1, train[-1]["return"])
@@ -106,10 +97,12 @@ def synthetic_job(spec: JobSpec, progress: Sink | None = None) -> JobResult:
 synthetic_job.fake = True  # type: ignore[attr-defined]  # the driver marks its jobs as a dry run's
 
 
-def synthetic_batch(specs: list[JobSpec], progress: Sink | None = None) -> list[JobResult]:
+def synthetic_batch(
+    specs: list[JobSpec], progress: Sink | None = None, before_episode: EpisodeHook | None = None
+) -> list[JobResult]:
     """The synthetic job for each spec of a batch, in turn (the scheduler's batching, tested
-    without training); ``NUTRIBENCH_FAKE_FAIL`` on any of them fails the whole batch."""
-    results = [synthetic_job(spec, progress) for spec in specs]
+    without training); an exception of ``before_episode`` on any of them fails the whole batch."""
+    results = [synthetic_job(spec, progress, before_episode) for spec in specs]
     for r in results:
         r.metadata["engine"] = "batched"
     return results

@@ -14,7 +14,8 @@ import sys
 import time
 import traceback
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from nutribench.scheduler.spec import JobFailed, JobResult, JobSpec
@@ -26,14 +27,33 @@ Sink = Callable[[dict[str, Any]], None]
 JobFn = Callable[[JobSpec, Sink | None], JobResult]
 
 
-def limit_threads() -> None:
-    """One worker = one job = one thread of torch / BLAS (set before torch is imported)."""
-    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
-    if "torch" in sys.modules:
-        import torch
+#: The BLAS / OpenMP thread variables a job runs with (``1`` unless already set)
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 
+
+@contextmanager
+def one_thread() -> Iterator[None]:
+    """One worker = one job = one thread of torch / BLAS while the block runs (the variables
+    set before a fresh worker imports torch); afterwards the variables and torch's thread count
+    are as they were, so that an executor running jobs in the caller's own process (a dask
+    cluster of threads) leaves that process as it found it."""
+    saved = {var: os.environ.get(var) for var in THREAD_VARIABLES}
+    for var in THREAD_VARIABLES:
+        os.environ.setdefault(var, "1")
+    torch = sys.modules.get("torch")
+    threads = torch.get_num_threads() if torch is not None else None
+    if torch is not None:
         torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        for var, value in saved.items():
+            if value is None:
+                os.environ.pop(var, None)
+            else:
+                os.environ[var] = value
+        if torch is not None and threads is not None:
+            torch.set_num_threads(threads)
 
 
 class JobProgress:
@@ -92,9 +112,9 @@ class JobProgress:
 
 def _in_worker(fn: Callable[..., Any], *args: Any) -> Any:
     """``fn(*args)`` with one thread; any exception comes back as a picklable :class:`JobFailed`."""
-    limit_threads()
     try:
-        return fn(*args)
+        with one_thread():
+            return fn(*args)
     except JobFailed:
         raise
     except Exception as e:

@@ -1,6 +1,12 @@
-"""The driver's stop signals: Ctrl-C (SIGINT), a batch system's preemption (SIGTERM) and a
-closed terminal (SIGHUP) all end a run in the same graceful stop (running jobs released as
-``interrupted``, exit 130), however many of them arrive (:func:`nutribench.scheduler.driver.run_grid`)."""
+"""The command line's stop signals: Ctrl-C (SIGINT), a batch system's preemption (SIGTERM) and
+a closed terminal (SIGHUP) all end a ``nutribench run`` in the same graceful stop (running jobs
+released as ``interrupted``, exit 130), however many of them arrive.
+
+Signal handlers belong to the program, not to a library: :func:`nutribench.scheduler.driver.run_grid`
+installs none (it stops on KeyboardInterrupt, or when its ``stop`` event is set), so a
+notebook or a script that calls it keeps its own handlers; the ``run`` command installs these
+around its call.
+"""
 
 from __future__ import annotations
 
@@ -17,7 +23,9 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 class StopSignalsAsCtrlC:
     """Within the block (main thread only), the first stop signal raises KeyboardInterrupt;
     later ones are ignored: in the block for a second (then the first counts as lost), and
-    after a stop until exit. SIGINT stays ignored where it was (a shell's background job)."""
+    after a stop until the process exits (the command is ending: a second Ctrl-C must not
+    break its last lines). Without a stop, the handlers found are put back. SIGINT stays
+    ignored where it was (a shell's background job)."""
 
     def __enter__(self) -> None:
         self.previous, self.raised_at = {}, None
