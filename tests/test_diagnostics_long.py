@@ -195,6 +195,20 @@ def test_a_plugins_own_quantity_is_stored_read_and_archived_without_a_schema_cha
     pd.testing.assert_frame_equal(read_training_diagnostics(dst), df)
 
 
+def test_a_plugins_own_quantity_is_written_to_tensorboard_too(tmp_path: Path) -> None:
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from nutribench.scheduler.batched_job import write_tensorboard
+
+    rows = [{"update": u, "timestep": 500 * (u + 1), "value_loss": 1.0, "trust_region": 0.25 * u} for u in range(3)]
+    write_tensorboard(tmp_path / "tb", rows)
+    acc = EventAccumulator(str(tmp_path / "tb"))
+    acc.Reload()
+    assert set(acc.Tags()["scalars"]) == {"diagnostics/value_loss", "diagnostics/trust_region"}
+    events = acc.Scalars("diagnostics/trust_region")
+    assert [(e.step, e.value) for e in events] == [(500, 0.0), (1000, 0.25), (1500, 0.5)]
+
+
 def test_a_name_that_is_no_quantitys_fails_the_store_and_writes_nothing(tmp_path: Path) -> None:
     db = tmp_path / "p.db"
     store, job_id = _running_job(db)

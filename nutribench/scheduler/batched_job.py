@@ -119,8 +119,9 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
 
 def write_tensorboard(folder: Path, rows: list[dict]) -> None:
     """``rows`` (training diagnostics) as TensorBoard events in ``folder``: each quantity as
-    the scalar ``diagnostics/<name>`` at the row's env step, as the SB3 engine writes them."""
-    from nutribench.diagnostics import QUANTITIES, TIMESTEP
+    the scalar ``diagnostics/<name>`` at the row's env step, as the SB3 engine writes them (a
+    plug-in algorithm's own names after the vocabulary's)."""
+    from nutribench.diagnostics import QUANTITIES, TIMESTEP, UPDATE
 
     try:
         from torch.utils.tensorboard import SummaryWriter
@@ -132,7 +133,8 @@ def write_tensorboard(folder: Path, rows: list[dict]) -> None:
     writer = SummaryWriter(log_dir=str(folder))
     try:
         for row in rows:
-            for name in QUANTITIES:
+            other = sorted(set(row) - {UPDATE, TIMESTEP, *QUANTITIES})
+            for name in (*QUANTITIES, *other):
                 if row.get(name) is not None:
                     writer.add_scalar(f"diagnostics/{name}", float(row[name]), int(row[TIMESTEP]))
     finally:
