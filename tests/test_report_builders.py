@@ -8,8 +8,8 @@ import pytest
 
 from nutribench.config import list_regimes, load_env_config
 from nutribench.report.figures import eval_across_regimes, training_curves
-from nutribench.report.stats import iqm, iqm_bootstrap_ci, sem
 from nutribench.report.tables import table_regimes, table_results
+from nutribench.stats import clustered_iqm_ci, iqm, sem
 
 METRICS = ["return", "foods", "final_distance", "overshoot_ratio"]
 
@@ -135,7 +135,7 @@ def test_stats_helpers():
     assert iqm(np.arange(8.0)) == pytest.approx(np.mean([2, 3, 4, 5]))
     assert iqm(np.array([1.0, 100.0])) == pytest.approx(50.5)
     assert np.isnan(sem([1.0]))
-    point, lo, hi = iqm_bootstrap_ci([np.array([1.0, 2.0])])
+    point, lo, hi = clustered_iqm_ci([np.array([1.0, 2.0])])
     assert point == 1.5 and np.isnan(lo) and np.isnan(hi)
 
 
@@ -256,24 +256,31 @@ def test_the_return_panel_shows_the_share_of_the_gap_on_a_linear_axis():
 
 
 def test_eval_bands_are_95_percent_intervals_over_seed_means():
-    from nutribench.report.stats import seed_mean_ci
+    from nutribench.stats import mean_ci
 
     df = synthetic(seeds=(0, 1, 2, 3, 4))
     res = eval_across_regimes(df, bootstrap=500)
     ev = df[df.phase == "eval"]
     per_seed = ev[(ev.regime == "run0") & (ev.algo == "ppo")].groupby("seed")["foods"].mean().to_numpy(dtype=float)
     row = res.data[(res.data.panel == "foods") & (res.data.algo == "ppo") & (res.data.regime == "run0")].iloc[0]
-    assert (row["mean"], row["lo"], row["hi"]) == pytest.approx(seed_mean_ci(per_seed, reps=500))
-    assert row["lo"] >= per_seed.min() and row["hi"] <= per_seed.max() and row["seeds"] == 5
+    assert (row["mean"], row["lo"], row["hi"]) == pytest.approx(mean_ci(per_seed))
+    from scipy import stats as sps
+
+    # Student's t over the 5 seed means (the coverage simulation's choice), by hand
+    half = sps.t.ppf(0.975, 4) * per_seed.std(ddof=1) / np.sqrt(5)
+    assert (row["lo"], row["hi"]) == pytest.approx((per_seed.mean() - half, per_seed.mean() + half))
+    assert row["seeds"] == 5
     band = res.figure.axes[2].collections[0].get_paths()[0].vertices[:, 1]
     assert np.isclose(band, row["lo"]).any() and np.isclose(band, row["hi"]).any()
-    assert "95 % bootstrap interval over seeds" in res.figure._suptitle.get_text()
+    assert (
+        "95 % interval over seeds of the seed means (t interval; simulated coverage" in res.figure._suptitle.get_text()
+    )
     one = eval_across_regimes(synthetic(seeds=(0,)))
     assert one.data[["lo", "hi"]].isna().all().all() and "one seed: no band" in one.figure._suptitle.get_text()
 
 
 def test_results_table_leads_with_the_seed_level_interval():
-    from nutribench.report.stats import seed_mean_ci
+    from nutribench.stats import mean_ci
 
     df = synthetic()
     t = table_results(df, seeds_bootstrap=300, references=_day_refs(df))
@@ -284,11 +291,9 @@ def test_results_table_leads_with_the_seed_level_interval():
     ev = df[df.phase == "eval"]
     per_seed = ev[(ev.regime == "run0") & (ev.algo == "ppo")].groupby("seed")["return"].mean().to_numpy(dtype=float)
     row = t.raw.iloc[0]
-    assert (row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"]) == pytest.approx(
-        seed_mean_ci(per_seed, reps=300)
-    )
+    assert (row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"]) == pytest.approx(mean_ci(per_seed))
     assert (row["gap_closed_seed_mean"], row["gap_closed_seed_lo"]) == pytest.approx(
-        seed_mean_ci((per_seed + 20.0) / 16.0, reps=300)[:2]
+        mean_ci((per_seed + 20.0) / 16.0)[:2]
     )
     assert "±" in t.formatted.iloc[0]["return"]  # the paper's mean ± s.e. is kept beside it
 

@@ -4,7 +4,9 @@ bootstrap, the paired comparison against a hand computation, pairing by seed and
 
 from __future__ import annotations
 
+import ast
 import os
+import re
 import sqlite3
 from pathlib import Path
 
@@ -299,8 +301,12 @@ def test_paired_difference_equals_a_hand_computation():
     assert rows_.loc["run1", "a_mean"] == pytest.approx(-39 / 4) and rows_.loc["run1", "b_mean"] == pytest.approx(
         -56 / 4
     )
-    # the bootstrap draws whole seeds: the resampled means are seed 0's (1.5), both (4.25) or seed 1's (7)
-    assert rows_.loc["run1", "diff_lo"] == pytest.approx(1.5) and rows_.loc["run1", "diff_hi"] == pytest.approx(7.0)
+    # a seed's days count as one value: seed 0's mean difference 1.5, seed 1's 7; Student's t
+    # over those two (1 degree of freedom, standard error 2.75), by hand
+    half = 12.706204736174707 * 2.75
+    assert rows_.loc["run1", "diff_lo"] == pytest.approx(4.25 - half) and rows_.loc["run1", "diff_hi"] == pytest.approx(
+        4.25 + half
+    )
     # run2: one seed, a tie: P = 1/2, no interval
     assert rows_.loc["run2", "diff"] == 0 and rows_.loc["run2", "p_a_better"] == 0.5
     assert np.isnan(rows_.loc["run2", "diff_lo"])
@@ -308,7 +314,7 @@ def test_paired_difference_equals_a_hand_computation():
     assert rows_.loc["all", "diff"] == pytest.approx(17 / 5)
     assert rows_.loc["all", "p_a_better"] == pytest.approx(3.5 / 5)
     assert rows_.loc["all", "seeds"] == 3 and rows_.loc["all", "days"] == 5
-    assert "+4.25 [+1.50, +7.00]" in c.to_text() and "| run1 | 2 | 4 |" in c.to_markdown()
+    assert "+4.25 [-30.69, +39.19]" in c.to_text() and "| run1 | 2 | 4 |" in c.to_markdown()
 
 
 def test_pairing_is_by_seed_and_day_not_by_row_order():
@@ -454,3 +460,146 @@ def test_intervals_match_rliable_library_where_it_imports():
             assert ours.loc[(algo, agg), "point"] == pytest.approx(points[algo][0])
             assert ours.loc[(algo, agg), "lo"] == pytest.approx(cis[algo][0, 0], abs=0.05 * width + 1e-9)
             assert ours.loc[(algo, agg), "hi"] == pytest.approx(cis[algo][1, 0], abs=0.05 * width + 1e-9)
+
+
+# --------------------------------------------------------------------------- one module draws resamples
+_DRAWS = {"integers", "choice", "randint", "permutation", "random_integers"}
+_RESAMPLING = re.compile(r"bootstrap|resampl|\breps\b", re.IGNORECASE)
+
+
+def resampling_functions(source: str) -> list[str]:
+    """The functions of ``source`` that draw random indices or values (``rng.integers``,
+    ``.choice``, ``np.random.randint``, ...) and speak of a bootstrap, resamples or ``reps``
+    in their name, docstring or body: a bootstrap drawn there."""
+    tree = ast.parse(source)
+    found = []
+    for fn in ast.walk(tree):
+        if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            continue
+        draws = [
+            n
+            for n in ast.walk(fn)
+            if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr in _DRAWS
+        ]
+        text = ast.get_source_segment(source, fn) or ""
+        if draws and _RESAMPLING.search(text):
+            found.append(getattr(fn, "name", "<lambda>"))
+    return found
+
+
+def test_the_scan_finds_a_bootstrap_drawn_outside_the_statistics_module():
+    """The scan below would fail on the code before the statistics module: compare's own loop."""
+    old = """
+def _summary(per, reps, seed):
+    rng = np.random.default_rng(seed)
+    for p in per:
+        pick = rng.integers(0, len(p), size=(reps, len(p)))
+"""
+    assert resampling_functions(old) == ["_summary"]
+    vectorised = "def f(x, reps):\n    return x[np.random.default_rng(0).choice(len(x), (reps, len(x)))]\n"
+    assert resampling_functions(vectorised) == ["f"]
+    assert resampling_functions("def days(rng, n):\n    return rng.integers(0, n, size=5)\n") == []
+
+
+def test_only_the_statistics_module_draws_bootstrap_resamples():
+    import nutribench
+
+    package = Path(nutribench.__file__).parent
+    drawn = {
+        str(p.relative_to(package.parent)): found
+        for p in sorted(package.rglob("*.py"))
+        if p != package / "stats.py" and (found := resampling_functions(p.read_text()))
+    }
+    assert drawn == {}
+    assert resampling_functions((package / "stats.py").read_text())  # and it does draw them
+
+
+# --------------------------------------------------------------------------- the intervals
+def test_the_chosen_intervals_equal_scipys():
+    """The mean's interval is Student's t; the IQM's Tukey-McLaughlin's trimmed t, which scipy
+    computes (``mstats.trimmed_mean_ci``) where a quarter of the values is a whole number."""
+    from scipy import stats as sps
+    from scipy.stats import mstats
+
+    from nutribench.stats import CHOSEN, iqm_runs_ci, mean_ci
+
+    assert CHOSEN == {"mean": "t", "iqm": "t", "paired": "t"}
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=5)
+    lo, hi = sps.t.interval(0.95, 4, loc=x.mean(), scale=sps.sem(x))
+    assert mean_ci(x) == pytest.approx((x.mean(), lo, hi))
+    for n in (8, 12, 20):
+        x = rng.normal(size=n)
+        point, lo, hi = iqm_runs_ci([x])
+        assert point == pytest.approx(rly.aggregate_iqm(x[:, None]))
+        assert (lo, hi) == pytest.approx(tuple(mstats.trimmed_mean_ci(x, limits=(0.25, 0.25))))
+    # two regimes far apart: the standard error is within regimes, not the spread between them
+    a, b = rng.normal(size=8), rng.normal(size=8) + 100
+    point, lo, hi = iqm_runs_ci([a, b])
+    assert point == pytest.approx(rly.aggregate_iqm(np.stack([a, b], axis=1)))
+    assert hi - lo < 3 and lo < point < hi
+
+
+def test_a_small_bootstrap_enumerates_every_resample():
+    """At 5 seeds the 3,125 ordered resamples are 126 multisets; their weighted percentile
+    interval is that of all 3,125 resamples, brute force."""
+    import itertools
+
+    from nutribench.stats import design, percentile_interval, weighted_quantiles
+
+    d = design(5)
+    assert d.exact and d.idx.shape == (126, 5) and d.weights.sum() == pytest.approx(1)
+    x = np.array([-5.9, 6.5, 4.0, 41.9, 13.9])
+    every = np.array([x[list(i)].mean() for i in itertools.product(range(5), repeat=5)])
+    assert percentile_interval(x[d.idx].mean(axis=1), 0.95, d.weights) == pytest.approx(
+        tuple(weighted_quantiles(every[None, :], np.full(every.size, 1 / every.size), np.array([[0.025, 0.975]]))[0])
+    )
+    assert design(10).idx.shape == (92378, 10) and not design(11, reps=100).exact
+
+
+def test_no_printed_digit_moves_with_the_bootstraps_seed():
+    """The printed intervals of a mean, an IQM and a paired difference over seeds are the same
+    to the last printed digit under any bootstrap seed; the control below shows that a drawn
+    percentile bootstrap (2,000 resamples, as before) moves them."""
+    from nutribench.stats import clustered_iqm_ci, percentile_interval, stratified_resamples
+
+    ev = episodes_frame(seeds=(0, 1, 2, 3, 4), days=5)
+    texts = {s: compare_agents(ev, "gru_ppo", "ppo", reps=2000, seed=s).to_text() for s in (0, 1, 2)}
+    assert texts[0] == texts[1] == texts[2]
+    tables = {s: aggregate_table(aggregate_scores(scores_frame(), reps=2000, seed=s)).formatted for s in (0, 1, 2)}
+    iqm_column = [c for c in tables[0].columns if c.startswith("IQM")]
+    assert iqm_column and all(tables[s][iqm_column].equals(tables[0][iqm_column]) for s in (1, 2))
+    by_seed = [g["return"].to_numpy() for _, g in ev[(ev.algo == "ppo") & (ev.regime == "run3")].groupby("seed")]
+    printed = {s: "{:.2f} [{:.2f}, {:.2f}]".format(*clustered_iqm_ci(by_seed, seed=s)) for s in (0, 1, 2)}
+    assert printed[0] == printed[1] == printed[2]
+    # control: the drawn bootstrap of the same IQMs does move a printed digit with its seed
+    runs = [MATRICES["ppo"][:, j] for j in range(4)]
+    drawn = {
+        s: "{:.3f} {:.3f}".format(
+            *percentile_interval(
+                np.concatenate(stratified_resamples(runs, 2000, np.random.default_rng(s)), axis=1).mean(axis=1)
+            )
+        )
+        for s in (0, 1, 2)
+    }
+    assert len(set(drawn.values())) > 1
+
+
+@pytest.mark.slow
+def test_the_coverage_simulation_chose_what_the_statistics_module_says():
+    """``benchmarks/coverage.py`` (its default run, about 100 s of CPU) reproduces
+    :data:`nutribench.stats.CHOSEN` and :data:`~nutribench.stats.COVERAGE`."""
+    import importlib.util
+
+    from nutribench.stats import CHOSEN, COVERAGE
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "coverage.py"
+    spec = importlib.util.spec_from_file_location("coverage_simulation", path)
+    sim = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(sim)
+    chosen = sim.choose(sim.run())
+    assert {k: v[0] for k, v in chosen.items()} == {**CHOSEN, "iqm x3": CHOSEN["iqm"]}
+    for label, statistic in (("mean", "mean"), ("paired", "paired")):
+        assert chosen[label][1] == pytest.approx(COVERAGE[statistic], abs=5e-4)
+    worst = {n: min(chosen["iqm"][1][n], chosen["iqm x3"][1][n]) for n in (5, 10)}
+    assert worst == pytest.approx(COVERAGE["iqm"], abs=5e-4)

@@ -12,7 +12,7 @@ import pytest
 from test_report_cli import invoke, make_db
 
 from nutribench.report.learning import learning_curve_figure, learning_points, learning_scores
-from nutribench.report.stats import iqm
+from nutribench.stats import iqm
 from nutribench.store import read_learning_curve
 from tests.conftest import one_error_line
 

@@ -29,8 +29,8 @@ import numpy as np
 
 from nutribench.agents.registry import batched_names
 from nutribench.bench.learn import LearnRun, batched_runs, learn_benchmark, summarize
-from nutribench.report.stats import iqm_bootstrap_ci
 from nutribench.safe_write import atomic_write
+from nutribench.stats import clustered_iqm_ci
 
 ENGINES = ("sb3", "batched")
 
@@ -114,7 +114,7 @@ def bench_engines(
             for engine in ENGINES:
                 rs = [r for r in runs[engine] if r.algo == algo and r.regime == regime]
                 by_seed = [np.array([e["return"] for e in r.eval_rows]) for r in rs]
-                point, lo, hi = iqm_bootstrap_ci(by_seed)
+                point, lo, hi = clustered_iqm_ci(by_seed)
                 learned = summarize(rs)[0]  # the gap, foods and wall time as bench learn states them
                 row = {
                     "algo": algo,

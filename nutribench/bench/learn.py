@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from nutribench.baselines import gap_closed
-from nutribench.report.stats import iqm
+from nutribench.stats import iqm
 
 #: The run0 target of every agent: the share of the never -> planner gap it closes, and the foods a day.
 TARGET_GAP = 0.75

@@ -10,6 +10,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from nutribench.stats import bootstrap
+
 
 def seamless_orders(n: int) -> list[tuple[int, ...]]:
     """Every order of ``n`` arms, arranged so that no order starts with the arm that ended the
@@ -47,8 +49,7 @@ def paired_cost(
     machine's noise does not resolve it."""
     ratios = np.asarray(without, dtype=float) / np.asarray(with_, dtype=float)
     point = 1 - float(np.median(ratios))
-    idx = np.random.default_rng(seed).integers(0, len(ratios), size=(reps, len(ratios)))
-    boot = 1 - np.median(ratios[idx], axis=1)
+    boot = bootstrap(lambda r: 1 - np.median(r, axis=1), [ratios], reps, seed)
     return point, float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5))
 
 
@@ -62,6 +63,5 @@ def total_cost(
     be independent of one another (lockstep: a block's arms run within seconds of each other)."""
     w, wo = np.asarray(with_, dtype=float), np.asarray(without, dtype=float)
     point = 1 - float(wo.sum() / w.sum())
-    idx = np.random.default_rng(seed).integers(0, len(w), size=(reps, len(w)))
-    boot = 1 - wo[idx].sum(axis=1) / w[idx].sum(axis=1)
+    boot = bootstrap(lambda a, b: 1 - b.sum(axis=1) / a.sum(axis=1), [w, wo], reps, seed)
     return point, float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5))

@@ -7,8 +7,10 @@ regimes (``all``; ``delayed``: run1-run6):
 
 * the IQM (interquartile mean of all run scores), the median and the mean of the per-regime
   mean scores, and the optimality gap (``1 - mean(min(score, 1))``: how far below the planner,
-  lower is better), each with a 95 % percentile interval from a **stratified bootstrap over
-  runs** (:func:`~nutribench.report.scores.stratified_resamples`);
+  lower is better), each with a 95 % interval: the IQM's from :func:`nutribench.stats.iqm_runs_ci`
+  (the trimmed t, its standard error stratified by regime: the coverage simulation's choice,
+  docs/statistics.md), the others' the percentile interval of a **stratified bootstrap over
+  runs** (:func:`nutribench.stats.stratified_resamples`);
 * the performance profile and the probability of improvement P(X > Y) for every pair
   (:mod:`nutribench.report.profiles`).
 
@@ -48,16 +50,12 @@ from nutribench.report.profiles import (
     profile_taus,
     score_distribution,
 )
-from nutribench.report.scores import (
+from nutribench.report.scores import DEFAULT_REPS, GAMMA, ScoreSet, pooled, run_scores, score_set
+from nutribench.stats import (
     CONFIDENCE,
-    DEFAULT_REPS,
-    GAMMA,
     Runs,
-    ScoreSet,
+    iqm_runs_ci,
     percentile_interval,
-    pooled,
-    run_scores,
-    score_set,
     seeded_rng,
     stratified_resamples,
 )
@@ -109,8 +107,10 @@ def point_estimate(aggregate: str, runs: Runs) -> float:
 def interval_estimates(
     ss: ScoreSet, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE
 ) -> pd.DataFrame:
-    """Per agent and aggregate: the point estimate and its stratified-bootstrap interval over
-    runs (NaN with one run per regime everywhere: nothing to resample).
+    """Per agent and aggregate: the point estimate and its interval over runs (NaN with one run
+    per regime everywhere: nothing to resample): the IQM's is :func:`nutribench.stats.iqm_runs_ci`
+    (the method the coverage simulation chose), the others' the percentile interval of the
+    stratified bootstrap over runs.
 
     Columns: algo, aggregate, point, lo, hi, runs, regimes."""
     rows = []
@@ -120,9 +120,12 @@ def interval_estimates(
         resampled = stratified_resamples(runs, reps, seeded_rng(seed, algo, *ss.regimes))
         spread = max(len(x) for x in runs) > 1
         for agg in AGGREGATES:
-            lo, hi = (
-                percentile_interval(BATCHED[agg](resampled), confidence) if spread else (float("nan"), float("nan"))
-            )
+            if not spread:
+                lo, hi = float("nan"), float("nan")
+            elif agg == "iqm":
+                lo, hi = iqm_runs_ci(runs, confidence)[1:]
+            else:
+                lo, hi = percentile_interval(BATCHED[agg](resampled), confidence)
             rows.append(
                 {
                     "algo": algo,

@@ -22,6 +22,7 @@ from nutribench.report.figures import FigureResult, _legend_rows, draw_notes, se
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.tables import TableResult
+from nutribench.stats import caption as interval_caption
 
 # --------------------------------------------------------------------------- figure
 _GROUP_STYLE = {"all": dict(alpha=0.85, hatch=None), "delayed": dict(alpha=0.35, hatch="////")}
@@ -199,8 +200,9 @@ def aggregate_figure(
     caption = (
         "score of a run (one seed on one regime) = share of the regime's never → planner gap it closes on its own evaluation days "
         "(0 % = never eat, 100 % = the greedy full-information planner);\n"
-        f"per agent over regimes x seeds ({runs_text} seeds per regime); bars = 95 % stratified-bootstrap intervals over runs "
-        f"({res.reps} resamples, seeds redrawn within each regime), black tick = point estimate (rliable.metrics); dotted: never (0 %), planner (100 %)"
+        f"per agent over regimes x seeds ({runs_text} seeds per regime); bars = 95 % intervals over runs "
+        f"(IQM: {interval_caption('iqm')}; median, mean, optimality gap: stratified percentile bootstrap, {res.reps} "
+        "resamples, seeds redrawn within each regime), black tick = point estimate (rliable.metrics); dotted: never (0 %), planner (100 %)"
     )
     if ev is not None and not ev.empty:
         caption += f"\n{budget_seeds_line(ev)}"
@@ -308,7 +310,8 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
             fmt_rows.append(f)
     title = (
         "Aggregate scores: share of the never -> planner gap per run (seed x regime), over regimes x seeds; point estimate "
-        f"[95 % stratified-bootstrap interval over runs, {res.reps} resamples]; P(> Y): probability that a run of the row's "
+        f"[95 % interval over runs: IQM {interval_caption('iqm')}; the others stratified percentile bootstrap, {res.reps} "
+        "resamples]; P(> Y): probability that a run of the row's "
         "agent scores above a run of Y on the same regime, averaged over regimes"
     )
     if budgets:

@@ -7,10 +7,10 @@ so two agents' returns pair by (regime, seed, episode). Per regime and over grou
 regimes (``all`` compared regimes; the ``delayed`` ones, run1-run6, when run0 is among them):
 
 * the mean paired difference ``A - B`` of the returns over the paired days, with a 95 %
-  percentile bootstrap interval over **seeds**: a resample draws the regime's seeds with
-  replacement and keeps all the paired days of a drawn seed together (the days of one seed
+  interval over **seeds** (:func:`nutribench.stats.paired_ci`, the method the coverage
+  simulation chose): a seed's paired days count as one value, their mean (the days of one seed
   share one trained agent each, so they are not independent); over several regimes the
-  seeds are redrawn within each regime (stratified) and the days of all regimes pooled;
+  interval is stratified by regime and the days of all regimes pooled;
 * P(A > B): the share of paired days on which A's return is higher (a tie counts half),
   with an interval from the same resamples;
 * how many seeds and days were paired.
@@ -38,6 +38,8 @@ from nutribench.report.figure_parts import budget_cell
 from nutribench.report.figures import budget_seeds_text, seed_list, sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
+from nutribench.stats import CHOSEN, paired_ci
+from nutribench.stats import caption as interval_caption
 
 #: Bootstrap resamples of the seeds.
 DEFAULT_REPS = 10_000
@@ -95,15 +97,9 @@ def _per_seed(days: pd.DataFrame) -> pd.DataFrame:
     )
 
 
-def _interval(values: np.ndarray, confidence: float) -> tuple[float, float]:
-    alpha = (1 - confidence) / 2
-    lo, hi = np.percentile(values, [100 * alpha, 100 * (1 - alpha)])
-    return float(lo), float(hi)
-
-
 def _summary(name: str, regimes: list[str], days: pd.DataFrame, reps: int, seed: int, confidence: float) -> dict:
     """One row of the comparison: ``days`` (the paired days of ``regimes``) summarised, with
-    a bootstrap over seeds stratified by regime."""
+    intervals over seeds stratified by regime (:func:`paired_ci`)."""
     per = {r: _per_seed(days[days["regime"] == r]) for r in regimes}
     n = sum(p["n"].sum() for p in per.values())
     row = {
@@ -118,15 +114,13 @@ def _summary(name: str, regimes: list[str], days: pd.DataFrame, reps: int, seed:
     }
     if max(len(p) for p in per.values()) < 2:  # one seed everywhere: nothing to resample
         return {**row, "diff_lo": float("nan"), "diff_hi": float("nan"), "p_lo": float("nan"), "p_hi": float("nan")}
+    sizes = [p["n"].to_numpy(dtype=float) for p in per.values()]
     rng = np.random.default_rng([seed, *(zlib.crc32(r.encode()) for r in regimes)])
-    tot_n, tot_diff, tot_win = np.zeros(reps), np.zeros(reps), np.zeros(reps)
-    for p in per.values():
-        pick = rng.integers(0, len(p), size=(reps, len(p)))  # the regime's seeds, drawn with replacement
-        tot_n += p["n"].to_numpy()[pick].sum(axis=1)
-        tot_diff += p["diff"].to_numpy()[pick].sum(axis=1)
-        tot_win += p["win"].to_numpy()[pick].sum(axis=1)
-    row["diff_lo"], row["diff_hi"] = _interval(tot_diff / tot_n, confidence)
-    row["p_lo"], row["p_hi"] = _interval(tot_win / tot_n, confidence)
+    row["diff_lo"], row["diff_hi"] = paired_ci(
+        [p["diff"].to_numpy() for p in per.values()], sizes, reps, rng, confidence
+    )
+    lo, hi = paired_ci([p["win"].to_numpy() for p in per.values()], sizes, reps, rng, confidence)
+    row["p_lo"], row["p_hi"] = max(lo, 0.0), min(hi, 1.0)
     return row
 
 
@@ -148,9 +142,15 @@ class Comparison:
     def title(self) -> str:
         la, lb = algo_label(self.a), algo_label(self.b)
         return (
-            f"{la} - {lb}: mean paired difference of evaluation returns (same seed, same day), 95 % bootstrap interval over "
-            f"seeds ({self.reps} resamples, a seed's days kept together); P({la} > {lb}) over paired days (ties count half)"
+            f"{la} - {lb}: mean paired difference of evaluation returns (same seed, same day), 95 % interval over "
+            f"seeds ({self.method()}; a seed's days kept together); P({la} > {lb}) over paired days (ties count half)"
         )
+
+    def method(self) -> str:
+        """How the intervals were made, for the title."""
+        if CHOSEN["paired"] == "t":
+            return interval_caption("paired")
+        return f"{interval_caption('paired')}, {self.reps} resamples"
 
     def formatted(self) -> pd.DataFrame:
         """The rows as text: regime, seeds, days, means, difference [interval], P(A > B) [interval]."""

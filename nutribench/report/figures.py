@@ -39,7 +39,8 @@ from nutribench.report.figure_parts import (  # noqa: F401 (re-exported: the fig
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
-from nutribench.report.stats import seed_mean_ci
+from nutribench.stats import caption as interval_caption
+from nutribench.stats import mean_ci
 
 METRIC_LABELS = {
     "return": "episodic return",
@@ -258,9 +259,9 @@ def eval_across_regimes(
 ) -> FigureResult:
     """Figures 3 and 4: evaluation metrics per regime, panels (A) return, (B) final distance,
     (C) foods consumed, (D) overshoot ratio; one line per algorithm at the mean of the seeds'
-    means (each seed's mean over its evaluation days), with a band of the 95 % percentile
-    bootstrap interval over seeds (``bootstrap`` resamples of the seed means; no band with one
-    seed).
+    means (each seed's mean over its evaluation days), with a band of the 95 % interval over
+    seeds (:func:`nutribench.stats.mean_ci`, the method the coverage simulation chose; no band
+    with one seed). ``bootstrap``: kept for callers; the chosen interval needs no resamples.
 
     ``day_references`` (columns regime, seed, episode, never, planner: the yardsticks on each
     evaluation day, :func:`nutribench.report.references.eval_day_references`): panel (A) then
@@ -318,7 +319,7 @@ def eval_across_regimes(
                 stats["sem"] = np.nan  # the pooled standard error is a return's, not a share's
             else:
                 per_seed = cell.groupby(["regime", "seed"])[metric].mean().groupby("regime")
-            ci = {r: seed_mean_ci(v.to_numpy(dtype=float), reps=bootstrap) for r, v in per_seed}
+            ci = {r: mean_ci(v.to_numpy(dtype=float)) for r, v in per_seed}
             stats["mean"] = [ci[r][0] for r in stats.index]
             stats["lo"] = [ci[r][1] for r in stats.index]
             stats["hi"] = [ci[r][2] for r in stats.index]
@@ -389,7 +390,7 @@ def eval_across_regimes(
     n_seeds = ev.groupby(["regime", "algo"])["seed"].nunique()
     n_days = ev.groupby(["regime", "algo", "seed"]).size()
     band = (
-        "band (or error bar) = 95 % bootstrap interval over seeds (seed means resampled)"
+        f"band (or error bar) = 95 % interval over seeds of the seed means ({interval_caption('mean')})"
         if n_seeds.max() > 1
         else "one seed: no band"
     )

@@ -9,7 +9,8 @@ hidden by another: the paper archives' ``ppo`` v1 at 5000 days and a user's run 
 * the **aggregate score**: the IQM of its run scores (a run = one seed on one regime, scored
   as the share of the regime's never -> planner gap it closes on its own evaluation days,
   :func:`nutribench.report.scores.run_scores`) over **the regimes it covers**, with the 95 %
-  stratified-bootstrap interval over runs (:func:`nutribench.report.aggregate.interval_estimates`);
+  interval over runs (:func:`nutribench.stats.iqm_runs_ci` through
+  :func:`nutribench.report.aggregate.interval_estimates`);
 * its share of the gap per regime (mean over seeds of each run's score);
 * its training budget (days), seeds, engine, protocol and code version;
 * flags where it departs from the reference grid (the paper's: :data:`REFERENCE_BUDGET` days,
@@ -58,6 +59,7 @@ from nutribench.report.palette import label as algo_label
 from nutribench.report.scores import DEFAULT_REPS
 from nutribench.report.tables import TableResult
 from nutribench.scheduler.grid import PRESETS
+from nutribench.stats import caption as interval_caption
 from nutribench.store.archive_installed import disagreeing_archives, forged_regimes
 
 #: The reference grid a row is checked against: the paper's budget and seeds.
@@ -261,8 +263,8 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
     title = (
         "Leaderboard: every agent ranked by the IQM of its run scores (one seed on one regime = one run, scored as the "
         "share of the regime's never -> planner gap it closes on its own evaluation days; 0 % = never eat, 100 % = the "
-        "greedy full-information planner) over the regimes it covers, with a 95 % stratified-bootstrap interval over "
-        f"runs; per regime, the mean share over seeds. Reference grid: {REFERENCE_BUDGET} training days, seeds "
+        "greedy full-information planner) over the regimes it covers, with a 95 % interval over runs "
+        f"({interval_caption('iqm')}, its standard error stratified by regime); per regime, the mean share over seeds. Reference grid: {REFERENCE_BUDGET} training days, seeds "
         f"{', '.join(map(str, REFERENCE_SEEDS))}, every regime of the board ({regime_span(board)}); a row that departs "
         "from it is flagged, and a row lacking regimes is ranked on those it has. Checked: every row's evaluation days "
         "are stored foods and actions, replayed on the regime (an archive's, on import); 'verified (re-run)': every "

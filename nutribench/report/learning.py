@@ -6,9 +6,8 @@ Per run (one job) and evaluation, its score is the share of the never -> planner
 closes on its validation days, as a run's score on its test days is
 (:func:`~nutribench.report.scores.run_scores`, with the ``never`` and ``planner`` returns
 stored with each validation day). Per regime, agent and training day: the IQM of the seeds'
-scores and its 95 % percentile interval from the bootstrap over seeds
-(:func:`~nutribench.report.scores.stratified_resamples` of that one regime), the statistics
-of the aggregate figure (:mod:`nutribench.report.aggregate`). One panel per regime, one line
+scores and its 95 % interval over seeds (:func:`nutribench.stats.iqm_runs_ci`, the IQM's
+interval of the aggregate figure, :mod:`nutribench.report.aggregate`). One panel per regime, one line
 per agent. These are validation days, never the test days of the tables.
 """
 
@@ -20,7 +19,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from nutribench.report.aggregate import BATCHED, point_estimate
+from nutribench.report.aggregate import point_estimate
 from nutribench.report.figure_parts import (
     FigureResult,
     agent_labels,
@@ -32,14 +31,9 @@ from nutribench.report.figure_parts import (
 from nutribench.report.figures import GAP_LABEL, _gap_axis, _training_legend
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import order as sort_algos
-from nutribench.report.scores import (
-    CONFIDENCE,
-    DEFAULT_REPS,
-    percentile_interval,
-    run_scores,
-    seeded_rng,
-    stratified_resamples,
-)
+from nutribench.report.scores import DEFAULT_REPS, run_scores
+from nutribench.stats import CONFIDENCE, iqm_runs_ci
+from nutribench.stats import caption as interval_caption
 
 COLUMNS = ["regime", "algo", "train_day", "iqm", "lo", "hi", "seeds"]
 
@@ -75,8 +69,7 @@ def learning_points(scores: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 
             continue
         lo = hi = float("nan")
         if runs[0].size > 1:
-            resampled = stratified_resamples(runs, reps, seeded_rng(seed, algo, regime, str(day)))
-            lo, hi = percentile_interval(BATCHED["iqm"](resampled), CONFIDENCE)
+            lo, hi = iqm_runs_ci(runs, CONFIDENCE)[1:]
         point = point_estimate("iqm", runs)
         rows.append(dict(regime=regime, algo=algo, train_day=int(day), iqm=point, lo=lo, hi=hi, seeds=runs[0].size))
     return pd.DataFrame(rows, columns=COLUMNS)
@@ -126,7 +119,7 @@ def learning_curve_figure(
     n_days = f"{days[0]}" if len(days) == 1 else f"{days[0]}-{days[-1]}"
     caption = (
         f"{GAP_LABEL} on {n_days} validation days per evaluation (never the test days), "
-        f"IQM over seeds with its 95 % bootstrap interval over seeds\n"
+        f"IQM over seeds with its 95 % interval over seeds ({interval_caption('iqm')})\n"
         f"{budget_seeds_line(curve)}"
     )
     set_title(fig, f"Learning curves: evaluation during training\n{caption}")

@@ -18,17 +18,8 @@ import numpy as np
 import pandas as pd
 from rliable import metrics as rly
 
-from nutribench.report.scores import (
-    CONFIDENCE,
-    DEFAULT_REPS,
-    GAMMA,
-    Runs,
-    ScoreSet,
-    percentile_interval,
-    pooled,
-    seeded_rng,
-    stratified_resamples,
-)
+from nutribench.report.scores import DEFAULT_REPS, GAMMA, ScoreSet, pooled
+from nutribench.stats import CONFIDENCE, Runs, percentile_interval, seeded_rng, stratified_resamples
 
 
 def profile_taus(scores: Iterable[float], n: int = 201) -> np.ndarray:

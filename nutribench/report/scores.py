@@ -10,12 +10,12 @@ closed", per seed). The regimes are rliable's *tasks*, the seeds its *runs*.
 
 The bootstrap is a **stratified bootstrap over runs**: every resample redraws, within each
 regime, that regime's seeds with replacement (rliable's ``StratifiedBootstrap``,
-``task_bootstrap=False``), vectorised over resamples.
+``task_bootstrap=False``), vectorised over resamples; it is drawn by
+:func:`nutribench.stats.stratified_resamples`, the one module that draws resamples.
 """
 
 from __future__ import annotations
 
-import zlib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
@@ -26,14 +26,26 @@ from nutribench.baselines import gap_closed
 from nutribench.report.figures import sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
+from nutribench.stats import CONFIDENCE, Runs, percentile_interval, seeded_rng, stratified_resamples
 
 #: The optimality gap's threshold: the planner's score.
 GAMMA = 1.0
 #: Bootstrap resamples (rliable uses 50000 for its published figures; 2000 keeps a report fast).
 DEFAULT_REPS = 2000
-CONFIDENCE = 0.95
 
-Runs = list[np.ndarray]  # one array of run scores per regime (task)
+__all__ = [
+    "CONFIDENCE",
+    "DEFAULT_REPS",
+    "GAMMA",
+    "Runs",
+    "ScoreSet",
+    "percentile_interval",
+    "pooled",
+    "run_scores",
+    "score_set",
+    "seeded_rng",
+    "stratified_resamples",
+]
 
 
 def run_scores(ev: pd.DataFrame, references: pd.DataFrame) -> pd.DataFrame:
@@ -130,26 +142,7 @@ def score_set(
 
 # Each statistic of the bootstrap takes one array per regime, shaped (resamples, runs of that
 # regime), and returns one value per resample; on the original sample (one "resample") it
-# equals rliable's.
+# equals rliable's. The resampling itself is nutribench.stats's.
 def pooled(t: Runs) -> np.ndarray:
     """Every regime's runs side by side: shape (resamples, all runs)."""
     return np.concatenate(t, axis=1)
-
-
-def stratified_resamples(runs: Runs, reps: int, rng: np.random.Generator) -> Runs:
-    """``reps`` stratified bootstrap resamples of the runs: within each regime, that regime's
-    runs drawn with replacement (as many as it has), regimes independently; one array
-    ``(reps, runs)`` per regime (rliable's ``StratifiedBootstrap`` over runs)."""
-    return [x[rng.integers(0, len(x), size=(reps, len(x)))] for x in runs]
-
-
-def percentile_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float]:
-    """The percentile bootstrap interval (arch's ``method="percentile"``, rliable's default)."""
-    alpha = (1 - confidence) / 2
-    lo, hi = np.percentile(values, [100 * alpha, 100 * (1 - alpha)], axis=0)
-    return float(lo), float(hi)
-
-
-def seeded_rng(seed: int, *names: str) -> np.random.Generator:
-    """A generator per (seed, names): an agent's intervals do not depend on the other agents."""
-    return np.random.default_rng([seed, *(zlib.crc32(n.encode()) for n in names)])

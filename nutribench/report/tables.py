@@ -17,7 +17,8 @@ from nutribench.report.figure_parts import budget_caption, budget_cell
 from nutribench.report.figures import sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
-from nutribench.report.stats import iqm_bootstrap_ci, seed_mean_ci, sem
+from nutribench.stats import EXACT_SEEDS, clustered_iqm_ci, mean_ci, sem
+from nutribench.stats import caption as interval_caption
 
 RESULT_METRICS = ["return", "final_distance", "foods", "overshoot_ratio"]
 #: Tables 2..6 of the paper, in order.
@@ -189,11 +190,11 @@ def _interval(point: float, lo: float, hi: float, fmt: str) -> str:
 
 def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.DataFrame | None = None) -> TableResult:
     """Results: regime x algorithm. It leads with the seed-level interval: the mean over seeds
-    of each seed's mean return over its evaluation days, with a 95 % percentile bootstrap
-    interval resampling seeds (raw ``return_seed_mean``, ``return_seed_lo``, ``return_seed_hi``);
+    of each seed's mean return over its evaluation days, with its 95 % interval over seeds
+    (:func:`nutribench.stats.mean_ci`) (raw ``return_seed_mean``, ``return_seed_lo``, ``return_seed_hi``);
     then, for comparison with the paper, mean ± standard error of the four evaluation metrics
     over seeds x evaluation episodes pooled, and the return's interquartile mean with a 95 %
-    percentile bootstrap confidence interval resampling seeds.
+    percentile bootstrap interval resampling seeds (:func:`nutribench.stats.clustered_iqm_ci`).
 
     With ``references`` (columns regime, seed, episode, never, planner: the two yardsticks'
     returns on each evaluation day) each row also gives the mean return of ``never`` and of
@@ -216,14 +217,14 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
                 "seeds": row["seeds"],
                 "episodes": row["episodes"],
             }
-            seed_ci = seed_mean_ci(cell.groupby("seed")["return"].mean().to_numpy(dtype=float), reps=seeds_bootstrap)
+            seed_ci = mean_ci(cell.groupby("seed")["return"].mean().to_numpy(dtype=float))
             f["return [95% CI over seeds]"] = _interval(*seed_ci, "{:.2f}")
             if ref is not None:
                 f["gap closed [95% CI over seeds]"] = "n/a"
             for m in RESULT_METRICS:
                 row[f"{m}_mean"], row[f"{m}_sem"], f[m] = mean_sem_cell(cell[m], 2 if m in ("return", "foods") else 3)
             by_seed = [g["return"].to_numpy(dtype=float) for _, g in cell.groupby("seed")]
-            point, lo, hi = iqm_bootstrap_ci(by_seed, reps=seeds_bootstrap)
+            point, lo, hi = clustered_iqm_ci(by_seed, reps=seeds_bootstrap)
             row["return_iqm"], row["return_iqm_lo"], row["return_iqm_hi"] = point, lo, hi
             f["return IQM [95% CI]"] = (
                 f"{point:.2f} [{lo:.2f}, {hi:.2f}]" if np.isfinite(lo) else f"{point:.2f} [single seed]"
@@ -240,11 +241,7 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
                 f["never / planner"] = f"{row['never_mean']:.2f} / {row['planner_mean']:.2f}" if complete else "n/a"
                 f["gap closed"] = f"{100 * row['gap_closed']:.0f} %" if np.isfinite(row["gap_closed"]) else "n/a"
                 shares = _seed_shares(cell, days) if complete else np.array([])
-                gap_ci = (
-                    seed_mean_ci(shares, reps=seeds_bootstrap)
-                    if shares.size and np.isfinite(shares).all()
-                    else (np.nan,) * 3
-                )
+                gap_ci = mean_ci(shares) if shares.size and np.isfinite(shares).all() else (np.nan,) * 3
                 row["gap_closed_seed_mean"], row["gap_closed_seed_lo"], row["gap_closed_seed_hi"] = gap_ci
                 if np.isfinite(gap_ci[0]):
                     f["gap closed [95% CI over seeds]"] = (
@@ -258,8 +255,9 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
             fmt_rows.append(f)
     title = (
         "Results: fixed-policy inference; first the seed-level 95 % interval (mean over seeds of each seed's mean over its "
-        "evaluation days, percentile bootstrap resampling seeds), then mean ± standard error over seeds x evaluation "
-        f"episodes pooled (as the paper reports); {budget_caption(ev)}"
+        f"evaluation days, {interval_caption('mean')}), then mean ± standard error over seeds x evaluation "
+        "episodes pooled (as the paper reports) and the return's IQM over the pooled days [95 % percentile bootstrap over "
+        f"seeds, every resample enumerated up to {EXACT_SEEDS} seeds]; {budget_caption(ev)}"
     )
     return TableResult("results", title, pd.DataFrame(rows), pd.DataFrame(fmt_rows))
 

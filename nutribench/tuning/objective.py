@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from nutribench.report.stats import iqm
+from nutribench.stats import iqm
 from nutribench.tuning.space import SearchSpace
 from nutribench.tuning.study import StudySettings
 

@@ -6,7 +6,7 @@ with that level's regime files, and then:
 
 * ``table_ladder.md/.csv``: one row per arm x level x regime: the IQM over seeds of the share of
   the never -> planner gap with its 95 % percentile bootstrap interval over seeds
-  (``iqm_bootstrap_ci``, 2000 resamples, seed 0), the seeds' shares, the share of the mean
+  (``clustered_iqm_ci``, 2000 resamples, seed 0), the seeds' shares, the share of the mean
   return (the paper's reading), the mean return, foods a day, the share of meals eaten in the
   last 5 steps of the day, the device that trained it ("cuda to day N, then cpu" for a batch
   started on a lent GPU, addendum 2), and the learning-curve read-offs (the
@@ -46,7 +46,7 @@ import pandas as pd  # noqa: E402
 
 from nutribench.baselines import gap_closed  # noqa: E402
 from nutribench.errors import UserError  # noqa: E402
-from nutribench.report.stats import iqm_bootstrap_ci  # noqa: E402
+from nutribench.stats import clustered_iqm_ci  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -241,7 +241,7 @@ def interval(values: np.ndarray, reps: int) -> tuple[float, float, float]:
     finite = [np.array([v]) for v in values if np.isfinite(v)]
     if not finite:
         return float("nan"), float("nan"), float("nan")
-    return iqm_bootstrap_ci(finite, reps=reps, seed=0)
+    return clustered_iqm_ci(finite, reps=reps, seed=0)
 
 
 def text(point: float, lo: float, hi: float) -> str:

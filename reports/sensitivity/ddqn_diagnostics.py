@@ -25,7 +25,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from nutribench.report.stats import iqm_bootstrap_ci  # noqa: E402
+from nutribench.stats import clustered_iqm_ci  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 WINDOWS = [500, 1000, 2000, 3000, 4000, 5000]
@@ -74,7 +74,7 @@ def windows(days: pd.DataFrame) -> pd.DataFrame:
                 vals = per_seed[qn].dropna().to_numpy()
                 if len(vals) == 0:
                     continue
-                point, lo, hi = iqm_bootstrap_ci([np.array([v]) for v in vals], reps=2000, seed=0)
+                point, lo, hi = clustered_iqm_ci([np.array([v]) for v in vals], reps=2000, seed=0)
                 row[qn] = point
                 row[f"{qn}_lo"], row[f"{qn}_hi"] = lo, hi
                 row[f"{qn}_seeds"] = " ".join(f"{v:.3g}" for v in vals)

@@ -201,14 +201,17 @@ def per_run(ev: pd.DataFrame, scores: pd.DataFrame, agents: Sequence[str]) -> li
 
 
 def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]:
+    from nutribench.stats import caption as interval_caption
+
     ev, notes, scores, shares = read_scores(db)
     held = set(ev["algo"])
     lines = ["# Protocol v2: results of the pre-registered comparisons", ""]
     lines += [
         "Written by `python reports/tuned_v2/analyse.py`; shares of the never -> planner gap in %, "
-        "IQM over seeds [95 % stratified-bootstrap interval]; comparisons are mean paired differences "
-        "(by seed and test day) [95 % bootstrap interval over seeds]. Read by the plan's rules: an "
-        'interval that holds 0 is "not distinguishable with N seeds", never "equal".',
+        f"IQM over seeds [95 % {interval_caption('iqm')}; its standard error within regimes]; comparisons "
+        f"are mean paired differences (by seed and test day) [95 % interval over seeds: {interval_caption('paired')}]; "
+        "G5's drops: percentile bootstrap over seeds within regimes (nutribench.stats, docs/statistics.md). "
+        'Read by the plan\'s rules: an interval that holds 0 is "not distinguishable with N seeds", never "equal".',
         "",
         f"v2 files present: {', '.join(n for a in ALGOS if (n := names(a)['v2']) in held) or 'none'}; "
         f"absent: {', '.join(n for a in ALGOS if (n := names(a)['v2']) not in held) or 'none'}.",

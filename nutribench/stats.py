@@ -1,0 +1,399 @@
+"""The project's statistics, said once: the IQM, standard errors, the bootstrap (the only code
+in ``nutribench/`` that draws bootstrap resamples; ``tests/test_statistics.py`` scans for
+others) and the intervals of the three statistics every table prints: a **mean over seeds**,
+an **IQM over runs** (stratified by regime) and a **paired difference by seed**.
+
+It sits on the ground floor (it imports nothing of the package) because the report, ``bench``
+and the tuning objective all call it, and the tuning objective should not pull in the report.
+
+Intervals (``method``): ``"t"`` (Student's t; for the IQM Tukey and McLaughlin's trimmed t:
+the winsorized standard error, ``h - 1`` degrees of freedom), ``"percentile"``, ``"bca"``
+(Efron's bias-corrected and accelerated, acceleration from the jackknife) and
+``"bootstrap-t"`` (resamples studentized by the same standard error). Which one each statistic
+uses (:data:`CHOSEN`) was chosen by the coverage simulation of ``benchmarks/coverage.py``
+(docs/statistics.md, "Intervals and their coverage"); :data:`COVERAGE` is its measured
+coverage, quoted in the tables' captions. A bootstrap over one sample of up to
+:data:`EXACT_SEEDS` values enumerates every resample (each multiset of draws with its
+multinomial probability: 126 at 5 seeds, 92,378 at 10), so its ends do not depend on a seed.
+
+Point estimates are rliable's: the IQM is ``scipy.stats.trim_mean(x, 0.25)``, which
+``rliable.metrics.aggregate_iqm`` computes.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+CONFIDENCE = 0.95
+METHODS: tuple[str, ...] = ("percentile", "bca", "bootstrap-t", "t")
+#: The interval of each statistic, chosen by ``benchmarks/coverage.py`` (docs/statistics.md).
+CHOSEN: dict[str, str] = {"mean": "t", "iqm": "t", "paired": "t"}
+#: The chosen method's simulated coverage of a nominal 95 % interval at 5 and 10 seeds: the
+#: lowest over normal, gamma-skewed and measured scores (``python benchmarks/coverage.py``,
+#: 2,000 datasets per cell, seed 0; for the IQM, the lower of one regime and three;
+#: docs/statistics.md). ``tests/test_statistics.py`` reruns the simulation (slow) against it.
+COVERAGE: dict[str, dict[int, float]] = {
+    "mean": {5: 0.950, 10: 0.946},
+    "iqm": {5: 0.923, 10: 0.940},
+    "paired": {5: 0.922, 10: 0.941},
+}
+#: Up to this many values, a one-sample bootstrap enumerates every resample.
+EXACT_SEEDS = 10
+Runs = list[np.ndarray]  # one array of run scores per regime (stratum)
+
+
+# --------------------------------------------------------------------------- point estimates
+def sem(values) -> float:
+    """Standard error of the mean (sample std / sqrt(n)); NaN for fewer than 2 values."""
+    x = np.asarray(values, dtype=float)
+    if x.size < 2:
+        return float("nan")
+    return float(x.std(ddof=1) / np.sqrt(x.size))
+
+
+def iqm(values, axis: int | None = None):
+    """Interquartile mean: the mean of the middle 50 % of the values (``int(n / 4)`` cut from
+    each end: rliable's IQM, ``scipy.stats.trim_mean(x, 0.25)``); NaN for no values. Over
+    ``axis`` of an array, else of every value."""
+    from scipy.stats import trim_mean
+
+    x = np.asarray(values, dtype=float)
+    if axis is None:
+        return float(trim_mean(x.ravel(), 0.25)) if x.size else float("nan")
+    return trim_mean(x, 0.25, axis=axis)
+
+
+def trimmed_se(x: np.ndarray, sizes: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Tukey and McLaughlin's standard error of the IQM over the last axis and its degrees of
+    freedom: the values winsorized at the IQM's cut points, ``sqrt(sum_r n_r s_r^2) / h`` with
+    ``s_r`` the winsorized values' standard deviation within stratum ``r`` (``sizes``: the
+    strata's consecutive lengths along the axis; default one stratum, where it is the textbook
+    ``s_w / ((1 - 2g) sqrt(n))``), ``h`` the values kept, and Welch-Satterthwaite's degrees of
+    freedom (``h - 1`` for one stratum). For fewer than 4 values, the mean's."""
+    x = np.asarray(x, dtype=float)
+    n = x.shape[-1]
+    sizes = [n] if sizes is None else list(sizes)
+    cut = int(0.25 * n)
+    h = n - 2 * cut
+    s = np.sort(x, axis=-1)
+    w = np.clip(x, s[..., cut : cut + 1], s[..., n - cut - 1 : n - cut])
+    bounds = np.cumsum([0, *sizes])
+    parts = [(k, w[..., a:b].var(axis=-1, ddof=1)) for a, b, k in zip(bounds[:-1], bounds[1:], sizes) if k > 1]
+    if not parts:
+        nan = np.full(x.shape[:-1], np.nan)
+        return nan, np.asarray(np.nan)
+    v = [k * var for k, var in parts]
+    total = sum(v)
+    if len(parts) == 1:
+        df = np.asarray(h - 1.0)
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            df = np.minimum(total**2 / sum(vr**2 / (k - 1) for (k, _), vr in zip(parts, v)), h - 1.0)
+    return np.sqrt(total) / h, df
+
+
+# --------------------------------------------------------------------------- resampling
+def seeded_rng(seed: int, *names: str) -> np.random.Generator:
+    """A generator per (seed, names): one agent's intervals do not depend on the others'."""
+    return np.random.default_rng([seed, *(zlib.crc32(n.encode()) for n in names)])
+
+
+def resample_indices(n: int, reps: int, rng: np.random.Generator) -> np.ndarray:
+    """``reps`` bootstrap resamples of ``n`` values, as indices drawn with replacement: shape
+    ``(reps, n)``. Every bootstrap of the package draws here."""
+    return rng.integers(0, n, size=(reps, n))
+
+
+def stratified_indices(sizes: Sequence[int], reps: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """One :func:`resample_indices` per stratum (regime), strata drawn one after the other."""
+    return [resample_indices(k, reps, rng) for k in sizes]
+
+
+def stratified_resamples(runs: Runs, reps: int, rng: np.random.Generator) -> Runs:
+    """``reps`` stratified bootstrap resamples of the runs: within each regime, that regime's
+    runs drawn with replacement (as many as it has), regimes independently; one array
+    ``(reps, runs)`` per regime (rliable's ``StratifiedBootstrap`` over runs)."""
+    return [x[i] for x, i in zip(runs, stratified_indices([len(x) for x in runs], reps, rng))]
+
+
+@lru_cache(maxsize=16)
+def _multisets(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every distinct bootstrap resample of ``n`` values (sorted indices) and its probability."""
+    idx = np.array(list(itertools.combinations_with_replacement(range(n), n)))
+    counts = np.apply_along_axis(np.bincount, 1, idx, minlength=n)
+    logp = math.lgamma(n + 1) - np.vectorize(math.lgamma)(counts + 1.0).sum(axis=1) - n * math.log(n)
+    return idx, np.exp(logp)
+
+
+@dataclass(frozen=True)
+class Design:
+    """Bootstrap resamples of ``n`` values: indices ``(resamples, n)`` and each one's weight
+    (every multiset with its probability when ``exact``, else ``reps`` draws of weight 1/reps)."""
+
+    idx: np.ndarray
+    weights: np.ndarray
+    exact: bool
+
+
+def design(n: int, reps: int = 2000, rng: np.random.Generator | None = None, exact: bool | None = None) -> Design:
+    """The resamples of one sample of ``n`` values: every one, enumerated, for up to
+    :data:`EXACT_SEEDS` values (unless ``exact=False``), else ``reps`` drawn with ``rng``."""
+    if exact is None:
+        exact = n <= EXACT_SEEDS
+    if exact:
+        idx, w = _multisets(n)
+        return Design(idx, w, True)
+    rng = rng if rng is not None else np.random.default_rng(0)
+    return Design(resample_indices(n, reps, rng), np.full(reps, 1.0 / reps), False)
+
+
+def stratified_design(
+    sizes: Sequence[int], reps: int = 2000, rng: np.random.Generator | None = None, exact: bool | None = None
+) -> Design:
+    """The resamples of runs in strata of ``sizes`` laid side by side (one stratum's runs after
+    the other's): within each stratum its runs redrawn with replacement. One stratum: :func:`design`."""
+    if len(sizes) == 1:
+        return design(sizes[0], reps, rng, exact)
+    rng = rng if rng is not None else np.random.default_rng(0)
+    offsets = np.cumsum([0, *sizes[:-1]])
+    idx = np.concatenate([i + o for i, o in zip(stratified_indices(sizes, reps, rng), offsets)], axis=1)
+    return Design(idx, np.full(reps, 1.0 / reps), False)
+
+
+def percentile_interval(values: np.ndarray, confidence: float = CONFIDENCE, weights=None) -> tuple[float, float]:
+    """The percentile interval of bootstrap statistics ``values``: numpy's interpolated
+    percentiles of drawn resamples (arch's ``method="percentile"``, rliable's default), or with
+    ``weights`` (enumerated resamples) the weighted quantiles."""
+    alpha = (1 - confidence) / 2
+    if weights is None:
+        lo, hi = np.percentile(values, [100 * alpha, 100 * (1 - alpha)], axis=0)
+        return float(lo), float(hi)
+    lo, hi = weighted_quantiles(np.asarray(values)[None, :], np.asarray(weights), np.array([[alpha, 1 - alpha]]))[0]
+    return float(lo), float(hi)
+
+
+def weighted_quantiles(values: np.ndarray, weights: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Per row of ``values`` ``(rows, resamples)`` with resample ``weights``, the quantiles
+    ``q`` ``(rows, k)``: the midpoint of the two values where the cumulative weight crosses q
+    (the inverse of the bootstrap's distribution function, averaged at a jump's edge)."""
+    order = np.argsort(values, axis=1, kind="stable")
+    v = np.take_along_axis(values, order, axis=1)
+    cw = np.cumsum(weights[order], axis=1)
+    cw /= cw[:, -1:]
+    out = np.empty(q.shape)
+    for j in range(q.shape[1]):
+        qj = q[:, j : j + 1]
+        lo = np.minimum((cw < qj - 1e-12).sum(axis=1), v.shape[1] - 1)
+        hi = np.minimum((cw <= qj + 1e-12).sum(axis=1), v.shape[1] - 1)
+        rows = np.arange(v.shape[0])
+        out[:, j] = (v[rows, lo] + v[rows, hi]) / 2
+    return out
+
+
+# --------------------------------------------------------------------------- intervals
+Stat = Callable[[np.ndarray], np.ndarray]  # (..., n) -> (...)
+
+
+def _mean(x: np.ndarray) -> np.ndarray:
+    return x.mean(axis=-1)
+
+
+def _mean_se(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    n = x.shape[-1]
+    return x.std(axis=-1, ddof=1) / np.sqrt(n), np.asarray(n - 1.0)
+
+
+STATISTICS: dict[str, tuple[Stat, Callable]] = {
+    "mean": (_mean, _mean_se),
+    "iqm": (lambda x: iqm(x, axis=-1), trimmed_se),
+}
+
+
+def intervals(
+    x: np.ndarray,
+    statistic: str,
+    method: str,
+    d: Design | None = None,
+    confidence: float = CONFIDENCE,
+    sizes: Sequence[int] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``method`` interval of ``statistic`` (``"mean"``, ``"iqm"``) of each row of ``x``
+    ``(rows, n)``, vectorised over rows (the coverage simulation's datasets): ``(lo, hi)``.
+    ``sizes``: strata (regimes) of consecutive lengths along a row, for the IQM's standard
+    error; ``d``: the bootstrap's resamples (default :func:`stratified_design` of ``sizes``)."""
+    from scipy.stats import norm, t
+
+    stat, se_fn = STATISTICS[statistic]
+    x = np.atleast_2d(np.asarray(x, dtype=float))
+    n = x.shape[1]
+    sizes = [n] if sizes is None else list(sizes)
+
+    def se_of(v):
+        return se_fn(v, sizes) if statistic == "iqm" else se_fn(v)
+
+    alpha = (1 - confidence) / 2
+    theta = stat(x)
+    se, df = se_of(x)
+    if method == "t":
+        half = t.ppf(1 - alpha, df) * se
+        return theta - half, theta + half
+    d = d or stratified_design(sizes)
+    boot = stat(x[:, d.idx])  # (rows, resamples)
+    w = d.weights
+    if method == "percentile":
+        q = np.tile([alpha, 1 - alpha], (len(x), 1))
+        out = weighted_quantiles(boot, w, q)
+        return out[:, 0], out[:, 1]
+    if method == "bca":
+        below = ((boot < theta[:, None]) * w).sum(1) + 0.5 * ((boot == theta[:, None]) * w).sum(1)
+        z0 = norm.ppf(np.clip(below / w.sum(), 1e-6, 1 - 1e-6))
+        jack = np.stack([stat(np.delete(x, i, axis=1)) for i in range(n)], axis=1)
+        dev = jack.mean(axis=1, keepdims=True) - jack
+        den = 6 * (dev**2).sum(1) ** 1.5
+        a = np.divide((dev**3).sum(1), den, out=np.zeros(len(x)), where=den > 0)
+        z = norm.ppf([alpha, 1 - alpha])[None, :]
+        q = norm.cdf(z0[:, None] + (z0[:, None] + z) / (1 - a[:, None] * (z0[:, None] + z)))
+        out = weighted_quantiles(boot, w, q)
+        return out[:, 0], out[:, 1]
+    if method == "bootstrap-t":
+        se_b, _ = se_of(x[:, d.idx])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tt = (boot - theta[:, None]) / se_b
+        keep = np.isfinite(tt)  # a resample of one value repeated has no spread: left out
+        tt = np.where(keep, tt, 0.0)
+        ww = np.where(keep, w[None, :], 0.0)
+        out = np.stack(
+            [weighted_quantiles(tt[i : i + 1], ww[i], np.array([[alpha, 1 - alpha]]))[0] for i in range(len(x))]
+        )
+        return theta - out[:, 1] * se, theta - out[:, 0] * se
+    raise ValueError(f"method {method!r}: one of {', '.join(METHODS)}")
+
+
+def mean_ci(values, confidence: float = CONFIDENCE, method: str | None = None) -> tuple[float, float, float]:
+    """The mean of ``values`` (one per seed; NaNs dropped) and its interval over seeds
+    (:data:`CHOSEN` ``["mean"]`` unless ``method``); ``(mean, nan, nan)`` with fewer than two
+    values or none spread: one run gives no spread to resample."""
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return float("nan"), float("nan"), float("nan")
+    point = float(x.mean())
+    if x.size < 2:
+        return point, float("nan"), float("nan")
+    lo, hi = intervals(x, "mean", method or CHOSEN["mean"], confidence=confidence)
+    return point, float(lo[0]), float(hi[0])
+
+
+def stratified_t(
+    strata: Sequence[tuple[np.ndarray, np.ndarray]], confidence: float = CONFIDENCE
+) -> tuple[float, float, float]:
+    """A mean over clusters (seeds) within strata (regimes), weighted by size: per stratum the
+    clusters' values (a cluster's mean) and sizes (its days). The point is the pooled mean
+    ``sum(size * value) / sum(size)``; its interval Student's t with the clusters' standard
+    error within each stratum (the ratio estimator's) and Welch-Satterthwaite degrees of
+    freedom. ``(point, nan, nan)`` when no stratum has two clusters."""
+    from scipy.stats import t
+
+    total = sum(float(np.sum(n)) for _, n in strata)
+    point = sum(float(np.sum(np.asarray(v) * np.asarray(n))) for v, n in strata) / total
+    var, dfs = 0.0, 0.0
+    for v, n in strata:
+        v, n = np.asarray(v, dtype=float), np.asarray(n, dtype=float)
+        k = len(v)
+        if k < 2:
+            continue
+        share = n.sum() / total
+        m = (v * n).sum() / n.sum()
+        w = n / n.sum()
+        vr = share**2 * k / (k - 1) * np.sum(w**2 * (v - m) ** 2)
+        var += vr
+        dfs += vr**2 / (k - 1)
+    if not any(len(v) > 1 for v, _ in strata):
+        return point, float("nan"), float("nan")
+    df = var**2 / dfs if dfs > 0 else float(max(len(v) for v, _ in strata) - 1)
+    half = float(t.ppf(1 - (1 - confidence) / 2, df) * np.sqrt(var))
+    return point, point - half, point + half
+
+
+def paired_ci(
+    sums: Sequence[np.ndarray],
+    sizes: Sequence[np.ndarray],
+    reps: int = 10_000,
+    rng: np.random.Generator | None = None,
+    confidence: float = CONFIDENCE,
+) -> tuple[float, float]:
+    """The interval of a mean over days whose days come in seeds (clusters) within regimes
+    (strata): per regime, each seed's sum over its days and its number of days. The estimate is
+    ``sum(sums) / sum(sizes)``; :data:`CHOSEN` ``["paired"]`` makes the interval: ``"t"``,
+    :func:`stratified_t` of the seeds' means; ``"percentile"``, the percentile interval of
+    ``reps`` resamples of the seeds within each regime (``rng``)."""
+    if CHOSEN["paired"] == "t":
+        strata = [(np.asarray(s, dtype=float) / np.asarray(n, dtype=float), n) for s, n in zip(sums, sizes)]
+        return stratified_t(strata, confidence)[1:]
+    rng = rng if rng is not None else np.random.default_rng(0)
+    tot_n, tot = np.zeros(reps), np.zeros(reps)
+    for s, n, pick in zip(sums, sizes, stratified_indices([len(n) for n in sizes], reps, rng)):
+        tot_n += np.asarray(n, dtype=float)[pick].sum(axis=1)
+        tot += np.asarray(s, dtype=float)[pick].sum(axis=1)
+    return percentile_interval(tot / tot_n, confidence)
+
+
+def iqm_runs_ci(
+    runs: Runs, confidence: float = CONFIDENCE, method: str | None = None, rng=None, reps: int = 2000
+) -> tuple[float, float, float]:
+    """The IQM of the runs pooled over regimes (rliable's aggregate IQM) and its interval
+    (:data:`CHOSEN` ``["iqm"]`` unless ``method``): the trimmed t with the standard error
+    stratified by regime, or a bootstrap stratified by regime (every resample enumerated for one
+    regime of up to :data:`EXACT_SEEDS` runs, else ``reps`` drawn with ``rng``).
+    ``(point, nan, nan)`` with one run per regime: nothing to resample."""
+    runs = [np.asarray(r, dtype=float) for r in runs]
+    pooled_runs = np.concatenate(runs)
+    point = iqm(pooled_runs)
+    if max(len(x) for x in runs) < 2:
+        return point, float("nan"), float("nan")
+    sizes = [len(x) for x in runs]
+    d = None if (method or CHOSEN["iqm"]) == "t" else stratified_design(sizes, reps, rng)
+    lo, hi = intervals(pooled_runs, "iqm", method or CHOSEN["iqm"], d, confidence, sizes)
+    return point, float(lo[0]), float(hi[0])
+
+
+def clustered_iqm_ci(
+    values_by_seed: Sequence[np.ndarray], confidence: float = CONFIDENCE, reps: int = 20_000, seed: int = 0
+) -> tuple[float, float, float]:
+    """The IQM of every value (a seed's days pooled) and its percentile interval from the
+    bootstrap over **seeds** (a seed's values drawn together): every resample enumerated for
+    up to :data:`EXACT_SEEDS` seeds, else ``reps`` drawn (``seed``). (nan, nan) with one seed."""
+    values_by_seed = [np.asarray(v, dtype=float) for v in values_by_seed]
+    point = iqm(np.concatenate(values_by_seed)) if values_by_seed else float("nan")
+    k = len(values_by_seed)
+    if k < 2:
+        return point, float("nan"), float("nan")
+    d = design(k, reps, np.random.default_rng(seed))
+    stats = np.array([iqm(np.concatenate([values_by_seed[i] for i in row])) for row in d.idx])
+    return (point, *percentile_interval(stats, confidence, d.weights))
+
+
+def bootstrap(stat: Callable[..., np.ndarray], arrays: Sequence[np.ndarray], reps: int, seed: int) -> np.ndarray:
+    """``stat`` of ``reps`` resamples of paired ``arrays`` (the same indices for each, drawn
+    with ``seed``): ``stat(*resampled)`` with each resampled array ``(reps, n)``."""
+    idx = resample_indices(len(arrays[0]), reps, np.random.default_rng(seed))
+    return stat(*(np.asarray(a, dtype=float)[idx] for a in arrays))
+
+
+def caption(statistic: str) -> str:
+    """The interval's method and measured coverage, for a caption:
+    ``"t interval; simulated coverage 95.0 % at 5 seeds, 94.6 % at 10"``."""
+    name = {"t": "t", "percentile": "percentile bootstrap", "bca": "BCa bootstrap", "bootstrap-t": "bootstrap-t"}
+    if statistic == "iqm" and CHOSEN[statistic] == "t":
+        label = "trimmed-t"
+    else:
+        label = name[CHOSEN[statistic]]
+    cov = COVERAGE[statistic]
+    return f"{label} interval; simulated coverage {100 * cov[5]:.1f} % at 5 seeds, {100 * cov[10]:.1f} % at 10"
