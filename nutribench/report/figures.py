@@ -39,8 +39,7 @@ from nutribench.report.figure_parts import (  # noqa: F401 (re-exported: the fig
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
-from nutribench.stats import caption as interval_caption
-from nutribench.stats import mean_ci
+from nutribench.stats import caption, mean_ci
 
 METRIC_LABELS = {
     "return": "episodic return",
@@ -390,7 +389,7 @@ def eval_across_regimes(
     n_seeds = ev.groupby(["regime", "algo"])["seed"].nunique()
     n_days = ev.groupby(["regime", "algo", "seed"]).size()
     band = (
-        f"band (or error bar) = 95 % interval over seeds of the seed means ({interval_caption('mean')})"
+        f"band (or error bar) = 95 % interval over seeds of the seed means ({caption('mean')})"
         if n_seeds.max() > 1
         else "one seed: no band"
     )
