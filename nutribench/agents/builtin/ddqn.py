@@ -5,6 +5,7 @@ models."""
 
 from __future__ import annotations
 
+import warnings
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -12,6 +13,7 @@ import torch as th
 from pydantic import Field
 from stable_baselines3 import DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.buffers import NStepReplayBuffer
 from stable_baselines3.common.utils import LinearSchedule
 from torch.nn import functional as F
 
@@ -62,6 +64,27 @@ class DoubleDQN(DQN):
     """SB3 DQN with the double-DQN target; everything else (n-step replay, epsilon-greedy,
     hard target copies, Huber loss, gradient clipping) is SB3's. Each update also logs
     ``train/q_mean`` (mean Q of the batch's actions) and ``train/grad_norm`` (before clipping)."""
+
+    def _excluded_save_params(self) -> list[str]:
+        """Also the replay buffer's class: SB3 chose it from ``n_steps`` (its n-step buffer) and
+        chooses it again on load. Saved, it made every plain ``DQN.load`` warn that
+        ``n_steps=5`` "is ignored because a custom replay_buffer_class was passed", which is
+        not so: the saved ``replay_buffer_kwargs`` carry ``n_steps`` and ``gamma``, and the
+        loaded model's buffer is the n-step one."""
+        return [*super()._excluded_save_params(), "replay_buffer_class"]
+
+    def _setup_model(self) -> None:
+        """SB3's, with that warning silenced where it is false (a file saved before the class
+        was left out: its buffer class and kwargs both say n-step, so n-step returns are set up)."""
+        kwargs = self.replay_buffer_kwargs or {}
+        if self.replay_buffer_class is NStepReplayBuffer and kwargs.get("n_steps") == self.n_steps:
+            with warnings.catch_warnings():
+                warnings.filterwarnings(
+                    "ignore", message=r"`n_steps=\d+` is ignored because a custom", category=UserWarning
+                )
+                super()._setup_model()
+        else:
+            super()._setup_model()
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         self.policy.set_training_mode(True)
