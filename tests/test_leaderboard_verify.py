@@ -15,6 +15,7 @@ from pathlib import Path
 from unittest import mock
 
 import numpy as np
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -107,17 +108,26 @@ def forged(trained: Path) -> Path:
     return path
 
 
-def _checked(*args: str) -> str:
-    """The ``checked`` cell of the leaderboard's single row."""
+def _board(*args: str) -> tuple[list[dict[str, str]], str]:
+    """The leaderboard's rows (CSV cells by column) and its whole output."""
+    import csv
+
     res = runner.invoke(app, ["leaderboard", *args, "--reps", "200", "--format", "csv"])
     assert res.exit_code == 0, res.output
     lines = res.output.splitlines()
     k = next(i for i, ln in enumerate(lines) if ln.startswith("rank,"))
-    import csv
+    end = next((i for i in range(k + 1, len(lines)) if not lines[i].strip()), len(lines))
+    return list(csv.DictReader(lines[k:end])), res.output
 
-    header, row = list(csv.reader(lines[k : k + 2]))
-    assert lines[k + 1].startswith("1,mc,"), lines
-    return row[header.index("checked")]
+
+def _checked(*args: str) -> str:
+    """The ``checked`` cell of the leaderboard's single row: ranked first unless its models,
+    re-run, do not reproduce its actions (then set apart, without a rank)."""
+    rows, output = _board(*args)
+    assert len(rows) == 1 and rows[0]["algo"] == "mc", rows
+    cell = rows[0]["checked"]
+    assert rows[0]["rank"] == ("" if cell.startswith(("re-run: differs", "re-run: failed")) else "1"), rows
+    return cell
 
 
 def test_an_archive_whose_models_are_supplied_is_verified_by_re_running_them(trained: Path):
@@ -188,3 +198,34 @@ def test_a_plug_ins_models_are_not_loaded_and_its_entry_says_why(tmp_path: Path)
     cell = entry_cell([check, JobCheck("b", "missing")])
     assert cell == "replayed, not re-run" + PLUGIN_NOTE and "evaluate --entry-point" in cell
     assert entry_cell([JobCheck("a", "match", 5, 5), check]) == "replayed; re-run on 1 of 2 jobs: match"
+
+
+def test_a_forged_row_under_verify_is_set_apart_not_ranked_first(trained: Path, forged: Path, tmp_path: Path):
+    """Issue 74: the planner's actions in mc's archive rank it first at 100 %, above a genuine
+    entry (a recorded agent's archive); with ``--verify`` its model plays other actions, and the
+    row is listed apart, after the ranked ones, without a rank, the reason in its flags and in
+    the caption; the genuine entry ranks first."""
+    from nutribench.report.leaderboard import leaderboard_from_archives
+    from tests.recorded import recorded_archive
+
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shutil.copy(forged, shared / "mc.npz")
+    _, other = recorded_archive(tmp_path)
+    shutil.copy(other, shared / "eat_early.npz")
+
+    def ranks(raw) -> list[tuple[int | None, str]]:
+        return [(None if pd.isna(r) else int(r), a) for r, a in zip(raw["rank"], raw["algo"])]
+
+    plain = leaderboard_from_archives(shared, reps=200).raw
+    assert ranks(plain) == [(1, "mc"), (2, "eat_early")], plain
+    assert plain["iqm"][0] > 0.99 > plain["iqm"][1]  # the planner's actions: 100 %
+
+    table = leaderboard_from_archives(shared, reps=200, verify=trained / "m")
+    rows = table.raw.to_dict("records")
+    assert ranks(table.raw) == [(1, "eat_early"), (None, "mc")], table.raw
+    assert rows[1]["checked"].startswith("re-run: differs (run0 x mc seed 0 day "), rows[1]
+    assert rows[1]["flags"].startswith("not ranked: its models, re-run, do not reproduce its stored actions"), rows[1]
+    assert "MC v3 (2 days) is set apart, not ranked: re-run: differs (run0 x mc seed 0 day " in table.title, table.title
+    assert rows[0]["checked"] == "replayed, not re-run" and "not ranked" not in rows[0]["flags"]
+    assert table.formatted["rank"].tolist() == [1, ""]  # the printed table shows no rank either

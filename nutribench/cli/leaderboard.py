@@ -43,7 +43,8 @@ def leaderboard_cmd(
     code version; rows off the reference grid (5000 days, seeds 0, 21, 9, 2003, 1997, every
     regime) are flagged. With --archives, an archive that fails a check is refused (named,
     with its reason, on stderr and in the caption) and the others are ranked. With --verify,
-    the entries whose models are supplied are re-run: `verified (re-run)` or `re-run: differs`;
+    the entries whose models are supplied are re-run: `verified (re-run)` or `re-run: differs`
+    (such a row is set apart: listed after the ranked rows, not ranked, with the reason);
     the others stay `replayed, not re-run`."""
     from nutribench.report.leaderboard import check_reps, leaderboard_from_archives, leaderboard_from_db
     from nutribench.report.output import TABLE_SUFFIXES, write_table

@@ -32,7 +32,9 @@ seed's test days, the regime the installed one where it bears a shipped name and
 which proves the actions fit the regime, not that an agent chose them; no model is re-run.
 With trained models supplied (``--verify MODELS``, :mod:`nutribench.report.leaderboard_verify`)
 each job whose model is there is played again from it and compared action for action:
-``verified (re-run)``, ``re-run: differs (...)`` or ``re-run: failed (...)``.
+``verified (re-run)``, ``re-run: differs (...)`` or ``re-run: failed (...)``. A row whose
+models differ or fail is not ranked among the others: it is listed after them, without a rank,
+its flags and the caption saying why (its numbers are not its models').
 
 DataFrame in, :class:`~nutribench.report.tables.TableResult` out (:func:`leaderboard_table`);
 :func:`leaderboard_from_db` reads a database, :func:`leaderboard_from_archives` a folder of
@@ -185,7 +187,9 @@ def leaderboard_rows(
     the published one). ``references``: the never/planner yardsticks of every evaluation day;
     ``jobs``: the jobs table (id, engine, versions); ``protocol``: entry, (name, version) or
     name -> protocol; ``checked``: the same keys -> the ``checked`` cell where models were
-    re-run (:func:`nutribench.report.leaderboard_verify.verify_entries`)."""
+    re-run (:func:`nutribench.report.leaderboard_verify.verify_entries`). A row whose models
+    did not reproduce its stored actions is set apart: listed after the ranked rows, with no rank
+    and the reason in its flags (:func:`_set_apart`)."""
     board = sort_regimes(ev["regime"].unique())
     job_info = jobs.set_index("id")
     rows = []
@@ -226,8 +230,42 @@ def leaderboard_rows(
     if out.empty:
         return out
     out = out.sort_values("iqm", ascending=False, na_position="last", kind="stable").reset_index(drop=True)
-    out.insert(0, "rank", [i + 1 if np.isfinite(v) else None for i, v in enumerate(out["iqm"])])
+    apart = _set_apart(out)
+    out = pd.concat([out[~apart], out[apart]], ignore_index=True)  # set-apart rows last, unranked
+    ranked = len(out) - int(apart.sum())
+    out.insert(0, "rank", [i + 1 if i < ranked and np.isfinite(v) else None for i, v in enumerate(out["iqm"])])
     return out
+
+
+#: the flag of a row set apart (:func:`_set_apart`)
+SET_APART = "not ranked: its models, re-run, do not reproduce its stored actions (checked)"
+
+
+def _set_apart(rows: pd.DataFrame) -> pd.Series:
+    """Which rows are set apart from the ranking: those whose supplied models did not reproduce
+    their stored actions under ``--verify`` (:func:`nutribench.report.leaderboard_verify.not_reproduced`);
+    their flags say so. The others keep their order."""
+    from nutribench.report.leaderboard_verify import not_reproduced
+
+    apart = rows["checked"].map(not_reproduced).astype(bool)
+    rows.loc[apart, "flags"] = ["; ".join(f for f in (SET_APART, flags) if f) for flags in rows.loc[apart, "flags"]]
+    return apart
+
+
+def _set_apart_notes(checked: dict) -> list[str]:
+    """A caption note for each entry set apart (:func:`_set_apart`), with its reason; ``checked``:
+    entry (name, version, budget) -> its ``checked`` cell."""
+    from nutribench.report.leaderboard_verify import not_reproduced
+
+    def label(entry) -> str:
+        if not isinstance(entry, tuple):
+            return algo_label(entry)
+        name, version, budget = entry
+        return f"{algo_label(name)} v{version} ({budget} days)"
+
+    return [
+        f"{label(e)} is set apart, not ranked: {cell}" for e, cell in sorted(checked.items()) if not_reproduced(cell)
+    ]
 
 
 def _pct(v: float) -> str:
@@ -351,6 +389,7 @@ def leaderboard_of(
         from nutribench.report.leaderboard_verify import verify_entries
 
         checked = verify_entries(db, ev, verify, log)
+        notes = [*(notes or []), *_set_apart_notes(checked)]
     protocol = {
         (name, int(version)): protocols(configs[(configs["name"] == name) & (configs["version"] == version)])[name]
         for name, version in configs[["name", "version"]].drop_duplicates().itertuples(index=False)

@@ -31,7 +31,9 @@ The ``checked`` cell of an entry: ``verified (re-run)`` when every job of the en
 and every day matches; ``re-run: differs (...)`` when a supplied model plays another action
 (the first differing job, day and step; how many days match); ``re-run: failed (...)`` when a
 supplied model cannot be loaded or is another agent's; ``replayed, not re-run`` when no model of
-the entry is supplied; ``replayed; re-run on k of n jobs: match`` when only some are.
+the entry is supplied; ``replayed; re-run on k of n jobs: match`` when only some are. An entry
+whose cell says ``differs`` or ``failed`` (:func:`not_reproduced`) is set apart by the leaderboard:
+listed after the ranked rows, without a rank, with the reason in its flags and in the caption.
 """
 
 from __future__ import annotations
@@ -167,6 +169,13 @@ def entry_cell(checks: list[JobCheck]) -> str:
     return f"replayed; re-run on {len(run)} of {len(checks)} jobs: match"
 
 
+def not_reproduced(cell: str) -> bool:
+    """Whether the ``checked`` cell ``cell`` says the entry's supplied models do not reproduce its
+    stored actions (:data:`DIFFERS`) or could not be re-run as its own (:data:`FAILED`): such an
+    entry is set apart, not ranked among the others (its numbers are not its models')."""
+    return cell.startswith((DIFFERS, FAILED))
+
+
 def verify_entries(
     db, ev: pd.DataFrame, models_dir: str | Path, log: Log | None = None
 ) -> dict[tuple[str, int, int], str]:
@@ -221,6 +230,7 @@ __all__ = [
     "JobCheck",
     "entry_cell",
     "model_file",
+    "not_reproduced",
     "rerun_job",
     "verify_entries",
 ]
