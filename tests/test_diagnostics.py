@@ -369,9 +369,20 @@ def test_diagnostics_travel_in_an_archive(ran, tmp_path) -> None:
     assert sql(tmp_path / "old.db", "SELECT count(*) FROM jobs") == [(5,)]
 
 
+def _copy_s_grad_norm(norms) -> float:
+    """What ``agents/sb3_train.py`` (SB3's ``train()`` copied to keep the norm, removed in issue
+    72) logged as ``train/grad_norm``: the float32 mean of the finite norms ``clip_grad_norm_``
+    returned over the update's gradient steps."""
+    import torch as th
+
+    kept = th.stack(norms)
+    return float(kept[th.isfinite(kept)].mean())
+
+
 def test_grad_norm_probe_reads_the_norm_before_clipping():
-    """The probe's norm (one per gradient step) is the one clip_grad_norm_ returns, not the
-    clipped gradient's; a step whose backward missed a parameter records nothing."""
+    """The probe's norm (one per gradient step) is the one clip_grad_norm_ returns, bit for bit,
+    not the clipped gradient's; a row gets their mean; a step whose backward missed a parameter
+    keeps nothing."""
     import torch as th
 
     from nutribench.agents.training_log import DiagnosticsLogger, GradNormProbe
@@ -385,24 +396,25 @@ def test_grad_norm_probe_reads_the_norm_before_clipping():
     for _ in range(3):
         opt.zero_grad()
         net(th.randn(16, 4)).pow(2).sum().backward()
-        norms.append(float(th.nn.utils.clip_grad_norm_(net.parameters(), 0.01)))  # clips hard
+        norms.append(th.nn.utils.clip_grad_norm_(net.parameters(), 0.01))  # clips hard
         opt.step()
     assert min(norms) > 0.01  # every step was clipped
-    assert logger.counts[d.GRAD_NORM] == 3
-    assert logger.sums[d.GRAD_NORM] == pytest.approx(sum(norms), rel=1e-6)
+    assert [float(n) for n in probe.norms] == [float(n) for n in norms]
+    assert logger.take() == {d.GRAD_NORM: _copy_s_grad_norm(norms)}
     opt.zero_grad(set_to_none=True)
     net[2](th.randn(16, 8)).sum().backward()  # the first layer gets no gradient
     opt.step()
-    assert logger.counts[d.GRAD_NORM] == 3
+    assert probe.norms == [] and logger.take() == {}
     probe.remove()
+    assert logger.before_take == []
 
 
 @pytest.mark.parametrize("algo", ["ppo", "mc"])
-def test_ppo_and_a2c_train_is_sb3_s_and_logs_the_norms_clip_grad_norm_returns(algo, monkeypatch):
-    """The SB3 engine's PPO and MC override ``train()`` (as sb3-contrib does): one update of
-    each equals SB3's own ``train()`` on the same rollout (every weight bit for bit, every
-    value SB3 logs), and ``train/grad_norm`` is the mean of the norms ``clip_grad_norm_``
-    returned (before clipping); torch's ``clip_grad_norm_`` is left as it is."""
+def test_ppo_and_mc_are_sb3_s_own_classes_and_the_probe_logs_the_norm_the_copy_did(algo, monkeypatch):
+    """The SB3 engine's PPO and MC train with SB3's own ``train()`` (no copy): one update equals
+    that of SB3's ``PPO`` / ``A2C`` built the same way, every weight bit for bit and every value
+    SB3 logs; the diagnostics' ``grad_norm`` (read by the probe) equals what the removed copy of
+    ``train()`` logged, computed here from the norms ``clip_grad_norm_`` returned."""
     import numpy as np
     import torch as th
     from stable_baselines3 import A2C, PPO
@@ -410,9 +422,11 @@ def test_ppo_and_a2c_train_is_sb3_s_and_logs_the_norms_clip_grad_norm_returns(al
     from nutribench.agents.algos import build_model
     from nutribench.agents.api import make_train_env
     from nutribench.agents.config import load_agent_config
+    from nutribench.agents.training_log import SB3_KEYS, DiagnosticsLogger, GradNormProbe
     from nutribench.config import load_env_config
 
     th.set_num_threads(1)
+    sb3 = PPO if algo == "ppo" else A2C
     torch_clip = th.nn.utils.clip_grad_norm_
     cfg = load_agent_config(algo)
 
@@ -424,56 +438,58 @@ def test_ppo_and_a2c_train_is_sb3_s_and_logs_the_norms_clip_grad_norm_returns(al
         assert model.collect_rollouts(model.env, callback, model.rollout_buffer, n_rollout_steps=model.n_steps)
         return model
 
-    ours, theirs = after_one_rollout(), after_one_rollout(PPO if algo == "ppo" else A2C)
-    assert type(theirs) in (PPO, A2C) and type(ours) not in (PPO, A2C)
+    ours, theirs = after_one_rollout(), after_one_rollout(sb3)
+    assert type(theirs) is sb3 and isinstance(ours, sb3) and type(ours).train is sb3.train
     np.testing.assert_array_equal(ours.rollout_buffer.observations, theirs.rollout_buffer.observations)
-    norms: list[float] = []
+    diagnostics = DiagnosticsLogger(SB3_KEYS)
+    ours.set_logger(diagnostics)
+    probe = GradNormProbe(list(ours.policy.parameters()), ours.policy.optimizer, diagnostics)
+    norms: list[th.Tensor] = []
 
     def keeping(*args, **kwargs):
         norm = torch_clip(*args, **kwargs)
-        norms.append(float(norm))
+        norms.append(norm)
         return norm
 
+    monkeypatch.setattr(th.nn.utils, "clip_grad_norm_", keeping)  # spied on here only
     np.random.seed(11)
     ours.train()
-    assert th.nn.utils.clip_grad_norm_ is torch_clip  # nothing wrapped it
-    monkeypatch.setattr(th.nn.utils, "clip_grad_norm_", keeping)  # SB3's own train(), spied on here only
+    monkeypatch.undo()
+    row = diagnostics.take()
+    probe.remove()
     np.random.seed(11)
     theirs.train()
-    monkeypatch.undo()
     assert len(norms) == (cfg.n_epochs * -(-cfg.n_steps // cfg.batch_size) if algo == "ppo" else 1)
     mine, reference = ours.policy.state_dict(), theirs.policy.state_dict()
     assert all(th.equal(mine[k], reference[k]) for k in reference)
-    logged, expected = ours.logger.name_to_value, theirs.logger.name_to_value
-    assert set(logged) == set(expected) | {"train/grad_norm"}
-    assert all(logged[k] == expected[k] for k in expected)
-    assert logged["train/grad_norm"] == pytest.approx(np.mean(norms), rel=1e-6)
+    assert ours.logger.name_to_value == theirs.logger.name_to_value
+    assert row[d.GRAD_NORM] == _copy_s_grad_norm(norms)
 
 
-def test_ppo_update_logs_the_norm_the_probe_read():
-    """SB3 PPO's logged gradient norm (its own train()'s) equals what the gradient probe reads
-    over the same update, and a PPO job's diagnostics install no probe."""
+def test_an_on_policy_job_s_diagnostics_probe_its_model_unless_its_update_logs_the_norm():
+    """PPO's and MC's jobs (SB3's own update) get the probe; GRU-PPO's, whose update logs the
+    norm itself, does not; a whole PPO update's row carries the norm."""
     import torch as th
 
-    from nutribench.agents.algos import PPOWithGradNorm, build_model
+    from nutribench.agents.algos import build_model
     from nutribench.agents.api import make_train_env
     from nutribench.agents.config import load_agent_config
-    from nutribench.agents.training_log import SB3_KEYS, DiagnosticsLogger, GradNormProbe, TrainingDiagnostics
+    from nutribench.agents.training_log import TrainingDiagnostics
     from nutribench.config import load_env_config
 
     th.set_num_threads(1)
+    for algo, probed in (("ppo", True), ("mc", True), ("gru_ppo", False)):
+        cfg = load_agent_config(algo)
+        _, env = make_train_env(load_env_config("run0"), cfg)
+        model = build_model(cfg, env, seed=0, horizon=50)
+        assert (TrainingDiagnostics(model).probe is not None) is probed, algo
     cfg = load_agent_config("ppo")
     _, env = make_train_env(load_env_config("run0"), cfg)
     model = build_model(cfg, env, seed=0, horizon=50)
-    assert isinstance(model, PPOWithGradNorm)
-    assert TrainingDiagnostics(model).probe is None
-    logged, probed = DiagnosticsLogger(SB3_KEYS), DiagnosticsLogger(SB3_KEYS)
-    model.set_logger(logged)
-    probe = GradNormProbe(list(model.policy.parameters()), model.policy.optimizer, probed)
-    model.learn(total_timesteps=500)  # one rollout, one update of 10 epochs x 8 minibatches
-    probe.remove()
-    assert probed.counts[d.GRAD_NORM] == 80 and logged.counts[d.GRAD_NORM] == 1
-    assert logged.sums[d.GRAD_NORM] == pytest.approx(probed.sums[d.GRAD_NORM] / 80, rel=1e-5)
+    diagnostics = TrainingDiagnostics(model)
+    model.learn(total_timesteps=500, callback=diagnostics)  # one rollout, one update of 10 epochs x 8 minibatches
+    (row,) = diagnostics.rows
+    assert row[d.GRAD_NORM] > 0 and diagnostics.probe.handles == []
 
 
 @pytest.mark.parametrize("algo", ["ppo", "ddqn"])

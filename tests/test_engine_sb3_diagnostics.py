@@ -3,7 +3,9 @@ three stacked agents on the rollouts SB3 collected, and each agent's SB3 ``train
 own rollout, with the same minibatch orders; every quantity of the batched update's row
 (losses, entropy, approximate KL, clip fraction, explained variance, gradient norm,
 learning rate) equals the value ``model.logger.name_to_value`` holds after that agent's
-update. The return scale is not the update's (it is read off the env's statistics)."""
+update; the gradient norm of SB3's own PPO and A2C (MC), which do not log it, is what the SB3
+engine's diagnostics read of it (:class:`~nutribench.agents.training_log.GradNormProbe` on
+the model). The return scale is not the update's (it is read off the env's statistics)."""
 
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ import pytest
 import torch as th
 
 from nutribench import diagnostics as names
+from nutribench.agents.training_log import DiagnosticsLogger, GradNormProbe
 from nutribench.engine.envs import AgentEnvs
 from nutribench.engine.gru_ppo import GRUPPO
 from nutribench.engine.mc import MC
@@ -64,7 +67,11 @@ def one_update(algo: str) -> tuple[list[dict[str, float]], list]:
         np.random.seed(100 + j)
         perms.append([np.random.permutation(units) for _ in range(batched.settings.n_epochs)])
         np.random.seed(100 + j)
+        probed = DiagnosticsLogger({})
+        probe = GradNormProbe(list(m.policy.parameters()), m.policy.optimizer, probed)
         m.train()
+        m.probed_grad_norm = probed.take().get(names.GRAD_NORM)
+        probe.remove()
     batched.permutations = lambda _: np.stack(perms, axis=1)
     batched.train(rollout)
     return [rows[-1] for rows in batched.diagnostics], models
@@ -75,7 +82,10 @@ def test_every_on_policy_diagnostic_equals_what_sb3_logs_for_the_same_update(alg
     rows, models = one_update(algo)
     for row, m in zip(rows, models, strict=True):
         assert set(row) - NOT_THE_UPDATE == set(LOGGED[algo])  # each of them is compared below
-        logged = m.logger.name_to_value
+        logged = dict(m.logger.name_to_value)
+        if algo != "gru_ppo":  # SB3's own train() does not log it: the SB3 engine's probe reads it
+            assert "train/grad_norm" not in logged
+            logged["train/grad_norm"] = m.probed_grad_norm
         for name, key in LOGGED[algo].items():
             assert row[name] == pytest.approx(logged[key], rel=2e-4, abs=1e-7), (name, row[name], logged[key])
         if algo != "mc":  # the KL is the last epoch's: far from zero, unlike the first epoch's

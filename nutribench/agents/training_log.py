@@ -12,10 +12,10 @@ callback) closes a row at the end of each update and hands it to the logger's ou
 
 Row keys are the vocabulary of :mod:`nutribench.diagnostics`. The gradient norm before
 clipping is the value ``clip_grad_norm_`` returns: DDQN and GRU-PPO record it in updates of
-their own, and so do PPO and A2C (MC), whose ``train()`` is SB3's with that value kept
-(:mod:`nutribench.agents.sb3_train`). An on-policy plug-in algorithm whose update does not
-log ``train/grad_norm`` itself gets :class:`GradNormProbe` (the norm taken when backward has
-accumulated every gradient); nothing here changes torch or SB3 for the rest of the process. SAC does not clip and its gradient norm is
+their own; every other on-policy algorithm (SB3's own PPO and A2C, as MC and PPO train, and
+any plug-in) gets :class:`GradNormProbe`, which takes the same norm, as ``clip_grad_norm_``
+computes it, when backward has accumulated every gradient; nothing here changes torch or SB3
+for the rest of the process. SAC does not clip and its gradient norm is
 not recorded. VecNormalize's return scale is read
 off the training env at the end of each update.
 
@@ -72,6 +72,8 @@ class DiagnosticsLogger(Logger):
         self.keys = keys
         self.sums: dict[str, float] = {}
         self.counts: dict[str, int] = {}
+        #: called first by :meth:`take` (a probe adds what it kept since the last row)
+        self.before_take: list[Any] = []
         #: whether a training update recorded anything since the last row (``train/n_updates``)
         self.updated = False
 
@@ -92,6 +94,8 @@ class DiagnosticsLogger(Logger):
 
     def take(self) -> dict[str, float]:
         """The means since the last call, then forget them."""
+        for flush in list(self.before_take):
+            flush()
         out = {k: self.sums[k] / self.counts[k] for k in d.QUANTITIES if k in self.sums}
         self.sums.clear()
         self.counts.clear()
@@ -100,14 +104,17 @@ class DiagnosticsLogger(Logger):
 
 
 class GradNormProbe:
-    """The global gradient norm of ``params`` before clipping, for an on-policy plug-in's
-    update (which may not clip with ``clip_grad_norm_``, nor log what it returns).
+    """The global gradient norm of ``params`` before clipping, read through hooks on any model
+    (its update need not log it, nor clip with ``clip_grad_norm_``).
 
     Backward accumulates each parameter's gradient in turn; when the last of them has arrived
-    (a hook counts them), the global norm of all of them is taken at once, before
-    the update clips anything, and handed to ``logger`` when ``optimizer`` steps (so one norm,
-    and one read of it, per gradient step). A step whose backward left some parameter without a
-    gradient records nothing (its norm could no longer be read before clipping).
+    (a hook counts them), the norm of all of them is taken at once, before the update clips
+    anything, computed as ``clip_grad_norm_`` computes the norm it returns
+    (``torch.nn.utils.get_total_norm``: the same value, bit for bit), and kept when
+    ``optimizer`` steps (one norm per gradient step). At each row (:meth:`DiagnosticsLogger.take`)
+    ``logger`` gets the mean of the finite norms kept since the last, a float32 mean as SB3's
+    logged losses are. A step whose backward left some parameter without a gradient keeps
+    nothing (its norm could no longer be read before clipping).
     """
 
     def __init__(self, params: list[th.nn.Parameter], optimizer: th.optim.Optimizer, logger: DiagnosticsLogger):
@@ -115,27 +122,40 @@ class GradNormProbe:
         self.params = [p for p in params if p.requires_grad]
         self.arrived = 0
         self.norm: th.Tensor | None = None
+        self.norms: list[th.Tensor] = []
         self.handles = [p.register_post_accumulate_grad_hook(self._grad) for p in self.params]
         self.handles.append(optimizer.register_step_pre_hook(self._step))
+        logger.before_take.append(self.flush)
 
     def _grad(self, _: th.Tensor) -> None:
         self.arrived += 1
         if self.arrived == len(self.params):  # the last gradient of this backward: none clipped yet
-            # one flat vector and one norm: on the CPU about half the time of get_total_norm
-            # for these small networks (the norms are equal up to float rounding)
-            self.norm = th.linalg.vector_norm(th.cat([p.grad.detach().reshape(-1) for p in self.params]))
+            self.norm = th.nn.utils.get_total_norm([p.grad for p in self.params])
             self.arrived = 0
 
     def _step(self, *_: Any) -> None:
         if self.norm is not None:
-            self.logger.add(d.GRAD_NORM, self.norm.item())
+            self.norms.append(self.norm)
         self.norm = None
         self.arrived = 0
 
+    def flush(self) -> None:
+        """Hand ``logger`` the mean of the finite norms kept since the last row (none: nothing)."""
+        if not self.norms:
+            return
+        kept = th.stack(self.norms)
+        self.norms.clear()
+        finite = kept[th.isfinite(kept)]
+        if finite.numel():  # a step whose norm is not finite is left out, as the logger leaves it out
+            self.logger.add(d.GRAD_NORM, float(finite.mean()))
+
     def remove(self) -> None:
+        """Take the hooks off, and the probe off ``logger`` (norms kept since its last row are dropped)."""
         for h in self.handles:
             h.remove()
         self.handles.clear()
+        if self.flush in self.logger.before_take:
+            self.logger.before_take.remove(self.flush)
 
 
 def tensorboard_format(folder: str | Path) -> KVWriter:
@@ -200,6 +220,7 @@ class TrainingDiagnostics(BaseCallback):
         model.set_logger(self.diag_logger)
         self.probe: GradNormProbe | None = None
         if isinstance(model, OnPolicyAlgorithm) and not getattr(model, "records_grad_norm", False):
+            # every on-policy model but those whose update logs it (GRU-PPO): SB3's PPO and A2C too
             policy = model.policy
             self.probe = GradNormProbe(list(policy.parameters()), policy.optimizer, self.diag_logger)
 

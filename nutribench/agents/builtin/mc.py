@@ -8,12 +8,12 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
+from stable_baselines3 import A2C
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from nutribench.agents.algos import shared_actor_critic_kwargs
 from nutribench.agents.config import GradNorm, NonNegFloat, PosFloat, _FeedForward
 from nutribench.agents.registry import Algorithm
-from nutribench.agents.sb3_train import GradNormA2C
 
 
 class MCConfig(_FeedForward):
@@ -27,11 +27,12 @@ class MCConfig(_FeedForward):
     max_grad_norm: GradNorm
 
 
-class MonteCarloAC(GradNormA2C):
+class MonteCarloAC(A2C):
     """On-policy Monte Carlo actor-critic (the paper's Table 2) as an A2C whose rollout is one
     whole day (``n_steps`` = horizon, one env) and whose GAE lambda is 1: each update uses
     the complete episode's discounted returns. No gradient clipping when ``max_grad_norm`` is
-    ``inf`` (the norm is still logged: :class:`~nutribench.agents.sb3_train.GradNormA2C`)."""
+    ``inf`` (the norm is still logged: :class:`~nutribench.agents.training_log.GradNormProbe`).
+    SB3's ``A2C`` unchanged."""
 
 
 def mc_arguments(cfg: MCConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:

@@ -1,6 +1,7 @@
 """PPO: SB3's ``PPO`` (clipped surrogate) on the shared actor-critic backbone
-(:func:`~nutribench.agents.algos.shared_actor_critic_kwargs`), unchanged but for a logged
-gradient norm; plain SB3's ``PPO`` loads and acts with its models. Its optimisation fields
+(:func:`~nutribench.agents.algos.shared_actor_critic_kwargs`), unchanged (its gradient norm is
+read by the diagnostics' probe, :class:`~nutribench.agents.training_log.GradNormProbe`); plain
+SB3's ``PPO`` loads and acts with its models. Its optimisation fields
 (:class:`~nutribench.agents.config._PPOFields`) and constructor arguments
 (:func:`~nutribench.agents.algos.ppo_arguments`) are shared with GRU-PPO."""
 
@@ -9,12 +10,12 @@ from __future__ import annotations
 import warnings
 from typing import Any, Literal
 
+from stable_baselines3 import PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from nutribench.agents.algos import ppo_arguments, shared_actor_critic_kwargs
 from nutribench.agents.config import _FeedForward, _PPOFields
 from nutribench.agents.registry import Algorithm
-from nutribench.agents.sb3_train import GradNormPPO
 
 
 class PPOConfig(_FeedForward, _PPOFields):
@@ -23,10 +24,11 @@ class PPOConfig(_FeedForward, _PPOFields):
     algo: Literal["ppo"]
 
 
-class PPOWithGradNorm(GradNormPPO):
-    """SB3 ``PPO`` unchanged; each update also logs ``train/grad_norm``, the mean over its
-    gradient steps of the norm before clipping (:class:`~nutribench.agents.sb3_train.GradNormPPO`).
-    Its saved models are SB3 ``PPO`` models."""
+class PPOWithGradNorm(PPO):
+    """SB3 ``PPO`` unchanged, built without SB3's minibatch-size warning; its diagnostics'
+    ``grad_norm`` (the mean over an update's gradient steps of the norm before clipping) is
+    read by :class:`~nutribench.agents.training_log.GradNormProbe`, as on any on-policy model.
+    Its saved models are SB3 ``PPO`` models (the name is kept: model files name it)."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         # SB3 warns when batch_size does not divide n_steps; whole days per rollout matter more
