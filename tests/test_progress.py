@@ -292,3 +292,40 @@ def test_without_a_terminal_run_writes_a_progress_line_now_and_then(monkeypatch)
     assert len(lines) == 1 and lines[0].startswith("jobs: 0 done") and lines[0].endswith("running: day 400 of 1000")
     view.update(run)
     assert sum("running: day" in ln for ln in out.getvalue().splitlines()) == 1
+
+
+@pytest.mark.slow  # two commands in fresh interpreters (torch imported in each: about a minute each, loaded)
+def test_run_and_tune_logged_to_a_file_say_what_they_start_then_a_line_per_job_or_trial(tmp_path: Path) -> None:
+    """``nutribench run ... > out.txt 2>&1`` (no terminal): its first line says what it starts,
+    before the database is opened and the workers start; then one line per finished job.
+    ``tune`` likewise: what the study trains, then a line per finished trial."""
+    import os
+    import subprocess
+    import sys
+
+    repo = Path(__file__).resolve().parents[1]
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUTRIBENCH_")}
+    env["PYTHONPATH"] = str(repo)
+    cli = f"{sys.executable} -m nutribench.cli"
+    run = f"{cli} run --regimes run0 --algos mc --seeds 0,21 --days 2 --eval-episodes 1 --workers 1 --db r.db"
+    tune = f"{cli} tune --space mc --study s --trials 2 --days 2 --eval-every 2 --val-episodes 1 --regimes run3 --seeds 101 --db t.db"
+    for cmd, log in ((run, "run.txt"), (tune, "tune.txt")):
+        res = subprocess.run(f"{cmd} > {log} 2>&1", shell=True, cwd=tmp_path, env=env, timeout=600)
+        assert res.returncode == 0, (tmp_path / log).read_text()
+    lines = (tmp_path / "run.txt").read_text().splitlines()
+    assert lines[0] == (
+        "nutribench run: 2 jobs (1 regime x 1 agent mc x seeds 0, 21; 2 training days and 1 evaluation day "
+        "each; sb3 engine, 1 at a time) into r.db: opening it, then the jobs not done yet"
+    ), lines
+    assert lines[1] == "2 of 2 jobs to run on 1 local worker process", lines
+    done = [ln for ln in lines if ln.startswith("done run0 mc seed ")]
+    assert len(done) == 2, lines
+    lines = (tmp_path / "tune.txt").read_text().splitlines()
+    assert lines[0] == (
+        "tune s: search space mc, until 2 trials are finished; each trains 1 agent (run3 x seeds 101) for 2 days; "
+        "study in t.db: opening it"
+    ), lines
+    assert [ln.split(" (")[0] for ln in lines if ln.startswith("study s: ")] == [
+        "study s: 1 of 2 finished",
+        "study s: 2 of 2 finished",
+    ], lines

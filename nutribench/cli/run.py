@@ -206,6 +206,7 @@ def run_cmd(
     if preset is None and seeds is None and episodes is None and regimes == algos == "all" and not yes:
         _confirm_paper_grid(grid)  # after every check of the options, before the database exists
     job_fn = default_job_fn()
+    err_console.print(_starting_line(grid, engine, db, workers), highlight=False, soft_wrap=True)
     try:
         with StopSignalsAsCtrlC():  # the program's handlers, not the library's
             summary = run_grid(
@@ -242,6 +243,25 @@ def run_cmd(
     err_console.print(f"{summary.total} jobs: " + ", ".join(parts), highlight=False)
     if summary.exit_code:
         raise typer.Exit(summary.exit_code)
+
+
+def _starting_line(grid, engine: str, db: str, workers: int | None) -> str:
+    """What ``run`` starts, printed as soon as its options are checked (every bad one is still
+    one line), before the database is opened and the workers start: a line in a log file at
+    once, the first of those the run writes there (one per finished job follows)."""
+    where = db if "://" not in db else f"a {db.split('://', 1)[0]} database"  # a URL's password stays out
+    seeds = ", ".join(map(str, grid.seeds))
+    at = "" if workers is None else f", {workers} at a time"
+
+    def n(count: int, word: str) -> str:
+        return f"{count:,} {word}{'' if count == 1 else 's'}"
+
+    return (
+        f"nutribench run: {n(len(grid), 'job')} ({n(len(grid.regimes), 'regime')} x {n(len(grid.algos), 'agent')} "
+        f"{', '.join(grid.algos)} x seeds {seeds}; {n(grid.episodes, 'training day')} and "
+        f"{n(grid.eval_episodes, 'evaluation day')} each; {engine} engine{at}) into {where}: opening it, "
+        "then the jobs not done yet"
+    )
 
 
 def _interactive() -> bool:

@@ -132,6 +132,15 @@ def tune_cmd(
 
     check_device(device)
     _, grace = heartbeat_settings()
+    where = db if "://" not in db else f"a {db.split('://', 1)[0]} database"  # a URL's password stays out
+    console.print(
+        f"tune {study}: search space {space.name}, until {trials} trials are finished; each trains "
+        f"{len(settings.regimes) * len(settings.seeds)} agent{'' if len(settings.regimes) * len(settings.seeds) == 1 else 's'} ({', '.join(settings.regimes)} x seeds "
+        f"{', '.join(map(str, settings.seeds))}) for {settings.days:,} days{f', {stack} trials at a time' if stack > 1 else ''}; "
+        f"study in {where}: opening it",
+        highlight=False,
+        soft_wrap=True,
+    )
     handle = open_study(db, study, settings, space_file_attr(resolve_space_path(algo)), once=once)
 
     def evaluation(number: int, day: int, value: float) -> None:
