@@ -31,6 +31,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from nutribench.engines import Engine
 from nutribench.errors import UserError
 
 
@@ -262,7 +263,7 @@ class Recorder:
             "started_at": self._started,
             "finished_at": utcnow(),
             "wall_seconds": time.perf_counter() - self._t0,
-            "engine": "external",
+            "engine": Engine.EXTERNAL.value,
             "source": self.source[0],
             "source_sha256": self.source[1],
         }

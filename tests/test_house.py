@@ -18,7 +18,7 @@ PACKAGE = Path(nutribench.__file__).parent
 # writes jobs through the store's tables, and importing an archive (store) asks the
 # scheduler's job lifecycle whether a job is still running.
 LAYERS: list[set[str]] = [
-    {"nutribench", "errors", "clock", "provenance", "diagnostics", "safe_write", "stats"},
+    {"nutribench", "errors", "clock", "provenance", "diagnostics", "safe_write", "stats", "engines"},
     {"config"},
     {"env"},
     {"agents", "baselines", "engine"},

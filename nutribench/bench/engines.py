@@ -29,10 +29,11 @@ import numpy as np
 
 from nutribench.agents.registry import batched_names
 from nutribench.bench.learn import LearnRun, batched_runs, learn_benchmark, summarize
+from nutribench.engines import TRAINING_ENGINES, Engine
 from nutribench.safe_write import atomic_write
 from nutribench.stats import clustered_iqm_ci
 
-ENGINES = ("sb3", "batched")
+ENGINES = TRAINING_ENGINES
 
 
 def _timed_batched_runs(
@@ -72,15 +73,15 @@ def bench_engines(
     unknown = [a for a in algos if a not in known]
     if unknown:
         raise ValueError(f"the batched engine does not train {', '.join(unknown)} yet (it trains {', '.join(known)})")
-    runs: dict[str, list[LearnRun]] = {"sb3": [], "batched": []}
+    runs: dict[str, list[LearnRun]] = {Engine.SB3: [], Engine.BATCHED: []}
     batched_walls: list[float] = []
     pool = None
     if concurrent:  # spawn: a CUDA context does not survive fork
         pool = ProcessPoolExecutor(len(algos), mp_context=multiprocessing.get_context("spawn"))
         futures = [pool.submit(_timed_batched_runs, a, regimes, seeds, episodes, eval_episodes, device) for a in algos]
     start = time.perf_counter()
-    sb3_done = None if on_done is None else (lambda run, k, n: on_done("sb3", run))
-    runs["sb3"] = learn_benchmark(
+    sb3_done = None if on_done is None else (lambda run, k, n: on_done(Engine.SB3, run))
+    runs[Engine.SB3] = learn_benchmark(
         algos,
         regimes,
         seeds,
@@ -95,16 +96,16 @@ def bench_engines(
     if pool is not None:
         for future in futures:
             algo_runs, wall = future.result()
-            runs["batched"] += algo_runs
+            runs[Engine.BATCHED] += algo_runs
             batched_walls.append(wall)
         pool.shutdown()
     else:
         for algo in algos:
             algo_runs, wall = _timed_batched_runs(algo, regimes, seeds, episodes, eval_episodes, device)
-            runs["batched"] += algo_runs
+            runs[Engine.BATCHED] += algo_runs
             batched_walls.append(wall)
-    for run in runs["batched"] if on_done is not None else ():
-        on_done("batched", run)
+    for run in runs[Engine.BATCHED] if on_done is not None else ():
+        on_done(Engine.BATCHED, run)
     batched_wall = max(batched_walls) if concurrent else sum(batched_walls)
     _save(save, runs, episodes, device)
     rows = []
@@ -135,7 +136,7 @@ def bench_engines(
             batched["overlap"] = bool(sb3["ci_low"] <= batched["ci_high"] and batched["ci_low"] <= sb3["ci_high"])
             rows += pair
     for r in rows:
-        r["total_wall_seconds"] = sb3_wall if r["engine"] == "sb3" else batched_wall
+        r["total_wall_seconds"] = sb3_wall if r["engine"] == Engine.SB3 else batched_wall
     return rows
 
 

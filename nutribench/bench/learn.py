@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from nutribench.baselines import gap_closed
+from nutribench.engines import Engine
 from nutribench.stats import iqm
 
 #: The run0 target of every agent: the share of the never -> planner gap it closes, and the foods a day.
@@ -122,7 +123,7 @@ def learn_benchmark(
     eval_episodes: int = EVAL_EPISODES,
     workers: int | None = None,
     on_done: Callable[[LearnRun, int, int], None] | None = None,
-    engine: str = "sb3",
+    engine: str = Engine.SB3,
     device: str = "cpu",
 ) -> list[LearnRun]:
     """Train and evaluate every (config, regime, seed) on a process pool (one torch thread
@@ -135,7 +136,7 @@ def learn_benchmark(
     budgets = dict(default_budgets() if budgets is None else budgets)
     cfgs = [load_agent_config(c) for c in configs]
     regimes, seeds = list(regimes), list(seeds)
-    if engine == "batched":
+    if engine == Engine.BATCHED:
         out: list[LearnRun] = []
         for c in cfgs:
             out += batched_runs(
@@ -144,7 +145,7 @@ def learn_benchmark(
             if on_done is not None:
                 on_done(out[-1], len(out), len(cfgs) * len(regimes) * len(seeds))
         return out
-    if engine != "sb3":
+    if engine != Engine.SB3:
         raise ValueError(f"engine {engine!r}: use 'sb3' or 'batched'")
     jobs = [
         (c, r, s, budget_for(c.name, c.algo, budgets, default_budget)) for c in cfgs for r in regimes for s in seeds

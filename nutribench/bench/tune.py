@@ -26,7 +26,9 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
-ARMS = ("sb3", "stacked")
+from nutribench.engines import Engine
+
+ARMS = (Engine.SB3.value, "stacked")
 
 
 def draw_trials(space_name: str, trials: int, seed: int = 0) -> list[dict[str, Any]]:
@@ -78,7 +80,7 @@ def _time_arm(
     context = multiprocessing.get_context("spawn")
     start = time.perf_counter()
     with ProcessPoolExecutor(workers, mp_context=context) as pool:
-        if arm == "sb3":
+        if arm == Engine.SB3:
             futures = [pool.submit(_sb3_trial, c, jobs, days, eval_every, val) for c in cfgs]
         else:
             shares = [cfgs[i::workers] for i in range(workers) if cfgs[i::workers]]

@@ -8,6 +8,7 @@ import typer
 from rich.table import Table
 
 from nutribench.cli.common import DEVICE_HELP, UserError, console, old_spelling, split_csv, user_errors
+from nutribench.engines import Engine
 
 bench_app = typer.Typer(
     no_args_is_help=True,
@@ -62,7 +63,9 @@ def bench_train_cmd(
     ] = None,
     episodes_alias: Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)] = None,
     repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 3,
-    engine: Annotated[str, typer.Option(help="'sb3', or 'batched': the batched engine at K = 35 beside SB3's")] = "sb3",
+    engine: Annotated[
+        str, typer.Option(help="'sb3', or 'batched': the batched engine at K = 35 beside SB3's")
+    ] = Engine.SB3.value,
     device: Annotated[str, typer.Option(help=f"--engine batched: {DEVICE_HELP} (SB3's rows: the CPU)")] = "auto",
     diagnostics_cost: Annotated[bool, typer.Option("--diagnostics-cost", hidden=True)] = False,
     lockstep: Annotated[bool, typer.Option("--lockstep", hidden=True)] = False,
@@ -108,7 +111,7 @@ def bench_train_cmd(
     console.print(
         f"paper grid (7 regimes x 5 seeds x 5000 days per algorithm, all 5 algorithms): ~{total:.0f} CPU-hours"
     )
-    if engine == "sb3":
+    if engine == Engine.SB3:
         return
     from nutribench.agents.registry import batched_names
     from nutribench.bench.throughput import bench_train_batched
@@ -166,7 +169,7 @@ def bench_learn_cmd(
         typer.Option(
             help="'sb3' (the reference), or 'batched' (every config's seeds and regimes at once: fast sweeps)"
         ),
-    ] = "sb3",
+    ] = Engine.SB3.value,
     device: Annotated[str, typer.Option(help=f"--engine batched: {DEVICE_HELP} (the SB3 engine: the CPU)")] = "auto",
 ) -> None:
     """Train every agent for a budget over several seeds, evaluate greedily on the fixed
@@ -191,7 +194,7 @@ def bench_learn_cmd(
             f"--days {episodes!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})"
         )
     check_engine_options(engine, device)
-    if engine == "batched":
+    if engine == Engine.BATCHED:
         other = [n for n in names if load_agent_config(n).algo not in batched_names()]
         if other:
             raise UserError(

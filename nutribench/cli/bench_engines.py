@@ -11,6 +11,7 @@ from rich.table import Table
 
 from nutribench.cli.bench import check_engine_options
 from nutribench.cli.common import DEVICE_HELP, console, old_spelling, split_csv, user_errors
+from nutribench.engines import Engine
 from nutribench.safe_write import check_file_target
 
 
@@ -49,7 +50,7 @@ def bench_engines_cmd(
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
 
-    check_engine_options("batched", device)
+    check_engine_options(Engine.BATCHED, device)
     if save is not None:
         check_file_target(save, "--save")
     names = split_csv(algos, batched_names(), "algorithm for the batched engine")
@@ -77,7 +78,7 @@ def bench_engines_cmd(
     walls = {r["engine"]: r["total_wall_seconds"] for r in rows}
     how = "a process per algorithm, beside the SB3 pool" if concurrent else "one process"
     console.print(
-        f"wall time: SB3 {walls['sb3']:.0f} s (a process per job, one per core), batched {walls['batched']:.0f} s ({how})",
+        f"wall time: SB3 {walls[Engine.SB3]:.0f} s (a process per job, one per core), batched {walls[Engine.BATCHED]:.0f} s ({how})",
         highlight=False,
     )
 

@@ -28,6 +28,7 @@ from nutribench.cli.common import (
     user_errors,
 )
 from nutribench.cli.signals import StopSignalsAsCtrlC
+from nutribench.engines import Engine
 from nutribench.scheduler.executors import ExecutorError
 from nutribench.scheduler.grid import DEFAULT_PRESET, PRESETS
 
@@ -141,7 +142,7 @@ def run_cmd(
         typer.Option(
             help="'sb3' (a job per worker) or 'batched' (the jobs of one agent config trained together, one batch per worker)"
         ),
-    ] = "sb3",
+    ] = Engine.SB3.value,
     batch_size: Annotated[
         int,
         typer.Option(

@@ -17,6 +17,7 @@ from nutribench.agents.algos import build_model
 from nutribench.agents.api import CLIP_OBS, NORM_EPS, TrainedAgent, make_train_env
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.engine.stacked import RunningStats
+from nutribench.engines import Engine
 from nutribench.env.metrics import EpisodeRecorder
 from nutribench.env.vector_env import NutriRLVectorEnv
 
@@ -236,7 +237,7 @@ def as_trained_agent(
         "agent_config_version": cfg.version,
         "seed": seed,
         "episodes": episodes,
-        "engine": "batched",
+        "engine": Engine.BATCHED.value,
         "device": device,
         "batch_wall_seconds_per_agent": wall,
     }

@@ -37,6 +37,7 @@ from nutribench.engine import supports
 from nutribench.engine.checkpoint import Checkpoint, checkpoint_files
 from nutribench.engine.device import resolve_device
 from nutribench.engine.train import train_batched
+from nutribench.engines import Engine
 from nutribench.provenance import collect_metadata, git_state
 from nutribench.safe_write import atomic_write
 from nutribench.scheduler.single_job import check_configs, with_yardsticks
@@ -102,7 +103,12 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
                 evaluation.steps,
                 meta
                 | batch
-                | {"started_at": started, "finished_at": utcnow(), "wall_seconds": wall, "engine": "batched"},
+                | {
+                    "started_at": started,
+                    "finished_at": utcnow(),
+                    "wall_seconds": wall,
+                    "engine": Engine.BATCHED.value,
+                },
                 model_path=model_path,
                 diagnostics=list(getattr(agent, "diagnostics", None) or []),
                 validation=with_yardsticks(spec, agent.validation),

@@ -18,8 +18,7 @@ One call of :func:`run_grid`:
    in ONE transaction; a failed job gets status ``failed``, ``failures + 1`` and its error;
 7. on Ctrl-C (a KeyboardInterrupt) or its ``stop`` event stops the workers and marks their
    jobs ``interrupted`` (no rows are written for them: rows are only written when a job completes);
-8. at its start and end, deletes the batched engine's checkpoints whose jobs are all done
-   (:mod:`nutribench.scheduler.resume`).
+8. at its start and end, deletes the batched engine's checkpoints whose jobs are all done (:mod:`nutribench.scheduler.resume`).
 
 What a run uses when not told (the job function, the models folder):
 :mod:`nutribench.scheduler.defaults`. No signal handler (``run``'s: :mod:`nutribench.cli.signals`).
@@ -38,6 +37,7 @@ from typing import Any
 
 from sqlalchemy.exc import OperationalError
 
+from nutribench.engines import Engine
 from nutribench.scheduler.defaults import default_batch_fn, default_job_fn, default_models_dir, driver_token
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
 from nutribench.scheduler.grid import Grid
@@ -295,7 +295,7 @@ def run_grid(
     models_dir: str | os.PathLike[str] | None = None,
     display: bool = True,
     retry_failed: bool = False,
-    engine: str = "sb3",
+    engine: str = Engine.SB3,
     batch_fn: Callable | None = None,
     max_batch: int = MAX_BATCH,
     device: str = "auto",
@@ -322,7 +322,7 @@ def run_grid(
     check_engine(engine, max_batch, device)
     grid = Grid(tuple(regimes), tuple(algos), tuple(seeds), episodes, eval_episodes)
     job_fn = job_fn or default_job_fn()
-    if engine == "batched":
+    if engine == Engine.BATCHED:
         batch_fn = batch_fn or default_batch_fn()
     regime_cfgs, agent_cfgs = load_grid_configs(grid)  # before the database file is created
     probe_executor(executor)  # likewise: an unreachable cluster writes nothing
@@ -344,7 +344,7 @@ def run_grid(
             handle, note = make_executor(executor, workers, max(runnable, held))
             view = make_view(display, grid, len(job_ids), handle.description, note, agent_cfgs)
             pools = None
-            if engine == "batched":
+            if engine == Engine.BATCHED:
                 shapes = {r.name: (r.obj.reward.horizon, len(r.obj.catalog.food)) for r in regime_cfgs}
                 pools = checkpointed_first(
                     batch_pools(

@@ -6,12 +6,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from nutribench.engines import TRAINING_ENGINES, Engine
 from nutribench.scheduler.registration import RunError
 
 #: at most this many jobs in one batch (the paper grid's 7 regimes x 5 seeds of one config)
 MAX_BATCH = 35
 #: ``nutribench run --engine``: a job per worker (the reference), or batches per agent config
-ENGINES = ("sb3", "batched")
+ENGINES = TRAINING_ENGINES
 
 
 def check_engine(engine: str, max_batch: int, device: str = "auto") -> None:
@@ -24,7 +25,7 @@ def check_engine(engine: str, max_batch: int, device: str = "auto") -> None:
         raise RunError(f"--engine {engine!r}: use {' or '.join(ENGINES)}")
     if max_batch < 1:
         raise RunError(f"--batch-size {max_batch}: use a positive number of jobs")
-    if engine == "sb3":
+    if engine == Engine.SB3:
         if str(device).strip().lower() not in ("auto", "cpu"):
             raise RunError(
                 f"--device {device}: the SB3 engine trains on the CPU; use --device cpu or auto, or --engine batched"

@@ -14,6 +14,7 @@ from nutribench.agents.config import agent_config_sha256
 from nutribench.agents.registry import entry_point_source
 from nutribench.baselines import day_yardsticks
 from nutribench.clock import utcnow
+from nutribench.engines import Engine
 from nutribench.provenance import collect_metadata
 from nutribench.scheduler.spec import JobFailed, JobResult, JobSpec
 from nutribench.scheduler.worker import JobProgress, Sink
@@ -70,11 +71,11 @@ def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
         "started_at": started,
         "finished_at": utcnow(),
         "wall_seconds": time.perf_counter() - t0,
-        "engine": "sb3",
+        "engine": Engine.SB3.value,
         "device": "cpu",
     }
     if getattr(spec.agent_config, "entry_point", None):  # a plug-in: trained by its own code, in this harness
-        meta["engine"] = "external"
+        meta["engine"] = Engine.EXTERNAL.value
         meta["source"], meta["source_sha256"] = entry_point_source(spec.agent_config.entry_point)
     return JobResult(
         spec.job_id,

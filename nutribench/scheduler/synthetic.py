@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from nutribench.clock import utcnow
+from nutribench.engines import Engine
 from nutribench.provenance import collect_metadata
 from nutribench.safe_write import atomic_write
 from nutribench.scheduler.spec import JobResult, JobSpec
@@ -104,7 +105,7 @@ def synthetic_batch(
     without training); an exception of ``before_episode`` on any of them fails the whole batch."""
     results = [synthetic_job(spec, progress, before_episode) for spec in specs]
     for r in results:
-        r.metadata["engine"] = "batched"
+        r.metadata["engine"] = Engine.BATCHED.value
     return results
 
 

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from nutribench.engines import Engine
 from nutribench.store.archive_installed import check_installed
 from nutribench.store.archive_meta import (
     _INT32,
@@ -299,7 +300,7 @@ def _check_rows(
     for i, j in enumerate(jobs):
         label = f"job {i} ({j['regime'][0]} x {j['agent'][0]} seed {j['seed']})"
         if trains[i] != per_job["episodes"][i]:
-            budget = "the training days it recorded" if j.get("engine") == "external" else "its budget"
+            budget = "the training days it recorded" if j.get("engine") == Engine.EXTERNAL else "its budget"
             raise _Invalid(f"{label} has {trains[i]:,} training episodes, {budget} is {per_job['episodes'][i]:,}")
         if evals[i] != per_job["eval_episodes"][i]:
             raise _Invalid(f"{label} has {evals[i]:,} evaluation episodes, not its {per_job['eval_episodes'][i]:,}")

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from nutribench.config.loading import content_sha256
+from nutribench.engines import ENGINES as ALL_ENGINES
 from nutribench.store.archive_tables import OPTIONAL_TABLES, TABLES, columns
 from nutribench.store.models import (
     JOB_STATUSES,
@@ -50,7 +51,7 @@ _JOB_DEFAULTS: dict[str, Any] = {
     "source_sha256": None,
 }
 #: what trained a job (``jobs.engine``); NULL for jobs of databases older than revision 0003
-ENGINES = ("sb3", "batched", "external")
+ENGINES = ALL_ENGINES
 _SHA256 = re.compile(r"[0-9a-f]{64}")
 _META_KEYS = {"format", "format_version", "source", "counts", "regimes", "agent_configs", "jobs"}
 _INT32 = (-(2**31), 2**31 - 1)  # an Integer column on PostgreSQL

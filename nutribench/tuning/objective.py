@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from nutribench.engines import Engine
 from nutribench.stats import iqm
 from nutribench.tuning.space import SearchSpace
 from nutribench.tuning.study import StudySettings
@@ -80,7 +81,7 @@ class ValidationObjective:
         """Which engine and device train ``trial`` (its user attributes)."""
         engine = self.engine(cfg)
         trial.set_user_attr("engine", engine)
-        trial.set_user_attr("device", self.device if engine == "batched" else "cpu")
+        trial.set_user_attr("device", self.device if engine == Engine.BATCHED else "cpu")
 
     @staticmethod
     def engine(cfg: Any) -> str:
@@ -88,7 +89,7 @@ class ValidationObjective:
         the SB3 engine would, else SB3 (a plug-in: its own loop)."""
         from nutribench.engine import supports
 
-        return "batched" if supports(cfg) is None else "sb3"
+        return Engine.BATCHED.value if supports(cfg) is None else Engine.SB3.value
 
     def batch_days(self) -> Callable[[int, dict[str, Any]], None] | None:
         """The batched engine's ``on_episode``: :attr:`on_day` each time the batch's furthest
@@ -108,7 +109,7 @@ class ValidationObjective:
     def train(self, cfg: Any, on_validation: Callable[[int, int, list[dict[str, Any]]], None]) -> None:
         """Train the trial's K agents with evaluations during training (batched when supported)."""
         s = self.settings
-        if self.engine(cfg) == "batched":
+        if self.engine(cfg) == Engine.BATCHED:
             from nutribench.engine.train import train_batched
 
             train_batched(
