@@ -37,7 +37,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-import scipy.stats
 from rliable import metrics as rly
 
 from nutribench.report.figures import sort_regimes
@@ -54,6 +53,7 @@ from nutribench.report.scores import DEFAULT_REPS, GAMMA, ScoreSet, pooled, run_
 from nutribench.stats import (
     CONFIDENCE,
     Runs,
+    iqm,
     iqm_runs_ci,
     percentile_interval,
     seeded_rng,
@@ -82,7 +82,7 @@ def _task_means(t: Runs) -> np.ndarray:
 
 
 BATCHED: dict[str, Callable[[Runs], np.ndarray]] = {
-    "iqm": lambda t: scipy.stats.trim_mean(pooled(t), proportiontocut=0.25, axis=1),
+    "iqm": lambda t: iqm(pooled(t), axis=1),
     "median": lambda t: np.median(_task_means(t), axis=1),
     "mean": lambda t: np.mean(_task_means(t), axis=1),
     "optimality_gap": lambda t: GAMMA - np.mean(np.minimum(pooled(t), GAMMA), axis=1),
