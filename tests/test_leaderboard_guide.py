@@ -69,6 +69,9 @@ def test_the_guide_ranks_a_plugin_and_a_recorded_loop_beside_the_imported_baseli
     rows = {
         r["algo"]: r for r in csv.DictReader(io.StringIO((board / "reports" / "board" / "leaderboard.csv").read_text()))
     }
+    # the references above the planner, unranked under the agents (regimes/references.csv: the paper's seeds)
+    for ref in ("lookahead", "clairvoyant"):
+        assert rows.pop(ref)["rank"] == "" and rows  # they follow the agents
     assert {"mc", "gru_ppo", "ppo_tuned_v2", "qrdqn_mine", "qrdqn_mine_tuned", "reinforce_loop"} == set(rows)
     for mine in ("qrdqn_mine", "qrdqn_mine_tuned", "reinforce_loop"):
         assert rows[mine]["budget"] == "2" and "budget 2 days (reference 5000)" in rows[mine]["flags"]

@@ -20,6 +20,7 @@ import pytest
 from typer.testing import CliRunner
 
 from nutribench.cli import app
+from nutribench.report.leaderboard import REFERENCE_PROTOCOL
 from tests.conftest import one_error_line
 
 runner = CliRunner()
@@ -117,7 +118,8 @@ def _board(*args: str) -> tuple[list[dict[str, str]], str]:
     lines = res.output.splitlines()
     k = next(i for i, ln in enumerate(lines) if ln.startswith("rank,"))
     end = next((i for i in range(k + 1, len(lines)) if not lines[i].strip()), len(lines))
-    return list(csv.DictReader(lines[k:end])), res.output
+    rows = list(csv.DictReader(lines[k:end]))
+    return [r for r in rows if r["protocol"] != REFERENCE_PROTOCOL], res.output  # the agents' rows
 
 
 def _checked(*args: str) -> str:
@@ -214,8 +216,9 @@ def test_a_forged_row_under_verify_is_set_apart_not_ranked_first(trained: Path, 
     _, other = recorded_archive(tmp_path)
     shutil.copy(other, shared / "eat_early.npz")
 
-    def ranks(raw) -> list[tuple[int | None, str]]:
-        return [(None if pd.isna(r) else int(r), a) for r, a in zip(raw["rank"], raw["algo"])]
+    def ranks(raw) -> list[tuple[int | None, str]]:  # the agents' rows (lookahead and clairvoyant follow them)
+        agents = raw[raw["protocol"] != REFERENCE_PROTOCOL]
+        return [(None if pd.isna(r) else int(r), a) for r, a in zip(agents["rank"], agents["algo"])]
 
     plain = leaderboard_from_archives(shared, reps=200).raw
     assert ranks(plain) == [(1, "mc"), (2, "eat_early")], plain
@@ -228,4 +231,4 @@ def test_a_forged_row_under_verify_is_set_apart_not_ranked_first(trained: Path, 
     assert rows[1]["flags"].startswith("not ranked: its models, re-run, do not reproduce its stored actions"), rows[1]
     assert "MC v3 (2 days) is set apart, not ranked: re-run: differs (run0 x mc seed 0 day " in table.title, table.title
     assert rows[0]["checked"] == "replayed, not re-run" and "not ranked" not in rows[0]["flags"]
-    assert table.formatted["rank"].tolist() == [1, ""]  # the printed table shows no rank either
+    assert table.formatted["rank"].tolist() == [1, "", "", ""]  # the printed table shows no rank either

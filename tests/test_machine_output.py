@@ -22,7 +22,9 @@ def test_leaderboard_and_compare_speak_json(tmp_path: Path) -> None:
     board = runner.invoke(app, ["leaderboard", "--db", str(db), "--format", "json", "--reps", "200"])
     assert board.exit_code == 0, board.output
     data = json.loads(board.output)
-    assert [r["algo"] for r in data["rows"]] == ["eat_early", "never_eat"] and "caption" in data
+    # the agents ranked, then the references above the planner (unranked: regimes/references.csv)
+    assert [r["algo"] for r in data["rows"]] == ["eat_early", "never_eat", "lookahead", "clairvoyant"]
+    assert [r["rank"] for r in data["rows"]][2:] == [None, None] and "caption" in data
     cmp = runner.invoke(app, ["compare", "eat_early", "never_eat", "--db", str(db), "--json", "--reps", "200"])
     assert cmp.exit_code == 0, cmp.output
     out = json.loads(cmp.output)

@@ -43,18 +43,36 @@ def _yardstick_lines(ax, vertical: bool = True) -> None:
         (ax.axvline if vertical else ax.axhline)(v, color="0.5", ls=":", lw=0.9, zorder=0)
 
 
+#: How the references above the planner are drawn on the aggregate panels.
+_HEADROOM_STYLE = {"lookahead": dict(ls="--"), "clairvoyant": dict(ls="-")}
+
+
+def _headroom_lines(ax, headroom: pd.DataFrame | None, agg: str) -> None:
+    """Lookahead's and clairvoyant's aggregate ``agg`` over all regimes, as vertical grey lines."""
+    if headroom is None:
+        return
+    for r in headroom[(headroom["group"] == "all") & (headroom["aggregate"] == agg)].itertuples(index=False):
+        ax.axvline(
+            r.point, color="0.35", lw=1.0, zorder=0, label=f"{r.policy} (reference)", **_HEADROOM_STYLE[r.policy]
+        )
+
+
 def aggregate_figure(
     res: AggregateResult,
     colors: Palette | None = None,
     title: str = "Aggregate scores over regimes and seeds",
     ev: pd.DataFrame | None = None,
+    headroom: pd.DataFrame | None = None,
 ) -> FigureResult:
     """The aggregate figure: (top) IQM, median, mean and optimality gap per agent with 95 %
     intervals, both groups of regimes (all: upper row, solid bar and tick; delayed: lower row,
     hatched bar, dotted tick; the legend says which is which); (bottom) the performance
     profile of each group and the probability-of-improvement matrix of each group.
 
-    ``ev``: the evaluation episodes the scores came from, for the budget and seeds line."""
+    ``ev``: the evaluation episodes the scores came from, for the budget and seeds line.
+    ``headroom``: the references above the planner
+    (:func:`nutribench.report.headroom.aggregate_points`), drawn on the IQM, median and mean
+    panels as grey lines at their aggregate over all regimes."""
     from matplotlib.ticker import MaxNLocator
 
     colors = colors or palette(res.algos)
@@ -105,6 +123,7 @@ def aggregate_figure(
                     {"panel": agg, "group": group, "algo": r.algo, "y": y, "point": r.point, "lo": r.lo, "hi": r.hi}
                 )
         _yardstick_lines(ax)
+        _headroom_lines(ax, headroom, agg)
         ax.set_yticks(list(ypos.values()), [_agent_label(res, a, names) for a in ypos] if k == 0 else [""] * len(ypos))
         ax.set_ylim(-0.6, len(algos) - 0.4)
         _percent_axis(ax.xaxis)
@@ -180,6 +199,8 @@ def aggregate_figure(
             found.setdefault(lab, h)
     labels = [names[a] for a in algos if names[a] in found]
     handles = [found[lab] for lab in labels]
+    h0, l0 = fig.axes[0].get_legend_handles_labels()  # the references above the planner, if drawn
+    handles, labels = handles + h0, labels + l0
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -204,6 +225,11 @@ def aggregate_figure(
         f"(IQM: {interval_caption('iqm')}; median, mean, optimality gap: stratified percentile bootstrap, {res.reps} "
         "resamples, seeds redrawn within each regime), black tick = point estimate (rliable.metrics); dotted: never (0 %), planner (100 %)"
     )
+    if headroom is not None and not headroom[headroom["group"] == "all"].empty:
+        caption += (
+            ";\ngrey dashed / solid (IQM, median, mean): lookahead / clairvoyant, the references above the planner, "
+            "the same aggregate of their runs over all regimes on the same days"
+        )
     if ev is not None and not ev.empty:
         caption += f"\n{budget_seeds_line(ev)}"
     set_title(fig, f"{title}\n{caption}")

@@ -161,8 +161,11 @@ def build_figure(
             )
         elif number == 5:
             from nutribench.report.aggregate_view import aggregate_figure
+            from nutribench.report.headroom import aggregate_points
 
-            res = aggregate_figure(_aggregate(data, "figure 5"), data.colors, ev=data.eval)
+            agg = _aggregate(data, "figure 5")
+            headroom = aggregate_points(data.eval, _day_references(data), agg.regimes)
+            res = aggregate_figure(agg, data.colors, ev=data.eval, headroom=headroom)
         else:
             raise ReportError(f"no figure {number}: the figures are {', '.join(map(str, FIGURES))}")
     except ValueError as e:

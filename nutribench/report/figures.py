@@ -53,6 +53,11 @@ POLICY_STYLES = {
     "always": dict(color="0.75", ls="--", marker="+"),
     "planner": dict(color="k", ls="-", marker="*"),
 }
+#: The references above the planner on panel (A)'s gap scale (:mod:`nutribench.report.headroom`).
+STRONG_STYLES = {
+    "lookahead": dict(color="0.3", ls="--", marker="^"),
+    "clairvoyant": dict(color="0.3", ls="-", marker="v"),
+}
 EVAL_PANELS = ["return", "final_distance", "foods", "overshoot_ratio"]
 
 
@@ -207,6 +212,31 @@ def _reference_scores(references: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def _draw_headroom(ax, ev: pd.DataFrame, day_references: pd.DataFrame, xs: Mapping[str, float]) -> list[str]:
+    """Lookahead's and clairvoyant's shares of the gap per regime on panel (A) (the mean over
+    the seeds' days ``ev`` holds, :func:`nutribench.report.headroom.regime_shares`), as grey
+    reference lines; the policies drawn."""
+    from nutribench.report.headroom import regime_shares
+
+    shares = regime_shares(ev, day_references)
+    drawn = []
+    for policy, style in STRONG_STYLES.items():
+        r = shares[shares["policy"] == policy]
+        if r.empty:
+            continue
+        r = r.set_index("regime").loc[sort_regimes(r["regime"])]
+        ax.plot(
+            *_with_breaks([xs[k] for k in r.index], r["share"].to_numpy(dtype=float)),
+            lw=0.8,
+            ms=4,
+            alpha=0.9,
+            label=f"{policy} (reference)",
+            **style,
+        )
+        drawn.append(policy)
+    return drawn
+
+
 def _missing_note(regimes: list[str], algos: list[str], df: pd.DataFrame) -> list[str]:
     present = set(map(tuple, df[["regime", "algo"]].drop_duplicates().to_numpy()))
     missing = [f"{algo_label(a)}/{r}" for r in regimes for a in algos if (r, a) not in present]
@@ -289,6 +319,7 @@ def eval_across_regimes(
     legend = agent_labels(ev, dict(labels or {}))
     notes: list[str] = []
     scores = None
+    headroom: list[str] = []
     if day_references is not None:
         scores = seed_scores(ev, day_references)
         unscored = sort_regimes(scores.loc[~np.isfinite(scores["score"].to_numpy(dtype=float)), "regime"].unique())
@@ -359,6 +390,8 @@ def eval_across_regimes(
                     label=f"{policy} (reference)",
                     **style,
                 )
+        if gap_panel:
+            headroom = _draw_headroom(ax, ev, day_references, xs)
         panel_title = GAP_LABEL if gap_panel else METRIC_LABELS[metric]
         ax.set_title(f"({'ABCD'[p]}) {panel_title}", fontsize=10, loc="left")
         ax.grid(alpha=0.3)
@@ -398,6 +431,10 @@ def eval_across_regimes(
         if scores is not None
         else "(A) return"
     )
+    if scores is not None and headroom:
+        panel_a += (
+            f";\n(A)'s {' and '.join(headroom)}: the references above the planner on the same days (mean over seeds)"
+        )
     set_title(
         fig,
         f"{title}\nmean over seeds ({_span(n_seeds)} per point) of each seed's mean over its evaluation days ({_span(n_days)});\n"

@@ -234,7 +234,53 @@ def leaderboard_rows(
     out = pd.concat([out[~apart], out[apart]], ignore_index=True)  # set-apart rows last, unranked
     ranked = len(out) - int(apart.sum())
     out.insert(0, "rank", [i + 1 if i < ranked and np.isfinite(v) else None for i, v in enumerate(out["iqm"])])
-    return out
+    strong = _reference_rows(ev, references, board, reps)
+    return pd.concat([out, strong], ignore_index=True) if not strong.empty else out
+
+
+#: The protocol cell of the references above the planner (unranked rows under the agents).
+REFERENCE_PROTOCOL = "reference (planned, not learned)"
+
+
+def _reference_rows(ev: pd.DataFrame, references: pd.DataFrame, board: list[str], reps: int) -> pd.DataFrame:
+    """Unranked rows for lookahead and clairvoyant (:mod:`nutribench.report.headroom`): the
+    same scores on the same days, over the board's regimes they cover; none where
+    ``references`` lacks them."""
+    from nutribench.report.headroom import SOURCE, reference_runs
+
+    runs = reference_runs(ev, references).rename(columns={"policy": "algo"})
+    rows = []
+    for algo in ("lookahead", "clairvoyant"):
+        mine = runs[runs["algo"] == algo]
+        covered = sort_regimes(mine["regime"].unique())
+        if not covered:
+            continue
+        iv = interval_estimates(score_set(mine, covered, [algo]), reps=reps)
+        iqm = iv[iv["aggregate"] == "iqm"].iloc[0]
+        row = {
+            "rank": None,
+            "algo": algo,
+            "protocol": REFERENCE_PROTOCOL,
+            "iqm": float(iqm["point"]),
+            "iqm_lo": float(iqm["lo"]),
+            "iqm_hi": float(iqm["hi"]),
+            "regimes": len(covered),
+            "covered": ",".join(covered),
+            "runs": len(mine),
+            "budget": "-",
+            "seeds": " ".join(map(str, sorted({int(s) for s in mine["seed"]}))),
+            "engine": "-",
+            "code": "-",
+            "checked": f"from {SOURCE}",
+        }
+        for regime in board:
+            s = mine.loc[mine["regime"] == regime, "score"].to_numpy(dtype=float)
+            row[f"share_{regime}"] = float(np.mean(s)) if s.size else np.nan
+        row["flags"] = "unranked: " + (
+            "sampled futures finished by the planner" if algo == "lookahead" else "the day's foods known"
+        )
+        rows.append(row)
+    return pd.DataFrame(rows)
 
 
 #: the flag of a row set apart (:func:`_set_apart`)
@@ -287,7 +333,11 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
         f.update({f"{g} (%)": _pct(r[f"share_{g}"]) for g in board})
         f.update(
             {
-                "version": f"v{r['version']}" if "version" in r else "?",
+                "version": "-"
+                if r["protocol"] == REFERENCE_PROTOCOL
+                else f"v{r['version']}"
+                if "version" in r
+                else "?",
                 "budget (days)": r["budget"],
                 "seeds": r["seeds"].replace(" ", ", "),
                 "engine": r["engine"],
@@ -306,7 +356,8 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
         f"{', '.join(map(str, REFERENCE_SEEDS))}, every regime of the board ({regime_span(board)}); a row that departs "
         "from it is flagged, and a row lacking regimes is ranked on those it has. Checked: every row's evaluation days "
         "are stored foods and actions, replayed on the regime (an archive's, on import); 'verified (re-run)': every "
-        "job's trained model, supplied, played those actions again on this machine"
+        "job's trained model, supplied, played those actions again on this machine. Unranked under the agents: "
+        "lookahead and clairvoyant, the references above the planner on the same days (headroom: 100 % is not the optimum)"
     )
     return TableResult("leaderboard", title, rows, pd.DataFrame(fmt))
 

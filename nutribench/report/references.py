@@ -1,9 +1,12 @@
 """The yardsticks a report sets beside the agents: the simple policies (random, never,
-always, full-information planner) played afresh from the regime files, never cached.
+always, full-information planner) played afresh from the regime files, never cached; and the
+two above the planner (lookahead, clairvoyant), read from ``regimes/references.csv``
+(:mod:`nutribench.report.headroom`).
 
 * :func:`simple_policy_references`: the reference lines of Figures 3/4 (fixed days, one seed);
 * :func:`eval_day_references`: ``never`` and ``planner`` on exactly the days each job was
-  evaluated on, for the results table's share of the never -> planner gap.
+  evaluated on, for the results table's share of the never -> planner gap, with
+  ``lookahead`` and ``clairvoyant`` where the committed file holds the day.
 """
 
 from __future__ import annotations
@@ -45,11 +48,13 @@ def eval_day_references(ev: pd.DataFrame, log: Log | None = None) -> pd.DataFram
     those days. Only where the database's regime version is the regime file's (the days and
     the reward are the file's); other regimes are left out (logged).
 
-    Columns: regime, seed, episode, never, planner.
+    Columns: regime, seed, episode, never, planner, lookahead, clairvoyant (the last two NaN
+    on a day ``regimes/references.csv`` lacks).
     """
     from nutribench.agents import eval_food_streams
     from nutribench.baselines import day_yardsticks
     from nutribench.config import load_env_config
+    from nutribench.report.headroom import with_strong_references
 
     rows: list[dict[str, Any]] = []
     for (regime, version, seed), days in ev.groupby(["regime", "regime_version", "seed"]):
@@ -65,4 +70,4 @@ def eval_day_references(ev: pd.DataFrame, log: Log | None = None) -> pd.DataFram
             continue
         streams = eval_food_streams(regime, int(seed), int(days["episode"].max()) + 1)
         rows += [{"regime": regime, "seed": seed, **d} for d in day_yardsticks(regime, streams)]
-    return pd.DataFrame(rows, columns=["regime", "seed", "episode", "never", "planner"])
+    return with_strong_references(pd.DataFrame(rows, columns=["regime", "seed", "episode", "never", "planner"]), log)

@@ -199,11 +199,16 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
     With ``references`` (columns regime, seed, episode, never, planner: the two yardsticks'
     returns on each evaluation day) each row also gives the mean return of ``never`` and of
     the ``planner`` on exactly the row's evaluation days, and the share of that gap the
-    agent closes; NaN where a day of the row has no reference."""
+    agent closes; NaN where a day of the row has no reference. Where ``references`` also has
+    ``lookahead`` and ``clairvoyant`` (:mod:`nutribench.report.headroom`), each row gives their
+    shares of the same gap on the same days (``lookahead_gap``, ``clairvoyant_gap``): the
+    headroom above the planner's 100 %."""
     ev = df[df["phase"] == "eval"]
     if ev.empty:
         raise ValueError("no evaluation episodes for the results table")
-    ref = references.set_index(["regime", "seed", "episode"])[["never", "planner"]] if references is not None else None
+    strong = references is not None and {"lookahead", "clairvoyant"} <= set(references.columns)
+    yard = ["never", "planner", "lookahead", "clairvoyant"] if strong else ["never", "planner"]
+    ref = references.set_index(["regime", "seed", "episode"])[yard] if references is not None else None
     rows, fmt_rows = [], []
     for regime in sort_regimes(ev["regime"]):
         for algo in sort_algos(ev[ev["regime"] == regime]["algo"]):
@@ -232,7 +237,7 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
             if ref is not None:
                 keys = pd.MultiIndex.from_arrays([cell["regime"], cell["seed"], cell["episode"]])
                 days = ref.reindex(keys)
-                complete = not days.isna().any().any()
+                complete = not days[["never", "planner"]].isna().any().any()
                 row["never_mean"] = float(days["never"].mean()) if complete else float("nan")
                 row["planner_mean"] = float(days["planner"].mean()) if complete else float("nan")
                 row["gap_closed"] = (
@@ -251,6 +256,8 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
                     )
             row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"] = seed_ci
             row["budget"] = budget  # last: the CSV's earlier columns keep their places
+            if strong:
+                _strong_cells(row, f, days if complete else None)
             rows.append(row)
             fmt_rows.append(f)
     title = (
@@ -259,7 +266,27 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
         "episodes pooled (as the paper reports) and the return's IQM over the pooled days [95 % percentile bootstrap over "
         f"seeds, every resample enumerated up to {EXACT_SEEDS} seeds]; {budget_caption(ev)}"
     )
+    if strong:
+        from nutribench.report.headroom import SOURCE
+
+        title += (
+            "; lookahead / clairvoyant: the shares of the same gap the two references above the planner close on the "
+            f"row's days (100 % is the greedy planner, not the optimum; {SOURCE})"
+        )
     return TableResult("results", title, pd.DataFrame(rows), pd.DataFrame(fmt_rows))
+
+
+def _strong_cells(row: dict, f: dict, days: pd.DataFrame | None) -> None:
+    """The lookahead's and the clairvoyant's shares of the gap on the row's days (``days``:
+    their yardsticks; None where never/planner lack a day), raw and formatted."""
+    cells = []
+    for p in ("lookahead", "clairvoyant"):
+        v = float("nan")
+        if days is not None and not days[p].isna().any():
+            v = gap_closed(float(days[p].mean()), row["never_mean"], row["planner_mean"])
+        row[f"{p}_gap"] = v
+        cells.append(f"{100 * v:.0f} %" if np.isfinite(v) else "n/a")
+    f["lookahead / clairvoyant"] = " / ".join(cells)
 
 
 def _seed_shares(cell: pd.DataFrame, days: pd.DataFrame) -> np.ndarray:

@@ -1,0 +1,136 @@
+"""The references above the 100 % mark, set beside the agents: ``lookahead`` and
+``clairvoyant`` (:mod:`nutribench.env.search`), on the gap scale every table uses (0 % =
+never eat, 100 % = the greedy planner; neither mark moves).
+
+Planning them takes minutes, so their returns on the paper's test days (seeds 0, 21, 9,
+2003, 1997 x the 5 evaluation days of each, every regime) are committed in
+``regimes/references.csv``, remade by ``nutribench baselines --test-days --out
+regimes/references.csv``. A row counts only where its regime's content (``sha256``) is the
+installed regime file's; days the file lacks (other seeds, more days) get no reference.
+
+* :func:`committed_references`: the file's rows that hold;
+* :func:`with_strong_references`: the day yardsticks of a report with the two columns added;
+* :func:`reference_runs`: the two policies' run scores (one per regime and seed, as an
+  agent's) on the days an evaluation frame holds;
+* :func:`regime_shares`: per regime, their mean share over seeds (an agent's per-regime
+  number in the leaderboard and Figure 3).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import pandas as pd
+
+from nutribench.baselines import STRONG_POLICIES
+
+Log = Callable[[str], None]
+
+#: The file under ``regimes/`` that holds the test days' references.
+REFERENCES_FILE = "references.csv"
+#: Where the numbers come from, for captions.
+SOURCE = "regimes/references.csv (nutribench baselines --test-days)"
+
+
+def committed_references(log: Log | None = None) -> pd.DataFrame:
+    """The rows of ``regimes/references.csv`` whose regime content is the installed regime
+    file's; regimes whose file changed (or is gone) are left out, logged. Columns:
+    :data:`~nutribench.baselines.REFERENCE_COLUMNS`."""
+    from nutribench.baselines import REFERENCE_COLUMNS
+    from nutribench.config import ConfigError, load_env_config, regimes_dir
+
+    path = regimes_dir() / REFERENCES_FILE
+    if not path.is_file():
+        if log:
+            log(f"no lookahead/clairvoyant references: {path} is missing")
+        return pd.DataFrame(columns=list(REFERENCE_COLUMNS))
+    table = pd.read_csv(path)
+    keep = []
+    for regime, rows in table.groupby("regime", sort=False):
+        try:
+            sha = load_env_config(str(regime)).sha256
+        except ConfigError:
+            sha = None
+        if sha is not None and set(rows["sha256"]) == {sha}:
+            keep.append(rows)
+        elif log:
+            log(f"no lookahead/clairvoyant references for {regime}: {path.name} was made from another regime file")
+    return pd.concat(keep, ignore_index=True) if keep else table.iloc[0:0]
+
+
+def with_strong_references(day_references: pd.DataFrame, log: Log | None = None) -> pd.DataFrame:
+    """``day_references`` (regime, seed, episode, never, planner) with ``lookahead`` and
+    ``clairvoyant`` added from :func:`committed_references` (NaN on a day it lacks, or whose
+    never/planner returns differ from the ones played here)."""
+    out = day_references.copy()
+    committed = committed_references(log)
+    if committed.empty or out.empty:
+        for p in STRONG_POLICIES:
+            out[p] = np.nan
+        return out
+    key = ["regime", "seed", "episode"]
+    found = committed.set_index(key).reindex(pd.MultiIndex.from_frame(out[key].astype({"seed": int, "episode": int})))
+    agree = np.isclose(
+        found["never"].to_numpy(dtype=float), out["never"].to_numpy(dtype=float), atol=1e-9
+    ) & np.isclose(found["planner"].to_numpy(dtype=float), out["planner"].to_numpy(dtype=float), atol=1e-9)
+    for p in STRONG_POLICIES:
+        out[p] = np.where(agree, found[p].to_numpy(dtype=float), np.nan)
+    return out
+
+
+def reference_runs(ev: pd.DataFrame, day_references: pd.DataFrame) -> pd.DataFrame:
+    """Per (regime, policy, seed) of the days ``ev`` holds: the share of the never -> planner
+    gap the reference's mean return closes on that seed's days (an agent's run score,
+    :func:`nutribench.report.scores.run_scores`); a run with a day lacking the reference is
+    left out. ``day_references``: :func:`with_strong_references`'s columns. Columns: regime,
+    policy, seed, score."""
+    cols = ["regime", "policy", "seed", "score"]
+    if ev.empty or not set(STRONG_POLICIES) <= set(day_references.columns):
+        return pd.DataFrame(columns=cols)
+    days = ev[["regime", "seed", "episode"]].drop_duplicates()
+    ref = day_references.set_index(["regime", "seed", "episode"])
+    rows = []
+    for (regime, seed), d in days.groupby(["regime", "seed"], sort=True):
+        yard = ref.reindex(pd.MultiIndex.from_frame(d))
+        for policy in STRONG_POLICIES:
+            values = yard[["never", "planner", policy]]
+            if values.isna().any().any():
+                continue
+            never, planner = float(values["never"].mean()), float(values["planner"].mean())
+            if planner == never:
+                continue
+            score = (float(values[policy].mean()) - never) / (planner - never)
+            rows.append({"regime": regime, "policy": policy, "seed": int(seed), "score": score})
+    return pd.DataFrame(rows, columns=cols)
+
+
+def regime_shares(ev: pd.DataFrame, day_references: pd.DataFrame) -> pd.DataFrame:
+    """Per regime and reference policy: the mean of its run scores over the seeds ``ev``
+    holds (:func:`reference_runs`) and how many. Columns: regime, policy, share, seeds."""
+    runs = reference_runs(ev, day_references)
+    if runs.empty:
+        return pd.DataFrame(columns=["regime", "policy", "share", "seeds"])
+    g = runs.groupby(["regime", "policy"])["score"]
+    return pd.DataFrame({"share": g.mean(), "seeds": g.size()}).reset_index()
+
+
+def aggregate_points(ev: pd.DataFrame, day_references: pd.DataFrame, groups: dict[str, list[str]]) -> pd.DataFrame:
+    """The two references' aggregates (IQM, median, mean: the agents' estimators,
+    :func:`nutribench.report.aggregate.point_estimate`) of their run scores over each group's
+    regimes (``groups``: group -> regimes, an :class:`~nutribench.report.aggregate.AggregateResult`'s
+    ``regimes``); a group where a reference lacks a regime is left out. Columns: group,
+    policy, aggregate, point."""
+    from nutribench.report.aggregate import point_estimate
+
+    runs = reference_runs(ev, day_references)
+    rows = []
+    for group, regimes in groups.items():
+        for policy in STRONG_POLICIES:
+            mine = runs[runs["policy"] == policy]
+            per = [mine[mine["regime"] == r].sort_values("seed")["score"].to_numpy(dtype=float) for r in regimes]
+            if not regimes or any(not len(x) for x in per):
+                continue
+            for agg in ("iqm", "median", "mean"):
+                rows.append({"group": group, "policy": policy, "aggregate": agg, "point": point_estimate(agg, per)})
+    return pd.DataFrame(rows, columns=["group", "policy", "aggregate", "point"])
