@@ -1,11 +1,25 @@
-"""The lookahead and clairvoyant references beside the agents (issue 73): their shares in the
-results table, Figure 3, Figure 5 and the leaderboard."""
+"""The lookahead and clairvoyant references beside the agents (issue 73): the test days'
+returns committed in regimes/references.csv (they replay, they are ordered, a stale file is
+not used), and their shares in the results table, Figure 3, Figure 5 and the leaderboard."""
 
 from __future__ import annotations
 
 import numpy as np
 import pandas as pd
 import pytest
+
+from nutribench.agents.days import eval_food_streams
+from nutribench.baselines import (
+    REFERENCE_COLUMNS,
+    TEST_DAY_SAMPLES,
+    play_simple_policy,
+    play_strong_policy,
+    test_day_references,
+)
+from nutribench.config import list_regimes, load_env_config, regimes_dir
+from nutribench.scheduler.grid import PRESETS
+
+test_day_references.__test__ = False  # a library function named test_*, not a test
 
 
 def _frames():
@@ -89,3 +103,76 @@ def test_figure_5_and_the_leaderboard_set_the_references_beside_the_agents():
     assert ref.loc["lookahead", "protocol"] == REFERENCE_PROTOCOL
     md = leaderboard_table(rows).to_markdown()
     assert "| | lookahead | 110 [" in md.replace("|  |", "| |") and "| - | from regimes/references.csv" in md
+
+
+# --------------------------------------------------------------------------- regimes/references.csv
+@pytest.fixture(scope="module")
+def committed() -> pd.DataFrame:
+    return pd.read_csv(regimes_dir() / "references.csv")
+
+
+def test_the_committed_references_cover_every_regime_and_test_day(committed):
+    assert list(committed.columns) == list(REFERENCE_COLUMNS)
+    seeds = PRESETS["paper"].seeds
+    for regime in list_regimes():
+        cfg = load_env_config(regime)
+        rows = committed[committed["regime"] == regime]
+        assert set(rows["sha256"]) == {cfg.sha256}, f"{regime}: regimes/references.csv is stale"
+        assert sorted(zip(rows["seed"], rows["episode"])) == sorted((s, e) for s in seeds for e in range(5))
+
+
+@pytest.mark.parametrize("regime", list_regimes())
+def test_on_the_test_days_clairvoyant_lookahead_planner_are_ordered(committed, regime):
+    """Per regime, over the test days: clairvoyant >= lookahead >= planner (means); on a day
+    whose clairvoyant search is exact, the clairvoyant's return is at least every other
+    policy's (the simple ones played here afresh, the lookahead's from the file)."""
+    rows = committed[committed["regime"] == regime].sort_values(["seed", "episode"])
+    mean = rows[["planner", "lookahead", "clairvoyant"]].mean()
+    assert mean["clairvoyant"] >= mean["lookahead"] >= mean["planner"]
+    for seed, days in rows.groupby("seed"):
+        foods = eval_food_streams(regime, int(seed), 5)
+        for policy in ("never", "random", "always", "planner"):
+            played = np.array([r["return"] for r in play_simple_policy(policy, regime, foods)])
+            if policy in ("never", "planner"):
+                assert played == pytest.approx(days[policy].to_numpy(), abs=1e-9)
+            exact = (days["search"] == "exact").to_numpy()
+            assert np.all(days["clairvoyant"].to_numpy()[exact] >= played[exact] - 1e-9)
+        exact = days["search"] == "exact"
+        assert (days["clairvoyant"][exact] >= days["lookahead"][exact] - 1e-9).all()
+
+
+@pytest.mark.parametrize("regime", ["run0", "run6"])
+def test_the_committed_references_replay(committed, regime):
+    """The file's first two days of seed 0 played again (lookahead at its 256 futures)."""
+    cfg = load_env_config(regime)
+    foods = eval_food_streams(cfg, 0, 2)
+    rows = committed[(committed["regime"] == regime) & (committed["seed"] == 0)].sort_values("episode").head(2)
+    look = play_strong_policy("lookahead", cfg, foods, samples=TEST_DAY_SAMPLES, seed=0)
+    clair = play_strong_policy("clairvoyant", cfg, foods)
+    assert [r["return"] for r in look] == pytest.approx(rows["lookahead"].to_list(), abs=1e-9)
+    assert [r["return"] for r in clair] == pytest.approx(rows["clairvoyant"].to_list(), abs=1e-9)
+    assert [r["search"] for r in clair] == rows["search"].to_list()
+
+
+@pytest.mark.slow
+def test_a_regime_of_committed_references_is_remade_exactly(committed):
+    rows = pd.DataFrame(test_day_references("run3", PRESETS["paper"].seeds), columns=list(REFERENCE_COLUMNS))
+    want = committed[committed["regime"] == "run3"].reset_index(drop=True)
+    pd.testing.assert_frame_equal(rows, want, check_exact=False, atol=1e-9, rtol=0)
+
+
+def test_committed_references_of_a_changed_regime_file_are_not_used(monkeypatch, tmp_path):
+    import shutil
+
+    from nutribench.report.headroom import committed_references
+
+    for f in regimes_dir().iterdir():
+        if f.is_file():
+            shutil.copy(f, tmp_path / f.name)
+    run3 = tmp_path / "run3.toml"
+    run3.write_text(run3.read_text().replace("seed = 1003", "seed = 1004"))
+    monkeypatch.setenv("NUTRIBENCH_REGIMES", str(tmp_path))
+    logged: list[str] = []
+    rows = committed_references(logged.append)
+    assert "run3" not in set(rows["regime"]) and "run0" in set(rows["regime"])
+    assert any("run3" in line and "another regime file" in line for line in logged)
