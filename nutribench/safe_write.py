@@ -45,6 +45,12 @@ def _kind(mode: int) -> str:
     return next((word for test, word in _KINDS if test(mode)), "not a regular file")
 
 
+def file_kind(mode: int) -> str:
+    """What a path of ``st_mode`` ``mode`` is, in words ("a FIFO (named pipe)", "a character
+    device", ...): for the one line of a reader that refuses it, as the writers do."""
+    return _kind(mode)
+
+
 def _label(path: Path, what: str) -> str:
     return f"{what} {path}" if what else str(path)
 

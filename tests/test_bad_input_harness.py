@@ -132,6 +132,22 @@ BAD = {
         ["evaluate", "--model", "a_file", "--entry-point", "os.path:exists", "--name", "a", "--eval-episodes", "20000"],
         "eval_episodes goes from 1 to 10000",
     ),
+    "compare with more resamples than fit": (
+        ["compare", "ppo", "mc", "--db", "new.db", "--reps", "99999999999"],
+        "--reps",
+    ),
+    "compare with too few resamples": (["compare", "ppo", "mc", "--db", "new.db", "--reps", "1"], "100 to 100,000"),
+    "compare as JSON and as Markdown": (["compare", "ppo", "mc", "--db", "new.db", "--json", "--markdown"], "--json"),
+    "an empty models folder": ([*GRID, "--models-dir", ""], "--models-dir is empty"),
+    "an empty report folder": (["report", "--all", "--db", "new.db", "--out", ""], "--out is empty"),
+    "an empty folder for a tuned agent file": (
+        ["tune", "best", "--study", "s", "--write", "--out", ""],
+        "--out is empty",
+    ),
+    "a control byte in a regime name, echoed escaped": (
+        ["run", "--db", "new.db", "--regimes", "run0\x1b[31m", "--algos", "ppo", "--episodes", "2"],
+        "run0\\x1b[31m",
+    ),
     "new regime with a reversed range": (
         ["regimes", "generate", "run8", "--from", "run6", "--tau", "C=12-10", "--write"],
         "C",
@@ -148,6 +164,7 @@ def test_bad_input_is_one_line_exit_2_and_creates_nothing(lab: Path, case: str) 
     assert res.exit_code == 2, (case, res.exit_code, res.output, res.exception)
     assert "Traceback" not in res.output and len(out.splitlines()) == 1 and out.startswith("error:"), (case, res.output)
     assert needle in out, (case, out)
+    assert not any(c < " " or "\x7f" <= c <= "\x9f" for c in out), (case, "a control character reached the terminal")
     assert {p.relative_to(lab) for p in lab.rglob("*")} == before, case  # nothing created
 
 

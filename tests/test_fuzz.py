@@ -2,7 +2,9 @@
 TOML files, command lines, recorder call sequences and damaged archives. The property, for
 every input: the command exits 0 or 2 (a user error: one line) and never with a traceback,
 and a refusal leaves every file as it was (no database created or changed, nothing
-half-written).
+half-written). Hostile config files (a FIFO, a device, nesting past the bound, a file too
+large, a control character or too long a string, a size no machine holds: issue 74) are
+refused, each in one line naming the file, by every command that reads them, within a minute.
 
 Each property runs a few derandomized examples in the default run (CI: reproducible, a few
 seconds each) and many more under ``-m slow`` (150 each, 450 command lines; set
@@ -292,6 +294,127 @@ def test_fuzz_agent_files(template, tmp_path_factory, agent):
 @given(agent=AGENT_FILE)
 def test_fuzz_agent_files_more(template, tmp_path_factory, agent):
     check_agent_file(template, tmp_path_factory.getbasetemp() / "fuzz-agent", *agent)
+
+
+# --------------------------------------------------------------------------- hostile config files
+#: where a hostile config file goes, the commands that read it, and a string field and a size
+#: field of it (None: it has none)
+SLOTS = {
+    "regimes/run0.toml": ("description", None),
+    "regimes/foods.toml": ("source", None),
+    "regimes/reward.toml": ("name", "horizon"),
+    "regimes/agents/mc.toml": ("description", "net_arch"),
+}
+READERS = [
+    ["regimes", "check"],
+    ["regimes", "list"],
+    ["baselines", "--regimes", "run0", "--episodes", "1"],
+    ["run", "--db", "r.db", "--regimes", "run0", "--algos", "mc", "--seeds", "1", "--episodes", "1"],
+]
+CONTROL = [*range(0x00, 0x09), *range(0x0B, 0x20), *range(0x7F, 0xA0)]
+
+
+@st.composite
+def hostile_config(draw) -> tuple[str, str, Any]:
+    """A config file no command may read: a FIFO, a device, nested past the bound (arrays,
+    inline tables, a dotted key), larger than the bound, a control character or too long a
+    string in a text field, or a size no machine holds (issue 74)."""
+    from nutribench.config.reading import MAX_CONFIG_BYTES, MAX_DEPTH, MAX_TEXT
+    from nutribench.config.sizes import MAX_STEPS
+
+    slot = draw(st.sampled_from(sorted(SLOTS)))
+    text_field, size_field = SLOTS[slot]
+    kinds = ["fifo", "device", "nested", "dotted", "large", "control", "long"] + (["size"] if size_field else [])
+    kind = draw(st.sampled_from(kinds))
+    if kind == "device":
+        return slot, kind, draw(st.sampled_from(["/dev/zero", "/dev/null", "/dev/urandom"]))
+    if kind == "nested":
+        depth = draw(st.integers(MAX_DEPTH + 1, 100_000))
+        opener, closer = draw(st.sampled_from([("[", "]"), ("{a = ", "}")]))
+        return slot, kind, "zz = " + opener * depth + ("1" if opener != "[" else "") + closer * depth
+    if kind == "dotted":
+        return slot, kind, "zz." + ".".join(["a"] * draw(st.integers(MAX_DEPTH, 100_000))) + " = 1"
+    if kind == "large":
+        return slot, kind, "#" + "x" * draw(st.integers(MAX_CONFIG_BYTES, 3 * MAX_CONFIG_BYTES))
+    if kind == "control":
+        return slot, kind, (text_field, "a" + chr(draw(st.sampled_from(CONTROL))) + "b")
+    if kind == "long":
+        return slot, kind, (text_field, "x" * draw(st.integers(MAX_TEXT + 1, 20_000)))
+    if kind == "size":
+        if size_field == "horizon":
+            return slot, kind, (size_field, draw(st.integers(MAX_STEPS + 1, 10**18)))
+        widths = draw(st.lists(st.integers(300_000, 10**7), min_size=2, max_size=4))
+        return slot, kind, (size_field, widths)
+    return slot, kind, None
+
+
+#: what the one line says, by kind of hostile file
+SAYS = {
+    "fifo": "is a FIFO (named pipe), not a regular file",
+    "device": "is a character device, not a regular file",
+    "nested": "levels deep",
+    "dotted": "levels deep",
+    "large": "bytes, more than the",
+    "control": "control character",
+    "long": "characters, more than the",
+    "size": "is more than",
+}
+
+
+def check_hostile_config(template: Path, where: Path, slot: str, kind: str, payload: Any) -> None:
+    """Every command that reads the file refuses it: exit 2, one line naming the file and saying
+    why, within a minute (a FIFO used to hang them), nothing changed."""
+    import signal
+
+    lab = fresh_lab(template, where)
+    path = lab / slot
+    if kind == "fifo":
+        path.unlink()
+        os.mkfifo(path)
+    elif kind == "device":
+        path.unlink()
+        path.symlink_to(payload)
+    elif kind in ("nested", "dotted", "large"):
+        path.write_text(path.read_text() + "\n" + payload + "\n")
+    else:
+        data = load_toml(path)
+        data[payload[0]] = payload[1]
+        path.write_bytes(tomli_w.dumps(data).encode())
+    says = SAYS["size"] if kind == "size" and payload[0] == "horizon" else SAYS[kind]
+    if kind == "size" and payload[0] == "net_arch":
+        says = "of memory, more than any machine has"
+    readers = READERS if slot.count("/") == 1 else READERS[-1:]
+
+    def alarm(*_):
+        raise TimeoutError("a command still reads the hostile file after 60 s")
+
+    with in_lab(lab):
+        for args in readers:
+            before = snapshot(lab)
+            old = signal.signal(signal.SIGALRM, alarm)
+            signal.alarm(60)
+            try:
+                res = invoke(args)
+            finally:
+                signal.alarm(0)
+                signal.signal(signal.SIGALRM, old)
+            assert_clean_outcome(res, args, before, lab)
+            out = res.output.strip()
+            assert res.exit_code == 2 and len(out.splitlines()) == 1, (slot, kind, args, out[-2000:])
+            assert path.name in out and says in out, (slot, kind, args, out[:500])
+
+
+@fuzz(FAST)
+@given(hostile=hostile_config())
+def test_fuzz_hostile_config_files(template, tmp_path_factory, hostile):
+    check_hostile_config(template, tmp_path_factory.getbasetemp() / "fuzz-hostile", *hostile)
+
+
+@pytest.mark.slow
+@fuzz(SLOW // 3)
+@given(hostile=hostile_config())
+def test_fuzz_hostile_config_files_more(template, tmp_path_factory, hostile):
+    check_hostile_config(template, tmp_path_factory.getbasetemp() / "fuzz-hostile", *hostile)
 
 
 # --------------------------------------------------------------------------- command lines

@@ -24,11 +24,12 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import tomli_w
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 import nutribench.agents.registry as registry
 from nutribench.config.loading import (
     ConfigError,
+    check_folder_setting,
     content_sha256,
     file_digest,
     format_validation_error,
@@ -36,18 +37,32 @@ from nutribench.config.loading import (
     regimes_dir,
     resolve_named_file,
 )
+from nutribench.config.models import NoBool, StrictBool
+from nutribench.config.reading import read_config_bytes
+from nutribench.config.sizes import HIDDEN_BOUND, STEPS_BOUND, TRANSITIONS_BOUND, network_bytes, too_large
 
 # Every float hyperparameter is finite (inf or nan is refused when the file is read: a learning
 # rate of inf trained and was stored as done), but a gradient norm, where inf means no clipping.
-PosFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-Prob = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
-GradNorm = Annotated[float, Field(gt=0, allow_inf_nan=True, description="inf: no clipping")]
-Discount = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
-PosInt = Annotated[int, Field(ge=1)]
+# Every number is strict about booleans (``learning_rate = true`` ran as 1.0), every switch is a
+# boolean (``normalize_obs = 1`` is refused), and
+# every size is bounded by what it makes the program hold (nutribench.config.sizes: derived there).
+PosFloat = Annotated[float, Field(gt=0, allow_inf_nan=False), NoBool]
+NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False), NoBool]
+Prob = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False), NoBool]
+GradNorm = Annotated[float, Field(gt=0, allow_inf_nan=True, description="inf: no clipping"), NoBool]
+Discount = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False), NoBool]
+PosInt = Annotated[int, Field(ge=1), NoBool]
+NonNegInt = Annotated[int, Field(ge=0), NoBool]
+#: a step count that ends in a stored step number (a rollout's: the timestep of its first update)
+Steps = Annotated[int, Field(ge=1), STEPS_BOUND, NoBool]
+#: transitions held in memory at once (a replay buffer, a sampled batch): 52 bytes each at least
+Transitions = Annotated[int, Field(ge=1), TRANSITIONS_BOUND, NoBool]
+#: hidden units of the recurrent policy's two GRUs: 96 h^2 bytes at least
+HiddenSize = Annotated[int, Field(ge=1), HIDDEN_BOUND, NoBool]
+Flag = StrictBool
 Name = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$", max_length=64)]
 #: a config's version: from 1 to what a database integer holds (the versions are stored in columns)
-Version = Annotated[int, Field(ge=1, le=2**31 - 1)]
+Version = Annotated[int, Field(ge=1, le=2**31 - 1), NoBool]
 
 
 class _AgentBase(BaseModel):
@@ -58,8 +73,8 @@ class _AgentBase(BaseModel):
     name: Name
     version: Version
     description: str
-    normalize_obs: bool = Field(description="running mean/std normalisation of observations (SB3 VecNormalize)")
-    normalize_reward: bool = Field(
+    normalize_obs: Flag = Field(description="running mean/std normalisation of observations (SB3 VecNormalize)")
+    normalize_reward: Flag = Field(
         description="scale rewards by a running std of the discounted return (SB3 VecNormalize); recorded returns stay raw"
     )
     gamma: Discount
@@ -68,20 +83,30 @@ class _AgentBase(BaseModel):
 class _FeedForward(_AgentBase):
     net_arch: list[PosInt] = Field(min_length=1, description="hidden layers of the shared backbone, e.g. [256, 128]")
 
+    @field_validator("net_arch")
+    @classmethod
+    def _a_network_that_fits(cls, widths: list[int]) -> list[int]:
+        """Refuse a network whose training could never be held (:func:`nutribench.config.sizes.network_bytes`)."""
+        shown = str(widths) if len(widths) <= 8 else f"{len(widths):,} layers of up to {max(widths):,} units"
+        why = too_large(f"a network of {shown}", network_bytes(widths))
+        if why:
+            raise ValueError(why)
+        return widths
+
 
 class _PPOFields(BaseModel):
     """PPO's optimisation fields, shared by the feedforward and the recurrent PPO."""
 
     learning_rate: PosFloat
-    n_steps: PosInt
-    batch_size: PosInt
+    n_steps: Steps
+    batch_size: Transitions
     n_epochs: PosInt
     gae_lambda: Prob
     clip_range: PosFloat
     ent_coef: NonNegFloat
     vf_coef: PosFloat
     max_grad_norm: GradNorm
-    normalize_advantage: bool
+    normalize_advantage: Flag
 
 
 def __getattr__(name: str) -> Any:
@@ -99,6 +124,8 @@ def agent_folders() -> list[Path]:
 
     env = os.environ.get("NUTRIBENCH_AGENTS")
     own = [Path(p) for p in env.split(os.pathsep) if p] if env else []
+    for folder in own:  # a FIFO or a device there is refused, never silently no folder
+        check_folder_setting("NUTRIBENCH_AGENTS", folder, "a folder of agent files (several: separated by ':')")
     shipped = regimes_dir() / "agents"
     return [*own, *([shipped] if shipped not in own else [])]
 
@@ -132,12 +159,13 @@ def resolve_agent_path(name_or_path: str | Path) -> Path:
     s = str(name_or_path)
     if s.endswith(".toml") or "/" in s:
         return resolve_named_file(s, agents_dir(), "agent config", [])
-    found = [f / f"{s}.toml" for f in agent_folders() if (f / f"{s}.toml").is_file()]
+    # a FIFO or a device of that name is found too, and refused in one line when it is read
+    found = [f / f"{s}.toml" for f in agent_folders() if (f / f"{s}.toml").exists()]
     if not found:
         raise ConfigError(
             f"unknown agent config '{s}': known are {', '.join(list_agent_configs()) or '(none)'} {where_agents_are()}"
         )
-    if len(found) > 1 and found[0].read_bytes() != found[1].read_bytes():  # a copy is no clash
+    if len(found) > 1 and read_config_bytes(found[0]) != read_config_bytes(found[1]):  # a copy is no clash
         warnings.warn(f"agent config '{s}': {found[0]} is used, not {found[1]}", stacklevel=2)
     return found[0]
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import errno
 import functools
+import re
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -30,6 +31,7 @@ __all__ = [
     "check_tensorboard",
     "console",
     "err_console",
+    "folder_option",
     "print_error",
     "progress",
     "split_csv",
@@ -49,16 +51,34 @@ console = Console()
 err_console = Console(stderr=True)
 
 
+#: control characters (C0, DEL, C1): a value echoed in an error line shows them escaped
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
 def print_error(e: BaseException | str) -> None:
     """One red ``error:`` line on stderr; the message is printed as is (no rich markup), but
     for the secrets of any URL in it (:func:`nutribench.store.engine.hide_secrets`: a message
-    that formats a ``--db`` URL as given still shows no password)."""
+    that formats a ``--db`` URL as given still shows no password) and its control characters,
+    written as escapes (``\\x1b``, ``\\n``): a value the user gave, echoed back, neither acts on
+    the terminal nor breaks the one line."""
     text = str(e)
     if "://" in text:
         from nutribench.store.engine import hide_secrets_in
 
         text = hide_secrets_in(text)
+    text = _CONTROL.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"), text)
     err_console.print(f"[bold red]error:[/] {escape(text)}", highlight=False, soft_wrap=True)
+
+
+def folder_option(value: str | None, option: str) -> Path | None:
+    """A folder option's value as a path (None: not given); an empty one is a one-line
+    :class:`UserError`, as ``--db ''`` is: ``Path('')`` is the current folder, which an empty
+    value never means (give ``.`` for it)."""
+    if value is None:
+        return None
+    if not value.strip():
+        raise UserError(f"{option} is empty: give a folder ('.' for the current one)")
+    return Path(value)
 
 
 #: errors of the operating system that only ever mean a path the user gave cannot be one

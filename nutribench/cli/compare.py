@@ -32,13 +32,17 @@ def compare_cmd(
     db: Annotated[
         str, typer.Option(envvar="NUTRIBENCH_DB", help="results database: a file path or a SQLAlchemy URL")
     ] = "nutribench.db",
-    reps: Annotated[int, typer.Option(min=100, help="bootstrap resamples of the seeds")] = 10_000,
+    reps: Annotated[int, typer.Option(help="bootstrap resamples of the seeds (100 to 100,000)")] = 10_000,
 ) -> None:
     """A - B per regime and over regimes: the mean paired difference of evaluation returns
     (same seed, same day) with a 95 % bootstrap interval over seeds, P(A > B) over the paired
     days, and how many seeds were paired."""
     from nutribench.report.compare import load_comparison
+    from nutribench.report.leaderboard import check_reps
 
+    if as_json and markdown:
+        raise UserError("--json and --markdown: give one (each is a whole output of its own)")
+    check_reps(reps)  # bounded as leaderboard --reps is: 10^11 resamples were a MemoryError traceback
     names = None
     if regimes is not None:
         names = [r.strip() for r in regimes.split(",") if r.strip()]

@@ -10,7 +10,16 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import UserError, check_out_dir, check_range, console, err_console, progress, user_errors
+from nutribench.cli.common import (
+    UserError,
+    check_out_dir,
+    check_range,
+    console,
+    err_console,
+    folder_option,
+    progress,
+    user_errors,
+)
 
 
 def _split(values: list[str] | None) -> list[str]:
@@ -109,7 +118,9 @@ def report_cmd(
     db: Annotated[
         str, typer.Option(envvar="NUTRIBENCH_DB", help="results database: a file path or a SQLAlchemy URL")
     ] = "nutribench.db",
-    out: Annotated[Path, typer.Option(help="folder the files are written to")] = Path("reports"),
+    out_given: Annotated[
+        str, typer.Option("--out", metavar="PATH", help="folder the files are written to")
+    ] = "reports",
     reference_episodes: Annotated[
         int, typer.Option(min=1, help="episodes per simple policy and regime for the reference lines of figures 3/4")
     ] = 200,
@@ -117,6 +128,7 @@ def report_cmd(
     """Regenerate the paper's figures (PNG + PDF) and tables (Markdown, LaTeX, CSV) from the database."""
     from nutribench.report.build import build_report, build_trajectory
 
+    out = folder_option(out_given, "--out")  # '' is refused, as --db '' is (not the current folder)
     figs, tables = parse_figs(fig), parse_tables(table)
     selected, pair_names = parse_algos(algos), parse_pair(pair)
     if not (figs or tables or all_ or trajectory or diagnostics):

@@ -23,6 +23,7 @@ from nutribench.cli.common import (
     check_tensorboard,
     console,
     err_console,
+    folder_option,
     old_spelling,
     split_csv,
     user_errors,
@@ -128,8 +129,9 @@ def run_cmd(
     ] = None,
     executor: Annotated[str, typer.Option(help="'local' (a process per job) or 'dask://HOST:PORT'")] = "local",
     db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
-    models_dir: Annotated[
-        Optional[Path], typer.Option(help="where trained models go (default: models/ next to the db)")
+    models_dir_given: Annotated[
+        Optional[str],
+        typer.Option("--models-dir", metavar="PATH", help="where trained models go (default: models/ next to the db)"),
     ] = None,
     upgrade_only: Annotated[
         bool, typer.Option("--upgrade-only", help="create or upgrade the database schema, then exit")
@@ -167,6 +169,7 @@ def run_cmd(
 ) -> None:
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
     episodes = old_spelling(days, episodes_alias, "--days", "--episodes")
+    models_dir = folder_option(models_dir_given, "--models-dir")  # '' is refused, as --db '' is
     from nutribench.store import open_store
 
     if upgrade_only:

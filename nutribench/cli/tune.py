@@ -10,12 +10,11 @@ from __future__ import annotations
 
 import json
 from contextlib import ExitStack
-from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import DEVICE_HELP, console, old_spelling, progress, split_csv, user_errors
+from nutribench.cli.common import DEVICE_HELP, console, folder_option, old_spelling, progress, split_csv, user_errors
 
 tune_app = typer.Typer(
     no_args_is_help=False,
@@ -256,8 +255,9 @@ def best_cmd(
     study: Annotated[str, typer.Option(help="the study")],
     write: Annotated[bool, typer.Option(help="write the agent file into the agents folder")] = False,
     name: Annotated[Optional[str], typer.Option(help="the new agent's name (default <agent>_tuned)")] = None,
-    out: Annotated[
-        Optional[Path], typer.Option(help="the folder --write writes into (default: the agents folder)")
+    out_given: Annotated[
+        Optional[str],
+        typer.Option("--out", metavar="PATH", help="the folder --write writes into (default: the agents folder)"),
     ] = None,
     db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help=DB_HELP)] = "nutribench.db",
 ) -> None:
@@ -266,6 +266,7 @@ def best_cmd(
     from nutribench.tuning.export import tuned_config, write_tuned
     from nutribench.tuning.study import open_study
 
+    out = folder_option(out_given, "--out")  # '' is refused, as --db '' is (not the current folder)
     handle = open_study(db, study, None)
     if write:
         path = write_tuned(handle, name, out)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tomllib
+import stat
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -19,16 +19,14 @@ import numpy as np
 from pydantic import BaseModel, ValidationError
 
 from nutribench.config.models import NUTRIENTS, FoodCatalog, Regime, RewardConfig
-from nutribench.errors import UserError
+from nutribench.config.reading import ConfigError, parse_config, read_config_bytes
+from nutribench.config.sizes import dynamics_bytes, too_large
+from nutribench.safe_write import file_kind
 
 M = TypeVar("M", bound=BaseModel)
 
 #: A regime's observation options, in ladder order; each enters its content hash only when on.
 OBSERVATION_OPTIONS = ("observe_clock", "observe_pending", "observe_latent")
-
-
-class ConfigError(UserError, ValueError):
-    """A configuration file is missing or invalid. The message is one line for users."""
 
 
 def regimes_dir() -> Path:
@@ -39,12 +37,27 @@ def regimes_dir() -> Path:
     """
     env = os.environ.get("NUTRIBENCH_REGIMES")
     if env:
+        check_folder_setting("NUTRIBENCH_REGIMES", Path(env), "the folder of the regime files")
         return Path(env)
     package = Path(__file__).resolve().parents[1]
     for candidate in (package.parent / "regimes", package / "_regimes"):
         if candidate.is_dir():
             return candidate
     raise ConfigError("no regimes folder found: set NUTRIBENCH_REGIMES to the folder holding run0.toml .. run6.toml")
+
+
+def check_folder_setting(variable: str, folder: Path, what: str) -> None:
+    """A folder named by an environment variable that is there but is no folder (a file, a
+    FIFO, a device node) is a one-line :class:`ConfigError`, never silently a folder without
+    files; one that is not there yet is left to its readers (and writers)."""
+    try:
+        mode = os.stat(folder).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return
+    except OSError as e:
+        raise ConfigError(f"{variable}={folder}: cannot look at it: {e.strerror or e}") from None
+    if not stat.S_ISDIR(mode):
+        raise ConfigError(f"{variable}={folder}: is {file_kind(mode)}, not a folder: set {variable} to {what}")
 
 
 def _format_loc(loc: tuple[Any, ...]) -> str:
@@ -55,7 +68,7 @@ def format_validation_error(path: Path | str, err: ValidationError) -> str:
     """One line: file, the first failing field and what is wrong (and how many more)."""
     errors = err.errors()
     first = errors[0]
-    msg = first["msg"]
+    msg = first["msg"].removeprefix("Value error, ")  # a validator's own words
     if first["type"] == "extra_forbidden":
         msg = "unknown key (remove it or check its spelling)"
     elif first["type"] == "missing":
@@ -63,31 +76,16 @@ def format_validation_error(path: Path | str, err: ValidationError) -> str:
     elif "input" in first and not isinstance(first["input"], (dict, list)):
         msg = f"{msg} (got {first['input']!r})"
     more = f" (+{len(errors) - 1} more errors)" if len(errors) > 1 else ""
-    return f"{path}: {_format_loc(first['loc'])}: {msg}{more}"
+    where = f"{_format_loc(first['loc'])}: " if first["loc"] else ""  # a check of several fields names them
+    return f"{path}: {where}{msg}{more}"
 
 
 def read_toml(path: Path) -> dict[str, Any]:
-    """The TOML file at ``path`` as a dict; a missing or unreadable file, a byte that is not
-    UTF-8 and malformed TOML are each a one-line :class:`ConfigError` naming the file (and
-    the line)."""
-    try:
-        data = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: file not found") from None
-    except OSError as e:  # a folder, no permission, an I/O error
-        raise ConfigError(f"{path}: cannot read the file: {e.strerror or e}") from None
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as e:
-        line = data[: e.start].count(b"\n") + 1
-        raise ConfigError(
-            f"{path}: line {line}: byte 0x{data[e.start]:02x} is not UTF-8: TOML files are UTF-8, "
-            "save the file as UTF-8"
-        ) from None
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{path}: not valid TOML: {e}") from None
+    """The TOML file at ``path`` as a dict, read as :mod:`nutribench.config.reading` bounds it:
+    a missing or unreadable file, one that is not a regular file (a FIFO, a device), one too
+    large or nested too deep, a byte that is not UTF-8, malformed TOML and a control character
+    in a string are each a one-line :class:`ConfigError` naming the file (and the line or key)."""
+    return parse_config(path, read_config_bytes(path))
 
 
 def resolve_named_file(name_or_path: str | Path, folder: Path, what: str, known: list[str]) -> Path:
@@ -97,11 +95,11 @@ def resolve_named_file(name_or_path: str | Path, folder: Path, what: str, known:
     s = str(name_or_path)
     if s.endswith(".toml") or "/" in s:
         path = Path(s)
-        if not path.is_file():
+        if not path.exists():
             raise ConfigError(f"{path}: no such {what} file")
-        return path
+        return path  # not a regular file (a FIFO, a folder): refused in one line when read
     path = folder / f"{s}.toml"
-    if not path.is_file():
+    if not path.exists():
         raise ConfigError(f"unknown {what} '{s}': known are {', '.join(known) or '(none)'} (files in {folder})")
     return path
 
@@ -115,8 +113,8 @@ def file_digest(path: Path) -> bytes | None:
     changed in any way (even within one tick of the file system's clock, its size kept) is
     parsed again; None where it cannot be read (then :func:`read_toml` raises its one line)."""
     try:
-        return hashlib.blake2b(Path(path).read_bytes(), digest_size=20).digest()
-    except OSError:
+        return hashlib.blake2b(read_config_bytes(path), digest_size=20).digest()
+    except ConfigError:
         return None
 
 
@@ -177,6 +175,14 @@ class EnvConfig:
                 f"{where}: foods: catalog size mismatch: the regime has {len(reg)} foods, "
                 f"the catalog '{self.regime.catalog}' has {len(cat)}; " + "; ".join(parts)
             )
+        horizon, level = self.reward.horizon, self.regime.observation_level
+        why = too_large(
+            f"a horizon of {horizon:,} steps (reward.horizon, {self.regime.reward}) with {len(cat):,} foods "
+            f"(the catalog {self.regime.catalog}) at observation level {level}: the regime's dynamics",
+            dynamics_bytes(len(cat), horizon, level),
+        )
+        if why:
+            raise ConfigError(f"{where}: {why}")
 
     @property
     def name(self) -> str:

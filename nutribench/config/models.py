@@ -21,18 +21,33 @@ schedule and the target (the full state); a rung needs the ones below it.
 
 from __future__ import annotations
 
+from collections import Counter
 from typing import Annotated
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, Strict, field_validator, model_validator
+
+from nutribench.config.sizes import MAX_FOODS, STEPS_BOUND
 
 #: Order of the nutrients in every array of the package.
 NUTRIENTS: tuple[str, str, str] = ("C", "F", "P")
 
-NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+def _not_a_bool(value: object) -> object:
+    if isinstance(value, bool):
+        raise ValueError("true or false is no number: write the number")
+    return value
+
+
+#: Numbers are strict about booleans: pydantic's lax mode read ``learning_rate = true`` as 1.0.
+#: (A number written as text stays readable: the stored bodies hold ``"inf"`` for infinity.)
+NoBool = BeforeValidator(_not_a_bool)
+#: Switches are strict: ``observe_clock = 1`` is no boolean.
+StrictBool = Annotated[bool, Strict()]
+NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False), NoBool]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False), NoBool]
 #: a config's version: from 1 to what a database integer holds (the versions are stored in columns)
-Version = Annotated[int, Field(ge=1, le=2**31 - 1)]
+Version = Annotated[int, Field(ge=1, le=2**31 - 1), NoBool]
 Key = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$")]
 
 
@@ -79,13 +94,20 @@ class FoodCatalog(_Strict):
     version: Version
     source: str
     target_grams: PositiveNutrients
-    food: Annotated[list[Food], Field(min_length=1)]
+    food: Annotated[
+        list[Food],
+        Field(
+            min_length=1,
+            max_length=MAX_FOODS,
+            description="the foods; at most MAX_FOODS (nutribench.config.sizes: their dynamics within memory)",
+        ),
+    ]
 
     @field_validator("food")
     @classmethod
     def _unique_keys(cls, foods: list[Food]) -> list[Food]:
-        keys = [f.key for f in foods]
-        dupes = sorted({k for k in keys if keys.count(k) > 1})
+        counts = Counter(f.key for f in foods)  # linear: 10^5 foods once took minutes here
+        dupes = sorted(k for k, n in counts.items() if n > 1)
         if dupes:
             raise ValueError(f"duplicate food keys {dupes}")
         return foods
@@ -109,7 +131,12 @@ class RewardConfig(_Strict):
 
     name: str
     version: Version
-    horizon: Annotated[int, Field(ge=1)]
+    horizon: Annotated[
+        int,
+        Field(ge=1, description="steps of a day; a step number is stored in an INTEGER column"),
+        STEPS_BOUND,
+        NoBool,
+    ]
     lp: NonNeg
     lc: NonNeg
     lo: Positive
@@ -163,20 +190,20 @@ class Regime(_Strict):
     name: Key
     version: Version
     description: str
-    seed: Annotated[int, Field(ge=0)]
+    seed: Annotated[int, Field(ge=0), NoBool]
     catalog: str = Field(description="food catalog file, relative to this file")
     reward: str = Field(description="reward config file, relative to this file")
     ranges: DelayRanges
-    foods: dict[Key, FoodDelay]
-    observe_clock: bool = Field(
+    foods: Annotated[dict[Key, FoodDelay], Field(max_length=MAX_FOODS)]
+    observe_clock: StrictBool = Field(
         default=False,
         description="append the step of the day / horizon to the observation (one more dimension)",
     )
-    observe_pending: bool = Field(
+    observe_pending: StrictBool = Field(
         default=False,
         description="also append what is eaten but not yet absorbed, per nutrient (3 dims; needs observe_clock)",
     )
-    observe_latent: bool = Field(
+    observe_latent: StrictBool = Field(
         default=False,
         description="also append the pending schedule of the next H - 1 steps and the target (needs observe_pending)",
     )

@@ -6,19 +6,20 @@ models."""
 from __future__ import annotations
 
 import warnings
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
 import numpy as np
 import torch as th
-from pydantic import Field
+from pydantic import model_validator
 from stable_baselines3 import DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.buffers import NStepReplayBuffer
 from stable_baselines3.common.utils import LinearSchedule
 from torch.nn import functional as F
 
-from nutribench.agents.config import GradNorm, PosFloat, PosInt, Prob, _FeedForward
+from nutribench.agents.config import GradNorm, NonNegInt, PosFloat, PosInt, Prob, Transitions, _FeedForward
 from nutribench.agents.registry import Algorithm, no_replay_scaling
+from nutribench.config.sizes import n_step_bytes, too_large
 
 
 class DDQNConfig(_FeedForward):
@@ -27,9 +28,9 @@ class DDQNConfig(_FeedForward):
     algo: Literal["ddqn"]
     learning_rate_start: PosFloat
     learning_rate_end: PosFloat
-    buffer_size: PosInt
-    learning_starts: Annotated[int, Field(ge=0)]
-    batch_size: PosInt
+    buffer_size: Transitions
+    learning_starts: NonNegInt
+    batch_size: Transitions
     n_step: PosInt
     max_grad_norm: GradNorm
     target_update_interval: PosInt
@@ -38,6 +39,17 @@ class DDQNConfig(_FeedForward):
     exploration_initial_eps: Prob
     exploration_final_eps: Prob
     exploration_fraction: Prob
+
+    @model_validator(mode="after")
+    def _n_step_returns_that_fit(self) -> DDQNConfig:
+        """Refuse n-step returns whose batch could never be gathered (:func:`nutribench.config.sizes.n_step_bytes`)."""
+        why = too_large(
+            f"batch_size = {self.batch_size:,} with n_step = {self.n_step:,}: a batch's n-step returns",
+            n_step_bytes(self.batch_size, self.n_step),
+        )
+        if why:
+            raise ValueError(why)
+        return self
 
 
 def double_dqn_target(

@@ -8,7 +8,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from nutribench.agents.config import Discount, Name, Version
+from nutribench.agents.config import Discount, Flag, Name, Version
 from nutribench.agents.registry import Algorithm
 
 EntryPoint = Annotated[
@@ -37,8 +37,8 @@ class ExternalConfig(BaseModel):
     description: str
     entry_point: EntryPoint | None = Field(default=None, description="package.module:make_agent")
     params: dict[str, Any] = Field(default_factory=dict, description="passed to make_agent as its first argument")
-    normalize_obs: bool = Field(default=False, description="wrap the env in VecNormalize(norm_obs=True)")
-    normalize_reward: bool = Field(default=False, description="wrap the env in VecNormalize(norm_reward=True)")
+    normalize_obs: Flag = Field(default=False, description="wrap the env in VecNormalize(norm_obs=True)")
+    normalize_reward: Flag = Field(default=False, description="wrap the env in VecNormalize(norm_reward=True)")
     gamma: Discount = Field(default=0.99, description="VecNormalize's return discount")
 
 

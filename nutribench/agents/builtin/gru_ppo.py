@@ -12,18 +12,19 @@ from pydantic import Field, SerializerFunctionWrapHandler, model_serializer, mod
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from nutribench.agents.algos import ppo_arguments
-from nutribench.agents.config import PosInt, _AgentBase, _PPOFields
+from nutribench.agents.config import Flag, HiddenSize, PosInt, _AgentBase, _PPOFields
 from nutribench.agents.gru_ppo import GRUPPO
 from nutribench.agents.registry import Algorithm
+from nutribench.config.sizes import rollout_bytes, too_large
 
 
 class GRUPPOConfig(_AgentBase, _PPOFields):
     """PPO with the recurrent two-GRU policy of the paper's Table 6 (heads fixed by the paper)."""
 
     algo: Literal["gru_ppo"]
-    hidden_size: PosInt
+    hidden_size: HiddenSize
     sequence_length: PosInt
-    memory: bool = Field(
+    memory: Flag = Field(
         default=True,
         description="carry the GRUs' state from step to step within a day; false: zero it before every "
         "step (no memory: the same network sees only the current observation)",
@@ -42,6 +43,17 @@ class GRUPPOConfig(_AgentBase, _PPOFields):
     def _whole_sequences(self) -> GRUPPOConfig:
         if self.n_steps % self.sequence_length:
             raise ValueError(f"n_steps ({self.n_steps}) must be a multiple of sequence_length ({self.sequence_length})")
+        return self
+
+    @model_validator(mode="after")
+    def _a_rollout_that_fits(self) -> GRUPPOConfig:
+        """Refuse a rollout whose GRU states could never be held (:func:`nutribench.config.sizes.rollout_bytes`)."""
+        why = too_large(
+            f"n_steps = {self.n_steps:,} with hidden_size = {self.hidden_size:,}: a rollout",
+            rollout_bytes(self.n_steps, self.hidden_size),
+        )
+        if why:
+            raise ValueError(why)
         return self
 
 

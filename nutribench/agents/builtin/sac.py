@@ -4,12 +4,11 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
-from pydantic import Field
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from nutribench.agents.config import NonNegFloat, PosFloat, PosInt, Prob, _FeedForward
+from nutribench.agents.config import NonNegFloat, NonNegInt, PosFloat, PosInt, Prob, Transitions, _FeedForward
 from nutribench.agents.registry import Algorithm, no_replay_scaling
 from nutribench.agents.sac import DiscreteSAC
 
@@ -20,9 +19,9 @@ class SACConfig(_FeedForward):
     algo: Literal["sac"]
     actor_learning_rate: PosFloat
     critic_learning_rate: PosFloat
-    buffer_size: PosInt
-    learning_starts: Annotated[int, Field(ge=0)]
-    batch_size: PosInt
+    buffer_size: Transitions
+    learning_starts: NonNegInt
+    batch_size: Transitions
     tau: Prob
     alpha: NonNegFloat
     train_freq: PosInt
