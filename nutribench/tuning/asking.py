@@ -80,8 +80,13 @@ def heartbeats(study: Any, trials: list[Any]) -> Iterator[None]:
     stop = threading.Event()
 
     def beating() -> None:
+        from sqlalchemy.exc import OperationalError
+
         while not stop.wait(interval):
-            beat(storage, ids)
+            try:
+                beat(storage, ids)
+            except OperationalError:  # a beat the database refused (a full disk): the next one tries
+                pass  # again; missed for the whole grace period, the trials go stale as a killed driver's
 
     thread = threading.Thread(target=beating, daemon=True)
     thread.start()

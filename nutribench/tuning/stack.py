@@ -29,14 +29,15 @@ later group's too, while an earlier one trains); an error or Ctrl-C fails those 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
 
 from nutribench.tuning.asking import StackView, _backend, claim, heartbeats
 from nutribench.tuning.objective import TrialScores, ValidationObjective
-from nutribench.tuning.study import StudyCounts, TuneError, count_trials, quiet_experimental
+from nutribench.tuning.study import GRACE_SECONDS, StudyCounts, TuneError, count_trials, quiet_experimental
 
 #: the fields of an agent config that name it, not what it trains
 _NAMING = ("name", "version", "description")
@@ -118,12 +119,24 @@ def run_study(
     """Run trials of ``objective`` until ``study`` holds exactly ``trials`` finished (complete
     or pruned) trials, none left running; other drivers on the same study share the work
     (:func:`claim`, :func:`wait_for_room`). An exception in the objective (Ctrl-C included)
-    fails its trial and is raised; :class:`optuna.TrialPruned` prunes it."""
+    fails its trial and is raised; :class:`optuna.TrialPruned` prunes it. A write the database
+    refuses (a full disk) fails the trial at once and is one line (:func:`fail_trials`)."""
+    if trials < 1:
+        raise TuneError("--trials must be >= 1")
+    with refused_writes_as_one_line():
+        return _run_study(study, objective, trials, on_trial, on_wait)
+
+
+def _run_study(
+    study: Any,
+    objective: Callable[[Any], float],
+    trials: int,
+    on_trial: Callable[[StudyCounts], None] | None,
+    on_wait: Callable[[StudyCounts], None] | None,
+) -> StudyCounts:
     import optuna
     from optuna.trial import TrialState
 
-    if trials < 1:
-        raise TuneError("--trials must be >= 1")
     while True:
         counts, room = wait_for_room(study, trials, on_wait)
         if not room:
@@ -134,16 +147,120 @@ def run_study(
             continue
         with heartbeats(study, [trial]):
             try:
-                value = objective(trial)
-            except optuna.TrialPruned:
-                study.tell(trial, state=TrialState.PRUNED)
-            except BaseException:
-                study.tell(trial, state=TrialState.FAIL)
-                raise
-            else:
-                study.tell(trial, value)
+                try:
+                    value = objective(trial)
+                except optuna.TrialPruned:
+                    study.tell(trial, state=TrialState.PRUNED)
+                else:
+                    study.tell(trial, value)
+            except BaseException as e:  # Ctrl-C, an error, a write the database refused: failed at once
+                fail_trials(study, [trial], e)
         if on_trial is not None:
             on_trial(count_trials(study))
+
+
+def refused_write(error: BaseException) -> str | None:
+    """The database's own words when ``error`` is a write (or read) it refused, on one line
+    ("database or disk is full", "disk I/O error", "attempt to write a readonly database"): an
+    :class:`sqlalchemy.exc.OperationalError` met directly or behind Optuna's
+    ``StorageInternalError`` (its cause); None for any other error."""
+    from sqlalchemy.exc import OperationalError
+
+    seen: set[int] = set()
+    e: BaseException | None = error
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, OperationalError):
+            return " ".join(str(e.orig if e.orig is not None else e).split()) or type(e).__name__
+        e = e.__cause__ or e.__context__
+    return None
+
+
+class _RefusedWrite(TuneError):
+    """The study's database refused a write (one line, :func:`fail_trials`)."""
+
+
+def fail_trials(study: Any, trials: list[Any], error: BaseException) -> None:
+    """Tell FAIL to those of ``trials`` still running, stopped by ``error``, and raise: ``error``
+    itself, or, where the database refused a write (:func:`refused_write`: a full disk), one
+    line saying so, which trials were failed at once and what to do. A trial the database
+    would not even mark failed is left to the stale rule: any driver fails it (and runs its
+    parameters again) once the grace period has passed since its last heartbeat."""
+    from optuna.trial import TrialState
+
+    reason = refused_write(error)
+    failed, left = [], []
+    for trial in trials:
+        for attempt in (0, 1):
+            try:
+                state = study._storage.get_trial(trial._trial_id).state
+                if state == TrialState.RUNNING:
+                    study.tell(trial, state=TrialState.FAIL)
+                if state in (TrialState.RUNNING, TrialState.FAIL):  # FAIL: told already, on the way up
+                    failed.append(trial.number)
+                break
+            except Exception as e:  # the database refuses that write too
+                again = refused_write(e)
+                if again is None:
+                    raise
+                reason = reason or again
+                if attempt or not _empty_the_log(study):
+                    left.append(trial.number)
+                    break
+    if reason is None:
+        raise error
+    grace = getattr(_backend(study), "grace_period", None) or GRACE_SECONDS
+
+    def numbers(ns: list[int]) -> str:
+        return f"trial{'s' if len(ns) > 1 else ''} {', '.join(map(str, ns))}"
+
+    done = [f"{numbers(failed)} failed"] if failed else []
+    if left:
+        done.append(
+            f"{numbers(left)} could not be marked failed (a driver fails {'them' if len(left) > 1 else 'it'} "
+            f"and runs {'their' if len(left) > 1 else 'its'} parameters again {grace} s after the last heartbeat)"
+        )
+    raise _RefusedWrite(
+        f"the study's database refused a write: {reason}: {'; '.join(done) or 'no trial was running'}; free "
+        "space (or make the database writable) and run the same command again: the study goes on from its "
+        "finished trials"
+    ) from None
+
+
+def _empty_the_log(study: Any) -> bool:
+    """On a SQLite study, move the write-ahead log into the database file and empty it
+    (``PRAGMA wal_checkpoint(TRUNCATE)``): on a full disk that frees the log's space, so that the
+    small write of a trial's failure fits (on a 2 MB tmpfs the log held 40 kB). Whether it did."""
+    backend = _backend(study)
+    engine = getattr(backend, "engine", None)
+    if engine is None or engine.dialect.name != "sqlite":
+        return False
+    try:
+        with engine.connect() as conn:
+            busy, _, _ = conn.exec_driver_sql("PRAGMA wal_checkpoint(TRUNCATE)").one()
+    except Exception as e:
+        if refused_write(e) is None:
+            raise
+        return False
+    return not busy
+
+
+@contextmanager
+def refused_writes_as_one_line() -> Iterator[None]:
+    """A write the study's database refused outside a trial (claiming one, failing a stale one)
+    raised as one line (:class:`TuneError`), not as Optuna's traceback."""
+    try:
+        yield
+    except TuneError:
+        raise
+    except Exception as e:
+        reason = refused_write(e)
+        if reason is None:
+            raise
+        raise _RefusedWrite(
+            f"the study's database refused a write: {reason}: no trial of this driver was running; free space "
+            "(or make the database writable) and run the same command again"
+        ) from None
 
 
 class _AllPruned(Exception):
@@ -192,6 +309,10 @@ class StackedTrials:
         (none of them running), and claims each as a single trial does
         (:func:`~nutribench.tuning.study.claim`, :func:`~nutribench.tuning.study.wait_for_room`:
         a killed driver's stale trials are failed and their parameters run again)."""
+        with refused_writes_as_one_line():
+            return self._run(study, trials, on_trial, on_wait)
+
+    def _run(self, study: Any, trials: int, on_trial: Any, on_wait: Any) -> StudyCounts:
         while True:
             counts, room = wait_for_room(study, trials, on_wait)
             if not room:
@@ -210,9 +331,8 @@ class StackedTrials:
                         self.train_group(study, group)
                         if on_trial is not None:
                             on_trial(count_trials(study))
-                except BaseException:
-                    self.fail_unfinished(study, [t for t, _ in asked])
-                    raise
+                except BaseException as e:
+                    fail_trials(study, [t for t, _ in asked], e)  # those not told yet
 
     def ask(self, study: Any, n: int, trials: int | None = None) -> list[tuple[Any, Any]]:
         """Up to ``n`` claimed trials and their configs (fewer where other drivers claimed the
@@ -221,8 +341,6 @@ class StackedTrials:
         shared its first trial's structure searched minibatch and epochs once per stack).
         :meth:`run` then trains trials of one structure together. A trial Optuna queued (a
         killed driver's, to retry) keeps its own parameters."""
-        from optuna.trial import TrialState
-
         space = self.objective.space
         count = trials if trials is not None else 2**62
         view = StackView.of(study)  # the study read once; the stack's trials kept as written (asking.py)
@@ -234,26 +352,16 @@ class StackedTrials:
                     break
                 try:
                     out.append((trial, space.config(space.suggest(trial))))
-                except BaseException:
-                    for t in [trial, *(t for t, _ in out)]:
-                        t.study, t.storage = study, study._storage
-                        study.tell(t, state=TrialState.FAIL)
+                except BaseException as e:
+                    asked = [trial, *(t for t, _ in out)]
                     out.clear()
-                    raise
+                    for t in asked:
+                        t.study, t.storage = study, study._storage
+                    fail_trials(study, asked, e)
         finally:
             for trial, _ in out:  # asked: from now on the study's own (reports, prunes, tells)
                 trial.study, trial.storage = study, study._storage
         return out
-
-    @staticmethod
-    def fail_unfinished(study: Any, trials: list[Any]) -> None:
-        """Tell FAIL to those of ``trials`` not finished (a batch stopped by an error or Ctrl-C:
-        the groups after it never ran)."""
-        from optuna.trial import TrialState
-
-        for trial in trials:
-            if study._storage.get_trial(trial._trial_id).state == TrialState.RUNNING:
-                study.tell(trial, state=TrialState.FAIL)
 
     def train_group(self, study: Any, group: list[tuple[Any, Any]]) -> None:
         """Train the trials of one group in one batch and tell Optuna each one's outcome."""
