@@ -165,11 +165,11 @@ from typing import Literal
 
 from stable_baselines3 import A2C
 
-from nutribench.agents.config import PosFloat, PosInt, _FeedForward
+from nutribench.agents.config import PosFloat, PosInt, FeedForward
 from nutribench.agents.registry import Algorithm
 
 
-class NbtestSixthConfig(_FeedForward):
+class NbtestSixthConfig(FeedForward):
     algo: Literal["nbtest_sixth"]
     n_steps: PosInt
     learning_rate: PosFloat

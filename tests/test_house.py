@@ -1,7 +1,9 @@
 """The house's imports run one way: no circle between modules, and no room imports a room
 above it (README "Architecture"). Every import is counted, including those inside
 functions (the lazy imports that keep the CLI fast), because a lazy import upward is still
-a dependency upward."""
+a dependency upward. And a module is one idea, not a length: no module reaches into
+another's private names (in place of a line cap, which got modules cut apart by length and
+then reaching into each other)."""
 
 from __future__ import annotations
 
@@ -131,17 +133,87 @@ def test_no_import_circle() -> None:
     assert not circles, circles
 
 
-MAX_LINES = 400
+def private_imports(package: Path) -> list[str]:
+    """Each use, in a module of ``package``, of a private name (one leading underscore) of
+    another module of the same package: ``from x import _y``, and ``x._y`` where ``x`` was
+    imported as a module or name of the package (``import p.x as x``, ``from p import x``).
+    A name another module needs is public (no underscore, a docstring), or the two modules
+    are one idea and one module; dunders (``__version__``) are not private."""
+    top = package.name
+    found: list[str] = []
+    for path in sorted(package.rglob("*.py")):
+        parts = path.relative_to(package.parent).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        pkg = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        tree = ast.parse(path.read_text(), str(path))
+        where = path.relative_to(package.parent)
+        bound: dict[str, str] = {}  # local name -> the package's module or name it stands for
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = pkg.split(".")[: len(pkg.split(".")) - node.level + 1]
+                    mod = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    mod = node.module or ""
+                if mod.split(".")[0] != top:
+                    continue
+                for a in node.names:
+                    if _private(a.name) and mod != name:
+                        found.append(f"{where}:{node.lineno}: from {mod} import {a.name}")
+                    bound[a.asname or a.name] = f"{mod}.{a.name}"
+            elif isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.name.split(".")[0] == top:
+                        bound[a.asname or a.name.split(".")[0]] = a.name if a.asname else top
+        for node in ast.walk(tree):
+            if (
+                isinstance(node, ast.Attribute)
+                and _private(node.attr)
+                and isinstance(node.value, ast.Name)
+                and node.value.id in bound
+                and bound[node.value.id] != name
+            ):
+                found.append(f"{where}:{node.lineno}: {node.value.id}.{node.attr} ({bound[node.value.id]})")
+    return found
 
 
-def test_no_module_over_400_lines_without_a_stated_reason() -> None:
-    """Big rooms are split by what they hold; a module longer than MAX_LINES says why in its
-    docstring ("Longer than 400 lines: ...")."""
-    too_long = []
-    for path in PACKAGE.rglob("*.py"):
-        text = path.read_text()
-        n = text.count("\n")
-        doc = ast.get_docstring(ast.parse(text)) or ""
-        if n > MAX_LINES and "Longer than 400 lines:" not in doc:
-            too_long.append(f"{path.relative_to(PACKAGE.parent)}: {n} lines")
-    assert not too_long, too_long
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def test_no_module_imports_another_modules_private_names() -> None:
+    """A ``_name`` stays in its module (DESIGN.md): a module is one idea, so one that needs
+    another's private name either is that idea (one module) or the name is public."""
+    found = private_imports(PACKAGE)
+    assert not found, "\n".join(found)
+
+
+def test_private_imports_are_found(tmp_path: Path) -> None:
+    """The check above can fail: a planted package with each form of reaching in is caught,
+    and its legitimate imports (public names, dunders, its own names, other packages) are not."""
+    pkg = tmp_path / "planted"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text('__version__ = "1"\n')
+    (pkg / "sub" / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("_secret = 1\npublic = 2\n\n\ndef _helper():\n    return _secret\n")
+    (pkg / "sub" / "b.py").write_text(
+        "import os\n"
+        "from os import _exit\n"
+        "from planted import __version__\n"
+        "from planted.a import _secret, public\n"
+        "from .. import a\n"
+        "from ..a import _helper\n"
+        "import planted.a as aa\n"
+        "\n\ndef f():\n"
+        "    from planted.a import _helper as h\n"
+        "    return a._helper(), aa._secret, os._exit, h, public, _exit\n"
+    )
+    found = private_imports(pkg)
+    assert sorted(line.split(": ", 1)[1] for line in found) == [
+        "a._helper (planted.a)",
+        "aa._secret (planted.a)",
+        "from planted.a import _helper",
+        "from planted.a import _helper",
+        "from planted.a import _secret",
+    ], found
+    assert all(line.startswith("planted/sub/b.py:") for line in found)

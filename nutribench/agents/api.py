@@ -41,12 +41,12 @@ from nutribench.agents.config import agent_config_content, load_agent_config, pa
 from nutribench.agents.days import EVAL_STREAM_SALT, eval_food_streams, validation_food_streams  # noqa: F401 (the API)
 from nutribench.agents.model_files import (
     ModelFileError,
-    _write_atomically,
     load_saved_model,
     read_sidecar,
     spaces_record,
     vec_normalize_path,
     vec_normalize_stats,
+    write_model_atomically,
 )
 from nutribench.agents.recording import EpisodeFn, EpisodeMetrics, RecordingVecEnv
 from nutribench.agents.registry import algorithm, algorithms, loader_entry_point, make_model
@@ -125,13 +125,15 @@ class TrainedAgent:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         # each file written to a temporary name beside it, then renamed: never a partial file
-        if not _write_atomically(path if path.suffix else Path(f"{path}.zip"), self.model.save):  # SB3 adds .zip
+        if not write_model_atomically(path if path.suffix else Path(f"{path}.zip"), self.model.save):  # SB3 adds .zip
             self.model.save(path)  # a save that names its own file (an external agent's): as it writes it
         target = vec_normalize_path(path)
         if self.vec_normalize is not None:
-            _write_atomically(target, lambda tmp: self.vec_normalize.save(str(tmp)))
+            write_model_atomically(target, lambda tmp: self.vec_normalize.save(str(tmp)))
         elif self.vec_normalize_file is not None and self.vec_normalize_file.resolve() != target.resolve():
-            _write_atomically(target, lambda tmp: shutil.copyfile(self.vec_normalize_file, tmp))  # bytes, not loaded
+            write_model_atomically(
+                target, lambda tmp: shutil.copyfile(self.vec_normalize_file, tmp)
+            )  # bytes, not loaded
         has_pickle = self.vec_normalize is not None or self.vec_normalize_file is not None
         stats = vec_normalize_stats(self.vec_normalize) if self.vec_normalize is not None else self.vec_normalize_stats
         meta = collect_metadata()
@@ -149,7 +151,7 @@ class TrainedAgent:
                 **{k: meta[k] for k in ("nutribench_version", "git_commit", "git_dirty")},
             },
         }
-        _write_atomically(path.with_suffix(".json"), lambda tmp: tmp.write_text(json.dumps(side, indent=1)))
+        write_model_atomically(path.with_suffix(".json"), lambda tmp: tmp.write_text(json.dumps(side, indent=1)))
         return path
 
     @classmethod

@@ -9,8 +9,8 @@ own: a registered one with its own config model, or ``algo = "external"``
 (:class:`~nutribench.agents.builtin.external.ExternalConfig`): an ``entry_point =
 "package.module:make_agent"`` and a free ``[params]`` table.
 
-This module holds what every config model is built from (the field types, ``_AgentBase``,
-``_PPOFields``) and the reading, hashing and writing of the files; each built-in algorithm's
+This module holds what every config model is built from (the field types, ``AgentBase``,
+``PPOFields``) and the reading, hashing and writing of the files; each built-in algorithm's
 own model lives in its module of :mod:`nutribench.agents.builtin` (and is found here by name
 too, ``nutribench.agents.config.MCConfig``, as before).
 
@@ -65,7 +65,7 @@ Name = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$", max_length=64)]
 Version = Annotated[int, Field(ge=1, le=2**31 - 1), NoBool]
 
 
-class _AgentBase(BaseModel):
+class AgentBase(BaseModel):
     """Fields every agent config has."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -80,7 +80,9 @@ class _AgentBase(BaseModel):
     gamma: Discount
 
 
-class _FeedForward(_AgentBase):
+class FeedForward(AgentBase):
+    """The fields of a feedforward agent: the common ones and its backbone's hidden layers."""
+
     net_arch: list[PosInt] = Field(min_length=1, description="hidden layers of the shared backbone, e.g. [256, 128]")
 
     @field_validator("net_arch")
@@ -94,7 +96,7 @@ class _FeedForward(_AgentBase):
         return widths
 
 
-class _PPOFields(BaseModel):
+class PPOFields(BaseModel):
     """PPO's optimisation fields, shared by the feedforward and the recurrent PPO."""
 
     learning_rate: PosFloat

@@ -50,7 +50,7 @@ def vec_normalize_path(model_path: str | Path) -> Path:
     return Path(model_path).with_suffix(".vecnormalize.pkl")
 
 
-def _write_atomically(target: Path, write: Callable[[Path], Any]) -> bool:
+def write_model_atomically(target: Path, write: Callable[[Path], Any]) -> bool:
     """``write(tmp)`` to a temporary name beside ``target`` (same suffix), then renamed over
     it, so that a write cut short (a full disk, a kill) never leaves a partial ``target``;
     whatever it left is deleted. False (nothing renamed) if ``write`` wrote no file at that name.

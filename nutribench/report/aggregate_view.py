@@ -18,7 +18,7 @@ from nutribench.report.aggregate import (
     regime_span,
 )
 from nutribench.report.figure_parts import agent_labels, budget_caption, budget_cell, budget_seeds_line
-from nutribench.report.figures import FigureResult, _legend_rows, draw_notes, set_title
+from nutribench.report.figures import FigureResult, draw_notes, legend_rows, set_title
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.tables import TableResult
@@ -211,7 +211,7 @@ def aggregate_figure(
         )
         for g in groups
     ]
-    _legend_rows(fig, [(handles, labels), (group_handles, [_group_entry(res, g, offset[g]) for g in groups])])
+    legend_rows(fig, [(handles, labels), (group_handles, [_group_entry(res, g, offset[g]) for g in groups])])
     n_runs = res.scores.groupby(["regime", "algo"]).size() if not res.scores.empty else pd.Series(dtype=int)
     runs_text = (
         f"{int(n_runs.min())}-{int(n_runs.max())}"

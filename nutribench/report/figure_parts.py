@@ -49,9 +49,6 @@ def wrap_text(text: str, fig: Figure, fontsize: float) -> str:
     return "\n".join(textwrap.fill(line, chars) for line in text.split("\n"))
 
 
-_wrap = wrap_text
-
-
 def seed_list(seeds: Iterable[int]) -> str:
     """Seeds in increasing order, runs of three or more as ranges: ``0-9, 21, 1997``."""
     seeds = sorted({int(s) for s in seeds})
@@ -144,7 +141,7 @@ def budget_caption(df: pd.DataFrame) -> str:
     return text
 
 
-def _span(counts: pd.Series) -> str:
+def count_span(counts: pd.Series) -> str:
     """``"3"`` when every group has 3, else ``"2-5"``."""
     lo, hi = int(counts.min()), int(counts.max())
     return f"{lo}" if lo == hi else f"{lo}-{hi}"
@@ -169,14 +166,14 @@ def draw_notes(fig: Figure, notes: list[str]) -> None:
         title = fig.get_suptitle()
         fig._report_title = title  # type: ignore[attr-defined]
     text = title + "".join(f"\nnote: {n}" for n in notes)
-    fig.suptitle(_wrap(text, fig, 10), fontsize=10)
+    fig.suptitle(wrap_text(text, fig, 10), fontsize=10)
 
 
 #: Most entries in one row of a figure legend.
 LEGEND_COLS = 6
 
 
-def _legend_rows(fig: Figure, rows: list[tuple[list, list[str]]], fontsize: float = 9) -> None:
+def legend_rows(fig: Figure, rows: list[tuple[list, list[str]]], fontsize: float = 9) -> None:
     """One figure legend under the panels with one row per group (learners, references).
 
     Matplotlib fills legend columns first, so the entries are interleaved column by column
@@ -207,7 +204,7 @@ BEST_TEXT = "{label}: highest point of any line in its panel"
 MARKS = 8
 
 
-def _training_legend(fig: Figure, axes: list, learners: list[str]) -> None:
+def training_legend(fig: Figure, axes: list, learners: list[str]) -> None:
     """The legend of Figures 1/2 and 6: the configs' labels in palette order, then the "best"
     line, explained (:data:`BEST_TEXT`), in a row of its own."""
     found: dict[str, object] = {}
@@ -218,4 +215,4 @@ def _training_legend(fig: Figure, axes: list, learners: list[str]) -> None:
     rest = [lab for lab in found if lab not in learners]
     text = {lab: BEST_TEXT.format(label=lab) if lab.startswith("best") else lab for lab in found}
     groups = [learners, rest] if rest else [learners]
-    _legend_rows(fig, [([found[lab] for lab in g], [text[lab] for lab in g]) for g in groups])
+    legend_rows(fig, [([found[lab] for lab in g], [text[lab] for lab in g]) for g in groups])

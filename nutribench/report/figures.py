@@ -22,19 +22,19 @@ from nutribench.report.figure_parts import (  # noqa: F401 (re-exported: the fig
     LEGEND_COLS,
     MARKS,
     FigureResult,
-    _legend_rows,
-    _span,
-    _training_legend,
-    _wrap,
     agent_labels,
     budget_seeds_line,
     budget_seeds_text,
+    count_span,
     default_window,
     draw_notes,
+    legend_rows,
     regime_index,
     seed_list,
     set_title,
     sort_regimes,
+    training_legend,
+    wrap_text,
 )
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
@@ -144,12 +144,12 @@ def training_curves(
             ax.tick_params(labelbottom=True)
     for ax in list(axes.flat)[len(panels) :]:
         ax.set_visible(False)
-    _training_legend(fig, list(axes.flat)[: len(panels)], [legend[a] for a in algos])
+    training_legend(fig, list(axes.flat)[: len(panels)], [legend[a] for a in algos])
     notes = _missing_note(regimes, algos, train)
     n_seeds = train.groupby(["regime", "algo"])["seed"].nunique()
     smoothing = f"a {window}-episode moving average" if window > 1 else "the per-episode values (no smoothing)"
     band = "band = standard error across seeds" if n_seeds.max() > 1 else "one seed: no band"
-    caption = f"mean over seeds ({_span(n_seeds)} per line) of {smoothing}; {band}\n{budget_seeds_line(train)}"
+    caption = f"mean over seeds ({count_span(n_seeds)} per line) of {smoothing}; {band}\n{budget_seeds_line(train)}"
     set_title(fig, (title or f"Training {METRIC_LABELS.get(metric, metric)}") + f"\n{caption}")
     draw_notes(fig, notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)
@@ -172,7 +172,7 @@ def budget_panels(train: pd.DataFrame, regimes: list[str]) -> list[tuple[str, in
 GAP_LABEL = "share of the never -> planner gap closed"
 
 
-def _gap_axis(ax) -> None:
+def gap_axis(ax) -> None:
     """Panel (A) on the gap scale: linear, 0 = never eat, 100 % = the full-information planner,
     so equal distances are equal shares of what there is to gain."""
     from matplotlib.ticker import PercentFormatter
@@ -396,7 +396,7 @@ def eval_across_regimes(
         ax.set_title(f"({'ABCD'[p]}) {panel_title}", fontsize=10, loc="left")
         ax.grid(alpha=0.3)
         if gap_panel:
-            _gap_axis(ax)
+            gap_axis(ax)
         elif metric == "return":
             ax.set_ylabel("return (linear)", fontsize=8)
         # half a regime beyond the outermost: a figure of one regime has its points in the
@@ -407,7 +407,7 @@ def eval_across_regimes(
             ax.set_xticks(sorted(xs.values()), [str(k) for k in sorted(xs.values())])
     handles, labels = axes.flat[0].get_legend_handles_labels()
     is_ref = [lab.endswith("(reference)") for lab in labels]
-    _legend_rows(
+    legend_rows(
         fig,
         [
             ([h for h, r in zip(handles, is_ref) if not r], [lab for lab, r in zip(labels, is_ref) if not r]),
@@ -437,7 +437,7 @@ def eval_across_regimes(
         )
     set_title(
         fig,
-        f"{title}\nmean over seeds ({_span(n_seeds)} per point) of each seed's mean over its evaluation days ({_span(n_days)});\n"
+        f"{title}\nmean over seeds ({count_span(n_seeds)} per point) of each seed's mean over its evaluation days ({count_span(n_days)});\n"
         f"{band}; {panel_a};\nalgorithms are drawn slightly apart along x so that equal values stay visible\n{budget_seeds_line(ev)}",
     )
     draw_notes(fig, notes)

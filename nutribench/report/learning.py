@@ -28,7 +28,7 @@ from nutribench.report.figure_parts import (
     set_title,
     sort_regimes,
 )
-from nutribench.report.figures import GAP_LABEL, _gap_axis, _training_legend
+from nutribench.report.figures import GAP_LABEL, gap_axis, training_legend
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import order as sort_algos
 from nutribench.report.scores import DEFAULT_REPS, run_scores
@@ -104,7 +104,7 @@ def learning_curve_figure(
                 line["train_day"], line["iqm"], color=c, lw=1.4, marker=colors.marker(algo), ms=4, label=legend[algo]
             )
             ax.fill_between(line["train_day"], line["lo"], line["hi"], color=c, alpha=0.2, lw=0)
-        _gap_axis(ax)
+        gap_axis(ax)
         ax.set_title(regime, fontsize=10)
         ax.grid(alpha=0.3)
         if k % ncols:
@@ -114,7 +114,7 @@ def learning_curve_figure(
             ax.tick_params(labelbottom=True)
     for ax in list(axes.flat)[len(regimes) :]:
         ax.set_visible(False)
-    _training_legend(fig, list(axes.flat)[: len(regimes)], [legend[a] for a in names])
+    training_legend(fig, list(axes.flat)[: len(regimes)], [legend[a] for a in names])
     days = sorted(set(curve.groupby("job_id")["episode"].nunique()))
     n_days = f"{days[0]}" if len(days) == 1 else f"{days[0]}-{days[-1]}"
     caption = (

@@ -75,24 +75,23 @@ from nutribench.scheduler.lifecycle import job_state
 
 # the format and the checks live in archive_meta and archive_check; importable here too (valid_name, ...)
 from nutribench.store.archive_check import (
-    _verify,
+    check_contents,
     read_archive,
     verify_archive,
 )
 from nutribench.store.archive_meta import (
-    _CONFIG_SKIP,
-    _JOB_DEFAULTS,
-    _JOB_SKIP,
-    _TABLES,
+    CONFIG_SKIP,
     ENGINES,
     FORMAT,
     FORMAT_VERSION,
+    JOB_DEFAULTS,
+    JOB_SKIP,
     NAME_MAX,
     NAME_PATTERN,
-    _Invalid,
+    InvalidArchive,
     valid_name,
 )
-from nutribench.store.archive_tables import archive_rows, database_rows
+from nutribench.store.archive_tables import TABLES, archive_rows, database_rows
 from nutribench.store.engine import (
     REGISTRATION_LOCK,
     StoreError,
@@ -175,21 +174,21 @@ def export_results(
                 if not found:
                     which = "".join(f" of {', '.join(names)}" for names in (algos, regimes) if names)
                     raise StoreError(f"db export: {store.display} holds no done jobs{which}: nothing to export")
-                regimes = {r.id: _row(r, _CONFIG_SKIP) for _, r, _ in found}
-                agents = {a.id: _row(a, _CONFIG_SKIP) for _, _, a in found}
+                regimes = {r.id: _row(r, CONFIG_SKIP) for _, r, _ in found}
+                agents = {a.id: _row(a, CONFIG_SKIP) for _, _, a in found}
                 jobs, index = [], {}
                 for job, regime, agent in found:
                     index[job.id] = len(jobs)
                     jobs.append(
                         {
-                            **_row(job, _JOB_SKIP),
+                            **_row(job, JOB_SKIP),
                             "regime": [regime.name, regime.version],
                             "agent": [agent.name, agent.version],
                         }
                     )
                 arrays: dict[str, np.ndarray] = {}
                 counts = {"jobs": len(jobs)}
-                for name in _TABLES:
+                for name in TABLES:
                     cols, rows = archive_rows(s, name, list(index))
                     counts[name] = len(rows)
                     arrays[f"{name}.job"] = np.array([index[r[0]] for r in rows], dtype=np.int32)
@@ -208,8 +207,8 @@ def export_results(
         # that no import would take is named here, and nothing is written
         meta = json.loads(json.dumps(meta, default=str))
         try:
-            _verify(meta, arrays)
-        except _Invalid as e:
+            check_contents(meta, arrays)
+        except InvalidArchive as e:
             raise StoreError(
                 f"db export: {store.display} cannot be exported as it is: {e} (export the other jobs with --algos/--regimes)"
             ) from None
@@ -250,7 +249,7 @@ def _job_values(job: dict[str, Any]) -> dict[str, Any]:
     """The job row to write: every column, those an older archive lacks at their defaults, the
     stored model path dropped (an archive carries no model, and a path is never trusted)."""
     values = {
-        c.name: job.get(c.name, _JOB_DEFAULTS.get(c.name)) for c in Job.__table__.columns if c.name not in _JOB_SKIP
+        c.name: job.get(c.name, JOB_DEFAULTS.get(c.name)) for c in Job.__table__.columns if c.name not in JOB_SKIP
     }
     values["model_path"] = None
     return _datetimes(Job, values)
@@ -323,13 +322,13 @@ def _write(
                     s.flush()
                 config_ids[(table, row["name"], row["version"])] = have.id
         now = db_now(s)
-        positions = {name: np.argsort(arrays[f"{name}.job"], kind="stable") for name in _TABLES}
+        positions = {name: np.argsort(arrays[f"{name}.job"], kind="stable") for name in TABLES}
         bounds = {
             name: np.searchsorted(arrays[f"{name}.job"][positions[name]], np.arange(len(meta["jobs"]) + 1))
-            for name in _TABLES
+            for name in TABLES
         }
-        counts = {"imported": 0, "kept": 0, **{name: 0 for name in _TABLES}}  # the archive's rows
-        written = {name: 0 for name in _TABLES}  # the database's (diagnostics: a row per quantity)
+        counts = {"imported": 0, "kept": 0, **{name: 0 for name in TABLES}}  # the archive's rows
+        written = {name: 0 for name in TABLES}  # the database's (diagnostics: a row per quantity)
         imported: list[int] = []
         for i, job in enumerate(meta["jobs"]):
             on_step("writing", i, len(meta["jobs"]))
@@ -357,12 +356,12 @@ def _write(
                 job_id = s.execute(insert(Job).values(**values).returning(Job.id)).scalar_one()
             else:
                 job_id = have.id
-                for table in _TABLES.values():
+                for table in TABLES.values():
                     s.execute(delete(table).where(table.job_id == job_id))
                 s.execute(
                     update(Job).where(Job.id == job_id).values(**values).execution_options(synchronize_session=False)
                 )
-            for name, table in _TABLES.items():
+            for name, table in TABLES.items():
                 rows = positions[name][bounds[name][i] : bounds[name][i + 1]]
                 n, decoded = database_rows(name, arrays, rows, job_id)
                 counts[name] += n
@@ -372,7 +371,7 @@ def _write(
             counts["imported"] += 1
             imported.append(job_id)
         # compared before the commit: a mismatch rolls the whole import back
-        for name, table in _TABLES.items():
+        for name, table in TABLES.items():
             held = sum(
                 s.execute(select(func.count()).select_from(table).where(table.job_id.in_(chunk))).scalar_one()
                 for chunk in _chunks(imported)

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from nutribench.store.archive_meta import _Invalid, _short
+from nutribench.store.archive_meta import InvalidArchive, short_repr
 
 #: (kind, name, version) -> (sha256 of the installed content, the file it comes from)
 Installed = dict[tuple[str, str, int], tuple[str, str]]
@@ -127,7 +127,7 @@ def _part_sha256(kind: str, body: Any) -> str | None:
 
 def check_installed(meta: dict[str, Any], installed: Installed | None = None) -> None:
     """Every config of the (checked) ``meta`` that bears an installed config's name and
-    version has its content; :class:`_Invalid` naming the first that has not."""
+    version has its content; :class:`InvalidArchive` naming the first that has not."""
     installed = installed_configs() if installed is None else installed
     if not installed:
         return
@@ -135,13 +135,13 @@ def check_installed(meta: dict[str, Any], installed: Installed | None = None) ->
     def clash(kind: str, name: Any, version: Any, sha: str | None, what: str) -> None:
         have = installed.get((kind, name, version)) if isinstance(name, str) and isinstance(version, int) else None
         if have is not None and sha is not None and sha != have[0]:
-            raise _Invalid(
+            raise InvalidArchive(
                 f"{what} has other content than the installed {kind} {name} v{version} ({have[1]}): a config "
                 "with a shipped name and version must be the shipped one (a changed config bumps its version)"
             )
 
     for row in meta["regimes"]:
-        what = f"regime {_short(row['name'])} v{row['version']}"
+        what = f"regime {short_repr(row['name'])} v{row['version']}"
         clash("regime", row["name"], row["version"], row["sha256"], what)
         body = row["body"]
         for kind, key in (("reward", "reward"), ("food catalog", "catalog")):
@@ -149,15 +149,17 @@ def check_installed(meta: dict[str, Any], installed: Installed | None = None) ->
             if isinstance(part, dict):
                 name, version = part.get("name"), part.get("version")
                 if isinstance(name, str) and isinstance(version, int) and (kind, name, version) in installed:
-                    clash(kind, name, version, _part_sha256(kind, part), f"{what}'s {kind} {_short(name)} v{version}")
+                    clash(
+                        kind, name, version, _part_sha256(kind, part), f"{what}'s {kind} {short_repr(name)} v{version}"
+                    )
     for row in meta["agent_configs"]:
         # a built-in agent's config: its settings must be the shipped file's (the prose may differ)
         ident = ("agent config", row["name"], row["version"])
         if ident in installed and row["sha256"] != installed[ident][0]:
             settings = installed[("agent settings", row["name"], row["version"])][0]
             if _body_settings_sha256(row["body"]) != settings:
-                raise _Invalid(
-                    f"agent config {_short(row['name'])} v{row['version']} has other settings than the installed "
+                raise InvalidArchive(
+                    f"agent config {short_repr(row['name'])} v{row['version']} has other settings than the installed "
                     f"{installed[ident][1]} of that name and version: a config with a shipped name and version must "
                     "be the shipped one (a changed config bumps its version)"
                 )

@@ -4,7 +4,7 @@ version, the columns an archive leaves out or defaults, the names regimes and ag
 may have (:func:`valid_name`), and the checks of the configs (fields, names, each body
 hashing to its ``sha256`` and naming the config it is stored as) and of the jobs (fields,
 references to the archive's configs, status, engine, budgets, no key twice, per job its
-budget, evaluation days, horizon and foods). What is wrong raises :class:`_Invalid` with the
+budget, evaluation days, horizon and foods). What is wrong raises :class:`InvalidArchive` with the
 message, without the archive's name; :mod:`nutribench.store.archive_check` adds that.
 """
 
@@ -20,7 +20,6 @@ import numpy as np
 
 from nutribench.config.loading import content_sha256
 from nutribench.engines import ENGINES as ALL_ENGINES
-from nutribench.store.archive_tables import OPTIONAL_TABLES, TABLES, columns
 from nutribench.store.models import (
     JOB_STATUSES,
     AgentConfig,
@@ -31,18 +30,15 @@ from nutribench.store.models import (
 FORMAT = "nutribench-results"
 FORMAT_VERSION = 1
 #: job columns an archive leaves out: ids (remapped on import) and the driver's bookkeeping
-_JOB_SKIP = ("id", "regime_id", "agent_config_id", "owner", "heartbeat_at", "worker_pid")
-_CONFIG_SKIP = ("id",)
-# the tables an archive carries, and how (moved to archive_tables; these names kept for the other modules)
-_TABLES = TABLES
-_OPTIONAL_TABLES = OPTIONAL_TABLES
-_columns = columns
+JOB_SKIP = ("id", "regime_id", "agent_config_id", "owner", "heartbeat_at", "worker_pid")
+#: agent/regime config columns an archive leaves out (ids, remapped on import)
+CONFIG_SKIP = ("id",)
 
 #: The names of regimes and agent configs: what files, figures and tables are named after.
 NAME_PATTERN = re.compile(r"[a-z][a-z0-9_]*")
 NAME_MAX = 64
 #: job columns added by schema revision 0004, and what an archive written before them means
-_JOB_DEFAULTS: dict[str, Any] = {
+JOB_DEFAULTS: dict[str, Any] = {
     "fake": False,
     "batch_id": None,
     "batch_size": None,
@@ -53,8 +49,10 @@ _JOB_DEFAULTS: dict[str, Any] = {
 #: what trained a job (``jobs.engine``); NULL for jobs of databases older than revision 0003
 ENGINES = ALL_ENGINES
 _SHA256 = re.compile(r"[0-9a-f]{64}")
-_META_KEYS = {"format", "format_version", "source", "counts", "regimes", "agent_configs", "jobs"}
-_INT32 = (-(2**31), 2**31 - 1)  # an Integer column on PostgreSQL
+#: the keys of an archive's ``meta``
+META_KEYS = {"format", "format_version", "source", "counts", "regimes", "agent_configs", "jobs"}
+#: the range of an Integer column on PostgreSQL
+INT32_RANGE = (-(2**31), 2**31 - 1)
 #: The longest text an archive may carry in a column without a length of its own (a source
 #: path, an error text): a shared file's strings are read, so they are bounded.
 TEXT_MAX = 65_536
@@ -69,17 +67,18 @@ def valid_name(name: Any) -> bool:
     return isinstance(name, str) and len(name) <= NAME_MAX and NAME_PATTERN.fullmatch(name) is not None
 
 
-class _Invalid(Exception):
+class InvalidArchive(Exception):
     """What is wrong with an archive (the message, without the archive's name)."""
 
 
-def _short(value: Any, n: int = 60) -> str:
+def short_repr(value: Any, n: int = 60) -> str:
     """``repr(value)``, cut to ``n`` characters: a value from the archive shown in the one line."""
     text = repr(value)
     return text if len(text) <= n else text[: n - 3] + "..."
 
 
-def _reason(e: BaseException) -> str:
+def one_line_reason(e: BaseException) -> str:
+    """``str(e)`` on one line (whitespace collapsed), cut to 160 characters; the type's name if empty."""
     text = " ".join(str(e).split()) or type(e).__name__
     return text if len(text) <= 160 else text[:157] + "..."
 
@@ -110,7 +109,7 @@ def _nul(value: Any) -> str | None:
                 return f"a key, {where}"
             where = _nul(v)
             if where is not None:
-                return f"{_short(key, 30)} {where}"
+                return f"{short_repr(key, 30)} {where}"
     if isinstance(value, list):
         for n, v in enumerate(value):
             where = _nul(v)
@@ -123,18 +122,18 @@ def _check_value(col: Any, value: Any, what: str) -> None:
     """``value`` (from the meta's JSON) fits column ``col``; no NUL character in a text."""
     where = _nul(value)
     if where is not None:
-        raise _Invalid(
+        raise InvalidArchive(
             f"{what}: {col.name} holds a NUL byte ({where}), which no text column stores (PostgreSQL refuses it)"
         )
     if value is None:
         if not col.nullable:
-            raise _Invalid(f"{what}: {col.name} is null")
+            raise InvalidArchive(f"{what}: {col.name} is null")
         return
     kind = col.type.python_type if col.name != "body" else dict
     if kind is bool:
         ok = isinstance(value, bool)
     elif kind is int:
-        ok = isinstance(value, int) and not isinstance(value, bool) and _INT32[0] <= value <= _INT32[1]
+        ok = isinstance(value, int) and not isinstance(value, bool) and INT32_RANGE[0] <= value <= INT32_RANGE[1]
     elif kind is float:
         ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
     elif kind is str:
@@ -150,8 +149,8 @@ def _check_value(col: Any, value: Any, what: str) -> None:
     else:  # pragma: no cover - a column type this module does not know
         ok = False
     if not ok:
-        raise _Invalid(
-            f"{what}: {col.name} = {_short(value)} is not a valid {kind.__name__}"
+        raise InvalidArchive(
+            f"{what}: {col.name} = {short_repr(value)} is not a valid {kind.__name__}"
             + (
                 f" (at most {getattr(col.type, 'length', None) or TEXT_MAX:,} characters)"
                 if kind is str and isinstance(value, str)
@@ -169,59 +168,61 @@ def _check_row(
     extra: Sequence[str] = (),
 ) -> None:
     if not isinstance(row, dict):
-        raise _Invalid(f"{what} is not a JSON object")
+        raise InvalidArchive(f"{what} is not a JSON object")
     cols = [c for c in table.__table__.columns if c.name not in skip]
     known = {c.name for c in cols} | set(extra)
     unknown = sorted(set(row) - known)
     if unknown:
-        raise _Invalid(f"{what}: unknown field {_short(unknown[0])}")
+        raise InvalidArchive(f"{what}: unknown field {short_repr(unknown[0])}")
     for col in cols:
         if col.name not in row:
             if optional is not None and col.name in optional:
                 continue
-            raise _Invalid(f"{what}: field {col.name!r} is missing")
+            raise InvalidArchive(f"{what}: field {col.name!r} is missing")
         _check_value(col, row[col.name], what)
 
 
-def _check_configs(meta: dict[str, Any]) -> dict[tuple[str, str, int], dict[str, Any]]:
+def check_meta_configs(meta: dict[str, Any]) -> dict[tuple[str, str, int], dict[str, Any]]:
     """The configs by (kind, name, version), each checked: fields, name, sha256 of its body."""
     out: dict[tuple[str, str, int], dict[str, Any]] = {}
     for key, table, kind in (("regimes", RegimeConfig, "regime"), ("agent_configs", AgentConfig, "agent config")):
         rows = meta.get(key)
         if not isinstance(rows, list):
-            raise _Invalid(f"meta: {key!r} is missing or not a list")
+            raise InvalidArchive(f"meta: {key!r} is missing or not a list")
         for i, row in enumerate(rows):
             what = f"{kind} {i}"
-            _check_row(table, row, _CONFIG_SKIP, what)
+            _check_row(table, row, CONFIG_SKIP, what)
             name, version = row["name"], row["version"]
-            what = f"{kind} {_short(name)} v{version}"
+            what = f"{kind} {short_repr(name)} v{version}"
             if not valid_name(name):
-                raise _Invalid(f"{what}: the name is not a name ([a-z][a-z0-9_]*, at most {NAME_MAX} characters)")
+                raise InvalidArchive(f"{what}: the name is not a name ([a-z][a-z0-9_]*, at most {NAME_MAX} characters)")
             if kind == "agent config" and not valid_name(row["algo"]):
-                raise _Invalid(f"{what}: algo {_short(row['algo'])} is not a name ([a-z][a-z0-9_]*)")
+                raise InvalidArchive(f"{what}: algo {short_repr(row['algo'])} is not a name ([a-z][a-z0-9_]*)")
             if version < 1:
-                raise _Invalid(f"{what}: version {version} is not a positive integer")
+                raise InvalidArchive(f"{what}: version {version} is not a positive integer")
             if not _SHA256.fullmatch(row["sha256"]):
-                raise _Invalid(f"{what}: sha256 {_short(row['sha256'], 70)} is not a sha256 (64 lowercase hex digits)")
+                raise InvalidArchive(
+                    f"{what}: sha256 {short_repr(row['sha256'], 70)} is not a sha256 (64 lowercase hex digits)"
+                )
             body = row["body"]
             if row["sha256"] not in (content_sha256(body), content_sha256(_unsafe(body))):
-                raise _Invalid(
+                raise InvalidArchive(
                     f"{what}: its body does not hash to its sha256 {row['sha256'][:12]}... (the content was changed)"
                 )
             named = body.get("regime") if kind == "regime" else body
             if not isinstance(named, dict) or named.get("name") != name or named.get("version") != version:
                 said = named if isinstance(named, dict) else {}
-                raise _Invalid(
-                    f"{what}: its body describes {_short(said.get('name'))} v{_short(said.get('version'), 12)}, "
+                raise InvalidArchive(
+                    f"{what}: its body describes {short_repr(said.get('name'))} v{short_repr(said.get('version'), 12)}, "
                     "not the config it is stored as"
                 )
             if kind == "agent config" and body.get("algo") != row["algo"]:
-                raise _Invalid(
-                    f"{what}: its body's algo {_short(body.get('algo'))} is not its algo {_short(row['algo'])}"
+                raise InvalidArchive(
+                    f"{what}: its body's algo {short_repr(body.get('algo'))} is not its algo {short_repr(row['algo'])}"
                 )
             ident = (kind, name, version)
             if ident in out:
-                raise _Invalid(f"{what} is listed twice")
+                raise InvalidArchive(f"{what} is listed twice")
             out[ident] = row
     return out
 
@@ -233,24 +234,24 @@ def _regime_shape(row: dict[str, Any], what: str) -> tuple[int, int]:
     horizon = reward.get("horizon") if isinstance(reward, dict) else None
     foods = catalog.get("food") if isinstance(catalog, dict) else None
     if not isinstance(horizon, int) or isinstance(horizon, bool) or horizon < 1:
-        raise _Invalid(f"{what}: its body has no horizon (reward.horizon)")
+        raise InvalidArchive(f"{what}: its body has no horizon (reward.horizon)")
     if not isinstance(foods, list) or not foods:
-        raise _Invalid(f"{what}: its body has no foods (catalog.food)")
+        raise InvalidArchive(f"{what}: its body has no foods (catalog.food)")
     return horizon, len(foods)
 
 
-def _check_jobs(meta: dict[str, Any], configs: dict[tuple[str, str, int], dict[str, Any]]) -> dict[str, np.ndarray]:
+def check_meta_jobs(meta: dict[str, Any], configs: dict[tuple[str, str, int], dict[str, Any]]) -> dict[str, np.ndarray]:
     """Every job checked; per job its budget, evaluation days, horizon, foods and engine."""
     jobs = meta.get("jobs")
     if not isinstance(jobs, list):
-        raise _Invalid("meta: 'jobs' is missing or not a list")
+        raise InvalidArchive("meta: 'jobs' is missing or not a list")
     keys: set[tuple[Any, ...]] = set()
     shape: dict[tuple[str, int], tuple[int, int]] = {}
     out = {k: np.zeros(len(jobs), dtype=np.int64) for k in ("episodes", "eval_episodes", "horizon", "foods")}
     fakes = set()
     for i, job in enumerate(jobs):
         what = f"job {i}"
-        _check_row(Job, job, _JOB_SKIP, what, optional=_JOB_DEFAULTS, extra=("regime", "agent"))
+        _check_row(Job, job, JOB_SKIP, what, optional=JOB_DEFAULTS, extra=("regime", "agent"))
         refs = []
         for field, kind in (("regime", "regime"), ("agent", "agent config")):
             ref = job.get(field)
@@ -261,9 +262,11 @@ def _check_jobs(meta: dict[str, Any], configs: dict[tuple[str, str, int], dict[s
                 and isinstance(ref[1], int)
                 and not isinstance(ref[1], bool)
             ):
-                raise _Invalid(f"{what}: {field} is not [name, version]")
+                raise InvalidArchive(f"{what}: {field} is not [name, version]")
             if (kind, ref[0], ref[1]) not in configs:
-                raise _Invalid(f"{what}: its {kind} {_short(ref[0])} v{ref[1]} is not among the archive's configs")
+                raise InvalidArchive(
+                    f"{what}: its {kind} {short_repr(ref[0])} v{ref[1]} is not among the archive's configs"
+                )
             refs.append(tuple(ref))
         what = f"job {i} ({refs[0][0]} x {refs[1][0]} seed {job['seed']})"
         if job["status"] != "done":
@@ -272,23 +275,25 @@ def _check_jobs(meta: dict[str, Any], configs: dict[tuple[str, str, int], dict[s
                 if job["status"] in JOB_STATUSES
                 else f"an unknown status (known: {', '.join(JOB_STATUSES)})"
             )
-            raise _Invalid(f"{what}: status {_short(job['status'])} is {known}; an archive holds done jobs only")
+            raise InvalidArchive(
+                f"{what}: status {short_repr(job['status'])} is {known}; an archive holds done jobs only"
+            )
         if job["engine"] is not None and job["engine"] not in ENGINES:
-            raise _Invalid(f"{what}: engine {_short(job['engine'])} is unknown (known: {', '.join(ENGINES)})")
+            raise InvalidArchive(f"{what}: engine {short_repr(job['engine'])} is unknown (known: {', '.join(ENGINES)})")
         if job["episodes"] < 0 or job["eval_episodes"] < 0:
-            raise _Invalid(
+            raise InvalidArchive(
                 f"{what}: a negative budget ({job['episodes']} training, {job['eval_episodes']} evaluation days)"
             )
         for col in _NON_NEGATIVE:
             if job.get(col) is not None and job[col] < 0:
-                raise _Invalid(f"{what}: {col} {job[col]} is negative")
+                raise InvalidArchive(f"{what}: {col} {job[col]} is negative")
         if job.get("batch_size") is not None and job["batch_size"] < 1:
-            raise _Invalid(f"{what}: batch_size {job['batch_size']} is not a positive integer")
+            raise InvalidArchive(f"{what}: batch_size {job['batch_size']} is not a positive integer")
         if job.get("source_sha256") is not None and not _SHA256.fullmatch(job["source_sha256"]):
-            raise _Invalid(f"{what}: source_sha256 {_short(job['source_sha256'], 70)} is not a sha256")
+            raise InvalidArchive(f"{what}: source_sha256 {short_repr(job['source_sha256'], 70)} is not a sha256")
         key = (*refs, job["seed"], job["episodes"], job["eval_episodes"])
         if key in keys:
-            raise _Invalid(f"{what} is listed twice (same configs, seed, budget and evaluation days)")
+            raise InvalidArchive(f"{what} is listed twice (same configs, seed, budget and evaluation days)")
         keys.add(key)
         fakes.add(bool(job.get("fake", False)))
         if refs[0] not in shape:
@@ -296,7 +301,7 @@ def _check_jobs(meta: dict[str, Any], configs: dict[tuple[str, str, int], dict[s
         out["episodes"][i], out["eval_episodes"][i] = job["episodes"], job["eval_episodes"]
         out["horizon"][i], out["foods"][i] = shape[refs[0]]
     if len(fakes) > 1:
-        raise _Invalid("it mixes a dry run's jobs (fake) with real results")
+        raise InvalidArchive("it mixes a dry run's jobs (fake) with real results")
     return out
 
 

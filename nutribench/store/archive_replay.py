@@ -25,7 +25,7 @@ from nutribench.config.loading import ConfigError, EnvConfig
 from nutribench.config.models import FoodCatalog, Regime, RewardConfig
 from nutribench.env.metrics import METRIC_KEYS, EpisodeRecorder
 from nutribench.env.vector_env import NutriRLVectorEnv
-from nutribench.store.archive_meta import _Invalid, _short
+from nutribench.store.archive_meta import InvalidArchive, short_repr
 
 #: How far a stored value may be from the replayed one: float64 sums in another order (a
 #: batched evaluation, another BLAS) differ in the last bits, an edited value by far more.
@@ -38,7 +38,7 @@ CHUNK = 4096
 def _env_config(row: dict[str, Any]) -> EnvConfig:
     """The regime an archive carries, built from its stored body (data, validated)."""
     body = row["body"]
-    what = f"regime {_short(row['name'])} v{row['version']}"
+    what = f"regime {short_repr(row['name'])} v{row['version']}"
     try:
         cfg = EnvConfig(
             regime=Regime.model_validate(body["regime"]),
@@ -46,9 +46,9 @@ def _env_config(row: dict[str, Any]) -> EnvConfig:
             reward=RewardConfig.model_validate(body["reward"]),
         )
     except (KeyError, TypeError, ValueError, ConfigError) as e:
-        raise _Invalid(f"{what}: its body is not a regime ({' '.join(str(e).split())[:120]})") from None
+        raise InvalidArchive(f"{what}: its body is not a regime ({' '.join(str(e).split())[:120]})") from None
     if cfg.sha256 != row["sha256"]:
-        raise _Invalid(f"{what}: its body does not describe the dynamics of its sha256")
+        raise InvalidArchive(f"{what}: its body does not describe the dynamics of its sha256")
     return cfg
 
 
@@ -60,7 +60,7 @@ def _check_test_days(cfg: EnvConfig, i: int, job: dict[str, Any], stored: np.nda
     bad = (stored != expected).any(axis=1)
     if bad.any():
         d = int(np.argmax(bad))
-        raise _Invalid(
+        raise InvalidArchive(
             f"job {i} ({job['regime'][0]} x {job['agent'][0]} seed {job['seed']}) evaluation day {d}: its foods are "
             f"not the test day {d} of seed {job['seed']} (eval_food_streams draws a job's evaluation days from its "
             "seed alone; the days were changed)"
@@ -75,7 +75,7 @@ def replay_evaluations(
     meta: dict[str, Any], tables: dict[str, dict[str, np.ndarray]], per_job: dict[str, np.ndarray]
 ) -> int:
     """Replay every evaluation day of the archive's real jobs (checked complete and in range
-    before); :class:`_Invalid` naming job and day at the first disagreement. The days replayed."""
+    before); :class:`InvalidArchive` naming job and day at the first disagreement. The days replayed."""
     jobs = meta["jobs"]
     regimes = {(r["name"], r["version"]): r for r in meta["regimes"]}
     by_regime: dict[tuple[str, int], list[int]] = {}
@@ -135,7 +135,7 @@ def _replay_chunk(
             bad = ~_close(stored, replay)
             if bad.any():
                 k = int(np.argmax(bad))
-                raise _Invalid(
+                raise InvalidArchive(
                     f"{label(k)} step {t + 1}: stored {name} {stored[k]:.6g} but replaying its foods and actions "
                     f"gives {replay[k]:.6g} (the measurements were changed)"
                 )
@@ -147,7 +147,7 @@ def _replay_chunk(
         bad = ~_close(stored, replay)
         if bad.any():
             k = int(np.argmax(bad))
-            raise _Invalid(
+            raise InvalidArchive(
                 f"{label(k)}: stored {key} {stored[k]:.6g} but its replayed steps give {replay[k]:.6g} "
                 "(the measurements were changed)"
             )

@@ -11,7 +11,7 @@ from collections import Counter
 
 import numpy as np
 
-from nutribench.store.archive_meta import _reason, _short
+from nutribench.store.archive_meta import one_line_reason, short_repr
 from nutribench.store.engine import StoreError
 
 #: The most bytes an archive may inflate to (its members' declared sizes, summed; the committed
@@ -36,7 +36,7 @@ def check_sizes(path: str | os.PathLike[str]) -> None:
         twice = [n for n, c in Counter(i.filename for i in infos).items() if c > 1]
         if twice:  # a reader keeps one of two same-named members (the last): which is the archive?
             raise StoreError(
-                f"{where}: member {_short(twice[0])} is there twice (a zip that two readers can read "
+                f"{where}: member {short_repr(twice[0])} is there twice (a zip that two readers can read "
                 "differently is refused); nothing imported"
             )
         declared = sum(i.file_size for i in infos)
@@ -57,7 +57,9 @@ def check_sizes(path: str | os.PathLike[str]) -> None:
                 try:
                     shape, _, dtype = read(fh)
                 except ValueError as e:
-                    raise StoreError(f"{where}: array {info.filename} has a bad header ({_reason(e)})") from None
+                    raise StoreError(
+                        f"{where}: array {info.filename} has a bad header ({one_line_reason(e)})"
+                    ) from None
             nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
             if nbytes > info.file_size:
                 raise StoreError(

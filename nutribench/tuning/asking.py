@@ -24,7 +24,7 @@ from contextlib import contextmanager
 from typing import Any
 
 
-def _backend(study: Any) -> Any:
+def rdb_backend(study: Any) -> Any:
     """The study's RDB storage (under Optuna's cache, or under a :class:`StackView`)."""
     storage = study._storage
     storage = getattr(storage, "inner", storage)
@@ -103,7 +103,7 @@ def _count_held(study: Any) -> int:
     from optuna.trial import TrialState
 
     states = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.RUNNING)
-    storage = _backend(study)
+    storage = rdb_backend(study)
     if not hasattr(storage, "engine"):
         inner = getattr(study._storage, "inner", study._storage)
         return len(inner.get_all_trials(study._study_id, deepcopy=False, states=states))
@@ -129,7 +129,7 @@ def _pop_waiting(study: Any) -> int | None:
     from optuna.storages._rdb import models
     from optuna.trial import TrialState
 
-    storage = _backend(study)
+    storage = rdb_backend(study)
     if not hasattr(storage, "engine"):  # not an RDB storage: Optuna's own pop
         return study._pop_waiting_trial_id()
     trials = models.TrialModel

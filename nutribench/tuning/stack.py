@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from nutribench.tuning.asking import StackView, _backend, claim, heartbeats
+from nutribench.tuning.asking import StackView, claim, heartbeats, rdb_backend
 from nutribench.tuning.objective import TrialScores, ValidationObjective
 from nutribench.tuning.study import GRACE_SECONDS, StudyCounts, TuneError, count_trials, quiet_experimental
 
@@ -55,7 +55,7 @@ def fail_stale(study: Any) -> None:
 
     with quiet_experimental():
         optuna.storages.fail_stale_trials(study)
-    storage = _backend(study)
+    storage = rdb_backend(study)
     if not hasattr(storage, "scoped_session") or not storage.get_heartbeat_interval():
         return
     from optuna.storages._rdb import models
@@ -209,7 +209,7 @@ def fail_trials(study: Any, trials: list[Any], error: BaseException) -> None:
                     break
     if reason is None:
         raise error
-    grace = getattr(_backend(study), "grace_period", None) or GRACE_SECONDS
+    grace = getattr(rdb_backend(study), "grace_period", None) or GRACE_SECONDS
 
     def numbers(ns: list[int]) -> str:
         return f"trial{'s' if len(ns) > 1 else ''} {', '.join(map(str, ns))}"
@@ -231,7 +231,7 @@ def _empty_the_log(study: Any) -> bool:
     """On a SQLite study, move the write-ahead log into the database file and empty it
     (``PRAGMA wal_checkpoint(TRUNCATE)``): on a full disk that frees the log's space, so that the
     small write of a trial's failure fits (on a 2 MB tmpfs the log held 40 kB). Whether it did."""
-    backend = _backend(study)
+    backend = rdb_backend(study)
     engine = getattr(backend, "engine", None)
     if engine is None or engine.dialect.name != "sqlite":
         return False

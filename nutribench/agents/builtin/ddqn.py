@@ -17,12 +17,12 @@ from stable_baselines3.common.buffers import NStepReplayBuffer
 from stable_baselines3.common.utils import LinearSchedule
 from torch.nn import functional as F
 
-from nutribench.agents.config import GradNorm, NonNegInt, PosFloat, PosInt, Prob, Transitions, _FeedForward
+from nutribench.agents.config import FeedForward, GradNorm, NonNegInt, PosFloat, PosInt, Prob, Transitions
 from nutribench.agents.registry import Algorithm, no_replay_scaling
 from nutribench.config.sizes import n_step_bytes, too_large
 
 
-class DDQNConfig(_FeedForward):
+class DDQNConfig(FeedForward):
     """Double DQN with n-step returns."""
 
     algo: Literal["ddqn"]

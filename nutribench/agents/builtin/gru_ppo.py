@@ -12,13 +12,13 @@ from pydantic import Field, SerializerFunctionWrapHandler, model_serializer, mod
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from nutribench.agents.algos import ppo_arguments
-from nutribench.agents.config import Flag, HiddenSize, PosInt, _AgentBase, _PPOFields
+from nutribench.agents.config import AgentBase, Flag, HiddenSize, PosInt, PPOFields
 from nutribench.agents.gru_ppo import GRUPPO
 from nutribench.agents.registry import Algorithm
 from nutribench.config.sizes import rollout_bytes, too_large
 
 
-class GRUPPOConfig(_AgentBase, _PPOFields):
+class GRUPPOConfig(AgentBase, PPOFields):
     """PPO with the recurrent two-GRU policy of the paper's Table 6 (heads fixed by the paper)."""
 
     algo: Literal["gru_ppo"]

@@ -12,11 +12,11 @@ from stable_baselines3 import A2C
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from nutribench.agents.algos import shared_actor_critic_kwargs
-from nutribench.agents.config import GradNorm, NonNegFloat, PosFloat, _FeedForward
+from nutribench.agents.config import FeedForward, GradNorm, NonNegFloat, PosFloat
 from nutribench.agents.registry import Algorithm
 
 
-class MCConfig(_FeedForward):
+class MCConfig(FeedForward):
     """Monte Carlo actor-critic: one update per complete episode, GAE with lambda = 1."""
 
     algo: Literal["mc"]

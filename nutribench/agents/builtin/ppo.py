@@ -14,11 +14,11 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from nutribench.agents.algos import ppo_arguments, shared_actor_critic_kwargs
-from nutribench.agents.config import _FeedForward, _PPOFields
+from nutribench.agents.config import FeedForward, PPOFields
 from nutribench.agents.registry import Algorithm
 
 
-class PPOConfig(_FeedForward, _PPOFields):
+class PPOConfig(FeedForward, PPOFields):
     """PPO, clipped surrogate, shared actor-critic."""
 
     algo: Literal["ppo"]

@@ -8,12 +8,12 @@ from typing import Any, Literal
 
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from nutribench.agents.config import NonNegFloat, NonNegInt, PosFloat, PosInt, Prob, Transitions, _FeedForward
+from nutribench.agents.config import FeedForward, NonNegFloat, NonNegInt, PosFloat, PosInt, Prob, Transitions
 from nutribench.agents.registry import Algorithm, no_replay_scaling
 from nutribench.agents.sac import DiscreteSAC
 
 
-class SACConfig(_FeedForward):
+class SACConfig(FeedForward):
     """Discrete-action SAC, fixed temperature."""
 
     algo: Literal["sac"]
