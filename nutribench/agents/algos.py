@@ -79,7 +79,7 @@ def build_model(
 
 def ppo_arguments(cfg: Any) -> dict[str, Any]:
     """The constructor arguments PPO and GRU-PPO share (GRU-PPO's update is PPO's): those of
-    :class:`~nutribench.agents.config._PPOFields`."""
+    :class:`~nutribench.agents.config.PPOFields`."""
     return dict(
         learning_rate=cfg.learning_rate,
         n_steps=cfg.n_steps,

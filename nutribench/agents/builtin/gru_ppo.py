@@ -1,7 +1,7 @@
 """GRU-PPO: PPO with the recurrent two-GRU policy of the paper's Table 6,
 :class:`~nutribench.agents.gru_ppo.GRUPPO` (its policy, buffer and algorithm live in
 :mod:`nutribench.agents.gru_ppo`), which also loads its saved models. Its optimisation fields
-(:class:`~nutribench.agents.config._PPOFields`) and constructor arguments
+(:class:`~nutribench.agents.config.PPOFields`) and constructor arguments
 (:func:`~nutribench.agents.algos.ppo_arguments`) are PPO's."""
 
 from __future__ import annotations

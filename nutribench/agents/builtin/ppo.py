@@ -2,7 +2,7 @@
 (:func:`~nutribench.agents.algos.shared_actor_critic_kwargs`), unchanged (its gradient norm is
 read by the diagnostics' probe, :class:`~nutribench.agents.training_log.GradNormProbe`); plain
 SB3's ``PPO`` loads and acts with its models. Its optimisation fields
-(:class:`~nutribench.agents.config._PPOFields`) and constructor arguments
+(:class:`~nutribench.agents.config.PPOFields`) and constructor arguments
 (:func:`~nutribench.agents.algos.ppo_arguments`) are shared with GRU-PPO."""
 
 from __future__ import annotations
