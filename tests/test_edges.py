@@ -236,9 +236,9 @@ def test_the_progress_after_a_takeover_counts_the_jobs_taken_over(regimes, tmp_p
 
     from nutribench.scheduler import driver, lifecycle
     from nutribench.scheduler.driver import run_grid
-    from nutribench.scheduler.lifecycle import STALE_AFTER_S
     from nutribench.scheduler.synthetic import synthetic_job
     from nutribench.store.engine import utcnow
+    from nutribench.store.models import STALE_AFTER_S
 
     db = tmp_path / "r.db"
     assert run_grid(db, ["run0"], ["ppo"], [0, 1, 2], 2, 1, workers=1, job_fn=synthetic_job, display=False).done == 3

@@ -22,9 +22,10 @@ from nutribench.cli.signals import STOP_SIGNALS
 from nutribench.config import list_regimes
 from nutribench.scheduler.driver import RunError, run_grid
 from nutribench.scheduler.grid import PRESETS, GridError, parse_seeds, resolve_grid
-from nutribench.scheduler.lifecycle import MAX_FAILURES, STALE_AFTER_S
+from nutribench.scheduler.lifecycle import MAX_FAILURES
 from nutribench.scheduler.status import status_table
 from nutribench.scheduler.synthetic import synthetic_job
+from nutribench.store.models import STALE_AFTER_S
 from tests.conftest import run_cli_args, wait_for
 from tests.fake_jobs import EnvBatch, EnvJob, HalfBatch
 

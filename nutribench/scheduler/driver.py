@@ -10,7 +10,7 @@ One call of :func:`run_grid`:
    episodes), so a re-run finds the done ones and skips them;
 4. claims runnable jobs just in time, one short transaction per batch: ``pending``,
    ``interrupted``, ``failed`` below :data:`~nutribench.scheduler.lifecycle.MAX_FAILURES` failures, and ``running`` ones
-   whose driver stopped heartbeating :data:`~nutribench.scheduler.lifecycle.STALE_AFTER_S` ago. A claim sets status,
+   whose driver stopped heartbeating :data:`~nutribench.store.models.STALE_AFTER_S` ago. A claim sets status,
    owner token and heartbeat under the write lock, so two drivers never run one job;
 5. keeps at most ``slots`` jobs in flight on the executor, shows their progress, writes
    progress and a heartbeat of its running jobs every :data:`FLUSH_EVERY_S` seconds;
@@ -237,7 +237,7 @@ class _Run:
     def wait_for_others(self) -> None:
         """Jobs of the grid held by another driver: wait until that driver has finished them,
         or, if its heartbeat stops (a crashed driver), take them over once they are
-        :data:`~nutribench.scheduler.lifecycle.STALE_AFTER_S` old, so that a re-run after a crash finishes the grid."""
+        :data:`~nutribench.store.models.STALE_AFTER_S` old, so that a re-run after a crash finishes the grid."""
         said = None
         while not self.stop.is_set():
             held, claimable_at = held_elsewhere(self.store, self.job_ids, self.owner)

@@ -8,7 +8,8 @@ Runnable ("claimable") are ``pending``, ``interrupted``, ``failed`` below
 :data:`MAX_FAILURES` failures, and ``running`` jobs whose heartbeat is older than
 :data:`STALE_AFTER_S` (their driver is gone). The driver (:mod:`nutribench.scheduler.driver`)
 writes through these functions and ``nutribench status`` reads the same rule
-(:func:`job_state`), so the two never disagree on which job is orphaned; ``nutribench db
+(:func:`~nutribench.store.models.job_state`, beside the statuses in the store, so that
+``db import`` can ask it too), so the two never disagree on which job is orphaned; ``nutribench db
 import`` (:mod:`nutribench.store.archive`) asks the same rule before it replaces a job.
 
 A claim takes the write lock (``BEGIN IMMEDIATE`` on SQLite; on PostgreSQL it locks the rows it
@@ -31,6 +32,7 @@ from nutribench.store.models import (
     EPISODE_METRICS,
     EVAL_STEP_COLUMNS,
     METADATA_COLUMNS,
+    STALE_AFTER_S,
     VALIDATION_COLUMNS,
     Diagnostic,
     Episode,
@@ -39,6 +41,8 @@ from nutribench.store.models import (
     ValidationEpisode,
     diagnostic_rows,
     insert_rows,
+    job_state,
+    stale_before,
 )
 from nutribench.store.schema import Store
 
@@ -46,23 +50,6 @@ if TYPE_CHECKING:
     from nutribench.scheduler.spec import JobResult
 
 MAX_FAILURES = 3  # a job that failed this often is no longer retried
-STALE_AFTER_S = 120.0  # a running job whose heartbeat is older belongs to a dead driver
-
-
-def stale_before(now: datetime) -> datetime:
-    """Heartbeats before this time belong to a driver that is gone."""
-    return now - timedelta(seconds=STALE_AFTER_S)
-
-
-def job_state(status: str, heartbeat: datetime | None, now: datetime) -> str:
-    """What a job is for scheduling: ``done``, ``failed``, ``running`` (a driver is alive and
-    heartbeating it) or ``pending`` (never run, interrupted, or running in a driver whose
-    heartbeat stopped: the next run takes it over)."""
-    if status == "running":
-        return "running" if heartbeat is not None and heartbeat >= stale_before(now) else "pending"
-    if status == "interrupted":
-        return "pending"
-    return status
 
 
 def check_not_mixed(store: Store, fake: bool) -> None:

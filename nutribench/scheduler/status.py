@@ -6,7 +6,7 @@ so the answer is instant however many episode rows the database holds. It reads 
 driver writes (SQLite WAL: readers never wait for the writer).
 
 A ``running`` job whose heartbeat is older than the stale limit is counted as ``pending``
-(:func:`nutribench.scheduler.lifecycle.job_state`, the rule the driver claims by) (and in ``totals["orphaned"]``): its driver is gone and the next ``run`` takes
+(:func:`nutribench.store.models.job_state`, the rule the driver claims by) (and in ``totals["orphaned"]``): its driver is gone and the next ``run`` takes
 it over.
 """
 
@@ -20,9 +20,10 @@ from typing import Any
 
 from sqlalchemy import select
 
-from nutribench.scheduler.lifecycle import MAX_FAILURES, job_state
+from nutribench.scheduler.lifecycle import MAX_FAILURES
 from nutribench.store import AgentConfig, Job, RegimeConfig, open_store, utcnow
 from nutribench.store.engine import db_now
+from nutribench.store.models import job_state
 
 COUNTS = ("done", "running", "failed", "pending")
 

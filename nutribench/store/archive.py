@@ -71,7 +71,6 @@ from sqlalchemy import delete, func, insert, select, update
 from sqlalchemy.orm import Session
 
 from nutribench.safe_write import atomic_write, check_file_target
-from nutribench.scheduler.lifecycle import job_state
 
 # the format and the checks live in archive_meta and archive_check; importable here too (valid_name, ...)
 from nutribench.store.archive_check import (
@@ -101,7 +100,7 @@ from nutribench.store.engine import (
     session_scope,
     sqlite_path,
 )
-from nutribench.store.models import AgentConfig, Job, RegimeConfig, insert_rows
+from nutribench.store.models import AgentConfig, Job, RegimeConfig, insert_rows, job_state
 from nutribench.store.schema import open_store
 
 _BATCH = 20_000

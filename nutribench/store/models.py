@@ -34,7 +34,7 @@ the migrations (see :mod:`nutribench.store.views`); views are not ORM models.
 from __future__ import annotations
 
 import math
-from datetime import datetime
+from datetime import datetime, timedelta
 from typing import Any
 
 from sqlalchemy import (
@@ -60,6 +60,25 @@ from nutribench.diagnostics import TIMESTEP, UPDATE, valid_name
 #: are picked up again by the next ``run``; stale ``running`` ones too.
 JOB_STATUSES = ("pending", "running", "done", "failed", "interrupted")
 PHASES = ("train", "eval")
+#: a running job whose heartbeat is older belongs to a dead driver (seconds)
+STALE_AFTER_S = 120.0
+
+
+def stale_before(now: datetime) -> datetime:
+    """Heartbeats before this time belong to a driver that is gone."""
+    return now - timedelta(seconds=STALE_AFTER_S)
+
+
+def job_state(status: str, heartbeat: datetime | None, now: datetime) -> str:
+    """What a job is for scheduling: ``done``, ``failed``, ``running`` (a driver is alive and
+    heartbeating it) or ``pending`` (never run, interrupted, or running in a driver whose
+    heartbeat stopped: the next run takes it over)."""
+    if status == "running":
+        return "running" if heartbeat is not None and heartbeat >= stale_before(now) else "pending"
+    if status == "interrupted":
+        return "pending"
+    return status
+
 
 NAMING = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",
