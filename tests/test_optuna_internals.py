@@ -28,7 +28,7 @@ def test_the_study_and_trial_internals_the_driver_reads(study) -> None:
     from optuna.storages._cached_storage import _CachedStorage
 
     storage = study._storage
-    assert isinstance(storage, _CachedStorage) and hasattr(storage, "_backend")  # asking._backend
+    assert isinstance(storage, _CachedStorage) and hasattr(storage, "_backend")  # asking.rdb_backend
     backend = storage._backend
     assert hasattr(backend, "engine") and callable(backend.scoped_session)  # the SQL queries and the beat
     assert backend.get_heartbeat_interval() == 60 and backend.grace_period == 120
