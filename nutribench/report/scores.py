@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from nutribench.baselines import gap_closed
-from nutribench.report.figures import sort_regimes
+from nutribench.report.figure_parts import sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
 from nutribench.stats import CONFIDENCE, Runs, percentile_interval, seeded_rng, stratified_resamples

@@ -13,8 +13,7 @@ import pandas as pd
 
 from nutribench.agents.registry import names
 from nutribench.baselines import gap_closed
-from nutribench.report.figure_parts import budget_caption, budget_cell
-from nutribench.report.figures import sort_regimes
+from nutribench.report.figure_parts import budget_caption, budget_cell, sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
 from nutribench.stats import EXACT_SEEDS, clustered_iqm_ci, mean_ci, sem
