@@ -179,7 +179,10 @@ def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> N
         run_cli_args(db, episodes=4),
         env={"NUTRIBENCH_JOB": "fake"},
     )
-    assert res.exit_code == 2 and "bump the version" in res.output and len(res.output.strip().splitlines()) == 1
+    # (after the line that says what run starts, printed before the database is opened)
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert res.exit_code == 2 and len(lines) == 2 and lines[0].startswith("nutribench run: 1 job"), res.output
+    assert lines[1].startswith("error:") and "bump the version" in lines[1]
 
     ppo.write_text(ppo.read_text().replace(f"version = {v}", f"version = {v + 1}"))
     assert run_grid(db, ["run0"], ["ppo"], **args).done == 1
