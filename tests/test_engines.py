@@ -24,7 +24,12 @@ def _engine_literals(path: Path) -> list[str]:
             found.append(f"{node.lineno}: {node.value!r}")
         elif isinstance(node, ast.Dict):
             for key, value in zip(node.keys, node.values):
-                if isinstance(key, ast.Constant) and key.value == "engine" and isinstance(value, ast.Constant):
+                if (
+                    isinstance(key, ast.Constant)
+                    and key.value == "engine"
+                    and isinstance(value, ast.Constant)
+                    and value.value == "external"  # (a placeholder such as "-" names no engine)
+                ):
                     found.append(f"{value.lineno}: engine {value.value!r}")
         elif isinstance(node, ast.Compare):
             parts = [node.left, *node.comparators]

@@ -302,7 +302,9 @@ def test_fake_jobs_are_marked_never_drawn_and_never_mixed_with_real_ones(tmp_pat
     assert len(read_episode_metrics(db)) == 0  # but never a result: the views leave them out
     # a real run on the dry run's database: refused in one line, nothing changed
     res = CliRunner().invoke(app, [*grid, "--db", str(db)], env={"NUTRIBENCH_JOB": ""})
-    assert res.exit_code == 2 and "dry-run jobs" in res.output and len(res.output.strip().splitlines()) == 1
+    lines = res.output.strip().splitlines()  # the line saying what run starts, then the error
+    assert res.exit_code == 2 and len(lines) == 2 and lines[0].startswith("nutribench run: 1 job"), res.output
+    assert lines[1].startswith("error:") and "dry-run jobs" in lines[1]
     assert con.execute("SELECT count(*) FROM jobs").fetchone()[0] == 1
     with pytest.raises(nutribench.errors.UserError, match="dry-run jobs"):
         with nutribench.Recorder(db=db, name="x", regime="run0") as rec:

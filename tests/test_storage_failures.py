@@ -136,7 +136,7 @@ def test_readonly_database_is_one_line_exit_2_and_nothing_is_lost(regimes, tmp_p
     res = CliRunner().invoke(app, [*args, "--seeds", "0,21"])
     assert res.exit_code == 2, res.output
     assert "Traceback" not in res.output and "readonly database" in res.output
-    errors = [ln for ln in res.output.splitlines() if "readonly" in ln]
+    errors = [ln for ln in res.output.splitlines() if "readonly database" in ln]  # (not the tmp path's name)
     assert len(errors) == 1 and errors[0].startswith("error: cannot write to"), res.output
     assert sql(db, "SELECT count(*) FROM episodes") == before
     assert sql(db, "SELECT status FROM jobs ORDER BY seed") == [("done",), ("pending",)]

@@ -271,7 +271,7 @@ def test_a_zip_bomb_of_weights_is_refused_before_it_inflates(saved, tmp_path: Pa
     ("edit", "named"),
     [
         (lambda cfg: cfg.update(net_arch=[40000, 40000, 40000]), "net_arch [40000, 40000, 40000]"),
-        (lambda cfg: cfg.update(net_arch=[10**12]), "net_arch [1000000000000]"),
+        (lambda cfg: cfg.update(net_arch=[20000, 20000]), "net_arch [20000, 20000]"),
     ],
 )
 def test_a_sidecar_whose_layers_the_weights_do_not_hold_is_refused_before_building(
@@ -305,6 +305,31 @@ def test_a_sidecar_whose_layers_the_weights_do_not_hold_is_refused_before_buildi
     path.with_suffix(".json").write_text(json.dumps(side))
     with pytest.raises(ModelFileError, match=r"at least 3,200,160,000 parameters, but the weights of big\.zip hold"):
         load_plugin_model(path, never)
+
+
+def test_a_sidecar_whose_layers_no_machine_holds_is_refused_by_the_config_bounds(saved, tmp_path: Path, monkeypatch):
+    """``net_arch = [10**12]`` in a sidecar (more than any machine holds: nutribench.config.sizes)
+    is refused as its config is read, in one line naming the sidecar and the field, before any
+    weights are weighed or a model built."""
+    import nutribench.agents.registry as registry
+    from nutribench.config.reading import ConfigError
+
+    _, original = saved
+    path = tmp_path / "big.zip"
+    path.write_bytes(original.read_bytes())
+    side = json.loads(original.with_suffix(".json").read_text())
+    side["config"].update(net_arch=[10**12])
+    path.with_suffix(".json").write_text(json.dumps(side))
+
+    def never(*args, **kwargs):
+        raise AssertionError("a model was built")
+
+    monkeypatch.setattr(registry, "make_model", never)
+    with pytest.raises(ConfigError) as refused:
+        TrainedAgent.load(path)
+    line = str(refused.value)
+    assert "\n" not in line and line.startswith(f"{path.with_suffix('.json')}: net_arch: a network of"), line
+    assert "TiB of memory" in line, line
 
 
 def test_the_shipped_agents_layers_are_within_their_weights():
