@@ -218,15 +218,20 @@ def _draw_headroom(ax, ev: pd.DataFrame, day_references: pd.DataFrame, xs: Mappi
     reference lines; the policies drawn."""
     from nutribench.report.headroom import regime_shares
 
-    shares = regime_shares(ev, day_references)
+    return _reference_lines(ax, regime_shares(ev, day_references), "share", STRONG_STYLES, xs)
+
+
+def _reference_lines(ax, ref: pd.DataFrame, column: str, styles: Mapping, xs: Mapping[str, float]) -> list[str]:
+    """Each policy of ``styles`` that ``ref`` holds (columns policy, regime, ``column``) as a
+    reference line across its regimes, broken where regimes are missing; the policies drawn."""
     drawn = []
-    for policy, style in STRONG_STYLES.items():
-        r = shares[shares["policy"] == policy]
+    for policy, style in styles.items():
+        r = ref[ref["policy"] == policy]
         if r.empty:
             continue
         r = r.set_index("regime").loc[sort_regimes(r["regime"])]
         ax.plot(
-            *_with_breaks([xs[k] for k in r.index], r["share"].to_numpy(dtype=float)),
+            *_with_breaks([xs[k] for k in r.index], r[column].to_numpy(dtype=float)),
             lw=0.8,
             ms=4,
             alpha=0.9,
@@ -377,19 +382,7 @@ def eval_across_regimes(
             ref = references[references["regime"].isin(regimes)]
             if gap_panel:
                 ref = _reference_scores(ref)
-            for policy, style in POLICY_STYLES.items():
-                r = ref[ref["policy"] == policy]
-                if r.empty:
-                    continue
-                r = r.set_index("regime").loc[sort_regimes(r["regime"])]
-                ax.plot(
-                    *_with_breaks([xs[k] for k in r.index], r[metric].to_numpy(dtype=float)),
-                    lw=0.8,
-                    ms=4,
-                    alpha=0.9,
-                    label=f"{policy} (reference)",
-                    **style,
-                )
+            _reference_lines(ax, ref, metric, POLICY_STYLES, xs)
         if gap_panel:
             headroom = _draw_headroom(ax, ev, day_references, xs)
         panel_title = GAP_LABEL if gap_panel else METRIC_LABELS[metric]
