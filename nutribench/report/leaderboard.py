@@ -267,10 +267,10 @@ def _reference_rows(ev: pd.DataFrame, references: pd.DataFrame, board: list[str]
             "regimes": len(covered),
             "covered": ",".join(covered),
             "runs": len(mine),
-            "budget": "-",
+            "budget": None,  # none: planned, not trained (empty in CSV, "-" in the table)
             "seeds": " ".join(map(str, sorted({int(s) for s in mine["seed"]}))),
-            "engine": "-",
-            "code": "-",
+            "engine": None,
+            "code": None,
             "checked": f"from {SOURCE}",
         }
         for regime in board:
@@ -318,6 +318,11 @@ def _pct(v: float) -> str:
     return str(round(100 * v)) if np.isfinite(v) else "n/a"  # an int: -0.4 % reads 0, not -0
 
 
+def _cell(v) -> object:
+    """A cell a reference row has none of (budget, engine, code): "-" in the table."""
+    return "-" if v is None or (isinstance(v, float) and np.isnan(v)) else v
+
+
 def leaderboard_table(rows: pd.DataFrame) -> TableResult:
     """The leaderboard as a table (Markdown, LaTeX, CSV); ``rows``: :func:`leaderboard_rows`."""
     board = [c.removeprefix("share_") for c in rows.columns if c.startswith("share_")]
@@ -338,11 +343,11 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
                 else f"v{r['version']}"
                 if "version" in r
                 else "?",
-                "budget (days)": r["budget"],
+                "budget (days)": _cell(r["budget"]),
                 "seeds": r["seeds"].replace(" ", ", "),
-                "engine": r["engine"],
+                "engine": _cell(r["engine"]),
                 "protocol": r["protocol"],
-                "code": r["code"],
+                "code": _cell(r["code"]),
                 "checked": r.get("checked", CHECKED),
                 "flags": r["flags"] or "-",
             }
