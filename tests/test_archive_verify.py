@@ -459,10 +459,10 @@ def test_a_dry_runs_archive_is_not_mixed_into_real_results(source, real, tmp_pat
 def test_a_failed_import_removes_the_database_file_it_created(source, tmp_path, monkeypatch) -> None:
     """A failure after the archive passed (here: the rows found after the writes disagree) rolls
     back, and the SQLite file the import created is gone again."""
-    from nutribench.store import archive
+    from nutribench.store.archive import merge
 
     _, good = source
-    monkeypatch.setattr(archive, "_chunks", lambda ids, n=500: [ids[:1]])  # counts only the first job back
+    monkeypatch.setattr(merge, "_chunks", lambda ids, n=500: [ids[:1]])  # counts only the first job back
     dst = tmp_path / "new.db"
     res = runner.invoke(app, ["db", "import", str(good), "--db", str(dst)])
     assert res.exit_code == 2 and "nothing imported" in _out(res) and len(_lines(res)) == 1, res.output

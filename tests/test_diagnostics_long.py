@@ -24,7 +24,9 @@ from nutribench.scheduler.lifecycle import claim_jobs, store_result
 from nutribench.scheduler.registration import load_grid_configs, register_grid
 from nutribench.scheduler.spec import JobResult
 from nutribench.store import head_revision, make_engine, open_store, read_training_diagnostics
-from nutribench.store.archive_tables import columns, database_rows, wide_diagnostics
+from nutribench.store.archive.export import wide_diagnostics
+from nutribench.store.archive.format import columns
+from nutribench.store.archive.merge import database_rows
 from nutribench.store.engine import database_url
 from nutribench.store.models import Base
 from nutribench.store.schema import alembic_config, upgrade_connection

@@ -62,7 +62,7 @@ from nutribench.report.scores import DEFAULT_REPS
 from nutribench.report.tables import TableResult
 from nutribench.scheduler.grid import PRESETS
 from nutribench.stats import caption as interval_caption
-from nutribench.store.archive_installed import disagreeing_archives, forged_regimes
+from nutribench.store.archive.installed import disagreeing_archives, forged_regimes
 
 #: The reference grid a row is checked against: the paper's budget and seeds.
 REFERENCE_BUDGET: int = PRESETS["paper"].episodes

@@ -2,7 +2,7 @@
 models, on the reader's machine, so that its ``checked`` column can tell what was re-run from
 what was only replayed.
 
-Replaying an archive (:mod:`nutribench.store.archive_replay`) proves that its stored actions fit
+Replaying an archive (:mod:`nutribench.store.archive.replay`) proves that its stored actions fit
 the regime and the seed's test days, not that an agent chose them: the test days are public,
 so a planner's actions written into an archive replay as well as a trained agent's. Here each
 job of an entry whose trained model is supplied is played again:

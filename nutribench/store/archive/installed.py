@@ -15,15 +15,12 @@ nothing of the installation describes it, and the yardsticks leave it out (by ve
 
 from __future__ import annotations
 
-import json
-import zipfile
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from nutribench.store.archive_meta import InvalidArchive, short_repr
+from nutribench.store.archive.format import InvalidArchive, open_archive, short_repr
+from nutribench.store.engine import StoreError
 
 #: (kind, name, version) -> (sha256 of the installed content, the file it comes from)
 Installed = dict[tuple[str, str, int], tuple[str, str]]
@@ -167,7 +164,7 @@ def check_installed(meta: dict[str, Any], installed: Installed | None = None) ->
 
 def forged_regimes(engine) -> set[tuple[str, int]]:
     """(name, version) of the regimes of a database that bear an installed regime's name and
-    version but other content (:mod:`nutribench.store.archive_installed`)."""
+    version but other content (:func:`check_installed`'s rule)."""
     from sqlalchemy import select
     from sqlalchemy.orm import Session
 
@@ -185,23 +182,16 @@ def forged_regimes(engine) -> set[tuple[str, int]]:
 
 def _peek_configs(path: Path) -> set[tuple[str, str, int, str]] | None:
     """(kind, name, version, sha256) of the configs an archive's meta lists, read without the
-    full check (sizes first); None for a file whose meta cannot be read (its import says why)."""
-    from nutribench.store.archive_zip import check_sizes
-
+    full check (its meta alone); None for a file whose meta cannot be read (its import says why)."""
     try:
-        check_sizes(path)
-        with zipfile.ZipFile(path) as zf, zf.open("meta.npy") as fh:
-            raw = np.lib.format.read_array(fh, allow_pickle=False)
-        meta = json.loads(raw.tobytes().decode())
-        out = set()
-        for key, kind in (("regimes", "regime"), ("agent_configs", "agent config")):
-            for row in meta[key]:
-                ident = (kind, row["name"], row["version"], row["sha256"])
-                if all(isinstance(x, str) for x in (ident[1], ident[3])) and type(ident[2]) is int:
-                    out.add(ident)
-        return out
-    except Exception:  # noqa: BLE001 - bytes from anywhere: the import refuses it with the reason
+        meta, _ = open_archive(path, arrays=False)
+        rows = [
+            (kind, row) for key, kind in (("regimes", "regime"), ("agent_configs", "agent config")) for row in meta[key]
+        ]
+        idents = {(kind, row["name"], row["version"], row["sha256"]) for kind, row in rows}
+    except (StoreError, KeyError, TypeError):  # the import refuses it with the reason
         return None
+    return {i for i in idents if isinstance(i[1], str) and isinstance(i[3], str) and type(i[2]) is int}
 
 
 def disagreeing_archives(archives: list[Path]) -> list[tuple[Path, str]]:

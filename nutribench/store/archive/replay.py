@@ -25,7 +25,7 @@ from nutribench.config.loading import ConfigError, EnvConfig
 from nutribench.config.models import FoodCatalog, Regime, RewardConfig
 from nutribench.env.metrics import METRIC_KEYS, EpisodeRecorder
 from nutribench.env.vector_env import NutriRLVectorEnv
-from nutribench.store.archive_meta import InvalidArchive, short_repr
+from nutribench.store.archive.format import InvalidArchive, short_repr
 
 #: How far a stored value may be from the replayed one: float64 sums in another order (a
 #: batched evaluation, another BLAS) differ in the last bits, an edited value by far more.
