@@ -198,6 +198,32 @@ def test_a_study_resumes_only_with_its_own_settings(tmp_path: Path) -> None:
         open_study(db, "other", None)
 
 
+def test_the_library_leaves_optuna_verbosity_as_the_caller_set_it(tmp_path: Path) -> None:
+    """Opening, running, counting and copying studies, and drawing bench trials, quiet Optuna
+    while they run and give the caller's verbosity back (a library does not change its
+    caller's process): INFO stays INFO."""
+    from nutribench.bench.tune import draw_trials
+    from nutribench.store.copy import copy_database
+    from nutribench.tuning.study import study_counts
+
+    db = tmp_path / "lab.db"
+    calls = {
+        "open_study": lambda: open_study(db, "s", settings()),
+        "run_study": lambda: run_study(open_study(db, "s", settings()), quick, 2),
+        "study_counts": lambda: study_counts(db),
+        "copy_database": lambda: copy_database(str(db), str(tmp_path / "copy.db")),
+        "draw_trials": lambda: draw_trials("ppo", 2),
+    }
+    caller = optuna.logging.get_verbosity()
+    try:
+        for name, call in calls.items():
+            optuna.logging.set_verbosity(optuna.logging.INFO)
+            call()
+            assert optuna.logging.get_verbosity() == optuna.logging.INFO, name
+    finally:
+        optuna.logging.set_verbosity(caller)
+
+
 def test_status_lists_the_studies(tmp_path: Path) -> None:
     db = tmp_path / "lab.db"
     absent = runner.invoke(app, ["tune", "status", "--db", str(db)])

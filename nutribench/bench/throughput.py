@@ -173,15 +173,12 @@ def bench_train(
 
 
 class _InstantSyntheticJob:
-    """The synthetic job without its per-episode sleep (picklable: set in the worker)."""
+    """The synthetic job without its per-episode sleep (picklable)."""
 
     def __call__(self, spec, sink=None):
-        import os
-
         from nutribench.scheduler.synthetic import synthetic_job
 
-        os.environ["NUTRIBENCH_FAKE_SECONDS"] = "0"
-        return synthetic_job(spec, sink)
+        return synthetic_job(spec, sink, seconds=0.0)
 
 
 def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = None) -> dict:

@@ -38,14 +38,15 @@ def draw_trials(space_name: str, trials: int, seed: int = 0) -> list[dict[str, A
 
     from nutribench.tuning.space import load_search_space
     from nutribench.tuning.stack import per_agent_fields
+    from nutribench.tuning.study import quiet_optuna
 
     space = load_search_space(space_name)
     shared = per_agent_fields(space.base())
     if not shared:
         raise ValueError(f"search space {space_name!r}: its algorithm takes no per-agent settings: nothing to stack")
     continuous = {k: p for k, p in space.params.items() if k in shared}
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
-    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=seed))
+    with quiet_optuna():
+        study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=seed))
     out = []
     for _ in range(trials):
         trial = study.ask()

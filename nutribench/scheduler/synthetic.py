@@ -49,15 +49,22 @@ def _metrics(rng: np.random.Generator, k: int) -> dict:
     }
 
 
-def synthetic_job(spec: JobSpec, progress: Sink | None = None, before_episode: EpisodeHook | None = None) -> JobResult:
+def synthetic_job(
+    spec: JobSpec,
+    progress: Sink | None = None,
+    before_episode: EpisodeHook | None = None,
+    seconds: float | None = None,
+) -> JobResult:
     """One job's synthetic result: ``spec.episodes`` training rows, ``spec.eval_episodes``
     evaluation episodes of HORIZON steps, and a placeholder model file at ``spec.model_path``;
-    ``before_episode(spec, k)`` before training episode ``k``."""
+    ``before_episode(spec, k)`` before training episode ``k``; ``seconds`` per training episode
+    (None: ``$NUTRIBENCH_FAKE_SECONDS``)."""
     started, t0 = utcnow(), time.perf_counter()
     log = os.environ.get("NUTRIBENCH_FAKE_LOG")
     if log:
         (Path(log) / f"job{spec.job_id}-pid{os.getpid()}-{uuid.uuid4().hex[:8]}").touch()
-    seconds = float(os.environ.get("NUTRIBENCH_FAKE_SECONDS", "0.001"))
+    if seconds is None:
+        seconds = float(os.environ.get("NUTRIBENCH_FAKE_SECONDS", "0.001"))
     rng = np.random.default_rng([spec.seed, spec.job_id])
     reporter = JobProgress(spec, progress, interval=0.2)
     reporter.start()

@@ -106,13 +106,24 @@ def _study_names(engine: Any) -> list[str]:
 
 def _copy_studies(source: Any, target: Any, names: list[str]) -> int:
     """Copy the studies ``names`` of ``source`` into ``target`` (:func:`optuna.copy_study`),
-    each checked by its trials' states; the trials copied."""
+    each checked by its trials' states; the trials copied. Optuna's log is at ``WARNING``
+    meanwhile, and as the caller had it afterwards."""
+    import optuna
+
+    verbosity = optuna.logging.get_verbosity()
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    try:
+        return _copy_each(source, target, names)
+    finally:
+        optuna.logging.set_verbosity(verbosity)
+
+
+def _copy_each(source: Any, target: Any, names: list[str]) -> int:
     from collections import Counter
 
     import optuna
     from optuna.storages import RDBStorage
 
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
     try:
         src = RDBStorage(source.url.render_as_string(hide_password=False), skip_table_creation=True)
         dst = RDBStorage(target.url.render_as_string(hide_password=False))

@@ -37,7 +37,14 @@ import numpy as np
 
 from nutribench.tuning.asking import StackView, claim, heartbeats, rdb_backend
 from nutribench.tuning.objective import TrialScores, ValidationObjective
-from nutribench.tuning.study import GRACE_SECONDS, StudyCounts, TuneError, count_trials, quiet_experimental
+from nutribench.tuning.study import (
+    GRACE_SECONDS,
+    StudyCounts,
+    TuneError,
+    count_trials,
+    quiet_experimental,
+    quiet_optuna,
+)
 
 #: the fields of an agent config that name it, not what it trains
 _NAMING = ("name", "version", "description")
@@ -123,7 +130,7 @@ def run_study(
     refuses (a full disk) fails the trial at once and is one line (:func:`fail_trials`)."""
     if trials < 1:
         raise TuneError("--trials must be >= 1")
-    with refused_writes_as_one_line():
+    with quiet_optuna(), refused_writes_as_one_line():
         return _run_study(study, objective, trials, on_trial, on_wait)
 
 
@@ -309,7 +316,7 @@ class StackedTrials:
         (none of them running), and claims each as a single trial does
         (:func:`~nutribench.tuning.study.claim`, :func:`~nutribench.tuning.study.wait_for_room`:
         a killed driver's stale trials are failed and their parameters run again)."""
-        with refused_writes_as_one_line():
+        with quiet_optuna(), refused_writes_as_one_line():
             return self._run(study, trials, on_trial, on_wait)
 
     def _run(self, study: Any, trials: int, on_trial: Any, on_wait: Any) -> StudyCounts:

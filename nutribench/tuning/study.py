@@ -143,6 +143,21 @@ def quiet_experimental() -> Iterator[None]:
         yield
 
 
+@contextmanager
+def quiet_optuna() -> Iterator[None]:
+    """Optuna's log at ``WARNING`` while the block runs (no "A new study created" line among
+    the command's own), its verbosity as the caller had it afterwards, an exception or not: a
+    library does not change its caller's process. Used as a decorator too (``@quiet_optuna()``)."""
+    import optuna
+
+    verbosity = optuna.logging.get_verbosity()
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    try:
+        yield
+    finally:
+        optuna.logging.set_verbosity(verbosity)
+
+
 def heartbeat_settings() -> tuple[int, int]:
     """(seconds between heartbeats, grace period in seconds): ``NUTRIBENCH_TUNE_HEARTBEAT`` and
     ``NUTRIBENCH_TUNE_GRACE`` where set, else :data:`HEARTBEAT_SECONDS` and :data:`GRACE_SECONDS`;
@@ -162,7 +177,6 @@ def optuna_storage(db: Any, writer: bool = True) -> Any:
     """Open nutribench's schema on ``db`` (``writer``: created or upgraded, else it must be there:
     :func:`nutribench.store.open_store`), then Optuna's RDB storage on the same URL, with
     heartbeats and stale-trial retry; None for a reader when the database holds no study."""
-    import optuna
     from optuna.storages import RDBStorage, RetryHeartbeatStaleTrialCallback
     from sqlalchemy import inspect
 
@@ -176,13 +190,12 @@ def optuna_storage(db: Any, writer: bool = True) -> Any:
     store.dispose()
     if not writer and not has_studies:
         return None
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
     from sqlalchemy.exc import IntegrityError, OperationalError, ProgrammingError
 
     interval, grace = heartbeat_settings()
     for attempt in range(10):
         try:
-            with quiet_experimental():
+            with quiet_experimental(), quiet_optuna():
                 return RDBStorage(
                     url,
                     heartbeat_interval=interval,
@@ -214,6 +227,7 @@ def check_study_name(name: str) -> None:
         raise TuneError(f"--study {name[:40]!r}: a name without control characters (tabs, new lines)")
 
 
+@quiet_optuna()
 def open_study(
     db: Any, name: str, settings: StudySettings | None, space_file: dict[str, str] | None = None, once: bool = False
 ) -> Any:
@@ -336,6 +350,7 @@ def count_trials(study: Any) -> StudyCounts:
     return counts
 
 
+@quiet_optuna()
 def study_counts(db: Any, name: str | None = None) -> list[StudyCounts]:
     """Every study of ``db`` (or the one named) with its counts; [] when none."""
     import optuna
