@@ -12,6 +12,9 @@ Every spec has ``max_episode_steps = HORIZON`` (50, the day of ``regimes/reward.
 (``gymnasium.wrappers.TimeAwareObservation(gymnasium.make(ENV_ID, regime="run6"))``). The
 environment truncates each day at its regime's horizon itself; the ``TimeLimit`` truncates
 at the same step (or earlier, with a smaller ``max_episode_steps``), never a second time.
+
+The ids are registered as gymnasium is imported (at once when it already is): ``import
+nutribench`` itself imports neither gymnasium nor numpy.
 """
 
 ENV_ID = "nutribench/NutriRL-v0"
@@ -38,7 +41,43 @@ def register_envs() -> None:
         )
 
 
-register_envs()
+class _RegisterWithGymnasium:
+    """A finder on ``sys.meta_path`` that answers for ``gymnasium`` alone, once: it finds the
+    real module (the other finders) and registers the ids right after that module has run, then
+    leaves ``sys.meta_path``. So ``import nutribench`` registers the ids whichever of the two
+    is imported first, without importing gymnasium (and numpy) itself: the command line, which
+    imports this package, pays for them only in the commands that make an environment."""
+
+    def find_spec(self, name: str, path: object = None, target: object = None) -> object:
+        if name != "gymnasium":
+            return None
+        import importlib.util
+        import sys
+
+        if self in sys.meta_path:
+            sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(name)
+        if spec is not None and spec.loader is not None and hasattr(spec.loader, "exec_module"):
+            run = spec.loader.exec_module
+
+            def exec_module(module: object) -> None:
+                run(module)
+                register_envs()
+
+            spec.loader.exec_module = exec_module  # this spec's loader only: gymnasium's
+        return spec
+
+
+def _register_now_or_with_gymnasium() -> None:
+    import sys
+
+    if "gymnasium" in sys.modules:
+        register_envs()
+    elif not any(isinstance(f, _RegisterWithGymnasium) for f in sys.meta_path):
+        sys.meta_path.insert(0, _RegisterWithGymnasium())
+
+
+_register_now_or_with_gymnasium()
 
 
 def _version() -> str:

@@ -2,7 +2,9 @@
 
 ``nutribench status`` on an up-to-date database checks the schema revision with plain SQL and
 reads the revision chain from the migration files, so it imports no alembic (a fifth of its
-start-up); alembic comes in only to upgrade.
+start-up); alembic comes in only to upgrade. Nor does it import gymnasium, numpy or torch:
+``import nutribench`` registers the environment's ids as gymnasium is imported, not by
+importing it.
 """
 
 from __future__ import annotations
@@ -54,6 +56,8 @@ try:
 finally:
     print("ALEMBIC" if any(n == "alembic" or n.startswith("alembic.") for n in sys.modules) else "NO-ALEMBIC")
     print(" ".join(sorted(n for n in sys.modules if n.startswith("nutribench.cli."))))
+    heavy = ("gymnasium", "numpy", "torch", "pandas", "nutribench.env")
+    print(" ".join(n for n in heavy if n in sys.modules) or "-")
 """
 
 
@@ -64,11 +68,36 @@ def test_status_on_an_up_to_date_database_imports_no_alembic_nor_other_commands(
         [sys.executable, "-c", _STATUS, str(db)], cwd=tmp_path, capture_output=True, text=True, timeout=120
     )
     assert result.returncode == 0, result.stderr
-    *report, verdict, commands = result.stdout.strip().splitlines()
+    *report, verdict, commands, heavy = result.stdout.strip().splitlines()
     assert json.loads("\n".join(report))["totals"]["jobs"] == 0
     assert verdict == "NO-ALEMBIC"
+    assert heavy == "-"  # no gymnasium, numpy, torch, pandas nor the environment
     # the one command's module and what it imports, not the other commands'
     assert commands.split() == ["nutribench.cli.common", "nutribench.cli.run", "nutribench.cli.signals"]
+
+
+_REGISTERED = """
+import sys
+if sys.argv[1] == "gymnasium-first":
+    import gymnasium
+import nutribench
+print("gymnasium" in sys.modules, "numpy" in sys.modules)
+import gymnasium
+ids = {i for i in gymnasium.registry if i.startswith("nutribench/")}
+print(ids == {nutribench.ENV_ID, *(f"nutribench/NutriRL-{r}-v0" for r in nutribench.SHIPPED_REGIMES)})
+gymnasium.make(nutribench.ENV_ID, regime="run3").reset(seed=0)
+"""
+
+
+@pytest.mark.parametrize("first", ["nutribench-first", "gymnasium-first"])
+def test_import_nutribench_registers_the_ids_without_importing_gymnasium(first: str) -> None:
+    """``import nutribench`` imports neither gymnasium nor numpy; the ids are registered once
+    gymnasium is imported, whichever of the two comes first."""
+    result = subprocess.run([sys.executable, "-c", _REGISTERED, first], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    imported, registered = result.stdout.strip().splitlines()
+    assert imported == ("True True" if first == "gymnasium-first" else "False False")
+    assert registered == "True"
 
 
 def test_an_older_database_still_upgrades(tmp_path: Path) -> None:
