@@ -21,7 +21,7 @@ from nutribench.report.palette import (
     USER_MIN_DISTANCE,
     colors,
     distance,
-    distance2000,
+    lab,
     palette,
 )
 from tests.test_newcomer import _as_seen
@@ -79,6 +79,34 @@ def test_alike_agents_keep_short_legend_entries_and_one_title_line():
 
 
 # --------------------------------------------------------------------------- colours and markers
+def distance2000(a: str, b: str) -> float:
+    """Perceptual distance of two colours (CIEDE2000), nearer to what a reader sees than CIE76,
+    which overstates differences between saturated blues and greens: the measure
+    :data:`~nutribench.report.palette.USER_COLORS` were chosen by, checked here."""
+    (l1, a1, b1), (l2, a2, b2) = lab(a), lab(b)
+    cbar = (np.hypot(a1, b1) + np.hypot(a2, b2)) / 2
+    g = 0.5 * (1 - np.sqrt(cbar**7 / (cbar**7 + 25.0**7)))
+    a1, a2 = (1 + g) * a1, (1 + g) * a2
+    c1, c2 = np.hypot(a1, b1), np.hypot(a2, b2)
+    h1, h2 = np.degrees(np.arctan2(b1, a1)) % 360, np.degrees(np.arctan2(b2, a2)) % 360
+    dh = 0.0 if c1 * c2 == 0 else (h2 - h1 + 180) % 360 - 180
+    d_h = 2 * np.sqrt(c1 * c2) * np.sin(np.radians(dh / 2))
+    lbar, cbar_p = (l1 + l2) / 2, (c1 + c2) / 2
+    hbar = h1 + h2 if c1 * c2 == 0 else ((h1 + h2) / 2 + (180 if abs(h1 - h2) > 180 else 0)) % 360
+    t = (
+        1
+        - 0.17 * np.cos(np.radians(hbar - 30))
+        + 0.24 * np.cos(np.radians(2 * hbar))
+        + 0.32 * np.cos(np.radians(3 * hbar + 6))
+        - 0.20 * np.cos(np.radians(4 * hbar - 63))
+    )
+    s_l = 1 + 0.015 * (lbar - 50) ** 2 / np.sqrt(20 + (lbar - 50) ** 2)
+    s_c, s_h = 1 + 0.045 * cbar_p, 1 + 0.015 * cbar_p * t
+    r_t = -2 * np.sqrt(cbar_p**7 / (cbar_p**7 + 25.0**7)) * np.sin(np.radians(60 * np.exp(-(((hbar - 275) / 25) ** 2))))
+    dl, dc, dh_ = (l2 - l1) / s_l, (c2 - c1) / s_c, d_h / s_h
+    return float(np.sqrt(dl**2 + dc**2 + dh_**2 + r_t * dc * dh_))
+
+
 def test_five_and_four_users_stay_apart_also_under_colour_vision_deficiencies():
     chosen = colors([*BUILTIN_ORDER, *USERS])
     assert {n: chosen[n] for n in BUILTIN_ORDER} == BUILTIN_COLORS  # the paper's colours kept

@@ -215,13 +215,13 @@ def test_users_agents_get_colour_blind_safe_colours_apart_from_the_five_and_read
         MAX_LIGHTNESS,
         MIN_DISTANCE,
         USER_COLORS,
-        _lab,
         colors,
         distance,
+        lab,
     )
 
     for i, a in enumerate(USER_COLORS):
-        assert _lab(a)[0] <= MAX_LIGHTNESS, a  # no pale yellow
+        assert lab(a)[0] <= MAX_LIGHTNESS, a  # no pale yellow
         assert min(distance(a, b) for b in BUILTIN_COLORS.values()) >= MIN_DISTANCE, a
         for b in USER_COLORS[i + 1 :]:
             assert distance(a, b) >= MIN_DISTANCE, (a, b)
@@ -234,7 +234,7 @@ def test_users_agents_get_colour_blind_safe_colours_apart_from_the_five_and_read
     assert min(distance(a, b) for i, a in enumerate(values) for b in values[i + 1 :]) >= MIN_DISTANCE
     # past the palette: derived colours, never pale either
     many = colors(f"agent{k}" for k in range(30))
-    assert all(_lab(v)[0] <= MAX_LIGHTNESS for v in many.values())
+    assert all(lab(v)[0] <= MAX_LIGHTNESS for v in many.values())
 
 
 # ------------------------------------------------------------------ figures

@@ -39,6 +39,7 @@ EXPERIMENT_MODULES = (
     "sqlalchemy",
     "alembic",
     "pandas",
+    "jinja2",
     "rliable",
     "scipy",
     "optuna",

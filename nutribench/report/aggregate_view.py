@@ -17,11 +17,11 @@ from nutribench.report.aggregate import (
     group_title,
     regime_span,
 )
-from nutribench.report.figure_parts import agent_labels, budget_caption, budget_cell, budget_seeds_line
+from nutribench.report.figure_parts import agent_labels, budget_caption, budget_cell, budget_seeds_line, count_span
 from nutribench.report.figures import FigureResult, draw_notes, legend_rows, set_title
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
-from nutribench.report.tables import TableResult
+from nutribench.report.tables import TableResult, interval_cell
 from nutribench.stats import caption as interval_caption
 
 # --------------------------------------------------------------------------- figure
@@ -73,17 +73,31 @@ def aggregate_figure(
     ``headroom``: the references above the planner
     (:func:`nutribench.report.headroom.aggregate_points`), drawn on the IQM, median and mean
     panels as grey lines at their aggregate over all regimes."""
-    from matplotlib.ticker import MaxNLocator
-
     colors = colors or palette(res.algos)
-    algos = res.algos
     names = agent_labels(ev) if ev is not None and not ev.empty else {}
-    names = {a: names.get(a) or algo_label(a) for a in algos}
+    names = {a: names.get(a) or algo_label(a) for a in res.algos}
     groups = [g for g in GROUPS if res.regimes.get(g) or res.partial.get(g)]
     fig = Figure(figsize=(16, 9.6), layout="constrained")
     grid = fig.add_gridspec(2, 4, height_ratios=[1, 1.15])
-    ypos = {a: len(algos) - 1 - i for i, a in enumerate(algos)}
     offset = {"all": 0.18, "delayed": -0.18} if len(groups) > 1 else {g: 0.0 for g in groups}
+    drawn = _interval_panels(fig, grid, res, colors, names, groups, offset, headroom)
+    profile_axes = [
+        _profile_panel(fig.add_subplot(grid[1, j]), res, group, colors, names, j) for j, group in enumerate(GROUPS)
+    ]
+    for j, group in enumerate(GROUPS):
+        _improvement_panel(fig, fig.add_subplot(grid[1, 2 + j]), res, group, colorbar=j == 1)
+    _aggregate_legend(fig, res, names, profile_axes, groups, offset)
+    set_title(fig, f"{title}\n{_aggregate_caption(res, ev, headroom)}")
+    notes = [*res.notes, *_width_notes(res)]
+    draw_notes(fig, notes)
+    return FigureResult(fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "y", "point", "lo", "hi"]), notes)
+
+
+def _interval_panels(fig, grid, res: AggregateResult, colors: Palette, names, groups, offset, headroom) -> list[dict]:
+    """The top row: one panel per aggregate, a bar (the interval) and a tick (the point) per
+    agent and group; the rows drawn."""
+    algos = res.algos
+    ypos = {a: len(algos) - 1 - i for i, a in enumerate(algos)}
     drawn = []
     for k, agg in enumerate(AGGREGATES):
         ax = fig.add_subplot(grid[0, k])
@@ -91,34 +105,7 @@ def aggregate_figure(
             rows = res.intervals[(res.intervals["group"] == group) & (res.intervals["aggregate"] == agg)]
             for r in rows.itertuples(index=False):
                 y = ypos[r.algo] + offset[group]
-                color = colors.color(r.algo)
-                if np.isfinite(r.lo):
-                    style = _GROUP_STYLE[group]
-                    bars = ax.barh(
-                        y,
-                        r.hi - r.lo,
-                        left=r.lo,
-                        height=0.32,
-                        color=color,
-                        alpha=style["alpha"],
-                        hatch=style["hatch"],
-                        edgecolor=color,
-                        lw=0.8,
-                    )
-                    # a bar's ends are "sticky" to autoscaling: the panel's edge fell exactly on
-                    # the widest interval's end, which then read as cut off; with a margin
-                    # beyond every end, each interval is seen to end where it ends
-                    for bar in bars:
-                        bar.sticky_edges.x.clear()
-                ax.plot(
-                    [r.point, r.point],
-                    [y - 0.17, y + 0.17],
-                    color="k",
-                    lw=1.8,
-                    solid_capstyle="butt",
-                    dash_capstyle="butt",
-                    **_TICK_STYLE[group],
-                )
+                _interval_mark(ax, y, r, colors.color(r.algo), group)
                 drawn.append(
                     {"panel": agg, "group": group, "algo": r.algo, "y": y, "point": r.point, "lo": r.lo, "hi": r.hi}
                 )
@@ -130,80 +117,111 @@ def aggregate_figure(
         ax.set_title(AGGREGATE_LABELS[agg] + (" (lower is better)" if agg == "optimality_gap" else ""), fontsize=10)
         ax.set_xlabel("share of the never → planner gap", fontsize=8)
         ax.grid(axis="x", alpha=0.3)
-    profile_axes = []
-    for j, group in enumerate(GROUPS):
-        ax = fig.add_subplot(grid[1, j])
-        profile_axes.append(ax)
-        prof = res.profiles[res.profiles["group"] == group]
-        for algo in algos:
-            p = prof[prof["algo"] == algo]
-            if p.empty:
-                continue
-            color = colors.color(algo)
-            every = max(1, len(p) // 6)
-            ax.plot(
-                p["tau"],
-                p["fraction"],
-                color=color,
-                lw=1.5,
-                label=names[algo],
-                marker=colors.marker(algo),
-                ms=5,
-                markevery=(algos.index(algo) * every // len(algos), every),
-            )
-            if p["lo"].notna().any():
-                ax.fill_between(p["tau"], p["lo"], p["hi"], color=color, alpha=0.15, lw=0)
-        _yardstick_lines(ax)
-        _percent_axis(ax.xaxis)
-        ax.set_ylim(-0.02, 1.02)
-        ax.set_title(f"performance profile, {group_title(res, group)}", fontsize=9)
-        ax.set_xlabel("score threshold τ (share of the gap)", fontsize=8)
-        if j == 0:
-            ax.set_ylabel("fraction of runs with score > τ", fontsize=8)
-        ax.xaxis.set_major_locator(MaxNLocator(6))
-        ax.grid(alpha=0.3)
-        if prof.empty:
-            ax.text(
-                0.5, 0.5, "no scored regime in this group", ha="center", va="center", transform=ax.transAxes, fontsize=8
-            )
-    for j, group in enumerate(GROUPS):
-        ax = fig.add_subplot(grid[1, 2 + j])
-        imp = res.improvement[res.improvement["group"] == group]
-        mat = np.full((len(algos), len(algos)), np.nan)
-        idx = {a: i for i, a in enumerate(algos)}
-        for r in imp.itertuples(index=False):
-            mat[idx[r.x], idx[r.y]] = r.p
-        im = ax.imshow(mat, cmap="RdBu", vmin=0, vmax=1)
-        for i in range(len(algos)):
-            for k in range(len(algos)):
-                if np.isfinite(mat[i, k]):
-                    ax.text(
-                        k,
-                        i,
-                        f"{mat[i, k]:.2f}",
-                        ha="center",
-                        va="center",
-                        fontsize=8,
-                        color="w" if abs(mat[i, k] - 0.5) > 0.3 else "k",
-                    )
-        labels = [algo_label(a) for a in algos]
-        ax.set_xticks(range(len(algos)), labels, rotation=45, ha="right", fontsize=8)
-        ax.set_yticks(range(len(algos)), labels, fontsize=8)
-        ax.set_title(f"P(row > column), {group_title(res, group)}", fontsize=9)
-        if j == 1:
-            fig.colorbar(im, ax=ax, shrink=0.8, label="probability of improvement")
-    # every agent drawn in either profile (one of the delayed regimes alone is in the second only)
+    return drawn
+
+
+def _interval_mark(ax, y: float, r, color: str, group: str) -> None:
+    """One agent's interval (a bar, none without one) and point estimate (a black tick) at ``y``."""
+    if np.isfinite(r.lo):
+        style = _GROUP_STYLE[group]
+        bars = ax.barh(
+            y,
+            r.hi - r.lo,
+            left=r.lo,
+            height=0.32,
+            color=color,
+            alpha=style["alpha"],
+            hatch=style["hatch"],
+            edgecolor=color,
+            lw=0.8,
+        )
+        # a bar's ends are "sticky" to autoscaling: the panel's edge fell exactly on the
+        # widest interval's end, which then read as cut off; with a margin beyond every end,
+        # each interval is seen to end where it ends
+        for bar in bars:
+            bar.sticky_edges.x.clear()
+    ax.plot(
+        [r.point, r.point],
+        [y - 0.17, y + 0.17],
+        color="k",
+        lw=1.8,
+        solid_capstyle="butt",
+        dash_capstyle="butt",
+        **_TICK_STYLE[group],
+    )
+
+
+def _profile_panel(ax, res: AggregateResult, group: str, colors: Palette, names, j: int):
+    """The performance profile of one group: a line (and band) per agent; the axes."""
+    from matplotlib.ticker import MaxNLocator
+
+    algos = res.algos
+    prof = res.profiles[res.profiles["group"] == group]
+    for algo in algos:
+        p = prof[prof["algo"] == algo]
+        if p.empty:
+            continue
+        color = colors.color(algo)
+        every = max(1, len(p) // 6)
+        ax.plot(
+            p["tau"],
+            p["fraction"],
+            color=color,
+            lw=1.5,
+            label=names[algo],
+            marker=colors.marker(algo),
+            ms=5,
+            markevery=(algos.index(algo) * every // len(algos), every),
+        )
+        if p["lo"].notna().any():
+            ax.fill_between(p["tau"], p["lo"], p["hi"], color=color, alpha=0.15, lw=0)
+    _yardstick_lines(ax)
+    _percent_axis(ax.xaxis)
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title(f"performance profile, {group_title(res, group)}", fontsize=9)
+    ax.set_xlabel("score threshold τ (share of the gap)", fontsize=8)
+    if j == 0:
+        ax.set_ylabel("fraction of runs with score > τ", fontsize=8)
+    ax.xaxis.set_major_locator(MaxNLocator(6))
+    ax.grid(alpha=0.3)
+    if prof.empty:
+        ax.text(
+            0.5, 0.5, "no scored regime in this group", ha="center", va="center", transform=ax.transAxes, fontsize=8
+        )
+    return ax
+
+
+def _improvement_panel(fig: Figure, ax, res: AggregateResult, group: str, colorbar: bool) -> None:
+    """The matrix of P(row > column) of one group, each cell written in it."""
+    algos = res.algos
+    mat = np.full((len(algos), len(algos)), np.nan)
+    idx = {a: i for i, a in enumerate(algos)}
+    for r in res.improvement[res.improvement["group"] == group].itertuples(index=False):
+        mat[idx[r.x], idx[r.y]] = r.p
+    im = ax.imshow(mat, cmap="RdBu", vmin=0, vmax=1)
+    for (i, k), v in np.ndenumerate(mat):
+        if np.isfinite(v):
+            ax.text(k, i, f"{v:.2f}", ha="center", va="center", fontsize=8, color="w" if abs(v - 0.5) > 0.3 else "k")
+    labels = [algo_label(a) for a in algos]
+    ax.set_xticks(range(len(algos)), labels, rotation=45, ha="right", fontsize=8)
+    ax.set_yticks(range(len(algos)), labels, fontsize=8)
+    ax.set_title(f"P(row > column), {group_title(res, group)}", fontsize=9)
+    if colorbar:
+        fig.colorbar(im, ax=ax, shrink=0.8, label="probability of improvement")
+
+
+def _aggregate_legend(fig: Figure, res: AggregateResult, names, profile_axes, groups, offset) -> None:
+    """The legend: every agent drawn in either profile (one of the delayed regimes alone is in
+    the second only) and the references, then a row saying which row and tick is which group."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
     found: dict[str, object] = {}
     for ax in profile_axes:
         for h, lab in zip(*ax.get_legend_handles_labels()):
             found.setdefault(lab, h)
-    labels = [names[a] for a in algos if names[a] in found]
-    handles = [found[lab] for lab in labels]
+    labels = [names[a] for a in res.algos if names[a] in found]
     h0, l0 = fig.axes[0].get_legend_handles_labels()  # the references above the planner, if drawn
-    handles, labels = handles + h0, labels + l0
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
-
     group_handles = [
         (
             Patch(facecolor="0.5", alpha=_GROUP_STYLE[g]["alpha"], hatch=_GROUP_STYLE[g]["hatch"], edgecolor="0.4"),
@@ -211,13 +229,19 @@ def aggregate_figure(
         )
         for g in groups
     ]
-    legend_rows(fig, [(handles, labels), (group_handles, [_group_entry(res, g, offset[g]) for g in groups])])
-    n_runs = res.scores.groupby(["regime", "algo"]).size() if not res.scores.empty else pd.Series(dtype=int)
-    runs_text = (
-        f"{int(n_runs.min())}-{int(n_runs.max())}"
-        if len(n_runs) and n_runs.min() != n_runs.max()
-        else (f"{int(n_runs.max())}" if len(n_runs) else "0")
+    legend_rows(
+        fig,
+        [
+            ([found[lab] for lab in labels] + h0, labels + l0),
+            (group_handles, [_group_entry(res, g, offset[g]) for g in groups]),
+        ],
     )
+
+
+def _aggregate_caption(res: AggregateResult, ev: pd.DataFrame | None, headroom: pd.DataFrame | None) -> str:
+    """What a score is, how many seeds, how the intervals were made, what the grey lines are."""
+    n_runs = res.scores.groupby(["regime", "algo"]).size() if not res.scores.empty else pd.Series(dtype=int)
+    runs_text = count_span(n_runs) if len(n_runs) else "0"
     caption = (
         "score of a run (one seed on one regime) = share of the regime's never → planner gap it closes on its own evaluation days "
         "(0 % = never eat, 100 % = the greedy full-information planner);\n"
@@ -232,10 +256,7 @@ def aggregate_figure(
         )
     if ev is not None and not ev.empty:
         caption += f"\n{budget_seeds_line(ev)}"
-    set_title(fig, f"{title}\n{caption}")
-    notes = [*res.notes, *_width_notes(res)]
-    draw_notes(fig, notes)
-    return FigureResult(fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "y", "point", "lo", "hi"]), notes)
+    return caption
 
 
 def _group_entry(res: AggregateResult, group: str, offset: float) -> str:
@@ -285,13 +306,6 @@ def _width_notes(res: AggregateResult) -> list[str]:
 
 
 # --------------------------------------------------------------------------- table
-def _cell(point: float, lo: float, hi: float, percent: bool) -> str:
-    f = (lambda v: f"{100 * v:.0f}") if percent else (lambda v: f"{v:.2f}")
-    if not np.isfinite(point):
-        return "n/a"
-    return f"{f(point)} [{f(lo)}, {f(hi)}]" if np.isfinite(lo) else f"{f(point)} [single seed]"
-
-
 def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> TableResult:
     """One row per group and agent: the four aggregates (in % of the gap) with their 95 %
     intervals and P(this agent > each other agent) with its interval. ``raw`` has the numbers
@@ -302,38 +316,10 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
     budgets = {a: budget_cell(ev[ev["algo"] == a]) for a in res.algos} if ev is not None and not ev.empty else {}
     rows, fmt_rows = [], []
     for group in GROUPS:
-        if not res.regimes.get(group) and not res.partial.get(group):
-            continue
-        iv = res.intervals[res.intervals["group"] == group]
-        imp = res.improvement[res.improvement["group"] == group]
-        for algo in res.algos:
-            mine = iv[iv["algo"] == algo].set_index("aggregate")
-            if mine.empty:
-                continue
-            row = {
-                "group": group,
-                "regimes": ",".join(res.partial.get(group, {}).get(algo) or res.regimes[group]),
-                "algo": algo,
-                "runs": int(mine["runs"].iloc[0]),
-            }
-            if budgets:
-                row["budget"] = budgets.get(algo, "?")
-            f = {"regimes": group_title(res, group, algo), "algorithm": algo_label(algo), "runs": row["runs"]}
-            if budgets:
-                f["budget (days)"] = budgets.get(algo, "?")
-            for agg in AGGREGATES:
-                p, lo, hi = (float(mine.loc[agg, c]) for c in ("point", "lo", "hi"))
-                row[agg], row[f"{agg}_lo"], row[f"{agg}_hi"] = p, lo, hi
-                f[f"{AGGREGATE_LABELS[agg]} (%)"] = _cell(p, lo, hi, percent=True)
-            for other in res.algos:
-                if other == algo:
-                    continue
-                r = imp[(imp["x"] == algo) & (imp["y"] == other)]
-                p, lo, hi = (float(r[c].iloc[0]) if len(r) else float("nan") for c in ("p", "lo", "hi"))
-                row[f"p_gt_{other}"], row[f"p_gt_{other}_lo"], row[f"p_gt_{other}_hi"] = p, lo, hi
-                f[f"P(> {algo_label(other)})"] = _cell(p, lo, hi, percent=False)
-            rows.append(row)
-            fmt_rows.append(f)
+        if res.regimes.get(group) or res.partial.get(group):
+            for row, f in _aggregate_rows(res, group, budgets):
+                rows.append(row)
+                fmt_rows.append(f)
     title = (
         "Aggregate scores: share of the never -> planner gap per run (seed x regime), over regimes x seeds; point estimate "
         f"[95 % interval over runs: IQM {interval_caption('iqm')}; the others stratified percentile bootstrap, {res.reps} "
@@ -344,17 +330,18 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
         title += f"; {budget_caption(ev)}"
     if res.notes:
         title += " (note: " + "; ".join(res.notes) + ")"
+    budget_col = ["budget (days)"] if budgets else []
     cols = [
         "regimes",
         "algorithm",
-        *(["budget (days)"] if budgets else []),
+        *budget_col,
         "runs",
         *(f"{AGGREGATE_LABELS[a]} (%)" for a in AGGREGATES),
         *(f"P(> {algo_label(a)})" for a in res.algos),
     ]
     fmt = pd.DataFrame(fmt_rows, columns=cols).astype(object).fillna("")  # a column all None is float64
     if len(fmt) == 0:
-        fmt = fmt[cols[: 4 if budgets else 3]]
+        fmt = fmt[cols[: 3 + len(budget_col)]]
     raw_cols = [
         "group",
         "regimes",
@@ -365,6 +352,38 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
         *(f"p_gt_{a}{s}" for a in res.algos for s in ("", "_lo", "_hi")),
     ]
     return TableResult("aggregate", title, pd.DataFrame(rows, columns=raw_cols), fmt)
+
+
+def _aggregate_rows(res: AggregateResult, group: str, budgets: dict[str, str]):
+    """(raw row, formatted row) of each agent of one group of regimes."""
+    iv = res.intervals[res.intervals["group"] == group]
+    imp = res.improvement[res.improvement["group"] == group]
+    for algo in res.algos:
+        mine = iv[iv["algo"] == algo].set_index("aggregate")
+        if mine.empty:
+            continue
+        regimes = ",".join(res.partial.get(group, {}).get(algo) or res.regimes[group])
+        row = {"group": group, "regimes": regimes, "algo": algo, "runs": int(mine["runs"].iloc[0])}
+        f = {"regimes": group_title(res, group, algo), "algorithm": algo_label(algo), "runs": row["runs"]}
+        if budgets:
+            row["budget"] = f["budget (days)"] = budgets.get(algo, "?")
+        for agg in AGGREGATES:
+            p, lo, hi = (float(mine.loc[agg, c]) for c in ("point", "lo", "hi"))
+            row[agg], row[f"{agg}_lo"], row[f"{agg}_hi"] = p, lo, hi
+            f[f"{AGGREGATE_LABELS[agg]} (%)"] = interval_cell(p, lo, hi, _percent)
+        for other in res.algos:
+            if other == algo:
+                continue
+            r = imp[(imp["x"] == algo) & (imp["y"] == other)]
+            p, lo, hi = (float(r[c].iloc[0]) if len(r) else float("nan") for c in ("p", "lo", "hi"))
+            row[f"p_gt_{other}"], row[f"p_gt_{other}_lo"], row[f"p_gt_{other}_hi"] = p, lo, hi
+            f[f"P(> {algo_label(other)})"] = interval_cell(p, lo, hi)
+        yield row, f
+
+
+def _percent(v: float) -> str:
+    """A share as a whole percent, without the sign: ``0.456`` -> ``46``."""
+    return f"{100 * v:.0f}"
 
 
 __all__ = ["aggregate_figure", "aggregate_table"]

@@ -34,6 +34,7 @@ cannot be read raises :class:`nutribench.store.StoreError`.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -282,6 +283,58 @@ def _page_subtitle(db: Db, data: ReportData | None) -> str:
     return "; ".join(parts)
 
 
+def _request(db: Db, figs, tables, all: bool, algos, pair) -> tuple[list[int], list[str], tuple[str, str], Any]:  # noqa: A002
+    """:func:`build_report`'s figures, tables and pair, checked, and the database's stored agent
+    configs where they are needed (else None); :class:`ReportError` for what cannot be asked."""
+    figs = list(FIGURES) if all else [int(f) for f in figs]
+    tables = [str(t) for t in tables]
+    for f in figs:
+        if f not in FIGURES:
+            raise ReportError(f"no figure {f}: the figures are {', '.join(map(str, FIGURES))}")
+    if not figs and not tables:
+        raise ReportError("nothing to build: ask for figures, tables or all")
+    pair_given, pair = pair is not None, figure4.check_pair(pair, DEFAULT_PAIR)
+    stored = stored_agent_configs(db) if needs_stored_configs(figs, tables, all, algos) else None
+    if stored is not None and algos is not None:
+        check_known(algos, stored, "--algos")
+    if stored is not None and pair_given and 4 in figs:
+        check_known(pair, stored, "--pair")
+    return figs, tables, pair, stored
+
+
+class _Writer:
+    """Writes a report's items as they are built, each announced (``progress``: ``[k/n] what``),
+    and keeps what index.html shows; with ``all``, an item the data cannot give is skipped
+    (one ``skipped:`` line through ``log``) instead of failing the report."""
+
+    def __init__(self, out: Db, steps: int, all: bool, log: Log | None, progress: Log | None) -> None:  # noqa: A002
+        self.out, self.steps, self.all, self.log, self.progress = out, steps, all, log, progress
+        self.done = 0
+        self.paths: list[Path] = []
+        self.page: list[Any] = []
+
+    def item(self, what: str, make: Callable[[], Any], stem: str, number: int | None = None) -> None:
+        """Build (``make``) and write one figure (``number``) or table (file stem ``stem``)."""
+        self.done += 1
+        if self.progress and self.steps > 1:  # one item: its own line (or error) says it all
+            self.progress(f"[{self.done}/{self.steps}] {what}")
+        try:
+            res = make()
+        except ReportError as e:
+            if not self.all:
+                raise
+            if self.log:
+                self.log(f"skipped: {e}")
+            return
+        if number is not None:
+            written = write_figure(res, self.out, stem)
+            self.page.append(page_figure(number, res, written))
+        else:
+            written = write_table(res, self.out, stem)
+            self.page.append(page_table(stem, res, written))
+        self.paths += written
+
+
 def build_report(
     db: Db,
     out: Db = "reports",
@@ -310,19 +363,7 @@ def build_report(
     Figures 3/4. ``progress``: called with ``[k/n] figure 3`` (or ``table results``) as each
     item starts, so a long ``--all`` shows where it is.
     """
-    figs = list(FIGURES) if all else [int(f) for f in figs]
-    tables = [str(t) for t in tables]
-    for f in figs:
-        if f not in FIGURES:
-            raise ReportError(f"no figure {f}: the figures are {', '.join(map(str, FIGURES))}")
-    if not figs and not tables:
-        raise ReportError("nothing to build: ask for figures, tables or all")
-    pair_given, pair = pair is not None, figure4.check_pair(pair, DEFAULT_PAIR)
-    stored = stored_agent_configs(db) if needs_stored_configs(figs, tables, all, algos) else None
-    if stored is not None and algos is not None:
-        check_known(algos, stored, "--algos")
-    if stored is not None and pair_given and 4 in figs:
-        check_known(pair, stored, "--pair")
+    figs, tables, pair, stored = _request(db, figs, tables, all, algos, pair)
     plan = table_plan(tables, all, stored, algos)
     # the database is read once, up front, and only when something needs it: a database that
     # cannot be read (missing, empty, outdated) fails the whole command, even with ``all``
@@ -338,64 +379,18 @@ def build_report(
     if log:
         for note in dict.fromkeys([*(data.notes if data else []), *(pair_data.notes if pair_data else [])]):
             log(f"note: {note}")
-
-    def built(make: Callable[[], Any]) -> Any:
-        """What ``make`` builds; with ``all``, None (and a log line) for what the data cannot give."""
-        try:
-            return make()
-        except ReportError as e:
-            if not all:
-                raise
-            if log:
-                log(f"skipped: {e}")
-            return None
-
-    paths: list[Path] = []
-    page: list[Any] = []  # what index.html shows (with ``all``)
-    steps = len(figs) + len(plan) + int(all)
-    done = iter(range(1, steps + 1))
-
-    def step(what: str) -> None:
-        if progress and steps > 1:  # one item: its own line (or error) says it all
-            progress(f"[{next(done)}/{steps}] {what}")
-
+    w = _Writer(out, len(figs) + len(plan) + int(all), all, log, progress)
     for f in figs:
-        step(f"figure {f}")
-        res = built(
-            lambda f=f: (
-                learning_figure(db, data, algos)
-                if f == 6
-                else build_figure(
-                    f,
-                    pair_data if f == 4 else data,
-                    reference_episodes=reference_episodes,
-                    log=log,
-                    pair=pair,
-                    ablation=ablation,
-                )
-            )
-        )
-        if res is not None:
-            written = write_figure(res, out, figure_stem(f, pair))
-            paths += written
-            page.append(page_figure(f, res, written))
+        figure_data = pair_data if f == 4 else data
+        make = partial(build_figure, f, figure_data, reference_episodes, log, pair, ablation)
+        w.item(f"figure {f}", partial(learning_figure, db, data, algos) if f == 6 else make, figure_stem(f, pair), f)
     for key, stem in plan.items():
-        step(f"table {key}")
-        res_t = built(lambda key=key: build_table(key, data, db, stored))
-        if res_t is not None:
-            written = write_table(res_t, out, stem)
-            paths += written
-            page.append(page_table(stem, res_t, written))
+        w.item(f"table {key}", partial(build_table, key, data, db, stored), stem)
     if all and data is not None and not data.eval.empty:
-        step("leaderboard")
-        board = built(lambda: _leaderboard(data, db, log))
-        if board is not None:
-            written = write_table(board, out, "leaderboard")
-            paths += written
-            page.append(page_table("leaderboard", board, written))
+        w.item("leaderboard", partial(_leaderboard, data, db, log), "leaderboard")
     if all:
-        paths.append(write_index(page, out, title="nutribench report", subtitle=_page_subtitle(db, data)))
-    return paths
+        w.paths.append(write_index(w.page, out, title="nutribench report", subtitle=_page_subtitle(db, data)))
+    return w.paths
 
 
 __all__ = [

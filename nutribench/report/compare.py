@@ -38,6 +38,7 @@ from nutribench.report.figure_parts import budget_cell
 from nutribench.report.figures import budget_seeds_text, seed_list, sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
+from nutribench.report.tables import interval_cell, markdown_rows
 from nutribench.stats import CHOSEN, paired_ci
 from nutribench.stats import caption as interval_caption
 
@@ -160,7 +161,6 @@ class Comparison:
             name = r.regime
             if r.regime in ("all", "delayed"):
                 name = f"{r.regime} ({regime_span(r.regimes.split(','))})"
-            ci = f" [{r.diff_lo:+.2f}, {r.diff_hi:+.2f}]" if np.isfinite(r.diff_lo) else " [single seed]"
             pci = f" [{r.p_lo:.2f}, {r.p_hi:.2f}]" if np.isfinite(r.p_lo) else ""
             out.append(
                 {
@@ -169,20 +169,17 @@ class Comparison:
                     "days": r.days,
                     la: f"{r.a_mean:.2f}",
                     lb: f"{r.b_mean:.2f}",
-                    f"{la} - {lb} [95% CI]": f"{r.diff:+.2f}{ci}",
+                    f"{la} - {lb} [95% CI]": interval_cell(r.diff, r.diff_lo, r.diff_hi, "{:+.2f}".format),
                     f"P({la} > {lb})": f"{r.p_a_better:.2f}{pci}",
                 }
             )
         return pd.DataFrame(out)
 
     def to_markdown(self) -> str:
-        fmt = self.formatted()
-        cols = list(fmt.columns)
         lines = [f"**{self.title()}**", ""]
         if self.provenance:
             lines += [self.provenance, ""]
-        lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-        lines += ["| " + " | ".join(str(v) for v in row) + " |" for row in fmt.itertuples(index=False)]
+        lines += markdown_rows(self.formatted())
         if self.notes:
             lines += ["", *map(_note_line, self.notes)]
         return "\n".join(lines) + "\n"
@@ -222,32 +219,15 @@ def compare_agents(
     if a == b:
         raise CompareError(f"compare {a} {b}: give two different agent configs")
     ev = ev[ev["phase"] == "eval"] if "phase" in ev else ev
-    held = sort_algos(ev["algo"])
-    unknown = [n for n in (a, b) if n not in held]
-    if unknown:
-        raise CompareError(
-            f"{', '.join(unknown)}: no evaluation days in the database, which has them for {', '.join(held) or 'no agent config'}"
-        )
-    both = sorted(set(ev.loc[ev["algo"] == a, "regime"]) & set(ev.loc[ev["algo"] == b, "regime"]))
-    if regimes is not None:
-        regimes = list(dict.fromkeys(regimes))
-        absent = [r for r in regimes if r not in both]
-        if absent:
-            raise CompareError(
-                f"--regimes {', '.join(absent)}: {a} and {b} were not both evaluated there "
-                f"(both were on {', '.join(sort_regimes(both)) or 'no regime'})"
-            )
-    wanted = sort_regimes(both if regimes is None else regimes)
-    if not wanted:
-        raise CompareError(
-            f"{a} and {b} were never evaluated on the same regime ({a}: {_regimes_of(ev, a)}; {b}: {_regimes_of(ev, b)})"
-        )
+    _check_held(ev, (a, b))
+    wanted = _wanted_regimes(ev, a, b, regimes)
     days = paired_days(ev, a, b, wanted)
-    notes = []
     paired = sort_regimes(days["regime"])
-    for r in wanted:
-        if r not in paired:
-            notes.append(f"{r}: no common seed ({a}: seeds {_seeds_of(ev, a, r)}; {b}: seeds {_seeds_of(ev, b, r)})")
+    notes = [
+        f"{r}: no common seed ({a}: seeds {_seeds_of(ev, a, r)}; {b}: seeds {_seeds_of(ev, b, r)})"
+        for r in wanted
+        if r not in paired
+    ]
     if days.empty:
         raise CompareError(f"{a} and {b} share no seed on {', '.join(wanted)}: nothing to pair ({'; '.join(notes)})")
     for r in paired:
@@ -274,6 +254,35 @@ def compare_agents(
             "the agents' and their budgets' together",
         )
     return Comparison(a, b, pd.DataFrame(rows, columns=COLUMNS), days, reps, notes, _header(used))
+
+
+def _check_held(ev: pd.DataFrame, names: Sequence[str]) -> None:
+    """:class:`CompareError` naming the configs ``ev`` has days of, for ``names`` it has none of."""
+    held = sort_algos(ev["algo"])
+    unknown = [n for n in names if n not in held]
+    if unknown:
+        raise CompareError(
+            f"{', '.join(unknown)}: no evaluation days in the database, which has them for {', '.join(held) or 'no agent config'}"
+        )
+
+
+def _wanted_regimes(ev: pd.DataFrame, a: str, b: str, regimes: Sequence[str] | None) -> list[str]:
+    """The regimes to compare on: ``regimes`` (default every one both were evaluated on), checked."""
+    both = sorted(set(ev.loc[ev["algo"] == a, "regime"]) & set(ev.loc[ev["algo"] == b, "regime"]))
+    if regimes is not None:
+        regimes = list(dict.fromkeys(regimes))
+        absent = [r for r in regimes if r not in both]
+        if absent:
+            raise CompareError(
+                f"--regimes {', '.join(absent)}: {a} and {b} were not both evaluated there "
+                f"(both were on {', '.join(sort_regimes(both)) or 'no regime'})"
+            )
+    wanted = sort_regimes(both if regimes is None else regimes)
+    if not wanted:
+        raise CompareError(
+            f"{a} and {b} were never evaluated on the same regime ({a}: {_regimes_of(ev, a)}; {b}: {_regimes_of(ev, b)})"
+        )
+    return wanted
 
 
 #: What a budget of 0 days means: no training day was recorded with the job (a saved model
@@ -407,12 +416,7 @@ def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, re
     if spec_a == spec_b:
         raise CompareError(f"compare {a} {b}: give two different agent configs")
     ev = read_eval_metrics(db)
-    held = sort_algos(ev["algo"])
-    unknown = [s.name for s in (spec_a, spec_b) if s.name not in held]
-    if unknown:
-        raise CompareError(
-            f"{', '.join(unknown)}: no evaluation days in the database, which has them for {', '.join(held)}"
-        )
+    _check_held(ev, (spec_a.name, spec_b.name))
     data = prepare_entries(ev, [spec_a.name, spec_b.name])
     picked, notes = [], list(data.notes)
     for spec in (spec_a, spec_b):

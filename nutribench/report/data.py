@@ -127,16 +127,21 @@ def read_metrics(db: Db) -> pd.DataFrame:
     return df
 
 
+def _selected(df: pd.DataFrame, algos: Sequence[str] | None) -> tuple[pd.DataFrame, tuple[str, ...] | None, Palette]:
+    """The rows of ``algos`` (None: all), the names selected (None: all), a palette over every
+    config of ``df`` (so each figure colours a name alike)."""
+    selected = tuple(sort_algos(algos)) if algos is not None else None
+    rows = df[df["algo"].isin(selected)] if selected is not None else df
+    return (rows.reset_index(drop=True) if rows.empty else rows), selected, palette(df["algo"].unique())
+
+
 def prepare(df: pd.DataFrame, algos: Sequence[str] | None = None, latest_only: bool = True) -> ReportData:
     """The rows of ``df`` (all of ``episode_metrics``) a report draws: those of ``algos``
     (default every config), the newest versions and largest budgets of them, and notes on
     what was left out. Its palette covers every config of ``df``."""
-    colors = palette(df["algo"].unique())
-    selected = tuple(sort_algos(algos)) if algos is not None else None
-    if selected is not None:
-        df = df[df["algo"].isin(selected)]
+    df, selected, colors = _selected(df, algos)
     if df.empty:
-        return ReportData(df.reset_index(drop=True), [], selected, colors)
+        return ReportData(df, [], selected, colors)
     notes: list[str] = []
     if latest_only:
         df, notes = _keep_latest_versions(df)
@@ -170,12 +175,9 @@ def prepare_entries(df: pd.DataFrame, algos: Sequence[str] | None = None) -> Rep
     hidden by another (unlike :func:`prepare`, which keeps each config's newest version and
     largest budget); per regime the newest regime version; per entry and (regime, seed) the
     newest job. The notes say what was left out."""
-    colors = palette(df["algo"].unique())
-    selected = tuple(sort_algos(algos)) if algos is not None else None
-    if selected is not None:
-        df = df[df["algo"].isin(selected)]
+    df, selected, colors = _selected(df, algos)
     if df.empty:
-        return ReportData(df.reset_index(drop=True), [], selected, colors)
+        return ReportData(df, [], selected, colors)
     df, notes = _keep_latest_regime_versions(df)
     key = [*ENTRY, "regime", "seed"]
     newest_job = df.groupby(key)["job_id"].transform("max")

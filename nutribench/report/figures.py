@@ -39,6 +39,7 @@ from nutribench.report.figure_parts import (  # noqa: F401 (re-exported: the fig
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
+from nutribench.report.scores import run_scores
 from nutribench.stats import caption, mean_ci
 
 METRIC_LABELS = {
@@ -71,6 +72,26 @@ def _seed_band(curves: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mean, se
 
 
+def panel_grid(n: int, extra: float, sharex: bool) -> tuple[Figure, np.ndarray, int]:
+    """A figure of ``n`` panels of one size, at most four a row (``extra``: inches for the title
+    and the legend): the figure, its ``n`` axes (the others hidden) and the number of columns."""
+    ncols = min(4, n)
+    nrows = int(np.ceil(n / ncols))
+    fig = Figure(figsize=(max(7.5, 4.2 * ncols), 3.2 * nrows + extra), layout="constrained")
+    axes = fig.subplots(nrows, ncols, squeeze=False, sharex=sharex).ravel()
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    return fig, axes[:n], ncols
+
+
+def bottom_axis(ax, k: int, n: int, ncols: int, label: str, own_axis: bool = False) -> None:
+    """Panel ``k`` of ``n``: an x label and tick labels where no panel is below it (or where each
+    panel has its x axis of its own)."""
+    if own_axis or k >= n - ncols:
+        ax.set_xlabel(label)
+        ax.tick_params(labelbottom=True)
+
+
 def training_curves(
     df: pd.DataFrame,
     metric: str = "return",
@@ -97,54 +118,26 @@ def training_curves(
         window = default_window(int(train["episode"].max()) + 1)
     panels = budget_panels(train, regimes)
     split = any(b is not None for _, b in panels)
-    ncols = min(4, len(panels))
-    nrows = int(np.ceil(len(panels) / ncols))
-    fig = Figure(figsize=(max(7.5, 4.2 * ncols), 3.2 * nrows + 0.9), layout="constrained")
-    axes = fig.subplots(nrows, ncols, squeeze=False, sharex=not split)
+    fig, axes, ncols = panel_grid(len(panels), 0.9, sharex=not split)
     rows = []
     for k, (regime, budget) in enumerate(panels):
-        ax = axes.flat[k]
-        sub = train[train["regime"] == regime]
+        ax = axes[k]
         best = -np.inf
         for algo in algos:
-            cell = sub[sub["algo"] == algo]
+            cell = train[(train["regime"] == regime) & (train["algo"] == algo)]
             if cell.empty or (budget is not None and int(cell["budget"].max()) != budget):
                 continue
-            wide = cell.pivot_table(index="seed", columns="episode", values=metric, aggfunc="mean").sort_index(axis=1)
-            smoothed = wide.T.rolling(window, min_periods=1).mean().T.to_numpy()
-            mean, se = _seed_band(smoothed)
-            x = wide.columns.to_numpy()
-            step = max(1, len(x) // MARKS)
-            ax.plot(
-                x,
-                mean,
-                color=colors.color(algo),
-                lw=1.4,
-                label=legend[algo],
-                marker=colors.marker(algo),
-                ms=5,
-                markevery=(algos.index(algo) * step // len(algos), step),
-            )
-            if not np.all(np.isnan(se)):
-                ax.fill_between(x, mean - se, mean + se, color=colors.color(algo), alpha=0.2, lw=0)
-            best = max(best, float(np.nanmax(mean)))
-            rows.append(
-                pd.DataFrame(
-                    {"regime": regime, "algo": algo, "episode": x, "mean": mean, "sem": se, "n_seeds": wide.shape[0]}
-                )
-            )
+            line = _training_line(ax, cell, metric, window, colors, algo, legend[algo], algos)
+            best = max(best, float(np.nanmax(line["mean"])))
+            rows.append(line.assign(regime=regime)[["regime", "algo", "episode", "mean", "sem", "n_seeds"]])
         if best_line and np.isfinite(best):
             ax.axhline(best, color="k", ls="--", lw=0.9, label="best (smoothed)" if window > 1 else "best")
         ax.set_title(f"{regime}" + (f", budget {budget} days" if budget is not None else ""), fontsize=10)
         ax.grid(alpha=0.3)
         if k % ncols == 0:
             ax.set_ylabel(METRIC_LABELS.get(metric, metric))
-        if split or k >= len(panels) - ncols:  # no panel below (or axes of their own): an x axis
-            ax.set_xlabel("training episode")
-            ax.tick_params(labelbottom=True)
-    for ax in list(axes.flat)[len(panels) :]:
-        ax.set_visible(False)
-    training_legend(fig, list(axes.flat)[: len(panels)], [legend[a] for a in algos])
+        bottom_axis(ax, k, len(panels), ncols, "training episode", own_axis=split)
+    training_legend(fig, list(axes), [legend[a] for a in algos])
     notes = _missing_note(regimes, algos, train)
     n_seeds = train.groupby(["regime", "algo"])["seed"].nunique()
     smoothing = f"a {window}-episode moving average" if window > 1 else "the per-episode values (no smoothing)"
@@ -153,6 +146,21 @@ def training_curves(
     set_title(fig, (title or f"Training {METRIC_LABELS.get(metric, metric)}") + f"\n{caption}")
     draw_notes(fig, notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)
+
+
+def _training_line(ax, cell: pd.DataFrame, metric: str, window: int, colors: Palette, algo: str, label: str, algos):
+    """One agent's smoothed mean curve over its seeds, its standard-error band and markers;
+    what was drawn (episode, mean, sem, n_seeds)."""
+    wide = cell.pivot_table(index="seed", columns="episode", values=metric, aggfunc="mean").sort_index(axis=1)
+    mean, se = _seed_band(wide.T.rolling(window, min_periods=1).mean().T.to_numpy())
+    x = wide.columns.to_numpy()
+    step = max(1, len(x) // MARKS)
+    color = colors.color(algo)
+    markevery = (algos.index(algo) * step // len(algos), step)
+    ax.plot(x, mean, color=color, lw=1.4, label=label, marker=colors.marker(algo), ms=5, markevery=markevery)
+    if not np.all(np.isnan(se)):
+        ax.fill_between(x, mean - se, mean + se, color=color, alpha=0.2, lw=0)
+    return pd.DataFrame({"algo": algo, "episode": x, "mean": mean, "sem": se, "n_seeds": wide.shape[0]})
 
 
 def budget_panels(train: pd.DataFrame, regimes: list[str]) -> list[tuple[str, int | None]]:
@@ -181,23 +189,6 @@ def gap_axis(ax) -> None:
     for v in (0.0, 1.0):
         ax.axhline(v, color="0.5", ls=":", lw=0.9, zorder=0)
     ax.set_ylabel("0 = never eat, 100 % = planner (linear)", fontsize=8)
-
-
-def seed_scores(ev: pd.DataFrame, day_references: pd.DataFrame) -> pd.DataFrame:
-    """Per (regime, algo, seed): the share of the never -> planner gap the seed's mean return
-    closes on its own evaluation days (the results table's "gap closed", per seed); NaN where a
-    day has no yardstick. Columns: regime, algo, seed, score."""
-    ref = day_references.set_index(["regime", "seed", "episode"])[["never", "planner"]]
-    rows = []
-    for (regime, algo, seed), days in ev.groupby(["regime", "algo", "seed"], sort=True):
-        yard = ref.reindex(pd.MultiIndex.from_arrays([days["regime"], days["seed"], days["episode"]]))
-        score = float("nan")
-        if not yard.isna().any().any():
-            never, planner = float(yard["never"].mean()), float(yard["planner"].mean())
-            if planner != never:
-                score = (float(days["return"].mean()) - never) / (planner - never)
-        rows.append({"regime": regime, "algo": algo, "seed": seed, "score": score})
-    return pd.DataFrame(rows, columns=["regime", "algo", "seed", "score"])
 
 
 def _reference_scores(references: pd.DataFrame) -> pd.DataFrame:
@@ -312,106 +303,133 @@ def eval_across_regimes(
     ``colors``: the report's palette (default: one over the configs drawn). ``labels``: legend
     labels of some configs instead of :func:`~nutribench.report.palette.label`.
     """
+    ev = _eval_days(df, algos)
+    regimes = sort_regimes(ev["regime"])
+    xs = {r: (regime_index(r) if regime_index(r) is not None else i) for i, r in enumerate(regimes)}
+    present = sort_algos(ev["algo"])
+    colors = colors or palette(present)
+    legend = agent_labels(ev, dict(labels or {}))
+    scores, notes = _gap_scores(ev, day_references)
+    fig = Figure(figsize=(11, 7.6), layout="constrained")
+    axes = fig.subplots(2, 2, sharex=True)
+    rows, headroom = [], []
+    for p, metric in enumerate(EVAL_PANELS):
+        ax = axes.flat[p]
+        gap_panel = metric == "return" and scores is not None
+        rows += _agent_lines(ax, ev, metric, scores if gap_panel else None, regimes, xs, colors, legend)
+        if references is not None and not references.empty:
+            ref = references[references["regime"].isin(regimes)]
+            _reference_lines(ax, _reference_scores(ref) if gap_panel else ref, metric, POLICY_STYLES, xs)
+        if gap_panel:
+            headroom = _draw_headroom(ax, ev, day_references, xs)
+        _eval_axes(ax, p, metric, gap_panel, xs)
+    _reference_legend(fig, axes.flat[0])
+    notes = _missing_note(regimes, present, ev) + notes
+    absent = [algo_label(a) for a in algos or () if a not in present]
+    if absent:
+        notes.append(f"no evaluation data for {', '.join(absent)}")
+    set_title(fig, f"{title}\n{_eval_caption(ev, scores is not None, headroom)}")
+    draw_notes(fig, notes)
+    return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)
+
+
+def _eval_days(df: pd.DataFrame, algos: list[str] | None) -> pd.DataFrame:
+    """The evaluation days of ``algos`` (default all); ValueError when there are none."""
     ev = df[df["phase"] == "eval"]
     if algos is not None:
         ev = ev[ev["algo"].isin(algos)]
     if ev.empty:
         raise ValueError("no evaluation episodes to plot" + (f" for {', '.join(algos)}" if algos else ""))
-    regimes = sort_regimes(ev["regime"])
-    xs = {r: (regime_index(r) if regime_index(r) is not None else i) for i, r in enumerate(regimes)}
-    present_algos = sort_algos(ev["algo"])
-    colors = colors or palette(present_algos)
-    legend = agent_labels(ev, dict(labels or {}))
-    notes: list[str] = []
-    scores = None
-    headroom: list[str] = []
-    if day_references is not None:
-        scores = seed_scores(ev, day_references)
-        unscored = sort_regimes(scores.loc[~np.isfinite(scores["score"].to_numpy(dtype=float)), "regime"].unique())
-        if unscored:
-            notes.append(
-                f"panel (A) shows returns, not the share of the gap: no never/planner yardsticks for {', '.join(unscored)} "
-                "(the regime file is not the version the jobs ran)"
-            )
-            scores = None
-    fig = Figure(figsize=(11, 7.6), layout="constrained")
-    axes = fig.subplots(2, 2, sharex=True)
-    # each algorithm drawn slightly beside the regime's x, so that lines which coincide
-    # (several agents that learned the same policy) stay visible; ``data["x"]`` is the regime
-    dodge = {a: DODGE * (i - (len(present_algos) - 1) / 2) for i, a in enumerate(present_algos)}
+    return ev
+
+
+def _agent_lines(ax, ev, metric: str, scores, regimes: list[str], xs, colors: Palette, legend) -> list[pd.DataFrame]:
+    """One panel's agents, each a line with its band (:func:`_draw_gapped`) over the regimes at
+    the mean of its seeds' means (``scores``: the seeds' shares of the gap instead); each drawn
+    slightly beside the regime's x, so that lines which coincide (several agents that learned
+    the same policy) stay visible (``data["x"]`` is the regime). What was drawn."""
+    present = sort_algos(ev["algo"])
+    dodge = {a: DODGE * (i - (len(present) - 1) / 2) for i, a in enumerate(present)}
     rows = []
-    for p, metric in enumerate(EVAL_PANELS):
-        ax = axes.flat[p]
-        gap_panel = metric == "return" and scores is not None
-        for algo in present_algos:
-            cell, color = ev[ev["algo"] == algo], colors.color(algo)
-            g = cell.groupby("regime")[metric]
-            stats = pd.DataFrame({"count": g.count(), "std": g.std(ddof=1)})
-            stats = stats.loc[sort_regimes(stats.index)]
-            stats["sem"] = stats["std"] / np.sqrt(stats["count"])
-            if gap_panel:
-                per_seed = scores[scores["algo"] == algo].groupby("regime")["score"]
-                stats["sem"] = np.nan  # the pooled standard error is a return's, not a share's
-            else:
-                per_seed = cell.groupby(["regime", "seed"])[metric].mean().groupby("regime")
-            ci = {r: mean_ci(v.to_numpy(dtype=float)) for r, v in per_seed}
-            stats["mean"] = [ci[r][0] for r in stats.index]
-            stats["lo"] = [ci[r][1] for r in stats.index]
-            stats["hi"] = [ci[r][2] for r in stats.index]
-            stats["seeds"] = [int(cell[cell["regime"] == r]["seed"].nunique()) for r in stats.index]
-            x = np.array([xs[r] for r in stats.index])
-            xd = [xs[r] + dodge[algo] for r in regimes]
-            _draw_gapped(ax, stats, regimes, xd, color, legend[algo], colors.marker(algo))
-            rows.append(
-                pd.DataFrame(
-                    {
-                        "panel": "gap_closed" if gap_panel else metric,
-                        "algo": algo,
-                        "regime": stats.index,
-                        "x": x,
-                        "mean": stats["mean"].to_numpy(),
-                        "lo": stats["lo"].to_numpy(),
-                        "hi": stats["hi"].to_numpy(),
-                        "sem": stats["sem"].to_numpy(),
-                        "n": stats["count"].to_numpy(),
-                        "seeds": stats["seeds"].to_numpy(),
-                    }
-                )
-            )
-        if references is not None and not references.empty:
-            ref = references[references["regime"].isin(regimes)]
-            if gap_panel:
-                ref = _reference_scores(ref)
-            _reference_lines(ax, ref, metric, POLICY_STYLES, xs)
-        if gap_panel:
-            headroom = _draw_headroom(ax, ev, day_references, xs)
-        panel_title = GAP_LABEL if gap_panel else METRIC_LABELS[metric]
-        ax.set_title(f"({'ABCD'[p]}) {panel_title}", fontsize=10, loc="left")
-        ax.grid(alpha=0.3)
-        if gap_panel:
-            gap_axis(ax)
-        elif metric == "return":
-            ax.set_ylabel("return (linear)", fontsize=8)
-        # half a regime beyond the outermost: a figure of one regime has its points in the
-        # middle of the panel (autoscaling put two dodged points at its two edges)
-        ax.set_xlim(min(xs.values()) - 0.5, max(xs.values()) + 0.5)
-        if p >= 2:
-            ax.set_xlabel("regime (run)")
-            ax.set_xticks(sorted(xs.values()), [str(k) for k in sorted(xs.values())])
-    handles, labels = axes.flat[0].get_legend_handles_labels()
+    for algo in present:
+        cell = ev[ev["algo"] == algo]
+        stats = _regime_stats(cell, metric, scores[scores["algo"] == algo] if scores is not None else None)
+        xd = [xs[r] + dodge[algo] for r in regimes]
+        _draw_gapped(ax, stats, regimes, xd, colors.color(algo), legend[algo], colors.marker(algo))
+        x = np.array([xs[r] for r in stats.index])
+        frame = stats.reset_index(names="regime").assign(x=x, n=stats["count"].to_numpy())
+        rows.append(frame.assign(panel="gap_closed" if scores is not None else metric, algo=algo)[_EVAL_COLUMNS])
+    return rows
+
+
+_EVAL_COLUMNS = ["panel", "algo", "regime", "x", "mean", "lo", "hi", "sem", "n", "seeds"]
+
+
+def _gap_scores(ev: pd.DataFrame, day_references: pd.DataFrame | None) -> tuple[pd.DataFrame | None, list[str]]:
+    """Each seed's share of the gap (its run score, :func:`~nutribench.report.scores.run_scores`) for panel (A), or None (and a note
+    where a regime drawn has no yardsticks: panel (A) shows returns)."""
+    if day_references is None:
+        return None, []
+    scores = run_scores(ev, day_references)
+    unscored = sort_regimes(scores.loc[~np.isfinite(scores["score"].to_numpy(dtype=float)), "regime"].unique())
+    if not unscored:
+        return scores, []
+    return None, [
+        f"panel (A) shows returns, not the share of the gap: no never/planner yardsticks for {', '.join(unscored)} "
+        "(the regime file is not the version the jobs ran)"
+    ]
+
+
+def _regime_stats(cell: pd.DataFrame, metric: str, scores: pd.DataFrame | None) -> pd.DataFrame:
+    """Per regime of one agent's days: the pooled count and standard error over seeds x days
+    (``sem``: NaN on the gap scale, where it is a return's), the mean of the seeds' means (of
+    ``scores``, the seeds' shares, when given) with its interval over seeds, the seed count."""
+    g = cell.groupby("regime")[metric]
+    stats = pd.DataFrame({"count": g.count(), "std": g.std(ddof=1)})
+    stats = stats.loc[sort_regimes(stats.index)]
+    stats["sem"] = stats["std"] / np.sqrt(stats["count"])
+    if scores is not None:
+        per_seed = scores.groupby("regime")["score"]
+        stats["sem"] = np.nan  # the pooled standard error is a return's, not a share's
+    else:
+        per_seed = cell.groupby(["regime", "seed"])[metric].mean().groupby("regime")
+    ci = {r: mean_ci(v.to_numpy(dtype=float)) for r, v in per_seed}
+    for k, col in enumerate(("mean", "lo", "hi")):
+        stats[col] = [ci[r][k] for r in stats.index]
+    stats["seeds"] = [int(cell[cell["regime"] == r]["seed"].nunique()) for r in stats.index]
+    return stats
+
+
+def _eval_axes(ax, p: int, metric: str, gap_panel: bool, xs: Mapping[str, float]) -> None:
+    """Panel ``p``'s title, grid, y label and x range (half a regime beyond the outermost: a
+    figure of one regime has its points in the middle, not two dodged points at its edges)."""
+    ax.set_title(f"({'ABCD'[p]}) {GAP_LABEL if gap_panel else METRIC_LABELS[metric]}", fontsize=10, loc="left")
+    ax.grid(alpha=0.3)
+    if gap_panel:
+        gap_axis(ax)
+    elif metric == "return":
+        ax.set_ylabel("return (linear)", fontsize=8)
+    ax.set_xlim(min(xs.values()) - 0.5, max(xs.values()) + 0.5)
+    if p >= 2:
+        ax.set_xlabel("regime (run)")
+        ax.set_xticks(sorted(xs.values()), [str(k) for k in sorted(xs.values())])
+
+
+def _reference_legend(fig: Figure, ax) -> None:
+    """The legend under the panels: the agents in a row, the reference lines in the next."""
+    handles, labels = ax.get_legend_handles_labels()
     is_ref = [lab.endswith("(reference)") for lab in labels]
     legend_rows(
         fig,
         [
-            ([h for h, r in zip(handles, is_ref) if not r], [lab for lab, r in zip(labels, is_ref) if not r]),
-            ([h for h, r in zip(handles, is_ref) if r], [lab for lab, r in zip(labels, is_ref) if r]),
+            ([h for h, r in zip(handles, is_ref) if r == ref], [lab for lab, r in zip(labels, is_ref) if r == ref])
+            for ref in (False, True)
         ],
     )
-    notes = _missing_note(regimes, present_algos, ev) + notes
-    if algos is not None:
-        absent = [algo_label(a) for a in algos if a not in present_algos]
-        if absent:
-            notes.append(f"no evaluation data for {', '.join(absent)}")
+
+
+def _eval_caption(ev: pd.DataFrame, gap: bool, headroom: list[str]) -> str:
+    """Figures 3/4's caption: what a point and a band are, what panel (A) shows, the budgets and seeds."""
     n_seeds = ev.groupby(["regime", "algo"])["seed"].nunique()
     n_days = ev.groupby(["regime", "algo", "seed"]).size()
     band = (
@@ -421,17 +439,14 @@ def eval_across_regimes(
     )
     panel_a = (
         "(A) each seed's share of the never -> planner gap closed on its own evaluation days; returns in the results table"
-        if scores is not None
+        if gap
         else "(A) return"
     )
-    if scores is not None and headroom:
+    if gap and headroom:
         panel_a += (
             f";\n(A)'s {' and '.join(headroom)}: the references above the planner on the same days (mean over seeds)"
         )
-    set_title(
-        fig,
-        f"{title}\nmean over seeds ({count_span(n_seeds)} per point) of each seed's mean over its evaluation days ({count_span(n_days)});\n"
-        f"{band}; {panel_a};\nalgorithms are drawn slightly apart along x so that equal values stay visible\n{budget_seeds_line(ev)}",
+    return (
+        f"mean over seeds ({count_span(n_seeds)} per point) of each seed's mean over its evaluation days ({count_span(n_days)});\n"
+        f"{band}; {panel_a};\nalgorithms are drawn slightly apart along x so that equal values stay visible\n{budget_seeds_line(ev)}"
     )
-    draw_notes(fig, notes)
-    return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)

@@ -88,21 +88,16 @@ def reference_runs(ev: pd.DataFrame, day_references: pd.DataFrame) -> pd.DataFra
     cols = ["regime", "policy", "seed", "score"]
     if ev.empty or not set(STRONG_POLICIES) <= set(day_references.columns):
         return pd.DataFrame(columns=cols)
-    days = ev[["regime", "seed", "episode"]].drop_duplicates()
-    ref = day_references.set_index(["regime", "seed", "episode"])
-    rows = []
-    for (regime, seed), d in days.groupby(["regime", "seed"], sort=True):
-        yard = ref.reindex(pd.MultiIndex.from_frame(d))
-        for policy in STRONG_POLICIES:
-            values = yard[["never", "planner", policy]]
-            if values.isna().any().any():
-                continue
-            never, planner = float(values["never"].mean()), float(values["planner"].mean())
-            if planner == never:
-                continue
-            score = (float(values[policy].mean()) - never) / (planner - never)
-            rows.append({"regime": regime, "policy": policy, "seed": int(seed), "score": score})
-    return pd.DataFrame(rows, columns=cols)
+    from nutribench.report.scores import run_scores
+
+    key = ["regime", "seed", "episode"]
+    days = ev[key].drop_duplicates()
+    yard = day_references.set_index(key).reindex(pd.MultiIndex.from_frame(days)).reset_index()
+    played = pd.concat([yard.assign(algo=p, **{"return": yard[p]}) for p in STRONG_POLICIES], ignore_index=True)
+    runs = run_scores(played, day_references).rename(columns={"algo": "policy"})
+    runs = runs[np.isfinite(runs["score"].to_numpy(dtype=float))]
+    rank = runs["policy"].map({p: i for i, p in enumerate(STRONG_POLICIES)})
+    return runs.assign(rank=rank).sort_values(["regime", "seed", "rank"])[cols].reset_index(drop=True)
 
 
 def regime_shares(ev: pd.DataFrame, day_references: pd.DataFrame) -> pd.DataFrame:

@@ -59,7 +59,7 @@ from nutribench.report.figure_parts import budget_cell, seed_list, sort_regimes
 from nutribench.report.palette import BUILTIN_ORDER
 from nutribench.report.palette import label as algo_label
 from nutribench.report.scores import DEFAULT_REPS
-from nutribench.report.tables import TableResult
+from nutribench.report.tables import TableResult, interval_cell
 from nutribench.scheduler.grid import PRESETS
 from nutribench.stats import caption as interval_caption
 from nutribench.store.archive.installed import disagreeing_archives, forged_regimes
@@ -197,33 +197,23 @@ def leaderboard_rows(
         algo, version, _ = entry
         cell = ev[(ev[list(ENTRY)] == pd.Series(entry, index=list(ENTRY))).all(axis=1)]
         mine = run_scores(cell, references)
-        covered = sort_regimes(mine.loc[np.isfinite(mine["score"].to_numpy(dtype=float)), "regime"].unique())
         seeds = sorted({int(s) for s in cell["seed"]})
         budget = budget_cell(cell)
         mine_jobs = job_info.loc[sorted(set(cell["job_id"]))]
-        row = {
-            "algo": algo,
-            "protocol": _lookup(protocol, entry, "?"),
-            "iqm": np.nan,
-            "iqm_lo": np.nan,
-            "iqm_hi": np.nan,
-            "regimes": len(covered),
-            "covered": ",".join(covered),
-            "runs": int(np.isfinite(mine["score"].to_numpy(dtype=float)).sum()),
-            "version": version,
-            "budget": budget,
-            "seeds": " ".join(map(str, seeds)),
-            "engine": "/".join(sorted({str(e) for e in mine_jobs["engine"].dropna()})) or "?",
-            "code": _code_version(mine_jobs),
-            "checked": _lookup(checked or {}, entry, CHECKED),
-        }
-        if covered:
-            iv = interval_estimates(score_set(mine, covered, [algo]), reps=reps)
-            iqm = iv[iv["aggregate"] == "iqm"].iloc[0]
-            row["iqm"], row["iqm_lo"], row["iqm_hi"] = float(iqm["point"]), float(iqm["lo"]), float(iqm["hi"])
-        for regime in board:
-            s = mine.loc[mine["regime"] == regime, "score"].to_numpy(dtype=float)
-            row[f"share_{regime}"] = float(np.mean(s)) if s.size and np.isfinite(s).all() else np.nan
+        row = _row(
+            algo,
+            _lookup(protocol, entry, "?"),
+            mine,
+            board,
+            reps,
+            version=version,
+            budget=budget,
+            seeds=" ".join(map(str, seeds)),
+            engine="/".join(sorted({str(e) for e in mine_jobs["engine"].dropna()})) or "?",
+            code=_code_version(mine_jobs),
+            checked=_lookup(checked or {}, entry, CHECKED),
+        )
+        covered = row["covered"].split(",") if row["covered"] else []
         row["flags"] = "; ".join(_flags(budget, seeds, covered, board))
         rows.append(row)
     out = pd.DataFrame(rows)
@@ -236,6 +226,24 @@ def leaderboard_rows(
     out.insert(0, "rank", [i + 1 if i < ranked and np.isfinite(v) else None for i, v in enumerate(out["iqm"])])
     strong = _reference_rows(ev, references, board, reps)
     return pd.concat([out, strong], ignore_index=True) if not strong.empty else out
+
+
+def _row(algo: str, protocol: str, mine: pd.DataFrame, board: list[str], reps: int, **cells) -> dict:
+    """A row of the board from its run scores ``mine``: the IQM over the regimes it covers with
+    its interval (NaN without one), then ``cells``, then its mean share of the gap per regime of
+    the ``board``."""
+    finite = np.isfinite(mine["score"].to_numpy(dtype=float))
+    covered = sort_regimes(mine.loc[finite, "regime"].unique())
+    row = {"algo": algo, "protocol": protocol, "iqm": np.nan, "iqm_lo": np.nan, "iqm_hi": np.nan}
+    row.update(regimes=len(covered), covered=",".join(covered), runs=int(finite.sum()), **cells)
+    if covered:
+        iv = interval_estimates(score_set(mine, covered, [algo]), reps=reps)
+        iqm = iv[iv["aggregate"] == "iqm"].iloc[0]
+        row.update(iqm=float(iqm["point"]), iqm_lo=float(iqm["lo"]), iqm_hi=float(iqm["hi"]))
+    for regime in board:
+        s = mine.loc[mine["regime"] == regime, "score"].to_numpy(dtype=float)
+        row[f"share_{regime}"] = float(np.mean(s)) if s.size and np.isfinite(s).all() else np.nan
+    return row
 
 
 #: The protocol cell of the references above the planner (unranked rows under the agents).
@@ -252,30 +260,12 @@ def _reference_rows(ev: pd.DataFrame, references: pd.DataFrame, board: list[str]
     rows = []
     for algo in ("lookahead", "clairvoyant"):
         mine = runs[runs["algo"] == algo]
-        covered = sort_regimes(mine["regime"].unique())
-        if not covered:
+        if mine.empty:
             continue
-        iv = interval_estimates(score_set(mine, covered, [algo]), reps=reps)
-        iqm = iv[iv["aggregate"] == "iqm"].iloc[0]
-        row = {
-            "rank": None,
-            "algo": algo,
-            "protocol": REFERENCE_PROTOCOL,
-            "iqm": float(iqm["point"]),
-            "iqm_lo": float(iqm["lo"]),
-            "iqm_hi": float(iqm["hi"]),
-            "regimes": len(covered),
-            "covered": ",".join(covered),
-            "runs": len(mine),
-            "budget": None,  # none: planned, not trained (empty in CSV, "-" in the table)
-            "seeds": " ".join(map(str, sorted({int(s) for s in mine["seed"]}))),
-            "engine": None,
-            "code": None,
-            "checked": f"from {SOURCE}",
-        }
-        for regime in board:
-            s = mine.loc[mine["regime"] == regime, "score"].to_numpy(dtype=float)
-            row[f"share_{regime}"] = float(np.mean(s)) if s.size else np.nan
+        # budget none: planned, not trained (empty in CSV, "-" in the table), as engine and code
+        seeds = " ".join(map(str, sorted({int(s) for s in mine["seed"]})))
+        cells = dict(budget=None, seeds=seeds, engine=None, code=None, checked=f"from {SOURCE}")
+        row = {"rank": None, **_row(algo, REFERENCE_PROTOCOL, mine, board, reps, **cells)}
         row["flags"] = "unranked: " + (
             "sampled futures finished by the planner" if algo == "lookahead" else "the day's foods known"
         )
@@ -328,11 +318,10 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
     board = [c.removeprefix("share_") for c in rows.columns if c.startswith("share_")]
     fmt = []
     for r in rows.to_dict("records"):
-        ci = f" [{_pct(r['iqm_lo'])}, {_pct(r['iqm_hi'])}]" if np.isfinite(r["iqm_lo"]) else " [single seed]"
         f = {
             "rank": "" if r["rank"] is None or pd.isna(r["rank"]) else int(r["rank"]),
             "agent": algo_label(r["algo"]),
-            "IQM share of gap (%) [95% CI]": (_pct(r["iqm"]) + ci) if np.isfinite(r["iqm"]) else "n/a",
+            "IQM share of gap (%) [95% CI]": interval_cell(r["iqm"], r["iqm_lo"], r["iqm_hi"], _pct),
             "regimes": f"{r['regimes']}/{len(board)}",
         }
         f.update({f"{g} (%)": _pct(r[f"share_{g}"]) for g in board})

@@ -15,9 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import numpy as np
 import pandas as pd
-from matplotlib.figure import Figure
 
 from nutribench.report.aggregate import point_estimate
 from nutribench.report.figure_parts import (
@@ -28,7 +26,7 @@ from nutribench.report.figure_parts import (
     set_title,
     sort_regimes,
 )
-from nutribench.report.figures import GAP_LABEL, gap_axis, training_legend
+from nutribench.report.figures import GAP_LABEL, bottom_axis, gap_axis, panel_grid, training_legend
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import order as sort_algos
 from nutribench.report.scores import DEFAULT_REPS, run_scores
@@ -89,12 +87,9 @@ def learning_curve_figure(
     regimes, names = sort_regimes(points["regime"]), sort_algos(points["algo"])
     colors = colors or palette(names)
     legend = agent_labels(curve.drop_duplicates(["algo", "seed", "budget"])[["algo", "seed", "budget"]])
-    ncols = min(4, len(regimes))
-    nrows = int(np.ceil(len(regimes) / ncols))
-    fig = Figure(figsize=(max(7.5, 4.2 * ncols), 3.2 * nrows + 1.1), layout="constrained")
-    axes = fig.subplots(nrows, ncols, squeeze=False, sharex=True)
+    fig, axes, ncols = panel_grid(len(regimes), 1.1, sharex=True)
     for k, regime in enumerate(regimes):
-        ax = axes.flat[k]
+        ax = axes[k]
         for algo in names:
             line = points[(points["regime"] == regime) & (points["algo"] == algo)]
             if line.empty:
@@ -109,12 +104,8 @@ def learning_curve_figure(
         ax.grid(alpha=0.3)
         if k % ncols:
             ax.set_ylabel("")
-        if k >= len(regimes) - ncols:
-            ax.set_xlabel("training day")
-            ax.tick_params(labelbottom=True)
-    for ax in list(axes.flat)[len(regimes) :]:
-        ax.set_visible(False)
-    training_legend(fig, list(axes.flat)[: len(regimes)], [legend[a] for a in names])
+        bottom_axis(ax, k, len(regimes), ncols, "training day")
+    training_legend(fig, list(axes), [legend[a] for a in names])
     days = sorted(set(curve.groupby("job_id")["episode"].nunique()))
     n_days = f"{days[0]}" if len(days) == 1 else f"{days[0]}-{days[-1]}"
     caption = (

@@ -88,7 +88,7 @@ def label(name: str) -> str:
     return name if entry is None else entry.display
 
 
-def _lab(color: str) -> np.ndarray:
+def lab(color: str) -> np.ndarray:
     """sRGB colour -> CIELAB (D65 white)."""
     rgb = np.asarray(to_rgb(color))
     lin = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
@@ -100,34 +100,7 @@ def _lab(color: str) -> np.ndarray:
 
 def distance(a: str, b: str) -> float:
     """Perceptual distance of two colours (CIE76: Euclidean in CIELAB)."""
-    return float(np.linalg.norm(_lab(a) - _lab(b)))
-
-
-def distance2000(a: str, b: str) -> float:
-    """Perceptual distance of two colours (CIEDE2000), nearer to what a reader sees than CIE76,
-    which overstates differences between saturated blues and greens."""
-    (l1, a1, b1), (l2, a2, b2) = _lab(a), _lab(b)
-    cbar = (np.hypot(a1, b1) + np.hypot(a2, b2)) / 2
-    g = 0.5 * (1 - np.sqrt(cbar**7 / (cbar**7 + 25.0**7)))
-    a1, a2 = (1 + g) * a1, (1 + g) * a2
-    c1, c2 = np.hypot(a1, b1), np.hypot(a2, b2)
-    h1, h2 = np.degrees(np.arctan2(b1, a1)) % 360, np.degrees(np.arctan2(b2, a2)) % 360
-    dh = 0.0 if c1 * c2 == 0 else (h2 - h1 + 180) % 360 - 180
-    d_h = 2 * np.sqrt(c1 * c2) * np.sin(np.radians(dh / 2))
-    lbar, cbar_p = (l1 + l2) / 2, (c1 + c2) / 2
-    hbar = h1 + h2 if c1 * c2 == 0 else ((h1 + h2) / 2 + (180 if abs(h1 - h2) > 180 else 0)) % 360
-    t = (
-        1
-        - 0.17 * np.cos(np.radians(hbar - 30))
-        + 0.24 * np.cos(np.radians(2 * hbar))
-        + 0.32 * np.cos(np.radians(3 * hbar + 6))
-        - 0.20 * np.cos(np.radians(4 * hbar - 63))
-    )
-    s_l = 1 + 0.015 * (lbar - 50) ** 2 / np.sqrt(20 + (lbar - 50) ** 2)
-    s_c, s_h = 1 + 0.045 * cbar_p, 1 + 0.015 * cbar_p * t
-    r_t = -2 * np.sqrt(cbar_p**7 / (cbar_p**7 + 25.0**7)) * np.sin(np.radians(60 * np.exp(-(((hbar - 275) / 25) ** 2))))
-    dl, dc, dh_ = (l2 - l1) / s_l, (c2 - c1) / s_c, d_h / s_h
-    return float(np.sqrt(dl**2 + dc**2 + dh_**2 + r_t * dc * dh_))
+    return float(np.linalg.norm(lab(a) - lab(b)))
 
 
 def candidates(name: str) -> Iterator[str]:
@@ -147,7 +120,7 @@ def _pick(name: str, taken: list[str]) -> str:
     the candidate farthest from them."""
     best, best_d = "", -1.0
     for c in candidates(name):
-        if _lab(c)[0] > MAX_LIGHTNESS:
+        if lab(c)[0] > MAX_LIGHTNESS:
             continue
         d = min((distance(c, t) for t in taken), default=np.inf)
         if d >= MIN_DISTANCE:
@@ -183,21 +156,21 @@ def markers(names: Iterable[str]) -> dict[str, str]:
         if n in BUILTIN_MARKERS:
             out[n] = BUILTIN_MARKERS[n]
             continue
-        start = int.from_bytes(hashlib.sha256(n.encode()).digest()[:8], "big") % len(USER_MARKERS)
-        ring = [USER_MARKERS[(start + k) % len(USER_MARKERS)] for k in range(len(USER_MARKERS))]
+        ring = _ring(n, USER_MARKERS)
         out[n] = next((m for m in ring if m not in out.values()), ring[0])
     return out
+
+
+def _ring(name: str, options: tuple[str, ...]) -> list[str]:
+    """``options`` from a place a hash of ``name`` picks, round to the one before it."""
+    start = int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "big") % len(options)
+    return [options[(start + k) % len(options)] for k in range(len(options))]
 
 
 def _user_color(name: str, taken: list[str]) -> str | None:
     """The first colour of :data:`USER_COLORS` not in ``taken``, from a place the name's hash
     picks; None when every one is taken."""
-    start = int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "big") % len(USER_COLORS)
-    for k in range(len(USER_COLORS)):
-        c = USER_COLORS[(start + k) % len(USER_COLORS)]
-        if c not in taken:
-            return c
-    return None
+    return next((c for c in _ring(name, USER_COLORS) if c not in taken), None)
 
 
 @dataclass(frozen=True)
@@ -219,16 +192,6 @@ class Palette:
             return self.colors[name]
         return colors([*self.colors, name])[name]
 
-    @staticmethod
-    def label(name: str) -> str:
-        """See :func:`label`."""
-        return label(name)
-
-    @staticmethod
-    def order(names: Iterable[str]) -> list[str]:
-        """See :func:`order`."""
-        return order(names)
-
 
 def palette(names: Iterable[str] = ()) -> Palette:
     """The :class:`Palette` of ``names`` (give every config of the report, so that each
@@ -246,11 +209,11 @@ __all__ = [
     "USER_COLORS",
     "USER_MARKERS",
     "USER_MIN_DISTANCE",
-    "distance2000",
     "markers",
     "Palette",
     "colors",
     "distance",
+    "lab",
     "label",
     "order",
     "palette",

@@ -5,7 +5,7 @@ numbers (written as CSV) and a formatted frame (written as Markdown and LaTeX)."
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +33,14 @@ def config_table_numbers(names: Iterable[str]) -> dict[int, str]:
     return {**CONFIG_TABLES, **{FIRST_OTHER_TABLE + i: n for i, n in enumerate(others)}}
 
 
+def markdown_rows(frame: pd.DataFrame) -> list[str]:
+    """``frame`` as the lines of a Markdown table, every cell as it is (no padding: a row of
+    the table reads ``| 1 | GRU-PPO | 68 [59, 75] |``, as the committed reports hold them)."""
+    cols = list(frame.columns)
+    rows = ["| " + " | ".join(str(v) for v in row) + " |" for row in frame.itertuples(index=False)]
+    return ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols), *rows]
+
+
 @dataclass
 class TableResult:
     name: str
@@ -41,28 +49,19 @@ class TableResult:
     formatted: pd.DataFrame
 
     def to_markdown(self) -> str:
-        cols = list(self.formatted.columns)
-        lines = [f"**{self.title}**", "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-        for row in self.formatted.itertuples(index=False):
-            lines.append("| " + " | ".join(str(v) for v in row) + " |")
-        return "\n".join(lines) + "\n"
+        return "\n".join([f"**{self.title}**", "", *markdown_rows(self.formatted)]) + "\n"
 
     def to_latex(self) -> str:
-        cols = list(self.formatted.columns)
-        esc = latex_escape
-        lines = [
-            r"\begin{table}[t]",
-            r"\centering",
-            rf"\caption{{{esc(self.title)}}}",
-            r"\begin{tabular}{" + "l" * len(cols) + "}",
-            r"\toprule",
-            " & ".join(esc(c) for c in cols) + r" \\",
-            r"\midrule",
-        ]
-        for row in self.formatted.itertuples(index=False):
-            lines.append(" & ".join(esc(v) for v in row) + r" \\")
-        lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
-        return "\n".join(lines) + "\n"
+        """The table as a LaTeX ``table`` float (booktabs rules), every text escaped
+        (:func:`latex_escape`), written by pandas' Styler."""
+        style = self.formatted.style.hide(axis="index").format(latex_escape).format_index(latex_escape, axis=1)
+        return style.to_latex(
+            position="t",
+            position_float="centering",
+            caption=latex_escape(self.title),
+            hrules=True,
+            column_format="l" * len(self.formatted.columns),
+        )
 
     def to_csv(self) -> str:
         return self.raw.to_csv(index=False)
@@ -179,12 +178,12 @@ def mean_sem_cell(values: pd.Series, digits: int) -> tuple[float, float, str]:
     return mean, se, f"{mean:.{digits}f} ± {se:.{digits}f}" if np.isfinite(se) else f"{mean:.{digits}f}"
 
 
-def _interval(point: float, lo: float, hi: float, fmt: str) -> str:
-    return (
-        f"{fmt.format(point)} [{fmt.format(lo)}, {fmt.format(hi)}]"
-        if np.isfinite(lo)
-        else f"{fmt.format(point)} [single seed]"
-    )
+def interval_cell(point: float, lo: float, hi: float, fmt: Callable[[float], str] = "{:.2f}".format) -> str:
+    """A table's ``point [lo, hi]`` (each written by ``fmt``); ``point [single seed]`` without an
+    interval, ``n/a`` without a point."""
+    if not np.isfinite(point):
+        return "n/a"
+    return f"{fmt(point)} [{fmt(lo)}, {fmt(hi)}]" if np.isfinite(lo) else f"{fmt(point)} [single seed]"
 
 
 def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.DataFrame | None = None) -> TableResult:
@@ -212,51 +211,12 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
     for regime in sort_regimes(ev["regime"]):
         for algo in sort_algos(ev[ev["regime"] == regime]["algo"]):
             cell = ev[(ev["regime"] == regime) & (ev["algo"] == algo)]
-            budget = budget_cell(cell)
-            row = {"regime": regime, "algo": algo, "seeds": cell["seed"].nunique(), "episodes": len(cell)}
-            f = {
-                "regime": regime,
-                "algorithm": algo_label(algo),
-                "budget (days)": budget,
-                "seeds": row["seeds"],
-                "episodes": row["episodes"],
-            }
-            seed_ci = mean_ci(cell.groupby("seed")["return"].mean().to_numpy(dtype=float))
-            f["return [95% CI over seeds]"] = _interval(*seed_ci, "{:.2f}")
-            if ref is not None:
-                f["gap closed [95% CI over seeds]"] = "n/a"
-            for m in RESULT_METRICS:
-                row[f"{m}_mean"], row[f"{m}_sem"], f[m] = mean_sem_cell(cell[m], 2 if m in ("return", "foods") else 3)
-            by_seed = [g["return"].to_numpy(dtype=float) for _, g in cell.groupby("seed")]
-            point, lo, hi = clustered_iqm_ci(by_seed, reps=seeds_bootstrap)
-            row["return_iqm"], row["return_iqm_lo"], row["return_iqm_hi"] = point, lo, hi
-            f["return IQM [95% CI]"] = (
-                f"{point:.2f} [{lo:.2f}, {hi:.2f}]" if np.isfinite(lo) else f"{point:.2f} [single seed]"
-            )
-            if ref is not None:
-                keys = pd.MultiIndex.from_arrays([cell["regime"], cell["seed"], cell["episode"]])
-                days = ref.reindex(keys)
-                complete = not days[["never", "planner"]].isna().any().any()
-                row["never_mean"] = float(days["never"].mean()) if complete else float("nan")
-                row["planner_mean"] = float(days["planner"].mean()) if complete else float("nan")
-                row["gap_closed"] = (
-                    gap_closed(row["return_mean"], row["never_mean"], row["planner_mean"]) if complete else float("nan")
-                )
-                f["never / planner"] = f"{row['never_mean']:.2f} / {row['planner_mean']:.2f}" if complete else "n/a"
-                f["gap closed"] = f"{100 * row['gap_closed']:.0f} %" if np.isfinite(row["gap_closed"]) else "n/a"
-                shares = _seed_shares(cell, days) if complete else np.array([])
-                gap_ci = mean_ci(shares) if shares.size and np.isfinite(shares).all() else (np.nan,) * 3
-                row["gap_closed_seed_mean"], row["gap_closed_seed_lo"], row["gap_closed_seed_hi"] = gap_ci
-                if np.isfinite(gap_ci[0]):
-                    f["gap closed [95% CI over seeds]"] = (
-                        f"{100 * gap_ci[0]:.0f} % [{100 * gap_ci[1]:.0f} %, {100 * gap_ci[2]:.0f} %]"
-                        if np.isfinite(gap_ci[1])
-                        else f"{100 * gap_ci[0]:.0f} % [single seed]"
-                    )
+            row, f, seed_ci = _result_row(regime, algo, cell, seeds_bootstrap, ref is not None)
+            days = _yardstick_cells(row, f, cell, ref) if ref is not None else None
             row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"] = seed_ci
-            row["budget"] = budget  # last: the CSV's earlier columns keep their places
+            row["budget"] = f["budget (days)"]  # last: the CSV's earlier columns keep their places
             if strong:
-                _strong_cells(row, f, days if complete else None)
+                _strong_cells(row, f, days)
             rows.append(row)
             fmt_rows.append(f)
     title = (
@@ -273,6 +233,44 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
             f"row's days (100 % is the greedy planner, not the optimum; {SOURCE})"
         )
     return TableResult("results", title, pd.DataFrame(rows), pd.DataFrame(fmt_rows))
+
+
+def _result_row(regime: str, algo: str, cell: pd.DataFrame, reps: int, yardsticks: bool) -> tuple[dict, dict, tuple]:
+    """The results table's raw and formatted row of one agent on one regime, the yardsticks'
+    cells left to :func:`_yardstick_cells` (``yardsticks``: the gap's interval keeps its
+    column's place), and the seed-level interval (the raw row holds it last)."""
+    row = {"regime": regime, "algo": algo, "seeds": cell["seed"].nunique(), "episodes": len(cell)}
+    f = {"regime": regime, "algorithm": algo_label(algo), "budget (days)": budget_cell(cell)}
+    f.update(seeds=row["seeds"], episodes=row["episodes"])
+    seed_ci = mean_ci(cell.groupby("seed")["return"].mean().to_numpy(dtype=float))
+    f["return [95% CI over seeds]"] = interval_cell(*seed_ci)
+    if yardsticks:
+        f["gap closed [95% CI over seeds]"] = "n/a"
+    for m in RESULT_METRICS:
+        row[f"{m}_mean"], row[f"{m}_sem"], f[m] = mean_sem_cell(cell[m], 2 if m in ("return", "foods") else 3)
+    by_seed = [g["return"].to_numpy(dtype=float) for _, g in cell.groupby("seed")]
+    point, lo, hi = clustered_iqm_ci(by_seed, reps=reps)
+    row["return_iqm"], row["return_iqm_lo"], row["return_iqm_hi"] = point, lo, hi
+    f["return IQM [95% CI]"] = interval_cell(point, lo, hi)
+    return row, f, seed_ci
+
+
+def _yardstick_cells(row: dict, f: dict, cell: pd.DataFrame, ref: pd.DataFrame) -> pd.DataFrame | None:
+    """Never's and the planner's mean returns on the row's days and the share of their gap the
+    agent closes, raw and formatted; the days' yardsticks (None where one lacks a day)."""
+    days = ref.reindex(pd.MultiIndex.from_arrays([cell["regime"], cell["seed"], cell["episode"]]))
+    complete = not days[["never", "planner"]].isna().any().any()
+    nan = float("nan")
+    row["never_mean"] = float(days["never"].mean()) if complete else nan
+    row["planner_mean"] = float(days["planner"].mean()) if complete else nan
+    row["gap_closed"] = gap_closed(row["return_mean"], row["never_mean"], row["planner_mean"]) if complete else nan
+    f["never / planner"] = f"{row['never_mean']:.2f} / {row['planner_mean']:.2f}" if complete else "n/a"
+    f["gap closed"] = f"{100 * row['gap_closed']:.0f} %" if np.isfinite(row["gap_closed"]) else "n/a"
+    shares = _seed_shares(cell, days) if complete else np.array([])
+    gap_ci = mean_ci(shares) if shares.size and np.isfinite(shares).all() else (np.nan,) * 3
+    row["gap_closed_seed_mean"], row["gap_closed_seed_lo"], row["gap_closed_seed_hi"] = gap_ci
+    f["gap closed [95% CI over seeds]"] = interval_cell(*gap_ci, lambda v: f"{100 * v:.0f} %")
+    return days if complete else None
 
 
 def _strong_cells(row: dict, f: dict, days: pd.DataFrame | None) -> None:
