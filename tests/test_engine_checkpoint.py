@@ -259,11 +259,13 @@ def plant(path, marker, forged_sidecar: bool) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     th.save({"model": Planted(marker), "seconds": 1.0}, path)
     if forged_sidecar:
-        from nutribench.engine.checkpoint import FORMAT
+        from nutribench.engine.checkpoint import CHECKPOINT_FORMAT
 
         digest = hashlib.sha256(path.read_bytes()).hexdigest()
         sidecar = path.with_name(path.name + ".state.json")
-        sidecar.write_text(json.dumps({"format": FORMAT, "tensors_sha256": digest, "state": {"dict": [], "id": 0}}))
+        sidecar.write_text(
+            json.dumps({"format": CHECKPOINT_FORMAT, "tensors_sha256": digest, "state": {"dict": [], "id": 0}})
+        )
 
 
 @pytest.mark.parametrize("forged_sidecar", [False, True])
@@ -295,14 +297,14 @@ def test_a_checkpoint_naming_a_class_is_refused(tmp_path, caplog):
     older format named the engine's classes) is refused in one line, and nothing is called."""
     import hashlib
 
-    from nutribench.engine.checkpoint import FORMAT
+    from nutribench.engine.checkpoint import CHECKPOINT_FORMAT
 
     path = tmp_path / "batch.pt"
     th.save({"t0": th.zeros(2)}, path)
     state = {"seconds": 1.0, "x": {"$object": "system", "attrs": {"command": "touch pwned"}}}
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     path.with_name("batch.pt.state.json").write_text(
-        json.dumps({"format": FORMAT, "tensors_sha256": digest, "state": state})
+        json.dumps({"format": CHECKPOINT_FORMAT, "tensors_sha256": digest, "state": state})
     )
     assert Checkpoint(path).state is None
     err = caplog.text

@@ -16,10 +16,11 @@ from nutribench.agents.api import TrainedAgent, eval_food_streams, evaluate, mak
 from nutribench.agents.builtin.ddqn import DoubleDQN
 from nutribench.agents.config import load_agent_config
 from nutribench.config import load_env_config
-from nutribench.engine.ddqn import ddqn_update, q_linears, train_ddqn_batched
+from nutribench.engine.ddqn import ddqn_update, q_linears
 from nutribench.engine.envs import AgentEnvs
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, StackedReplay, linear_schedule
 from nutribench.engine.stacked import StackedMLP, make_adam
+from nutribench.engine.train import train_batched
 from tests.conftest import random_batch, sb3_model, sb3_updates, shake
 
 OBS_DIM, GAMMA, N_STEP = 13, 0.99, 5
@@ -141,7 +142,7 @@ def test_the_loop_updates_when_sb3_does_with_its_learning_rate_epsilon_and_targe
     and target copies (SB3's last step ends the job before its update, as ours does)."""
     cfg = _small(load_agent_config("ddqn"))
     events: list[tuple] = []
-    train_ddqn_batched(
+    train_batched(
         [("run0", 0), ("run6", 1)],
         cfg,
         episodes=3,
@@ -168,9 +169,7 @@ def test_the_loop_updates_when_sb3_does_with_its_learning_rate_epsilon_and_targe
 def test_batched_ddqn_agents_are_sb3_double_dqns_the_single_agent_api_uses(tmp_path) -> None:
     cfg = _small(load_agent_config("ddqn"))
     days: list[tuple[int, dict]] = []
-    agents = train_ddqn_batched(
-        [("run0", 0), ("run3", 0)], cfg, episodes=3, on_episode=lambda j, m: days.append((j, m))
-    )
+    agents = train_batched([("run0", 0), ("run3", 0)], cfg, episodes=3, on_episode=lambda j, m: days.append((j, m)))
     assert [len(a.train_episodes) for a in agents] == [3, 3] and len(days) == 6
     assert all(m["entropy"] is None for _, m in days)
     streams = eval_food_streams("run0", 0, 2)

@@ -12,7 +12,8 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from nutribench.agents.api import TrainedAgent, eval_food_streams, evaluate
 from nutribench.agents.config import load_agent_config
 from nutribench.agents.sac import DiscreteSAC
-from nutribench.engine.sac import StackedSAC, linears, sac_update, train_sac_batched
+from nutribench.engine.sac import StackedSAC, linears, sac_update
+from nutribench.engine.train import train_batched
 from tests.conftest import random_batch, sb3_model, sb3_updates, shake
 
 OBS_DIM = 13
@@ -82,14 +83,14 @@ def test_the_sac_loop_updates_when_discrete_sac_does() -> None:
     ``learning_starts``, every step, none on the budget's last)."""
     cfg = load_agent_config("sac")
     ours: list[int] = []
-    train_sac_batched([("run0", 0), ("run6", 1)], cfg, episodes=3, on_update=lambda u: ours.append(u["steps"]))
+    train_batched([("run0", 0), ("run6", 1)], cfg, episodes=3, on_update=lambda u: ours.append(u["steps"]))
     theirs = sb3_updates(DiscreteSAC, "run0", cfg, 3, lambda m: m.num_timesteps)
     assert ours == theirs == list(range(cfg.learning_starts + 1, 150))
 
 
 def test_batched_sac_agents_are_discrete_sacs_the_single_agent_api_uses(tmp_path) -> None:
     cfg = load_agent_config("sac")
-    agents = train_sac_batched([("run0", 0), ("run3", 0)], cfg, episodes=3)
+    agents = train_batched([("run0", 0), ("run3", 0)], cfg, episodes=3)
     assert [len(a.train_episodes) for a in agents] == [3, 3]
     assert all(0.0 <= m["entropy"] <= np.log(2) + 1e-6 for a in agents for m in a.train_episodes)
     streams = eval_food_streams("run0", 0, 2)

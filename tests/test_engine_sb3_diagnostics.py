@@ -16,13 +16,13 @@ import torch as th
 from nutribench import diagnostics as names
 from nutribench.agents.training_log import DiagnosticsLogger, GradNormProbe
 from nutribench.engine.envs import AgentEnvs
-from nutribench.engine.gru_ppo import GRUPPO
-from nutribench.engine.mc import MC
-from nutribench.engine.ppo import PPO
+from nutribench.engine.gru_ppo import BatchedGRUPPO
+from nutribench.engine.mc import BatchedMC
+from nutribench.engine.ppo import BatchedPPO
 from tests.test_engine import _rollout_of, _sb3_ppo_after_one_rollout
 
 REGIMES = ["run0", "run3", "run0"]
-CLASSES = {"ppo": PPO, "mc": MC, "gru_ppo": GRUPPO}
+CLASSES = {"ppo": BatchedPPO, "mc": BatchedMC, "gru_ppo": BatchedGRUPPO}
 #: the SB3 logger key of each quantity (SB3's PPO and the SB3 engine's GRU-PPO; A2C, MC's
 #: class, logs its policy loss as ``train/policy_loss`` and has no KL or clip fraction)
 SB3_KEY = {
@@ -94,11 +94,11 @@ def test_every_on_policy_diagnostic_equals_what_sb3_logs_for_the_same_update(alg
 
 def test_gru_ppo_of_the_sb3_engine_logs_the_last_epoch_s_approx_kl() -> None:
     """The SB3 engine's GRU-PPO logs ``train/approx_kl`` as SB3's PPO does: its last epoch's."""
-    from nutribench.agents.gru_ppo import GRUPPO as SB3GRUPPO
+    from nutribench.agents.gru_ppo import GRUPPO
 
     kls: list[float] = []
 
-    class Spy(SB3GRUPPO):
+    class Spy(GRUPPO):
         def ppo_loss(self, data, clip_range):
             loss, stats = super().ppo_loss(data, clip_range)
             kls.append(stats["approx_kl"])

@@ -17,7 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 from nutribench.agents.config import agents_dir, load_agent_config
-from nutribench.agents.registry import paper_names
+from nutribench.agents.registry import batched_class, paper_names
 from nutribench.engine import UnsupportedConfig, check_supported, supports
 from nutribench.errors import UserError
 from nutribench.scheduler.driver import run_grid
@@ -82,13 +82,9 @@ def test_the_engine_refuses_an_unsupported_config_before_training(
     monkeypatch.setattr(AgentEnvs, "__init__", no_env)
     with pytest.raises(UnsupportedConfig, match="--engine sb3"):
         train_batched([("run0", 0)], name, 2)
-    if name != "gru_ppo_half":
-        from nutribench.engine.ddqn import train_ddqn_batched
-        from nutribench.engine.sac import train_sac_batched
-
-        entry = train_ddqn_batched if name.startswith("ddqn") else train_sac_batched
-        with pytest.raises(UnsupportedConfig):
-            entry([("run0", 0)], load_agent_config(name), 2)
+    cfg = load_agent_config(name)  # the class's own entry refuses it too
+    with pytest.raises(UnsupportedConfig):
+        batched_class(cfg.algo).train_jobs([("run0", 0)], cfg, 2)
 
 
 def test_batch_pools_send_unsupported_configs_to_the_sb3_engine(agents: Path) -> None:

@@ -218,3 +218,87 @@ def test_private_imports_are_found(tmp_path: Path) -> None:
         "from planted.a import _secret",
     ], found
     assert all(line.startswith("planted/sub/b.py:") for line in found)
+
+
+#: public top-level names that several modules define on purpose, each with its reason
+SAME_NAME_ON_PURPOSE: dict[str, str] = {
+    "ALGORITHM": "each built-in algorithm's module holds its registry entry under this name: the registry "
+    "scans nutribench/agents/builtin/ for it (nutribench.agents.registry.builtin_algorithms)",
+}
+#: names still defined twice, in modules another change is rewriting as this list is written
+#: (report/, store/archive*, bench/, the CLI, the engine names): to be renamed or said once
+#: there, and then struck from this list. It only shrinks: a new name defined twice fails.
+NOT_YET_ONE_NAME: dict[str, str] = {
+    "COLUMNS": "each table-writing module's column list (bench, report, diagnostics)",
+    "CONFIDENCE": "report.compare's own 0.95 beside the statistics module's (one statistics module)",
+    "DEFAULT_REPS": "report.compare's and report.scores' resample counts (10,000 and 2,000)",
+    "Db": "report.data's path type beside store.queries' path-or-engine type",
+    "ENGINES": "aliases of nutribench.engines' tuple in scheduler.pools, store.archive_meta, bench.engines",
+    "Log": "five report modules' Callable[[str], None]",
+    "NAME_MAX": "a config name's and a diagnostics quantity's limit (store.archive_meta, diagnostics)",
+    "NAME_PATTERN": "a config name's and a diagnostics quantity's pattern (store.archive_meta, diagnostics)",
+    "valid_name": "a config name (store.archive_meta) and a quantity's name (diagnostics)",
+    "NOT_SETTINGS": "the agent config fields that are no settings, in report.leaderboard and store.archive_installed",
+    "TABLES": "the report's tables (report.table_plan) and an archive's (store.archive_tables)",
+    "markdown_table": "bench.engines' and bench.learn's table writers",
+    "row_cells": "bench.engines' and bench.learn's table rows",
+    "summarize": "bench.learn's runs summary and scheduler.status's report",
+    "parse_seeds": "tuning.study's (tuning defaults) around scheduler.grid's",
+    "status_cmd": "the CLI's run and tune status commands",
+}
+
+
+def top_level_names(package: Path) -> dict[str, list[str]]:
+    """Each public name (no leading underscore) a module of ``package`` defines at its top
+    level (a class, a function, an assigned or annotated name), and the modules defining it."""
+    found: dict[str, list[str]] = {}
+    for path in sorted(package.rglob("*.py")):
+        parts = path.relative_to(package.parent).with_suffix("").parts
+        module = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        tree = ast.parse(path.read_text(), str(path))
+        names: set[str] = set()
+        for node in tree.body:
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                names.add(node.name)
+            elif isinstance(node, ast.Assign):
+                names.update(t.id for t in node.targets if isinstance(t, ast.Name))
+            elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+                names.add(node.target.id)
+        for name in names - {"__all__"}:
+            if not name.startswith("_"):
+                found.setdefault(name, []).append(module)
+    return found
+
+
+def test_each_public_name_means_one_thing() -> None:
+    """No public top-level name is defined in two modules of the package (one name, one
+    thing: a reader of ``Algorithm`` or ``load_model`` knows which is meant); a name that
+    several modules must define is listed, with its reason, in :data:`SAME_NAME_ON_PURPOSE`."""
+    twice = {n: m for n, m in top_level_names(PACKAGE).items() if len(m) > 1}
+    new = {n: m for n, m in twice.items() if n not in SAME_NAME_ON_PURPOSE and n not in NOT_YET_ONE_NAME}
+    assert not new, "\n".join(f"{n}: {', '.join(m)}" for n, m in sorted(new.items()))
+    done = sorted(set(NOT_YET_ONE_NAME) - set(twice))
+    assert not done, f"now defined once, strike from NOT_YET_ONE_NAME: {done}"
+
+
+def test_names_defined_twice_are_found(tmp_path: Path) -> None:
+    """The check above can fail: two planted modules sharing a class, a function and a
+    constant are caught; private names and ``__all__`` are not."""
+    pkg = tmp_path / "planted"
+    pkg.mkdir()
+    (pkg / "a.py").write_text("class Thing: ...\n\n\ndef load(): ...\n\n\nLIMIT = 1\n_own = 1\n__all__ = []\n")
+    (pkg / "b.py").write_text("Thing = int\nLIMIT: int = 2\n\n\ndef load(): ...\n\n\n_own = 2\n__all__ = []\n")
+    shared = {n: m for n, m in top_level_names(pkg).items() if len(m) > 1}
+    assert sorted(shared) == ["LIMIT", "Thing", "load"], shared
+
+
+def test_the_batched_engine_does_not_reuse_sb3_class_names() -> None:
+    """A class of the batched engine is never named as one of Stable-Baselines3's (``PPO``,
+    ``SAC``, ``OnPolicyAlgorithm``...): ``from stable_baselines3 import PPO`` and the engine's
+    class are told apart by name."""
+    import stable_baselines3
+
+    sb3_root = Path(stable_baselines3.__file__).parent
+    sb3_names = set(top_level_names(sb3_root))
+    ours = set(top_level_names(PACKAGE / "engine"))
+    assert not ours & sb3_names, sorted(ours & sb3_names)

@@ -33,7 +33,6 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import CallbackList
-from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from nutribench.agents.algos import episode_entropy
@@ -254,12 +253,7 @@ def train(
     if algorithm(cfg).build is None:  # a plug-in: its days are recorded by the env
         if validator is not None:
             raise ValueError(f"{cfg.name}: evaluation during training needs a built-in algorithm's loop")
-        env = recorder = RecordingVecEnv(env, base, episodes, on_episode)
-        model = recorder.model = make_model(cfg, env, seed=seed, horizon=horizon)
-        plugin_logger(model, tensorboard)
-        model.learn(total_timesteps=episodes * horizon)
-        recorder.check_budget(cfg)
-        env = recorder.venv
+        model, env, days = _train_plugin(cfg, env, base, seed, episodes, horizon, on_episode, tensorboard)
     else:
         model = make_model(cfg, env, seed=seed, horizon=horizon)
         recorder = EpisodeMetrics(base, cfg.algo, episodes, on_episode)
@@ -268,13 +262,54 @@ def train(
             recorded = TrainingDiagnostics(model, tensorboard)
             callbacks.append(recorded)
         if validator is not None:
-            streams = validation_food_streams(env_cfg, seed, val_episodes)
-            snapshot = lambda m, v: TrainedAgent(model, cfg.algo, cfg, m, v)  # noqa: E731
-            play = lambda m, v: evaluate(snapshot(m, v), env_cfg, streams, record_steps=False).episodes  # noqa: E731
-            callbacks.append(ValidationCallback(validator, play))
+            callbacks.append(_validation_callback(validator, model, cfg, env_cfg, seed, val_episodes))
         model.learn(total_timesteps=episodes * horizon, callback=CallbackList(callbacks))
-    rms: RunningMeanStd | None = env.obs_rms if cfg.normalize_obs else None  # type: ignore[union-attr]
-    provenance = {
+        days = recorder.episodes
+    agent = TrainedAgent(model, cfg.algo, cfg, provenance=training_provenance(env_cfg, cfg, seed, episodes))
+    if cfg.normalize_obs:
+        agent.obs_mean, agent.obs_var = env.obs_rms.mean.copy(), env.obs_rms.var.copy()  # type: ignore[union-attr]
+    agent.vec_normalize = env if isinstance(env, VecNormalize) else None
+    agent.train_episodes = days
+    agent.diagnostics = recorded.rows if recorded is not None else []
+    agent.validation = validator.rows[0] if validator is not None else []
+    return agent
+
+
+def _train_plugin(
+    cfg: Any,
+    env: VecEnv,
+    base: NutriRLSB3VecEnv,
+    seed: int,
+    episodes: int,
+    horizon: int,
+    on_episode: EpisodeFn | None,
+    tensorboard: str | Path | None,
+) -> tuple[Any, VecEnv, list[dict[str, Any]]]:
+    """A plug-in's model trained on ``env`` (its days recorded by the env, not by a callback:
+    the plug-in's ``learn`` may take none); the model, the env it trained in and its days."""
+    recorder = RecordingVecEnv(env, base, episodes, on_episode)
+    model = recorder.model = make_model(cfg, recorder, seed=seed, horizon=horizon)
+    plugin_logger(model, tensorboard)
+    model.learn(total_timesteps=episodes * horizon)
+    recorder.check_budget(cfg)
+    return model, recorder.venv, recorder.episodes
+
+
+def _validation_callback(
+    validator: Validator, model: BaseAlgorithm, cfg: Any, env_cfg: EnvConfig, seed: int, val_episodes: int
+) -> ValidationCallback:
+    """The callback that plays the validation days with the greedy policy of ``model`` as
+    it stands, the observation statistics of that moment."""
+    streams = validation_food_streams(env_cfg, seed, val_episodes)
+    snapshot = lambda m, v: TrainedAgent(model, cfg.algo, cfg, m, v)  # noqa: E731
+    play = lambda m, v: evaluate(snapshot(m, v), env_cfg, streams, record_steps=False).episodes  # noqa: E731
+    return ValidationCallback(validator, play)
+
+
+def training_provenance(env_cfg: EnvConfig, cfg: Any, seed: int, episodes: int) -> dict[str, Any]:
+    """Where a trained model came from (its sidecar's ``provenance``): the regime's name,
+    version and content hash, the agent config's name and version, the seed, the training days."""
+    return {
         "regime": env_cfg.name,
         "regime_version": env_cfg.version,
         "regime_sha256": env_cfg.sha256,
@@ -283,19 +318,6 @@ def train(
         "seed": seed,
         "episodes": episodes,
     }
-    agent = TrainedAgent(
-        model,
-        cfg.algo,
-        cfg,
-        None if rms is None else rms.mean.copy(),
-        None if rms is None else rms.var.copy(),
-        vec_normalize=env if isinstance(env, VecNormalize) else None,
-        provenance=provenance,
-    )
-    agent.train_episodes = recorder.episodes
-    agent.diagnostics = recorded.rows if recorded is not None else []
-    agent.validation = validator.rows[0] if validator is not None else []
-    return agent
 
 
 @dataclass

@@ -37,7 +37,7 @@ from nutribench.config.loading import (
     regimes_dir,
     resolve_named_file,
 )
-from nutribench.config.models import NoBool, StrictBool
+from nutribench.config.models import NoBool, StrictBool, Version
 from nutribench.config.reading import read_config_bytes
 from nutribench.config.sizes import HIDDEN_BOUND, STEPS_BOUND, TRANSITIONS_BOUND, network_bytes, too_large
 
@@ -61,8 +61,6 @@ Transitions = Annotated[int, Field(ge=1), TRANSITIONS_BOUND, NoBool]
 HiddenSize = Annotated[int, Field(ge=1), HIDDEN_BOUND, NoBool]
 Flag = StrictBool
 Name = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$", max_length=64)]
-#: a config's version: from 1 to what a database integer holds (the versions are stored in columns)
-Version = Annotated[int, Field(ge=1, le=2**31 - 1), NoBool]
 
 
 class AgentBase(BaseModel):

@@ -344,7 +344,7 @@ def load_saved_model(
     """The model of ``path`` (its sidecar ``side`` and agent ``config`` already read): a
     built-in algorithm rebuilt from weights; a plug-in's by the loader the caller names; SB3's
     unpickling ``load`` only where ``trust`` says so (see ``TrainedAgent.load``)."""
-    from nutribench.agents.registry import get, import_entry_point, load_model, make_model
+    from nutribench.agents.registry import get, import_entry_point, make_model
 
     entry = get(side["algo"])
     if entry.build is not None:
@@ -357,7 +357,7 @@ def load_saved_model(
                 f"{path}: its sidecar records no spaces nor a regime of this installation (saved by an older "
                 "nutribench), so only SB3's unpickling load reads it: pass trust=True if you made this file yourself"
             )
-        return load_model(entry.load, path)
+        return call_loader(import_entry_point(entry.load), path)
     if load_with is None:
         raise ModelFileError(
             f"{path}: a plug-in's model: name its loader, TrainedAgent.load(path, load_with='my_agents:load') "
@@ -369,6 +369,12 @@ def load_saved_model(
             f"{path}: {loader.__name__}.load unpickles the zip: pass trust=True if you made this file yourself, "
             "or a load(path) function (nutribench.agents.model_files.load_plugin_model reads weights only)"
         )
+    return call_loader(loader, path)
+
+
+def call_loader(loader: Any, path: str | Path) -> Any:
+    """The model ``loader`` loads from ``path``: a class's ``load(path)`` (an SB3 class's on
+    the CPU) or the function's ``loader(path)``."""
     if isinstance(loader, type):
         return loader.load(str(path), device="cpu") if issubclass(loader, BaseAlgorithm) else loader.load(str(path))
     return loader(str(path))

@@ -357,13 +357,3 @@ def make_model(cfg: Any, env: Any, seed: int, horizon: int) -> Any:
                 f"{cfg.entry_point} returned a {type(model).__name__} without {method}(): it needs SB3's learn, predict and save"
             )
     return model
-
-
-def load_model(load_with: str, path: str | Path) -> Any:
-    """A saved model, loaded by ``load_with`` (a class with ``.load`` or a function)."""
-    obj = import_entry_point(load_with)
-    if isinstance(obj, type):
-        from stable_baselines3.common.base_class import BaseAlgorithm
-
-        return obj.load(path, device="cpu") if issubclass(obj, BaseAlgorithm) else obj.load(path)
-    return obj(path)

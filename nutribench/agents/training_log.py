@@ -34,7 +34,7 @@ from typing import Any
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.logger import HumanOutputFormat, KVWriter, Logger
+from stable_baselines3.common.logger import HumanOutputFormat, KVWriter, Logger, TensorBoardOutputFormat
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.dqn import DQN
@@ -158,18 +158,16 @@ class GradNormProbe:
             self.logger.before_take.remove(self.flush)
 
 
-def tensorboard_format(folder: str | Path) -> KVWriter:
-    """SB3's TensorBoard writer on ``folder``; a clear error when tensorboard is missing."""
+def tensorboard_folder(folder: str | Path) -> str:
+    """``folder``, made, for TensorBoard events; a clear error when tensorboard is missing."""
     try:
         import tensorboard  # noqa: F401
     except ImportError:
         raise RuntimeError(
             "--tensorboard needs the tensorboard package: pip install 'nutribench[tensorboard]'"
         ) from None
-    from stable_baselines3.common.logger import TensorBoardOutputFormat
-
     Path(folder).mkdir(parents=True, exist_ok=True)
-    return TensorBoardOutputFormat(str(folder))
+    return str(folder)
 
 
 def plugin_logger(model: Any, folder: str | Path | None) -> None:
@@ -189,14 +187,7 @@ def plugin_logger(model: Any, folder: str | Path | None) -> None:
             model.set_logger(Logger(folder=None, output_formats=formats))
         return
     if isinstance(model, BaseAlgorithm):
-        try:
-            import tensorboard  # noqa: F401
-        except ImportError:
-            raise RuntimeError(
-                "--tensorboard needs the tensorboard package: pip install 'nutribench[tensorboard]'"
-            ) from None
-        Path(folder).mkdir(parents=True, exist_ok=True)
-        model.tensorboard_log = str(folder)
+        model.tensorboard_log = tensorboard_folder(folder)
     else:
         import warnings
 
@@ -215,7 +206,7 @@ class TrainingDiagnostics(BaseCallback):
         super().__init__()
         self.rows: list[dict[str, float]] = []
         self.off_policy = isinstance(model, OffPolicyAlgorithm)
-        formats = [tensorboard_format(tensorboard)] if tensorboard is not None else []
+        formats = [] if tensorboard is None else [TensorBoardOutputFormat(tensorboard_folder(tensorboard))]
         self.diag_logger = DiagnosticsLogger(DQN_KEYS if isinstance(model, DQN) else SB3_KEYS, formats)
         model.set_logger(self.diag_logger)
         self.probe: GradNormProbe | None = None

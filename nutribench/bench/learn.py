@@ -38,7 +38,7 @@ from nutribench.stats import iqm
 TARGET_GAP = 0.75
 TARGET_FOODS = (3.0, 6.0)
 DEFAULT_BUDGET = 500
-EVAL_EPISODES = 10
+LEARN_EVAL_EPISODES = 10
 
 
 def default_budgets() -> dict[str, int]:
@@ -120,7 +120,7 @@ def learn_benchmark(
     seeds: Iterable[int],
     budgets: dict[str, int] | None = None,
     default_budget: int = DEFAULT_BUDGET,
-    eval_episodes: int = EVAL_EPISODES,
+    eval_episodes: int = LEARN_EVAL_EPISODES,
     workers: int | None = None,
     on_done: Callable[[LearnRun, int, int], None] | None = None,
     engine: str = Engine.SB3,

@@ -317,9 +317,9 @@ def bench_train_batched(
     rate = steps / statistics.median(times)
     flops = flops_per_env_step(cfg)
     from nutribench.agents.registry import batched_class
-    from nutribench.engine.off_policy import OffPolicyAlgorithm
+    from nutribench.engine.off_policy import BatchedOffPolicyAlgorithm
 
-    off_policy = issubclass(batched_class(cfg.algo), OffPolicyAlgorithm)  # its minibatch is the replay's
+    off_policy = issubclass(batched_class(cfg.algo), BatchedOffPolicyAlgorithm)  # its minibatch is the replay's
     peak = matmul_flops_per_s(k=len(jobs), batch=cfg.batch_size if off_policy else 64, device=device)
     grid_steps = PAPER_GRID["regimes"] * PAPER_GRID["seeds"] * PAPER_GRID["episodes"] * 50
     # on the CPU, batches side by side on all the cores; on a GPU, the one batch on it

@@ -257,7 +257,7 @@ def resolve_regime_path(regime: str | os.PathLike[str]) -> Path:
     return path
 
 
-def check_regime_name(regime: Regime, path: Path) -> None:
+def check_name_is_file_name(regime: Regime, path: Path) -> None:
     """A regime's ``name`` must be its file name: results are stored under the name, and
     ``regime=NAME`` finds the file by it."""
     if regime.name != path.stem:
@@ -273,7 +273,7 @@ def load_env_config(regime: str | os.PathLike[str] | EnvConfig) -> EnvConfig:
         return regime
     path = resolve_regime_path(regime)
     reg = load_model(Regime, path)
-    check_regime_name(reg, path)
+    check_name_is_file_name(reg, path)
     catalog = load_model(FoodCatalog, path.parent / reg.catalog)
     reward = load_model(RewardConfig, path.parent / reg.reward)
     return EnvConfig(regime=reg, catalog=catalog, reward=reward, path=path)

@@ -1,6 +1,6 @@
 """The stacked MLP actor-critic that MC and PPO train: K copies of SB3's ``ActorCriticPolicy``
 with nutribench's shared backbone (``algos.build_model``), its acting, and
-:class:`ActorCriticAlgorithm`, the on-policy algorithm whose agents it is.
+:class:`BatchedActorCriticAlgorithm`, the on-policy algorithm whose agents it is.
 
 Per agent: ``obs -> 256 -> 128`` (ReLU) shared by a linear actor head (2 logits) and a
 linear value head; orthogonal initialisation with SB3's gains (sqrt(2) backbone, 0.01 actor,
@@ -15,7 +15,7 @@ import torch as th
 
 from nutribench.engine.device import leaves_on
 from nutribench.engine.evaluate import Greedy, greedy_categorical
-from nutribench.engine.on_policy import OnPolicyAlgorithm, log_prob_entropy
+from nutribench.engine.on_policy import BatchedOnPolicyAlgorithm, log_prob_entropy
 from nutribench.engine.stacked import linears, orthogonal
 
 GAINS = (math.sqrt(2), math.sqrt(2), 0.01, 1.0)  # backbone layers, actor head, value head
@@ -123,7 +123,7 @@ def evaluate_actions(
     return log_prob, entropy, values
 
 
-class ActorCriticAlgorithm(OnPolicyAlgorithm):
+class BatchedActorCriticAlgorithm(BatchedOnPolicyAlgorithm):
     """An on-policy algorithm whose agents are the stacked MLP actor-critic (MC and PPO)."""
 
     @classmethod

@@ -1,4 +1,4 @@
-"""What every batched algorithm is: :class:`Algorithm`, the interface the training loops
+"""What every batched algorithm is: :class:`BatchedAlgorithm`, the interface the training loops
 (:mod:`nutribench.engine.on_policy`, :mod:`nutribench.engine.off_policy`) call and each
 algorithm module implements (:mod:`~nutribench.engine.mc`, :mod:`~nutribench.engine.ppo`,
 :mod:`~nutribench.engine.gru_ppo`, :mod:`~nutribench.engine.ddqn`, :mod:`~nutribench.engine.sac`),
@@ -6,17 +6,17 @@ as SB3's ``BaseAlgorithm`` is for its algorithms; :func:`~nutribench.engine.trai
 picks the class by the config's ``algo`` in one lookup.
 
 An algorithm is made for one agent config and one batch of envs (:class:`~nutribench.engine.envs.AgentEnvs`,
-K agents); :meth:`Algorithm.learn` trains it for a number of env steps (resuming from a
+K agents); :meth:`BatchedAlgorithm.learn` trains it for a number of env steps (resuming from a
 checkpoint when it holds a state), and each agent is then handed back with
-:meth:`Algorithm.store_weights`. While it learns, an algorithm records each agent's
-per-update diagnostics (:attr:`Algorithm.diagnostics`, the vocabulary of
+:meth:`BatchedAlgorithm.store_weights`. While it learns, an algorithm records each agent's
+per-update diagnostics (:attr:`BatchedAlgorithm.diagnostics`, the vocabulary of
 :mod:`nutribench.diagnostics`).
 
-Its whole training state is explicit, as a torch module's is: :meth:`Algorithm.state_dict`
+Its whole training state is explicit, as a torch module's is: :meth:`BatchedAlgorithm.state_dict`
 gives it as plain data (tensors, numpy arrays, numbers, strings, lists, dicts: the envs and
 random streams, the networks' parameters, the optimisers' ``state_dict``, the statistics,
 the replay, the diagnostics so far), which :class:`~nutribench.engine.checkpoint.Checkpoint`
-writes; :meth:`Algorithm.load_state_dict` puts such a state back into a freshly made
+writes; :meth:`BatchedAlgorithm.load_state_dict` puts such a state back into a freshly made
 algorithm of the same jobs and config (in place: parameters copied into the networks the
 optimisers already hold), so that training goes on exactly where it was saved.
 """
@@ -41,7 +41,7 @@ from nutribench.engine.evaluate import BatchValidator, Greedy
 from nutribench.engine.stacked import RunningStats
 
 
-class Algorithm:
+class BatchedAlgorithm:
     """K agents of one algorithm and agent config, trained together on ``envs``.
 
     Subclasses implement :meth:`learn` (through a loop's base class) and
@@ -101,7 +101,7 @@ class Algorithm:
         device = resolve_device(device)
         every = check_eval_every(eval_every, val_episodes)
 
-        def made() -> Algorithm:
+        def made() -> BatchedAlgorithm:
             envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
             algorithm = cls(cfg, envs, device, agent_configs)
             algorithm.set_active(active)
@@ -143,9 +143,18 @@ class Algorithm:
     def set_active(self, active: np.ndarray | None) -> None:
         """Apply updates only to the agents where ``active`` (a ``(K,)`` bool array the caller
         may change while training: a pruned tuning trial's agents are frozen); None: all. Only
-        algorithms with per-agent settings take it."""
-        if active is not None or any(c != self.cfg for c in self.cfgs):
-            raise ValueError(f"the batched {self.algo} takes neither per-agent settings nor frozen agents yet")
+        algorithms with per-agent settings (``PER_AGENT``) take it, into their ``settings``."""
+        if not self.PER_AGENT:
+            if active is not None or any(c != self.cfg for c in self.cfgs):
+                raise ValueError(f"the batched {self.algo} takes neither per-agent settings nor frozen agents yet")
+            return
+        if active is not None and np.shape(active) != (self.k,):
+            raise ValueError(f"active: a ({self.k},) bool array, got shape {np.shape(active)}")
+        self.settings.active = active  # type: ignore[attr-defined]
+
+    def init_generators(self) -> list[th.Generator]:
+        """One CPU generator per agent for its initial weights, seeded from its ``init`` stream."""
+        return [th.Generator().manual_seed(int(r.integers(2**62))) for r in self.envs.rng["init"]]
 
     def learn(self, total_steps: int, checkpoint: Checkpoint | None = None) -> float:
         """Train for ``total_steps`` env steps of each agent (from ``checkpoint``'s state if it

@@ -2,7 +2,7 @@
 
 A paper-grid batch trains for hours and its jobs are stored only when it ends. With a
 :class:`Checkpoint`, the training loops save the algorithm's
-:meth:`~nutribench.engine.algorithm.Algorithm.state_dict` at a day (off-policy) or rollout
+:meth:`~nutribench.engine.algorithm.BatchedAlgorithm.state_dict` at a day (off-policy) or rollout
 (on-policy) boundary every ``every_seconds``: networks, optimisers, replay buffers,
 statistics, the envs and every random stream, the days and diagnostics so far. A batch
 started again on the same file makes its algorithm afresh and loads that state into it
@@ -52,7 +52,7 @@ DEFAULT_EVERY_SECONDS = 300.0
 EVERY_SECONDS_ENV = "NUTRIBENCH_CHECKPOINT_SECONDS"
 
 #: the JSON half's ``format``: a checkpoint of another (an older nutribench's) is refused
-FORMAT = "nutribench-checkpoint/3"
+CHECKPOINT_FORMAT = "nutribench-checkpoint/3"
 
 _SCALARS = (type(None), bool, int, str, float)
 
@@ -195,8 +195,8 @@ class Checkpoint:
         if not self.sidecar.is_file():
             raise CheckpointRefused(f"no {self.sidecar.name} beside it: not a checkpoint of this nutribench")
         meta = json.loads(self.sidecar.read_text(encoding="utf-8"))
-        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-            raise CheckpointRefused(f"{self.sidecar.name} is not of format {FORMAT}")
+        if not isinstance(meta, dict) or meta.get("format") != CHECKPOINT_FORMAT:
+            raise CheckpointRefused(f"{self.sidecar.name} is not of format {CHECKPOINT_FORMAT}")
         digest = meta.get("tensors_sha256")
         if not self.path.is_file() or _sha256(self.path) != digest:
             tmp = _tmp(self.path)
@@ -241,7 +241,7 @@ class Checkpoint:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             th.save(tensors, tmp)
-            meta = {"format": FORMAT, "tensors_sha256": _sha256(tmp), "state": node}
+            meta = {"format": CHECKPOINT_FORMAT, "tensors_sha256": _sha256(tmp), "state": node}
             sidecar_tmp.write_text(json.dumps(meta, separators=(",", ":")), encoding="utf-8")
             os.replace(sidecar_tmp, self.sidecar)
             renamed = True  # from here the new JSON names the new tensors: a read finds them at ``tmp``

@@ -13,7 +13,7 @@ Per agent, everything is what ``algos.build_model`` builds from ``ddqn.toml``:
 * actions: uniformly random for the first ``learning_starts`` steps, then epsilon-greedy with
   epsilon falling linearly from ``exploration_initial_eps`` to ``exploration_final_eps`` over
   the first ``exploration_fraction`` of the budget;
-* SB3's off-policy loop (:class:`~nutribench.engine.off_policy.OffPolicyAlgorithm`), with SB3's
+* SB3's off-policy loop (:class:`~nutribench.engine.off_policy.BatchedOffPolicyAlgorithm`), with SB3's
   n-step returns (``NStepReplayBuffer``: rewards summed until the day's end or the newest
   transition, the target discounted by gamma to the number of steps summed); Huber loss; the
   gradient clipped to ``max_grad_norm`` per agent;
@@ -27,7 +27,6 @@ learning rate and epsilon.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -35,12 +34,9 @@ import torch as th
 from torch.nn import functional as F
 
 from nutribench import diagnostics as names
-from nutribench.agents.api import TrainedAgent
-from nutribench.config import EnvConfig
-from nutribench.engine.checkpoint import Checkpoint
-from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn
+from nutribench.engine.envs import AgentEnvs
 from nutribench.engine.evaluate import Greedy
-from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, OffPolicyAlgorithm, linear_schedule
+from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, BatchedOffPolicyAlgorithm, linear_schedule
 from nutribench.engine.stacked import (
     AgentMeans,
     StackedAdam,
@@ -84,7 +80,7 @@ def ddqn_update(
     return loss.detach().cpu().numpy()
 
 
-class DDQN(OffPolicyAlgorithm):
+class BatchedDDQN(BatchedOffPolicyAlgorithm):
     """K double-DQN agents: Q-networks, target networks, one Adam, the epsilon schedule."""
 
     #: the online and target nets at the next states, the online net forward and backward
@@ -93,8 +89,7 @@ class DDQN(OffPolicyAlgorithm):
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: list[Any] | None = None):
         super().__init__(cfg, envs, device, cfgs)
         sizes = [envs.obs_dim, *cfg.net_arch, 2]
-        generators = [th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]]
-        self.q = StackedMLP(self.k, sizes, generators=generators, device=device)
+        self.q = StackedMLP(self.k, sizes, generators=self.init_generators(), device=device)
         self.q_target = StackedMLP(self.k, sizes, device=device)
         self.q_target.copy_from(self.q)
         self.optimizer = make_adam(self.q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
@@ -155,25 +150,6 @@ class DDQN(OffPolicyAlgorithm):
 
     def store_weights(self, j: int, model: Any) -> None:
         _store(self.q, self.q_target, j, model)
-
-
-def train_ddqn_batched(
-    jobs: Sequence[tuple[str | EnvConfig, int]],
-    cfg: Any,
-    episodes: int,
-    on_episode: AgentEpisodeFn | None = None,
-    on_update: Callable[[dict[str, Any]], None] | None = None,
-    checkpoint: Checkpoint | None = None,
-    device: str | th.device = "cpu",
-) -> list[TrainedAgent]:
-    """Train one DDQN agent of ``cfg`` per ``(regime, seed)`` of ``jobs`` for ``episodes`` days,
-    all at once (resuming from ``checkpoint`` if it holds a state), on ``device``
-    (:func:`~nutribench.engine.device.resolve_device`).
-
-    :param on_update: called after each update with ``steps`` (env steps so far), the
-        ``learning_rate`` and ``epsilon`` in force, ``target_copies`` so far and the K ``losses``.
-    """
-    return DDQN.train_jobs(jobs, cfg, episodes, on_episode, checkpoint, device, on_update=on_update)
 
 
 def _store(q: StackedMLP, q_target: StackedMLP, j: int, model: Any) -> None:

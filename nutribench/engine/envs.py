@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from nutribench.agents.algos import build_model
-from nutribench.agents.api import CLIP_OBS, NORM_EPS, TrainedAgent, make_train_env
+from nutribench.agents.api import CLIP_OBS, NORM_EPS, TrainedAgent, make_train_env, training_provenance
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.engine.stacked import RunningStats
 from nutribench.engines import Engine
@@ -230,13 +230,7 @@ def as_trained_agent(
             float(ret_stats.count[j]),
         )
     provenance = {
-        "regime": env_cfg.name,
-        "regime_version": env_cfg.version,
-        "regime_sha256": env_cfg.sha256,
-        "agent_config": cfg.name,
-        "agent_config_version": cfg.version,
-        "seed": seed,
-        "episodes": episodes,
+        **training_provenance(env_cfg, cfg, seed, episodes),
         "engine": Engine.BATCHED.value,
         "device": device,
         "batch_wall_seconds_per_agent": wall,

@@ -3,7 +3,7 @@ says when and what): all K agents at once, each on its own validation days
 (:func:`~nutribench.agents.days.validation_food_streams` of its regime and seed, the days the
 SB3 engine plays), in envs of their own (one vector env per regime, a row per agent and
 day), each agent's observations normalised by its statistics of that moment (no update),
-and its greedy actions from the algorithm's :meth:`~nutribench.engine.algorithm.Algorithm.greedy`.
+and its greedy actions from the algorithm's :meth:`~nutribench.engine.algorithm.BatchedAlgorithm.greedy`.
 Nothing of the training is read but the weights and the statistics; nothing is changed.
 """
 

@@ -32,7 +32,7 @@ import torch as th
 from nutribench.engine.device import leaves_on
 from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.on_policy import Minibatch, OnPolicySettings, Rollout, log_prob_entropy
-from nutribench.engine.ppo import PPO, ppo_step
+from nutribench.engine.ppo import BatchedPPO, ppo_step
 from nutribench.engine.stacked import AgentMeans, orthogonal
 
 N_NUTRIENTS = 3
@@ -312,7 +312,7 @@ def gru_ppo_update(
             ppo_step(net.params, optimizer, settings, minibatch, k=k, means=means, last_epoch=last_epoch)
 
 
-class GRUPPO(PPO):
+class BatchedGRUPPO(BatchedPPO):
     """K GRU-PPO agents: PPO's loop, loss and step with the stacked GRU actor-critic, its
     state carried while acting, its update over whole days."""
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import torch as th
 
-from nutribench.engine.actor_critic import ActorCriticAlgorithm, StackedActorCritic, evaluate_actions
+from nutribench.engine.actor_critic import BatchedActorCriticAlgorithm, StackedActorCritic, evaluate_actions
 from nutribench.engine.on_policy import OnPolicySettings, Rollout, gradient_step, normalized
 from nutribench.engine.stacked import AgentMeans
 
@@ -35,7 +35,7 @@ def a2c_update(
     gradient_step(net.params, optimizer, settings, policy_loss, value_loss, -entropy.mean(dim=1), means=means)
 
 
-class MC(ActorCriticAlgorithm):
+class BatchedMC(BatchedActorCriticAlgorithm):
     """K MC agents: the shared MLP actor-critic, one A2C step per day."""
 
     def train(self, rollout: Rollout) -> None:

@@ -1,6 +1,6 @@
 """What the batched engine's off-policy algorithms (DDQN, discrete SAC) share: one replay
 per agent with SB3's sampling, SB3's linear schedule, and SB3's ``OffPolicyAlgorithm.learn``
-loop for K agents stepped together (:class:`OffPolicyAlgorithm`).
+loop for K agents stepped together (:class:`BatchedOffPolicyAlgorithm`).
 
 The loop, per agent as SB3 runs it with one env: act (the algorithm decides: uniformly
 random during ``learning_starts``), step, store the raw transition (SB3 stores raw
@@ -10,10 +10,10 @@ that moment), then every ``train_freq`` steps after ``learning_starts``,
 own replay. The last step of the budget ends the job before its update, as the episode
 callback stops SB3 there.
 
-As SB3's, the loop is three methods: :meth:`~OffPolicyAlgorithm.learn` (resume from a
-checkpoint, then steps until the budget, saving :meth:`~OffPolicyAlgorithm.state_dict` at
-day boundaries when due), :meth:`~OffPolicyAlgorithm.collect_rollouts` (one env step of every
-agent into its replay; it tells whether the day ended) and :meth:`~OffPolicyAlgorithm.train`
+As SB3's, the loop is three methods: :meth:`~BatchedOffPolicyAlgorithm.learn` (resume from a
+checkpoint, then steps until the budget, saving :meth:`~BatchedOffPolicyAlgorithm.state_dict` at
+day boundaries when due), :meth:`~BatchedOffPolicyAlgorithm.collect_rollouts` (one env step of every
+agent into its replay; it tells whether the day ended) and :meth:`~BatchedOffPolicyAlgorithm.train`
 (``gradient_steps`` updates on sampled batches). Each day's end (a day boundary: every
 agent's day ends at once) closes that day's diagnostics row.
 """
@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from nutribench.engine.algorithm import Algorithm
+from nutribench.engine.algorithm import BatchedAlgorithm
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs
 from nutribench.engine.stacked import AgentMeans
@@ -136,7 +136,7 @@ class StackedReplay:
 OFF_POLICY_ADAM_EPS = 1e-8
 
 
-class OffPolicyAlgorithm(Algorithm):
+class BatchedOffPolicyAlgorithm(BatchedAlgorithm):
     """SB3's off-policy loop for the K agents of ``envs`` (the module docstring); subclasses
     give the acting (:meth:`act`), the update (:meth:`update`), what happens after each env
     step (:meth:`after_step`), the replay's n-step (:attr:`n_step`) and what a checkpoint

@@ -1,6 +1,6 @@
 """What the batched engine's on-policy algorithms (MC, PPO, GRU-PPO) share: their settings,
 the rollout, SB3's GAE, one gradient step on the K agents' losses, and SB3's on-policy loop
-(:class:`OnPolicyAlgorithm`) for K agents stepped together.
+(:class:`BatchedOnPolicyAlgorithm`) for K agents stepped together.
 
 Per agent, the loop is SB3's ``PPO.learn`` (MC: ``A2C.learn``; GRU-PPO: ``GRUPPO.learn``,
 the GRU state carried from step to step and reset at each day's start) on nutribench's
@@ -11,13 +11,13 @@ end a terminal, then the update. A budget that ends inside a rollout stops there
 partial update, as SB3 does. Actions are drawn from the policy with each agent's own uniform
 draws; the minibatch order of each epoch is each agent's own permutation.
 
-The loop is SB3's three methods: :meth:`~OnPolicyAlgorithm.learn` (resume from a checkpoint,
-then rollouts and updates until the budget, saving :meth:`~OnPolicyAlgorithm.state_dict` at
-rollout boundaries when due), :meth:`~OnPolicyAlgorithm.collect_rollouts` (``n_steps`` env
+The loop is SB3's three methods: :meth:`~BatchedOnPolicyAlgorithm.learn` (resume from a checkpoint,
+then rollouts and updates until the budget, saving :meth:`~BatchedOnPolicyAlgorithm.state_dict` at
+rollout boundaries when due), :meth:`~BatchedOnPolicyAlgorithm.collect_rollouts` (``n_steps`` env
 steps, reward scaling, a day boundary whenever every agent's day ends, then GAE) and
-:meth:`~OnPolicyAlgorithm.train` (the algorithm's update on one rollout, then its
+:meth:`~BatchedOnPolicyAlgorithm.train` (the algorithm's update on one rollout, then its
 diagnostics). An algorithm subclass gives its network
-(:meth:`~OnPolicyAlgorithm.make_network`), its acting (:meth:`~OnPolicyAlgorithm.make_actor`:
+(:meth:`~BatchedOnPolicyAlgorithm.make_network`), its acting (:meth:`~BatchedOnPolicyAlgorithm.make_actor`:
 a callable ``(obs, starts, advance)`` -> ``(logits, values)``) and its ``train``. After each
 update every agent gets one diagnostics dict, each value what SB3's logger records for that
 agent's update: the means over the update's gradient steps of its losses, gradient norm and
@@ -37,7 +37,7 @@ import torch as th
 
 from nutribench import diagnostics as names
 from nutribench.agents.api import CLIP_OBS, NORM_EPS
-from nutribench.engine.algorithm import Algorithm
+from nutribench.engine.algorithm import BatchedAlgorithm
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs
 from nutribench.engine.on_policy_settings import OnPolicySettings
@@ -46,7 +46,7 @@ from nutribench.engine.stacked import (
     RunningStats,
     StackedAdam,
     clip_grad_norm_per_agent,
-    explained_variance,
+    explained_variance_per_agent,
     load_params,
     make_adam,
     per_agent,
@@ -169,7 +169,7 @@ def make_optimizer(net: Any, learning_rate: float | np.ndarray) -> StackedAdam:
     return make_adam(net.params, 1.0 if isinstance(learning_rate, np.ndarray) else learning_rate, ADAM_EPS)
 
 
-class OnPolicyAlgorithm(Algorithm):
+class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
     """SB3's on-policy loop for the K agents of ``envs`` (the module docstring); subclasses
     give the network, the acting and :meth:`train`."""
 
@@ -190,8 +190,7 @@ class OnPolicyAlgorithm(Algorithm):
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: list[Any] | None = None):
         super().__init__(cfg, envs, device, cfgs)
         self.settings = OnPolicySettings.for_agents(self.cfgs, envs.horizon)
-        generators = [th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]]
-        self.net = self.make_network(generators)
+        self.net = self.make_network(self.init_generators())
         self.actor = self.make_actor(self.net)
         self.optimizer = make_optimizer(self.net, self.settings.learning_rate)
         self.ret_stats = RunningStats(self.k) if cfg.normalize_reward else None
@@ -201,11 +200,6 @@ class OnPolicyAlgorithm(Algorithm):
         #: whether that step starts a day (SB3's ``_last_obs``, ``_last_episode_starts``)
         self.last_obs: np.ndarray | None = None
         self.start_of_day = np.ones(self.k, dtype=np.float32)
-
-    def set_active(self, active: np.ndarray | None) -> None:
-        if active is not None and np.shape(active) != (self.k,):
-            raise ValueError(f"active: a ({self.k},) bool array, got shape {np.shape(active)}")
-        self.settings.active = active
 
     # ---- what each algorithm gives ----
 
@@ -346,7 +340,9 @@ class OnPolicyAlgorithm(Algorithm):
         """The diagnostics of the update just made on ``rollout`` (one read of the device's sums)."""
         row: dict[str, Any] = {
             **self.means.means(),
-            names.EXPLAINED_VARIANCE: explained_variance(rollout.values.cpu().numpy(), rollout.returns.cpu().numpy()),
+            names.EXPLAINED_VARIANCE: explained_variance_per_agent(
+                rollout.values.cpu().numpy(), rollout.returns.cpu().numpy()
+            ),
             names.LEARNING_RATE: self.settings.learning_rate,
         }
         if self.ret_stats is not None:

@@ -19,7 +19,7 @@ import numpy as np
 import torch as th
 
 from nutribench import diagnostics as names
-from nutribench.engine.actor_critic import ActorCriticAlgorithm, StackedActorCritic, evaluate_actions
+from nutribench.engine.actor_critic import BatchedActorCriticAlgorithm, StackedActorCritic, evaluate_actions
 from nutribench.engine.on_policy import Minibatch, OnPolicySettings, Rollout, gradient_step, normalized
 from nutribench.engine.stacked import AgentMeans, per_agent
 
@@ -81,7 +81,7 @@ def ppo_update(
             ppo_step(net.params, optimizer, settings, minibatch, means=means, last_epoch=last_epoch)
 
 
-class PPO(ActorCriticAlgorithm):
+class BatchedPPO(BatchedActorCriticAlgorithm):
     """K PPO agents: the shared MLP actor-critic, SB3's PPO update."""
 
     def train(self, rollout: Rollout) -> None:

@@ -7,7 +7,7 @@ Per agent, everything is what ``algos.build_model`` builds from ``sac.toml``:
   per action), PyTorch's default ``Linear`` initialisation, target critics copied from
   them; one Adam (eps 1e-8) for the actor and one for both critics, each at its own rate;
 * ``VecNormalize`` of the observations; SB3's off-policy loop
-  (:class:`~nutribench.engine.off_policy.OffPolicyAlgorithm`) with its one-step replay: uniformly
+  (:class:`~nutribench.engine.off_policy.BatchedOffPolicyAlgorithm`) with its one-step replay: uniformly
   random actions for the first ``learning_starts`` steps, then actions drawn from the policy;
 * each update: the critics regress the soft Bellman target ``r + gamma (1 - done)
   sum_a pi(a|s') (min Q_targ(s', a) - alpha log pi(a|s'))`` (MSE, both critics); then the
@@ -28,7 +28,6 @@ the engine does not clip SAC's gradients (nor does SAC).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -36,12 +35,9 @@ import numpy as np
 import torch as th
 
 from nutribench import diagnostics as names
-from nutribench.agents.api import TrainedAgent
-from nutribench.config import EnvConfig
-from nutribench.engine.checkpoint import Checkpoint
-from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn
+from nutribench.engine.envs import AgentEnvs
 from nutribench.engine.evaluate import Greedy, greedy_categorical
-from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, OffPolicyAlgorithm
+from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, BatchedOffPolicyAlgorithm
 from nutribench.engine.stacked import (
     AgentMeans,
     StackedMLP,
@@ -220,7 +216,7 @@ def _step(
         step_per_agent(optimizer, params, getattr(settings, lr), settings.active, k)
 
 
-class SAC(OffPolicyAlgorithm):
+class BatchedSAC(BatchedOffPolicyAlgorithm):
     """K discrete-SAC agents (:class:`StackedSAC`): actions drawn from the policy, SAC's update."""
 
     #: the actor and both target critics at the next states (3), both critics forward and
@@ -236,7 +232,7 @@ class SAC(OffPolicyAlgorithm):
             [envs.obs_dim, *cfg.net_arch, 2],
             self.settings.actor_learning_rate,
             self.settings.critic_learning_rate,
-            generators=[th.Generator().manual_seed(int(r.integers(2**62))) for r in envs.rng["init"]],
+            generators=self.init_generators(),
             device=device,
         )
 
@@ -253,11 +249,6 @@ class SAC(OffPolicyAlgorithm):
 
     def greedy(self) -> Greedy:
         return lambda obs: greedy_categorical(self.net.actor.forward(obs))
-
-    def set_active(self, active: np.ndarray | None) -> None:
-        if active is not None and np.shape(active) != (self.k,):
-            raise ValueError(f"active: a ({self.k},) bool array, got shape {np.shape(active)}")
-        self.settings.active = active
 
     def update(self, steps: int, progress_remaining: float, batch: Batch) -> None:
         st = self.settings
@@ -276,19 +267,3 @@ class SAC(OffPolicyAlgorithm):
 
     def store_weights(self, j: int, model: Any) -> None:
         self.net.store_sb3(j, model.policy)
-
-
-def train_sac_batched(
-    jobs: Sequence[tuple[str | EnvConfig, int]],
-    cfg: Any,
-    episodes: int,
-    on_episode: AgentEpisodeFn | None = None,
-    on_update: Callable[[dict[str, Any]], None] | None = None,
-    checkpoint: Checkpoint | None = None,
-    device: str | th.device = "cpu",
-) -> list[TrainedAgent]:
-    """Train one discrete-SAC agent of ``cfg`` per ``(regime, seed)`` of ``jobs`` for
-    ``episodes`` days, all at once (resuming from ``checkpoint`` if it holds a state), on
-    ``device`` (:func:`~nutribench.engine.device.resolve_device`); ``on_update`` gets
-    ``steps`` and the K losses after each update."""
-    return SAC.train_jobs(jobs, cfg, episodes, on_episode, checkpoint, device, on_update=on_update)

@@ -290,7 +290,7 @@ class AgentMeans:
         return out
 
 
-def explained_variance(values: np.ndarray, returns: np.ndarray) -> np.ndarray:
+def explained_variance_per_agent(values: np.ndarray, returns: np.ndarray) -> np.ndarray:
     """SB3's ``explained_variance`` per agent: ``1 - Var(returns - values) / Var(returns)``
     over each row of ``(K, T)`` arrays (NaN where the returns do not vary)."""
     var_y = returns.var(axis=1)

@@ -5,11 +5,11 @@ model of its config (``PPO``, ``MonteCarloAC``, ``DoubleDQN``, ``DiscreteSAC`` o
 metrics, and its per-update diagnostics (``agent.diagnostics``). Evaluation, saving and
 loading are then the single-agent API's.
 
-Each algorithm is a class (:class:`~nutribench.engine.algorithm.Algorithm`) in its own
-module: :class:`~nutribench.engine.mc.MC`, :class:`~nutribench.engine.ppo.PPO`,
-:class:`~nutribench.engine.gru_ppo.GRUPPO` on the on-policy loop
-(:mod:`nutribench.engine.on_policy`), :class:`~nutribench.engine.ddqn.DDQN` and
-:class:`~nutribench.engine.sac.SAC` on the off-policy loop
+Each algorithm is a class (:class:`~nutribench.engine.algorithm.BatchedAlgorithm`) in its own
+module: :class:`~nutribench.engine.mc.BatchedMC`, :class:`~nutribench.engine.ppo.BatchedPPO`,
+:class:`~nutribench.engine.gru_ppo.BatchedGRUPPO` on the on-policy loop
+(:mod:`nutribench.engine.on_policy`), :class:`~nutribench.engine.ddqn.BatchedDDQN` and
+:class:`~nutribench.engine.sac.BatchedSAC` on the off-policy loop
 (:mod:`nutribench.engine.off_policy`); a config's ``algo`` names its class in the algorithm
 registry (:func:`nutribench.agents.registry.batched_class`).
 
@@ -26,6 +26,40 @@ envs, replay buffers, running statistics and random streams stay on the CPU (num
 generators for the initial weights, which are drawn on the CPU and then moved), so an
 agent's random draws are the same on every device; what it does with them differs by float
 rounding from one device to another.
+
+The options of :func:`train_batched`. Each agent comes back with ``diagnostics``: one dict per update (on-policy: per rollout;
+off-policy: per training day with gradient steps, the means over them), keyed by
+:mod:`nutribench.diagnostics`' names; a batch resumed from a checkpoint returns them all,
+those of the run before the stop included.
+
+* ``on_episode``: called with (job index, the finished day's metrics) for every day.
+* ``on_rollout``: (on-policy) called before each update with the rollout's arrays (agent axis
+  first): ``obs`` (as the policy saw them), ``actions``, ``rewards`` (as the update sees
+  them), ``starts``, ``values``, ``advantages``, ``returns``, and ``foods`` (every day drawn
+  so far, ``(days, K, horizon)``); for tests that replay it through SB3 (PPO, MC, GRU-PPO).
+* ``on_update``: (off-policy) called after each update with ``steps`` (env steps so far) and
+  what the update gives: the K ``losses`` (DDQN: with the ``learning_rate`` and ``epsilon``
+  in force and ``target_copies`` so far; SAC: ``critic_loss`` and ``actor_loss``).
+* ``checkpoint``: resume from its state if it holds one; save the training state to it at
+  rollout (off-policy: day) boundaries when it is due (:mod:`nutribench.engine.checkpoint`).
+* ``device``: where the networks train (:func:`~nutribench.engine.device.resolve_device`:
+  ``"auto"``, ``"cpu"``, ``"cuda"``, ``"cuda:N"``). The default is the CPU, whose runs are
+  reproducible bit for bit; the random streams are the CPU's on every device.
+* ``eval_every``: every so many training days, all K agents' greedy policies play their
+  ``val_episodes`` validation days (:mod:`nutribench.engine.evaluate`), the days the SB3
+  engine would play, the training unchanged; each agent's rows in ``agent.validation``.
+  None or 0: never. ``on_validation(agent_index, train_day, rows)`` after each one (its
+  exception stops the training and propagates).
+* ``agent_configs``: one config per job instead of ``agent_config`` for all (tuning trials
+  stacked in one batch: :mod:`nutribench.tuning.stack`): they may differ only in continuous
+  settings (learning rate, discount, GAE lambda, clip range, entropy and value coefficients,
+  gradient-norm clip; SAC: its two learning rates, alpha, tau, discount), which then go on
+  the agent axis (the class's ``PER_AGENT``; not DDQN yet); ``agent_config`` is still the
+  batch's structure.
+* ``active``: a ``(K,)`` bool array the caller may change while training: the agents where
+  it is False get no more updates (a pruned trial's; the classes with ``PER_AGENT``).
+* ``return_agents``: False: build no SB3 model and return ``[]`` (a tuning trial's score is
+  its ``on_validation`` rows alone: :mod:`nutribench.tuning.stack`).
 """
 
 from __future__ import annotations
@@ -53,6 +87,7 @@ def train_batched(
     episodes: int,
     on_episode: AgentEpisodeFn | None = None,
     on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None,
+    on_update: Callable[[dict[str, Any]], None] | None = None,
     checkpoint: Checkpoint | None = None,
     device: str | th.device = "cpu",
     eval_every: int | None = None,
@@ -63,37 +98,9 @@ def train_batched(
     return_agents: bool = True,
 ) -> list[TrainedAgent]:
     """Train one agent of ``agent_config`` per ``(regime, seed)`` of ``jobs`` for
-    ``episodes`` days, all at once. Each agent comes back with ``diagnostics``: one dict per
-    update (on-policy: per rollout; off-policy: per training day with gradient steps, the
-    means over them), keyed by :mod:`nutribench.diagnostics`' names; a batch resumed from a
-    checkpoint returns them all, those of the run before the stop included.
+    ``episodes`` days, all at once; each comes back with its ``diagnostics`` and
+    ``validation`` rows. What each option does: the module docstring.
 
-    :param on_rollout: called before each update with the rollout's arrays (agent axis first):
-        ``obs`` (as the policy saw them), ``actions``, ``rewards`` (as the update sees them),
-        ``starts``, ``values``, ``advantages``, ``returns``, and ``foods`` (every day drawn so
-        far, ``(days, K, horizon)``); for tests that replay it through SB3 (PPO, MC, GRU-PPO).
-
-    :param on_episode: called with (job index, the finished day's metrics) for every day.
-    :param checkpoint: resume from its state if it holds one; save the training state to it
-        at rollout (off-policy: day) boundaries when it is due (:mod:`nutribench.engine.checkpoint`).
-    :param device: where the networks train (:func:`~nutribench.engine.device.resolve_device`:
-        ``"auto"``, ``"cpu"``, ``"cuda"``, ``"cuda:N"``). The default is the CPU, whose runs are
-        reproducible bit for bit; the random streams are the CPU's on every device.
-    :param eval_every: every so many training days, all K agents' greedy policies play their
-        ``val_episodes`` validation days (:mod:`nutribench.engine.evaluate`), the days the SB3
-        engine would play, the training unchanged; each agent's rows in ``agent.validation``.
-        None or 0: never. ``on_validation(agent_index, train_day, rows)`` after each one (its
-        exception stops the training and propagates).
-    :param agent_configs: one config per job instead of ``agent_config`` for all (tuning
-        trials stacked in one batch: :mod:`nutribench.tuning.stack`): they may differ only in
-        continuous settings (learning rate, discount, GAE lambda, clip range, entropy and value
-        coefficients, gradient-norm clip; SAC: its two learning rates, alpha, tau, discount),
-        which then go on the agent axis (the class's ``PER_AGENT``; not DDQN yet);
-        ``agent_config`` is still the batch's structure.
-    :param active: a ``(K,)`` bool array the caller may change while training: the agents
-        where it is False get no more updates (a pruned trial's; the classes with ``PER_AGENT``).
-    :param return_agents: False: build no SB3 model and return ``[]`` (a tuning trial's score
-        is its ``on_validation`` rows alone: :mod:`nutribench.tuning.stack`).
     :raises nutribench.engine.UnsupportedConfig: (one line, before anything trains) for a
         config this engine would not train as the SB3 engine does (:func:`nutribench.engine.supports`).
     """
@@ -107,6 +114,7 @@ def train_batched(
         checkpoint=checkpoint,
         device=device,
         on_rollout=on_rollout,
+        on_update=on_update,
         eval_every=eval_every,
         val_episodes=val_episodes,
         on_validation=on_validation,

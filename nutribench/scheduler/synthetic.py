@@ -20,15 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
+from nutribench import HORIZON
 from nutribench.clock import utcnow
 from nutribench.engines import Engine
 from nutribench.provenance import collect_metadata
 from nutribench.safe_write import atomic_write
 from nutribench.scheduler.spec import JobResult, JobSpec
 from nutribench.scheduler.worker import JobProgress, Sink
-
-HORIZON = 50
-
 
 #: Called with a job's spec and the training episode about to run (0-based)
 EpisodeHook = Callable[[JobSpec, int], None]

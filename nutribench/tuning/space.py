@@ -40,7 +40,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from nutribench.agents.config import load_agent_config, parse_agent_config
+from nutribench.agents.config import Name, load_agent_config, parse_agent_config
 from nutribench.agents.registry import by_entry_point
 from nutribench.config.loading import (
     ConfigError,
@@ -55,7 +55,6 @@ from nutribench.config.loading import (
 _IDENTITY = ("algo", "name", "version", "description", "entry_point")
 
 Scalar = bool | int | float | str
-Name = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$", max_length=64)]
 
 
 class Param(BaseModel):

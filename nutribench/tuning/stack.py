@@ -14,7 +14,7 @@ misses), each drawn as a lone trial is (structure included), and groups them by 
 continuous settings (learning rate, discount, GAE lambda, clip range, entropy and value
 coefficients, gradient-norm clip; SAC's learning rates, alpha and tau) train in one batch,
 each trial's agents (one per tuning regime and seed) with its own settings on the agent axis
-(:attr:`nutribench.engine.algorithm.Algorithm.PER_AGENT`: PPO, MC, GRU-PPO and SAC).
+(:attr:`nutribench.engine.algorithm.BatchedAlgorithm.PER_AGENT`: PPO, MC, GRU-PPO and SAC).
 Trials of another structure, and algorithms without per-agent settings (DDQN, plug-ins),
 train in batches of their own, one trial each, as without ``--stack``.
 
@@ -276,7 +276,7 @@ class _AllPruned(Exception):
 
 def per_agent_fields(cfg: Any) -> tuple[str, ...]:
     """The settings that may differ between stacked trials of ``cfg``'s algorithm (its batched
-    class's :attr:`~nutribench.engine.algorithm.Algorithm.PER_AGENT`); () where the batched
+    class's :attr:`~nutribench.engine.algorithm.BatchedAlgorithm.PER_AGENT`); () where the batched
     engine does not train ``cfg`` or takes no per-agent settings."""
     from nutribench.agents.registry import batched_class
     from nutribench.engine import supports

@@ -83,7 +83,7 @@ ALGORITHM = Algorithm(
     label="GRU-PPO",
     color="#9467bd",
     order=5,
-    batched="nutribench.engine.gru_ppo:GRUPPO",
+    batched="nutribench.engine.gru_ppo:BatchedGRUPPO",
     batch_limits=whole_days,
     cost=5.0,
 )

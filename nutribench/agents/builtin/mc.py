@@ -60,5 +60,5 @@ ALGORITHM = Algorithm(
     label="MC",
     color="#8c564b",
     order=1,
-    batched="nutribench.engine.mc:MC",
+    batched="nutribench.engine.mc:BatchedMC",
 )

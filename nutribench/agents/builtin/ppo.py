@@ -56,6 +56,6 @@ ALGORITHM = Algorithm(
     label="PPO",
     color="#2ca02c",
     order=3,
-    batched="nutribench.engine.ppo:PPO",
+    batched="nutribench.engine.ppo:BatchedPPO",
     bare=(("stable_baselines3:PPO", "bare SB3 PPO"),),
 )

@@ -54,7 +54,7 @@ ALGORITHM = Algorithm(
     label="SAC",
     color="#d62728",
     order=4,
-    batched="nutribench.engine.sac:SAC",
+    batched="nutribench.engine.sac:BatchedSAC",
     batch_limits=no_replay_scaling,
     cost=5.0,
 )

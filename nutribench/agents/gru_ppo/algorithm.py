@@ -94,17 +94,9 @@ class GRUPPO(OnPolicyAlgorithm):
         verbose: int = 0,
         _init_setup_model: bool = True,
     ):
-        if sequence_length < 1 or n_steps % sequence_length != 0:
-            raise ValueError(
-                f"GRUPPO needs n_steps to be a multiple of sequence_length={sequence_length} (the episode "
-                f"length), so that training replays whole episodes through the GRU; got n_steps={n_steps}"
-            )
-        if batch_size < 1:
+        if batch_size < 1:  # (n_steps, a multiple of sequence_length: the buffer's check)
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
-        policy_kwargs = dict(policy_kwargs or {})
-        policy_kwargs.setdefault("hidden_size", hidden_size)
-        if not memory:
-            policy_kwargs.setdefault("memory", False)
+        policy_kwargs = {"hidden_size": hidden_size, **({} if memory else {"memory": False}), **(policy_kwargs or {})}
         super().__init__(
             policy,
             env,  # type: ignore[arg-type]
@@ -128,13 +120,9 @@ class GRUPPO(OnPolicyAlgorithm):
             _init_setup_model=False,
             supported_action_spaces=(spaces.Discrete,),
         )
-        self.batch_size = batch_size
-        self.n_epochs = n_epochs
-        self.clip_range = clip_range
-        self.hidden_size = policy_kwargs["hidden_size"]
-        self.sequence_length = sequence_length
+        self.batch_size, self.n_epochs, self.clip_range, self.target_kl = batch_size, n_epochs, clip_range, target_kl
+        self.hidden_size, self.sequence_length = policy_kwargs["hidden_size"], sequence_length
         self.normalize_advantage = normalize_advantage
-        self.target_kl = target_kl
         self._last_gru_states: GRUState | None = None
         if _init_setup_model:
             self._setup_model()
@@ -193,22 +181,7 @@ class GRUPPO(OnPolicyAlgorithm):
             self._update_info_buffer(infos, dones)
             n_steps += 1
 
-            # Bootstrap on time-limit truncation (as SB3's on-policy loop does). NutriRL's day end
-            # is a true terminal (no "TimeLimit.truncated"), so this never fires there.
-            for idx, done in enumerate(dones):
-                if (
-                    done
-                    and infos[idx].get("terminal_observation") is not None
-                    and infos[idx].get("TimeLimit.truncated", False)
-                ):
-                    terminal_obs = self.policy.obs_to_tensor(infos[idx]["terminal_observation"])[0]
-                    carried = (new_states[0][:, idx : idx + 1], new_states[1][:, idx : idx + 1])
-                    with th.no_grad():
-                        terminal_value = self.policy.predict_values(
-                            terminal_obs, carried, th.zeros(1, device=self.device)
-                        )
-                    rewards[idx] += self.gamma * terminal_value.item()
-
+            self._bootstrap_truncated(rewards, dones, infos, new_states)
             rollout_buffer.add(
                 self._last_obs,  # type: ignore[arg-type]
                 actions.reshape(-1, 1),
@@ -233,6 +206,19 @@ class GRUPPO(OnPolicyAlgorithm):
         callback.update_locals(locals())
         callback.on_rollout_end()
         return True
+
+    def _bootstrap_truncated(self, rewards: np.ndarray, dones: np.ndarray, infos: list[dict], states: GRUState) -> None:
+        """Add ``gamma * V(terminal observation)`` to the reward of each env whose episode a time
+        limit cut short (as SB3's on-policy loop does), the GRU state carried into it. NutriRL's
+        day end is a true terminal (no ``TimeLimit.truncated``), so this never fires there."""
+        for idx, done in enumerate(dones):
+            info = infos[idx]
+            if done and info.get("terminal_observation") is not None and info.get("TimeLimit.truncated", False):
+                terminal_obs = self.policy.obs_to_tensor(info["terminal_observation"])[0]
+                carried = (states[0][:, idx : idx + 1], states[1][:, idx : idx + 1])
+                with th.no_grad():
+                    terminal_value = self.policy.predict_values(terminal_obs, carried, th.zeros(1, device=self.device))
+                rewards[idx] += self.gamma * terminal_value.item()
 
     # ---- training: PPO over whole sequences ----
 
