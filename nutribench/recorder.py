@@ -144,6 +144,10 @@ class Recorder:
     :param params: the agent's settings, stored and hashed with its name and version.
     :param eval_episodes: how many fixed evaluation days (5: the paper's).
     :param source: what made the results (default: the calling script), recorded with its hash.
+    :param trained_days: the training days of a model trained elsewhere, when no training day is
+        played on ``env`` (``nutribench evaluate`` gives its sidecar's): the job's budget, with no
+        training rows. None (the default): the budget is the training days played on ``env``, and
+        with none, the training is not recorded (budget 0).
     """
 
     def __init__(
@@ -158,17 +162,22 @@ class Recorder:
         params: dict[str, Any] | None = None,
         eval_episodes: int = 5,
         source: tuple[str | None, str | None] | None = None,
+        trained_days: int | None = None,
     ):
         from nutribench.agents.config import parse_agent_config
         from nutribench.config import load_env_config
-        from nutribench.scheduler.grid import MAX_EVAL_DAYS, MAX_SEED
+        from nutribench.scheduler.grid import MAX_EPISODES, MAX_EVAL_DAYS, MAX_SEED
 
-        for what, value, low, high in (("seed", seed, 0, MAX_SEED), ("eval_episodes", eval_episodes, 1, MAX_EVAL_DAYS)):
+        checked = [("seed", seed, 0, MAX_SEED), ("eval_episodes", eval_episodes, 1, MAX_EVAL_DAYS)]
+        if trained_days is not None:
+            checked.append(("trained_days", trained_days, 0, MAX_EPISODES))
+        for what, value, low, high in checked:
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
                 raise RecorderError(f"Recorder({what}={value!r}): {what} is an integer, e.g. {what}={low}")
             if not low <= value <= high:
                 raise RecorderError(f"Recorder({what}={value}): {what} goes from {low} to {high}")
         self.db, self.seed, self.eval_episodes = db, int(seed), int(eval_episodes)
+        self.trained_days = int(trained_days or 0)
         self.regime_config = load_env_config(regime)
         body = {
             "algo": "external",
@@ -259,6 +268,11 @@ class Recorder:
         from nutribench.scheduler.registration import ExternalJob, store_external_job
         from nutribench.store import open_store
 
+        if self.trained_days and self.env.days:
+            raise RecorderError(
+                f"Recorder {self.agent_config.name}: trained_days={self.trained_days} and {len(self.env.days)} "
+                "training days played on rec.env: give one or the other (nothing was written)"
+            )
         meta = collect_metadata() | {
             "started_at": self._started,
             "finished_at": utcnow(),
@@ -268,7 +282,14 @@ class Recorder:
             "source_sha256": self.source[1],
         }
         job = ExternalJob(
-            self.regime_config, self.agent_config, self.seed, self.env.days, self._eval.episodes, self._eval.steps, meta
+            self.regime_config,
+            self.agent_config,
+            self.seed,
+            self.env.days,
+            self._eval.episodes,
+            self._eval.steps,
+            meta,
+            budget=self.trained_days or None,
         )
         store = open_store(self.db, writer=True)
         try:

@@ -90,6 +90,30 @@ def read_sidecar(path: str | Path) -> dict[str, Any]:
     return data
 
 
+def sidecar_training_days(path: str | Path) -> int | None:
+    """The training days the sidecar beside model ``path`` records (its provenance's
+    ``episodes``, what :meth:`nutribench.agents.api.TrainedAgent.save` writes); None where
+    there is no nutribench sidecar beside it (a model of another framework, a ``.json`` that is
+    not a model's sidecar) or it records none (a file written before provenance was kept). A
+    sidecar whose training days are not a whole number of days is a :class:`ModelFileError`."""
+    if not Path(path).with_suffix(".json").is_file():
+        return None
+    try:
+        side = read_sidecar(path)
+    except ModelFileError:
+        return None  # not ours: it says nothing of the training
+    provenance = side.get("provenance")
+    days = provenance.get("episodes") if isinstance(provenance, dict) else None
+    if days is None:
+        return None
+    if type(days) is not int or days < 0:
+        raise ModelFileError(
+            f"{Path(path).with_suffix('.json')}: provenance episodes {str(days)[:40]!r} is not a number of "
+            "training days: fix or remove the sidecar"
+        )
+    return days or None
+
+
 def spaces_record(model: BaseAlgorithm) -> dict[str, Any]:
     """The observation and action spaces of ``model``, as JSON (for :func:`stand_in_env`)."""
     obs, act = model.observation_space, model.action_space

@@ -32,6 +32,7 @@ __all__ = [
     "console",
     "err_console",
     "folder_option",
+    "path_option",
     "print_error",
     "progress",
     "split_csv",
@@ -70,15 +71,22 @@ def print_error(e: BaseException | str) -> None:
     err_console.print(f"[bold red]error:[/] {escape(text)}", highlight=False, soft_wrap=True)
 
 
-def folder_option(value: str | None, option: str) -> Path | None:
-    """A folder option's value as a path (None: not given); an empty one is a one-line
-    :class:`UserError`, as ``--db ''`` is: ``Path('')`` is the current folder, which an empty
-    value never means (give ``.`` for it)."""
+def path_option(value: str | None, option: str, give: str = "a path") -> Path | None:
+    """A path option's value as a path (None: not given); an empty or blank one is a one-line
+    :class:`UserError` (``option is empty: give ...``), as ``--db ''`` is: ``Path('')`` is the
+    current folder, which an empty value never means. Path options are declared as ``str`` and
+    read through this, since typer turns ``''`` into ``Path('.')`` before the command sees it."""
     if value is None:
         return None
     if not value.strip():
-        raise UserError(f"{option} is empty: give a folder ('.' for the current one)")
+        raise UserError(f"{option} is empty: give {give}")
     return Path(value)
+
+
+def folder_option(value: str | None, option: str) -> Path | None:
+    """A folder option's value as a path (None: not given); an empty one is a one-line
+    :class:`UserError` (:func:`path_option`; give ``.`` for the current folder)."""
+    return path_option(value, option, "a folder ('.' for the current one)")
 
 
 #: errors of the operating system that only ever mean a path the user gave cannot be one

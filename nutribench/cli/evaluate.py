@@ -3,18 +3,19 @@ of (regime, seed) and stored as a job beside the built-in agents."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from nutribench.cli.common import console, user_errors
+from nutribench.cli.common import console, path_option, user_errors
 from nutribench.errors import UserError
 
 
 @user_errors
 def evaluate_cmd(
-    model: Annotated[Path, typer.Option(help="the saved model (a file or folder your loader reads)")],
+    model_given: Annotated[
+        str, typer.Option("--model", metavar="PATH", help="the saved model (a file or folder your loader reads)")
+    ],
     entry_point: Annotated[
         str, typer.Option(help="package.module:load, called as load(MODEL) -> a policy with predict() or a callable")
     ],
@@ -27,14 +28,18 @@ def evaluate_cmd(
     eval_episodes: Annotated[int, typer.Option(min=1, help="evaluation days (5: the paper's)")] = 5,
     db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
 ) -> None:
-    """Evaluate a saved model greedily and store it as a job (engine 'external', no training rows)."""
+    """Evaluate a saved model greedily and store it as a job (engine 'external', no training rows;
+    its budget the training days of the model's .json sidecar, where nutribench wrote one)."""
+    from nutribench.agents.model_files import sidecar_training_days
     from nutribench.agents.registry import import_entry_point
     from nutribench.provenance import file_sha256
     from nutribench.recorder import Recorder
     from nutribench.store.engine import database_url, display_url
 
+    model = path_option(model_given, "--model", "the saved model's file or folder")
     if not model.exists():
         raise UserError(f"--model {model}: no such file or folder")
+    trained_days = sidecar_training_days(model)
     load = import_entry_point(entry_point)
     try:
         policy = load(str(model))
@@ -48,12 +53,18 @@ def evaluate_cmd(
         version=version,
         eval_episodes=eval_episodes,
         source=(f"{entry_point} {model.resolve()}", file_sha256(model)),
+        trained_days=trained_days,
     )
     with rec:
         rows = rec.evaluate(policy)
     mean = sum(r["return"] for r in rows) / len(rows)
     foods = sum(r["foods"] for r in rows) / len(rows)
+    trained = (
+        f"trained {trained_days} days (its sidecar)"
+        if trained_days
+        else "training not recorded (no sidecar records it)"
+    )
     console.print(
         f"{name} on {rec.regime_config.name} seed {seed}: {len(rows)} evaluation days, mean return {mean:.2f}, "
-        f"{foods:.1f} foods a day; stored in {display_url(database_url(db))}"
+        f"{foods:.1f} foods a day, {trained}; stored in {display_url(database_url(db))}"
     )

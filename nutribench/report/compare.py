@@ -34,7 +34,7 @@ import pandas as pd
 
 from nutribench.errors import UserError
 from nutribench.report.aggregate import DELAYED_REGIMES, regime_span
-from nutribench.report.figure_parts import budget_cell
+from nutribench.report.figure_parts import UNRECORDED, budget_cell
 from nutribench.report.figures import budget_seeds_text, seed_list, sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
@@ -283,12 +283,6 @@ def _wanted_regimes(ev: pd.DataFrame, a: str, b: str, regimes: Sequence[str] | N
             f"{a} and {b} were never evaluated on the same regime ({a}: {_regimes_of(ev, a)}; {b}: {_regimes_of(ev, b)})"
         )
     return wanted
-
-
-#: What a budget of 0 days means: no training day was recorded with the job (a saved model
-#: evaluated by ``nutribench evaluate``, a policy recorded by ``nutribench.Recorder`` without
-#: training days): how long it was trained, the database does not know.
-UNRECORDED = "training not recorded"
 
 
 def trained_text(label: str, budget: str, verb: str = "trained ") -> str:

@@ -120,6 +120,13 @@ def budget_seeds_line(df: pd.DataFrame) -> str:
     return text + f"seeds {seed_list(df['seed'])} (each agent's in its legend entry)"
 
 
+#: What a budget of 0 days means: no training day was recorded with the job (a saved model
+#: evaluated by ``nutribench evaluate`` with no sidecar that records its training days, a policy
+#: recorded by ``nutribench.Recorder`` without training days): how long it was trained, the
+#: database does not know.
+UNRECORDED = "training not recorded"
+
+
 def budget_cell(cell: pd.DataFrame) -> str:
     """The training budget(s) of one config's rows, in days (``5000``, ``50/5000``; ``?`` without
     the ``budget`` column): the budget column of the results and aggregate tables."""

@@ -55,7 +55,7 @@ import pandas as pd
 
 from nutribench.report.aggregate import interval_estimates, regime_span, run_scores, score_set
 from nutribench.report.data import ENTRY, ReportError, entries
-from nutribench.report.figure_parts import budget_cell, seed_list, sort_regimes
+from nutribench.report.figure_parts import UNRECORDED, budget_cell, seed_list, sort_regimes
 from nutribench.report.palette import BUILTIN_ORDER
 from nutribench.report.palette import label as algo_label
 from nutribench.report.scores import DEFAULT_REPS
@@ -153,7 +153,9 @@ def _code_version(jobs: pd.DataFrame) -> str:
 
 def _flags(budget: str, seeds: list[int], covered: list[str], board: list[str]) -> list[str]:
     flags = []
-    if budget != str(REFERENCE_BUDGET):
+    if budget == "0":  # no training day recorded (an evaluated model without a sidecar that says)
+        flags.append(f"{UNRECORDED} (reference {REFERENCE_BUDGET} days)")
+    elif budget != str(REFERENCE_BUDGET):
         flags.append(f"budget {budget} days (reference {REFERENCE_BUDGET})")
     if sorted(seeds) != sorted(REFERENCE_SEEDS):
         flags.append(f"seeds {seed_list(seeds)} (reference {', '.join(map(str, REFERENCE_SEEDS))})")

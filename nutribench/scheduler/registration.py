@@ -211,7 +211,9 @@ def spec_maker(
 @dataclass(frozen=True)
 class ExternalJob:
     """A job trained outside nutribench (:class:`nutribench.Recorder`, ``nutribench evaluate``):
-    its configs, seed, metric rows and metadata, stored as one done job."""
+    its configs, seed, metric rows and metadata, stored as one done job. Its budget is its
+    training rows' count, or ``budget`` where the training was done elsewhere and only its
+    length is known (a saved model's sidecar): then it has no training rows."""
 
     regime_config: Any
     agent_config: Any
@@ -220,6 +222,16 @@ class ExternalJob:
     eval: list[dict[str, Any]]
     eval_steps: list[dict[str, Any]]
     metadata: dict[str, Any]
+    budget: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.budget is not None and self.train:
+            raise ValueError("an external job's budget is its training rows' count, or given with no training rows")
+
+    @property
+    def episodes(self) -> int:
+        """The job's budget: its training days."""
+        return self.budget if self.budget is not None else len(self.train)
 
 
 def store_external_job(store: Store, job: ExternalJob) -> int:
@@ -241,12 +253,12 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
         rid = _register(s, RegimeConfig, [regime])[regime.name]
         aid = _register(s, AgentConfig, [agent])[agent.name]
         key = dict(
-            regime_id=rid, agent_config_id=aid, seed=job.seed, episodes=len(job.train), eval_episodes=len(job.eval)
+            regime_id=rid, agent_config_id=aid, seed=job.seed, episodes=job.episodes, eval_episodes=len(job.eval)
         )
         old = s.execute(select(Job.id).filter_by(**key)).scalar_one_or_none()
         if old is not None:
             raise RunError(
-                f"{display_url(store.url)}: {cfg.name} v{cfg.version} on {env.name} seed {job.seed} with {len(job.train)} "
+                f"{display_url(store.url)}: {cfg.name} v{cfg.version} on {env.name} seed {job.seed} with {job.episodes} "
                 f"training days is already recorded (job {old}): record another seed, or bump the agent's version"
             )
         meta = {k: job.metadata[k] for k in METADATA_COLUMNS if k in job.metadata}
@@ -255,7 +267,7 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
             status="done",
             attempt=1,
             failures=0,
-            episodes_done=len(job.train),
+            episodes_done=job.episodes,
             created_at=utcnow(),
             fake=False,
             **meta,

@@ -28,7 +28,8 @@ table's ``job`` column; no array or field that the format does not have; every r
 index in range; no NaN or infinity that is not a NULL, and no NULL where the column allows none; the
 phases, statuses and engines known; no key twice (a config's name and version, a job's
 key, an episode's or a step's primary key); per job, ``episodes`` training days (the
-budget; an external agent's budget is the number of days it recorded), ``eval_episodes``
+budget; an external agent's budget is the number of days it recorded, or, with no training
+rows, the days a saved model's sidecar records), ``eval_episodes``
 evaluation days and ``eval_episodes x H`` evaluation steps (H the regime's horizon), each
 numbered in range, and foods and actions in range; every config's ``sha256`` recomputed
 from its stored body, which names the same config; every name ``[a-z][a-z0-9_]*`` (64

@@ -527,8 +527,10 @@ def _check_rows(
     want_steps = per_job["eval_episodes"] * per_job["horizon"]
     for i, j in enumerate(jobs):
         label = f"job {i} ({j['regime'][0]} x {j['agent'][0]} seed {j['seed']})"
-        if trains[i] != per_job["episodes"][i]:
-            budget = "the training days it recorded" if j.get("engine") == Engine.EXTERNAL else "its budget"
+        external = j.get("engine") == Engine.EXTERNAL
+        # an external job trained elsewhere (a saved model evaluated) has its budget and no training rows
+        if trains[i] != per_job["episodes"][i] and not (external and trains[i] == 0):
+            budget = "the training days it recorded" if external else "its budget"
             raise InvalidArchive(f"{label} has {trains[i]:,} training episodes, {budget} is {per_job['episodes'][i]:,}")
         if evals[i] != per_job["eval_episodes"][i]:
             raise InvalidArchive(
