@@ -144,6 +144,28 @@ BAD = {
         ["tune", "best", "--study", "s", "--write", "--out", ""],
         "--out is empty",
     ),
+    "an empty leaderboard folder": (["leaderboard", "--db", "new.db", "--out", ""], "--out is empty"),
+    "a blank leaderboard folder": (["leaderboard", "--db", "new.db", "--out", "  "], "--out is empty"),
+    "an empty folder of archives": (["leaderboard", "--archives", ""], "--archives is empty"),
+    "an empty folder of models to verify": (["leaderboard", "--db", "new.db", "--verify", ""], "--verify is empty"),
+    "an empty TensorBoard folder for run": ([*GRID, "--tensorboard", ""], "--tensorboard is empty"),
+    "an empty TensorBoard folder for train": (["train", "--days", "1", "--tensorboard", ""], "--tensorboard is empty"),
+    "an empty model path for evaluate": (
+        ["evaluate", "--model", "", "--entry-point", "os.path:exists", "--name", "a", "--db", "new.db"],
+        "--model is empty",
+    ),
+    "a NUL in a new regime's description": (
+        ["regimes", "generate", "run8", "--from", "run6", "--description", "slow\x00C", "--write"],
+        "U+0000 (a NUL)",
+    ),
+    "an escape sequence in a new regime's description": (
+        ["regimes", "generate", "run8", "--from", "run6", "--description", "\x1b[31mred", "--write"],
+        "U+001B",
+    ),
+    "a new regime's description too long for a config file": (
+        ["regimes", "generate", "run8", "--from", "run6", "--description", "x" * 5000, "--write"],
+        "more than the 4,096",
+    ),
     "a control byte in a regime name, echoed escaped": (
         ["run", "--db", "new.db", "--regimes", "run0\x1b[31m", "--algos", "ppo", "--episodes", "2"],
         "run0\\x1b[31m",

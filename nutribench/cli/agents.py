@@ -15,6 +15,7 @@ from nutribench.cli.common import (
     check_range,
     check_tensorboard,
     console,
+    folder_option,
     old_spelling,
     split_csv,
     user_errors,
@@ -180,11 +181,13 @@ def train_cmd(
     episodes_alias: Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)] = None,
     eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days")] = 5,
     save: Annotated[Optional[Path], typer.Option(help="save the trained model here (.zip + .json)")] = None,
-    tensorboard: Annotated[
-        Optional[Path],
+    tensorboard_given: Annotated[
+        Optional[str],
         typer.Option(
+            "--tensorboard",
+            metavar="PATH",
             help="also write the training diagnostics as TensorBoard events under this folder "
-            "(run folder <algo>-<regime>-seed<seed>)"
+            "(run folder <algo>-<regime>-seed<seed>)",
         ),
     ] = None,
     eval_every: Annotated[int, typer.Option(min=0, help=EVAL_EVERY_HELP)] = 0,
@@ -192,6 +195,7 @@ def train_cmd(
 ) -> None:
     """Train one agent in the foreground, then evaluate it greedily and print the metrics."""
     episodes = old_spelling(days, episodes_alias, "--days", "--episodes", 300)
+    tensorboard = folder_option(tensorboard_given, "--tensorboard")  # '' is refused, not the current folder
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,

@@ -9,7 +9,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import UserError, check_out_dir, console, err_console, progress, user_errors
+from nutribench.cli.common import UserError, check_out_dir, console, err_console, folder_option, progress, user_errors
 
 FORMATS = ("markdown", "csv", "latex", "json")
 
@@ -19,19 +19,23 @@ def leaderboard_cmd(
     db: Annotated[
         str, typer.Option(envvar="NUTRIBENCH_DB", help="results database: a file path or a SQLAlchemy URL")
     ] = "nutribench.db",
-    archives: Annotated[
-        Optional[Path],
-        typer.Option("--archives", help="a folder of archives (*.npz, `nutribench db export`) instead of --db"),
+    archives_given: Annotated[
+        Optional[str],
+        typer.Option(
+            "--archives", metavar="PATH", help="a folder of archives (*.npz, `nutribench db export`) instead of --db"
+        ),
     ] = None,
-    out: Annotated[
-        Optional[Path], typer.Option("--out", help="also write leaderboard.md, .tex and .csv into this folder")
+    out_given: Annotated[
+        Optional[str],
+        typer.Option("--out", metavar="PATH", help="also write leaderboard.md, .tex and .csv into this folder"),
     ] = None,
     fmt: Annotated[str, typer.Option("--format", help="what to print: markdown, csv, latex or json")] = "markdown",
     reps: Annotated[int, typer.Option(help="bootstrap resamples of the runs (100 to 100,000)")] = 2000,
-    verify: Annotated[
-        Optional[Path],
+    verify_given: Annotated[
+        Optional[str],
         typer.Option(
             "--verify",
+            metavar="PATH",
             help="a folder of the jobs' trained models as `nutribench run --models-dir` writes it "
             "(<regime>-v<rv>/<agent>-v<av>/seed<seed>-ep<budget>.zip): each model supplied is loaded as data, "
             "played greedily on its job's test days and compared action for action (the `checked` column)",
@@ -50,6 +54,11 @@ def leaderboard_cmd(
     from nutribench.report.output import TABLE_SUFFIXES, write_table
     from nutribench.safe_write import check_regular_file
 
+    # '' is refused, as --db '' is (typer would make it the current folder)
+    archives, out, verify = (
+        folder_option(v, o)
+        for v, o in ((archives_given, "--archives"), (out_given, "--out"), (verify_given, "--verify"))
+    )
     if fmt not in FORMATS:
         raise UserError(f"--format {fmt}: give one of {', '.join(FORMATS)}")
     check_reps(reps)  # a trillion resamples would be a MemoryError after minutes of reading

@@ -154,11 +154,13 @@ def run_cmd(
     device: Annotated[
         str, typer.Option(help=f"{DEVICE_HELP}; the SB3 engine trains on the CPU (auto or cpu)")
     ] = "auto",
-    tensorboard: Annotated[
-        Optional[Path],
+    tensorboard_given: Annotated[
+        Optional[str],
         typer.Option(
+            "--tensorboard",
+            metavar="PATH",
             help="also write each job's training diagnostics as TensorBoard events under this folder "
-            "(one run folder per job: job<id>-<algo>-<regime>-seed<seed>)"
+            "(one run folder per job: job<id>-<algo>-<regime>-seed<seed>)",
         ),
     ] = None,
     eval_every: Annotated[int, typer.Option(min=0, help=EVAL_EVERY_HELP + "; stored in validation_episodes")] = 0,
@@ -170,6 +172,7 @@ def run_cmd(
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
     episodes = old_spelling(days, episodes_alias, "--days", "--episodes")
     models_dir = folder_option(models_dir_given, "--models-dir")  # '' is refused, as --db '' is
+    tensorboard = folder_option(tensorboard_given, "--tensorboard")
     from nutribench.store import open_store
 
     if upgrade_only:

@@ -24,6 +24,7 @@ from pydantic import ValidationError
 
 from nutribench.config.loading import OBSERVATION_OPTIONS, ConfigError, format_validation_error
 from nutribench.config.models import NUTRIENTS, DelayRanges, FoodCatalog, Regime
+from nutribench.config.reading import check_strings
 from nutribench.safe_write import atomic_write
 
 DECIMALS = 2
@@ -115,7 +116,9 @@ def derive_regime(
     """A new regime ``name`` (version 1) made from ``source``: its ranges with ``tau`` and
     ``sigma`` (per nutrient, from :func:`parse_ranges`) replacing theirs, its catalog and
     reward files, and per-food delays freshly drawn with ``seed`` (default
-    :func:`default_seed` of ``name``)."""
+    :func:`default_seed` of ``name``). A ``description`` no config file may hold (a control
+    character, a NUL among them, or more than :data:`~nutribench.config.reading.MAX_TEXT`
+    characters: what reading the written file would refuse) is a :class:`ConfigError`."""
     if seed is not None and seed < 0:
         raise ConfigError(
             f"new regime {name}: seed {seed} is negative: give a seed >= 0 (or none, to derive it from the name)"
@@ -133,6 +136,7 @@ def derive_regime(
         "ranges": ranges,
         "foods": {},
     }
+    check_strings(f"new regime {name}", {"description": data["description"]})  # before anything is written
     try:
         data["foods"] = draw_delays(DelayRanges.model_validate(ranges), data["seed"], catalog)
         return Regime.model_validate(data)
