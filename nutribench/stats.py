@@ -44,6 +44,27 @@ COVERAGE: dict[str, dict[int, float]] = {
     "iqm": {5: 0.923, 10: 0.9405},
     "paired": {5: 0.922, 10: 0.941},
 }
+#: The other aggregates of the report's Figure 5 and aggregate table, which the simulation did
+#: not choose a method for: each gets an interval of the chosen t's kind, made without
+#: resamples (:func:`median_of_means_ci`, :func:`strata_t`, :func:`improvement_ci`), and
+#: their measured coverage, the lowest over normal, gamma-skewed and measured scores over 7
+#: regimes (the median's over 7 and 6) at 5 and 10 seeds (``benchmarks/coverage.py``'s second
+#: table, 2,000 datasets per cell, seed 0; docs/statistics.md).
+AGGREGATE_COVERAGE: dict[str, dict[int, float]] = {
+    "median": {5: 0.991, 10: 0.977},
+    "mean": {5: 0.946, 10: 0.948},
+    "gap": {5: 0.947, 10: 0.940},
+    "profile": {5: 0.957, 10: 0.926},
+    "improvement": {5: 0.944, 10: 0.953},
+}
+#: How a caption names each aggregate's interval (:func:`aggregate_caption`).
+AGGREGATE_METHODS: dict[str, str] = {
+    "median": "t model of each regime's mean",
+    "mean": "t, standard error within regimes",
+    "gap": "t, standard error within regimes",
+    "profile": "t band of the fraction, standard error within regimes",
+    "improvement": "t from DeLong's variance",
+}
 #: Up to this many values, a one-sample bootstrap enumerates every resample.
 EXACT_SEEDS = 10
 Runs = list[np.ndarray]  # one array of run scores per regime (stratum)
@@ -96,6 +117,7 @@ def trimmed_se(x: np.ndarray, sizes: Sequence[int] | None = None) -> tuple[np.nd
     else:
         with np.errstate(divide="ignore", invalid="ignore"):
             df = np.minimum(total**2 / sum(vr**2 / (k - 1) for (k, _), vr in zip(parts, v)), h - 1.0)
+        df = np.where(total > 0, df, h - 1.0)  # no spread within any regime: a zero-width interval, not NaN
     return np.sqrt(total) / h, df
 
 
@@ -380,6 +402,205 @@ def clustered_iqm_ci(
     return (point, *percentile_interval(stats, confidence, d.weights))
 
 
+# --------------------------------------------------------------------------- the aggregates
+# The aggregate table's median, mean and optimality gap, the performance profiles' bands and
+# P(X > Y) (the report's Figure 5): intervals of the chosen method's kind (Student's t, the
+# standard error taken within each regime), made without resamples, so no printed digit
+# depends on a seed. Their coverage: AGGREGATE_COVERAGE (benchmarks/coverage.py).
+def strata_t(
+    x: np.ndarray, sizes: Sequence[int], by: str = "run", confidence: float = CONFIDENCE
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A weighted mean of each row of ``x`` ``(rows, n)``, whose values come in strata
+    (regimes) of consecutive ``sizes``, with its t interval: ``by="run"`` weighs every value
+    alike (the pooled mean), ``by="regime"`` every regime alike (the mean of the regimes'
+    means). The standard error is taken within each regime (``sum_r W_r^2 s_r^2 / n_r``,
+    ``W_r`` the regime's weight; a regime of one value adds none) and the degrees of freedom
+    are Welch-Satterthwaite's. Rows whose regimes have no spread get the point as both ends.
+    Returns ``(point, lo, hi)``, one value per row."""
+    from scipy.stats import t
+
+    x = np.atleast_2d(np.asarray(x, dtype=float))
+    sizes = list(sizes)
+    bounds = np.cumsum([0, *sizes])
+    weight = [k / sum(sizes) if by == "run" else 1 / len(sizes) for k in sizes]
+    point = np.zeros(len(x))
+    var = np.zeros(len(x))
+    dfs = np.zeros(len(x))
+    for a, b, k, w in zip(bounds[:-1], bounds[1:], sizes, weight):
+        part = x[:, a:b]
+        point += w * part.mean(axis=1)
+        if k > 1:
+            vr = w**2 * part.var(axis=1, ddof=1) / k
+            var += vr
+            dfs += vr**2 / (k - 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        df = np.where(dfs > 0, var**2 / np.where(dfs > 0, dfs, 1), max(max(sizes) - 1, 1))
+    half = t.ppf(1 - (1 - confidence) / 2, df) * np.sqrt(var)
+    return point, point - half, point + half
+
+
+@lru_cache(maxsize=64)
+def _t_table(df: float) -> tuple[np.ndarray, np.ndarray]:
+    """Student's t distribution function with ``df`` degrees of freedom, tabulated at 20,001
+    of its quantiles (1e-9 .. 1 - 1e-9), for :func:`_t_cdf`."""
+    from scipy.stats import t
+
+    q = np.concatenate([[1e-9], np.linspace(1e-6, 1 - 1e-6, 19_999), [1 - 1e-9]])
+    return t.ppf(q, df), q
+
+
+def _t_cdf(z: np.ndarray, df: np.ndarray) -> np.ndarray:
+    """Student's t distribution function, interpolated in :func:`_t_table` (within 1e-8 of
+    scipy's; scipy's own takes microseconds a value, too slow for the median's search);
+    ``df`` broadcasts along the last axis of ``z``."""
+    df = np.broadcast_to(np.asarray(df, dtype=float), z.shape[-1:])
+    if (df == df[0]).all():
+        zs, qs = _t_table(float(df[0]))
+        return np.interp(z, zs, qs, left=0.0, right=1.0)
+    out = np.empty(z.shape)
+    for value in np.unique(df):
+        cols = df == value
+        zs, qs = _t_table(float(value))
+        out[..., cols] = np.interp(z[..., cols], zs, qs, left=0.0, right=1.0)
+    return out
+
+
+def _regime_cdfs(means: np.ndarray, ses: np.ndarray, dfs: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """The t model of each regime's mean (``means``, ``ses`` ``(rows, R)``): ``cdf(v)`` with
+    ``v`` ``(rows, ..., R)`` gives ``P(mean_r <= v_r)``; a regime of no spread is a point mass."""
+
+    def cdf(v: np.ndarray) -> np.ndarray:
+        shape = (means.shape[0],) + (1,) * (v.ndim - 2) + (means.shape[1],)
+        m, s = means.reshape(shape), ses.reshape(shape)
+        point = ~(s > 0)
+        z = (v - m) / np.where(point, 1.0, s)
+        return np.where(point, (v >= m).astype(float), _t_cdf(z, np.maximum(dfs, 1)))
+
+    return cdf
+
+
+def _count_probabilities(p: np.ndarray) -> np.ndarray:
+    """The Poisson-binomial: ``p`` ``(..., R)`` independent probabilities -> ``(..., R + 1)``,
+    the probability that exactly j of them happen."""
+    out = np.zeros(p.shape[:-1] + (p.shape[-1] + 1,))
+    out[..., 0] = 1.0
+    for r in range(p.shape[-1]):
+        pr = p[..., r : r + 1]
+        out = out * (1 - pr) + np.concatenate([np.zeros_like(pr), out[..., :-1]], axis=-1) * pr
+    return out
+
+
+def median_cdf(means: np.ndarray, ses: np.ndarray, dfs: np.ndarray, grid: int) -> Callable[[np.ndarray], np.ndarray]:
+    """``cdf(x)``: ``P(median of the regimes' means <= x)`` under the t model, per row (``x``
+    ``(rows,)``, ``means``/``ses`` ``(rows, R)``): for odd R, at least (R + 1) / 2 of them at
+    most x; for even R, the mean of the two middle ones, the lower one ``a`` taken at ``grid``
+    quantiles of each regime's distribution in turn (the others' chances exact)."""
+    from scipy.stats import t
+
+    cdf = _regime_cdfs(means, ses, dfs)
+    rows, R = means.shape
+    if R % 2:
+        return lambda x: _count_probabilities(cdf(x[:, None]))[:, (R + 1) // 2 :].sum(axis=1)
+    k = R // 2
+    q = (np.arange(grid) + 0.5) / grid
+    point = ~(ses > 0)
+    tq = t.ppf(q[None, :, None], np.maximum(dfs, 1)[None, None, :])
+    a = np.where(point[:, None, :], means[:, None, :], means[:, None, :] + ses[:, None, :] * tq)  # (rows, grid, R)
+    w = np.where(point[:, None, :], np.where(np.arange(grid) == 0, 1.0, 0.0)[None, :, None], 1.0 / grid)
+    others = [[s for s in range(R) if s != r] for r in range(R)]
+    # regime r's mean is the lower middle one, at a[..., r]: the others below it, and exactly k - 1
+    below = [cdf(np.repeat(a[:, :, r : r + 1], R, axis=-1))[..., others[r]] for r in range(R)]
+    exactly = [_count_probabilities(b)[..., k - 1] for b in below]
+
+    def at(x: np.ndarray) -> np.ndarray:
+        total = np.zeros(rows)
+        for r in range(R):
+            ar = a[:, :, r]
+            upper = 2 * x[:, None] - ar  # the upper middle one at most this
+            mid = np.clip(cdf(np.repeat(upper[..., None], R, axis=-1))[..., others[r]] - below[r], 0, None)
+            none_mid = _count_probabilities(below[r] / np.clip(1 - mid, 1e-300, None))[..., k - 1]
+            none_mid = none_mid * np.prod(1 - mid, axis=-1)
+            total += np.sum(w[:, :, r] * np.where(upper >= ar, exactly[r] - none_mid, 0.0), axis=1)
+        return np.clip(total, 0.0, 1.0)
+
+    return at
+
+
+def median_of_means_ci(runs: Runs, confidence: float = CONFIDENCE, grid: int = 400) -> tuple[float, float, float]:
+    """The median of the regimes' mean scores (rliable's aggregate median) and its interval:
+    each regime's mean modelled as Student's t about it (its standard error, ``n - 1`` degrees
+    of freedom: the chosen interval of a mean), the median's distribution under that model
+    computed (not drawn) and its 2.5 % and 97.5 % quantiles found by bisection. A regime of one
+    run or of no spread is a point. ``(point, nan, nan)`` with one run per regime."""
+    runs = [np.asarray(r, dtype=float) for r in runs]
+    means = np.array([r.mean() for r in runs])
+    point = float(np.median(means))
+    if max(len(r) for r in runs) < 2:
+        return point, float("nan"), float("nan")
+    ses = np.array([sem(r) if len(r) > 1 else 0.0 for r in runs])
+    ses = np.where(np.isfinite(ses), ses, 0.0)
+    if not (ses > 0).any():  # no regime has spread: every model of the median is the point
+        return point, point, point
+    dfs = np.array([max(len(r) - 1, 1) for r in runs], dtype=float)
+    lo, hi = median_intervals(means[None, :], ses[None, :], dfs, confidence, grid)
+    return point, float(lo[0]), float(hi[0])
+
+
+def median_intervals(
+    means: np.ndarray,
+    ses: np.ndarray,
+    dfs: np.ndarray,
+    confidence: float = CONFIDENCE,
+    grid: int = 400,
+    steps: int = 45,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`median_of_means_ci`'s ends for each row of ``means``/``ses`` ``(rows, R)``
+    (vectorised: the coverage simulation's datasets); ``dfs`` ``(R,)``; ``steps`` halvings of
+    the search (45: each end to 3e-14 of its starting span, far below any printed digit)."""
+    from scipy.stats import t
+
+    alpha = (1 - confidence) / 2
+    cdf = median_cdf(means, ses, dfs, grid)
+    span = np.where(ses > 0, ses * t.ppf(1 - 1e-6, np.maximum(dfs, 1)), 0.0)
+    out = []
+    for target in (alpha, 1 - alpha):
+        lo = (means - span).min(axis=1) - 1e-9
+        hi = (means + span).max(axis=1) + 1e-9
+        for _ in range(steps):
+            mid = (lo + hi) / 2
+            under = cdf(mid) < target
+            lo, hi = np.where(under, mid, lo), np.where(under, hi, mid)
+        out.append((lo + hi) / 2)
+    return out[0], out[1]
+
+
+def improvement_ci(x: Runs, y: Runs, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
+    """P(X > Y) averaged over regimes (per regime the share of (run of X, run of Y) pairs where
+    X scores higher, ties half: the Mann-Whitney statistic) and its interval: per regime
+    DeLong's variance of that share (the variances of each run's placement among the other
+    side's runs, ``S_x / m + S_y / n``; a side of one run adds none), averaged over regimes,
+    Student's t with Welch-Satterthwaite's degrees of freedom (``m + n - 2`` per regime),
+    clipped to [0, 1]. ``(p, nan, nan)`` with one run per side and regime."""
+    from scipy.stats import t
+
+    ps, var, dfs = [], 0.0, 0.0
+    R = len(x)
+    for a, b in zip(x, y):
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        psi = (a[:, None] > b[None, :]) + 0.5 * (a[:, None] == b[None, :])
+        ps.append(psi.mean())
+        vr = sum(v.var(ddof=1) / v.size for v in (psi.mean(axis=1), psi.mean(axis=0)) if v.size > 1) / R**2
+        var += vr
+        if a.size + b.size > 2:
+            dfs += vr**2 / (a.size + b.size - 2)
+    p = float(np.mean(ps))
+    if max(max(len(a) for a in x), max(len(b) for b in y)) < 2:
+        return p, float("nan"), float("nan")
+    df = var**2 / dfs if dfs > 0 else 1.0
+    half = float(t.ppf(1 - (1 - confidence) / 2, df) * np.sqrt(var))
+    return p, max(p - half, 0.0), min(p + half, 1.0)
+
+
 def bootstrap(stat: Callable[..., np.ndarray], arrays: Sequence[np.ndarray], reps: int, seed: int) -> np.ndarray:
     """``stat`` of ``reps`` resamples of paired ``arrays`` (the same indices for each, drawn
     with ``seed``): ``stat(*resampled)`` with each resampled array ``(reps, n)``."""
@@ -397,3 +618,14 @@ def caption(statistic: str) -> str:
         label = name[CHOSEN[statistic]]
     cov = COVERAGE[statistic]
     return f"{label} interval; simulated coverage {100 * cov[5]:.1f} % at 5 seeds, {100 * cov[10]:.1f} % at 10"
+
+
+def aggregate_caption(statistic: str) -> str:
+    """An aggregate's interval (:data:`AGGREGATE_METHODS`) and its measured coverage
+    (:data:`AGGREGATE_COVERAGE`), for a caption: ``"t model of each regime's mean; simulated
+    coverage 94.1 % at 5 seeds, 94.9 % at 10"``."""
+    cov = AGGREGATE_COVERAGE[statistic]
+    return (
+        f"{AGGREGATE_METHODS[statistic]}; simulated coverage {100 * cov[5]:.1f} % at 5 seeds, "
+        f"{100 * cov[10]:.1f} % at 10"
+    )

@@ -77,6 +77,24 @@ def test_rows_are_ranked_by_the_iqm_over_the_regimes_each_covers_and_flag_what_d
     assert "\\caption" in table.to_latex()
 
 
+def test_a_row_whose_seeds_scored_alike_prints_no_spread_not_single_seed():
+    """Five seeds that score alike on each regime give an interval of zero width: the row
+    says ``[no spread]`` (it has several seeds); ``[single seed]`` stays for one seed."""
+    from nutribench.report.leaderboard import leaderboard_rows, leaderboard_table
+
+    ev, refs, jobs = _board_data()
+    flat = ev.algo == "ppo"
+    ev = ev.copy()
+    ev.loc[flat, "return"] = ev.loc[flat, "regime"].map({"run0": -60.0, "run3": -100.0, "run6": -120.0})
+    rows = leaderboard_rows(ev, refs, jobs, {"ppo": "paper config", "qrdqn_mine": "plug-in", "loop": "recorded"})
+    ppo = rows.set_index("algo").loc["ppo"]
+    assert ppo["iqm_lo"] == ppo["iqm_hi"] == pytest.approx(ppo["iqm"])
+    printed = leaderboard_table(rows).formatted.set_index("agent")["IQM share of gap (%) [95% CI]"]
+    assert printed["PPO"] == f"{round(100 * ppo['iqm'])} [no spread]"
+    assert printed["loop"].endswith("[single seed]")  # one seed per regime
+    assert printed["qrdqn_mine"].endswith("]") and "spread" not in printed["qrdqn_mine"]
+
+
 def _recorded_db(db: Path, agents: dict[str, tuple[int, ...]], regimes=("run0",)) -> None:
     for name, seeds in agents.items():
         for regime in regimes:

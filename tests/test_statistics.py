@@ -444,8 +444,10 @@ def test_intervals_match_rliable_library_where_it_imports():
         if os.environ.get("NUTRIBENCH_RLIABLE_ORACLE"):
             pytest.fail(f"{why}; NUTRIBENCH_RLIABLE_ORACLE is set, so it must")
         pytest.skip(f"{why} (CI runs it where it imports: .ci/run)")
+    from nutribench.stats import percentile_interval
+
     ss = score_set(scores_frame(), REGIMES)
-    ours = interval_estimates(ss, reps=20_000).set_index(["algo", "aggregate"])
+    ours = interval_estimates(ss).set_index(["algo", "aggregate"])
     funcs = {
         "iqm": rly.aggregate_iqm,
         "median": rly.aggregate_median,
@@ -456,10 +458,14 @@ def test_intervals_match_rliable_library_where_it_imports():
     for agg, f in funcs.items():
         points, cis = rl.get_interval_estimates(MATRICES, lambda m, f=f: np.array([f(m)]), reps=20_000)
         for algo in MATRICES:
+            # the tables print intervals made without resamples now; the module's stratified
+            # percentile bootstrap (what they printed before) is still rliable's
+            resampled = stratified_resamples(ss.runs[algo], 20_000, np.random.default_rng(0))
+            lo, hi = percentile_interval(BATCHED[agg](resampled))
             width = cis[algo][1, 0] - cis[algo][0, 0]
             assert ours.loc[(algo, agg), "point"] == pytest.approx(points[algo][0])
-            assert ours.loc[(algo, agg), "lo"] == pytest.approx(cis[algo][0, 0], abs=0.05 * width + 1e-9)
-            assert ours.loc[(algo, agg), "hi"] == pytest.approx(cis[algo][1, 0], abs=0.05 * width + 1e-9)
+            assert lo == pytest.approx(cis[algo][0, 0], abs=0.05 * width + 1e-9)
+            assert hi == pytest.approx(cis[algo][1, 0], abs=0.05 * width + 1e-9)
 
 
 # --------------------------------------------------------------------------- one module draws resamples
@@ -540,6 +546,57 @@ def test_the_chosen_intervals_equal_scipys():
     assert hi - lo < 3 and lo < point < hi
 
 
+def test_the_aggregates_intervals_are_computed_not_drawn():
+    """The aggregate table's median, mean and optimality gap, the profiles' bands and P(X > Y):
+    t intervals with standard errors within regimes (against scipy and hand computations), the
+    median's the quantiles of the median of t-distributed regime means (against a Monte Carlo
+    of that model), P(X > Y)'s from DeLong's variance; the table's rows are these."""
+    from scipy import stats as sps
+
+    from nutribench.stats import improvement_ci, median_of_means_ci, strata_t
+
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=6)
+    assert np.ravel(strata_t(x, [6])) == pytest.approx(
+        [x.mean(), *sps.t.interval(0.95, 5, loc=x.mean(), scale=sps.sem(x))]
+    )
+    a, b = rng.normal(size=5), rng.normal(size=8) + 3
+    va, vb = a.var(ddof=1) / 5 / 4, b.var(ddof=1) / 8 / 4  # each regime weighs 1/2
+    df = (va + vb) ** 2 / (va**2 / 4 + vb**2 / 7)
+    half = sps.t.ppf(0.975, df) * np.sqrt(va + vb)
+    mid = (a.mean() + b.mean()) / 2
+    assert np.ravel(strata_t(np.concatenate([a, b]), [5, 8], "regime")) == pytest.approx([mid, mid - half, mid + half])
+    for regimes in (5, 6):  # odd: an order statistic; even: the mean of the two middle ones
+        runs = [rng.normal(0.3 * i, 1, 5) for i in range(regimes)]
+        point, lo, hi = median_of_means_ci(runs)
+        means = np.array([r.mean() for r in runs])
+        ses = np.array([sps.sem(r) for r in runs])
+        model = np.median(means + ses * rng.standard_t(4, size=(400_000, regimes)), axis=1)
+        assert point == pytest.approx(np.median(means))
+        assert (lo, hi) == pytest.approx(tuple(np.percentile(model, [2.5, 97.5])), abs=0.01)
+    assert median_of_means_ci([np.full(5, float(k)) for k in range(4)]) == (1.5, 1.5, 1.5)  # no spread
+    # DeLong: the placements' variances over each side
+    xs, ys = rng.normal(1, 1, 6), rng.normal(0, 1, 5)
+    psi = (xs[:, None] > ys[None, :]).astype(float)
+    var = psi.mean(axis=1).var(ddof=1) / 6 + psi.mean(axis=0).var(ddof=1) / 5
+    p, lo, hi = improvement_ci([xs], [ys])
+    assert p == pytest.approx(psi.mean())
+    assert (lo, hi) == pytest.approx(
+        (max(p - sps.t.ppf(0.975, 9) * np.sqrt(var), 0), min(p + sps.t.ppf(0.975, 9) * np.sqrt(var), 1))
+    )
+    ss = score_set(scores_frame(), REGIMES)
+    iv = interval_estimates(ss).set_index(["algo", "aggregate"])
+    runs = ss.runs["ppo"]
+    assert tuple(iv.loc[("ppo", "median"), ["point", "lo", "hi"]]) == pytest.approx(median_of_means_ci(runs))
+    pooled = np.concatenate(runs)
+    mean = [float(v[0]) for v in strata_t(pooled, [5] * 4, "regime")]
+    assert tuple(iv.loc[("ppo", "mean"), ["point", "lo", "hi"]]) == pytest.approx(mean)
+    capped = [float(v[0]) for v in strata_t(np.minimum(pooled, 1.0), [5] * 4, "run")]
+    assert tuple(iv.loc[("ppo", "optimality_gap"), ["lo", "hi"]]) == pytest.approx((1 - capped[2], 1 - capped[1]))
+    imp = improvement_probabilities(ss).set_index(["x", "y"])
+    assert tuple(imp.loc[("mc", "ppo"), ["p", "lo", "hi"]]) == pytest.approx(improvement_ci(ss.runs["mc"], runs))
+
+
 def test_a_small_bootstrap_enumerates_every_resample():
     """At 5 seeds the 3,125 ordered resamples are 126 multisets; their weighted percentile
     interval is that of all 3,125 resamples, brute force."""
@@ -558,17 +615,22 @@ def test_a_small_bootstrap_enumerates_every_resample():
 
 
 def test_no_printed_digit_moves_with_the_bootstraps_seed():
-    """The printed intervals of a mean, an IQM and a paired difference over seeds are the same
-    to the last printed digit under any bootstrap seed; the control below shows that a drawn
-    percentile bootstrap (2,000 resamples, as before) moves them."""
+    """The printed intervals of a mean, an IQM and a paired difference over seeds, and every
+    interval of the aggregate table (median, mean, optimality gap, P(X > Y)) and the profiles'
+    bands, are the same to the last printed digit under any bootstrap seed; the control below
+    shows that a drawn percentile bootstrap (2,000 resamples, as before) moves them."""
     from nutribench.stats import clustered_iqm_ci, percentile_interval, stratified_resamples
 
     ev = episodes_frame(seeds=(0, 1, 2, 3, 4), days=5)
     texts = {s: compare_agents(ev, "gru_ppo", "ppo", reps=2000, seed=s).to_text() for s in (0, 1, 2)}
     assert texts[0] == texts[1] == texts[2]
-    tables = {s: aggregate_table(aggregate_scores(scores_frame(), reps=2000, seed=s)).formatted for s in (0, 1, 2)}
-    iqm_column = [c for c in tables[0].columns if c.startswith("IQM")]
-    assert iqm_column and all(tables[s][iqm_column].equals(tables[0][iqm_column]) for s in (1, 2))
+    results = {s: aggregate_scores(scores_frame(), reps=2000, seed=s) for s in (0, 1, 2)}
+    tables = {s: aggregate_table(r).formatted for s, r in results.items()}
+    # every column of the aggregate table: IQM, median, mean, optimality gap, P(> Y)
+    assert all(tables[s].equals(tables[0]) for s in (1, 2))
+    assert tables[0].map(lambda v: "[" in str(v)).sum().sum() >= 3 * 7  # intervals printed, not "n/a"
+    for s in (1, 2):  # and the profiles' bands, to the digit
+        assert results[s].profiles[["lo", "hi"]].round(4).equals(results[0].profiles[["lo", "hi"]].round(4))
     by_seed = [g["return"].to_numpy() for _, g in ev[(ev.algo == "ppo") & (ev.regime == "run3")].groupby("seed")]
     printed = {s: "{:.2f} [{:.2f}, {:.2f}]".format(*clustered_iqm_ci(by_seed, seed=s)) for s in (0, 1, 2)}
     assert printed[0] == printed[1] == printed[2]
@@ -587,7 +649,7 @@ def test_no_printed_digit_moves_with_the_bootstraps_seed():
 
 @pytest.mark.slow
 def test_the_coverage_simulation_chose_what_the_statistics_module_says():
-    """``benchmarks/coverage.py`` (its default run, about 100 s of CPU) reproduces
+    """``benchmarks/coverage.py`` (its first table, about 100 s of CPU) reproduces
     :data:`nutribench.stats.CHOSEN` and :data:`~nutribench.stats.COVERAGE`."""
     import importlib.util
 
@@ -603,3 +665,21 @@ def test_the_coverage_simulation_chose_what_the_statistics_module_says():
         assert chosen[label][1] == pytest.approx(COVERAGE[statistic], abs=5e-4)
     worst = {n: min(chosen["iqm"][1][n], chosen["iqm x3"][1][n]) for n in (5, 10)}
     assert worst == pytest.approx(COVERAGE["iqm"], abs=5e-4)
+
+
+@pytest.mark.slow
+def test_the_coverage_simulation_measured_what_the_aggregates_captions_quote():
+    """The second table of ``benchmarks/coverage.py`` (about 4 minutes of CPU) reproduces
+    :data:`nutribench.stats.AGGREGATE_COVERAGE`, the coverage the aggregate captions quote."""
+    import importlib.util
+
+    from nutribench.stats import AGGREGATE_COVERAGE
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "coverage.py"
+    spec = importlib.util.spec_from_file_location("coverage_simulation", path)
+    sim = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(sim)
+    measured = sim.aggregate_coverage(sim.run_aggregates())
+    assert measured.keys() == AGGREGATE_COVERAGE.keys()
+    for name, cov in AGGREGATE_COVERAGE.items():
+        assert measured[name] == pytest.approx(cov, abs=5e-4), name

@@ -30,7 +30,9 @@ def leaderboard_cmd(
         typer.Option("--out", metavar="PATH", help="also write leaderboard.md, .tex and .csv into this folder"),
     ] = None,
     fmt: Annotated[str, typer.Option("--format", help="what to print: markdown, csv, latex or json")] = "markdown",
-    reps: Annotated[int, typer.Option(help="bootstrap resamples of the runs (100 to 100,000)")] = 2000,
+    reps: Annotated[
+        int, typer.Option(help="kept for scripts (100 to 100,000): the intervals draw no resamples now")
+    ] = 2000,
     verify_given: Annotated[
         Optional[str],
         typer.Option(
@@ -68,7 +70,7 @@ def leaderboard_cmd(
         check_out_dir(out)
         for suffix in TABLE_SUFFIXES:
             check_regular_file(out / f"leaderboard.{suffix}", "--out", UserError)
-    ranking = f"ranking ({reps:,} bootstrap resamples)"
+    ranking = "ranking"
     with progress(None, "leaderboard", text=ranking) as advance:
         steps = _steps(archives, ranking, advance)
 

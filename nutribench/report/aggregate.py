@@ -7,10 +7,11 @@ regimes (``all``; ``delayed``: run1-run6):
 
 * the IQM (interquartile mean of all run scores), the median and the mean of the per-regime
   mean scores, and the optimality gap (``1 - mean(min(score, 1))``: how far below the planner,
-  lower is better), each with a 95 % interval: the IQM's from :func:`nutribench.stats.iqm_runs_ci`
-  (the trimmed t, its standard error stratified by regime: the coverage simulation's choice,
-  docs/statistics.md), the others' the percentile interval of a **stratified bootstrap over
-  runs** (:func:`nutribench.stats.stratified_resamples`);
+  lower is better), each with a 95 % interval made without resamples (no digit depends on a
+  seed): the IQM's from :func:`nutribench.stats.iqm_runs_ci` (the trimmed t, its standard error
+  stratified by regime: the coverage simulation's choice, docs/statistics.md), the median's
+  from :func:`nutribench.stats.median_of_means_ci`, the mean's and the optimality gap's from
+  :func:`nutribench.stats.strata_t` (t intervals, standard errors within regimes);
 * the performance profile and the probability of improvement P(X > Y) for every pair
   (:mod:`nutribench.report.profiles`).
 
@@ -18,9 +19,10 @@ Why rliable is used this way (pyproject.toml; the documentation's "Seed-level st
 rliable 1.2.0 needs ``arch < 8`` for its bootstrap (``rliable.library``), and arch 7.2 fails
 at import under pandas 3 (arch 8 rejects the ``random_state=None`` rliable passes). The point
 estimates here come from ``rliable.metrics`` (numpy/scipy only, imports fine), called on the
-regimes x seeds matrix whenever every regime has the same number of seeds; the bootstrap is a
-small resampling loop, vectorised over resamples, whose statistics equal rliable's on the
-original sample (tests/test_statistics.py). With different seed counts per regime rliable has
+regimes x seeds matrix whenever every regime has the same number of seeds; the intervals are
+:mod:`nutribench.stats`'s (its percentile bootstrap, :data:`BATCHED` over
+:func:`~nutribench.stats.stratified_resamples`, equals rliable's: tests/test_statistics.py,
+though no table prints it now). With different seed counts per regime rliable has
 no matrix to take; the same statistics are then computed on the ragged runs (IQM and
 optimality gap over all runs pooled, mean and median over the regimes' means).
 
@@ -55,8 +57,9 @@ from nutribench.stats import (
     Runs,
     iqm,
     iqm_runs_ci,
+    median_of_means_ci,
     percentile_interval,
-    seeded_rng,
+    strata_t,
     stratified_resamples,
 )
 
@@ -107,25 +110,37 @@ def point_estimate(aggregate: str, runs: Runs) -> float:
 def interval_estimates(
     ss: ScoreSet, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE
 ) -> pd.DataFrame:
-    """Per agent and aggregate: the point estimate and its interval over runs (NaN with one run
-    per regime everywhere: nothing to resample): the IQM's is :func:`nutribench.stats.iqm_runs_ci`
-    (the method the coverage simulation chose), the others' the percentile interval of the
-    stratified bootstrap over runs.
+    """Per agent and aggregate: the point estimate and its 95 % interval over runs (NaN with
+    one run per regime everywhere: nothing to vary), each from :mod:`nutribench.stats`
+    without resamples: the IQM's :func:`~nutribench.stats.iqm_runs_ci` (the trimmed t the
+    coverage simulation chose), the median's :func:`~nutribench.stats.median_of_means_ci`
+    (each regime's mean as a t variable), the mean's and the optimality gap's
+    :func:`~nutribench.stats.strata_t` (the regimes' means weighed alike; every run alike,
+    scores capped at the planner's), each standard error taken within regimes. ``reps`` and
+    ``seed`` are kept for callers: no interval here draws a resample, so none depends on a seed.
 
     Columns: algo, aggregate, point, lo, hi, runs, regimes."""
     rows = []
     for algo, runs in ss.runs.items():
         if not runs:
             continue
-        resampled = stratified_resamples(runs, reps, seeded_rng(seed, algo, *ss.regimes))
         spread = max(len(x) for x in runs) > 1
+        sizes = [len(x) for x in runs]
+        values = np.concatenate(runs)
         for agg in AGGREGATES:
             if not spread:
                 lo, hi = float("nan"), float("nan")
             elif agg == "iqm":
                 lo, hi = iqm_runs_ci(runs, confidence)[1:]
-            else:
-                lo, hi = percentile_interval(BATCHED[agg](resampled), confidence)
+            elif agg == "median":
+                lo, hi = median_of_means_ci(runs, confidence)[1:]
+            elif agg == "mean":
+                lo, hi = (float(v[0]) for v in strata_t(values, sizes, "regime", confidence)[1:])
+            else:  # the gap falls as the capped mean rises
+                capped_lo, capped_hi = (
+                    float(v[0]) for v in strata_t(np.minimum(values, GAMMA), sizes, "run", confidence)[1:]
+                )
+                lo, hi = GAMMA - capped_hi, GAMMA - capped_lo
             rows.append(
                 {
                     "algo": algo,

@@ -22,6 +22,7 @@ from nutribench.report.figures import FigureResult, draw_notes, legend_rows, set
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.tables import TableResult, interval_cell
+from nutribench.stats import aggregate_caption
 from nutribench.stats import caption as interval_caption
 
 # --------------------------------------------------------------------------- figure
@@ -246,8 +247,8 @@ def _aggregate_caption(res: AggregateResult, ev: pd.DataFrame | None, headroom: 
         "score of a run (one seed on one regime) = share of the regime's never → planner gap it closes on its own evaluation days "
         "(0 % = never eat, 100 % = the greedy full-information planner);\n"
         f"per agent over regimes x seeds ({runs_text} seeds per regime); bars = 95 % intervals over runs "
-        f"(IQM: {interval_caption('iqm')}; median, mean, optimality gap: stratified percentile bootstrap, {res.reps} "
-        "resamples, seeds redrawn within each regime), black tick = point estimate (rliable.metrics); dotted: never (0 %), planner (100 %)"
+        f"(IQM: {interval_caption('iqm')};\n{aggregate_intervals_text()}; none drawn), "
+        "black tick = point estimate (rliable.metrics); dotted: never (0 %), planner (100 %)"
     )
     if headroom is not None and not headroom[headroom["group"] == "all"].empty:
         caption += (
@@ -257,6 +258,20 @@ def _aggregate_caption(res: AggregateResult, ev: pd.DataFrame | None, headroom: 
     if ev is not None and not ev.empty:
         caption += f"\n{budget_seeds_line(ev)}"
     return caption
+
+
+def aggregate_intervals_text(profile: bool = True) -> str:
+    """How the intervals of the median, mean, optimality gap, P(X > Y) (and the profiles'
+    bands) are made, with their measured coverage, for a caption."""
+    parts = [
+        f"median: {aggregate_caption('median')}",
+        f"mean: {aggregate_caption('mean')}",
+        f"optimality gap: {aggregate_caption('gap')}",
+        f"P(X > Y): {aggregate_caption('improvement')}",
+    ]
+    if profile:
+        parts.append(f"profile bands: {aggregate_caption('profile')}")
+    return "; ".join(parts)
 
 
 def _group_entry(res: AggregateResult, group: str, offset: float) -> str:
@@ -322,9 +337,9 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
                 fmt_rows.append(f)
     title = (
         "Aggregate scores: share of the never -> planner gap per run (seed x regime), over regimes x seeds; point estimate "
-        f"[95 % interval over runs: IQM {interval_caption('iqm')}; the others stratified percentile bootstrap, {res.reps} "
-        "resamples]; P(> Y): probability that a run of the row's "
-        "agent scores above a run of Y on the same regime, averaged over regimes"
+        f"[95 % interval over runs: IQM {interval_caption('iqm')}; {aggregate_intervals_text(profile=False)}; none "
+        "drawn]; P(> Y): probability that a run of the row's agent scores above a run of Y on the same regime, averaged "
+        "over regimes"
     )
     if budgets:
         title += f"; {budget_caption(ev)}"

@@ -315,6 +315,15 @@ def _cell(v) -> object:
     return "-" if v is None or (isinstance(v, float) and np.isnan(v)) else v
 
 
+def _iqm_cell(point: float, lo: float, hi: float) -> str:
+    """A row's IQM and interval as printed: ``68 [59, 77]``; ``0 [no spread]`` where the interval
+    has zero width (every regime's seeds scored alike: several seeds, nothing between them);
+    ``[single seed]`` where there is none (one seed per regime: :func:`interval_cell`)."""
+    if np.isfinite(point) and np.isfinite(lo) and hi - lo == 0:
+        return f"{_pct(point)} [no spread]"
+    return interval_cell(point, lo, hi, _pct)
+
+
 def leaderboard_table(rows: pd.DataFrame) -> TableResult:
     """The leaderboard as a table (Markdown, LaTeX, CSV); ``rows``: :func:`leaderboard_rows`."""
     board = [c.removeprefix("share_") for c in rows.columns if c.startswith("share_")]
@@ -323,7 +332,7 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
         f = {
             "rank": "" if r["rank"] is None or pd.isna(r["rank"]) else int(r["rank"]),
             "agent": algo_label(r["algo"]),
-            "IQM share of gap (%) [95% CI]": interval_cell(r["iqm"], r["iqm_lo"], r["iqm_hi"], _pct),
+            "IQM share of gap (%) [95% CI]": _iqm_cell(r["iqm"], r["iqm_lo"], r["iqm_hi"]),
             "regimes": f"{r['regimes']}/{len(board)}",
         }
         f.update({f"{g} (%)": _pct(r[f"share_{g}"]) for g in board})
@@ -348,7 +357,9 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
         "Leaderboard: every agent ranked by the IQM of its run scores (one seed on one regime = one run, scored as the "
         "share of the regime's never -> planner gap it closes on its own evaluation days; 0 % = never eat, 100 % = the "
         "greedy full-information planner) over the regimes it covers, with a 95 % interval over runs "
-        f"({interval_caption('iqm')}, its standard error stratified by regime); per regime, the mean share over seeds. Reference grid: {REFERENCE_BUDGET} training days, seeds "
+        f"({interval_caption('iqm')}, its standard error stratified by regime; [no spread]: every regime's seeds "
+        "scored alike, a zero-width interval; [single seed]: one seed per regime, none); per regime, the mean share over "
+        "seeds. Reference grid: {REFERENCE_BUDGET} training days, seeds "
         f"{', '.join(map(str, REFERENCE_SEEDS))}, every regime of the board ({regime_span(board)}); a row that departs "
         "from it is flagged, and a row lacking regimes is ranked on those it has. Checked: every row's evaluation days "
         "are stored foods and actions, replayed on the regime (an archive's, on import); 'verified (re-run)': every "

@@ -58,7 +58,7 @@ def learning_scores(curve: pd.DataFrame) -> pd.DataFrame:
 
 
 def learning_points(scores: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 0) -> pd.DataFrame:
-    """Per regime, agent and training day: the IQM of the seeds' scores and its bootstrap
+    """Per regime, agent and training day: the IQM of the seeds' scores and its 95 %
     interval over seeds (NaN with one seed). Columns :data:`COLUMNS`."""
     rows = []
     for (regime, algo, day), cell in scores.groupby(["regime", "algo", "train_day"], sort=True):

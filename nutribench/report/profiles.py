@@ -1,13 +1,17 @@
 """Performance profiles and the probability of improvement of run scores
-(:mod:`nutribench.report.scores`), each with a band or interval from the stratified
-bootstrap over runs, as Agarwal et al. (NeurIPS 2021) recommend and ``rliable`` computes:
+(:mod:`nutribench.report.scores`), as Agarwal et al. (NeurIPS 2021) recommend and ``rliable``
+computes, each with a band or interval from :mod:`nutribench.stats`, made without resamples
+(no printed digit depends on a seed):
 
-* the performance profile: the fraction of runs whose score exceeds tau, with a band from
-  the stratified bootstrap (rliable's score distribution);
+* the performance profile: the fraction of runs whose score exceeds tau (rliable's score
+  distribution), with a t band per tau (:func:`nutribench.stats.strata_t`: the fraction is the
+  mean of the runs' indicators, its standard error taken within each regime), clipped to [0, 1];
 * the probability of improvement P(X > Y) for every pair: per regime the probability that a
   run of X scores above a run of Y (a tie counts half: the Mann-Whitney U over the product of
-  the run counts), averaged over regimes, with an interval from rliable's
-  ``StratifiedIndependentBootstrap`` (X's and Y's runs redrawn independently per regime).
+  the run counts), averaged over regimes, with a t interval from DeLong's variance of each
+  regime's share (:func:`nutribench.stats.improvement_ci`).
+
+Their coverage, measured by ``benchmarks/coverage.py``: :data:`nutribench.stats.COVERAGE`.
 """
 
 from __future__ import annotations
@@ -18,8 +22,8 @@ import numpy as np
 import pandas as pd
 from rliable import metrics as rly
 
-from nutribench.report.scores import DEFAULT_REPS, GAMMA, ScoreSet, pooled
-from nutribench.stats import CONFIDENCE, Runs, percentile_interval, seeded_rng, stratified_resamples
+from nutribench.report.scores import DEFAULT_REPS, GAMMA, ScoreSet
+from nutribench.stats import CONFIDENCE, Runs, improvement_ci, strata_t
 
 
 def profile_taus(scores: Iterable[float], n: int = 201) -> np.ndarray:
@@ -42,19 +46,19 @@ def score_distribution(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
 def performance_profiles(
     ss: ScoreSet, taus: np.ndarray, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE
 ) -> pd.DataFrame:
-    """Per agent and tau: the fraction of its runs scoring above tau, with a stratified
-    bootstrap band over runs. Columns: algo, tau, fraction, lo, hi."""
+    """Per agent and tau: the fraction of its runs scoring above tau, with its 95 % t band
+    over runs (:func:`nutribench.stats.strata_t` of the indicators, standard error within
+    regimes; no band with one run per regime). ``reps``, ``seed``: kept for callers, unused.
+    Columns: algo, tau, fraction, lo, hi."""
     frames = []
-    alpha = (1 - confidence) / 2
     for algo, runs in ss.runs.items():
         if not runs:
             continue
         point = score_distribution(np.concatenate(runs), taus)
         if max(len(x) for x in runs) > 1:
-            boot = score_distribution(
-                pooled(stratified_resamples(runs, reps, seeded_rng(seed, "profile", algo, *ss.regimes))), taus
-            )
-            lo, hi = np.percentile(boot, [100 * alpha, 100 * (1 - alpha)], axis=0)
+            above = (np.concatenate(runs)[None, :] > taus[:, None]).astype(float)  # (taus, runs)
+            _, lo, hi = strata_t(above, [len(x) for x in runs], "run", confidence)
+            lo, hi = np.clip(lo, 0.0, 1.0), np.clip(hi, 0.0, 1.0)
         else:
             lo = hi = np.full_like(point, np.nan)
         frames.append(pd.DataFrame({"algo": algo, "tau": taus, "fraction": point, "lo": lo, "hi": hi}))
@@ -86,21 +90,15 @@ def probability_of_improvement(x: Runs, y: Runs) -> float:
 def improvement_probabilities(
     ss: ScoreSet, reps: int = DEFAULT_REPS, seed: int = 0, confidence: float = CONFIDENCE
 ) -> pd.DataFrame:
-    """P(X > Y) with a 95 % interval for every ordered pair of agents (X's and Y's runs
-    redrawn independently within each regime). Columns: x, y, p, lo, hi."""
+    """P(X > Y) with its 95 % interval (:func:`nutribench.stats.improvement_ci`) for every
+    ordered pair of agents. ``reps``, ``seed``: kept for callers, unused. Columns: x, y, p, lo, hi."""
     algos = [a for a, runs in ss.runs.items() if runs]
     rows = []
     for i, a in enumerate(algos):
         for b in algos[i + 1 :]:
             x, y = ss.runs[a], ss.runs[b]
             p = probability_of_improvement(x, y)
-            if max(len(r) for r in x + y) > 1:
-                rng = seeded_rng(seed, "improvement", a, b, *ss.regimes)
-                lo, hi = percentile_interval(
-                    _improvement(stratified_resamples(x, reps, rng), stratified_resamples(y, reps, rng)), confidence
-                )
-            else:
-                lo = hi = float("nan")
+            lo, hi = improvement_ci(x, y, confidence)[1:]
             rows += [
                 {"x": a, "y": b, "p": p, "lo": lo, "hi": hi},
                 {"x": b, "y": a, "p": 1 - p, "lo": 1 - hi, "hi": 1 - lo},
