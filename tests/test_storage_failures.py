@@ -235,10 +235,16 @@ def test_report_hint_shows_no_password(monkeypatch) -> None:
             pass
 
     monkeypatch.setattr(store_pkg, "open_store", lambda db: FakeStore())
-    monkeypatch.setattr(store_pkg, "read_episode_metrics", lambda engine: pd.DataFrame())
+    monkeypatch.setattr(store_pkg, "read_episode_metrics", lambda engine, phase=None: pd.DataFrame())
     with pytest.raises(ReportError) as info:
         read_metrics(url.render_as_string(hide_password=False))
     assert SECRET not in str(info.value) and '--db "$NUTRIBENCH_DB"' in str(info.value)
+    # the leaderboard reads through the same reader: its hint used to paste the URL as given
+    from nutribench.report.leaderboard import leaderboard_from_db
+
+    with pytest.raises(ReportError) as info:
+        leaderboard_from_db(url.render_as_string(hide_password=False))
+    assert SECRET not in str(info.value) and "holds no evaluation days yet" in str(info.value)
 
 
 def test_the_db_option_reads_nutribench_db(tmp_path, monkeypatch) -> None:

@@ -17,7 +17,14 @@ from nutribench.report.aggregate import (
     group_title,
     regime_span,
 )
-from nutribench.report.figure_parts import agent_labels, budget_caption, budget_cell, budget_seeds_line, count_span
+from nutribench.report.figure_parts import (
+    agent_labels,
+    budget_caption,
+    budget_cell,
+    budget_seeds_line,
+    count_span,
+    legend_entries,
+)
 from nutribench.report.figures import FigureResult, draw_notes, legend_rows, set_title
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
@@ -217,10 +224,7 @@ def _aggregate_legend(fig: Figure, res: AggregateResult, names, profile_axes, gr
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    found: dict[str, object] = {}
-    for ax in profile_axes:
-        for h, lab in zip(*ax.get_legend_handles_labels()):
-            found.setdefault(lab, h)
+    found = legend_entries(profile_axes)
     labels = [names[a] for a in res.algos if names[a] in found]
     h0, l0 = fig.axes[0].get_legend_handles_labels()  # the references above the planner, if drawn
     group_handles = [

@@ -299,8 +299,6 @@ def trained_text(label: str, budget: str, verb: str = "trained ") -> str:
 def _header(used: pd.DataFrame) -> str:
     """The budgets and seeds line of the comparison (:func:`budget_seeds_text`), a budget of 0
     days said as :data:`UNRECORDED`."""
-    import re
-
     return re.sub(r"budget 0 days", f"budget unknown ({UNRECORDED})", budget_seeds_text(used))
 
 
@@ -313,22 +311,11 @@ def _seeds_of(ev: pd.DataFrame, name: str, regime: str) -> str:
 
 
 def read_eval_metrics(db) -> pd.DataFrame:
-    """The evaluation rows of ``db``'s ``episode_metrics`` (the training rows, by far the most,
-    are not read). :class:`nutribench.store.StoreError` for a database that cannot be read,
+    """The evaluation rows of ``db``'s ``episode_metrics`` (:func:`nutribench.report.data.read_episodes`);
     :class:`CompareError` when it holds no evaluation days."""
-    from nutribench.store import open_store, read_episode_metrics
-    from nutribench.store.schema import db_command
+    from nutribench.report.data import read_episodes
 
-    store = open_store(db)
-    try:
-        ev = read_episode_metrics(store.engine, phase="eval")
-    finally:
-        store.dispose()
-    if ev.empty:
-        raise CompareError(
-            f"{store.display} holds no evaluation days yet: {db_command('nutribench run', store.url)} fills it"
-        )
-    return ev
+    return read_episodes(db, "eval", CompareError)
 
 
 @dataclass(frozen=True)

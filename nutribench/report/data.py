@@ -105,23 +105,27 @@ def _keep_largest_budget(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
 
 
 def read_metrics(db: Db) -> pd.DataFrame:
-    """Every row of ``db``'s ``episode_metrics`` view.
+    """Every row of ``db``'s ``episode_metrics`` view (:func:`read_episodes`)."""
+    return read_episodes(db)
 
-    Raises :class:`nutribench.store.StoreError` for a missing, empty or outdated database
-    and :class:`ReportError` when it holds no episodes yet.
+
+def read_episodes(db: Db, phase: str | None = None, error: type[UserError] = ReportError) -> pd.DataFrame:
+    """The rows of ``db``'s ``episode_metrics`` view (``phase``: of that phase alone, e.g. the
+    evaluation days, without the training days, by far the most), their names checked
+    (:func:`check_names`). Raises :class:`nutribench.store.StoreError` for a missing, empty or
+    outdated database and ``error`` (one line, the command that fills it) when it holds none yet.
     """
     from nutribench.store import open_store, read_episode_metrics
     from nutribench.store.schema import db_command
 
     store = open_store(db)
     try:
-        df = read_episode_metrics(store.engine)
+        df = read_episode_metrics(store.engine, phase=phase)
     finally:
         store.dispose()
     if df.empty:
-        raise ReportError(
-            f"{store.display} holds no finished episodes yet: {db_command('nutribench run', store.url)} fills it"
-        )
+        what = "evaluation days" if phase == "eval" else "finished episodes"
+        raise error(f"{store.display} holds no {what} yet: {db_command('nutribench run', store.url)} fills it")
     check_names(df["regime"].unique(), "regime", store.display)
     check_names(df["algo"].unique(), "agent config", store.display)
     return df

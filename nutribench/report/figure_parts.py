@@ -211,13 +211,19 @@ BEST_TEXT = "{label}: highest point of any line in its panel"
 MARKS = 8
 
 
-def training_legend(fig: Figure, axes: list, learners: list[str]) -> None:
-    """The legend of Figures 1/2 and 6: the configs' labels in palette order, then the "best"
-    line, explained (:data:`BEST_TEXT`), in a row of its own."""
+def legend_entries(axes: Iterable) -> dict[str, object]:
+    """Each label drawn in ``axes`` and its first handle, in the order first drawn."""
     found: dict[str, object] = {}
     for ax in axes:
         for h, lab in zip(*ax.get_legend_handles_labels()):
             found.setdefault(lab, h)
+    return found
+
+
+def training_legend(fig: Figure, axes: list, learners: list[str]) -> None:
+    """The legend of Figures 1/2 and 6: the configs' labels in palette order, then the "best"
+    line, explained (:data:`BEST_TEXT`), in a row of its own."""
+    found = legend_entries(axes)
     learners = [lab for lab in learners if lab in found]
     rest = [lab for lab in found if lab not in learners]
     text = {lab: BEST_TEXT.format(label=lab) if lab.startswith("best") else lab for lab in found}

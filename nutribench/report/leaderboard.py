@@ -56,6 +56,7 @@ import pandas as pd
 from nutribench.report.aggregate import interval_estimates, regime_span, run_scores, score_set
 from nutribench.report.data import ENTRY, ReportError, entries
 from nutribench.report.figure_parts import UNRECORDED, budget_cell, seed_list, sort_regimes
+from nutribench.report.leaderboard_verify import REPLAYED
 from nutribench.report.palette import BUILTIN_ORDER
 from nutribench.report.palette import label as algo_label
 from nutribench.report.scores import DEFAULT_REPS
@@ -78,7 +79,7 @@ MAX_REPS = 100_000
 MIN_REPS = 100
 #: How each row's evaluation days were checked (the ``checked`` column): replayed from the stored
 #: foods and actions, which proves they fit the regime; no model was run again.
-CHECKED = "replayed, not re-run"
+CHECKED = REPLAYED
 
 
 def check_reps(reps: object) -> int:
@@ -381,21 +382,17 @@ def leaderboard_from_db(
     config), none hidden by another (:func:`nutribench.report.data.prepare_entries`);
     ``verify``: a folder of the jobs' trained models, re-run to fill the ``checked`` column
     (:mod:`nutribench.report.leaderboard_verify`)."""
-    from nutribench.report.data import check_names, prepare_entries
+    from nutribench.report.data import prepare_entries, read_episodes
     from nutribench.report.references import eval_day_references
-    from nutribench.store import open_store, read_episode_metrics
+    from nutribench.store import open_store
 
     reps = check_reps(reps)
+    ev = read_episodes(db, "eval")
     store = open_store(db)
     try:
-        ev = read_episode_metrics(store.engine, phase="eval")  # the training days, by far the most, are not read
         forged = forged_regimes(store.engine)
     finally:
         store.dispose()
-    if ev.empty:
-        raise ReportError(f"{store.display} holds no evaluation days yet: `nutribench run --db {db}` fills it")
-    check_names(ev["algo"].unique(), "agent config", str(db))
-    check_names(ev["regime"].unique(), "regime", str(db))
     data = prepare_entries(ev, algos)
     if data.eval.empty:
         from nutribench.report.data import check_known
