@@ -605,20 +605,11 @@ def test_a_committed_archive_still_imports_and_rebuilds_its_tables(tmp_path) -> 
         committed = pd.read_csv(PAPER / f"{stem}.csv")
         committed = committed[(committed["algo"] == "sac") & committed["regime"].isin(["run4", "run5", "run6"])]
         assert len(built) == 3
-        # the seed-level interval columns are bootstrap draws over the whole table's cells, so a
-        # table of three cells draws other numbers: compared are the columns that are not draws
-        cols = [c for c in committed.columns if not c.startswith(("return_seed", "gap_closed_seed"))]
-        # the IQM's interval columns follow nutribench.stats' method, which replaced the drawn
-        # bootstrap after reports/paper/ was rendered (it enumerates every resample): the committed
-        # table predates it, so its interval ends are compared to hold the point, not to the digit
-        ends = [c for c in cols if c.endswith(("_iqm_lo", "_iqm_hi"))]
-        cols = [c for c in cols if c not in ends]
-        assert len(cols) >= 8
+        # every column to the digit, the intervals included: the seed-level t intervals and the
+        # IQM's enumerated resamples are each cell's own (no draw shared across the table's
+        # cells), so a table of three cells prints what the whole table printed
+        cols = list(committed.columns)
+        assert len(cols) >= 8 and any(c.endswith("_iqm_lo") for c in cols) == (key == "results")
         pd.testing.assert_frame_equal(
             built[cols].reset_index(drop=True), committed[cols].reset_index(drop=True), check_exact=False, rtol=1e-12
         )
-        for c in ends:
-            point = c.rsplit("_", 1)[0]
-            for frame in (built.reset_index(drop=True), committed.reset_index(drop=True)):
-                side = frame[c] <= frame[point] if c.endswith("_lo") else frame[c] >= frame[point]
-                assert side.all(), (key, c)
