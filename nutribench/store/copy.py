@@ -38,54 +38,11 @@ def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] | 
     source = open_store(src)
     target = open_store(dst, writer=True)
     try:
-        if source.url == target.url:
-            raise StoreError(f"db copy: source and destination are the same database ({source.display})")
-        with target.engine.connect() as conn:
-            held = {
-                t.name: conn.execute(select(func.count()).select_from(t)).scalar_one()
-                for t in Base.metadata.sorted_tables
-            }
-        if any(held.values()):
-            rows = ", ".join(f"{n} {name}" for name, n in held.items() if n)
-            raise StoreError(f"db copy: {target.display} already holds rows ({rows}): copy into a new, empty database")
-        studies = _study_names(source.engine)
-        clash = sorted(set(studies) & set(_study_names(target.engine)))
-        if clash:
-            raise StoreError(
-                f"db copy: {target.display} already holds the tuning studies {', '.join(clash)}: copy into a new, "
-                "empty database"
-            )
-        counts: dict[str, int] = {}
+        studies = _check_empty(source, target)
         # one snapshot of the source for every table (a PostgreSQL source may be written meanwhile)
         read_options = {"isolation_level": "REPEATABLE READ"} if source.engine.dialect.name == "postgresql" else {}
         with source.engine.connect().execution_options(**read_options) as read, session_scope(target.engine) as write:
-            for table in Base.metadata.sorted_tables:  # parents before children
-                n = 0
-                result = read.execution_options(yield_per=BATCH).execute(
-                    select(table).order_by(*table.primary_key.columns)
-                )
-                for batch in result.mappings().partitions(BATCH):
-                    write.execute(insert(table), [dict(row) for row in batch])
-                    n += len(batch)
-                counts[table.name] = n
-                if on_table:
-                    on_table(table.name, n)
-            if write.get_bind().dialect.name == "postgresql":
-                for table in Base.metadata.sorted_tables:
-                    if "id" in table.columns and table.c.id.primary_key:
-                        write.execute(
-                            text(
-                                f"SELECT setval(pg_get_serial_sequence('{table.name}', 'id'), "
-                                f"coalesce((SELECT max(id) FROM {table.name}), 0) + 1, false)"
-                            )
-                        )
-            # compared before the commit: a mismatch rolls the whole copy back
-            copied = {
-                t.name: write.execute(select(func.count()).select_from(t)).scalar_one()
-                for t in Base.metadata.sorted_tables
-            }
-            if copied != counts:
-                raise StoreError(f"db copy: row counts differ after the copy (source {counts}, destination {copied})")
+            counts = _copy_tables(read, write, on_table)
         if studies:
             n = _copy_studies(source, target, studies)
             if on_table:
@@ -94,6 +51,60 @@ def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] | 
     finally:
         source.dispose()
         target.dispose()
+
+
+def _counts(conn: Any) -> dict[str, int]:
+    """The rows of every table of the schema, by table name."""
+    return {t.name: conn.execute(select(func.count()).select_from(t)).scalar_one() for t in Base.metadata.sorted_tables}
+
+
+def _check_empty(source: Any, target: Any) -> list[str]:
+    """StoreError unless ``target`` is another database than ``source``, without rows and without
+    a tuning study of the source's names; the source's studies."""
+    if source.url == target.url:
+        raise StoreError(f"db copy: source and destination are the same database ({source.display})")
+    with target.engine.connect() as conn:
+        held = _counts(conn)
+    if any(held.values()):
+        rows = ", ".join(f"{n} {name}" for name, n in held.items() if n)
+        raise StoreError(f"db copy: {target.display} already holds rows ({rows}): copy into a new, empty database")
+    studies = _study_names(source.engine)
+    clash = sorted(set(studies) & set(_study_names(target.engine)))
+    if clash:
+        raise StoreError(
+            f"db copy: {target.display} already holds the tuning studies {', '.join(clash)}: copy into a new, "
+            "empty database"
+        )
+    return studies
+
+
+def _copy_tables(read: Any, write: Any, on_table: Callable[[str, int], None] | None) -> dict[str, int]:
+    """Every table of the connection ``read`` into the session ``write``, parents first, in
+    batches; PostgreSQL's id sequences moved past the copied ids; the rows counted back."""
+    counts: dict[str, int] = {}
+    for table in Base.metadata.sorted_tables:  # parents before children
+        n = 0
+        result = read.execution_options(yield_per=BATCH).execute(select(table).order_by(*table.primary_key.columns))
+        for batch in result.mappings().partitions(BATCH):
+            write.execute(insert(table), [dict(row) for row in batch])
+            n += len(batch)
+        counts[table.name] = n
+        if on_table:
+            on_table(table.name, n)
+    if write.get_bind().dialect.name == "postgresql":
+        for table in Base.metadata.sorted_tables:
+            if "id" in table.columns and table.c.id.primary_key:
+                write.execute(
+                    text(
+                        f"SELECT setval(pg_get_serial_sequence('{table.name}', 'id'), "
+                        f"coalesce((SELECT max(id) FROM {table.name}), 0) + 1, false)"
+                    )
+                )
+    # compared before the commit: a mismatch rolls the whole copy back
+    copied = _counts(write)
+    if copied != counts:
+        raise StoreError(f"db copy: row counts differ after the copy (source {counts}, destination {copied})")
+    return counts
 
 
 def _study_names(engine: Any) -> list[str]:

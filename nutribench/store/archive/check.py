@@ -42,6 +42,8 @@ from nutribench.store.archive.format import (
     InvalidArchive,
     archive_table,
     columns,
+    first_row,
+    job_label,
     open_archive,
     short_repr,
     valid_name,
@@ -168,14 +170,7 @@ def _valid(kind: type, col: Any, value: Any) -> bool:
     return kind is dict and isinstance(value, dict)
 
 
-def _check_row(
-    table: type,
-    row: Any,
-    skip: Sequence[str],
-    what: str,
-    optional: dict[str, Any] | None = None,
-    extra: Sequence[str] = (),
-) -> None:
+def _check_row(table: type, row: Any, skip: Sequence[str], what: str, optional: Any = (), extra: Any = ()) -> None:
     """The meta's ``row`` has every column of ``table`` (but ``skip``; those of ``optional`` may
     be missing), each value fitting its column, no NUL character in a text, no other field."""
     if not isinstance(row, dict):
@@ -186,7 +181,7 @@ def _check_row(
         raise InvalidArchive(f"{what}: unknown field {short_repr(unknown[0])}")
     for col in cols:
         if col.name not in row:
-            if optional is not None and col.name in optional:
+            if col.name in optional:
                 continue
             raise InvalidArchive(f"{what}: field {col.name!r} is missing")
         value = row[col.name]
@@ -315,7 +310,7 @@ def check_meta_jobs(meta: dict[str, Any], configs: dict[tuple[str, str, int], di
     for i, job in enumerate(jobs):
         _check_row(Job, job, JOB_SKIP, f"job {i}", optional=JOB_DEFAULTS, extra=("regime", "agent"))
         refs = _job_refs(job, f"job {i}", configs)
-        what = f"job {i} ({refs[0][0]} x {refs[1][0]} seed {job['seed']})"
+        what = job_label(i, job)
         _check_job(job, what)
         key = (*refs, job["seed"], job["episodes"], job["eval_episodes"])
         if key in keys:
@@ -340,11 +335,6 @@ def inner_nul(arr: np.ndarray) -> np.ndarray:
     filled = np.ascontiguousarray(arr).view(np.uint32).reshape(len(arr), width) != 0
     last = np.where(filled.any(axis=1), width - np.argmax(filled[:, ::-1], axis=1), 0)
     return filled.sum(axis=1) < last
-
-
-def _first(bad: np.ndarray) -> int | None:
-    """The first row that is ``bad``; None if none is."""
-    return int(np.argmax(bad)) if bad.any() else None
 
 
 def _fill_optional(arrays: dict[str, np.ndarray]) -> None:
@@ -379,7 +369,7 @@ def _check_column(col: Any, key: str, arr: Any, null: Any, n: int, job_key: str)
             raise InvalidArchive(f"column {key} has NULLs, which it does not allow")
         if not isinstance(null, np.ndarray) or null.ndim != 1 or null.dtype != np.bool_ or len(null) != n:
             raise InvalidArchive(f"{key}.null is not a boolean column of {n:,} rows")
-    if kind is float and (row := _first(~np.isfinite(arr) & (True if null is None else ~null))) is not None:
+    if kind is float and (row := first_row(~np.isfinite(arr) & (True if null is None else ~null))) is not None:
         raise InvalidArchive(
             f"column {key} holds {'NaN' if np.isnan(arr[row]) else arr[row]} in row {row} "
             "(a measurement is finite; a NULL is marked in its .null mask)"
@@ -392,7 +382,7 @@ def _check_column(col: Any, key: str, arr: Any, null: Any, n: int, job_key: str)
         length = getattr(col.type, "length", None)
         if length is not None and arr.dtype.itemsize // 4 > length and (np.char.str_len(arr) > length).any():
             raise InvalidArchive(f"column {key} holds strings longer than {length} characters")
-        if (row := _first(inner_nul(arr))) is not None:
+        if (row := first_row(inner_nul(arr))) is not None:
             raise InvalidArchive(
                 f"column {key} row {row} holds a NUL byte, which no text column stores (PostgreSQL refuses it)"
             )
@@ -439,23 +429,23 @@ def _twice(keys: list[np.ndarray]) -> int | None:
 def _check_episodes(ep: dict[str, np.ndarray], per_job: dict[str, np.ndarray]) -> None:
     """The rows of ``episodes``: phase known, day, foods and metrics in range, no key twice."""
     job, phase, episode, foods, first = ep["job"], ep["phase"], ep["episode"], ep["foods"], ep["first_overshoot_step"]
-    if (row := _first(~np.isin(phase, PHASES))) is not None:
+    if (row := first_row(~np.isin(phase, PHASES))) is not None:
         raise InvalidArchive(f"episodes row {row}: phase {short_repr(str(phase[row]))} is neither train nor eval")
     train = phase == "train"
     limit = np.where(train, per_job["episodes"][job], per_job["eval_episodes"][job])
-    if (row := _first((episode < 0) | (episode >= limit))) is not None:
+    if (row := first_row((episode < 0) | (episode >= limit))) is not None:
         raise InvalidArchive(
             f"episodes row {row}: {phase[row]} episode {int(episode[row])} of job {int(job[row])} "
             f"is out of its range 0..{int(limit[row]) - 1}"
         )
     horizon = per_job["horizon"][job]
-    if (row := _first((foods < 0) | (foods > horizon))) is not None:
+    if (row := first_row((foods < 0) | (foods > horizon))) is not None:
         raise InvalidArchive(f"episodes row {row}: {int(foods[row])} foods in a day of {int(horizon[row])} steps")
     for col, lo, hi in (("overshoot_ratio", 0.0, 1.0), ("final_distance", 0.0, np.inf), ("entropy", 0.0, np.inf)):
-        if (row := _first((ep[col] < lo) | (ep[col] > hi))) is not None:  # NaN (a NULL) compares false
+        if (row := first_row((ep[col] < lo) | (ep[col] > hi))) is not None:  # NaN (a NULL) compares false
             raise InvalidArchive(f"episodes row {row}: {col} {ep[col][row]:.6g} is out of its range {lo:g}..{hi:g}")
     bad = ((first < 1) | (first > horizon)) & ~ep.get("first_overshoot_step.null", np.False_)
-    if (row := _first(bad)) is not None:
+    if (row := first_row(bad)) is not None:
         raise InvalidArchive(
             f"episodes row {row}: first_overshoot_step {int(first[row])} is out of its range 1..{int(horizon[row])}"
         )
@@ -474,7 +464,7 @@ def _check_steps(st: dict[str, np.ndarray], per_job: dict[str, np.ndarray]) -> N
         ("food", 0, per_job["foods"][job] - 1),
         ("action", 0, 1),
     ):
-        if (row := _first((st[col] < lo) | (st[col] > hi))) is not None:
+        if (row := first_row((st[col] < lo) | (st[col] > hi))) is not None:
             raise InvalidArchive(
                 f"eval_steps row {row}: {col} {int(st[col][row])} of job {int(job[row])} is out of its range "
                 f"{lo}..{hi if np.isscalar(hi) else int(hi[row])}"
@@ -489,7 +479,7 @@ def _check_steps(st: dict[str, np.ndarray], per_job: dict[str, np.ndarray]) -> N
 def _check_diagnostics(dg: dict[str, np.ndarray]) -> None:
     """The rows of ``diagnostics``: update and timestep not negative, no update twice per job."""
     for col in ("update", "timestep"):
-        if (row := _first(dg[col] < 0)) is not None:
+        if (row := first_row(dg[col] < 0)) is not None:
             raise InvalidArchive(f"diagnostics row {row}: {col} {int(dg[col][row])} is negative")
     if (row := _twice([dg["job"], dg["update"]])) is not None:
         raise InvalidArchive(
@@ -501,7 +491,7 @@ def _check_validation(va: dict[str, np.ndarray], per_job: dict[str, np.ndarray])
     """The rows of ``validation_episodes``: training days from 1, days from 0, foods within a
     day, no (job, training day, day) twice."""
     for col, lo, hi in (("train_day", 1, None), ("episode", 0, None), ("foods", 0, per_job["horizon"][va["job"]])):
-        if (row := _first((va[col] < lo) | (va[col] > hi if hi is not None else False))) is not None:
+        if (row := first_row((va[col] < lo) | (va[col] > hi if hi is not None else False))) is not None:
             raise InvalidArchive(f"validation_episodes row {row}: {col} {int(va[col][row])} is out of its range")
     if (row := _twice([va["job"], va["train_day"], va["episode"]])) is not None:
         raise InvalidArchive(
@@ -526,7 +516,7 @@ def _check_rows(
     steps = np.bincount(sjob, minlength=len(jobs))
     want_steps = per_job["eval_episodes"] * per_job["horizon"]
     for i, j in enumerate(jobs):
-        label = f"job {i} ({j['regime'][0]} x {j['agent'][0]} seed {j['seed']})"
+        label = job_label(i, j)
         external = j.get("engine") == Engine.EXTERNAL
         # an external job trained elsewhere (a saved model evaluated) has its budget and no training rows
         if trains[i] != per_job["episodes"][i] and not (external and trains[i] == 0):

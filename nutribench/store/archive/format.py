@@ -92,6 +92,16 @@ def one_line_reason(e: BaseException) -> str:
     return text if len(text) <= 160 else text[:157] + "..."
 
 
+def first_row(bad: np.ndarray) -> int | None:
+    """The first row that is ``bad`` (a boolean column); None if none is."""
+    return int(np.argmax(bad)) if bad.any() else None
+
+
+def job_label(i: int, job: dict[str, Any]) -> str:
+    """Job ``i`` of an archive's meta as its one-line messages name it."""
+    return f"job {i} ({job['regime'][0]} x {job['agent'][0]} seed {job['seed']})"
+
+
 def columns(table: Any) -> list[Any]:
     """The columns of ``table`` (an ORM model or a :class:`~sqlalchemy.Table`) but ``job_id``."""
     return [c for c in getattr(table, "__table__", table).columns if c.name != "job_id"]

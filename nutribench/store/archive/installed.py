@@ -188,7 +188,7 @@ def _peek_configs(path: Path) -> set[tuple[str, str, int, str]] | None:
         rows = [
             (kind, row) for key, kind in (("regimes", "regime"), ("agent_configs", "agent config")) for row in meta[key]
         ]
-        idents = {(kind, row["name"], row["version"], row["sha256"]) for kind, row in rows}
+        idents = [(kind, row["name"], row["version"], row["sha256"]) for kind, row in rows]
     except (StoreError, KeyError, TypeError):  # the import refuses it with the reason
         return None
     return {i for i in idents if isinstance(i[1], str) and isinstance(i[3], str) and type(i[2]) is int}

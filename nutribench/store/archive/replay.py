@@ -25,7 +25,7 @@ from nutribench.config.loading import ConfigError, EnvConfig
 from nutribench.config.models import FoodCatalog, Regime, RewardConfig
 from nutribench.env.metrics import METRIC_KEYS, EpisodeRecorder
 from nutribench.env.vector_env import NutriRLVectorEnv
-from nutribench.store.archive.format import InvalidArchive, short_repr
+from nutribench.store.archive.format import InvalidArchive, first_row, job_label, short_repr
 
 #: How far a stored value may be from the replayed one: float64 sums in another order (a
 #: batched evaluation, another BLAS) differ in the last bits, an edited value by far more.
@@ -57,13 +57,10 @@ def _check_test_days(cfg: EnvConfig, i: int, job: dict[str, Any], stored: np.nda
     from nutribench.agents.days import eval_food_streams
 
     expected = eval_food_streams(cfg, int(job["seed"]), len(stored))
-    bad = (stored != expected).any(axis=1)
-    if bad.any():
-        d = int(np.argmax(bad))
+    if (d := first_row((stored != expected).any(axis=1))) is not None:
         raise InvalidArchive(
-            f"job {i} ({job['regime'][0]} x {job['agent'][0]} seed {job['seed']}) evaluation day {d}: its foods are "
-            f"not the test day {d} of seed {job['seed']} (eval_food_streams draws a job's evaluation days from its "
-            "seed alone; the days were changed)"
+            f"{job_label(i, job)} evaluation day {d}: its foods are not the test day {d} of seed {job['seed']} "
+            "(eval_food_streams draws a job's evaluation days from its seed alone; the days were changed)"
         )
 
 
@@ -118,9 +115,7 @@ def _replay_chunk(
     n, H = rows.shape
 
     def label(k: int) -> str:
-        i, d = chunk[k]
-        j = jobs[i]
-        return f"job {i} ({j['regime'][0]} x {j['agent'][0]} seed {j['seed']}) evaluation day {d}"
+        return f"{job_label(chunk[k][0], jobs[chunk[k][0]])} evaluation day {chunk[k][1]}"
 
     venv = NutriRLVectorEnv(n, regime=cfg)
     venv.reset(options={"foods": st["food"][rows]})
@@ -132,9 +127,7 @@ def _replay_chunk(
         state = np.asarray(info["state"]).reshape(n, 3)
         for name, replay in (("reward", rewards), ("C", state[:, 0]), ("F", state[:, 1]), ("P", state[:, 2])):
             stored = st[name][rows[:, t]]
-            bad = ~_close(stored, replay)
-            if bad.any():
-                k = int(np.argmax(bad))
+            if (k := first_row(~_close(stored, replay))) is not None:
                 raise InvalidArchive(
                     f"{label(k)} step {t + 1}: stored {name} {stored[k]:.6g} but replaying its foods and actions "
                     f"gives {replay[k]:.6g} (the measurements were changed)"
@@ -144,9 +137,7 @@ def _replay_chunk(
         stored = ep[key][ep_rows].astype(np.float64)
         if key == "first_overshoot_step" and "first_overshoot_step.null" in ep:
             stored = np.where(ep["first_overshoot_step.null"][ep_rows], np.nan, stored)
-        bad = ~_close(stored, replay)
-        if bad.any():
-            k = int(np.argmax(bad))
+        if (k := first_row(~_close(stored, replay))) is not None:
             raise InvalidArchive(
                 f"{label(k)}: stored {key} {stored[k]:.6g} but its replayed steps give {replay[k]:.6g} "
                 "(the measurements were changed)"
