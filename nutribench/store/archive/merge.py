@@ -28,6 +28,7 @@ from nutribench.store.engine import (
     db_now,
     hold_write_lock,
     session_scope,
+    side_files,
     sqlite_path,
 )
 from nutribench.store.models import AgentConfig, Job, RegimeConfig, diagnostic_rows, insert_rows, job_state
@@ -73,7 +74,7 @@ def _remove_new_file(path: Path | None) -> None:
     """Remove the SQLite file (and its WAL and journal) a failed import created."""
     if path is None:
         return
-    for p in (path, *(path.with_name(path.name + s) for s in ("-wal", "-shm", "-journal"))):
+    for p in (path, *side_files(path)):
         try:
             p.unlink(missing_ok=True)
         except OSError:  # pragma: no cover - best effort: the failure is reported anyway
