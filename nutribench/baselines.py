@@ -212,3 +212,47 @@ def test_day_references(
                 }
             )
     return rows
+
+
+#: the columns of :func:`baseline_cells`
+BASELINE_HEADERS = ("regime", "policy", "days", "return", "foods", "final distance", "overshoot ratio", "gap closed")
+BASELINE_HEADERS += ("search",)
+
+
+def baseline_cells(rows: list[dict]) -> list[list[str]]:
+    """:func:`baseline_table`'s rows as table cells (:data:`BASELINE_HEADERS`)."""
+    return [
+        [r["regime"], r["policy"], str(r["days"]), f"{r['return']:.2f}", f"{r['foods']:.2f}"]
+        + [f"{r['final_distance']:.3f}", f"{r['overshoot_ratio']:.3f}", f"{100 * r['gap']:.1f} %", r.get("search", "")]
+        for r in rows
+    ]
+
+
+#: the columns of :func:`test_day_cells`
+TEST_DAY_HEADERS = ("regime", "days", "never", "planner", "lookahead", "clairvoyant", "lookahead %", "clairvoyant %")
+TEST_DAY_HEADERS += ("clairvoyant search", "time")
+
+
+def test_day_cells(names: list[str], seeds: tuple[int, ...]) -> tuple[list[dict], list[list[str]]]:
+    """``baselines --test-days``: the four yardsticks on the test days of ``seeds``, per regime
+    of ``names``: every day's row (:data:`REFERENCE_COLUMNS`) and a row of cells a regime
+    (:data:`TEST_DAY_HEADERS`: the mean returns, the shares of the gap, the days searched
+    exactly, the time it took)."""
+    import time
+
+    rows, cells = [], []
+    for regime in names:
+        start = time.perf_counter()
+        days = test_day_references(regime, seeds)
+        wall = time.perf_counter() - start
+        rows += days
+        mean = {k: sum(d[k] for d in days) / len(days) for k in ("never", "planner", "lookahead", "clairvoyant")}
+        exact = sum(d["search"] == "exact" for d in days)
+        shares = [gap_closed(mean[k], mean["never"], mean["planner"]) for k in ("lookahead", "clairvoyant")]
+        cells.append(
+            [regime, str(len(days))]
+            + [f"{mean[k]:.3f}" for k in ("never", "planner", "lookahead", "clairvoyant")]
+            + [f"{100 * share:.1f} %" for share in shares]
+            + [f"exact {exact}/{len(days)}", f"{wall:.0f} s"]
+        )
+    return rows, cells

@@ -13,3 +13,9 @@ from __future__ import annotations
 
 class UserError(Exception):
     """An error the user can fix. Its message is one line: what, where, how to fix."""
+
+
+def check_range(option: str, value: int, low: int, high: int, why: str = "") -> None:
+    """``option value`` within ``low..high``, else a one-line UserError (``why``: the reason for ``high``)."""
+    if not low <= value <= high:
+        raise UserError(f"{option} {str(value)[:24]}: give a value from {low} to {high}" + (f" ({why})" if why else ""))

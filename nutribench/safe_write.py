@@ -88,6 +88,16 @@ def check_folder_target(
         raise error(f"{_label(Path(folder), what)}: {why}: {hint}")
 
 
+def check_tensorboard(folder: Path) -> None:
+    """``--tensorboard FOLDER``: a UserError (one line) when the tensorboard package is missing
+    or ``folder`` cannot be a writable folder; the folder itself is created by the runs."""
+    import importlib.util
+
+    if importlib.util.find_spec("tensorboard") is None:
+        raise UserError("--tensorboard needs the tensorboard package: pip install 'nutribench[tensorboard]'")
+    check_folder_target(folder, "--tensorboard", UserError, "give a folder for the TensorBoard events")
+
+
 def check_file_target(path: Path | str, what: str = "", error: type[UserError] = WriteError) -> None:
     """Refuse a file to write that exists and is not a regular file (:func:`check_regular_file`),
     or whose real folder cannot take it (as :func:`check_folder_target` would)."""

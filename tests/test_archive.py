@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from nutribench.cli import app
 from nutribench.config.loading import content_sha256
-from nutribench.scheduler.driver import run_grid
+from nutribench.scheduler.driver import GridSettings, run_grid
 from nutribench.scheduler.synthetic import synthetic_job
 from nutribench.store import read_jobs
 
@@ -23,7 +23,7 @@ SORT = ["regime", "algo", "seed", "phase", "episode"]
 
 
 def _grid(db: Path, algos: list[str], seeds: list[int]):
-    return run_grid(db, ["run0", "run3"], algos, seeds, 6, 2, job_fn=synthetic_job, display=False)
+    return run_grid(GridSettings(db, ["run0", "run3"], algos, seeds, 6, 2, job_fn=synthetic_job, display=False))
 
 
 def _out(res) -> str:

@@ -274,11 +274,21 @@ def test_every_entry_says_it_was_replayed_not_re_run(genuine: Path, tmp_path: Pa
 def test_a_builtin_agent_config_with_its_shipped_version_keeps_the_shipped_settings(tmp_path: Path, edit: str):
     """mc v3 (shipped) with another learning rate, its hash recomputed: refused; with only
     another description (prose): imported, as the leaderboard calls it the paper config."""
-    from nutribench.scheduler.driver import run_grid
+    from nutribench.scheduler.driver import GridSettings, run_grid
     from nutribench.scheduler.synthetic import synthetic_job
 
     run_grid(
-        tmp_path / "s.db", ["run0"], ["mc"], [0], 2, 1, job_fn=synthetic_job, models_dir=tmp_path / "m", display=False
+        GridSettings(
+            tmp_path / "s.db",
+            ["run0"],
+            ["mc"],
+            [0],
+            2,
+            1,
+            job_fn=synthetic_job,
+            models_dir=tmp_path / "m",
+            display=False,
+        )
     )
     meta, arrays = _read(_export(tmp_path / "s.db", tmp_path / "mc.npz"))
     agent = meta["agent_configs"][0]

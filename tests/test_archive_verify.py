@@ -25,7 +25,7 @@ from typer.testing import CliRunner
 
 from nutribench.cli import app
 from nutribench.config.loading import content_sha256
-from nutribench.scheduler.driver import run_grid
+from nutribench.scheduler.driver import GridSettings, run_grid
 from nutribench.scheduler.synthetic import synthetic_job
 from nutribench.store import read_jobs
 from nutribench.store.archive import read_archive, valid_name, verify_archive
@@ -50,7 +50,11 @@ def source(tmp_path_factory) -> tuple[Path, Path]:
     each) and its archive."""
     folder = tmp_path_factory.mktemp("source")
     db = folder / "src.db"
-    run_grid(db, ["run0"], ["mc"], [0, 1], 3, 2, job_fn=synthetic_job, models_dir=folder / "models", display=False)
+    run_grid(
+        GridSettings(
+            db, ["run0"], ["mc"], [0, 1], 3, 2, job_fn=synthetic_job, models_dir=folder / "models", display=False
+        )
+    )
     with sqlite3.connect(db) as c:  # the 0004 columns, so that they travel
         c.execute("UPDATE jobs SET batch_id = 'b1', batch_size = 2, device = 'cpu'")
     archive = folder / "good.npz"

@@ -45,8 +45,8 @@ def test_yes_or_a_yes_answer_starts_the_paper_grid(tmp_path: Path, monkeypatch, 
     grid itself replaced by a recorder: what reaches it is the paper's grid)."""
     started = []
 
-    def recorder(db, regimes, algos, seeds, episodes, *args, **kwargs):
-        started.append((tuple(regimes), tuple(algos), tuple(seeds), episodes))
+    def recorder(settings, *args, **kwargs):
+        started.append((tuple(settings.regimes), tuple(settings.algos), tuple(settings.seeds), settings.episodes))
         raise SystemExit(0)
 
     monkeypatch.setattr("nutribench.scheduler.driver.run_grid", recorder)

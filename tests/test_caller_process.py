@@ -134,7 +134,7 @@ def test_run_grid_installs_no_signal_handler_and_a_second_ctrl_c_still_interrupt
     import threading
     import time
 
-    from nutribench.scheduler.driver import run_grid
+    from nutribench.scheduler.driver import GridSettings, run_grid
     from tests.conftest import wait_for
     from tests.fake_jobs import EnvJob
 
@@ -148,7 +148,7 @@ def test_run_grid_installs_no_signal_handler_and_a_second_ctrl_c_still_interrupt
     stop = threading.Event()
     setter = threading.Thread(target=lambda: (wait_for(lambda: _running(db), 120), stop.set()), daemon=True)
     setter.start()
-    summary = run_grid(db, ["run0"], ["ppo"], stop=stop, **args)
+    summary = run_grid(GridSettings(db, ["run0"], ["ppo"], **args), stop=stop)
     setter.join()
     assert (summary.user_interrupt, summary.interrupted, summary.exit_code) == (True, 1, 130)
 
@@ -157,7 +157,7 @@ def test_run_grid_installs_no_signal_handler_and_a_second_ctrl_c_still_interrupt
         os.kill(os.getpid(), signal.SIGINT)
 
     threading.Thread(target=ctrl_c, daemon=True).start()
-    summary = run_grid(db, ["run0"], ["ppo"], **args)
+    summary = run_grid(GridSettings(db, ["run0"], ["ppo"], **args))
     assert (summary.user_interrupt, summary.interrupted) == (True, 1)
     assert {sig: signal.getsignal(sig) for sig in handlers} == handlers
     with pytest.raises(KeyboardInterrupt):

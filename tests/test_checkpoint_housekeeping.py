@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from nutribench.scheduler.driver import run_grid
+from nutribench.scheduler.driver import GridSettings, run_grid
 from nutribench.scheduler.synthetic import synthetic_job
 from tests.fake_jobs import Faults
 
@@ -39,7 +39,9 @@ class FailingJob:
 
 def grid(db: Path, models: Path, seeds=(0, 1), job_fn=synthetic_job):
     return run_grid(
-        db, ["run0"], ["ppo"], list(seeds), 4, 1, workers=1, job_fn=job_fn, models_dir=models, display=False
+        GridSettings(
+            db, ["run0"], ["ppo"], list(seeds), 4, 1, workers=1, job_fn=job_fn, models_dir=models, display=False
+        )
     )
 
 

@@ -235,13 +235,18 @@ def test_the_progress_after_a_takeover_counts_the_jobs_taken_over(regimes, tmp_p
     from sqlalchemy import create_engine, text
 
     from nutribench.scheduler import driver, lifecycle
-    from nutribench.scheduler.driver import run_grid
+    from nutribench.scheduler.driver import GridSettings, run_grid
     from nutribench.scheduler.synthetic import synthetic_job
     from nutribench.store.engine import utcnow
     from nutribench.store.models import STALE_AFTER_S
 
     db = tmp_path / "r.db"
-    assert run_grid(db, ["run0"], ["ppo"], [0, 1, 2], 2, 1, workers=1, job_fn=synthetic_job, display=False).done == 3
+    assert (
+        run_grid(
+            GridSettings(db, ["run0"], ["ppo"], [0, 1, 2], 2, 1, workers=1, job_fn=synthetic_job, display=False)
+        ).done
+        == 3
+    )
     t0 = utcnow()
     clock = {"now": t0}  # the database's clock, as the driver's lifecycle reads it
     monkeypatch.setattr(lifecycle, "db_now", lambda conn: clock["now"])
@@ -305,11 +310,14 @@ def test_an_agent_file_whose_algo_is_not_a_name_is_one_line(regimes, tmp_path, v
 def test_a_trajectory_number_past_the_database_integer_is_one_line(regimes, tmp_path, option, value):
     """Issue 52: ``report --trajectory --episode 1000000000000000000000000000000`` was an
     OverflowError traceback (the number met the database's integer in the query)."""
-    from nutribench.scheduler.driver import run_grid
+    from nutribench.scheduler.driver import GridSettings, run_grid
     from nutribench.scheduler.synthetic import synthetic_job
 
     db = tmp_path / "r.db"
-    assert run_grid(db, ["run0"], ["ppo"], [0], 2, 1, workers=1, job_fn=synthetic_job, display=False).done == 1
+    assert (
+        run_grid(GridSettings(db, ["run0"], ["ppo"], [0], 2, 1, workers=1, job_fn=synthetic_job, display=False)).done
+        == 1
+    )
     picked = {"--seed": "0", "--episode": "0", option: value}
     args = [
         "report",

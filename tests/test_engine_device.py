@@ -21,7 +21,7 @@ from nutribench.cli import app
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.device import DeviceError, check_device, resolve_device
 from nutribench.engine.train import train_batched
-from nutribench.scheduler.driver import RunError, run_grid
+from nutribench.scheduler.driver import GridSettings, RunError, run_grid
 from nutribench.scheduler.synthetic import synthetic_batch
 from tests.test_engine_checkpoint import JOBS, Stopped, same_agents
 
@@ -85,9 +85,9 @@ def test_run_refuses_a_device_it_cannot_train_on_before_touching_the_database(no
     assert "the SB3 engine trains on the CPU" in _one_line_exit_2(common + ["--engine", "sb3", "--device", "cuda"])
     assert not db.exists() and not (tmp_path / "models").exists()
     with pytest.raises(DeviceError):  # the library's entry refuses too, before the database
-        run_grid(db, ["run0"], ["ppo"], [0], 2, 1, engine="batched", device="cuda", display=False)
+        run_grid(GridSettings(db, ["run0"], ["ppo"], [0], 2, 1, engine="batched", device="cuda", display=False))
     with pytest.raises(RunError, match="SB3 engine trains on the CPU"):
-        run_grid(db, ["run0"], ["ppo"], [0], 2, 1, device="cuda:0", display=False)
+        run_grid(GridSettings(db, ["run0"], ["ppo"], [0], 2, 1, device="cuda:0", display=False))
     assert not db.exists()
 
 
@@ -113,17 +113,19 @@ def test_the_device_travels_to_the_workers_in_the_job_specs(tmp_path: Path) -> N
     log = tmp_path / "log"
     log.mkdir()
     s = run_grid(
-        tmp_path / "r.db",
-        ["run0"],
-        ["ppo"],
-        [0, 1],
-        4,
-        1,
-        workers=1,
-        batch_fn=DeviceLog(str(log)),
-        display=False,
-        engine="batched",
-        device="cpu",
+        GridSettings(
+            tmp_path / "r.db",
+            ["run0"],
+            ["ppo"],
+            [0, 1],
+            4,
+            1,
+            workers=1,
+            batch_fn=DeviceLog(str(log)),
+            display=False,
+            engine="batched",
+            device="cpu",
+        )
     )
     assert (s.done, s.failed) == (2, 0)
     assert sorted(f.name.split("-")[1] for f in log.iterdir()) == ["cpu", "cpu"]

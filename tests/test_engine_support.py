@@ -20,7 +20,7 @@ from nutribench.agents.config import agents_dir, load_agent_config
 from nutribench.agents.registry import batched_class, paper_names
 from nutribench.engine import UnsupportedConfig, check_supported, supports
 from nutribench.errors import UserError
-from nutribench.scheduler.driver import run_grid
+from nutribench.scheduler.driver import GridSettings, run_grid
 from nutribench.scheduler.pools import batch_pools
 from nutribench.scheduler.synthetic import synthetic_batch, synthetic_job
 from nutribench.store import read_jobs
@@ -109,17 +109,19 @@ def test_run_with_the_batched_engine_trains_unsupported_configs_with_the_sb3_eng
 ) -> None:
     db = tmp_path / "r.db"
     s = run_grid(
-        db,
-        ["run0"],
-        ["ppo", "ddqn_nr"],
-        [0, 1],
-        2,
-        1,
-        workers=1,
-        job_fn=synthetic_job,
-        batch_fn=synthetic_batch,
-        display=False,
-        engine="batched",
+        GridSettings(
+            db,
+            ["run0"],
+            ["ppo", "ddqn_nr"],
+            [0, 1],
+            2,
+            1,
+            workers=1,
+            job_fn=synthetic_job,
+            batch_fn=synthetic_batch,
+            display=False,
+            engine="batched",
+        )
     )
     assert (s.done, s.failed) == (4, 0)
     jobs = read_jobs(db)
@@ -176,7 +178,19 @@ def test_batched_jobs_store_their_batch_and_device_and_sb3_jobs_the_cpu(tmp_path
     """A tiny real grid: three PPO jobs in batches of at most two (one of 2, one of 1), then one SB3 job."""
     db = tmp_path / "r.db"
     s = run_grid(
-        db, ["run0"], ["ppo"], [0, 1, 2], 2, 1, workers=1, display=False, engine="batched", max_batch=2, device="cpu"
+        GridSettings(
+            db,
+            ["run0"],
+            ["ppo"],
+            [0, 1, 2],
+            2,
+            1,
+            workers=1,
+            display=False,
+            engine="batched",
+            max_batch=2,
+            device="cpu",
+        )
     )
     assert (s.done, s.failed) == (3, 0)
     jobs = read_jobs(db)
@@ -186,7 +200,7 @@ def test_batched_jobs_store_their_batch_and_device_and_sb3_jobs_the_cpu(tmp_path
     assert sorted(sizes["size"]) == [1, 2]
     assert all(isinstance(b, str) and len(b) == 32 for b in jobs["batch_id"])
 
-    s = run_grid(db, ["run3"], ["ppo"], [0], 2, 1, workers=1, display=False)
+    s = run_grid(GridSettings(db, ["run3"], ["ppo"], [0], 2, 1, workers=1, display=False))
     assert (s.done, s.failed) == (1, 0)
     sb3 = read_jobs(db).query("regime == 'run3'")
     assert list(sb3["engine"]) == ["sb3"] and list(sb3["device"]) == ["cpu"]

@@ -37,11 +37,11 @@ def trained(tmp_path_factory) -> Path:
     """A real run (mc on run0, seed 0, 2 training days, 2 evaluation days): its database
     ``r.db``, its models ``m/`` (as ``run --models-dir`` writes them) and its archive
     ``genuine/mc.npz``."""
-    from nutribench.scheduler.driver import run_grid
+    from nutribench.scheduler.driver import GridSettings, run_grid
 
     lab = tmp_path_factory.mktemp("verify")
     with mock.patch("nutribench.scheduler.driver.make_executor", _thread_executor):
-        s = run_grid(lab / "r.db", ["run0"], ["mc"], [0], 2, 2, models_dir=lab / "m", display=False)
+        s = run_grid(GridSettings(lab / "r.db", ["run0"], ["mc"], [0], 2, 2, models_dir=lab / "m", display=False))
     assert s.done == 1, s
     assert (lab / "m" / "run0-v2" / "mc-v3" / "seed0-ep2.zip").is_file()
     (lab / "genuine").mkdir()

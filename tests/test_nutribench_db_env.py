@@ -14,7 +14,7 @@ import typer
 from typer.testing import CliRunner
 
 from nutribench.cli import app
-from nutribench.scheduler.driver import run_grid
+from nutribench.scheduler.driver import GridSettings, run_grid
 from nutribench.scheduler.synthetic import synthetic_job
 
 runner = CliRunner()
@@ -56,7 +56,7 @@ def sql(db: Path, query: str) -> list[tuple]:
 
 def test_db_copy_copies_into_nutribench_db(tmp_path, monkeypatch) -> None:
     src, dst = tmp_path / "src.db", tmp_path / "dst.db"
-    run_grid(src, ["run0"], ["mc"], [0], 3, 1, workers=1, job_fn=synthetic_job, display=False)
+    run_grid(GridSettings(src, ["run0"], ["mc"], [0], 3, 1, workers=1, job_fn=synthetic_job, display=False))
     monkeypatch.setenv("NUTRIBENCH_DB", str(dst))
     res = runner.invoke(app, ["db", "copy", str(src)])
     assert res.exit_code == 0, res.output

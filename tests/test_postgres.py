@@ -242,12 +242,15 @@ def test_db_copy_moves_a_sqlite_database_into_postgres(
 ) -> None:
     """README "Running on several machines": an existing SQLite database's results moved
     into PostgreSQL, then the grid goes on there."""
-    from nutribench.scheduler.driver import run_grid
+    from nutribench.scheduler.driver import GridSettings, run_grid
     from nutribench.scheduler.synthetic import synthetic_job
 
     monkeypatch.chdir(tmp_path)
     db = tmp_path / "lab.db"
-    assert run_grid(db, ["run0", "run3"], ["mc", "ppo"], [0], 6, 2, job_fn=synthetic_job, display=False).done == 4
+    assert (
+        run_grid(GridSettings(db, ["run0", "run3"], ["mc", "ppo"], [0], 6, 2, job_fn=synthetic_job, display=False)).done
+        == 4
+    )
     res = runner.invoke(app, ["db", "copy", str(db), pg_url])
     assert res.exit_code == 0, res.output
     assert "episodes: 32 rows" in res.output and "4 jobs" in res.output
@@ -261,7 +264,9 @@ def test_db_copy_moves_a_sqlite_database_into_postgres(
     assert sql(pg_url, "SELECT body->>'max_grad_norm' FROM agent_configs WHERE name = 'mc'") == [("inf",)]
     again = runner.invoke(app, ["db", "copy", str(db), pg_url])  # never on top of results
     assert again.exit_code == 2 and "already holds rows" in again.output and "4 jobs" in again.output
-    more = run_grid(pg_url, ["run0", "run3"], ["mc", "ppo"], [0, 1], 6, 2, job_fn=synthetic_job, display=False)
+    more = run_grid(
+        GridSettings(pg_url, ["run0", "run3"], ["mc", "ppo"], [0, 1], 6, 2, job_fn=synthetic_job, display=False)
+    )
     assert (more.done, more.skipped) == (4, 4)  # new job ids follow the copied ones
     assert sql(pg_url, "SELECT count(*), count(DISTINCT id) FROM jobs") == [(8, 8)]
 

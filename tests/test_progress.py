@@ -57,11 +57,13 @@ def test_db_import_shows_checking_then_each_job_on_a_terminal(tmp_path, monkeypa
 
     import nutribench.cli.common as common
     from nutribench.cli import app
-    from nutribench.scheduler.driver import run_grid
+    from nutribench.scheduler.driver import GridSettings, run_grid
     from nutribench.scheduler.synthetic import synthetic_job
 
     monkeypatch.chdir(tmp_path)
-    assert run_grid(tmp_path / "a.db", ["run0", "run3"], ["mc"], [0], 4, 1, job_fn=synthetic_job, display=False).done
+    assert run_grid(
+        GridSettings(tmp_path / "a.db", ["run0", "run3"], ["mc"], [0], 4, 1, job_fn=synthetic_job, display=False)
+    ).done
     runner = CliRunner()
     res = runner.invoke(app, ["db", "export", str(tmp_path / "a.npz"), "--db", str(tmp_path / "a.db")])
     assert res.exit_code == 0, res.output
@@ -100,14 +102,14 @@ def test_the_leaderboard_steps_follow_its_archives_then_the_ranking(tmp_path) ->
 
 
 def test_report_items_are_counted_from_build_report_s_lines() -> None:
-    from nutribench.cli.report import _counted
+    from nutribench.report.request import counted as _counted
 
     assert _counted("[3/14] figure 3") == (2, 14) and _counted("[1/2] table results") == (0, 2)
     assert _counted("reading") == (None, None)
 
 
 def test_tune_says_which_trials_train_and_their_day_until_the_first_evaluation() -> None:
-    from nutribench.cli.tune import _show_training
+    from nutribench.tuning.driver import show_training as _show_training
 
     recorded, said = [], []
     objective = SimpleNamespace(

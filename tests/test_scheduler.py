@@ -20,7 +20,7 @@ from typer.testing import CliRunner
 from nutribench.cli import app
 from nutribench.cli.signals import STOP_SIGNALS
 from nutribench.config import list_regimes
-from nutribench.scheduler.driver import RunError, run_grid
+from nutribench.scheduler.driver import GridSettings, RunError, run_grid
 from nutribench.scheduler.grid import PRESETS, GridError, parse_seeds, resolve_grid
 from nutribench.scheduler.lifecycle import MAX_FAILURES
 from nutribench.scheduler.status import status_table
@@ -116,15 +116,17 @@ def test_smoke_grid_stores_every_row_and_rerun_does_nothing(regimes: Path, tmp_p
     algos = ["mc", "ddqn", "ppo", "sac", "gru_ppo"]
     g = resolve_grid(preset="smoke", regimes=list_regimes(), algos=algos)
     s = run_grid(
-        db,
-        g.regimes,
-        g.algos,
-        g.seeds,
-        g.episodes,
-        g.eval_episodes,
-        workers=2,
-        job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)),
-        display=False,
+        GridSettings(
+            db,
+            g.regimes,
+            g.algos,
+            g.seeds,
+            g.episodes,
+            g.eval_episodes,
+            workers=2,
+            job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)),
+            display=False,
+        )
     )
     n = 7 * 5
     assert (s.done, s.failed, s.skipped, s.exit_code) == (n, 0, 0, 0)
@@ -144,15 +146,17 @@ def test_smoke_grid_stores_every_row_and_rerun_does_nothing(regimes: Path, tmp_p
     assert len(list(log.iterdir())) == n
 
     again = run_grid(
-        db,
-        g.regimes,
-        g.algos,
-        g.seeds,
-        g.episodes,
-        g.eval_episodes,
-        workers=2,
-        job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)),
-        display=False,
+        GridSettings(
+            db,
+            g.regimes,
+            g.algos,
+            g.seeds,
+            g.episodes,
+            g.eval_episodes,
+            workers=2,
+            job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)),
+            display=False,
+        )
     )
     assert (again.done, again.skipped, again.exit_code) == (0, n, 0)
     assert len(list(log.iterdir())) == n  # nothing executed
@@ -163,7 +167,7 @@ def test_smoke_grid_stores_every_row_and_rerun_does_nothing(regimes: Path, tmp_p
 def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> None:
     db = tmp_path / "r.db"
     args = dict(seeds=[0], episodes=4, eval_episodes=1, workers=1, job_fn=synthetic_job, display=False)
-    assert run_grid(db, ["run0"], ["ppo"], **args).done == 1
+    assert run_grid(GridSettings(db, ["run0"], ["ppo"], **args)).done == 1
     ppo = regimes / "agents" / "ppo.toml"
     v = next(int(ln.split("=")[1]) for ln in ppo.read_text().splitlines() if ln.startswith("version ="))  # as shipped
     ppo.write_text(ppo.read_text().replace("learning_rate = 1e-3", "learning_rate = 2e-3"))
@@ -171,7 +175,7 @@ def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> N
     with pytest.raises(
         RunError, match=rf"ppo\.toml: version {v} is already recorded with different content: bump the version"
     ):
-        run_grid(db, ["run0"], ["ppo"], **args)
+        run_grid(GridSettings(db, ["run0"], ["ppo"], **args))
     assert sql(db, "SELECT (SELECT count(*) FROM agent_configs), (SELECT count(*) FROM jobs)") == before
     # the CLI says it in one line, exit 2
     res = CliRunner().invoke(
@@ -185,7 +189,7 @@ def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> N
     assert lines[1].startswith("error:") and "bump the version" in lines[1]
 
     ppo.write_text(ppo.read_text().replace(f"version = {v}", f"version = {v + 1}"))
-    assert run_grid(db, ["run0"], ["ppo"], **args).done == 1
+    assert run_grid(GridSettings(db, ["run0"], ["ppo"], **args)).done == 1
     rows = sql(
         db, "SELECT a.version, j.status FROM jobs j JOIN agent_configs a ON a.id = j.agent_config_id ORDER BY a.version"
     )
@@ -195,16 +199,16 @@ def test_changed_config_needs_a_version_bump(regimes: Path, tmp_path: Path) -> N
     assert_views_hide_the_dry_run(db)
 
     run3 = regimes / "run3.toml"  # a regime file works the same way
-    assert run_grid(db, ["run3"], ["sac"], **args).done == 1
+    assert run_grid(GridSettings(db, ["run3"], ["sac"], **args)).done == 1
     run3.write_text(run3.read_text().replace('description = "', 'description = "changed: '))
     with pytest.raises(RunError, match=r"run3\.toml: version 2 is already recorded"):
-        run_grid(db, ["run3"], ["sac"], **args)
+        run_grid(GridSettings(db, ["run3"], ["sac"], **args))
 
 
 def test_killed_worker_fails_only_its_job_and_the_next_run_completes_it(regimes: Path, tmp_path: Path) -> None:
     db = tmp_path / "r.db"
     args = dict(seeds=[0], episodes=10, eval_episodes=2, workers=2, display=False)
-    s = run_grid(db, ["run0"], ["mc", "ppo", "sac"], job_fn=EnvJob(kill="run0:ppo:0"), **args)
+    s = run_grid(GridSettings(db, ["run0"], ["mc", "ppo", "sac"], job_fn=EnvJob(kill="run0:ppo:0"), **args))
     assert (s.done, s.failed, s.exit_code) == (2, 1, 1)
     assert statuses(db) == {("mc", 0): "done", ("ppo", 0): "failed", ("sac", 0): "done"}
     ((failures, error),) = sql(db, "SELECT failures, error FROM jobs WHERE status = 'failed'")
@@ -212,7 +216,7 @@ def test_killed_worker_fails_only_its_job_and_the_next_run_completes_it(regimes:
     df = episode_rows(db)
     assert df.groupby("algo").size().to_dict() == {"mc": 12, "sac": 12}
 
-    s = run_grid(db, ["run0"], ["mc", "ppo", "sac"], job_fn=synthetic_job, **args)
+    s = run_grid(GridSettings(db, ["run0"], ["mc", "ppo", "sac"], job_fn=synthetic_job, **args))
     assert (s.done, s.skipped, s.exit_code) == (1, 2, 0)
     assert set(statuses(db).values()) == {"done"}
     assert len(episode_rows(db)) == 3 * 12
@@ -224,10 +228,10 @@ def test_failing_job_is_retried_until_the_limit(regimes: Path, tmp_path: Path) -
     failing = EnvJob(fail="run1:sac:0")
     args = dict(seeds=[0], episodes=6, eval_episodes=1, workers=1, job_fn=failing, display=False)
     for attempt in range(1, MAX_FAILURES + 1):
-        s = run_grid(db, ["run1"], ["sac"], **args)
+        s = run_grid(GridSettings(db, ["run1"], ["sac"], **args))
         assert (s.failed, s.exit_code) == (1, 1)
         assert sql(db, "SELECT failures, attempt, status FROM jobs") == [(attempt, attempt, "failed")]
-    s = run_grid(db, ["run1"], ["sac"], **args)  # given up: not started again
+    s = run_grid(GridSettings(db, ["run1"], ["sac"], **args))  # given up: not started again
     assert (s.failed, s.given_up, s.exit_code) == (0, 1, 1)
     assert sql(db, "SELECT failures, attempt FROM jobs") == [(MAX_FAILURES, MAX_FAILURES)]
     report = status_table(db)
@@ -242,11 +246,11 @@ def test_retry_failed_runs_a_given_up_job_again_and_clears_its_error(regimes: Pa
     db = tmp_path / "r.db"
     args = dict(seeds=[0], episodes=6, eval_episodes=1, workers=1, display=False)
     for _ in range(MAX_FAILURES):
-        run_grid(db, ["run1"], ["sac"], job_fn=EnvJob(fail="run1:sac:0"), **args)
+        run_grid(GridSettings(db, ["run1"], ["sac"], job_fn=EnvJob(fail="run1:sac:0"), **args))
     assert (
-        run_grid(db, ["run1"], ["sac"], job_fn=synthetic_job, **args).given_up == 1
+        run_grid(GridSettings(db, ["run1"], ["sac"], job_fn=synthetic_job, **args)).given_up == 1
     )  # the cause is fixed, still given up
-    s = run_grid(db, ["run1"], ["sac"], job_fn=synthetic_job, retry_failed=True, **args)
+    s = run_grid(GridSettings(db, ["run1"], ["sac"], job_fn=synthetic_job, retry_failed=True, **args))
     assert (s.done, s.failed, s.given_up, s.exit_code) == (1, 0, 0, 0)
     assert sql(db, "SELECT status, error FROM jobs") == [("done", None)]
     res = CliRunner().invoke(
@@ -267,7 +271,7 @@ def test_a_rerun_after_a_driver_crash_waits_and_takes_the_orphaned_jobs_over(reg
 
     db = tmp_path / "r.db"
     args = dict(seeds=[0, 1], episodes=4, eval_episodes=1, workers=1, job_fn=synthetic_job, display=False)
-    assert run_grid(db, ["run0"], ["ppo"], **args).done == 2
+    assert run_grid(GridSettings(db, ["run0"], ["ppo"], **args)).done == 2
     engine = create_engine(f"sqlite:///{db}")
     beat = utcnow() - timedelta(seconds=STALE_AFTER_S - 5)  # the crashed driver's last heartbeat
     with engine.begin() as conn:  # as a crashed driver leaves it: running, no rows written
@@ -279,7 +283,7 @@ def test_a_rerun_after_a_driver_crash_waits_and_takes_the_orphaned_jobs_over(reg
             conn.execute(text(f"DELETE FROM {table} WHERE job_id IN (SELECT id FROM jobs WHERE seed = 1)"))
     report = status_table(db)  # still fresh: running
     assert (report.totals["running"], report.totals["orphaned"]) == (1, 0)
-    s = run_grid(db, ["run0"], ["ppo"], **args)
+    s = run_grid(GridSettings(db, ["run0"], ["ppo"], **args))
     assert (s.done, s.busy, s.exit_code) == (1, 0, 0)
     ((started, attempt),) = sql(db, "SELECT started_at, attempt FROM jobs WHERE seed = 1")
     assert attempt == 2 and datetime.fromisoformat(started) > beat + timedelta(
@@ -421,15 +425,9 @@ def test_bad_database_paths_are_one_line(regimes: Path, tmp_path: Path) -> None:
 def test_status_json(regimes: Path, tmp_path: Path) -> None:
     db = tmp_path / "r.db"
     run_grid(
-        db,
-        ["run2"],
-        ["ppo", "sac"],
-        [0, 1],
-        5,
-        1,
-        workers=2,
-        job_fn=EnvJob(fail="run2:sac:1"),
-        display=False,
+        GridSettings(
+            db, ["run2"], ["ppo", "sac"], [0, 1], 5, 1, workers=2, job_fn=EnvJob(fail="run2:sac:1"), display=False
+        )
     )
     res = CliRunner().invoke(app, ["status", "--db", str(db), "--json"])
     assert res.exit_code == 0, res.output
@@ -453,7 +451,9 @@ def test_dask_executor_runs_jobs_on_a_local_cluster(regimes: Path, tmp_path: Pat
     db = tmp_path / "r.db"
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         address = cluster.scheduler_address.replace("tcp://", "dask://")
-        s = run_grid(db, ["run0"], ["ppo", "sac"], [0], 8, 2, executor=address, job_fn=synthetic_job, display=False)
+        s = run_grid(
+            GridSettings(db, ["run0"], ["ppo", "sac"], [0], 8, 2, executor=address, job_fn=synthetic_job, display=False)
+        )
     assert (s.done, s.failed) == (2, 0)
     assert len(episode_rows(db)) == 2 * 10
     assert_views_hide_the_dry_run(db)
@@ -472,7 +472,17 @@ def test_an_unreachable_dask_scheduler_fails_before_the_database_is_touched(regi
     db = tmp_path / "r.db"
     with pytest.raises(ExecutorError, match=f"cannot reach the dask scheduler at tcp://127.0.0.1:{port}"):
         run_grid(
-            db, ["run0"], ["ppo"], [0], 4, 1, executor=f"dask://127.0.0.1:{port}", job_fn=synthetic_job, display=False
+            GridSettings(
+                db,
+                ["run0"],
+                ["ppo"],
+                [0],
+                4,
+                1,
+                executor=f"dask://127.0.0.1:{port}",
+                job_fn=synthetic_job,
+                display=False,
+            )
         )
     assert not db.exists()
 
@@ -640,16 +650,18 @@ def test_bench_status_times_a_given_database(tmp_path: Path) -> None:
 
     db = tmp_path / "r.db"
     run_grid(
-        db,
-        ["run0", "run1"],
-        ["ppo"],
-        [0],
-        episodes=4,
-        eval_episodes=2,
-        workers=1,
-        job_fn=synthetic_job,
-        models_dir=tmp_path / "m",
-        display=False,
+        GridSettings(
+            db,
+            ["run0", "run1"],
+            ["ppo"],
+            [0],
+            episodes=4,
+            eval_episodes=2,
+            workers=1,
+            job_fn=synthetic_job,
+            models_dir=tmp_path / "m",
+            display=False,
+        )
     )
     r = bench_status(str(db), repeats=1)
     assert (r["jobs"], r["episode_rows"]) == (2, 2 * (4 + 2))
@@ -690,7 +702,7 @@ def test_engine_batched_trains_each_config_in_batches_and_stores_each_job(regime
     log.mkdir()
     env = dict(NUTRIBENCH_FAKE_LOG=str(log), fail="run3:ppo:1")
     args = dict(workers=2, job_fn=EnvJob(**env), batch_fn=EnvBatch(**env), display=False, engine="batched")
-    s = run_grid(db, ["run0", "run3"], ["mc", "ppo", "sac"], [0, 1], 6, 1, **args)
+    s = run_grid(GridSettings(db, ["run0", "run3"], ["mc", "ppo", "sac"], [0, 1], 6, 1, **args))
     # 4 PPO jobs on 2 slots: batches of 2, in job order (run0 seeds 0,1; run3 seeds 0,1); the
     # batch holding the failing job fails, its two jobs are tried alone: one succeeds
     assert (s.done, s.failed) == (11, 1)
@@ -714,12 +726,12 @@ def test_engine_batched_trains_each_config_in_batches_and_stores_each_job(regime
     assert len(pids["ppo"]) == 4  # the good batch, the failed one, and its two jobs alone
     env["fail"] = ""  # its cause fixed
     args.update(job_fn=EnvJob(**env), batch_fn=EnvBatch(**env))
-    s = run_grid(db, ["run0", "run3"], ["mc", "ppo", "sac"], [0, 1], 6, 1, **args)
+    s = run_grid(GridSettings(db, ["run0", "run3"], ["mc", "ppo", "sac"], [0, 1], 6, 1, **args))
     assert (s.done, s.failed, s.skipped) == (1, 0, 11)
     assert sql(db, "SELECT count(*) FROM jobs WHERE status = 'done'") == [(12,)]
     assert sql(db, "SELECT count(*) FROM episodes") == [(12 * 7,)]
     with pytest.raises(RunError, match="--engine 'fast'"):
-        run_grid(db, ["run0"], ["ppo"], [0], 6, 1, engine="fast", job_fn=synthetic_job, display=False)
+        run_grid(GridSettings(db, ["run0"], ["ppo"], [0], 6, 1, engine="fast", job_fn=synthetic_job, display=False))
 
 
 def test_batch_size_caps_the_batches(regimes: Path, tmp_path: Path) -> None:
@@ -729,24 +741,30 @@ def test_batch_size_caps_the_batches(regimes: Path, tmp_path: Path) -> None:
     log.mkdir()
     env = dict(NUTRIBENCH_FAKE_LOG=str(log))
     s = run_grid(
-        db,
-        ["run0", "run3"],
-        ["ppo"],
-        [0, 1, 2],
-        4,
-        1,
-        workers=2,
-        job_fn=EnvJob(**env),
-        batch_fn=EnvBatch(**env),
-        display=False,
-        engine="batched",
-        max_batch=2,
+        GridSettings(
+            db,
+            ["run0", "run3"],
+            ["ppo"],
+            [0, 1, 2],
+            4,
+            1,
+            workers=2,
+            job_fn=EnvJob(**env),
+            batch_fn=EnvBatch(**env),
+            display=False,
+            engine="batched",
+            max_batch=2,
+        )
     )
     assert (s.done, s.failed) == (6, 0)
     pids = {f.name.split("-")[1] for f in log.iterdir()}
     assert len(pids) == 3
     with pytest.raises(RunError, match="--batch-size 0"):
-        run_grid(tmp_path / "other.db", ["run0"], ["ppo"], [0], 4, 1, engine="batched", max_batch=0, display=False)
+        run_grid(
+            GridSettings(
+                tmp_path / "other.db", ["run0"], ["ppo"], [0], 4, 1, engine="batched", max_batch=0, display=False
+            )
+        )
     assert not (tmp_path / "other.db").exists()
 
 
@@ -755,16 +773,18 @@ def test_engine_batched_with_real_training(regimes: Path, tmp_path: Path) -> Non
     """The batched engine's worker end to end: trained agents evaluated, saved, stored."""
     db = tmp_path / "r.db"
     s = run_grid(
-        db,
-        ["run0", "run3"],
-        ["mc", "ppo"],
-        [0],
-        10,
-        1,
-        workers=2,
-        display=False,
-        engine="batched",
-        models_dir=tmp_path / "models",
+        GridSettings(
+            db,
+            ["run0", "run3"],
+            ["mc", "ppo"],
+            [0],
+            10,
+            1,
+            workers=2,
+            display=False,
+            engine="batched",
+            models_dir=tmp_path / "models",
+        )
     )
     assert (s.done, s.failed) == (4, 0)
     assert sql(db, "SELECT count(*), sum(engine = 'batched'), sum(model_path IS NOT NULL) FROM jobs") == [(4, 4, 4)]
@@ -783,17 +803,19 @@ def test_engine_batched_with_real_training(regimes: Path, tmp_path: Path) -> Non
 def test_a_job_missing_from_its_batch_s_results_is_failed_not_left_running(regimes: Path, tmp_path: Path) -> None:
     db = tmp_path / "r.db"
     s = run_grid(
-        db,
-        ["run0"],
-        ["ppo"],
-        [0, 1, 2],
-        4,
-        1,
-        workers=1,
-        job_fn=synthetic_job,
-        batch_fn=HalfBatch(),
-        display=False,
-        engine="batched",
+        GridSettings(
+            db,
+            ["run0"],
+            ["ppo"],
+            [0, 1, 2],
+            4,
+            1,
+            workers=1,
+            job_fn=synthetic_job,
+            batch_fn=HalfBatch(),
+            display=False,
+            engine="batched",
+        )
     )
     assert (s.done, s.failed) == (2, 1)
     assert sql(db, "SELECT status, count(*) FROM jobs GROUP BY status ORDER BY status") == [("done", 2), ("failed", 1)]

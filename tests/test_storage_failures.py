@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 import nutribench.scheduler.driver as driver
 import nutribench.store.schema as schema
 from nutribench.cli import app
-from nutribench.scheduler.driver import run_grid
+from nutribench.scheduler.driver import GridSettings, run_grid
 from nutribench.scheduler.synthetic import synthetic_job
 from nutribench.store.engine import StoreError, make_engine
 from tests.conftest import run_cli_args
@@ -46,7 +46,9 @@ def sql(db: Path, query: str) -> list[tuple]:
 
 
 def grid(db: Path, seeds=(0, 21), **kw):
-    return run_grid(db, ["run0"], ["ppo"], list(seeds), 20, 1, workers=1, job_fn=synthetic_job, display=False, **kw)
+    return run_grid(
+        GridSettings(db, ["run0"], ["ppo"], list(seeds), 20, 1, workers=1, job_fn=synthetic_job, display=False, **kw)
+    )
 
 
 def patch_store(monkeypatch: pytest.MonkeyPatch, fn) -> None:

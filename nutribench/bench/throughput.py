@@ -197,7 +197,7 @@ def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = 
 
     from nutribench.agents.registry import paper_names
     from nutribench.config import list_regimes
-    from nutribench.scheduler.driver import run_grid
+    from nutribench.scheduler.driver import GridSettings, run_grid
     from nutribench.scheduler.grid import PRESETS
     from nutribench.scheduler.status import status_table
     from nutribench.store.models import Episode
@@ -210,15 +210,17 @@ def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = 
         paper = PRESETS["paper"]
         t0 = time.perf_counter()
         run_grid(
-            db,
-            list_regimes(),
-            paper_names(),
-            paper.seeds,
-            paper.episodes,
-            workers=workers,
-            job_fn=_InstantSyntheticJob(),
-            models_dir=Path(tmp) / "models",
-            display=False,
+            GridSettings(
+                db,
+                list_regimes(),
+                paper_names(),
+                paper.seeds,
+                paper.episodes,
+                workers=workers,
+                job_fn=_InstantSyntheticJob(),
+                models_dir=Path(tmp) / "models",
+                display=False,
+            )
         )
         build_s = time.perf_counter() - t0
     else:

@@ -5,9 +5,21 @@ from __future__ import annotations
 from typing import Annotated, Optional
 
 import typer
-from rich.table import Table
 
-from nutribench.cli.common import DEVICE_HELP, UserError, console, old_spelling, split_csv, user_errors
+from nutribench.cli.common import (
+    DEVICE_HELP,
+    EpisodesAlias,
+    EvalDaysOption,
+    MarkdownOption,
+    RepeatsOption,
+    UserError,
+    WorkersOption,
+    console,
+    old_spelling,
+    print_table,
+    split_csv,
+    user_errors,
+)
 from nutribench.engines import Engine
 
 bench_app = typer.Typer(
@@ -22,7 +34,7 @@ bench_app = typer.Typer(
 def bench_env_cmd(
     regimes: Annotated[str, typer.Option(help="comma-separated regimes")] = "run0,run6",
     sizes: Annotated[str, typer.Option(help="comma-separated vector env sizes")] = "1,64,1024,4096",
-    repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 5,
+    repeats: RepeatsOption = 5,
 ) -> None:
     """Env-steps per second of the single env and the vector env (random actions)."""
     from nutribench.bench.throughput import bench_env
@@ -30,10 +42,9 @@ def bench_env_cmd(
 
     names = split_csv(regimes, list_regimes(), "regime")
     ns = parse_sizes(sizes)
-    table = Table("regime", "env", "num_envs", "env-steps/s (median)")
-    for r in bench_env(names, ns, repeats=repeats):
-        table.add_row(r["regime"], r["env"], str(r["num_envs"]), f"{r['steps_per_s']:,.0f}")
-    console.print(table)
+    rows = bench_env(names, ns, repeats=repeats)
+    cells = [[r["regime"], r["env"], str(r["num_envs"]), f"{r['steps_per_s']:,.0f}"] for r in rows]
+    print_table(("regime", "env", "num_envs", "env-steps/s (median)"), cells)
 
 
 #: the largest vector env ``bench env`` builds (its arrays grow with it: 2**20 envs take about a GB)
@@ -53,6 +64,13 @@ def parse_sizes(text: str) -> list[int]:
     return [int(s) for s in items]
 
 
+#: the finished studies' cost benches, once hidden options of ``bench train``: where they went
+MOVED = {
+    "--diagnostics-cost": "reports/diagnostics_cost/README.md",
+    "--eval-every": "reports/eval_cost/README.md",
+}
+
+
 @bench_app.command("train")
 @user_errors
 def bench_train_cmd(
@@ -61,8 +79,8 @@ def bench_train_cmd(
     days: Annotated[
         Optional[int], typer.Option("--days", min=1, help="training days per timed run [default: 100]")
     ] = None,
-    episodes_alias: Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)] = None,
-    repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 3,
+    episodes_alias: EpisodesAlias = None,
+    repeats: RepeatsOption = 3,
     engine: Annotated[
         str, typer.Option(help="'sb3', or 'batched': the batched engine at K = 35 beside SB3's")
     ] = Engine.SB3.value,
@@ -77,20 +95,13 @@ def bench_train_cmd(
     env (the overhead of nutribench's plumbing), with the paper grid's CPU-hours at that rate.
     With --engine batched, also the batched engine (7 regimes x 5 seeds at once): its rate,
     FLOPs per env step, this machine's matmul rate and the share of that floor reached."""
-    # the finished studies' cost benches (hidden options: one line saying where they went)
-    moved = [
-        (
-            diagnostics_cost or lockstep or _block is not None,
-            "--diagnostics-cost",
-            "reports/diagnostics_cost/README.md",
-        ),
-        (eval_every or _val_episodes is not None, "--eval-every", "reports/eval_cost/README.md"),
-    ]
-    for given, option, where in moved:
-        if given:
-            raise UserError(
-                f"bench train {option}: that bench moved out of the package with the finished study that used it: see {where}"
-            )
+    given = {"--diagnostics-cost": diagnostics_cost or lockstep or _block is not None}
+    given["--eval-every"] = bool(eval_every or _val_episodes is not None)
+    for option in (o for o, g in given.items() if g):
+        raise UserError(
+            f"bench train {option}: that bench moved out of the package with the finished study that used it: "
+            f"see {MOVED[option]}"
+        )
     episodes = old_spelling(days, episodes_alias, "--days", "--episodes", 100)
     from nutribench.agents.registry import paper_names
     from nutribench.bench.throughput import bench_train
@@ -101,46 +112,36 @@ def bench_train_cmd(
     load_env_config(regime)
     rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats)
     columns = ["run", "env-steps/s (median)", "vs bare SB3 (paired median)", "paper grid CPU-hours"]
-    table = Table(*columns, title=f"training throughput, {regime}, {episodes} days x {repeats}")
-    for r in rows:
-        ratio = f"{r['vs_bare']:.3f}" if "vs_bare" in r else ""
-        cells = [r["what"], f"{r['steps_per_s']:,.0f}", ratio, f"{r['paper_grid_cpu_hours']:.1f}"]
-        table.add_row(*cells)
-    console.print(table)
+    ratio = lambda r: f"{r['vs_bare']:.3f}" if "vs_bare" in r else ""  # noqa: E731
+    cells = [[r["what"], f"{r['steps_per_s']:,.0f}", ratio(r), f"{r['paper_grid_cpu_hours']:.1f}"] for r in rows]
+    print_table(columns, cells, f"training throughput, {regime}, {episodes} days x {repeats}")
     total = sum(r["paper_grid_cpu_hours"] for r in rows if not r["bare"])
     console.print(
         f"paper grid (7 regimes x 5 seeds x 5000 days per algorithm, all 5 algorithms): ~{total:.0f} CPU-hours"
     )
-    if engine == Engine.SB3:
-        return
+    if engine != Engine.SB3:
+        sb3_rate = {r["algo"]: r["steps_per_s"] for r in rows if not r["bare"]}
+        _batched_rows(names, sb3_rate, episodes, repeats, device)
+
+
+def _batched_rows(names: list[str], sb3_rate: dict[str, float], episodes: int, repeats: int, device: str) -> None:
+    """``bench train --engine batched``'s second table: the batched engine's rate per algorithm."""
     from nutribench.agents.registry import batched_names
     from nutribench.bench.throughput import bench_train_batched
 
-    sb3_rate = {r["algo"]: r["steps_per_s"] for r in rows if not r["bare"]}
-    table = Table(
-        "algo",
-        "K",
-        "env-steps/s (median)",
-        "vs SB3 engine",
-        "MFLOP / env step",
-        "matmul GFLOP/s",
-        "share of floor",
-        "paper grid wall h",
-        title=f"batched engine, {episodes} days x {repeats}, batches on all cores",
-    )
+    columns = ["algo", "K", "env-steps/s (median)", "vs SB3 engine", "MFLOP / env step", "matmul GFLOP/s"]
+    columns += ["share of floor", "paper grid wall h"]
+    cells = []
     for algo in [a for a in names if a in batched_names()]:
         b = bench_train_batched(algo, episodes=episodes, repeats=repeats, device=device)
-        table.add_row(
-            algo,
-            str(b["k"]),
-            f"{b['steps_per_s']:,.0f}",
-            f"{b['steps_per_s'] / sb3_rate[algo]:.1f}x",
+        row = [algo, str(b["k"]), f"{b['steps_per_s']:,.0f}", f"{b['steps_per_s'] / sb3_rate[algo]:.1f}x"]
+        row += [
             f"{b['flops_per_step'] / 1e6:.2f}",
             f"{b['matmul_flops_per_s'] / 1e9:.0f}",
             f"{100 * b['floor_share']:.0f} %",
-            f"{b['paper_grid_wall_hours']:.2f} (floor {b['paper_grid_floor_hours']:.2f})",
-        )
-    console.print(table)
+        ]
+        cells.append(row + [f"{b['paper_grid_wall_hours']:.2f} (floor {b['paper_grid_floor_hours']:.2f})"])
+    print_table(columns, cells, f"batched engine, {episodes} days x {repeats}, batches on all cores")
     skipped = [a for a in names if a not in batched_names()]
     if skipped:
         console.print(f"not in the batched engine yet: {', '.join(skipped)}", highlight=False)
@@ -161,9 +162,9 @@ def bench_learn_cmd(
         ),
     ] = None,
     episodes_alias: Annotated[Optional[str], typer.Option("--episodes", hidden=True)] = None,
-    eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")] = 10,
-    workers: Annotated[Optional[int], typer.Option(min=1, help="agents trained at once (default: the cores)")] = None,
-    markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
+    eval_episodes: EvalDaysOption = 10,
+    workers: WorkersOption = None,
+    markdown: MarkdownOption = False,
     engine: Annotated[
         str,
         typer.Option(
@@ -176,10 +177,8 @@ def bench_learn_cmd(
     evaluation days, and state each as the share of the never -> planner gap it closes
     (run0 target: at least 75 % with 3-6 foods a day)."""
     episodes = old_spelling(days, episodes_alias, "--days", "--episodes", "500,ddqn=2000")
-    from nutribench.agents.config import list_agent_configs, load_agent_config, where_agents_are
-    from nutribench.agents.registry import batched_names
-    from nutribench.agents.registry import names as algo_names
-    from nutribench.bench.learn import COLUMNS, DEFAULT_BUDGET, learn_benchmark, markdown_table, row_cells, summarize
+    from nutribench.agents.config import list_agent_configs, where_agents_are
+    from nutribench.bench.learn import COLUMNS, DEFAULT_BUDGET, learn_benchmark, row_cells, summarize
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
 
@@ -188,18 +187,7 @@ def bench_learn_cmd(
     regime_names = split_csv(regimes, list_regimes(), "regime")
     seed_list = list(parse_seeds(seeds))
     default, budgets = parse_budgets(episodes, DEFAULT_BUDGET)
-    unknown = sorted(set(budgets) - set(list_agent_configs()) - set(algo_names()))
-    if unknown:
-        raise UserError(
-            f"--days {episodes!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})"
-        )
-    check_engine_options(engine, device)
-    if engine == Engine.BATCHED:
-        other = [n for n in names if load_agent_config(n).algo not in batched_names()]
-        if other:
-            raise UserError(
-                f"--engine batched trains {', '.join(batched_names())} configs, not {', '.join(other)}: use --engine sb3"
-            )
+    _check_learn(names, budgets, episodes, engine, device)
     with console.status("training") as status:
         runs = learn_benchmark(
             names,
@@ -214,16 +202,31 @@ def bench_learn_cmd(
             device=device,
         )
     rows = summarize(runs)
-    if markdown:
-        console.print(markdown_table(rows), highlight=False, soft_wrap=True)
-        return
-    table = Table(*COLUMNS, title=f"learnability, seeds {seeds}, {eval_episodes} eval days each")
-    for r in rows:
-        cells = row_cells(r)
-        if r["target_met"] is not None:
-            cells[-1] = f"[{'green' if r['target_met'] else 'red'}]{cells[-1]}"
-        table.add_row(*cells)
-    console.print(table)
+    cells = [row_cells(r) for r in rows]
+    for r, c in zip(rows, cells, strict=True):
+        if r["target_met"] is not None and not markdown:
+            c[-1] = f"[{'green' if r['target_met'] else 'red'}]{c[-1]}"
+    print_table(COLUMNS, cells, f"learnability, seeds {seeds}, {eval_episodes} eval days each", markdown)
+
+
+def _check_learn(names: list[str], budgets: dict[str, int], given: str, engine: str, device: str) -> None:
+    """``bench learn``: a budget for no known config or algorithm, a bad engine or device, or a
+    config the batched engine cannot train, one line each, before anything trains."""
+    from nutribench.agents.config import list_agent_configs, load_agent_config
+    from nutribench.agents.registry import batched_names
+    from nutribench.agents.registry import names as algo_names
+
+    unknown = sorted(set(budgets) - set(list_agent_configs()) - set(algo_names()))
+    if unknown:
+        raise UserError(
+            f"--days {given!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})"
+        )
+    check_engine_options(engine, device)
+    other = [n for n in names if load_agent_config(n).algo not in batched_names()] if engine == Engine.BATCHED else []
+    if other:
+        raise UserError(
+            f"--engine batched trains {', '.join(batched_names())} configs, not {', '.join(other)}: use --engine sb3"
+        )
 
 
 def parse_budgets(value: str, default: int) -> tuple[int, dict[str, int]]:
@@ -252,7 +255,7 @@ def bench_status_cmd(
     db: Annotated[
         Optional[str], typer.Option(help="time this database instead of building a synthetic paper grid")
     ] = None,
-    repeats: Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")] = 5,
+    repeats: RepeatsOption = 5,
 ) -> None:
     """Time `nutribench status` on a database holding the full paper grid (175 jobs,
     875,000 training-day rows of synthetic jobs; building it takes a few minutes)."""

@@ -7,10 +7,19 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
-from rich.table import Table
 
 from nutribench.cli.bench import check_engine_options
-from nutribench.cli.common import DEVICE_HELP, console, old_spelling, split_csv, user_errors
+from nutribench.cli.common import (
+    DEVICE_HELP,
+    EpisodesAlias,
+    EvalDaysOption,
+    MarkdownOption,
+    console,
+    old_spelling,
+    print_table,
+    split_csv,
+    user_errors,
+)
 from nutribench.engines import Engine
 from nutribench.safe_write import check_file_target
 
@@ -23,9 +32,9 @@ def bench_engines_cmd(
     days: Annotated[
         Optional[int], typer.Option("--days", min=1, help="training days per job, both engines [default: 500]")
     ] = None,
-    episodes_alias: Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)] = None,
-    eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")] = 10,
-    markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
+    episodes_alias: EpisodesAlias = None,
+    eval_episodes: EvalDaysOption = 10,
+    markdown: MarkdownOption = False,
     device: Annotated[
         str, typer.Option(help=f"the batched engine's: {DEVICE_HELP} (the SB3 engine: the CPU)")
     ] = "auto",
@@ -46,7 +55,7 @@ def bench_engines_cmd(
     the two engines' intervals must overlap."""
     episodes = old_spelling(days, episodes_alias, "--days", "--episodes", 500)
     from nutribench.agents.registry import batched_names
-    from nutribench.bench.engines import COLUMNS, bench_engines, markdown_table, row_cells
+    from nutribench.bench.engines import COLUMNS, bench_engines, row_cells
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
 
@@ -68,13 +77,8 @@ def bench_engines_cmd(
             save=save,
             on_done=_report_engine_run,
         )
-    if markdown:
-        console.print(markdown_table(rows), highlight=False, soft_wrap=True)
-    else:
-        table = Table(*COLUMNS, title=f"engines: SB3 vs batched, {episodes} days, seeds {seeds}")
-        for r in rows:
-            table.add_row(*row_cells(r))
-        console.print(table)
+    title = f"engines: SB3 vs batched, {episodes} days, seeds {seeds}"
+    print_table(COLUMNS, [row_cells(r) for r in rows], title, markdown)
     walls = {r["engine"]: r["total_wall_seconds"] for r in rows}
     how = "a process per algorithm, beside the SB3 pool" if concurrent else "one process"
     console.print(

@@ -6,9 +6,8 @@ from __future__ import annotations
 from typing import Annotated, Optional
 
 import typer
-from rich.table import Table
 
-from nutribench.cli.common import console, old_spelling, split_csv, user_errors
+from nutribench.cli.common import console, old_spelling, print_table, split_csv, user_errors
 
 
 @user_errors
@@ -50,20 +49,10 @@ def bench_tune_cmd(
             repeats=repeats,
         )
     r0 = rows[0]
-    table = Table(
-        "arm",
-        "wall s (median)",
-        "walls",
-        "trials/hour",
-        "vs sb3",
-        title=f"{r0['space']}: {trials} trials x {r0['agents_per_trial']} agents x {days} days, {r0['workers']} processes",
-    )
-    for r in rows:
-        table.add_row(
-            r["arm"],
-            f"{r['wall_s']:.1f}",
-            " ".join(f"{w:.1f}" for w in r["walls"]),
-            f"{r['trials_per_hour']:.0f}",
-            f"{r.get('ratio', 1.0):.1f}x",
-        )
-    console.print(table)
+    title = f"{r0['space']}: {trials} trials x {r0['agents_per_trial']} agents x {days} days, {r0['workers']} processes"
+    cells = [
+        [r["arm"], f"{r['wall_s']:.1f}", " ".join(f"{w:.1f}" for w in r["walls"]), f"{r['trials_per_hour']:.0f}"]
+        + [f"{r.get('ratio', 1.0):.1f}x"]
+        for r in rows
+    ]
+    print_table(("arm", "wall s (median)", "walls", "trials/hour", "vs sb3"), cells, title)

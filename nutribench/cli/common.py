@@ -12,9 +12,10 @@ import errno
 import functools
 import re
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Annotated, Optional
 
 import typer
 from rich.console import Console
@@ -22,22 +23,6 @@ from rich.markup import escape
 
 from nutribench.errors import UserError
 from nutribench.safe_write import check_folder_target
-
-__all__ = [
-    "DEVICE_HELP",
-    "UserError",
-    "check_out_dir",
-    "check_range",
-    "check_tensorboard",
-    "console",
-    "err_console",
-    "folder_option",
-    "path_option",
-    "print_error",
-    "progress",
-    "split_csv",
-    "user_errors",
-]
 
 #: the help of ``--device`` (checked by :mod:`nutribench.engine.device`, which imports torch: not here)
 DEVICE_HELP = "where the batched engine trains: 'auto' (CUDA when available, else the CPU), 'cpu', 'cuda' or 'cuda:N'"
@@ -48,8 +33,29 @@ EVAL_EVERY_HELP = (
 )
 VAL_EPISODES_HELP = "validation days each evaluation during training plays"
 
+#: the options several commands share, written once (typer reads the ``Annotated`` metadata)
+DB_HELP = "results database: a SQLite file or a SQLAlchemy URL"
+DbOption = Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help=DB_HELP)]
+#: ``--episodes``, the old spelling of ``--days`` (hidden; :func:`old_spelling` reconciles the two)
+EpisodesAlias = Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)]
+ValEpisodesOption = Annotated[int, typer.Option(min=1, help=VAL_EPISODES_HELP)]
+MarkdownOption = Annotated[bool, typer.Option("--markdown", help="print a Markdown table")]
+RepeatsOption = Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")]
+EvalDaysOption = Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")]
+WorkersOption = Annotated[Optional[int], typer.Option(min=1, help="agents trained at once (default: the cores)")]
+
 console = Console()
 err_console = Console(stderr=True)
+
+
+def say(text: str) -> None:
+    """One line on stdout as written (no rich highlighting, no wrapping): a library's ``say``."""
+    console.print(text, highlight=False, soft_wrap=True)
+
+
+def say_err(text: str) -> None:
+    """One line on stderr as written: a library's ``say`` for what is not the command's output."""
+    err_console.print(text, highlight=False, soft_wrap=True)
 
 
 #: control characters (C0, DEL, C1): a value echoed in an error line shows them escaped
@@ -69,6 +75,25 @@ def print_error(e: BaseException | str) -> None:
         text = hide_secrets_in(text)
     text = _CONTROL.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"), text)
     err_console.print(f"[bold red]error:[/] {escape(text)}", highlight=False, soft_wrap=True)
+
+
+def print_table(
+    headers: Sequence[str], cells: list[list[str]], title: str | None = None, markdown: bool = False, groups=None
+) -> None:
+    """A table on stdout: Markdown (``| a | b |`` lines), or a rich one with ``title`` and a
+    rule between rows of different ``groups`` (a value per row, e.g. the regime)."""
+    if markdown:
+        typer.echo("| " + " | ".join(headers) + " |")
+        typer.echo("|" + "---|" * len(headers))
+        for c in cells:
+            typer.echo("| " + " | ".join(c) + " |")
+        return
+    from rich.table import Table
+
+    table = Table(*headers, title=title)
+    for i, c in enumerate(cells):
+        table.add_row(*c, end_section=groups is not None and (i + 1 == len(cells) or groups[i + 1] != groups[i]))
+    console.print(table)
 
 
 def path_option(value: str | None, option: str, give: str = "a path") -> Path | None:
@@ -132,28 +157,12 @@ def split_csv(value: str, known: list[str], what: str, where: str = "") -> list[
     return items
 
 
-def check_tensorboard(folder: Path) -> None:
-    """``--tensorboard FOLDER``: a UserError (one line) when the tensorboard package is missing
-    or ``folder`` cannot be a writable folder; the folder itself is created by the runs."""
-    import importlib.util
-
-    if importlib.util.find_spec("tensorboard") is None:
-        raise UserError("--tensorboard needs the tensorboard package: pip install 'nutribench[tensorboard]'")
-    check_folder_target(folder, "--tensorboard", UserError, "give a folder for the TensorBoard events")
-
-
 def check_out_dir(folder: Path, option: str = "--out") -> None:
     """``--out FOLDER``: a one-line UserError, before anything is read or written, when
     ``folder`` cannot be a folder of new files (:func:`nutribench.safe_write.check_folder_target`:
     it is a file, a device or a FIFO, lies below one, or its nearest existing folder refuses a
     new entry). The folder itself is made by the writer."""
     check_folder_target(folder, option, UserError)
-
-
-def check_range(option: str, value: int, low: int, high: int, why: str = "") -> None:
-    """``option value`` within ``low..high``, else a one-line UserError (``why``: the reason for ``high``)."""
-    if not low <= value <= high:
-        raise UserError(f"{option} {str(value)[:24]}: give a value from {low} to {high}" + (f" ({why})" if why else ""))
 
 
 def old_spelling(value, old, option: str, old_option: str, default=None):

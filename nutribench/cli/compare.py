@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import UserError, console, user_errors
+from nutribench.cli.common import DbOption, MarkdownOption, UserError, console, user_errors
 
 
 @user_errors
@@ -25,13 +25,11 @@ def compare_cmd(
         Optional[str],
         typer.Option("--regimes", help="regimes, comma list (default: every regime both were evaluated on)"),
     ] = None,
-    markdown: Annotated[bool, typer.Option("--markdown", help="print a Markdown table")] = False,
+    markdown: MarkdownOption = False,
     as_json: Annotated[
         bool, typer.Option("--json", help="print JSON: the rows' numbers (differences in returns), the notes")
     ] = False,
-    db: Annotated[
-        str, typer.Option(envvar="NUTRIBENCH_DB", help="results database: a file path or a SQLAlchemy URL")
-    ] = "nutribench.db",
+    db: DbOption = "nutribench.db",
     reps: Annotated[int, typer.Option(help="bootstrap resamples of the seeds (100 to 100,000)")] = 10_000,
 ) -> None:
     """A - B per regime and over regimes: the mean paired difference of evaluation returns

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from nutribench.cli.common import console, path_option, user_errors
+from nutribench.cli.common import DbOption, console, path_option, user_errors
 from nutribench.errors import UserError
 
 
@@ -26,7 +26,7 @@ def evaluate_cmd(
     ] = 0,
     version: Annotated[int, typer.Option(min=1, help="the agent's version")] = 1,
     eval_episodes: Annotated[int, typer.Option(min=1, help="evaluation days (5: the paper's)")] = 5,
-    db: Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help="SQLite file or SQLAlchemy URL")] = "nutribench.db",
+    db: DbOption = "nutribench.db",
 ) -> None:
     """Evaluate a saved model greedily and store it as a job (engine 'external', no training rows;
     its budget the training days of the model's .json sidecar, where nutribench wrote one)."""

@@ -9,16 +9,33 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import UserError, check_out_dir, console, err_console, folder_option, progress, user_errors
+from nutribench.cli.common import (
+    DbOption,
+    UserError,
+    check_out_dir,
+    console,
+    err_console,
+    folder_option,
+    progress,
+    user_errors,
+)
 
 FORMATS = ("markdown", "csv", "latex", "json")
+_Verify = Annotated[
+    Optional[str],
+    typer.Option(
+        "--verify",
+        metavar="PATH",
+        help="a folder of the jobs' trained models as `nutribench run --models-dir` writes it "
+        "(<regime>-v<rv>/<agent>-v<av>/seed<seed>-ep<budget>.zip): each model supplied is loaded as data, "
+        "played greedily on its job's test days and compared action for action (the `checked` column)",
+    ),
+]
 
 
 @user_errors
 def leaderboard_cmd(
-    db: Annotated[
-        str, typer.Option(envvar="NUTRIBENCH_DB", help="results database: a file path or a SQLAlchemy URL")
-    ] = "nutribench.db",
+    db: DbOption = "nutribench.db",
     archives_given: Annotated[
         Optional[str],
         typer.Option(
@@ -33,16 +50,7 @@ def leaderboard_cmd(
     reps: Annotated[
         int, typer.Option(help="kept for scripts (100 to 100,000): the intervals draw no resamples now")
     ] = 2000,
-    verify_given: Annotated[
-        Optional[str],
-        typer.Option(
-            "--verify",
-            metavar="PATH",
-            help="a folder of the jobs' trained models as `nutribench run --models-dir` writes it "
-            "(<regime>-v<rv>/<agent>-v<av>/seed<seed>-ep<budget>.zip): each model supplied is loaded as data, "
-            "played greedily on its job's test days and compared action for action (the `checked` column)",
-        ),
-    ] = None,
+    verify_given: _Verify = None,
 ) -> None:
     """Every agent ranked by the IQM of its share of the never -> planner gap (95 % interval)
     over the regimes it covers, with its per-regime shares, budget, seeds, engine, protocol and
@@ -53,8 +61,7 @@ def leaderboard_cmd(
     (such a row is set apart: listed after the ranked rows, not ranked, with the reason);
     the others stay `replayed, not re-run`."""
     from nutribench.report.leaderboard import check_reps, leaderboard_from_archives, leaderboard_from_db
-    from nutribench.report.output import TABLE_SUFFIXES, write_table
-    from nutribench.safe_write import check_regular_file
+    from nutribench.report.output import write_table
 
     # '' is refused, as --db '' is (typer would make it the current folder)
     archives, out, verify = (
@@ -64,12 +71,7 @@ def leaderboard_cmd(
     if fmt not in FORMATS:
         raise UserError(f"--format {fmt}: give one of {', '.join(FORMATS)}")
     check_reps(reps)  # a trillion resamples would be a MemoryError after minutes of reading
-    if verify is not None and not verify.is_dir():
-        raise UserError(f"--verify {verify}: not a folder (give the folder `nutribench run --models-dir` wrote)")
-    if out is not None:  # checked before the table is computed: it takes a while
-        check_out_dir(out)
-        for suffix in TABLE_SUFFIXES:
-            check_regular_file(out / f"leaderboard.{suffix}", "--out", UserError)
+    _check_folders(verify, out)
     ranking = "ranking"
     with progress(None, "leaderboard", text=ranking) as advance:
         steps = _steps(archives, ranking, advance)
@@ -88,6 +90,20 @@ def leaderboard_cmd(
     if out is not None:
         for path in write_table(table, out, "leaderboard"):
             err_console.print(str(path), highlight=False, soft_wrap=True)
+
+
+def _check_folders(verify: Path | None, out: Path | None) -> None:
+    """``--verify`` a folder, ``--out`` one that can hold the three files, one line each: checked
+    before the table is computed (it takes a while)."""
+    from nutribench.report.output import TABLE_SUFFIXES
+    from nutribench.safe_write import check_regular_file
+
+    if verify is not None and not verify.is_dir():
+        raise UserError(f"--verify {verify}: not a folder (give the folder `nutribench run --models-dir` wrote)")
+    if out is not None:
+        check_out_dir(out)
+        for suffix in TABLE_SUFFIXES:
+            check_regular_file(out / f"leaderboard.{suffix}", "--out", UserError)
 
 
 def _steps(folder: Path | None, ranking: str, advance):

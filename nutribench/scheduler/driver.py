@@ -26,10 +26,9 @@ What a run uses when not told (the job function, the models folder):
 
 from __future__ import annotations
 
-import os
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +41,7 @@ from nutribench.scheduler.defaults import default_batch_fn, default_job_fn, defa
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.lifecycle import (
+    MAX_FAILURES,
     check_not_mixed,
     claim_jobs,
     count_claimable,
@@ -52,10 +52,11 @@ from nutribench.scheduler.lifecycle import (
     reset_given_up,
     store_failure,
 )
-from nutribench.scheduler.pools import MAX_BATCH, Pool, batch_pools, check_engine
-from nutribench.scheduler.progress import note_event
+from nutribench.scheduler.pools import Pool, batch_pools, check_engine
+from nutribench.scheduler.progress import make_view, note_event
 from nutribench.scheduler.registration import RunError, load_grid_configs, register_grid, spec_maker
 from nutribench.scheduler.resume import checkpointed_first, remove_finished_checkpoints
+from nutribench.scheduler.settings import GridSettings
 from nutribench.scheduler.spec import JobSpec
 from nutribench.scheduler.storing import (
     HeldResults,
@@ -98,6 +99,20 @@ class RunSummary:
         if self.user_interrupt:
             return 130
         return 1 if (self.failed or self.given_up) else 0
+
+    def line(self) -> str:
+        """The run's last line: ``N jobs: D done, F failed, S already done`` and what else happened."""
+        parts = [f"{self.done} done", f"{self.failed} failed", f"{self.skipped} already done"]
+        if self.busy:
+            parts.append(f"{self.busy} running in another driver")
+        if self.given_up:
+            parts.append(
+                f"{self.given_up} failed {MAX_FAILURES} times (not retried: see `nutribench status`; "
+                "`--retry-failed` tries them again)"
+            )
+        if self.interrupted:
+            parts.append(f"{self.interrupted} interrupted (the next run resumes them)")
+        return f"{self.total} jobs: " + ", ".join(parts)
 
 
 # --------------------------------------------------------------------------- the run
@@ -282,98 +297,44 @@ class _Run:
         return line
 
 
-def run_grid(
-    db: str | os.PathLike[str],
-    regimes: Sequence[str],
-    algos: Sequence[str],
-    seeds: Sequence[int],
-    episodes: int,
-    eval_episodes: int = 5,
-    workers: int | None = None,
-    executor: str = "local",
-    job_fn: JobFn | None = None,
-    models_dir: str | os.PathLike[str] | None = None,
-    display: bool = True,
-    retry_failed: bool = False,
-    engine: str = Engine.SB3,
-    batch_fn: Callable | None = None,
-    max_batch: int = MAX_BATCH,
-    device: str = "auto",
-    tensorboard: str | os.PathLike[str] | None = None,
-    eval_every: int | None = None,
-    val_episodes: int = 5,
-    stop: threading.Event | None = None,
-) -> RunSummary:
-    """Run every job of the grid regime x algo x seed that is not done yet (see the module
-    docstring). Returns counts; ``summary.exit_code`` is what ``nutribench run`` exits with.
-    ``retry_failed``: jobs that failed :data:`~nutribench.scheduler.lifecycle.MAX_FAILURES` times are tried again.
-    ``engine="batched"``: each agent config's jobs train in batches of at most ``max_batch``,
-    one per worker (:mod:`nutribench.engine`), each job stored on its own with ``jobs.engine``,
-    on ``device`` (``auto``: CUDA where a worker has it; the SB3 engine takes ``auto`` or ``cpu``).
-    ``tensorboard``: a folder; each job writes its training diagnostics there as TensorBoard
-    events, in a run folder of its own (:attr:`~nutribench.scheduler.spec.JobSpec.run_name`). ``eval_every``:
-    every so many training days, a greedy evaluation on ``val_episodes`` validation days (stored).
-    ``stop``: an event that, once set (by another thread), stops the run as Ctrl-C does; no signal handler is set.
+def run_grid(settings: GridSettings, stop: threading.Event | None = None) -> RunSummary:
+    """Run every job of ``settings``' grid (regime x algo x seed) that is not done yet (see the
+    module docstring and :class:`~nutribench.scheduler.settings.GridSettings`). Returns counts;
+    ``summary.exit_code`` is what ``nutribench run`` exits with. ``stop``: an event that, once set
+    (by another thread), stops the run as Ctrl-C does; no signal handler is set.
     Raises ConfigError (bad config file), StoreError (bad database), ExecutorError (bad ``executor``),
     DeviceError (bad ``device``) or RunError (config changed without a version bump), all one line.
     """
-    from nutribench.scheduler.progress import make_view
-
-    check_engine(engine, max_batch, device)
-    grid = Grid(tuple(regimes), tuple(algos), tuple(seeds), episodes, eval_episodes)
-    job_fn = job_fn or default_job_fn()
-    if engine == Engine.BATCHED:
-        batch_fn = batch_fn or default_batch_fn()
+    s = settings
+    check_engine(s.engine, s.max_batch, s.device)
+    grid = s.grid
+    job_fn = s.job_fn or default_job_fn()
+    batch_fn = (s.batch_fn or default_batch_fn()) if s.engine == Engine.BATCHED else s.batch_fn
     regime_cfgs, agent_cfgs = load_grid_configs(grid)  # before the database file is created
-    probe_executor(executor)  # likewise: an unreachable cluster writes nothing
+    probe_executor(s.executor)  # likewise: an unreachable cluster writes nothing
     fake = bool(getattr(job_fn, "fake", False) or getattr(batch_fn, "fake", False))
-    store = open_store(db, writer=True)
+    store = open_store(s.db, writer=True)
     try:
         check_not_mixed(store, fake)
         job_ids = register_grid(store, grid, regime_cfgs, agent_cfgs, fake=fake)
-        if retry_failed:
+        if s.retry_failed:
             reset_given_up(store, job_ids)
         runnable = count_claimable(store, job_ids)
         owner = driver_token()
-        out = Path(models_dir) if models_dir is not None else default_models_dir(store)
+        out = Path(s.models_dir) if s.models_dir is not None else default_models_dir(store)
         remove_finished_checkpoints(store, out / "checkpoints")  # killed batches whose jobs are done since
-        make_spec = spec_maker(store, grid, regime_cfgs, agent_cfgs, out, device, tensorboard, eval_every, val_episodes)
         summary = RunSummary(total=len(job_ids))
         held, _ = held_elsewhere(store, job_ids, owner)
         if runnable or held:
-            handle, note = make_executor(executor, workers, max(runnable, held))
-            view = make_view(display, grid, len(job_ids), handle.description, note, agent_cfgs)
-            pools = None
-            if engine == Engine.BATCHED:
-                shapes = {r.name: (r.obj.reward.horizon, len(r.obj.catalog.food)) for r in regime_cfgs}
-                pools = checkpointed_first(
-                    batch_pools(
-                        job_ids,
-                        list(grid.cells()),
-                        {a.name: a.algo for a in agent_cfgs},
-                        shapes,
-                        lambda ids: count_claimable(store, ids),
-                        handle.slots,
-                        max_batch,
-                    ),
-                    out / "checkpoints",
-                )
+            make_spec = spec_maker(
+                store, grid, regime_cfgs, agent_cfgs, out, s.device, s.tensorboard, s.eval_every, s.val_episodes
+            )
+            handle, note = make_executor(s.executor, s.workers, max(runnable, held))
+            view = make_view(s.display, grid, len(job_ids), handle.description, note, agent_cfgs)
+            pools = _batched_pools(store, s, job_ids, regime_cfgs, agent_cfgs, handle.slots, out)
             run = _Run(store, grid, job_ids, make_spec, handle, job_fn, owner, view, pools, batch_fn)
             run.planned, run.stop = runnable, stop or threading.Event()  # set: stop as Ctrl-C does
-            view.start(run)
-            try:
-                run.loop()
-                run.wait_for_others()
-                if run.stop.is_set():
-                    run.interrupt()
-            except KeyboardInterrupt:
-                run.interrupt()
-            except OperationalError as e:  # disk full, I/O error, read-only file: one line, jobs given back
-                raise StoreError(run.interrupt(e)) from None
-            finally:
-                view.stop(run)
-                handle.close()
-            summary = run.summary
+            summary = _drive(run, view, handle)
         remove_finished_checkpoints(store, out / "checkpoints")  # those whose jobs this run finished otherwise
         counts = grid_counts(store, job_ids, owner)
         summary.skipped = max(0, counts["done"] - summary.done)
@@ -387,10 +348,50 @@ def run_grid(
         store.dispose()
 
 
+def _batched_pools(
+    store: Store, s: GridSettings, job_ids: list[int], regime_cfgs: list, agent_cfgs: list, slots: int, out: Path
+) -> list[Pool] | None:
+    """The batched engine's pools (an agent config's jobs in batches, checkpointed ones first);
+    None for the SB3 engine (one pool of single jobs)."""
+    if s.engine != Engine.BATCHED:
+        return None
+    shapes = {r.name: (r.obj.reward.horizon, len(r.obj.catalog.food)) for r in regime_cfgs}
+    pools = batch_pools(
+        job_ids,
+        list(s.grid.cells()),
+        {a.name: a.algo for a in agent_cfgs},
+        shapes,
+        lambda ids: count_claimable(store, ids),
+        slots,
+        s.max_batch,
+    )
+    return checkpointed_first(pools, out / "checkpoints")
+
+
+def _drive(run: _Run, view: Any, handle: ExecutorHandle) -> RunSummary:
+    """The driver loop of one run until every job is done or it is stopped (Ctrl-C, the
+    ``stop`` event, a storage error: the running jobs given back)."""
+    view.start(run)
+    try:
+        run.loop()
+        run.wait_for_others()
+        if run.stop.is_set():
+            run.interrupt()
+    except KeyboardInterrupt:
+        run.interrupt()
+    except OperationalError as e:  # disk full, I/O error, read-only file: one line, jobs given back
+        raise StoreError(run.interrupt(e)) from None
+    finally:
+        view.stop(run)
+        handle.close()
+    return run.summary
+
+
 __all__ = [
     "FLUSH_EVERY_S",
     "WAIT_POLL_S",
     "RunError",
+    "GridSettings",
     "RunSummary",
     "default_batch_fn",
     "default_job_fn",

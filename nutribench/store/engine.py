@@ -134,6 +134,11 @@ def display_url(url: URL) -> str:
     return str(path) if path is not None else hide_secrets(url.render_as_string(hide_password=False))
 
 
+def shown_db(db: str) -> str:
+    """A database as a line shows it: a path as given, a URL as its kind (its password stays out)."""
+    return db if "://" not in db else f"a {db.split('://', 1)[0]} database"
+
+
 def check_sqlite_file(path: Path, *, create: bool) -> None:
     """Refuse early, with one line, what SQLite would report obscurely (or too late)."""
     try:

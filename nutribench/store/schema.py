@@ -326,6 +326,16 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
         raise StoreError(f"{display} is not a usable database: {_one_line(e.orig)}") from None
 
 
+def upgrade_schema(db: str | os.PathLike[str] | URL) -> str:
+    """Create or upgrade ``db``'s schema (``run --upgrade-only``); the line that says what was done."""
+    store = open_store(db, writer=True)
+    store.dispose()
+    what = (
+        "created" if store.created else (f"upgraded from {store.upgraded_from}" if store.upgraded_from else "already")
+    )
+    return f"{store.display}: schema {what} at revision {store.revision}"
+
+
 def _one_line(error: BaseException) -> str:
     """A driver's error message on one line (PostgreSQL's span several)."""
     return " ".join(str(error).split()) or type(error).__name__

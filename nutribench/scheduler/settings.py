@@ -1,0 +1,190 @@
+"""What one :func:`~nutribench.scheduler.driver.run_grid` call runs, as one settings object,
+and what ``nutribench run`` checks of it and says before and after it runs.
+
+:class:`GridSettings` holds the grid (regimes x agent configs x seeds, the budgets) and how it
+runs (database, workers, executor, engine, device, models and TensorBoard folders, evaluation
+during training). :meth:`GridSettings.check` refuses, in one line each, everything a user can
+get wrong (an unknown executor, an engine option it cannot take such as ``--device cuda``
+where there is no CUDA, a models folder that is a file, a database path that cannot be written
+or an in-memory one, a bad ``$NUTRIBENCH_CHECKPOINT_SECONDS``, a broken config file, evaluation
+during training asked of a plug-in) before the database file is created.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from nutribench.engines import Engine
+from nutribench.errors import UserError
+from nutribench.scheduler.executors import ExecutorError
+from nutribench.scheduler.grid import Grid
+from nutribench.scheduler.pools import MAX_BATCH, check_engine
+from nutribench.scheduler.registration import RunError
+
+
+@dataclass(frozen=True)
+class GridSettings:
+    """One run of the grid ``regimes`` x ``algos`` x ``seeds``, each job ``episodes`` training
+    days and ``eval_episodes`` evaluation days, into the database ``db``.
+
+    ``workers``: jobs at once (None: the cores); ``executor``: ``local`` or ``dask://HOST:PORT``;
+    ``job_fn``/``batch_fn``: what runs one job / one batch (None: :mod:`~nutribench.scheduler.defaults`);
+    ``models_dir``: where trained models go (None: ``models/`` next to the database);
+    ``display``: the live progress view; ``retry_failed``: jobs that failed
+    :data:`~nutribench.scheduler.lifecycle.MAX_FAILURES` times are tried again.
+    ``engine="batched"``: each agent config's jobs train in batches of at most ``max_batch``,
+    one per worker, on ``device`` (``auto``: CUDA where a worker has it; the SB3 engine takes
+    ``auto`` or ``cpu``). ``tensorboard``: a folder; each job writes its training diagnostics
+    there as TensorBoard events, in a run folder of its own. ``eval_every``: every so many
+    training days, a greedy evaluation on ``val_episodes`` validation days (stored)."""
+
+    db: str | os.PathLike[str]
+    regimes: Sequence[str]
+    algos: Sequence[str]
+    seeds: Sequence[int]
+    episodes: int
+    eval_episodes: int = 5
+    workers: int | None = None
+    executor: str = "local"
+    job_fn: Callable | None = None
+    models_dir: str | os.PathLike[str] | None = None
+    display: bool = True
+    retry_failed: bool = False
+    engine: str = Engine.SB3
+    batch_fn: Callable | None = None
+    max_batch: int = MAX_BATCH
+    device: str = "auto"
+    tensorboard: str | os.PathLike[str] | None = None
+    eval_every: int | None = None
+    val_episodes: int = 5
+
+    @classmethod
+    def of(cls, grid: Grid, db: str | os.PathLike[str], **how: Any) -> GridSettings:
+        """The settings that run ``grid`` into ``db`` (``how``: the other fields)."""
+        return cls(db, grid.regimes, grid.algos, grid.seeds, grid.episodes, grid.eval_episodes, **how)
+
+    @property
+    def grid(self) -> Grid:
+        """The grid these settings run."""
+        return Grid(tuple(self.regimes), tuple(self.algos), tuple(self.seeds), self.episodes, self.eval_episodes)
+
+    def check(self) -> None:
+        """Every check ``nutribench run`` makes before the database file exists (see the module
+        docstring), each a one-line :class:`~nutribench.errors.UserError`."""
+        from nutribench.safe_write import check_tensorboard
+        from nutribench.scheduler.defaults import default_job_fn
+        from nutribench.scheduler.registration import load_grid_configs
+
+        check_executor_name(self.executor)
+        check_engine(self.engine, self.max_batch, self.device)
+        check_models_dir(self.models_dir, str(self.db))
+        if self.tensorboard is not None:
+            check_tensorboard(Path(self.tensorboard))
+        check_db(str(self.db))
+        check_checkpoint_seconds()
+        _, agent_cfgs = load_grid_configs(self.grid)  # a broken config file fails here
+        check_eval_every_agents(self.eval_every or 0, agent_cfgs)
+        if self.job_fn is None:
+            default_job_fn()  # a bad $NUTRIBENCH_JOB
+
+    def starting_line(self) -> str:
+        """What the run starts, printed as soon as its options are checked, before the database
+        is opened and the workers start: the first line the run writes to a log file."""
+        from nutribench.store.engine import shown_db
+
+        grid, where = self.grid, shown_db(str(self.db))
+        at = "" if self.workers is None else f", {self.workers} at a time"
+        return (
+            f"nutribench run: {_n(len(grid), 'job')} ({_n(len(grid.regimes), 'regime')} x "
+            f"{_n(len(grid.algos), 'agent')} {', '.join(grid.algos)} x seeds {', '.join(map(str, grid.seeds))}; "
+            f"{_n(grid.episodes, 'training day')} and {_n(grid.eval_episodes, 'evaluation day')} each; "
+            f"{self.engine} engine{at}) into {where}: opening it, then the jobs not done yet"
+        )
+
+
+def _n(count: int, word: str) -> str:
+    return f"{count:,} {word}{'' if count == 1 else 's'}"
+
+
+def check_executor_name(value: str) -> None:
+    """``local``, or a dask scheduler's address (``dask://``, ``tcp://``, ``tls://`` and a host)."""
+    v = value.strip()
+    if v == "local" or any(v.startswith(p) and len(v) > len(p) for p in ("dask://", "tcp://", "tls://")):
+        return
+    raise ExecutorError(f"unknown --executor '{value}': use 'local' or 'dask://HOST:PORT'")
+
+
+def check_db(db: str) -> None:
+    """Refuse a database path that cannot be created or is not SQLite, and an in-memory database
+    (every result would be lost), before anything runs."""
+    from nutribench.store.engine import (
+        StoreError,
+        check_sqlite_file,
+        database_url,
+        hide_secrets,
+        in_memory,
+        sqlite_path,
+    )
+
+    url = database_url(db)
+    if in_memory(url):
+        raise StoreError(
+            f"--db {hide_secrets(db)}: an in-memory SQLite database is lost when `run` ends, with every result: "
+            "give a file path (e.g. --db nutribench.db)"
+        )
+    path = sqlite_path(url)
+    if path is not None:
+        check_sqlite_file(path, create=True)
+
+
+def check_eval_every_agents(eval_every: int, agent_cfgs: Sequence[Any]) -> None:
+    """Evaluation during training runs in the built-in algorithms' loops: a plug-in agent
+    (an entry point) is refused, in one line, before anything is written."""
+    plugins = [a.name for a in agent_cfgs if getattr(a.obj, "entry_point", None)]
+    if eval_every and plugins:
+        raise UserError(
+            f"--eval-every: {', '.join(plugins)} trains in its own loop (a plug-in agent), which evaluation "
+            "during training cannot enter; leave them out of this run or drop --eval-every"
+        )
+
+
+def check_models_dir(models_dir: str | os.PathLike[str] | None, db: str) -> None:
+    """Refuse a models folder that cannot be one (a file, or a path through a file, or not
+    writable) before anything runs: each job would train and then fail to save."""
+    from nutribench.safe_write import check_folder_target
+    from nutribench.store.engine import database_url, sqlite_path
+
+    if models_dir is None:
+        path = sqlite_path(database_url(db))
+        folder, what = (path.parent if path is not None else Path.cwd()) / "models", "the models folder"
+    else:
+        folder, what = Path(models_dir), "--models-dir"
+    hint = "give a folder for the trained models" + (" (--models-dir)" if models_dir is None else "")
+    check_folder_target(folder, what, RunError, hint)
+
+
+def check_checkpoint_seconds() -> None:
+    """A bad ``$NUTRIBENCH_CHECKPOINT_SECONDS`` is one line before any job starts."""
+    from nutribench.engine.checkpoint import every_seconds_from_env
+
+    try:
+        every_seconds_from_env()
+    except ValueError as exc:
+        raise RunError(str(exc)) from None
+
+
+def paper_grid_question(grid: Grid) -> str:
+    """What a bare ``nutribench run`` starts (the paper grid), with its cost estimate."""
+    import nutribench.agents.registry as registry
+    from nutribench.agents.config import load_agent_config
+
+    hours = grid.cpu_hours(lambda name: registry.algorithm(load_agent_config(name)).cost)
+    return (
+        f"the paper grid: {len(grid.cells())} jobs ({len(grid.regimes)} regimes x {len(grid.algos)} agents x "
+        f"{len(grid.seeds)} seeds) x {grid.episodes} days, about {hours:.0f} CPU-hours with the SB3 engine "
+        "(an estimate from the agents' relative costs)"
+    )
