@@ -302,14 +302,7 @@ class GRUPPO(OnPolicyAlgorithm):
         self.policy.set_training_mode(False)
         obs, vectorized = self.policy.obs_to_tensor(observation)
         n = obs.shape[0]  # type: ignore[union-attr]
-        state_t = (
-            self.policy.initial_state(n) if state is None else tuple(th.as_tensor(s, dtype=th.float32) for s in state)
-        )
-        starts = (
-            th.zeros(n)
-            if episode_start is None
-            else th.as_tensor(np.asarray(episode_start, dtype=np.float32).reshape(n))
-        )
+        state_t, starts = self.policy.carried(n, state, episode_start)
         with th.no_grad():
             dist, new_state = self.policy.get_distribution(obs, state_t, starts)  # type: ignore[arg-type]
             probs = dist.distribution.probs.cpu().numpy()

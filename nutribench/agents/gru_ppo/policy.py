@@ -209,6 +209,19 @@ class GRUActorCriticPolicy(BasePolicy):
 
     # ---- SB3 predict API (sb3-contrib RecurrentPPO semantics) ----
 
+    def carried(
+        self, n: int, state: tuple[np.ndarray, ...] | None, episode_start: np.ndarray | None
+    ) -> tuple[GRUState, th.Tensor]:
+        """:meth:`predict`'s ``state`` and ``episode_start`` for ``n`` envs as tensors on the
+        policy's device: the zero state, and no episode start, where they are None."""
+        state_t = (
+            self.initial_state(n)
+            if state is None
+            else tuple(th.as_tensor(s, dtype=th.float32, device=self.device) for s in state)
+        )
+        starts = np.zeros(n, dtype=np.float32) if episode_start is None else np.asarray(episode_start, dtype=np.float32)
+        return state_t, th.as_tensor(starts.reshape(n), device=self.device)  # type: ignore[return-value]
+
     def _predict(  # type: ignore[override]
         self,
         observation: PyTorchObs,
@@ -244,12 +257,7 @@ class GRUActorCriticPolicy(BasePolicy):
         self.set_training_mode(False)
         obs_tensor, vectorized = self.obs_to_tensor(observation)
         n = obs_tensor.shape[0]  # type: ignore[union-attr]
-        state_t = None if state is None else tuple(th.as_tensor(s, dtype=th.float32, device=self.device) for s in state)
-        starts = (
-            None
-            if episode_start is None
-            else th.as_tensor(np.asarray(episode_start, dtype=np.float32).reshape(n), device=self.device)
-        )
+        state_t, starts = self.carried(n, state, episode_start)
         with th.no_grad():
             actions, new_state = self._predict(obs_tensor, state_t, starts, deterministic)  # type: ignore[arg-type]
         actions_np = actions.cpu().numpy().reshape((-1, *self.action_space.shape))  # type: ignore[misc]
