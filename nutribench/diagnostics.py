@@ -78,8 +78,9 @@ QUANTITIES: tuple[str, ...] = (
 #: Every column of a row: the two keys, then the quantities.
 COLUMNS: tuple[str, ...] = (UPDATE, TIMESTEP, *QUANTITIES)
 
-#: What a quantity's name may be (the built-in ones and a plug-in's): what the database, an
-#: archive's column and a TensorBoard tag are named by.
+#: What a name may be: a quantity's (the built-in ones and a plug-in's: what the database, an
+#: archive's column and a TensorBoard tag are named by), a regime's or an agent config's (what
+#: files, figures and tables are named after: :func:`nutribench.store.archive.valid_config_name`).
 NAME_PATTERN = re.compile(r"[a-z][a-z0-9_]*")
 NAME_MAX = 64
 

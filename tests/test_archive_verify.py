@@ -28,7 +28,7 @@ from nutribench.config.loading import content_sha256
 from nutribench.scheduler.driver import GridSettings, run_grid
 from nutribench.scheduler.synthetic import synthetic_job
 from nutribench.store import read_jobs
-from nutribench.store.archive import read_archive, valid_name, verify_archive
+from nutribench.store.archive import read_archive, valid_config_name, verify_archive
 
 runner = CliRunner()
 ROOT = Path(__file__).resolve().parents[1]
@@ -510,9 +510,9 @@ def test_import_into_postgresql_prints_no_password(source, pg_url) -> None:
 
 # --------------------------------------------------------------------------- names -> paths
 def test_the_name_check() -> None:
-    assert valid_name("run0") and valid_name("gru_ppo") and valid_name("a" * 64)
+    assert valid_config_name("run0") and valid_config_name("gru_ppo") and valid_config_name("a" * 64)
     for bad in ("", "Run0", "0run", "../x", "/etc/passwd", "a-b", "a.b", "mc\n", "a" * 65, None, 3):
-        assert not valid_name(bad), bad
+        assert not valid_config_name(bad), bad
 
 
 @pytest.fixture

@@ -200,6 +200,28 @@ def agent_config_sha256(cfg: BaseModel) -> str:
     return content_sha256(agent_config_content(cfg))
 
 
+#: what of an agent config is no setting: its version and its description (prose)
+NOT_SETTINGS = ("version", "description")
+
+
+def settings_sha256(cfg: BaseModel) -> str:
+    """sha256 of a config's settings: :func:`agent_config_content` but :data:`NOT_SETTINGS`
+    (two versions of one config that differ in those only hash alike)."""
+    return content_sha256({k: v for k, v in agent_config_content(cfg).items() if k not in NOT_SETTINGS})
+
+
+def body_settings_sha256(body: Any) -> str | None:
+    """:func:`settings_sha256` of a stored config body (its content as recorded), read through
+    its model (so a value stored as JSON text, ``"inf"``, is the number it names); None for a
+    body that does not validate."""
+    if not isinstance(body, dict):
+        return None
+    try:
+        return settings_sha256(parse_agent_config(body))
+    except (ConfigError, ValueError, TypeError):
+        return None
+
+
 def agent_config_to_toml(cfg: BaseModel) -> str:
     """The config as TOML (round-trips through :func:`load_agent_config`)."""
     data = agent_config_content(cfg)

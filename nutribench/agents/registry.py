@@ -79,7 +79,7 @@ class Algorithm:
     :param order: where a built-in stands in every list of algorithms (the paper's order: MC 1,
         DDQN 2, PPO 3, SAC 4, GRU-PPO 5; unset: after those, by name).
     :param batched: ``"package.module:Class"`` of its class in the batched engine
-        (:class:`nutribench.engine.algorithm.Algorithm`), None if it has none.
+        (a :class:`nutribench.engine.algorithm.BatchedAlgorithm`), None if it has none.
     :param batch_limits: ``f(cfg, horizon) -> reason or None``: what of a config the batched
         class does not train as the SB3 one does (``horizon`` may be None: unknown); the
         reason names the setting and the fix (the caller adds the config's name).

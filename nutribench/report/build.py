@@ -40,7 +40,8 @@ from typing import Any
 
 from nutribench.report import figure4
 from nutribench.report.data import (
-    Db,
+    DbFile,
+    Log,
     ReportData,
     ReportError,
     check_known,
@@ -79,8 +80,6 @@ FIGURES: dict[int, str] = {
 FIGURE_NAMES: dict[str, int] = {"aggregate": 5, "learning": 6}
 #: Figure 4's default pair (its file keeps the name ``fig4_ppo_vs_gru_ppo``).
 FIG4_ALGOS = DEFAULT_PAIR = ("ppo", "gru_ppo")
-
-Log = Callable[[str], None]
 
 
 def _add_notes(res: FigureResult, extra: Sequence[str]) -> FigureResult:
@@ -177,7 +176,7 @@ def build_figure(
     return _add_notes(res, data.notes)
 
 
-def learning_figure(db: Db, data: ReportData | None, algos: Sequence[str] | None = None) -> FigureResult:
+def learning_figure(db: DbFile, data: ReportData | None, algos: Sequence[str] | None = None) -> FigureResult:
     """Figure 6: the learning curves of the evaluations during training stored in ``db``
     (:mod:`nutribench.report.learning`), in ``data``'s colours; :class:`ReportError` without any."""
     from nutribench.report.learning import learning_curve_figure
@@ -235,7 +234,7 @@ def _metrics_table(key: str, data: ReportData | None) -> TableResult:
 
 
 def build_table(
-    key: str, data: ReportData | None = None, db: Db | None = None, stored: dict[str, Any] | None = None
+    key: str, data: ReportData | None = None, db: DbFile | None = None, stored: dict[str, Any] | None = None
 ) -> TableResult:
     """Table ``key``: "1" from the regime files; "2".."6" from the built-in agent config files
     (else the newest config of that name stored in ``db``); "7"... (or a config's name) from
@@ -258,7 +257,7 @@ def build_table(
     return config_table(number, numbers[number], db, stored)
 
 
-def _leaderboard(data: ReportData, db: Db, log: Log | None) -> TableResult:
+def _leaderboard(data: ReportData, db: DbFile, log: Log | None) -> TableResult:
     """The leaderboard section of index.html (:mod:`nutribench.report.leaderboard`): every
     entry (name, version, budget) of the configs the report draws, as ``nutribench
     leaderboard`` ranks them, none hidden by another (the figures' choice of the newest
@@ -268,7 +267,7 @@ def _leaderboard(data: ReportData, db: Db, log: Log | None) -> TableResult:
     return leaderboard_from_db(db, log=log, algos=data.selected)
 
 
-def _page_subtitle(db: Db, data: ReportData | None) -> str:
+def _page_subtitle(db: DbFile, data: ReportData | None) -> str:
     """index.html's line under the title: the database's name (never the folder it lay in,
     which may be a temporary one) and the budgets and seeds of what the page draws."""
     from sqlalchemy.engine import make_url
@@ -283,7 +282,7 @@ def _page_subtitle(db: Db, data: ReportData | None) -> str:
     return "; ".join(parts)
 
 
-def _request(db: Db, figs, tables, all: bool, algos, pair) -> tuple[list[int], list[str], tuple[str, str], Any]:  # noqa: A002
+def _request(db: DbFile, figs, tables, all: bool, algos, pair) -> tuple[list[int], list[str], tuple[str, str], Any]:  # noqa: A002
     """:func:`build_report`'s figures, tables and pair, checked, and the database's stored agent
     configs where they are needed (else None); :class:`ReportError` for what cannot be asked."""
     figs = list(FIGURES) if all else [int(f) for f in figs]
@@ -307,7 +306,7 @@ class _Writer:
     and keeps what index.html shows; with ``all``, an item the data cannot give is skipped
     (one ``skipped:`` line through ``log``) instead of failing the report."""
 
-    def __init__(self, out: Db, steps: int, all: bool, log: Log | None, progress: Log | None) -> None:  # noqa: A002
+    def __init__(self, out: DbFile, steps: int, all: bool, log: Log | None, progress: Log | None) -> None:  # noqa: A002
         self.out, self.steps, self.all, self.log, self.progress = out, steps, all, log, progress
         self.done = 0
         self.paths: list[Path] = []
@@ -336,8 +335,8 @@ class _Writer:
 
 
 def build_report(
-    db: Db,
-    out: Db = "reports",
+    db: DbFile,
+    out: DbFile = "reports",
     figs: Iterable[int] = (),
     tables: Iterable[str | int] = (),
     all: bool = False,  # noqa: A002 - mirrors the --all option

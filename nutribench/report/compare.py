@@ -39,13 +39,12 @@ from nutribench.report.figures import budget_seeds_text, seed_list, sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
 from nutribench.report.tables import interval_cell, markdown_rows
-from nutribench.stats import CHOSEN, paired_ci
+from nutribench.stats import CHOSEN, CONFIDENCE, paired_ci
 from nutribench.stats import caption as interval_caption
 
 #: Bootstrap resamples of the seeds.
-DEFAULT_REPS = 10_000
-CONFIDENCE = 0.95
-COLUMNS = [
+COMPARE_REPS = 10_000
+COMPARE_COLUMNS = [
     "regime",
     "regimes",
     "seeds",
@@ -128,7 +127,7 @@ def _summary(name: str, regimes: list[str], days: pd.DataFrame, reps: int, seed:
 @dataclass
 class Comparison:
     """``a`` against ``b``: one row per regime, then the aggregated rows (``rows``, columns
-    :data:`COLUMNS`; ``regime`` is ``all`` or ``delayed`` for those), the paired days, and
+    :data:`COMPARE_COLUMNS`; ``regime`` is ``all`` or ``delayed`` for those), the paired days, and
     notes (what could not be paired, what was left out of the database's rows)."""
 
     a: str
@@ -209,7 +208,7 @@ def compare_agents(
     a: str,
     b: str,
     regimes: Sequence[str] | None = None,
-    reps: int = DEFAULT_REPS,
+    reps: int = COMPARE_REPS,
     seed: int = 0,
     confidence: float = CONFIDENCE,
 ) -> Comparison:
@@ -253,7 +252,7 @@ def compare_agents(
             "the difference is "
             "the agents' and their budgets' together",
         )
-    return Comparison(a, b, pd.DataFrame(rows, columns=COLUMNS), days, reps, notes, _header(used))
+    return Comparison(a, b, pd.DataFrame(rows, columns=COMPARE_COLUMNS), days, reps, notes, _header(used))
 
 
 def _check_held(ev: pd.DataFrame, names: Sequence[str]) -> None:
@@ -384,7 +383,7 @@ def _spec_of(entry: tuple[str, int, int]) -> str:
     return f"{entry[0]}@v{entry[1]}@{entry[2]}"
 
 
-def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, reps: int = DEFAULT_REPS) -> Comparison:
+def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, reps: int = COMPARE_REPS) -> Comparison:
     """:func:`compare_agents` on the results database ``db``. ``a`` and ``b`` are agents as
     :class:`EntrySpec` reads them (``ppo``, ``ppo@v1``, ``ppo@5000``, ``ppo@v2@150``); each is
     one entry (name, version, training budget: :func:`choose_entry`), never a blend of
@@ -420,7 +419,7 @@ def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, re
 
 
 __all__ = [
-    "COLUMNS",
+    "COMPARE_COLUMNS",
     "CompareError",
     "Comparison",
     "compare_agents",

@@ -16,7 +16,7 @@ re-exports all of it.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -27,7 +27,11 @@ from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
 
-Db = str | os.PathLike[str]
+#: a database file (or folder) the report reads or writes by its path
+DbFile = str | os.PathLike[str]
+
+#: what the report prints its progress lines with (print, a command's echo)
+Log = Callable[[str], None]
 
 
 class ReportError(UserError, ValueError):
@@ -39,9 +43,9 @@ def check_names(names: Iterable[Any], what: str, where: str) -> None:
     (``[a-z][a-z0-9_]*``): names read from a database become file names and regime files here
     (``table7_<name>``, ``trajectory_<regime>_<algo>_...``, the regime file of the reference
     lines), so ``../x`` or ``/etc/y`` must never get that far."""
-    from nutribench.store.archive import NAME_MAX, valid_name
+    from nutribench.store.archive import NAME_MAX, valid_config_name
 
-    bad = [n for n in dict.fromkeys(names) if not valid_name(n)]
+    bad = [n for n in dict.fromkeys(names) if not valid_config_name(n)]
     if bad:
         shown = repr(bad[0]) if len(repr(bad[0])) <= 80 else repr(bad[0])[:77] + "..."
         raise ReportError(
@@ -104,12 +108,12 @@ def _keep_largest_budget(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
     return df[df["job_id"] == newest_job], notes
 
 
-def read_metrics(db: Db) -> pd.DataFrame:
+def read_metrics(db: DbFile) -> pd.DataFrame:
     """Every row of ``db``'s ``episode_metrics`` view (:func:`read_episodes`)."""
     return read_episodes(db)
 
 
-def read_episodes(db: Db, phase: str | None = None, error: type[UserError] = ReportError) -> pd.DataFrame:
+def read_episodes(db: DbFile, phase: str | None = None, error: type[UserError] = ReportError) -> pd.DataFrame:
     """The rows of ``db``'s ``episode_metrics`` view (``phase``: of that phase alone, e.g. the
     evaluation days, without the training days, by far the most), their names checked
     (:func:`check_names`). Raises :class:`nutribench.store.StoreError` for a missing, empty or
@@ -206,13 +210,13 @@ def entry_label(entry: tuple[str, int, int]) -> str:
     return f"{name} v{version}, {budget} days"
 
 
-def load_report_data(db: Db, latest_only: bool = True, algos: Sequence[str] | None = None) -> ReportData:
+def load_report_data(db: DbFile, latest_only: bool = True, algos: Sequence[str] | None = None) -> ReportData:
     """The episode metrics of ``db`` that a report of ``algos`` (default: every config) uses;
     see :func:`read_metrics` and :func:`prepare`."""
     return prepare(read_metrics(db), algos, latest_only)
 
 
-def stored_agent_configs(db: Db) -> dict[str, Any]:
+def stored_agent_configs(db: DbFile) -> dict[str, Any]:
     """The newest version of each agent config recorded in ``db``, by name (in palette
     order), as objects :func:`table_agent_config` accepts. Raises
     :class:`nutribench.store.StoreError` for a database that cannot be read."""

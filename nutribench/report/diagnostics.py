@@ -23,7 +23,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from nutribench.diagnostics import QUANTITIES
-from nutribench.report.data import Db, ReportError, check_names
+from nutribench.report.data import DbFile, ReportError, check_names
 from nutribench.report.output import write_figure
 from nutribench.report.palette import label as algo_label
 
@@ -45,7 +45,7 @@ TITLES: dict[str, str] = {
 }
 SMOOTH_ABOVE = 200  # points per series drawn as they are
 SMOOTH_SHARE = 0.02  # rolling window: this share of the series
-COLUMNS = 3
+FIGURE_COLUMNS = 3
 
 
 def _smooth(y: pd.Series, window: int) -> pd.Series:
@@ -58,9 +58,9 @@ def diagnostics_figure(rows: pd.DataFrame, horizon: int, title: str = "") -> Fig
     present = [q for q in QUANTITIES if q in rows and rows[q].notna().any()]
     if not present:
         raise ValueError("no diagnostics quantity has a value")
-    n_rows = math.ceil(len(present) / COLUMNS)
-    fig = Figure(figsize=(4.2 * COLUMNS, 2.5 * n_rows + 0.8), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(n_rows, COLUMNS, sharex=True, squeeze=False)).ravel()
+    n_rows = math.ceil(len(present) / FIGURE_COLUMNS)
+    fig = Figure(figsize=(4.2 * FIGURE_COLUMNS, 2.5 * n_rows + 0.8), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(n_rows, FIGURE_COLUMNS, sharex=True, squeeze=False)).ravel()
     seeds = sorted(rows["seed"].unique())
     colors = {s: f"C{k % 10}" for k, s in enumerate(seeds)}
     longest = int(rows.groupby("seed").size().max())
@@ -80,7 +80,7 @@ def diagnostics_figure(rows: pd.DataFrame, horizon: int, title: str = "") -> Fig
         ax.tick_params(labelsize=8)
     for ax in axes[len(present) :]:
         ax.set_visible(False)
-    for ax in axes[max(0, len(present) - COLUMNS) : len(present)]:
+    for ax in axes[max(0, len(present) - FIGURE_COLUMNS) : len(present)]:
         ax.set_xlabel("training day", fontsize=8)
         ax.xaxis.set_tick_params(labelbottom=True)
     handles, labels = axes[0].get_legend_handles_labels()
@@ -116,7 +116,7 @@ def _too_short(engine, algo: str, regime: str) -> str:
 
 
 def build_diagnostics(
-    db: Db, algo: str, regime: str, seeds: list[int] | None = None, out: Db = "reports"
+    db: DbFile, algo: str, regime: str, seeds: list[int] | None = None, out: DbFile = "reports"
 ) -> list[Path]:
     """The diagnostics figure of ``algo`` on ``regime`` (all its seeds, or ``seeds``), written
     as PNG and PDF; a :class:`ReportError` (one line) when the database has none for it."""

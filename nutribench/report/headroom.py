@@ -18,14 +18,11 @@ installed regime file's; days the file lacks (other seeds, more days) get no ref
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 import pandas as pd
 
 from nutribench.baselines import STRONG_POLICIES
-
-Log = Callable[[str], None]
+from nutribench.report.data import Log
 
 #: The file under ``regimes/`` that holds the test days' references.
 REFERENCES_FILE = "references.csv"

@@ -47,14 +47,14 @@ yardsticks (its days are left out of the ranking, and the caption says so).
 from __future__ import annotations
 
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from nutribench.report.aggregate import interval_estimates, regime_span, run_scores, score_set
-from nutribench.report.data import ENTRY, ReportError, entries
+from nutribench.report.data import ENTRY, Log, ReportError, entries
 from nutribench.report.figure_parts import UNRECORDED, budget_cell, seed_list, sort_regimes
 from nutribench.report.leaderboard_verify import REPLAYED
 from nutribench.report.palette import BUILTIN_ORDER
@@ -72,7 +72,6 @@ PROTOCOLS = ("paper config", "tuned", "variant", "plug-in", "recorded")
 #: how the description of a file written by ``nutribench tune best --write`` begins
 TUNED_PREFIX = "tuned by nutribench tune"
 
-Log = Callable[[str], None]
 #: The most bootstrap resamples a leaderboard draws (``--reps``): each agent's interval holds
 #: resamples x runs numbers, and 100,000 already pins a 95 % interval far below its rounding.
 MAX_REPS = 100_000
@@ -91,28 +90,15 @@ def check_reps(reps: object) -> int:
     return reps
 
 
-#: what of an agent config is no setting: its version and its description (prose)
-NOT_SETTINGS = ("version", "description")
-
-
 def same_settings(shipped: object, body: object) -> bool:
     """Whether a stored config ``body`` (its content as recorded) has the settings of the
-    config ``shipped``: equal but for :data:`NOT_SETTINGS`, read through the config model
-    (so a value stored as JSON text, ``"inf"``, is the number it names). A body that does not
-    validate has not."""
-    from nutribench.agents.config import agent_config_content, parse_agent_config
-    from nutribench.config.loading import ConfigError, content_sha256
+    config ``shipped``: equal but for :data:`nutribench.agents.config.NOT_SETTINGS`, read
+    through the config model (:func:`~nutribench.agents.config.body_settings_sha256`). A body
+    that does not validate has not."""
+    from nutribench.agents.config import body_settings_sha256, settings_sha256
 
-    def settings(cfg: object) -> str:
-        return content_sha256({k: v for k, v in agent_config_content(cfg).items() if k not in NOT_SETTINGS})
-
-    if not isinstance(body, dict):
-        return False
-    try:
-        stored = parse_agent_config(body)
-    except (ConfigError, ValueError, TypeError):
-        return False
-    return settings(stored) == settings(shipped)
+    stored = body_settings_sha256(body)
+    return stored is not None and stored == settings_sha256(shipped)
 
 
 def protocols(configs: pd.DataFrame) -> dict[str, str]:

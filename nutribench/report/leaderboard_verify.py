@@ -38,7 +38,6 @@ listed after the ranked rows, without a rank, with the reason in its flags and i
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
@@ -47,7 +46,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from nutribench.report.data import ENTRY
+from nutribench.report.data import ENTRY, Log
 
 #: The ``checked`` cell of an entry none of whose models was supplied (replayed only).
 REPLAYED = "replayed, not re-run"
@@ -59,8 +58,6 @@ FAILED = "re-run: failed"
 PLUGIN_NOTE = " (a plug-in's models: their loader is its own code, not imported here; nutribench evaluate --entry-point re-runs one)"
 #: How far a re-run return may be from the stored one (the replay's tolerance: float64 sums).
 RETURN_TOL = 1e-9
-
-Log = Callable[[str], None]
 
 
 @dataclass

@@ -33,7 +33,7 @@ from nutribench.report.scores import DEFAULT_REPS, run_scores
 from nutribench.stats import CONFIDENCE, iqm_runs_ci
 from nutribench.stats import caption as interval_caption
 
-COLUMNS = ["regime", "algo", "train_day", "iqm", "lo", "hi", "seeds"]
+CURVE_COLUMNS = ["regime", "algo", "train_day", "iqm", "lo", "hi", "seeds"]
 
 
 def one_job_per_run(curve: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
@@ -59,7 +59,7 @@ def learning_scores(curve: pd.DataFrame) -> pd.DataFrame:
 
 def learning_points(scores: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 0) -> pd.DataFrame:
     """Per regime, agent and training day: the IQM of the seeds' scores and its 95 %
-    interval over seeds (NaN with one seed). Columns :data:`COLUMNS`."""
+    interval over seeds (NaN with one seed). Columns :data:`CURVE_COLUMNS`."""
     rows = []
     for (regime, algo, day), cell in scores.groupby(["regime", "algo", "train_day"], sort=True):
         runs = [cell["score"].dropna().to_numpy(dtype=float)]
@@ -70,7 +70,7 @@ def learning_points(scores: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 
             lo, hi = iqm_runs_ci(runs, CONFIDENCE)[1:]
         point = point_estimate("iqm", runs)
         rows.append(dict(regime=regime, algo=algo, train_day=int(day), iqm=point, lo=lo, hi=hi, seeds=runs[0].size))
-    return pd.DataFrame(rows, columns=COLUMNS)
+    return pd.DataFrame(rows, columns=CURVE_COLUMNS)
 
 
 def learning_curve_figure(

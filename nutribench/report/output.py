@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from nutribench.report.data import Db, ReportError, check_names
+from nutribench.report.data import DbFile, ReportError, check_names
 from nutribench.report.figures import FigureResult
 from nutribench.report.palette import label as algo_label
 from nutribench.report.tables import TableResult
@@ -37,7 +37,7 @@ def write_atomically(path: Path, write: Callable[[Path], Any]) -> Path:
     return path
 
 
-def write_figure(fig_result: FigureResult | Figure, out_dir: Db, stem: str) -> list[Path]:
+def write_figure(fig_result: FigureResult | Figure, out_dir: DbFile, stem: str) -> list[Path]:
     """Write ``<out_dir>/<stem>.png`` (150 dpi) and ``.pdf``; return both paths."""
     fig = fig_result.figure if isinstance(fig_result, FigureResult) else fig_result
     out = Path(out_dir)
@@ -47,7 +47,7 @@ def write_figure(fig_result: FigureResult | Figure, out_dir: Db, stem: str) -> l
     ]
 
 
-def write_table(table_result: TableResult, out_dir: Db, stem: str) -> list[Path]:
+def write_table(table_result: TableResult, out_dir: DbFile, stem: str) -> list[Path]:
     """Write ``<out_dir>/<stem>.md``, ``.tex`` and ``.csv``; return the three paths."""
     out = Path(out_dir)
     texts = dict(zip(TABLE_SUFFIXES, (table_result.to_markdown(), table_result.to_latex(), table_result.to_csv())))
@@ -57,7 +57,9 @@ def write_table(table_result: TableResult, out_dir: Db, stem: str) -> list[Path]
     ]
 
 
-def build_trajectory(db: Db, algo: str, regime: str, seed: int, episode: int = 0, out: Db = "reports") -> list[Path]:
+def build_trajectory(
+    db: DbFile, algo: str, regime: str, seed: int, episode: int = 0, out: DbFile = "reports"
+) -> list[Path]:
     """The trajectory view of one evaluation episode, written as PNG and PDF.
 
     Uses the newest config versions and, if several jobs match, the largest budget.

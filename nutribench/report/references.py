@@ -11,14 +11,13 @@ two above the planner (lookahead, clairvoyant), read from ``regimes/references.c
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from typing import Any
 
 import pandas as pd
 
 from nutribench.config import ConfigError
-
-Log = Callable[[str], None]
+from nutribench.report.data import Log
 
 
 def simple_policy_references(

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from nutribench.config import ConfigError
-from nutribench.report.data import Db, ReportError, stored_agent_configs
+from nutribench.report.data import DbFile, ReportError, stored_agent_configs
 from nutribench.report.tables import CONFIG_TABLES, TableResult, config_table_numbers, table_agent_config
 
 #: Tables: 1 (regimes), 2-6 (the built-in agent configurations), "results", "training",
@@ -25,7 +25,7 @@ TABLES: dict[str, str] = {
 }
 
 
-def stored_or_none(db: Db | None) -> dict[str, Any]:
+def stored_or_none(db: DbFile | None) -> dict[str, Any]:
     """:func:`stored_agent_configs` of ``db``; empty when there is no readable database."""
     from nutribench.store import StoreError
 
@@ -52,7 +52,7 @@ def resolve_table(key: str, numbers: dict[int, str]) -> tuple[str, str]:
     raise ReportError(f"no table {key} (--table {key}): the tables are {table_list(numbers)}")
 
 
-def config_table(number: int, name: str, db: Db | None, stored: dict[str, Any] | None) -> TableResult:
+def config_table(number: int, name: str, db: DbFile | None, stored: dict[str, Any] | None) -> TableResult:
     """Table ``number``: a built-in config from its file (else as stored in ``db``); any other
     config as stored in ``db`` (the body it ran with)."""
     config, why = None, ""

@@ -29,6 +29,7 @@ import numpy as np
 from nutribench.config.loading import content_sha256
 from nutribench.engines import Engine
 from nutribench.store.archive.format import (
+    ARCHIVE_TABLES,
     CONFIG_SKIP,
     ENGINES,
     FORMAT,
@@ -38,7 +39,6 @@ from nutribench.store.archive.format import (
     META_KEYS,
     NAME_MAX,
     OPTIONAL_TABLES,
-    TABLES,
     InvalidArchive,
     archive_table,
     columns,
@@ -46,7 +46,7 @@ from nutribench.store.archive.format import (
     job_label,
     open_archive,
     short_repr,
-    valid_name,
+    valid_config_name,
 )
 from nutribench.store.archive.installed import check_installed
 from nutribench.store.archive.replay import replay_evaluations
@@ -101,7 +101,7 @@ def check_contents(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
     check_installed(meta)
     per_job = check_meta_jobs(meta, configs)
     _fill_optional(arrays)
-    tables = {name: _check_table(name, arrays, len(meta["jobs"])) for name in TABLES}
+    tables = {name: _check_table(name, arrays, len(meta["jobs"])) for name in ARCHIVE_TABLES}
     other = sorted(set(arrays) - {f"{name}.{col}" for name, cols in tables.items() for col in cols})
     if other:
         raise InvalidArchive(f"array {short_repr(other[0])} is not part of the format")
@@ -203,9 +203,9 @@ def _check_config(kind: str, row: dict[str, Any]) -> None:
     """A config of the meta (fields checked): its name, version, sha256 and body."""
     name, version, body = row["name"], row["version"], row["body"]
     what = f"{kind} {short_repr(name)} v{version}"
-    if not valid_name(name):
+    if not valid_config_name(name):
         raise InvalidArchive(f"{what}: the name is not a name ([a-z][a-z0-9_]*, at most {NAME_MAX} characters)")
-    if kind == "agent config" and not valid_name(row["algo"]):
+    if kind == "agent config" and not valid_config_name(row["algo"]):
         raise InvalidArchive(f"{what}: algo {short_repr(row['algo'])} is not a name ([a-z][a-z0-9_]*)")
     if version < 1:
         raise InvalidArchive(f"{what}: version {version} is not a positive integer")

@@ -22,11 +22,11 @@ from nutribench.diagnostics import QUANTITIES, TIMESTEP
 from nutribench.safe_write import atomic_write, check_file_target
 from nutribench.store.archive.check import check_contents
 from nutribench.store.archive.format import (
+    ARCHIVE_TABLES,
     CONFIG_SKIP,
     FORMAT,
     FORMAT_VERSION,
     JOB_SKIP,
-    TABLES,
     InvalidArchive,
     columns,
     diagnostics_layout,
@@ -109,7 +109,7 @@ def _archive(
     jobs = [{**_row(j, JOB_SKIP), "regime": [r.name, r.version], "agent": [a.name, a.version]} for j, r, a in found]
     arrays: dict[str, np.ndarray] = {}
     counts = {"jobs": len(jobs)}
-    for name in TABLES:
+    for name in ARCHIVE_TABLES:
         cols, rows = archive_rows(s, name, list(index))
         counts[name] = len(rows)
         arrays[f"{name}.job"] = np.array([index[r[0]] for r in rows], dtype=np.int32)
@@ -170,7 +170,7 @@ def archive_rows(session: Any, name: str, job_ids: list[int]) -> tuple[list[Any]
     if name == "diagnostics":
         layout, rows = wide_diagnostics(session, job_ids)
         return columns(layout), rows
-    t = TABLES[name].__table__
+    t = ARCHIVE_TABLES[name].__table__
     cols = columns(t)
     query = select(t.c.job_id, *[t.c[c.name] for c in cols]).where(t.c.job_id.in_(job_ids))
     return cols, session.execute(query.order_by(*t.primary_key.columns)).all()

@@ -2,8 +2,8 @@
 
 The format (``nutribench db export`` / ``db import``, described in
 :mod:`nutribench.store.archive`): its name and version, the job and config columns it leaves
-out or defaults, the names regimes and agent configs may have (:func:`valid_name`), the tables
-it carries (:data:`TABLES`) and the columns each has in an archive (:func:`archive_table`).
+out or defaults, the names regimes and agent configs may have (:func:`valid_config_name`), the tables
+it carries (:data:`ARCHIVE_TABLES`) and the columns each has in an archive (:func:`archive_table`).
 
 Every table travels as its columns, but ``diagnostics``: the database holds it long (one row
 per job, update and quantity, schema revision 0007), an archive wide, one row per update
@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import zipfile
 from collections import Counter
 from collections.abc import Sequence
@@ -30,7 +29,7 @@ from typing import Any
 import numpy as np
 from sqlalchemy import Column, Float, Integer, MetaData, Table
 
-from nutribench.diagnostics import QUANTITIES, TIMESTEP
+from nutribench.diagnostics import NAME_MAX, NAME_PATTERN, QUANTITIES, TIMESTEP
 from nutribench.diagnostics import valid_name as valid_quantity
 from nutribench.engines import ENGINES
 from nutribench.store.engine import StoreError
@@ -42,16 +41,13 @@ FORMAT_VERSION = 1
 JOB_SKIP = ("id", "regime_id", "agent_config_id", "owner", "heartbeat_at", "worker_pid")
 #: agent/regime config columns an archive leaves out (ids, remapped on import)
 CONFIG_SKIP = ("id",)
-#: The names of regimes and agent configs: what files, figures and tables are named after.
-NAME_PATTERN = re.compile(r"[a-z][a-z0-9_]*")
-NAME_MAX = 64
 #: job columns added by schema revision 0004, and what an archive written before them means
 JOB_DEFAULTS: dict[str, Any] = dict.fromkeys(("batch_id", "batch_size", "device", "source", "source_sha256"))
 JOB_DEFAULTS["fake"] = False
 #: the keys of an archive's ``meta``
 META_KEYS = {"format", "format_version", "source", "counts", "regimes", "agent_configs", "jobs"}
 #: The tables of a job an archive carries, by name.
-TABLES = {
+ARCHIVE_TABLES = {
     "episodes": Episode,
     "eval_steps": EvalStep,
     "diagnostics": Diagnostic,
@@ -66,10 +62,10 @@ MAX_ARCHIVE_BYTES = 1 << 30
 #: The most members (arrays) an archive may have.
 MAX_MEMBERS = 1024
 
-__all__ = ["ENGINES", "FORMAT", "FORMAT_VERSION", "NAME_MAX", "NAME_PATTERN", "open_archive", "valid_name"]
+__all__ = ["ENGINES", "FORMAT", "FORMAT_VERSION", "NAME_MAX", "NAME_PATTERN", "open_archive", "valid_config_name"]
 
 
-def valid_name(name: Any) -> bool:
+def valid_config_name(name: Any) -> bool:
     """Whether ``name`` is a regime or agent config name (``[a-z][a-z0-9_]*``, at most 64
     characters): the only strings read from a database or an archive that become part of a
     file name."""
@@ -123,12 +119,12 @@ def diagnostics_layout(extra: Sequence[str] = ()) -> Table:
 
 
 def archive_table(name: str, arrays: dict[str, np.ndarray]) -> Any:
-    """What table ``name`` of :data:`TABLES` holds in an archive: the database table's columns,
+    """What table ``name`` of :data:`ARCHIVE_TABLES` holds in an archive: the database table's columns,
     but ``diagnostics`` in :func:`diagnostics_layout`, with the plug-in quantities ``arrays`` has
     a column of (a name :func:`nutribench.diagnostics.valid_name` allows; another is an array
     that is not part of the format)."""
     if name != "diagnostics":
-        return TABLES[name]
+        return ARCHIVE_TABLES[name]
     have = {k[len("diagnostics.") :].removesuffix(".null") for k in arrays if k.startswith("diagnostics.")}
     extra = have - {"job", "update", TIMESTEP, *QUANTITIES}
     return diagnostics_layout(sorted(e for e in extra if valid_quantity(e)))

@@ -53,7 +53,7 @@ def installed_configs() -> Installed:
 
 @lru_cache(maxsize=4)
 def _installed(folder_name: str, signature: tuple[tuple[str, int, int], ...]) -> Installed:
-    from nutribench.agents.config import agent_config_sha256, parse_agent_config
+    from nutribench.agents.config import agent_config_sha256, parse_agent_config, settings_sha256
     from nutribench.config.loading import ConfigError, content_sha256, list_regimes, load_env_config, read_toml
 
     folder = Path(folder_name)
@@ -80,33 +80,8 @@ def _installed(folder_name: str, signature: tuple[tuple[str, int, int], ...]) ->
             agent_config_sha256(cfg),
             f"{folder.name}/agents/{path.name}",
         )
-        out[("agent settings", str(cfg.name), int(cfg.version))] = (_settings_sha256(cfg), "")
+        out[("agent settings", str(cfg.name), int(cfg.version))] = (settings_sha256(cfg), "")
     return out
-
-
-#: what of an agent config is no setting: its version and its description (prose)
-NOT_SETTINGS = ("version", "description")
-
-
-def _settings_sha256(cfg: Any) -> str:
-    from nutribench.agents.config import agent_config_content
-    from nutribench.config.loading import content_sha256
-
-    return content_sha256({k: v for k, v in agent_config_content(cfg).items() if k not in NOT_SETTINGS})
-
-
-def _body_settings_sha256(body: Any) -> str | None:
-    """The settings hash of a stored agent config body, read through its model; None for one
-    that does not validate."""
-    from nutribench.agents.config import parse_agent_config
-    from nutribench.config.loading import ConfigError
-
-    if not isinstance(body, dict):
-        return None
-    try:
-        return _settings_sha256(parse_agent_config(body))
-    except (ConfigError, ValueError, TypeError):
-        return None
 
 
 def _part_sha256(kind: str, body: Any) -> str | None:
@@ -125,6 +100,8 @@ def _part_sha256(kind: str, body: Any) -> str | None:
 def check_installed(meta: dict[str, Any], installed: Installed | None = None) -> None:
     """Every config of the (checked) ``meta`` that bears an installed config's name and
     version has its content; :class:`InvalidArchive` naming the first that has not."""
+    from nutribench.agents.config import body_settings_sha256
+
     installed = installed_configs() if installed is None else installed
     if not installed:
         return
@@ -154,7 +131,7 @@ def check_installed(meta: dict[str, Any], installed: Installed | None = None) ->
         ident = ("agent config", row["name"], row["version"])
         if ident in installed and row["sha256"] != installed[ident][0]:
             settings = installed[("agent settings", row["name"], row["version"])][0]
-            if _body_settings_sha256(row["body"]) != settings:
+            if body_settings_sha256(row["body"]) != settings:
                 raise InvalidArchive(
                     f"agent config {short_repr(row['name'])} v{row['version']} has other settings than the installed "
                     f"{installed[ident][1]} of that name and version: a config with a shipped name and version must "

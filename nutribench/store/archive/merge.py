@@ -20,7 +20,7 @@ from sqlalchemy import delete, func, insert, select, update
 from sqlalchemy.orm import Session
 
 from nutribench.store.archive.check import read_archive
-from nutribench.store.archive.format import JOB_DEFAULTS, JOB_SKIP, TABLES, archive_table, columns
+from nutribench.store.archive.format import ARCHIVE_TABLES, JOB_DEFAULTS, JOB_SKIP, archive_table, columns
 from nutribench.store.engine import (
     REGISTRATION_LOCK,
     StoreError,
@@ -55,7 +55,7 @@ def database_rows(
     """Rows ``rows`` (positions) of the archive's table ``name`` as insert dicts of job
     ``job_id`` for :func:`~nutribench.store.models.insert_rows`: how many archive rows, and the
     dicts (``diagnostics``: one per update and quantity, :func:`~nutribench.store.models.diagnostic_rows`)."""
-    table = TABLES[name]
+    table = ARCHIVE_TABLES[name]
     layout = archive_table(name, arrays)
     cols = {}
     for col in columns(layout):
@@ -144,13 +144,13 @@ def _write(
             )
         config_ids = _config_ids(s, meta, store.display, path)
         now = db_now(s)
-        positions = {name: np.argsort(arrays[f"{name}.job"], kind="stable") for name in TABLES}
+        positions = {name: np.argsort(arrays[f"{name}.job"], kind="stable") for name in ARCHIVE_TABLES}
         bounds = {
             name: np.searchsorted(arrays[f"{name}.job"][positions[name]], np.arange(len(meta["jobs"]) + 1))
-            for name in TABLES
+            for name in ARCHIVE_TABLES
         }
-        counts = {"imported": 0, "kept": 0, **{name: 0 for name in TABLES}}  # the archive's rows
-        written = {name: 0 for name in TABLES}  # the database's (diagnostics: a row per quantity)
+        counts = {"imported": 0, "kept": 0, **{name: 0 for name in ARCHIVE_TABLES}}  # the archive's rows
+        written = {name: 0 for name in ARCHIVE_TABLES}  # the database's (diagnostics: a row per quantity)
         imported: list[int] = []
         for i, job in enumerate(meta["jobs"]):
             on_step("writing", i, len(meta["jobs"]))
@@ -158,7 +158,7 @@ def _write(
             if job_id is None:
                 counts["kept"] += 1
                 continue
-            for name, table in TABLES.items():
+            for name, table in ARCHIVE_TABLES.items():
                 n, decoded = database_rows(name, arrays, positions[name][bounds[name][i] : bounds[name][i + 1]], job_id)
                 counts[name] += n
                 for start in range(0, len(decoded), _BATCH):
@@ -167,7 +167,7 @@ def _write(
             counts["imported"] += 1
             imported.append(job_id)
         # compared before the commit: a mismatch rolls the whole import back
-        for name, table in TABLES.items():
+        for name, table in ARCHIVE_TABLES.items():
             held = sum(
                 s.execute(select(func.count()).select_from(table).where(table.job_id.in_(chunk))).scalar_one()
                 for chunk in _chunks(imported)
@@ -208,7 +208,7 @@ def _write_job(
     values.update(model_path=None, regime_id=rid, agent_config_id=aid, owner=None, heartbeat_at=None, worker_pid=None)
     if have is None:
         return s.execute(insert(Job).values(**values).returning(Job.id)).scalar_one()
-    for table in TABLES.values():
+    for table in ARCHIVE_TABLES.values():
         s.execute(delete(table).where(table.job_id == have.id))
     s.execute(update(Job).where(Job.id == have.id).values(**values).execution_options(synchronize_session=False))
     return have.id
