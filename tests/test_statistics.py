@@ -683,3 +683,13 @@ def test_the_coverage_simulation_measured_what_the_aggregates_captions_quote():
     assert measured.keys() == AGGREGATE_COVERAGE.keys()
     for name, cov in AGGREGATE_COVERAGE.items():
         assert measured[name] == pytest.approx(cov, abs=5e-4), name
+
+
+def test_total_cost_weighs_each_block_by_its_length():
+    """Two short blocks 10 % faster without, one long block equal: the share of the total time
+    is 0.2 / 12, where the median of the blocks' ratios (paired_cost) would say 10 %."""
+    from nutribench.stats import paired_cost, total_cost
+
+    cost, lo, hi = total_cost([1.0, 1.0, 10.0], [0.9, 0.9, 10.0])
+    assert cost == pytest.approx(0.2 / 12) and lo <= cost <= hi
+    assert paired_cost([1.0, 1.0, 10.0], [0.9, 0.9, 10.0])[0] == pytest.approx(0.1)

@@ -29,6 +29,7 @@ import numpy as np
 
 from nutribench.agents.registry import batched_names
 from nutribench.bench.learn import LearnRun, batched_runs, learn_benchmark, summarize
+from nutribench.bench.learn import markdown_table as learn_table
 from nutribench.engines import TRAINING_ENGINES, Engine
 from nutribench.safe_write import atomic_write
 from nutribench.stats import clustered_iqm_ci
@@ -73,71 +74,51 @@ def bench_engines(
     unknown = [a for a in algos if a not in known]
     if unknown:
         raise ValueError(f"the batched engine does not train {', '.join(unknown)} yet (it trains {', '.join(known)})")
-    runs: dict[str, list[LearnRun]] = {Engine.SB3: [], Engine.BATCHED: []}
-    batched_walls: list[float] = []
+    batched_args = (regimes, seeds, episodes, eval_episodes, device)
     pool = None
     if concurrent:  # spawn: a CUDA context does not survive fork
         pool = ProcessPoolExecutor(len(algos), mp_context=multiprocessing.get_context("spawn"))
-        futures = [pool.submit(_timed_batched_runs, a, regimes, seeds, episodes, eval_episodes, device) for a in algos]
+        futures = [pool.submit(_timed_batched_runs, a, *batched_args) for a in algos]
     start = time.perf_counter()
     sb3_done = None if on_done is None else (lambda run, k, n: on_done(Engine.SB3, run))
-    runs[Engine.SB3] = learn_benchmark(
-        algos,
-        regimes,
-        seeds,
-        budgets={},
-        default_budget=episodes,
-        eval_episodes=eval_episodes,
-        workers=workers,
-        on_done=sb3_done,
+    sb3_runs = learn_benchmark(
+        algos, regimes, seeds, {}, episodes, eval_episodes=eval_episodes, workers=workers, on_done=sb3_done
     )
     sb3_wall = time.perf_counter() - start
+    runs: dict[str, list[LearnRun]] = {Engine.SB3: sb3_runs, Engine.BATCHED: []}
     _save(save, runs, episodes, device)
     if pool is not None:
-        for future in futures:
-            algo_runs, wall = future.result()
-            runs[Engine.BATCHED] += algo_runs
-            batched_walls.append(wall)
+        timed = [future.result() for future in futures]
         pool.shutdown()
     else:
-        for algo in algos:
-            algo_runs, wall = _timed_batched_runs(algo, regimes, seeds, episodes, eval_episodes, device)
-            runs[Engine.BATCHED] += algo_runs
-            batched_walls.append(wall)
+        timed = [_timed_batched_runs(algo, *batched_args) for algo in algos]
+    runs[Engine.BATCHED] = [run for algo_runs, _ in timed for run in algo_runs]
     for run in runs[Engine.BATCHED] if on_done is not None else ():
         on_done(Engine.BATCHED, run)
-    batched_wall = max(batched_walls) if concurrent else sum(batched_walls)
+    batched_wall = (max if concurrent else sum)(wall for _, wall in timed)
     _save(save, runs, episodes, device)
-    rows = []
-    for algo in algos:
-        for regime in regimes:
-            pair = []
-            for engine in ENGINES:
-                rs = [r for r in runs[engine] if r.algo == algo and r.regime == regime]
-                by_seed = [np.array([e["return"] for e in r.eval_rows]) for r in rs]
-                point, lo, hi = clustered_iqm_ci(by_seed)
-                learned = summarize(rs)[0]  # the gap, foods and wall time as bench learn states them
-                row = {
-                    "algo": algo,
-                    "regime": regime,
-                    "engine": engine,
-                    "seeds": len(rs),
-                    "episodes": episodes,
-                    "iqm": point,
-                    "ci_low": lo,
-                    "ci_high": hi,
-                    "gap_closed": learned["gap_closed"],
-                    "foods": learned["foods"],
-                    "wall_seconds_per_job": learned["wall_seconds"],
-                    "overlap": None,
-                }
-                pair.append(row)
-            sb3, batched = pair
-            batched["overlap"] = bool(sb3["ci_low"] <= batched["ci_high"] and batched["ci_low"] <= sb3["ci_high"])
-            rows += pair
+    rows = [row for algo in algos for regime in regimes for row in _engine_pair(runs, algo, regime, episodes)]
     for r in rows:
         r["total_wall_seconds"] = sb3_wall if r["engine"] == Engine.SB3 else batched_wall
     return rows
+
+
+def _engine_pair(runs: dict[str, list[LearnRun]], algo: str, regime: str, episodes: int) -> list[dict[str, Any]]:
+    """The SB3 and the batched row of one (algorithm, regime); the batched row says whether
+    the two intervals overlap."""
+    pair = []
+    for engine in ENGINES:
+        rs = [r for r in runs[engine] if r.algo == algo and r.regime == regime]
+        point, lo, hi = clustered_iqm_ci([np.array([e["return"] for e in r.eval_rows]) for r in rs])
+        learned = summarize(rs)[0]  # the gap, foods and wall time as bench learn states them
+        pair.append(
+            {"algo": algo, "regime": regime, "engine": engine, "seeds": len(rs), "episodes": episodes}
+            | {"iqm": point, "ci_low": lo, "ci_high": hi, "gap_closed": learned["gap_closed"]}
+            | {"foods": learned["foods"], "wall_seconds_per_job": learned["wall_seconds"], "overlap": None}
+        )
+    sb3, batched = pair
+    batched["overlap"] = bool(sb3["ci_low"] <= batched["ci_high"] and batched["ci_low"] <= sb3["ci_high"])
+    return pair
 
 
 COLUMNS = (
@@ -170,5 +151,5 @@ def row_cells(r: dict[str, Any]) -> list[str]:
 
 
 def markdown_table(rows: list[dict[str, Any]]) -> str:
-    lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
-    return "\n".join(lines + ["| " + " | ".join(row_cells(r)) + " |" for r in rows])
+    """The rows as a Markdown table (:func:`nutribench.bench.learn.markdown_table`'s)."""
+    return learn_table(rows, COLUMNS, row_cells)

@@ -23,7 +23,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from typing import Any
@@ -259,8 +259,11 @@ def row_cells(r: dict[str, Any]) -> list[str]:
     ]
 
 
-def markdown_table(rows: list[dict[str, Any]]) -> str:
-    """The summary as a Markdown table (what the README records)."""
-    lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
-    lines += ["| " + " | ".join(row_cells(r)) + " |" for r in rows]
+def markdown_table(
+    rows: list[dict[str, Any]], columns: Sequence[str] = COLUMNS, cells: Callable[[dict], list[str]] | None = None
+) -> str:
+    """The summary as a Markdown table (what the README records); ``columns`` and ``cells``
+    (one row's texts, :func:`row_cells` by default) for another bench's rows."""
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join((cells or row_cells)(r)) + " |" for r in rows]
     return "\n".join(lines)

@@ -4,20 +4,27 @@ from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from nutribench.env import NutriRLEnv, NutriRLVectorEnv
 
 
-def _median_rate(fn, steps: int, repeats: int) -> float:
-    rates = []
+def _timings(call: Callable[[], Any], repeats: int) -> list[float]:
+    """The wall seconds of each of ``repeats`` calls."""
+    seconds = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        fn()
-        rates.append(steps / (time.perf_counter() - t0))
-    return statistics.median(rates)
+        call()
+        seconds.append(time.perf_counter() - t0)
+    return seconds
+
+
+def _median_rate(fn: Callable[[], Any], steps: int, repeats: int) -> float:
+    return statistics.median(steps / t for t in _timings(fn, repeats))
 
 
 def single_env_rate(regime: str, steps: int = 100_000, repeats: int = 5, seed: int = 0) -> float:
@@ -125,14 +132,8 @@ def bench_train(
     has ``vs_bare``: the median over repeats of (bare seconds / nutribench seconds) of the
     same repeat, i.e. nutribench's throughput as a fraction of bare SB3's. (What the training
     diagnostics cost is a finished study's bench: ``reports/diagnostics_cost/``.)"""
-    from nutribench.agents.api import train
-
-    def timed_train(cfg) -> float:
-        t0 = time.perf_counter()
-        train(regime, cfg, seed=seed, episodes=episodes)
-        return time.perf_counter() - t0
-
     import nutribench.agents.registry as registry
+    from nutribench.agents.api import train
 
     steps = episodes * 50
     rows = []
@@ -144,7 +145,7 @@ def bench_train(
         times: list[float] = []
         bare_times: dict[str, list[float]] = {cls_name: [] for cls_name, _ in bare_refs}
         for _ in range(repeats):
-            times.append(timed_train(cfg))
+            times += _timings(lambda c=cfg: train(regime, c, seed=seed, episodes=episodes), 1)
             for cls_name, _ in bare_refs:
                 bare_times[cls_name].append(_bare_sb3_seconds(algo, regime, episodes, seed, cls_name))
         row = {
@@ -191,68 +192,70 @@ def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = 
     """
     import subprocess
     import sys
-    import tempfile
 
-    from sqlalchemy import func, select
+    from nutribench.scheduler.status import status_table
+
+    build_s = None
+    if db is None:
+        t0 = time.perf_counter()
+        db = paper_grid_db(workers)
+        build_s = time.perf_counter() - t0
+    report = status_table(db)
+    command = [sys.executable, "-m", "nutribench.cli", "status", "--json", "--db", db]
+    return {
+        "db": db,
+        "jobs": sum(r.done + r.running + r.failed + r.pending for r in report.rows),
+        "episode_rows": _episode_rows(db),
+        "db_mb": Path(db).stat().st_size / 2**20 if Path(db).exists() else None,
+        "build_seconds": build_s,
+        "status_table_s": statistics.median(_timings(lambda: status_table(db), repeats)),
+        "status_cli_s": statistics.median(
+            _timings(lambda: subprocess.run(command, check=True, capture_output=True), repeats)
+        ),
+    }
+
+
+def paper_grid_db(workers: int | None = None) -> str:
+    """A database in a new temporary folder holding the paper grid, run with the synthetic
+    job (no sleep, no training); its path."""
+    import tempfile
 
     from nutribench.agents.registry import paper_names
     from nutribench.config import list_regimes
     from nutribench.scheduler.driver import GridSettings, run_grid
     from nutribench.scheduler.grid import PRESETS
-    from nutribench.scheduler.status import status_table
+
+    tmp = Path(tempfile.mkdtemp(prefix="nutribench-bench-status-"))
+    db = str(tmp / "paper_grid.db")
+    paper = PRESETS["paper"]
+    run_grid(
+        GridSettings(
+            db,
+            list_regimes(),
+            paper_names(),
+            paper.seeds,
+            paper.episodes,
+            workers=workers,
+            job_fn=_InstantSyntheticJob(),
+            models_dir=tmp / "models",
+            display=False,
+        )
+    )
+    return db
+
+
+def _episode_rows(db: str) -> int:
+    from sqlalchemy import func, select
+
     from nutribench.store.models import Episode
     from nutribench.store.schema import open_store
 
-    tmp = None
-    if db is None:
-        tmp = tempfile.mkdtemp(prefix="nutribench-bench-status-")
-        db = str(Path(tmp) / "paper_grid.db")
-        paper = PRESETS["paper"]
-        t0 = time.perf_counter()
-        run_grid(
-            GridSettings(
-                db,
-                list_regimes(),
-                paper_names(),
-                paper.seeds,
-                paper.episodes,
-                workers=workers,
-                job_fn=_InstantSyntheticJob(),
-                models_dir=Path(tmp) / "models",
-                display=False,
-            )
-        )
-        build_s = time.perf_counter() - t0
-    else:
-        build_s = None
     store = open_store(db)
     try:
         with store.engine.connect() as conn:
-            rows = conn.execute(select(func.count()).select_from(Episode)).scalar_one()
+            return conn.execute(select(func.count()).select_from(Episode)).scalar_one()
     finally:
         store.dispose()
-    report = status_table(db)
-    in_process = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        status_table(db)
-        in_process.append(time.perf_counter() - t0)
-    cli = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        subprocess.run(
-            [sys.executable, "-m", "nutribench.cli", "status", "--json", "--db", db], check=True, capture_output=True
-        )
-        cli.append(time.perf_counter() - t0)
-    return {
-        "db": db,
-        "jobs": sum(r.done + r.running + r.failed + r.pending for r in report.rows),
-        "episode_rows": rows,
-        "db_mb": Path(db).stat().st_size / 2**20 if Path(db).exists() else None,
-        "build_seconds": build_s,
-        "status_table_s": statistics.median(in_process),
-        "status_cli_s": statistics.median(cli),
-    }
 
 
 def flops_per_env_step(cfg, obs_dim: int = 13, n_actions: int = 2, horizon: int = 50) -> float:
@@ -310,11 +313,7 @@ def bench_train_batched(
 
     cfg = bench_config(algo)  # DDQN and SAC learning from the first step, as in the SB3 engine's rows
     jobs = [(r, s) for r in SHIPPED_REGIMES[:k_regimes] for s in range(k_seeds)]
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        train_batched(jobs, cfg, episodes, device=device)
-        times.append(time.perf_counter() - t0)
+    times = _timings(lambda: train_batched(jobs, cfg, episodes, device=device), repeats)
     steps = len(jobs) * episodes * 50
     rate = steps / statistics.median(times)
     flops = flops_per_env_step(cfg)

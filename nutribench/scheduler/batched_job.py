@@ -29,7 +29,9 @@ import hashlib
 import json
 import time
 import uuid
+from datetime import datetime
 from pathlib import Path
+from typing import Any
 
 from nutribench.agents import eval_food_streams, evaluate
 from nutribench.clock import utcnow
@@ -47,14 +49,7 @@ from nutribench.scheduler.worker import JobProgress, Sink
 
 def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]:
     """Train the jobs ``specs`` (one agent config, one budget) at once; one result per job."""
-    for spec in specs:
-        check_configs(spec)
-    if len({(s.algo, s.algo_version, s.episodes, s.device, s.eval_every, s.val_episodes) for s in specs}) != 1:
-        raise JobFailed("a batch needs one agent config, one budget, one device and one evaluation period")
-    for spec in specs:  # the scheduler sends such configs to the SB3 engine; never train them otherwise
-        reason = supports(spec.agent_config, spec.regime_config.reward.horizon)
-        if reason is not None:
-            raise JobFailed(reason)
+    check_batch(specs)
     device = resolve_device(specs[0].device)
     # what a batched job's result depends on by float rounding, stored with each job (jobs.batch_*, jobs.device)
     batch = {"batch_id": uuid.uuid4().hex, "batch_size": len(specs), "device": str(device)}
@@ -67,11 +62,11 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
         write_manifest(path, specs)
 
     def wall() -> float:
-        """Each job's share of the batch's training seconds so far, those before a resume included."""
-        before = checkpoint.seconds_before if checkpoint is not None else 0.0  # cheap: the state is decoded once
-        return (time.perf_counter() - t0 + before) / len(specs)
+        """Training seconds of the batch so far, those before a resume included."""
+        return time.perf_counter() - t0 + (checkpoint.seconds_before if checkpoint is not None else 0.0)
 
-    progress = [JobProgress(spec, sink, wall=wall) for spec in specs]
+    # each job's progress is priced by its share of the batch's training seconds
+    progress = [JobProgress(spec, sink, wall=lambda: wall() / len(specs)) for spec in specs]
     for p in progress:
         p.start()
     agents = train_batched(
@@ -84,43 +79,54 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
         eval_every=specs[0].eval_every,
         val_episodes=specs[0].val_episodes,
     )
-    train_wall = time.perf_counter() - t0 + (checkpoint.seconds_before if checkpoint is not None else 0.0)
-    meta = collect_metadata()
+    share = wall() / len(specs)
+    meta = collect_metadata() | batch
     results = []
     for spec, agent, p in zip(specs, agents, progress):
         p.phase("eval")
-        t_eval = time.perf_counter()
-        streams = eval_food_streams(spec.regime_config, spec.seed, spec.eval_episodes)
-        evaluation = evaluate(agent, spec.regime_config, streams, record_steps=True)
-        model_path = str(agent.save(Path(spec.model_path))) if spec.model_path else None
-        # the batch's training time shared out, plus this job's own evaluation
-        wall = train_wall / len(specs) + time.perf_counter() - t_eval
-        results.append(
-            JobResult(
-                spec.job_id,
-                agent.train_episodes,
-                evaluation.episodes,
-                evaluation.steps,
-                meta
-                | batch
-                | {
-                    "started_at": started,
-                    "finished_at": utcnow(),
-                    "wall_seconds": wall,
-                    "engine": Engine.BATCHED.value,
-                },
-                model_path=model_path,
-                diagnostics=list(getattr(agent, "diagnostics", None) or []),
-                validation=with_yardsticks(spec, agent.validation),
-            )
-        )
-        if spec.tensorboard:
-            write_tensorboard(Path(spec.tensorboard) / spec.run_name, results[-1].diagnostics)
+        results.append(job_result(spec, agent, meta, started, share))
     if path is not None:
         checkpoint.remove()
         manifest(path).unlink(missing_ok=True)
         remove_abandoned(path.parent, specs)
     return results
+
+
+def check_batch(specs: list[JobSpec]) -> None:
+    """:class:`JobFailed` unless ``specs`` are one batch the batched engine trains: valid
+    configs, one agent config, budget, device and evaluation period, each supported."""
+    for spec in specs:
+        check_configs(spec)
+    if len({(s.algo, s.algo_version, s.episodes, s.device, s.eval_every, s.val_episodes) for s in specs}) != 1:
+        raise JobFailed("a batch needs one agent config, one budget, one device and one evaluation period")
+    for spec in specs:  # the scheduler sends such configs to the SB3 engine; never train them otherwise
+        reason = supports(spec.agent_config, spec.regime_config.reward.horizon)
+        if reason is not None:
+            raise JobFailed(reason)
+
+
+def job_result(spec: JobSpec, agent: Any, meta: dict, started: datetime, train_share: float) -> JobResult:
+    """One trained job of a batch (started at ``started``) evaluated, saved (and its
+    diagnostics written to TensorBoard when asked): its result, its wall time the batch's
+    training seconds shared out (``train_share``) plus its own evaluation."""
+    t_eval = time.perf_counter()
+    streams = eval_food_streams(spec.regime_config, spec.seed, spec.eval_episodes)
+    evaluation = evaluate(agent, spec.regime_config, streams, record_steps=True)
+    model_path = str(agent.save(Path(spec.model_path))) if spec.model_path else None
+    wall = train_share + time.perf_counter() - t_eval
+    result = JobResult(
+        spec.job_id,
+        agent.train_episodes,
+        evaluation.episodes,
+        evaluation.steps,
+        meta | {"started_at": started, "finished_at": utcnow(), "wall_seconds": wall, "engine": Engine.BATCHED.value},
+        model_path=model_path,
+        diagnostics=list(getattr(agent, "diagnostics", None) or []),
+        validation=with_yardsticks(spec, agent.validation),
+    )
+    if spec.tensorboard:
+        write_tensorboard(Path(spec.tensorboard) / spec.run_name, result.diagnostics)
+    return result
 
 
 def write_tensorboard(folder: Path, rows: list[dict]) -> None:

@@ -72,16 +72,18 @@ def check_not_mixed(store: Store, fake: bool) -> None:
     )
 
 
+def _set(session: Any, *where: Any, **values: Any) -> int:
+    """UPDATE the jobs that match ``where`` to ``values`` (in the database alone: no ORM object
+    is synchronised); how many rows it changed."""
+    query = update(Job).where(*where).values(**values).execution_options(synchronize_session=False)
+    return session.execute(query).rowcount
+
+
 def reset_given_up(store: Store, job_ids: Sequence[int]) -> int:
     """``--retry-failed``: jobs of ``job_ids`` that failed :data:`MAX_FAILURES` times get their
     failure count reset (their last error stays until they succeed); how many."""
     with session_scope(store.engine) as s:
-        return s.execute(
-            update(Job)
-            .where(Job.id.in_(job_ids), Job.status == "failed", Job.failures >= MAX_FAILURES)
-            .values(failures=0)
-            .execution_options(synchronize_session=False)
-        ).rowcount
+        return _set(s, Job.id.in_(job_ids), Job.status == "failed", Job.failures >= MAX_FAILURES, failures=0)
 
 
 def _claimable(now) -> Any:
@@ -122,22 +124,20 @@ def claim_jobs(store: Store, job_ids: Sequence[int], exclude: set[int], n: int, 
         )
         if not ids:
             return []
-        s.execute(
-            update(Job)
-            .where(Job.id.in_(ids), _claimable(now))
-            .values(
-                status="running",
-                owner=owner,
-                heartbeat_at=now,
-                started_at=now,
-                finished_at=None,
-                attempt=Job.attempt + 1,
-                episodes_done=0,
-                last_return=None,
-                worker_pid=None,
-                wall_seconds=None,
-            )
-            .execution_options(synchronize_session=False)
+        _set(
+            s,
+            Job.id.in_(ids),
+            _claimable(now),
+            status="running",
+            owner=owner,
+            heartbeat_at=now,
+            started_at=now,
+            finished_at=None,
+            attempt=Job.attempt + 1,
+            episodes_done=0,
+            last_return=None,
+            worker_pid=None,
+            wall_seconds=None,
         )
         return list(
             s.execute(select(Job).where(Job.id.in_(ids), Job.owner == owner, Job.status == "running")).scalars()
@@ -199,6 +199,18 @@ def validation_rows(job_id: int, validation: list[dict[str, Any]]) -> list[dict[
     ]
 
 
+def insert_episodes(
+    session: Any, job_id: int, train: list[dict], evaluation: list[dict], eval_steps: list[dict]
+) -> None:
+    """A finished job's training and evaluation episodes and its evaluation steps, as rows."""
+    rows = episode_rows(job_id, "train", train) + episode_rows(job_id, "eval", evaluation)
+    if rows:
+        insert_rows(session, Episode, rows)
+    if eval_steps:
+        steps = [{"job_id": job_id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in eval_steps]
+        insert_rows(session, EvalStep, steps)
+
+
 def store_result(store: Store, result: JobResult, owner: str, model_path: str | None) -> bool:
     """Write a finished job in one transaction: its episodes, evaluation steps, training
     diagnostics, validation days, metadata and status ``done``. False (nothing written) if this driver no
@@ -208,31 +220,22 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
         if meta.get("platform"):
             meta["platform"] = str(meta["platform"])[:255]
         job = s.execute(select(Job).where(Job.id == result.job_id)).scalar_one()
-        claimed = s.execute(
-            update(Job)
-            .where(Job.id == result.job_id, Job.owner == owner, Job.status == "running")
-            .values(
-                status="done",
-                owner=None,
-                heartbeat_at=db_now(s),
-                episodes_done=job.episodes,
-                model_path=result.model_path or model_path,
-                error=None,
-                **meta,
-            )
-            .execution_options(synchronize_session=False)
-        ).rowcount
+        claimed = _set(
+            s,
+            Job.id == result.job_id,
+            Job.owner == owner,
+            Job.status == "running",
+            status="done",
+            owner=None,
+            heartbeat_at=db_now(s),
+            episodes_done=job.episodes,
+            model_path=result.model_path or model_path,
+            error=None,
+            **meta,
+        )
         if claimed != 1:
             return False
-        rows = episode_rows(result.job_id, "train", result.train) + episode_rows(result.job_id, "eval", result.eval)
-        if rows:
-            insert_rows(s, Episode, rows)
-        if result.eval_steps:
-            insert_rows(
-                s,
-                EvalStep,
-                [{"job_id": result.job_id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in result.eval_steps],
-            )
+        insert_episodes(s, result.job_id, result.train, result.eval, result.eval_steps)
         diagnostics = getattr(result, "diagnostics", None)  # a result pickled before it had them: none
         if diagnostics:
             insert_rows(s, Diagnostic, diagnostic_rows(result.job_id, diagnostics))
@@ -245,18 +248,16 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
 def store_failure(store: Store, job_id: int, owner: str, error: str) -> None:
     """Status ``failed``, one more failure, the error text kept."""
     with session_scope(store.engine) as s:
-        s.execute(
-            update(Job)
-            .where(Job.id == job_id, Job.owner == owner)
-            .values(
-                status="failed",
-                failures=Job.failures + 1,
-                error=error,
-                owner=None,
-                finished_at=db_now(s),
-                wall_seconds=None,  # a running job's training seconds so far: not what a failure took
-            )
-            .execution_options(synchronize_session=False)
+        _set(
+            s,
+            Job.id == job_id,
+            Job.owner == owner,
+            status="failed",
+            failures=Job.failures + 1,
+            error=error,
+            owner=None,
+            finished_at=db_now(s),
+            wall_seconds=None,  # a running job's training seconds so far: not what a failure took
         )
 
 
@@ -265,17 +266,9 @@ def release_jobs(store: Store, job_ids: Sequence[int], owner: str, status: str =
     if not job_ids:
         return 0
     with session_scope(store.engine) as s:
-        return s.execute(
-            update(Job)
-            .where(Job.id.in_(list(job_ids)), Job.owner == owner, Job.status == "running")
-            .values(
-                status=status,
-                owner=None,
-                finished_at=db_now(s),
-                wall_seconds=None,  # a running job's training seconds so far: no longer running
-            )
-            .execution_options(synchronize_session=False)
-        ).rowcount
+        # wall_seconds: a running job's training seconds so far; it is no longer running
+        running = (Job.id.in_(list(job_ids)), Job.owner == owner, Job.status == "running")
+        return _set(s, *running, status=status, owner=None, finished_at=db_now(s), wall_seconds=None)
 
 
 def flush_progress(store: Store, owner: str, live: dict[int, dict[str, Any]]) -> None:
@@ -293,9 +286,4 @@ def flush_progress(store: Store, owner: str, live: dict[int, dict[str, Any]]) ->
                 values["last_return"] = float(st["ret"])
             if st.get("pid") is not None:
                 values["worker_pid"] = int(st["pid"])
-            s.execute(
-                update(Job)
-                .where(Job.id == job_id, Job.owner == owner)
-                .values(**values)
-                .execution_options(synchronize_session=False)
-            )
+            _set(s, Job.id == job_id, Job.owner == owner, **values)

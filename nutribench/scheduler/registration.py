@@ -238,9 +238,9 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
     """Record ``job``'s configs and write it as a done job with its rows, in one transaction;
     its id. A job with the same regime, agent, seed and budget already there is refused."""
     from nutribench.agents.config import agent_config_content, agent_config_sha256
-    from nutribench.scheduler.lifecycle import check_not_mixed, episode_rows
+    from nutribench.scheduler.lifecycle import check_not_mixed, insert_episodes
     from nutribench.store.engine import display_url
-    from nutribench.store.models import EVAL_STEP_COLUMNS, METADATA_COLUMNS, Episode, EvalStep, insert_rows
+    from nutribench.store.models import METADATA_COLUMNS
 
     env, cfg = job.regime_config, job.agent_config
     regime = _Config(env.name, env.version, env.sha256, env.content(), _shown(env.path or env.name), env)
@@ -274,12 +274,7 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
         )
         s.add(row)
         s.flush()
-        rows = episode_rows(row.id, "train", job.train) + episode_rows(row.id, "eval", job.eval)
-        insert_rows(s, Episode, rows)
-        if job.eval_steps:
-            insert_rows(
-                s, EvalStep, [{"job_id": row.id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in job.eval_steps]
-            )
+        insert_episodes(s, row.id, job.train, job.eval, job.eval_steps)
         return row.id
 
 

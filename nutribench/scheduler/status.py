@@ -57,15 +57,8 @@ class StatusReport:
     errors: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain data for ``--json``."""
-        return {
-            "rows": [asdict(r) for r in self.rows],
-            "totals": self.totals,
-            "wall_seconds": self.wall_seconds,
-            "workers": self.workers,
-            "eta_seconds": self.eta_seconds,
-            "errors": self.errors,
-        }
+        """Plain data for ``--json``: every field, the rows as dicts."""
+        return asdict(self)
 
     def to_frame(self):
         """The rows as a pandas DataFrame."""
@@ -140,76 +133,99 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
     worker processes of the running jobs (a batch of the batched engine is one).
     """
     now = now or utcnow()
-    rows: dict[tuple, StatusRow] = {}
-    rates: dict[tuple, list[float]] = {}  # seconds per episode of done jobs, per cell
-    left: dict[tuple, float] = {}  # jobs' worth of work left
-    errors = []
-    orphaned = 0  # `running` with a stopped heartbeat: counted as pending, and said so
+    tally = _Tally()
+    for n, job in enumerate(jobs):
+        tally.add(n, job, now)
+    running_rates, sharing = _running_rates(tally.running, now)
+    remaining, unknown = tally.price(running_rates)
+    rows = tally.rows
+    totals = {c: sum(getattr(r, c) for r in rows.values()) for c in COUNTS}
+    totals["jobs"] = len(jobs)
+    totals["orphaned"] = tally.orphaned
+    workers = len(sharing)
+    eta = None if unknown else remaining / max(workers, 1)
+    wall = sum(r.wall_seconds for r in rows.values())
+    return StatusReport(list(rows.values()), totals, wall, workers, eta, tally.errors)
+
+
+@dataclass
+class _Tally:
+    """The jobs counted into rows, with what pricing the work left needs."""
+
+    rows: dict[tuple, StatusRow] = field(default_factory=dict)
+    rates: dict[tuple, list[float]] = field(default_factory=dict)  # seconds per episode of done jobs, per cell
+    left: dict[tuple, float] = field(default_factory=dict)  # jobs' worth of work left
+    errors: list[dict[str, Any]] = field(default_factory=list)
+    orphaned: int = 0  # `running` with a stopped heartbeat: counted as pending, and said so
     # (algo, av), episodes done, claimed, worker, training seconds so far
-    running: list[tuple[tuple, int, datetime | None, tuple, float | None]] = []
-    orphan_rates: dict[tuple, list[float]] = {}  # (algo, av) -> reported seconds per day of orphaned jobs
-    for n, (regime, rv, algo, av, seed, budget, status, beat, wall, k, failures, error, *more) in enumerate(jobs):
+    running: list[tuple[tuple, int, datetime | None, tuple, float | None]] = field(default_factory=list)
+    orphan_rates: dict[tuple, list[float]] = field(default_factory=dict)  # (algo, av) -> seconds per day reported
+
+    def add(self, n: int, job: tuple, now: datetime) -> None:
+        """Count the ``n``-th job tuple (see :func:`summarize`) into its row."""
+        regime, rv, algo, av, seed, budget, status, beat, wall, k, failures, error, *more = job
         owner, pid, started = (list(more) + [None, None, None])[:3]
         key = (regime, rv, algo, av, budget)
-        row = rows.setdefault(key, StatusRow(regime, rv, algo, av, budget))
+        row = self.rows.setdefault(key, StatusRow(regime, rv, algo, av, budget))
         state = job_state(status, beat, now)
         orphan = status == "running" and state == "pending"
-        orphaned += orphan
+        self.orphaned += orphan
         if orphan and k and wall is not None:
-            orphan_rates.setdefault((algo, av), []).append(wall / k)
+            self.orphan_rates.setdefault((algo, av), []).append(wall / k)
         setattr(row, state, getattr(row, state) + 1)
         if state == "done" and wall is not None:
             row.wall_seconds += wall
-            rates.setdefault(key, []).append(wall / max(budget, 1))
+            self.rates.setdefault(key, []).append(wall / max(budget, 1))
         elif state == "running":
-            left[key] = left.get(key, 0.0) + max(0.0, 1.0 - (k or 0) / max(budget, 1))
-            running.append(((algo, av), k or 0, started, (owner, pid) if pid is not None else ("job", n), wall))
+            self.left[key] = self.left.get(key, 0.0) + max(0.0, 1.0 - (k or 0) / max(budget, 1))
+            worker = (owner, pid) if pid is not None else ("job", n)
+            self.running.append(((algo, av), k or 0, started, worker, wall))
         elif state in ("pending",) or (state == "failed" and failures < MAX_FAILURES):
-            left[key] = left.get(key, 0.0) + 1.0
+            self.left[key] = self.left.get(key, 0.0) + 1.0
         if state == "failed":
-            errors.append(
-                {
-                    "regime": regime,
-                    "algo": algo,
-                    "seed": seed,
-                    "budget": budget,
-                    "failures": failures,
-                    "retried": failures < MAX_FAILURES,
-                    "error": _last_line(error),
-                }
+            retried = failures < MAX_FAILURES
+            self.errors.append(
+                {"regime": regime, "algo": algo, "seed": seed, "budget": budget, "failures": failures}
+                | {"retried": retried, "error": _last_line(error)}
             )
-    per_algo: dict[tuple, list[float]] = {}
-    for (_, _, algo, av, _), rs in rates.items():
-        per_algo.setdefault((algo, av), []).extend(rs)
-    overall = _mean([r for rs in rates.values() for r in rs])
+
+    def price(self, running_rates: dict[tuple, list[float]]) -> tuple[float, bool]:
+        """(worker-seconds of work left, whether some row's work left has no price): each row's
+        ``remaining_seconds`` set by the first rate known, in :func:`summarize`'s order."""
+        per_algo: dict[tuple, list[float]] = {}
+        for (_, _, algo, av, _), rs in self.rates.items():
+            per_algo.setdefault((algo, av), []).extend(rs)
+        overall = _mean([r for rs in self.rates.values() for r in rs])
+        remaining, unknown = 0.0, False
+        for key, row in self.rows.items():
+            config = (row.algo, row.algo_version)
+            guesses = (
+                _mean(self.rates.get(key)),
+                _mean(per_algo.get(config)),
+                _mean(running_rates.get(config)),
+                _mean(self.orphan_rates.get(config)),
+                overall,
+            )
+            rate = next((r for r in guesses if r is not None), None)
+            jobs_left = self.left.get(key, 0.0)
+            if jobs_left and rate is None:
+                unknown = True
+                continue
+            row.remaining_seconds = jobs_left * row.budget * rate if rate is not None else 0.0
+            remaining += row.remaining_seconds
+        return remaining, unknown
+
+
+def _running_rates(running: list[tuple], now: datetime) -> tuple[dict[tuple, list[float]], Counter]:
+    """(seconds per episode of the running jobs, per agent config; the jobs per worker process):
+    the worker's reported training seconds where it reports them (resumed days priced by their
+    own time), else the time since claimed shared among the jobs of one worker."""
     sharing = Counter(worker for *_, worker, _ in running)
-    running_rates: dict[tuple, list[float]] = {}
+    rates: dict[tuple, list[float]] = {}
     for config, k, started, worker, wall in running:
-        if k > 0 and wall is not None:  # reported by the worker: resumed days priced by their own time
-            running_rates.setdefault(config, []).append(wall / k)
+        if k > 0 and wall is not None:
+            rates.setdefault(config, []).append(wall / k)
         elif k > 0 and started is not None:
             elapsed = max(0.0, (now - started).total_seconds())
-            running_rates.setdefault(config, []).append(elapsed / (k * sharing[worker]))
-    remaining, unknown = 0.0, False
-    for key, row in rows.items():
-        config = (row.algo, row.algo_version)
-        guesses = (
-            _mean(rates.get(key)),
-            _mean(per_algo.get(config)),
-            _mean(running_rates.get(config)),
-            _mean(orphan_rates.get(config)),
-            overall,
-        )
-        rate = next((r for r in guesses if r is not None), None)
-        jobs_left = left.get(key, 0.0)
-        if jobs_left and rate is None:
-            unknown = True
-            continue
-        row.remaining_seconds = jobs_left * row.budget * rate if rate is not None else 0.0
-        remaining += row.remaining_seconds
-    totals = {c: sum(getattr(r, c) for r in rows.values()) for c in COUNTS}
-    totals["jobs"] = len(jobs)
-    totals["orphaned"] = orphaned
-    workers = len(sharing)
-    eta = None if unknown else remaining / max(workers, 1)
-    return StatusReport(list(rows.values()), totals, sum(r.wall_seconds for r in rows.values()), workers, eta, errors)
+            rates.setdefault(config, []).append(elapsed / (k * sharing[worker]))
+    return rates, sharing

@@ -78,56 +78,30 @@ def study_space(study: Any) -> Any:
     """The study's search space, as it was when the study was created (version and hash
     checked): from the file at its kept path, else from its kept text (the file moved or
     gone), else by its name in ``regimes/search/`` (a study made before the file was kept)."""
-    import tomllib
-
-    from pydantic import ValidationError
-
-    from nutribench.config.loading import ConfigError, format_validation_error
+    from nutribench.config.loading import ConfigError
 
     settings = stored_settings(study)
     kept = study.user_attrs.get(SPACE_ATTR)
     kept = kept if isinstance(kept, dict) else {}
+    path, text = kept.get("path"), kept.get("toml")
+    source = f"study {study.study_name!r}'s kept search space {settings.space!r}"
+    loaders = [
+        *([lambda: load_search_space(path)] if isinstance(path, str) and os.path.isfile(path) else []),
+        *([lambda: _kept_space(text, source)] if isinstance(text, str) else []),
+        lambda: load_search_space(settings.space),
+    ]
+    wanted = (settings.space, settings.space_version, settings.space_sha256)
     found: list[Any] = []
     problems: list[str] = []
-
-    def matches(space: Any) -> bool:
-        found.append(space)
-        return (space.name, space.version, space.sha256) == (
-            settings.space,
-            settings.space_version,
-            settings.space_sha256,
-        )
-
-    path = kept.get("path")
-    if isinstance(path, str) and os.path.isfile(path):
+    for load in loaders:
         try:
-            space = load_search_space(path)
-            if matches(space):
-                return space
+            space = load()
         except ConfigError as e:
             problems.append(str(e))
-    text = kept.get("toml")
-    if isinstance(text, str):
-        source = f"study {study.study_name!r}'s kept search space {settings.space!r}"
-        try:
-            space = SearchSpace.model_validate(tomllib.loads(text))
-        except tomllib.TOMLDecodeError as e:
-            problems.append(f"{source}: {e}")
-        except ValidationError as e:
-            problems.append(format_validation_error(source, e))
-        else:
-            try:
-                check_space(space, source)
-                if matches(space):
-                    return space
-            except ConfigError as e:
-                problems.append(str(e))
-    try:
-        space = load_search_space(settings.space)
-        if matches(space):
+            continue
+        if (space.name, space.version, space.sha256) == wanted:
             return space
-    except ConfigError as e:
-        problems.append(str(e))
+        found.append(space)
     if found:
         space = found[-1]
         raise TuneError(
@@ -136,6 +110,24 @@ def study_space(study: Any) -> Any:
             f"{space.sha256[:12]}): restore that file to export this study"
         )
     raise TuneError(f"study {study.study_name!r}: its search space is not found: {'; '.join(problems)}")
+
+
+def _kept_space(text: str, source: str) -> Any:
+    """The search space of a study's kept text (``source`` names it in a one-line ConfigError)."""
+    import tomllib
+
+    from pydantic import ValidationError
+
+    from nutribench.config.loading import ConfigError, format_validation_error
+
+    try:
+        space = SearchSpace.model_validate(tomllib.loads(text))
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{source}: {e}") from None
+    except ValidationError as e:
+        raise ConfigError(format_validation_error(source, e)) from None
+    check_space(space, source)
+    return space
 
 
 def _decoded(params: dict[str, Any]) -> dict[str, Any]:

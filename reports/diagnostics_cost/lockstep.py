@@ -33,6 +33,7 @@ a dict a row, floats an update).
 
 from __future__ import annotations
 
+import itertools
 import random
 import sys
 import threading
@@ -44,10 +45,37 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from nutribench.bench.paired import paired_cost, seamless_orders, total_cost
+from nutribench.stats import paired_cost, total_cost
 
 #: A run of one arm: called with the day-end callback it must call after each training day.
 ArmRun = Callable[[Callable[[dict], None]], Any]
+
+
+def seamless_orders(n: int) -> list[tuple[int, ...]]:
+    """Every order of ``n`` arms, arranged so that no order starts with the arm that ended the
+    one before (the last order wrapping round to the first): no arm ever runs twice in a row,
+    in lockstep with warm caches of its own. Lexicographic order has two such seams for 3 arms
+    (``(0, 2, 1) -> (1, 0, 2)``, ``(2, 1, 0) -> (0, 1, 2)``). Two arms cannot avoid one; then the
+    plain order is returned."""
+    perms = list(itertools.permutations(range(n)))
+
+    def extend(path: list[tuple[int, ...]], left: list[tuple[int, ...]]) -> list[tuple[int, ...]] | None:
+        if not left:
+            return path if path[-1][-1] != path[0][0] else None
+        for i, p in enumerate(left):
+            if p[0] != path[-1][-1]:
+                found = extend(path + [p], left[:i] + left[i + 1 :])
+                if found is not None:
+                    return found
+        return None
+
+    return (extend(perms[:1], perms[1:]) if n > 2 else None) or perms
+
+
+#: The orders of the three arms (with, without, again), here and in ``whole_runs.py``: 6 rounds
+#: put each arm before each other equally often, each arm first, second and last twice, and no
+#: arm twice in a row across a round's end.
+ORDERS = seamless_orders(3)
 
 
 class _Aborted(BaseException):
@@ -85,7 +113,7 @@ def _restore_rng(state: tuple) -> None:
 def lockstep(runs: dict[str, ArmRun]) -> list[Arm]:
     """Run ``runs`` (name -> run) side by side, one segment (a training day) each in turn,
     the rounds in every order of the arms in turn, no arm twice in a row across a round's end
-    (:func:`~nutribench.bench.paired.seamless_orders`; three arms: :data:`~nutribench.bench.paired.ORDERS`);
+    (:func:`seamless_orders`; three arms: :data:`ORDERS`);
     return each arm's timings. Every arm starts from the caller's random state.
 
     An arm that ends before the others sits out the rounds left. An error in an arm stops
@@ -175,7 +203,7 @@ def same_days(a: Arm, b: Arm, key: str = "return") -> bool:
 
 def lockstep_cost(with_: Arm, without: Arm, again: Arm, size: int, clock: str = "wall") -> dict:
     """The diagnostics' cost and the A/A control from one lockstep run on ``clock`` ("wall" or
-    "cpu"): :func:`~nutribench.bench.paired.total_cost` of (with, without) and of (again,
+    "cpu"): :func:`~nutribench.stats.total_cost` of (with, without) and of (again,
     without) over blocks of ``size`` segments, and ``median_cost`` (:func:`paired_cost`, the
     median of the blocks' ratios, which weighs a block without an update like one with)."""
     w, wo, ag = (blocks(getattr(a, clock), size) for a in (with_, without, again))

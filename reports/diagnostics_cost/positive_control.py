@@ -19,8 +19,8 @@ import numpy as np
 from lockstep import blocks, lockstep, same_days  # this folder's: the script runs by path
 
 from nutribench.agents.api import train
-from nutribench.bench.paired import total_cost
 from nutribench.bench.throughput import bench_config
+from nutribench.stats import total_cost
 
 
 def busy(seconds: float) -> None:

@@ -4,6 +4,7 @@ trained side by side, a day each in turn. This study's own check:
 
 from __future__ import annotations
 
+import itertools
 import random
 import re
 import threading
@@ -14,9 +15,8 @@ import pytest
 import torch as th
 from report_scripts import load_script
 
-from nutribench.bench.paired import ORDERS
-
 L = load_script("diagnostics_cost", "lockstep")
+ORDERS = L.ORDERS
 
 
 def fake_clock(monkeypatch) -> list[float]:
@@ -139,3 +139,17 @@ def test_the_script_prints_the_table_and_refuses_bad_input_in_one_line(capsys):
     assert len(re.findall(r"[+-]\d+\.\d %", out)) == 6  # cost, A/A and median ratio on both clocks
     assert L.main(["--algos", "nope"]) == 2
     assert capsys.readouterr().err.startswith("lockstep.py: unknown algorithm 'nope'")
+
+
+def test_orders_never_run_an_arm_twice_in_a_row():
+    """Across a round's end (the last round wrapping to the first) no arm runs twice in a row:
+    lexicographic order would let two arms, never the third, run back to back with warm caches."""
+    for n in (3, 4):
+        orders = L.seamless_orders(n)
+        assert sorted(orders) == sorted(itertools.permutations(range(n)))
+        assert all(orders[i - 1][-1] != orders[i][0] for i in range(len(orders)))
+    assert ORDERS == L.seamless_orders(3)
+    # each arm first, second and last twice in 6 rounds
+    assert all(sorted(o.index(a) for o in ORDERS) == [0, 0, 1, 1, 2, 2] for a in range(3))
+    lexicographic = list(itertools.permutations(range(3)))
+    assert sum(lexicographic[i - 1][-1] == lexicographic[i][0] for i in range(6)) == 2  # what it fixes

@@ -9,9 +9,8 @@ import re
 import pytest
 from report_scripts import load_script
 
-from nutribench.bench.paired import ORDERS
-
 W = load_script("diagnostics_cost", "whole_runs")
+ORDERS = W.ORDERS
 
 
 def test_three_arms_in_every_order(monkeypatch):

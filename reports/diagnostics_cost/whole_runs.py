@@ -7,7 +7,7 @@ which runs first::
     python reports/diagnostics_cost/whole_runs.py --algos mc --days 40 --repeats 15
 
 The cost is 1 - the median over repeats of (seconds without / seconds with), paired per repeat,
-with its 95 % bootstrap interval over the repeats (:func:`nutribench.bench.paired.paired_cost`).
+with its 95 % bootstrap interval over the repeats (:func:`nutribench.stats.paired_cost`).
 Both arms without the diagnostics still build the same model: what an update records for
 itself (the gradient norm it keeps, ``.item()`` reads of its losses) is in every arm, and only
 the profile counts it. A machine whose speed drifts over minutes moves one arm's run and not
@@ -21,8 +21,10 @@ import sys
 import time
 from collections.abc import Sequence
 
-from nutribench.bench.paired import ORDERS, paired_cost
+from lockstep import ORDERS  # this folder's: the script runs by path
+
 from nutribench.bench.throughput import bench_config
+from nutribench.stats import paired_cost
 
 
 def bench_diagnostics_cost(

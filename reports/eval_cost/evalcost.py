@@ -8,7 +8,7 @@ Each
 repeat trains the same job (SB3 engine) or batch (batched engine: 7 regimes x 5 seeds at
 once) twice, with and without ``eval_every``, in alternating order; the cost is the share of
 the training time the evaluations take, paired per repeat
-(:func:`nutribench.bench.paired.paired_cost`, 95 % bootstrap interval over the repeats),
+(:func:`nutribench.stats.paired_cost`, 95 % bootstrap interval over the repeats),
 on the wall clock and on the process's CPU time (which other work on a shared machine moves
 less). The two arms train identically (tests/test_validation.py), so the difference is the
 evaluations alone."""
@@ -20,7 +20,7 @@ import sys
 import time
 from collections.abc import Sequence
 
-from nutribench.bench.paired import paired_cost
+from nutribench.stats import paired_cost
 
 
 def _timed(algo: str, engine: str, regime: str, episodes: int, seed: int, **evaluation: int) -> tuple[float, float]:
