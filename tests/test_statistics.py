@@ -670,7 +670,8 @@ def test_the_coverage_simulation_chose_what_the_statistics_module_says():
 @pytest.mark.slow
 def test_the_coverage_simulation_measured_what_the_aggregates_captions_quote():
     """The second table of ``benchmarks/coverage.py`` (about 4 minutes of CPU) reproduces
-    :data:`nutribench.stats.AGGREGATE_COVERAGE`, the coverage the aggregate captions quote."""
+    :data:`nutribench.stats.AGGREGATE_COVERAGE` to the digit the captions print (a coverage
+    is a count of 2,000 datasets, so 94.85 % and 94.8 % print alike)."""
     import importlib.util
 
     from nutribench.stats import AGGREGATE_COVERAGE
@@ -682,7 +683,8 @@ def test_the_coverage_simulation_measured_what_the_aggregates_captions_quote():
     measured = sim.aggregate_coverage(sim.run_aggregates())
     assert measured.keys() == AGGREGATE_COVERAGE.keys()
     for name, cov in AGGREGATE_COVERAGE.items():
-        assert measured[name] == pytest.approx(cov, abs=5e-4), name
+        printed = {n: f"{100 * v:.1f}" for n, v in cov.items()}
+        assert {n: f"{100 * v:.1f}" for n, v in measured[name].items()} == printed, name
 
 
 def test_total_cost_weighs_each_block_by_its_length():
