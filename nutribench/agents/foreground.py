@@ -21,17 +21,18 @@ class TrainRequest:
     """Train agent config ``algo`` on ``regime`` with ``seed`` for ``days`` days (``eval_every``:
     a greedy evaluation on ``val_episodes`` validation days every so many days), then play
     ``eval_episodes`` evaluation days; ``save``: a .zip the model goes to; ``tensorboard``: a
-    folder whose run folder ``<algo>-<regime>-seed<seed>`` gets the training diagnostics."""
+    folder whose run folder ``<algo>-<regime>-seed<seed>`` gets the training diagnostics. No
+    field has a default: the command line's options hold them (``nutribench train --help``)."""
 
-    algo: str = "ppo"
-    regime: str = "run0"
-    seed: int = 0
-    days: int = 300
-    eval_episodes: int = 5
-    save: Path | None = None
-    tensorboard: Path | None = None
-    eval_every: int = 0
-    val_episodes: int = 5
+    algo: str
+    regime: str
+    seed: int
+    days: int
+    eval_episodes: int
+    save: Path | None
+    tensorboard: Path | None
+    eval_every: int
+    val_episodes: int
 
     def configs(self) -> tuple[Any, Any, Path | None]:
         """The regime's and the agent's configs and the TensorBoard run folder, the files
