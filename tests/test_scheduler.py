@@ -115,19 +115,18 @@ def test_smoke_grid_stores_every_row_and_rerun_does_nothing(regimes: Path, tmp_p
     log.mkdir()
     algos = ["mc", "ddqn", "ppo", "sac", "gru_ppo"]
     g = resolve_grid(preset="smoke", regimes=list_regimes(), algos=algos)
-    s = run_grid(
-        GridSettings(
-            db,
-            g.regimes,
-            g.algos,
-            g.seeds,
-            g.episodes,
-            g.eval_episodes,
-            workers=2,
-            job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)),
-            display=False,
-        )
+    settings = GridSettings(
+        db,
+        g.regimes,
+        g.algos,
+        g.seeds,
+        g.episodes,
+        g.eval_episodes,
+        workers=2,
+        job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)),
+        display=False,
     )
+    s = run_grid(settings)
     n = 7 * 5
     assert (s.done, s.failed, s.skipped, s.exit_code) == (n, 0, 0, 0)
     df = episode_rows(db)
@@ -145,19 +144,7 @@ def test_smoke_grid_stores_every_row_and_rerun_does_nothing(regimes: Path, tmp_p
     assert Path(first["model_path"]).relative_to(tmp_path / "models").parts[2].startswith("seed0-ep20")
     assert len(list(log.iterdir())) == n
 
-    again = run_grid(
-        GridSettings(
-            db,
-            g.regimes,
-            g.algos,
-            g.seeds,
-            g.episodes,
-            g.eval_episodes,
-            workers=2,
-            job_fn=EnvJob(NUTRIBENCH_FAKE_LOG=str(log)),
-            display=False,
-        )
-    )
+    again = run_grid(settings)  # the same grid again
     assert (again.done, again.skipped, again.exit_code) == (0, n, 0)
     assert len(list(log.iterdir())) == n  # nothing executed
     assert len(episode_rows(db)) == n * 25
