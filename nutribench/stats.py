@@ -604,6 +604,41 @@ def improvement_ci(x: Runs, y: Runs, confidence: float = CONFIDENCE) -> tuple[fl
     return p, max(p - half, 0.0), min(p + half, 1.0)
 
 
+def welch_t(
+    points: Sequence[float],
+    ses: Sequence[float],
+    dfs: Sequence[float],
+    weights: Sequence[float],
+    confidence: float = CONFIDENCE,
+) -> tuple[float, float, float]:
+    """``sum_i w_i * point_i`` of independent estimates (each with its standard error and
+    degrees of freedom) and its Student's t interval with Welch-Satterthwaite's degrees of
+    freedom: the chosen t's kind for a contrast (a drop under delay, a difference of two IQMs).
+    An estimate without a standard error (one run) adds none; ``(point, nan, nan)`` when none
+    has one."""
+    from scipy.stats import t
+
+    w, se, df = (np.asarray(v, dtype=float) for v in (weights, ses, dfs))
+    point = float(np.dot(w, np.asarray(points, dtype=float)))
+    keep = np.isfinite(se) & (df > 0)
+    if not keep.any():
+        return point, float("nan"), float("nan")
+    parts = (w[keep] * se[keep]) ** 2
+    var = float(parts.sum())
+    dof = var**2 / float((parts**2 / df[keep]).sum()) if var > 0 else float(df[keep].min())
+    half = float(t.ppf(1 - (1 - confidence) / 2, dof) * np.sqrt(var))
+    return point, point - half, point + half
+
+
+def contrast_ci(runs: Runs, weights: Sequence[float], confidence: float = CONFIDENCE) -> tuple[float, float, float]:
+    """``sum_r w_r * mean(runs_r)`` over independent regimes (one array of run scores each) and
+    its interval (:func:`welch_t`, each regime's standard error of the mean, ``n_r - 1``
+    degrees of freedom); a regime of one run adds no spread."""
+    runs = [np.asarray(r, dtype=float) for r in runs]
+    ses = [r.std(ddof=1) / np.sqrt(r.size) if r.size > 1 else float("nan") for r in runs]
+    return welch_t([r.mean() for r in runs], ses, [r.size - 1.0 for r in runs], weights, confidence)
+
+
 def bootstrap(stat: Callable[..., np.ndarray], arrays: Sequence[np.ndarray], reps: int, seed: int) -> np.ndarray:
     """``stat`` of ``reps`` resamples of paired ``arrays`` (the same indices for each, drawn
     with ``seed``): ``stat(*resampled)`` with each resampled array ``(reps, n)``."""

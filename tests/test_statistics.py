@@ -695,3 +695,26 @@ def test_total_cost_weighs_each_block_by_its_length():
     cost, lo, hi = total_cost([1.0, 1.0, 10.0], [0.9, 0.9, 10.0])
     assert cost == pytest.approx(0.2 / 12) and lo <= cost <= hi
     assert paired_cost([1.0, 1.0, 10.0], [0.9, 0.9, 10.0])[0] == pytest.approx(0.1)
+
+
+def test_welch_t_of_two_samples_equals_scipys_welch_interval():
+    """A difference of two independent means by welch_t/contrast_ci is Welch's t interval, as
+    scipy's ttest_ind(equal_var=False) computes it; one regime alone is mean_ci's t interval."""
+    from scipy.stats import ttest_ind
+
+    from nutribench.stats import contrast_ci, mean_ci
+
+    a = np.array([0.31, 0.52, 0.12, 0.44, 0.95])
+    b = np.array([0.05, -0.20, 0.33, 0.10, -0.41, 0.02, 0.15])
+    ci = ttest_ind(a, b, equal_var=False).confidence_interval(0.95)
+    point, lo, hi = contrast_ci([a, b], [1.0, -1.0])
+    assert point == pytest.approx(a.mean() - b.mean(), abs=1e-12)
+    assert (lo, hi) == pytest.approx((ci.low, ci.high), abs=1e-9)
+    assert contrast_ci([a], [1.0]) == pytest.approx(mean_ci(a), abs=1e-12)
+
+
+def test_a_contrast_of_one_run_regimes_has_no_interval():
+    from nutribench.stats import contrast_ci
+
+    point, lo, hi = contrast_ci([np.array([0.4]), np.array([0.1])], [1.0, -1.0])
+    assert point == pytest.approx(0.3) and np.isnan(lo) and np.isnan(hi)
