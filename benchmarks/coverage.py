@@ -38,26 +38,110 @@ import argparse
 import re
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 from scipy import stats as sps
 
 from nutribench.stats import (
-    METHODS,
+    CONFIDENCE,
+    Design,
     design,
     improvement_ci,
-    intervals,
     iqm,
+    mean_se,
     median_cdf,
     median_intervals,
     strata_t,
-    stratified_design,
+    stratified_indices,
+    t_intervals,
+    trimmed_se,
     weighted_quantiles,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "reports" / "tuned_v2" / "results.md"
+
+#: The candidate intervals the simulation weighs (the package keeps the t, :func:`nutribench.stats.t_intervals`).
+METHODS: tuple[str, ...] = ("percentile", "bca", "bootstrap-t", "t")
+
+
+def stratified_design(
+    sizes: Sequence[int], reps: int = 2000, rng: np.random.Generator | None = None, exact: bool | None = None
+) -> Design:
+    """The resamples of runs in strata of ``sizes`` laid side by side (one stratum's runs after
+    the other's): within each stratum its runs redrawn with replacement. One stratum: :func:`design`."""
+    if len(sizes) == 1:
+        return design(sizes[0], reps, rng, exact)
+    rng = rng if rng is not None else np.random.default_rng(0)
+    offsets = np.cumsum([0, *sizes[:-1]])
+    idx = np.concatenate([i + o for i, o in zip(stratified_indices(sizes, reps, rng), offsets)], axis=1)
+    return Design(idx, np.full(reps, 1.0 / reps), False)
+
+
+def intervals(
+    x: np.ndarray,
+    statistic: str,
+    method: str,
+    d: Design | None = None,
+    confidence: float = CONFIDENCE,
+    sizes: Sequence[int] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``method`` interval (:data:`METHODS`) of ``statistic`` (``"mean"``, ``"iqm"``) of
+    each row of ``x`` ``(rows, n)``, vectorised over rows (the simulation's datasets): ``(lo,
+    hi)``. ``"t"`` is the package's (:func:`nutribench.stats.t_intervals`); ``"percentile"``,
+    ``"bca"`` (Efron's bias-corrected and accelerated, acceleration from the jackknife) and
+    ``"bootstrap-t"`` (resamples studentized by the same standard error) draw on ``d``, the
+    bootstrap's resamples (default :func:`stratified_design` of ``sizes``). ``sizes``: strata
+    (regimes) of consecutive lengths along a row, for the IQM's standard error."""
+    from scipy.stats import norm
+
+    if method == "t":
+        return t_intervals(x, statistic, confidence, sizes)
+    x = np.atleast_2d(np.asarray(x, dtype=float))
+    n = x.shape[1]
+    sizes = [n] if sizes is None else list(sizes)
+
+    def stat(v):
+        return iqm(v, axis=-1) if statistic == "iqm" else v.mean(axis=-1)
+
+    def se_of(v):
+        return trimmed_se(v, sizes) if statistic == "iqm" else mean_se(v)
+
+    alpha = (1 - confidence) / 2
+    theta = stat(x)
+    se, _ = se_of(x)
+    d = d or stratified_design(sizes)
+    boot = stat(x[:, d.idx])  # (rows, resamples)
+    w = d.weights
+    if method == "percentile":
+        q = np.tile([alpha, 1 - alpha], (len(x), 1))
+        out = weighted_quantiles(boot, w, q)
+        return out[:, 0], out[:, 1]
+    if method == "bca":
+        below = ((boot < theta[:, None]) * w).sum(1) + 0.5 * ((boot == theta[:, None]) * w).sum(1)
+        z0 = norm.ppf(np.clip(below / w.sum(), 1e-6, 1 - 1e-6))
+        jack = np.stack([stat(np.delete(x, i, axis=1)) for i in range(n)], axis=1)
+        dev = jack.mean(axis=1, keepdims=True) - jack
+        den = 6 * (dev**2).sum(1) ** 1.5
+        a = np.divide((dev**3).sum(1), den, out=np.zeros(len(x)), where=den > 0)
+        z = norm.ppf([alpha, 1 - alpha])[None, :]
+        q = norm.cdf(z0[:, None] + (z0[:, None] + z) / (1 - a[:, None] * (z0[:, None] + z)))
+        out = weighted_quantiles(boot, w, q)
+        return out[:, 0], out[:, 1]
+    if method == "bootstrap-t":
+        se_b, _ = se_of(x[:, d.idx])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tt = (boot - theta[:, None]) / se_b
+        keep = np.isfinite(tt)  # a resample of one value repeated has no spread: left out
+        tt = np.where(keep, tt, 0.0)
+        ww = np.where(keep, w[None, :], 0.0)
+        out = np.stack(
+            [weighted_quantiles(tt[i : i + 1], ww[i], np.array([[alpha, 1 - alpha]]))[0] for i in range(len(x))]
+        )
+        return theta - out[:, 1] * se, theta - out[:, 0] * se
+    raise ValueError(f"method {method!r}: one of {', '.join(METHODS)}")
 
 
 def measured_runs(path: Path = RESULTS) -> dict[str, dict[str, np.ndarray]]:

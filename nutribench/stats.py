@@ -6,12 +6,11 @@ an **IQM over runs** (stratified by regime) and a **paired difference by seed**.
 It sits on the ground floor (it imports nothing of the package) because the report, ``bench``
 and the tuning objective all call it, and the tuning objective should not pull in the report.
 
-Intervals (``method``): ``"t"`` (Student's t; for the IQM Tukey and McLaughlin's trimmed t:
-the winsorized standard error, ``h - 1`` degrees of freedom), ``"percentile"``, ``"bca"``
-(Efron's bias-corrected and accelerated, acceleration from the jackknife) and
-``"bootstrap-t"`` (resamples studentized by the same standard error). Which one each statistic
-uses (:data:`CHOSEN`) was chosen by the coverage simulation of ``benchmarks/coverage.py``
-(docs/statistics.md, "Intervals and their coverage"); :data:`COVERAGE` is its measured
+Intervals: ``"t"`` (Student's t; for the IQM Tukey and McLaughlin's trimmed t: the winsorized
+standard error, ``h - 1`` degrees of freedom, :func:`t_intervals`). The coverage simulation of
+``benchmarks/coverage.py`` (developer code, outside the package, with the other candidates it
+weighed: percentile, BCa and bootstrap-t) chose it for each statistic (:data:`CHOSEN`;
+docs/statistics.md, "Intervals and their coverage"); :data:`COVERAGE` is its measured
 coverage, quoted in the tables' captions. A bootstrap over one sample of up to
 :data:`EXACT_SEEDS` values enumerates every resample (each multiset of draws with its
 multinomial probability: 126 at 5 seeds, 92,378 at 10), so its ends do not depend on a seed.
@@ -35,7 +34,6 @@ from functools import lru_cache
 import numpy as np
 
 CONFIDENCE = 0.95
-METHODS: tuple[str, ...] = ("percentile", "bca", "bootstrap-t", "t")
 #: The interval of each statistic, chosen by ``benchmarks/coverage.py`` (docs/statistics.md).
 CHOSEN: dict[str, str] = {"mean": "t", "iqm": "t", "paired": "t"}
 #: The chosen method's simulated coverage of a nominal 95 % interval at 5 and 10 seeds: the
@@ -179,19 +177,6 @@ def design(n: int, reps: int = 2000, rng: np.random.Generator | None = None, exa
     return Design(resample_indices(n, reps, rng), np.full(reps, 1.0 / reps), False)
 
 
-def stratified_design(
-    sizes: Sequence[int], reps: int = 2000, rng: np.random.Generator | None = None, exact: bool | None = None
-) -> Design:
-    """The resamples of runs in strata of ``sizes`` laid side by side (one stratum's runs after
-    the other's): within each stratum its runs redrawn with replacement. One stratum: :func:`design`."""
-    if len(sizes) == 1:
-        return design(sizes[0], reps, rng, exact)
-    rng = rng if rng is not None else np.random.default_rng(0)
-    offsets = np.cumsum([0, *sizes[:-1]])
-    idx = np.concatenate([i + o for i, o in zip(stratified_indices(sizes, reps, rng), offsets)], axis=1)
-    return Design(idx, np.full(reps, 1.0 / reps), False)
-
-
 def percentile_interval(values: np.ndarray, confidence: float = CONFIDENCE, weights=None) -> tuple[float, float]:
     """The percentile interval of bootstrap statistics ``values``: numpy's interpolated
     percentiles of drawn resamples (arch's ``method="percentile"``, rliable's default), or with
@@ -223,87 +208,33 @@ def weighted_quantiles(values: np.ndarray, weights: np.ndarray, q: np.ndarray) -
 
 
 # --------------------------------------------------------------------------- intervals
-Stat = Callable[[np.ndarray], np.ndarray]  # (..., n) -> (...)
-
-
-def _mean(x: np.ndarray) -> np.ndarray:
-    return x.mean(axis=-1)
-
-
-def _mean_se(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def mean_se(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The standard error of the mean over the last axis and its degrees of freedom (``n - 1``)."""
     n = x.shape[-1]
     return x.std(axis=-1, ddof=1) / np.sqrt(n), np.asarray(n - 1.0)
 
 
-STATISTICS: dict[str, tuple[Stat, Callable]] = {
-    "mean": (_mean, _mean_se),
-    "iqm": (lambda x: iqm(x, axis=-1), trimmed_se),
-}
-
-
-def intervals(
-    x: np.ndarray,
-    statistic: str,
-    method: str,
-    d: Design | None = None,
-    confidence: float = CONFIDENCE,
-    sizes: Sequence[int] | None = None,
+def t_intervals(
+    x: np.ndarray, statistic: str, confidence: float = CONFIDENCE, sizes: Sequence[int] | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The ``method`` interval of ``statistic`` (``"mean"``, ``"iqm"``) of each row of ``x``
-    ``(rows, n)``, vectorised over rows (the coverage simulation's datasets): ``(lo, hi)``.
-    ``sizes``: strata (regimes) of consecutive lengths along a row, for the IQM's standard
-    error; ``d``: the bootstrap's resamples (default :func:`stratified_design` of ``sizes``)."""
-    from scipy.stats import norm, t
+    """The t interval of ``statistic`` (``"mean"``: Student's t; ``"iqm"``: Tukey and
+    McLaughlin's trimmed t, :func:`trimmed_se`) of each row of ``x`` ``(rows, n)``, vectorised
+    over rows (the coverage simulation's datasets): ``(lo, hi)``. ``sizes``: strata (regimes)
+    of consecutive lengths along a row, for the IQM's standard error."""
+    from scipy.stats import t
 
-    stat, se_fn = STATISTICS[statistic]
     x = np.atleast_2d(np.asarray(x, dtype=float))
-    n = x.shape[1]
-    sizes = [n] if sizes is None else list(sizes)
-
-    def se_of(v):
-        return se_fn(v, sizes) if statistic == "iqm" else se_fn(v)
-
-    alpha = (1 - confidence) / 2
-    theta = stat(x)
-    se, df = se_of(x)
-    if method == "t":
-        half = t.ppf(1 - alpha, df) * se
-        return theta - half, theta + half
-    d = d or stratified_design(sizes)
-    boot = stat(x[:, d.idx])  # (rows, resamples)
-    w = d.weights
-    if method == "percentile":
-        q = np.tile([alpha, 1 - alpha], (len(x), 1))
-        out = weighted_quantiles(boot, w, q)
-        return out[:, 0], out[:, 1]
-    if method == "bca":
-        below = ((boot < theta[:, None]) * w).sum(1) + 0.5 * ((boot == theta[:, None]) * w).sum(1)
-        z0 = norm.ppf(np.clip(below / w.sum(), 1e-6, 1 - 1e-6))
-        jack = np.stack([stat(np.delete(x, i, axis=1)) for i in range(n)], axis=1)
-        dev = jack.mean(axis=1, keepdims=True) - jack
-        den = 6 * (dev**2).sum(1) ** 1.5
-        a = np.divide((dev**3).sum(1), den, out=np.zeros(len(x)), where=den > 0)
-        z = norm.ppf([alpha, 1 - alpha])[None, :]
-        q = norm.cdf(z0[:, None] + (z0[:, None] + z) / (1 - a[:, None] * (z0[:, None] + z)))
-        out = weighted_quantiles(boot, w, q)
-        return out[:, 0], out[:, 1]
-    if method == "bootstrap-t":
-        se_b, _ = se_of(x[:, d.idx])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tt = (boot - theta[:, None]) / se_b
-        keep = np.isfinite(tt)  # a resample of one value repeated has no spread: left out
-        tt = np.where(keep, tt, 0.0)
-        ww = np.where(keep, w[None, :], 0.0)
-        out = np.stack(
-            [weighted_quantiles(tt[i : i + 1], ww[i], np.array([[alpha, 1 - alpha]]))[0] for i in range(len(x))]
-        )
-        return theta - out[:, 1] * se, theta - out[:, 0] * se
-    raise ValueError(f"method {method!r}: one of {', '.join(METHODS)}")
+    if statistic == "iqm":
+        theta, (se, df) = iqm(x, axis=-1), trimmed_se(x, sizes)
+    else:
+        theta, (se, df) = x.mean(axis=-1), mean_se(x)
+    half = t.ppf(1 - (1 - confidence) / 2, df) * se
+    return theta - half, theta + half
 
 
-def mean_ci(values, confidence: float = CONFIDENCE, method: str | None = None) -> tuple[float, float, float]:
+def mean_ci(values, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
     """The mean of ``values`` (one per seed; NaNs dropped) and its interval over seeds
-    (:data:`CHOSEN` ``["mean"]`` unless ``method``); ``(mean, nan, nan)`` with fewer than two
+    (:data:`CHOSEN` ``["mean"]``: Student's t); ``(mean, nan, nan)`` with fewer than two
     values or none spread: one run gives no spread to resample."""
     x = np.asarray(values, dtype=float)
     x = x[np.isfinite(x)]
@@ -312,7 +243,7 @@ def mean_ci(values, confidence: float = CONFIDENCE, method: str | None = None) -
     point = float(x.mean())
     if x.size < 2:
         return point, float("nan"), float("nan")
-    lo, hi = intervals(x, "mean", method or CHOSEN["mean"], confidence=confidence)
+    lo, hi = t_intervals(x, "mean", confidence)
     return point, float(lo[0]), float(hi[0])
 
 
@@ -370,22 +301,16 @@ def paired_ci(
     return percentile_interval(tot / tot_n, confidence)
 
 
-def iqm_runs_ci(
-    runs: Runs, confidence: float = CONFIDENCE, method: str | None = None, rng=None, reps: int = 2000
-) -> tuple[float, float, float]:
+def iqm_runs_ci(runs: Runs, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
     """The IQM of the runs pooled over regimes (rliable's aggregate IQM) and its interval
-    (:data:`CHOSEN` ``["iqm"]`` unless ``method``): the trimmed t with the standard error
-    stratified by regime, or a bootstrap stratified by regime (every resample enumerated for one
-    regime of up to :data:`EXACT_SEEDS` runs, else ``reps`` drawn with ``rng``).
+    (:data:`CHOSEN` ``["iqm"]``): the trimmed t with the standard error stratified by regime.
     ``(point, nan, nan)`` with one run per regime: nothing to resample."""
     runs = [np.asarray(r, dtype=float) for r in runs]
     pooled_runs = np.concatenate(runs)
     point = iqm(pooled_runs)
     if max(len(x) for x in runs) < 2:
         return point, float("nan"), float("nan")
-    sizes = [len(x) for x in runs]
-    d = None if (method or CHOSEN["iqm"]) == "t" else stratified_design(sizes, reps, rng)
-    lo, hi = intervals(pooled_runs, "iqm", method or CHOSEN["iqm"], d, confidence, sizes)
+    lo, hi = t_intervals(pooled_runs, "iqm", confidence, [len(x) for x in runs])
     return point, float(lo[0]), float(hi[0])
 
 
@@ -673,11 +598,7 @@ def total_cost(
 def caption(statistic: str) -> str:
     """The interval's method and measured coverage, for a caption:
     ``"t interval; simulated coverage 95.0 % at 5 seeds, 94.6 % at 10"``."""
-    name = {"t": "t", "percentile": "percentile bootstrap", "bca": "BCa bootstrap", "bootstrap-t": "bootstrap-t"}
-    if statistic == "iqm" and CHOSEN[statistic] == "t":
-        label = "trimmed-t"
-    else:
-        label = name[CHOSEN[statistic]]
+    label = "trimmed-t" if statistic == "iqm" else "t"  # CHOSEN: the t interval of each statistic
     cov = COVERAGE[statistic]
     return f"{label} interval; simulated coverage {100 * cov[5]:.1f} % at 5 seeds, {100 * cov[10]:.1f} % at 10"
 
