@@ -107,15 +107,27 @@ def validation_yardsticks(regime: str | EnvConfig, seed: int, n: int = 5) -> dic
     return {name: float(np.mean([d[name] for d in days])) for name in YARDSTICKS}
 
 
+def _drawn_days(cfg: EnvConfig, episodes: int, seed: int) -> np.ndarray:
+    """``episodes`` days ``(episodes, horizon)`` of food indices drawn with ``seed``."""
+    return np.random.default_rng(seed).integers(0, len(cfg.catalog.food), size=(episodes, cfg.reward.horizon))
+
+
 def evaluate_simple_policy(policy: str, regime: str, episodes: int = 200, seed: int = 0) -> list[dict]:
     """Per-episode metrics of ``policy`` on ``episodes`` days drawn with ``seed``."""
     cfg = load_env_config(regime)
-    foods = np.random.default_rng(seed).integers(0, len(cfg.catalog.food), size=(episodes, cfg.reward.horizon))
-    return play_simple_policy(policy, cfg, foods, seed)
+    return play_simple_policy(policy, cfg, _drawn_days(cfg, episodes, seed), seed)
 
 
-def _summary(eps: list[dict]) -> dict[str, float]:
-    return {k: float(np.mean([e[k] for e in eps])) for k in SUMMARY_KEYS}
+def _row(regime: str, policy: str, eps: list[dict], never: float, planner: float, **extra: str) -> dict:
+    """One row of :func:`baseline_table`: the means of ``eps``' metrics, their days and share of the gap."""
+    s = {k: float(np.mean([e[k] for e in eps])) for k in SUMMARY_KEYS}
+    return {
+        "regime": regime,
+        "policy": policy,
+        **s,
+        "days": len(eps),
+        "gap": gap_closed(s["return"], never, planner),
+    } | extra
 
 
 def baseline_table(
@@ -131,37 +143,18 @@ def baseline_table(
     for regime in regimes:
         played = {policy: evaluate_simple_policy(policy, regime, episodes, seed) for policy in POLICY_ORDER}
         never, planner = (float(np.mean([e["return"] for e in played[p]])) for p in YARDSTICKS)
-        for policy in POLICY_ORDER:
-            s = _summary(played[policy])
-            rows.append(
-                {
-                    "regime": regime,
-                    "policy": policy,
-                    **s,
-                    "days": episodes,
-                    "gap": gap_closed(s["return"], never, planner),
-                }
-            )
+        rows += [_row(regime, policy, played[policy], never, planner) for policy in POLICY_ORDER]
         if strong_days <= 0:
             continue
         n = min(strong_days, episodes)
         cfg = load_env_config(regime)
-        foods = np.random.default_rng(seed).integers(0, len(cfg.catalog.food), size=(episodes, cfg.reward.horizon))[:n]
+        foods = _drawn_days(cfg, episodes, seed)[:n]
         never_n, planner_n = (float(np.mean([e["return"] for e in played[p][:n]])) for p in YARDSTICKS)
         for policy in STRONG_POLICIES:
             eps = play_strong_policy(policy, cfg, foods, samples=samples, seed=seed)
-            s = _summary(eps)
             exact = sum(e["search"] == "exact" for e in eps)
-            rows.append(
-                {
-                    "regime": regime,
-                    "policy": policy,
-                    **s,
-                    "days": n,
-                    "gap": gap_closed(s["return"], never_n, planner_n),
-                    "search": f"exact {exact}/{n}" if policy == "clairvoyant" else f"{samples} futures",
-                }
-            )
+            search = f"exact {exact}/{n}" if policy == "clairvoyant" else f"{samples} futures"
+            rows.append(_row(regime, policy, eps, never_n, planner_n, search=search))
     return rows
 
 

@@ -40,15 +40,10 @@ _KINDS = (
 )
 
 
-def _kind(mode: int) -> str:
-    """What a path of ``st_mode`` ``mode`` is, in words."""
-    return next((word for test, word in _KINDS if test(mode)), "not a regular file")
-
-
 def file_kind(mode: int) -> str:
     """What a path of ``st_mode`` ``mode`` is, in words ("a FIFO (named pipe)", "a character
-    device", ...): for the one line of a reader that refuses it, as the writers do."""
-    return _kind(mode)
+    device", ...): for the one line of a writer or a reader that refuses it."""
+    return next((word for test, word in _KINDS if test(mode)), "not a regular file")
 
 
 def _label(path: Path, what: str) -> str:
@@ -74,7 +69,7 @@ def check_regular_file(
     ends with ``hint`` (what to do)."""
     found = _stat(Path(path))
     if found is not None and not stat.S_ISREG(found.st_mode):
-        raise error(f"{_label(Path(path), what)}: is {_kind(found.st_mode)}, not a regular file: {hint}")
+        raise error(f"{_label(Path(path), what)}: is {file_kind(found.st_mode)}, not a regular file: {hint}")
 
 
 def check_folder_target(
@@ -114,7 +109,7 @@ def _folder_problem(folder: Path) -> str | None:
         return None
     mode = os.stat(found).st_mode
     if not stat.S_ISDIR(mode):
-        return f"{'is' if found == folder else f'lies in {found}, which is'} {_kind(mode)}, not a folder"
+        return f"{'is' if found == folder else f'lies in {found}, which is'} {file_kind(mode)}, not a folder"
     try:
         os.rmdir(tempfile.mkdtemp(prefix=".nutribench-probe-", dir=found))
     except OSError as e:

@@ -61,9 +61,9 @@ def missing_experiment_modules() -> list[str]:
 
 
 #: Each command of the app: its name, the module and attribute of its function (a command) or
-#: of its typer app (a group, ``:group``), in the order ``nutribench --help`` lists them.
+#: of its typer app (a group), in the order ``nutribench --help`` lists them.
 COMMANDS: tuple[tuple[str, str], ...] = (
-    ("regimes", "nutribench.cli.regimes:regimes_app:group"),
+    ("regimes", "nutribench.cli.regimes:regimes_app"),
     ("baselines", "nutribench.cli.agents:baselines"),
     ("train", "nutribench.cli.agents:train_cmd"),
     ("run", "nutribench.cli.run:run_cmd"),
@@ -72,9 +72,9 @@ COMMANDS: tuple[tuple[str, str], ...] = (
     ("compare", "nutribench.cli.compare:compare_cmd"),
     ("leaderboard", "nutribench.cli.leaderboard:leaderboard_cmd"),
     ("evaluate", "nutribench.cli.evaluate:evaluate_cmd"),
-    ("db", "nutribench.cli.db:db_app:group"),
-    ("bench", "nutribench.cli.bench:bench_app:group"),
-    ("tune", "nutribench.cli.tune:tune_app:group"),
+    ("db", "nutribench.cli.db:db_app"),
+    ("bench", "nutribench.cli.bench:bench_app"),
+    ("tune", "nutribench.cli.tune:tune_app"),
 )
 
 
@@ -109,21 +109,13 @@ def build_app(only: str | None = None) -> typer.Typer:
         pass
 
     for name, where in COMMANDS:
-        if only is not None and name != only:
-            continue
-        module, attribute, *group = where.split(":")
-        target = getattr(importlib.import_module(module), attribute)
-        if not group:
-            app.command(name)(target)
-            continue
-        if name == "bench":
-            from nutribench.cli.bench_engines import bench_engines_cmd
-            from nutribench.cli.bench_tune import bench_tune_cmd
-
-            if not any(info.name == "engines" for info in target.registered_commands):
-                target.command("engines")(bench_engines_cmd)
-                target.command("tune")(bench_tune_cmd)
-        app.add_typer(target, name=name)
+        if only is None or name == only:
+            module, attribute = where.split(":")
+            target = getattr(importlib.import_module(module), attribute)
+            if isinstance(target, typer.Typer):
+                app.add_typer(target, name=name)
+            else:
+                app.command(name)(target)
     return app
 
 

@@ -1,7 +1,11 @@
-"""``nutribench bench env|train|learn|status``: throughput, status speed and learnability benchmarks."""
+"""``nutribench bench env|train|learn|status|engines|tune``: throughput, status speed and
+learnability benchmarks; whether the batched engine's agents learn what the SB3 agents learn
+(:mod:`nutribench.bench.engines`); tuning trials per hour, stacked in batched processes against
+one SB3 process per trial (:mod:`nutribench.bench.tune`)."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
@@ -21,6 +25,7 @@ from nutribench.cli.common import (
     user_errors,
 )
 from nutribench.engines import Engine
+from nutribench.safe_write import check_file_target
 
 bench_app = typer.Typer(
     no_args_is_help=True,
@@ -279,3 +284,125 @@ def check_engine_options(engine: str, device: str) -> None:
     from nutribench.scheduler.pools import check_engine
 
     check_engine(engine, 1, device)
+
+
+@bench_app.command("engines")
+@user_errors
+def bench_engines_cmd(
+    algos: Annotated[str, typer.Option(help="comma-separated algorithms the batched engine trains")] = "ppo",
+    regimes: Annotated[str, typer.Option(help="comma-separated regimes")] = "run0,run6",
+    seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2,3,4",
+    days: Annotated[
+        Optional[int], typer.Option("--days", min=1, help="training days per job, both engines [default: 500]")
+    ] = None,
+    episodes_alias: EpisodesAlias = None,
+    eval_episodes: EvalDaysOption = 10,
+    markdown: MarkdownOption = False,
+    device: Annotated[
+        str, typer.Option(help=f"the batched engine's: {DEVICE_HELP} (the SB3 engine: the CPU)")
+    ] = "auto",
+    concurrent: Annotated[
+        bool,
+        typer.Option(
+            "--concurrent",
+            help="train each algorithm's batched jobs beside the SB3 pool, not after it (cores to spare)",
+        ),
+    ] = False,
+    workers: Annotated[Optional[int], typer.Option(min=1, help="SB3 jobs trained at once (default: the cores)")] = None,
+    save: Annotated[
+        Optional[Path], typer.Option(help="also write every agent's evaluation returns (JSON) to this file")
+    ] = None,
+) -> None:
+    """Train with both engines (SB3 and batched) on the same seeds and budget; per algorithm
+    and regime the IQM of the evaluation returns with a 95 % bootstrap interval over seeds;
+    the two engines' intervals must overlap."""
+    episodes = old_spelling(days, episodes_alias, "--days", "--episodes", 500)
+    from nutribench.agents.registry import batched_names
+    from nutribench.bench.engines import COLUMNS, bench_engines, row_cells
+    from nutribench.config import list_regimes
+    from nutribench.scheduler.grid import parse_seeds
+
+    check_engine_options(Engine.BATCHED, device)
+    if save is not None:
+        check_file_target(save, "--save")
+    names = split_csv(algos, batched_names(), "algorithm for the batched engine")
+    regime_names = split_csv(regimes, list_regimes(), "regime")
+    with console.status("training with both engines"):
+        rows = bench_engines(
+            names,
+            regime_names,
+            list(parse_seeds(seeds)),
+            episodes,
+            eval_episodes,
+            workers=workers,
+            device=device,
+            concurrent=concurrent,
+            save=save,
+            on_done=_report_engine_run,
+        )
+    title = f"engines: SB3 vs batched, {episodes} days, seeds {seeds}"
+    print_table(COLUMNS, [row_cells(r) for r in rows], title, markdown)
+    walls = {r["engine"]: r["total_wall_seconds"] for r in rows}
+    how = "a process per algorithm, beside the SB3 pool" if concurrent else "one process"
+    console.print(
+        f"wall time: SB3 {walls[Engine.SB3]:.0f} s (a process per job, one per core), batched {walls[Engine.BATCHED]:.0f} s ({how})",
+        highlight=False,
+    )
+
+
+def _report_engine_run(engine: str, run) -> None:
+    mean = sum(e["return"] for e in run.eval_rows) / len(run.eval_rows)
+    console.print(
+        f"{engine} {run.algo} {run.regime} seed {run.seed}: evaluation return {mean:.2f} (mean of "
+        f"{len(run.eval_rows)} days), {run.wall_seconds:.0f} s of training",
+        highlight=False,
+    )
+
+
+@bench_app.command("tune")
+@user_errors
+def bench_tune_cmd(
+    space: Annotated[
+        Optional[str],
+        typer.Option(
+            "--space",
+            help="search space whose trials are drawn (an algorithm with per-agent settings: ppo, mc, gru_ppo, sac) [default: ppo]",
+        ),
+    ] = None,
+    algo: Annotated[Optional[str], typer.Option("--algo", hidden=True)] = None,
+    trials: Annotated[int, typer.Option(min=1, help="trials, the same in both arms")] = 8,
+    days: Annotated[int, typer.Option(min=1, help="training days per agent")] = 20,
+    regimes: Annotated[str, typer.Option(help="tuning regimes, comma-separated")] = "run0,run3",
+    seeds: Annotated[str, typer.Option(help="tuning seeds, comma-separated")] = "101,102",
+    eval_every: Annotated[int, typer.Option(min=1, help="days between validation evaluations")] = 10,
+    val_episodes: Annotated[int, typer.Option(min=1, help="validation days per evaluation")] = 5,
+    workers: Annotated[Optional[int], typer.Option(min=1, help="processes per arm (default: the cores)")] = None,
+    repeats: Annotated[int, typer.Option(min=1, help="repeats of both arms, orders alternating")] = 1,
+) -> None:
+    """Trials per hour: stacked trials in batched processes vs one SB3 process per trial (rl-zoo3's way)."""
+    space = old_spelling(space, algo, "--space", "--algo")  # as tune's --space; None: bench_tune's default
+    from nutribench.bench.tune import bench_tune
+    from nutribench.config import list_regimes
+    from nutribench.scheduler.grid import parse_seeds
+
+    names = tuple(split_csv(regimes, list_regimes(), "regime"))
+    with console.status(f"training {trials} trials in each arm"):
+        rows = bench_tune(
+            **({"space": space} if space is not None else {}),
+            trials=trials,
+            days=days,
+            regimes=names,
+            seeds=tuple(parse_seeds(seeds)),
+            eval_every=eval_every,
+            val_episodes=val_episodes,
+            workers=workers,
+            repeats=repeats,
+        )
+    r0 = rows[0]
+    title = f"{r0['space']}: {trials} trials x {r0['agents_per_trial']} agents x {days} days, {r0['workers']} processes"
+    cells = [
+        [r["arm"], f"{r['wall_s']:.1f}", " ".join(f"{w:.1f}" for w in r["walls"]), f"{r['trials_per_hour']:.0f}"]
+        + [f"{r.get('ratio', 1.0):.1f}x"]
+        for r in rows
+    ]
+    print_table(("arm", "wall s (median)", "walls", "trials/hour", "vs sb3"), cells, title)

@@ -22,7 +22,6 @@ from rich.console import Console
 from rich.markup import escape
 
 from nutribench.errors import UserError
-from nutribench.safe_write import check_folder_target
 
 #: the help of ``--device`` (checked by :mod:`nutribench.engine.device`, which imports torch: not here)
 DEVICE_HELP = "where the batched engine trains: 'auto' (CUDA when available, else the CPU), 'cpu', 'cuda' or 'cuda:N'"
@@ -48,14 +47,15 @@ console = Console()
 err_console = Console(stderr=True)
 
 
-def say(text: str) -> None:
-    """One line on stdout as written (no rich highlighting, no wrapping): a library's ``say``."""
-    console.print(text, highlight=False, soft_wrap=True)
+def say(text: str, **options) -> None:
+    """One line on stdout as written (no rich highlighting, no wrapping; ``options``: rich's,
+    e.g. ``style``): a library's ``say``."""
+    console.print(text, highlight=False, soft_wrap=True, **options)
 
 
-def say_err(text: str) -> None:
-    """One line on stderr as written: a library's ``say`` for what is not the command's output."""
-    err_console.print(text, highlight=False, soft_wrap=True)
+def say_err(text: str, **options) -> None:
+    """One line on stderr as written (:func:`say`'s): what is not the command's output."""
+    err_console.print(text, highlight=False, soft_wrap=True, **options)
 
 
 #: control characters (C0, DEL, C1): a value echoed in an error line shows them escaped
@@ -155,14 +155,6 @@ def split_csv(value: str, known: list[str], what: str, where: str = "") -> list[
             f"unknown {what} {', '.join(unknown)}: known are {', '.join(known)}{' ' + where if where else ''}"
         )
     return items
-
-
-def check_out_dir(folder: Path, option: str = "--out") -> None:
-    """``--out FOLDER``: a one-line UserError, before anything is read or written, when
-    ``folder`` cannot be a folder of new files (:func:`nutribench.safe_write.check_folder_target`:
-    it is a file, a device or a FIFO, lies below one, or its nearest existing folder refuses a
-    new entry). The folder itself is made by the writer."""
-    check_folder_target(folder, option, UserError)
 
 
 def old_spelling(value, old, option: str, old_option: str, default=None):

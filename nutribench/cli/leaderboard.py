@@ -12,11 +12,10 @@ import typer
 from nutribench.cli.common import (
     DbOption,
     UserError,
-    check_out_dir,
     console,
-    err_console,
     folder_option,
     progress,
+    say_err,
     user_errors,
 )
 
@@ -77,7 +76,7 @@ def leaderboard_cmd(
         steps = _steps(archives, ranking, advance)
 
         def log(msg: str) -> None:
-            err_console.print(msg, style="dim", highlight=False, soft_wrap=True)
+            say_err(msg, style="dim")
             steps(msg)
 
         table = (
@@ -85,23 +84,24 @@ def leaderboard_cmd(
             if archives is not None
             else leaderboard_from_db(db, reps, log, verify)
         )
-    text = {"markdown": table.to_markdown, "csv": table.to_csv, "latex": table.to_latex, "json": _json(table)}[fmt]()
+    writers = {"markdown": table.to_markdown, "csv": table.to_csv, "latex": table.to_latex}
+    text = _json(table) if fmt == "json" else writers[fmt]()
     console.print(text, end="" if text.endswith("\n") else "\n", highlight=False, soft_wrap=True, markup=False)
     if out is not None:
         for path in write_table(table, out, "leaderboard"):
-            err_console.print(str(path), highlight=False, soft_wrap=True)
+            say_err(str(path))
 
 
 def _check_folders(verify: Path | None, out: Path | None) -> None:
     """``--verify`` a folder, ``--out`` one that can hold the three files, one line each: checked
     before the table is computed (it takes a while)."""
     from nutribench.report.output import TABLE_SUFFIXES
-    from nutribench.safe_write import check_regular_file
+    from nutribench.safe_write import check_folder_target, check_regular_file
 
     if verify is not None and not verify.is_dir():
         raise UserError(f"--verify {verify}: not a folder (give the folder `nutribench run --models-dir` wrote)")
     if out is not None:
-        check_out_dir(out)
+        check_folder_target(out, "--out")
         for suffix in TABLE_SUFFIXES:
             check_regular_file(out / f"leaderboard.{suffix}", "--out", UserError)
 
@@ -129,12 +129,9 @@ def _steps(folder: Path | None, ranking: str, advance):
     return seen
 
 
-def _json(table):
+def _json(table) -> str:
     """``--format json``: the caption and the rows' numbers (shares as fractions), for scripts."""
     import json
 
-    def text() -> str:
-        rows = json.loads(table.raw.to_json(orient="records"))
-        return json.dumps({"caption": table.title, "rows": rows}, indent=2) + "\n"
-
-    return text
+    rows = json.loads(table.raw.to_json(orient="records"))
+    return json.dumps({"caption": table.title, "rows": rows}, indent=2) + "\n"

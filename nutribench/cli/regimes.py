@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from nutribench.cli.common import UserError, console, err_console, user_errors
+from nutribench.cli.common import UserError, console, say, say_err, user_errors
 
 regimes_app = typer.Typer(
     no_args_is_help=True, rich_markup_mode=None, help="Inspect, check and regenerate the regime files."
@@ -45,13 +45,9 @@ def regimes_check(
         fresh = regenerate(cfg.regime, cfg.catalog)
         if fresh.foods != cfg.regime.foods:
             bad += 1
-            err_console.print(
-                f"{cfg.path}: foods: values differ from a fresh draw with seed {cfg.regime.seed}",
-                highlight=False,
-                soft_wrap=True,
-            )
+            say_err(f"{cfg.path}: foods: values differ from a fresh draw with seed {cfg.regime.seed}")
         else:
-            console.print(f"{cfg.path}: ok (sha256 {cfg.sha256[:12]})", highlight=False, soft_wrap=True)
+            say(f"{cfg.path}: ok (sha256 {cfg.sha256[:12]})")
     if bad:
         raise typer.Exit(1)
 
@@ -128,7 +124,7 @@ def _redraw(regime: str, write: bool) -> None:
     if write:
         write_regime(fresh, cfg.path)
         note = "" if fresh == cfg.regime else " (values changed: bump its version)"
-        console.print(f"wrote {cfg.path}{note}", highlight=False, soft_wrap=True)
+        say(f"wrote {cfg.path}{note}")
     else:
         typer.echo(regime_to_toml(fresh), nl=False)
 
@@ -170,8 +166,4 @@ def _create(
         raise UserError(f"{path} already exists: pass --force to overwrite it, or choose another NAME")
     write_regime(new, path)
     note = " (replaced the old file: if results were stored under it, bump its version)" if replaced else ""
-    console.print(
-        f"wrote {path} (seed {new.seed}); use it as regime={name} or --regimes {name}{note}",
-        highlight=False,
-        soft_wrap=True,
-    )
+    say(f"wrote {path} (seed {new.seed}); use it as regime={name} or --regimes {name}{note}")

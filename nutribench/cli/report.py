@@ -9,15 +9,8 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import (
-    DbOption,
-    check_out_dir,
-    console,
-    err_console,
-    folder_option,
-    progress,
-    user_errors,
-)
+from nutribench.cli.common import DbOption, folder_option, progress, say, say_err, user_errors
+from nutribench.safe_write import check_folder_target
 
 _Fig = Annotated[
     Optional[list[str]],
@@ -85,7 +78,7 @@ def report_cmd(
     request = ReportRequest.parse(
         fig, table, all_, algos, pair, trajectory, diagnostics, algo, regime, seed, episode, reference_episodes
     )
-    check_out_dir(out)
-    log = lambda msg: err_console.print(msg, style="yellow", highlight=False, soft_wrap=True)  # noqa: E731
+    check_folder_target(out, "--out")
+    log = lambda msg: say_err(msg, style="yellow")  # noqa: E731
     for p in request.build(db, out, log, lambda what, text: progress(None, what, text=text, lines=True)):
-        console.print(str(p), highlight=False, soft_wrap=True)
+        say(str(p))

@@ -59,7 +59,5 @@ def arrivals_by_horizon(schedule: np.ndarray, horizon: int) -> np.ndarray:
     """``R[t, i, n]``: amount of nutrient n of food i that arrives by step H when eaten after
     t steps have been taken (i.e. at step t + 1). Used by the planner."""
     cums = np.cumsum(schedule, axis=1)  # (N, L, 3): arrived within offsets 0..k
-    R = np.empty((horizon, schedule.shape[0], schedule.shape[2]))
-    for t in range(horizon):
-        R[t] = cums[:, horizon - t - 1, :]  # eaten at step t+1, offsets up to H-(t+1)
-    return R
+    # R[t] = cums[:, H - t - 1]: eaten at step t+1, offsets up to H-(t+1)
+    return np.ascontiguousarray(cums[:, horizon - 1 :: -1, :].transpose(1, 0, 2))

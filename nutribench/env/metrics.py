@@ -29,19 +29,18 @@ class EpisodeRecorder:
 
     def __init__(self, num_envs: int):
         self.num_envs = num_envs
-        self.clear()
+        self._ret = np.zeros(num_envs)
+        self._over_steps = np.zeros(num_envs, dtype=np.int64)
+        self._steps = np.zeros(num_envs, dtype=np.int64)
+        self._first_over = np.full(num_envs, -1, dtype=np.int64)
 
     def clear(self, mask: np.ndarray | None = None) -> None:
-        if mask is None:
-            self._ret = np.zeros(self.num_envs)
-            self._over_steps = np.zeros(self.num_envs, dtype=np.int64)
-            self._steps = np.zeros(self.num_envs, dtype=np.int64)
-            self._first_over = np.full(self.num_envs, -1, dtype=np.int64)
-        else:
-            self._ret[mask] = 0.0
-            self._over_steps[mask] = 0
-            self._steps[mask] = 0
-            self._first_over[mask] = -1
+        """Start the episodes of the envs ``mask`` (default: all) afresh."""
+        where = slice(None) if mask is None else mask
+        self._ret[where] = 0.0
+        self._over_steps[where] = 0
+        self._steps[where] = 0
+        self._first_over[where] = -1
 
     def record(self, rewards: np.ndarray, done: np.ndarray, info: dict[str, Any]) -> list[dict[str, Any]]:
         """Add one step (batched); return the metrics of the episodes that ended at it."""
