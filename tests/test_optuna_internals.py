@@ -39,10 +39,6 @@ def test_the_study_and_trial_internals_the_driver_reads(study) -> None:
     trial = study.ask()
     assert isinstance(trial._trial_id, int)
     assert study.trials[0]._trial_id == trial._trial_id  # FrozenTrial's too (StackView keys)
-    study.enqueue_trial({"x": 1.0})
-    assert callable(study._pop_waiting_trial_id)
-    waiting = study._pop_waiting_trial_id()
-    assert study._storage.get_trial(waiting).state == TrialState.RUNNING
 
 
 def test_the_table_models_the_driver_queries(study) -> None:

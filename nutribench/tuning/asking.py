@@ -1,7 +1,7 @@
 """Claiming trials and keeping them alive, at a cost in proportion to the trials asked.
 
 :func:`claim` takes a queued trial or asks a new one and counts the study's held trials in
-one SQL query each (on an RDB storage; a whole read of the study's trials otherwise), and
+one SQL query each (a study's storage is RDB: :func:`nutribench.tuning.study.optuna_storage`), and
 :func:`heartbeats` beats all of a batch's trials in one transaction per interval, reading no
 trial. :class:`StackView` serves the sampler's reads while a stack of trials is asked from
 one read of the study plus the stack's own trials, kept as they are written (issue 51: with
@@ -9,8 +9,8 @@ one read of the study plus the stack's own trials, kept as they are written (iss
 reading its unfinished trials afresh on each call, and the stack's asks cost N squared).
 
 Optuna's public API has no such reads, so this module (and a few lines of ``stack.py``) use its
-internals: ``Study._storage``, ``_study_id``, ``_thread_local``, ``_pop_waiting_trial_id``,
-``Trial._trial_id``, the cached storage's ``_backend`` and the RDB table models.
+internals: ``Study._storage``, ``_study_id``, ``_thread_local``, ``Trial._trial_id``,
+the cached storage's ``_backend`` and the RDB table models.
 ``tests/test_optuna_internals.py`` checks each of them against the installed Optuna (pinned
 ``>=5.0,<6``), so that an upgrade which moves one fails there, by name.
 """
@@ -36,10 +36,6 @@ def beat(storage: Any, trial_ids: list[int]) -> None:
     on an RDB storage in one transaction that reads only their heartbeat rows."""
     backend = getattr(storage, "_backend", storage)
     if not trial_ids:
-        return
-    if not hasattr(backend, "scoped_session"):
-        for trial_id in trial_ids:
-            storage.record_heartbeat(trial_id)
         return
     import sqlalchemy
     from optuna.storages._rdb import models
@@ -104,9 +100,6 @@ def _count_held(study: Any) -> int:
 
     states = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.RUNNING)
     storage = rdb_backend(study)
-    if not hasattr(storage, "engine"):
-        inner = getattr(study._storage, "inner", study._storage)
-        return len(inner.get_all_trials(study._study_id, deepcopy=False, states=states))
     import sqlalchemy
     from optuna.storages._rdb import models
 
@@ -130,8 +123,6 @@ def _pop_waiting(study: Any) -> int | None:
     from optuna.trial import TrialState
 
     storage = rdb_backend(study)
-    if not hasattr(storage, "engine"):  # not an RDB storage: Optuna's own pop
-        return study._pop_waiting_trial_id()
     trials = models.TrialModel
     while True:
         with storage.engine.connect() as conn:

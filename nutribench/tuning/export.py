@@ -15,7 +15,6 @@ the study was created with.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any
@@ -23,7 +22,7 @@ from typing import Any
 from nutribench.agents.config import agent_config_to_toml, agents_dir
 from nutribench.agents.registry import paper_names
 from nutribench.safe_write import atomic_write, check_folder_target, check_regular_file
-from nutribench.tuning.space import SearchSpace, check_space, load_search_space
+from nutribench.tuning.space import decoded, load_search_space, validated_space
 from nutribench.tuning.study import SPACE_ATTR, TuneError, count_trials, stored_settings
 
 
@@ -43,7 +42,7 @@ def tuned_config(study: Any, name: str | None = None) -> tuple[Any, str]:
         f"(IQM share of the never -> planner gap on validation days), search space {space.name} v{space.version} "
         f"(sha256 {space.sha256[:12]})"
     )
-    cfg = space.config(_decoded(best.params), name=name, description=provenance)
+    cfg = space.config({k: decoded(v) for k, v in best.params.items()}, name=name, description=provenance)
     header = "\n".join(
         [
             f"# {name}: the best trial of tuning study {study.study_name!r} (docs/tuning.md).",
@@ -116,23 +115,13 @@ def _kept_space(text: str, source: str) -> Any:
     """The search space of a study's kept text (``source`` names it in a one-line ConfigError)."""
     import tomllib
 
-    from pydantic import ValidationError
-
-    from nutribench.config.loading import ConfigError, format_validation_error
+    from nutribench.config.loading import ConfigError
 
     try:
-        space = SearchSpace.model_validate(tomllib.loads(text))
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{source}: {e}") from None
-    except ValidationError as e:
-        raise ConfigError(format_validation_error(source, e)) from None
-    check_space(space, source)
-    return space
-
-
-def _decoded(params: dict[str, Any]) -> dict[str, Any]:
-    """Optuna's stored values as the agent file wants them (list choices from their JSON text)."""
-    return {k: json.loads(v) if isinstance(v, str) and v.startswith("[") else v for k, v in params.items()}
+    return validated_space(data, source)
 
 
 def write_tuned(study: Any, name: str | None = None, folder: Path | None = None) -> Path:

@@ -21,18 +21,11 @@ from typing import Any
 
 import numpy as np
 
+from nutribench.baselines import gap_closed
 from nutribench.engines import Engine
 from nutribench.stats import iqm
 from nutribench.tuning.space import SearchSpace
 from nutribench.tuning.study import StudySettings
-
-
-def share_of_gap(ret: float, never: float, planner: float) -> float:
-    """``ret`` as a share of the gap from never eating (0) to the greedy planner (1)
-    (:func:`nutribench.baselines.gap_closed`)."""
-    from nutribench.baselines import gap_closed
-
-    return gap_closed(ret, never, planner)
 
 
 class ValidationObjective:
@@ -110,19 +103,7 @@ class ValidationObjective:
         """Train the trial's K agents with evaluations during training (batched when supported)."""
         s = self.settings
         if self.engine(cfg) == Engine.BATCHED:
-            from nutribench.engine.train import train_batched
-
-            train_batched(
-                self.jobs,
-                cfg,
-                s.days,
-                device=self.device,
-                eval_every=s.eval_every,
-                val_episodes=s.val_episodes,
-                on_validation=on_validation,
-                on_episode=self.batch_days(),
-                return_agents=False,  # the score is the validation rows: no SB3 model built
-            )
+            self.train_batch(self.jobs, cfg, on_validation)
             return
         from nutribench.agents.api import evaluate, train
         from nutribench.agents.days import validation_food_streams
@@ -145,6 +126,28 @@ class ValidationObjective:
                 on_validation=lambda _, day, rows, j=j: on_validation(j, day, rows),
                 on_episode=self.job_days(j),
             )
+
+    def train_batch(
+        self, jobs: list[tuple[str, int]], cfg: Any, on_validation: Callable[..., None], **extra: Any
+    ) -> None:
+        """``jobs`` trained at once by the batched engine from ``cfg`` (``extra``: more of
+        :func:`~nutribench.engine.train.train_batched`'s arguments, a stack's configs per agent),
+        evaluated every ``eval_every`` days."""
+        from nutribench.engine.train import train_batched
+
+        s = self.settings
+        train_batched(
+            jobs,
+            cfg,
+            s.days,
+            device=self.device,
+            eval_every=s.eval_every,
+            val_episodes=s.val_episodes,
+            on_validation=on_validation,
+            on_episode=self.batch_days(),
+            return_agents=False,  # the score is the validation rows: no SB3 model built
+            **extra,
+        )
 
     def job_days(self, j: int) -> Callable[[dict[str, Any]], None] | None:
         """The SB3 engine's ``on_episode`` for job ``j`` (trained alone): :attr:`on_day` at each day."""
@@ -173,7 +176,7 @@ class TrialScores:
         obj = self.objective
         never, planner = obj.references(*obj.jobs[job])
         per_day = self.shares.setdefault(day, {})
-        per_day[job] = share_of_gap(float(np.mean([r["return"] for r in rows])), never, planner)
+        per_day[job] = gap_closed(float(np.mean([r["return"] for r in rows])), never, planner)
         if len(per_day) < len(obj.jobs):
             return None
         value = iqm(np.array(list(per_day.values())))

@@ -50,6 +50,7 @@ from nutribench.config.loading import (
     regimes_dir,
     resolve_named_file,
 )
+from nutribench.config.sizes import size
 
 #: the fields of an agent config that name or describe it, never searched
 _IDENTITY = ("algo", "name", "version", "description", "entry_point")
@@ -100,8 +101,12 @@ class Param(BaseModel):
         if self.kind == "int":
             return trial.suggest_int(name, int(self.low), int(self.high), log=self.log)  # type: ignore[arg-type]
         encoded = [json.dumps(c) if isinstance(c, list) else c for c in self.choices or []]
-        value = trial.suggest_categorical(name, encoded)
-        return json.loads(value) if isinstance(value, str) and value.startswith("[") else value
+        return decoded(trial.suggest_categorical(name, encoded))
+
+
+def decoded(value: Any) -> Any:
+    """A value as Optuna stores it back as the agent file wants it (a list choice from its JSON text)."""
+    return json.loads(value) if isinstance(value, str) and value.startswith("[") else value
 
 
 class SearchSpace(BaseModel):
@@ -171,13 +176,20 @@ def load_search_space(name_or_path: str | Path) -> SearchSpace:
     """The validated search space of a name or file: its keys, its parameters against the base
     agent's config model, and each range's ends as valid configs (one-line :class:`ConfigError`)."""
     path = resolve_space_path(name_or_path)
+    return validated_space(read_toml(path), path, path.stem)
+
+
+def validated_space(data: dict[str, Any], source: Path | str, file_name: str | None = None) -> SearchSpace:
+    """The search space of ``data`` (a space file's table), validated as :func:`load_search_space`
+    says; ``source`` names it in the one-line :class:`ConfigError`, whose ``name`` must be
+    ``file_name`` where one is given."""
     try:
-        space = SearchSpace.model_validate(read_toml(path))
+        space = SearchSpace.model_validate(data)
     except ValidationError as e:
-        raise ConfigError(format_validation_error(path, e)) from None
-    if space.name != path.stem:
-        raise ConfigError(f"{path}: name: '{space.name}' differs from the file name '{path.stem}' (make them equal)")
-    check_space(space, path)
+        raise ConfigError(format_validation_error(source, e)) from None
+    if file_name is not None and space.name != file_name:
+        raise ConfigError(f"{source}: name: '{space.name}' differs from the file name '{file_name}' (make them equal)")
+    check_space(space, source)
     return space
 
 
@@ -267,13 +279,5 @@ def check_space_memory(space: SearchSpace, agents: int, limit: int | None = None
         )
         raise ConfigError(
             f"search space {space.name!r}: its largest trial ({shown or 'the base values'}, {agents} agents) would "
-            f"need about {_size(need)} of memory, more than this machine's {_size(limit)}: narrow its ranges"
+            f"need about {size(need)} of memory, more than this machine's {size(limit)}: narrow its ranges"
         )
-
-
-def _size(n: float) -> str:
-    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
-        if n < 1024 or unit == "PiB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1024
-    return f"{n:.1f} PiB"

@@ -130,28 +130,13 @@ def run_study(
     refuses (a full disk) fails the trial at once and is one line (:func:`fail_trials`)."""
     if trials < 1:
         raise TuneError("--trials must be >= 1")
-    with quiet_optuna(), refused_writes_as_one_line():
-        return _run_study(study, objective, trials, on_trial, on_wait)
-
-
-def _run_study(
-    study: Any,
-    objective: Callable[[Any], float],
-    trials: int,
-    on_trial: Callable[[StudyCounts], None] | None,
-    on_wait: Callable[[StudyCounts], None] | None,
-) -> StudyCounts:
     import optuna
     from optuna.trial import TrialState
 
-    while True:
-        counts, room = wait_for_room(study, trials, on_wait)
-        if not room:
-            return counts
+    def run_one(room: int) -> bool:
         trial = claim(study, trials)
         if trial is None:
-            time.sleep(0.05 + 0.2 * np.random.random())  # another driver asked at the same moment
-            continue
+            return False
         with heartbeats(study, [trial]):
             try:
                 try:
@@ -164,6 +149,24 @@ def _run_study(
                 fail_trials(study, [trial], e)
         if on_trial is not None:
             on_trial(count_trials(study))
+        return True
+
+    return drive(study, trials, run_one, on_wait)
+
+
+def drive(
+    study: Any, trials: int, run: Callable[[int], bool], on_wait: Callable[[StudyCounts], None] | None
+) -> StudyCounts:
+    """Call ``run(room)`` (it claims and runs up to ``room`` trials; False when another driver
+    claimed them first) until ``study`` holds ``trials`` finished trials (:func:`wait_for_room`);
+    the study's counts then. Optuna's log quiet, a write the database refuses one line."""
+    with quiet_optuna(), refused_writes_as_one_line():
+        while True:
+            counts, room = wait_for_room(study, trials, on_wait)
+            if not room:
+                return counts
+            if not run(room):
+                time.sleep(0.05 + 0.2 * np.random.random())  # another driver asked at the same moment
 
 
 def refused_write(error: BaseException) -> str | None:
@@ -316,18 +319,11 @@ class StackedTrials:
         (none of them running), and claims each as a single trial does
         (:func:`~nutribench.tuning.study.claim`, :func:`~nutribench.tuning.study.wait_for_room`:
         a killed driver's stale trials are failed and their parameters run again)."""
-        with quiet_optuna(), refused_writes_as_one_line():
-            return self._run(study, trials, on_trial, on_wait)
 
-    def _run(self, study: Any, trials: int, on_trial: Any, on_wait: Any) -> StudyCounts:
-        while True:
-            counts, room = wait_for_room(study, trials, on_wait)
-            if not room:
-                return counts
+        def run_stack(room: int) -> bool:
             asked = self.ask(study, min(self.stack, room), trials)
             if not asked:
-                time.sleep(0.05 + 0.2 * np.random.random())  # another driver asked at the same moment
-                continue
+                return False
             groups: dict[str, list[tuple[Any, Any]]] = {}
             for n, (trial, cfg) in enumerate(asked):
                 key = structure_key(cfg)
@@ -340,6 +336,9 @@ class StackedTrials:
                             on_trial(count_trials(study))
                 except BaseException as e:
                     fail_trials(study, [t for t, _ in asked], e)  # those not told yet
+            return True
+
+        return drive(study, trials, run_stack, on_wait)
 
     def ask(self, study: Any, n: int, trials: int | None = None) -> list[tuple[Any, Any]]:
         """Up to ``n`` claimed trials and their configs (fewer where other drivers claimed the
@@ -415,23 +414,9 @@ class StackedTrials:
 
     def train(self, group: list[tuple[Any, Any]], on_validation: Callable[..., None], active: np.ndarray) -> None:
         """One batch: every trial's agents, one per (regime, seed), each trial's config for its own."""
-        obj, s = self.objective, self.objective.settings
+        obj = self.objective
         if len(group) == 1 and structure_key(group[0][1]) is None:
             obj.train(group[0][1], on_validation)  # as a single trial (SB3 engine, plug-in, off-policy)
             return
-        from nutribench.engine.train import train_batched
-
         cfgs = [cfg for _, cfg in group for _ in obj.jobs]
-        train_batched(
-            obj.jobs * len(group),
-            group[0][1],
-            s.days,
-            device=obj.device,
-            eval_every=s.eval_every,
-            val_episodes=s.val_episodes,
-            on_validation=on_validation,
-            agent_configs=cfgs,
-            active=active,
-            on_episode=obj.batch_days(),
-            return_agents=False,  # a trial's score is its validation rows: no SB3 model built
-        )
+        obj.train_batch(obj.jobs * len(group), group[0][1], on_validation, agent_configs=cfgs, active=active)

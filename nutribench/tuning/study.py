@@ -23,6 +23,7 @@ from __future__ import annotations
 import os
 import time
 import warnings
+from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -242,11 +243,10 @@ def open_study(
     if settings is not None:
         check_study_name(name)
     storage = optuna_storage(db, writer=settings is not None)
-    names = set() if storage is None else {s.study_name for s in optuna.get_all_study_summaries(storage, False)}
+    names = study_names(storage)
     if name not in names:
         if settings is None:
-            known = ", ".join(sorted(names)) or "(none)"
-            raise TuneError(f"no tuning study {name!r} in this database: studies here are {known}")
+            raise no_such_study(name, names)
         settings.check()
         try:
             study = optuna.create_study(
@@ -264,10 +264,9 @@ def open_study(
             study.set_user_attr(ATTR, settings.as_attr())
             return study
     stored = _settings_when_written(optuna.load_study(study_name=name, storage=storage))
-    if settings is not None:  # a study resumes with the sampler it was made with
-        settings = replace(settings, constant_liar=stored.constant_liar)
-    if settings is not None and once:
-        settings = replace(settings, eval_every=stored.eval_every, pruner=stored.pruner)
+    if settings is not None:  # a study resumes with the sampler it was made with (and a plug-in's as it was)
+        kept = ("constant_liar", "eval_every", "pruner") if once else ("constant_liar",)
+        settings = replace(settings, **{k: getattr(stored, k) for k in kept})
     if settings is not None and stored != settings:
         diff = [
             f"{k} {getattr(stored, k)!r} (asked {getattr(settings, k)!r})"
@@ -330,16 +329,9 @@ def count_trials(study: Any) -> StudyCounts:
     """A study's trial counts by state and its best trial."""
     from optuna.trial import TrialState
 
-    counts = StudyCounts(study.study_name)
-    for t in study.get_trials(deepcopy=False):
-        attr = {
-            TrialState.COMPLETE: "complete",
-            TrialState.PRUNED: "pruned",
-            TrialState.RUNNING: "running",
-            TrialState.FAIL: "failed",
-            TrialState.WAITING: "waiting",
-        }[t.state]
-        setattr(counts, attr, getattr(counts, attr) + 1)
+    n = Counter(t.state for t in study.get_trials(deepcopy=False))
+    states = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.RUNNING, TrialState.FAIL, TrialState.WAITING)
+    counts = StudyCounts(study.study_name, *(n[state] for state in states))
     if counts.complete:
         best = study.best_trial
         counts.best_number, counts.best_value, counts.best_params = best.number, best.value, dict(best.params)
@@ -358,14 +350,24 @@ def study_counts(db: Any, name: str | None = None) -> list[StudyCounts]:
     storage = optuna_storage(db, writer=False)
     if storage is None:
         return []
-    names = sorted(s.study_name for s in optuna.get_all_study_summaries(storage, include_best_trial=False))
+    names = study_names(storage)
     if name is not None:
         if name not in names:
-            raise TuneError(
-                f"no tuning study {name!r} in this database: studies here are {', '.join(names) or '(none)'}"
-            )
+            raise no_such_study(name, names)
         names = [name]
     return [count_trials(optuna.load_study(study_name=n, storage=storage)) for n in names]
+
+
+def study_names(storage: Any) -> list[str]:
+    """The names of the studies in ``storage`` (None: no study table), sorted."""
+    import optuna
+
+    return [] if storage is None else sorted(s.study_name for s in optuna.get_all_study_summaries(storage, False))
+
+
+def no_such_study(name: str, names: list[str]) -> TuneError:
+    """The one line for a study ``name`` not among ``names``."""
+    return TuneError(f"no tuning study {name!r} in this database: studies here are {', '.join(names) or '(none)'}")
 
 
 def scored_once(settings: StudySettings) -> StudySettings:
