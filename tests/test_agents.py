@@ -256,11 +256,12 @@ PPO_CI_EACH_BAR = 0.25
 
 
 def gap_closed(returns: list[float], streams: np.ndarray) -> float:
+    from nutribench.baselines import day_yardsticks
     from nutribench.baselines import gap_closed as share_of_gap
-    from nutribench.bench.learn import reference_returns
 
-    ref = reference_returns("run0", streams)
-    return share_of_gap(float(np.mean(returns)), float(np.mean(ref["never"])), float(np.mean(ref["planner"])))
+    ref = day_yardsticks("run0", streams)
+    never, planner = (float(np.mean([d[name] for d in ref])) for name in ("never", "planner"))
+    return share_of_gap(float(np.mean(returns)), never, planner)
 
 
 def simple_policy_returns(policy: str, streams: np.ndarray) -> list[float]:

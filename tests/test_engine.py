@@ -204,8 +204,9 @@ def test_batched_training_yields_agents_the_single_agent_api_uses(tmp_path) -> N
 @pytest.mark.slow
 def test_bench_engines_and_bench_train_batched_report_their_shape() -> None:
     """The benchmarks' shape, not their figures (timings belong in benchmarks)."""
+    from nutribench.agents.registry import batched_class
     from nutribench.bench.engines import bench_engines, markdown_table
-    from nutribench.bench.throughput import bench_train_batched, flops_per_env_step
+    from nutribench.bench.throughput import bench_train_batched
 
     rows = bench_engines(["ppo"], ["run0"], [0, 1], episodes=10, eval_episodes=2, workers=1)
     assert [(r["engine"], r["seeds"]) for r in rows] == [("sb3", 2), ("batched", 2)]
@@ -213,8 +214,13 @@ def test_bench_engines_and_bench_train_batched_report_their_shape() -> None:
     assert all(r["ci_low"] <= r["iqm"] <= r["ci_high"] for r in rows)
     assert markdown_table(rows).count("\n") == 3
     cfg = load_agent_config("ppo")
-    assert flops_per_env_step(cfg) == (2 * (13 * 256 + 256 * 128) + 2 * 128 * 3) * (1 + 3 * cfg.n_epochs)
-    assert flops_per_env_step(load_agent_config("mc")) == (2 * (13 * 256 + 256 * 128) + 2 * 128 * 3) * 4
+    assert batched_class("ppo").flops_per_env_step(cfg) == (2 * (13 * 256 + 256 * 128) + 2 * 128 * 3) * (
+        1 + 3 * cfg.n_epochs
+    )
+    assert (
+        batched_class("mc").flops_per_env_step(load_agent_config("mc"))
+        == (2 * (13 * 256 + 256 * 128) + 2 * 128 * 3) * 4
+    )
     b = bench_train_batched("ppo", k_regimes=2, k_seeds=1, episodes=2, repeats=1)
     assert b["k"] == 2 and b["steps_per_s"] > 0 and 0 < b["floor_share"]
 

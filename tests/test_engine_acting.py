@@ -291,17 +291,16 @@ def test_the_batched_ppo_learns_to_eat_on_run0_and_beats_never_eating() -> None:
     one batch, evaluated greedily on each seed's fixed days: every agent eats and beats
     "never eat" by more than BATCHED_PPO_EACH_BAR of the never -> planner gap, and the median
     closes at least BATCHED_PPO_MEDIAN_BAR of it."""
-    from nutribench.baselines import gap_closed
-    from nutribench.bench.learn import reference_returns
+    from nutribench.baselines import day_yardsticks, gap_closed
 
     agents = train_batched([("run0", s) for s in BATCHED_PPO_SEEDS], "ppo", BATCHED_PPO_DAYS)
     results = []
     for seed, agent in zip(BATCHED_PPO_SEEDS, agents):
         streams = eval_food_streams("run0", seed, 10)
         rows = evaluate(agent, "run0", streams, record_steps=False).episodes
-        ref = reference_returns("run0", streams)
-        mean, never = float(np.mean([r["return"] for r in rows])), float(np.mean(ref["never"]))
-        gap = gap_closed(mean, never, float(np.mean(ref["planner"])))
+        ref = day_yardsticks("run0", streams)
+        mean, never = float(np.mean([r["return"] for r in rows])), float(np.mean([d["never"] for d in ref]))
+        gap = gap_closed(mean, never, float(np.mean([d["planner"] for d in ref])))
         foods = float(np.mean([r["foods"] for r in rows]))
         results.append((seed, round(gap, 3), foods, round(mean, 2), round(never, 2)))
     assert all(gap > BATCHED_PPO_EACH_BAR and foods >= 1 and mean > never for _, gap, foods, mean, never in results), (

@@ -34,8 +34,6 @@ from nutribench.engines import TRAINING_ENGINES, Engine
 from nutribench.safe_write import atomic_write
 from nutribench.stats import clustered_iqm_ci
 
-ENGINES = TRAINING_ENGINES
-
 
 def _timed_batched_runs(
     algo: str, regimes: list[str], seeds: list[int], episodes: int, eval_episodes: int, device: str
@@ -47,7 +45,7 @@ def _timed_batched_runs(
 
 def _save(path: Path | None, runs: dict[str, list[LearnRun]], episodes: int, device: str) -> None:
     if path is not None:
-        records = [{"engine": e, **dataclasses.asdict(r)} for e in ENGINES for r in runs[e]]
+        records = [{"engine": e, **dataclasses.asdict(r)} for e in TRAINING_ENGINES for r in runs[e]]
         with atomic_write(path, "--save") as tmp:
             tmp.write_text(json.dumps({"episodes": episodes, "device": device, "runs": records}, default=float))
 
@@ -107,7 +105,7 @@ def _engine_pair(runs: dict[str, list[LearnRun]], algo: str, regime: str, episod
     """The SB3 and the batched row of one (algorithm, regime); the batched row says whether
     the two intervals overlap."""
     pair = []
-    for engine in ENGINES:
+    for engine in TRAINING_ENGINES:
         rs = [r for r in runs[engine] if r.algo == algo and r.regime == regime]
         point, lo, hi = clustered_iqm_ci([np.array([e["return"] for e in r.eval_rows]) for r in rs])
         learned = summarize(rs)[0]  # the gap, foods and wall time as bench learn states them

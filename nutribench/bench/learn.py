@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from nutribench.baselines import gap_closed
+from nutribench.baselines import day_yardsticks, gap_closed
 from nutribench.engines import Engine
 from nutribench.stats import iqm
 
@@ -64,35 +64,35 @@ class LearnRun:
     planner_returns: list[float]
 
 
-def reference_returns(regime: str, streams: np.ndarray) -> dict[str, list[float]]:
-    """Returns of ``never`` and ``planner`` on the given days ``(n, horizon)``."""
-    from nutribench.baselines import play_simple_policy
-
-    return {
-        name: [float(r["return"]) for r in play_simple_policy(name, regime, streams)] for name in ("never", "planner")
-    }
-
-
 def one_run(config: Any, regime: str, seed: int, episodes: int, eval_episodes: int) -> LearnRun:
     """One learnability run: ``config`` trained on ``regime`` with ``seed`` for ``episodes``
     days (SB3 engine), then played greedily on the seed's first ``eval_episodes`` evaluation
     days; its :class:`LearnRun` (returns, share of the gap, wall time)."""
-    from nutribench.agents import eval_food_streams, evaluate, train
+    from nutribench.agents import train
 
     start = time.perf_counter()
     agent = train(regime, config, seed=seed, episodes=episodes)
-    wall = time.perf_counter() - start
+    return evaluated(agent, config.name, regime, seed, episodes, time.perf_counter() - start, eval_episodes)
+
+
+def evaluated(
+    agent: Any, name: str, regime: str, seed: int, episodes: int, wall: float, eval_episodes: int
+) -> LearnRun:
+    """``agent`` (config ``name``, trained ``episodes`` days in ``wall`` seconds) played greedily
+    on the first ``eval_episodes`` evaluation days of ``seed``, and the reference policies on them."""
+    from nutribench.agents import eval_food_streams, evaluate
+
     streams = eval_food_streams(regime, seed, eval_episodes)
     rows = evaluate(agent, regime, streams, record_steps=False).episodes
-    ref = reference_returns(regime, streams)
-    return LearnRun(config.name, regime, seed, episodes, wall, rows, ref["never"], ref["planner"])
+    ref = day_yardsticks(regime, streams)
+    return LearnRun(name, regime, seed, episodes, wall, rows, [d["never"] for d in ref], [d["planner"] for d in ref])
 
 
 def batched_runs(
     config: Any, regimes: list[str], seeds: list[int], episodes: int, eval_episodes: int, device: str = "cpu"
 ) -> list[LearnRun]:
     """Every (regime, seed) of ``config`` trained at once by the batched engine on ``device``, then evaluated."""
-    from nutribench.agents import eval_food_streams, evaluate, load_agent_config
+    from nutribench.agents import load_agent_config
     from nutribench.engine.train import train_batched
 
     cfg = load_agent_config(config)
@@ -100,13 +100,7 @@ def batched_runs(
     start = time.perf_counter()
     agents = train_batched(jobs, cfg, episodes, device=device)
     wall = (time.perf_counter() - start) / len(jobs)
-    runs = []
-    for (regime, seed), agent in zip(jobs, agents):
-        streams = eval_food_streams(regime, seed, eval_episodes)
-        ref = reference_returns(regime, streams)
-        rows = evaluate(agent, regime, streams, record_steps=False).episodes
-        runs.append(LearnRun(cfg.name, regime, seed, episodes, wall, rows, ref["never"], ref["planner"]))
-    return runs
+    return [evaluated(agent, cfg.name, r, s, episodes, wall, eval_episodes) for (r, s), agent in zip(jobs, agents)]
 
 
 def budget_for(name: str, algo: str, budgets: dict[str, int], default: int) -> int:
@@ -234,11 +228,6 @@ COLUMNS = (
 )
 
 
-def target_text(row: dict[str, Any]) -> str:
-    """ "met", "not met", or "" where no target is set (regimes other than run0)."""
-    return "" if row["target_met"] is None else ("met" if row["target_met"] else "not met")
-
-
 def row_cells(r: dict[str, Any]) -> list[str]:
     """One summary row as the text of each of :data:`COLUMNS`."""
     return [
@@ -255,7 +244,7 @@ def row_cells(r: dict[str, Any]) -> list[str]:
         f"{r['planner']:.2f}",
         f"{100 * r['gap_closed']:.0f} %",
         f"{100 * r['gap_closed_min_seed']:.0f} %",
-        target_text(r),
+        "" if r["target_met"] is None else ("met" if r["target_met"] else "not met"),  # no target but on run0
     ]
 
 

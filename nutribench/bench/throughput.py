@@ -84,6 +84,8 @@ def bench_env(regimes=("run0", "run6"), sizes=(1, 64, 1024, 4096), repeats: int 
 # --------------------------------------------------------------------------- training
 #: Paper grid: 7 regimes x 5 algorithms x 5 seeds x 5000 episodes of 50 steps.
 PAPER_GRID = {"regimes": 7, "seeds": 5, "episodes": 5000}
+#: the paper grid's env-steps per algorithm
+PAPER_GRID_STEPS = PAPER_GRID["regimes"] * PAPER_GRID["seeds"] * PAPER_GRID["episodes"] * 50
 
 
 def bench_config(algo: str):
@@ -167,9 +169,8 @@ def bench_train(
                     "bare": True,
                 }
             )
-    grid_steps = PAPER_GRID["regimes"] * PAPER_GRID["seeds"] * PAPER_GRID["episodes"] * 50
     for r in rows:
-        r["paper_grid_cpu_hours"] = grid_steps / r["steps_per_s"] / 3600
+        r["paper_grid_cpu_hours"] = PAPER_GRID_STEPS / r["steps_per_s"] / 3600
     return rows
 
 
@@ -258,18 +259,6 @@ def _episode_rows(db: str) -> int:
         store.dispose()
 
 
-def flops_per_env_step(cfg, obs_dim: int = 13, n_actions: int = 2, horizon: int = 50) -> float:
-    """Floating-point operations per env step, counting only the matrix products (2 x in x
-    out per sample and layer; a backward pass as 2 forwards), as the algorithm's batched class
-    counts them (``flops_per_env_step`` of :mod:`nutribench.engine.on_policy` and
-    :mod:`nutribench.engine.off_policy`: PPO and MC one forward to act and ``n_epochs`` (MC: 1)
-    forward + backward passes per rollout step; DDQN and SAC, once learning has started, one
-    forward to act and per update sample their nets' forwards)."""
-    from nutribench.agents.registry import batched_class
-
-    return batched_class(cfg.algo).flops_per_env_step(cfg, obs_dim, n_actions, horizon)
-
-
 def matmul_flops_per_s(
     k: int = 35, batch: int = 64, n_in: int = 256, n_out: int = 128, repeats: int = 200, device: str = "cpu"
 ) -> float:
@@ -316,13 +305,12 @@ def bench_train_batched(
     times = _timings(lambda: train_batched(jobs, cfg, episodes, device=device), repeats)
     steps = len(jobs) * episodes * 50
     rate = steps / statistics.median(times)
-    flops = flops_per_env_step(cfg)
     from nutribench.agents.registry import batched_class
     from nutribench.engine.off_policy import BatchedOffPolicyAlgorithm
 
+    flops = batched_class(cfg.algo).flops_per_env_step(cfg)  # its matrix products
     off_policy = issubclass(batched_class(cfg.algo), BatchedOffPolicyAlgorithm)  # its minibatch is the replay's
     peak = matmul_flops_per_s(k=len(jobs), batch=cfg.batch_size if off_policy else 64, device=device)
-    grid_steps = PAPER_GRID["regimes"] * PAPER_GRID["seeds"] * PAPER_GRID["episodes"] * 50
     # on the CPU, batches side by side on all the cores; on a GPU, the one batch on it
     on_gpu = resolve_device(device).type == "cuda"
     cores = 1 if on_gpu else min(core_count(), PAPER_GRID["regimes"] * PAPER_GRID["seeds"])
@@ -334,7 +322,7 @@ def bench_train_batched(
         "flops_per_step": flops,
         "matmul_flops_per_s": peak,
         "floor_share": rate * flops / peak,
-        "paper_grid_wall_hours": grid_steps / rate / cores / 3600,
-        "paper_grid_floor_hours": grid_steps * flops / peak / cores / 3600,
+        "paper_grid_wall_hours": PAPER_GRID_STEPS / rate / cores / 3600,
+        "paper_grid_floor_hours": PAPER_GRID_STEPS * flops / peak / cores / 3600,
         "cores": cores,
     }
