@@ -48,16 +48,6 @@ def play_simple_policy(policy: str, regime: str | EnvConfig, foods: np.ndarray, 
     return play(env, make_policy(policy, seed), episodes=len(foods), foods=foods)
 
 
-class _Replay:
-    """Plays given actions ``(n, H)``: column t at step t."""
-
-    def __init__(self, actions: np.ndarray):
-        self.actions = actions
-
-    def __call__(self, env):
-        return self.actions[:, env.steps_taken]
-
-
 def play_strong_policy(
     policy: str,
     regime: str | EnvConfig,
@@ -81,7 +71,7 @@ def play_strong_policy(
     else:
         raise ValueError(f"unknown strong policy '{policy}': known ones are {', '.join(STRONG_POLICIES)}")
     env = NutriRLVectorEnv(len(foods), regime=model.dyn.config)
-    played = play(env, _Replay(actions), episodes=len(foods), foods=foods)
+    played = play(env, lambda e: actions[:, e.steps_taken], episodes=len(foods), foods=foods)  # column t at step t
     return [{**p, "search": h} for p, h in zip(played, how)]
 
 

@@ -26,20 +26,14 @@ def git_state(folder: str | None = None) -> tuple[str | None, bool | None]:
     not a git checkout. Dirty means tracked files differ from the commit (untracked files,
     such as a results database in the tree, do not count)."""
     where = folder or str(Path(__file__).resolve().parents[1])  # <checkout>/nutribench/provenance.py
+
+    def git(*args: str, timeout: int) -> str:
+        run = subprocess.run(["git", "-C", where, *args], capture_output=True, text=True, timeout=timeout, check=True)
+        return run.stdout.strip()
+
     try:
-        commit = subprocess.run(
-            ["git", "-C", where, "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10, check=True
-        ).stdout.strip()
-        dirty = (
-            subprocess.run(
-                ["git", "-C", where, "status", "--porcelain", "--untracked-files=no"],
-                capture_output=True,
-                text=True,
-                timeout=30,
-                check=True,
-            ).stdout.strip()
-            != ""
-        )
+        commit = git("rev-parse", "HEAD", timeout=10)
+        dirty = git("status", "--porcelain", "--untracked-files=no", timeout=30) != ""
     except (OSError, subprocess.SubprocessError):
         return None, None
     return (commit or None), dirty

@@ -15,13 +15,6 @@ import numpy as np
 Env = "NutriRLEnv | NutriRLVectorEnv"
 
 
-def _batched(env) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    state = np.atleast_2d(env.state)
-    pending = np.atleast_2d(env.pending_by_horizon())
-    offered = np.atleast_1d(env.offered)
-    return state, pending, offered, np.ndim(env.state) == 1
-
-
 class RandomPolicy:
     """Eats each offered food with probability 1/2."""
 
@@ -66,16 +59,14 @@ class PlannerPolicy:
         self.min_gain = min_gain
 
     def __call__(self, env):
-        state, pending, offered, single = _batched(env)
-        t = env.steps_taken
         target = env.target
-        gain = env.dyn.arrivals[t, offered]  # (n, 3) arriving by H if eaten now
-        eventual = state + pending
+        gain = env.dyn.arrivals[env.steps_taken, np.atleast_1d(env.offered)]  # (n, 3) arriving by H if eaten now
+        eventual = np.atleast_2d(env.state) + np.atleast_2d(env.pending_by_horizon())
         after = eventual + gain
         no_over = np.all(after <= target + 1e-9, axis=1)
         closer = np.abs(eventual - target).sum(1) - np.abs(after - target).sum(1) >= self.min_gain
         a = (no_over & closer).astype(np.int64)
-        return int(a[0]) if single else a
+        return int(a[0]) if np.ndim(env.state) == 1 else a
 
 
 POLICIES: dict[str, Callable[[int | None], object]] = {

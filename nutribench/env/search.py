@@ -210,6 +210,12 @@ def _children(model: DayModel, nodes: Nodes, t: int, food: int) -> Nodes:
     return _merge(children)
 
 
+def _best(nodes: Nodes) -> tuple[float, int]:
+    """The best return among ``nodes`` and its actions (one bit per step)."""
+    best = int(np.argmax(nodes.ret))
+    return float(nodes.ret[best]), int(nodes.acts[best])
+
+
 def _beam(model: DayModel, foods: np.ndarray, width: int, added: list[np.ndarray]) -> tuple[float, int]:
     nodes = model.start(1)
     for t in range(model.horizon):
@@ -217,8 +223,7 @@ def _beam(model: DayModel, foods: np.ndarray, width: int, added: list[np.ndarray
         if len(nodes) > width:
             key = nodes.ret + model.bound(nodes, added[t + 1])
             nodes = nodes.take(np.sort(np.argsort(-key, kind="stable")[:width]))
-    best = int(np.argmax(nodes.ret))
-    return float(nodes.ret[best]), int(nodes.acts[best])
+    return _best(nodes)
 
 
 def _branch_and_bound(
@@ -232,8 +237,7 @@ def _branch_and_bound(
         nodes = nodes.take(np.flatnonzero(keep))
         if len(nodes) > max_nodes:
             return None
-    best = int(np.argmax(nodes.ret))
-    return float(nodes.ret[best]), int(nodes.acts[best])
+    return _best(nodes)
 
 
 def clairvoyant_actions(
@@ -271,4 +275,4 @@ def _planner_day(model: DayModel, day: np.ndarray) -> tuple[float, int]:
     for t in range(model.horizon):
         f = day[t : t + 1]
         nodes, _ = model.step(nodes, t, f, model.planner(nodes, t, f))
-    return float(nodes.ret[0]), int(nodes.acts[0])
+    return _best(nodes)  # one node

@@ -40,12 +40,14 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch as th
 
-from nutribench.stats import paired_cost, total_cost
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))  # the cost statistics (developer code)
+from cost_stats import paired_cost, total_cost  # noqa: E402
 
 #: A run of one arm: called with the day-end callback it must call after each training day.
 ArmRun = Callable[[Callable[[dict], None]], Any]
@@ -203,7 +205,7 @@ def same_days(a: Arm, b: Arm, key: str = "return") -> bool:
 
 def lockstep_cost(with_: Arm, without: Arm, again: Arm, size: int, clock: str = "wall") -> dict:
     """The diagnostics' cost and the A/A control from one lockstep run on ``clock`` ("wall" or
-    "cpu"): :func:`~nutribench.stats.total_cost` of (with, without) and of (again,
+    "cpu"): ``total_cost`` (``benchmarks/cost_stats.py``) of (with, without) and of (again,
     without) over blocks of ``size`` segments, and ``median_cost`` (:func:`paired_cost`, the
     median of the blocks' ratios, which weighs a block without an update like one with)."""
     w, wo, ag = (blocks(getattr(a, clock), size) for a in (with_, without, again))

@@ -7,7 +7,7 @@ which runs first::
     python reports/diagnostics_cost/whole_runs.py --algos mc --days 40 --repeats 15
 
 The cost is 1 - the median over repeats of (seconds without / seconds with), paired per repeat,
-with its 95 % bootstrap interval over the repeats (:func:`nutribench.stats.paired_cost`).
+with its 95 % bootstrap interval over the repeats (``paired_cost`` of ``benchmarks/cost_stats.py``).
 Both arms without the diagnostics still build the same model: what an update records for
 itself (the gradient norm it keeps, ``.item()`` reads of its losses) is in every arm, and only
 the profile counts it. A machine whose speed drifts over minutes moves one arm's run and not
@@ -20,11 +20,14 @@ import statistics
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 
 from lockstep import ORDERS  # this folder's: the script runs by path
 
 from nutribench.bench.throughput import bench_config
-from nutribench.stats import paired_cost
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))  # the cost statistics (developer code)
+from cost_stats import paired_cost  # noqa: E402
 
 
 def bench_diagnostics_cost(

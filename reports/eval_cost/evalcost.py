@@ -8,7 +8,7 @@ Each
 repeat trains the same job (SB3 engine) or batch (batched engine: 7 regimes x 5 seeds at
 once) twice, with and without ``eval_every``, in alternating order; the cost is the share of
 the training time the evaluations take, paired per repeat
-(:func:`nutribench.stats.paired_cost`, 95 % bootstrap interval over the repeats),
+(``paired_cost`` of ``benchmarks/cost_stats.py``, 95 % bootstrap interval over the repeats),
 on the wall clock and on the process's CPU time (which other work on a shared machine moves
 less). The two arms train identically (tests/test_validation.py), so the difference is the
 evaluations alone."""
@@ -19,8 +19,10 @@ import statistics
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 
-from nutribench.stats import paired_cost
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))  # the cost statistics (developer code)
+from cost_stats import paired_cost  # noqa: E402
 
 
 def _timed(algo: str, engine: str, regime: str, episodes: int, seed: int, **evaluation: int) -> tuple[float, float]:
