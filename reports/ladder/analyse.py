@@ -5,8 +5,8 @@ and run6 with other versions), its never and planner yardsticks played on its se
 with that level's regime files, and then:
 
 * ``table_ladder.md/.csv``: one row per arm x level x regime: the IQM over seeds of the share of
-  the never -> planner gap with its 95 % percentile bootstrap interval over seeds
-  (``clustered_iqm_ci``, 2000 resamples, seed 0), the seeds' shares, the share of the mean
+  the never -> planner gap with its 95 % interval over seeds (``iqm_runs_ci``: the project's
+  chosen trimmed t, addendum 3; no resamples, so no digit depends on a seed), the seeds' shares, the share of the mean
   return (the paper's reading), the mean return, foods a day, the share of meals eaten in the
   last 5 steps of the day, the device that trained it ("cuda to day N, then cpu" for a batch
   started on a lent GPU, addendum 2), and the learning-curve read-offs (the
@@ -22,7 +22,7 @@ with that level's regime files, and then:
   the tuned PPO as lines, GRU-PPO with and without memory as markers at levels 1 and 4, never
   and the planner as lines), and under it the learning curves on the validation days.
 
-    python reports/ladder/analyse.py [--archives-dir reports/ladder/data] [--out reports/ladder] [--reps 2000]
+    python reports/ladder/analyse.py [--archives-dir reports/ladder/data] [--out reports/ladder]
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ import pandas as pd  # noqa: E402
 
 from nutribench.baselines import gap_closed  # noqa: E402
 from nutribench.errors import UserError  # noqa: E402
-from nutribench.stats import clustered_iqm_ci  # noqa: E402
+from nutribench.stats import caption, iqm_runs_ci  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -61,7 +61,6 @@ LABELS = {"ppo": "PPO", "gru_ppo": "GRU-PPO", "gru_ppo_nomem": "GRU-PPO without 
 REGIMES: tuple[str, ...] = ("run0", "run3", "run6")
 SEEDS: tuple[int, ...] = tuple(range(3800, 3810))
 HORIZON, LATE = 50, 5
-REPS = 2000
 PLANNER = ("planner", 0)
 Arm = tuple[str, int]
 #: the plan's named comparisons: id -> (A, B, question); B = PLANNER compares with 100 %
@@ -187,7 +186,7 @@ def plan_notes(arm: Arm, ev: pd.DataFrame, per_seed: pd.DataFrame) -> list[str]:
     return notes
 
 
-def read_batch(path: Path, arm: Arm, db: str, reps: int) -> Batch:
+def read_batch(path: Path, arm: Arm, db: str) -> Batch:
     """Import ``path`` into ``db`` and score it (the yardsticks with ``arm``'s level's regimes)."""
     from nutribench.report.data import prepare
     from nutribench.report.learning import learning_points, learning_scores, one_job_per_run
@@ -215,7 +214,7 @@ def read_batch(path: Path, arm: Arm, db: str, reps: int) -> Batch:
         )
         curve, more = one_job_per_run(read_learning_curve(db))
         curve = curve[curve["job_id"].isin(jobs)]
-        learning = learning_points(learning_scores(curve), reps) if not curve.empty else pd.DataFrame()
+        learning = learning_points(learning_scores(curve)) if not curve.empty else pd.DataFrame()
         job_rows = read_jobs(db)
         devices = sorted(job_rows.loc[job_rows["id"].isin(jobs), "device"].dropna().astype(str).unique())
     notes += plan_notes(arm, ev, per_seed)
@@ -234,14 +233,14 @@ def started_on(device: str, log: Path) -> str:
 
 
 # --------------------------------------------------------------------------- statistics
-def interval(values: np.ndarray, reps: int) -> tuple[float, float, float]:
-    """IQM of one value per seed and its 95 % percentile bootstrap interval over seeds, over
-    the finite values only (a seed without a score is left out, and noted by plan_notes): NaN
-    for none, no interval for one."""
-    finite = [np.array([v]) for v in values if np.isfinite(v)]
-    if not finite:
+def interval(values: np.ndarray) -> tuple[float, float, float]:
+    """IQM of one value per seed and its 95 % interval over seeds (the project's chosen method,
+    ``nutribench.stats.iqm_runs_ci``: the trimmed t; addendum 3), over the finite values only (a
+    seed without a score is left out, and noted by plan_notes): NaN for none, no interval for one."""
+    finite = values[np.isfinite(values)]
+    if not finite.size:
         return float("nan"), float("nan"), float("nan")
-    return clustered_iqm_ci(finite, reps=reps, seed=0)
+    return iqm_runs_ci([finite])
 
 
 def text(point: float, lo: float, hi: float) -> str:
@@ -253,11 +252,11 @@ def text(point: float, lo: float, hi: float) -> str:
     return f"{100 * point:.0f} [{100 * lo:.0f}, {100 * hi:.0f}]"
 
 
-def cell_row(batch: Batch, regime: str, reps: int) -> dict:
+def cell_row(batch: Batch, regime: str) -> dict:
     """The table_ladder row of ``batch`` on ``regime``."""
     arm, level = batch.arm
     d = batch.per_seed[batch.per_seed["regime"] == regime].sort_values("seed")
-    point, lo, hi = interval(d["score"].to_numpy(dtype=float), reps)
+    point, lo, hi = interval(d["score"].to_numpy(dtype=float))
     scored = d[np.isfinite(d["score"].to_numpy(dtype=float))]
     row = dict(arm=arm, level=level, regime=regime, seeds=len(scored), iqm=point, lo=lo, hi=hi)
     row |= dict(
@@ -291,9 +290,7 @@ def rule(a: tuple[float, float], b: tuple[float, float], seeds: int) -> str:
     return f"not distinguishable with {seeds} seeds"
 
 
-def comparison_row(
-    cid: str, regime: str, cells: dict[tuple[Arm, str], dict], batches: dict[Arm, Batch], reps: int
-) -> dict:
+def comparison_row(cid: str, regime: str, cells: dict[tuple[Arm, str], dict], batches: dict[Arm, Batch]) -> dict:
     """One named comparison on one regime (``cells``: table_ladder rows by (arm, regime))."""
     a, b, question = COMPARISONS[cid]
     row = dict(id=cid, regime=regime, a=f"{LABELS[a[0]]} level {a[1]}", question=question)
@@ -311,7 +308,7 @@ def comparison_row(
         devices = f"{batches[a].device} / {batches[b].device}"
     diffs = (sa - sb).dropna()
     sign = np.sign(ca["iqm"] - cb["iqm"])
-    d_point, d_lo, d_hi = interval(diffs.to_numpy(dtype=float), reps)
+    d_point, d_lo, d_hi = interval(diffs.to_numpy(dtype=float))
     return row | dict(
         a_text=text(ca["iqm"], ca["lo"], ca["hi"]),
         b_text=text(cb["iqm"], cb["lo"], cb["hi"]) if b != PLANNER else "100",
@@ -344,7 +341,7 @@ def ladder_markdown(cells: pd.DataFrame, absent: list[str], notes: list[str]) ->
         "# The information ladder: share of the never -> planner gap (%), test days",
         "",
         "Made by `python reports/ladder/analyse.py` from the archives in `data/`. IQM over seeds",
-        '[95 % percentile bootstrap interval over seeds]; "share of mean": the share closed by the',
+        f'[95 % interval over seeds: {caption("iqm")}]; "share of mean": the share closed by the',
         "mean return over seeds x days (the paper's reading); late meals: share of meals eaten in the",
         "last 5 steps of the day; learning curve: validation days, IQM [interval] at the best",
         "evaluation and at the last (late drift: the last interval wholly below the best one's; the",
@@ -457,20 +454,20 @@ def figure(cells: pd.DataFrame, batches: dict[Arm, Batch]):
 
 
 # --------------------------------------------------------------------------- main
-def read_batches(folder: Path, arms: Sequence[Arm], reps: int) -> dict[Arm, Batch]:
+def read_batches(folder: Path, arms: Sequence[Arm]) -> dict[Arm, Batch]:
     """Each of ``arms``' archives in ``folder``, imported into its own temporary database and read."""
     with tempfile.TemporaryDirectory(prefix="nutribench-ladder-") as tmp:
         return {
-            arm: read_batch(folder / f"{archive_name(arm)}.npz", arm, str(Path(tmp) / f"{archive_name(arm)}.db"), reps)
+            arm: read_batch(folder / f"{archive_name(arm)}.npz", arm, str(Path(tmp) / f"{archive_name(arm)}.db"))
             for arm in arms
         }
 
 
-def tabulate(batches: dict[Arm, Batch], comparisons: Sequence[str], reps: int) -> tuple[pd.DataFrame, pd.DataFrame]:
+def tabulate(batches: dict[Arm, Batch], comparisons: Sequence[str]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The table_ladder rows of ``batches`` (arm by arm, regime by regime) and the rows of the
     comparisons whose ids (keys of :data:`COMPARISONS`) are ``comparisons``."""
-    cell = {(arm, r): cell_row(batch, r, reps) for arm, batch in batches.items() for r in REGIMES}
-    comps = pd.DataFrame([comparison_row(c, r, cell, batches, reps) for c in comparisons for r in REGIMES])
+    cell = {(arm, r): cell_row(batch, r) for arm, batch in batches.items() for r in REGIMES}
+    comps = pd.DataFrame([comparison_row(c, r, cell, batches) for c in comparisons for r in REGIMES])
     return pd.DataFrame(list(cell.values())), comps
 
 
@@ -484,7 +481,7 @@ def write_tables(out: Path, tables: Sequence[tuple[str, pd.DataFrame, str]]) -> 
     return written
 
 
-def analyse(folder: Path, out: Path, reps: int = REPS) -> list[Path]:
+def analyse(folder: Path, out: Path) -> list[Path]:
     arms = [(agent, level) for agent, levels in ARMS.items() for level in sorted(levels)]
     present = [a for a in arms if (folder / f"{archive_name(a)}.npz").is_file()]
     absent = [archive_name(a) for a in arms if a not in present]
@@ -492,9 +489,9 @@ def analyse(folder: Path, out: Path, reps: int = REPS) -> list[Path]:
     if not present:
         raise AnalysisError(f"{folder}: none of the plan's archives (obs<level>_<agent>.npz) is there")
     print(f"archives present: {', '.join(map(archive_name, present))}; absent: {', '.join(absent) or 'none'}")
-    batches = read_batches(folder, present, reps)
+    batches = read_batches(folder, present)
     notes = [n for b in batches.values() for n in b.notes] + [f"not the plan's, left out: {o}" for o in other]
-    cells, comps = tabulate(batches, list(COMPARISONS), reps)
+    cells, comps = tabulate(batches, list(COMPARISONS))
     written = write_tables(
         out,
         [
@@ -509,14 +506,13 @@ def analyse(folder: Path, out: Path, reps: int = REPS) -> list[Path]:
 
 
 def cli(
-    argv: Sequence[str] | None, run: Callable[[Path, Path, int], list[Path]], description: str, default_out: Path
+    argv: Sequence[str] | None, run: Callable[[Path, Path], list[Path]], description: str, default_out: Path
 ) -> int:
-    """The command line of this script and of ``followup.py``: ``run(archives_dir, out, reps)``,
+    """The command line of this script and of ``followup.py``: ``run(archives_dir, out)``,
     a bad path or archive as one line (exit 2), then the files written."""
     ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--archives-dir", default=str(HERE / "data"), help="the archives (obs<level>_<agent>.npz)")
     ap.add_argument("--out", default=str(default_out), help="where the tables and the figure go")
-    ap.add_argument("--reps", type=int, default=REPS, help="bootstrap resamples of the IQM intervals")
     a = ap.parse_args(argv)
     try:
         folder, out = Path(a.archives_dir), Path(a.out)
@@ -525,7 +521,7 @@ def cli(
         if out.exists() and not out.is_dir():
             raise AnalysisError(f"--out {out}: not a folder")
         out.mkdir(parents=True, exist_ok=True)
-        written = run(folder, out, a.reps)
+        written = run(folder, out)
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -60,7 +60,7 @@ def retitle(markdown: str) -> str:
     return markdown
 
 
-def followup(folder: Path, out: Path, reps: int = ladder.REPS) -> list[Path]:
+def followup(folder: Path, out: Path) -> list[Path]:
     ladder.LABELS.update(LABELS)
     ladder.COMPARISONS.clear()
     ladder.COMPARISONS.update(COMPARISONS)
@@ -71,9 +71,9 @@ def followup(folder: Path, out: Path, reps: int = ladder.REPS) -> list[Path]:
         names = ", ".join(map(ladder.archive_name, FOLLOW))
         raise ladder.AnalysisError(f"{folder}: none of the follow-up's archives ({names})")
     print(f"archives present: {', '.join(map(ladder.archive_name, present))}; absent: {', '.join(absent) or 'none'}")
-    batches = ladder.read_batches(folder, present, reps)
+    batches = ladder.read_batches(folder, present)
     notes = [n for b in batches.values() for n in b.notes]
-    cells, comps = ladder.tabulate(batches, list(COMPARISONS), reps)
+    cells, comps = ladder.tabulate(batches, list(COMPARISONS))
     written = ladder.write_tables(
         out,
         [

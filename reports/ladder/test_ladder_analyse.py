@@ -31,8 +31,8 @@ def _batch(ladder, arm, shares: dict[str, list[float]], device: str = "cpu", lea
 
 
 def _comparison(ladder, cid, regime, batches):
-    cells = {(arm, r): ladder.cell_row(b, r, 500) for arm, b in batches.items() for r in b.per_seed["regime"].unique()}
-    return ladder.comparison_row(cid, regime, cells, batches, 500)
+    cells = {(arm, r): ladder.cell_row(b, r) for arm, b in batches.items() for r in b.per_seed["regime"].unique()}
+    return ladder.comparison_row(cid, regime, cells, batches)
 
 
 def test_the_rule_moves_only_where_intervals_are_apart_and_pairs_by_seed(ladder):
@@ -60,7 +60,7 @@ def test_the_rule_moves_only_where_intervals_are_apart_and_pairs_by_seed(ladder)
 
 def test_a_seed_without_a_score_is_left_out_not_counted(ladder):
     shares = [0.1 * i for i in range(1, 10)] + [float("nan")]
-    row = ladder.cell_row(_batch(ladder, ("ppo", 1), {"run3": shares}), "run3", 500)
+    row = ladder.cell_row(_batch(ladder, ("ppo", 1), {"run3": shares}), "run3")
     assert row["seeds"] == 9 and row["iqm"] == pytest.approx(0.5) and np.isfinite(row["lo"])
     assert row["per_seed"].endswith("n/a")
     other = _batch(ladder, ("ppo", 2), {"run3": [0.5] * 10})
@@ -79,10 +79,10 @@ def test_late_drift_is_read_off_the_learning_curve(ladder):
     drift = pd.DataFrame(
         dict(regime="run6", algo="ppo", train_day=days, iqm=[0.2, 0.7, 0.1], lo=[0.1, 0.6, 0.0], hi=[0.3, 0.8, 0.2])
     )
-    row = ladder.cell_row(_batch(ladder, ("ppo", 1), {"run6": [0.1] * 10}, learning=drift), "run6", 200)
+    row = ladder.cell_row(_batch(ladder, ("ppo", 1), {"run6": [0.1] * 10}, learning=drift), "run6")
     assert (row["best_day"], row["last_day"], row["late_drift"]) == (200, 300, True)
     flat = drift.assign(lo=[0.1, 0.3, 0.0], hi=[0.3, 0.8, 0.5])
-    row = ladder.cell_row(_batch(ladder, ("ppo", 1), {"run6": [0.1] * 10}, learning=flat), "run6", 200)
+    row = ladder.cell_row(_batch(ladder, ("ppo", 1), {"run6": [0.1] * 10}, learning=flat), "run6")
     assert row["late_drift"] is False
 
 
@@ -114,7 +114,7 @@ def test_tables_and_figure_from_real_archives_at_two_levels(ladder, tmp_path: Pa
         assert res.exit_code == 0, res.output
     monkeypatch.delenv("NUTRIBENCH_REGIMES")
     out = tmp_path / "out"
-    assert ladder.main(["--archives-dir", str(data), "--out", str(out), "--reps", "200"]) == 0
+    assert ladder.main(["--archives-dir", str(data), "--out", str(out)]) == 0
     cells = pd.read_csv(out / "table_ladder.csv")
     assert sorted(zip(cells["level"], cells["regime"])) == [(lv, r) for lv in (1, 4) for r in ("run0", "run3", "run6")]
     assert (cells["seeds"] == 2).all() and cells["iqm"].notna().all() and (cells["device"] == "cpu").all()
@@ -150,7 +150,7 @@ def test_the_figure_draws_every_arm_of_the_plan(ladder):
         for arm, levels in ladder.ARMS.items()
         for level in levels
     }
-    cells = pd.DataFrame([ladder.cell_row(b, r, 100) for b in batches.values() for r in ladder.REGIMES])
+    cells = pd.DataFrame([ladder.cell_row(b, r) for b in batches.values() for r in ladder.REGIMES])
     fig = ladder.figure(cells, batches)
     top, bottom = fig.axes[0], fig.axes[len(ladder.REGIMES)]
     labels = top.get_legend_handles_labels()[1]

@@ -3,8 +3,8 @@ one) and the CSVs of evaluate_models.py.
 
 Per level x regime x evaluation: the share of the never -> planner gap each seed's mean return
 over its 5 evaluation days closes (never and the planner played on exactly those days, under
-the regimes the level was evaluated under), the IQM over seeds with a 95 % percentile bootstrap
-interval resampling seeds (nutribench.stats.clustered_iqm_ci, 2000 resamples, seed 0),
+the regimes the level was evaluated under), the IQM over seeds with a 95 % interval over seeds
+(nutribench.stats.iqm_runs_ci: the project's chosen trimmed t, no resamples; fourth addendum),
 the mean return and foods a day. Training length: each seed's mean training return over the
 100 days ending at day 500, 1000, 2000 and 5000 (IQM over seeds, same interval), and the
 shorter PPO runs' training rows checked against the 5000-day control's first days
@@ -32,7 +32,7 @@ import pandas as pd  # noqa: E402
 from nutribench.agents import eval_food_streams  # noqa: E402
 from nutribench.baselines import gap_closed, play_simple_policy  # noqa: E402
 from nutribench.config import load_env_config  # noqa: E402
-from nutribench.stats import clustered_iqm_ci  # noqa: E402
+from nutribench.stats import iqm_runs_ci  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -100,7 +100,7 @@ def yardsticks(folder: Path, regime: str, seed: int, n: int) -> tuple[np.ndarray
 
 def summarise(per_seed: pd.DataFrame) -> dict:
     """per_seed: one row per seed with return, foods, share."""
-    point, lo, hi = clustered_iqm_ci([np.array([v]) for v in per_seed["share"]], reps=2000, seed=0)
+    point, lo, hi = iqm_runs_ci([per_seed["share"].to_numpy(dtype=float)])
     return {
         "seeds": len(per_seed),
         "return_mean": per_seed["return"].mean(),
@@ -218,7 +218,7 @@ def training_rows(tr: pd.DataFrame, planner_mean: dict) -> list[dict]:
                 continue
             w = cell[(cell["episode"] >= day - WIDTH) & (cell["episode"] < day)]
             per_seed = w.groupby("seed")[["return", "foods", "entropy"]].mean()
-            point, lo, hi = clustered_iqm_ci([np.array([v]) for v in per_seed["return"]], reps=2000, seed=0)
+            point, lo, hi = iqm_runs_ci([per_seed["return"].to_numpy(dtype=float)])
             never, planner = planner_mean[(version, regime)]
             rows.append(
                 {
@@ -440,7 +440,7 @@ def figure(table: pd.DataFrame, tr: pd.DataFrame, planner_mean: dict, out: Path)
         ax.axhline(0, color="k", lw=0.8)
         ax.axhline(100, color="k", lw=0.8, ls="--")
         ax.set_xticks(np.arange(len(REGIMES)), REGIMES)
-        ax.set_ylabel("share of the never -> planner gap (%)\nIQM over 5 seeds, 95 % bootstrap CI")
+        ax.set_ylabel("share of the never -> planner gap (%)\nIQM over 5 seeds, 95 % trimmed-t interval")
         ax.set_title(title, fontsize=10)
         ax.legend(fontsize=7, loc="lower left", ncol=2)
 

@@ -4,8 +4,8 @@
 against the `ddqn` level's archive (data/ddqn.npz, imported into --control-db).
 (2) Per regime (run3, run6) and window (the 100 training days before day 500, 1000, 2000,
 3000, 4000, 5000): foods a day, training return and the diagnostics q_mean, value_loss,
-grad_norm, epsilon, learning_rate; the IQM over seeds with a 95 % percentile bootstrap
-interval resampling seeds (2000 resamples, seed 0), as analyse.py.
+grad_norm, epsilon, learning_rate; the IQM over seeds with a 95 % interval over seeds
+(nutribench.stats.iqm_runs_ci, the trimmed t; fourth addendum), as analyse.py.
 (3) fig_ddqn_diagnostics.png: those quantities against training day, one line per seed.
 
     python reports/sensitivity/ddqn_diagnostics.py --db /tmp/sens2/ddqn_diag.db \
@@ -25,7 +25,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from nutribench.stats import clustered_iqm_ci  # noqa: E402
+from nutribench.stats import iqm_runs_ci  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 WINDOWS = [500, 1000, 2000, 3000, 4000, 5000]
@@ -74,7 +74,7 @@ def windows(days: pd.DataFrame) -> pd.DataFrame:
                 vals = per_seed[qn].dropna().to_numpy()
                 if len(vals) == 0:
                     continue
-                point, lo, hi = clustered_iqm_ci([np.array([v]) for v in vals], reps=2000, seed=0)
+                point, lo, hi = iqm_runs_ci([vals.astype(float)])
                 row[qn] = point
                 row[f"{qn}_lo"], row[f"{qn}_hi"] = lo, hi
                 row[f"{qn}_seeds"] = " ".join(f"{v:.3g}" for v in vals)
