@@ -21,6 +21,7 @@ parameters again.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
@@ -120,30 +121,21 @@ def _copy_studies(source: Any, target: Any, names: list[str]) -> int:
     each checked by its trials' states; the trials copied. Optuna's log is at ``WARNING``
     meanwhile, and as the caller had it afterwards."""
     import optuna
+    from optuna.storages import RDBStorage
 
     verbosity = optuna.logging.get_verbosity()
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    storages: list[RDBStorage] = []
     try:
-        return _copy_each(source, target, names)
-    finally:
-        optuna.logging.set_verbosity(verbosity)
-
-
-def _copy_each(source: Any, target: Any, names: list[str]) -> int:
-    from collections import Counter
-
-    import optuna
-    from optuna.storages import RDBStorage
-
-    try:
-        src = RDBStorage(source.url.render_as_string(hide_password=False), skip_table_creation=True)
-        dst = RDBStorage(target.url.render_as_string(hide_password=False))
-    except RuntimeError as e:  # Optuna's schema newer or older than this Optuna
-        raise StoreError(
-            f"db copy: the results were copied, the tuning studies were not: {' '.join(str(e).split())}"
-        ) from None
-    n = 0
-    try:
+        try:
+            for store, skip in ((source, True), (target, False)):
+                storages.append(RDBStorage(store.url.render_as_string(hide_password=False), skip_table_creation=skip))
+        except RuntimeError as e:  # Optuna's schema newer or older than this Optuna
+            raise StoreError(
+                f"db copy: the results were copied, the tuning studies were not: {' '.join(str(e).split())}"
+            ) from None
+        src, dst = storages
+        n = 0
         for name in names:
             try:
                 optuna.copy_study(from_study_name=name, from_storage=src, to_storage=dst)
@@ -162,7 +154,8 @@ def _copy_each(source: Any, target: Any, names: list[str]) -> int:
                     f"destination {dict(after)})"
                 )
             n += sum(after.values())
+        return n
     finally:
-        for storage in (src, dst):
+        for storage in storages:
             storage.engine.dispose()
-    return n
+        optuna.logging.set_verbosity(verbosity)

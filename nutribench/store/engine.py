@@ -110,10 +110,8 @@ def hide_secrets_in(text: str) -> str:
 
 def sqlite_path(url: URL) -> Path | None:
     """The file of a SQLite URL; None for other databases and in-memory SQLite."""
-    if url.get_backend_name() != "sqlite":
-        return None
     db = url.database
-    if not db or db == ":memory:" or db.startswith("file:"):
+    if url.get_backend_name() != "sqlite" or not db or db == ":memory:" or db.startswith("file:"):
         return None
     return Path(db)
 
@@ -142,35 +140,31 @@ def shown_db(db: str) -> str:
 def check_sqlite_file(path: Path, *, create: bool) -> None:
     """Refuse early, with one line, what SQLite would report obscurely (or too late)."""
     try:
-        _check_sqlite_file(path, create=create)
+        if path.is_dir():
+            raise StoreError(f"{path} is a directory, not a database file: give a file path to --db")
+        check_regular_file(path, "--db", StoreError)  # a device node or a FIFO: never opened as a database
+        check_side_files(path)
+        if path.exists():
+            if path.stat().st_size > 0:
+                try:
+                    with open(path, "rb") as fh:
+                        header = fh.read(16)
+                except OSError as e:
+                    raise StoreError(f"cannot read {path}: {e.strerror}") from None
+                if header != SQLITE_HEADER:
+                    raise StoreError(f"{path} is not a SQLite database (no SQLite header): give another file to --db")
+            if create and not os.access(path, os.W_OK):
+                raise StoreError(f"cannot write to {path}: permission denied")
+            return
+        if not create:
+            raise StoreError(f"no results database at {path}: `nutribench run --db {path}` creates it")
+        parent = path.parent
+        if not parent.is_dir():
+            raise StoreError(f"cannot create {path}: folder {parent} does not exist")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise StoreError(f"cannot create {path}: folder {parent} is not writable")
     except OSError as e:  # a name too long, a path through a file the OS refuses to look at
         raise StoreError(f"--db {str(path)[:200]}: {e.strerror or e}: give another file path") from None
-
-
-def _check_sqlite_file(path: Path, *, create: bool) -> None:
-    if path.is_dir():
-        raise StoreError(f"{path} is a directory, not a database file: give a file path to --db")
-    check_regular_file(path, "--db", StoreError)  # a device node or a FIFO: never opened as a database
-    check_side_files(path)
-    if path.exists():
-        if path.stat().st_size > 0:
-            try:
-                with open(path, "rb") as fh:
-                    header = fh.read(16)
-            except OSError as e:
-                raise StoreError(f"cannot read {path}: {e.strerror}") from None
-            if header != SQLITE_HEADER:
-                raise StoreError(f"{path} is not a SQLite database (no SQLite header): give another file to --db")
-        if create and not os.access(path, os.W_OK):
-            raise StoreError(f"cannot write to {path}: permission denied")
-        return
-    if not create:
-        raise StoreError(f"no results database at {path}: `nutribench run --db {path}` creates it")
-    parent = path.parent
-    if not parent.is_dir():
-        raise StoreError(f"cannot create {path}: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise StoreError(f"cannot create {path}: folder {parent} is not writable")
 
 
 #: the files SQLite keeps beside a database ``DB``: its rollback journal (looked at on every open,

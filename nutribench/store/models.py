@@ -204,15 +204,10 @@ class Job(Base):
     error: Mapped[str | None] = mapped_column(Text, doc="last failure (traceback or reason); kept after a retry")
 
 
-class Episode(Base):
-    """Metrics of one training or evaluation episode (:data:`nutribench.env.metrics.METRIC_KEYS`)."""
+class DayMetrics:
+    """The metric columns of a day (:data:`nutribench.env.metrics.METRIC_KEYS` and the policy's
+    entropy), after a table's own key columns: ``episodes`` and ``validation_episodes`` have them."""
 
-    __tablename__ = "episodes"
-    __table_args__ = (CheckConstraint("phase IN ('train', 'eval')", name="phase"),)
-
-    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
-    phase: Mapped[str] = mapped_column(String(8), primary_key=True)
-    episode: Mapped[int] = mapped_column(Integer, primary_key=True, doc="0-based")
     ret: Mapped[float] = mapped_column("return", Float)
     foods: Mapped[int] = mapped_column(Integer)
     final_distance: Mapped[float] = mapped_column(Float)
@@ -222,6 +217,17 @@ class Episode(Base):
     final_P: Mapped[float] = mapped_column(Float)
     first_overshoot_step: Mapped[int | None] = mapped_column(Integer)
     entropy: Mapped[float | None] = mapped_column(Float)
+
+
+class Episode(DayMetrics, Base):
+    """Metrics of one training or evaluation episode (:data:`nutribench.env.metrics.METRIC_KEYS`)."""
+
+    __tablename__ = "episodes"
+    __table_args__ = (CheckConstraint("phase IN ('train', 'eval')", name="phase"),)
+
+    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
+    phase: Mapped[str] = mapped_column(String(8), primary_key=True)
+    episode: Mapped[int] = mapped_column(Integer, primary_key=True, doc="0-based")
 
 
 class EvalStep(Base):
@@ -257,7 +263,7 @@ class Diagnostic(Base):
     value: Mapped[float] = mapped_column(Float, doc="finite (timestep: env steps up to the end of this update)")
 
 
-class ValidationEpisode(Base):
+class ValidationEpisode(DayMetrics, Base):
     """One validation day of a greedy evaluation during training (:mod:`nutribench.agents.validation`)."""
 
     __tablename__ = "validation_episodes"
@@ -265,17 +271,11 @@ class ValidationEpisode(Base):
     job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
     train_day: Mapped[int] = mapped_column(Integer, primary_key=True, doc="training days played before it")
     episode: Mapped[int] = mapped_column(Integer, primary_key=True, doc="the validation day, 0-based")
-    ret: Mapped[float] = mapped_column("return", Float)
-    foods: Mapped[int] = mapped_column(Integer)
-    final_distance: Mapped[float] = mapped_column(Float)
-    overshoot_ratio: Mapped[float] = mapped_column(Float)
-    final_C: Mapped[float] = mapped_column(Float)
-    final_F: Mapped[float] = mapped_column(Float)
-    final_P: Mapped[float] = mapped_column(Float)
-    first_overshoot_step: Mapped[int | None] = mapped_column(Integer)
-    entropy: Mapped[float | None] = mapped_column(Float)
-    never: Mapped[float | None] = mapped_column(Float, doc="the never-eat policy's return on that day")
-    planner: Mapped[float | None] = mapped_column(Float, doc="the full-information planner's return on that day")
+    # after the metrics (sort_order: a mixin's columns come after the class's own)
+    never: Mapped[float | None] = mapped_column(Float, sort_order=1, doc="the never-eat policy's return on that day")
+    planner: Mapped[float | None] = mapped_column(
+        Float, sort_order=1, doc="the full-information planner's return on that day"
+    )
 
 
 #: Metric columns of ``episodes`` (and of the ``episode_metrics`` view), in order: the

@@ -25,10 +25,17 @@ if TYPE_CHECKING:
 Db = str | os.PathLike[str] | URL | Engine
 
 
-def _engine(db: Db) -> tuple[Engine, bool]:
-    if isinstance(db, Engine):
-        return db, False
-    return open_store(db).engine, True
+def _query(db: Db, sql: str, params: dict | None = None) -> pd.DataFrame:
+    """``sql`` read into a DataFrame from ``db`` (an engine given is left open, one opened here disposed)."""
+    import pandas as pd
+
+    engine = db if isinstance(db, Engine) else open_store(db).engine
+    try:
+        with engine.connect() as conn:
+            return pd.read_sql(text(sql), conn, params=params)
+    finally:
+        if engine is not db:
+            engine.dispose()
 
 
 def _where(filters: dict[str, Iterable | str | int | None]) -> tuple[str, dict]:
@@ -44,17 +51,8 @@ def _where(filters: dict[str, Iterable | str | int | None]) -> tuple[str, dict]:
 
 
 def _read(db: Db, view: str, filters: dict, order: str, latest_only: bool) -> pd.DataFrame:
-    import pandas as pd
-
-    engine, owned = _engine(db)
     where, params = _where(filters)
-    sql = f"SELECT * FROM {view}{where} ORDER BY {order}"
-    try:
-        with engine.connect() as conn:
-            df = pd.read_sql(text(sql), conn, params=params)
-    finally:
-        if owned:
-            engine.dispose()
+    df = _query(db, f"SELECT * FROM {view}{where} ORDER BY {order}", params)
     if latest_only and len(df):
         df = df[df["regime_version"] == df.groupby("regime")["regime_version"].transform("max")]
         df = df[df["algo_version"] == df.groupby("algo")["algo_version"].transform("max")]
@@ -105,8 +103,6 @@ def read_training_diagnostics(
     :mod:`nutribench.store.views`, quantities in :mod:`nutribench.diagnostics`), and before
     ``job_id`` a column per other quantity a plug-in's algorithm recorded (from
     ``diagnostic_values``; NaN for an update without it)."""
-    import pandas as pd
-
     from nutribench.diagnostics import COLUMNS
 
     filters = {"regime": regimes, "algo": algos, "seed": seeds}
@@ -115,13 +111,7 @@ def read_training_diagnostics(
     known = ", ".join(f"'{n}'" for n in COLUMNS)  # the vocabulary's names: constants, not input
     where = f"{where} AND" if where else " WHERE"
     sql = f'SELECT "job_id", "update", "name", "value" FROM diagnostic_values{where} "name" NOT IN ({known})'
-    engine, owned = _engine(db)
-    try:
-        with engine.connect() as conn:
-            other = pd.read_sql(text(sql), conn, params=params)
-    finally:
-        if owned:
-            engine.dispose()
+    other = _query(db, sql, params)
     if other.empty or df.empty:
         return df
     wide = other.pivot(index=["job_id", "update"], columns="name", values="value")
@@ -146,18 +136,10 @@ def read_learning_curve(
 
 def read_jobs(db: Db) -> pd.DataFrame:
     """The jobs table with regime and algo names and versions joined in."""
-    import pandas as pd
-
-    engine, owned = _engine(db)
-    sql = (
+    return _query(
+        db,
         'SELECT r."name" AS regime, r."version" AS regime_version, a."name" AS algo, '
         'a."version" AS algo_version, j.* FROM jobs j '
         'JOIN regimes r ON r."id" = j."regime_id" JOIN agent_configs a ON a."id" = j."agent_config_id" '
-        'ORDER BY j."id"'
+        'ORDER BY j."id"',
     )
-    try:
-        with engine.connect() as conn:
-            return pd.read_sql(text(sql), conn)
-    finally:
-        if owned:
-            engine.dispose()

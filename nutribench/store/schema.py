@@ -174,10 +174,7 @@ def current_revision(conn: Connection, display: str = "the database") -> str | N
     from before :data:`VERSION_TABLE` is read from alembic's default table when that holds one
     of nutribench's revisions (not Optuna's). A version table holding more than one revision is
     refused in one line (``display``: the database as the line names it)."""
-    rev = _stored_revision(conn, VERSION_TABLE, display)
-    if rev is None:
-        rev = _legacy_revision(conn, display)
-    return rev
+    return _stored_revision(conn, VERSION_TABLE, display) or _legacy_revision(conn, display)
 
 
 def _legacy_revision(conn: Connection, display: str = "the database") -> str | None:
@@ -292,29 +289,23 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
     engine = make_engine(url, writer=writer)
     head = head_revision()
     try:
-        if writer:
-            with engine.begin() as conn:  # BEGIN IMMEDIATE on SQLite: one upgrader at a time
+        # the driver: BEGIN IMMEDIATE on SQLite (one upgrader at a time); a reader: a plain connection
+        with engine.begin() if writer else engine.connect() as conn:
+            if writer:
                 hold_write_lock(conn, MIGRATION_LOCK)
                 adopt_legacy_version(conn, display)
-                rev = _classify(conn, display)
-                if rev != head:
-                    if not upgrade:
-                        raise StoreError(
-                            f"{display} is on schema revision {rev}, this nutribench needs {head}: run {_upgrade_cmd(url)}"
-                        )
-                    upgrade_connection(conn)
-            return Store(engine, url, head, upgraded_from=rev if rev not in (None, head) else None, created=rev is None)
-        with engine.connect() as conn:
             rev = _classify(conn, display)
-        if rev is None:
-            raise StoreError(
-                f"{display} is an empty database, nothing has run yet: {db_command('nutribench run', url)} fills it"
-            )
-        if rev != head:
-            raise StoreError(
-                f"{display} is on schema revision {rev}, this nutribench needs {head}: run {_upgrade_cmd(url)}"
-            )
-        return Store(engine, url, head)
+            if rev is None and not writer:
+                raise StoreError(
+                    f"{display} is an empty database, nothing has run yet: {db_command('nutribench run', url)} fills it"
+                )
+            if rev != head:
+                if not (writer and upgrade):
+                    raise StoreError(
+                        f"{display} is on schema revision {rev}, this nutribench needs {head}: run {_upgrade_cmd(url)}"
+                    )
+                upgrade_connection(conn)
+        return Store(engine, url, head, upgraded_from=rev if rev not in (None, head) else None, created=rev is None)
     except StoreError:
         engine.dispose()
         raise

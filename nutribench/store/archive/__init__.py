@@ -68,18 +68,7 @@ The package, by seam: :mod:`~nutribench.store.archive.format` (the format, and
 
 from nutribench.store.archive.check import read_archive, verify_archive
 from nutribench.store.archive.export import export_results
-from nutribench.store.archive.format import ENGINES, FORMAT, FORMAT_VERSION, NAME_MAX, NAME_PATTERN, valid_config_name
+from nutribench.store.archive.format import NAME_MAX, valid_config_name
 from nutribench.store.archive.merge import import_results
 
-__all__ = [
-    "ENGINES",
-    "FORMAT",
-    "FORMAT_VERSION",
-    "NAME_MAX",
-    "NAME_PATTERN",
-    "export_results",
-    "import_results",
-    "read_archive",
-    "valid_config_name",
-    "verify_archive",
-]
+__all__ = ["NAME_MAX", "export_results", "import_results", "read_archive", "valid_config_name", "verify_archive"]

@@ -340,13 +340,12 @@ def inner_nul(arr: np.ndarray) -> np.ndarray:
 def _fill_optional(arrays: dict[str, np.ndarray]) -> None:
     """An optional table (:data:`OPTIONAL_TABLES`) that an archive has no array of at all
     (written before the table existed) added to ``arrays`` as empty columns."""
+    dtypes = {float: np.float64, int: np.int32, str: "<U1"}
     for name in OPTIONAL_TABLES:
-        if any(k.startswith(f"{name}.") for k in arrays):
-            continue
-        arrays[f"{name}.job"] = np.zeros(0, dtype=np.int32)
-        for col in columns(archive_table(name, {})):
-            kind = col.type.python_type
-            arrays[f"{name}.{col.name}"] = np.zeros(0, dtype={float: np.float64, int: np.int32, str: "<U1"}[kind])
+        if not any(k.startswith(f"{name}.") for k in arrays):
+            arrays[f"{name}.job"] = np.zeros(0, dtype=np.int32)
+            for col in columns(archive_table(name, {})):
+                arrays[f"{name}.{col.name}"] = np.zeros(0, dtype=dtypes[col.type.python_type])
 
 
 def _check_column(col: Any, key: str, arr: Any, null: Any, n: int, job_key: str) -> None:
@@ -490,8 +489,8 @@ def _check_diagnostics(dg: dict[str, np.ndarray]) -> None:
 def _check_validation(va: dict[str, np.ndarray], per_job: dict[str, np.ndarray]) -> None:
     """The rows of ``validation_episodes``: training days from 1, days from 0, foods within a
     day, no (job, training day, day) twice."""
-    for col, lo, hi in (("train_day", 1, None), ("episode", 0, None), ("foods", 0, per_job["horizon"][va["job"]])):
-        if (row := first_row((va[col] < lo) | (va[col] > hi if hi is not None else False))) is not None:
+    for col, lo, hi in (("train_day", 1, np.inf), ("episode", 0, np.inf), ("foods", 0, per_job["horizon"][va["job"]])):
+        if (row := first_row((va[col] < lo) | (va[col] > hi))) is not None:
             raise InvalidArchive(f"validation_episodes row {row}: {col} {int(va[col][row])} is out of its range")
     if (row := _twice([va["job"], va["train_day"], va["episode"]])) is not None:
         raise InvalidArchive(

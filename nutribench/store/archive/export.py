@@ -37,12 +37,9 @@ from nutribench.store.schema import open_store
 
 
 def _row(obj: Any, skip: Sequence[str]) -> dict[str, Any]:
-    out = {}
-    for col in obj.__table__.columns:
-        if col.name not in skip:
-            value = getattr(obj, col.key)
-            out[col.name] = value.isoformat() if isinstance(value, datetime) else value
-    return out
+    """The columns of the ORM object ``obj`` but ``skip``, by name, a datetime as its ISO string."""
+    values = {c.name: getattr(obj, c.key) for c in obj.__table__.columns if c.name not in skip}
+    return {k: v.isoformat() if isinstance(v, datetime) else v for k, v in values.items()}
 
 
 def _check_out(path: Path) -> None:

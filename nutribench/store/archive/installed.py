@@ -120,12 +120,9 @@ def check_installed(meta: dict[str, Any], installed: Installed | None = None) ->
         body = row["body"]
         for kind, key in (("reward", "reward"), ("food catalog", "catalog")):
             part = body.get(key)
-            if isinstance(part, dict):
-                name, version = part.get("name"), part.get("version")
-                if isinstance(name, str) and isinstance(version, int) and (kind, name, version) in installed:
-                    clash(
-                        kind, name, version, _part_sha256(kind, part), f"{what}'s {kind} {short_repr(name)} v{version}"
-                    )
+            name, version = (part.get("name"), part.get("version")) if isinstance(part, dict) else (None, None)
+            if isinstance(name, str) and isinstance(version, int) and (kind, name, version) in installed:
+                clash(kind, name, version, _part_sha256(kind, part), f"{what}'s {kind} {short_repr(name)} v{version}")
     for row in meta["agent_configs"]:
         # a built-in agent's config: its settings must be the shipped file's (the prose may differ)
         ident = ("agent config", row["name"], row["version"])
@@ -150,11 +147,8 @@ def forged_regimes(engine) -> set[tuple[str, int]]:
     installed = installed_configs()
     with Session(bind=engine) as s:
         rows = s.execute(select(RegimeConfig.name, RegimeConfig.version, RegimeConfig.sha256)).all()
-    return {
-        (name, int(version))
-        for name, version, sha in rows
-        if ("regime", name, int(version)) in installed and installed[("regime", name, int(version))][0] != sha
-    }
+    # a regime the installation does not ship has nothing to differ from (its own sha256)
+    return {(name, int(v)) for name, v, sha in rows if installed.get(("regime", name, int(v)), (sha,))[0] != sha}
 
 
 def _peek_configs(path: Path) -> set[tuple[str, str, int, str]] | None:

@@ -9,6 +9,7 @@ SQLite file the import created is removed again if it fails.
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Callable
 from datetime import datetime
@@ -38,11 +39,9 @@ _BATCH = 20_000
 
 
 def _datetimes(table: type, row: dict[str, Any]) -> dict[str, Any]:
-    out = dict(row)
-    for col in table.__table__.columns:
-        if col.name in out and isinstance(out[col.name], str) and col.type.python_type is datetime:
-            out[col.name] = datetime.fromisoformat(out[col.name])
-    return out
+    """``row`` with the ISO strings of ``table``'s datetime columns read back as datetimes."""
+    dates = {c.name for c in table.__table__.columns if c.type.python_type is datetime}
+    return {k: datetime.fromisoformat(v) if k in dates and isinstance(v, str) else v for k, v in row.items()}
 
 
 def _chunks(ids: list[int], n: int = 500) -> list[list[int]]:
@@ -75,10 +74,8 @@ def _remove_new_file(path: Path | None) -> None:
     if path is None:
         return
     for p in (path, *side_files(path)):
-        try:
+        with contextlib.suppress(OSError):  # best effort: the failure is reported anyway
             p.unlink(missing_ok=True)
-        except OSError:  # pragma: no cover - best effort: the failure is reported anyway
-            pass
 
 
 def import_results(
