@@ -6,7 +6,13 @@ from __future__ import annotations
 import pytest
 from typer.testing import CliRunner
 
-from nutribench.bench.learn import LearnRun, budget_for, iqm, markdown_table, summarize  # iqm: the report's, reused
+from nutribench.bench.learn import (  # iqm: the report's, reused
+    LearnRun,
+    budget_for,
+    iqm,
+    markdown_table,
+    summarize_runs,
+)
 from nutribench.cli import app
 from nutribench.cli.bench import parse_budgets
 
@@ -25,7 +31,7 @@ def test_gap_closed_is_zero_for_never_one_for_the_planner_and_checks_the_target(
         _run("mc", "run0", 0, [-20.0], [0]),
         _run("ppo", "run3", 0, [-4.0], [4]),
     ]
-    rows = {(r["regime"], r["algo"]): r for r in summarize(runs)}
+    rows = {(r["regime"], r["algo"]): r for r in summarize_runs(runs)}
     ppo = rows[("run0", "ppo")]
     assert ppo["gap_closed"] == pytest.approx(0.75) and ppo["gap_closed_min_seed"] == pytest.approx(0.5)
     assert ppo["target_met"] is True and ppo["foods"] == pytest.approx(4.25)
@@ -37,7 +43,7 @@ def test_gap_closed_is_zero_for_never_one_for_the_planner_and_checks_the_target(
 def test_no_gap_to_close_is_nan_not_a_crash():
     import math
 
-    (row,) = summarize([_run("ppo", "run0", 0, [-4.0], [4], never=-4.0, planner=-4.0)])
+    (row,) = summarize_runs([_run("ppo", "run0", 0, [-4.0], [4], never=-4.0, planner=-4.0)])
     assert math.isnan(row["gap_closed"]) and row["target_met"] is False
 
 

@@ -205,14 +205,15 @@ def test_batched_training_yields_agents_the_single_agent_api_uses(tmp_path) -> N
 def test_bench_engines_and_bench_train_batched_report_their_shape() -> None:
     """The benchmarks' shape, not their figures (timings belong in benchmarks)."""
     from nutribench.agents.registry import batched_class
-    from nutribench.bench.engines import bench_engines, markdown_table
+    from nutribench.bench.engines import ENGINE_COLUMNS, bench_engines, engine_cells
+    from nutribench.bench.learn import markdown_table
     from nutribench.bench.throughput import bench_train_batched
 
     rows = bench_engines(["ppo"], ["run0"], [0, 1], episodes=10, eval_episodes=2, workers=1)
     assert [(r["engine"], r["seeds"]) for r in rows] == [("sb3", 2), ("batched", 2)]
     assert rows[0]["overlap"] is None and isinstance(rows[1]["overlap"], bool)
     assert all(r["ci_low"] <= r["iqm"] <= r["ci_high"] for r in rows)
-    assert markdown_table(rows).count("\n") == 3
+    assert markdown_table(rows, ENGINE_COLUMNS, engine_cells).count("\n") == 3
     cfg = load_agent_config("ppo")
     assert batched_class("ppo").flops_per_env_step(cfg) == (2 * (13 * 256 + 256 * 128) + 2 * 128 * 3) * (
         1 + 3 * cfg.n_epochs

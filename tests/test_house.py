@@ -229,12 +229,7 @@ SAME_NAME_ON_PURPOSE: dict[str, str] = {
 #: (bench/, the CLI, the engine names): to be renamed or said once
 #: there, and then struck from this list. It only shrinks: a new name defined twice fails.
 NOT_YET_ONE_NAME: dict[str, str] = {
-    "COLUMNS": "bench.engines' and bench.learn's table columns, beside the diagnostics row's",
-    "ENGINES": "aliases of nutribench.engines' tuple in scheduler.pools and bench.engines",
-    "markdown_table": "bench.engines' and bench.learn's table writers",
-    "row_cells": "bench.engines' and bench.learn's table rows",
-    "summarize": "bench.learn's runs summary and scheduler.status's report",
-    "parse_seeds": "tuning.study's (tuning defaults) around scheduler.grid's",
+    "ENGINES": "an alias of nutribench.engines' tuple in scheduler.pools",
     "status_cmd": "the CLI's run and tune status commands",
 }
 

@@ -28,8 +28,7 @@ from typing import Any
 import numpy as np
 
 from nutribench.agents.registry import batched_names
-from nutribench.bench.learn import LearnRun, batched_runs, learn_benchmark, summarize
-from nutribench.bench.learn import markdown_table as learn_table
+from nutribench.bench.learn import LearnRun, batched_runs, learn_benchmark, summarize_runs
 from nutribench.engines import TRAINING_ENGINES, Engine
 from nutribench.safe_write import atomic_write
 from nutribench.stats import clustered_iqm_ci
@@ -108,7 +107,7 @@ def _engine_pair(runs: dict[str, list[LearnRun]], algo: str, regime: str, episod
     for engine in TRAINING_ENGINES:
         rs = [r for r in runs[engine] if r.algo == algo and r.regime == regime]
         point, lo, hi = clustered_iqm_ci([np.array([e["return"] for e in r.eval_rows]) for r in rs])
-        learned = summarize(rs)[0]  # the gap, foods and wall time as bench learn states them
+        learned = summarize_runs(rs)[0]  # the gap, foods and wall time as bench learn states them
         pair.append(
             {"algo": algo, "regime": regime, "engine": engine, "seeds": len(rs), "episodes": episodes}
             | {"iqm": point, "ci_low": lo, "ci_high": hi, "gap_closed": learned["gap_closed"]}
@@ -119,7 +118,7 @@ def _engine_pair(runs: dict[str, list[LearnRun]], algo: str, regime: str, episod
     return pair
 
 
-COLUMNS = (
+ENGINE_COLUMNS = (
     "algo",
     "regime",
     "engine",
@@ -133,7 +132,7 @@ COLUMNS = (
 )
 
 
-def row_cells(r: dict[str, Any]) -> list[str]:
+def engine_cells(r: dict[str, Any]) -> list[str]:
     return [
         r["algo"],
         r["regime"],
@@ -146,8 +145,3 @@ def row_cells(r: dict[str, Any]) -> list[str]:
         f"{r['wall_seconds_per_job']:.1f}",
         "" if r["overlap"] is None else ("yes" if r["overlap"] else "NO"),
     ]
-
-
-def markdown_table(rows: list[dict[str, Any]]) -> str:
-    """The rows as a Markdown table (:func:`nutribench.bench.learn.markdown_table`'s)."""
-    return learn_table(rows, COLUMNS, row_cells)

@@ -13,9 +13,9 @@ learner may exceed 1). A benchmark, not a test: it takes minutes per algorithm.
 
 ::
 
-    from nutribench.bench.learn import learn_benchmark, summarize
+    from nutribench.bench.learn import learn_benchmark, summarize_runs
     runs = learn_benchmark(["ppo"], ["run0"], seeds=[0, 1, 2], budgets={"ppo": 500})
-    print(summarize(runs))
+    print(summarize_runs(runs))
 """
 
 from __future__ import annotations
@@ -165,7 +165,7 @@ def learn_benchmark(
     return sorted(runs, key=lambda x: (regimes.index(x.regime), names.index(x.algo), seeds.index(x.seed)))
 
 
-def summarize(runs: list[LearnRun]) -> list[dict[str, Any]]:
+def summarize_runs(runs: list[LearnRun]) -> list[dict[str, Any]]:
     """One row per (regime, config) over its seeds x evaluation days: return (mean, IQM),
     foods, final distance, overshoot ratio, the never and planner returns on those days, the
     gap closed (of the means; and its lowest seed), wall seconds per job, and, on run0,
@@ -210,7 +210,7 @@ def summarize(runs: list[LearnRun]) -> list[dict[str, Any]]:
 
 
 #: Columns of the summary tables (Markdown and the terminal's), one cell each per row.
-COLUMNS = (
+LEARN_COLUMNS = (
     "regime",
     "algo",
     "days",
@@ -229,7 +229,7 @@ COLUMNS = (
 
 
 def row_cells(r: dict[str, Any]) -> list[str]:
-    """One summary row as the text of each of :data:`COLUMNS`."""
+    """One summary row as the text of each of :data:`LEARN_COLUMNS`."""
     return [
         r["regime"],
         r["algo"],
@@ -249,7 +249,7 @@ def row_cells(r: dict[str, Any]) -> list[str]:
 
 
 def markdown_table(
-    rows: list[dict[str, Any]], columns: Sequence[str] = COLUMNS, cells: Callable[[dict], list[str]] | None = None
+    rows: list[dict[str, Any]], columns: Sequence[str] = LEARN_COLUMNS, cells: Callable[[dict], list[str]] | None = None
 ) -> str:
     """The summary as a Markdown table (what the README records); ``columns`` and ``cells``
     (one row's texts, :func:`row_cells` by default) for another bench's rows."""

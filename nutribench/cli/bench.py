@@ -183,7 +183,7 @@ def bench_learn_cmd(
     (run0 target: at least 75 % with 3-6 foods a day)."""
     episodes = old_spelling(days, episodes_alias, "--days", "--episodes", "500,ddqn=2000")
     from nutribench.agents.config import list_agent_configs, where_agents_are
-    from nutribench.bench.learn import COLUMNS, DEFAULT_BUDGET, learn_benchmark, row_cells, summarize
+    from nutribench.bench.learn import DEFAULT_BUDGET, LEARN_COLUMNS, learn_benchmark, row_cells, summarize_runs
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
 
@@ -206,12 +206,12 @@ def bench_learn_cmd(
             engine=engine,
             device=device,
         )
-    rows = summarize(runs)
+    rows = summarize_runs(runs)
     cells = [row_cells(r) for r in rows]
     for r, c in zip(rows, cells, strict=True):
         if r["target_met"] is not None and not markdown:
             c[-1] = f"[{'green' if r['target_met'] else 'red'}]{c[-1]}"
-    print_table(COLUMNS, cells, f"learnability, seeds {seeds}, {eval_episodes} eval days each", markdown)
+    print_table(LEARN_COLUMNS, cells, f"learnability, seeds {seeds}, {eval_episodes} eval days each", markdown)
 
 
 def _check_learn(names: list[str], budgets: dict[str, int], given: str, engine: str, device: str) -> None:
@@ -318,7 +318,7 @@ def bench_engines_cmd(
     the two engines' intervals must overlap."""
     episodes = old_spelling(days, episodes_alias, "--days", "--episodes", 500)
     from nutribench.agents.registry import batched_names
-    from nutribench.bench.engines import COLUMNS, bench_engines, row_cells
+    from nutribench.bench.engines import ENGINE_COLUMNS, bench_engines, engine_cells
     from nutribench.config import list_regimes
     from nutribench.scheduler.grid import parse_seeds
 
@@ -341,7 +341,7 @@ def bench_engines_cmd(
             on_done=_report_engine_run,
         )
     title = f"engines: SB3 vs batched, {episodes} days, seeds {seeds}"
-    print_table(COLUMNS, [row_cells(r) for r in rows], title, markdown)
+    print_table(ENGINE_COLUMNS, [engine_cells(r) for r in rows], title, markdown)
     walls = {r["engine"]: r["total_wall_seconds"] for r in rows}
     how = "a process per algorithm, beside the SB3 pool" if concurrent else "one process"
     console.print(

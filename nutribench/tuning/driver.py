@@ -52,7 +52,7 @@ def plan(t: TuneSettings) -> tuple[Any, Any, bool]:
     from nutribench.agents.registry import by_entry_point
     from nutribench.engine.device import check_device
     from nutribench.tuning.space import check_space_memory, load_search_space
-    from nutribench.tuning.study import StudySettings, check_study_name, default_eval_every, parse_seeds, scored_once
+    from nutribench.tuning.study import StudySettings, check_study_name, default_eval_every, scored_once, tuning_seeds
 
     check_study_name(t.study)
     space = load_search_space(t.space)
@@ -61,7 +61,7 @@ def plan(t: TuneSettings) -> tuple[Any, Any, bool]:
         space_version=space.version,
         space_sha256=space.sha256,
         regimes=tuple(t.regimes),
-        seeds=parse_seeds(t.seeds),
+        seeds=tuning_seeds(t.seeds),
         days=t.days,
         eval_every=t.eval_every or default_eval_every(t.days),
         val_episodes=t.val_episodes,

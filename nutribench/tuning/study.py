@@ -391,7 +391,7 @@ def default_eval_every(days: int) -> int:
     return next(d for d in range(max(1, days // 10), 0, -1) if days % d == 0)
 
 
-def parse_seeds(text: str | None) -> tuple[int, ...]:
+def tuning_seeds(text: str | None) -> tuple[int, ...]:
     """``--seeds 101,102`` checked as ``nutribench run`` checks its seeds
     (:func:`nutribench.scheduler.grid.parse_seeds`: non-negative, in range, no repeats), as a
     tuple; the default tuning seeds for None or an empty text."""

@@ -28,7 +28,7 @@ import torch as th
 import nutribench.agents.gru_ppo.policy as sb3_policy
 import nutribench.engine.gru_ppo as stacked
 from nutribench.agents import load_agent_config
-from nutribench.bench.learn import batched_runs, markdown_table, one_run, summarize
+from nutribench.bench.learn import batched_runs, markdown_table, one_run, summarize_runs
 from nutribench.cli.common import UserError, split_csv
 from nutribench.config import list_regimes
 from nutribench.scheduler.grid import parse_seeds
@@ -87,9 +87,9 @@ def main() -> None:
             return batched_runs(cfg, regimes, seeds, args.episodes, 10)
         return [one_run(cfg, r, s, args.episodes, 10) for r in regimes for s in seeds]
 
-    rows = summarize(runs())
+    rows = summarize_runs(runs())
     with no_memory():
-        memoryless = summarize(runs())
+        memoryless = summarize_runs(runs())
     for row in memoryless:
         row["algo"] = f"{row['algo']} without memory"
     print(markdown_table(rows + memoryless))
