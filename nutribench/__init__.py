@@ -17,6 +17,8 @@ The ids are registered as gymnasium is imported (at once when it already is): ``
 nutribench`` itself imports neither gymnasium nor numpy.
 """
 
+import sys
+
 ENV_ID = "nutribench/NutriRL-v0"
 SHIPPED_REGIMES = tuple(f"run{k}" for k in range(7))
 #: Steps in a day: the ``horizon`` of ``regimes/reward.toml``, shared by every regime.
@@ -52,7 +54,6 @@ class _RegisterWithGymnasium:
         if name != "gymnasium":
             return None
         import importlib.util
-        import sys
 
         if self in sys.meta_path:
             sys.meta_path.remove(self)
@@ -68,16 +69,10 @@ class _RegisterWithGymnasium:
         return spec
 
 
-def _register_now_or_with_gymnasium() -> None:
-    import sys
-
-    if "gymnasium" in sys.modules:
-        register_envs()
-    elif not any(isinstance(f, _RegisterWithGymnasium) for f in sys.meta_path):
-        sys.meta_path.insert(0, _RegisterWithGymnasium())
-
-
-_register_now_or_with_gymnasium()
+if "gymnasium" in sys.modules:
+    register_envs()
+elif not any(isinstance(f, _RegisterWithGymnasium) for f in sys.meta_path):
+    sys.meta_path.insert(0, _RegisterWithGymnasium())
 
 
 def _version() -> str:

@@ -25,6 +25,7 @@ from nutribench.cli.common import (
     folder_option,
     old_spelling,
     print_table,
+    say_err,
     split_csv,
     user_errors,
 )
@@ -134,7 +135,7 @@ def run_cmd(
     settings.check()
     if preset is None and seeds is None and episodes is None and regimes == algos == "all" and not yes:
         _confirm_paper_grid(grid)  # after every check of the options, before the database exists
-    err_console.print(settings.starting_line(), highlight=False, soft_wrap=True)
+    say_err(settings.starting_line())
     try:
         with StopSignalsAsCtrlC():  # the program's handlers, not the library's
             summary = run_grid(settings)

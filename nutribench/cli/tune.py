@@ -135,24 +135,18 @@ def status_cmd(
         return
     for c in rows:
         s = c.settings
-        what = (
-            "settings unknown"
-            if s is None
-            else (
-                f"{s.space} v{s.space_version} on {','.join(s.regimes)}, seeds {','.join(map(str, s.seeds))}, {s.days} days"
-            )
-        )
+        what = "settings unknown"
+        if s is not None:
+            what = f"{s.space} v{s.space_version} on {','.join(s.regimes)}, seeds {','.join(map(str, s.seeds))}, {s.days} days"
         best = "" if c.best_value is None else f"; best {c.best_value:+.1%} (trial {c.best_number})"
-        console.print(
+        say(
             f"study {c.name}: {what}: {c.complete} complete, {c.pruned} pruned, {c.running} running, "
-            f"{c.failed} failed{best}",
-            highlight=False,
-            soft_wrap=True,
+            f"{c.failed} failed{best}"
         )
     for c in rows:
         if c.best_params:
             shown = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in c.best_params.items())
-            console.print(f"{c.name}: best trial {c.best_number}: {shown}", highlight=False, soft_wrap=True)
+            say(f"{c.name}: best trial {c.best_number}: {shown}")
 
 
 @tune_app.command("best")
@@ -176,11 +170,7 @@ def best_cmd(
     handle = open_study(db, study, None)
     if write:
         path = write_tuned(handle, name, out)
-        console.print(
-            f"wrote {path}: `NUTRIBENCH_AGENTS={path.parent} nutribench run --algos {path.stem}` trains it",
-            highlight=False,
-            soft_wrap=True,
-        )
+        say(f"wrote {path}: `NUTRIBENCH_AGENTS={path.parent} nutribench run --algos {path.stem}` trains it")
         return
     cfg, header = tuned_config(handle, name)
     typer.echo(header + "\n" + agent_config_to_toml(cfg))
@@ -188,12 +178,6 @@ def best_cmd(
 
 def _counts_dict(c) -> dict:
     """One study's counts and settings as plain data (``tune status --json``)."""
+    counts = ("complete", "pruned", "running", "failed", "best_value", "best_number", "best_params")
     settings = None if c.settings is None else c.settings.as_attr()
-    return {
-        "study": c.name,
-        "settings": settings,
-        **{
-            k: getattr(c, k)
-            for k in ("complete", "pruned", "running", "failed", "best_value", "best_number", "best_params")
-        },
-    }
+    return {"study": c.name, "settings": settings} | {k: getattr(c, k) for k in counts}

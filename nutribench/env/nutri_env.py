@@ -187,9 +187,10 @@ class RegimeDynamics:
 
 class DynamicsView:
     """The inspection API the single and the vector env share: the regime's constants,
-    read from ``self.dyn`` (:class:`RegimeDynamics`)."""
+    read from ``self.dyn`` (:class:`RegimeDynamics`), and ``steps_taken`` (the steps of the day so far)."""
 
     dyn: RegimeDynamics
+    steps_taken = property(lambda self: self._t)
     config = property(lambda self: self.dyn.config)
     masses = property(lambda self: self.dyn.masses)
     tau = property(lambda self: self.dyn.tau)
@@ -227,10 +228,6 @@ class NutriRLEnv(DynamicsView, gym.Env[np.ndarray, int]):
     def state(self) -> np.ndarray:
         """Absorbed nutrients s_t (target units)."""
         return np.array(self._s)
-
-    @property
-    def steps_taken(self) -> int:
-        return self._t
 
     @property
     def offered(self) -> int:
@@ -314,22 +311,11 @@ class NutriRLEnv(DynamicsView, gym.Env[np.ndarray, int]):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='ansi' or 'rgb_array'")
             return None
-        if self.render_mode == "ansi":
-            return render_ansi(self)
-        return render_rgb(self)
-
-
-def render_ansi(env: NutriRLEnv) -> str:
-    C, F, P = env._s
-    food = env.offered
-    offered = env.food_names[food] if food >= 0 else "-"
-    return (
-        f"step {env.steps_taken:2d}/{env.horizon}  C {C:5.2f}  F {F:5.2f}  P {P:5.2f}  (target 1.00)  "
-        f"distance {env._d:5.2f}  eaten {env._eaten:2d}  offered: {offered}\n"
-    )
-
-
-def render_rgb(env: NutriRLEnv) -> np.ndarray:
-    """The ``rgb_array`` picture: the three nutrients, absorbed and on their way, against the
-    target (:func:`nutribench.env.picture.nutrient_picture`; numpy alone)."""
-    return nutrient_picture(env._s, env.pending_by_horizon(), env.steps_taken, env.horizon)
+        if self.render_mode == "rgb_array":  # numpy alone: the nutrients, absorbed and on their way, against the target
+            return nutrient_picture(self._s, self.pending_by_horizon(), self._t, self.horizon)
+        C, F, P = self._s
+        offered = self.food_names[self.offered] if self.offered >= 0 else "-"
+        return (
+            f"step {self._t:2d}/{self.horizon}  C {C:5.2f}  F {F:5.2f}  P {P:5.2f}  (target 1.00)  "
+            f"distance {self._d:5.2f}  eaten {self._eaten:2d}  offered: {offered}\n"
+        )

@@ -43,9 +43,7 @@ class NutriRLSB3VecEnv(VecEnv):
         self.last_rewards = np.zeros(self.num_envs)
 
     def reset(self):
-        seed = self._seeds[0]
-        options = self._options[0] or None
-        obs, info = self.venv.reset(seed=seed, options=options)
+        obs, info = self.venv.reset(seed=self._seeds[0], options=self._options[0] or None)
         self.last_info = info
         self.reset_infos = [{} for _ in range(self.num_envs)]
         self._reset_seeds()

@@ -82,10 +82,6 @@ class NutriRLVectorEnv(DynamicsView, VectorEnv):
         return self._s.T.copy()
 
     @property
-    def steps_taken(self) -> int:
-        return self._t
-
-    @property
     def offered(self) -> np.ndarray:
         if self._t >= self._H:
             return np.full(self.num_envs, -1)
