@@ -26,6 +26,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
 import nutribench.agents.registry as registry
+from nutribench.agents.config import PPOFields
 from nutribench.config.loading import ConfigError
 
 
@@ -80,18 +81,7 @@ def build_model(
 def ppo_arguments(cfg: Any) -> dict[str, Any]:
     """The constructor arguments PPO and GRU-PPO share (GRU-PPO's update is PPO's): those of
     :class:`~nutribench.agents.config.PPOFields`."""
-    return dict(
-        learning_rate=cfg.learning_rate,
-        n_steps=cfg.n_steps,
-        batch_size=cfg.batch_size,
-        n_epochs=cfg.n_epochs,
-        gae_lambda=cfg.gae_lambda,
-        clip_range=cfg.clip_range,
-        ent_coef=cfg.ent_coef,
-        vf_coef=cfg.vf_coef,
-        max_grad_norm=cfg.max_grad_norm,
-        normalize_advantage=cfg.normalize_advantage,
-    )
+    return {name: getattr(cfg, name) for name in PPOFields.model_fields}
 
 
 def model_arguments(cfg: Any, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:

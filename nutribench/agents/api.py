@@ -351,19 +351,11 @@ def evaluate(
         start = np.zeros(n, dtype=bool)
         if record_steps:
             s = np.asarray(info["state"]).reshape(n, 3)
-            for j in range(n):
-                steps.append(
-                    {
-                        "episode": j,
-                        "step": t + 1,
-                        "food": int(streams[j, t]),
-                        "action": int(actions[j]),
-                        "C": float(s[j, 0]),
-                        "F": float(s[j, 1]),
-                        "P": float(s[j, 2]),
-                        "reward": float(rewards[j]),
-                    }
-                )
+            steps += [
+                {"episode": j, "step": t + 1, "food": int(streams[j, t]), "action": int(actions[j])}
+                | {"C": float(s[j, 0]), "F": float(s[j, 1]), "P": float(s[j, 2]), "reward": float(rewards[j])}
+                for j in range(n)
+            ]
     seen_arr = np.stack(seen, axis=1)  # (n, H, obs_dim)
     rows = [{"episode": j, **m, "entropy": episode_entropy(agent.model, seen_arr[j])} for j, m in enumerate(finished)]
     return EvalResult(rows, steps)

@@ -24,18 +24,17 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import tomli_w
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 import nutribench.agents.registry as registry
 from nutribench.config.loading import (
     ConfigError,
     check_folder_setting,
     content_sha256,
-    file_digest,
-    format_validation_error,
-    read_toml,
+    parse_once,
     regimes_dir,
     resolve_named_file,
+    validate,
 )
 from nutribench.config.models import NoBool, StrictBool, Version
 from nutribench.config.reading import read_config_bytes
@@ -175,19 +174,10 @@ def load_agent_config(name_or_path: str | Path | BaseModel) -> Any:
     if isinstance(name_or_path, BaseModel):
         return name_or_path
     path = resolve_agent_path(name_or_path)
-    key = file_digest(path)  # each file's content parsed once (the models are frozen)
-    if key is not None and (str(path), key) in _LOADED:
-        return _LOADED[(str(path), key)]
-    cfg = parse_agent_config(read_toml(path), path)
+    cfg = parse_once(path, lambda data: parse_agent_config(data, path), str(path))  # the models are frozen
     if cfg.name != path.stem:
         raise ConfigError(f"{path}: name: '{cfg.name}' differs from the file name '{path.stem}' (make them equal)")
-    if key is not None:
-        _LOADED[(str(path), key)] = cfg
     return cfg
-
-
-#: agent files parsed: (the path, its content digest) -> the config
-_LOADED: dict[tuple[str, bytes], Any] = {}
 
 
 def agent_config_content(cfg: BaseModel) -> dict[str, Any]:
@@ -235,7 +225,4 @@ def parse_agent_config(data: dict[str, Any], source: str | Path = "<dict>") -> A
         model = registry.get(data.get("algo")).config_model()  # a list or a table is no name either
     except ConfigError as e:
         raise ConfigError(f"{source}: {e}") from None
-    try:
-        return model.model_validate(data)
-    except ValidationError as e:
-        raise ConfigError(format_validation_error(source, e)) from None
+    return validate(model, data, source)

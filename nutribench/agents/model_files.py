@@ -116,12 +116,15 @@ def sidecar_training_days(path: str | Path) -> int | None:
 
 def spaces_record(model: BaseAlgorithm) -> dict[str, Any]:
     """The observation and action spaces of ``model``, as JSON (for :func:`stand_in_env`)."""
-    obs, act = model.observation_space, model.action_space
+    return _spaces(model.observation_space, int(model.action_space.n))
+
+
+def _spaces(obs: gym.spaces.Box, n_actions: int) -> dict[str, Any]:
     return {
         "obs_low": np.asarray(obs.low).tolist(),
         "obs_high": np.asarray(obs.high).tolist(),
         "obs_dtype": str(obs.dtype),
-        "n_actions": int(act.n),
+        "n_actions": n_actions,
     }
 
 
@@ -238,11 +241,8 @@ def implied_parameters(config: Any) -> tuple[str, int]:
 def _numel(tensors: Any) -> int:
     if isinstance(tensors, th.Tensor):
         return tensors.numel()
-    if isinstance(tensors, dict):
-        return sum(_numel(v) for v in tensors.values())
-    if isinstance(tensors, (list, tuple)):
-        return sum(_numel(v) for v in tensors)
-    return 0
+    items = tensors.values() if isinstance(tensors, dict) else tensors if isinstance(tensors, (list, tuple)) else ()
+    return sum(map(_numel, items))
 
 
 def check_layer_sizes(path: str | Path, config: Any, policy: Any) -> None:
@@ -354,8 +354,7 @@ def _regime_spaces(side: dict[str, Any]) -> dict[str, Any] | None:
         dyn = RegimeDynamics(regime)
     except (ConfigError, OSError):
         return None
-    box = dyn.observation_space
-    return {"obs_low": box.low.tolist(), "obs_high": box.high.tolist(), "obs_dtype": str(box.dtype), "n_actions": 2}
+    return _spaces(dyn.observation_space, 2)
 
 
 #: The horizon a model is rebuilt with: it sizes MC's rollout buffer only, never a weight.

@@ -19,6 +19,19 @@ from nutribench.env.sb3 import NutriRLSB3VecEnv
 EpisodeFn = Callable[[dict[str, Any]], None]
 
 
+def finish_day(
+    days: list[dict[str, Any]], metrics: dict[str, Any], model: Any, obs: list, on_episode: EpisodeFn | None
+) -> None:
+    """Append a finished day's row (its number, ``metrics`` and the entropy of ``model``'s policy
+    over the day's observations ``obs``, None without a model) to ``days``, hand it to
+    ``on_episode``, and forget ``obs``."""
+    entropy = episode_entropy(model, np.stack(obs)) if model is not None else None
+    obs.clear()
+    days.append({"episode": len(days), **metrics, "entropy": entropy})
+    if on_episode is not None:
+        on_episode(days[-1])
+
+
 class EpisodeMetrics(BaseCallback):
     """Records the per-day metrics (:data:`~nutribench.env.metrics.METRIC_KEYS`) of every
     finished training day and stops after ``episodes``.
@@ -41,15 +54,7 @@ class EpisodeMetrics(BaseCallback):
     def _on_step(self) -> bool:
         self._obs.append(np.array(self.model._last_obs[0], dtype=np.float32))
         for metrics in self.recorder.record(self.base_env.last_rewards, self.locals["dones"], self.base_env.last_info):
-            row = {
-                "episode": len(self.episodes),
-                **metrics,
-                "entropy": episode_entropy(self.model, np.stack(self._obs)),
-            }
-            self._obs.clear()
-            self.episodes.append(row)
-            if self.on_episode is not None:
-                self.on_episode(row)
+            finish_day(self.episodes, metrics, self.model, self._obs, self.on_episode)
         return len(self.episodes) < self.n_episodes or self._rollout_ends_here()
 
     def _rollout_ends_here(self) -> bool:
@@ -87,11 +92,7 @@ class RecordingVecEnv(VecEnvWrapper):
         obs, rewards, dones, infos = self.venv.step_wait()
         for metrics in self.recorder.record(self.base.last_rewards, dones, self.base.last_info):
             if len(self.episodes) < self.n_episodes:
-                entropy = episode_entropy(self.model, np.stack(self._obs)) if self.model is not None else None
-                row = {"episode": len(self.episodes), **metrics, "entropy": entropy}
-                self.episodes.append(row)
-                if self.on_episode is not None:
-                    self.on_episode(row)
+                finish_day(self.episodes, metrics, self.model, self._obs, self.on_episode)
             self._obs.clear()
         self._obs.append(np.array(obs[0], dtype=np.float32))
         return obs, rewards, dones, infos

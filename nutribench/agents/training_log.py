@@ -234,18 +234,12 @@ class TrainingDiagnostics(BaseCallback):
             self.probe.remove()
         self.diag_logger.close()
 
-    def _return_scale(self) -> float | None:
-        venv = self.model.get_vec_normalize_env()
-        if venv is None or not venv.norm_reward:
-            return None
-        return float(math.sqrt(float(venv.ret_rms.var) + venv.epsilon))
-
     def _close_row(self) -> None:
         row: dict[str, float] = {d.UPDATE: len(self.rows), d.TIMESTEP: int(self.model.num_timesteps)}
         row |= self.diag_logger.take()
-        scale = self._return_scale()
-        if scale is not None:
-            row[d.RETURN_SCALE] = scale
+        venv = self.model.get_vec_normalize_env()
+        if venv is not None and venv.norm_reward:  # VecNormalize's return scale
+            row[d.RETURN_SCALE] = float(math.sqrt(float(venv.ret_rms.var) + venv.epsilon))
         self.rows.append(row)
         if self.diag_logger.output_formats:
             for name in d.QUANTITIES:

@@ -17,12 +17,13 @@ import hashlib
 import json
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from pydantic import ValidationError
 
-from nutribench.config.loading import OBSERVATION_OPTIONS, ConfigError, format_validation_error
+from nutribench.config.loading import OBSERVATION_OPTIONS, ConfigError, validate
 from nutribench.config.models import NUTRIENTS, DelayRanges, FoodCatalog, Regime
 from nutribench.config.reading import check_strings
 from nutribench.safe_write import atomic_write
@@ -136,12 +137,10 @@ def derive_regime(
         "ranges": ranges,
         "foods": {},
     }
-    check_strings(f"new regime {name}", {"description": data["description"]})  # before anything is written
-    try:
-        data["foods"] = draw_delays(DelayRanges.model_validate(ranges), data["seed"], catalog)
-        return Regime.model_validate(data)
-    except ValidationError as e:
-        raise ConfigError(format_validation_error(f"new regime {name}", e)) from None
+    where = f"new regime {name}"
+    check_strings(where, {"description": data["description"]})  # before anything is written
+    data["foods"] = draw_delays(validate(DelayRanges, ranges, where), data["seed"], catalog)
+    return validate(Regime, data, where)
 
 
 def _describe(source: str, ranges: dict) -> str:
@@ -158,16 +157,13 @@ def _num(x: float) -> str:
     return repr(float(x)) if x != int(x) else f"{int(x)}.0"
 
 
-def _nutrients(d: dict[str, float]) -> str:
-    return "{ " + ", ".join(f"{n} = {_num(d[n])}" for n in NUTRIENTS) + " }"
+def _nutrients(d: dict[str, Any], value: Callable[[Any], str] = _num) -> str:
+    """An inline table of one ``value`` per nutrient: ``{ C = 1.0, F = 2.5, P = 3.0 }``."""
+    return "{ " + ", ".join(f"{n} = {value(d[n])}" for n in NUTRIENTS) + " }"
 
 
 def _range_table(d: dict[str, dict[str, float]]) -> str:
-    return (
-        "{ "
-        + ", ".join(f"{n} = {{ low = {_num(d[n]['low'])}, high = {_num(d[n]['high'])} }}" for n in NUTRIENTS)
-        + " }"
-    )
+    return _nutrients(d, lambda r: f"{{ low = {_num(r['low'])}, high = {_num(r['high'])} }}")
 
 
 def regime_to_toml(regime: Regime) -> str:

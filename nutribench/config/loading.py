@@ -10,6 +10,7 @@ import hashlib
 import json
 import os
 import stat
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -18,12 +19,13 @@ from typing import Any, TypeVar
 import numpy as np
 from pydantic import BaseModel, ValidationError
 
-from nutribench.config.models import NUTRIENTS, FoodCatalog, Regime, RewardConfig
+from nutribench.config.models import FoodCatalog, Regime, RewardConfig
 from nutribench.config.reading import ConfigError, parse_config, read_config_bytes
 from nutribench.config.sizes import dynamics_bytes, too_large
 from nutribench.safe_write import file_kind
 
 M = TypeVar("M", bound=BaseModel)
+T = TypeVar("T")
 
 #: A regime's observation options, in ladder order; each enters its content hash only when on.
 OBSERVATION_OPTIONS = ("observe_clock", "observe_pending", "observe_latent")
@@ -104,8 +106,8 @@ def resolve_named_file(name_or_path: str | Path, folder: Path, what: str, known:
     return path
 
 
-#: validated files: (model, the file's content digest) -> the model instance (frozen)
-_MODELS: dict[tuple[Any, bytes], Any] = {}
+#: what was parsed from each file: (a tag, the file's content digest) -> the parsed object (frozen)
+_PARSED: dict[tuple[Any, bytes], Any] = {}
 
 
 def file_digest(path: Path) -> bytes | None:
@@ -118,22 +120,33 @@ def file_digest(path: Path) -> bytes | None:
         return None
 
 
+def parse_once(path: Path, parse: Callable[[dict[str, Any]], T], tag: Any) -> T:
+    """``parse`` of the TOML file at ``path`` (:func:`read_toml`), once per content and ``tag``
+    in this process (what it returns must be frozen): a tuning study loaded its regime files
+    thousands of times (issue 51); reading the bytes is cheap."""
+    key = file_digest(path)
+    if key is not None and (tag, key) in _PARSED:
+        return _PARSED[(tag, key)]
+    out = parse(read_toml(path))
+    if key is not None:
+        _PARSED[(tag, key)] = out
+    return out
+
+
+def validate(model: type[M], data: Any, source: Path | str) -> M:
+    """``data`` validated as ``model``, its validation errors one-line ConfigErrors naming ``source``."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(format_validation_error(source, e)) from None
+
+
 def load_model(model: type[M], path: Path) -> M:
     """Read a TOML file into ``model``, turning validation errors into one-line ConfigErrors.
 
-    Each content is parsed and validated once per process (the models are frozen): a tuning
-    study loaded its regime files thousands of times (issue 51); reading the bytes is cheap."""
-    key = file_digest(path)
-    if key is not None and (model, key) in _MODELS:
-        return _MODELS[(model, key)]
-    data = read_toml(path)
-    try:
-        out = model.model_validate(data)
-    except ValidationError as e:
-        raise ConfigError(format_validation_error(path, e)) from None
-    if key is not None:
-        _MODELS[(model, key)] = out
-    return out
+    Each content is parsed and validated once per process (the models are frozen:
+    :func:`parse_once`)."""
+    return parse_once(path, lambda data: validate(model, data, path), model)
 
 
 def canonical_json(obj: Any) -> str:
@@ -164,13 +177,8 @@ class EnvConfig:
         where = self.path or f"regime {self.regime.name}"
         cat, reg = set(self.catalog.keys), set(self.regime.foods)
         if cat != reg:
-            missing = sorted(cat - reg)
-            unknown = sorted(reg - cat)
-            parts = []
-            if missing:
-                parts.append(f"no delays for catalog foods {missing}")
-            if unknown:
-                parts.append(f"delays for foods not in the catalog {unknown}")
+            parts = [f"no delays for catalog foods {sorted(cat - reg)}"] if cat - reg else []
+            parts += [f"delays for foods not in the catalog {sorted(reg - cat)}"] if reg - cat else []
             raise ConfigError(
                 f"{where}: foods: catalog size mismatch: the regime has {len(reg)} foods, "
                 f"the catalog '{self.regime.catalog}' has {len(cat)}; " + "; ".join(parts)
@@ -232,11 +240,7 @@ class EnvConfig:
         return self.catalog.masses()
 
     def _delay_array(self, what: str) -> np.ndarray:
-        rows = []
-        for key in self.catalog.keys:
-            values = getattr(self.regime.foods[key], what)
-            rows.append([getattr(values, n) for n in NUTRIENTS])
-        return np.array(rows, dtype=np.float64)
+        return np.stack([getattr(self.regime.foods[key], what).as_array() for key in self.catalog.keys])
 
     def tau(self) -> np.ndarray:
         return self._delay_array("tau")

@@ -31,7 +31,7 @@ The arithmetic, per config field (float32 = 4 bytes, float64 and int64 = 8):
   in their four copies are eight allocations of at least 64 bytes (the allocators' alignment),
   so a network's depth counts as well as its widths (:func:`network_bytes`);
 * the recurrent policy's two GRUs of ``hidden_size`` h: three gates of at least ``h x h``
-  weights each, ``6 h^2`` parameters, 16 bytes each (:func:`gru_bytes`);
+  weights each, ``6 h^2`` parameters, 16 bytes each (:data:`MAX_HIDDEN`);
 * a rollout of ``n_steps`` (SB3's ``RolloutBuffer``): per step an observation of at least 4
   float32 and the action, reward, return, episode start, value, log-probability and advantage,
   44 bytes, and the recurrent buffer's two hidden states, ``8 h`` bytes (:func:`rollout_bytes`);
@@ -77,20 +77,9 @@ def dynamics_bytes(n_foods: int, horizon: int, level: int = 1) -> int:
     return 48 * n_foods * horizon + 4 * (n_foods + 1) * observation_width(n_foods, horizon, level)
 
 
-def _largest(fits) -> int:
-    """The largest n >= 1 with ``fits(n)`` (``fits`` monotone, ``fits(1)`` true)."""
-    low, high = 1, 2
-    while fits(high):
-        low, high = high, high * 2
-    while high - low > 1:
-        mid = (low + high) // 2
-        low, high = (mid, high) if fits(mid) else (low, mid)
-    return low
-
-
 #: The most foods a catalog may have: their dynamics alone, with a horizon of one step, within
-#: the ceiling (``4 N^2 + 64 N + 12`` bytes: 524,280 foods).
-MAX_FOODS = _largest(lambda n: dynamics_bytes(n, 1) <= MEMORY_CEILING)
+#: the ceiling (``4 N^2 + 64 N + 12 = (2 N + 16)^2 - 244`` bytes: 524,280 foods).
+MAX_FOODS = (isqrt(MEMORY_CEILING + 244) - 16) // 2
 
 
 def _tensor_bytes(numel: int) -> int:
@@ -105,11 +94,6 @@ def network_bytes(widths: Sequence[int]) -> int:
     return sum(4 * (_tensor_bytes(a * b) + _tensor_bytes(b)) for a, b in zip(dims, dims[1:]))
 
 
-def gru_bytes(hidden_size: int) -> int:
-    """Bytes training the two GRUs of ``hidden_size`` holds at least: ``6 h^2`` parameters, 16 bytes each."""
-    return 16 * 6 * hidden_size * hidden_size
-
-
 def rollout_bytes(n_steps: int, hidden_size: int = 0) -> int:
     """Bytes a rollout of ``n_steps`` holds at least: 44 per step, and ``8 h`` more for a GRU's states."""
     return n_steps * (44 + 8 * hidden_size)
@@ -120,7 +104,8 @@ def n_step_bytes(batch_size: int, n_step: int) -> int:
     return 24 * batch_size * n_step
 
 
-#: The most hidden units of the recurrent policy's GRUs (their weights within the ceiling).
+#: The most hidden units of the recurrent policy's GRUs: their ``6 h^2`` parameters, 16 bytes each
+#: (``96 h^2`` bytes), within the ceiling.
 MAX_HIDDEN = isqrt(MEMORY_CEILING // 96)
 #: The most transitions a replay buffer (or a sampled batch) may hold within the ceiling.
 MAX_REPLAY = MEMORY_CEILING // REPLAY_BYTES

@@ -39,6 +39,8 @@ class RecurrentRolloutBuffer(RolloutBuffer):
     """
 
     hidden_states: np.ndarray
+    #: the per-step arrays served cut into sequences
+    SEQUENCED = ("observations", "actions", "values", "log_probs", "advantages", "returns", "episode_starts")
 
     def __init__(
         self,
@@ -90,18 +92,7 @@ class RecurrentRolloutBuffer(RolloutBuffer):
         """Shuffled minibatches of ``batch_size`` whole sequences (None: all in one)."""
         assert self.full, "the rollout buffer is not full"
         if not self.generator_ready:  # reshape once per rollout (reset() clears the flag)
-            self._sequences = {
-                name: self.to_sequences(getattr(self, name))
-                for name in (
-                    "observations",
-                    "actions",
-                    "values",
-                    "log_probs",
-                    "advantages",
-                    "returns",
-                    "episode_starts",
-                )
-            }
+            self._sequences = {name: self.to_sequences(getattr(self, name)) for name in self.SEQUENCED}
             # state carried into each sequence's first step: (n_seq, 2, H)
             self._sequences["hidden_states"] = self.to_sequences(self.hidden_states)[:, 0]
             self.generator_ready = True

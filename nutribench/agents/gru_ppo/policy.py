@@ -106,20 +106,12 @@ class GRUActorCriticPolicy(BasePolicy):
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        data.update(
-            dict(
-                lr_schedule=self._dummy_schedule,  # not needed to load the policy alone
-                hidden_size=self.hidden_size,
-                head_size=self.head_size,
-                n_nutrients=self.n_nutrients,
-                ortho_init=self.ortho_init,
-                memory=self.memory,
-                optimizer_class=self.optimizer_class,
-                optimizer_kwargs=self.optimizer_kwargs,
-            )
-        )
-        return data
+        kept = {
+            name: getattr(self, name)
+            for name in "hidden_size head_size n_nutrients ortho_init memory optimizer_class optimizer_kwargs".split()
+        }
+        # lr_schedule: not needed to load the policy alone
+        return super()._get_constructor_parameters() | kept | {"lr_schedule": self._dummy_schedule}
 
     # ---- recurrent core ----
 

@@ -187,7 +187,7 @@ class DiscreteSAC(OffPolicyAlgorithm):
     def train(self, gradient_steps: int, batch_size: int = 128) -> None:
         self.policy.set_training_mode(True)
         actor_lr, critic_lr = self._update_learning_rates()
-        actor_losses, critic_losses, entropies, q_means = [], [], [], []
+        logged: dict[str, list[float]] = {"actor_loss": [], "critic_loss": [], "entropy": [], "q_mean": []}
         for _ in range(gradient_steps):
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
 
@@ -207,17 +207,13 @@ class DiscreteSAC(OffPolicyAlgorithm):
             # target critics
             polyak_update(self.policy.critic.parameters(), self.policy.critic_target.parameters(), self.tau)
 
-            critic_losses.append(critic_loss.item())
-            actor_losses.append(actor_loss.item())
-            entropies.append(entropy.item())
-            q_means.append(q_mean.item())
+            for values, value in zip(logged.values(), (actor_loss, critic_loss, entropy, q_mean)):
+                values.append(value.item())
 
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/actor_loss", float(np.mean(actor_losses)))
-        self.logger.record("train/critic_loss", float(np.mean(critic_losses)))
-        self.logger.record("train/entropy", float(np.mean(entropies)))
-        self.logger.record("train/q_mean", float(np.mean(q_means)))
+        for key, values in logged.items():
+            self.logger.record(f"train/{key}", float(np.mean(values)))
         self.logger.record("train/alpha", self.alpha)
         self.logger.record("train/actor_learning_rate", actor_lr)
         self.logger.record("train/critic_learning_rate", critic_lr)

@@ -82,17 +82,9 @@ class DiscreteSACPolicy(BasePolicy):
         )
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        data.update(
-            dict(
-                lr_schedule=self._dummy_schedule,  # not needed to load the policy alone
-                net_arch=self.net_arch,
-                activation_fn=self.activation_fn,
-                optimizer_class=self.optimizer_class,
-                optimizer_kwargs=self.optimizer_kwargs,
-            )
-        )
-        return data
+        kept = {name: getattr(self, name) for name in "net_arch activation_fn optimizer_class optimizer_kwargs".split()}
+        # lr_schedule: not needed to load the policy alone
+        return super()._get_constructor_parameters() | kept | {"lr_schedule": self._dummy_schedule}
 
     def set_training_mode(self, mode: bool) -> None:
         self.actor.train(mode)
