@@ -287,18 +287,11 @@ def paired_ci(
 ) -> tuple[float, float]:
     """The interval of a mean over days whose days come in seeds (clusters) within regimes
     (strata): per regime, each seed's sum over its days and its number of days. The estimate is
-    ``sum(sums) / sum(sizes)``; :data:`CHOSEN` ``["paired"]`` makes the interval: ``"t"``,
-    :func:`stratified_t` of the seeds' means; ``"percentile"``, the percentile interval of
-    ``reps`` resamples of the seeds within each regime (``rng``)."""
-    if CHOSEN["paired"] == "t":
-        strata = [(np.asarray(s, dtype=float) / np.asarray(n, dtype=float), n) for s, n in zip(sums, sizes)]
-        return stratified_t(strata, confidence)[1:]
-    rng = rng if rng is not None else np.random.default_rng(0)
-    tot_n, tot = np.zeros(reps), np.zeros(reps)
-    for s, n, pick in zip(sums, sizes, stratified_indices([len(n) for n in sizes], reps, rng)):
-        tot_n += np.asarray(n, dtype=float)[pick].sum(axis=1)
-        tot += np.asarray(s, dtype=float)[pick].sum(axis=1)
-    return percentile_interval(tot / tot_n, confidence)
+    ``sum(sums) / sum(sizes)``; its interval the one :data:`CHOSEN` ``["paired"]`` names, the t:
+    :func:`stratified_t` of the seeds' means (no resamples: ``reps`` and ``rng``, kept for the
+    callers, draw nothing)."""
+    strata = [(np.asarray(s, dtype=float) / np.asarray(n, dtype=float), n) for s, n in zip(sums, sizes)]
+    return stratified_t(strata, confidence)[1:]
 
 
 def iqm_runs_ci(runs: Runs, confidence: float = CONFIDENCE) -> tuple[float, float, float]:

@@ -230,7 +230,6 @@ SAME_NAME_ON_PURPOSE: dict[str, str] = {
 #: there, and then struck from this list. It only shrinks: a new name defined twice fails.
 NOT_YET_ONE_NAME: dict[str, str] = {
     "ENGINES": "an alias of nutribench.engines' tuple in scheduler.pools",
-    "status_cmd": "the CLI's run and tune status commands",
 }
 
 

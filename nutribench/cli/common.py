@@ -30,14 +30,13 @@ EVAL_EVERY_HELP = (
     "every so many training days, the greedy policy plays the validation days (evaluation during "
     "training, disjoint from the test days; 0: never, the default)"
 )
-VAL_EPISODES_HELP = "validation days each evaluation during training plays"
 
 #: the options several commands share, written once (typer reads the ``Annotated`` metadata)
 DB_HELP = "results database: a SQLite file or a SQLAlchemy URL"
 DbOption = Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help=DB_HELP)]
 #: ``--episodes``, the old spelling of ``--days`` (hidden; :func:`old_spelling` reconciles the two)
 EpisodesAlias = Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)]
-ValEpisodesOption = Annotated[int, typer.Option(min=1, help=VAL_EPISODES_HELP)]
+ValEpisodesOption = Annotated[int, typer.Option(min=1, help="validation days each evaluation during training plays")]
 MarkdownOption = Annotated[bool, typer.Option("--markdown", help="print a Markdown table")]
 RepeatsOption = Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")]
 EvalDaysOption = Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")]

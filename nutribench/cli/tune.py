@@ -117,7 +117,7 @@ def tune_cmd(
 
 @tune_app.command("status")
 @user_errors
-def status_cmd(
+def tune_status_cmd(
     study: Annotated[Optional[str], typer.Option(help="one study (default: every study in the database)")] = None,
     db: _TuneDb = "nutribench.db",
     as_json: Annotated[bool, typer.Option("--json", help="print JSON instead of lines")] = False,
@@ -151,7 +151,7 @@ def status_cmd(
 
 @tune_app.command("best")
 @user_errors
-def best_cmd(
+def tune_best_cmd(
     study: Annotated[str, typer.Option(help="the study")],
     write: Annotated[bool, typer.Option(help="write the agent file into the agents folder")] = False,
     name: Annotated[Optional[str], typer.Option(help="the new agent's name (default <agent>_tuned)")] = None,
