@@ -3,7 +3,7 @@ archives (``reports/paper/data/``) and the tuned grid's (``data/<agent>.npz``, t
 imported into one temporary database, then:
 
 * ``table_protocols.md/.csv``: per algorithm and regime, the IQM over seeds of the share of the
-  never -> planner gap with its 95 % bootstrap interval over seeds, paper protocol beside tuned
+  never -> planner gap with its 95 % interval over seeds, paper protocol beside tuned
   protocol (``mc_tuned_set1``, addendum 2's exploratory arm, as its own rows), and the same
   over the delayed regimes (run1-run6) and the held-out ones (run3, run5, run6);
 * ``table_questions.md/.csv``: the plan's 38 named comparisons, each computed where its archives
@@ -15,16 +15,17 @@ Every statistic is the project's own: a run (one seed on one regime) is scored b
 ``nutribench.report.scores.run_scores`` (the share of the gap its mean return closes on its own
 test days, never and planner played on those days by
 ``nutribench.report.references.eval_day_references``); IQMs and their intervals are
-``nutribench.report.aggregate.interval_estimates`` (rliable's IQM, stratified bootstrap over
-seeds); paired comparisons are ``nutribench.report.compare.compare_agents`` (what ``nutribench
+``nutribench.report.aggregate.interval_estimates`` (rliable's IQM; the trimmed t interval,
+stratified by regime); paired comparisons are ``nutribench.report.compare.compare_agents`` (what ``nutribench
 compare`` prints), run once on the returns and once on each day's share of the gap (a day's
 return on its seed's yardstick, so that a seed's mean is its run score); the drop under delay
-and the held-out-against-tuning contrast resample seeds within each regime with
-``nutribench.report.scores.stratified_resamples``. "Apart" is the plan's rule: two 95 %
+and the held-out-against-tuning contrast are Welch t intervals (``nutribench.stats.contrast_ci``,
+``welch_t``): since addendum 3 every interval is of the project's chosen method, none drawn
+from resamples. "Apart" is the plan's rule: two 95 %
 intervals that do not overlap; overlapping ones are "not distinguishable with N seeds".
 
     python reports/tuned/analyse.py [--archives-dir reports/tuned/data] [--out reports/tuned]
-        [--paper-dir reports/paper/data] [--db KEEP.db] [--reps 2000]
+        [--paper-dir reports/paper/data] [--db KEEP.db]
 """
 
 from __future__ import annotations
@@ -44,12 +45,12 @@ from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 
 from nutribench.errors import UserError  # noqa: E402
-from nutribench.report.aggregate import BATCHED, interval_estimates, point_estimate, run_scores, score_set  # noqa: E402
+from nutribench.report.aggregate import interval_estimates, point_estimate, run_scores, score_set  # noqa: E402
 from nutribench.report.compare import compare_agents  # noqa: E402
 from nutribench.report.figure_parts import set_title  # noqa: E402
 from nutribench.report.palette import BUILTIN_COLORS, USER_COLORS, Palette  # noqa: E402
 from nutribench.report.palette import label as algo_label  # noqa: E402
-from nutribench.report.scores import percentile_interval, seeded_rng, stratified_resamples  # noqa: E402
+from nutribench.stats import caption, contrast_ci, trimmed_se, welch_t  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -68,8 +69,6 @@ GROUPS: dict[str, tuple[str, ...]] = {
     "delayed (run1-run6)": DELAYED,
     "held-out (run3, run5, run6)": HELD_OUT,
 }
-REPS = 2000
-COMPARE_REPS = 10_000
 
 
 class AnalysisError(UserError):
@@ -136,13 +135,13 @@ def covered(scores: pd.DataFrame, name: str, regimes: Sequence[str]) -> list[str
     return [r for r in regimes if r in set(mine["regime"])]
 
 
-def iqm_of(scores: pd.DataFrame, name: str, regimes: Sequence[str], reps: int = REPS) -> dict | None:
+def iqm_of(scores: pd.DataFrame, name: str, regimes: Sequence[str]) -> dict | None:
     """The IQM of ``name``'s run scores over ``regimes`` (those it has) and its 95 %
-    stratified-bootstrap interval over seeds; None where it has none of them."""
+    interval over seeds (the trimmed t, stratified by regime); None where it has none of them."""
     have = covered(scores, name, regimes)
     if not have:
         return None
-    iv = interval_estimates(score_set(scores, have, [name]), reps=reps)
+    iv = interval_estimates(score_set(scores, have, [name]))
     r = iv[iv["aggregate"] == "iqm"].iloc[0]
     return {
         "iqm": float(r["point"]),
@@ -169,44 +168,59 @@ def runs_of(scores: pd.DataFrame, name: str, regimes: Sequence[str]) -> list[np.
     return ss.runs[name]
 
 
-def resampled_stat(runs: list[np.ndarray], stat, reps: int, *names: str) -> tuple[float, np.ndarray]:
-    """``stat`` (one array per regime, each (resamples, runs) -> one value per resample) on the
-    runs and on ``reps`` stratified resamples of them (seeds redrawn within each regime)."""
-    point = float(stat([x[None, :] for x in runs])[0])
-    return point, stat(stratified_resamples(runs, reps, seeded_rng(0, *names)))
-
-
-def drop_under_delay(scores: pd.DataFrame, name: str, reps: int = REPS) -> dict | None:
-    """run0's mean share minus the mean over run1-run6 of each regime's mean share, with its
-    95 % bootstrap interval over seeds (redrawn within each regime); the resamples kept for a
-    contrast. None without run0 or without any delayed regime."""
+def drop_runs(scores: pd.DataFrame, name: str) -> tuple[list[np.ndarray], list[float], list[str]] | None:
+    """``name``'s runs on run0 and on each delayed regime it has, and the contrast's weights
+    (run0's mean minus the mean over the delayed regimes of each regime's mean)."""
     have = covered(scores, name, REGIMES)
     delayed = [r for r in have if r in DELAYED]
     if "run0" not in have or not delayed:
         return None
-    runs = runs_of(scores, name, ["run0", *delayed])
-
-    def stat(t):
-        return BATCHED["mean"](t[:1]) - BATCHED["mean"](t[1:])
-
-    point, boot = resampled_stat(runs, stat, reps, name, "drop under delay")
-    lo, hi = percentile_interval(boot)
-    return {"point": point, "lo": lo, "hi": hi, "boot": boot, "delayed": delayed, "seeds": min(map(len, runs))}
+    return runs_of(scores, name, ["run0", *delayed]), [1.0] + [-1.0 / len(delayed)] * len(delayed), delayed
 
 
-def held_out_vs_tuning(scores: pd.DataFrame, name: str, reps: int = REPS) -> dict | None:
+def drop_under_delay(scores: pd.DataFrame, name: str) -> dict | None:
+    """run0's mean share minus the mean over run1-run6 of each regime's mean share, with its
+    95 % interval over seeds (``nutribench.stats.contrast_ci``: Welch's t over the regimes'
+    means, addendum 3); the runs and weights kept for a contrast. None without run0 or without
+    any delayed regime."""
+    got = drop_runs(scores, name)
+    if got is None:
+        return None
+    runs, weights, delayed = got
+    point, lo, hi = contrast_ci(runs, weights)
+    return {
+        "point": point,
+        "lo": lo,
+        "hi": hi,
+        "runs": runs,
+        "weights": weights,
+        "delayed": delayed,
+        "seeds": min(map(len, runs)),
+    }
+
+
+def drop_difference(t: dict, p: dict) -> tuple[float, float, float]:
+    """One drop minus another (``drop_under_delay``'s results), the two files' runs taken as
+    independent samples: Welch's t over all their regimes' means."""
+    return contrast_ci([*t["runs"], *p["runs"]], [*t["weights"], *(-w for w in p["weights"])])
+
+
+def held_out_vs_tuning(scores: pd.DataFrame, name: str) -> dict | None:
     """The IQM over the held-out regimes minus the IQM over the tuning regimes, with a 95 %
-    interval from stratified resamples of each set of runs; both IQMs with their intervals."""
-    held, tuning = iqm_of(scores, name, HELD_OUT, reps), iqm_of(scores, name, TUNING, reps)
+    interval (``nutribench.stats.welch_t`` of the two trimmed-t standard errors, stratified by
+    regime: the two sets of regimes are disjoint, so independent; addendum 3); both IQMs with
+    their intervals."""
+    held, tuning = iqm_of(scores, name, HELD_OUT), iqm_of(scores, name, TUNING)
     if held is None or tuning is None:
         return None
-    a = runs_of(scores, name, held["covered"])
-    b = runs_of(scores, name, tuning["covered"])
-    rng = seeded_rng(0, name, "held-out minus tuning")
-    boot = BATCHED["iqm"](stratified_resamples(a, reps, rng)) - BATCHED["iqm"](stratified_resamples(b, reps, rng))
-    lo, hi = percentile_interval(boot)
-    diff = point_estimate("iqm", a) - point_estimate("iqm", b)
-    return {"held": held, "tuning": tuning, "point": diff, "lo": lo, "hi": hi}
+    parts = []
+    for c in (held, tuning):
+        runs = runs_of(scores, name, c["covered"])
+        se, df = trimmed_se(np.concatenate(runs), [len(x) for x in runs])
+        parts.append((point_estimate("iqm", runs), float(se), float(df)))
+    (a, se_a, df_a), (b, se_b, df_b) = parts
+    point, lo, hi = welch_t([a, b], [se_a, se_b], [df_a, df_b], [1.0, -1.0])
+    return {"held": held, "tuning": tuning, "point": point, "lo": lo, "hi": hi}
 
 
 def paired(ev: pd.DataFrame, shares: pd.DataFrame, a: str, b: str, regimes: Sequence[str]) -> dict | None:
@@ -222,7 +236,7 @@ def paired(ev: pd.DataFrame, shares: pd.DataFrame, a: str, b: str, regimes: Sequ
         return None
     out = {"regimes": both, "partial": len(both) < len(regimes), "notes": []}
     for what, frame in (("share", shares), ("return", ev)):
-        res = compare_agents(frame, a, b, regimes=both, reps=COMPARE_REPS)
+        res = compare_agents(frame, a, b, regimes=both)
         row = res.rows[res.rows["regime"] == ("all" if len(both) > 1 else both[0])].iloc[0]
         out[what] = row.to_dict()
         out["notes"] += [f"{a} - {b}: {n}" for n in res.notes if f"{a} - {b}: {n}" not in out["notes"]]
@@ -304,7 +318,7 @@ def needs(*names: str, held: set[str]) -> str:
 
 
 # --------------------------------------------------------------------------- tables
-def protocol_rows(scores: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
+def protocol_rows(scores: pd.DataFrame) -> pd.DataFrame:
     """Per algorithm (and the exploratory arm) and regime or group: paper and tuned IQM with
     intervals, and how the two intervals lie."""
     rows = []
@@ -312,7 +326,7 @@ def protocol_rows(scores: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
     arms += [(base, name, "exploratory (addendum 2)") for name, base in EXPLORATORY.items()]
     for paper, tuned, role in arms:
         for group, regimes in GROUPS.items():
-            p, t = iqm_of(scores, paper, regimes, reps), iqm_of(scores, tuned, regimes, reps)
+            p, t = iqm_of(scores, paper, regimes), iqm_of(scores, tuned, regimes)
             if p and t:
                 reading = apart(t["lo"], t["hi"], p["lo"], p["hi"], seeds_in(scores, (paper, tuned), regimes))
             elif {paper, tuned} <= set(scores["algo"]):
@@ -359,7 +373,7 @@ def protocol_markdown(rows: pd.DataFrame) -> str:
         body.append([agent, r["regime"], cell(r, "paper"), cell(r, "tuned"), r["tuned_vs_paper"]])
     lines = [
         "**Paper protocol against tuned protocol: share of the never -> planner gap (%) on the test days, IQM over "
-        "seeds [95 % stratified bootstrap interval over seeds]** (0 = never eat, 100 = the full-information greedy "
+        "seeds [95 % interval over seeds: " + caption("iqm") + "]** (0 = never eat, 100 = the full-information greedy "
         "planner; a run = one seed on one regime, scored on its own 5 test days; groups pool their regimes' runs). "
         "Paper: `reports/paper/data/` (the paper's agent files); tuned: `reports/tuned/data/<algo>_tuned.npz` "
         "(addendum 1). The last column reads the tuned interval against the paper one: a move only where they are "
@@ -370,7 +384,7 @@ def protocol_markdown(rows: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-def question_rows(ev: pd.DataFrame, shares: pd.DataFrame, scores: pd.DataFrame, reps: int = REPS) -> list[dict]:
+def question_rows(ev: pd.DataFrame, shares: pd.DataFrame, scores: pd.DataFrame) -> list[dict]:
     """The plan's 38 named comparisons (and the exploratory arm's, marked), each a row:
     question, comparison, estimate, reading."""
     held = set(scores["algo"])
@@ -422,7 +436,7 @@ def question_rows(ev: pd.DataFrame, shares: pd.DataFrame, scores: pd.DataFrame, 
             if name not in held:
                 add(2, what, needs(name, held=held), "")
                 continue
-            c = iqm_of(scores, name, [regime], reps)
+            c = iqm_of(scores, name, [regime])
             if c is None:
                 add(2, what, f"not in the archive: {name} has no {regime}", "")
                 continue
@@ -432,7 +446,7 @@ def question_rows(ev: pd.DataFrame, shares: pd.DataFrame, scores: pd.DataFrame, 
     arms = [(a, TUNED[a], True) for a in ALGOS] + [(b, n, False) for n, b in EXPLORATORY.items()]
     for paper, tuned, pre in arms:
         what = f"{algo_label(paper)}: drop under delay (run0 - mean of run1-run6), paper vs {tuned}"
-        p, t = drop_under_delay(scores, paper, reps), drop_under_delay(scores, tuned, reps)
+        p, t = drop_under_delay(scores, paper), drop_under_delay(scores, tuned)
         if p is None or t is None:
             add(
                 3,
@@ -442,8 +456,7 @@ def question_rows(ev: pd.DataFrame, shares: pd.DataFrame, scores: pd.DataFrame, 
                 pre,
             )
             continue
-        diff = t["point"] - p["point"]
-        lo, hi = percentile_interval(t["boot"] - p["boot"])
+        diff, lo, hi = drop_difference(t, p)
         est = (
             f"paper {interval_text(p['point'], p['lo'], p['hi'])}; tuned {interval_text(t['point'], t['lo'], t['hi'])}; "
             f"tuned - paper {interval_text(diff, lo, hi, signed=True)} points"
@@ -518,12 +531,14 @@ def questions_markdown(rows: list[dict], present: list[str], absent: list[str], 
         f"Tuned archives present: {', '.join(present) or 'none'}; absent: {', '.join(absent) or 'none'}. "
         f"{len(done)} of the plan's {len(pre)} named comparisons computed.",
         "",
-        "Every interval is 95 %, bootstrap over seeds (within each regime); they are read as intervals, not tests "
+        "Every interval is 95 %, over seeds (Student's t kinds, standard errors within each regime: the IQM's the "
+        f"{caption('iqm')}; paired rows' the {caption('paired')}; drops and contrasts Welch's t, whose coverage was "
+        "not simulated); they are read as intervals, not tests "
         "(no multiplicity correction: about two of 38 may miss by chance). A move needs intervals apart; overlapping "
         'ones are not distinguishable with the seeds there are, never "no effect". Shares are of the never -> '
         "planner gap on the test days (0 = never eat, 100 % = the planner). Paired rows: the mean paired difference "
         "of the share of the gap (each day on its seed's yardstick) and of the return a day (`nutribench compare`), "
-        f"{COMPARE_REPS} resamples; P(A > B) over paired days, ties half.",
+        "P(A > B) over paired days, ties half.",
     ]
     if notes:
         lines += ["", *(f"note: {n}" for n in notes)]
@@ -589,7 +604,7 @@ def protocol_figure(rows: pd.DataFrame, absent: list[str]) -> Figure:
         ax.set_xticks(x0, ticks, fontsize=8)
         title = algo_label(algo) + (f"  (not yet run: {', '.join(missing)})" if missing else "")
         ax.set_title(title, fontsize=11, color="k" if not missing else "0.3")
-        ax.set_ylabel("share of the never -> planner gap (%)\nIQM over seeds, 95 % bootstrap CI", fontsize=8)
+        ax.set_ylabel("share of the never -> planner gap (%)\nIQM over seeds, 95 % trimmed-t interval", fontsize=8)
         ax.grid(axis="y", alpha=0.3)
     last = list(fig.axes)[-1]
     last.axis("off")
@@ -604,7 +619,7 @@ def protocol_figure(rows: pd.DataFrame, absent: list[str]) -> Figure:
     last.text(
         0.0,
         0.45,
-        "Bars: 95 % bootstrap interval over seeds. Tuned: one setting\n"
+        "Bars: 95 % trimmed-t interval over seeds. Tuned: one setting\n"
         "per algorithm, tuned on run0, run1, run2, run4 (README).\n"
         "Right of the grey line: the delayed regimes (run1-run6)\n"
         "pooled, and the held-out ones (run3, run5, run6) pooled.\n\n"
@@ -640,7 +655,7 @@ TUNED_BASE = {v: k for k, v in TUNED.items()}
 
 
 # --------------------------------------------------------------------------- main
-def analyse(db: str, out: Path, expected_absent: list[str], present: list[str], reps: int = REPS) -> list[Path]:
+def analyse(db: str, out: Path, expected_absent: list[str], present: list[str]) -> list[Path]:
     from nutribench.report.references import eval_day_references
 
     ev, notes, curve = read_db(db)
@@ -649,12 +664,12 @@ def analyse(db: str, out: Path, expected_absent: list[str], present: list[str], 
     shares = day_shares(ev, refs)
     written = []
 
-    rows = protocol_rows(scores, reps)
+    rows = protocol_rows(scores)
     rows.to_csv(out / "table_protocols.csv", index=False, float_format="%.4f")
     (out / "table_protocols.md").write_text(protocol_markdown(rows))
     written += [out / "table_protocols.csv", out / "table_protocols.md"]
 
-    qrows = question_rows(ev, shares, scores, reps)
+    qrows = question_rows(ev, shares, scores)
     pd.DataFrame(qrows).to_csv(out / "table_questions.csv", index=False)
     (out / "table_questions.md").write_text(questions_markdown(qrows, present, expected_absent, notes))
     written += [out / "table_questions.csv", out / "table_questions.md"]
@@ -681,7 +696,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     ap.add_argument("--out", default=str(HERE), help="where the tables and figures go")
     ap.add_argument("--db", default=None, help="import into this database and keep it (default: a temporary one)")
-    ap.add_argument("--reps", type=int, default=REPS, help="bootstrap resamples of the IQM intervals")
     a = ap.parse_args(argv)
     try:
         tuned = archives_in(Path(a.archives_dir), "--archives-dir")
@@ -699,7 +713,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         with tempfile.TemporaryDirectory(prefix="nutribench-tuned-") as tmp:
             db = a.db or str(Path(tmp) / "tuned.db")
             import_archives([*paper, *tuned], db)
-            written = analyse(db, out, absent, present, a.reps)
+            written = analyse(db, out, absent, present)
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

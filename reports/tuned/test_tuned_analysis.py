@@ -60,8 +60,8 @@ def test_tables_reuse_the_project_statistics_and_say_what_is_not_yet_run(analyse
     both = runs.merge(scores, on=["regime", "algo", "seed"])
     assert np.allclose(both["mean"], both["score"])
 
-    rows = analyse.protocol_rows(scores, reps=200).set_index(["tuned_agent", "regime"])
-    iv = interval_estimates(score_set(scores, ["run3"], ["ppo"]), reps=200)
+    rows = analyse.protocol_rows(scores).set_index(["tuned_agent", "regime"])
+    iv = interval_estimates(score_set(scores, ["run3"], ["ppo"]))
     iqm = iv[iv["aggregate"] == "iqm"].iloc[0]
     got = rows.loc[("ppo_tuned", "run3")]
     assert (got["paper_iqm"], got["paper_lo"], got["paper_hi"]) == pytest.approx((iqm.point, iqm.lo, iqm.hi))
@@ -70,7 +70,7 @@ def test_tables_reuse_the_project_statistics_and_say_what_is_not_yet_run(analyse
     assert rows.loc[("ddqn_tuned", "run3"), "tuned_vs_paper"] == "not yet run: needs ddqn_tuned, ddqn"
     assert rows.loc[("mc_tuned_set1", "run0"), "role"].startswith("exploratory")
 
-    q = analyse.question_rows(ev, shares, scores, reps=200)
+    q = analyse.question_rows(ev, shares, scores)
     pre = [r for r in q if r["pre_registered"]]
     assert len(pre) == 38 and {r["question"] for r in q if not r["pre_registered"]} == {3, 4}
     by = {r["comparison"]: r for r in pre}
@@ -87,7 +87,7 @@ def test_tables_reuse_the_project_statistics_and_say_what_is_not_yet_run(analyse
     md = analyse.questions_markdown(q, ["ppo_tuned"], ["ddqn_tuned"], [])
     assert "needs ddqn_tuned" in md and "(exploratory, answers no question)" in md
     assert "## 4. Transfer" in md
-    fig = analyse.protocol_figure(analyse.protocol_rows(scores, reps=50), ["ddqn_tuned"])
+    fig = analyse.protocol_figure(analyse.protocol_rows(scores), ["ddqn_tuned"])
     assert len(fig.axes) == 6
 
 

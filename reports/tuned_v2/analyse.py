@@ -5,9 +5,9 @@ database, then ``results.md`` / ``results.csv``:
 
 * per agent and regime, and over the delayed tuning regimes (run2, run4, run5) and the held-out
   ones (run1, run3, run6): the IQM over seeds of the share of the never -> planner gap with its
-  95 % stratified-bootstrap interval, paper file, v1 file and v2 file side by side;
+  95 % trimmed-t interval (stratified by regime), paper file, v1 file and v2 file side by side;
 * G1 (v2 GRU-PPO - v2 PPO), G2 (v2 - paper), G3 (v2 - v1): mean paired differences of the
-  share of the gap (by seed and test day) with 95 % bootstrap intervals over seeds;
+  share of the gap (by seed and test day) with 95 % t intervals over seeds;
 * G4: each v2 file, per regime, "below never" only where the IQM's interval lies below 0;
 * G5 (transfer): the mean share over the delayed tuning regimes minus the mean share over the
   held-out regimes, for the v2 file and for the paper file, each with its interval;
@@ -17,10 +17,10 @@ database, then ``results.md`` / ``results.csv``:
 
 Each comparison is computed where its archives are present and said "not yet run" otherwise.
 The statistics are the project's own, through ``reports/tuned/analyse.py``'s helpers (the same
-code as v1's analysis): ``run_scores``, rliable's IQM with stratified bootstrap,
+code as v1's analysis): ``run_scores``, rliable's IQM with the trimmed t,
 ``compare_agents`` on each day's share of the gap.
 
-    python reports/tuned_v2/analyse.py [--db KEEP.db] [--reps 2000] [--out reports/tuned_v2]
+    python reports/tuned_v2/analyse.py [--db KEEP.db] [--out reports/tuned_v2]
 """
 
 from __future__ import annotations
@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from nutribench.stats import contrast_ci
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -69,9 +71,9 @@ def names(algo: str) -> dict[str, str]:
     return {"paper": algo, "v1": f"{algo}_tuned", "v2": f"{algo}_tuned_v2"}
 
 
-def transfer(scores: pd.DataFrame, name: str, reps: int) -> dict | None:
+def transfer(scores: pd.DataFrame, name: str) -> dict | None:
     """G5: mean share over the delayed tuning regimes minus the mean over the held-out ones
-    (each regime's mean over seeds), with a 95 % interval from resampling seeds within regimes."""
+    (each regime's mean over seeds), with its 95 % interval (Welch's t over the regimes' means)."""
     tuning, held = v1.covered(scores, name, TUNING_DELAYED), v1.covered(scores, name, HELD_OUT)
     if not tuning or not held:
         return None
@@ -79,22 +81,20 @@ def transfer(scores: pd.DataFrame, name: str, reps: int) -> dict | None:
     # call over both sets would interleave tuning and held-out regimes
     first = v1.runs_of(scores, name, tuning)
     runs = [*first, *v1.runs_of(scores, name, held)]
-    return {**drop_interval(runs, len(first), reps, name, "transfer v2"), "partial": len(runs) < 6}
+    return {**drop_interval(runs, len(first)), "partial": len(runs) < 6}
 
 
-def drop_interval(runs: list[np.ndarray], k: int, reps: int, *names: str) -> dict:
-    """The mean over the first ``k`` regimes' runs minus the mean over the rest, with its 95 %
-    interval from stratified resamples (``names`` seed the resampling)."""
-
-    def stat(t):
-        return v1.BATCHED["mean"](t[:k]) - v1.BATCHED["mean"](t[k:])
-
-    point, boot = v1.resampled_stat(runs, stat, reps, *names)
-    lo, hi = v1.percentile_interval(boot)
+def drop_interval(runs: list[np.ndarray], k: int) -> dict:
+    """The mean over the first ``k`` regimes' runs minus the mean over the rest (each regime's
+    mean over seeds), with its 95 % interval: Welch's t over the regimes' means
+    (``nutribench.stats.contrast_ci``; since the fourth addendum, in place of a percentile
+    bootstrap)."""
+    weights = [1.0 / k] * k + [-1.0 / (len(runs) - k)] * (len(runs) - k)
+    point, lo, hi = contrast_ci(runs, weights)
     return {"point": point, "lo": lo, "hi": hi, "seeds": min(map(len, runs))}
 
 
-def transfer_difference(scores: pd.DataFrame, a: str, b: str, reps: int) -> dict | None:
+def transfer_difference(scores: pd.DataFrame, a: str, b: str) -> dict | None:
     """G5 of ``a`` minus G5 of ``b`` (the v2 file's drop minus its paper file's), paired by seed:
     each run of ``a`` is taken with the run of ``b`` on the same regime and seed (the two grids
     share the paper's seeds and test days) and the pairs are redrawn together within each
@@ -110,7 +110,7 @@ def transfer_difference(scores: pd.DataFrame, a: str, b: str, reps: int) -> dict
         if pair.isna().to_numpy().any():
             return None  # a seed one file played and the other did not
         runs.append((pair[a] - pair[b]).to_numpy(dtype=float))
-    return drop_interval(runs, len(TUNING_DELAYED), reps, a, b, "transfer difference")
+    return drop_interval(runs, len(TUNING_DELAYED))
 
 
 def drop_reading(lo: float, hi: float) -> str:
@@ -154,7 +154,7 @@ def read_scores(db: str):
     return ev, notes, v1.run_scores(ev, refs), v1.day_shares(ev, refs)
 
 
-def part3(db: str | None, reps: int, rows: list[dict]) -> list[str]:
+def part3(db: str | None, rows: list[dict]) -> list[str]:
     """Part 3's section of results.md: the arms' IQMs per regime and M1-M3 (``db`` None: not yet run)."""
     lines = ["## Part 3: memory or settings? (run5, run6; seeds 3900-3909; 5000 days)", ""]
     if db is None:
@@ -165,7 +165,7 @@ def part3(db: str | None, reps: int, rows: list[dict]) -> list[str]:
     table = []
     for key, name in ARMS.items():
         for r in PART3_REGIMES:
-            c = v1.iqm_of(scores, name, (r,), reps) if name in held else None
+            c = v1.iqm_of(scores, name, (r,)) if name in held else None
             if c is not None:
                 rows.append({"what": "part3 iqm", "agent": name, "protocol": key, "regimes": r, **c})
                 table.append([f"{key} {name}", r, v1.iqm_text(c), v1.zero_reading(c["lo"], c["hi"])])
@@ -200,7 +200,7 @@ def per_run(ev: pd.DataFrame, scores: pd.DataFrame, agents: Sequence[str]) -> li
     return lines
 
 
-def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]:
+def analyse(db: str, out: Path, db3: str | None = None) -> list[Path]:
     from nutribench.stats import caption as interval_caption
 
     ev, notes, scores, shares = read_scores(db)
@@ -210,7 +210,7 @@ def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]
         "Written by `python reports/tuned_v2/analyse.py`; shares of the never -> planner gap in %, "
         f"IQM over seeds [95 % {interval_caption('iqm')}; its standard error within regimes]; comparisons "
         f"are mean paired differences (by seed and test day) [95 % interval over seeds: {interval_caption('paired')}]; "
-        "G5's drops: percentile bootstrap over seeds within regimes (nutribench.stats, docs/statistics.md). "
+        "G5's drops: Welch's t over the regimes' means (nutribench.stats.contrast_ci; its coverage not simulated). "
         'Read by the plan\'s rules: an interval that holds 0 is "not distinguishable with N seeds", never "equal".',
         "",
         f"v2 files present: {', '.join(n for a in ALGOS if (n := names(a)['v2']) in held) or 'none'}; "
@@ -225,7 +225,7 @@ def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]
         for where, regs in [*((r, (r,)) for r in REGIMES), *GROUPS.items()]:
             cells = {}
             for proto, name in names(algo).items():
-                c = v1.iqm_of(scores, name, regs, reps) if name in held else None
+                c = v1.iqm_of(scores, name, regs) if name in held else None
                 cells[proto] = v1.iqm_text(c, regs if len(regs) > 1 else ())
                 if c is not None:
                     rows.append({"what": "iqm", "agent": name, "protocol": proto, "regimes": where, **c})
@@ -259,7 +259,7 @@ def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]
         if name not in held:
             continue
         for r in REGIMES:
-            c = v1.iqm_of(scores, name, (r,), reps)
+            c = v1.iqm_of(scores, name, (r,))
             if c is not None:
                 below.append([name, r, v1.iqm_text(c), v1.zero_reading(c["lo"], c["hi"])])
     lines += v1.md_table(["agent", "regime", "IQM", "reading"], below) + [""]
@@ -271,7 +271,7 @@ def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]
         if names(algo)["v2"] not in held:
             continue
         for proto in ("v2", "paper"):
-            t = transfer(scores, names(algo)[proto], reps) if names(algo)[proto] in held else None
+            t = transfer(scores, names(algo)[proto]) if names(algo)[proto] in held else None
             if t is None:
                 tr.append([algo, proto, "n/a", ""])
                 continue
@@ -286,7 +286,7 @@ def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]
             text = f"{v1.interval_text(t['point'], t['lo'], t['hi'], signed=True)} ({t['seeds']} seeds)"
             tr.append([algo, proto, text, drop_reading(t["lo"], t["hi"])])
         d = (
-            transfer_difference(scores, names(algo)["v2"], names(algo)["paper"], reps)
+            transfer_difference(scores, names(algo)["v2"], names(algo)["paper"])
             if names(algo)["paper"] in held
             else None
         )
@@ -301,7 +301,7 @@ def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]
         " v2 file's drop minus the paper file's, paired by seed on the same regimes and test days.)",
         "",
     ]
-    lines += part3(db3, reps, rows)
+    lines += part3(db3, rows)
     if notes:
         lines += ["## Notes from the data", "", *(f"- {n}" for n in notes), ""]
     (out / "results.md").write_text("\n".join(lines))
@@ -312,7 +312,6 @@ def analyse(db: str, out: Path, reps: int, db3: str | None = None) -> list[Path]
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--db", default=None, help="import into this database and keep it (default: a temporary one)")
-    ap.add_argument("--reps", type=int, default=v1.REPS, help="bootstrap resamples of the IQM intervals")
     ap.add_argument("--out", default=str(HERE), help="where results.md and results.csv go")
     a = ap.parse_args(argv)
     paper = sorted((ROOT / "reports" / "paper" / "data").glob("*.npz"))
@@ -334,7 +333,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             db3 = str(Path(tmp) / "part3.db") if arms else None  # always afresh: four archives
             if arms:
                 v1.import_archives(arms, db3)
-            written = analyse(db, out, a.reps, db3)
+            written = analyse(db, out, db3)
     except v1.UserError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -34,11 +34,11 @@ def _scores(analyse, lift_on_tuning: float) -> pd.DataFrame:
 
 def test_the_difference_of_drops_pairs_each_run_with_its_seed(analyse):
     scores = _scores(analyse, 0.25)
-    d = analyse.transfer_difference(scores, "ppo_tuned_v2", "ppo", reps=500)
-    a, b = (analyse.transfer(scores, n, 500) for n in ("ppo_tuned_v2", "ppo"))
+    d = analyse.transfer_difference(scores, "ppo_tuned_v2", "ppo")
+    a, b = (analyse.transfer(scores, n) for n in ("ppo_tuned_v2", "ppo"))
     assert d["point"] == pytest.approx(a["point"] - b["point"], abs=1e-12)
-    # paired by seed, each pair differs by exactly the lift: every resample gives 0.25 (to the
-    # rounding of a mean of five numbers), where the two files' own drops vary by tenths
+    # paired by seed, each pair differs by exactly the lift: no spread, so the interval is 0.25
+    # (to the rounding of a mean of five numbers), where the two files' own drops vary by tenths
     assert d["lo"] == pytest.approx(0.25, abs=1e-9) and d["hi"] == pytest.approx(0.25, abs=1e-9)
     assert a["hi"] - a["lo"] > 0.1
     assert analyse.difference_reading(d["lo"], d["hi"]).startswith("the v2 file drops more")
@@ -47,9 +47,9 @@ def test_the_difference_of_drops_pairs_each_run_with_its_seed(analyse):
 def test_no_difference_without_the_same_seeds_on_every_regime(analyse):
     scores = _scores(analyse, 0.0)
     one_fewer = scores[~((scores["algo"] == "ppo") & (scores["regime"] == "run3") & (scores["seed"] == 9))]
-    assert analyse.transfer_difference(one_fewer, "ppo_tuned_v2", "ppo", reps=50) is None
+    assert analyse.transfer_difference(one_fewer, "ppo_tuned_v2", "ppo") is None
     no_held = scores[scores["regime"] != "run6"]
-    assert analyse.transfer_difference(no_held, "ppo_tuned_v2", "ppo", reps=50) is None
+    assert analyse.transfer_difference(no_held, "ppo_tuned_v2", "ppo") is None
     assert analyse.difference_reading(-0.1, 0.2) == "holds 0: not distinguishable"
 
 
@@ -58,7 +58,7 @@ def test_out_may_name_a_folder_not_yet_there(analyse, tmp_path, monkeypatch):
     first write after minutes of imports; the imports and tables are stubbed out here."""
     seen = []
 
-    def tables(db, out, reps, db3):
+    def tables(db, out, db3):
         seen.append(out.is_dir())
         return []
 
