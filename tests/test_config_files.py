@@ -41,7 +41,7 @@ def test_shipped_hashes_are_the_stored_ones_and_the_clock_changes_the_hash(tmp_p
     for name, sha in STORED_SHA256.items():
         assert load_env_config(name).sha256 == sha
     cfg = load_env_config("run3")
-    assert cfg.observe_clock is False and "observe_clock" not in cfg.content()["regime"]
+    assert cfg.regime.observe_clock is False and "observe_clock" not in cfg.content()["regime"]
     for name in ("foods.toml", "reward.toml"):
         (tmp_path / name).write_text((cfg.path.parent / name).read_text())
     text = cfg.path.read_text()
@@ -53,7 +53,7 @@ def test_shipped_hashes_are_the_stored_ones_and_the_clock_changes_the_hash(tmp_p
         text.replace('reward = "reward.toml"', 'reward = "reward.toml"\nobserve_clock = true')
     )
     clock = load_env_config(tmp_path / "run3.toml")
-    assert clock.observe_clock is True and clock.content()["regime"]["observe_clock"] is True
+    assert clock.regime.observe_clock is True and clock.content()["regime"]["observe_clock"] is True
     assert clock.sha256 != cfg.sha256
     (tmp_path / "run3.toml").write_text(regime_to_toml(clock.regime))
     assert load_env_config(tmp_path / "run3.toml").sha256 == clock.sha256  # the writer keeps the option

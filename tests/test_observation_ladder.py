@@ -69,7 +69,7 @@ CLOCK_SHA256 = {
 def test_the_default_and_the_clock_observation_are_those_of_before():
     for name in ("run0", "run3", "run6"):
         assert fingerprint(name) == STORED_FINGERPRINTS[name]
-        assert load_env_config(name).observation_level == 1
+        assert load_env_config(name).regime.observation_level == 1
     clock = LADDER.parent / "sensitivity" / "regimes_clock"
     assert fingerprint(clock / "run6.toml") == STORED_FINGERPRINTS["clock run6"]
     for name, sha in CLOCK_SHA256.items():
@@ -90,7 +90,7 @@ def test_options_written_out_off_keep_the_hash_and_each_rung_changes_it(tmp_path
     assert {f: top.content()["regime"][f] for f in FLAGS} == dict.fromkeys(FLAGS, True)
     (tmp_path / "run3.toml").write_text(regime_to_toml(top.regime))
     again = load_env_config(tmp_path / "run3.toml")
-    assert again.sha256 == top.sha256 and again.observation_level == 4  # the writer keeps every rung
+    assert again.sha256 == top.sha256 and again.regime.observation_level == 4  # the writer keeps every rung
 
 
 @pytest.mark.parametrize(
@@ -113,7 +113,7 @@ def test_a_rung_needs_the_ones_below(tmp_path, upper, lower):
 def test_the_study_s_variant_files_change_only_the_observation(level):
     for name in ("run0", "run3", "run6"):
         shipped, variant = load_env_config(name), load_env_config(LADDER / f"regimes_obs{level}" / f"{name}.toml")
-        assert variant.observation_level == level and variant.version == 380 + level
+        assert variant.regime.observation_level == level and variant.version == 380 + level
         assert variant.regime.foods == shipped.regime.foods and variant.regime.seed == shipped.regime.seed
         assert variant.catalog == shipped.catalog and variant.reward == shipped.reward
         assert variant.sha256 != shipped.sha256

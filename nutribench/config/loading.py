@@ -200,33 +200,10 @@ class EnvConfig:
     def version(self) -> int:
         return self.regime.version
 
-    @property
-    def observe_clock(self) -> bool:
-        """Whether the observation holds the step of the day / horizon (level 2 and up)."""
-        return self.regime.observe_clock
-
-    @property
-    def observe_pending(self) -> bool:
-        """Whether the observation holds the pending amount per nutrient (level 3 and up)."""
-        return self.regime.observe_pending
-
-    @property
-    def observe_latent(self) -> bool:
-        """Whether the observation holds the pending schedule and the target (level 4)."""
-        return self.regime.observe_latent
-
-    @property
-    def observation_level(self) -> int:
-        """The rung of the observation ladder, 1 (the paper's) .. 4 (the full state)."""
-        return self.regime.observation_level
-
     def content(self) -> dict[str, Any]:
-        regime = self.regime.model_dump(mode="json")
-        for option in OBSERVATION_OPTIONS:
-            if not regime[option]:
-                del regime[option]
         return {
-            "regime": regime,
+            # the observation options (a regime's only defaults) only when on
+            "regime": self.regime.model_dump(mode="json", exclude_defaults=True),
             "catalog": self.catalog.model_dump(mode="json"),
             "reward": self.reward.model_dump(mode="json"),
         }

@@ -125,10 +125,10 @@ class RegimeDynamics:
         self.schedule = absorption_schedule(self.masses, self.tau, self.sigma, self.horizon)
         self.arrivals = arrivals_by_horizon(self.schedule, self.horizon)
         #: The observation options of the regime (the observation ladder, levels 1..4).
-        self.observe_clock = cfg.observe_clock
-        self.observe_pending = cfg.observe_pending
-        self.observe_latent = cfg.observe_latent
-        self.observation_level = cfg.observation_level
+        self.observe_clock = cfg.regime.observe_clock
+        self.observe_pending = cfg.regime.observe_pending
+        self.observe_latent = cfg.regime.observe_latent
+        self.observation_level = cfg.regime.observation_level
         #: Steps of the pending schedule in a level-4 observation: every step still in the day.
         self.window = self.horizon - 1 if self.observe_latent else 0
         self._layout()
