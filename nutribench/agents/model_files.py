@@ -96,12 +96,10 @@ def sidecar_training_days(path: str | Path) -> int | None:
     there is no nutribench sidecar beside it (a model of another framework, a ``.json`` that is
     not a model's sidecar) or it records none (a file written before provenance was kept). A
     sidecar whose training days are not a whole number of days is a :class:`ModelFileError`."""
-    if not Path(path).with_suffix(".json").is_file():
-        return None
     try:
         side = read_sidecar(path)
     except ModelFileError:
-        return None  # not ours: it says nothing of the training
+        return None  # none, or not ours: it says nothing of the training
     provenance = side.get("provenance")
     days = provenance.get("episodes") if isinstance(provenance, dict) else None
     if days is None:

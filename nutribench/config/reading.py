@@ -89,19 +89,15 @@ def read_config_bytes(path: Path | str) -> bytes:
     except OSError as e:  # no permission, a loop of links, an I/O error
         raise ConfigError(f"{path}: cannot read the file: {e.strerror or e}") from None
     try:
-        opened = os.fstat(fd)
-        if not stat.S_ISREG(opened.st_mode):  # replaced between the two looks
-            raise _not_regular(path, opened.st_mode)
-        if opened.st_size > MAX_CONFIG_BYTES:
-            raise _too_large(path, opened.st_size)
-        with os.fdopen(fd, "rb") as fh:
-            fd = -1
+        with os.fdopen(fd, "rb") as fh:  # closed whatever happens
+            opened = os.fstat(fd)
+            if not stat.S_ISREG(opened.st_mode):  # replaced between the two looks
+                raise _not_regular(path, opened.st_mode)
+            if opened.st_size > MAX_CONFIG_BYTES:
+                raise _too_large(path, opened.st_size)
             data = fh.read(MAX_CONFIG_BYTES + 1)
     except OSError as e:
         raise ConfigError(f"{path}: cannot read the file: {e.strerror or e}") from None
-    finally:
-        if fd >= 0:
-            os.close(fd)
     if len(data) > MAX_CONFIG_BYTES:  # it grew while it was read
         raise _too_large(path, len(data))
     return data
