@@ -78,17 +78,22 @@ class ReportData:
         return self.metrics[self.metrics["phase"] == "eval"]
 
 
+def _keep_newest(df: pd.DataFrame, col: str, ver: str) -> tuple[pd.DataFrame, list[str]]:
+    """Per ``col`` (regime or algo) the newest ``ver`` present; a note naming what was dropped."""
+    newest = df.groupby(col)[ver].transform("max")
+    old = df[df[ver] < newest]
+    notes = []
+    if len(old):
+        dropped = sorted({f"{n} v{v}" for n, v in old[[col, ver]].drop_duplicates().itertuples(index=False)})
+        notes.append(f"older {col} versions left out: {', '.join(dropped)}")
+    return df[df[ver] == newest], notes
+
+
 def _keep_latest_versions(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
     """Per regime and per algo, the newest config version present; note what was dropped."""
-    notes = []
-    for col, ver in (("regime", "regime_version"), ("algo", "algo_version")):
-        newest = df.groupby(col)[ver].transform("max")
-        old = df[df[ver] < newest]
-        if len(old):
-            dropped = sorted({f"{n} v{v}" for n, v in old[[col, ver]].drop_duplicates().itertuples(index=False)})
-            notes.append(f"older {col} versions left out: {', '.join(dropped)}")
-        df = df[df[ver] == newest]
-    return df, notes
+    df, notes = _keep_newest(df, "regime", "regime_version")
+    df, algo_notes = _keep_newest(df, "algo", "algo_version")
+    return df, notes + algo_notes
 
 
 def _keep_largest_budget(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
@@ -101,11 +106,18 @@ def _keep_largest_budget(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
         notes.append(
             f"{algo_label(algo)}/{regime}: budgets {', '.join(map(str, budgets))} in the database, the largest ({budgets[-1]}) shown"
         )
-    df = df[df["budget"] == largest]
-    newest_job = df.groupby(["regime", "algo", "seed"])["job_id"].transform("max")
-    if (df["job_id"] != newest_job).any():
+    df, others = largest_budget_jobs(df[df["budget"] == largest])
+    if others:
         notes.append("several jobs for one regime/algo/seed/budget: the newest of each shown")
-    return df[df["job_id"] == newest_job], notes
+    return df, notes
+
+
+def largest_budget_jobs(rows: pd.DataFrame, by: Sequence[str] = ("regime", "algo", "seed")) -> tuple[pd.DataFrame, int]:
+    """The rows of one job per run (``by``): the one of the largest budget, the newest such job
+    if several; and how many other jobs were left out."""
+    jobs = rows[[*by, "budget", "job_id"]].drop_duplicates("job_id").sort_values(["budget", "job_id"])
+    keep = jobs.groupby(list(by)).tail(1)["job_id"]
+    return rows[rows["job_id"].isin(keep)], len(jobs) - len(keep)
 
 
 def read_metrics(db: DbFile) -> pd.DataFrame:
@@ -163,20 +175,6 @@ def prepare(df: pd.DataFrame, algos: Sequence[str] | None = None, latest_only: b
 ENTRY: tuple[str, ...] = ("algo", "algo_version", "budget")
 
 
-def _keep_latest_regime_versions(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
-    """Per regime the newest regime version present (an older version is another task, its
-    days not scored on today's yardsticks); note what was dropped."""
-    newest = df.groupby("regime")["regime_version"].transform("max")
-    old = df[df["regime_version"] < newest]
-    notes = []
-    if len(old):
-        dropped = sorted(
-            {f"{n} v{v}" for n, v in old[["regime", "regime_version"]].drop_duplicates().itertuples(index=False)}
-        )
-        notes.append(f"older regime versions left out: {', '.join(dropped)}")
-    return df[df["regime_version"] == newest], notes
-
-
 def prepare_entries(df: pd.DataFrame, algos: Sequence[str] | None = None) -> ReportData:
     """The rows of ``df`` (``episode_metrics``) the leaderboard and ``compare`` draw: those of
     ``algos`` (default every config), every :data:`ENTRY` (name, version, budget) kept, none
@@ -186,7 +184,8 @@ def prepare_entries(df: pd.DataFrame, algos: Sequence[str] | None = None) -> Rep
     df, selected, colors = _selected(df, algos)
     if df.empty:
         return ReportData(df, [], selected, colors)
-    df, notes = _keep_latest_regime_versions(df)
+    # an older regime version is another task, its days not scored on today's yardsticks
+    df, notes = _keep_newest(df, "regime", "regime_version")
     key = [*ENTRY, "regime", "seed"]
     newest_job = df.groupby(key)["job_id"].transform("max")
     if (df["job_id"] != newest_job).any():

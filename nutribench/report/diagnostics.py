@@ -23,7 +23,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from nutribench.diagnostics import QUANTITIES
-from nutribench.report.data import DbFile, ReportError, check_names
+from nutribench.report.data import DbFile, ReportError, check_names, largest_budget_jobs
 from nutribench.report.output import write_figure
 from nutribench.report.palette import label as algo_label
 
@@ -149,10 +149,7 @@ def build_diagnostics(
             shown = ", ".join(f"{a}/{r}" for a, r in cells.itertuples(index=False))
             where = f"; it has them for {shown}"
         raise ReportError(f"no training diagnostics for {which} in {store.display}{why or where}")
-    # per seed: the job with the largest budget, the newest if several
-    jobs = rows[["seed", "budget", "job_id"]].drop_duplicates().sort_values(["seed", "budget", "job_id"])
-    keep = jobs.groupby("seed").tail(1)["job_id"]
-    rows = rows[rows["job_id"].isin(keep)]
+    rows = largest_budget_jobs(rows, by=["seed"])[0]  # per seed: the largest budget, the newest job if several
     budgets = sorted(rows["budget"].unique())
     engines = sorted(str(e) for e in rows["engine"].dropna().unique())
     title = (

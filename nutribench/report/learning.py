@@ -18,6 +18,7 @@ from collections.abc import Sequence
 import pandas as pd
 
 from nutribench.report.aggregate import point_estimate
+from nutribench.report.data import largest_budget_jobs
 from nutribench.report.figure_parts import (
     FigureResult,
     agent_labels,
@@ -39,11 +40,8 @@ CURVE_COLUMNS = ["regime", "algo", "train_day", "iqm", "lo", "hi", "seeds"]
 def one_job_per_run(curve: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
     """Rows of ``learning_curve`` keeping one job per (regime, algo, seed): the one of the
     largest budget (then the newest); and a note per run that had others."""
-    jobs = curve.drop_duplicates("job_id").sort_values(["budget", "job_id"])
-    keep = jobs.groupby(["regime", "algo", "seed"]).tail(1)["job_id"]
-    left = jobs.loc[~jobs["job_id"].isin(keep)]
-    notes = [f"{len(left)} other jobs of the same runs (smaller budgets or older) left out"] if len(left) else []
-    return curve[curve["job_id"].isin(keep)], notes
+    curve, left = largest_budget_jobs(curve)
+    return curve, [f"{left} other jobs of the same runs (smaller budgets or older) left out"] if left else []
 
 
 def learning_scores(curve: pd.DataFrame) -> pd.DataFrame:
@@ -65,9 +63,7 @@ def learning_points(scores: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 
         runs = [cell["score"].dropna().to_numpy(dtype=float)]
         if not runs[0].size:
             continue
-        lo = hi = float("nan")
-        if runs[0].size > 1:
-            lo, hi = iqm_runs_ci(runs, CONFIDENCE)[1:]
+        lo, hi = iqm_runs_ci(runs, CONFIDENCE)[1:]  # NaN with one seed
         point = point_estimate("iqm", runs)
         rows.append(dict(regime=regime, algo=algo, train_day=int(day), iqm=point, lo=lo, hi=hi, seeds=runs[0].size))
     return pd.DataFrame(rows, columns=CURVE_COLUMNS)

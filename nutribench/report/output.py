@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from nutribench.report.data import DbFile, ReportError, check_names
+from nutribench.report.data import DbFile, ReportError, check_names, largest_budget_jobs
 from nutribench.report.figures import FigureResult
 from nutribench.report.palette import label as algo_label
 from nutribench.report.tables import TableResult
@@ -84,9 +84,8 @@ def build_trajectory(
             )
     finally:
         store.dispose()
+    steps = largest_budget_jobs(steps, by=["seed"])[0]
     budget = int(steps["budget"].max())
-    steps = steps[steps["budget"] == budget]
-    steps = steps[steps["job_id"] == steps["job_id"].max()]
     dynamics = RegimeDynamics(regime)
     ret = float(np.sum(steps["reward"].to_numpy(dtype=float)))
     title = f"{algo_label(algo)} on {regime}, seed {seed}, evaluation episode {episode} (budget {budget} episodes): return {ret:.2f}, {int(steps['action'].sum())} meals"
