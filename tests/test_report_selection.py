@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from nutribench.cli import app
 from nutribench.report.build import build_figure, load_report_data
-from nutribench.report.figures import budget_seeds_text, seed_list
+from nutribench.report.figure_parts import budget_seeds_text, seed_list
 from nutribench.report.palette import BUILTIN_COLORS, BUILTIN_ORDER, MIN_DISTANCE, colors, distance, label, order
 from nutribench.store import AgentConfig, Episode, Job, RegimeConfig, open_store, session_scope, utcnow
 from tests.conftest import one_error_line

@@ -141,17 +141,7 @@ def interval_estimates(
                     float(v[0]) for v in strata_t(np.minimum(values, GAMMA), sizes, "run", confidence)[1:]
                 )
                 lo, hi = GAMMA - capped_hi, GAMMA - capped_lo
-            rows.append(
-                {
-                    "algo": algo,
-                    "aggregate": agg,
-                    "point": point_estimate(agg, runs),
-                    "lo": lo,
-                    "hi": hi,
-                    "runs": int(sum(len(x) for x in runs)),
-                    "regimes": len(runs),
-                }
-            )
+            rows.append((algo, agg, point_estimate(agg, runs), lo, hi, int(sum(sizes)), len(runs)))
     return pd.DataFrame(rows, columns=["algo", "aggregate", "point", "lo", "hi", "runs", "regimes"])
 
 

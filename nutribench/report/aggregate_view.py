@@ -11,7 +11,6 @@ from matplotlib.figure import Figure
 from nutribench.report.aggregate import (
     AGGREGATE_LABELS,
     AGGREGATES,
-    GAMMA,
     GROUPS,
     AggregateResult,
     group_title,
@@ -25,7 +24,7 @@ from nutribench.report.figure_parts import (
     count_span,
     legend_entries,
 )
-from nutribench.report.figures import FigureResult, draw_notes, legend_rows, set_title
+from nutribench.report.figures import FigureResult, draw_notes, legend_rows, percent_axis, set_title, yardstick_lines
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.tables import TableResult, interval_cell
@@ -36,19 +35,8 @@ from nutribench.stats import caption as interval_caption
 _GROUP_STYLE = {"all": dict(alpha=0.85, hatch=None), "delayed": dict(alpha=0.35, hatch="////")}
 #: The point estimate's tick per group: solid above the agent's row, dotted below, so that
 #: with one seed (no bars, ticks alone) the two still read apart; the legend names each.
-_TICK_STYLE = {"all": dict(ls="-"), "delayed": dict(ls=":")}
+_TICK_STYLE = {"all": dict(color="k", lw=1.8, ls="-"), "delayed": dict(color="k", lw=1.8, ls=":")}
 _PLACE = {0.18: "upper", -0.18: "lower", 0.0: ""}
-
-
-def _percent_axis(axis) -> None:
-    from matplotlib.ticker import PercentFormatter
-
-    axis.set_major_formatter(PercentFormatter(xmax=1, decimals=0))
-
-
-def _yardstick_lines(ax, vertical: bool = True) -> None:
-    for v in (0.0, GAMMA):
-        (ax.axvline if vertical else ax.axhline)(v, color="0.5", ls=":", lw=0.9, zorder=0)
 
 
 #: How the references above the planner are drawn on the aggregate panels.
@@ -117,11 +105,11 @@ def _interval_panels(fig, grid, res: AggregateResult, colors: Palette, names, gr
                 drawn.append(
                     {"panel": agg, "group": group, "algo": r.algo, "y": y, "point": r.point, "lo": r.lo, "hi": r.hi}
                 )
-        _yardstick_lines(ax)
+        yardstick_lines(ax)
         _headroom_lines(ax, headroom, agg)
         ax.set_yticks(list(ypos.values()), [_agent_label(res, a, names) for a in ypos] if k == 0 else [""] * len(ypos))
         ax.set_ylim(-0.6, len(algos) - 0.4)
-        _percent_axis(ax.xaxis)
+        percent_axis(ax.xaxis)
         ax.set_title(AGGREGATE_LABELS[agg] + (" (lower is better)" if agg == "optimality_gap" else ""), fontsize=10)
         ax.set_xlabel("share of the never → planner gap", fontsize=8)
         ax.grid(axis="x", alpha=0.3)
@@ -131,32 +119,15 @@ def _interval_panels(fig, grid, res: AggregateResult, colors: Palette, names, gr
 def _interval_mark(ax, y: float, r, color: str, group: str) -> None:
     """One agent's interval (a bar, none without one) and point estimate (a black tick) at ``y``."""
     if np.isfinite(r.lo):
-        style = _GROUP_STYLE[group]
         bars = ax.barh(
-            y,
-            r.hi - r.lo,
-            left=r.lo,
-            height=0.32,
-            color=color,
-            alpha=style["alpha"],
-            hatch=style["hatch"],
-            edgecolor=color,
-            lw=0.8,
+            y, r.hi - r.lo, left=r.lo, height=0.32, color=color, edgecolor=color, lw=0.8, **_GROUP_STYLE[group]
         )
         # a bar's ends are "sticky" to autoscaling: the panel's edge fell exactly on the
         # widest interval's end, which then read as cut off; with a margin beyond every end,
         # each interval is seen to end where it ends
         for bar in bars:
             bar.sticky_edges.x.clear()
-    ax.plot(
-        [r.point, r.point],
-        [y - 0.17, y + 0.17],
-        color="k",
-        lw=1.8,
-        solid_capstyle="butt",
-        dash_capstyle="butt",
-        **_TICK_STYLE[group],
-    )
+    ax.plot([r.point, r.point], [y - 0.17, y + 0.17], solid_capstyle="butt", dash_capstyle="butt", **_TICK_STYLE[group])
 
 
 def _profile_panel(ax, res: AggregateResult, group: str, colors: Palette, names, j: int):
@@ -183,8 +154,8 @@ def _profile_panel(ax, res: AggregateResult, group: str, colors: Palette, names,
         )
         if p["lo"].notna().any():
             ax.fill_between(p["tau"], p["lo"], p["hi"], color=color, alpha=0.15, lw=0)
-    _yardstick_lines(ax)
-    _percent_axis(ax.xaxis)
+    yardstick_lines(ax)
+    percent_axis(ax.xaxis)
     ax.set_ylim(-0.02, 1.02)
     ax.set_title(f"performance profile, {group_title(res, group)}", fontsize=9)
     ax.set_xlabel("score threshold τ (share of the gap)", fontsize=8)
@@ -229,8 +200,8 @@ def _aggregate_legend(fig: Figure, res: AggregateResult, names, profile_axes, gr
     h0, l0 = fig.axes[0].get_legend_handles_labels()  # the references above the planner, if drawn
     group_handles = [
         (
-            Patch(facecolor="0.5", alpha=_GROUP_STYLE[g]["alpha"], hatch=_GROUP_STYLE[g]["hatch"], edgecolor="0.4"),
-            Line2D([], [], color="k", lw=1.8, marker="|", ms=0, **_TICK_STYLE[g]),
+            Patch(facecolor="0.5", edgecolor="0.4", **_GROUP_STYLE[g]),
+            Line2D([], [], marker="|", ms=0, **_TICK_STYLE[g]),
         )
         for g in groups
     ]
@@ -403,6 +374,3 @@ def _aggregate_rows(res: AggregateResult, group: str, budgets: dict[str, str]):
 def _percent(v: float) -> str:
     """A share as a whole percent, without the sign: ``0.456`` -> ``46``."""
     return f"{100 * v:.0f}"
-
-
-__all__ = ["aggregate_figure", "aggregate_table"]

@@ -79,7 +79,7 @@ FIGURES: dict[int, str] = {
 #: ``--fig`` names of figures
 FIGURE_NAMES: dict[str, int] = {"aggregate": 5, "learning": 6}
 #: Figure 4's default pair (its file keeps the name ``fig4_ppo_vs_gru_ppo``).
-FIG4_ALGOS = DEFAULT_PAIR = ("ppo", "gru_ppo")
+DEFAULT_PAIR = ("ppo", "gru_ppo")
 
 
 def _add_notes(res: FigureResult, extra: Sequence[str]) -> FigureResult:

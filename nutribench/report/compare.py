@@ -25,7 +25,6 @@ a user can fix raise :class:`CompareError` (one line).
 from __future__ import annotations
 
 import re
-import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -34,8 +33,7 @@ import pandas as pd
 
 from nutribench.errors import UserError
 from nutribench.report.aggregate import DELAYED_REGIMES, regime_span
-from nutribench.report.figure_parts import UNRECORDED, budget_cell
-from nutribench.report.figures import budget_seeds_text, seed_list, sort_regimes
+from nutribench.report.figure_parts import UNRECORDED, budget_cell, budget_seeds_text, seed_list, sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
 from nutribench.report.tables import interval_cell, markdown_rows
@@ -97,7 +95,7 @@ def _per_seed(days: pd.DataFrame) -> pd.DataFrame:
     )
 
 
-def _summary(name: str, regimes: list[str], days: pd.DataFrame, reps: int, seed: int, confidence: float) -> dict:
+def _summary(name: str, regimes: list[str], days: pd.DataFrame, reps: int, confidence: float) -> dict:
     """One row of the comparison: ``days`` (the paired days of ``regimes``) summarised, with
     intervals over seeds stratified by regime (:func:`paired_ci`)."""
     per = {r: _per_seed(days[days["regime"] == r]) for r in regimes}
@@ -115,11 +113,10 @@ def _summary(name: str, regimes: list[str], days: pd.DataFrame, reps: int, seed:
     if max(len(p) for p in per.values()) < 2:  # one seed everywhere: nothing to resample
         return {**row, "diff_lo": float("nan"), "diff_hi": float("nan"), "p_lo": float("nan"), "p_hi": float("nan")}
     sizes = [p["n"].to_numpy(dtype=float) for p in per.values()]
-    rng = np.random.default_rng([seed, *(zlib.crc32(r.encode()) for r in regimes)])
     row["diff_lo"], row["diff_hi"] = paired_ci(
-        [p["diff"].to_numpy() for p in per.values()], sizes, reps, rng, confidence
+        [p["diff"].to_numpy() for p in per.values()], sizes, reps, None, confidence
     )
-    lo, hi = paired_ci([p["win"].to_numpy() for p in per.values()], sizes, reps, rng, confidence)
+    lo, hi = paired_ci([p["win"].to_numpy() for p in per.values()], sizes, reps, None, confidence)
     row["p_lo"], row["p_hi"] = max(lo, 0.0), min(hi, 1.0)
     return row
 
@@ -161,18 +158,11 @@ class Comparison:
             if r.regime in ("all", "delayed"):
                 name = f"{r.regime} ({regime_span(r.regimes.split(','))})"
             pci = f" [{r.p_lo:.2f}, {r.p_hi:.2f}]" if np.isfinite(r.p_lo) else ""
-            out.append(
-                {
-                    "regime": name,
-                    "seeds": r.seeds,
-                    "days": r.days,
-                    la: f"{r.a_mean:.2f}",
-                    lb: f"{r.b_mean:.2f}",
-                    f"{la} - {lb} [95% CI]": interval_cell(r.diff, r.diff_lo, r.diff_hi, "{:+.2f}".format),
-                    f"P({la} > {lb})": f"{r.p_a_better:.2f}{pci}",
-                }
-            )
-        return pd.DataFrame(out)
+            diff = interval_cell(r.diff, r.diff_lo, r.diff_hi, "{:+.2f}".format)
+            out.append((name, r.seeds, r.days, f"{r.a_mean:.2f}", f"{r.b_mean:.2f}", diff, f"{r.p_a_better:.2f}{pci}"))
+        return pd.DataFrame(
+            out, columns=["regime", "seeds", "days", la, lb, f"{la} - {lb} [95% CI]", f"P({la} > {lb})"]
+        )
 
     def to_markdown(self) -> str:
         lines = [f"**{self.title()}**", ""]
@@ -214,7 +204,8 @@ def compare_agents(
 ) -> Comparison:
     """``a`` against ``b`` on the evaluation episodes ``ev`` (columns of ``episode_metrics``;
     one job per run): per regime of ``regimes`` (default: every regime both played) and
-    aggregated. :class:`CompareError` when the two cannot be compared."""
+    aggregated. ``seed``: kept for callers (the chosen interval, :data:`nutribench.stats.CHOSEN`,
+    draws no resample). :class:`CompareError` when the two cannot be compared."""
     if a == b:
         raise CompareError(f"compare {a} {b}: give two different agent configs")
     ev = ev[ev["phase"] == "eval"] if "phase" in ev else ev
@@ -236,12 +227,12 @@ def compare_agents(
             )
             if lost:
                 notes.append(f"{r}: seeds {seed_list(lost)} of {name} have no partner, left out")
-    rows = [_summary(r, [r], days[days["regime"] == r], reps, seed, confidence) for r in paired]
+    rows = [_summary(r, [r], days[days["regime"] == r], reps, confidence) for r in paired]
     if len(paired) > 1:
-        rows.append(_summary("all", paired, days, reps, seed, confidence))
+        rows.append(_summary("all", paired, days, reps, confidence))
         delayed = [r for r in paired if r in DELAYED_REGIMES]
         if len(delayed) > 1 and len(delayed) < len(paired):
-            rows.append(_summary("delayed", delayed, days[days["regime"].isin(delayed)], reps, seed, confidence))
+            rows.append(_summary("delayed", delayed, days[days["regime"].isin(delayed)], reps, confidence))
     used = ev[ev["algo"].isin([a, b]) & ev["regime"].isin(paired)]
     budget_a, budget_b = (budget_cell(used[used["algo"] == n]) for n in (a, b))
     if budget_a != budget_b:
@@ -309,14 +300,6 @@ def _seeds_of(ev: pd.DataFrame, name: str, regime: str) -> str:
     return seed_list(ev.loc[(ev["algo"] == name) & (ev["regime"] == regime), "seed"]) or "none"
 
 
-def read_eval_metrics(db) -> pd.DataFrame:
-    """The evaluation rows of ``db``'s ``episode_metrics`` (:func:`nutribench.report.data.read_episodes`);
-    :class:`CompareError` when it holds no evaluation days."""
-    from nutribench.report.data import read_episodes
-
-    return read_episodes(db, "eval", CompareError)
-
-
 @dataclass(frozen=True)
 class EntrySpec:
     """An agent as ``compare`` is given it: ``NAME``, ``NAME@vVERSION``, ``NAME@DAYS`` or
@@ -346,13 +329,8 @@ class EntrySpec:
         return cls(name.strip(), version, budget)
 
     def __str__(self) -> str:
-        return "@".join(
-            [
-                self.name,
-                *([f"v{self.version}"] if self.version is not None else []),
-                *([str(self.budget)] if self.budget is not None else []),
-            ]
-        )
+        version = f"@v{self.version}" if self.version is not None else ""
+        return self.name + version + (f"@{self.budget}" if self.budget is not None else "")
 
 
 def choose_entry(ev: pd.DataFrame, spec: EntrySpec) -> tuple[tuple[str, int, int], str | None]:
@@ -367,20 +345,16 @@ def choose_entry(ev: pd.DataFrame, spec: EntrySpec) -> tuple[tuple[str, int, int
     match = [
         e for e in held if spec.version in (None, e[1]) and spec.budget in (None, e[2])
     ]  # entries() lists the largest budget, then the newest version, first
-    listed = "; ".join(f"{entry_label(e)} ({_spec_of(e)})" for e in held)
+    listed = "; ".join(f"{entry_label(e)} ({EntrySpec(*e)})" for e in held)
     if not match:
         raise CompareError(f"{spec}: no such entry in the database; {spec.name} has {listed}")
     chosen = match[0]
     note = None
     if len(held) > 1:
         how = "as asked" if len(match) == 1 else "by default the largest budget, then the newest version"
-        others = "; ".join(f"{entry_label(e)} ({_spec_of(e)})" for e in held if e != chosen)
+        others = "; ".join(f"{entry_label(e)} ({EntrySpec(*e)})" for e in held if e != chosen)
         note = f"{spec.name}: compared {entry_label(chosen)} ({how}); also in the database: {others}"
     return chosen, note
-
-
-def _spec_of(entry: tuple[str, int, int]) -> str:
-    return f"{entry[0]}@v{entry[1]}@{entry[2]}"
 
 
 def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, reps: int = COMPARE_REPS) -> Comparison:
@@ -390,12 +364,12 @@ def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, re
     several, and a note says which was compared and what else the database holds; per
     (regime, seed) its newest job (:func:`nutribench.report.data.prepare_entries`). Agent
     configs without evaluation days raise :class:`CompareError` naming those the database has."""
-    from nutribench.report.data import ENTRY, prepare_entries
+    from nutribench.report.data import ENTRY, prepare_entries, read_episodes
 
     spec_a, spec_b = EntrySpec.parse(a), EntrySpec.parse(b)
     if spec_a == spec_b:
         raise CompareError(f"compare {a} {b}: give two different agent configs")
-    ev = read_eval_metrics(db)
+    ev = read_episodes(db, "eval", CompareError)  # CompareError when it holds no evaluation days
     _check_held(ev, (spec_a.name, spec_b.name))
     data = prepare_entries(ev, [spec_a.name, spec_b.name])
     picked, notes = [], list(data.notes)
@@ -405,10 +379,10 @@ def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, re
         if note and note not in notes:
             notes.append(note)
     if picked[0] == picked[1]:
-        raise CompareError(f"compare {a} {b}: both name {_spec_of(picked[0])}; give two different entries")
+        raise CompareError(f"compare {a} {b}: both name {EntrySpec(*picked[0])}; give two different entries")
     names = [spec_a.name, spec_b.name]
     if names[0] == names[1]:  # two entries of one config: each is named by its spec
-        names = [_spec_of(e) for e in picked]
+        names = [str(EntrySpec(*e)) for e in picked]
     parts = []
     for entry, name in zip(picked, names):
         rows = data.eval[(data.eval[list(ENTRY)] == pd.Series(entry, index=list(ENTRY))).all(axis=1)]
@@ -416,16 +390,3 @@ def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, re
     res = compare_agents(pd.concat(parts, ignore_index=True), names[0], names[1], regimes, reps)
     res.notes = [*notes, *res.notes]
     return res
-
-
-__all__ = [
-    "COMPARE_COLUMNS",
-    "CompareError",
-    "Comparison",
-    "compare_agents",
-    "EntrySpec",
-    "choose_entry",
-    "load_comparison",
-    "paired_days",
-    "read_eval_metrics",
-]

@@ -17,24 +17,20 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from nutribench.report.figure_parts import (  # noqa: F401 (re-exported: the figures' shared parts)
-    BEST_TEXT,
-    LEGEND_COLS,
+from nutribench.baselines import gap_closed
+from nutribench.report.figure_parts import (
     MARKS,
     FigureResult,
     agent_labels,
     budget_seeds_line,
-    budget_seeds_text,
     count_span,
     default_window,
     draw_notes,
     legend_rows,
     regime_index,
-    seed_list,
     set_title,
     sort_regimes,
     training_legend,
-    wrap_text,
 )
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
@@ -180,14 +176,24 @@ def budget_panels(train: pd.DataFrame, regimes: list[str]) -> list[tuple[str, in
 GAP_LABEL = "share of the never -> planner gap closed"
 
 
+def percent_axis(axis) -> None:
+    """Shares on ``axis`` (an x or y axis) as whole percents."""
+    from matplotlib.ticker import PercentFormatter
+
+    axis.set_major_formatter(PercentFormatter(xmax=1, decimals=0))
+
+
+def yardstick_lines(ax, vertical: bool = True) -> None:
+    """Dotted grey lines at never (0) and the planner (1) of the gap scale."""
+    for v in (0.0, 1.0):
+        (ax.axvline if vertical else ax.axhline)(v, color="0.5", ls=":", lw=0.9, zorder=0)
+
+
 def gap_axis(ax) -> None:
     """Panel (A) on the gap scale: linear, 0 = never eat, 100 % = the full-information planner,
     so equal distances are equal shares of what there is to gain."""
-    from matplotlib.ticker import PercentFormatter
-
-    ax.yaxis.set_major_formatter(PercentFormatter(xmax=1, decimals=0))
-    for v in (0.0, 1.0):
-        ax.axhline(v, color="0.5", ls=":", lw=0.9, zorder=0)
+    percent_axis(ax.yaxis)
+    yardstick_lines(ax, vertical=False)
     ax.set_ylabel("0 = never eat, 100 % = planner (linear)", fontsize=8)
 
 
@@ -197,9 +203,10 @@ def _reference_scores(references: pd.DataFrame) -> pd.DataFrame:
     wide = references.pivot_table(index="regime", columns="policy", values="return", aggfunc="mean")
     if not {"never", "planner"} <= set(wide.columns):
         return references.iloc[0:0]
-    gap = (wide["planner"] - wide["never"]).replace(0.0, np.nan)
     out = references.copy()
-    out["return"] = [(r - wide.loc[g, "never"]) / gap.loc[g] for g, r in zip(out["regime"], out["return"])]
+    out["return"] = [
+        gap_closed(r, wide.loc[g, "never"], wide.loc[g, "planner"]) for g, r in zip(out["regime"], out["return"])
+    ]
     return out
 
 

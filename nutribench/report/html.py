@@ -81,15 +81,10 @@ def page_html(items: Sequence[PageItem], title: str = "nutribench report", subti
         files = f'<p class="notes">files: {_links(i.files)}</p>' if i.files else ""
         if i.png is not None:
             src = html.escape(i.png, quote=True)
-            parts.append(
-                f'<section id="{sid}">\n<h2>{html.escape(i.title)}</h2>\n<figure><a href="{src}"><img src="{src}" alt="{sid}"></a>'
-                f"<figcaption>{html.escape(i.stem)}</figcaption></figure>\n{notes}{files}\n</section>"
-            )
+            shown = f'<figure><a href="{src}"><img src="{src}" alt="{sid}"></a><figcaption>{html.escape(i.stem)}</figcaption></figure>'
         else:
-            table = table_html(i.table) if i.table is not None else ""
-            parts.append(
-                f'<section id="{sid}">\n<h2>{html.escape(i.title)}</h2>\n{caption}{table}\n{notes}{files}\n</section>'
-            )
+            shown = caption + (table_html(i.table) if i.table is not None else "")
+        parts.append(f'<section id="{sid}">\n<h2>{html.escape(i.title)}</h2>\n{shown}\n{notes}{files}\n</section>')
     sub = f"<p>{html.escape(subtitle)}</p>" if subtitle else ""
     return (
         f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n<title>{html.escape(title)}</title>\n'

@@ -56,7 +56,7 @@ import pandas as pd
 from nutribench.report.aggregate import interval_estimates, regime_span, run_scores, score_set
 from nutribench.report.data import ENTRY, Log, ReportError, entries
 from nutribench.report.figure_parts import UNRECORDED, budget_cell, seed_list, sort_regimes
-from nutribench.report.leaderboard_verify import REPLAYED
+from nutribench.report.leaderboard_verify import REPLAYED, not_reproduced
 from nutribench.report.palette import BUILTIN_ORDER
 from nutribench.report.palette import label as algo_label
 from nutribench.report.scores import DEFAULT_REPS
@@ -76,9 +76,6 @@ TUNED_PREFIX = "tuned by nutribench tune"
 #: resamples x runs numbers, and 100,000 already pins a 95 % interval far below its rounding.
 MAX_REPS = 100_000
 MIN_REPS = 100
-#: How each row's evaluation days were checked (the ``checked`` column): replayed from the stored
-#: foods and actions, which proves they fit the regime; no model was run again.
-CHECKED = REPLAYED
 
 
 def check_reps(reps: object) -> int:
@@ -200,7 +197,7 @@ def leaderboard_rows(
             seeds=" ".join(map(str, seeds)),
             engine="/".join(sorted({str(e) for e in mine_jobs["engine"].dropna()})) or "?",
             code=_code_version(mine_jobs),
-            checked=_lookup(checked or {}, entry, CHECKED),
+            checked=_lookup(checked or {}, entry, REPLAYED),
         )
         covered = row["covered"].split(",") if row["covered"] else []
         row["flags"] = "; ".join(_flags(budget, seeds, covered, board))
@@ -270,8 +267,6 @@ def _set_apart(rows: pd.DataFrame) -> pd.Series:
     """Which rows are set apart from the ranking: those whose supplied models did not reproduce
     their stored actions under ``--verify`` (:func:`nutribench.report.leaderboard_verify.not_reproduced`);
     their flags say so. The others keep their order."""
-    from nutribench.report.leaderboard_verify import not_reproduced
-
     apart = rows["checked"].map(not_reproduced).astype(bool)
     rows.loc[apart, "flags"] = ["; ".join(f for f in (SET_APART, flags) if f) for flags in rows.loc[apart, "flags"]]
     return apart
@@ -280,7 +275,6 @@ def _set_apart(rows: pd.DataFrame) -> pd.Series:
 def _set_apart_notes(checked: dict) -> list[str]:
     """A caption note for each entry set apart (:func:`_set_apart`), with its reason; ``checked``:
     entry (name, version, budget) -> its ``checked`` cell."""
-    from nutribench.report.leaderboard_verify import not_reproduced
 
     def label(entry) -> str:
         if not isinstance(entry, tuple):
@@ -323,19 +317,16 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
             "regimes": f"{r['regimes']}/{len(board)}",
         }
         f.update({f"{g} (%)": _pct(r[f"share_{g}"]) for g in board})
+        version = "-" if r["protocol"] == REFERENCE_PROTOCOL else f"v{r['version']}" if "version" in r else "?"
         f.update(
             {
-                "version": "-"
-                if r["protocol"] == REFERENCE_PROTOCOL
-                else f"v{r['version']}"
-                if "version" in r
-                else "?",
+                "version": version,
                 "budget (days)": _cell(r["budget"]),
                 "seeds": r["seeds"].replace(" ", ", "),
                 "engine": _cell(r["engine"]),
                 "protocol": r["protocol"],
                 "code": _cell(r["code"]),
-                "checked": r.get("checked", CHECKED),
+                "checked": r.get("checked", REPLAYED),
                 "flags": r["flags"] or "-",
             }
         )
@@ -365,56 +356,21 @@ def leaderboard_from_db(
 ) -> TableResult:
     """The leaderboard of the results database ``db`` (:class:`ReportError` when it holds no
     evaluation days): every entry (name, version, budget) of ``algos`` (default every agent
-    config), none hidden by another (:func:`nutribench.report.data.prepare_entries`);
-    ``verify``: a folder of the jobs' trained models, re-run to fill the ``checked`` column
-    (:mod:`nutribench.report.leaderboard_verify`)."""
-    from nutribench.report.data import prepare_entries, read_episodes
+    config), none hidden by another (:func:`nutribench.report.data.prepare_entries`), each
+    row's engine, code version and protocol from the database's jobs and agent configs; what
+    the choice left out goes into its caption. ``verify``: a folder of the jobs' trained
+    models, re-run to fill the ``checked`` column (:mod:`nutribench.report.leaderboard_verify`)."""
+    from sqlalchemy import select
+
+    from nutribench.report.data import check_known, prepare_entries, read_episodes
     from nutribench.report.references import eval_day_references
-    from nutribench.store import open_store
+    from nutribench.store import AgentConfig, open_store, read_jobs, session_scope
 
     reps = check_reps(reps)
     ev = read_episodes(db, "eval")
     store = open_store(db)
     try:
         forged = forged_regimes(store.engine)
-    finally:
-        store.dispose()
-    data = prepare_entries(ev, algos)
-    if data.eval.empty:
-        from nutribench.report.data import check_known
-
-        check_known(list(algos or ()), ev["algo"].unique(), "--algos")
-    notes = list(data.notes)
-    scored = data.eval
-    if forged:
-        keep = [(r, int(v)) not in forged for r, v in zip(scored["regime"], scored["regime_version"])]
-        scored = scored[keep]
-        notes.append(
-            ", ".join(f"{r} v{v}" for r, v in sorted(forged))
-            + " of this database has other content than the installed regime file of that name and version: "
-            "its days are not scored on the installed yardsticks"
-        )
-    return leaderboard_of(data.eval, eval_day_references(scored, log=log), db, notes, reps, verify, log)
-
-
-def leaderboard_of(
-    ev: pd.DataFrame,
-    references: pd.DataFrame,
-    db,
-    notes: list[str] | None = None,
-    reps: int = DEFAULT_REPS,
-    verify: str | Path | None = None,
-    log: Log | None = None,
-) -> TableResult:
-    """The leaderboard of the evaluation episodes ``ev`` (chosen as the report chooses them)
-    of the database ``db``, whose jobs and agent configs give each row's engine, code version
-    and protocol; ``notes`` (what the choice left out) go into its caption."""
-    from sqlalchemy import select
-
-    from nutribench.store import AgentConfig, open_store, read_jobs, session_scope
-
-    store = open_store(db)
-    try:
         with session_scope(store.engine) as s:
             configs = pd.DataFrame(
                 s.execute(select(AgentConfig.name, AgentConfig.version, AgentConfig.sha256, AgentConfig.body)).all(),
@@ -423,23 +379,40 @@ def leaderboard_of(
         jobs = read_jobs(store.engine)
     finally:
         store.dispose()
-    drawn = set(map(tuple, ev[["algo", "algo_version"]].drop_duplicates().to_numpy()))
-    configs = configs[[(n, v) in drawn for n, v in zip(configs["name"], configs["version"])]]
+    data = prepare_entries(ev, algos)
+    if data.eval.empty:
+        check_known(list(algos or ()), ev["algo"].unique(), "--algos")
+    notes, ev = list(data.notes), data.eval
+    scored = ev
+    if forged:
+        scored = ev[[(r, int(v)) not in forged for r, v in zip(ev["regime"], ev["regime_version"])]]
+        notes.append(
+            ", ".join(f"{r} v{v}" for r, v in sorted(forged))
+            + " of this database has other content than the installed regime file of that name and version: "
+            "its days are not scored on the installed yardsticks"
+        )
+    references = eval_day_references(scored, log=log)
     checked = None
     if verify is not None:
         from nutribench.report.leaderboard_verify import verify_entries
 
         checked = verify_entries(db, ev, verify, log)
-        notes = [*(notes or []), *_set_apart_notes(checked)]
-    protocol = {
-        (name, int(version)): protocols(configs[(configs["name"] == name) & (configs["version"] == version)])[name]
-        for name, version in configs[["name", "version"]].drop_duplicates().itertuples(index=False)
-    }
-    rows = leaderboard_rows(ev, references, jobs, protocol, reps=reps, checked=checked)
-    table = leaderboard_table(rows)
+        notes += _set_apart_notes(checked)
+    table = leaderboard_table(leaderboard_rows(ev, references, jobs, _drawn_protocols(configs, ev), reps, checked))
     if notes:
         table.title += " (note: " + "; ".join(notes) + ")"
     return table
+
+
+def _drawn_protocols(configs: pd.DataFrame, ev: pd.DataFrame) -> dict[tuple[str, int], str]:
+    """(name, version) -> protocol (:func:`protocols`) of each agent config version ``ev`` draws;
+    ``configs``: the database's ``agent_configs`` rows (name, version, sha256, body)."""
+    drawn = set(map(tuple, ev[["algo", "algo_version"]].drop_duplicates().to_numpy()))
+    configs = configs[[(n, v) in drawn for n, v in zip(configs["name"], configs["version"])]]
+    return {
+        (name, int(version)): protocols(configs[(configs["name"] == name) & (configs["version"] == version)])[name]
+        for name, version in configs[["name", "version"]].drop_duplicates().itertuples(index=False)
+    }
 
 
 def leaderboard_from_archives(
@@ -484,20 +457,3 @@ def leaderboard_from_archives(
     if refused:
         table.title += f" (refused, not ranked: {'; '.join(listed)})"
     return table
-
-
-__all__ = [
-    "CHECKED",
-    "MAX_REPS",
-    "PROTOCOLS",
-    "REFERENCE_BUDGET",
-    "REFERENCE_SEEDS",
-    "leaderboard_from_archives",
-    "leaderboard_from_db",
-    "leaderboard_of",
-    "leaderboard_rows",
-    "leaderboard_table",
-    "check_reps",
-    "protocols",
-    "same_settings",
-]

@@ -83,21 +83,6 @@ def model_file(models_dir: str | Path, job: dict[str, Any]) -> Path:
     return model_path(Path(models_dir), regime, agent, int(job["seed"]), int(job["episodes"]))
 
 
-def _regime(body: dict[str, Any], sha256: str):
-    """The regime stored with a job, built from its content (data, validated)."""
-    from nutribench.config.loading import EnvConfig
-    from nutribench.config.models import FoodCatalog, Regime, RewardConfig
-
-    cfg = EnvConfig(
-        regime=Regime.model_validate(body["regime"]),
-        catalog=FoodCatalog.model_validate(body["catalog"]),
-        reward=RewardConfig.model_validate(body["reward"]),
-    )
-    if cfg.sha256 != sha256:
-        raise ValueError("its stored content does not hash to its sha256")
-    return cfg
-
-
 def rerun_job(path: Path, job: dict[str, Any], configs: dict[str, Any], steps: pd.DataFrame, returns) -> JobCheck:
     """Re-run the model at ``path`` on ``job``'s test days and compare with its stored
     evaluation ``steps`` (columns episode, step, action) and day ``returns`` (by episode).
@@ -107,6 +92,8 @@ def rerun_job(path: Path, job: dict[str, Any], configs: dict[str, Any], steps: p
     from nutribench.agents.config import agent_config_sha256
     from nutribench.agents.days import eval_food_streams
     from nutribench.errors import UserError
+    from nutribench.store.archive.format import InvalidArchive
+    from nutribench.store.archive.replay import stored_regime
 
     label = f"{job['regime']} x {job['algo']} seed {int(job['seed'])}"
     if not path.is_file():
@@ -115,9 +102,10 @@ def rerun_job(path: Path, job: dict[str, Any], configs: dict[str, Any], steps: p
         return JobCheck(label, "plugin")
     n = int(job["eval_episodes"])
     try:
-        cfg = _regime(configs["regime_body"], configs["regime_sha256"])
+        regime = {"name": job["regime"], "version": job["regime_version"], "body": configs["regime_body"]}
+        cfg = stored_regime({**regime, "sha256": configs["regime_sha256"]})
         agent = TrainedAgent.load(path)
-    except (UserError, OSError, ValueError, KeyError, TypeError, RuntimeError) as e:
+    except (UserError, InvalidArchive, OSError, ValueError, KeyError, TypeError, RuntimeError) as e:
         return JobCheck(label, "failed", n, 0, f"{label}: {path.name} not loaded: {' '.join(str(e).split())[:160]}")
     if agent_config_sha256(agent.config) != configs["agent_sha256"]:
         return JobCheck(label, "failed", n, 0, f"{label}: {path.name}'s sidecar names another agent config")
@@ -216,18 +204,3 @@ def verify_entries(
         mine = sorted({int(j) for j in rows["job_id"]})
         out[(str(entry[0]), int(entry[1]), int(entry[2]))] = entry_cell([checks[j] for j in mine])
     return out
-
-
-__all__ = [
-    "DIFFERS",
-    "FAILED",
-    "PLUGIN_NOTE",
-    "REPLAYED",
-    "VERIFIED",
-    "JobCheck",
-    "entry_cell",
-    "model_file",
-    "not_reproduced",
-    "rerun_job",
-    "verify_entries",
-]

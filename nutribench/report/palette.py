@@ -198,23 +198,3 @@ def palette(names: Iterable[str] = ()) -> Palette:
     figure colours a name the same way)."""
     names = list(names)
     return Palette(colors(names), markers(names))
-
-
-__all__ = [
-    "BUILTIN_COLORS",
-    "BUILTIN_ORDER",
-    "builtin_colors",
-    "MAX_LIGHTNESS",
-    "BUILTIN_MARKERS",
-    "USER_COLORS",
-    "USER_MARKERS",
-    "USER_MIN_DISTANCE",
-    "markers",
-    "Palette",
-    "colors",
-    "distance",
-    "lab",
-    "label",
-    "order",
-    "palette",
-]

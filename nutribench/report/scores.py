@@ -72,18 +72,7 @@ def run_scores(ev: pd.DataFrame, references: pd.DataFrame) -> pd.DataFrame:
         never = float(yard["never"].mean()) if complete else float("nan")
         planner = float(yard["planner"].mean()) if complete else float("nan")
         score = gap_closed(ret, never, planner) if complete else float("nan")
-        rows.append(
-            {
-                "regime": regime,
-                "algo": algo,
-                "seed": int(seed),
-                "days": len(days),
-                "return": ret,
-                "never": never,
-                "planner": planner,
-                "score": score,
-            }
-        )
+        rows.append((regime, algo, int(seed), len(days), ret, never, planner, score))
     return pd.DataFrame(rows, columns=cols)
 
 

@@ -5,7 +5,7 @@ numbers (written as CSV) and a formatted frame (written as Markdown and LaTeX)."
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -208,17 +208,15 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
     yard = ["never", "planner", "lookahead", "clairvoyant"] if strong else ["never", "planner"]
     ref = references.set_index(["regime", "seed", "episode"])[yard] if references is not None else None
     rows, fmt_rows = [], []
-    for regime in sort_regimes(ev["regime"]):
-        for algo in sort_algos(ev[ev["regime"] == regime]["algo"]):
-            cell = ev[(ev["regime"] == regime) & (ev["algo"] == algo)]
-            row, f, seed_ci = _result_row(regime, algo, cell, seeds_bootstrap, ref is not None)
-            days = _yardstick_cells(row, f, cell, ref) if ref is not None else None
-            row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"] = seed_ci
-            row["budget"] = f["budget (days)"]  # last: the CSV's earlier columns keep their places
-            if strong:
-                _strong_cells(row, f, days)
-            rows.append(row)
-            fmt_rows.append(f)
+    for regime, algo, cell in _cells(ev):
+        row, f, seed_ci = _result_row(regime, algo, cell, seeds_bootstrap, ref is not None)
+        days = _yardstick_cells(row, f, cell, ref) if ref is not None else None
+        row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"] = seed_ci
+        row["budget"] = f["budget (days)"]  # last: the CSV's earlier columns keep their places
+        if strong:
+            _strong_cells(row, f, days)
+        rows.append(row)
+        fmt_rows.append(f)
     title = (
         "Results: fixed-policy inference; first the seed-level 95 % interval (mean over seeds of each seed's mean over its "
         f"evaluation days, {interval_caption('mean')}), then mean ± standard error over seeds x evaluation "
@@ -233,6 +231,13 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
             f"row's days (100 % is the greedy planner, not the optimum; {SOURCE})"
         )
     return TableResult("results", title, pd.DataFrame(rows), pd.DataFrame(fmt_rows))
+
+
+def _cells(df: pd.DataFrame) -> Iterator[tuple[str, str, pd.DataFrame]]:
+    """(regime, algo, rows) of each regime (in order) and agent (in palette order) of ``df``."""
+    for regime in sort_regimes(df["regime"]):
+        for algo in sort_algos(df[df["regime"] == regime]["algo"]):
+            yield regime, algo, df[(df["regime"] == regime) & (df["algo"] == algo)]
 
 
 def _result_row(regime: str, algo: str, cell: pd.DataFrame, reps: int, yardsticks: bool) -> tuple[dict, dict, tuple]:
@@ -312,22 +317,20 @@ def table_training(df: pd.DataFrame, last_share: float = 0.1) -> TableResult:
     if tr.empty:
         raise ValueError("no training episodes for the training table")
     rows, fmt_rows = [], []
-    for regime in sort_regimes(tr["regime"]):
-        for algo in sort_algos(tr[tr["regime"] == regime]["algo"]):
-            cell = tr[(tr["regime"] == regime) & (tr["algo"] == algo)]
-            budget = int(cell["budget"].max())
-            # days are numbered from 0: the window always holds the last day (a 1- or 5-day job has one)
-            tail = cell[cell["episode"] >= min(budget * (1 - last_share), budget - 1)]
-            per_seed = tail.groupby("seed")[["return", "foods"]].mean()
-            theirs = authors_training(algo, regime)
-            row = {"regime": regime, "algo": algo, "days": budget, "seeds": len(per_seed)}
-            f = {"regime": regime, "algorithm": algo_label(algo), "our days": budget, "seeds": len(per_seed)}
-            for m in ("return", "foods"):
-                row[f"{m}_mean"], row[f"{m}_sem"], f[f"our {m}"] = mean_sem_cell(per_seed[m], 2)
-                row[f"authors_{m}"] = float("nan") if theirs is None else theirs[0 if m == "return" else 1]
-                f[f"authors' {m}"] = "" if theirs is None else f"{row[f'authors_{m}']:.1f}"
-            rows.append(row)
-            fmt_rows.append(f)
+    for regime, algo, cell in _cells(tr):
+        budget = int(cell["budget"].max())
+        # days are numbered from 0: the window always holds the last day (a 1- or 5-day job has one)
+        tail = cell[cell["episode"] >= min(budget * (1 - last_share), budget - 1)]
+        per_seed = tail.groupby("seed")[["return", "foods"]].mean()
+        theirs = authors_training(algo, regime)
+        row = {"regime": regime, "algo": algo, "days": budget, "seeds": len(per_seed)}
+        f = {"regime": regime, "algorithm": algo_label(algo), "our days": budget, "seeds": len(per_seed)}
+        for m in ("return", "foods"):
+            row[f"{m}_mean"], row[f"{m}_sem"], f[f"our {m}"] = mean_sem_cell(per_seed[m], 2)
+            row[f"authors_{m}"] = float("nan") if theirs is None else theirs[0 if m == "return" else 1]
+            f[f"authors' {m}"] = "" if theirs is None else f"{row[f'authors_{m}']:.1f}"
+        rows.append(row)
+        fmt_rows.append(f)
     pct = round(100 * last_share)
     title = (
         f"Training: mean return and foods per day over the last {pct} % of training days, ours (± standard error over "

@@ -35,8 +35,10 @@ RTOL = 1e-9
 CHUNK = 4096
 
 
-def _env_config(row: dict[str, Any]) -> EnvConfig:
-    """The regime an archive carries, built from its stored body (data, validated)."""
+def stored_regime(row: dict[str, Any]) -> EnvConfig:
+    """The regime an archive (or a database: the leaderboard's re-run) carries, built from its
+    stored body (``row``: name, version, body, sha256; data, validated); :class:`InvalidArchive`
+    in one line for a body that is not a regime or does not hash to its sha256."""
     body = row["body"]
     what = f"regime {short_repr(row['name'])} v{row['version']}"
     try:
@@ -88,7 +90,7 @@ def replay_evaluations(
     day_start = np.concatenate([[0], np.cumsum(per_job["eval_episodes"])])
     replayed = 0
     for key, members in by_regime.items():
-        cfg = _env_config(regimes[key])
+        cfg = stored_regime(regimes[key])
         H = cfg.reward.horizon
         for i in members:
             n = int(per_job["eval_episodes"][i])
