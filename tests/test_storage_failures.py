@@ -227,7 +227,7 @@ def test_report_hint_shows_no_password(monkeypatch) -> None:
 
     url = make_url(f"postgresql+psycopg://bench:{SECRET}@db.example/results")
 
-    class FakeStore:
+    class FakeStore(store_pkg.Store):  # the real one's `with` (disposed of at the end)
         display, engine = url.render_as_string(hide_password=True), None
 
         def __init__(self):

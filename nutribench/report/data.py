@@ -134,11 +134,8 @@ def read_episodes(db: DbFile, phase: str | None = None, error: type[UserError] =
     from nutribench.store import open_store, read_episode_metrics
     from nutribench.store.schema import db_command
 
-    store = open_store(db)
-    try:
+    with open_store(db) as store:
         df = read_episode_metrics(store.engine, phase=phase)
-    finally:
-        store.dispose()
     if df.empty:
         what = "evaluation days" if phase == "eval" else "finished episodes"
         raise error(f"{store.display} holds no {what} yet: {db_command('nutribench run', store.url)} fills it")
@@ -223,12 +220,9 @@ def stored_agent_configs(db: DbFile) -> dict[str, Any]:
 
     from nutribench.store import AgentConfig, open_store, session_scope
 
-    store = open_store(db)
-    try:
+    with open_store(db) as store:
         with session_scope(store.engine) as s:
             rows = s.execute(select(AgentConfig.name, AgentConfig.version, AgentConfig.body)).all()
-    finally:
-        store.dispose()
     check_names([name for name, _, _ in rows], "agent config", store.display)
     newest: dict[str, tuple[int, dict[str, Any]]] = {}
     for name, version, body in rows:

@@ -126,8 +126,7 @@ def build_diagnostics(
 
     check_names([regime], "regime", "--regime")
     check_names([algo], "agent config", "--algo")
-    store = open_store(db)
-    try:
+    with open_store(db) as store:
         rows = read_training_diagnostics(store.engine, regimes=regime, algos=algo, seeds=seeds, latest_only=True)
         have = None if not rows.empty else read_training_diagnostics(store.engine, latest_only=True)
         why = _too_short(store.engine, algo, regime) if rows.empty else ""
@@ -138,8 +137,6 @@ def build_diagnostics(
                     select(RegimeConfig.body).where(RegimeConfig.name == regime, RegimeConfig.version == version)
                 ).scalar_one()
             horizon = int(body["reward"]["horizon"])
-    finally:
-        store.dispose()
     if rows.empty:
         which = f"{algo}/{regime}" + (f" seed {','.join(map(str, seeds))}" if seeds else "")
         if have is None or have.empty:

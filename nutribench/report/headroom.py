@@ -68,9 +68,8 @@ def with_strong_references(day_references: pd.DataFrame, log: Log | None = None)
         return out
     key = ["regime", "seed", "episode"]
     found = committed.set_index(key).reindex(pd.MultiIndex.from_frame(out[key].astype({"seed": int, "episode": int})))
-    agree = np.isclose(
-        found["never"].to_numpy(dtype=float), out["never"].to_numpy(dtype=float), atol=1e-9
-    ) & np.isclose(found["planner"].to_numpy(dtype=float), out["planner"].to_numpy(dtype=float), atol=1e-9)
+    yard = ["never", "planner"]
+    agree = np.isclose(found[yard].to_numpy(dtype=float), out[yard].to_numpy(dtype=float), atol=1e-9).all(axis=1)
     for p in STRONG_POLICIES:
         out[p] = np.where(agree, found[p].to_numpy(dtype=float), np.nan)
     return out

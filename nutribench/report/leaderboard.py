@@ -368,8 +368,7 @@ def leaderboard_from_db(
 
     reps = check_reps(reps)
     ev = read_episodes(db, "eval")
-    store = open_store(db)
-    try:
+    with open_store(db) as store:
         forged = forged_regimes(store.engine)
         with session_scope(store.engine) as s:
             configs = pd.DataFrame(
@@ -377,8 +376,6 @@ def leaderboard_from_db(
                 columns=["name", "version", "sha256", "body"],
             )
         jobs = read_jobs(store.engine)
-    finally:
-        store.dispose()
     data = prepare_entries(ev, algos)
     if data.eval.empty:
         check_known(list(algos or ()), ev["algo"].unique(), "--algos")

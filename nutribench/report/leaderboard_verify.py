@@ -174,15 +174,12 @@ def verify_entries(
     from nutribench.store import AgentConfig, RegimeConfig, open_store, read_eval_trajectories, read_jobs, session_scope
 
     job_ids = sorted({int(j) for j in ev["job_id"]})
-    store = open_store(db)
-    try:
+    with open_store(db) as store:
         jobs = read_jobs(store.engine).set_index("id")
         with session_scope(store.engine) as s:
             regimes = {r.id: (r.body, r.sha256) for r in s.execute(select(RegimeConfig)).scalars()}
             agents = {a.id: (a.sha256, a.body) for a in s.execute(select(AgentConfig)).scalars()}
         steps = read_eval_trajectories(store.engine, algos=sorted(ev["algo"].unique()))
-    finally:
-        store.dispose()
     steps = steps[steps["job_id"].isin(job_ids)]
     by_job = dict(tuple(steps.groupby("job_id")))
     checks: dict[int, JobCheck] = {}

@@ -71,8 +71,7 @@ def build_trajectory(
     # both become the file's name and the regime is read from its file: names only
     check_names([regime], "regime", "--regime")
     check_names([algo], "agent config", "--algo")
-    store = open_store(db)
-    try:
+    with open_store(db) as store:
         steps = read_eval_trajectories(
             store.engine, regimes=regime, algos=algo, seeds=seed, episode=episode, latest_only=True
         )
@@ -82,8 +81,6 @@ def build_trajectory(
                 f"no evaluation steps for {algo}/{regime} seed {seed} episode {episode} in {store.display}"
                 + _available(have)
             )
-    finally:
-        store.dispose()
     steps = largest_budget_jobs(steps, by=["seed"])[0]
     budget = int(steps["budget"].max())
     dynamics = RegimeDynamics(regime)

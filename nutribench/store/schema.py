@@ -226,6 +226,13 @@ class Store:
     def dispose(self) -> None:
         self.engine.dispose()
 
+    def __enter__(self) -> Store:
+        """``with open_store(db) as store:``: the engine disposed of when the block ends."""
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.dispose()
+
 
 #: the environment variable the CLI's ``--db`` options read (``run``, ``status``, ``report``, ``db``)
 DB_ENV = "NUTRIBENCH_DB"
