@@ -130,9 +130,8 @@ class TrainedAgent:
         if self.vec_normalize is not None:
             write_model_atomically(target, lambda tmp: self.vec_normalize.save(str(tmp)))
         elif self.vec_normalize_file is not None and self.vec_normalize_file.resolve() != target.resolve():
-            write_model_atomically(
-                target, lambda tmp: shutil.copyfile(self.vec_normalize_file, tmp)
-            )  # bytes, not loaded
+            # a loaded agent's: its bytes copied, never unpickled
+            write_model_atomically(target, lambda tmp: shutil.copyfile(self.vec_normalize_file, tmp))
         has_pickle = self.vec_normalize is not None or self.vec_normalize_file is not None
         stats = vec_normalize_stats(self.vec_normalize) if self.vec_normalize is not None else self.vec_normalize_stats
         meta = collect_metadata()
@@ -145,10 +144,7 @@ class TrainedAgent:
             "spaces": spaces_record(self.model) if isinstance(self.model, BaseAlgorithm) else None,
             "obs_mean": None if self.obs_mean is None else self.obs_mean.tolist(),
             "obs_var": None if self.obs_var is None else self.obs_var.tolist(),
-            "provenance": {
-                **self.provenance,
-                **{k: meta[k] for k in ("nutribench_version", "git_commit", "git_dirty")},
-            },
+            "provenance": self.provenance | {k: meta[k] for k in ("nutribench_version", "git_commit", "git_dirty")},
         }
         write_model_atomically(path.with_suffix(".json"), lambda tmp: tmp.write_text(json.dumps(side, indent=1)))
         return path
@@ -256,7 +252,7 @@ def train(
         model, env, days = _train_plugin(cfg, env, base, seed, episodes, horizon, on_episode, tensorboard)
     else:
         model = make_model(cfg, env, seed=seed, horizon=horizon)
-        recorder = EpisodeMetrics(base, cfg.algo, episodes, on_episode)
+        recorder = EpisodeMetrics(base, episodes, on_episode)
         callbacks = [recorder]
         if diagnostics or tensorboard is not None:
             recorded = TrainingDiagnostics(model, tensorboard)

@@ -41,12 +41,9 @@ class EpisodeMetrics(BaseCallback):
     during ``on_step`` (on- and off-policy SB3 update it after the callback).
     """
 
-    def __init__(self, base_env: NutriRLSB3VecEnv, algo: str, episodes: int, on_episode: EpisodeFn | None = None):
+    def __init__(self, base_env: NutriRLSB3VecEnv, episodes: int, on_episode: EpisodeFn | None = None):
         super().__init__()
-        self.base_env = base_env
-        self.algo = algo
-        self.n_episodes = episodes
-        self.on_episode = on_episode
+        self.base_env, self.n_episodes, self.on_episode = base_env, episodes, on_episode
         self.recorder = EpisodeRecorder(1)
         self.episodes: list[dict[str, Any]] = []
         self._obs: list[np.ndarray] = []

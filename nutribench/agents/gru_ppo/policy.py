@@ -85,23 +85,19 @@ class GRUActorCriticPolicy(BasePolicy):
 
         self.nutrient_gru = nn.GRU(self.n_nutrients, self.hidden_size, num_layers=1, batch_first=True)
         self.food_gru = nn.GRU(self.n_foods, self.hidden_size, num_layers=1, batch_first=True)
-        features = 2 * self.hidden_size
-        self.actor_head = nn.Sequential(
-            nn.Linear(features, self.head_size), nn.ReLU(), nn.Linear(self.head_size, n_actions)
+        head = lambda n_out: nn.Sequential(  # noqa: E731
+            nn.Linear(2 * self.hidden_size, self.head_size), nn.ReLU(), nn.Linear(self.head_size, n_out)
         )
-        self.critic_head = nn.Sequential(nn.Linear(features, self.head_size), nn.ReLU(), nn.Linear(self.head_size, 1))
+        self.actor_head, self.critic_head = head(n_actions), head(1)
         self.action_dist = CategoricalDistribution(n_actions)
 
         if ortho_init:
             _orthogonal_gru_init_(self.nutrient_gru)
             _orthogonal_gru_init_(self.food_gru)
-            for module, gain in (
-                (self.actor_head[0], math.sqrt(2)),
-                (self.actor_head[2], 0.01),
-                (self.critic_head[0], math.sqrt(2)),
-                (self.critic_head[2], 1.0),
-            ):
-                self.init_weights(module, gain=gain)  # orthogonal weight, zero bias
+            for module, output_gain in ((self.actor_head, 0.01), (self.critic_head, 1.0)):
+                # orthogonal weights, zero biases: sqrt(2) for the hidden layer, then the output's gain
+                self.init_weights(module[0], gain=math.sqrt(2))
+                self.init_weights(module[2], gain=output_gain)
 
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
