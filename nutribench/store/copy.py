@@ -34,7 +34,7 @@ from nutribench.store.schema import open_store
 BATCH = 20_000
 
 
-def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] | None = None) -> dict[str, int]:
+def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] = lambda *_: None) -> dict[str, int]:
     """Copy every table of ``src`` into the empty database ``dst``; rows copied per table."""
     source = open_store(src)
     target = open_store(dst, writer=True)
@@ -45,9 +45,7 @@ def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] | 
         with source.engine.connect().execution_options(**read_options) as read, session_scope(target.engine) as write:
             counts = _copy_tables(read, write, on_table)
         if studies:
-            n = _copy_studies(source, target, studies)
-            if on_table:
-                on_table(f"tuning studies ({len(studies)}): trials", n)
+            on_table(f"tuning studies ({len(studies)}): trials", _copy_studies(source, target, studies))
         return counts
     finally:
         source.dispose()
@@ -79,7 +77,7 @@ def _check_empty(source: Any, target: Any) -> list[str]:
     return studies
 
 
-def _copy_tables(read: Any, write: Any, on_table: Callable[[str, int], None] | None) -> dict[str, int]:
+def _copy_tables(read: Any, write: Any, on_table: Callable[[str, int], None]) -> dict[str, int]:
     """Every table of the connection ``read`` into the session ``write``, parents first, in
     batches; PostgreSQL's id sequences moved past the copied ids; the rows counted back."""
     counts: dict[str, int] = {}
@@ -90,8 +88,7 @@ def _copy_tables(read: Any, write: Any, on_table: Callable[[str, int], None] | N
             write.execute(insert(table), [dict(row) for row in batch])
             n += len(batch)
         counts[table.name] = n
-        if on_table:
-            on_table(table.name, n)
+        on_table(table.name, n)
     if write.get_bind().dialect.name == "postgresql":
         for table in Base.metadata.sorted_tables:
             if "id" in table.columns and table.c.id.primary_key:

@@ -80,6 +80,9 @@ def job_state(status: str, heartbeat: datetime | None, now: datetime) -> str:
     return status
 
 
+#: The ``info`` of a job column that the worker records (:data:`METADATA_COLUMNS`).
+RECORDED = {"recorded": True}
+
 NAMING = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",
     "uq": "uq_%(table_name)s_%(column_0_N_name)s",
@@ -175,31 +178,43 @@ class Job(Base):
     worker_pid: Mapped[int | None] = mapped_column(Integer)
     # timing (UTC, naive)
     created_at: Mapped[datetime] = mapped_column(DateTime)
-    started_at: Mapped[datetime | None] = mapped_column(DateTime)
-    finished_at: Mapped[datetime | None] = mapped_column(DateTime)
+    started_at: Mapped[datetime | None] = mapped_column(DateTime, info=RECORDED)
+    finished_at: Mapped[datetime | None] = mapped_column(DateTime, info=RECORDED)
     wall_seconds: Mapped[float | None] = mapped_column(
-        Float, doc="seconds the job took (a batch's share); while running, its training seconds so far"
+        Float, info=RECORDED, doc="seconds the job took (a batch's share); while running, its training seconds so far"
     )
     # reproducibility metadata, from the worker that ran it
-    host: Mapped[str | None] = mapped_column(String(255))
-    platform: Mapped[str | None] = mapped_column(String(255))
-    python_version: Mapped[str | None] = mapped_column(String(32))
-    numpy_version: Mapped[str | None] = mapped_column(String(32))
-    torch_version: Mapped[str | None] = mapped_column(String(32))
-    sb3_version: Mapped[str | None] = mapped_column(String(32))
-    nutribench_version: Mapped[str | None] = mapped_column(String(64))
-    git_commit: Mapped[str | None] = mapped_column(String(40))
-    git_dirty: Mapped[bool | None] = mapped_column(Boolean)
+    host: Mapped[str | None] = mapped_column(String(255), info=RECORDED)
+    platform: Mapped[str | None] = mapped_column(String(255), info=RECORDED)
+    python_version: Mapped[str | None] = mapped_column(String(32), info=RECORDED)
+    numpy_version: Mapped[str | None] = mapped_column(String(32), info=RECORDED)
+    torch_version: Mapped[str | None] = mapped_column(String(32), info=RECORDED)
+    sb3_version: Mapped[str | None] = mapped_column(String(32), info=RECORDED)
+    nutribench_version: Mapped[str | None] = mapped_column(String(64), info=RECORDED)
+    git_commit: Mapped[str | None] = mapped_column(String(40), info=RECORDED)
+    git_dirty: Mapped[bool | None] = mapped_column(Boolean, info=RECORDED)
     engine: Mapped[str | None] = mapped_column(
-        String(16), doc="sb3 | batched | external: what trained it (revision 0003; external: revision 0004)"
+        String(16),
+        info=RECORDED,
+        doc="sb3 | batched | external: what trained it (revision 0003; external: revision 0004)",
     )
     # revision 0004: dry runs kept apart, the batched engine's batch, an external agent's source
     fake: Mapped[bool] = mapped_column(Boolean, default=False, doc="a dry run's synthetic job: never a result")
-    batch_id: Mapped[str | None] = mapped_column(String(64), doc="the batched engine's batch the job trained in")
-    batch_size: Mapped[int | None] = mapped_column(Integer, doc="how many jobs that batch trained side by side (K)")
-    device: Mapped[str | None] = mapped_column(String(32), doc="the device it trained on (cpu, cuda:0, ...)")
-    source: Mapped[str | None] = mapped_column(Text, doc="external agents: the entry point or the calling script")
-    source_sha256: Mapped[str | None] = mapped_column(String(64), doc="sha256 of that script's or module's file")
+    batch_id: Mapped[str | None] = mapped_column(
+        String(64), info=RECORDED, doc="the batched engine's batch the job trained in"
+    )
+    batch_size: Mapped[int | None] = mapped_column(
+        Integer, info=RECORDED, doc="how many jobs that batch trained side by side (K)"
+    )
+    device: Mapped[str | None] = mapped_column(
+        String(32), info=RECORDED, doc="the device it trained on (cpu, cuda:0, ...)"
+    )
+    source: Mapped[str | None] = mapped_column(
+        Text, info=RECORDED, doc="external agents: the entry point or the calling script"
+    )
+    source_sha256: Mapped[str | None] = mapped_column(
+        String(64), info=RECORDED, doc="sha256 of that script's or module's file"
+    )
     model_path: Mapped[str | None] = mapped_column(Text)
     error: Mapped[str | None] = mapped_column(Text, doc="last failure (traceback or reason); kept after a retry")
 
@@ -292,27 +307,9 @@ EVAL_STEP_COLUMNS: tuple[str, ...] = tuple(c.name for c in EvalStep.__table__.co
 VALIDATION_COLUMNS: tuple[str, ...] = tuple(c.name for c in ValidationEpisode.__table__.columns if c.name != "job_id")
 
 #: Columns of ``jobs`` that record where and with what a job ran (from
-#: :func:`nutribench.provenance.collect_metadata` and the worker's clock).
-METADATA_COLUMNS = (
-    "host",
-    "platform",
-    "python_version",
-    "numpy_version",
-    "torch_version",
-    "sb3_version",
-    "nutribench_version",
-    "git_commit",
-    "git_dirty",
-    "started_at",
-    "finished_at",
-    "wall_seconds",
-    "engine",
-    "batch_id",
-    "batch_size",
-    "device",
-    "source",
-    "source_sha256",
-)
+#: :func:`nutribench.provenance.collect_metadata` and the worker's clock): those marked
+#: :data:`RECORDED` in :class:`Job`.
+METADATA_COLUMNS: tuple[str, ...] = tuple(c.name for c in Job.__table__.columns if c.info.get("recorded"))
 
 
 def diagnostic_rows(job_id: int, diagnostics: list[dict[str, Any]]) -> list[dict[str, Any]]:

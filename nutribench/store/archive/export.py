@@ -149,16 +149,11 @@ def wide_diagnostics(session: Any, job_ids: list[int]) -> tuple[Table, list[tupl
         .where(Diagnostic.job_id.in_(job_ids))
         .order_by(Diagnostic.job_id, Diagnostic.update, Diagnostic.name)
     )
-    for job, update, name, value in session.execute(query):
-        by.setdefault((job, update), {})[name] = value
+    for job, update, name, value in session.execute(query):  # the timestep an integer column again
+        by.setdefault((job, update), {})[name] = int(value) if name == TIMESTEP else value
     layout = diagnostics_layout(sorted({n for values in by.values() for n in values} - {TIMESTEP, *QUANTITIES}))
     names = [c.name for c in columns(layout)][1:]
-    rows = []
-    for (job, update), values in by.items():
-        step = values.get(TIMESTEP)
-        values[TIMESTEP] = None if step is None else int(step)
-        rows.append((job, update, *(values.get(n) for n in names)))
-    return layout, rows
+    return layout, [(job, update, *(values.get(n) for n in names)) for (job, update), values in by.items()]
 
 
 def archive_rows(session: Any, name: str, job_ids: list[int]) -> tuple[list[Any], list[Any]]:

@@ -76,11 +76,9 @@ def _installed(folder_name: str, signature: tuple[tuple[str, int, int], ...]) ->
             cfg = parse_agent_config(read_toml(path), path)
         except (ConfigError, OSError, ValueError):
             continue
-        out[("agent config", str(cfg.name), int(cfg.version))] = (
-            agent_config_sha256(cfg),
-            f"{folder.name}/agents/{path.name}",
-        )
-        out[("agent settings", str(cfg.name), int(cfg.version))] = (settings_sha256(cfg), "")
+        ident = (str(cfg.name), int(cfg.version))
+        out[("agent config", *ident)] = (agent_config_sha256(cfg), f"{folder.name}/agents/{path.name}")
+        out[("agent settings", *ident)] = (settings_sha256(cfg), "")
     return out
 
 

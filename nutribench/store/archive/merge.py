@@ -130,13 +130,9 @@ def _write(
         hold_write_lock(s, REGISTRATION_LOCK)
         other = s.execute(select(func.count()).select_from(Job).where(Job.fake == (not fake))).scalar_one()
         if other:
-            kind = (
-                ("a dry run's jobs (fake)", f"{other} real jobs")
-                if fake
-                else ("real results", f"{other} dry-run jobs (fake)")
-            )
+            ours, theirs = ("a dry run's jobs (fake)", "real jobs") if fake else ("real results", "dry-run jobs (fake)")
             raise StoreError(
-                f"db import: {path} holds {kind[0]} and {store.display} holds {kind[1]}: the two are never "
+                f"db import: {path} holds {ours} and {store.display} holds {other} {theirs}: the two are never "
                 "mixed in one database; import into another --db"
             )
         config_ids = _config_ids(s, meta, store.display, path)
@@ -183,14 +179,8 @@ def _write_job(
     pending, interrupted or failed): its id, None where the database has it done (kept)."""
     rid = config_ids[(RegimeConfig, *job["regime"])]
     aid = config_ids[(AgentConfig, *job["agent"])]
-    key = (
-        Job.regime_id == rid,
-        Job.agent_config_id == aid,
-        Job.seed == job["seed"],
-        Job.episodes == job["episodes"],
-        Job.eval_episodes == job["eval_episodes"],
-    )
-    have = s.execute(select(Job).where(*key).order_by(Job.id)).scalars().first()
+    key = {"regime_id": rid, "agent_config_id": aid, **{k: job[k] for k in ("seed", "episodes", "eval_episodes")}}
+    have = s.execute(select(Job).filter_by(**key).order_by(Job.id)).scalars().first()
     if have is not None and have.status == "done":
         return None
     if have is not None and job_state(have.status, have.heartbeat_at, now) == "running":
