@@ -14,7 +14,7 @@ import os
 from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
-from sqlalchemy import Engine, text
+from sqlalchemy import Engine, bindparam, text
 from sqlalchemy.engine import URL
 
 from nutribench.store.schema import open_store
@@ -25,29 +25,25 @@ if TYPE_CHECKING:
 Db = str | os.PathLike[str] | URL | Engine
 
 
-def _query(db: Db, sql: str, params: dict | None = None) -> pd.DataFrame:
-    """``sql`` read into a DataFrame from ``db`` (an engine given is left open, one opened here disposed)."""
+def _query(db: Db, sql: str, params: dict[str, list] | None = None) -> pd.DataFrame:
+    """``sql`` read into a DataFrame from ``db`` (an engine given is left open, one opened here
+    disposed), each of ``params`` a list (``IN :name``)."""
     import pandas as pd
 
     engine = db if isinstance(db, Engine) else open_store(db).engine
+    query = text(sql).bindparams(*(bindparam(name, expanding=True) for name in params or {}))
     try:
         with engine.connect() as conn:
-            return pd.read_sql(text(sql), conn, params=params)
+            return pd.read_sql(query, conn, params=params)
     finally:
         if engine is not db:
             engine.dispose()
 
 
-def _where(filters: dict[str, Iterable | str | int | None]) -> tuple[str, dict]:
-    parts, params = [], {}
-    for col, value in filters.items():
-        if value is None:
-            continue
-        values = [value] if isinstance(value, (str, int)) else list(value)
-        names = [f"{col}_{i}" for i in range(len(values))]
-        parts.append(f'"{col}" IN ({", ".join(":" + n for n in names)})')
-        params.update(dict(zip(names, values)))
-    return (" WHERE " + " AND ".join(parts)) if parts else "", params
+def _where(filters: dict[str, Iterable | str | int | None]) -> tuple[str, dict[str, list]]:
+    """The ``WHERE`` clause of the filters given (a value or several per column) and its parameters."""
+    params = {col: [v] if isinstance(v, (str, int)) else list(v) for col, v in filters.items() if v is not None}
+    return (" WHERE " + " AND ".join(f'"{col}" IN :{col}' for col in params)) if params else "", params
 
 
 def _read(db: Db, view: str, filters: dict, order: str, latest_only: bool) -> pd.DataFrame:
