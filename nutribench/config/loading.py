@@ -238,23 +238,17 @@ def resolve_regime_path(regime: str | os.PathLike[str]) -> Path:
     return path
 
 
-def check_name_is_file_name(regime: Regime, path: Path) -> None:
-    """A regime's ``name`` must be its file name: results are stored under the name, and
-    ``regime=NAME`` finds the file by it."""
-    if regime.name != path.stem:
-        raise ConfigError(
-            f"{path}: name = \"{regime.name}\" differs from the file name '{path.stem}': "
-            f'set name = "{path.stem}" or rename the file to {regime.name}.toml'
-        )
-
-
 def load_env_config(regime: str | os.PathLike[str] | EnvConfig) -> EnvConfig:
     """Load a regime by name, path, or pass an :class:`EnvConfig` through."""
     if isinstance(regime, EnvConfig):
         return regime
     path = resolve_regime_path(regime)
     reg = load_model(Regime, path)
-    check_name_is_file_name(reg, path)
+    if reg.name != path.stem:  # results are stored under the name, and regime=NAME finds the file by it
+        raise ConfigError(
+            f"{path}: name = \"{reg.name}\" differs from the file name '{path.stem}': "
+            f'set name = "{path.stem}" or rename the file to {reg.name}.toml'
+        )
     catalog = load_model(FoodCatalog, path.parent / reg.catalog)
     reward = load_model(RewardConfig, path.parent / reg.reward)
     return EnvConfig(regime=reg, catalog=catalog, reward=reward, path=path)
