@@ -36,9 +36,7 @@ BATCH = 20_000
 
 def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] = lambda *_: None) -> dict[str, int]:
     """Copy every table of ``src`` into the empty database ``dst``; rows copied per table."""
-    source = open_store(src)
-    target = open_store(dst, writer=True)
-    try:
+    with open_store(src) as source, open_store(dst, writer=True) as target:
         studies = _check_empty(source, target)
         # one snapshot of the source for every table (a PostgreSQL source may be written meanwhile)
         read_options = {"isolation_level": "REPEATABLE READ"} if source.engine.dialect.name == "postgresql" else {}
@@ -47,9 +45,6 @@ def copy_database(src: str, dst: str, *, on_table: Callable[[str, int], None] = 
         if studies:
             on_table(f"tuning studies ({len(studies)}): trials", _copy_studies(source, target, studies))
         return counts
-    finally:
-        source.dispose()
-        target.dispose()
 
 
 def _counts(conn: Any) -> dict[str, int]:

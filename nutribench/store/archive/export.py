@@ -59,8 +59,7 @@ def export_results(
     regimes named in ``regimes``, where given) to the archive ``out``; rows written per table."""
     path = Path(out)
     _check_out(path)
-    store = open_store(db)
-    try:
+    with open_store(db) as store:
         with store.engine.connect() as conn, Session(bind=conn) as s:
             meta, arrays = _archive(s, store.display, algos, regimes)
         # what this archive will be checked for on import, checked now: a job of this database
@@ -78,8 +77,6 @@ def export_results(
         ):
             np.savez_compressed(fh, **arrays)  # to the open file: numpy adds no .npz to its name
         return dict(meta["counts"])
-    finally:
-        store.dispose()
 
 
 def _archive(

@@ -89,15 +89,13 @@ def import_results(
     file = sqlite_path(database_url(db))
     new_file = file if file is not None and not file.exists() else None
     store = open_store(db, writer=True)
-    ok = False
     try:
-        counts = _write(store, meta, arrays, path, on_step)
-        ok = True
-        return counts
-    finally:
-        store.dispose()
-        if not ok and store.created:
+        with store:  # disposed of before a file the import created is removed
+            return _write(store, meta, arrays, path, on_step)
+    except BaseException:
+        if store.created:
             _remove_new_file(new_file)
+        raise
 
 
 def _config_ids(s: Session, meta: dict[str, Any], where: str, path: Any) -> dict[tuple[Any, ...], int]:
