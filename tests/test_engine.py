@@ -14,9 +14,9 @@ from nutribench.agents.config import load_agent_config
 from nutribench.config import load_env_config
 from nutribench.engine.actor_critic import StackedActorCritic
 from nutribench.engine.mc import a2c_update
-from nutribench.engine.on_policy import OnPolicySettings, Rollout, gae, make_optimizer
+from nutribench.engine.on_policy import ADAM_EPS, OnPolicySettings, Rollout, gae
 from nutribench.engine.ppo import ppo_update
-from nutribench.engine.stacked import RunningStats, clip_grad_norm_per_agent
+from nutribench.engine.stacked import RunningStats, StackedAdam, clip_grad_norm_per_agent
 
 
 def _sb3_ppo_after_one_rollout(seed: int, regime: str = "run0", algo: str = "ppo"):
@@ -51,7 +51,7 @@ def test_one_ppo_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() ->
     net = StackedActorCritic(len(models), models[0].observation_space.shape[0], list(cfg.net_arch))
     for j, m in enumerate(models):
         net.load_sb3(j, m.policy)
-    optimizer = make_optimizer(net, cfg.learning_rate)
+    optimizer = StackedAdam(net.params, cfg.learning_rate, ADAM_EPS)
     rollout = _rollout_of(models)
     settings = OnPolicySettings.from_config(cfg, 50)
     perms = []
@@ -95,8 +95,8 @@ def test_stacked_agents_do_not_talk_to_each_other() -> None:
     wild.advantages[1:] *= 1e4
     wild.returns[1:] += 1e3
     perm = np.stack([[rng.permutation(cfg.n_steps) for _ in range(3)] for _ in range(cfg.n_epochs)])
-    ppo_update(alone, make_optimizer(alone, cfg.learning_rate), base, settings, perm[:, :1])
-    ppo_update(crowd, make_optimizer(crowd, cfg.learning_rate), wild, settings, perm)
+    ppo_update(alone, StackedAdam(alone.params, cfg.learning_rate, ADAM_EPS), base, settings, perm[:, :1])
+    ppo_update(crowd, StackedAdam(crowd.params, cfg.learning_rate, ADAM_EPS), wild, settings, perm)
     for a, b in zip(alone.params, crowd.params):  # float32 rounding only (batched kernels differ by K)
         th.testing.assert_close(a[0], b[0], rtol=1e-5, atol=1e-6)
     drift = max(float((b[1] - b[0]).abs().max().detach()) for b in crowd.params)
@@ -234,7 +234,7 @@ def test_one_mc_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -> 
     net = StackedActorCritic(len(models), 13, list(cfg.net_arch))
     for j, m in enumerate(models):
         net.load_sb3(j, m.policy)
-    optimizer = make_optimizer(net, cfg.learning_rate)
+    optimizer = StackedAdam(net.params, cfg.learning_rate, ADAM_EPS)
     settings = OnPolicySettings.from_config(cfg, 50)
     assert (settings.n_steps, settings.n_epochs, settings.clip_range) == (50, 1, None)
     rollout = _rollout_of(models)  # before train(), which flattens SB3's buffer in place
@@ -337,7 +337,7 @@ def test_one_gru_ppo_update_of_stacked_agents_equals_gru_ppo_s_update_of_each_al
     for j, m in enumerate(models):
         net.load_sb3(j, m.policy)
         m.n_epochs = epochs
-    optimizer = make_optimizer(net, cfg.learning_rate)
+    optimizer = StackedAdam(net.params, cfg.learning_rate, ADAM_EPS)
     settings = dataclasses.replace(OnPolicySettings.from_config(cfg, 50), n_epochs=epochs)
     n_days = cfg.n_steps // cfg.sequence_length
     perms = []

@@ -17,7 +17,7 @@ import torch as th
 from nutribench.agents.config import load_agent_config
 from nutribench.engine.gru_ppo import StackedGRUActorCritic
 from nutribench.engine.on_policy import gae
-from nutribench.engine.stacked import clip_grad_norm_per_agent, make_adam, step_per_agent
+from nutribench.engine.stacked import StackedAdam, clip_grad_norm_per_agent
 from nutribench.engine.train import train_batched
 
 #: short runs that update several times (the settings of tests/engine_fingerprint.py)
@@ -40,7 +40,7 @@ def _agent0_adam(k: int, n: int, steps: int = 60) -> tuple[th.Tensor, th.Tensor]
     stacked parameter, agent 0's gradients the same at every ``k``."""
     p = th.cat([th.randn(1, 1, n, generator=_generator(0)), th.randn(k - 1, 1, n, generator=_generator(1))])
     p.requires_grad_()
-    opt = make_adam([p], 1e-3, 1e-5)
+    opt = StackedAdam([p], 1e-3, 1e-5)
     for s in range(steps):
         grad = th.randn(k, 1, n, generator=_generator(1000 + s)) * 1e-3
         grad[0] = th.randn(1, n, generator=_generator(s)) * 1e-3
@@ -131,13 +131,13 @@ def test_an_agents_own_rate_steps_it_as_that_rate_alone_does() -> None:
     grads = [th.randn(k, 1, n, generator=_generator(s)) for s in range(30)]
     stacked = th.randn(k, 1, n, generator=_generator(99)).requires_grad_()
     start = stacked.detach().clone()
-    opt = make_adam([stacked], 1.0, 1e-5)
+    opt = StackedAdam([stacked], rates, 1e-5)
     for g in grads:
         stacked.grad = g.clone()
-        step_per_agent(opt, [stacked], rates)
+        opt.step()
     for j, rate in enumerate(rates):
         alone = start[j : j + 1].clone().requires_grad_()
-        opt1 = make_adam([alone], float(rate), 1e-5)
+        opt1 = StackedAdam([alone], float(rate), 1e-5)
         for g in grads:
             alone.grad = g[j : j + 1].clone()
             opt1.step()
@@ -152,7 +152,7 @@ def test_stacked_adam_is_torchs_adam_up_to_rounding() -> None:
     each (the bound is a few % of the move, not a blanket)."""
     p0 = th.randn(8, 1, 19, generator=_generator(3)).clamp(-3.9, 3.9)
     ours, theirs = p0.clone().requires_grad_(), p0.clone().requires_grad_()
-    opt, ref = make_adam([ours], 1e-3, 1e-5), th.optim.Adam([theirs], lr=1e-3, eps=1e-5, foreach=False)
+    opt, ref = StackedAdam([ours], 1e-3, 1e-5), th.optim.Adam([theirs], lr=1e-3, eps=1e-5, foreach=False)
     for s in range(60):
         g = th.randn(8, 1, 19, generator=_generator(200 + s))
         ours.grad, theirs.grad = g.clone(), g.clone()

@@ -18,8 +18,8 @@ from nutribench.agents.config import load_agent_config
 from nutribench.config import load_env_config
 from nutribench.engine.ddqn import ddqn_update, q_linears
 from nutribench.engine.envs import AgentEnvs
-from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, StackedReplay, linear_schedule
-from nutribench.engine.stacked import StackedMLP, make_adam
+from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, StackedReplay
+from nutribench.engine.stacked import StackedAdam, StackedMLP
 from nutribench.engine.train import train_batched
 from tests.conftest import random_batch, sb3_model, sb3_updates, shake
 
@@ -89,11 +89,11 @@ def test_one_ddqn_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -
     for j, (_, m) in enumerate(models):
         q.load_linears(j, q_linears(m.q_net))
         q_target.load_linears(j, q_linears(m.q_net_target))
-    optimizer = make_adam(q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
+    optimizer = StackedAdam(q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
     rng = np.random.default_rng(3)
     for progress in (0.9, 0.6):
         batch = random_batch(rng, k, b, OBS_DIM, 20.0, GAMMA, n_step=5)
-        lr = linear_schedule(cfg.learning_rate_start, cfg.learning_rate_end, 1.0, progress)
+        lr = LinearSchedule(cfg.learning_rate_start, cfg.learning_rate_end, 1.0)(progress)
         losses = ddqn_update(q, q_target, optimizer, batch, lr, cfg.max_grad_norm)
         for j, (_, m) in enumerate(models):
             sample = ReplayBufferSamples(
@@ -111,12 +111,6 @@ def test_one_ddqn_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -
             for i, lin in enumerate(q_linears(m.q_net)):
                 np.testing.assert_allclose(q.params[2 * i][j].detach().T, lin.weight.detach(), rtol=1e-4, atol=1e-6)
                 np.testing.assert_allclose(q.params[2 * i + 1][j, 0].detach(), lin.bias.detach(), rtol=1e-4, atol=1e-6)
-
-
-@pytest.mark.parametrize("progress", [1.0, 0.97, 0.9, 0.5, 0.0])
-def test_schedules_equal_sb3_s(progress: float) -> None:
-    assert linear_schedule(1.0, 0.05, 0.1, progress) == pytest.approx(LinearSchedule(1.0, 0.05, 0.1)(progress))
-    assert linear_schedule(1e-3, 1e-4, 1.0, progress) == pytest.approx(LinearSchedule(1e-3, 1e-4, 1.0)(progress))
 
 
 def test_observations_are_normalised_as_vecnormalize_does() -> None:

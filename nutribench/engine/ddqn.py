@@ -31,12 +31,13 @@ from typing import Any
 
 import numpy as np
 import torch as th
+from stable_baselines3.common.utils import LinearSchedule
 from torch.nn import functional as F
 
 from nutribench import diagnostics as names
 from nutribench.engine.envs import AgentEnvs
 from nutribench.engine.evaluate import Greedy
-from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, BatchedOffPolicyAlgorithm, linear_schedule
+from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, BatchedOffPolicyAlgorithm
 from nutribench.engine.stacked import (
     AgentMeans,
     StackedAdam,
@@ -44,7 +45,6 @@ from nutribench.engine.stacked import (
     clip_grad_norm_per_agent,
     linears,
     load_params,
-    make_adam,
 )
 
 
@@ -92,7 +92,12 @@ class BatchedDDQN(BatchedOffPolicyAlgorithm):
         self.q = StackedMLP(self.k, sizes, generators=self.init_generators(), device=device)
         self.q_target = StackedMLP(self.k, sizes, device=device)
         self.q_target.copy_from(self.q)
-        self.optimizer = make_adam(self.q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
+        self.optimizer = StackedAdam(self.q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
+        #: SB3's schedules of the learning rate (over the budget) and of epsilon
+        self.lr_schedule = LinearSchedule(cfg.learning_rate_start, cfg.learning_rate_end, 1.0)
+        self.exploration = LinearSchedule(
+            cfg.exploration_initial_eps, cfg.exploration_final_eps, cfg.exploration_fraction
+        )
         # SB3's DQN: epsilon 0 until its first step's schedule update (read only if learning_starts = 0)
         self.state = {"epsilon": 0.0, "copies": 0}
         self.n_step = cfg.n_step
@@ -109,18 +114,14 @@ class BatchedDDQN(BatchedOffPolicyAlgorithm):
         return lambda obs: (self.q.forward(obs).argmax(dim=-1), None)  # SB3's DQN: argmax Q, no entropy
 
     def after_step(self, steps: int, progress_remaining: float) -> None:
-        cfg = self.cfg
-        if steps % cfg.target_update_interval == 0:
+        if steps % self.cfg.target_update_interval == 0:
             self.q_target.copy_from(self.q)
             self.state["copies"] += 1
-        self.state["epsilon"] = linear_schedule(
-            cfg.exploration_initial_eps, cfg.exploration_final_eps, cfg.exploration_fraction, progress_remaining
-        )
+        self.state["epsilon"] = self.exploration(progress_remaining)
 
     def update(self, steps: int, progress_remaining: float, batch: Batch) -> None:
-        cfg = self.cfg
-        lr = linear_schedule(cfg.learning_rate_start, cfg.learning_rate_end, 1.0, progress_remaining)
-        losses = ddqn_update(self.q, self.q_target, self.optimizer, batch, lr, cfg.max_grad_norm, self.means)
+        lr = self.lr_schedule(progress_remaining)
+        losses = ddqn_update(self.q, self.q_target, self.optimizer, batch, lr, self.cfg.max_grad_norm, self.means)
         self.means.add(**{names.LEARNING_RATE: lr, names.EPSILON: self.state["epsilon"]})
         if self.on_update is not None:
             self.on_update(

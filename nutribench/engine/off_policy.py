@@ -1,5 +1,5 @@
 """What the batched engine's off-policy algorithms (DDQN, discrete SAC) share: one replay
-per agent with SB3's sampling, SB3's linear schedule, and SB3's ``OffPolicyAlgorithm.learn``
+per agent with SB3's sampling, and SB3's ``OffPolicyAlgorithm.learn``
 loop for K agents stepped together (:class:`BatchedOffPolicyAlgorithm`).
 
 The loop, per agent as SB3 runs it with one env: act (the algorithm decides: uniformly
@@ -31,12 +31,6 @@ from nutribench.engine.algorithm import BatchedAlgorithm
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs
 from nutribench.engine.stacked import AgentMeans
-
-
-def linear_schedule(start: float, end: float, fraction: float, progress_remaining: float) -> float:
-    """SB3's ``LinearSchedule``: ``start`` to ``end`` over the first ``fraction`` of training."""
-    done = 1.0 - progress_remaining
-    return end if done > fraction else start + done * (end - start) / fraction
 
 
 @dataclass

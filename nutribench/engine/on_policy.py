@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 import torch as th
+from stable_baselines3.common.utils import explained_variance
 
 from nutribench import diagnostics as names
 from nutribench.agents.api import CLIP_OBS, NORM_EPS
@@ -46,11 +47,8 @@ from nutribench.engine.stacked import (
     RunningStats,
     StackedAdam,
     clip_grad_norm_per_agent,
-    explained_variance_per_agent,
     load_params,
-    make_adam,
     per_agent,
-    step_per_agent,
 )
 
 ADAM_EPS = 1e-5  # SB3's ActorCriticPolicy passes eps=1e-5 to Adam
@@ -133,7 +131,7 @@ def normalized(adv: th.Tensor) -> th.Tensor:
 
 def gradient_step(
     params: list[th.Tensor],
-    optimizer: th.optim.Optimizer,
+    optimizer: StackedAdam,
     settings: OnPolicySettings,
     policy_loss: th.Tensor,
     value_loss: th.Tensor,
@@ -150,7 +148,7 @@ def gradient_step(
     optimizer.zero_grad()
     loss.sum().backward()  # disjoint parameters: each agent gets its own loss's gradient
     norms = clip_grad_norm_per_agent(params, settings.max_grad_norm, k)
-    step_per_agent(optimizer, params, settings.learning_rate, settings.active, k)
+    optimizer.step(active=settings.active)
     if means is not None:
         means.add(
             **{
@@ -160,13 +158,6 @@ def gradient_step(
                 names.GRAD_NORM: norms,
             }
         )
-
-
-def make_optimizer(net: Any, learning_rate: float | np.ndarray) -> StackedAdam:
-    """The on-policy agents' Adam (SB3's actor-critic policies: eps 1e-5) over ``net.params``;
-    with a learning rate per agent, :func:`step_per_agent` hands each step the agents' rates
-    (the optimizer's own rate, 1, is then unused)."""
-    return make_adam(net.params, 1.0 if isinstance(learning_rate, np.ndarray) else learning_rate, ADAM_EPS)
 
 
 class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
@@ -192,7 +183,7 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         self.settings = OnPolicySettings.for_agents(self.cfgs, envs.horizon)
         self.net = self.make_network(self.init_generators())
         self.actor = self.make_actor(self.net)
-        self.optimizer = make_optimizer(self.net, self.settings.learning_rate)
+        self.optimizer = StackedAdam(self.net.params, self.settings.learning_rate, ADAM_EPS)
         self.ret_stats = RunningStats(self.k) if cfg.normalize_reward else None
         self.discounted = np.zeros(self.k)  # each agent's discounted return so far (reward scaling)
         self.means = AgentMeans()
@@ -340,9 +331,9 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         """The diagnostics of the update just made on ``rollout`` (one read of the device's sums)."""
         row: dict[str, Any] = {
             **self.means.means(),
-            names.EXPLAINED_VARIANCE: explained_variance_per_agent(
-                rollout.values.cpu().numpy(), rollout.returns.cpu().numpy()
-            ),
+            names.EXPLAINED_VARIANCE: [
+                explained_variance(v, r) for v, r in zip(rollout.values.cpu().numpy(), rollout.returns.cpu().numpy())
+            ],
             names.LEARNING_RATE: self.settings.learning_rate,
         }
         if self.ret_stats is not None:

@@ -20,9 +20,9 @@ class OnPolicySettings:
     Each continuous setting is one float for all K agents, read only in :func:`gradient_step`
     (``ent_coef``, ``vf_coef``, ``max_grad_norm``), :func:`~nutribench.engine.ppo.ppo_step`
     (``clip_range``), :meth:`BatchedOnPolicyAlgorithm.scale_rewards` (``gamma``),
-    :meth:`BatchedOnPolicyAlgorithm.compute_returns` (``gamma``, ``gae_lambda``),
-    :func:`make_optimizer` and :meth:`BatchedOnPolicyAlgorithm.log_update` (``learning_rate``), so a
-    per-agent value (a ``(K,)`` array) changes those reads only."""
+    :meth:`BatchedOnPolicyAlgorithm.compute_returns` (``gamma``, ``gae_lambda``), the optimiser
+    (:class:`~nutribench.engine.stacked.StackedAdam`) and :meth:`BatchedOnPolicyAlgorithm.log_update`
+    (``learning_rate``), so a per-agent value (a ``(K,)`` array) changes those reads only."""
 
     learning_rate: float | np.ndarray
     n_steps: int

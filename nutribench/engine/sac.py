@@ -40,12 +40,11 @@ from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, BatchedOffPolicyAlgorithm
 from nutribench.engine.stacked import (
     AgentMeans,
+    StackedAdam,
     StackedMLP,
     linears,
     load_params,
-    make_adam,
     per_agent,
-    step_per_agent,
 )
 
 #: the fields of an agent config that name it, not what it trains
@@ -81,10 +80,6 @@ class SACSettings:
             values[name] = column[0] if len(set(column)) == 1 else np.asarray(column, dtype=np.float64)
         return cls(**values)
 
-    @property
-    def per_agent(self) -> bool:
-        return any(isinstance(getattr(self, n), np.ndarray) for n in self.CONTINUOUS) or self.active is not None
-
 
 class StackedSAC:
     """The K agents' actors (a K-stack), critics and target critics (2K-stacks: agent ``j``'s
@@ -107,10 +102,8 @@ class StackedSAC:
         self.critic = StackedMLP(2 * k, sizes, None if generators is None else generators + generators, device)
         self.critic_target = StackedMLP(2 * k, sizes, device=device)
         self.critic_target.copy_from(self.critic)
-        # a rate per agent: step_per_agent hands each step the agents' rates (the optimizer's own, 1, unused)
-        rate = lambda lr: 1.0 if isinstance(lr, np.ndarray) else lr  # noqa: E731
-        self.actor_optimizer = make_adam(self.actor.params, rate(actor_lr), OFF_POLICY_ADAM_EPS)
-        self.critic_optimizer = make_adam(self.critic.params, rate(critic_lr), OFF_POLICY_ADAM_EPS)
+        self.actor_optimizer = StackedAdam(self.actor.params, actor_lr, OFF_POLICY_ADAM_EPS)
+        self.critic_optimizer = StackedAdam(self.critic.params, critic_lr, OFF_POLICY_ADAM_EPS)
 
     def twin_q(self, obs: th.Tensor, target: bool = False) -> tuple[th.Tensor, th.Tensor]:
         """``(Q1, Q2)`` at ``obs (K, B, d)``, each ``(K, B, n_actions)``."""
@@ -159,13 +152,13 @@ def sac_update(
     gamma: float | np.ndarray,
     tau: float | np.ndarray,
     means: AgentMeans | None = None,
-    settings: SACSettings | None = None,
+    active: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """One gradient step of :meth:`DiscreteSAC.train` for the K agents: critics, then actor,
     then targets. Returns each agent's critic and actor loss ``(K,)``; they and the mean of
     the twin critics' minimum at the actions taken go to ``means``. ``alpha``, ``gamma``,
-    ``tau``: one for all or ``(K,)``; ``settings`` (per-agent learning rates, frozen agents)
-    when the agents' steps differ."""
+    ``tau``: one for all or ``(K,)``; ``active``: the agents whose steps are taken (None: all; the
+    learning rates, one or per agent, are the optimisers' own)."""
     alpha_k, gamma_k = per_agent(alpha, batch.rewards, 3), per_agent(gamma, batch.rewards, 2)
     with th.no_grad():
         probs_next, log_probs_next = net.policy(batch.next_obs)
@@ -178,7 +171,7 @@ def sac_update(
     critic_loss = (q1_taken - y).pow(2).mean(dim=1) + (q2_taken - y).pow(2).mean(dim=1)
     net.critic_optimizer.zero_grad()
     critic_loss.sum().backward()
-    _step(net.critic_optimizer, net.critic.params, net.k, settings, "critic_learning_rate")
+    net.critic_optimizer.step(active=active)
 
     probs, log_probs = net.policy(batch.obs)
     with th.no_grad():
@@ -187,7 +180,7 @@ def sac_update(
     actor_loss = (probs * (alpha_k * log_probs - min_q)).sum(dim=-1).mean(dim=1)
     net.actor_optimizer.zero_grad()
     actor_loss.sum().backward()
-    _step(net.actor_optimizer, net.actor.params, net.k, settings, "actor_learning_rate")
+    net.actor_optimizer.step(active=active)
 
     with th.no_grad():  # SB3's polyak_update: targ * (1 - tau) + tau * online
         # each agent's rate on both its critics' rows, 1 - tau in float64 as for one float tau: an
@@ -204,16 +197,6 @@ def sac_update(
             }
         )
     return {"critic_loss": critic_loss.detach().cpu().numpy(), "actor_loss": actor_loss.detach().cpu().numpy()}
-
-
-def _step(
-    optimizer: th.optim.Optimizer, params: list[th.Tensor], k: int, settings: SACSettings | None, lr: str
-) -> None:
-    """The optimizer's step: plain, or with each agent's rate and only for active agents."""
-    if settings is None or not settings.per_agent:
-        optimizer.step()
-    else:
-        step_per_agent(optimizer, params, getattr(settings, lr), settings.active, k)
 
 
 class BatchedSAC(BatchedOffPolicyAlgorithm):
@@ -253,7 +236,7 @@ class BatchedSAC(BatchedOffPolicyAlgorithm):
     def update(self, steps: int, progress_remaining: float, batch: Batch) -> None:
         st = self.settings
         tau = st.tau if st.active is None else np.where(st.active, st.tau, 0.0)  # a frozen agent's targets stay too
-        losses = sac_update(self.net, batch, st.alpha, st.gamma, tau, self.means, st)
+        losses = sac_update(self.net, batch, st.alpha, st.gamma, tau, self.means, st.active)
         as_logged = lambda v: th.as_tensor(v, dtype=th.float32) if isinstance(v, np.ndarray) else v  # noqa: E731
         self.means.add(**{names.ENT_COEF: as_logged(st.alpha), names.LEARNING_RATE: as_logged(st.critic_learning_rate)})
         if self.on_update is not None:

@@ -6,7 +6,7 @@ leading agent axis, and what keeps each agent's update its own.
   ``torch.nn.Linear`` (Kaiming-uniform) initialise one agent's, applied with
   ``torch.baddbmm``;
 * :func:`clip_grad_norm_per_agent`: ``clip_grad_norm_`` over each agent's own parameters;
-* :class:`StackedAdam` (:func:`make_adam`): Adam over stacked parameters, each agent at its own
+* :class:`StackedAdam`: Adam over stacked parameters, each agent at its own
   rate: torch's Adam at rate 1 (fused where that is batch-invariant), each row's move scaled by
   its agent's rate, alone or stacked alike;
 * :class:`RunningStats`: SB3's ``RunningMeanStd`` for K agents (``VecNormalize``'s statistics);
@@ -168,24 +168,6 @@ def per_agent(value: float | np.ndarray, like: th.Tensor, ndim: int = 1) -> floa
     return th.as_tensor(value, dtype=like.dtype, device=like.device).reshape(-1, *([1] * (ndim - 1)))
 
 
-def step_per_agent(
-    optimizer: StackedAdam,
-    params: list[th.Tensor],
-    learning_rate: float | np.ndarray,
-    active: np.ndarray | None = None,
-    k: int | None = None,
-) -> None:
-    """``optimizer.step()`` with each agent's own learning rate (a ``(K,)`` array, or one rate
-    for all) and only for the ``active`` agents (an inactive agent's rate is 0: its weights
-    stay as they are). ``params`` and ``k`` as :func:`clip_grad_norm_per_agent`: a parameter's
-    row ``i * K + j`` is agent ``j``'s."""
-    k = params[0].shape[0] if k is None else k
-    rates = np.array(np.broadcast_to(np.asarray(learning_rate, dtype=np.float64), (k,)))
-    if active is not None:
-        rates = np.where(active, rates, 0.0)
-    optimizer.step(rates=rates)
-
-
 #: the most floats one CPU vector register holds (AVX-512); see :class:`StackedAdam`
 VECTOR_FLOATS = 16
 
@@ -212,11 +194,13 @@ class StackedAdam(th.optim.Adam):
     every element alike; every other parameter fills whole vectors at every K and is fused
     (on this CPU 0.3 ms a step instead of 3.9 ms for K = 35).
 
-    :meth:`step` takes ``rates``: a ``(K,)`` array of per-agent rates (0: no move), the row
-    ``i * K + j`` of a parameter being agent ``j``'s; without it, ``rate`` for all. The state
-    and its ``state_dict`` are torch Adam's (its own rate, 1, in the groups)."""
+    ``rate`` (:attr:`rate`, which a schedule may change between steps): one for all agents, or a
+    ``(K,)`` array of per-agent rates (0: no move), the row ``i * K + j`` of a parameter being
+    agent ``j``'s; :meth:`step` takes ``active``, a ``(K,)`` bool array (None: all): an inactive
+    agent's rate is 0, its weights stay as they are. The state and its ``state_dict`` are torch
+    Adam's (its own rate, 1, in the groups)."""
 
-    def __init__(self, params: list[th.Tensor], rate: float, eps: float):
+    def __init__(self, params: list[th.Tensor], rate: float | np.ndarray, eps: float):
         fused = [p for p in params if math.prod(p.shape[1:]) % VECTOR_FLOATS == 0]
         rest = [p for p in params if math.prod(p.shape[1:]) % VECTOR_FLOATS != 0]
         groups = ([{"params": fused}] if fused else []) + (
@@ -231,10 +215,12 @@ class StackedAdam(th.optim.Adam):
         self._params = list(params)
 
     @th.no_grad()
-    def step(self, closure: None = None, rates: np.ndarray | None = None) -> None:  # type: ignore[override]
+    def step(self, closure: None = None, active: np.ndarray | None = None) -> None:  # type: ignore[override]
         if closure is not None:
             raise ValueError("StackedAdam takes no closure")
-        rates = np.array([self.rate], dtype=np.float64) if rates is None else rates
+        rates = np.atleast_1d(np.asarray(self.rate, dtype=np.float64))
+        if active is not None:
+            rates = np.where(active, rates, 0.0)
         for p, p0 in zip(self._params, self._before):
             if p.shape[0] % len(rates):
                 raise ValueError(f"a parameter of {p.shape[0]} rows does not stack {len(rates)} agents")
@@ -243,12 +229,6 @@ class StackedAdam(th.optim.Adam):
         for p, p0 in zip(self._params, self._before):
             per_row = th.as_tensor(np.tile(rates, p.shape[0] // len(rates)), dtype=p.dtype, device=p.device)
             p.sub_(p0).mul_(per_row.reshape(-1, *([1] * (p.ndim - 1)))).add_(p0)
-
-
-def make_adam(params: list[th.Tensor], learning_rate: float, eps: float) -> StackedAdam:
-    """Adam over stacked parameters (:class:`StackedAdam`) at ``learning_rate`` (the rate
-    when one rate serves every agent; :func:`step_per_agent` passes per-agent rates)."""
-    return StackedAdam(params, learning_rate, eps)
 
 
 class AgentMeans:
@@ -288,11 +268,3 @@ class AgentMeans:
         out.update({n: v / self._counts[n] for n, v in self._sums.items() if not isinstance(v, th.Tensor)})
         self._sums, self._counts = {}, {}
         return out
-
-
-def explained_variance_per_agent(values: np.ndarray, returns: np.ndarray) -> np.ndarray:
-    """SB3's ``explained_variance`` per agent: ``1 - Var(returns - values) / Var(returns)``
-    over each row of ``(K, T)`` arrays (NaN where the returns do not vary)."""
-    var_y = returns.var(axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(var_y == 0, np.nan, 1.0 - (returns - values).var(axis=1) / var_y)
