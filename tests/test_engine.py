@@ -348,7 +348,7 @@ def test_one_gru_ppo_update_of_stacked_agents_equals_gru_ppo_s_update_of_each_al
         m.train()
     gru_ppo_update(net, optimizer, _rollout_of(models), settings, np.stack(perms, axis=1))
     for j, m in enumerate(models):
-        for ours, theirs in net._sb3_pairs(m.policy, j):
+        for ours, theirs in net.sb3_pairs(j, m.policy):
             np.testing.assert_allclose(ours.detach().numpy(), theirs.detach().numpy(), rtol=1e-4, atol=1e-6)
 
 

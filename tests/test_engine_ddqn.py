@@ -87,8 +87,8 @@ def test_one_ddqn_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -
     sizes = [OBS_DIM, *cfg.net_arch, 2]
     q, q_target = StackedMLP(k, sizes), StackedMLP(k, sizes)
     for j, (_, m) in enumerate(models):
-        q.load_linears(j, q_linears(m.q_net))
-        q_target.load_linears(j, q_linears(m.q_net_target))
+        q.load_sb3(j, q_linears(m.q_net))
+        q_target.load_sb3(j, q_linears(m.q_net_target))
     optimizer = StackedAdam(q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
     rng = np.random.default_rng(3)
     for progress in (0.9, 0.6):

@@ -17,7 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 from nutribench.agents.config import agents_dir, load_agent_config
-from nutribench.agents.registry import batched_class, paper_names
+from nutribench.agents.registry import paper_names
 from nutribench.engine import UnsupportedConfig, check_supported, supports
 from nutribench.errors import UserError
 from nutribench.scheduler.driver import GridSettings, run_grid
@@ -82,9 +82,9 @@ def test_the_engine_refuses_an_unsupported_config_before_training(
     monkeypatch.setattr(AgentEnvs, "__init__", no_env)
     with pytest.raises(UnsupportedConfig, match="--engine sb3"):
         train_batched([("run0", 0)], name, 2)
-    cfg = load_agent_config(name)  # the class's own entry refuses it too
-    with pytest.raises(UnsupportedConfig):
-        batched_class(cfg.algo).train_jobs([("run0", 0)], cfg, 2)
+    algo = load_agent_config(name).algo  # as one of a batch's per-agent configs too
+    with pytest.raises(UnsupportedConfig, match="--engine sb3"):
+        train_batched([("run0", 0)], algo, 2, agent_configs=[name])
 
 
 def test_batch_pools_send_unsupported_configs_to_the_sb3_engine(agents: Path) -> None:

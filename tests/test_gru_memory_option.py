@@ -139,7 +139,7 @@ def test_batched_without_memory_every_path_plays_each_step_from_the_zero_state_a
             acted.append(actor(days[0, t : t + 1], th.tensor([float(t == 0)]))[0])
         state, played = th.zeros(2, 2, 128), []
         for t in range(days.shape[1]):
-            logits, state = net.step_days(days[:, t].unsqueeze(0), state)
+            logits, _, state = net.step_days(days[:, t].unsqueeze(0), state)
             played.append(logits[0])
         alone, _ = net.sequences(days.reshape(1, -1, 1, 13))
         feats, _ = model.policy.unroll(days, model.policy.initial_state(2), th.zeros(2, days.shape[1]))

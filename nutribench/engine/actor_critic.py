@@ -16,12 +16,12 @@ import torch as th
 from nutribench.engine.device import leaves_on
 from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.on_policy import BatchedOnPolicyAlgorithm, log_prob_entropy
-from nutribench.engine.stacked import linears, orthogonal
+from nutribench.engine.stacked import SB3Weights, linear_pairs, linears, orthogonal
 
 GAINS = (math.sqrt(2), math.sqrt(2), 0.01, 1.0)  # backbone layers, actor head, value head
 
 
-class StackedActorCritic:
+class StackedActorCritic(SB3Weights):
     """K copies of the shared actor-critic: parameters of shape ``(K, ...)``.
 
     Layers are ``(W, b)`` with ``W: (K, in, out)``, ``b: (K, 1, out)``: the backbone's layers,
@@ -72,26 +72,16 @@ class StackedActorCritic:
         out = th.baddbmm(p[-1], x, p[-2])
         return out[..., : self.n_actions], out[..., self.n_actions]
 
-    def load_sb3(self, j: int, policy) -> None:
-        """Copy the weights of an SB3 ``ActorCriticPolicy`` (nutribench's backbone) into agent ``j``."""
-        with th.no_grad():
-            for i, lin in enumerate(linears(policy.features_extractor.net)):
-                self.params[2 * i][j].copy_(lin.weight.T)
-                self.params[2 * i + 1][j, 0].copy_(lin.bias)
-            self.params[-2][j].copy_(th.cat([policy.action_net.weight, policy.value_net.weight]).T)
-            self.params[-1][j, 0].copy_(th.cat([policy.action_net.bias, policy.value_net.bias]))
-
-    def store_sb3(self, j: int, policy) -> None:
-        """Copy agent ``j``'s weights into an SB3 ``ActorCriticPolicy`` of the same shape."""
-        a = self.n_actions
-        with th.no_grad():
-            for i, lin in enumerate(linears(policy.features_extractor.net)):
-                lin.weight.copy_(self.params[2 * i][j].T)
-                lin.bias.copy_(self.params[2 * i + 1][j, 0])
-            policy.action_net.weight.copy_(self.params[-2][j][:, :a].T)
-            policy.value_net.weight.copy_(self.params[-2][j][:, a:].T)
-            policy.action_net.bias.copy_(self.params[-1][j, 0, :a])
-            policy.value_net.bias.copy_(self.params[-1][j, 0, a:])
+    def sb3_pairs(self, j: int, policy) -> list[tuple[th.Tensor, th.Tensor]]:
+        """Agent ``j``'s parameters and an SB3 ``ActorCriticPolicy``'s (nutribench's backbone)."""
+        a, p = self.n_actions, self.params
+        return [
+            *linear_pairs(p, j, linears(policy.features_extractor.net)),
+            (p[-2][j][:, :a], policy.action_net.weight.T),
+            (p[-2][j][:, a:], policy.value_net.weight.T),
+            (p[-1][j, 0, :a], policy.action_net.bias),
+            (p[-1][j, 0, a:], policy.value_net.bias),
+        ]
 
 
 class FeedforwardActor:

@@ -31,12 +31,8 @@ import torch as th
 
 from nutribench import diagnostics as names
 from nutribench.agents.api import TrainedAgent
-from nutribench.agents.validation import DEFAULT_VAL_EPISODES, ValidationFn, check_eval_every
-from nutribench.config import EnvConfig, load_env_config
-from nutribench.engine import check_supported
 from nutribench.engine.checkpoint import Checkpoint, CheckpointRefused
-from nutribench.engine.device import resolve_device
-from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn, OtherJobs, as_trained_agent
+from nutribench.engine.envs import AgentEnvs, OtherJobs, as_trained_agent
 from nutribench.engine.evaluate import BatchValidator, Greedy
 from nutribench.engine.stacked import RunningStats
 
@@ -72,56 +68,12 @@ class BatchedAlgorithm:
         self.num_timesteps = 0
         #: the evaluations during training (``train_batched``'s ``eval_every``), None: none
         self.validator: BatchValidator | None = None
-
-    @classmethod
-    def train_jobs(
-        cls,
-        jobs: Sequence[tuple[str | EnvConfig, int]],
-        cfg: Any,
-        episodes: int,
-        on_episode: AgentEpisodeFn | None = None,
-        checkpoint: Checkpoint | None = None,
-        device: str | th.device = "cpu",
-        on_rollout: Callable[[dict[str, np.ndarray]], None] | None = None,
-        on_update: Callable[[dict[str, Any]], None] | None = None,
-        eval_every: int | None = None,
-        val_episodes: int = DEFAULT_VAL_EPISODES,
-        on_validation: ValidationFn | None = None,
-        agent_configs: Sequence[Any] | None = None,
-        active: np.ndarray | None = None,
-        return_agents: bool = True,
-    ) -> list[TrainedAgent]:
-        """Train one agent of ``cfg`` (a config of this algorithm) per ``(regime, seed)`` of
-        ``jobs`` for ``episodes`` days, all at once, and hand each back with its diagnostics
-        (:func:`~nutribench.engine.train.train_batched` says what the arguments do; with
-        ``return_agents`` False none: ``[]``, no SB3 model built)."""
-        horizon = load_env_config(jobs[0][0]).reward.horizon if jobs else None
-        for c in agent_configs or [cfg]:
-            check_supported(c, horizon)  # before anything trains
-        device = resolve_device(device)
-        every = check_eval_every(eval_every, val_episodes)
-
-        def made() -> BatchedAlgorithm:
-            envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
-            algorithm = cls(cfg, envs, device, agent_configs)
-            algorithm.set_active(active)
-            algorithm.on_rollout, algorithm.on_update = on_rollout, on_update
-            if every:
-                algorithm.validator = BatchValidator(envs, every, val_episodes, on_validation)
-            return algorithm
-
-        algorithm = made()
-        try:
-            wall = algorithm.learn(episodes * algorithm.envs.horizon, checkpoint)
-        except CheckpointRefused as exc:  # its state did not fit (raised before any step): start over without it
-            checkpoint.refuse(exc)
-            algorithm = made()
-            wall = algorithm.learn(episodes * algorithm.envs.horizon, checkpoint)
-        algorithm.day_boundary(episodes * algorithm.envs.horizon)  # the evaluation after the last day
-        return algorithm.trained_agents(episodes, wall) if return_agents else []
+        #: the agents' running statistics of the discounted return (reward scaling), if any
+        self.ret_stats: RunningStats | None = None
 
     def trained_agents(self, episodes: int, wall: float) -> list[TrainedAgent]:
-        """Each agent as the SB3 engine's :class:`~nutribench.agents.api.TrainedAgent` of its
+        """Each agent (trained for ``episodes`` days in ``wall`` seconds, the batch's) as the SB3
+        engine's :class:`~nutribench.agents.api.TrainedAgent` of its
         config (:func:`~nutribench.engine.envs.as_trained_agent`), with its ``diagnostics``."""
         agents = []
         for j in range(self.k):
@@ -131,7 +83,7 @@ class BatchedAlgorithm:
                 self.cfgs[j],
                 episodes,
                 lambda model, j=j: self.store_weights(j, model),
-                self.return_stats,
+                self.ret_stats,
                 wall / self.k,
                 str(self.device),
             )
@@ -210,11 +162,6 @@ class BatchedAlgorithm:
         after a day's end, the evaluation during training that is due (:attr:`validator`)."""
         if self.validator is not None:
             self.validator.at(steps, self.greedy, self.device)
-
-    @property
-    def return_stats(self) -> RunningStats | None:
-        """The agents' running statistics of the discounted return (reward scaling), if any."""
-        return None
 
     def record(self, timestep: int, values: dict[str, Any]) -> None:
         """Append one diagnostics dict to each agent's list: ``update`` (its index), ``timestep``

@@ -154,5 +154,5 @@ class BatchedDDQN(BatchedOffPolicyAlgorithm):
 
 
 def _store(q: StackedMLP, q_target: StackedMLP, j: int, model: Any) -> None:
-    q.store_linears(j, q_linears(model.q_net))
-    q_target.store_linears(j, q_linears(model.q_net_target))
+    q.store_sb3(j, q_linears(model.q_net))
+    q_target.store_sb3(j, q_linears(model.q_net_target))

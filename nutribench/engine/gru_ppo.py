@@ -33,7 +33,7 @@ from nutribench.engine.device import leaves_on
 from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.on_policy import Minibatch, OnPolicySettings, Rollout, log_prob_entropy
 from nutribench.engine.ppo import BatchedPPO, ppo_step
-from nutribench.engine.stacked import AgentMeans, orthogonal
+from nutribench.engine.stacked import AgentMeans, SB3Weights, orthogonal
 
 N_NUTRIENTS = 3
 
@@ -90,7 +90,7 @@ class GRUSequence(th.autograd.Function):
         return d_gi, th.bmm(h_prev_all.transpose(1, 2), d_gh_flat), d_gh_flat.sum(dim=1, keepdim=True)
 
 
-class StackedGRUActorCritic:
+class StackedGRUActorCritic(SB3Weights):
     """K copies of ``GRUActorCriticPolicy``. Parameters, in order: the 2K cells' ``W_ih (2K,
     in, 3H)``, ``b_ih (2K, 1, 3H)``, ``W_hh (2K, H, 3H)``, ``b_hh (2K, 1, 3H)`` (gates r, z,
     n as nn.GRU), then the heads' first layers side by side ``(K, 2H, 2 x head)`` and bias,
@@ -195,26 +195,24 @@ class StackedGRUActorCritic:
         if not self.memory:
             starts = th.ones_like(starts)
         keep = (1.0 - starts).reshape(1, self.k, 1, 1).expand(2, -1, -1, -1).reshape(2 * self.k, 1, 1)
-        gi = th.baddbmm(self.params[1], self._inputs(obs.unsqueeze(1)), self.params[0])
-        h = self._cell(gi, state * keep)
-        logits, values = self._heads(th.cat([h[: self.k], h[self.k :]], dim=-1))
+        logits, values, h = self.step_days(obs.unsqueeze(1), state * keep)
         return logits[:, 0], values[:, 0], h
 
-    def step_days(self, obs: th.Tensor, state: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    def step_days(self, obs: th.Tensor, state: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """One step of ``B`` days side by side per agent: ``obs (K, B, d)``, ``state (2K, B, H)``;
-        logits ``(K, B, n_actions)`` and the new state (no reset: days start from zeros; without
-        memory every step does)."""
+        logits ``(K, B, n_actions)``, values ``(K, B)`` and the new state (no reset: days start
+        from zeros; without memory every step does)."""
         if not self.memory:
             state = th.zeros_like(state)
         gi = th.baddbmm(self.params[1], self._inputs(obs), self.params[0])
         h = self._cell(gi, state)
-        logits, _ = self._heads(th.cat([h[: self.k], h[self.k :]], dim=-1))
-        return logits, h
+        logits, values = self._heads(th.cat([h[: self.k], h[self.k :]], dim=-1))
+        return logits, values, h
 
     # ---- SB3's policy ----
 
-    def _sb3_pairs(self, policy, j: int):
-        """(our view, SB3 tensor in our layout) of agent ``j``'s every parameter."""
+    def sb3_pairs(self, j: int, policy) -> list[tuple[th.Tensor, th.Tensor]]:
+        """Agent ``j``'s parameters and a ``GRUActorCriticPolicy``'s."""
         k, H, a = self.k, self.hidden, self.n_actions
         p = self.params
         pairs = []
@@ -239,18 +237,6 @@ class StackedGRUActorCritic:
         ]
         assert H == policy.hidden_size and a == policy.action_space.n
         return pairs
-
-    def load_sb3(self, j: int, policy) -> None:
-        """Agent ``j``'s weights from a ``GRUActorCriticPolicy``."""
-        with th.no_grad():
-            for ours, theirs in self._sb3_pairs(policy, j):
-                ours.copy_(theirs)
-
-    def store_sb3(self, j: int, policy) -> None:
-        """Agent ``j``'s weights into a ``GRUActorCriticPolicy``."""
-        with th.no_grad():
-            for ours, theirs in self._sb3_pairs(policy, j):
-                theirs.copy_(ours)
 
 
 class RecurrentActor:
@@ -345,7 +331,7 @@ class BatchedGRUPPO(BatchedPPO):
         def play(obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
             if not state:
                 state.append(th.zeros(2 * self.k, obs.shape[1], self.net.hidden, device=obs.device))
-            logits, state[0] = self.net.step_days(obs, state[0])
+            logits, _, state[0] = self.net.step_days(obs, state[0])
             return greedy_categorical(logits)
 
         return play

@@ -213,10 +213,6 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
 
     # ---- the loop ----
 
-    @property
-    def return_stats(self) -> RunningStats | None:
-        return self.ret_stats
-
     def store_weights(self, j: int, model: Any) -> None:
         self.net.store_sb3(j, model.policy)
 

@@ -40,6 +40,7 @@ from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, BatchedOffPolicyAlgorithm
 from nutribench.engine.stacked import (
     AgentMeans,
+    SB3Weights,
     StackedAdam,
     StackedMLP,
     linears,
@@ -81,7 +82,7 @@ class SACSettings:
         return cls(**values)
 
 
-class StackedSAC:
+class StackedSAC(SB3Weights):
     """The K agents' actors (a K-stack), critics and target critics (2K-stacks: agent ``j``'s
     first critic at ``j``, its second at ``K + j``) and their two optimisers, initialised on
     the CPU and moved to ``device``."""
@@ -115,19 +116,12 @@ class StackedSAC:
         log_probs = th.log_softmax(self.actor.forward(obs), dim=-1)
         return log_probs.exp(), log_probs
 
-    def load_sb3(self, j: int, policy) -> None:
-        """Agent ``j``'s networks from a ``DiscreteSACPolicy``."""
-        self.actor.load_linears(j, linears(policy.actor))
+    def sb3_pairs(self, j: int, policy) -> list[tuple[th.Tensor, th.Tensor]]:
+        """Agent ``j``'s networks and a ``DiscreteSACPolicy``'s."""
+        pairs = self.actor.sb3_pairs(j, linears(policy.actor))
         for net, critic in ((self.critic, policy.critic), (self.critic_target, policy.critic_target)):
-            net.load_linears(j, linears(critic.q1))
-            net.load_linears(self.k + j, linears(critic.q2))
-
-    def store_sb3(self, j: int, policy) -> None:
-        """Agent ``j``'s networks into a ``DiscreteSACPolicy``."""
-        self.actor.store_linears(j, linears(policy.actor))
-        for net, critic in ((self.critic, policy.critic), (self.critic_target, policy.critic_target)):
-            net.store_linears(j, linears(critic.q1))
-            net.store_linears(self.k + j, linears(critic.q2))
+            pairs += net.sb3_pairs(j, linears(critic.q1)) + net.sb3_pairs(self.k + j, linears(critic.q2))
+        return pairs
 
     def state_dict(self) -> dict[str, Any]:
         """The networks' parameters and the optimisers' ``state_dict`` (a checkpoint keeps them)."""

@@ -20,6 +20,7 @@ each agent's gradient is its own loss's gradient.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -43,7 +44,37 @@ def linears(module: th.nn.Module) -> list[th.nn.Linear]:
     return [m for m in module if isinstance(m, th.nn.Linear)]
 
 
-class StackedMLP:
+def linear_pairs(params: list[th.Tensor], j: int, layers: list[th.nn.Linear]) -> list[tuple[th.Tensor, th.Tensor]]:
+    """Agent ``j``'s first stacked layers ``(W, b)`` of ``params`` and ``layers`` (``nn.Linear``), as
+    :meth:`SB3Weights.sb3_pairs` gives them."""
+    pairs = []
+    for i, lin in enumerate(layers):
+        pairs += [(params[2 * i][j], lin.weight.T), (params[2 * i + 1][j, 0], lin.bias)]
+    return pairs
+
+
+class SB3Weights:
+    """A stacked network whose agent ``j`` is copied from and into the SB3 policy (or the
+    ``nn.Linear`` layers) of one agent, parameter by parameter: :meth:`sb3_pairs`."""
+
+    def sb3_pairs(self, j: int, policy: Any) -> list[tuple[th.Tensor, th.Tensor]]:
+        """(our view, the SB3 tensor in our layout: a view of it) of each of agent ``j``'s parameters."""
+        raise NotImplementedError
+
+    def load_sb3(self, j: int, policy: Any) -> None:
+        """Agent ``j``'s weights from ``policy``."""
+        with th.no_grad():
+            for ours, theirs in self.sb3_pairs(j, policy):
+                ours.copy_(theirs)
+
+    def store_sb3(self, j: int, policy: Any) -> None:
+        """Agent ``j``'s weights into ``policy`` (of the same shapes)."""
+        with th.no_grad():
+            for ours, theirs in self.sb3_pairs(j, policy):
+                theirs.copy_(ours)
+
+
+class StackedMLP(SB3Weights):
     """K copies of an MLP ``obs -> net_arch -> n_out`` (ReLU): layers ``(W (K, in, out),
     b (K, 1, out))``, each agent initialised as ``torch.nn.Linear`` is, from its own generator
     (None: torch's global one), on the CPU, then moved to ``device``."""
@@ -83,19 +114,9 @@ class StackedMLP:
             for mine, theirs in zip(self.params, other.params):
                 mine.copy_(theirs)
 
-    def load_linears(self, j: int, linears: list[th.nn.Linear]) -> None:
-        """Agent ``j``'s weights from a list of ``nn.Linear`` (e.g. an SB3 ``QNetwork``'s)."""
-        with th.no_grad():
-            for i, lin in enumerate(linears):
-                self.params[2 * i][j].copy_(lin.weight.T)
-                self.params[2 * i + 1][j, 0].copy_(lin.bias)
-
-    def store_linears(self, j: int, linears: list[th.nn.Linear]) -> None:
-        """Agent ``j``'s weights into a list of ``nn.Linear`` of the same shapes."""
-        with th.no_grad():
-            for i, lin in enumerate(linears):
-                lin.weight.copy_(self.params[2 * i][j].T)
-                lin.bias.copy_(self.params[2 * i + 1][j, 0])
+    def sb3_pairs(self, j: int, policy: list[th.nn.Linear]) -> list[tuple[th.Tensor, th.Tensor]]:
+        """Agent ``j``'s layers and a list of ``nn.Linear`` of the same shapes (e.g. an SB3 ``QNetwork``'s)."""
+        return linear_pairs(self.params, j, policy)
 
 
 class RunningStats:

@@ -73,11 +73,14 @@ import torch as th
 import nutribench.agents.registry as registry
 from nutribench.agents.api import TrainedAgent, single_threaded
 from nutribench.agents.config import load_agent_config
-from nutribench.agents.validation import DEFAULT_VAL_EPISODES, ValidationFn
-from nutribench.config import EnvConfig
+from nutribench.agents.validation import DEFAULT_VAL_EPISODES, ValidationFn, check_eval_every
+from nutribench.config import EnvConfig, load_env_config
 from nutribench.engine import check_supported
-from nutribench.engine.checkpoint import Checkpoint
-from nutribench.engine.envs import AgentEpisodeFn
+from nutribench.engine.algorithm import BatchedAlgorithm
+from nutribench.engine.checkpoint import Checkpoint, CheckpointRefused
+from nutribench.engine.device import resolve_device
+from nutribench.engine.envs import AgentEnvs, AgentEpisodeFn
+from nutribench.engine.evaluate import BatchValidator
 
 
 @single_threaded()
@@ -106,19 +109,29 @@ def train_batched(
     """
     cfg = load_agent_config(agent_config)
     check_supported(cfg)
-    return registry.batched_class(cfg.algo).train_jobs(
-        jobs,
-        cfg,
-        episodes,
-        on_episode,
-        checkpoint=checkpoint,
-        device=device,
-        on_rollout=on_rollout,
-        on_update=on_update,
-        eval_every=eval_every,
-        val_episodes=val_episodes,
-        on_validation=on_validation,
-        agent_configs=None if agent_configs is None else [load_agent_config(c) for c in agent_configs],
-        active=active,
-        return_agents=return_agents,
-    )
+    agent_configs = None if agent_configs is None else [load_agent_config(c) for c in agent_configs]
+    horizon = load_env_config(jobs[0][0]).reward.horizon if jobs else None
+    for c in agent_configs or [cfg]:
+        check_supported(c, horizon)  # before anything trains
+    cls = registry.batched_class(cfg.algo)
+    device = resolve_device(device)
+    every = check_eval_every(eval_every, val_episodes)
+
+    def made() -> BatchedAlgorithm:
+        envs = AgentEnvs(jobs, cfg.normalize_obs, on_episode)
+        algorithm = cls(cfg, envs, device, agent_configs)
+        algorithm.set_active(active)
+        algorithm.on_rollout, algorithm.on_update = on_rollout, on_update
+        if every:
+            algorithm.validator = BatchValidator(envs, every, val_episodes, on_validation)
+        return algorithm
+
+    algorithm = made()
+    try:
+        wall = algorithm.learn(episodes * algorithm.envs.horizon, checkpoint)
+    except CheckpointRefused as exc:  # its state did not fit (raised before any step): start over without it
+        checkpoint.refuse(exc)
+        algorithm = made()
+        wall = algorithm.learn(episodes * algorithm.envs.horizon, checkpoint)
+    algorithm.day_boundary(episodes * algorithm.envs.horizon)  # the evaluation after the last day
+    return algorithm.trained_agents(episodes, wall) if return_agents else []
