@@ -327,7 +327,7 @@ def test_one_gru_ppo_update_of_stacked_agents_equals_gru_ppo_s_update_of_each_al
     weight of that head stays equal). The update code is the same in every epoch."""
     import dataclasses
 
-    from nutribench.engine.gru_ppo import StackedGRUActorCritic, gru_ppo_update
+    from nutribench.engine.gru_ppo import StackedGRUActorCritic
 
     th.set_num_threads(1)
     epochs = 3
@@ -346,7 +346,7 @@ def test_one_gru_ppo_update_of_stacked_agents_equals_gru_ppo_s_update_of_each_al
         perms.append([np.random.permutation(n_days) for _ in range(epochs)])
         np.random.seed(200 + j)
         m.train()
-    gru_ppo_update(net, optimizer, _rollout_of(models), settings, np.stack(perms, axis=1))
+    ppo_update(net, optimizer, _rollout_of(models), settings, np.stack(perms, axis=1))
     for j, m in enumerate(models):
         for ours, theirs in net.sb3_pairs(j, m.policy):
             np.testing.assert_allclose(ours.detach().numpy(), theirs.detach().numpy(), rtol=1e-4, atol=1e-6)

@@ -72,6 +72,12 @@ class StackedActorCritic(SB3Weights):
         out = th.baddbmm(p[-1], x, p[-2])
         return out[..., : self.n_actions], out[..., self.n_actions]
 
+    def evaluate_actions(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """``log pi(a|s)``, the policy's entropy and the values at ``obs (K, ..., d)`` and ``actions
+        (K, ...)``, each flattened to ``(K, B)``."""
+        logits, values = self.forward(obs.reshape(self.k, -1, obs.shape[-1]))
+        return *log_prob_entropy(logits, actions.reshape(self.k, -1)), values
+
     def sb3_pairs(self, j: int, policy) -> list[tuple[th.Tensor, th.Tensor]]:
         """Agent ``j``'s parameters and an SB3 ``ActorCriticPolicy``'s (nutribench's backbone)."""
         a, p = self.n_actions, self.params
@@ -102,15 +108,6 @@ class FeedforwardActor:
 
     def load_state_dict(self, state: dict) -> None:
         pass
-
-
-def evaluate_actions(
-    net: StackedActorCritic, obs: th.Tensor, actions: th.Tensor
-) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
-    """``log pi(a|s)``, the policy's entropy and the values at ``obs (K, B, d)``, each ``(K, B)``."""
-    logits, values = net.forward(obs)
-    log_prob, entropy = log_prob_entropy(logits, actions)
-    return log_prob, entropy, values
 
 
 class BatchedActorCriticAlgorithm(BatchedOnPolicyAlgorithm):

@@ -26,14 +26,13 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import torch as th
 
 from nutribench.engine.device import leaves_on
 from nutribench.engine.evaluate import Greedy, greedy_categorical
-from nutribench.engine.on_policy import Minibatch, OnPolicySettings, Rollout, log_prob_entropy
-from nutribench.engine.ppo import BatchedPPO, ppo_step
-from nutribench.engine.stacked import AgentMeans, SB3Weights, orthogonal
+from nutribench.engine.on_policy import log_prob_entropy
+from nutribench.engine.ppo import BatchedPPO
+from nutribench.engine.stacked import SB3Weights, orthogonal
 
 N_NUTRIENTS = 3
 
@@ -189,6 +188,13 @@ class StackedGRUActorCritic(SB3Weights):
         logits, values = self._heads(features)
         return logits.reshape(k, s, t_max, -1), values.reshape(k, s, t_max)
 
+    def evaluate_actions(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """``log pi(a|s)``, the policy's entropy and the values of whole days ``obs (K, S, T, d)``,
+        ``actions (K, S, T)`` replayed from the zero state (:meth:`sequences`), each ``(K, S T)``."""
+        logits, values = self.sequences(obs)
+        log_prob, entropy = log_prob_entropy(logits.reshape(self.k, -1, self.n_actions), actions.reshape(self.k, -1))
+        return log_prob, entropy, values.reshape(self.k, -1)
+
     def step(self, obs: th.Tensor, state: th.Tensor, starts: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """One acting step: ``obs (K, d)``, ``state (2K, 1, H)`` zeroed where ``starts (K,)``;
         logits ``(K, n_actions)``, values ``(K,)`` and the new state (zeroed everywhere without memory)."""
@@ -264,40 +270,6 @@ class RecurrentActor:
         self.state = state["state"].to(self.state.device)
 
 
-def gru_ppo_update(
-    net: StackedGRUActorCritic,
-    optimizer: th.optim.Optimizer,
-    rollout: Rollout,
-    settings: OnPolicySettings,
-    permutations: np.ndarray,
-    means: AgentMeans | None = None,
-) -> None:
-    """``GRUPPO.train()`` for the K agents: ``permutations (n_epochs, K, days)`` order each
-    agent's days in each epoch; minibatches of ``settings.batch_size`` days, each replayed
-    whole through the GRUs, then PPO's loss and step (:func:`~nutribench.engine.ppo.ppo_step`);
-    their losses and gradient norms into ``means``."""
-    k, t_all = rollout.actions.shape
-    seq = settings.sequence_length
-    n_seq = t_all // seq
-    days = lambda x: x.reshape(k, n_seq, seq, *x.shape[2:])  # noqa: E731
-    obs, actions, logp_old = days(rollout.obs), days(rollout.actions), days(rollout.log_probs)
-    advantages, returns = days(rollout.advantages), days(rollout.returns)
-    rows = th.arange(k, device=rollout.actions.device).unsqueeze(1)
-    for epoch in range(settings.n_epochs):
-        perm = th.as_tensor(permutations[epoch], device=rollout.actions.device)
-        for start in range(0, n_seq, settings.batch_size):
-            mb = perm[:, start : start + settings.batch_size]
-            logits, values = net.sequences(obs[rows, mb])
-            b = mb.shape[1] * seq
-            flat = lambda x, mb=mb, b=b: x[rows, mb].reshape(k, b)  # noqa: E731
-            log_prob, entropy = log_prob_entropy(logits.reshape(k, b, -1), flat(actions))
-            minibatch = Minibatch(
-                log_prob, entropy, values.reshape(k, b), flat(logp_old), flat(advantages), flat(returns)
-            )
-            last_epoch = epoch == settings.n_epochs - 1
-            ppo_step(net.params, optimizer, settings, minibatch, k=k, means=means, last_epoch=last_epoch)
-
-
 class BatchedGRUPPO(BatchedPPO):
     """K GRU-PPO agents: PPO's loop, loss and step with the stacked GRU actor-critic, its
     state carried while acting, its update over whole days."""
@@ -339,7 +311,3 @@ class BatchedGRUPPO(BatchedPPO):
     def units(self, steps: int) -> int:
         """Whole days: a permutation orders the rollout's days."""
         return steps // self.settings.sequence_length
-
-    def train(self, rollout: Rollout) -> None:
-        gru_ppo_update(self.net, self.optimizer, rollout, self.settings, self.permutations(rollout), self.means)
-        self.log_update(rollout)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import torch as th
 
-from nutribench.engine.actor_critic import BatchedActorCriticAlgorithm, StackedActorCritic, evaluate_actions
+from nutribench.engine.actor_critic import BatchedActorCriticAlgorithm, StackedActorCritic
 from nutribench.engine.on_policy import OnPolicySettings, Rollout, gradient_step, normalized
 from nutribench.engine.stacked import AgentMeans
 
@@ -28,7 +28,7 @@ def a2c_update(
 ) -> None:
     """SB3 ``A2C.train()`` for the K agents: one gradient step on the whole rollout; its
     losses and gradient norms into ``means``."""
-    log_prob, entropy, values = evaluate_actions(net, rollout.obs, rollout.actions)
+    log_prob, entropy, values = net.evaluate_actions(rollout.obs, rollout.actions)
     adv = normalized(rollout.advantages) if settings.normalize_advantage else rollout.advantages
     policy_loss = -(adv * log_prob).mean(dim=1)
     value_loss = (rollout.returns - values).pow(2).mean(dim=1)

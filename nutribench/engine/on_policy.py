@@ -66,19 +66,6 @@ class Rollout:
     returns: th.Tensor  # (K, T)
 
 
-@dataclass
-class Minibatch:
-    """One minibatch of the K agents, ``B`` samples each, every field ``(K, B)``: what the
-    policy gives now (``log_prob``, ``entropy``, ``values``) and what the rollout recorded."""
-
-    log_prob: th.Tensor
-    entropy: th.Tensor
-    values: th.Tensor
-    old_log_prob: th.Tensor
-    advantages: th.Tensor
-    returns: th.Tensor
-
-
 def gae(
     rewards: np.ndarray,
     values: np.ndarray,

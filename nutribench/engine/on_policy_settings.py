@@ -18,7 +18,7 @@ class OnPolicySettings:
     """What the rollout and the update read from an agent config (PPO, MC or GRU-PPO): the
     one place the on-policy loop and updates take their settings from (never the config).
     Each continuous setting is one float for all K agents, read only in :func:`gradient_step`
-    (``ent_coef``, ``vf_coef``, ``max_grad_norm``), :func:`~nutribench.engine.ppo.ppo_step`
+    (``ent_coef``, ``vf_coef``, ``max_grad_norm``), :func:`~nutribench.engine.ppo.ppo_update`
     (``clip_range``), :meth:`BatchedOnPolicyAlgorithm.scale_rewards` (``gamma``),
     :meth:`BatchedOnPolicyAlgorithm.compute_returns` (``gamma``, ``gae_lambda``), the optimiser
     (:class:`~nutribench.engine.stacked.StackedAdam`) and :meth:`BatchedOnPolicyAlgorithm.log_update`
