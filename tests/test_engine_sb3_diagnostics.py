@@ -61,7 +61,7 @@ def one_update(algo: str) -> tuple[list[dict[str, float]], list]:
     for j, m in enumerate(models):
         batched.net.load_sb3(j, m.policy)
     rollout = _rollout_of(models)  # before train(), which flattens SB3's buffer in place
-    units = batched.units(rollout.actions.shape[1])
+    units = rollout.actions.shape[1] // (batched.settings.sequence_length or 1)  # transitions, or whole days
     perms = []
     for j, m in enumerate(models):  # SB3 draws one permutation per epoch from numpy's global RNG
         np.random.seed(100 + j)

@@ -114,8 +114,9 @@ class BatchedAlgorithm:
         raise NotImplementedError
 
     def store_weights(self, j: int, model: Any) -> None:
-        """Put agent ``j``'s trained weights into ``model``, the SB3 model of its config."""
-        raise NotImplementedError
+        """Put agent ``j``'s trained weights into ``model``, the SB3 model of its config (here:
+        the algorithm's stacked network ``net`` into the model's policy)."""
+        self.net.store_sb3(j, model.policy)  # type: ignore[attr-defined]
 
     def resume(self, checkpoint: Checkpoint | None) -> float:
         """Take over ``checkpoint``'s state when it holds one (read onto this algorithm's

@@ -129,20 +129,9 @@ class StackedGRUActorCritic(SB3Weights):
         )
         actor_out = orthogonal(k, head, n_actions, 0.01, generators)
         critic_out = orthogonal(k, head, 1, 1.0, generators)
-        self.params = [
-            w_ih,
-            th.zeros(2 * k, 1, h3),
-            w_hh,
-            th.zeros(2 * k, 1, h3),
-            first,
-            th.zeros(k, 1, 2 * head),
-            actor_out,
-            th.zeros(k, 1, n_actions),
-            critic_out,
-            th.zeros(k, 1, 1),
-        ]
-        for p in self.params:
-            p.requires_grad_()
+        self.params = []
+        for w in (w_ih, w_hh, first, actor_out, critic_out):  # each layer's weights, then its zero biases
+            self.params += [w.requires_grad_(), th.zeros(w.shape[0], 1, w.shape[2], requires_grad=True)]
         self.params = leaves_on(self.params, device)
 
     # ---- the recurrent core ----
@@ -307,7 +296,3 @@ class BatchedGRUPPO(BatchedPPO):
             return greedy_categorical(logits)
 
         return play
-
-    def units(self, steps: int) -> int:
-        """Whole days: a permutation orders the rollout's days."""
-        return steps // self.settings.sequence_length

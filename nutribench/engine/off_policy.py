@@ -179,12 +179,12 @@ class BatchedOffPolicyAlgorithm(BatchedAlgorithm):
 
     def model_state_dict(self) -> dict[str, Any]:
         """Everything :meth:`act` and :meth:`update` change (networks' parameters, optimisers'
-        ``state_dict``, counters), as plain data for a checkpoint."""
-        raise NotImplementedError
+        ``state_dict``, counters), as plain data for a checkpoint (here: the stacked ``net``'s)."""
+        return self.net.state_dict()  # type: ignore[attr-defined]
 
     def load_model_state_dict(self, state: dict[str, Any]) -> None:
         """Take over :meth:`model_state_dict` read from a checkpoint (in place)."""
-        raise NotImplementedError
+        self.net.load_state_dict(state)  # type: ignore[attr-defined]
 
     def learn(self, total_steps: int, checkpoint: Checkpoint | None = None) -> float:
         """Run ``total_steps`` env steps of SB3's off-policy loop; reads ``buffer_size``,

@@ -194,14 +194,7 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         :meth:`log_update`."""
         raise NotImplementedError
 
-    def units(self, steps: int) -> int:
-        """How many items an epoch's permutation orders in a rollout of ``steps`` steps: its transitions."""
-        return steps
-
     # ---- the loop ----
-
-    def store_weights(self, j: int, model: Any) -> None:
-        self.net.store_sb3(j, model.policy)
 
     def learn(self, total_steps: int, checkpoint: Checkpoint | None = None) -> float:
         seconds_before = self.resume(checkpoint)
@@ -293,20 +286,14 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
                     "foods": np.stack(self.envs.days_drawn),
                 }
             )
-        on = lambda x: th.as_tensor(x, device=device)  # noqa: E731
-        return Rollout(
-            obs=on(buf["obs"]),
-            actions=on(buf["actions"]),
-            log_probs=on(buf["log_probs"]),
-            values=on(buf["values"]),
-            advantages=on(adv),
-            returns=on(ret),
-        )
+        fields = (buf["obs"], buf["actions"], buf["log_probs"], buf["values"], adv, ret)
+        return Rollout(*(th.as_tensor(x, device=device) for x in fields))
 
     def permutations(self, rollout: Rollout) -> np.ndarray:
-        """``(n_epochs, K, units)``: each agent's order of the rollout's units in each epoch,
-        from its own stream (SB3 draws ``np.random.permutation`` once per epoch)."""
-        units = self.units(rollout.actions.shape[1])
+        """``(n_epochs, K, units)``: each agent's order of the rollout's units (transitions, or
+        GRU-PPO's whole days) in each epoch, from its own stream (SB3 draws ``np.random.permutation``
+        once per epoch)."""
+        units = rollout.actions.shape[1] // (self.settings.sequence_length or 1)
         streams = self.envs.rng["minibatches"]
         return np.stack([[r.permutation(units) for r in streams] for _ in range(self.settings.n_epochs)])
 

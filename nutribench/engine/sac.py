@@ -235,12 +235,3 @@ class BatchedSAC(BatchedOffPolicyAlgorithm):
         self.means.add(**{names.ENT_COEF: as_logged(st.alpha), names.LEARNING_RATE: as_logged(st.critic_learning_rate)})
         if self.on_update is not None:
             self.on_update({"steps": steps, **losses})
-
-    def model_state_dict(self) -> dict[str, Any]:
-        return self.net.state_dict()
-
-    def load_model_state_dict(self, state: dict[str, Any]) -> None:
-        self.net.load_state_dict(state)
-
-    def store_weights(self, j: int, model: Any) -> None:
-        self.net.store_sb3(j, model.policy)
