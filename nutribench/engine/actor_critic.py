@@ -16,17 +16,18 @@ import torch as th
 from nutribench.engine.device import leaves_on
 from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.on_policy import BatchedOnPolicyAlgorithm, log_prob_entropy
-from nutribench.engine.stacked import SB3Weights, linear_pairs, linears, orthogonal
+from nutribench.engine.stacked import StackedMLP, linear_pairs, linears, orthogonal
 
 GAINS = (math.sqrt(2), math.sqrt(2), 0.01, 1.0)  # backbone layers, actor head, value head
 
 
-class StackedActorCritic(SB3Weights):
+class StackedActorCritic(StackedMLP):
     """K copies of the shared actor-critic: parameters of shape ``(K, ...)``.
 
     Layers are ``(W, b)`` with ``W: (K, in, out)``, ``b: (K, 1, out)``: the backbone's layers,
     then one head layer holding the actor's logits and the value side by side (columns
-    ``:n_actions`` and ``n_actions``), so that both heads are one batched product.
+    ``:n_actions`` and ``n_actions``), so that both heads are one batched product: the
+    :class:`~nutribench.engine.stacked.StackedMLP` of those layers, its output split.
     """
 
     def __init__(
@@ -41,21 +42,14 @@ class StackedActorCritic(SB3Weights):
         """Initialised on the CPU from ``generators`` (one per agent), then moved to ``device``."""
         sizes = [obs_dim, *net_arch]
         self.n_actions = n_actions
-        self.n_hidden = len(net_arch)
         self.params: list[th.Tensor] = []
-
         for n_in, n_out in zip(sizes[:-1], sizes[1:]):
             self.params += [
                 orthogonal(k, n_in, n_out, GAINS[0], generators).requires_grad_(),
                 th.zeros(k, 1, n_out, requires_grad=True),
             ]
-        head = th.cat(
-            [
-                orthogonal(k, sizes[-1], n_actions, GAINS[2], generators),
-                orthogonal(k, sizes[-1], 1, GAINS[3], generators),
-            ],
-            dim=2,
-        )
+        heads = ((n_actions, GAINS[2]), (1, GAINS[3]))  # the actor's logits, then the value
+        head = th.cat([orthogonal(k, sizes[-1], n_out, gain, generators) for n_out, gain in heads], dim=2)
         self.params += [head.requires_grad_(), th.zeros(k, 1, n_actions + 1, requires_grad=True)]
         self.params = leaves_on(self.params, device)
 
@@ -65,11 +59,7 @@ class StackedActorCritic(SB3Weights):
 
     def forward(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """``obs (K, B, obs_dim)`` -> logits ``(K, B, n_actions)``, values ``(K, B)``."""
-        x = obs
-        p = self.params
-        for i in range(self.n_hidden):
-            x = th.relu(th.baddbmm(p[2 * i + 1], x, p[2 * i]))
-        out = th.baddbmm(p[-1], x, p[-2])
+        out = super().forward(obs)
         return out[..., : self.n_actions], out[..., self.n_actions]
 
     def evaluate_actions(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:

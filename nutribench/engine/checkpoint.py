@@ -176,10 +176,6 @@ class Checkpoint:
         """``<path>.state.json``: the JSON half."""
         return checkpoint_files(self.path)[1]
 
-    def files(self) -> list[Path]:
-        """Every file this checkpoint may have left (:func:`checkpoint_files`)."""
-        return checkpoint_files(self.path)
-
     def _refused_as_none(self, read: Any) -> Any:
         try:
             return read()
@@ -254,7 +250,7 @@ class Checkpoint:
 
     def remove(self) -> None:
         """Delete its files (the batch has ended and its results are handed over)."""
-        for p in self.files():
+        for p in checkpoint_files(self.path):
             p.unlink(missing_ok=True)
 
 

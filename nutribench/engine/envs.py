@@ -224,11 +224,8 @@ def as_trained_agent(
         mean, var = obs_stats.mean[j].copy(), obs_stats.var[j].copy()
         env.obs_rms.mean, env.obs_rms.var, env.obs_rms.count = mean.copy(), var.copy(), float(obs_stats.count[j])
     if ret_stats is not None:
-        env.ret_rms.mean, env.ret_rms.var, env.ret_rms.count = (
-            float(ret_stats.mean[j]),
-            float(ret_stats.var[j]),
-            float(ret_stats.count[j]),
-        )
+        for name in ("mean", "var", "count"):
+            setattr(env.ret_rms, name, float(getattr(ret_stats, name)[j]))
     provenance = {
         **training_provenance(env_cfg, cfg, seed, episodes),
         "engine": Engine.BATCHED.value,

@@ -32,7 +32,7 @@ from nutribench.engine.device import leaves_on
 from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.on_policy import log_prob_entropy
 from nutribench.engine.ppo import BatchedPPO
-from nutribench.engine.stacked import SB3Weights, orthogonal
+from nutribench.engine.stacked import SB3Weights, linear_pairs, orthogonal
 
 N_NUTRIENTS = 3
 
@@ -225,10 +225,7 @@ class StackedGRUActorCritic(SB3Weights):
             (p[4][j, :, self.head :], policy.critic_head[0].weight.T),
             (p[5][j, 0, : self.head], policy.actor_head[0].bias),
             (p[5][j, 0, self.head :], policy.critic_head[0].bias),
-            (p[6][j], policy.actor_head[2].weight.T),
-            (p[7][j, 0], policy.actor_head[2].bias),
-            (p[8][j], policy.critic_head[2].weight.T),
-            (p[9][j, 0], policy.critic_head[2].bias),
+            *linear_pairs(p[6:], j, [policy.actor_head[2], policy.critic_head[2]]),
         ]
         assert H == policy.hidden_size and a == policy.action_space.n
         return pairs

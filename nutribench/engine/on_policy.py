@@ -215,14 +215,9 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         advantages and returns, or None for a rollout shorter than ``settings.n_steps`` (the
         budget's end)."""
         envs, k, device = self.envs, self.k, self.device
-        buf = {
-            "obs": np.empty((k, n_steps, envs.obs_dim), dtype=np.float32),
-            "actions": np.empty((k, n_steps), dtype=np.int64),
-            "log_probs": np.empty((k, n_steps), dtype=np.float32),
-            "values": np.empty((k, n_steps), dtype=np.float32),
-            "rewards": np.empty((k, n_steps), dtype=np.float32),
-            "starts": np.empty((k, n_steps), dtype=np.float32),
-        }
+        buf = {name: np.empty((k, n_steps), dtype=np.float32) for name in ("log_probs", "values", "rewards", "starts")}
+        buf["obs"] = np.empty((k, n_steps, envs.obs_dim), dtype=np.float32)
+        buf["actions"] = np.empty((k, n_steps), dtype=np.int64)
         uniforms = np.stack([r.random(n_steps) for r in envs.rng["actions"]])
         obs, start_of_day = self.last_obs, self.start_of_day
         for t in range(n_steps):
