@@ -91,7 +91,7 @@ class BatchedDDQN(BatchedOffPolicyAlgorithm):
         sizes = [envs.obs_dim, *cfg.net_arch, 2]
         self.q = StackedMLP(self.k, sizes, generators=self.init_generators(), device=device)
         self.q_target = StackedMLP(self.k, sizes, device=device)
-        self.q_target.copy_from(self.q)
+        load_params(self.q_target.params, self.q.params)
         self.optimizer = StackedAdam(self.q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
         #: SB3's schedules of the learning rate (over the budget) and of epsilon
         self.lr_schedule = LinearSchedule(cfg.learning_rate_start, cfg.learning_rate_end, 1.0)
@@ -115,7 +115,7 @@ class BatchedDDQN(BatchedOffPolicyAlgorithm):
 
     def after_step(self, steps: int, progress_remaining: float) -> None:
         if steps % self.cfg.target_update_interval == 0:
-            self.q_target.copy_from(self.q)
+            load_params(self.q_target.params, self.q.params)
             self.state["copies"] += 1
         self.state["epsilon"] = self.exploration(progress_remaining)
 

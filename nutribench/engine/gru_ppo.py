@@ -120,13 +120,8 @@ class StackedGRUActorCritic(SB3Weights):
                 cols = slice(gate * hidden, (gate + 1) * hidden)
                 w_ih[stream * k : (stream + 1) * k, :n_in, cols] = orthogonal(k, n_in, hidden, 1.0, generators)
                 w_hh[stream * k : (stream + 1) * k, :, cols] = orthogonal(k, hidden, hidden, 1.0, generators)
-        first = th.cat(
-            [
-                orthogonal(k, 2 * hidden, head, math.sqrt(2), generators),
-                orthogonal(k, 2 * hidden, head, math.sqrt(2), generators),
-            ],
-            dim=2,
-        )
+        # the actor's first head layer, then the critic's, side by side
+        first = th.cat([orthogonal(k, 2 * hidden, head, math.sqrt(2), generators) for _ in range(2)], dim=2)
         actor_out = orthogonal(k, head, n_actions, 0.01, generators)
         critic_out = orthogonal(k, head, 1, 1.0, generators)
         self.params = []

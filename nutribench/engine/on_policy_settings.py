@@ -80,17 +80,20 @@ class OnPolicySettings:
         _, args = model_arguments(cfg, horizon)
         seq = args.get("sequence_length")
         batch_size = args.get("batch_size", args["n_steps"])
+        as_written = (
+            "learning_rate",
+            "n_steps",
+            "gae_lambda",
+            "ent_coef",
+            "vf_coef",
+            "max_grad_norm",
+            "normalize_advantage",
+        )
         return cls(
-            learning_rate=args["learning_rate"],
-            n_steps=args["n_steps"],
+            **{name: args[name] for name in as_written},
             batch_size=batch_size if seq is None else max(1, round(batch_size / seq)),
             n_epochs=args.get("n_epochs", 1),
             gamma=cfg.gamma,
-            gae_lambda=args["gae_lambda"],
             clip_range=args.get("clip_range"),
-            ent_coef=args["ent_coef"],
-            vf_coef=args["vf_coef"],
-            max_grad_norm=args["max_grad_norm"],
-            normalize_advantage=args["normalize_advantage"],
             sequence_length=seq,
         )

@@ -102,7 +102,7 @@ class StackedSAC(SB3Weights):
         self.actor = StackedMLP(k, sizes, generators, device)
         self.critic = StackedMLP(2 * k, sizes, None if generators is None else generators + generators, device)
         self.critic_target = StackedMLP(2 * k, sizes, device=device)
-        self.critic_target.copy_from(self.critic)
+        load_params(self.critic_target.params, self.critic.params)
         self.actor_optimizer = StackedAdam(self.actor.params, actor_lr, OFF_POLICY_ADAM_EPS)
         self.critic_optimizer = StackedAdam(self.critic.params, critic_lr, OFF_POLICY_ADAM_EPS)
 

@@ -109,11 +109,6 @@ class StackedMLP(SB3Weights):
                 x = th.relu(x)
         return x
 
-    def copy_from(self, other: StackedMLP) -> None:
-        with th.no_grad():
-            for mine, theirs in zip(self.params, other.params):
-                mine.copy_(theirs)
-
     def sb3_pairs(self, j: int, policy: list[th.nn.Linear]) -> list[tuple[th.Tensor, th.Tensor]]:
         """Agent ``j``'s layers and a list of ``nn.Linear`` of the same shapes (e.g. an SB3 ``QNetwork``'s)."""
         return linear_pairs(self.params, j, policy)
@@ -149,8 +144,9 @@ class RunningStats:
 
 
 def load_params(params: list[th.Tensor], saved: list[th.Tensor]) -> None:
-    """Copy ``saved`` (a checkpoint's tensors, any device) into ``params`` in place, so that
-    whatever holds ``params`` (an optimiser) goes on with them; ValueError if they do not fit."""
+    """Copy ``saved`` (a checkpoint's tensors, any device; or the online network's, into its
+    target) into ``params`` in place, so that whatever holds ``params`` (an optimiser) goes on
+    with them; ValueError if they do not fit."""
     if len(saved) != len(params) or any(tuple(s.shape) != tuple(p.shape) for s, p in zip(saved, params)):
         raise ValueError("the checkpoint's networks do not fit this batch")
     with th.no_grad():
@@ -248,8 +244,7 @@ class StackedAdam(th.optim.Adam):
             p0.copy_(p)
         super().step()
         for p, p0 in zip(self._params, self._before):
-            per_row = th.as_tensor(np.tile(rates, p.shape[0] // len(rates)), dtype=p.dtype, device=p.device)
-            p.sub_(p0).mul_(per_row.reshape(-1, *([1] * (p.ndim - 1)))).add_(p0)
+            p.sub_(p0).mul_(per_agent(np.tile(rates, p.shape[0] // len(rates)), p, p.ndim)).add_(p0)
 
 
 class AgentMeans:
