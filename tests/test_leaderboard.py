@@ -75,6 +75,8 @@ def test_rows_are_ranked_by_the_iqm_over_the_regimes_each_covers_and_flag_what_d
     assert "budget (days)" in md and "plug-in" in md and "recorded" in md
     assert table.to_csv().splitlines()[0].startswith("rank,algo,protocol,iqm,iqm_lo,iqm_hi")
     assert "\\caption" in table.to_latex()
+    # the caption names the reference grid's budget, not a placeholder
+    assert "Reference grid: 5000 training days" in table.title and "{" not in table.title
 
 
 def test_a_row_whose_seeds_scored_alike_prints_no_spread_not_single_seed():

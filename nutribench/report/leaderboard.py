@@ -337,7 +337,7 @@ def leaderboard_table(rows: pd.DataFrame) -> TableResult:
         "greedy full-information planner) over the regimes it covers, with a 95 % interval over runs "
         f"({interval_caption('iqm')}, its standard error stratified by regime; [no spread]: every regime's seeds "
         "scored alike, a zero-width interval; [single seed]: one seed per regime, none); per regime, the mean share over "
-        "seeds. Reference grid: {REFERENCE_BUDGET} training days, seeds "
+        f"seeds. Reference grid: {REFERENCE_BUDGET} training days, seeds "
         f"{', '.join(map(str, REFERENCE_SEEDS))}, every regime of the board ({regime_span(board)}); a row that departs "
         "from it is flagged, and a row lacking regimes is ranked on those it has. Checked: every row's evaluation days "
         "are stored foods and actions, replayed on the regime (an archive's, on import); 'verified (re-run)': every "
