@@ -29,7 +29,7 @@ return scale.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -89,15 +89,12 @@ def gae(
         gamma_lam = float(gamma_lam)
     adv = np.zeros((k, t_max), dtype=np.float32)
     last = np.zeros(k, dtype=np.float32)
+    # each step's successor: the next step's value and start, after the last step the values after the rollout
+    next_values = np.concatenate([values[:, 1:], last_values[:, None]], axis=1)
+    non_terminal = 1.0 - np.concatenate([episode_starts[:, 1:], last_dones.astype(np.float32)[:, None]], axis=1)
     for t in reversed(range(t_max)):
-        if t == t_max - 1:
-            non_terminal = 1.0 - last_dones.astype(np.float32)
-            next_values = last_values
-        else:
-            non_terminal = 1.0 - episode_starts[:, t + 1]
-            next_values = values[:, t + 1]
-        delta = rewards[:, t] + gamma * next_values * non_terminal - values[:, t]
-        last = delta + gamma_lam * non_terminal * last
+        delta = rewards[:, t] + gamma * next_values[:, t] * non_terminal[:, t] - values[:, t]
+        last = delta + gamma_lam * non_terminal[:, t] * last
         adv[:, t] = last
     return adv, adv + values
 
@@ -263,7 +260,7 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
                 th.as_tensor(self.start_of_day, device=device),
                 advance=False,
             )
-        adv, ret = gae(
+        buf["advantages"], buf["returns"] = gae(
             buf["rewards"],
             buf["values"],
             buf["starts"],
@@ -273,16 +270,9 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
             settings.gae_lambda,
         )
         if self.on_rollout is not None:
-            self.on_rollout(
-                {
-                    **{name: buf[name] for name in ("obs", "actions", "rewards", "starts", "values")},
-                    "advantages": adv,
-                    "returns": ret,
-                    "foods": np.stack(self.envs.days_drawn),
-                }
-            )
-        fields = (buf["obs"], buf["actions"], buf["log_probs"], buf["values"], adv, ret)
-        return Rollout(*(th.as_tensor(x, device=device) for x in fields))
+            shown = ("obs", "actions", "rewards", "starts", "values", "advantages", "returns")
+            self.on_rollout({**{name: buf[name] for name in shown}, "foods": np.stack(self.envs.days_drawn)})
+        return Rollout(**{f.name: th.as_tensor(buf[f.name], device=device) for f in fields(Rollout)})
 
     def permutations(self, rollout: Rollout) -> np.ndarray:
         """``(n_epochs, K, units)``: each agent's order of the rollout's units (transitions, or
