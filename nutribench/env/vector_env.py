@@ -134,13 +134,9 @@ class NutriRLVectorEnv(DynamicsView, VectorEnv):
         if self._needs_reset:
             if self.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP and self._t == self._H:
                 self._start_day()
-                zeros = np.zeros(n)
-                false = np.zeros(n, dtype=bool)
-                return self._observe(), zeros, false, false.copy(), {}
+                return self._observe(), np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool), {}
             raise RuntimeError("step() called before reset()")
-        actions = np.asarray(actions)
-        if actions.shape != (n,):
-            actions = actions.reshape(n)
+        actions = np.asarray(actions).reshape(n)
         ate = actions == 1
         if not np.all(ate | (actions == 0)):
             raise ValueError(f"actions must be 0 (skip) or 1 (eat), got {np.unique(actions)}")
