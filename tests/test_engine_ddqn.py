@@ -16,10 +16,10 @@ from nutribench.agents.api import TrainedAgent, eval_food_streams, evaluate, mak
 from nutribench.agents.builtin.ddqn import DoubleDQN
 from nutribench.agents.config import load_agent_config
 from nutribench.config import load_env_config
-from nutribench.engine.ddqn import ddqn_update, q_linears
+from nutribench.engine.ddqn import ddqn_update
 from nutribench.engine.envs import AgentEnvs
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, StackedReplay
-from nutribench.engine.stacked import StackedAdam, StackedMLP
+from nutribench.engine.stacked import StackedAdam, StackedMLP, linears
 from nutribench.engine.train import train_batched
 from tests.conftest import random_batch, sb3_model, sb3_updates, shake
 
@@ -87,8 +87,8 @@ def test_one_ddqn_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -
     sizes = [OBS_DIM, *cfg.net_arch, 2]
     q, q_target = StackedMLP(k, sizes), StackedMLP(k, sizes)
     for j, (_, m) in enumerate(models):
-        q.load_sb3(j, q_linears(m.q_net))
-        q_target.load_sb3(j, q_linears(m.q_net_target))
+        q.load_sb3(j, linears(m.q_net.q_net))
+        q_target.load_sb3(j, linears(m.q_net_target.q_net))
     optimizer = StackedAdam(q.params, cfg.learning_rate_start, OFF_POLICY_ADAM_EPS)
     rng = np.random.default_rng(3)
     for progress in (0.9, 0.6):
@@ -108,7 +108,7 @@ def test_one_ddqn_update_of_stacked_agents_equals_sb3_s_update_of_each_alone() -
             m._current_progress_remaining = progress
             m.train(gradient_steps=1, batch_size=b)
             assert losses[j] == pytest.approx(m.logger.name_to_value["train/loss"], rel=1e-5)
-            for i, lin in enumerate(q_linears(m.q_net)):
+            for i, lin in enumerate(linears(m.q_net.q_net)):
                 np.testing.assert_allclose(q.params[2 * i][j].detach().T, lin.weight.detach(), rtol=1e-4, atol=1e-6)
                 np.testing.assert_allclose(q.params[2 * i + 1][j, 0].detach(), lin.bias.detach(), rtol=1e-4, atol=1e-6)
 

@@ -48,11 +48,6 @@ from nutribench.engine.stacked import (
 )
 
 
-def q_linears(q_net: th.nn.Module) -> list[th.nn.Linear]:
-    """The ``Linear`` layers of an SB3 ``QNetwork``, input to output."""
-    return linears(q_net.q_net)
-
-
 def ddqn_update(
     q: StackedMLP,
     q_target: StackedMLP,
@@ -154,5 +149,5 @@ class BatchedDDQN(BatchedOffPolicyAlgorithm):
 
 
 def _store(q: StackedMLP, q_target: StackedMLP, j: int, model: Any) -> None:
-    q.store_sb3(j, q_linears(model.q_net))
-    q_target.store_sb3(j, q_linears(model.q_net_target))
+    q.store_sb3(j, linears(model.q_net.q_net))
+    q_target.store_sb3(j, linears(model.q_net_target.q_net))

@@ -131,9 +131,8 @@ class AgentEnvs:
     def seen(self, raw: np.ndarray) -> np.ndarray:
         """Observations ``(K, obs_dim)`` as the policies see them: the statistics updated
         with them first, then normalised and clipped (``VecNormalize`` in training)."""
-        if self.obs_stats is None:
-            return raw.astype(np.float32)
-        self.obs_stats.update(raw)
+        if self.obs_stats is not None:
+            self.obs_stats.update(raw)
         return self.normalize(raw)
 
     def normalize(self, raw: np.ndarray) -> np.ndarray:

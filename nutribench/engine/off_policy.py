@@ -72,13 +72,8 @@ class StackedReplay:
         self.full = self.full or self.pos == 0
 
     def state_dict(self) -> dict[str, Any]:
-        return {
-            "arrays": {name: getattr(self, name) for name in self.ARRAYS},
-            "pos": self.pos,
-            "full": self.full,
-            "n_step": self.n_step,
-            "gamma": self.gamma,
-        }
+        arrays = {name: getattr(self, name) for name in self.ARRAYS}
+        return {"arrays": arrays, **{name: getattr(self, name) for name in ("pos", "full", "n_step", "gamma")}}
 
     @classmethod
     def from_state_dict(cls, state: dict[str, Any]) -> StackedReplay:
