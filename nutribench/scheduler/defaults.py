@@ -1,6 +1,6 @@
 """What a run uses when it is not told: the function that runs one job (the training job, or
 the synthetic one of a dry run with ``$NUTRIBENCH_JOB=fake``), the batched engine's worker
-function, the models folder, and the driver's owner token (:func:`nutribench.scheduler.driver.run_grid`)."""
+function and the driver's owner token (:func:`nutribench.scheduler.driver.run_grid`)."""
 
 from __future__ import annotations
 
@@ -8,12 +8,9 @@ import os
 import socket
 import uuid
 from collections.abc import Callable
-from pathlib import Path
 
 from nutribench.scheduler.registration import RunError
 from nutribench.scheduler.worker import JobFn
-from nutribench.store.engine import sqlite_path
-from nutribench.store.schema import Store
 
 
 def default_batch_fn() -> Callable:
@@ -41,12 +38,6 @@ def default_job_fn() -> JobFn:
     except ImportError as e:
         raise RunError(f"the training job cannot be imported ({e}): is nutribench fully installed?") from None
     return run_job
-
-
-def default_models_dir(store: Store) -> Path:
-    """``models/`` next to a SQLite file, else in the current folder."""
-    path = sqlite_path(store.url)
-    return (path.parent if path is not None else Path.cwd()) / "models"
 
 
 def driver_token() -> str:

@@ -20,8 +20,8 @@ One call of :func:`run_grid`:
    jobs ``interrupted`` (no rows are written for them: rows are only written when a job completes);
 8. at its start and end, deletes the batched engine's checkpoints whose jobs are all done (:mod:`nutribench.scheduler.resume`).
 
-What a run uses when not told (the job function, the models folder):
-:mod:`nutribench.scheduler.defaults`. No signal handler (``run``'s: :mod:`nutribench.cli.signals`).
+What a run uses when not told: the job function in :mod:`nutribench.scheduler.defaults`, the
+models folder :attr:`GridSettings.models <nutribench.scheduler.settings.GridSettings.models>`. No signal handler (``run``'s: :mod:`nutribench.cli.signals`).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from typing import Any
 from sqlalchemy.exc import OperationalError
 
 from nutribench.engines import Engine
-from nutribench.scheduler.defaults import default_batch_fn, default_job_fn, default_models_dir, driver_token
+from nutribench.scheduler.defaults import default_batch_fn, default_job_fn, driver_token
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.lifecycle import (
@@ -69,7 +69,7 @@ from nutribench.scheduler.storing import (
 )
 from nutribench.scheduler.storing import error_text as _error_text
 from nutribench.scheduler.storing import first_line as _first_line
-from nutribench.scheduler.worker import JobFn, execute, execute_batch
+from nutribench.scheduler.worker import JobFn, execute
 from nutribench.store import Job, open_store
 from nutribench.store.engine import StoreError
 from nutribench.store.schema import Store
@@ -157,20 +157,14 @@ class _Run:
                 jobs = unless_locked(claim_jobs, self.store, pool.job_ids, self.attempted, want, self.owner, default=[])
                 if not jobs:
                     break
-                specs = [self.make_spec(job) for job in jobs]
+                specs, now = [self.make_spec(job) for job in jobs], time.monotonic()
                 for spec in specs:
                     self.attempted.add(spec.job_id)
-                    self.live[spec.job_id] = {
-                        "spec": spec,
-                        "k": 0,
-                        "n": spec.episodes,
-                        "ret": None,
-                        "t0": time.monotonic(),
-                    }
+                    self.live[spec.job_id] = {"spec": spec, "k": 0, "n": spec.episodes, "ret": None, "t0": now}
                 self.planned = max(self.planned, len(self.attempted))  # a job taken over here: "3 done of 2 to run"
                 submit, sink = self.handle.executor.submit, self.handle.sink
                 if pool.batched:
-                    self.in_flight[submit(execute_batch, self.batch_fn, specs, sink)] = specs
+                    self.in_flight[submit(execute, self.batch_fn, specs, sink)] = specs
                     free -= 1
                 else:
                     for spec in specs:
@@ -321,14 +315,12 @@ def run_grid(settings: GridSettings, stop: threading.Event | None = None) -> Run
             reset_given_up(store, job_ids)
         runnable = count_claimable(store, job_ids)
         owner = driver_token()
-        out = Path(s.models_dir) if s.models_dir is not None else default_models_dir(store)
+        out = s.models
         remove_finished_checkpoints(store, out / "checkpoints")  # killed batches whose jobs are done since
         summary = RunSummary(total=len(job_ids))
         held, _ = held_elsewhere(store, job_ids, owner)
         if runnable or held:
-            make_spec = spec_maker(
-                store, grid, regime_cfgs, agent_cfgs, out, s.device, s.tensorboard, s.eval_every, s.val_episodes
-            )
+            make_spec = spec_maker(store, s, regime_cfgs, agent_cfgs)
             handle, note = make_executor(s.executor, s.workers, max(runnable, held))
             view = make_view(s.display, grid, len(job_ids), handle.description, note, agent_cfgs)
             pools = _batched_pools(store, s, job_ids, regime_cfgs, agent_cfgs, handle.slots, out)
@@ -387,15 +379,4 @@ def _drive(run: _Run, view: Any, handle: ExecutorHandle) -> RunSummary:
     return run.summary
 
 
-__all__ = [
-    "FLUSH_EVERY_S",
-    "WAIT_POLL_S",
-    "RunError",
-    "GridSettings",
-    "RunSummary",
-    "default_batch_fn",
-    "default_job_fn",
-    "default_models_dir",
-    "driver_token",
-    "run_grid",
-]
+__all__ = ["GridSettings", "RunError", "RunSummary", "run_grid"]

@@ -143,32 +143,37 @@ def dask_executor(address: str, workers: int | None) -> ExecutorHandle:
     )
 
 
+def dask_address(spec: str | None) -> str | None:
+    """The dask scheduler's address ``spec`` names (``dask://HOST:PORT`` as ``tcp://HOST:PORT``;
+    ``tcp://`` and ``tls://`` as given); None for ``local``; :class:`ExecutorError` for anything else."""
+    v = (spec or "local").strip()
+    if v == "local":
+        return None
+    for prefix in ("dask://", "tcp://", "tls://"):
+        if v.startswith(prefix) and len(v) > len(prefix):
+            return ("tcp://" + v[len(prefix) :]) if prefix == "dask://" else v
+    raise ExecutorError(f"unknown --executor '{spec}': use 'local' or 'dask://HOST:PORT'")
+
+
 def probe_executor(spec: str | None) -> None:
     """Raise :class:`ExecutorError` now if ``spec`` is unknown or names a dask scheduler that
     cannot be reached, so that ``run`` fails before it creates or writes the database."""
-    spec = (spec or "local").strip()
-    if spec == "local":
-        return
-    handle, _ = make_executor(spec, None, 1)
-    handle.close()
+    if dask_address(spec) is not None:
+        handle, _ = make_executor(spec, None, 1)
+        handle.close()
 
 
 def make_executor(spec: str | None, workers: int | None, n_jobs: int) -> tuple[ExecutorHandle, str | None]:
     """``local`` or ``dask://HOST:PORT`` (or ``tcp://``, ``tls://``). Returns the handle and a
     note for the user when the worker count was reduced."""
-    spec = (spec or "local").strip()
-    if spec == "local":
+    address = dask_address(spec)
+    if address is None:
         cores = core_count()
-        want = workers or cores
-        n = max(1, min(want, cores, n_jobs))
+        n = max(1, min(workers or cores, cores, n_jobs))
         note = None
         if workers and workers > cores:
             note = f"--workers {workers} is more than the {cores} cores here: using {n}"
         return local_executor(n), note
-    for prefix in ("dask://", "tcp://", "tls://"):
-        if spec.startswith(prefix):
-            address = ("tcp://" + spec[len(prefix) :]) if prefix == "dask://" else spec
-            handle = dask_executor(address, workers)
-            handle.slots = max(1, min(handle.slots, n_jobs))
-            return handle, None
-    raise ExecutorError(f"unknown --executor '{spec}': use 'local' or 'dask://HOST:PORT'")
+    handle = dask_executor(address, workers)
+    handle.slots = max(1, min(handle.slots, n_jobs))
+    return handle, None

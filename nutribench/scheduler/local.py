@@ -136,10 +136,6 @@ class LocalProcessExecutor(Executor):
             self._thread.join()
 
     # ---- extras ----
-    def pids(self) -> list[int]:
-        with self._lock:
-            return [r.process.pid for r in self._running.values() if r.process.pid]
-
     def terminate_running(self, grace: float = 5.0) -> None:
         """SIGTERM every running job's process, SIGKILL those still alive after ``grace`` s."""
         with self._lock:

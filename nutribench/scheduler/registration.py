@@ -9,7 +9,6 @@ registered here too.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,6 +40,19 @@ class _Config:
     obj: Any
     algo: str | None = None
 
+    @classmethod
+    def regime(cls, env: Any, name: str) -> _Config:
+        """A regime config as recorded: its content and hash, its file (else ``name``) shown
+        relative to the current folder."""
+        return cls(env.name, env.version, env.sha256, env.content(), _shown(env.path or name), env)
+
+    @classmethod
+    def agent(cls, cfg: Any, source: str) -> _Config:
+        """An agent config as recorded: its content and hash, and ``source``."""
+        from nutribench.agents.config import agent_config_content, agent_config_sha256
+
+        return cls(cfg.name, cfg.version, agent_config_sha256(cfg), agent_config_content(cfg), source, cfg, cfg.algo)
+
 
 def _shown(path: Path | str) -> str:
     """A file path relative to the current folder when it lies below it."""
@@ -54,39 +66,31 @@ def _shown(path: Path | str) -> str:
 def load_grid_configs(grid: Grid) -> tuple[list[_Config], list[_Config]]:
     """Load every regime and agent config of the grid (ConfigError on a bad file, or on a
     plug-in whose entry point does not import)."""
-    from nutribench.agents.config import (
-        agent_config_content,
-        agent_config_sha256,
-        load_agent_config,
-        resolve_agent_path,
-    )
+    from nutribench.agents.config import load_agent_config, resolve_agent_path
+    from nutribench.agents.registry import import_entry_point
     from nutribench.config import load_env_config
 
-    regimes = []
-    for name in grid.regimes:
-        env = load_env_config(name)
-        regimes.append(_Config(env.name, env.version, env.sha256, env.content(), _shown(env.path or name), env))
-    from nutribench.agents.registry import import_entry_point
+    regimes = [_Config.regime(load_env_config(name), name) for name in grid.regimes]
 
     agents = []
     for name in grid.algos:
         cfg = load_agent_config(name)
         if getattr(cfg, "entry_point", None):
             import_entry_point(cfg.entry_point)  # a plug-in that cannot import is refused before any job runs
-        source = _shown(resolve_agent_path(name))
-        agents.append(
-            _Config(cfg.name, cfg.version, agent_config_sha256(cfg), agent_config_content(cfg), source, cfg, cfg.algo)
-        )
+        agents.append(_Config.agent(cfg, _shown(resolve_agent_path(name))))
     return regimes, agents
+
+
+def _recorded(session: Session, table: type, name: str, version: int) -> Any:
+    """The row of ``table`` (regimes or agent configs) recorded as ``name`` version ``version``, or None."""
+    return session.execute(select(table).where(table.name == name, table.version == version)).scalar_one_or_none()
 
 
 def _register(session: Session, table: type, configs: Sequence[_Config]) -> dict[str, int]:
     """Ids of ``configs`` in ``table``, inserting the new ones; refuses changed content."""
     ids: dict[str, int] = {}
     for c in configs:
-        row = session.execute(
-            select(table).where(table.name == c.name, table.version == c.version)
-        ).scalar_one_or_none()
+        row = _recorded(session, table, c.name, c.version)
         if row is not None:
             if row.sha256 != c.sha256:
                 raise RunError(
@@ -123,26 +127,10 @@ def register_grid(
         keys = [(rids[r], aids[a], seed) for r, a, seed in grid.cells()]
         missing = [k for k in keys if k not in existing]
         if missing:
-            now = utcnow()
-            s.execute(
-                insert(Job),
-                [
-                    {
-                        "regime_id": r,
-                        "agent_config_id": a,
-                        "seed": seed,
-                        "episodes": grid.episodes,
-                        "eval_episodes": grid.eval_episodes,
-                        "status": "pending",
-                        "attempt": 0,
-                        "failures": 0,
-                        "episodes_done": 0,
-                        "created_at": now,
-                        "fake": fake,
-                    }
-                    for r, a, seed in missing
-                ],
-            )
+            new = {"episodes": grid.episodes, "eval_episodes": grid.eval_episodes, "status": "pending", "attempt": 0}
+            new |= {"failures": 0, "episodes_done": 0, "created_at": utcnow(), "fake": fake}
+            rows = [{"regime_id": r, "agent_config_id": a, "seed": seed, **new} for r, a, seed in missing]
+            s.execute(insert(Job), rows)
             existing.update({(r.regime_id, r.agent_config_id, r.seed): r.id for r in s.execute(query)})
         return [existing[k] for k in keys]
 
@@ -157,33 +145,26 @@ def model_path(models_dir: Path, regime: _Config, agent: _Config, seed: int, epi
     )
 
 
-def spec_maker(
-    store: Store,
-    grid: Grid,
-    regime_cfgs: Sequence,
-    agent_cfgs: Sequence,
-    models_dir: Path,
-    device: str,
-    tensorboard: str | os.PathLike[str] | None,
-    eval_every: int = 0,
-    val_episodes: int = 5,
-) -> Callable[[Job], JobSpec]:
-    """A function from a job row of ``grid`` (registered in ``store`` from ``regime_cfgs`` and
-    ``agent_cfgs``: :func:`~nutribench.scheduler.registration.load_grid_configs`) to its
-    :class:`~nutribench.scheduler.spec.JobSpec`: its model file under ``models_dir``, trained on
-    ``device``, its TensorBoard events (if any) under ``tensorboard``, evaluated on
-    ``val_episodes`` validation days every ``eval_every`` training days (0: never)."""
-    regimes, agents = {r.name: r for r in regime_cfgs}, {a.name: a for a in agent_cfgs}
+def spec_maker(store: Store, settings: Any, regime_cfgs: Sequence, agent_cfgs: Sequence) -> Callable[[Job], JobSpec]:
+    """A function from a job row of ``settings``' grid (a
+    :class:`~nutribench.scheduler.settings.GridSettings`, registered in ``store`` from
+    ``regime_cfgs`` and ``agent_cfgs``: :func:`~nutribench.scheduler.registration.load_grid_configs`)
+    to its :class:`~nutribench.scheduler.spec.JobSpec`: its model file under ``settings.models``,
+    trained on ``settings.device``, its TensorBoard events (if any) under ``settings.tensorboard``,
+    evaluated on ``settings.val_episodes`` validation days every ``settings.eval_every`` training
+    days (None or 0: never)."""
+    grid, regimes, agents = settings.grid, {r.name: r for r in regime_cfgs}, {a.name: a for a in agent_cfgs}
     with store.engine.connect() as conn:
         rid = dict(
             conn.execute(select(RegimeConfig.id, RegimeConfig.name).where(RegimeConfig.name.in_(grid.regimes))).all()
         )
         aid = dict(conn.execute(select(AgentConfig.id, AgentConfig.name).where(AgentConfig.name.in_(grid.algos))).all())
-    events = str(Path(tensorboard).absolute()) if tensorboard is not None else None
+    events = str(Path(settings.tensorboard).absolute()) if settings.tensorboard is not None else None
+    how = {"device": settings.device, "tensorboard": events, "val_episodes": settings.val_episodes}
 
     def make_spec(job: Job) -> JobSpec:
         r, a = regimes[rid[job.regime_id]], agents[aid[job.agent_config_id]]
-        path = model_path(models_dir, r, a, job.seed, job.episodes)
+        path = model_path(settings.models, r, a, job.seed, job.episodes)
         return JobSpec(
             job.id,
             r.name,
@@ -199,10 +180,8 @@ def spec_maker(
             r.obj,
             a.obj,
             attempt=job.attempt,
-            device=device,
-            tensorboard=events,
-            eval_every=int(eval_every or 0),
-            val_episodes=val_episodes,
+            eval_every=int(settings.eval_every or 0),
+            **how,
         )
 
     return make_spec
@@ -237,16 +216,12 @@ class ExternalJob:
 def store_external_job(store: Store, job: ExternalJob) -> int:
     """Record ``job``'s configs and write it as a done job with its rows, in one transaction;
     its id. A job with the same regime, agent, seed and budget already there is refused."""
-    from nutribench.agents.config import agent_config_content, agent_config_sha256
     from nutribench.scheduler.lifecycle import check_not_mixed, insert_episodes
     from nutribench.store.engine import display_url
     from nutribench.store.models import METADATA_COLUMNS
 
     env, cfg = job.regime_config, job.agent_config
-    regime = _Config(env.name, env.version, env.sha256, env.content(), _shown(env.path or env.name), env)
-    agent = _Config(
-        cfg.name, cfg.version, agent_config_sha256(cfg), agent_config_content(cfg), "recorded", cfg, cfg.algo
-    )
+    regime, agent = _Config.regime(env, env.name), _Config.agent(cfg, "recorded")
     check_not_mixed(store, fake=False)
     with session_scope(store.engine) as s:
         hold_write_lock(s, REGISTRATION_LOCK)
@@ -290,17 +265,13 @@ def check_external_entry(store: Store, regime_config: Any, agent_config: Any, se
     what = f"Recorder {cfg.name} v{cfg.version} on {env.name} seed {seed}"
     where = display_url(store.url)
     with session_scope(store.engine) as s:
-        agent_row = s.execute(
-            select(AgentConfig).where(AgentConfig.name == cfg.name, AgentConfig.version == cfg.version)
-        ).scalar_one_or_none()
+        agent_row = _recorded(s, AgentConfig, cfg.name, cfg.version)
         if agent_row is not None and agent_row.sha256 != agent_config_sha256(cfg):
             raise RunError(
                 f"{what}: {where} holds {cfg.name} v{cfg.version} with other params or description: "
                 "bump the version (Recorder(version=...)) or give the stored ones"
             )
-        regime_row = s.execute(
-            select(RegimeConfig).where(RegimeConfig.name == env.name, RegimeConfig.version == env.version)
-        ).scalar_one_or_none()
+        regime_row = _recorded(s, RegimeConfig, env.name, env.version)
         if regime_row is not None and regime_row.sha256 != env.sha256:
             raise RunError(
                 f"{what}: {where} holds regime {env.name} v{env.version} with other content: bump the regime file's version"

@@ -20,7 +20,7 @@ from typing import Any
 
 from nutribench.engines import Engine
 from nutribench.errors import UserError
-from nutribench.scheduler.executors import ExecutorError
+from nutribench.scheduler.executors import dask_address
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.pools import MAX_BATCH, check_engine
 from nutribench.scheduler.registration import RunError
@@ -72,20 +72,39 @@ class GridSettings:
         """The grid these settings run."""
         return Grid(tuple(self.regimes), tuple(self.algos), tuple(self.seeds), self.episodes, self.eval_episodes)
 
+    @property
+    def models(self) -> Path:
+        """Where trained models go: ``models_dir``, else ``models/`` next to a SQLite file, else in
+        the current folder."""
+        from nutribench.store.engine import database_url, sqlite_path
+
+        if self.models_dir is not None:
+            return Path(self.models_dir)
+        path = sqlite_path(database_url(str(self.db)))
+        return (path.parent if path is not None else Path.cwd()) / "models"
+
     def check(self) -> None:
         """Every check ``nutribench run`` makes before the database file exists (see the module
         docstring), each a one-line :class:`~nutribench.errors.UserError`."""
-        from nutribench.safe_write import check_tensorboard
+        from nutribench.engine.checkpoint import every_seconds_from_env
+        from nutribench.safe_write import check_folder_target, check_tensorboard
         from nutribench.scheduler.defaults import default_job_fn
         from nutribench.scheduler.registration import load_grid_configs
 
-        check_executor_name(self.executor)
+        dask_address(self.executor)
         check_engine(self.engine, self.max_batch, self.device)
-        check_models_dir(self.models_dir, str(self.db))
+        # a models folder that cannot be one (a file, a path through a file, not writable): each job
+        # would train and then fail to save
+        default = self.models_dir is None
+        what, hint = ("the models folder", " (--models-dir)") if default else ("--models-dir", "")
+        check_folder_target(self.models, what, RunError, f"give a folder for the trained models{hint}")
         if self.tensorboard is not None:
             check_tensorboard(Path(self.tensorboard))
         check_db(str(self.db))
-        check_checkpoint_seconds()
+        try:  # a bad $NUTRIBENCH_CHECKPOINT_SECONDS
+            every_seconds_from_env()
+        except ValueError as exc:
+            raise RunError(str(exc)) from None
         _, agent_cfgs = load_grid_configs(self.grid)  # a broken config file fails here
         check_eval_every_agents(self.eval_every or 0, agent_cfgs)
         if self.job_fn is None:
@@ -108,14 +127,6 @@ class GridSettings:
 
 def _n(count: int, word: str) -> str:
     return f"{count:,} {word}{'' if count == 1 else 's'}"
-
-
-def check_executor_name(value: str) -> None:
-    """``local``, or a dask scheduler's address (``dask://``, ``tcp://``, ``tls://`` and a host)."""
-    v = value.strip()
-    if v == "local" or any(v.startswith(p) and len(v) > len(p) for p in ("dask://", "tcp://", "tls://")):
-        return
-    raise ExecutorError(f"unknown --executor '{value}': use 'local' or 'dask://HOST:PORT'")
 
 
 def check_db(db: str) -> None:
@@ -150,31 +161,6 @@ def check_eval_every_agents(eval_every: int, agent_cfgs: Sequence[Any]) -> None:
             f"--eval-every: {', '.join(plugins)} trains in its own loop (a plug-in agent), which evaluation "
             "during training cannot enter; leave them out of this run or drop --eval-every"
         )
-
-
-def check_models_dir(models_dir: str | os.PathLike[str] | None, db: str) -> None:
-    """Refuse a models folder that cannot be one (a file, or a path through a file, or not
-    writable) before anything runs: each job would train and then fail to save."""
-    from nutribench.safe_write import check_folder_target
-    from nutribench.store.engine import database_url, sqlite_path
-
-    if models_dir is None:
-        path = sqlite_path(database_url(db))
-        folder, what = (path.parent if path is not None else Path.cwd()) / "models", "the models folder"
-    else:
-        folder, what = Path(models_dir), "--models-dir"
-    hint = "give a folder for the trained models" + (" (--models-dir)" if models_dir is None else "")
-    check_folder_target(folder, what, RunError, hint)
-
-
-def check_checkpoint_seconds() -> None:
-    """A bad ``$NUTRIBENCH_CHECKPOINT_SECONDS`` is one line before any job starts."""
-    from nutribench.engine.checkpoint import every_seconds_from_env
-
-    try:
-        every_seconds_from_env()
-    except ValueError as exc:
-        raise RunError(str(exc)) from None
 
 
 def paper_grid_question(grid: Grid) -> str:

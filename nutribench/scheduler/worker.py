@@ -110,25 +110,14 @@ class JobProgress:
         self._send({"kind": "phase", "phase": name})
 
 
-def _in_worker(fn: Callable[..., Any], *args: Any) -> Any:
-    """``fn(*args)`` with one thread; any exception comes back as a picklable :class:`JobFailed`."""
+def execute(fn: Callable[..., Any], spec: JobSpec | list[JobSpec], sink: Sink | None = None) -> Any:
+    """Run one job (``fn`` a :data:`JobFn`) or one batch of jobs (the batched engine's ``fn``:
+    one result per spec; an exception fails the whole batch) in a worker, with one thread; any
+    exception comes back as a picklable :class:`JobFailed`."""
     try:
         with one_thread():
-            return fn(*args)
+            return fn(spec, sink)
     except JobFailed:
         raise
     except Exception as e:
         raise JobFailed(f"{type(e).__name__}: {e}", traceback.format_exc()) from None
-
-
-def execute(job_fn: JobFn, spec: JobSpec, sink: Sink | None = None) -> JobResult:
-    """Run one job in a worker."""
-    return _in_worker(job_fn, spec, sink)
-
-
-def execute_batch(
-    batch_fn: Callable[[list[JobSpec], Sink | None], list[JobResult]], specs: list[JobSpec], sink: Sink | None = None
-) -> list[JobResult]:
-    """Run one batch of jobs in a worker (the batched engine): one result per spec; an
-    exception fails the whole batch."""
-    return _in_worker(batch_fn, specs, sink)
