@@ -33,7 +33,6 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from nutribench.agents import eval_food_streams, evaluate
 from nutribench.clock import utcnow
 from nutribench.engine import supports
 from nutribench.engine.checkpoint import Checkpoint, checkpoint_files
@@ -42,7 +41,7 @@ from nutribench.engine.train import train_batched
 from nutribench.engines import Engine
 from nutribench.provenance import collect_metadata, git_state
 from nutribench.safe_write import atomic_write
-from nutribench.scheduler.single_job import check_configs, with_yardsticks
+from nutribench.scheduler.single_job import check_configs, evaluated
 from nutribench.scheduler.spec import JobFailed, JobResult, JobSpec
 from nutribench.scheduler.worker import JobProgress, Sink
 
@@ -80,7 +79,7 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
         val_episodes=specs[0].val_episodes,
     )
     share = wall() / len(specs)
-    meta = collect_metadata() | batch
+    meta = collect_metadata() | batch | {"engine": Engine.BATCHED.value}
     results = []
     for spec, agent, p in zip(specs, agents, progress):
         p.phase("eval")
@@ -110,20 +109,12 @@ def job_result(spec: JobSpec, agent: Any, meta: dict, started: datetime, train_s
     diagnostics written to TensorBoard when asked): its result, its wall time the batch's
     training seconds shared out (``train_share``) plus its own evaluation."""
     t_eval = time.perf_counter()
-    streams = eval_food_streams(spec.regime_config, spec.seed, spec.eval_episodes)
-    evaluation = evaluate(agent, spec.regime_config, streams, record_steps=True)
-    model_path = str(agent.save(Path(spec.model_path))) if spec.model_path else None
-    wall = train_share + time.perf_counter() - t_eval
-    result = JobResult(
-        spec.job_id,
-        agent.train_episodes,
-        evaluation.episodes,
-        evaluation.steps,
-        meta | {"started_at": started, "finished_at": utcnow(), "wall_seconds": wall, "engine": Engine.BATCHED.value},
-        model_path=model_path,
-        diagnostics=list(getattr(agent, "diagnostics", None) or []),
-        validation=with_yardsticks(spec, agent.validation),
-    )
+
+    def metadata() -> dict:
+        wall = train_share + time.perf_counter() - t_eval
+        return meta | {"started_at": started, "finished_at": utcnow(), "wall_seconds": wall}
+
+    result = evaluated(spec, agent, metadata)
     if spec.tensorboard:
         write_tensorboard(Path(spec.tensorboard) / spec.run_name, result.diagnostics)
     return result

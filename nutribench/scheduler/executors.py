@@ -19,6 +19,7 @@ import queue
 import uuid
 from collections.abc import Callable
 from concurrent.futures import Executor
+from contextlib import suppress
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,12 +47,10 @@ class DaskSink:
         self.topic = topic
 
     def __call__(self, event: dict[str, Any]) -> None:
-        try:
+        with suppress(ImportError, ValueError):  # not inside a dask worker
             from distributed import get_worker
 
             get_worker().log_event(self.topic, event)
-        except (ImportError, ValueError):  # not inside a dask worker
-            pass
 
 
 @dataclass
@@ -68,11 +67,9 @@ class ExecutorHandle:
 
     def drain(self) -> list[dict[str, Any]]:
         out = []
-        while True:
-            try:
-                out.append(self.events.get_nowait())
-            except queue.Empty:
-                return out
+        while not self.events.empty():  # the driver is its one reader
+            out.append(self.events.get_nowait())
+        return out
 
     def terminate_running(self) -> None:
         """Stop the jobs in flight (Ctrl-C): their outcomes will be ignored."""

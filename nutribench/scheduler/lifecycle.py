@@ -50,6 +50,9 @@ if TYPE_CHECKING:
     from nutribench.scheduler.spec import JobResult
 
 MAX_FAILURES = 3  # a job that failed this often is no longer retried
+#: what a worker reports of a running job (its training seconds so far, a resumed batch's earlier
+#: runs included; its recent return; its process id), the column the driver writes it to, its type
+_REPORTED = (("wall", "wall_seconds", float), ("ret", "last_return", float), ("pid", "worker_pid", int))
 
 
 def check_not_mixed(store: Store, fake: bool) -> None:
@@ -181,29 +184,20 @@ def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, i
     return out
 
 
-def episode_rows(job_id: int, phase: str, episodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    rows = []
-    for ep in episodes:
-        row = {"job_id": job_id, "phase": phase, "episode": int(ep["episode"])}
-        for col in EPISODE_METRICS:
-            row["ret" if col == "return" else col] = ep.get(col)
-        rows.append(row)
-    return rows
-
-
-def validation_rows(job_id: int, validation: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """A job's evaluations during training as ``validation_episodes`` rows (None where absent)."""
-    return [
-        {"job_id": job_id, **{("ret" if c == "return" else c): v.get(c) for c in VALIDATION_COLUMNS}}
-        for v in validation
-    ]
+def _metrics(row: dict[str, Any], columns: Sequence[str]) -> dict[str, Any]:
+    """``row``'s values of ``columns`` (None where absent), keyed as the tables' attributes (``ret``)."""
+    return {("ret" if c == "return" else c): row.get(c) for c in columns}
 
 
 def insert_episodes(
     session: Any, job_id: int, train: list[dict], evaluation: list[dict], eval_steps: list[dict]
 ) -> None:
     """A finished job's training and evaluation episodes and its evaluation steps, as rows."""
-    rows = episode_rows(job_id, "train", train) + episode_rows(job_id, "eval", evaluation)
+    rows = [
+        {"job_id": job_id, "phase": phase, "episode": int(ep["episode"]), **_metrics(ep, EPISODE_METRICS)}
+        for phase, episodes in (("train", train), ("eval", evaluation))
+        for ep in episodes
+    ]
     if rows:
         insert_rows(session, Episode, rows)
     if eval_steps:
@@ -241,7 +235,8 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
             insert_rows(s, Diagnostic, diagnostic_rows(result.job_id, diagnostics))
         validation = getattr(result, "validation", None)  # likewise: a result pickled before revision 0006
         if validation:
-            insert_rows(s, ValidationEpisode, validation_rows(result.job_id, validation))
+            rows = [{"job_id": result.job_id, **_metrics(v, VALIDATION_COLUMNS)} for v in validation]
+            insert_rows(s, ValidationEpisode, rows)
         return True
 
 
@@ -280,10 +275,7 @@ def flush_progress(store: Store, owner: str, live: dict[int, dict[str, Any]]) ->
         now = db_now(s)
         for job_id, st in live.items():
             values: dict[str, Any] = {"heartbeat_at": now, "episodes_done": int(st.get("k", 0))}
-            if st.get("wall") is not None:  # training seconds so far (a resumed batch's earlier runs included)
-                values["wall_seconds"] = float(st["wall"])
-            if st.get("ret") is not None:
-                values["last_return"] = float(st["ret"])
-            if st.get("pid") is not None:
-                values["worker_pid"] = int(st["pid"])
+            for key, column, kind in _REPORTED:
+                if st.get(key) is not None:
+                    values[column] = kind(st[key])
             _set(s, Job.id == job_id, Job.owner == owner, **values)

@@ -21,6 +21,7 @@ import threading
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Executor, Future
+from contextlib import suppress
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
@@ -41,10 +42,8 @@ class PipeSink:
 
 
 def _watch_driver(alive: Connection) -> None:
-    try:
+    with suppress(EOFError, OSError):
         alive.recv()  # the driver never sends: this returns only when its end closes
-    except (EOFError, OSError):
-        pass
     os._exit(70)
 
 
@@ -143,26 +142,20 @@ class LocalProcessExecutor(Executor):
         # The executor's thread may reap (and close) a process meanwhile: a closed process
         # object raises ValueError, and is already gone.
         for p in procs:
-            try:
+            with suppress(ValueError):
                 if p.is_alive():
                     p.terminate()
-            except ValueError:
-                pass
         for p in procs:
-            try:
+            with suppress(ValueError):
                 p.join(grace)
                 if p.is_alive():
                     p.kill()
                     p.join(1.0)
-            except ValueError:
-                pass
 
     # ---- internals ----
     def _wakeup(self) -> None:
-        try:
+        with suppress(OSError):
             self._wake_w.send_bytes(b"x")
-        except OSError:
-            pass
 
     def _start_queued(self) -> None:
         while self._queue and len(self._running) < self.max_workers:
@@ -194,10 +187,8 @@ class LocalProcessExecutor(Executor):
                 return
             if kind == "progress":
                 if self._on_progress is not None:
-                    try:
+                    with suppress(Exception):
                         self._on_progress(payload)
-                    except Exception:
-                        pass
             else:
                 run.final = True
                 if not run.future.done():

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -67,13 +68,9 @@ def batch_pools(
     from nutribench.agents.registry import batched_names
     from nutribench.engine import supports
 
-    batchable: dict[tuple[str, int], bool] = {}
-
+    @functools.cache
     def batched(config: str, horizon: int) -> bool:
-        if (config, horizon) not in batchable:
-            ok = algo_of[config] in batched_names() and supports(load_agent_config(config), horizon) is None
-            batchable[config, horizon] = ok
-        return batchable[config, horizon]
+        return algo_of[config] in batched_names() and supports(load_agent_config(config), horizon) is None
 
     groups: dict[tuple, list[int]] = {}
     singles: list[int] = []

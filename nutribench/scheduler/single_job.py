@@ -7,7 +7,9 @@ Runs in a worker process; never touches the database. Progress goes to ``sink`` 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from nutribench.agents.api import eval_food_streams, evaluate, train, validation_food_streams
 from nutribench.agents.config import agent_config_sha256
@@ -62,28 +64,38 @@ def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
         val_episodes=getattr(spec, "val_episodes", 5),
     )
     progress.phase("eval")
+
+    def metadata() -> dict:
+        meta = collect_metadata() | {
+            "started_at": started,
+            "finished_at": utcnow(),
+            "wall_seconds": time.perf_counter() - t0,
+            "engine": Engine.SB3.value,
+            "device": "cpu",
+        }
+        if getattr(spec.agent_config, "entry_point", None):  # a plug-in: trained by its own code, in this harness
+            meta["engine"] = Engine.EXTERNAL.value
+            meta["source"], meta["source_sha256"] = entry_point_source(spec.agent_config.entry_point)
+        return meta
+
+    return evaluated(spec, agent, metadata)
+
+
+def evaluated(spec: JobSpec, agent: Any, metadata: Callable[[], dict]) -> JobResult:
+    """The result of ``spec``'s job, its ``agent`` trained: evaluated greedily on
+    ``spec.eval_episodes`` days drawn from the seed (the same days for every algorithm), saved
+    to ``spec.model_path``, with its training diagnostics, its validation days (with their
+    yardsticks) and ``metadata()`` (called once it is evaluated and saved)."""
     streams = eval_food_streams(spec.regime_config, spec.seed, spec.eval_episodes)
-    result = evaluate(agent, spec.regime_config, streams, record_steps=True)
-    model_path = None
-    if spec.model_path:
-        model_path = str(agent.save(Path(spec.model_path)))
-    meta = collect_metadata() | {
-        "started_at": started,
-        "finished_at": utcnow(),
-        "wall_seconds": time.perf_counter() - t0,
-        "engine": Engine.SB3.value,
-        "device": "cpu",
-    }
-    if getattr(spec.agent_config, "entry_point", None):  # a plug-in: trained by its own code, in this harness
-        meta["engine"] = Engine.EXTERNAL.value
-        meta["source"], meta["source_sha256"] = entry_point_source(spec.agent_config.entry_point)
+    evaluation = evaluate(agent, spec.regime_config, streams, record_steps=True)
+    model_path = str(agent.save(Path(spec.model_path))) if spec.model_path else None
     return JobResult(
         spec.job_id,
         agent.train_episodes,
-        result.episodes,
-        result.steps,
-        meta,
+        evaluation.episodes,
+        evaluation.steps,
+        metadata(),
         model_path=model_path,
-        diagnostics=agent.diagnostics,
+        diagnostics=list(getattr(agent, "diagnostics", None) or []),
         validation=with_yardsticks(spec, agent.validation),
     )

@@ -26,6 +26,21 @@ from nutribench.store.engine import db_now
 from nutribench.store.models import job_state
 
 COUNTS = ("done", "running", "failed", "pending")
+#: the ``jobs`` columns of a job tuple :func:`summarize` reads, after its regime and agent config
+#: (name and version of each)
+JOB_COLUMNS = (
+    "seed",
+    "episodes",
+    "status",
+    "heartbeat_at",
+    "wall_seconds",
+    "episodes_done",
+    "failures",
+    "error",
+    "owner",
+    "worker_pid",
+    "started_at",
+)
 
 
 @dataclass
@@ -60,19 +75,11 @@ class StatusReport:
         """Plain data for ``--json``: every field, the rows as dicts."""
         return asdict(self)
 
-    def to_frame(self):
-        """The rows as a pandas DataFrame."""
-        import pandas as pd
-
-        return pd.DataFrame([asdict(r) for r in self.rows])
-
 
 def _last_line(text: str | None) -> str:
     lines = [ln for ln in (text or "").strip().splitlines() if ln.strip()]
-    if not lines:
-        return ""
     # a traceback's last line is the exception; a one-line error is itself
-    return lines[-1].strip()[:300]
+    return lines[-1].strip()[:300] if lines else ""
 
 
 def status_table(db: str | os.PathLike[str]) -> StatusReport:
@@ -80,29 +87,12 @@ def status_table(db: str | os.PathLike[str]) -> StatusReport:
     last error of every failed job. Raises StoreError (one line) for a bad database."""
     store = open_store(db)
     try:
+        configs = (RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version)
         q = (
-            select(
-                RegimeConfig.name,
-                RegimeConfig.version,
-                AgentConfig.name,
-                AgentConfig.version,
-                Job.seed,
-                Job.episodes,
-                Job.status,
-                Job.heartbeat_at,
-                Job.wall_seconds,
-                Job.episodes_done,
-                Job.failures,
-                Job.error,
-                Job.owner,
-                Job.worker_pid,
-                Job.started_at,
-            )
+            select(*configs, *(getattr(Job, c) for c in JOB_COLUMNS))
             .join(RegimeConfig, RegimeConfig.id == Job.regime_id)
             .join(AgentConfig, AgentConfig.id == Job.agent_config_id)
-            .order_by(
-                RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version, Job.episodes, Job.seed
-            )
+            .order_by(*configs, Job.episodes, Job.seed)
         )
         with store.engine.connect() as conn:
             jobs = conn.execute(q).all()

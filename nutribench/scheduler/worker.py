@@ -15,7 +15,7 @@ import time
 import traceback
 from collections import deque
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from typing import Any
 
 from nutribench.scheduler.spec import JobFailed, JobResult, JobSpec
@@ -83,10 +83,8 @@ class JobProgress:
     def _send(self, event: dict[str, Any]) -> None:
         if self.sink is None:
             return
-        try:
+        with suppress(Exception):  # progress is best effort; it never fails a job
             self.sink({"job_id": self.spec.job_id, "time": time.time(), **event})
-        except Exception:  # progress is best effort; it never fails a job
-            pass
 
     def start(self) -> None:
         self._last = time.monotonic()
