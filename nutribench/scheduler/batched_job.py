@@ -41,7 +41,7 @@ from nutribench.engine.train import train_batched
 from nutribench.engines import Engine
 from nutribench.provenance import collect_metadata, git_state
 from nutribench.safe_write import atomic_write
-from nutribench.scheduler.single_job import check_configs, evaluated
+from nutribench.scheduler.single_job import check_configs, finished_result
 from nutribench.scheduler.spec import JobFailed, JobResult, JobSpec
 from nutribench.scheduler.worker import JobProgress, Sink
 
@@ -114,7 +114,7 @@ def job_result(spec: JobSpec, agent: Any, meta: dict, started: datetime, train_s
         wall = train_share + time.perf_counter() - t_eval
         return meta | {"started_at": started, "finished_at": utcnow(), "wall_seconds": wall}
 
-    result = evaluated(spec, agent, metadata)
+    result = finished_result(spec, agent, metadata)
     if spec.tensorboard:
         write_tensorboard(Path(spec.tensorboard) / spec.run_name, result.diagnostics)
     return result
@@ -152,13 +152,7 @@ def manifest(path: Path) -> Path:
 
 def _job(spec: JobSpec) -> dict[str, object]:
     """What a manifest records of one job: its id and what it is."""
-    return {
-        "job_id": spec.job_id,
-        "algo_sha256": spec.algo_sha256,
-        "regime_sha256": spec.regime_sha256,
-        "seed": spec.seed,
-        "episodes": spec.episodes,
-    }
+    return {key: getattr(spec, key) for key in ("job_id", "algo_sha256", "regime_sha256", "seed", "episodes")}
 
 
 def write_manifest(path: Path, specs: list[JobSpec]) -> None:

@@ -31,7 +31,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
-from pathlib import Path
+from functools import partial
 from typing import Any
 
 from sqlalchemy.exc import OperationalError
@@ -116,34 +116,32 @@ class RunSummary:
 
 
 # --------------------------------------------------------------------------- the run
+@dataclass(eq=False)
 class _Run:
     """State of one driver loop (in flight futures, live progress, counters)."""
 
-    def __init__(
-        self,
-        store: Store,
-        grid: Grid,
-        job_ids: list[int],
-        specs: Callable[[Job], JobSpec],
-        handle: ExecutorHandle,
-        job_fn: JobFn,
-        owner: str,
-        view: Any,
-        pools: list[Pool] | None = None,
-        batch_fn: Callable | None = None,
-    ):
-        self.store, self.grid, self.job_ids, self.make_spec = store, grid, job_ids, specs
-        self.handle, self.job_fn, self.owner, self.view = handle, job_fn, owner, view
-        self.pools = pools if pools is not None else [Pool(job_ids)]
-        self.batch_fn = batch_fn
-        self.in_flight: dict[Future, list[JobSpec]] = {}
-        self.held = HeldResults()  # finished jobs' results that met the write lock, stored again later
-        self.live: dict[int, dict[str, Any]] = {}
-        self.resumed: dict[int, int] = {}  # job id -> days trained before this run (resumed batches)
-        self.attempted: set[int] = set()
-        self.exhausted = False
-        self.planned = 0  # jobs this run runs: runnable at its start, and any it took over since
-        self.summary = RunSummary(total=len(job_ids))
+    store: Store
+    grid: Grid
+    job_ids: list[int]
+    make_spec: Callable[[Job], JobSpec]
+    handle: ExecutorHandle
+    job_fn: JobFn
+    owner: str
+    view: Any
+    pools: list[Pool] | None = None  # None: one pool of single jobs
+    batch_fn: Callable | None = None
+    in_flight: dict[Future, list[JobSpec]] = field(default_factory=dict)
+    held: HeldResults = field(default_factory=HeldResults)  # results that met the write lock, stored later
+    live: dict[int, dict[str, Any]] = field(default_factory=dict)
+    resumed: dict[int, int] = field(default_factory=dict)  # job id -> days trained before this run (resumed batches)
+    attempted: set[int] = field(default_factory=set)
+    exhausted: bool = False
+    planned: int = 0  # jobs this run runs: runnable at its start, and any it took over since
+    stop: threading.Event = field(default_factory=threading.Event)  # set: stop as Ctrl-C does
+
+    def __post_init__(self) -> None:
+        self.pools = self.pools if self.pools is not None else [Pool(self.job_ids)]
+        self.summary = RunSummary(total=len(self.job_ids))
 
     def fill(self) -> None:
         """Claim jobs for the free slots and start them: a single job per slot, or a batch of
@@ -269,6 +267,24 @@ class _Run:
             self.stop.wait(WAIT_POLL_S)
             self.view.update(self)
 
+    def drive(self) -> RunSummary:
+        """The driver loop of this run until every job is done or it is stopped (Ctrl-C, the
+        ``stop`` event, a storage error: the running jobs given back)."""
+        self.view.start(self)
+        try:
+            self.loop()
+            self.wait_for_others()
+            if self.stop.is_set():
+                self.interrupt()
+        except KeyboardInterrupt:
+            self.interrupt()
+        except OperationalError as e:  # disk full, I/O error, read-only file: one line, jobs given back
+            raise StoreError(self.interrupt(e)) from None
+        finally:
+            self.view.stop(self)
+            self.handle.close()
+        return self.summary
+
     def interrupt(self, error: BaseException | None = None) -> str:
         """Ctrl-C (a KeyboardInterrupt), the ``stop`` event or a storage ``error`` (its one line is returned):
         stop the workers, mark their jobs (and held results' jobs) interrupted, write nothing else."""
@@ -314,20 +330,19 @@ def run_grid(settings: GridSettings, stop: threading.Event | None = None) -> Run
         if s.retry_failed:
             reset_given_up(store, job_ids)
         runnable = count_claimable(store, job_ids)
-        owner = driver_token()
-        out = s.models
-        remove_finished_checkpoints(store, out / "checkpoints")  # killed batches whose jobs are done since
+        owner, checkpoints = driver_token(), s.models / "checkpoints"
+        remove_finished_checkpoints(store, checkpoints)  # killed batches whose jobs are done since
         summary = RunSummary(total=len(job_ids))
         held, _ = held_elsewhere(store, job_ids, owner)
         if runnable or held:
             make_spec = spec_maker(store, s, regime_cfgs, agent_cfgs)
             handle, note = make_executor(s.executor, s.workers, max(runnable, held))
             view = make_view(s.display, grid, len(job_ids), handle.description, note, agent_cfgs)
-            pools = _batched_pools(store, s, job_ids, regime_cfgs, agent_cfgs, handle.slots, out)
-            run = _Run(store, grid, job_ids, make_spec, handle, job_fn, owner, view, pools, batch_fn)
-            run.planned, run.stop = runnable, stop or threading.Event()  # set: stop as Ctrl-C does
-            summary = _drive(run, view, handle)
-        remove_finished_checkpoints(store, out / "checkpoints")  # those whose jobs this run finished otherwise
+            pools = _batched_pools(store, s, job_ids, regime_cfgs, agent_cfgs, handle.slots)
+            run = _Run(store, grid, job_ids, make_spec, handle, job_fn, owner, view, pools, batch_fn, planned=runnable)
+            run.stop = stop or run.stop
+            summary = run.drive()
+        remove_finished_checkpoints(store, checkpoints)  # those whose jobs this run finished otherwise
         counts = grid_counts(store, job_ids, owner)
         summary.skipped = max(0, counts["done"] - summary.done)
         summary.given_up, summary.busy = counts["given_up"], counts["busy"]
@@ -341,42 +356,17 @@ def run_grid(settings: GridSettings, stop: threading.Event | None = None) -> Run
 
 
 def _batched_pools(
-    store: Store, s: GridSettings, job_ids: list[int], regime_cfgs: list, agent_cfgs: list, slots: int, out: Path
+    store: Store, s: GridSettings, job_ids: list[int], regime_cfgs: list, agent_cfgs: list, slots: int
 ) -> list[Pool] | None:
     """The batched engine's pools (an agent config's jobs in batches, checkpointed ones first);
     None for the SB3 engine (one pool of single jobs)."""
     if s.engine != Engine.BATCHED:
         return None
+    algo_of = {a.name: a.algo for a in agent_cfgs}
     shapes = {r.name: (r.obj.reward.horizon, len(r.obj.catalog.food)) for r in regime_cfgs}
-    pools = batch_pools(
-        job_ids,
-        list(s.grid.cells()),
-        {a.name: a.algo for a in agent_cfgs},
-        shapes,
-        lambda ids: count_claimable(store, ids),
-        slots,
-        s.max_batch,
-    )
-    return checkpointed_first(pools, out / "checkpoints")
-
-
-def _drive(run: _Run, view: Any, handle: ExecutorHandle) -> RunSummary:
-    """The driver loop of one run until every job is done or it is stopped (Ctrl-C, the
-    ``stop`` event, a storage error: the running jobs given back)."""
-    view.start(run)
-    try:
-        run.loop()
-        run.wait_for_others()
-        if run.stop.is_set():
-            run.interrupt()
-    except KeyboardInterrupt:
-        run.interrupt()
-    except OperationalError as e:  # disk full, I/O error, read-only file: one line, jobs given back
-        raise StoreError(run.interrupt(e)) from None
-    finally:
-        view.stop(run)
-        handle.close()
-    return run.summary
+    claimable = partial(count_claimable, store)
+    pools = batch_pools(job_ids, s.grid.cells(), algo_of, shapes, claimable, slots, s.max_batch)
+    return checkpointed_first(pools, s.models / "checkpoints")
 
 
 __all__ = ["GridSettings", "RunError", "RunSummary", "run_grid"]

@@ -93,14 +93,8 @@ def local_executor(workers: int) -> ExecutorHandle:
 
     events: queue.Queue = queue.Queue()
     ex = LocalProcessExecutor(workers, on_progress=events.put, preload=PRELOAD)
-    return ExecutorHandle(
-        ex,
-        workers,
-        f"{workers} local worker process{'es' if workers != 1 else ''}",
-        sink=PipeSink(),
-        events=events,
-        _terminate=ex.terminate_running,
-    )
+    about = f"{workers} local worker process{'es' if workers != 1 else ''}"
+    return ExecutorHandle(ex, workers, about, PipeSink(), events, _terminate=ex.terminate_running)
 
 
 def dask_executor(address: str, workers: int | None) -> ExecutorHandle:
@@ -130,14 +124,8 @@ def dask_executor(address: str, workers: int | None) -> ExecutorHandle:
         finally:
             client.close()
 
-    return ExecutorHandle(
-        client.get_executor(pure=False),
-        slots,
-        f"dask cluster {address} ({len(client.nthreads())} workers, {threads} threads)",
-        sink=DaskSink(topic),
-        events=events,
-        _close=close,
-    )
+    about = f"dask cluster {address} ({len(client.nthreads())} workers, {threads} threads)"
+    return ExecutorHandle(client.get_executor(pure=False), slots, about, DaskSink(topic), events, _close=close)
 
 
 def dask_address(spec: str | None) -> str | None:

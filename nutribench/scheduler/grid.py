@@ -59,7 +59,7 @@ class Grid:
 
     def cells(self) -> list[tuple[str, str, int]]:
         """(regime, algo, seed) for every job of the grid, regime-major."""
-        return expand(self.regimes, self.algos, self.seeds)
+        return list(itertools.product(self.regimes, self.algos, self.seeds))
 
     def cpu_hours(self, cost_of: Callable[[str], float]) -> float:
         """An estimate of the grid's CPU time with the SB3 engine: each job's days times its
@@ -142,8 +142,3 @@ def resolve_grid(
     if not grid.regimes or not grid.algos:
         raise GridError("the grid is empty: give at least one regime and one algorithm")
     return grid
-
-
-def expand(regimes: Sequence[str], algos: Sequence[str], seeds: Sequence[int]) -> list[tuple[str, str, int]]:
-    """Every (regime, algo, seed) combination, regime-major, in the order given."""
-    return list(itertools.product(regimes, algos, seeds))

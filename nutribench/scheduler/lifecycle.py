@@ -127,21 +127,9 @@ def claim_jobs(store: Store, job_ids: Sequence[int], exclude: set[int], n: int, 
         )
         if not ids:
             return []
-        _set(
-            s,
-            Job.id.in_(ids),
-            _claimable(now),
-            status="running",
-            owner=owner,
-            heartbeat_at=now,
-            started_at=now,
-            finished_at=None,
-            attempt=Job.attempt + 1,
-            episodes_done=0,
-            last_return=None,
-            worker_pid=None,
-            wall_seconds=None,
-        )
+        claimed = {"status": "running", "owner": owner, "heartbeat_at": now, "started_at": now, "finished_at": None}
+        fresh = {"episodes_done": 0, "last_return": None, "worker_pid": None, "wall_seconds": None}
+        _set(s, Job.id.in_(ids), _claimable(now), attempt=Job.attempt + 1, **claimed, **fresh)
         return list(
             s.execute(select(Job).where(Job.id.in_(ids), Job.owner == owner, Job.status == "running")).scalars()
         )

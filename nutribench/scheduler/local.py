@@ -94,13 +94,11 @@ class LocalProcessExecutor(Executor):
         self,
         max_workers: int,
         on_progress: Callable[[dict[str, Any]], None] | None = None,
-        start_method: str | None = None,
         preload: tuple[str, ...] = (),
     ):
         if max_workers < 1:
             raise ValueError("max_workers must be at least 1")
-        methods = mp.get_all_start_methods()
-        method = start_method or ("forkserver" if "forkserver" in methods else "spawn")
+        method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
         self._ctx = mp.get_context(method)
         if method == "forkserver" and preload:
             self._ctx.set_forkserver_preload(list(preload))

@@ -12,8 +12,6 @@ from nutribench.scheduler.registration import RunError
 
 #: at most this many jobs in one batch (the paper grid's 7 regimes x 5 seeds of one config)
 MAX_BATCH = 35
-#: ``nutribench run --engine``: a job per worker (the reference), or batches per agent config
-ENGINES = TRAINING_ENGINES
 
 
 def check_engine(engine: str, max_batch: int, device: str = "auto") -> None:
@@ -22,8 +20,8 @@ def check_engine(engine: str, max_batch: int, device: str = "auto") -> None:
     built there), so it takes ``auto`` (= the CPU) and ``cpu`` only; the batched engine takes
     any device :func:`~nutribench.engine.device.check_device` accepts here (CUDA only where
     this machine has it: a dask cluster whose driver has no GPU runs its GPUs with ``auto``)."""
-    if engine not in ENGINES:
-        raise RunError(f"--engine {engine!r}: use {' or '.join(ENGINES)}")
+    if engine not in TRAINING_ENGINES:  # a job per worker (the reference), or batches per agent config
+        raise RunError(f"--engine {engine!r}: use {' or '.join(TRAINING_ENGINES)}")
     if max_batch < 1:
         raise RunError(f"--batch-size {max_batch}: use a positive number of jobs")
     if engine == Engine.SB3:

@@ -3,10 +3,10 @@ the heavy modules already loaded. Missing optional pieces are skipped."""
 
 import os
 
-for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from nutribench.scheduler.worker import THREAD_VARIABLES  # imports no numerical library
 
-import nutribench.scheduler.worker  # noqa: E402,F401
+for _var in THREAD_VARIABLES:  # before torch and numpy are imported below
+    os.environ.setdefault(_var, "1")
 
 try:  # the agents (torch, stable-baselines3); absent while they are being written
     import nutribench.agents.api  # noqa: F401

@@ -163,14 +163,8 @@ class LiveView(NullView):
         for st in sorted(run.live.values(), key=lambda st: st["spec"].job_id):
             spec = st["spec"]
             ret = "" if st.get("ret") is None else f"{st['ret']:.2f}"
-            table.add_row(
-                spec.regime,
-                spec.algo,
-                str(spec.seed),
-                f"{st.get('k', 0)}/{spec.episodes}",
-                ret,
-                format_duration(time.monotonic() - st["t0"]),
-            )
+            took = format_duration(time.monotonic() - st["t0"])
+            table.add_row(spec.regime, spec.algo, str(spec.seed), f"{st.get('k', 0)}/{spec.episodes}", ret, took)
         return Group(head, table)
 
     def line(self, run: Any) -> str:

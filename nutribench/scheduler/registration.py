@@ -137,12 +137,8 @@ def register_grid(
 
 def model_path(models_dir: Path, regime: _Config, agent: _Config, seed: int, episodes: int) -> Path:
     """``<models>/<regime>-v<rv>/<algo>-v<av>/seed<seed>-ep<episodes>.zip``."""
-    return (
-        models_dir
-        / f"{regime.name}-v{regime.version}"
-        / f"{agent.name}-v{agent.version}"
-        / f"seed{seed}-ep{episodes}.zip"
-    )
+    folder = models_dir / f"{regime.name}-v{regime.version}" / f"{agent.name}-v{agent.version}"
+    return folder / f"seed{seed}-ep{episodes}.zip"
 
 
 def spec_maker(store: Store, settings: Any, regime_cfgs: Sequence, agent_cfgs: Sequence) -> Callable[[Job], JobSpec]:

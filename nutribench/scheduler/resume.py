@@ -51,12 +51,7 @@ def _done(job: dict[str, Any], row: Any, prefix: str) -> bool:
         return False
     if "algo_sha256" not in job:  # an older manifest: the file name's agent config must match
         return prefix.startswith(f"{row.name}-v{row.version}-")
-    return (job.get("algo_sha256"), job.get("regime_sha256"), job.get("seed"), job.get("episodes")) == (
-        row.algo_sha256,
-        row.regime_sha256,
-        row.seed,
-        row.episodes,
-    )
+    return all(job.get(key) == getattr(row, key) for key in ("algo_sha256", "regime_sha256", "seed", "episodes"))
 
 
 def remove_finished_checkpoints(store: Store, folder: Path) -> list[Path]:

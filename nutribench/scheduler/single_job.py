@@ -66,22 +66,17 @@ def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:
     progress.phase("eval")
 
     def metadata() -> dict:
-        meta = collect_metadata() | {
-            "started_at": started,
-            "finished_at": utcnow(),
-            "wall_seconds": time.perf_counter() - t0,
-            "engine": Engine.SB3.value,
-            "device": "cpu",
-        }
+        meta = collect_metadata() | {"started_at": started, "finished_at": utcnow()}
+        meta |= {"wall_seconds": time.perf_counter() - t0, "engine": Engine.SB3.value, "device": "cpu"}
         if getattr(spec.agent_config, "entry_point", None):  # a plug-in: trained by its own code, in this harness
             meta["engine"] = Engine.EXTERNAL.value
             meta["source"], meta["source_sha256"] = entry_point_source(spec.agent_config.entry_point)
         return meta
 
-    return evaluated(spec, agent, metadata)
+    return finished_result(spec, agent, metadata)
 
 
-def evaluated(spec: JobSpec, agent: Any, metadata: Callable[[], dict]) -> JobResult:
+def finished_result(spec: JobSpec, agent: Any, metadata: Callable[[], dict]) -> JobResult:
     """The result of ``spec``'s job, its ``agent`` trained: evaluated greedily on
     ``spec.eval_episodes`` days drawn from the seed (the same days for every algorithm), saved
     to ``spec.model_path``, with its training diagnostics, its validation days (with their

@@ -77,26 +77,13 @@ def synthetic_job(
     for e in range(spec.eval_episodes):
         evals.append(_metrics(rng, e))
         s = np.cumsum(rng.uniform(0, 0.05, size=(HORIZON, 3)), axis=0)
-        for t in range(HORIZON):
-            steps.append(
-                {
-                    "episode": e,
-                    "step": t + 1,
-                    "food": int(rng.integers(0, 10)),
-                    "action": int(rng.integers(0, 2)),
-                    "C": float(s[t, 0]),
-                    "F": float(s[t, 1]),
-                    "P": float(s[t, 2]),
-                    "reward": float(rng.normal()),
-                }
-            )
+        for t in range(HORIZON):  # the draws in this order: food, action, reward
+            step = {"episode": e, "step": t + 1, "food": int(rng.integers(0, 10)), "action": int(rng.integers(0, 2))}
+            steps.append(step | dict(zip("CFP", map(float, s[t]))) | {"reward": float(rng.normal())})
     with atomic_write(spec.model_path, "model file") as tmp:
         tmp.write_text("fake model\n")
-    meta = collect_metadata() | {
-        "started_at": started,
-        "finished_at": utcnow(),
-        "wall_seconds": time.perf_counter() - t0,
-    }
+    meta = collect_metadata() | {"started_at": started, "finished_at": utcnow()}
+    meta["wall_seconds"] = time.perf_counter() - t0
     return JobResult(spec.job_id, train, evals, steps, meta, model_path=spec.model_path)
 
 
