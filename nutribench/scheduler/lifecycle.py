@@ -228,20 +228,17 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
         return True
 
 
+def _ended(session: Any) -> dict[str, Any]:
+    """What a job that stops running (failed, or given back) is set to: no owner, its end now, and
+    no ``wall_seconds`` (a running job's training seconds so far, not what its attempt took)."""
+    return {"owner": None, "finished_at": db_now(session), "wall_seconds": None}
+
+
 def store_failure(store: Store, job_id: int, owner: str, error: str) -> None:
     """Status ``failed``, one more failure, the error text kept."""
     with session_scope(store.engine) as s:
-        _set(
-            s,
-            Job.id == job_id,
-            Job.owner == owner,
-            status="failed",
-            failures=Job.failures + 1,
-            error=error,
-            owner=None,
-            finished_at=db_now(s),
-            wall_seconds=None,  # a running job's training seconds so far: not what a failure took
-        )
+        failed = {"status": "failed", "failures": Job.failures + 1, "error": error}
+        _set(s, Job.id == job_id, Job.owner == owner, **failed, **_ended(s))
 
 
 def release_jobs(store: Store, job_ids: Sequence[int], owner: str, status: str = "interrupted") -> int:
@@ -249,9 +246,8 @@ def release_jobs(store: Store, job_ids: Sequence[int], owner: str, status: str =
     if not job_ids:
         return 0
     with session_scope(store.engine) as s:
-        # wall_seconds: a running job's training seconds so far; it is no longer running
         running = (Job.id.in_(list(job_ids)), Job.owner == owner, Job.status == "running")
-        return _set(s, *running, status=status, owner=None, finished_at=db_now(s), wall_seconds=None)
+        return _set(s, *running, status=status, **_ended(s))
 
 
 def flush_progress(store: Store, owner: str, live: dict[int, dict[str, Any]]) -> None:
