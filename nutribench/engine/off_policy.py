@@ -129,7 +129,8 @@ class BatchedOffPolicyAlgorithm(BatchedAlgorithm):
     """SB3's off-policy loop for the K agents of ``envs`` (the module docstring); subclasses
     give the acting (:meth:`act`), the update (:meth:`update`), what happens after each env
     step (:meth:`after_step`), the replay's n-step (:attr:`n_step`) and what a checkpoint
-    keeps of them (:meth:`model_state_dict`, :meth:`load_model_state_dict`). Their updates add
+    keeps of them (:meth:`model_state_dict`, :meth:`load_model_state_dict`: by default the
+    stacked ``net``'s). Their updates add
     their quantities to :attr:`means`; each day with updates gives every agent one diagnostics
     dict of that day's means."""
 
