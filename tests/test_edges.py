@@ -215,7 +215,7 @@ def test_a_read_only_database_is_read_by_the_read_only_commands(regimes, tmp_pat
     status, export, report, run = _as_read_only(lab, argvs, tmp_path)
     for _, out in (status, export, report, run):
         assert "Traceback" not in out and "unable to open" not in out, out
-    assert status[0] == 0 and "1 jobs: 1 done" in status[1].replace("\n", " "), status
+    assert status[0] == 0 and "1 job: 1 done" in status[1].replace("\n", " "), status
     assert export[0] == 0 and (tmp_path / "out.npz").is_file(), export
     assert report[0] == 2 and "holds no finished episodes yet" in report[1], report  # read: a dry run is no report
     assert run[0] == 2 and run[1].startswith("error:"), run  # a writer is refused in one line

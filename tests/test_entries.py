@@ -93,7 +93,7 @@ def test_compare_picks_one_entry_by_default_names_it_and_picks_another_when_aske
     out = json.loads(res.output)
     # by default the largest budget (v1's 2 days), not the newest version (v2's 1 day)
     assert any(
-        n.startswith("loop: compared loop v1, 2 days (by default") and "loop v2, 1 days (loop@v2@1)" in n
+        n.startswith("loop: compared loop v1, 2 days (by default") and "loop v2, 1 day (loop@v2@1)" in n
         for n in out["notes"]
     ), out["notes"]
     ev = pd.read_sql("select * from episode_metrics where phase = 'eval'", f"sqlite:///{db}")

@@ -114,7 +114,7 @@ def test_cli_prints_writes_and_reads_a_folder_of_archives(tmp_path: Path):
     res = CliRunner().invoke(app, ["leaderboard", "--db", str(db), "--out", str(tmp_path / "out"), "--reps", "200"])
     assert res.exit_code == 0, res.output
     assert "| 1 | eat_early |" in res.output and "| 2 | never_eat |" in res.output
-    assert "budget 1 days (reference 5000)" in res.output and "recorded" in res.output
+    assert "budget 1 day (reference 5000)" in res.output and "recorded" in res.output
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
         "leaderboard.csv",
         "leaderboard.md",
@@ -154,7 +154,7 @@ def test_the_report_page_has_a_leaderboard_section(tmp_path: Path):
     assert {"leaderboard.md", "leaderboard.csv", "leaderboard.tex", "index.html"} <= {p.name for p in paths}
     page = (tmp_path / "out" / "index.html").read_text()
     assert '<section id="leaderboard">' in page and "Leaderboard: every agent ranked" in page
-    assert "<td>eat_early</td>" in page and "budget 1 days (reference 5000)" in page
+    assert "<td>eat_early</td>" in page and "budget 1 day (reference 5000)" in page
 
 
 def test_the_protocol_tells_paper_tuned_and_variant_configs_apart() -> None:

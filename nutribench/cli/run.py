@@ -194,7 +194,7 @@ def render_status(report) -> None:
     print_table(columns, cells, "nutribench status")
     t = report.totals
     console.print(
-        f"{t['jobs']} jobs: {t['done']} done, {t['running']} running, {t['failed']} failed, {t['pending']} pending; "
+        f"{t['jobs']} job{'' if t['jobs'] == 1 else 's'}: {t['done']} done, {t['running']} running, {t['failed']} failed, {t['pending']} pending; "
         f"wall used {took(report.wall_seconds)}; ETA {took(report.eta_seconds)}"
         f" with {max(report.workers, 1)} worker{'s' if report.workers > 1 else ''}",
         highlight=False,

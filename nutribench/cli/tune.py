@@ -137,7 +137,8 @@ def tune_status_cmd(
         s = c.settings
         what = "settings unknown"
         if s is not None:
-            what = f"{s.space} v{s.space_version} on {','.join(s.regimes)}, seeds {','.join(map(str, s.seeds))}, {s.days} days"
+            seeds, days = ",".join(map(str, s.seeds)), f"{s.days} day{'' if s.days == 1 else 's'}"
+            what = f"{s.space} v{s.space_version} on {','.join(s.regimes)}, seeds {seeds}, {days}"
         best = "" if c.best_value is None else f"; best {c.best_value:+.1%} (trial {c.best_number})"
         say(
             f"study {c.name}: {what}: {c.complete} complete, {c.pruned} pruned, {c.running} running, "

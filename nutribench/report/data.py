@@ -203,7 +203,7 @@ def entries(df: pd.DataFrame) -> list[tuple[str, int, int]]:
 def entry_label(entry: tuple[str, int, int]) -> str:
     """``ppo v1, 5000 days``: how captions and notes name an entry."""
     name, version, budget = entry
-    return f"{name} v{version}, {budget} days"
+    return f"{name} v{version}, {budget} day{'' if budget == 1 else 's'}"
 
 
 def load_report_data(db: DbFile, latest_only: bool = True, algos: Sequence[str] | None = None) -> ReportData:

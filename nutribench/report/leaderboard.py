@@ -140,7 +140,7 @@ def _flags(budget: str, seeds: list[int], covered: list[str], board: list[str]) 
     if budget == "0":  # no training day recorded (an evaluated model without a sidecar that says)
         flags.append(f"{UNRECORDED} (reference {REFERENCE_BUDGET} days)")
     elif budget != str(REFERENCE_BUDGET):
-        flags.append(f"budget {budget} days (reference {REFERENCE_BUDGET})")
+        flags.append(f"budget {budget} day{'' if budget == '1' else 's'} (reference {REFERENCE_BUDGET})")
     if sorted(seeds) != sorted(REFERENCE_SEEDS):
         flags.append(f"seeds {seed_list(seeds)} (reference {', '.join(map(str, REFERENCE_SEEDS))})")
     missing = [r for r in board if r not in covered]
@@ -280,7 +280,7 @@ def _set_apart_notes(checked: dict) -> list[str]:
         if not isinstance(entry, tuple):
             return algo_label(entry)
         name, version, budget = entry
-        return f"{algo_label(name)} v{version} ({budget} days)"
+        return f"{algo_label(name)} v{version} ({budget} day{'' if budget == 1 else 's'})"
 
     return [
         f"{label(e)} is set apart, not ranked: {cell}" for e, cell in sorted(checked.items()) if not_reproduced(cell)

@@ -112,7 +112,7 @@ class RunSummary:
             )
         if self.interrupted:
             parts.append(f"{self.interrupted} interrupted (the next run resumes them)")
-        return f"{self.total} jobs: " + ", ".join(parts)
+        return f"{self.total} job{'' if self.total == 1 else 's'}: " + ", ".join(parts)
 
 
 # --------------------------------------------------------------------------- the run

@@ -141,7 +141,10 @@ class LiveView(NullView):
     def start(self, run: Any) -> None:
         if self.note:
             self.console.print(f"[yellow]note:[/] {self.note}", highlight=False)
-        self.console.print(f"{run.planned} of {run.summary.total} jobs to run on {self.description}", highlight=False)
+        self.console.print(
+            f"{run.planned} of {run.summary.total} job{'' if run.summary.total == 1 else 's'} to run on {self.description}",
+            highlight=False,
+        )
         self.live.start()
         self.update(run, force=True)
 

@@ -103,9 +103,10 @@ def tune(
     _, grace = heartbeat_settings()
     n, at_a_time = len(study.regimes) * len(study.seeds), f", {t.stack} trials at a time" if t.stack > 1 else ""
     say(
-        f"tune {t.study}: search space {space.name}, until {t.trials} trials are finished; each trains "
+        f"tune {t.study}: search space {space.name}, until {t.trials} trial{' is' if t.trials == 1 else 's are'} "
+        "finished; each trains "
         f"{n} agent{'' if n == 1 else 's'} ({', '.join(study.regimes)} x seeds {', '.join(map(str, study.seeds))}) "
-        f"for {study.days:,} days{at_a_time}; study in {shown_db(t.db)}: opening it"
+        f"for {study.days:,} day{'' if study.days == 1 else 's'}{at_a_time}; study in {shown_db(t.db)}: opening it"
     )
     handle = open_study(t.db, t.study, study, space_file_attr(resolve_space_path(t.space)), once=once)
     with ExitStack() as shown:  # the progress line, until the next line said
@@ -139,7 +140,8 @@ def tune(
         else:
             counts = run_study(handle, objective, t.trials, on_trial=finished, on_wait=waiting)
     say(
-        f"study {t.study} holds {counts.finished} finished trials: `nutribench tune best --study {t.study} --write` "
+        f"study {t.study} holds {counts.finished} finished trial{'' if counts.finished == 1 else 's'}: "
+        f"`nutribench tune best --study {t.study} --write` "
         "writes the best as a new agent file"
     )
     return counts
@@ -163,7 +165,7 @@ def show_training(objective: Any, advance: Callable[..., None]) -> None:
         numbers.append(trial.number)
         which = f"trial {numbers[0]}" if len(numbers) == 1 else f"trials {min(numbers)}..{max(numbers)}"
         shown["which"] = f"training {which}: {n_jobs} agent{'s' if n_jobs != 1 else ''} each"
-        advance(f"{shown['which']}, {s.days:,} days, {first}", 0, s.days)
+        advance(f"{shown['which']}, {s.days:,} day{'' if s.days == 1 else 's'}, {first}", 0, s.days)
 
     def on_day(day: int, job: int | None) -> None:
         step = max(1, s.days // 100)  # at most about 100 updates of the line per trial
