@@ -222,7 +222,7 @@ def test_double_dqn_target_differs_from_the_max_target():
 
 
 def test_ddqn_training_uses_the_double_target(monkeypatch):
-    import nutribench.agents.builtin.ddqn as algos
+    import nutribench.agents.sb3_models as algos
 
     calls = []
     real = algos.double_dqn_target

@@ -138,3 +138,114 @@ def test_the_whole_app_lists_every_command() -> None:
     assert sorted(listed) == sorted(name for name, _ in COMMANDS)
     assert isinstance(build_app(only="status"), typer.Typer)
     assert [c.name for c in build_app(only="status").registered_commands] == ["status"]
+
+
+_CHECK_AGENTS = """
+import sys
+import nutribench.agents.registry as registry
+from nutribench.agents.config import list_agent_configs, load_agent_config
+from nutribench.engine import supports
+from nutribench.scheduler.grid import resolve_grid
+from nutribench.scheduler.settings import GridSettings
+names = list_agent_configs()
+for name in names:
+    cfg = load_agent_config(name)
+    entry = registry.algorithm(cfg)
+    registry.batch_limit(cfg, 50), supports(cfg, 50), entry.config_model(), entry.display
+grid = resolve_grid(preset="smoke", regimes=["run0"], algos=names, seeds=None, episodes=2, eval_episodes=1)
+GridSettings.of(grid, sys.argv[1]).check()
+GridSettings.of(grid, sys.argv[1], engine="batched", device="cpu").check()
+print(len(names), " ".join(n for n in ("torch", "stable_baselines3") if n in sys.modules) or "-")
+"""
+
+
+def test_checking_every_shipped_agent_config_imports_no_torch(tmp_path: Path) -> None:
+    """What ``nutribench run`` checks before its first line (every agent file read, its
+    registry entry and batch limits asked, the grid's settings checked on both engines)
+    imports neither torch nor Stable-Baselines3: a built-in's module keeps its SB3 class
+    elsewhere, imported when a model is built."""
+    result = subprocess.run(
+        [sys.executable, "-c", _CHECK_AGENTS, str(tmp_path / "nb.db")],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    count, heavy = result.stdout.strip().split(" ", 1)
+    assert int(count) >= 5 and heavy == "-"
+    assert not (tmp_path / "nb.db").exists()  # checked, nothing created
+
+
+_FIRST_LINE = """
+import sys
+
+class FirstWrite:
+    '''stderr, noting whether torch was imported when the first line was written'''
+    def __init__(self, stream):
+        self.stream, self.first = stream, None
+    def write(self, text):
+        if self.first is None and text.strip():
+            self.first = (text.strip().splitlines()[0], "torch" in sys.modules)
+        return self.stream.write(text)
+    def __getattr__(self, name):
+        return getattr(self.stream, name)
+
+sys.stderr = seen = FirstWrite(sys.stderr)
+from nutribench.cli import main
+sys.argv = ["nutribench", *sys.argv[1:]]
+try:
+    main()
+finally:
+    print(seen.first[1], "torch" in sys.modules, seen.first[0], file=sys.__stdout__)
+"""
+
+
+def test_run_says_what_it_starts_before_torch_is_imported(tmp_path: Path) -> None:
+    """``nutribench run``'s first line (what it starts) is written before torch is imported;
+    the job then trains (torch comes in) and the run ends well."""
+    args = ["run", "--preset", "smoke", "--regimes", "run0", "--algos", "mc", "--days", "2", "--eval-episodes", "1"]
+    result = subprocess.run(
+        [sys.executable, "-c", _FIRST_LINE, *args, "--db", str(tmp_path / "nb.db")],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr
+    torch_at_first_line, torch_at_end, first = result.stdout.split(" ", 2)
+    assert first.startswith("nutribench run: 1 job (1 regime x 1 agent mc"), first
+    assert (torch_at_first_line, torch_at_end) == ("False", "True")
+
+
+_TUNE_FIRST_LINE = """
+import sys
+from nutribench.tuning.driver import TuneSettings, tune
+
+class Said(Exception):
+    pass
+
+def say(line):
+    print("torch" in sys.modules, line)
+    raise Said
+
+try:
+    tune(TuneSettings("mc", "first", ("run0",), None, trials=1, days=2, db=sys.argv[1]), say)
+except Said:
+    pass
+"""
+
+
+def test_tune_says_what_it_starts_before_torch_is_imported(tmp_path: Path) -> None:
+    """``nutribench tune``'s first line (the study, its trials and agents) comes before torch."""
+    result = subprocess.run(
+        [sys.executable, "-c", _TUNE_FIRST_LINE, str(tmp_path / "nb.db")],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    torch_loaded, first = result.stdout.strip().split(" ", 1)
+    assert first.startswith("tune first: search space mc, until 1 trial is finished"), first
+    assert torch_loaded == "False"

@@ -19,6 +19,8 @@ This module imports neither torch nor the engine's code.
 
 from __future__ import annotations
 
+import math
+import os
 from typing import Any
 
 import nutribench.agents.registry as registry
@@ -27,6 +29,29 @@ from nutribench.errors import UserError
 
 class UnsupportedConfig(UserError, ValueError):
     """An agent config the batched engine cannot train as the SB3 engine does (one line)."""
+
+
+#: how often a batch saves its state (seconds of wall time, checked at day boundaries)
+DEFAULT_EVERY_SECONDS = 300.0
+#: the environment variable that sets the seconds between saves (a short call on a lent machine)
+EVERY_SECONDS_ENV = "NUTRIBENCH_CHECKPOINT_SECONDS"
+
+
+def every_seconds_from_env() -> float:
+    """The seconds between a batch's saves: ``$NUTRIBENCH_CHECKPOINT_SECONDS`` when set (a positive
+    number), else :data:`DEFAULT_EVERY_SECONDS`. A value that is not raises ``ValueError`` (one line)."""
+    raw = os.environ.get(EVERY_SECONDS_ENV, "").strip()
+    if not raw:
+        return DEFAULT_EVERY_SECONDS
+    try:
+        seconds = float(raw)
+    except ValueError:
+        seconds = float("nan")
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise ValueError(
+            f"{EVERY_SECONDS_ENV}={raw!r} is not a positive number of seconds: set it to e.g. 60, or unset it"
+        )
+    return seconds
 
 
 def supports(cfg: Any, horizon: int | None = None) -> str | None:

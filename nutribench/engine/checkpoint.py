@@ -34,7 +34,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import math
 import os
 import pickle
 import time
@@ -44,12 +43,9 @@ from typing import Any
 import numpy as np
 import torch as th
 
-log = logging.getLogger(__name__)
+from nutribench.engine import DEFAULT_EVERY_SECONDS, EVERY_SECONDS_ENV, every_seconds_from_env  # noqa: F401 (here too)
 
-#: how often a batch saves its state (seconds of wall time, checked at day boundaries)
-DEFAULT_EVERY_SECONDS = 300.0
-#: the environment variable that sets the seconds between saves (a short call on a lent machine)
-EVERY_SECONDS_ENV = "NUTRIBENCH_CHECKPOINT_SECONDS"
+log = logging.getLogger(__name__)
 
 #: the JSON half's ``format``: a checkpoint of another (an older nutribench's) is refused
 CHECKPOINT_FORMAT = "nutribench-checkpoint/3"
@@ -122,23 +118,6 @@ def _sha256(path: Path) -> str:
 def _first_line(exc: BaseException) -> str:
     line = (str(exc).strip().splitlines() or [""])[0].strip()[:160]
     return line if isinstance(exc, CheckpointRefused) else f"{type(exc).__name__}: {line}".rstrip(": ")
-
-
-def every_seconds_from_env() -> float:
-    """The seconds between a batch's saves: ``$NUTRIBENCH_CHECKPOINT_SECONDS`` when set (a positive
-    number), else :data:`DEFAULT_EVERY_SECONDS`. A value that is not raises ``ValueError`` (one line)."""
-    raw = os.environ.get(EVERY_SECONDS_ENV, "").strip()
-    if not raw:
-        return DEFAULT_EVERY_SECONDS
-    try:
-        seconds = float(raw)
-    except ValueError:
-        seconds = float("nan")
-    if not (math.isfinite(seconds) and seconds > 0):
-        raise ValueError(
-            f"{EVERY_SECONDS_ENV}={raw!r} is not a positive number of seconds: set it to e.g. 60, or unset it"
-        )
-    return seconds
 
 
 class Checkpoint:

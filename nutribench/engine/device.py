@@ -7,14 +7,18 @@ to the device; its agents are handed back with CPU weights, so saved models load
 
 Checking a name (:func:`check_device`) never starts CUDA for ``auto`` or ``cpu``, and for
 ``cuda`` only asks how many devices there are, so the driver of ``nutribench run`` can check
-``--device`` before it starts its workers.
+``--device`` before it starts its workers; for ``auto`` or ``cpu`` it does not even import
+torch, so that a run or a study says what it starts before torch loads.
 """
 
 from __future__ import annotations
 
-import torch as th
+from typing import TYPE_CHECKING
 
 from nutribench.errors import UserError
+
+if TYPE_CHECKING:
+    import torch as th
 
 #: the ``--device`` values (besides ``cuda:N``, a CUDA device by its index)
 DEVICES = ("auto", "cpu", "cuda")
@@ -37,6 +41,8 @@ def _parse(name: str | th.device) -> tuple[str, int | None]:
 
 def _check_cuda(name: str | th.device, index: int | None) -> None:
     """Refuse CUDA where this torch has none, or a device index beyond the count, in one line."""
+    import torch as th
+
     if not th.cuda.is_available():
         why = "this torch is built without CUDA" if th.version.cuda is None else "no CUDA device is visible"
         raise DeviceError(f"--device {name}: CUDA is not available here ({why}); use --device cpu or --device auto")
@@ -61,6 +67,8 @@ def resolve_device(name: str | th.device) -> th.device:
     else ``cpu``; ``cuda`` -> the current CUDA device, with its index (so that it compares
     equal to a tensor's ``.device``); ``cuda:N`` -> that one. Raises DeviceError (one line)
     for an unknown name, or CUDA where there is none."""
+    import torch as th
+
     kind, index = _parse(name)
     if kind == "auto":
         kind = "cuda" if th.cuda.is_available() else "cpu"
@@ -78,5 +86,7 @@ def leaves_on(params: list[th.Tensor], device: th.device | str | None) -> list[t
     optimiser is made over them."""
     if device is None:
         return params
+    import torch as th
+
     device = th.device(device)
     return [p if p.device == device else p.detach().to(device).requires_grad_(p.requires_grad) for p in params]

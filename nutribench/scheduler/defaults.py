@@ -24,15 +24,22 @@ def default_batch_fn() -> Callable:
     return run_batch
 
 
+def job_choice() -> str:
+    """``$NUTRIBENCH_JOB``: ``"fake"`` (the synthetic job) or ``"real"`` (unset); another value is
+    a one-line :class:`RunError`. Checked before a run starts, without importing the real job
+    (it imports torch)."""
+    choice = os.environ.get("NUTRIBENCH_JOB", "").strip()
+    if choice not in ("", "real", "fake"):
+        raise RunError(f"NUTRIBENCH_JOB={choice}: use 'fake' (synthetic jobs) or leave it unset")
+    return choice or "real"
+
+
 def default_job_fn() -> JobFn:
     """``$NUTRIBENCH_JOB=fake`` (tests, dry runs): the synthetic job; else the real one."""
-    choice = os.environ.get("NUTRIBENCH_JOB", "").strip()
-    if choice == "fake":
+    if job_choice() == "fake":
         from nutribench.scheduler.synthetic import synthetic_job
 
         return synthetic_job
-    if choice not in ("", "real"):
-        raise RunError(f"NUTRIBENCH_JOB={choice}: use 'fake' (synthetic jobs) or leave it unset")
     try:
         from nutribench.scheduler.single_job import run_job
     except ImportError as e:

@@ -86,9 +86,9 @@ class GridSettings:
     def check(self) -> None:
         """Every check ``nutribench run`` makes before the database file exists (see the module
         docstring), each a one-line :class:`~nutribench.errors.UserError`."""
-        from nutribench.engine.checkpoint import every_seconds_from_env
+        from nutribench.engine import every_seconds_from_env
         from nutribench.safe_write import check_folder_target, check_tensorboard
-        from nutribench.scheduler.defaults import default_job_fn
+        from nutribench.scheduler.defaults import job_choice
         from nutribench.scheduler.registration import load_grid_configs
 
         dask_address(self.executor)
@@ -108,7 +108,7 @@ class GridSettings:
         _, agent_cfgs = load_grid_configs(self.grid)  # a broken config file fails here
         check_eval_every_agents(self.eval_every or 0, agent_cfgs)
         if self.job_fn is None:
-            default_job_fn()  # a bad $NUTRIBENCH_JOB
+            job_choice()  # a bad $NUTRIBENCH_JOB
 
     def starting_line(self) -> str:
         """What the run starts, printed as soon as its options are checked, before the database

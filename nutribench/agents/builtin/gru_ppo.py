@@ -6,16 +6,16 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import Field, SerializerFunctionWrapHandler, model_serializer, model_validator
-from stable_baselines3.common.base_class import BaseAlgorithm
 
-from nutribench.agents.algos import ppo_arguments
 from nutribench.agents.config import AgentBase, Flag, HiddenSize, PosInt, PPOFields
-from nutribench.agents.gru_ppo import GRUPPO
-from nutribench.agents.registry import Algorithm
+from nutribench.agents.registry import Algorithm, lazy_attributes
 from nutribench.config.sizes import rollout_bytes, too_large
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
 
 
 class GRUPPOConfig(AgentBase, PPOFields):
@@ -59,6 +59,9 @@ class GRUPPOConfig(AgentBase, PPOFields):
 
 def gru_ppo_arguments(cfg: GRUPPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
     """GRU-PPO: PPO's arguments, the recurrent policy's sizes and whether it carries its state."""
+    from nutribench.agents.algos import ppo_arguments
+    from nutribench.agents.gru_ppo import GRUPPO
+
     return GRUPPO, dict(
         **ppo_arguments(cfg), hidden_size=cfg.hidden_size, sequence_length=cfg.sequence_length, memory=cfg.memory
     )
@@ -73,6 +76,9 @@ def whole_days(cfg: GRUPPOConfig, horizon: int | None) -> str | None:
         )
     return None
 
+
+#: its SB3 class (imported when first asked for: it imports torch), found here as before
+__getattr__ = lazy_attributes(__name__, "nutribench.agents.gru_ppo", "GRUPPO")
 
 ALGORITHM = Algorithm(
     "gru_ppo",

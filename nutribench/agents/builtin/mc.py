@@ -6,14 +6,13 @@ acts with its models."""
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-from stable_baselines3 import A2C
-from stable_baselines3.common.base_class import BaseAlgorithm
-
-from nutribench.agents.algos import shared_actor_critic_kwargs
 from nutribench.agents.config import FeedForward, GradNorm, NonNegFloat, PosFloat
-from nutribench.agents.registry import Algorithm
+from nutribench.agents.registry import Algorithm, lazy_attributes
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
 
 
 class MCConfig(FeedForward):
@@ -27,16 +26,11 @@ class MCConfig(FeedForward):
     max_grad_norm: GradNorm
 
 
-class MonteCarloAC(A2C):
-    """On-policy Monte Carlo actor-critic (the paper's Table 2) as an A2C whose rollout is one
-    whole day (``n_steps`` = horizon, one env) and whose GAE lambda is 1: each update uses
-    the complete episode's discounted returns. No gradient clipping when ``max_grad_norm`` is
-    ``inf`` (the norm is still logged: :class:`~nutribench.agents.training_log.GradNormProbe`).
-    SB3's ``A2C`` unchanged."""
-
-
 def mc_arguments(cfg: MCConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
     """MC: an A2C whose rollout is one whole day, GAE lambda 1, Adam, no advantage normalisation."""
+    from nutribench.agents.algos import shared_actor_critic_kwargs
+    from nutribench.agents.sb3_models import MonteCarloAC
+
     return MonteCarloAC, dict(
         policy="MlpPolicy",
         n_steps=horizon,
@@ -50,6 +44,10 @@ def mc_arguments(cfg: MCConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict
         policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch),
     )
 
+
+#: its SB3 class, which imports torch: it lives in :mod:`nutribench.agents.sb3_models` and is
+#: found here too, imported when first asked for (the ``load`` below names it)
+__getattr__ = lazy_attributes(__name__, "nutribench.agents.sb3_models", "MonteCarloAC")
 
 ALGORITHM = Algorithm(
     "mc",

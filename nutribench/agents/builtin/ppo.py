@@ -7,15 +7,13 @@ SB3's ``PPO`` loads and acts with its models. Its optimisation fields
 
 from __future__ import annotations
 
-import warnings
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-from stable_baselines3 import PPO
-from stable_baselines3.common.base_class import BaseAlgorithm
-
-from nutribench.agents.algos import ppo_arguments, shared_actor_critic_kwargs
 from nutribench.agents.config import FeedForward, PPOFields
-from nutribench.agents.registry import Algorithm
+from nutribench.agents.registry import Algorithm, lazy_attributes
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
 
 
 class PPOConfig(FeedForward, PPOFields):
@@ -24,28 +22,19 @@ class PPOConfig(FeedForward, PPOFields):
     algo: Literal["ppo"]
 
 
-class PPOWithGradNorm(PPO):
-    """SB3 ``PPO`` unchanged, built without SB3's minibatch-size warning; its diagnostics'
-    ``grad_norm`` (the mean over an update's gradient steps of the norm before clipping) is
-    read by :class:`~nutribench.agents.training_log.GradNormProbe`, as on any on-policy model.
-    Its saved models are SB3 ``PPO`` models (the name is kept: model files name it)."""
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        # SB3 warns when batch_size does not divide n_steps; whole days per rollout matter more
-        # here than equal minibatches (500 = 7 x 64 + 52). Silenced while it builds, not in the caller.
-        with warnings.catch_warnings():
-            warnings.filterwarnings(
-                "ignore", message="You have specified a mini-batch size", module="stable_baselines3"
-            )
-            super().__init__(*args, **kwargs)
-
-
 def ppo_model_arguments(cfg: PPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
     """PPO on the shared actor-critic."""
+    from nutribench.agents.algos import ppo_arguments, shared_actor_critic_kwargs
+    from nutribench.agents.sb3_models import PPOWithGradNorm
+
     return PPOWithGradNorm, dict(
         policy="MlpPolicy", **ppo_arguments(cfg), policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch)
     )
 
+
+#: its SB3 class, which imports torch: it lives in :mod:`nutribench.agents.sb3_models` and is
+#: found here too, imported when first asked for (the ``load`` below names it)
+__getattr__ = lazy_attributes(__name__, "nutribench.agents.sb3_models", "PPOWithGradNorm")
 
 ALGORITHM = Algorithm(
     "ppo",

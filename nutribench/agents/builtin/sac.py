@@ -4,13 +4,13 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
-
-from stable_baselines3.common.base_class import BaseAlgorithm
+from typing import TYPE_CHECKING, Any, Literal
 
 from nutribench.agents.config import FeedForward, NonNegFloat, NonNegInt, PosFloat, PosInt, Prob, Transitions
-from nutribench.agents.registry import Algorithm, no_replay_scaling
-from nutribench.agents.sac import DiscreteSAC
+from nutribench.agents.registry import Algorithm, lazy_attributes, no_replay_scaling
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
 
 
 class SACConfig(FeedForward):
@@ -30,6 +30,8 @@ class SACConfig(FeedForward):
 
 def sac_arguments(cfg: SACConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
     """Discrete SAC, fixed temperature."""
+    from nutribench.agents.sac import DiscreteSAC
+
     return DiscreteSAC, dict(
         policy="MlpPolicy",
         actor_learning_rate=cfg.actor_learning_rate,
@@ -44,6 +46,9 @@ def sac_arguments(cfg: SACConfig, horizon: int) -> tuple[type[BaseAlgorithm], di
         net_arch=list(cfg.net_arch),
     )
 
+
+#: its SB3 class (imported when first asked for: it imports torch), found here as before
+__getattr__ = lazy_attributes(__name__, "nutribench.agents.sac", "DiscreteSAC")
 
 ALGORITHM = Algorithm(
     "sac",
