@@ -26,7 +26,6 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
 import nutribench.agents.registry as registry
-from nutribench.agents.config import PPOFields
 from nutribench.config.loading import ConfigError
 
 
@@ -76,12 +75,6 @@ def build_model(
     # tempdir/SB3-<date> (its default logger's folder), one per job: thousands in /tmp.
     model.set_logger(Logger(folder=None, output_formats=[]))
     return model
-
-
-def ppo_arguments(cfg: Any) -> dict[str, Any]:
-    """The constructor arguments PPO and GRU-PPO share (GRU-PPO's update is PPO's): those of
-    :class:`~nutribench.agents.config.PPOFields`."""
-    return {name: getattr(cfg, name) for name in PPOFields.model_fields}
 
 
 def model_arguments(cfg: Any, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:

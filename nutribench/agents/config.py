@@ -76,6 +76,13 @@ class AgentBase(BaseModel):
     )
     gamma: Discount
 
+    def own_settings(self) -> dict[str, Any]:
+        """The values of the fields its algorithm's config adds (not those of :class:`FeedForward`,
+        every agent's and the backbone's, nor ``algo``): what a built-in algorithm's constructor
+        takes under the same names (PPO's :class:`PPOFields`, SAC's rates, buffer and temperature)."""
+        common = {"algo", *FeedForward.model_fields}
+        return {name: getattr(self, name) for name in type(self).model_fields if name not in common}
+
 
 class FeedForward(AgentBase):
     """The fields of a feedforward agent: the common ones and its backbone's hidden layers."""

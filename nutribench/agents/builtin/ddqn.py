@@ -53,22 +53,11 @@ def ddqn_arguments(cfg: DDQNConfig, horizon: int) -> tuple[type[BaseAlgorithm], 
 
     from nutribench.agents.sb3_models import DoubleDQN
 
+    own = cfg.own_settings()  # the rest are DoubleDQN's arguments of the same names
+    rates = LinearSchedule(own.pop("learning_rate_start"), own.pop("learning_rate_end"), end_fraction=1.0)
+    own["n_steps"] = own.pop("n_step")
     return DoubleDQN, dict(
-        policy="MlpPolicy",
-        learning_rate=LinearSchedule(cfg.learning_rate_start, cfg.learning_rate_end, end_fraction=1.0),
-        buffer_size=cfg.buffer_size,
-        learning_starts=cfg.learning_starts,
-        batch_size=cfg.batch_size,
-        n_steps=cfg.n_step,
-        max_grad_norm=cfg.max_grad_norm,
-        target_update_interval=cfg.target_update_interval,
-        train_freq=cfg.train_freq,
-        gradient_steps=cfg.gradient_steps,
-        exploration_initial_eps=cfg.exploration_initial_eps,
-        exploration_final_eps=cfg.exploration_final_eps,
-        exploration_fraction=cfg.exploration_fraction,
-        tau=1.0,
-        policy_kwargs=dict(net_arch=list(cfg.net_arch)),
+        policy="MlpPolicy", learning_rate=rates, **own, tau=1.0, policy_kwargs=dict(net_arch=list(cfg.net_arch))
     )
 
 

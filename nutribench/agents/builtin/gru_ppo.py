@@ -2,7 +2,7 @@
 :class:`~nutribench.agents.gru_ppo.GRUPPO` (its policy, buffer and algorithm live in
 :mod:`nutribench.agents.gru_ppo`), which also loads its saved models. Its optimisation fields
 (:class:`~nutribench.agents.config.PPOFields`) and constructor arguments
-(:func:`~nutribench.agents.algos.ppo_arguments`) are PPO's."""
+(:meth:`~nutribench.agents.config.AgentBase.own_settings`) are PPO's with its own."""
 
 from __future__ import annotations
 
@@ -59,12 +59,9 @@ class GRUPPOConfig(AgentBase, PPOFields):
 
 def gru_ppo_arguments(cfg: GRUPPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
     """GRU-PPO: PPO's arguments, the recurrent policy's sizes and whether it carries its state."""
-    from nutribench.agents.algos import ppo_arguments
     from nutribench.agents.gru_ppo import GRUPPO
 
-    return GRUPPO, dict(
-        **ppo_arguments(cfg), hidden_size=cfg.hidden_size, sequence_length=cfg.sequence_length, memory=cfg.memory
-    )
+    return GRUPPO, cfg.own_settings()  # PPO's, hidden_size, sequence_length and memory
 
 
 def whole_days(cfg: GRUPPOConfig, horizon: int | None) -> str | None:

@@ -34,11 +34,7 @@ def mc_arguments(cfg: MCConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict
     return MonteCarloAC, dict(
         policy="MlpPolicy",
         n_steps=horizon,
-        learning_rate=cfg.learning_rate,
-        gae_lambda=1.0,
-        ent_coef=cfg.ent_coef,
-        vf_coef=cfg.vf_coef,
-        max_grad_norm=cfg.max_grad_norm,
+        **cfg.own_settings(),  # learning_rate, gae_lambda (1), ent_coef, vf_coef, max_grad_norm
         use_rms_prop=False,
         normalize_advantage=False,
         policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch),

@@ -3,7 +3,7 @@
 read by the diagnostics' probe, :class:`~nutribench.agents.training_log.GradNormProbe`); plain
 SB3's ``PPO`` loads and acts with its models. Its optimisation fields
 (:class:`~nutribench.agents.config.PPOFields`) and constructor arguments
-(:func:`~nutribench.agents.algos.ppo_arguments`) are shared with GRU-PPO."""
+(:meth:`~nutribench.agents.config.AgentBase.own_settings`, PPOFields' values) are shared with GRU-PPO."""
 
 from __future__ import annotations
 
@@ -24,11 +24,11 @@ class PPOConfig(FeedForward, PPOFields):
 
 def ppo_model_arguments(cfg: PPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
     """PPO on the shared actor-critic."""
-    from nutribench.agents.algos import ppo_arguments, shared_actor_critic_kwargs
+    from nutribench.agents.algos import shared_actor_critic_kwargs
     from nutribench.agents.sb3_models import PPOWithGradNorm
 
     return PPOWithGradNorm, dict(
-        policy="MlpPolicy", **ppo_arguments(cfg), policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch)
+        policy="MlpPolicy", **cfg.own_settings(), policy_kwargs=shared_actor_critic_kwargs(cfg.net_arch)
     )
 
 

@@ -32,19 +32,7 @@ def sac_arguments(cfg: SACConfig, horizon: int) -> tuple[type[BaseAlgorithm], di
     """Discrete SAC, fixed temperature."""
     from nutribench.agents.sac import DiscreteSAC
 
-    return DiscreteSAC, dict(
-        policy="MlpPolicy",
-        actor_learning_rate=cfg.actor_learning_rate,
-        critic_learning_rate=cfg.critic_learning_rate,
-        buffer_size=cfg.buffer_size,
-        learning_starts=cfg.learning_starts,
-        batch_size=cfg.batch_size,
-        tau=cfg.tau,
-        alpha=cfg.alpha,
-        train_freq=cfg.train_freq,
-        gradient_steps=cfg.gradient_steps,
-        net_arch=list(cfg.net_arch),
-    )
+    return DiscreteSAC, dict(policy="MlpPolicy", **cfg.own_settings(), net_arch=list(cfg.net_arch))
 
 
 #: its SB3 class (imported when first asked for: it imports torch), found here as before
