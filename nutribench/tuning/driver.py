@@ -84,6 +84,18 @@ def plan(t: TuneSettings) -> tuple[Any, Any, bool]:
     return space, study, once
 
 
+def starting_line(t: TuneSettings, space: str, study: Any) -> str:
+    """What ``tune`` starts, said before anything is opened: the space, the trials, the agents
+    each trial trains and their days."""
+    n, at_a_time = len(study.regimes) * len(study.seeds), f", {t.stack} trials at a time" if t.stack > 1 else ""
+    return (
+        f"tune {t.study}: search space {space}, until {t.trials} trial{' is' if t.trials == 1 else 's are'} "
+        "finished; each trains "
+        f"{n} agent{'' if n == 1 else 's'} ({', '.join(study.regimes)} x seeds {', '.join(map(str, study.seeds))}) "
+        f"for {study.days:,} day{'' if study.days == 1 else 's'}{at_a_time}"
+    )
+
+
 def tune(
     t: TuneSettings,
     say: Callable[[str], None] = print,
@@ -101,13 +113,7 @@ def tune(
 
     space, study, once = plan(t)
     _, grace = heartbeat_settings()
-    n, at_a_time = len(study.regimes) * len(study.seeds), f", {t.stack} trials at a time" if t.stack > 1 else ""
-    say(
-        f"tune {t.study}: search space {space.name}, until {t.trials} trial{' is' if t.trials == 1 else 's are'} "
-        "finished; each trains "
-        f"{n} agent{'' if n == 1 else 's'} ({', '.join(study.regimes)} x seeds {', '.join(map(str, study.seeds))}) "
-        f"for {study.days:,} day{'' if study.days == 1 else 's'}{at_a_time}; study in {shown_db(t.db)}: opening it"
-    )
+    say(f"{starting_line(t, space.name, study)}; study in {shown_db(t.db)}: opening it")
     handle = open_study(t.db, t.study, study, space_file_attr(resolve_space_path(t.space)), once=once)
     with ExitStack() as shown:  # the progress line, until the next line said
 
