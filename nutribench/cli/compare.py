@@ -30,7 +30,9 @@ def compare_cmd(
         bool, typer.Option("--json", help="print JSON: the rows' numbers (differences in returns), the notes")
     ] = False,
     db: DbOption = "nutribench.db",
-    reps: Annotated[int, typer.Option(help="bootstrap resamples of the seeds (100 to 100,000)")] = 10_000,
+    reps: Annotated[
+        int, typer.Option(help="kept for scripts (100 to 100,000): the intervals draw no resamples now")
+    ] = 10_000,
 ) -> None:
     """A - B per regime and over regimes: the mean paired difference of evaluation returns
     (same seed, same day) with a 95 % bootstrap interval over seeds, P(A > B) over the paired
