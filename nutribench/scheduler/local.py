@@ -8,8 +8,9 @@ to the driver, with no shared queue that a dying process could corrupt. A proces
 also frees all of a job's memory when it ends; with the ``forkserver`` start method and the
 heavy modules preloaded, starting one costs milliseconds (jobs run minutes to hours).
 
-Workers ignore SIGINT (the driver decides what Ctrl-C does) and exit by themselves if the
-driver dies (a watchdog thread sees the driver's end of a pipe close).
+Workers run in a session of their own (``os.setsid``: a terminal's Ctrl-C goes to its foreground
+process group, the driver's, so only the driver decides what it does; no signal handler is
+installed outside the command line) and exit by themselves if the driver dies (a watchdog thread sees the driver's end of a pipe close).
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ def _watch_driver(alive: Connection) -> None:
 
 def _child_main(result: Connection, alive: Connection, fn: Callable, args: tuple, kwargs: dict) -> None:
     global _CHANNEL
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    os.setsid()  # out of the terminal's process group: a Ctrl-C reaches the driver only, which decides
     _CHANNEL = result
     threading.Thread(target=_watch_driver, args=(alive,), daemon=True).start()
     try:
