@@ -24,6 +24,14 @@ from nutribench.store.schema import alembic_config, head_revision, open_store, r
 REPO = Path(__file__).resolve().parents[1]
 
 
+def run_script(script: str, *args: str, cwd: Path | None = None, timeout: int = 120) -> subprocess.CompletedProcess:
+    """``script`` run by a fresh interpreter (``python -c script args...``): a process of its own,
+    so what it imports is what the code under test imports; its output captured as text."""
+    return subprocess.run(
+        [sys.executable, "-c", script, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout
+    )
+
+
 def _alembic_chain() -> list[str]:
     script = ScriptDirectory.from_config(alembic_config())
     return [s.revision for s in reversed(list(script.walk_revisions()))]
@@ -64,9 +72,7 @@ finally:
 def test_status_on_an_up_to_date_database_imports_no_alembic_nor_other_commands(tmp_path: Path) -> None:
     db = tmp_path / "nb.db"
     open_store(db, writer=True).dispose()
-    result = subprocess.run(
-        [sys.executable, "-c", _STATUS, str(db)], cwd=tmp_path, capture_output=True, text=True, timeout=120
-    )
+    result = run_script(_STATUS, str(db), cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     *report, verdict, commands, heavy = result.stdout.strip().splitlines()
     assert json.loads("\n".join(report))["totals"]["jobs"] == 0
@@ -93,7 +99,7 @@ gymnasium.make(nutribench.ENV_ID, regime="run3").reset(seed=0)
 def test_import_nutribench_registers_the_ids_without_importing_gymnasium(first: str) -> None:
     """``import nutribench`` imports neither gymnasium nor numpy; the ids are registered once
     gymnasium is imported, whichever of the two comes first."""
-    result = subprocess.run([sys.executable, "-c", _REGISTERED, first], capture_output=True, text=True, timeout=120)
+    result = run_script(_REGISTERED, first)
     assert result.returncode == 0, result.stderr
     imported, registered = result.stdout.strip().splitlines()
     assert imported == ("True True" if first == "gymnasium-first" else "False False")
@@ -164,13 +170,7 @@ def test_checking_every_shipped_agent_config_imports_no_torch(tmp_path: Path) ->
     registry entry and batch limits asked, the grid's settings checked on both engines)
     imports neither torch nor Stable-Baselines3: a built-in's module keeps its SB3 class
     elsewhere, imported when a model is built."""
-    result = subprocess.run(
-        [sys.executable, "-c", _CHECK_AGENTS, str(tmp_path / "nb.db")],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    result = run_script(_CHECK_AGENTS, str(tmp_path / "nb.db"), cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     count, heavy = result.stdout.strip().split(" ", 1)
     assert int(count) >= 5 and heavy == "-"
@@ -205,13 +205,7 @@ def test_run_says_what_it_starts_before_torch_is_imported(tmp_path: Path) -> Non
     """``nutribench run``'s first line (what it starts) is written before torch is imported;
     the job then trains (torch comes in) and the run ends well."""
     args = ["run", "--preset", "smoke", "--regimes", "run0", "--algos", "mc", "--days", "2", "--eval-episodes", "1"]
-    result = subprocess.run(
-        [sys.executable, "-c", _FIRST_LINE, *args, "--db", str(tmp_path / "nb.db")],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    result = run_script(_FIRST_LINE, *args, "--db", str(tmp_path / "nb.db"), cwd=tmp_path, timeout=600)
     assert result.returncode == 0, result.stderr
     torch_at_first_line, torch_at_end, first = result.stdout.split(" ", 2)
     assert first.startswith("nutribench run: 1 job (1 regime x 1 agent mc"), first
@@ -238,13 +232,7 @@ except Said:
 
 def test_tune_says_what_it_starts_before_torch_is_imported(tmp_path: Path) -> None:
     """``nutribench tune``'s first line (the study, its trials and agents) comes before torch."""
-    result = subprocess.run(
-        [sys.executable, "-c", _TUNE_FIRST_LINE, str(tmp_path / "nb.db")],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    result = run_script(_TUNE_FIRST_LINE, str(tmp_path / "nb.db"), cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     torch_loaded, first = result.stdout.strip().split(" ", 1)
     assert first.startswith("tune first: search space mc, until 1 trial is finished"), first
