@@ -307,22 +307,6 @@ def iqm_runs_ci(runs: Runs, confidence: float = CONFIDENCE) -> tuple[float, floa
     return point, float(lo[0]), float(hi[0])
 
 
-def clustered_iqm_ci(
-    values_by_seed: Sequence[np.ndarray], confidence: float = CONFIDENCE, reps: int = 20_000, seed: int = 0
-) -> tuple[float, float, float]:
-    """The IQM of every value (a seed's days pooled) and its percentile interval from the
-    bootstrap over **seeds** (a seed's values drawn together): every resample enumerated for
-    up to :data:`EXACT_SEEDS` seeds, else ``reps`` drawn (``seed``). (nan, nan) with one seed."""
-    values_by_seed = [np.asarray(v, dtype=float) for v in values_by_seed]
-    point = iqm(np.concatenate(values_by_seed)) if values_by_seed else float("nan")
-    k = len(values_by_seed)
-    if k < 2:
-        return point, float("nan"), float("nan")
-    d = design(k, reps, np.random.default_rng(seed))
-    stats = np.array([iqm(np.concatenate([values_by_seed[i] for i in row])) for row in d.idx])
-    return (point, *percentile_interval(stats, confidence, d.weights))
-
-
 # --------------------------------------------------------------------------- the aggregates
 # The aggregate table's median, mean and optimality gap, the performance profiles' bands and
 # P(X > Y) (the report's Figure 5): intervals of the chosen method's kind (Student's t, the

@@ -44,7 +44,7 @@ def test_the_results_table_gives_the_references_shares_beside_each_agent():
     from nutribench.report.tables import table_results
 
     df, _, refs = _frames()
-    t = table_results(df, seeds_bootstrap=50, references=refs)
+    t = table_results(df, references=refs)
     assert t.raw["lookahead_gap"].to_numpy() == pytest.approx(1.1)
     assert t.raw["clairvoyant_gap"].to_numpy() == pytest.approx(1.15)
     assert set(t.formatted["lookahead / clairvoyant"]) == {"110 % / 115 %"}
@@ -52,7 +52,7 @@ def test_the_results_table_gives_the_references_shares_beside_each_agent():
     # a day the committed file lacks: no share rather than one of other days
     gap = refs.copy()
     gap.loc[gap.index[0], "lookahead"] = np.nan
-    t = table_results(df, seeds_bootstrap=50, references=gap)
+    t = table_results(df, references=gap)
     assert t.formatted.iloc[0]["lookahead / clairvoyant"] == "n/a / 115 %"
     # without them, the table is as it was
     assert (

@@ -153,7 +153,7 @@ def test_results_and_aggregate_tables_state_each_budget_and_warn_when_they_diffe
 
     df = _mixed_budgets()
     ev = df[df.phase == "eval"]
-    res = table_results(df, seeds_bootstrap=200, references=_day_refs(df))
+    res = table_results(df, references=_day_refs(df))
     budgets = dict(zip(res.formatted["algorithm"], res.formatted["budget (days)"]))
     assert budgets == {"PPO": "5000", "mine": "50"}
     assert "budgets differ" in res.title and "5000 days" in res.title and "50 days" in res.title
@@ -161,7 +161,7 @@ def test_results_and_aggregate_tables_state_each_budget_and_warn_when_they_diffe
     assert dict(zip(agg.formatted["algorithm"], agg.formatted["budget (days)"])) == budgets
     assert "budgets differ" in agg.title and "budget (days)" in agg.to_markdown()
     same = df[df.algo == "ppo"]
-    assert "budgets differ" not in table_results(same, seeds_bootstrap=200).title
+    assert "budgets differ" not in table_results(same).title
 
 
 def test_compare_warns_when_the_two_budgets_differ():
@@ -413,7 +413,7 @@ def test_an_agent_with_fewer_seeds_says_so_in_its_table_cells():
 
     df = _mixed_budgets()
     df = df[~((df.algo == "mine") & (df.seed != 0))]  # the user's agent on seed 0 only
-    res = table_results(df, seeds_bootstrap=200, references=_day_refs(df))
+    res = table_results(df, references=_day_refs(df))
     cells = {(r.regime, r.algorithm): str(r.seeds) for r in res.formatted.itertuples()}
     assert cells == {("run0", "PPO"): "3", ("run0", "mine"): "1", ("run3", "PPO"): "3", ("run3", "mine"): "1"}
     ev = df[df.phase == "eval"]

@@ -9,7 +9,7 @@ import pytest
 from nutribench.config import list_regimes, load_env_config
 from nutribench.report.figures import eval_across_regimes, training_curves
 from nutribench.report.tables import table_regimes, table_results
-from nutribench.stats import clustered_iqm_ci, iqm, sem
+from nutribench.stats import iqm, iqm_runs_ci, sem, t_intervals
 
 METRICS = ["return", "foods", "final_distance", "overshoot_ratio"]
 
@@ -115,7 +115,7 @@ def test_eval_figure_with_references_and_algo_filter():
 
 def test_results_table_matches_pandas():
     df = synthetic()
-    t = table_results(df, seeds_bootstrap=200)
+    t = table_results(df)
     ev = df[df.phase == "eval"]
     g = ev.groupby(["regime", "algo"])
     for _, row in t.raw.iterrows():
@@ -123,8 +123,11 @@ def test_results_table_matches_pandas():
         for m in METRICS:
             assert row[f"{m}_mean"] == pytest.approx(cell[m].mean())
             assert row[f"{m}_sem"] == pytest.approx(cell[m].sem())
-        assert row["return_iqm"] == pytest.approx(iqm(cell["return"].to_numpy()))
-        assert row["return_iqm_lo"] <= row["return_iqm"] <= row["return_iqm_hi"]
+        seed_means = cell.groupby("seed")["return"].mean().to_numpy()
+        assert row["return_iqm"] == pytest.approx(iqm(seed_means))
+        lo, hi = t_intervals(seed_means, "iqm")  # the IQM interval the statistics module chose
+        assert (row["return_iqm_lo"], row["return_iqm_hi"]) == pytest.approx((lo[0], hi[0]))
+        assert row["return_iqm_lo"] < row["return_iqm"] < row["return_iqm_hi"]
     md = t.to_markdown()
     assert md.count("\n| run") == 6 and "±" in md
     assert "\\pm" in t.to_latex()
@@ -135,7 +138,7 @@ def test_stats_helpers():
     assert iqm(np.arange(8.0)) == pytest.approx(np.mean([2, 3, 4, 5]))
     assert iqm(np.array([1.0, 100.0])) == pytest.approx(50.5)
     assert np.isnan(sem([1.0]))
-    point, lo, hi = clustered_iqm_ci([np.array([1.0, 2.0])])
+    point, lo, hi = iqm_runs_ci([np.array([1.5])])  # one seed: no interval
     assert point == 1.5 and np.isnan(lo) and np.isnan(hi)
 
 
@@ -283,7 +286,7 @@ def test_results_table_leads_with_the_seed_level_interval():
     from nutribench.stats import mean_ci
 
     df = synthetic()
-    t = table_results(df, seeds_bootstrap=300, references=_day_refs(df))
+    t = table_results(df, references=_day_refs(df))
     assert list(t.formatted.columns[5:7]) == [
         "return [95% CI over seeds]",
         "gap closed [95% CI over seeds]",
@@ -324,16 +327,16 @@ def test_results_table_gives_the_share_of_the_never_to_planner_gap_on_the_rows_d
     refs = ev[["regime", "seed", "episode"]].copy()
     refs["never"] = -20.0 - refs["episode"]  # -20, -21 per seed
     refs["planner"] = -4.0 + 0.0 * refs["episode"]
-    t = table_results(df, seeds_bootstrap=50, references=refs)
+    t = table_results(df, references=refs)
     row = t.raw.iloc[0]
     assert row["never_mean"] == pytest.approx(-20.5) and row["planner_mean"] == pytest.approx(-4.0)
     assert row["gap_closed"] == pytest.approx((ev["return"].mean() + 20.5) / 16.5)
     assert t.formatted.iloc[0]["gap closed"] == f"{100 * row['gap_closed']:.0f} %"
     # a day without its yardsticks: no share rather than a share of other days
-    t = table_results(df, seeds_bootstrap=50, references=refs.iloc[1:])
+    t = table_results(df, references=refs.iloc[1:])
     assert np.isnan(t.raw.iloc[0]["gap_closed"]) and t.formatted.iloc[0]["gap closed"] == "n/a"
     # without references the table is as before
-    assert "gap_closed" not in table_results(df, seeds_bootstrap=50).raw
+    assert "gap_closed" not in table_results(df).raw
 
 
 def test_the_yardsticks_play_each_jobs_own_evaluation_days():

@@ -1,8 +1,9 @@
 """``nutribench bench engines``: do the batched engine's agents learn what the SB3 agents
 learn? Both engines train the same agent config on the same regimes, seeds and budget;
 each trained agent plays greedily on its seed's fixed evaluation days; per (algorithm,
-regime, engine) the table gives the IQM of the evaluation returns with a 95 % percentile
-bootstrap interval over seeds (rliable's habit), the share of the never -> planner gap,
+regime, engine) the table gives the IQM over seeds of each agent's mean evaluation return
+with the statistics module's trimmed-t interval (:func:`nutribench.stats.iqm_runs_ci`), the
+share of the never -> planner gap,
 and the wall time. The two engines' random streams differ (see
 :mod:`nutribench.engine.train`), so the comparison is of distributions: the intervals of
 the two engines must overlap.
@@ -31,7 +32,7 @@ from nutribench.agents.registry import batched_names
 from nutribench.bench.learn import LearnRun, batched_runs, learn_benchmark, summarize_runs
 from nutribench.engines import TRAINING_ENGINES, Engine
 from nutribench.safe_write import atomic_write
-from nutribench.stats import clustered_iqm_ci
+from nutribench.stats import iqm_runs_ci
 
 
 def _timed_batched_runs(
@@ -106,7 +107,7 @@ def _engine_pair(runs: dict[str, list[LearnRun]], algo: str, regime: str, episod
     pair = []
     for engine in TRAINING_ENGINES:
         rs = [r for r in runs[engine] if r.algo == algo and r.regime == regime]
-        point, lo, hi = clustered_iqm_ci([np.array([e["return"] for e in r.eval_rows]) for r in rs])
+        point, lo, hi = iqm_runs_ci([np.array([np.mean([e["return"] for e in r.eval_rows]) for r in rs])])
         learned = summarize_runs(rs)[0]  # the gap, foods and wall time as bench learn states them
         pair.append(
             {"algo": algo, "regime": regime, "engine": engine, "seeds": len(rs), "episodes": episodes}

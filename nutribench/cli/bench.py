@@ -314,8 +314,8 @@ def bench_engines_cmd(
     ] = None,
 ) -> None:
     """Train with both engines (SB3 and batched) on the same seeds and budget; per algorithm
-    and regime the IQM of the evaluation returns with a 95 % bootstrap interval over seeds;
-    the two engines' intervals must overlap."""
+    and regime the IQM over seeds of each agent's mean evaluation return with its 95 %
+    trimmed-t interval; the two engines' intervals must overlap."""
     episodes = old_spelling(days, episodes_alias, "--days", "--episodes", 500)
     from nutribench.agents.registry import batched_names
     from nutribench.bench.engines import ENGINE_COLUMNS, bench_engines, engine_cells

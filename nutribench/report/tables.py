@@ -16,8 +16,8 @@ from nutribench.baselines import gap_closed
 from nutribench.report.figure_parts import budget_caption, budget_cell, sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
-from nutribench.stats import EXACT_SEEDS, clustered_iqm_ci, mean_ci, sem
 from nutribench.stats import caption as interval_caption
+from nutribench.stats import iqm_runs_ci, mean_ci, sem
 
 RESULT_METRICS = ["return", "final_distance", "foods", "overshoot_ratio"]
 #: Tables 2..6 of the paper, in order.
@@ -186,13 +186,15 @@ def interval_cell(point: float, lo: float, hi: float, fmt: Callable[[float], str
     return f"{fmt(point)} [{fmt(lo)}, {fmt(hi)}]" if np.isfinite(lo) else f"{fmt(point)} [single seed]"
 
 
-def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.DataFrame | None = None) -> TableResult:
+def table_results(df: pd.DataFrame, references: pd.DataFrame | None = None) -> TableResult:
     """Results: regime x algorithm. It leads with the seed-level interval: the mean over seeds
     of each seed's mean return over its evaluation days, with its 95 % interval over seeds
     (:func:`nutribench.stats.mean_ci`) (raw ``return_seed_mean``, ``return_seed_lo``, ``return_seed_hi``);
     then, for comparison with the paper, mean ± standard error of the four evaluation metrics
-    over seeds x evaluation episodes pooled, and the return's interquartile mean with a 95 %
-    percentile bootstrap interval resampling seeds (:func:`nutribench.stats.clustered_iqm_ci`).
+    over seeds x evaluation episodes pooled, and the interquartile mean over seeds of each
+    seed's mean return with its trimmed-t interval (:func:`nutribench.stats.iqm_runs_ci`, the
+    IQM interval the statistics module chose; raw ``return_iqm``, ``return_iqm_lo``,
+    ``return_iqm_hi``).
 
     With ``references`` (columns regime, seed, episode, never, planner: the two yardsticks'
     returns on each evaluation day) each row also gives the mean return of ``never`` and of
@@ -209,7 +211,7 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
     ref = references.set_index(["regime", "seed", "episode"])[yard] if references is not None else None
     rows, fmt_rows = [], []
     for regime, algo, cell in _cells(ev):
-        row, f, seed_ci = _result_row(regime, algo, cell, seeds_bootstrap, ref is not None)
+        row, f, seed_ci = _result_row(regime, algo, cell, ref is not None)
         days = _yardstick_cells(row, f, cell, ref) if ref is not None else None
         row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"] = seed_ci
         row["budget"] = f["budget (days)"]  # last: the CSV's earlier columns keep their places
@@ -220,8 +222,8 @@ def table_results(df: pd.DataFrame, seeds_bootstrap: int = 2000, references: pd.
     title = (
         "Results: fixed-policy inference; first the seed-level 95 % interval (mean over seeds of each seed's mean over its "
         f"evaluation days, {interval_caption('mean')}), then mean ± standard error over seeds x evaluation "
-        "episodes pooled (as the paper reports) and the return's IQM over the pooled days [95 % percentile bootstrap over "
-        f"seeds, every resample enumerated up to {EXACT_SEEDS} seeds]; {budget_caption(ev)}"
+        "episodes pooled (as the paper reports) and the IQM over seeds of each seed's mean return "
+        f"({interval_caption('iqm')}); {budget_caption(ev)}"
     )
     if strong:
         from nutribench.report.headroom import SOURCE
@@ -240,23 +242,23 @@ def _cells(df: pd.DataFrame) -> Iterator[tuple[str, str, pd.DataFrame]]:
             yield regime, algo, df[(df["regime"] == regime) & (df["algo"] == algo)]
 
 
-def _result_row(regime: str, algo: str, cell: pd.DataFrame, reps: int, yardsticks: bool) -> tuple[dict, dict, tuple]:
+def _result_row(regime: str, algo: str, cell: pd.DataFrame, yardsticks: bool) -> tuple[dict, dict, tuple]:
     """The results table's raw and formatted row of one agent on one regime, the yardsticks'
     cells left to :func:`_yardstick_cells` (``yardsticks``: the gap's interval keeps its
     column's place), and the seed-level interval (the raw row holds it last)."""
     row = {"regime": regime, "algo": algo, "seeds": cell["seed"].nunique(), "episodes": len(cell)}
     f = {"regime": regime, "algorithm": algo_label(algo), "budget (days)": budget_cell(cell)}
     f.update(seeds=row["seeds"], episodes=row["episodes"])
-    seed_ci = mean_ci(cell.groupby("seed")["return"].mean().to_numpy(dtype=float))
+    seed_means = cell.groupby("seed")["return"].mean().to_numpy(dtype=float)
+    seed_ci = mean_ci(seed_means)
     f["return [95% CI over seeds]"] = interval_cell(*seed_ci)
     if yardsticks:
         f["gap closed [95% CI over seeds]"] = "n/a"
     for m in RESULT_METRICS:
         row[f"{m}_mean"], row[f"{m}_sem"], f[m] = mean_sem_cell(cell[m], 2 if m in ("return", "foods") else 3)
-    by_seed = [g["return"].to_numpy(dtype=float) for _, g in cell.groupby("seed")]
-    point, lo, hi = clustered_iqm_ci(by_seed, reps=reps)
+    point, lo, hi = iqm_runs_ci([seed_means])
     row["return_iqm"], row["return_iqm_lo"], row["return_iqm_hi"] = point, lo, hi
-    f["return IQM [95% CI]"] = interval_cell(point, lo, hi)
+    f["return IQM [95% CI over seeds]"] = interval_cell(point, lo, hi)
     return row, f, seed_ci
 
 
