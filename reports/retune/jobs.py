@@ -50,7 +50,9 @@ def markdown(db: str, files: Sequence[str] = ()) -> str:
         lines += ["| regime | " + " | ".join(f"seed {s}" for s in seeds) + " |", "|---|" + "---|" * len(seeds)]
         for r in REGIMES:
             row = [
-                f"{100 * cell.loc[(r, s), 'score']:.0f} ({cell.loc[(r, s), 'foods']:.1f})" if (r, s) in cell.index else ""
+                f"{100 * cell.loc[(r, s), 'score']:.0f} ({cell.loc[(r, s), 'foods']:.1f})"
+                if (r, s) in cell.index
+                else ""
                 for s in seeds
             ]
             lines.append(f"| {r} | " + " | ".join(row) + " |")
