@@ -27,7 +27,7 @@ from __future__ import annotations
 import itertools
 import math
 import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -92,6 +92,20 @@ def iqm(values, axis: int | None = None):
     return trim_mean(x, 0.25, axis=axis)
 
 
+def _satterthwaite(terms: Iterable[tuple], fallback: float) -> tuple:
+    """The standard error of a sum of independent terms, each given as ``(v_i, d_i)``: its
+    variance (a number, or an array of them, alike for every term) estimated with ``d_i``
+    degrees of freedom. Returns ``sqrt(sum_i v_i)`` and Welch-Satterthwaite's degrees of
+    freedom ``(sum_i v_i)^2 / sum_i (v_i^2 / d_i)``, ``fallback`` where no term has spread.
+    Every pooled t interval here takes its degrees of freedom from it (:func:`trimmed_se`,
+    :func:`stratified_t`, :func:`strata_t`, :func:`improvement_ci`, :func:`welch_t`)."""
+    var = den = 0.0
+    for v, d in terms:
+        var, den = var + v, den + v**2 / d
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.sqrt(var), np.where(den > 0, var**2 / np.where(den > 0, den, 1), fallback)
+
+
 def trimmed_se(x: np.ndarray, sizes: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Tukey and McLaughlin's standard error of the IQM over the last axis and its degrees of
     freedom: the values winsorized at the IQM's cut points, ``sqrt(sum_r n_r s_r^2) / h`` with
@@ -106,20 +120,12 @@ def trimmed_se(x: np.ndarray, sizes: Sequence[int] | None = None) -> tuple[np.nd
     h = n - 2 * cut
     s = np.sort(x, axis=-1)
     w = np.clip(x, s[..., cut : cut + 1], s[..., n - cut - 1 : n - cut])
-    bounds = np.cumsum([0, *sizes])
-    parts = [(k, w[..., a:b].var(axis=-1, ddof=1)) for a, b, k in zip(bounds[:-1], bounds[1:], sizes) if k > 1]
-    if not parts:
-        nan = np.full(x.shape[:-1], np.nan)
-        return nan, np.asarray(np.nan)
-    v = [k * var for k, var in parts]
-    total = sum(v)
-    if len(parts) == 1:
-        df = np.asarray(h - 1.0)
-    else:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            df = np.minimum(total**2 / sum(vr**2 / (k - 1) for (k, _), vr in zip(parts, v)), h - 1.0)
-        df = np.where(total > 0, df, h - 1.0)  # no spread within any regime: a zero-width interval, not NaN
-    return np.sqrt(total) / h, df
+    strata = zip(sizes, np.split(w, np.cumsum(sizes), axis=-1))
+    terms = [(k * part.var(axis=-1, ddof=1), k - 1) for k, part in strata if k > 1]
+    if not terms:
+        return np.full(x.shape[:-1], np.nan), np.asarray(np.nan)
+    se, df = _satterthwaite(terms, h - 1.0)  # no spread within any regime: a zero-width interval, not NaN
+    return se / h, np.asarray(h - 1.0 if len(terms) == 1 else np.minimum(df, h - 1.0))
 
 
 # --------------------------------------------------------------------------- resampling
@@ -259,22 +265,19 @@ def stratified_t(
 
     total = sum(float(np.sum(n)) for _, n in strata)
     point = sum(float(np.sum(np.asarray(v) * np.asarray(n))) for v, n in strata) / total
-    var, dfs = 0.0, 0.0
+    terms = []
     for v, n in strata:
         v, n = np.asarray(v, dtype=float), np.asarray(n, dtype=float)
         k = len(v)
-        if k < 2:
-            continue
-        share = n.sum() / total
-        m = (v * n).sum() / n.sum()
-        w = n / n.sum()
-        vr = share**2 * k / (k - 1) * np.sum(w**2 * (v - m) ** 2)
-        var += vr
-        dfs += vr**2 / (k - 1)
-    if not any(len(v) > 1 for v, _ in strata):
+        if k > 1:
+            share = n.sum() / total
+            m = (v * n).sum() / n.sum()
+            w = n / n.sum()
+            terms.append((share**2 * k / (k - 1) * np.sum(w**2 * (v - m) ** 2), k - 1))
+    if not terms:
         return point, float("nan"), float("nan")
-    df = var**2 / dfs if dfs > 0 else float(max(len(v) for v, _ in strata) - 1)
-    half = float(t.ppf(1 - (1 - confidence) / 2, df) * np.sqrt(var))
+    se, df = _satterthwaite(terms, float(max(len(v) for v, _ in strata) - 1))
+    half = float(t.ppf(1 - (1 - confidence) / 2, df) * se)
     return point, point - half, point + half
 
 
@@ -326,21 +329,12 @@ def strata_t(
 
     x = np.atleast_2d(np.asarray(x, dtype=float))
     sizes = list(sizes)
-    bounds = np.cumsum([0, *sizes])
     weight = [k / sum(sizes) if by == "run" else 1 / len(sizes) for k in sizes]
-    point = np.zeros(len(x))
-    var = np.zeros(len(x))
-    dfs = np.zeros(len(x))
-    for a, b, k, w in zip(bounds[:-1], bounds[1:], sizes, weight):
-        part = x[:, a:b]
-        point += w * part.mean(axis=1)
-        if k > 1:
-            vr = w**2 * part.var(axis=1, ddof=1) / k
-            var += vr
-            dfs += vr**2 / (k - 1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        df = np.where(dfs > 0, var**2 / np.where(dfs > 0, dfs, 1), max(max(sizes) - 1, 1))
-    half = t.ppf(1 - (1 - confidence) / 2, df) * np.sqrt(var)
+    strata = list(zip(sizes, weight, np.split(x, np.cumsum(sizes), axis=1)))
+    point = sum(w * part.mean(axis=1) for _, w, part in strata)
+    terms = [(w**2 * part.var(axis=1, ddof=1) / k, k - 1) for k, w, part in strata if k > 1]
+    se, df = _satterthwaite(terms, max(max(sizes) - 1, 1))
+    half = t.ppf(1 - (1 - confidence) / 2, df) * se
     return point, point - half, point + half
 
 
@@ -488,21 +482,19 @@ def improvement_ci(x: Runs, y: Runs, confidence: float = CONFIDENCE) -> tuple[fl
     clipped to [0, 1]. ``(p, nan, nan)`` with one run per side and regime."""
     from scipy.stats import t
 
-    ps, var, dfs = [], 0.0, 0.0
-    R = len(x)
+    ps, terms, R = [], [], len(x)
     for a, b in zip(x, y):
         a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
         psi = (a[:, None] > b[None, :]) + 0.5 * (a[:, None] == b[None, :])
         ps.append(psi.mean())
         vr = sum(v.var(ddof=1) / v.size for v in (psi.mean(axis=1), psi.mean(axis=0)) if v.size > 1) / R**2
-        var += vr
-        if a.size + b.size > 2:
-            dfs += vr**2 / (a.size + b.size - 2)
+        if a.size + b.size > 2:  # else one run a side: no spread
+            terms.append((vr, a.size + b.size - 2))
     p = float(np.mean(ps))
     if max(max(len(a) for a in x), max(len(b) for b in y)) < 2:
         return p, float("nan"), float("nan")
-    df = var**2 / dfs if dfs > 0 else 1.0
-    half = float(t.ppf(1 - (1 - confidence) / 2, df) * np.sqrt(var))
+    se, df = _satterthwaite(terms, 1.0)
+    half = float(t.ppf(1 - (1 - confidence) / 2, df) * se)
     return p, max(p - half, 0.0), min(p + half, 1.0)
 
 
@@ -525,10 +517,8 @@ def welch_t(
     keep = np.isfinite(se) & (df > 0)
     if not keep.any():
         return point, float("nan"), float("nan")
-    parts = (w[keep] * se[keep]) ** 2
-    var = float(parts.sum())
-    dof = var**2 / float((parts**2 / df[keep]).sum()) if var > 0 else float(df[keep].min())
-    half = float(t.ppf(1 - (1 - confidence) / 2, dof) * np.sqrt(var))
+    se, dof = _satterthwaite(zip((w[keep] * se[keep]) ** 2, df[keep]), float(df[keep].min()))
+    half = float(t.ppf(1 - (1 - confidence) / 2, dof) * se)
     return point, point - half, point + half
 
 
@@ -537,8 +527,7 @@ def contrast_ci(runs: Runs, weights: Sequence[float], confidence: float = CONFID
     its interval (:func:`welch_t`, each regime's standard error of the mean, ``n_r - 1``
     degrees of freedom); a regime of one run adds no spread."""
     runs = [np.asarray(r, dtype=float) for r in runs]
-    ses = [r.std(ddof=1) / np.sqrt(r.size) if r.size > 1 else float("nan") for r in runs]
-    return welch_t([r.mean() for r in runs], ses, [r.size - 1.0 for r in runs], weights, confidence)
+    return welch_t([r.mean() for r in runs], [sem(r) for r in runs], [r.size - 1.0 for r in runs], weights, confidence)
 
 
 def caption(statistic: str) -> str:
