@@ -8,8 +8,9 @@ torch nor Stable-Baselines3, which :mod:`nutribench.agents.api` does."""
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from nutribench.agents.registry import lazy_attributes
 
 if TYPE_CHECKING:
     from nutribench.agents.api import EvalResult, TrainedAgent, evaluate, train
@@ -40,8 +41,5 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    """A public name of the package, from its submodule (imported now); a submodule, as ever."""
-    if name in _HOMES:
-        return getattr(importlib.import_module(f"{__name__}.{_HOMES[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+#: a public name of the package, from its submodule (imported now); a submodule, as ever
+__getattr__ = lazy_attributes(__name__, **{name: f"{__name__}.{home}" for name, home in _HOMES.items()})

@@ -167,16 +167,16 @@ def builtin_attribute(module: str, name: str) -> Any:
     return getattr(holders[0], name)
 
 
-def lazy_attributes(module: str, source: str, *names: str) -> Callable[[str], Any]:
-    """A ``__getattr__`` for ``module`` that answers ``names`` with those of module ``source``,
-    imported when one is first asked for. A built-in's module keeps its SB3 class elsewhere
-    (torch and Stable-Baselines3 load with it) and still answers its name, so that reading an
-    agent config, as every command does before it starts, imports neither."""
+def lazy_attributes(module: str, /, **homes: str) -> Callable[[str], Any]:
+    """A ``__getattr__`` for ``module`` that answers each name of ``homes`` with that of the
+    module it maps to, imported when the name is first asked for. A built-in's module keeps its
+    SB3 class elsewhere (torch and Stable-Baselines3 load with it) and still answers its name, so
+    that reading an agent config, as every command does before it starts, imports neither."""
 
     def __getattr__(name: str) -> Any:
-        if name not in names:
+        if name not in homes:
             raise AttributeError(f"module {module!r} has no attribute {name!r}")
-        return getattr(importlib.import_module(source), name)
+        return getattr(importlib.import_module(homes[name]), name)
 
     return __getattr__
 

@@ -63,7 +63,9 @@ def ddqn_arguments(cfg: DDQNConfig, horizon: int) -> tuple[type[BaseAlgorithm], 
 
 #: its SB3 class and target, which import torch: they live in :mod:`nutribench.agents.sb3_models`
 #: and are found here too, imported when first asked for (the ``load`` below names one)
-__getattr__ = lazy_attributes(__name__, "nutribench.agents.sb3_models", "DoubleDQN", "double_dqn_target")
+__getattr__ = lazy_attributes(
+    __name__, DoubleDQN="nutribench.agents.sb3_models", double_dqn_target="nutribench.agents.sb3_models"
+)
 
 ALGORITHM = Algorithm(
     "ddqn",

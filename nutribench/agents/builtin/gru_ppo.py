@@ -75,7 +75,7 @@ def whole_days(cfg: GRUPPOConfig, horizon: int | None) -> str | None:
 
 
 #: its SB3 class (imported when first asked for: it imports torch), found here as before
-__getattr__ = lazy_attributes(__name__, "nutribench.agents.gru_ppo", "GRUPPO")
+__getattr__ = lazy_attributes(__name__, GRUPPO="nutribench.agents.gru_ppo")
 
 ALGORITHM = Algorithm(
     "gru_ppo",

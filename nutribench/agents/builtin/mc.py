@@ -43,7 +43,7 @@ def mc_arguments(cfg: MCConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict
 
 #: its SB3 class, which imports torch: it lives in :mod:`nutribench.agents.sb3_models` and is
 #: found here too, imported when first asked for (the ``load`` below names it)
-__getattr__ = lazy_attributes(__name__, "nutribench.agents.sb3_models", "MonteCarloAC")
+__getattr__ = lazy_attributes(__name__, MonteCarloAC="nutribench.agents.sb3_models")
 
 ALGORITHM = Algorithm(
     "mc",

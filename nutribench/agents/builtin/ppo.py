@@ -34,7 +34,7 @@ def ppo_model_arguments(cfg: PPOConfig, horizon: int) -> tuple[type[BaseAlgorith
 
 #: its SB3 class, which imports torch: it lives in :mod:`nutribench.agents.sb3_models` and is
 #: found here too, imported when first asked for (the ``load`` below names it)
-__getattr__ = lazy_attributes(__name__, "nutribench.agents.sb3_models", "PPOWithGradNorm")
+__getattr__ = lazy_attributes(__name__, PPOWithGradNorm="nutribench.agents.sb3_models")
 
 ALGORITHM = Algorithm(
     "ppo",

@@ -36,7 +36,7 @@ def sac_arguments(cfg: SACConfig, horizon: int) -> tuple[type[BaseAlgorithm], di
 
 
 #: its SB3 class (imported when first asked for: it imports torch), found here as before
-__getattr__ = lazy_attributes(__name__, "nutribench.agents.sac", "DiscreteSAC")
+__getattr__ = lazy_attributes(__name__, DiscreteSAC="nutribench.agents.sac")
 
 ALGORITHM = Algorithm(
     "sac",
