@@ -38,17 +38,17 @@ import math
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from nutribench.agents.config import Name, load_agent_config, parse_agent_config
 from nutribench.agents.registry import by_entry_point
 from nutribench.config.loading import (
     ConfigError,
     content_sha256,
-    format_validation_error,
     read_toml,
     regimes_dir,
     resolve_named_file,
+    validate,
 )
 from nutribench.config.sizes import size
 
@@ -183,10 +183,7 @@ def validated_space(data: dict[str, Any], source: Path | str, file_name: str | N
     """The search space of ``data`` (a space file's table), validated as :func:`load_search_space`
     says; ``source`` names it in the one-line :class:`ConfigError`, whose ``name`` must be
     ``file_name`` where one is given."""
-    try:
-        space = SearchSpace.model_validate(data)
-    except ValidationError as e:
-        raise ConfigError(format_validation_error(source, e)) from None
+    space = validate(SearchSpace, data, source)
     if file_name is not None and space.name != file_name:
         raise ConfigError(f"{source}: name: '{space.name}' differs from the file name '{file_name}' (make them equal)")
     check_space(space, source)
