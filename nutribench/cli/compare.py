@@ -35,7 +35,7 @@ def compare_cmd(
     ] = 10_000,
 ) -> None:
     """A - B per regime and over regimes: the mean paired difference of evaluation returns
-    (same seed, same day) with a 95 % bootstrap interval over seeds, P(A > B) over the paired
+    (same seed, same day) with a 95 % t interval over seeds, P(A > B) over the paired
     days, and how many seeds were paired."""
     from nutribench.report.compare import load_comparison
     from nutribench.report.leaderboard import check_reps
