@@ -43,6 +43,11 @@ import pandas as pd
 from nutribench.stats import caption, design, iqm_runs_ci, mean_ci, percentile_interval
 
 HERE = Path(__file__).resolve().parent
+# the house's Markdown table and percent cell, as reports/tuned_v2/analyse.py takes them
+_spec = importlib.util.spec_from_file_location("tuned_v1_analyse", HERE.parents[1] / "reports" / "tuned" / "analyse.py")
+v1 = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(v1)
+md_table, pct = v1.md_table, v1.pct
 REGIMES = ("run1", "run3", "run6")
 SEEDS = tuple(range(5000, 5010))
 STUDIES = ("A", "B", "C")
@@ -74,25 +79,11 @@ def seeds_note(n: int) -> str:
     return "" if n >= len(SEEDS) else f" ({n} of {len(SEEDS)} seeds)"
 
 
-def pct(v: float, signed: bool = False) -> str:
-    if not np.isfinite(v):
-        return "n/a"
-    return f"{100 * v:+.0f}" if signed else f"{100 * v:.0f}"
-
-
 def interval_text(point: float, lo: float, hi: float, signed: bool = False) -> str:
     """``55 [47, 63]`` (a level) or ``+30 [+13, +47]`` (a difference), in % of the gap."""
     if not np.isfinite(lo):
         return f"{pct(point, signed)} [single seed]"
     return f"{pct(point, signed)} [{pct(lo, signed)}, {pct(hi, signed)}]"
-
-
-def md_table(header: Sequence[str], rows: Sequence[Sequence[object]]) -> list[str]:
-    return [
-        "| " + " | ".join(header) + " |",
-        "|" + "---|" * len(header),
-        *("| " + " | ".join(str(v) for v in r) + " |" for r in rows),
-    ]
 
 
 # --------------------------------------------------------------------------- R1, R4
