@@ -193,6 +193,28 @@ def test_the_first_eta_is_an_estimate_from_the_agents_cost_then_measured() -> No
     assert eta_text(after, 60.0, costs, 2) == "1m00s"
 
 
+def test_a_minute_after_the_first_trained_day_the_eta_is_measured_from_then(monkeypatch) -> None:
+    """A batch of long jobs (the re-tuning study's 5000-day GRU-PPO batches): no job finishes for
+    20 minutes, and the SB3 engine's cost estimate priced the batched engine's rest at ~18h.
+    From a minute after the first trained day the ETA is the rate since then, which leaves the
+    workers' start-up out."""
+    import nutribench.scheduler.progress as progress
+
+    assert progress.eta_since(_run(k=800, planned=3), (30.0, 100), 89.0) is None  # under a minute
+    assert progress.eta_since(_run(k=100, planned=3), (30.0, 100), 100.0) is None  # no day since
+    # 700 days in 70 s; 3 jobs x 1000 days planned, 800 done: 2200 left at 10 a second
+    assert progress.eta_since(_run(k=800, planned=3), (30.0, 100), 100.0) == pytest.approx(220.0)
+
+    clock = [0.0]
+    monkeypatch.setattr(progress.time, "monotonic", lambda: clock[0])
+    view = progress.LiveView(3, "1 worker", None, console=Console(file=io.StringIO(), width=80), costs={"ppo": 1.0})
+    view.head(_run(k=0, planned=3))  # the workers start: no day yet, no mark
+    clock[0] = 30.0
+    assert "(estimate)" in view.head(_run(k=100, planned=3))  # the first days: the mark, still the estimate
+    clock[0] = 100.0
+    assert view.head(_run(k=800, planned=3)).endswith("ETA 3m40s")
+
+
 def test_the_estimate_prices_each_agent_by_its_cost_and_shares_the_workers() -> None:
     from nutribench.scheduler.grid import SB3_SECONDS_PER_COST_DAY
     from nutribench.scheduler.progress import estimate_seconds

@@ -4,10 +4,11 @@ return) and one log line per finished or failed job. ``display=False`` shows not
 Without a terminal (stderr to a log file or a pipe), where the panel would show only at the
 end, one plain progress line every :data:`NO_TERMINAL_EVERY_S` seconds instead.
 
-The ETA: until a job of this run has finished, an estimate from the agents' relative costs
-(:func:`estimate_seconds`: ``ETA ~4m (estimate)``); the first days of a run also pay for
-starting the workers, so the days trained so far would price the rest many times too high.
-Once a job has finished, the time this run took for the days it trained (:func:`eta_seconds`)."""
+The ETA: measured once a minute of training has passed since the run's first trained day, at
+the rate of the days trained since then (:func:`eta_since`: starting the workers is not
+priced into the rest). Before that, an estimate from the agents' relative costs
+(:func:`estimate_seconds`: ``ETA ~4m (estimate)``) until a job of this run has finished, then
+the time this run took for the days it trained (:func:`eta_seconds`)."""
 
 from __future__ import annotations
 
@@ -50,17 +51,44 @@ def note_event(live: dict[int, dict[str, Any]], resumed: dict[int, int], ev: dic
         resumed[ev["job_id"]] = int(ev["k0"])
 
 
+def _days(run: Any) -> tuple[int, int, int]:
+    """This run's days: planned, done (finished jobs their whole budget, running ones their
+    progress) and trained here (done less what resumed batches had trained before this run)."""
+    budget = run.grid.episodes
+    planned = max(run.planned, len(run.attempted)) * budget
+    done = (run.summary.done + run.summary.failed) * budget + sum(int(st.get("k", 0)) for st in run.live.values())
+    return planned, done, done - sum(run.resumed.values())
+
+
 def eta_seconds(run: Any, elapsed: float) -> float | None:
     """Remaining time of this run, from the episodes trained so far (finished jobs count
     their whole budget, running ones their progress) and the time this run took for those it
     trained itself (a batch resumed from a checkpoint did not train the days before it)."""
-    budget = run.grid.episodes
-    planned = max(run.planned, len(run.attempted)) * budget
-    done = (run.summary.done + run.summary.failed) * budget + sum(int(st.get("k", 0)) for st in run.live.values())
-    trained_here = done - sum(run.resumed.values())
+    planned, done, trained_here = _days(run)
     if trained_here <= 0 or planned <= 0:
         return None
     return elapsed * max(planned - done, 0) / trained_here
+
+
+def trained_days(run: Any) -> int:
+    """The days this run has trained itself so far (for :func:`eta_since`'s mark)."""
+    return _days(run)[2]
+
+
+#: Seconds of training after a run's first trained day before :func:`eta_since` prices the rest
+MEASURE_AFTER_S = 60.0
+
+
+def eta_since(run: Any, mark: tuple[float, int], now: float) -> float | None:
+    """Remaining time of this run at the rate it has trained since ``mark`` (the time of its
+    first trained day and the days trained then), so that starting the workers is not priced
+    into the rest; ``None`` until :data:`MEASURE_AFTER_S` seconds have passed since the mark
+    and a day more has been trained."""
+    planned, done, trained_here = _days(run)
+    since, days = now - mark[0], trained_here - mark[1]
+    if since < MEASURE_AFTER_S or days <= 0 or planned <= 0:
+        return None
+    return since * max(planned - done, 0) / days
 
 
 def estimate_seconds(run: Any, costs: dict[str, float], workers: int) -> float | None:
@@ -92,9 +120,20 @@ def rough_duration(seconds: float) -> str:
     return "<1m" if m == 0 else f"~{m}m" if m < 60 else f"~{m // 60}h{m % 60:02d}m"
 
 
-def eta_text(run: Any, elapsed: float, costs: dict[str, float], workers: int) -> str:
-    """The ETA shown: :func:`estimate_seconds` (said to be one) until a job of this run has
-    finished (done or failed), then :func:`eta_seconds`, measured."""
+def eta_text(
+    run: Any,
+    elapsed: float,
+    costs: dict[str, float],
+    workers: int,
+    mark: tuple[float, int] | None = None,
+    now: float = 0.0,
+) -> str:
+    """The ETA shown: measured from the days trained since ``mark`` (:func:`eta_since`) once
+    a minute of training has passed; before that, :func:`estimate_seconds` (said to be one)
+    until a job of this run has finished (done or failed), then :func:`eta_seconds`."""
+    measured = eta_since(run, mark, now) if mark is not None else None
+    if measured is not None:
+        return format_duration(measured)
     if not run.summary.done and not run.summary.failed:
         estimate = estimate_seconds(run, costs, workers) if costs else None
         if estimate is not None:
@@ -136,6 +175,7 @@ class LiveView(NullView):
         self.t0 = time.monotonic()
         self._last = 0.0
         self._last_line = self.t0  # no terminal: the time of the last progress line
+        self._mark: tuple[float, int] | None = None  # the first trained day's time and the days then
         self.live = Live(console=self.console, auto_refresh=False, transient=False)
 
     def start(self, run: Any) -> None:
@@ -150,13 +190,21 @@ class LiveView(NullView):
 
     def head(self, run: Any) -> str:
         """The panel's first line: jobs done, failed, running and to run, elapsed time, ETA."""
-        elapsed = time.monotonic() - self.t0
+        now = time.monotonic()
+        elapsed = now - self.t0
         s = run.summary
         workers = getattr(getattr(run, "handle", None), "slots", 1)
+        self.note_mark(run, now)
+        eta = eta_text(run, elapsed, self.costs, workers, self._mark, now)
         return (
             f"jobs: {s.done} done, {s.failed} failed, {len(run.live)} running, of {run.planned} to run "
-            f"(grid {s.total})   elapsed {format_duration(elapsed)}   ETA {eta_text(run, elapsed, self.costs, workers)}"
+            f"(grid {s.total})   elapsed {format_duration(elapsed)}   ETA {eta}"
         )
+
+    def note_mark(self, run: Any, now: float) -> None:
+        """Keep the time of the run's first trained day and the days trained then."""
+        if self._mark is None and (days := trained_days(run)) > 0:
+            self._mark = (now, days)
 
     def render(self, run: Any) -> Group:
         head = Text(self.head(run))
@@ -182,6 +230,7 @@ class LiveView(NullView):
 
     def update(self, run: Any, force: bool = False) -> None:
         now = time.monotonic()
+        self.note_mark(run, now)
         if not self.console.is_terminal:  # a log: Live draws nothing until the end, so a line now and then
             if now - self._last_line >= NO_TERMINAL_EVERY_S:
                 self._last_line = now
