@@ -70,11 +70,6 @@ def eta_seconds(run: Any, elapsed: float) -> float | None:
     return elapsed * max(planned - done, 0) / trained_here
 
 
-def trained_days(run: Any) -> int:
-    """The days this run has trained itself so far (for :func:`eta_since`'s mark)."""
-    return _days(run)[2]
-
-
 #: Seconds of training after a run's first trained day before :func:`eta_since` prices the rest
 MEASURE_AFTER_S = 60.0
 
@@ -203,7 +198,7 @@ class LiveView(NullView):
 
     def note_mark(self, run: Any, now: float) -> None:
         """Keep the time of the run's first trained day and the days trained then."""
-        if self._mark is None and (days := trained_days(run)) > 0:
+        if self._mark is None and (days := _days(run)[2]) > 0:
             self._mark = (now, days)
 
     def render(self, run: Any) -> Group:
