@@ -2,11 +2,25 @@
 
 from __future__ import annotations
 
+import importlib
+import sys
 import textwrap
 import time
 from pathlib import Path
+from types import ModuleType
 
 import pytest
+
+#: The developer's benchmarks, scripts beside the package (``python benchmarks/learn.py``), importable
+#: by their names as when run, from the start (a process pool's server started later inherits the path)
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+sys.path.insert(0, str(BENCHMARKS))
+
+
+def benchmark_script(name: str) -> ModuleType:
+    """``benchmarks/NAME.py`` as a module (its ``app`` is the script's command)."""
+    return importlib.import_module(name)
+
 
 CATALOG = """\
 name = "tiny"

@@ -442,10 +442,10 @@ def test_load_agent_config_reads_a_builtin_through_its_registered_model():
 
 
 def test_commands_list_the_algorithms_the_registry_holds():
-    """``bench engines`` takes the registry's batched algorithms (no list of its own)."""
+    """``benchmarks/engines.py`` takes the registry's batched algorithms (no list of its own)."""
     from typer.testing import CliRunner
 
-    from nutribench.cli import app
+    from tests.conftest import benchmark_script
 
-    res = CliRunner().invoke(app, ["bench", "engines", "--algos", "nope"])
+    res = CliRunner().invoke(benchmark_script("engines").app, ["--algos", "nope"])
     assert res.exit_code == 2 and ", ".join(registry.batched_names()) in res.output, res.output

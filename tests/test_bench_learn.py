@@ -1,4 +1,4 @@
-"""`nutribench bench learn`: the gap arithmetic, the budgets, and the command's shape (its
+"""`python benchmarks/learn.py`: the gap arithmetic, the budgets, and the command's shape (its
 figures are a benchmark's, not a test's)."""
 
 from __future__ import annotations
@@ -6,15 +6,16 @@ from __future__ import annotations
 import pytest
 from typer.testing import CliRunner
 
-from nutribench.bench.learn import (  # iqm: the report's, reused
-    LearnRun,
-    budget_for,
-    iqm,
-    markdown_table,
-    summarize_runs,
+from tests.conftest import benchmark_script
+
+learn = benchmark_script("learn")
+LearnRun, budget_for, markdown_table, summarize_runs = (
+    learn.LearnRun,
+    learn.budget_for,
+    learn.markdown_table,
+    learn.summarize_runs,
 )
-from nutribench.cli import app
-from nutribench.cli.bench import parse_budgets
+iqm, parse_budgets, app = learn.iqm, learn.parse_budgets, learn.app  # iqm: the report's, reused
 
 runner = CliRunner()
 
@@ -60,7 +61,7 @@ def test_budgets_by_name_then_algorithm():
 
 @pytest.mark.parametrize("bad", ["abc", "ppo=x", "0", "ppo=-3", "500,pp0=300"])
 def test_a_bad_budget_is_one_line_and_exit_2(bad):
-    res = runner.invoke(app, ["bench", "learn", "--episodes", bad])
+    res = runner.invoke(app, ["--episodes", bad])
     assert res.exit_code == 2 and "--days" in res.output and len(res.output.strip().splitlines()) == 1, res.output
 
 
@@ -68,8 +69,6 @@ def test_bench_learn_runs_and_prints_its_table():
     res = runner.invoke(
         app,
         [
-            "bench",
-            "learn",
             "--algos",
             "ppo",
             "--regimes",
@@ -91,7 +90,7 @@ def test_bench_learn_runs_and_prints_its_table():
 
 @pytest.mark.parametrize("bad", ["0,0", "a", "-1", ""])
 def test_bad_seeds_are_one_line_and_exit_2(bad):
-    res = runner.invoke(app, ["bench", "learn", "--seeds", bad])
+    res = runner.invoke(app, ["--seeds", bad])
     assert res.exit_code == 2 and "--seeds" in res.output and len(res.output.strip().splitlines()) == 1, res.output
 
 
@@ -99,8 +98,6 @@ def test_bench_learn_with_the_batched_engine_and_its_limits(monkeypatch) -> None
     res = CliRunner().invoke(
         app,
         [
-            "bench",
-            "learn",
             "--algos",
             "mc,ppo,sac",
             "--regimes",
@@ -120,5 +117,5 @@ def test_bench_learn_with_the_batched_engine_and_its_limits(monkeypatch) -> None
     assert all(f"| run0 | {a} | 2 | 2 |" in res.output for a in ("mc", "ppo", "sac"))
     # an algorithm the engine would not train (all five are in it today) is refused in one line
     monkeypatch.setattr("nutribench.agents.registry.batched_names", lambda: ["ppo", "mc"])
-    bad = CliRunner().invoke(app, ["bench", "learn", "--algos", "sac", "--engine", "batched"])
+    bad = CliRunner().invoke(app, ["--algos", "sac", "--engine", "batched"])
     assert bad.exit_code == 2 and "use --engine sb3" in bad.output

@@ -205,9 +205,12 @@ def test_batched_training_yields_agents_the_single_agent_api_uses(tmp_path) -> N
 def test_bench_engines_and_bench_train_batched_report_their_shape() -> None:
     """The benchmarks' shape, not their figures (timings belong in benchmarks)."""
     from nutribench.agents.registry import batched_class
-    from nutribench.bench.engines import ENGINE_COLUMNS, bench_engines, engine_cells
-    from nutribench.bench.learn import markdown_table
     from nutribench.bench.throughput import bench_train_batched
+    from tests.conftest import benchmark_script
+
+    engines = benchmark_script("engines")
+    ENGINE_COLUMNS, bench_engines, engine_cells = engines.ENGINE_COLUMNS, engines.bench_engines, engines.engine_cells
+    markdown_table = benchmark_script("learn").markdown_table
 
     rows = bench_engines(["ppo"], ["run0"], [0, 1], episodes=10, eval_episodes=2, workers=1)
     assert [(r["engine"], r["seeds"]) for r in rows] == [("sb3", 2), ("batched", 2)]

@@ -69,8 +69,8 @@ def test_auto_is_cuda_where_there_is_cuda() -> None:
     assert resolve_device("auto").type == ("cuda" if th.cuda.is_available() else "cpu")
 
 
-def _one_line_exit_2(args: list[str]) -> str:
-    result = CliRunner().invoke(app, args)
+def _one_line_exit_2(args: list[str], cli=None) -> str:
+    result = CliRunner().invoke(cli or app, args)
     assert result.exit_code == 2, result.output
     assert "Traceback" not in result.output and len(result.output.strip().splitlines()) == 1, result.output
     return " ".join(result.output.split())
@@ -93,8 +93,11 @@ def test_run_refuses_a_device_it_cannot_train_on_before_touching_the_database(no
 
 def test_the_benchmarks_refuse_a_device_they_cannot_train_on_before_training(no_cuda) -> None:
     assert "CUDA is not available" in _one_line_exit_2(["bench", "train", "--engine", "batched", "--device", "cuda"])
-    assert "SB3 engine trains on the CPU" in _one_line_exit_2(["bench", "learn", "--device", "cuda"])
-    assert "use auto, cpu, cuda" in _one_line_exit_2(["bench", "engines", "--device", "gpu"])
+    from tests.conftest import benchmark_script
+
+    learn, engines = benchmark_script("learn").app, benchmark_script("engines").app
+    assert "SB3 engine trains on the CPU" in _one_line_exit_2(["--device", "cuda"], learn)
+    assert "use auto, cpu, cuda" in _one_line_exit_2(["--device", "gpu"], engines)
 
 
 class DeviceLog:

@@ -130,13 +130,11 @@ def test_run_with_the_batched_engine_trains_unsupported_configs_with_the_sb3_eng
 
 
 def test_bench_learn_refuses_an_unsupported_config_in_one_line(agents: Path) -> None:
-    from nutribench.cli import app
+    from tests.conftest import benchmark_script
 
     res = CliRunner().invoke(
-        app,
+        benchmark_script("learn").app,
         [
-            "bench",
-            "learn",
             "--algos",
             "sac_nr",
             "--regimes",

@@ -633,7 +633,9 @@ def test_progress_flushes_training_seconds_and_a_new_claim_clears_them(tmp_path:
 
 
 def test_bench_status_times_a_given_database(tmp_path: Path) -> None:
-    from nutribench.bench.throughput import bench_status
+    from tests.conftest import benchmark_script
+
+    bench_status = benchmark_script("status").bench_status
 
     db = tmp_path / "r.db"
     run_grid(

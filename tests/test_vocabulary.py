@@ -1,5 +1,5 @@
 """One name per idea (issue 54): training days are ``--days`` in ``run``, ``train``, ``bench
-train``, ``bench learn`` and ``bench engines``, as in ``tune``; ``--episodes``, the old
+train``, ``benchmarks/learn.py`` and ``benchmarks/engines.py``, as in ``tune``; ``--episodes``, the old
 spelling, still works and is hidden from the help; both at once with different values is one
 line."""
 
@@ -9,15 +9,17 @@ import pytest
 from typer.testing import CliRunner
 
 from nutribench.cli import app
-from tests.conftest import one_error_line
+from tests.conftest import benchmark_script, one_error_line
 
 runner = CliRunner()
-COMMANDS = [["run"], ["train"], ["bench", "train"], ["bench", "learn"], ["bench", "engines"], ["tune"]]
+COMMANDS = [["run"], ["train"], ["bench", "train"], ["learn"], ["engines"], ["tune"]]
 
 
 @pytest.mark.parametrize("command", COMMANDS, ids=" ".join)
 def test_training_days_are_days_everywhere(command: list[str]) -> None:
-    res = runner.invoke(app, [*command, "--help"], terminal_width=200)
+    script = command[0] in ("learn", "engines")  # the developer's benchmarks: benchmarks/NAME.py
+    cli, args = (benchmark_script(command[0]).app, []) if script else (app, command)
+    res = runner.invoke(cli, [*args, "--help"], terminal_width=200)
     assert res.exit_code == 0 and "--days" in res.output, res.output
     assert "--episodes " not in res.output  # the old spelling is hidden (--eval-episodes is another idea)
 

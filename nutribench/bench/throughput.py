@@ -1,11 +1,10 @@
-"""Throughput benchmarks (``nutribench bench env|train|status``): medians of repeated timed runs."""
+"""Throughput benchmarks (``nutribench bench env|train``): medians of repeated timed runs."""
 
 from __future__ import annotations
 
 import statistics
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -13,7 +12,7 @@ import numpy as np
 from nutribench.env import NutriRLEnv, NutriRLVectorEnv
 
 
-def _timings(call: Callable[[], Any], repeats: int) -> list[float]:
+def timings(call: Callable[[], Any], repeats: int) -> list[float]:
     """The wall seconds of each of ``repeats`` calls."""
     seconds = []
     for _ in range(repeats):
@@ -24,7 +23,7 @@ def _timings(call: Callable[[], Any], repeats: int) -> list[float]:
 
 
 def _median_rate(fn: Callable[[], Any], steps: int, repeats: int) -> float:
-    return statistics.median(steps / t for t in _timings(fn, repeats))
+    return statistics.median(steps / t for t in timings(fn, repeats))
 
 
 def single_env_rate(regime: str, steps: int = 100_000, repeats: int = 5, seed: int = 0) -> float:
@@ -147,7 +146,7 @@ def bench_train(
         times: list[float] = []
         bare_times: dict[str, list[float]] = {cls_name: [] for cls_name, _ in bare_refs}
         for _ in range(repeats):
-            times += _timings(lambda c=cfg: train(regime, c, seed=seed, episodes=episodes), 1)
+            times += timings(lambda c=cfg: train(regime, c, seed=seed, episodes=episodes), 1)
             for cls_name, _ in bare_refs:
                 bare_times[cls_name].append(_bare_sb3_seconds(algo, regime, episodes, seed, cls_name))
         row = {
@@ -172,91 +171,6 @@ def bench_train(
     for r in rows:
         r["paper_grid_cpu_hours"] = PAPER_GRID_STEPS / r["steps_per_s"] / 3600
     return rows
-
-
-class _InstantSyntheticJob:
-    """The synthetic job without its per-episode sleep (picklable)."""
-
-    def __call__(self, spec, sink=None):
-        from nutribench.scheduler.synthetic import synthetic_job
-
-        return synthetic_job(spec, sink, seconds=0.0)
-
-
-def bench_status(db: str | None = None, repeats: int = 5, workers: int | None = None) -> dict:
-    """Time ``status_table`` and ``nutribench status --json`` on a database holding the
-    full paper grid (7 regimes x 5 algorithms x 5 seeds x 5000 training days = 875,000
-    episode rows), filled with synthetic jobs (``nutribench.scheduler.synthetic``, no training).
-
-    ``db``: an existing database to time instead of building one (built in a temporary
-    folder otherwise; that takes a few minutes). Medians over ``repeats``.
-    """
-    import subprocess
-    import sys
-
-    from nutribench.scheduler.status import status_table
-
-    build_s = None
-    if db is None:
-        t0 = time.perf_counter()
-        db = paper_grid_db(workers)
-        build_s = time.perf_counter() - t0
-    report = status_table(db)
-    command = [sys.executable, "-m", "nutribench.cli", "status", "--json", "--db", db]
-    return {
-        "db": db,
-        "jobs": sum(r.done + r.running + r.failed + r.pending for r in report.rows),
-        "episode_rows": _episode_rows(db),
-        "db_mb": Path(db).stat().st_size / 2**20 if Path(db).exists() else None,
-        "build_seconds": build_s,
-        "status_table_s": statistics.median(_timings(lambda: status_table(db), repeats)),
-        "status_cli_s": statistics.median(
-            _timings(lambda: subprocess.run(command, check=True, capture_output=True), repeats)
-        ),
-    }
-
-
-def paper_grid_db(workers: int | None = None) -> str:
-    """A database in a new temporary folder holding the paper grid, run with the synthetic
-    job (no sleep, no training); its path."""
-    import tempfile
-
-    from nutribench.agents.registry import paper_names
-    from nutribench.config import list_regimes
-    from nutribench.scheduler.driver import GridSettings, run_grid
-    from nutribench.scheduler.grid import PRESETS
-
-    tmp = Path(tempfile.mkdtemp(prefix="nutribench-bench-status-"))
-    db = str(tmp / "paper_grid.db")
-    paper = PRESETS["paper"]
-    run_grid(
-        GridSettings(
-            db,
-            list_regimes(),
-            paper_names(),
-            paper.seeds,
-            paper.episodes,
-            workers=workers,
-            job_fn=_InstantSyntheticJob(),
-            models_dir=tmp / "models",
-            display=False,
-        )
-    )
-    return db
-
-
-def _episode_rows(db: str) -> int:
-    from sqlalchemy import func, select
-
-    from nutribench.store.models import Episode
-    from nutribench.store.schema import open_store
-
-    store = open_store(db)
-    try:
-        with store.engine.connect() as conn:
-            return conn.execute(select(func.count()).select_from(Episode)).scalar_one()
-    finally:
-        store.dispose()
 
 
 def matmul_flops_per_s(
@@ -302,7 +216,7 @@ def bench_train_batched(
 
     cfg = bench_config(algo)  # DDQN and SAC learning from the first step, as in the SB3 engine's rows
     jobs = [(r, s) for r in SHIPPED_REGIMES[:k_regimes] for s in range(k_seeds)]
-    times = _timings(lambda: train_batched(jobs, cfg, episodes, device=device), repeats)
+    times = timings(lambda: train_batched(jobs, cfg, episodes, device=device), repeats)
     steps = len(jobs) * episodes * 50
     rate = steps / statistics.median(times)
     from nutribench.agents.registry import batched_class

@@ -4,7 +4,7 @@ One module per command group: :mod:`~nutribench.cli.regimes` (``regimes list|che
 :mod:`~nutribench.cli.agents` (``baselines``, ``train``), :mod:`~nutribench.cli.run`
 (``run``, ``status``), :mod:`~nutribench.cli.report` (``report``), :mod:`~nutribench.cli.evaluate` (``evaluate``), :mod:`~nutribench.cli.leaderboard`
 (``leaderboard``), :mod:`~nutribench.cli.db` (``db copy``, ``db export``, ``db import``) and
-:mod:`~nutribench.cli.bench` (``bench env|train|learn|status|tune``), :mod:`~nutribench.cli.tune` (``tune``, ``tune status|best``); :mod:`~nutribench.cli.common`
+:mod:`~nutribench.cli.bench` (``bench env|train|tune``), :mod:`~nutribench.cli.tune` (``tune``, ``tune status|best``); :mod:`~nutribench.cli.common`
 holds what they share. Commands import the library they call when they run, so
 ``nutribench --help`` starts fast. Nothing below this package imports from it.
 

@@ -1,11 +1,10 @@
-"""``nutribench bench env|train|learn|status|engines|tune``: throughput, status speed and
-learnability benchmarks; whether the batched engine's agents learn what the SB3 agents learn
-(:mod:`nutribench.bench.engines`); tuning trials per hour, stacked in batched processes against
-one SB3 process per trial (:mod:`nutribench.bench.tune`)."""
+"""``nutribench bench env|train|tune``: env and training throughput; tuning trials per hour,
+stacked in batched processes against one SB3 process per trial (:mod:`nutribench.bench.tune`).
+The developer's benchmarks (learnability, the two engines compared, ``status`` speed) are
+scripts beside the package, in ``benchmarks/``."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
@@ -13,11 +12,8 @@ import typer
 from nutribench.cli.common import (
     DEVICE_HELP,
     EpisodesAlias,
-    EvalDaysOption,
-    MarkdownOption,
     RepeatsOption,
     UserError,
-    WorkersOption,
     console,
     old_spelling,
     print_table,
@@ -25,12 +21,11 @@ from nutribench.cli.common import (
     user_errors,
 )
 from nutribench.engines import Engine
-from nutribench.safe_write import check_file_target
 
 bench_app = typer.Typer(
     no_args_is_help=True,
     rich_markup_mode=None,
-    help="Benchmarks: env and training throughput, status speed, learnability.",
+    help="Benchmarks: env and training throughput, tuning trials per hour.",
 )
 
 
@@ -152,130 +147,20 @@ def _batched_rows(names: list[str], sb3_rate: dict[str, float], episodes: int, r
         console.print(f"not in the batched engine yet: {', '.join(skipped)}", highlight=False)
 
 
-@bench_app.command("learn")
-@user_errors
-def bench_learn_cmd(
-    algos: Annotated[str, typer.Option(help="'all' or comma-separated agent config names")] = "all",
-    regimes: Annotated[
-        str, typer.Option(help="'all' or comma-separated regimes; run0 carries the targets")
-    ] = "run0,run3,run6",
-    seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2",
-    days: Annotated[
-        Optional[str],
-        typer.Option(
-            "--days", help="training days: a default, then NAME=N for a config or algorithm [default: 500,ddqn=2000]"
-        ),
-    ] = None,
-    episodes_alias: Annotated[Optional[str], typer.Option("--episodes", hidden=True)] = None,
-    eval_episodes: EvalDaysOption = 10,
-    workers: WorkersOption = None,
-    markdown: MarkdownOption = False,
-    engine: Annotated[
-        str,
-        typer.Option(
-            help="'sb3' (the reference), or 'batched' (every config's seeds and regimes at once: fast sweeps)"
-        ),
-    ] = Engine.SB3.value,
-    device: Annotated[str, typer.Option(help=f"--engine batched: {DEVICE_HELP} (the SB3 engine: the CPU)")] = "auto",
-) -> None:
-    """Train every agent for a budget over several seeds, evaluate greedily on the fixed
-    evaluation days, and state each as the share of the never -> planner gap it closes
-    (run0 target: at least 75 % with 3-6 foods a day)."""
-    episodes = old_spelling(days, episodes_alias, "--days", "--episodes", "500,ddqn=2000")
-    from nutribench.agents.config import list_agent_configs, where_agents_are
-    from nutribench.bench.learn import DEFAULT_BUDGET, LEARN_COLUMNS, learn_benchmark, row_cells, summarize_runs
-    from nutribench.config import list_regimes
-    from nutribench.scheduler.grid import parse_seeds
+def moved_command(name: str) -> None:
+    """``bench NAME``, a developer's benchmark that moved to ``benchmarks/NAME.py``: one line saying so."""
 
-    known = list_agent_configs()[:5] if algos == "all" else list_agent_configs()
-    names = split_csv(algos, known, "agent config", where_agents_are())
-    regime_names = split_csv(regimes, list_regimes(), "regime")
-    seed_list = list(parse_seeds(seeds))
-    default, budgets = parse_budgets(episodes, DEFAULT_BUDGET)
-    _check_learn(names, budgets, episodes, engine, device)
-    with console.status("training") as status:
-        runs = learn_benchmark(
-            names,
-            regime_names,
-            seed_list,
-            budgets=budgets,
-            default_budget=default,
-            eval_episodes=eval_episodes,
-            workers=workers,
-            on_done=lambda r, k, n: status.update(f"{k}/{n} done (last: {r.algo} {r.regime} seed {r.seed})"),
-            engine=engine,
-            device=device,
-        )
-    rows = summarize_runs(runs)
-    cells = [row_cells(r) for r in rows]
-    for r, c in zip(rows, cells, strict=True):
-        if r["target_met"] is not None and not markdown:
-            c[-1] = f"[{'green' if r['target_met'] else 'red'}]{c[-1]}"
-    print_table(LEARN_COLUMNS, cells, f"learnability, seeds {seeds}, {eval_episodes} eval days each", markdown)
-
-
-def _check_learn(names: list[str], budgets: dict[str, int], given: str, engine: str, device: str) -> None:
-    """``bench learn``: a budget for no known config or algorithm, a bad engine or device, or a
-    config the batched engine cannot train, one line each, before anything trains."""
-    from nutribench.agents.config import list_agent_configs, load_agent_config
-    from nutribench.agents.registry import batched_names
-    from nutribench.agents.registry import names as algo_names
-
-    unknown = sorted(set(budgets) - set(list_agent_configs()) - set(algo_names()))
-    if unknown:
+    @bench_app.command(name, hidden=True, context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+    @user_errors
+    def moved() -> None:
         raise UserError(
-            f"--days {given!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})"
-        )
-    check_engine_options(engine, device)
-    other = [n for n in names if load_agent_config(n).algo not in batched_names()] if engine == Engine.BATCHED else []
-    if other:
-        raise UserError(
-            f"--engine batched trains {', '.join(batched_names())} configs, not {', '.join(other)}: use --engine sb3"
+            f"bench {name} is a developer's benchmark and moved out of the installed package: from a checkout, "
+            f"run python benchmarks/{name}.py (the same options)"
         )
 
 
-def parse_budgets(value: str, default: int) -> tuple[int, dict[str, int]]:
-    """``"500,ddqn=2000"`` -> ``(500, {"ddqn": 2000})``."""
-    budgets: dict[str, int] = {}
-    for item in (v.strip() for v in value.split(",") if v.strip()):
-        name, _, n = item.rpartition("=")
-        try:
-            days = int(n)
-        except ValueError:
-            raise UserError(
-                f"--days {item!r}: expected N or NAME=N with N a whole number of days, e.g. 500,ddqn=2000"
-            ) from None
-        if days < 1:
-            raise UserError(f"--days {item!r}: the number of days must be >= 1")
-        if name:
-            budgets[name] = days
-        else:
-            default = days
-    return default, budgets
-
-
-@bench_app.command("status")
-@user_errors
-def bench_status_cmd(
-    db: Annotated[
-        Optional[str], typer.Option(help="time this database instead of building a synthetic paper grid")
-    ] = None,
-    repeats: RepeatsOption = 5,
-) -> None:
-    """Time `nutribench status` on a database holding the full paper grid (175 jobs,
-    875,000 training-day rows of synthetic jobs; building it takes a few minutes)."""
-    from nutribench.bench.throughput import bench_status
-
-    if db is None:
-        console.print("building a synthetic paper-grid database (175 fake jobs x 5000 days) ...")
-    r = bench_status(db, repeats=repeats)
-    if r["build_seconds"] is not None:
-        console.print(f"built {r['db']} in {r['build_seconds']:.0f} s")
-    console.print(f"{r['jobs']} jobs, {r['episode_rows']:,} episode rows, {r['db_mb']:.0f} MB")
-    console.print(
-        f"status_table(): {r['status_table_s']:.3f} s   `nutribench status --json`: {r['status_cli_s']:.2f} s "
-        f"(medians of {repeats}; the CLI figure includes Python start-up)"
-    )
+for _moved in ("learn", "status", "engines"):
+    moved_command(_moved)
 
 
 def check_engine_options(engine: str, device: str) -> None:
@@ -284,79 +169,6 @@ def check_engine_options(engine: str, device: str) -> None:
     from nutribench.scheduler.pools import check_engine
 
     check_engine(engine, 1, device)
-
-
-@bench_app.command("engines")
-@user_errors
-def bench_engines_cmd(
-    algos: Annotated[str, typer.Option(help="comma-separated algorithms the batched engine trains")] = "ppo",
-    regimes: Annotated[str, typer.Option(help="comma-separated regimes")] = "run0,run6",
-    seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2,3,4",
-    days: Annotated[
-        Optional[int], typer.Option("--days", min=1, help="training days per job, both engines [default: 500]")
-    ] = None,
-    episodes_alias: EpisodesAlias = None,
-    eval_episodes: EvalDaysOption = 10,
-    markdown: MarkdownOption = False,
-    device: Annotated[
-        str, typer.Option(help=f"the batched engine's: {DEVICE_HELP} (the SB3 engine: the CPU)")
-    ] = "auto",
-    concurrent: Annotated[
-        bool,
-        typer.Option(
-            "--concurrent",
-            help="train each algorithm's batched jobs beside the SB3 pool, not after it (cores to spare)",
-        ),
-    ] = False,
-    workers: Annotated[Optional[int], typer.Option(min=1, help="SB3 jobs trained at once (default: the cores)")] = None,
-    save: Annotated[
-        Optional[Path], typer.Option(help="also write every agent's evaluation returns (JSON) to this file")
-    ] = None,
-) -> None:
-    """Train with both engines (SB3 and batched) on the same seeds and budget; per algorithm
-    and regime the IQM over seeds of each agent's mean evaluation return with its 95 %
-    trimmed-t interval; the two engines' intervals must overlap."""
-    episodes = old_spelling(days, episodes_alias, "--days", "--episodes", 500)
-    from nutribench.agents.registry import batched_names
-    from nutribench.bench.engines import ENGINE_COLUMNS, bench_engines, engine_cells
-    from nutribench.config import list_regimes
-    from nutribench.scheduler.grid import parse_seeds
-
-    check_engine_options(Engine.BATCHED, device)
-    if save is not None:
-        check_file_target(save, "--save")
-    names = split_csv(algos, batched_names(), "algorithm for the batched engine")
-    regime_names = split_csv(regimes, list_regimes(), "regime")
-    with console.status("training with both engines"):
-        rows = bench_engines(
-            names,
-            regime_names,
-            list(parse_seeds(seeds)),
-            episodes,
-            eval_episodes,
-            workers=workers,
-            device=device,
-            concurrent=concurrent,
-            save=save,
-            on_done=_report_engine_run,
-        )
-    title = f"engines: SB3 vs batched, {episodes} days, seeds {seeds}"
-    print_table(ENGINE_COLUMNS, [engine_cells(r) for r in rows], title, markdown)
-    walls = {r["engine"]: r["total_wall_seconds"] for r in rows}
-    how = "a process per algorithm, beside the SB3 pool" if concurrent else "one process"
-    console.print(
-        f"wall time: SB3 {walls[Engine.SB3]:.0f} s (a process per job, one per core), batched {walls[Engine.BATCHED]:.0f} s ({how})",
-        highlight=False,
-    )
-
-
-def _report_engine_run(engine: str, run) -> None:
-    mean = sum(e["return"] for e in run.eval_rows) / len(run.eval_rows)
-    console.print(
-        f"{engine} {run.algo} {run.regime} seed {run.seed}: evaluation return {mean:.2f} (mean of "
-        f"{len(run.eval_rows)} days), {run.wall_seconds:.0f} s of training",
-        highlight=False,
-    )
 
 
 @bench_app.command("tune")

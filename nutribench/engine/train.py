@@ -18,7 +18,7 @@ its minibatch order, its initial weights), so an agent's run does not depend on 
 others share its batch: on the CPU it is the same bit for bit alone or in any batch (the
 kernels whose rounding depended on K are avoided: docs/batched-engine.md, "Reproducibility").
 It is not SB3's random stream: the two engines' runs with one seed differ as two seeds do;
-``nutribench bench engines`` compares them as distributions.
+``python benchmarks/engines.py`` compares them as distributions.
 
 Every engine entry point takes a ``device`` (:mod:`nutribench.engine.device`; default the
 CPU). The networks, optimiser states, GRU states and each update's tensors live there; the

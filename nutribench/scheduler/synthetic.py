@@ -1,7 +1,7 @@
 """The synthetic job: a stand-in for training that the scheduler runs like a real job, with
 no torch and no training. Production code uses it for dry runs (``NUTRIBENCH_JOB=fake
 nutribench run ...``: the rows are marked ``fake`` and never count as results) and for
-``nutribench bench status``'s synthetic paper-grid database; the scheduler's and the store's
+``python benchmarks/status.py``'s synthetic paper-grid database; the scheduler's and the store's
 tests use it to run grids in seconds.
 
 It sleeps ``$NUTRIBENCH_FAKE_SECONDS`` (default 0.001) per training episode and makes

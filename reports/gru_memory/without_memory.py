@@ -20,18 +20,22 @@ evaluate with); see :func:`no_memory`.
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import torch as th
 
 import nutribench.agents.gru_ppo.policy as sb3_policy
 import nutribench.engine.gru_ppo as stacked
 from nutribench.agents import load_agent_config
-from nutribench.bench.learn import batched_runs, markdown_table, one_run, summarize_runs
 from nutribench.cli.common import UserError, split_csv
 from nutribench.config import list_regimes
 from nutribench.scheduler.grid import parse_seeds
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))  # the developer's benchmarks
+from learn import batched_runs, markdown_table, one_run, summarize_runs  # noqa: E402 (benchmarks/learn.py)
 
 
 @contextmanager

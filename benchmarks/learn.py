@@ -1,6 +1,6 @@
 """Learnability benchmark: does each agent learn the task, and how much of it?
 
-``nutribench bench learn`` trains every agent config on run0 (and, for the record, on
+``python benchmarks/learn.py`` trains every agent config on run0 (and, for the record, on
 delayed regimes) for a fixed budget over several seeds, plays each trained agent greedily
 on the job seed's fixed evaluation days (:func:`~nutribench.agents.eval_food_streams`,
 the days every algorithm of that seed is evaluated on), and states the result against the
@@ -9,11 +9,13 @@ reference policies played on the very same days:
     gap closed = (return - return of never) / (return of planner - return of never)
 
 0 is "never eat", 1 the full-information greedy planner (which is not optimal, so a
-learner may exceed 1). A benchmark, not a test: it takes minutes per algorithm.
+learner may exceed 1). A benchmark, not a test: it takes minutes per algorithm. A
+developer's script, not part of the installed package: run it from a checkout,
+``python benchmarks/learn.py --help`` for its options.
 
 ::
 
-    from nutribench.bench.learn import learn_benchmark, summarize_runs
+    from learn import learn_benchmark, summarize_runs   # with benchmarks/ on sys.path
     runs = learn_benchmark(["ppo"], ["run0"], seeds=[0, 1, 2], budgets={"ppo": 500})
     print(summarize_runs(runs))
 """
@@ -26,11 +28,24 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any, Optional
 
 import numpy as np
+import typer
 
 from nutribench.baselines import day_yardsticks, gap_closed
+from nutribench.cli.common import (
+    DEVICE_HELP,
+    EvalDaysOption,
+    MarkdownOption,
+    UserError,
+    WorkersOption,
+    console,
+    old_spelling,
+    print_table,
+    split_csv,
+    user_errors,
+)
 from nutribench.engines import Engine
 from nutribench.stats import iqm
 
@@ -256,3 +271,112 @@ def markdown_table(
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     lines += ["| " + " | ".join((cells or row_cells)(r)) + " |" for r in rows]
     return "\n".join(lines)
+
+
+def learn_cmd(
+    algos: Annotated[str, typer.Option(help="'all' or comma-separated agent config names")] = "all",
+    regimes: Annotated[
+        str, typer.Option(help="'all' or comma-separated regimes; run0 carries the targets")
+    ] = "run0,run3,run6",
+    seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2",
+    days: Annotated[
+        Optional[str],
+        typer.Option(
+            "--days", help="training days: a default, then NAME=N for a config or algorithm [default: 500,ddqn=2000]"
+        ),
+    ] = None,
+    episodes_alias: Annotated[Optional[str], typer.Option("--episodes", hidden=True)] = None,
+    eval_episodes: EvalDaysOption = 10,
+    workers: WorkersOption = None,
+    markdown: MarkdownOption = False,
+    engine: Annotated[
+        str,
+        typer.Option(
+            help="'sb3' (the reference), or 'batched' (every config's seeds and regimes at once: fast sweeps)"
+        ),
+    ] = Engine.SB3.value,
+    device: Annotated[str, typer.Option(help=f"--engine batched: {DEVICE_HELP} (the SB3 engine: the CPU)")] = "auto",
+) -> None:
+    """Train every agent for a budget over several seeds, evaluate greedily on the fixed
+    evaluation days, and state each as the share of the never -> planner gap it closes
+    (run0 target: at least 75 % with 3-6 foods a day)."""
+    episodes = old_spelling(days, episodes_alias, "--days", "--episodes", "500,ddqn=2000")
+    from nutribench.agents.config import list_agent_configs, where_agents_are
+    from nutribench.config import list_regimes
+    from nutribench.scheduler.grid import parse_seeds
+
+    known = list_agent_configs()[:5] if algos == "all" else list_agent_configs()
+    names = split_csv(algos, known, "agent config", where_agents_are())
+    regime_names = split_csv(regimes, list_regimes(), "regime")
+    seed_list = list(parse_seeds(seeds))
+    default, budgets = parse_budgets(episodes, DEFAULT_BUDGET)
+    check_learn(names, budgets, episodes, engine, device)
+    with console.status("training") as status:
+        runs = learn_benchmark(
+            names,
+            regime_names,
+            seed_list,
+            budgets=budgets,
+            default_budget=default,
+            eval_episodes=eval_episodes,
+            workers=workers,
+            on_done=lambda r, k, n: status.update(f"{k}/{n} done (last: {r.algo} {r.regime} seed {r.seed})"),
+            engine=engine,
+            device=device,
+        )
+    rows = summarize_runs(runs)
+    cells = [row_cells(r) for r in rows]
+    for r, c in zip(rows, cells, strict=True):
+        if r["target_met"] is not None and not markdown:
+            c[-1] = f"[{'green' if r['target_met'] else 'red'}]{c[-1]}"
+    print_table(LEARN_COLUMNS, cells, f"learnability, seeds {seeds}, {eval_episodes} eval days each", markdown)
+
+
+def check_learn(names: list[str], budgets: dict[str, int], given: str, engine: str, device: str) -> None:
+    """A budget for no known config or algorithm, a bad engine or device, or a config the
+    batched engine cannot train, one line each, before anything trains."""
+    from nutribench.agents.config import list_agent_configs, load_agent_config
+    from nutribench.agents.registry import batched_names
+    from nutribench.agents.registry import names as algo_names
+    from nutribench.scheduler.pools import check_engine
+
+    unknown = sorted(set(budgets) - set(list_agent_configs()) - set(algo_names()))
+    if unknown:
+        raise UserError(
+            f"--days {given!r}: no agent config or algorithm {', '.join(unknown)} (known: {', '.join(list_agent_configs())})"
+        )
+    check_engine(engine, 1, device)
+    other = [n for n in names if load_agent_config(n).algo not in batched_names()] if engine == Engine.BATCHED else []
+    if other:
+        raise UserError(
+            f"--engine batched trains {', '.join(batched_names())} configs, not {', '.join(other)}: use --engine sb3"
+        )
+
+
+def parse_budgets(value: str, default: int) -> tuple[int, dict[str, int]]:
+    """``"500,ddqn=2000"`` -> ``(500, {"ddqn": 2000})``."""
+    budgets: dict[str, int] = {}
+    for item in (v.strip() for v in value.split(",") if v.strip()):
+        name, _, n = item.rpartition("=")
+        try:
+            days = int(n)
+        except ValueError:
+            raise UserError(
+                f"--days {item!r}: expected N or NAME=N with N a whole number of days, e.g. 500,ddqn=2000"
+            ) from None
+        if days < 1:
+            raise UserError(f"--days {item!r}: the number of days must be >= 1")
+        if name:
+            budgets[name] = days
+        else:
+            default = days
+    return default, budgets
+
+
+#: ``python benchmarks/learn.py [OPTIONS]``: the command (``nutribench bench learn`` until it
+#: moved out of the installed package with the other developer's benchmarks)
+app = typer.Typer(add_completion=False, rich_markup_mode=None)
+app.command()(user_errors(learn_cmd))
+
+if __name__ == "__main__":
+    app()

@@ -1,4 +1,4 @@
-"""``nutribench bench engines``: do the batched engine's agents learn what the SB3 agents
+"""``python benchmarks/engines.py``: do the batched engine's agents learn what the SB3 agents
 learn? Both engines train the same agent config on the same regimes, seeds and budget;
 each trained agent plays greedily on its seed's fixed evaluation days; per (algorithm,
 regime, engine) the table gives the IQM over seeds of each agent's mean evaluation return
@@ -13,6 +13,9 @@ engine trains all of an algorithm's jobs in one process, on one core (or on ``de
 With ``concurrent=True`` each algorithm's batched process runs beside the SB3 pool instead
 of after it (for a machine with more cores than SB3 jobs); the results are the same, only
 the wall time differs.
+
+A developer's script, not part of the installed package: run it from a checkout
+(``python benchmarks/engines.py --help`` for its options); it imports :mod:`learn` beside it.
 """
 
 from __future__ import annotations
@@ -24,14 +27,26 @@ import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Optional
 
 import numpy as np
+import typer
+from learn import LearnRun, batched_runs, learn_benchmark, summarize_runs
 
 from nutribench.agents.registry import batched_names
-from nutribench.bench.learn import LearnRun, batched_runs, learn_benchmark, summarize_runs
+from nutribench.cli.common import (
+    DEVICE_HELP,
+    EpisodesAlias,
+    EvalDaysOption,
+    MarkdownOption,
+    console,
+    old_spelling,
+    print_table,
+    split_csv,
+    user_errors,
+)
 from nutribench.engines import TRAINING_ENGINES, Engine
-from nutribench.safe_write import atomic_write
+from nutribench.safe_write import atomic_write, check_file_target
 from nutribench.stats import iqm_runs_ci
 
 
@@ -108,7 +123,7 @@ def _engine_pair(runs: dict[str, list[LearnRun]], algo: str, regime: str, episod
     for engine in TRAINING_ENGINES:
         rs = [r for r in runs[engine] if r.algo == algo and r.regime == regime]
         point, lo, hi = iqm_runs_ci([np.array([np.mean([e["return"] for e in r.eval_rows]) for r in rs])])
-        learned = summarize_runs(rs)[0]  # the gap, foods and wall time as bench learn states them
+        learned = summarize_runs(rs)[0]  # the gap, foods and wall time as benchmarks/learn.py states them
         pair.append(
             {"algo": algo, "regime": regime, "engine": engine, "seeds": len(rs), "episodes": episodes}
             | {"iqm": point, "ci_low": lo, "ci_high": hi, "gap_closed": learned["gap_closed"]}
@@ -146,3 +161,83 @@ def engine_cells(r: dict[str, Any]) -> list[str]:
         f"{r['wall_seconds_per_job']:.1f}",
         "" if r["overlap"] is None else ("yes" if r["overlap"] else "NO"),
     ]
+
+
+def engines_cmd(
+    algos: Annotated[str, typer.Option(help="comma-separated algorithms the batched engine trains")] = "ppo",
+    regimes: Annotated[str, typer.Option(help="comma-separated regimes")] = "run0,run6",
+    seeds: Annotated[str, typer.Option(help="comma-separated training seeds")] = "0,1,2,3,4",
+    days: Annotated[
+        Optional[int], typer.Option("--days", min=1, help="training days per job, both engines [default: 500]")
+    ] = None,
+    episodes_alias: EpisodesAlias = None,
+    eval_episodes: EvalDaysOption = 10,
+    markdown: MarkdownOption = False,
+    device: Annotated[
+        str, typer.Option(help=f"the batched engine's: {DEVICE_HELP} (the SB3 engine: the CPU)")
+    ] = "auto",
+    concurrent: Annotated[
+        bool,
+        typer.Option(
+            "--concurrent",
+            help="train each algorithm's batched jobs beside the SB3 pool, not after it (cores to spare)",
+        ),
+    ] = False,
+    workers: Annotated[Optional[int], typer.Option(min=1, help="SB3 jobs trained at once (default: the cores)")] = None,
+    save: Annotated[
+        Optional[Path], typer.Option(help="also write every agent's evaluation returns (JSON) to this file")
+    ] = None,
+) -> None:
+    """Train with both engines (SB3 and batched) on the same seeds and budget; per algorithm
+    and regime the IQM over seeds of each agent's mean evaluation return with its 95 %
+    trimmed-t interval; the two engines' intervals must overlap."""
+    episodes = old_spelling(days, episodes_alias, "--days", "--episodes", 500)
+    from nutribench.config import list_regimes
+    from nutribench.scheduler.grid import parse_seeds
+    from nutribench.scheduler.pools import check_engine
+
+    check_engine(Engine.BATCHED, 1, device)
+    if save is not None:
+        check_file_target(save, "--save")
+    names = split_csv(algos, batched_names(), "algorithm for the batched engine")
+    regime_names = split_csv(regimes, list_regimes(), "regime")
+    with console.status("training with both engines"):
+        rows = bench_engines(
+            names,
+            regime_names,
+            list(parse_seeds(seeds)),
+            episodes,
+            eval_episodes,
+            workers=workers,
+            device=device,
+            concurrent=concurrent,
+            save=save,
+            on_done=report_engine_run,
+        )
+    title = f"engines: SB3 vs batched, {episodes} days, seeds {seeds}"
+    print_table(ENGINE_COLUMNS, [engine_cells(r) for r in rows], title, markdown)
+    walls = {r["engine"]: r["total_wall_seconds"] for r in rows}
+    how = "a process per algorithm, beside the SB3 pool" if concurrent else "one process"
+    console.print(
+        f"wall time: SB3 {walls[Engine.SB3]:.0f} s (a process per job, one per core), batched {walls[Engine.BATCHED]:.0f} s ({how})",
+        highlight=False,
+    )
+
+
+def report_engine_run(engine: str, run: LearnRun) -> None:
+    """One line as each trained agent is in: its engine, config, regime, seed and return."""
+    mean = sum(e["return"] for e in run.eval_rows) / len(run.eval_rows)
+    console.print(
+        f"{engine} {run.algo} {run.regime} seed {run.seed}: evaluation return {mean:.2f} (mean of "
+        f"{len(run.eval_rows)} days), {run.wall_seconds:.0f} s of training",
+        highlight=False,
+    )
+
+
+#: ``python benchmarks/engines.py [OPTIONS]``: the command (``nutribench bench engines`` until it
+#: moved out of the installed package with the other developer's benchmarks)
+app = typer.Typer(add_completion=False, rich_markup_mode=None)
+app.command()(user_errors(engines_cmd))
+
+if __name__ == "__main__":
+    app()
