@@ -4,7 +4,8 @@
   ``#anchor`` on a Markdown page to one of its headings.
 * Every ``nutribench <command> [<subcommand>]`` named in them (in fenced code, indented code
   and inline code) is a command of the typer app, and every ``--option`` given to it is in
-  that command's ``--help``.
+  that command's ``--help``; every ``python benchmarks/NAME.py`` (the developer's benchmarks)
+  is a file, and the options given to a command script are in its ``--help``.
 * Nothing refers to files outside the repository (``../shared``), to the specification by
   section number (``SPEC 3``) or to issue numbers: a reader of the repository alone cannot
   follow them.
@@ -24,6 +25,7 @@ import pytest
 from typer.testing import CliRunner
 
 from nutribench.cli import app
+from tests.conftest import benchmark_script
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -32,6 +34,7 @@ _FENCE = re.compile(r"^(\s*)(`{3,}|~{3,})")
 _LINK = re.compile(r"!?\[(?:[^\]\[]|\[[^\]]*\])*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
 _INLINE_CODE = re.compile(r"(`+)(.+?)\1", re.S)
 _COMMAND = re.compile(r"(?<![\w./\[-])nutribench((?:[ \t]+[^\s`|;&#]+)*)")
+_SCRIPT = re.compile(r"(?<![\w./\[-])python[ \t]+(benchmarks/[\w.]+)((?:[ \t]+[^\s`|;&#]+)*)")
 _FORBIDDEN = {
     "a file outside the repository": re.compile(r"\.\./shared|REFERENCE\.md|SPEC\.md"),
     "an issue number": re.compile(r"\b[Ii]ssues?\s+#?\d+"),
@@ -112,6 +115,36 @@ def commands(text: str) -> list[str]:
     return found
 
 
+def script_commands(text: str) -> list[str]:
+    """Every ``python benchmarks/NAME.py ...`` named in code (fenced, indented or inline)."""
+    prose, code = split_markdown(text)
+    chunks = [*code, *(m.group(2).replace("\n", " ") for m in _INLINE_CODE.finditer(prose))]
+    return [f"python {m.group(1)}{m.group(2)}".strip() for chunk in chunks for m in _SCRIPT.finditer(chunk)]
+
+
+@functools.cache
+def script_help(name: str) -> str | None:
+    """``benchmarks/NAME.py --help`` of a command script (a typer ``app``); None for another script."""
+    if "typer.Typer(" not in (ROOT / "benchmarks" / f"{name}.py").read_text(encoding="utf-8"):
+        return None
+    return CliRunner().invoke(benchmark_script(name).app, ["--help"], terminal_width=200).output
+
+
+def check_script(line: str) -> str | None:
+    """None if ``line`` (``python benchmarks/NAME.py ...``) names a script there, with options it has."""
+    where, *tokens = line.split()[1:]
+    path = ROOT / where
+    if path.suffix != ".py" or not path.is_file():
+        return f"{line!r}: no script {where}"
+    out = script_help(path.stem)
+    known = set(re.findall(r"--[a-z][a-z0-9-]*", out or ""))
+    for tok in tokens if out is not None else ():
+        for opt in re.findall(r"(?:^|[\[(|/])(--[a-z][a-z0-9-]*)", tok):
+            if opt not in known:
+                return f"{line!r}: {where} has no option {opt}"
+    return None
+
+
 @functools.cache
 def help_text(path: tuple[str, ...]) -> str | None:
     result = CliRunner().invoke(app, [*path, "--help"])
@@ -163,6 +196,13 @@ def test_commands_exist(page):
     assert errors == []
 
 
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_benchmark_scripts_exist(page):
+    named = script_commands(page.read_text(encoding="utf-8"))
+    errors = [e for e in map(check_script, dict.fromkeys(named)) if e]
+    assert errors == []
+
+
 def test_the_pages_name_commands():
     """The scan finds what it should (a guard against a regex that matches nothing)."""
     named = {" ".join(c.split()[:3]) for p in PAGES for c in commands(p.read_text(encoding="utf-8"))}
@@ -189,3 +229,7 @@ def test_the_checks_catch_planted_mistakes():
     text = "Run `nutribench runn --preset smoke`.\n\n```bash\nnutribench status --db x.db\n```\n"
     text += "```python\nfrom nutribench import SHIPPED_REGIMES\nimport nutribench  # registers\n```\n"
     assert commands(text) == ["nutribench status --db x.db", "nutribench runn --preset smoke"]
+    assert check_script("python benchmarks/learn.py --algos mc --days 2000") is None
+    assert "no option --no-such-option" in check_script("python benchmarks/engines.py --no-such-option")
+    assert "no script benchmarks/nope.py" in check_script("python benchmarks/nope.py")
+    assert script_commands("Run `python benchmarks/status.py --db x.db`.") == ["python benchmarks/status.py --db x.db"]
