@@ -16,7 +16,7 @@ start=$SECONDS
   python3 -c "import torch, numpy, pandas; print('torch', torch.__version__, 'cuda', torch.cuda.is_available(), 'numpy', numpy.__version__, 'pandas', pandas.__version__)"
   git log -1 --format='commit %H' 2>/dev/null; } 2>&1 | tee "$OUT/machine.txt"
 # (1) the comparison, in the background
-nb bench engines --algos ppo,ddqn --regimes run3 --seeds 0,1,2,3,4 --episodes 5000 --eval-episodes 10 \
+python3 benchmarks/engines.py --algos ppo,ddqn --regimes run3 --seeds 0,1,2,3,4 --episodes 5000 --eval-episodes 10 \
   --device cuda --concurrent --workers 10 --save "$OUT/engines_run3.json" --markdown > "$OUT/engines_run3.md" 2>&1 &
 pid=$!
 # (2) meanwhile the CUDA tests of the batched engine (they never ran on a GPU before)
