@@ -41,9 +41,19 @@ MarkdownOption = Annotated[bool, typer.Option("--markdown", help="print a Markdo
 RepeatsOption = Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")]
 EvalDaysOption = Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")]
 WorkersOption = Annotated[Optional[int], typer.Option(min=1, help="agents trained at once (default: the cores)")]
+#: ``--reps`` of the commands whose intervals once drew resamples (each with its old default)
+KeptRepsOption = Annotated[
+    int, typer.Option(help="kept for scripts (100 to 100,000): the intervals draw no resamples now")
+]
 
 console = Console()
 err_console = Console(stderr=True)
+
+
+def command_group(help: str, **options) -> typer.Typer:
+    """A group of subcommands (``nutribench NAME ...``): help on no arguments unless ``options``
+    say otherwise, no rich markup in its texts."""
+    return typer.Typer(rich_markup_mode=None, help=help, **{"no_args_is_help": True, **options})
 
 
 def say(text: str, **options) -> None:

@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from nutribench.cli.common import DbOption, MarkdownOption, UserError, console, user_errors
+from nutribench.cli.common import DbOption, KeptRepsOption, MarkdownOption, UserError, console, user_errors
 
 
 @user_errors
@@ -30,9 +30,7 @@ def compare_cmd(
         bool, typer.Option("--json", help="print JSON: the rows' numbers (differences in returns), the notes")
     ] = False,
     db: DbOption = "nutribench.db",
-    reps: Annotated[
-        int, typer.Option(help="kept for scripts (100 to 100,000): the intervals draw no resamples now")
-    ] = 10_000,
+    reps: KeptRepsOption = 10_000,
 ) -> None:
     """A - B per regime and over regimes: the mean paired difference of evaluation returns
     (same seed, same day) with a 95 % t interval over seeds, P(A > B) over the paired

@@ -7,13 +7,9 @@ from typing import Annotated
 
 import typer
 
-from nutribench.cli.common import UserError, console, progress, user_errors
+from nutribench.cli.common import UserError, command_group, console, progress, user_errors
 
-db_app = typer.Typer(
-    no_args_is_help=True,
-    rich_markup_mode=None,
-    help="Results databases: copy one into another, export finished jobs to a file, import such a file.",
-)
+db_app = command_group("Results databases: copy one into another, export finished jobs to a file, import such a file.")
 
 
 @db_app.command("copy")

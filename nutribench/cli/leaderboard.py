@@ -11,6 +11,7 @@ import typer
 
 from nutribench.cli.common import (
     DbOption,
+    KeptRepsOption,
     UserError,
     console,
     folder_option,
@@ -46,9 +47,7 @@ def leaderboard_cmd(
         typer.Option("--out", metavar="PATH", help="also write leaderboard.md, .tex and .csv into this folder"),
     ] = None,
     fmt: Annotated[str, typer.Option("--format", help="what to print: markdown, csv, latex or json")] = "markdown",
-    reps: Annotated[
-        int, typer.Option(help="kept for scripts (100 to 100,000): the intervals draw no resamples now")
-    ] = 2000,
+    reps: KeptRepsOption = 2000,
     verify_given: _Verify = None,
 ) -> None:
     """Every agent ranked by the IQM of its share of the never -> planner gap (95 % interval)

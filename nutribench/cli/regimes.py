@@ -7,11 +7,9 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from nutribench.cli.common import UserError, console, say, say_err, user_errors
+from nutribench.cli.common import UserError, command_group, console, say, say_err, user_errors
 
-regimes_app = typer.Typer(
-    no_args_is_help=True, rich_markup_mode=None, help="Inspect, check and regenerate the regime files."
-)
+regimes_app = command_group("Inspect, check and regenerate the regime files.")
 
 
 @regimes_app.command("list")

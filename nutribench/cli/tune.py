@@ -15,6 +15,7 @@ import typer
 
 from nutribench.cli.common import (
     DEVICE_HELP,
+    command_group,
     console,
     folder_option,
     old_spelling,
@@ -24,12 +25,8 @@ from nutribench.cli.common import (
     user_errors,
 )
 
-tune_app = typer.Typer(
-    no_args_is_help=False,
-    add_completion=False,
-    rich_markup_mode=None,
-    invoke_without_command=True,
-    help="Tune an agent's hyperparameters on validation days (Optuna, in the results database).",
+tune_app = command_group(
+    "Tune an agent's hyperparameters on validation days (Optuna, in the results database).", no_args_is_help=False
 )
 
 _TuneDb = Annotated[
