@@ -247,13 +247,10 @@ def mean_ci(values, confidence: float = CONFIDENCE) -> tuple[float, float, float
     values or none spread: one run gives no spread to resample."""
     x = np.asarray(values, dtype=float)
     x = x[np.isfinite(x)]
-    if x.size == 0:
-        return float("nan"), float("nan"), float("nan")
-    point = float(x.mean())
-    if x.size < 2:
-        return point, float("nan"), float("nan")
+    if x.size < 2:  # no value: no mean either; one: no spread
+        return float(x[0]) if x.size else float("nan"), float("nan"), float("nan")
     lo, hi = t_intervals(x, "mean", confidence)
-    return point, float(lo[0]), float(hi[0])
+    return float(x.mean()), float(lo[0]), float(hi[0])
 
 
 def stratified_t(

@@ -78,11 +78,8 @@ def leaderboard_cmd(
             say_err(msg, style="dim")
             steps(msg)
 
-        table = (
-            leaderboard_from_archives(archives, reps, log, verify)
-            if archives is not None
-            else leaderboard_from_db(db, reps, log, verify)
-        )
+        source, build = (archives, leaderboard_from_archives) if archives is not None else (db, leaderboard_from_db)
+        table = build(source, reps, log, verify)
     writers = {"markdown": table.to_markdown, "csv": table.to_csv, "latex": table.to_latex}
     text = _json(table) if fmt == "json" else writers[fmt]()
     console.print(text, end="" if text.endswith("\n") else "\n", highlight=False, soft_wrap=True, markup=False)

@@ -112,8 +112,7 @@ class RegimeDynamics:
     """Everything precomputed once per regime and shared by the single and vector envs."""
 
     def __init__(self, regime: str | os.PathLike[str] | EnvConfig):
-        self.config = load_env_config(regime)
-        cfg = self.config
+        self.config = cfg = load_env_config(regime)
         self.reward_config = cfg.reward
         self.horizon = cfg.reward.horizon
         self.masses = cfg.masses()
