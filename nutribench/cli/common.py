@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Any, Optional
 
 import typer
 from rich.console import Console
@@ -31,7 +31,20 @@ EVAL_EVERY_HELP = (
     "training, disjoint from the test days; 0: never, the default)"
 )
 
-#: the options several commands share, written once (typer reads the ``Annotated`` metadata)
+
+def option(kind: Any, help: str | None, *names: str, **settings: Any) -> Any:
+    """A command's option as its parameter's annotation, in one line: ``Annotated[kind,
+    typer.Option(*names, help=help, **settings)]`` (``names``: its flags, where the parameter's
+    name does not give them; typer reads the ``Annotated`` metadata)."""
+    return Annotated[kind, typer.Option(*names, help=help, **settings)]
+
+
+def argument(kind: Any, help: str, **settings: Any) -> Any:
+    """A command's argument as its parameter's annotation (:func:`option`'s, for ``typer.Argument``)."""
+    return Annotated[kind, typer.Argument(help=help, **settings)]
+
+
+#: the options several commands share, written once
 DB_HELP = "results database: a SQLite file or a SQLAlchemy URL"
 DbOption = Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help=DB_HELP)]
 #: ``--episodes``, the old spelling of ``--days`` (hidden; :func:`old_spelling` reconciles the two)
@@ -42,9 +55,7 @@ RepeatsOption = Annotated[int, typer.Option(min=1, help="timed repeats; the medi
 EvalDaysOption = Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")]
 WorkersOption = Annotated[Optional[int], typer.Option(min=1, help="agents trained at once (default: the cores)")]
 #: ``--reps`` of the commands whose intervals once drew resamples (each with its old default)
-KeptRepsOption = Annotated[
-    int, typer.Option(help="kept for scripts (100 to 100,000): the intervals draw no resamples now")
-]
+KeptRepsOption = option(int, "kept for scripts (100 to 100,000): the intervals draw no resamples now")
 
 console = Console()
 err_console = Console(stderr=True)
