@@ -3,29 +3,19 @@ of (regime, seed) and stored as a job beside the built-in agents."""
 
 from __future__ import annotations
 
-from typing import Annotated
-
-import typer
-
-from nutribench.cli.common import DbOption, console, path_option, user_errors
+from nutribench.cli.common import DbOption, console, option, path_option, user_errors
 from nutribench.errors import UserError
 
 
 @user_errors
 def evaluate_cmd(
-    model_given: Annotated[
-        str, typer.Option("--model", metavar="PATH", help="the saved model (a file or folder your loader reads)")
-    ],
-    entry_point: Annotated[
-        str, typer.Option(help="package.module:load, called as load(MODEL) -> a policy with predict() or a callable")
-    ],
-    name: Annotated[str, typer.Option(help="the agent's name in the database ([a-z][a-z0-9_]*)")],
-    regime: Annotated[str, typer.Option(help="regime name or regime file")] = "run0",
-    seed: Annotated[
-        int, typer.Option(min=0, help="picks the evaluation days (the same for every agent of this seed)")
-    ] = 0,
-    version: Annotated[int, typer.Option(min=1, help="the agent's version")] = 1,
-    eval_episodes: Annotated[int, typer.Option(min=1, help="evaluation days (5: the paper's)")] = 5,
+    model_given: option(str, "the saved model (a file or folder your loader reads)", "--model", metavar="PATH"),
+    entry_point: option(str, "package.module:load, called as load(MODEL) -> a policy with predict() or a callable"),
+    name: option(str, "the agent's name in the database ([a-z][a-z0-9_]*)"),
+    regime: option(str, "regime name or regime file") = "run0",
+    seed: option(int, "picks the evaluation days (the same for every agent of this seed)", min=0) = 0,
+    version: option(int, "the agent's version", min=1) = 1,
+    eval_episodes: option(int, "evaluation days (5: the paper's)", min=1) = 5,
     db: DbOption = "nutribench.db",
 ) -> None:
     """Evaluate a saved model greedily and store it as a job (engine 'external', no training rows;

@@ -5,9 +5,7 @@ in one ranked table, budgets and seeds honest (a thin layer over
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
-
-import typer
+from typing import Optional
 
 from nutribench.cli.common import (
     DbOption,
@@ -15,38 +13,36 @@ from nutribench.cli.common import (
     UserError,
     console,
     folder_option,
+    option,
     progress,
     say_err,
     user_errors,
 )
 
 FORMATS = ("markdown", "csv", "latex", "json")
-_Verify = Annotated[
+_Verify = option(
     Optional[str],
-    typer.Option(
-        "--verify",
-        metavar="PATH",
-        help="a folder of the jobs' trained models as `nutribench run --models-dir` writes it "
-        "(<regime>-v<rv>/<agent>-v<av>/seed<seed>-ep<budget>.zip): each model supplied is loaded as data, "
-        "played greedily on its job's test days and compared action for action (the `checked` column)",
-    ),
-]
+    "a folder of the jobs' trained models as `nutribench run --models-dir` writes it "
+    "(<regime>-v<rv>/<agent>-v<av>/seed<seed>-ep<budget>.zip): each model supplied is loaded as data, "
+    "played greedily on its job's test days and compared action for action (the `checked` column)",
+    "--verify",
+    metavar="PATH",
+)
 
 
 @user_errors
 def leaderboard_cmd(
     db: DbOption = "nutribench.db",
-    archives_given: Annotated[
+    archives_given: option(
         Optional[str],
-        typer.Option(
-            "--archives", metavar="PATH", help="a folder of archives (*.npz, `nutribench db export`) instead of --db"
-        ),
-    ] = None,
-    out_given: Annotated[
-        Optional[str],
-        typer.Option("--out", metavar="PATH", help="also write leaderboard.md, .tex and .csv into this folder"),
-    ] = None,
-    fmt: Annotated[str, typer.Option("--format", help="what to print: markdown, csv, latex or json")] = "markdown",
+        "a folder of archives (*.npz, `nutribench db export`) instead of --db",
+        "--archives",
+        metavar="PATH",
+    ) = None,
+    out_given: option(
+        Optional[str], "also write leaderboard.md, .tex and .csv into this folder", "--out", metavar="PATH"
+    ) = None,
+    fmt: option(str, "what to print: markdown, csv, latex or json", "--format") = "markdown",
     reps: KeptRepsOption = 2000,
     verify_given: _Verify = None,
 ) -> None:
