@@ -35,17 +35,9 @@ def evaluate_cmd(
         policy = load(str(model))
     except Exception as e:  # the user's loader: its failure is theirs to read, in one line
         raise UserError(f"--entry-point {entry_point} could not load {model}: {type(e).__name__}: {e}") from None
-    rec = Recorder(
-        db,
-        name=name,
-        regime=regime,
-        seed=seed,
-        version=version,
-        eval_episodes=eval_episodes,
-        source=(f"{entry_point} {model.resolve()}", file_sha256(model)),
-        trained_days=trained_days,
-    )
-    with rec:
+    source = (f"{entry_point} {model.resolve()}", file_sha256(model))
+    how = dict(regime=regime, seed=seed, version=version, eval_episodes=eval_episodes, trained_days=trained_days)
+    with Recorder(db, name=name, source=source, **how) as rec:
         rows = rec.evaluate(policy)
     mean = sum(r["return"] for r in rows) / len(rows)
     foods = sum(r["foods"] for r in rows) / len(rows)
