@@ -46,14 +46,14 @@ def argument(kind: Any, help: str, **settings: Any) -> Any:
 
 #: the options several commands share, written once
 DB_HELP = "results database: a SQLite file or a SQLAlchemy URL"
-DbOption = Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help=DB_HELP)]
+DbOption = option(str, DB_HELP, envvar="NUTRIBENCH_DB")
 #: ``--episodes``, the old spelling of ``--days`` (hidden; :func:`old_spelling` reconciles the two)
 EpisodesAlias = Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)]
-ValEpisodesOption = Annotated[int, typer.Option(min=1, help="validation days each evaluation during training plays")]
-MarkdownOption = Annotated[bool, typer.Option("--markdown", help="print a Markdown table")]
-RepeatsOption = Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")]
-EvalDaysOption = Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")]
-WorkersOption = Annotated[Optional[int], typer.Option(min=1, help="agents trained at once (default: the cores)")]
+ValEpisodesOption = option(int, "validation days each evaluation during training plays", min=1)
+MarkdownOption = option(bool, "print a Markdown table", "--markdown")
+RepeatsOption = option(int, "timed repeats; the median is reported", min=1)
+EvalDaysOption = option(int, "greedy evaluation days per trained agent", min=1)
+WorkersOption = option(Optional[int], "agents trained at once (default: the cores)", min=1)
 #: ``--reps`` of the commands whose intervals once drew resamples (each with its old default)
 KeptRepsOption = option(int, "kept for scripts (100 to 100,000): the intervals draw no resamples now")
 
