@@ -18,6 +18,7 @@ from nutribench.cli.common import (
     folder_option,
     old_spelling,
     option,
+    path_flag,
     print_table,
     split_csv,
     user_errors,
@@ -96,12 +97,10 @@ def _test_day_table(names: list[str], out: Path | None, markdown: bool) -> None:
     print_table(TEST_DAY_HEADERS, cells, title, markdown, names)
 
 
-_TensorboardFolder = option(
-    Optional[str],
+_TensorboardFolder = path_flag(
+    "--tensorboard",
     "also write the training diagnostics as TensorBoard events under this folder "
     "(run folder <algo>-<regime>-seed<seed>)",
-    "--tensorboard",
-    metavar="PATH",
 )
 
 

@@ -39,6 +39,12 @@ def option(kind: Any, help: str | None, *names: str, **settings: Any) -> Any:
     return Annotated[kind, typer.Option(*names, help=help, **settings)]
 
 
+def path_flag(flag: str, help: str) -> Any:
+    """A path option ``flag PATH``, declared as an optional ``str`` (None: not given) and read
+    through :func:`path_option` or :func:`folder_option`."""
+    return option(Optional[str], help, flag, metavar="PATH")
+
+
 def argument(kind: Any, help: str, **settings: Any) -> Any:
     """A command's argument as its parameter's annotation (:func:`option`'s, for ``typer.Argument``)."""
     return Annotated[kind, typer.Argument(help=help, **settings)]

@@ -5,7 +5,6 @@ in one ranked table, budgets and seeds honest (a thin layer over
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 from nutribench.cli.common import (
     DbOption,
@@ -14,34 +13,28 @@ from nutribench.cli.common import (
     console,
     folder_option,
     option,
+    path_flag,
     progress,
     say_err,
     user_errors,
 )
 
 FORMATS = ("markdown", "csv", "latex", "json")
-_Verify = option(
-    Optional[str],
+_Verify = path_flag(
+    "--verify",
     "a folder of the jobs' trained models as `nutribench run --models-dir` writes it "
     "(<regime>-v<rv>/<agent>-v<av>/seed<seed>-ep<budget>.zip): each model supplied is loaded as data, "
     "played greedily on its job's test days and compared action for action (the `checked` column)",
-    "--verify",
-    metavar="PATH",
 )
 
 
 @user_errors
 def leaderboard_cmd(
     db: DbOption = "nutribench.db",
-    archives_given: option(
-        Optional[str],
-        "a folder of archives (*.npz, `nutribench db export`) instead of --db",
-        "--archives",
-        metavar="PATH",
+    archives_given: path_flag(
+        "--archives", "a folder of archives (*.npz, `nutribench db export`) instead of --db"
     ) = None,
-    out_given: option(
-        Optional[str], "also write leaderboard.md, .tex and .csv into this folder", "--out", metavar="PATH"
-    ) = None,
+    out_given: path_flag("--out", "also write leaderboard.md, .tex and .csv into this folder") = None,
     fmt: option(str, "what to print: markdown, csv, latex or json", "--format") = "markdown",
     reps: KeptRepsOption = 2000,
     verify_given: _Verify = None,

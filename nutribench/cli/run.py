@@ -25,6 +25,7 @@ from nutribench.cli.common import (
     folder_option,
     old_spelling,
     option,
+    path_flag,
     print_table,
     say_err,
     split_csv,
@@ -45,9 +46,7 @@ _Seeds = option(
     "the published baselines' seeds), quick (0,21), smoke (0)",
 )
 _Workers = option(Optional[int], "jobs at once (default: core count; never more than jobs)", min=1)
-_ModelsDir = option(
-    Optional[str], "where trained models go (default: models/ next to the db)", "--models-dir", metavar="PATH"
-)
+_ModelsDir = path_flag("--models-dir", "where trained models go (default: models/ next to the db)")
 _UpgradeOnly = option(bool, "create or upgrade the database schema, then exit", "--upgrade-only")
 _RetryFailed = option(bool, "try again the jobs that failed 3 times (once their cause is fixed)", "--retry-failed")
 _EngineName = option(
@@ -57,12 +56,10 @@ _BatchSize = option(
     int, "--engine batched: at most this many jobs in a batch (a batch's jobs are stored when it ends)", min=1
 )
 _Device = option(str, f"{DEVICE_HELP}; the SB3 engine trains on the CPU (auto or cpu)")
-_Tensorboard = option(
-    Optional[str],
+_Tensorboard = path_flag(
+    "--tensorboard",
     "also write each job's training diagnostics as TensorBoard events under this folder "
     "(one run folder per job: job<id>-<algo>-<regime>-seed<seed>)",
-    "--tensorboard",
-    metavar="PATH",
 )
 _Yes = option(bool, "start a bare `nutribench run` (the paper grid) without asking", "--yes", "-y")
 

@@ -20,6 +20,7 @@ from nutribench.cli.common import (
     folder_option,
     old_spelling,
     option,
+    path_flag,
     progress,
     say,
     split_csv,
@@ -140,9 +141,7 @@ def tune_best_cmd(
     study: option(str, "the study"),
     write: option(bool, "write the agent file into the agents folder") = False,
     name: option(Optional[str], "the new agent's name (default <agent>_tuned)") = None,
-    out_given: option(
-        Optional[str], "the folder --write writes into (default: the agents folder)", "--out", metavar="PATH"
-    ) = None,
+    out_given: path_flag("--out", "the folder --write writes into (default: the agents folder)") = None,
     db: _TuneDb = "nutribench.db",
 ) -> None:
     """The study's best trial as a new agent file: printed, or written with --write (never over an existing file)."""
