@@ -73,8 +73,7 @@ class DayModel:
 
     def __init__(self, regime: str | os.PathLike[str] | EnvConfig | RegimeDynamics):
         self.dyn = regime if isinstance(regime, RegimeDynamics) else RegimeDynamics(regime)
-        r = self.dyn.reward_config
-        self.lp, self.lc, self.lo, self.tau_c = r.lp, r.lc, r.lo, r.tau_c
+        self.lp, self.lc, self.lo, self.tau_c = self.dyn.coefficients
         self.horizon = self.dyn.horizon
         self.n_foods = self.dyn.n_foods
         self.schedule = self.dyn.schedule  # (N, H, 3)
