@@ -180,20 +180,9 @@ def test_day_references(
         look = play_strong_policy("lookahead", cfg, foods, samples=samples, seed=0)
         clair = play_strong_policy("clairvoyant", cfg, foods)
         for e in range(days):
-            rows.append(
-                {
-                    "regime": cfg.name,
-                    "version": int(cfg.version),
-                    "sha256": cfg.sha256,
-                    "seed": int(seed),
-                    "episode": e,
-                    "never": simple[e]["never"],
-                    "planner": simple[e]["planner"],
-                    "lookahead": float(look[e]["return"]),
-                    "clairvoyant": float(clair[e]["return"]),
-                    "search": clair[e]["search"],
-                }
-            )
+            returns = (simple[e]["never"], simple[e]["planner"], float(look[e]["return"]), float(clair[e]["return"]))
+            values = (cfg.name, int(cfg.version), cfg.sha256, int(seed), e, *returns, clair[e]["search"])
+            rows.append(dict(zip(REFERENCE_COLUMNS, values)))
     return rows
 
 

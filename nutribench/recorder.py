@@ -248,13 +248,10 @@ class Recorder:
         if path is not None and not path.exists():
             check_sqlite_file(path, create=True)
             return
-        store = open_store(self.db, writer=True)
-        try:
+        with open_store(self.db, writer=True) as store:
             check_not_mixed(store, fake=False)
             # a conflict or a duplicate found now, before the training loop, not after it
             check_external_entry(store, self.regime_config, self.agent_config, self.seed, self.eval_episodes)
-        finally:
-            store.dispose()
 
     def save(self) -> int:
         """Write the job (called by the with block's end); its id."""
@@ -291,8 +288,5 @@ class Recorder:
             meta,
             budget=self.trained_days or None,
         )
-        store = open_store(self.db, writer=True)
-        try:
+        with open_store(self.db, writer=True) as store:
             return store_external_job(store, job)
-        finally:
-            store.dispose()

@@ -174,11 +174,8 @@ class Design:
 def design(n: int, reps: int = 2000, rng: np.random.Generator | None = None, exact: bool | None = None) -> Design:
     """The resamples of one sample of ``n`` values: every one, enumerated, for up to
     :data:`EXACT_SEEDS` values (unless ``exact=False``), else ``reps`` drawn with ``rng``."""
-    if exact is None:
-        exact = n <= EXACT_SEEDS
-    if exact:
-        idx, w = _multisets(n)
-        return Design(idx, w, True)
+    if exact or (exact is None and n <= EXACT_SEEDS):
+        return Design(*_multisets(n), True)
     rng = rng if rng is not None else np.random.default_rng(0)
     return Design(resample_indices(n, reps, rng), np.full(reps, 1.0 / reps), False)
 
@@ -214,6 +211,14 @@ def weighted_quantiles(values: np.ndarray, weights: np.ndarray, q: np.ndarray) -
 
 
 # --------------------------------------------------------------------------- intervals
+def _half_width(se, df, confidence: float) -> np.ndarray:
+    """Half the width of the two-sided Student's t interval of ``confidence`` about an estimate
+    of standard error ``se`` with ``df`` degrees of freedom: every t interval here is one."""
+    from scipy.stats import t
+
+    return t.ppf(1 - (1 - confidence) / 2, df) * se
+
+
 def mean_se(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The standard error of the mean over the last axis and its degrees of freedom (``n - 1``)."""
     n = x.shape[-1]
@@ -227,14 +232,12 @@ def t_intervals(
     McLaughlin's trimmed t, :func:`trimmed_se`) of each row of ``x`` ``(rows, n)``, vectorised
     over rows (the coverage simulation's datasets): ``(lo, hi)``. ``sizes``: strata (regimes)
     of consecutive lengths along a row, for the IQM's standard error."""
-    from scipy.stats import t
-
     x = np.atleast_2d(np.asarray(x, dtype=float))
     if statistic == "iqm":
         theta, (se, df) = iqm(x, axis=-1), trimmed_se(x, sizes)
     else:
         theta, (se, df) = x.mean(axis=-1), mean_se(x)
-    half = t.ppf(1 - (1 - confidence) / 2, df) * se
+    half = _half_width(se, df, confidence)
     return theta - half, theta + half
 
 
@@ -244,13 +247,10 @@ def mean_ci(values, confidence: float = CONFIDENCE) -> tuple[float, float, float
     values or none spread: one run gives no spread to resample."""
     x = np.asarray(values, dtype=float)
     x = x[np.isfinite(x)]
-    if x.size == 0:
-        return float("nan"), float("nan"), float("nan")
-    point = float(x.mean())
-    if x.size < 2:
-        return point, float("nan"), float("nan")
+    if x.size < 2:  # no value: no mean either; one: no spread
+        return float(x[0]) if x.size else float("nan"), float("nan"), float("nan")
     lo, hi = t_intervals(x, "mean", confidence)
-    return point, float(lo[0]), float(hi[0])
+    return float(x.mean()), float(lo[0]), float(hi[0])
 
 
 def stratified_t(
@@ -261,8 +261,6 @@ def stratified_t(
     ``sum(size * value) / sum(size)``; its interval Student's t with the clusters' standard
     error within each stratum (the ratio estimator's) and Welch-Satterthwaite degrees of
     freedom. ``(point, nan, nan)`` when no stratum has two clusters."""
-    from scipy.stats import t
-
     total = sum(float(np.sum(n)) for _, n in strata)
     point = sum(float(np.sum(np.asarray(v) * np.asarray(n))) for v, n in strata) / total
     terms = []
@@ -277,7 +275,7 @@ def stratified_t(
     if not terms:
         return point, float("nan"), float("nan")
     se, df = _satterthwaite(terms, float(max(len(v) for v, _ in strata) - 1))
-    half = float(t.ppf(1 - (1 - confidence) / 2, df) * se)
+    half = float(_half_width(se, df, confidence))
     return point, point - half, point + half
 
 
@@ -325,8 +323,6 @@ def strata_t(
     ``W_r`` the regime's weight; a regime of one value adds none) and the degrees of freedom
     are Welch-Satterthwaite's. Rows whose regimes have no spread get the point as both ends.
     Returns ``(point, lo, hi)``, one value per row."""
-    from scipy.stats import t
-
     x = np.atleast_2d(np.asarray(x, dtype=float))
     sizes = list(sizes)
     weight = [k / sum(sizes) if by == "run" else 1 / len(sizes) for k in sizes]
@@ -334,7 +330,7 @@ def strata_t(
     point = sum(w * part.mean(axis=1) for _, w, part in strata)
     terms = [(w**2 * part.var(axis=1, ddof=1) / k, k - 1) for k, w, part in strata if k > 1]
     se, df = _satterthwaite(terms, max(max(sizes) - 1, 1))
-    half = t.ppf(1 - (1 - confidence) / 2, df) * se
+    half = _half_width(se, df, confidence)
     return point, point - half, point + half
 
 
@@ -353,9 +349,6 @@ def _t_cdf(z: np.ndarray, df: np.ndarray) -> np.ndarray:
     scipy's; scipy's own takes microseconds a value, too slow for the median's search);
     ``df`` broadcasts along the last axis of ``z``."""
     df = np.broadcast_to(np.asarray(df, dtype=float), z.shape[-1:])
-    if (df == df[0]).all():
-        zs, qs = _t_table(float(df[0]))
-        return np.interp(z, zs, qs, left=0.0, right=1.0)
     out = np.empty(z.shape)
     for value in np.unique(df):
         cols = df == value
@@ -480,8 +473,6 @@ def improvement_ci(x: Runs, y: Runs, confidence: float = CONFIDENCE) -> tuple[fl
     side's runs, ``S_x / m + S_y / n``; a side of one run adds none), averaged over regimes,
     Student's t with Welch-Satterthwaite's degrees of freedom (``m + n - 2`` per regime),
     clipped to [0, 1]. ``(p, nan, nan)`` with one run per side and regime."""
-    from scipy.stats import t
-
     ps, terms, R = [], [], len(x)
     for a, b in zip(x, y):
         a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
@@ -494,7 +485,7 @@ def improvement_ci(x: Runs, y: Runs, confidence: float = CONFIDENCE) -> tuple[fl
     if max(max(len(a) for a in x), max(len(b) for b in y)) < 2:
         return p, float("nan"), float("nan")
     se, df = _satterthwaite(terms, 1.0)
-    half = float(t.ppf(1 - (1 - confidence) / 2, df) * se)
+    half = float(_half_width(se, df, confidence))
     return p, max(p - half, 0.0), min(p + half, 1.0)
 
 
@@ -510,15 +501,13 @@ def welch_t(
     freedom: the chosen t's kind for a contrast (a drop under delay, a difference of two IQMs).
     An estimate without a standard error (one run) adds none; ``(point, nan, nan)`` when none
     has one."""
-    from scipy.stats import t
-
     w, se, df = (np.asarray(v, dtype=float) for v in (weights, ses, dfs))
     point = float(np.dot(w, np.asarray(points, dtype=float)))
     keep = np.isfinite(se) & (df > 0)
     if not keep.any():
         return point, float("nan"), float("nan")
     se, dof = _satterthwaite(zip((w[keep] * se[keep]) ** 2, df[keep]), float(df[keep].min()))
-    half = float(t.ppf(1 - (1 - confidence) / 2, dof) * se)
+    half = float(_half_width(se, dof, confidence))
     return point, point - half, point + half
 
 
@@ -534,16 +523,16 @@ def caption(statistic: str) -> str:
     """The interval's method and measured coverage, for a caption:
     ``"t interval; simulated coverage 95.0 % at 5 seeds, 94.6 % at 10"``."""
     label = "trimmed-t" if statistic == "iqm" else "t"  # CHOSEN: the t interval of each statistic
-    cov = COVERAGE[statistic]
-    return f"{label} interval; simulated coverage {100 * cov[5]:.1f} % at 5 seeds, {100 * cov[10]:.1f} % at 10"
+    return f"{label} interval; {_coverage(COVERAGE[statistic])}"
 
 
 def aggregate_caption(statistic: str) -> str:
     """An aggregate's interval (:data:`AGGREGATE_METHODS`) and its measured coverage
     (:data:`AGGREGATE_COVERAGE`), for a caption: ``"t model of each regime's mean; simulated
     coverage 94.1 % at 5 seeds, 94.9 % at 10"``."""
-    cov = AGGREGATE_COVERAGE[statistic]
-    return (
-        f"{AGGREGATE_METHODS[statistic]}; simulated coverage {100 * cov[5]:.1f} % at 5 seeds, "
-        f"{100 * cov[10]:.1f} % at 10"
-    )
+    return f"{AGGREGATE_METHODS[statistic]}; {_coverage(AGGREGATE_COVERAGE[statistic])}"
+
+
+def _coverage(cov: dict[int, float]) -> str:
+    """A measured coverage at 5 and 10 seeds, as the captions quote it."""
+    return f"simulated coverage {100 * cov[5]:.1f} % at 5 seeds, {100 * cov[10]:.1f} % at 10"

@@ -5,9 +5,8 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
-import typer
 from rich.console import Console
 
 from nutribench.cli.common import (
@@ -18,46 +17,40 @@ from nutribench.cli.common import (
     console,
     folder_option,
     old_spelling,
+    option,
+    path_flag,
     print_table,
     split_csv,
     user_errors,
 )
 from nutribench.errors import check_range
 
-_StrongDays = Annotated[
-    int,
-    typer.Option(
-        min=0, help="days (the first of the same streams) that lookahead and clairvoyant play per regime; 0: neither"
-    ),
-]
-_TestDays = Annotated[
+_StrongDays = option(
+    int, "days (the first of the same streams) that lookahead and clairvoyant play per regime; 0: neither", min=0
+)
+_TestDays = option(
     bool,
-    typer.Option(
-        "--test-days",
-        help="instead: never, planner, lookahead (256 futures) and clairvoyant on the paper's test days "
-        "(seeds 0,21,9,2003,1997 x their 5 evaluation days), the shares of the gap per regime",
-    ),
-]
-_ReferencesOut = Annotated[
-    Optional[Path],
-    typer.Option(help="with --test-days: write the per-day returns to this CSV (regimes/references.csv)"),
-]
-_EvalDays = Annotated[
-    Optional[int], typer.Option("--eval-episodes", min=1, help="days played per policy and regime [default: 200]")
-]
+    "instead: never, planner, lookahead (256 futures) and clairvoyant on the paper's test days "
+    "(seeds 0,21,9,2003,1997 x their 5 evaluation days), the shares of the gap per regime",
+    "--test-days",
+)
+_ReferencesOut = option(
+    Optional[Path], "with --test-days: write the per-day returns to this CSV (regimes/references.csv)"
+)
+_EvalDays = option(Optional[int], "days played per policy and regime [default: 200]", "--eval-episodes", min=1)
 
 
 @user_errors
 def baselines(
-    regimes: Annotated[str, typer.Option(help="'all' or comma-separated regime names")] = "all",
+    regimes: option(str, "'all' or comma-separated regime names") = "all",
     episodes: _EvalDays = None,
     old_episodes: EpisodesAlias = None,
-    seed: Annotated[int, typer.Option(help="seed of the food streams (the same for every policy)")] = 0,
+    seed: option(int, "seed of the food streams (the same for every policy)") = 0,
     strong_days: _StrongDays = 10,
-    samples: Annotated[int, typer.Option(min=1, help="sampled futures a lookahead step weighs each action on")] = 64,
+    samples: option(int, "sampled futures a lookahead step weighs each action on", min=1) = 64,
     test_days: _TestDays = False,
     out: _ReferencesOut = None,
-    markdown: Annotated[bool, typer.Option(help="print a Markdown table instead of a rich one")] = False,
+    markdown: option(bool, "print a Markdown table instead of a rich one") = False,
 ) -> None:
     """Mean return, foods eaten, final distance, overshoot ratio and share of the never -> planner
     gap of the reference policies (random, never, always, planner; lookahead and clairvoyant on
@@ -104,30 +97,24 @@ def _test_day_table(names: list[str], out: Path | None, markdown: bool) -> None:
     print_table(TEST_DAY_HEADERS, cells, title, markdown, names)
 
 
-_TensorboardFolder = Annotated[
-    Optional[str],
-    typer.Option(
-        "--tensorboard",
-        metavar="PATH",
-        help="also write the training diagnostics as TensorBoard events under this folder "
-        "(run folder <algo>-<regime>-seed<seed>)",
-    ),
-]
+_TensorboardFolder = path_flag(
+    "--tensorboard",
+    "also write the training diagnostics as TensorBoard events under this folder "
+    "(run folder <algo>-<regime>-seed<seed>)",
+)
 
 
 @user_errors
 def train_cmd(
-    algo: Annotated[str, typer.Option(help="agent config name (regimes/agents/<name>.toml) or a .toml path")] = "ppo",
-    regime: Annotated[str, typer.Option(help="regime name or file")] = "run0",
-    seed: Annotated[int, typer.Option(help="training seed; the evaluation days derive from it")] = 0,
-    days: Annotated[
-        Optional[int], typer.Option("--days", min=1, help="training days (episodes of 50 steps) [default: 300]")
-    ] = None,
+    algo: option(str, "agent config name (regimes/agents/<name>.toml) or a .toml path") = "ppo",
+    regime: option(str, "regime name or file") = "run0",
+    seed: option(int, "training seed; the evaluation days derive from it") = 0,
+    days: option(Optional[int], "training days (episodes of 50 steps) [default: 300]", "--days", min=1) = None,
     episodes_alias: EpisodesAlias = None,
-    eval_episodes: Annotated[int, typer.Option(min=1, help="greedy evaluation days")] = 5,
-    save: Annotated[Optional[Path], typer.Option(help="save the trained model here (.zip + .json)")] = None,
+    eval_episodes: option(int, "greedy evaluation days", min=1) = 5,
+    save: option(Optional[Path], "save the trained model here (.zip + .json)") = None,
     tensorboard_given: _TensorboardFolder = None,
-    eval_every: Annotated[int, typer.Option(min=0, help=EVAL_EVERY_HELP)] = 0,
+    eval_every: option(int, EVAL_EVERY_HELP, min=0) = 0,
     val_episodes: ValEpisodesOption = 5,
 ) -> None:
     """Train one agent in the foreground, then evaluate it greedily and print the metrics."""

@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Any, Optional
 
 import typer
 from rich.console import Console
@@ -31,19 +31,46 @@ EVAL_EVERY_HELP = (
     "training, disjoint from the test days; 0: never, the default)"
 )
 
-#: the options several commands share, written once (typer reads the ``Annotated`` metadata)
+
+def option(kind: Any, help: str | None, *names: str, **settings: Any) -> Any:
+    """A command's option as its parameter's annotation, in one line: ``Annotated[kind,
+    typer.Option(*names, help=help, **settings)]`` (``names``: its flags, where the parameter's
+    name does not give them; typer reads the ``Annotated`` metadata)."""
+    return Annotated[kind, typer.Option(*names, help=help, **settings)]
+
+
+def path_flag(flag: str, help: str) -> Any:
+    """A path option ``flag PATH``, declared as an optional ``str`` (None: not given) and read
+    through :func:`path_option` or :func:`folder_option`."""
+    return option(Optional[str], help, flag, metavar="PATH")
+
+
+def argument(kind: Any, help: str, **settings: Any) -> Any:
+    """A command's argument as its parameter's annotation (:func:`option`'s, for ``typer.Argument``)."""
+    return Annotated[kind, typer.Argument(help=help, **settings)]
+
+
+#: the options several commands share, written once
 DB_HELP = "results database: a SQLite file or a SQLAlchemy URL"
-DbOption = Annotated[str, typer.Option(envvar="NUTRIBENCH_DB", help=DB_HELP)]
+DbOption = option(str, DB_HELP, envvar="NUTRIBENCH_DB")
 #: ``--episodes``, the old spelling of ``--days`` (hidden; :func:`old_spelling` reconciles the two)
 EpisodesAlias = Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)]
-ValEpisodesOption = Annotated[int, typer.Option(min=1, help="validation days each evaluation during training plays")]
-MarkdownOption = Annotated[bool, typer.Option("--markdown", help="print a Markdown table")]
-RepeatsOption = Annotated[int, typer.Option(min=1, help="timed repeats; the median is reported")]
-EvalDaysOption = Annotated[int, typer.Option(min=1, help="greedy evaluation days per trained agent")]
-WorkersOption = Annotated[Optional[int], typer.Option(min=1, help="agents trained at once (default: the cores)")]
+ValEpisodesOption = option(int, "validation days each evaluation during training plays", min=1)
+MarkdownOption = option(bool, "print a Markdown table", "--markdown")
+RepeatsOption = option(int, "timed repeats; the median is reported", min=1)
+EvalDaysOption = option(int, "greedy evaluation days per trained agent", min=1)
+WorkersOption = option(Optional[int], "agents trained at once (default: the cores)", min=1)
+#: ``--reps`` of the commands whose intervals once drew resamples (each with its old default)
+KeptRepsOption = option(int, "kept for scripts (100 to 100,000): the intervals draw no resamples now")
 
 console = Console()
 err_console = Console(stderr=True)
+
+
+def command_group(help: str, **options) -> typer.Typer:
+    """A group of subcommands (``nutribench NAME ...``): help on no arguments unless ``options``
+    say otherwise, no rich markup in its texts."""
+    return typer.Typer(rich_markup_mode=None, help=help, **{"no_args_is_help": True, **options})
 
 
 def say(text: str, **options) -> None:

@@ -4,35 +4,37 @@ paired by seed and day (a thin layer over :mod:`nutribench.report.compare`)."""
 from __future__ import annotations
 
 import json
-from typing import Annotated, Optional
+from typing import Optional
 
 import typer
 
-from nutribench.cli.common import DbOption, MarkdownOption, UserError, console, user_errors
+from nutribench.cli.common import (
+    DbOption,
+    KeptRepsOption,
+    MarkdownOption,
+    UserError,
+    argument,
+    console,
+    option,
+    user_errors,
+)
 
 
 @user_errors
 def compare_cmd(
-    a: Annotated[
+    a: argument(
         str,
-        typer.Argument(
-            help="agent A: a config name in the database (gru_ppo: its largest budget, then newest version), "
-            "or one entry of it, NAME@vVERSION, NAME@DAYS or NAME@vVERSION@DAYS (ppo@v1, ppo@v2@150)"
-        ),
-    ],
-    b: Annotated[str, typer.Argument(help="agent B, compared with A (the same forms)")],
-    regimes: Annotated[
-        Optional[str],
-        typer.Option("--regimes", help="regimes, comma list (default: every regime both were evaluated on)"),
-    ] = None,
+        "agent A: a config name in the database (gru_ppo: its largest budget, then newest version), "
+        "or one entry of it, NAME@vVERSION, NAME@DAYS or NAME@vVERSION@DAYS (ppo@v1, ppo@v2@150)",
+    ),
+    b: argument(str, "agent B, compared with A (the same forms)"),
+    regimes: option(
+        Optional[str], "regimes, comma list (default: every regime both were evaluated on)", "--regimes"
+    ) = None,
     markdown: MarkdownOption = False,
-    as_json: Annotated[
-        bool, typer.Option("--json", help="print JSON: the rows' numbers (differences in returns), the notes")
-    ] = False,
+    as_json: option(bool, "print JSON: the rows' numbers (differences in returns), the notes", "--json") = False,
     db: DbOption = "nutribench.db",
-    reps: Annotated[
-        int, typer.Option(help="kept for scripts (100 to 100,000): the intervals draw no resamples now")
-    ] = 10_000,
+    reps: KeptRepsOption = 10_000,
 ) -> None:
     """A - B per regime and over regimes: the mean paired difference of evaluation returns
     (same seed, same day) with a 95 % t interval over seeds, P(A > B) over the paired

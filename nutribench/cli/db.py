@@ -3,31 +3,22 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
 
-import typer
+from nutribench.cli.common import UserError, argument, command_group, console, option, progress, user_errors
 
-from nutribench.cli.common import UserError, console, progress, user_errors
-
-db_app = typer.Typer(
-    no_args_is_help=True,
-    rich_markup_mode=None,
-    help="Results databases: copy one into another, export finished jobs to a file, import such a file.",
-)
+db_app = command_group("Results databases: copy one into another, export finished jobs to a file, import such a file.")
 
 
 @db_app.command("copy")
 @user_errors
 def db_copy_cmd(
-    src: Annotated[str, typer.Argument(help="source: a SQLite file or SQLAlchemy URL, at the newest schema")],
-    dst: Annotated[
+    src: argument(str, "source: a SQLite file or SQLAlchemy URL, at the newest schema"),
+    dst: argument(
         str | None,
-        typer.Argument(
-            envvar="NUTRIBENCH_DB",
-            show_default=False,
-            help="destination: a new, empty database (file or URL); its schema is created [default: $NUTRIBENCH_DB]",
-        ),
-    ] = None,
+        "destination: a new, empty database (file or URL); its schema is created [default: $NUTRIBENCH_DB]",
+        envvar="NUTRIBENCH_DB",
+        show_default=False,
+    ) = None,
 ) -> None:
     """Copy every config, job, episode and evaluation step of SRC into the empty DST, keeping ids.
     DST defaults to $NUTRIBENCH_DB, the database the other commands' --db reads."""
@@ -42,16 +33,10 @@ def db_copy_cmd(
 @db_app.command("export")
 @user_errors
 def db_export_cmd(
-    out: Annotated[Path, typer.Argument(help="archive to write (.npz)")],
-    db: Annotated[
-        str, typer.Option(envvar="NUTRIBENCH_DB", help="database to read: a SQLite file or SQLAlchemy URL")
-    ] = "nutribench.db",
-    algos: Annotated[
-        str | None, typer.Option(help="only these agent configs (comma-separated names); default: all")
-    ] = None,
-    regimes: Annotated[
-        str | None, typer.Option(help="only these regimes (comma-separated names); default: all")
-    ] = None,
+    out: argument(Path, "archive to write (.npz)"),
+    db: option(str, "database to read: a SQLite file or SQLAlchemy URL", envvar="NUTRIBENCH_DB") = "nutribench.db",
+    algos: option(str | None, "only these agent configs (comma-separated names); default: all") = None,
+    regimes: option(str | None, "only these regimes (comma-separated names); default: all") = None,
 ) -> None:
     """Write DB's done jobs (configs, job rows, episodes, evaluation steps, training diagnostics) to one portable file."""
     from nutribench.store.archive import export_results
@@ -72,11 +57,10 @@ def db_export_cmd(
 @db_app.command("import")
 @user_errors
 def db_import_cmd(
-    archive: Annotated[Path, typer.Argument(help="archive written by `nutribench db export`")],
-    db: Annotated[
-        str,
-        typer.Option(envvar="NUTRIBENCH_DB", help="database to merge into (created if missing): a SQLite file or URL"),
-    ] = "nutribench.db",
+    archive: argument(Path, "archive written by `nutribench db export`"),
+    db: option(
+        str, "database to merge into (created if missing): a SQLite file or URL", envvar="NUTRIBENCH_DB"
+    ) = "nutribench.db",
 ) -> None:
     """Merge an archive's jobs into DB: new jobs are added, pending ones take the archived
     result, jobs DB already has done are kept as they are. The archive is checked whole

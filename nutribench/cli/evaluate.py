@@ -3,29 +3,19 @@ of (regime, seed) and stored as a job beside the built-in agents."""
 
 from __future__ import annotations
 
-from typing import Annotated
-
-import typer
-
-from nutribench.cli.common import DbOption, console, path_option, user_errors
+from nutribench.cli.common import DbOption, console, option, path_option, user_errors
 from nutribench.errors import UserError
 
 
 @user_errors
 def evaluate_cmd(
-    model_given: Annotated[
-        str, typer.Option("--model", metavar="PATH", help="the saved model (a file or folder your loader reads)")
-    ],
-    entry_point: Annotated[
-        str, typer.Option(help="package.module:load, called as load(MODEL) -> a policy with predict() or a callable")
-    ],
-    name: Annotated[str, typer.Option(help="the agent's name in the database ([a-z][a-z0-9_]*)")],
-    regime: Annotated[str, typer.Option(help="regime name or regime file")] = "run0",
-    seed: Annotated[
-        int, typer.Option(min=0, help="picks the evaluation days (the same for every agent of this seed)")
-    ] = 0,
-    version: Annotated[int, typer.Option(min=1, help="the agent's version")] = 1,
-    eval_episodes: Annotated[int, typer.Option(min=1, help="evaluation days (5: the paper's)")] = 5,
+    model_given: option(str, "the saved model (a file or folder your loader reads)", "--model", metavar="PATH"),
+    entry_point: option(str, "package.module:load, called as load(MODEL) -> a policy with predict() or a callable"),
+    name: option(str, "the agent's name in the database ([a-z][a-z0-9_]*)"),
+    regime: option(str, "regime name or regime file") = "run0",
+    seed: option(int, "picks the evaluation days (the same for every agent of this seed)", min=0) = 0,
+    version: option(int, "the agent's version", min=1) = 1,
+    eval_episodes: option(int, "evaluation days (5: the paper's)", min=1) = 5,
     db: DbOption = "nutribench.db",
 ) -> None:
     """Evaluate a saved model greedily and store it as a job (engine 'external', no training rows;
@@ -45,17 +35,9 @@ def evaluate_cmd(
         policy = load(str(model))
     except Exception as e:  # the user's loader: its failure is theirs to read, in one line
         raise UserError(f"--entry-point {entry_point} could not load {model}: {type(e).__name__}: {e}") from None
-    rec = Recorder(
-        db,
-        name=name,
-        regime=regime,
-        seed=seed,
-        version=version,
-        eval_episodes=eval_episodes,
-        source=(f"{entry_point} {model.resolve()}", file_sha256(model)),
-        trained_days=trained_days,
-    )
-    with rec:
+    source = (f"{entry_point} {model.resolve()}", file_sha256(model))
+    how = dict(regime=regime, seed=seed, version=version, eval_episodes=eval_episodes, trained_days=trained_days)
+    with Recorder(db, name=name, source=source, **how) as rec:
         rows = rec.evaluate(policy)
     mean = sum(r["return"] for r in rows) / len(rows)
     foods = sum(r["foods"] for r in rows) / len(rows)

@@ -5,50 +5,38 @@ in one ranked table, budgets and seeds honest (a thin layer over
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
-
-import typer
 
 from nutribench.cli.common import (
     DbOption,
+    KeptRepsOption,
     UserError,
     console,
     folder_option,
+    option,
+    path_flag,
     progress,
     say_err,
     user_errors,
 )
 
 FORMATS = ("markdown", "csv", "latex", "json")
-_Verify = Annotated[
-    Optional[str],
-    typer.Option(
-        "--verify",
-        metavar="PATH",
-        help="a folder of the jobs' trained models as `nutribench run --models-dir` writes it "
-        "(<regime>-v<rv>/<agent>-v<av>/seed<seed>-ep<budget>.zip): each model supplied is loaded as data, "
-        "played greedily on its job's test days and compared action for action (the `checked` column)",
-    ),
-]
+_Verify = path_flag(
+    "--verify",
+    "a folder of the jobs' trained models as `nutribench run --models-dir` writes it "
+    "(<regime>-v<rv>/<agent>-v<av>/seed<seed>-ep<budget>.zip): each model supplied is loaded as data, "
+    "played greedily on its job's test days and compared action for action (the `checked` column)",
+)
 
 
 @user_errors
 def leaderboard_cmd(
     db: DbOption = "nutribench.db",
-    archives_given: Annotated[
-        Optional[str],
-        typer.Option(
-            "--archives", metavar="PATH", help="a folder of archives (*.npz, `nutribench db export`) instead of --db"
-        ),
-    ] = None,
-    out_given: Annotated[
-        Optional[str],
-        typer.Option("--out", metavar="PATH", help="also write leaderboard.md, .tex and .csv into this folder"),
-    ] = None,
-    fmt: Annotated[str, typer.Option("--format", help="what to print: markdown, csv, latex or json")] = "markdown",
-    reps: Annotated[
-        int, typer.Option(help="kept for scripts (100 to 100,000): the intervals draw no resamples now")
-    ] = 2000,
+    archives_given: path_flag(
+        "--archives", "a folder of archives (*.npz, `nutribench db export`) instead of --db"
+    ) = None,
+    out_given: path_flag("--out", "also write leaderboard.md, .tex and .csv into this folder") = None,
+    fmt: option(str, "what to print: markdown, csv, latex or json", "--format") = "markdown",
+    reps: KeptRepsOption = 2000,
     verify_given: _Verify = None,
 ) -> None:
     """Every agent ranked by the IQM of its share of the never -> planner gap (95 % interval)
@@ -79,11 +67,8 @@ def leaderboard_cmd(
             say_err(msg, style="dim")
             steps(msg)
 
-        table = (
-            leaderboard_from_archives(archives, reps, log, verify)
-            if archives is not None
-            else leaderboard_from_db(db, reps, log, verify)
-        )
+        source, build = (archives, leaderboard_from_archives) if archives is not None else (db, leaderboard_from_db)
+        table = build(source, reps, log, verify)
     writers = {"markdown": table.to_markdown, "csv": table.to_csv, "latex": table.to_latex}
     text = _json(table) if fmt == "json" else writers[fmt]()
     console.print(text, end="" if text.endswith("\n") else "\n", highlight=False, soft_wrap=True, markup=False)

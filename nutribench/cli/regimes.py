@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Optional
+from typing import Optional
 
 import typer
 from rich.table import Table
 
-from nutribench.cli.common import UserError, console, say, say_err, user_errors
+from nutribench.cli.common import UserError, argument, command_group, console, option, say, say_err, user_errors
 
-regimes_app = typer.Typer(
-    no_args_is_help=True, rich_markup_mode=None, help="Inspect, check and regenerate the regime files."
-)
+regimes_app = command_group("Inspect, check and regenerate the regime files.")
 
 
 @regimes_app.command("list")
@@ -32,7 +30,7 @@ def regimes_list() -> None:
 @regimes_app.command("check")
 @user_errors
 def regimes_check(
-    regimes: Annotated[str, typer.Option(help="'all' or comma-separated names or paths")] = "all",
+    regimes: option(str, "'all' or comma-separated names or paths") = "all",
 ) -> None:
     """Validate regime files and check that their drawn values equal a fresh draw from ranges + seed."""
     from nutribench.config import list_regimes, load_env_config
@@ -58,39 +56,27 @@ RANGES_HELP = "with --from: {what} ranges in steps per nutrient, NUTRIENT=LOW-HI
 @regimes_app.command("generate")
 @user_errors
 def regimes_generate(
-    name: Annotated[
-        str,
-        typer.Argument(
-            help="an existing regime (name or path) whose [foods] table is redrawn; with --from, the name of the new regime"
-        ),
-    ],
-    source: Annotated[
+    name: argument(
+        str, "an existing regime (name or path) whose [foods] table is redrawn; with --from, the name of the new regime"
+    ),
+    source: option(
         Optional[str],
-        typer.Option(
-            "--from",
-            help="create regime NAME from this regime (name or path): its ranges (but --tau/--sigma), catalog and reward, and a fresh draw",
-        ),
-    ] = None,
-    tau: Annotated[
-        Optional[str], typer.Option(help=RANGES_HELP.format(what="tau", example="C=10-12,F=18-20,P=14-16"))
-    ] = None,
-    sigma: Annotated[
-        Optional[str], typer.Option(help=RANGES_HELP.format(what="sigma", example="C=5-8.4,F=9-14,P=7-11.2"))
-    ] = None,
-    seed: Annotated[
+        "create regime NAME from this regime (name or path): its ranges (but --tau/--sigma), catalog and reward, and a fresh draw",
+        "--from",
+    ) = None,
+    tau: option(Optional[str], RANGES_HELP.format(what="tau", example="C=10-12,F=18-20,P=14-16")) = None,
+    sigma: option(Optional[str], RANGES_HELP.format(what="sigma", example="C=5-8.4,F=9-14,P=7-11.2")) = None,
+    seed: option(
         Optional[int],
-        typer.Option(
-            help="with --from: seed of the draw (default: derived from NAME, the first 4 bytes of sha256(NAME), so the same command gives the same file)"
-        ),
-    ] = None,
-    description: Annotated[
-        Optional[str], typer.Option(help="with --from: the description (default: the ranges and the --from regime)")
-    ] = None,
-    write: Annotated[
-        bool,
-        typer.Option(help="write the file (else print it); with --from it goes to the regimes folder as NAME.toml"),
-    ] = False,
-    force: Annotated[bool, typer.Option(help="with --from: overwrite an existing NAME.toml")] = False,
+        "with --from: seed of the draw (default: derived from NAME, the first 4 bytes of sha256(NAME), so the same command gives the same file)",
+    ) = None,
+    description: option(
+        Optional[str], "with --from: the description (default: the ranges and the --from regime)"
+    ) = None,
+    write: option(
+        bool, "write the file (else print it); with --from it goes to the regimes folder as NAME.toml"
+    ) = False,
+    force: option(bool, "with --from: overwrite an existing NAME.toml") = False,
 ) -> None:
     """Redraw a regime's per-food tau and sigma from its [ranges] and seed, or, with --from,
     create regime NAME (version 1) from another's ranges with new --tau/--sigma ranges.

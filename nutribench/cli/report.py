@@ -5,68 +5,52 @@ Pandas and matplotlib are imported only when the command runs, so the CLI starts
 
 from __future__ import annotations
 
-from typing import Annotated, Optional
+from typing import Optional
 
-import typer
-
-from nutribench.cli.common import DbOption, folder_option, progress, say, say_err, user_errors
+from nutribench.cli.common import DbOption, folder_option, option, progress, say, say_err, user_errors
 from nutribench.safe_write import check_folder_target
 
-_Fig = Annotated[
+_Fig = option(
     Optional[list[str]],
-    typer.Option(
-        "--fig",
-        help="figure 1-4, 5 (aggregate scores over regimes and seeds) or 6 / 'learning' (learning curves of "
-        "the evaluations during training, run --eval-every) (repeat or comma list; 'all')",
-    ),
-]
-_Table = Annotated[
+    "figure 1-4, 5 (aggregate scores over regimes and seeds) or 6 / 'learning' (learning curves of "
+    "the evaluations during training, run --eval-every) (repeat or comma list; 'all')",
+    "--fig",
+)
+_Table = option(
     Optional[list[str]],
-    typer.Option(
-        "--table",
-        help="table 1-6, 7... (the database's other agent configs; or a config's name), 'results', 'training' or 'aggregate' (repeat or comma list; 'all')",
-    ),
-]
-_Algos = Annotated[
+    "table 1-6, 7... (the database's other agent configs; or a config's name), 'results', 'training' or 'aggregate' (repeat or comma list; 'all')",
+    "--table",
+)
+_Algos = option(
     Optional[str],
-    typer.Option(
-        "--algos",
-        help="agent configs drawn in the figures and tables, comma list (default: every config in the database)",
-    ),
-]
-_Pair = Annotated[
-    Optional[str], typer.Option("--pair", help="the two agent configs of figure 4, comma list (default: ppo,gru_ppo)")
-]
-_Trajectory = Annotated[
-    bool, typer.Option("--trajectory", help="one evaluation episode's trajectory (needs --algo --regime --seed)")
-]
-_Diagnostics = Annotated[
+    "agent configs drawn in the figures and tables, comma list (default: every config in the database)",
+    "--algos",
+)
+_Pair = option(Optional[str], "the two agent configs of figure 4, comma list (default: ppo,gru_ppo)", "--pair")
+_Trajectory = option(bool, "one evaluation episode's trajectory (needs --algo --regime --seed)", "--trajectory")
+_Diagnostics = option(
     bool,
-    typer.Option(
-        "--diagnostics",
-        help="the training diagnostics of one agent config on one regime, one line per seed (needs --algo --regime)",
-    ),
-]
-_Seed = Annotated[Optional[int], typer.Option(help="seed of the trajectory's job (--diagnostics: only this seed)")]
-_Out = Annotated[str, typer.Option("--out", metavar="PATH", help="folder the files are written to")]
-_ReferenceDays = Annotated[
-    int, typer.Option(min=1, help="episodes per simple policy and regime for the reference lines of figures 3/4")
-]
+    "the training diagnostics of one agent config on one regime, one line per seed (needs --algo --regime)",
+    "--diagnostics",
+)
+_Seed = option(Optional[int], "seed of the trajectory's job (--diagnostics: only this seed)")
+_Out = option(str, "folder the files are written to", "--out", metavar="PATH")
+_ReferenceDays = option(int, "episodes per simple policy and regime for the reference lines of figures 3/4", min=1)
 
 
 @user_errors
 def report_cmd(
     fig: _Fig = None,
     table: _Table = None,
-    all_: Annotated[bool, typer.Option("--all", help="every figure and table the database supports")] = False,
+    all_: option(bool, "every figure and table the database supports", "--all") = False,
     algos: _Algos = None,
     pair: _Pair = None,
     trajectory: _Trajectory = False,
     diagnostics: _Diagnostics = False,
-    algo: Annotated[Optional[str], typer.Option(help="agent config of the trajectory or diagnostics, e.g. ppo")] = None,
-    regime: Annotated[Optional[str], typer.Option(help="regime of the trajectory or diagnostics, e.g. run3")] = None,
+    algo: option(Optional[str], "agent config of the trajectory or diagnostics, e.g. ppo") = None,
+    regime: option(Optional[str], "regime of the trajectory or diagnostics, e.g. run3") = None,
     seed: _Seed = None,
-    episode: Annotated[int, typer.Option(min=0, help="evaluation episode of the trajectory")] = 0,
+    episode: option(int, "evaluation episode of the trajectory", min=0) = 0,
     db: DbOption = "nutribench.db",
     out_given: _Out = "reports",
     reference_episodes: _ReferenceDays = 200,

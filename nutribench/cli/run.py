@@ -24,6 +24,8 @@ from nutribench.cli.common import (
     err_console,
     folder_option,
     old_spelling,
+    option,
+    path_flag,
     print_table,
     say_err,
     split_csv,
@@ -34,69 +36,45 @@ from nutribench.engines import Engine
 from nutribench.scheduler.grid import DEFAULT_PRESET, PRESETS
 
 # the options of ``run``, one alias each (the command's signature is then one line an option)
-_Preset = Annotated[
+_Preset = option(
+    Optional[str], f"grid preset: {', '.join(PRESETS)} (default {DEFAULT_PRESET}); options below override its fields"
+)
+_Algos = option(str, "'all' or comma-separated agent config names (mc, ddqn, ppo, sac, gru_ppo)")
+_Seeds = option(
     Optional[str],
-    typer.Option(
-        help=f"grid preset: {', '.join(PRESETS)} (default {DEFAULT_PRESET}); options below override its fields"
-    ),
-]
-_Algos = Annotated[str, typer.Option(help="'all' or comma-separated agent config names (mc, ddqn, ppo, sac, gru_ppo)")]
-_Seeds = Annotated[
-    Optional[str],
-    typer.Option(
-        help="comma-separated non-negative integers, e.g. 0,21,9, or a named set: paper (0,21,9,2003,1997, "
-        "the published baselines' seeds), quick (0,21), smoke (0)"
-    ),
-]
-_Workers = Annotated[
-    Optional[int], typer.Option(min=1, help="jobs at once (default: core count; never more than jobs)")
-]
-_ModelsDir = Annotated[
-    Optional[str],
-    typer.Option("--models-dir", metavar="PATH", help="where trained models go (default: models/ next to the db)"),
-]
-_UpgradeOnly = Annotated[bool, typer.Option("--upgrade-only", help="create or upgrade the database schema, then exit")]
-_RetryFailed = Annotated[
-    bool, typer.Option("--retry-failed", help="try again the jobs that failed 3 times (once their cause is fixed)")
-]
-_EngineName = Annotated[
-    str,
-    typer.Option(
-        help="'sb3' (a job per worker) or 'batched' (the jobs of one agent config trained together, one batch per worker)"
-    ),
-]
-_BatchSize = Annotated[
-    int,
-    typer.Option(
-        min=1, help="--engine batched: at most this many jobs in a batch (a batch's jobs are stored when it ends)"
-    ),
-]
-_Device = Annotated[str, typer.Option(help=f"{DEVICE_HELP}; the SB3 engine trains on the CPU (auto or cpu)")]
-_Tensorboard = Annotated[
-    Optional[str],
-    typer.Option(
-        "--tensorboard",
-        metavar="PATH",
-        help="also write each job's training diagnostics as TensorBoard events under this folder "
-        "(one run folder per job: job<id>-<algo>-<regime>-seed<seed>)",
-    ),
-]
-_Yes = Annotated[
-    bool, typer.Option("--yes", "-y", help="start a bare `nutribench run` (the paper grid) without asking")
-]
+    "comma-separated non-negative integers, e.g. 0,21,9, or a named set: paper (0,21,9,2003,1997, "
+    "the published baselines' seeds), quick (0,21), smoke (0)",
+)
+_Workers = option(Optional[int], "jobs at once (default: core count; never more than jobs)", min=1)
+_ModelsDir = path_flag("--models-dir", "where trained models go (default: models/ next to the db)")
+_UpgradeOnly = option(bool, "create or upgrade the database schema, then exit", "--upgrade-only")
+_RetryFailed = option(bool, "try again the jobs that failed 3 times (once their cause is fixed)", "--retry-failed")
+_EngineName = option(
+    str, "'sb3' (a job per worker) or 'batched' (the jobs of one agent config trained together, one batch per worker)"
+)
+_BatchSize = option(
+    int, "--engine batched: at most this many jobs in a batch (a batch's jobs are stored when it ends)", min=1
+)
+_Device = option(str, f"{DEVICE_HELP}; the SB3 engine trains on the CPU (auto or cpu)")
+_Tensorboard = path_flag(
+    "--tensorboard",
+    "also write each job's training diagnostics as TensorBoard events under this folder "
+    "(one run folder per job: job<id>-<algo>-<regime>-seed<seed>)",
+)
+_Yes = option(bool, "start a bare `nutribench run` (the paper grid) without asking", "--yes", "-y")
 
 
 @user_errors
 def run_cmd(
     preset: _Preset = None,
-    regimes: Annotated[str, typer.Option(help="'all' or comma-separated regime names (run0..run6)")] = "all",
+    regimes: option(str, "'all' or comma-separated regime names (run0..run6)") = "all",
     algos: _Algos = "all",
     seeds: _Seeds = None,
-    days: Annotated[Optional[int], typer.Option("--days", help="training days per job (episodes of 50 steps)")] = None,
+    days: option(Optional[int], "training days per job (episodes of 50 steps)", "--days") = None,
     episodes_alias: Annotated[Optional[int], typer.Option("--episodes", hidden=True)] = None,
-    eval_episodes: Annotated[Optional[int], typer.Option(help="evaluation episodes per job (default 5)")] = None,
+    eval_episodes: option(Optional[int], "evaluation episodes per job (default 5)") = None,
     workers: _Workers = None,
-    executor: Annotated[str, typer.Option(help="'local' (a process per job) or 'dask://HOST:PORT'")] = "local",
+    executor: option(str, "'local' (a process per job) or 'dask://HOST:PORT'") = "local",
     db: DbOption = "nutribench.db",
     models_dir: _ModelsDir = None,
     upgrade_only: _UpgradeOnly = False,
@@ -105,7 +83,7 @@ def run_cmd(
     batch_size: _BatchSize = 35,
     device: _Device = "auto",
     tensorboard_given: _Tensorboard = None,
-    eval_every: Annotated[int, typer.Option(min=0, help=EVAL_EVERY_HELP + "; stored in validation_episodes")] = 0,
+    eval_every: option(int, EVAL_EVERY_HELP + "; stored in validation_episodes", min=0) = 0,
     val_episodes: ValEpisodesOption = 5,
     yes: _Yes = False,
 ) -> None:
@@ -169,7 +147,7 @@ def _confirm_paper_grid(grid) -> None:
 @user_errors
 def status_cmd(
     db: DbOption = "nutribench.db",
-    as_json: Annotated[bool, typer.Option("--json", help="print JSON instead of a table")] = False,
+    as_json: option(bool, "print JSON instead of a table", "--json") = False,
 ) -> None:
     """Jobs done, running, failed and pending per regime x algo, wall time, ETA, last errors."""
     from nutribench.scheduler.status import status_table

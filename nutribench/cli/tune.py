@@ -15,62 +15,47 @@ import typer
 
 from nutribench.cli.common import (
     DEVICE_HELP,
+    command_group,
     console,
     folder_option,
     old_spelling,
+    option,
+    path_flag,
     progress,
     say,
     split_csv,
     user_errors,
 )
 
-tune_app = typer.Typer(
-    no_args_is_help=False,
-    add_completion=False,
-    rich_markup_mode=None,
-    invoke_without_command=True,
-    help="Tune an agent's hyperparameters on validation days (Optuna, in the results database).",
+tune_app = command_group(
+    "Tune an agent's hyperparameters on validation days (Optuna, in the results database).", no_args_is_help=False
 )
 
-_TuneDb = Annotated[
+_TuneDb = option(
     str,
-    typer.Option(
-        envvar="NUTRIBENCH_DB",
-        help="SQLite file or SQLAlchemy URL (the results database: Optuna's tables go beside nutribench's)",
-    ),
-]
+    "SQLite file or SQLAlchemy URL (the results database: Optuna's tables go beside nutribench's)",
+    envvar="NUTRIBENCH_DB",
+)
 
 
-_SpaceOption = Annotated[
+_SpaceOption = option(
     Optional[str],
-    typer.Option(
-        "--space",
-        help="search space to tune: a name in regimes/search/ (ppo, mc, ddqn, sac, gru_ppo, ppo_v2, ...) or a .toml path",
-    ),
-]
-_Seeds = Annotated[
-    Optional[str], typer.Option(help="tuning seeds, comma-separated (default 101,102,103; never 0,21,9,2003,1997)")
-]
-_EvalEvery = Annotated[
-    Optional[int],
-    typer.Option(help="training days between validation evaluations, a divisor of --days (default: about days/10)"),
-]
-_Startup = Annotated[
-    int, typer.Option(help="random trials before TPE models the values (and before the median pruner prunes)")
-]
-_Objective = Annotated[
+    "search space to tune: a name in regimes/search/ (ppo, mc, ddqn, sac, gru_ppo, ppo_v2, ...) or a .toml path",
+    "--space",
+)
+_Seeds = option(Optional[str], "tuning seeds, comma-separated (default 101,102,103; never 0,21,9,2003,1997)")
+_EvalEvery = option(
+    Optional[int], "training days between validation evaluations, a divisor of --days (default: about days/10)"
+)
+_Startup = option(int, "random trials before TPE models the values (and before the median pruner prunes)")
+_Objective = option(
     str,
-    typer.Option(
-        "--objective",
-        help="a trial's objective: 'last' (its value at the last day) or 'late-mean' (the mean of its values after half its days)",
-    ),
-]
-_Stack = Annotated[
-    int,
-    typer.Option(
-        help="trials trained together in one batch (PPO, MC, GRU-PPO, SAC: those that agree on structure; 1: one at a time)"
-    ),
-]
+    "a trial's objective: 'last' (its value at the last day) or 'late-mean' (the mean of its values after half its days)",
+    "--objective",
+)
+_Stack = option(
+    int, "trials trained together in one batch (PPO, MC, GRU-PPO, SAC: those that agree on structure; 1: one at a time)"
+)
 
 
 @tune_app.callback(invoke_without_command=True)
@@ -79,19 +64,19 @@ def tune_cmd(
     ctx: typer.Context,
     space: _SpaceOption = None,
     algo: Annotated[Optional[str], typer.Option("--algo", hidden=True)] = None,
-    study: Annotated[Optional[str], typer.Option(help="the study's name (new: created; existing: resumed)")] = None,
-    regimes: Annotated[str, typer.Option(help="tuning regimes, comma-separated")] = "run0,run1,run2,run4",
+    study: option(Optional[str], "the study's name (new: created; existing: resumed)") = None,
+    regimes: option(str, "tuning regimes, comma-separated") = "run0,run1,run2,run4",
     seeds: _Seeds = None,
-    trials: Annotated[int, typer.Option(help="finished trials (complete or pruned) the study should hold")] = 32,
-    days: Annotated[int, typer.Option(help="training days per agent of a trial")] = 1000,
+    trials: option(int, "finished trials (complete or pruned) the study should hold") = 32,
+    days: option(int, "training days per agent of a trial") = 1000,
     eval_every: _EvalEvery = None,
-    val_episodes: Annotated[int, typer.Option(help="validation days per evaluation")] = 5,
-    sampler_seed: Annotated[int, typer.Option(help="seed of the TPE sampler")] = 0,
-    pruner: Annotated[str, typer.Option(help="'median' (after half the days) or 'none'")] = "median",
+    val_episodes: option(int, "validation days per evaluation") = 5,
+    sampler_seed: option(int, "seed of the TPE sampler") = 0,
+    pruner: option(str, "'median' (after half the days) or 'none'") = "median",
     startup_trials: _Startup = 5,
     objective_rule: _Objective = "last",
     stack: _Stack = 1,
-    device: Annotated[str, typer.Option(help=DEVICE_HELP)] = "cpu",
+    device: option(str, DEVICE_HELP) = "cpu",
     db: _TuneDb = "nutribench.db",
 ) -> None:
     """Run (or resume) a tuning study until it holds --trials finished trials.
@@ -118,9 +103,9 @@ def tune_cmd(
 @tune_app.command("status")
 @user_errors
 def tune_status_cmd(
-    study: Annotated[Optional[str], typer.Option(help="one study (default: every study in the database)")] = None,
+    study: option(Optional[str], "one study (default: every study in the database)") = None,
     db: _TuneDb = "nutribench.db",
-    as_json: Annotated[bool, typer.Option("--json", help="print JSON instead of lines")] = False,
+    as_json: option(bool, "print JSON instead of lines", "--json") = False,
 ) -> None:
     """Each tuning study: trials complete, pruned, running, failed, and the best so far
     (values: the IQM share of the never -> planner gap, in percent; a fraction in --json)."""
@@ -153,13 +138,10 @@ def tune_status_cmd(
 @tune_app.command("best")
 @user_errors
 def tune_best_cmd(
-    study: Annotated[str, typer.Option(help="the study")],
-    write: Annotated[bool, typer.Option(help="write the agent file into the agents folder")] = False,
-    name: Annotated[Optional[str], typer.Option(help="the new agent's name (default <agent>_tuned)")] = None,
-    out_given: Annotated[
-        Optional[str],
-        typer.Option("--out", metavar="PATH", help="the folder --write writes into (default: the agents folder)"),
-    ] = None,
+    study: option(str, "the study"),
+    write: option(bool, "write the agent file into the agents folder") = False,
+    name: option(Optional[str], "the new agent's name (default <agent>_tuned)") = None,
+    out_given: path_flag("--out", "the folder --write writes into (default: the agents folder)") = None,
     db: _TuneDb = "nutribench.db",
 ) -> None:
     """The study's best trial as a new agent file: printed, or written with --write (never over an existing file)."""

@@ -59,18 +59,9 @@ class EpisodeRecorder:
         out = []
         for j in np.flatnonzero(done):
             fo = int(self._first_over[j])
-            out.append(
-                {
-                    "return": float(self._ret[j]),
-                    "foods": int(foods[j]),
-                    "final_distance": float(dist[j]),
-                    "overshoot_ratio": float(self._over_steps[j] / self._steps[j]),
-                    "final_C": float(state[j, 0]),
-                    "final_F": float(state[j, 1]),
-                    "final_P": float(state[j, 2]),
-                    "first_overshoot_step": fo if fo > 0 else None,
-                }
-            )
+            values = (float(self._ret[j]), int(foods[j]), float(dist[j]), float(self._over_steps[j] / self._steps[j]))
+            values += (float(state[j, 0]), float(state[j, 1]), float(state[j, 2]), fo if fo > 0 else None)
+            out.append(dict(zip(METRIC_KEYS, values)))  # in METRIC_KEYS' order
         self.clear(done)
         return out
 

@@ -112,9 +112,10 @@ class RegimeDynamics:
     """Everything precomputed once per regime and shared by the single and vector envs."""
 
     def __init__(self, regime: str | os.PathLike[str] | EnvConfig):
-        self.config = load_env_config(regime)
-        cfg = self.config
+        self.config = cfg = load_env_config(regime)
         self.reward_config = cfg.reward
+        #: The reward's coefficients (lp, lc, lo, tau_c), which each stepping model keeps at hand.
+        self.coefficients = (cfg.reward.lp, cfg.reward.lc, cfg.reward.lo, cfg.reward.tau_c)
         self.horizon = cfg.reward.horizon
         self.masses = cfg.masses()
         self.tau = cfg.tau()
@@ -213,8 +214,7 @@ class NutriRLEnv(DynamicsView, gym.Env[np.ndarray, int]):
         self.render_mode = render_mode
         self.observation_space = self.dyn.observation_space
         self.action_space = self.dyn.action_space
-        r = self.dyn.reward_config
-        self._lp, self._lc, self._lo, self._tau_c = r.lp, r.lc, r.lo, r.tau_c
+        self._lp, self._lc, self._lo, self._tau_c = self.dyn.coefficients
         self._H = self.dyn.horizon
         self._A = self.dyn.schedule
         self._pending = np.zeros((self._H, 3))

@@ -30,10 +30,8 @@ _GLYPHS = {
 
 
 def _glyph(img: np.ndarray, letter: str, top: int, left: int, scale: int) -> None:
-    for r, row in enumerate(_GLYPHS[letter]):
-        for c, ink in enumerate(row):
-            if ink == "1":
-                img[top + r * scale : top + (r + 1) * scale, left + c * scale : left + (c + 1) * scale] = _BLACK
+    ink = np.kron([[c == "1" for c in row] for row in _GLYPHS[letter]], np.ones((scale, scale))) > 0
+    img[top : top + 5 * scale, left : left + 3 * scale][ink] = _BLACK  # each pixel of the letter a scale x scale block
 
 
 def nutrient_picture(absorbed: Sequence[float], pending: Sequence[float], step: int, horizon: int) -> np.ndarray:

@@ -73,8 +73,7 @@ class DayModel:
 
     def __init__(self, regime: str | os.PathLike[str] | EnvConfig | RegimeDynamics):
         self.dyn = regime if isinstance(regime, RegimeDynamics) else RegimeDynamics(regime)
-        r = self.dyn.reward_config
-        self.lp, self.lc, self.lo, self.tau_c = r.lp, r.lc, r.lo, r.tau_c
+        self.lp, self.lc, self.lo, self.tau_c = self.dyn.coefficients
         self.horizon = self.dyn.horizon
         self.n_foods = self.dyn.n_foods
         self.schedule = self.dyn.schedule  # (N, H, 3)
@@ -255,17 +254,11 @@ def clairvoyant_actions(
     how: list[str] = []
     for i, day in enumerate(foods):
         added = model.most_added(day)
-        ret, acts = _beam(model, day, width, added)
-        planner = _planner_day(model, day)
-        if planner[0] > ret:
-            ret, acts = planner
-        proof = _branch_and_bound(model, day, ret, max_nodes, added)
-        if proof is not None:
-            how.append("exact")
-            if proof[0] > ret:
-                ret, acts = proof
-        else:
-            how.append("beam")
+        # the first of equal returns stands: the beam's, then the planner's, then the proof's
+        best = max(_beam(model, day, width, added), _planner_day(model, day), key=lambda found: found[0])
+        proof = _branch_and_bound(model, day, best[0], max_nodes, added)
+        how.append("beam" if proof is None else "exact")
+        _, acts = max(best, proof or best, key=lambda found: found[0])
         actions[i] = _bits(np.array([acts]), H)[0]
     return actions, how
 

@@ -58,8 +58,7 @@ class NutriRLVectorEnv(DynamicsView, VectorEnv):
         self.single_action_space = self.dyn.action_space
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
-        r = self.dyn.reward_config
-        self._lp, self._lc, self._lo, self._tau_c = r.lp, r.lc, r.lo, r.tau_c
+        self._lp, self._lc, self._lo, self._tau_c = self.dyn.coefficients
         H, N = self.dyn.horizon, self.dyn.n_foods
         self._H, self._N = H, N
         # Nutrient-major layouts (rows = step x nutrient, columns = envs) keep every per-step
