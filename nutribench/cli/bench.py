@@ -5,35 +5,35 @@ scripts beside the package, in ``benchmarks/``."""
 
 from __future__ import annotations
 
-from typing import Annotated, Optional
-
-import typer
+from typing import Optional
 
 from nutribench.cli.common import (
     DEVICE_HELP,
     EpisodesAlias,
     RepeatsOption,
     UserError,
+    command_group,
     console,
     old_spelling,
+    option,
     print_table,
     split_csv,
     user_errors,
 )
 from nutribench.engines import Engine
 
-bench_app = typer.Typer(
-    no_args_is_help=True,
-    rich_markup_mode=None,
-    help="Benchmarks: env and training throughput, tuning trials per hour.",
+bench_app = command_group("Benchmarks: env and training throughput, tuning trials per hour.")
+#: ``bench tune --space``
+SPACE_HELP = (
+    "search space whose trials are drawn (an algorithm with per-agent settings: ppo, mc, gru_ppo, sac) [default: ppo]"
 )
 
 
 @bench_app.command("env")
 @user_errors
 def bench_env_cmd(
-    regimes: Annotated[str, typer.Option(help="comma-separated regimes")] = "run0,run6",
-    sizes: Annotated[str, typer.Option(help="comma-separated vector env sizes")] = "1,64,1024,4096",
+    regimes: option(str, "comma-separated regimes") = "run0,run6",
+    sizes: option(str, "comma-separated vector env sizes") = "1,64,1024,4096",
     repeats: RepeatsOption = 5,
 ) -> None:
     """Env-steps per second of the single env and the vector env (random actions)."""
@@ -74,22 +74,18 @@ MOVED = {
 @bench_app.command("train")
 @user_errors
 def bench_train_cmd(
-    algos: Annotated[str, typer.Option(help="'all' or comma-separated algorithms")] = "all",
-    regime: Annotated[str, typer.Option(help="regime")] = "run0",
-    days: Annotated[
-        Optional[int], typer.Option("--days", min=1, help="training days per timed run [default: 100]")
-    ] = None,
+    algos: option(str, "'all' or comma-separated algorithms") = "all",
+    regime: option(str, "regime") = "run0",
+    days: option(Optional[int], "training days per timed run [default: 100]", "--days", min=1) = None,
     episodes_alias: EpisodesAlias = None,
     repeats: RepeatsOption = 3,
-    engine: Annotated[
-        str, typer.Option(help="'sb3', or 'batched': the batched engine at K = 35 beside SB3's")
-    ] = Engine.SB3.value,
-    device: Annotated[str, typer.Option(help=f"--engine batched: {DEVICE_HELP} (SB3's rows: the CPU)")] = "auto",
-    diagnostics_cost: Annotated[bool, typer.Option("--diagnostics-cost", hidden=True)] = False,
-    lockstep: Annotated[bool, typer.Option("--lockstep", hidden=True)] = False,
-    eval_every: Annotated[int, typer.Option("--eval-every", hidden=True)] = 0,
-    _block: Annotated[Optional[int], typer.Option("--block", hidden=True)] = None,
-    _val_episodes: Annotated[Optional[int], typer.Option("--val-episodes", hidden=True)] = None,
+    engine: option(str, "'sb3', or 'batched': the batched engine at K = 35 beside SB3's") = Engine.SB3.value,
+    device: option(str, f"--engine batched: {DEVICE_HELP} (SB3's rows: the CPU)") = "auto",
+    diagnostics_cost: option(bool, None, "--diagnostics-cost", hidden=True) = False,
+    lockstep: option(bool, None, "--lockstep", hidden=True) = False,
+    eval_every: option(int, None, "--eval-every", hidden=True) = 0,
+    _block: option(Optional[int], None, "--block", hidden=True) = None,
+    _val_episodes: option(Optional[int], None, "--val-episodes", hidden=True) = None,
 ) -> None:
     """Training env-steps per second of each algorithm, and of bare SB3 PPO / DQN on the same
     env (the overhead of nutribench's plumbing), with the paper grid's CPU-hours at that rate.
@@ -97,10 +93,10 @@ def bench_train_cmd(
     FLOPs per env step, this machine's matmul rate and the share of that floor reached."""
     given = {"--diagnostics-cost": diagnostics_cost or lockstep or _block is not None}
     given["--eval-every"] = bool(eval_every or _val_episodes is not None)
-    for option in (o for o, g in given.items() if g):
+    for flag in (o for o, g in given.items() if g):
         raise UserError(
-            f"bench train {option}: that bench moved out of the package with the finished study that used it: "
-            f"see {MOVED[option]}"
+            f"bench train {flag}: that bench moved out of the package with the finished study that used it: "
+            f"see {MOVED[flag]}"
         )
     episodes = old_spelling(days, episodes_alias, "--days", "--episodes", 100)
     from nutribench.agents.registry import paper_names
@@ -174,22 +170,16 @@ def check_engine_options(engine: str, device: str) -> None:
 @bench_app.command("tune")
 @user_errors
 def bench_tune_cmd(
-    space: Annotated[
-        Optional[str],
-        typer.Option(
-            "--space",
-            help="search space whose trials are drawn (an algorithm with per-agent settings: ppo, mc, gru_ppo, sac) [default: ppo]",
-        ),
-    ] = None,
-    algo: Annotated[Optional[str], typer.Option("--algo", hidden=True)] = None,
-    trials: Annotated[int, typer.Option(min=1, help="trials, the same in both arms")] = 8,
-    days: Annotated[int, typer.Option(min=1, help="training days per agent")] = 20,
-    regimes: Annotated[str, typer.Option(help="tuning regimes, comma-separated")] = "run0,run3",
-    seeds: Annotated[str, typer.Option(help="tuning seeds, comma-separated")] = "101,102",
-    eval_every: Annotated[int, typer.Option(min=1, help="days between validation evaluations")] = 10,
-    val_episodes: Annotated[int, typer.Option(min=1, help="validation days per evaluation")] = 5,
-    workers: Annotated[Optional[int], typer.Option(min=1, help="processes per arm (default: the cores)")] = None,
-    repeats: Annotated[int, typer.Option(min=1, help="repeats of both arms, orders alternating")] = 1,
+    space: option(Optional[str], SPACE_HELP, "--space") = None,
+    algo: option(Optional[str], None, "--algo", hidden=True) = None,
+    trials: option(int, "trials, the same in both arms", min=1) = 8,
+    days: option(int, "training days per agent", min=1) = 20,
+    regimes: option(str, "tuning regimes, comma-separated") = "run0,run3",
+    seeds: option(str, "tuning seeds, comma-separated") = "101,102",
+    eval_every: option(int, "days between validation evaluations", min=1) = 10,
+    val_episodes: option(int, "validation days per evaluation", min=1) = 5,
+    workers: option(Optional[int], "processes per arm (default: the cores)", min=1) = None,
+    repeats: option(int, "repeats of both arms, orders alternating", min=1) = 1,
 ) -> None:
     """Trials per hour: stacked trials in batched processes vs one SB3 process per trial (rl-zoo3's way)."""
     space = old_spelling(space, algo, "--space", "--algo")  # as tune's --space; None: bench_tune's default
