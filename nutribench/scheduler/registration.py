@@ -117,18 +117,15 @@ def register_grid(
         hold_write_lock(s, REGISTRATION_LOCK)  # two drivers started at once: one registers, then the other
         rids = _register(s, RegimeConfig, regimes)
         aids = _register(s, AgentConfig, agents)
-        query = select(Job.id, Job.regime_id, Job.agent_config_id, Job.seed).where(
-            Job.regime_id.in_(rids.values()),
-            Job.agent_config_id.in_(aids.values()),
-            Job.episodes == grid.episodes,
-            Job.eval_episodes == grid.eval_episodes,
-        )
+        budgets = {"episodes": grid.episodes, "eval_episodes": grid.eval_episodes}
+        query = select(Job.id, Job.regime_id, Job.agent_config_id, Job.seed).filter_by(**budgets)
+        query = query.where(Job.regime_id.in_(rids.values()), Job.agent_config_id.in_(aids.values()))
         existing = {(r.regime_id, r.agent_config_id, r.seed): r.id for r in s.execute(query)}
         keys = [(rids[r], aids[a], seed) for r, a, seed in grid.cells()]
         missing = [k for k in keys if k not in existing]
         if missing:
-            new = {"episodes": grid.episodes, "eval_episodes": grid.eval_episodes, "status": "pending", "attempt": 0}
-            new |= {"failures": 0, "episodes_done": 0, "created_at": utcnow(), "fake": fake}
+            new = budgets | {"status": "pending", "attempt": 0, "failures": 0, "episodes_done": 0}
+            new |= {"created_at": utcnow(), "fake": fake}
             rows = [{"regime_id": r, "agent_config_id": a, "seed": seed, **new} for r, a, seed in missing]
             s.execute(insert(Job), rows)
             existing.update({(r.regime_id, r.agent_config_id, r.seed): r.id for r in s.execute(query)})
@@ -157,28 +154,13 @@ def spec_maker(store: Store, settings: Any, regime_cfgs: Sequence, agent_cfgs: S
         aid = dict(conn.execute(select(AgentConfig.id, AgentConfig.name).where(AgentConfig.name.in_(grid.algos))).all())
     events = str(Path(settings.tensorboard).absolute()) if settings.tensorboard is not None else None
     how = {"device": settings.device, "tensorboard": events, "val_episodes": settings.val_episodes}
+    how["eval_every"] = int(settings.eval_every or 0)
 
     def make_spec(job: Job) -> JobSpec:
         r, a = regimes[rid[job.regime_id]], agents[aid[job.agent_config_id]]
-        path = model_path(settings.models, r, a, job.seed, job.episodes)
-        return JobSpec(
-            job.id,
-            r.name,
-            r.version,
-            r.sha256,
-            a.name,
-            a.version,
-            a.sha256,
-            job.seed,
-            job.episodes,
-            job.eval_episodes,
-            str(path),
-            r.obj,
-            a.obj,
-            attempt=job.attempt,
-            eval_every=int(settings.eval_every or 0),
-            **how,
-        )
+        path = str(model_path(settings.models, r, a, job.seed, job.episodes))
+        ids = (job.id, r.name, r.version, r.sha256, a.name, a.version, a.sha256, job.seed, job.episodes)
+        return JobSpec(*ids, job.eval_episodes, path, r.obj, a.obj, attempt=job.attempt, **how)
 
     return make_spec
 
@@ -233,16 +215,8 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
                 f"training days is already recorded (job {old}): record another seed, or bump the agent's version"
             )
         meta = {k: job.metadata[k] for k in METADATA_COLUMNS if k in job.metadata}
-        row = Job(
-            **key,
-            status="done",
-            attempt=1,
-            failures=0,
-            episodes_done=job.episodes,
-            created_at=utcnow(),
-            fake=False,
-            **meta,
-        )
+        done = {"status": "done", "attempt": 1, "failures": 0, "episodes_done": job.episodes, "created_at": utcnow()}
+        row = Job(**key, **done, fake=False, **meta)
         s.add(row)
         s.flush()
         insert_episodes(s, row.id, job.train, job.eval, job.eval_steps)
@@ -274,14 +248,8 @@ def check_external_entry(store: Store, regime_config: Any, agent_config: Any, se
             )
         if agent_row is None or regime_row is None:
             return
-        old = s.execute(
-            select(Job.id, Job.episodes).where(
-                Job.regime_id == regime_row.id,
-                Job.agent_config_id == agent_row.id,
-                Job.seed == seed,
-                Job.eval_episodes == eval_episodes,
-            )
-        ).first()
+        key = dict(regime_id=regime_row.id, agent_config_id=agent_row.id, seed=seed, eval_episodes=eval_episodes)
+        old = s.execute(select(Job.id, Job.episodes).filter_by(**key)).first()
         if old is not None:
             raise RunError(
                 f"{what}: already recorded in {where} (job {old.id}, {old.episodes} training days): "
