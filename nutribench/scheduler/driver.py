@@ -60,6 +60,8 @@ from nutribench.scheduler.settings import GridSettings
 from nutribench.scheduler.spec import JobSpec
 from nutribench.scheduler.storing import (
     HeldResults,
+    error_text,
+    first_line,
     interrupt_line,
     one_line,
     release_quietly,
@@ -67,8 +69,6 @@ from nutribench.scheduler.storing import (
     store_finished,
     unless_locked,
 )
-from nutribench.scheduler.storing import error_text as _error_text
-from nutribench.scheduler.storing import first_line as _first_line
 from nutribench.scheduler.worker import JobFn, execute
 from nutribench.store import Job, open_store
 from nutribench.store.engine import StoreError
@@ -160,14 +160,12 @@ class _Run:
                     self.attempted.add(spec.job_id)
                     self.live[spec.job_id] = {"spec": spec, "k": 0, "n": spec.episodes, "ret": None, "t0": now}
                 self.planned = max(self.planned, len(self.attempted))  # a job taken over here: "3 done of 2 to run"
-                submit, sink = self.handle.executor.submit, self.handle.sink
-                if pool.batched:
-                    self.in_flight[submit(execute, self.batch_fn, specs, sink)] = specs
-                    free -= 1
-                else:
-                    for spec in specs:
-                        self.in_flight[submit(execute, self.job_fn, spec, sink)] = [spec]
-                    free -= len(specs)
+                # a batch is one unit of work on one slot, a single job one of its own
+                fn, units = (self.batch_fn, [specs]) if pool.batched else (self.job_fn, [[s] for s in specs])
+                for unit in units:
+                    work = unit if pool.batched else unit[0]
+                    self.in_flight[self.handle.executor.submit(execute, fn, work, self.handle.sink)] = unit
+                free -= len(units)
                 if len(jobs) < want:
                     break
         if free > 0:
@@ -195,7 +193,7 @@ class _Run:
                 self.resumed = {j: k0 for j, k0 in self.resumed.items() if j not in ids}  # they start over
                 self.pools.insert(0, Pool(ids, True, 1))
                 self.exhausted = False
-                self.view.log(f"[yellow]batch failed[/] ({_first_line(e)}): its {len(ids)} jobs are tried one by one")
+                self.view.log(f"[yellow]batch failed[/] ({first_line(e)}): its {len(ids)} jobs are tried one by one")
                 return
             for spec in specs:
                 self._failed(spec, e)
@@ -211,10 +209,10 @@ class _Run:
 
     def _failed(self, spec: JobSpec, error: BaseException, shown: str = "") -> None:
         """Status ``failed`` with the error kept, counted and shown (after ``shown``)."""
-        store_failure(self.store, spec.job_id, self.owner, _error_text(error))
+        store_failure(self.store, spec.job_id, self.owner, error_text(error))
         self.summary.failed += 1
-        self.summary.errors.append(f"{spec.label}: {_first_line(error)}")
-        self.view.log(f"[red]failed[/] {spec.label}: {shown}{_first_line(error)}")
+        self.summary.errors.append(f"{spec.label}: {first_line(error)}")
+        self.view.log(f"[red]failed[/] {spec.label}: {shown}{first_line(error)}")
 
     def events(self) -> None:
         for ev in self.handle.drain():
