@@ -60,14 +60,17 @@ def _days(run: Any) -> tuple[int, int, int]:
     return planned, done, done - sum(run.resumed.values())
 
 
-def eta_seconds(run: Any, elapsed: float) -> float | None:
+def eta_seconds(run: Any, elapsed: float, days_before: int = 0, at_least: float = 0.0) -> float | None:
     """Remaining time of this run, from the episodes trained so far (finished jobs count
     their whole budget, running ones their progress) and the time this run took for those it
-    trained itself (a batch resumed from a checkpoint did not train the days before it)."""
+    trained itself (a batch resumed from a checkpoint did not train the days before it): those
+    trained since ``days_before`` in ``elapsed`` seconds; ``None`` if not one or before
+    ``at_least`` seconds."""
     planned, done, trained_here = _days(run)
-    if trained_here <= 0 or planned <= 0:
+    days = trained_here - days_before
+    if elapsed < at_least or days <= 0 or planned <= 0:
         return None
-    return elapsed * max(planned - done, 0) / trained_here
+    return elapsed * max(planned - done, 0) / days
 
 
 #: Seconds of training after a run's first trained day before :func:`eta_since` prices the rest
@@ -79,11 +82,7 @@ def eta_since(run: Any, mark: tuple[float, int], now: float) -> float | None:
     first trained day and the days trained then), so that starting the workers is not priced
     into the rest; ``None`` until :data:`MEASURE_AFTER_S` seconds have passed since the mark
     and a day more has been trained."""
-    planned, done, trained_here = _days(run)
-    since, days = now - mark[0], trained_here - mark[1]
-    if since < MEASURE_AFTER_S or days <= 0 or planned <= 0:
-        return None
-    return since * max(planned - done, 0) / days
+    return eta_seconds(run, now - mark[0], mark[1], MEASURE_AFTER_S)
 
 
 def estimate_seconds(run: Any, costs: dict[str, float], workers: int) -> float | None:
