@@ -91,7 +91,6 @@ class RunSummary:
     given_up: int = 0
     interrupted: int = 0
     user_interrupt: bool = False
-    errors: list[str] = field(default_factory=list)
 
     @property
     def exit_code(self) -> int:
@@ -211,7 +210,6 @@ class _Run:
         """Status ``failed`` with the error kept, counted and shown (after ``shown``)."""
         store_failure(self.store, spec.job_id, self.owner, error_text(error))
         self.summary.failed += 1
-        self.summary.errors.append(f"{spec.label}: {first_line(error)}")
         self.view.log(f"[red]failed[/] {spec.label}: {shown}{first_line(error)}")
 
     def events(self) -> None:
@@ -292,11 +290,8 @@ class _Run:
             held = [s.job_id for specs in self.in_flight.values() for s in specs] + list(self.held)
             released = release_quietly(self.store, held, self.owner)
         self.summary.interrupted = released if isinstance(released, int) else 0
-        line = (
-            stop_line(self.store.display, error, released, len(held), self.held)
-            if error
-            else interrupt_line(released, len(held), self.held)
-        )
+        how = (released, len(held), self.held)
+        line = stop_line(self.store.display, error, *how) if error else interrupt_line(*how)
         if line and not error:
             self.view.log(f"[red]{line}[/]")
         self.summary.user_interrupt = error is None
@@ -333,7 +328,7 @@ def run_grid(settings: GridSettings, stop: threading.Event | None = None) -> Run
         summary = RunSummary(total=len(job_ids))
         held, _ = held_elsewhere(store, job_ids, owner)
         if runnable or held:
-            make_spec = spec_maker(store, s, regime_cfgs, agent_cfgs)
+            make_spec = spec_maker(s, job_ids, regime_cfgs, agent_cfgs)
             handle, note = make_executor(s.executor, s.workers, max(runnable, held))
             view = make_view(s.display, grid, len(job_ids), handle.description, note, agent_cfgs)
             pools = _batched_pools(store, s, job_ids, regime_cfgs, agent_cfgs, handle.slots)
@@ -346,9 +341,8 @@ def run_grid(settings: GridSettings, stop: threading.Event | None = None) -> Run
         summary.given_up, summary.busy = counts["given_up"], counts["busy"]
         return summary
     except OperationalError as e:  # a write refused before any job was claimed (a read-only file)
-        raise StoreError(
-            f"cannot write to {store.display}: {one_line(e)}: no job was claimed; the next run resumes"
-        ) from None
+        why = f"cannot write to {store.display}: {one_line(e)}: no job was claimed; the next run resumes"
+        raise StoreError(why) from None
     finally:
         store.dispose()
 
@@ -362,8 +356,7 @@ def _batched_pools(
         return None
     algo_of = {a.name: a.algo for a in agent_cfgs}
     shapes = {r.name: (r.obj.reward.horizon, len(r.obj.catalog.food)) for r in regime_cfgs}
-    claimable = partial(count_claimable, store)
-    pools = batch_pools(job_ids, s.grid.cells(), algo_of, shapes, claimable, slots, s.max_batch)
+    pools = batch_pools(job_ids, s.grid.cells(), algo_of, shapes, partial(count_claimable, store), slots, s.max_batch)
     return checkpointed_first(pools, s.models / "checkpoints")
 
 

@@ -56,11 +56,8 @@ class _Config:
 
 def _shown(path: Path | str) -> str:
     """A file path relative to the current folder when it lies below it."""
-    p = Path(path)
-    try:
-        return str(p.resolve().relative_to(Path.cwd().resolve()))
-    except ValueError:
-        return str(p)
+    p, cwd = Path(path), Path.cwd().resolve()
+    return str(p.resolve().relative_to(cwd)) if p.resolve().is_relative_to(cwd) else str(p)
 
 
 def load_grid_configs(grid: Grid) -> tuple[list[_Config], list[_Config]]:
@@ -98,10 +95,8 @@ def _register(session: Session, table: type, configs: Sequence[_Config]) -> dict
                 )
             ids[c.name] = row.id
             continue
-        extra = {"algo": c.algo} if table is AgentConfig else {}
-        new = table(
-            name=c.name, version=c.version, sha256=c.sha256, body=c.body, source=c.source, created_at=utcnow(), **extra
-        )
+        recorded = {key: getattr(c, key) for key in ("name", "version", "sha256", "body", "source")}
+        new = table(**recorded, created_at=utcnow(), **({"algo": c.algo} if table is AgentConfig else {}))
         session.add(new)
         session.flush()
         ids[c.name] = new.id
@@ -138,26 +133,23 @@ def model_path(models_dir: Path, regime: _Config, agent: _Config, seed: int, epi
     return folder / f"seed{seed}-ep{episodes}.zip"
 
 
-def spec_maker(store: Store, settings: Any, regime_cfgs: Sequence, agent_cfgs: Sequence) -> Callable[[Job], JobSpec]:
+def spec_maker(settings: Any, job_ids: list[int], regime_cfgs: list, agent_cfgs: list) -> Callable[[Job], JobSpec]:
     """A function from a job row of ``settings``' grid (a
-    :class:`~nutribench.scheduler.settings.GridSettings`, registered in ``store`` from
-    ``regime_cfgs`` and ``agent_cfgs``: :func:`~nutribench.scheduler.registration.load_grid_configs`)
+    :class:`~nutribench.scheduler.settings.GridSettings`, its jobs ``job_ids`` in grid order as
+    :func:`register_grid` returns them, registered from ``regime_cfgs`` and ``agent_cfgs``:
+    :func:`~nutribench.scheduler.registration.load_grid_configs`)
     to its :class:`~nutribench.scheduler.spec.JobSpec`: its model file under ``settings.models``,
     trained on ``settings.device``, its TensorBoard events (if any) under ``settings.tensorboard``,
     evaluated on ``settings.val_episodes`` validation days every ``settings.eval_every`` training
     days (None or 0: never)."""
-    grid, regimes, agents = settings.grid, {r.name: r for r in regime_cfgs}, {a.name: a for a in agent_cfgs}
-    with store.engine.connect() as conn:
-        rid = dict(
-            conn.execute(select(RegimeConfig.id, RegimeConfig.name).where(RegimeConfig.name.in_(grid.regimes))).all()
-        )
-        aid = dict(conn.execute(select(AgentConfig.id, AgentConfig.name).where(AgentConfig.name.in_(grid.algos))).all())
+    regimes, agents = {r.name: r for r in regime_cfgs}, {a.name: a for a in agent_cfgs}
+    cells = dict(zip(job_ids, settings.grid.cells()))  # job id -> (regime, agent config, seed)
     events = str(Path(settings.tensorboard).absolute()) if settings.tensorboard is not None else None
     how = {"device": settings.device, "tensorboard": events, "val_episodes": settings.val_episodes}
     how["eval_every"] = int(settings.eval_every or 0)
 
     def make_spec(job: Job) -> JobSpec:
-        r, a = regimes[rid[job.regime_id]], agents[aid[job.agent_config_id]]
+        r, a = regimes[cells[job.id][0]], agents[cells[job.id][1]]
         path = str(model_path(settings.models, r, a, job.seed, job.episodes))
         ids = (job.id, r.name, r.version, r.sha256, a.name, a.version, a.sha256, job.seed, job.episodes)
         return JobSpec(*ids, job.eval_episodes, path, r.obj, a.obj, attempt=job.attempt, **how)
