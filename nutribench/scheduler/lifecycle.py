@@ -229,8 +229,6 @@ def flush_progress(store: Store, owner: str, live: dict[int, dict[str, Any]]) ->
     with session_scope(store.engine) as s:
         now = db_now(s)
         for job_id, st in live.items():
-            values: dict[str, Any] = {"heartbeat_at": now, "episodes_done": int(st.get("k", 0))}
-            for key, column, kind in _REPORTED:
-                if st.get(key) is not None:
-                    values[column] = kind(st[key])
+            values = {column: kind(st[key]) for key, column, kind in _REPORTED if st.get(key) is not None}
+            values |= {"heartbeat_at": now, "episodes_done": int(st.get("k", 0))}
             _set(s, Job.id == job_id, Job.owner == owner, **values)
