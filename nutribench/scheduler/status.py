@@ -77,12 +77,9 @@ def status_table(db: str | os.PathLike[str]) -> StatusReport:
     store = open_store(db)
     try:
         configs = (RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version)
-        q = (
-            select(*configs, *(getattr(Job, c) for c in JOB_COLUMNS))
-            .join(RegimeConfig, RegimeConfig.id == Job.regime_id)
-            .join(AgentConfig, AgentConfig.id == Job.agent_config_id)
-            .order_by(*configs, Job.episodes, Job.seed)
-        )
+        q = select(*configs, *(getattr(Job, c) for c in JOB_COLUMNS))
+        q = q.join(RegimeConfig, RegimeConfig.id == Job.regime_id)
+        q = q.join(AgentConfig, AgentConfig.id == Job.agent_config_id).order_by(*configs, Job.episodes, Job.seed)
         with store.engine.connect() as conn:
             jobs = conn.execute(q).all()
             now = db_now(conn)
