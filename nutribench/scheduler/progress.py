@@ -44,9 +44,7 @@ def note_event(live: dict[int, dict[str, Any]], resumed: dict[int, int], ev: dic
     st = live.get(ev.get("job_id"))
     if st is None:
         return
-    for key in ("k", "ret", "pid", "wall"):
-        if ev.get(key) is not None:
-            st[key] = ev[key]
+    st.update({key: ev[key] for key in ("k", "ret", "pid", "wall") if ev.get(key) is not None})
     if ev.get("k0") is not None:  # episode events only: a phase event says nothing of it
         resumed[ev["job_id"]] = int(ev["k0"])
 
