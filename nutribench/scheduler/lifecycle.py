@@ -141,9 +141,8 @@ def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, i
     out = {"done": 0, "given_up": 0, "busy": 0}
     with store.engine.connect() as conn:
         now = db_now(conn)
-        rows = conn.execute(
-            select(Job.status, Job.failures, Job.owner, Job.heartbeat_at).where(Job.id.in_(job_ids))
-        ).all()
+        query = select(Job.status, Job.failures, Job.owner, Job.heartbeat_at).where(Job.id.in_(job_ids))
+        rows = conn.execute(query).all()
     for status, failures, job_owner, beat in rows:
         if status == "done":
             out["done"] += 1

@@ -19,9 +19,11 @@ from sqlalchemy.orm import Session
 
 from nutribench.errors import UserError
 from nutribench.scheduler.grid import Grid
+from nutribench.scheduler.lifecycle import check_not_mixed, insert_episodes
 from nutribench.scheduler.spec import JobSpec
 from nutribench.store import AgentConfig, Job, RegimeConfig, session_scope, utcnow
-from nutribench.store.engine import REGISTRATION_LOCK, hold_write_lock
+from nutribench.store.engine import REGISTRATION_LOCK, display_url, hold_write_lock
+from nutribench.store.models import METADATA_COLUMNS
 from nutribench.store.schema import Store
 
 
@@ -186,10 +188,6 @@ class ExternalJob:
 def store_external_job(store: Store, job: ExternalJob) -> int:
     """Record ``job``'s configs and write it as a done job with its rows, in one transaction;
     its id. A job with the same regime, agent, seed and budget already there is refused."""
-    from nutribench.scheduler.lifecycle import check_not_mixed, insert_episodes
-    from nutribench.store.engine import display_url
-    from nutribench.store.models import METADATA_COLUMNS
-
     env, cfg = job.regime_config, job.agent_config
     regime, agent = _Config.regime(env, env.name), _Config.agent(cfg, "recorded")
     check_not_mixed(store, fake=False)
@@ -221,7 +219,6 @@ def check_external_entry(store: Store, regime_config: Any, agent_config: Any, se
     this agent version on this regime and seed already there (whatever its training days):
     :class:`RunError` in one line naming agent, regime and seed."""
     from nutribench.agents.config import agent_config_sha256
-    from nutribench.store.engine import display_url
 
     env, cfg = regime_config, agent_config
     what = f"Recorder {cfg.name} v{cfg.version} on {env.name} seed {seed}"
