@@ -55,9 +55,8 @@ def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]
     started, t0 = utcnow(), time.perf_counter()
     specs = sorted(specs, key=lambda s: s.job_id)  # one agent order for the batch, whatever the claim's
     path = checkpoint_path(specs)
-    checkpoint = None
+    checkpoint = Checkpoint(path, device=device) if path is not None else None
     if path is not None:
-        checkpoint = Checkpoint(path, device=device)
         write_manifest(path, specs)
 
     def wall() -> float:
@@ -207,14 +206,8 @@ def batch_digest(
     :func:`_job`; the evaluation period)."""
     import nutribench
 
-    first = jobs[0]
-    what = [
-        version or nutribench.__version__,
-        commit,
-        first["algo_sha256"],
-        first["episodes"],
-        [(j["regime_sha256"], j["seed"]) for j in jobs],
-    ]
+    first, regimes = jobs[0], [(j["regime_sha256"], j["seed"]) for j in jobs]
+    what = [version or nutribench.__version__, commit, first["algo_sha256"], first["episodes"], regimes]
     if eval_every:  # evaluated during training: another checkpoint (names without it unchanged)
         what.append([eval_every, val_episodes])
     return hashlib.sha256(json.dumps(what).encode()).hexdigest()[:16]

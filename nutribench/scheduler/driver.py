@@ -60,6 +60,8 @@ from nutribench.scheduler.settings import GridSettings
 from nutribench.scheduler.spec import JobSpec
 from nutribench.scheduler.storing import (
     HeldResults,
+    error_text,
+    first_line,
     interrupt_line,
     one_line,
     release_quietly,
@@ -67,8 +69,6 @@ from nutribench.scheduler.storing import (
     store_finished,
     unless_locked,
 )
-from nutribench.scheduler.storing import error_text as _error_text
-from nutribench.scheduler.storing import first_line as _first_line
 from nutribench.scheduler.worker import JobFn, execute
 from nutribench.store import Job, open_store
 from nutribench.store.engine import StoreError
@@ -91,7 +91,6 @@ class RunSummary:
     given_up: int = 0
     interrupted: int = 0
     user_interrupt: bool = False
-    errors: list[str] = field(default_factory=list)
 
     @property
     def exit_code(self) -> int:
@@ -160,14 +159,12 @@ class _Run:
                     self.attempted.add(spec.job_id)
                     self.live[spec.job_id] = {"spec": spec, "k": 0, "n": spec.episodes, "ret": None, "t0": now}
                 self.planned = max(self.planned, len(self.attempted))  # a job taken over here: "3 done of 2 to run"
-                submit, sink = self.handle.executor.submit, self.handle.sink
-                if pool.batched:
-                    self.in_flight[submit(execute, self.batch_fn, specs, sink)] = specs
-                    free -= 1
-                else:
-                    for spec in specs:
-                        self.in_flight[submit(execute, self.job_fn, spec, sink)] = [spec]
-                    free -= len(specs)
+                # a batch is one unit of work on one slot, a single job one of its own
+                fn, units = (self.batch_fn, [specs]) if pool.batched else (self.job_fn, [[s] for s in specs])
+                for unit in units:
+                    work = unit if pool.batched else unit[0]
+                    self.in_flight[self.handle.executor.submit(execute, fn, work, self.handle.sink)] = unit
+                free -= len(units)
                 if len(jobs) < want:
                     break
         if free > 0:
@@ -195,7 +192,7 @@ class _Run:
                 self.resumed = {j: k0 for j, k0 in self.resumed.items() if j not in ids}  # they start over
                 self.pools.insert(0, Pool(ids, True, 1))
                 self.exhausted = False
-                self.view.log(f"[yellow]batch failed[/] ({_first_line(e)}): its {len(ids)} jobs are tried one by one")
+                self.view.log(f"[yellow]batch failed[/] ({first_line(e)}): its {len(ids)} jobs are tried one by one")
                 return
             for spec in specs:
                 self._failed(spec, e)
@@ -211,10 +208,9 @@ class _Run:
 
     def _failed(self, spec: JobSpec, error: BaseException, shown: str = "") -> None:
         """Status ``failed`` with the error kept, counted and shown (after ``shown``)."""
-        store_failure(self.store, spec.job_id, self.owner, _error_text(error))
+        store_failure(self.store, spec.job_id, self.owner, error_text(error))
         self.summary.failed += 1
-        self.summary.errors.append(f"{spec.label}: {_first_line(error)}")
-        self.view.log(f"[red]failed[/] {spec.label}: {shown}{_first_line(error)}")
+        self.view.log(f"[red]failed[/] {spec.label}: {shown}{first_line(error)}")
 
     def events(self) -> None:
         for ev in self.handle.drain():
@@ -294,11 +290,8 @@ class _Run:
             held = [s.job_id for specs in self.in_flight.values() for s in specs] + list(self.held)
             released = release_quietly(self.store, held, self.owner)
         self.summary.interrupted = released if isinstance(released, int) else 0
-        line = (
-            stop_line(self.store.display, error, released, len(held), self.held)
-            if error
-            else interrupt_line(released, len(held), self.held)
-        )
+        how = (released, len(held), self.held)
+        line = stop_line(self.store.display, error, *how) if error else interrupt_line(*how)
         if line and not error:
             self.view.log(f"[red]{line}[/]")
         self.summary.user_interrupt = error is None
@@ -335,7 +328,7 @@ def run_grid(settings: GridSettings, stop: threading.Event | None = None) -> Run
         summary = RunSummary(total=len(job_ids))
         held, _ = held_elsewhere(store, job_ids, owner)
         if runnable or held:
-            make_spec = spec_maker(store, s, regime_cfgs, agent_cfgs)
+            make_spec = spec_maker(s, job_ids, regime_cfgs, agent_cfgs)
             handle, note = make_executor(s.executor, s.workers, max(runnable, held))
             view = make_view(s.display, grid, len(job_ids), handle.description, note, agent_cfgs)
             pools = _batched_pools(store, s, job_ids, regime_cfgs, agent_cfgs, handle.slots)
@@ -348,9 +341,8 @@ def run_grid(settings: GridSettings, stop: threading.Event | None = None) -> Run
         summary.given_up, summary.busy = counts["given_up"], counts["busy"]
         return summary
     except OperationalError as e:  # a write refused before any job was claimed (a read-only file)
-        raise StoreError(
-            f"cannot write to {store.display}: {one_line(e)}: no job was claimed; the next run resumes"
-        ) from None
+        why = f"cannot write to {store.display}: {one_line(e)}: no job was claimed; the next run resumes"
+        raise StoreError(why) from None
     finally:
         store.dispose()
 
@@ -364,8 +356,7 @@ def _batched_pools(
         return None
     algo_of = {a.name: a.algo for a in agent_cfgs}
     shapes = {r.name: (r.obj.reward.horizon, len(r.obj.catalog.food)) for r in regime_cfgs}
-    claimable = partial(count_claimable, store)
-    pools = batch_pools(job_ids, s.grid.cells(), algo_of, shapes, claimable, slots, s.max_batch)
+    pools = batch_pools(job_ids, s.grid.cells(), algo_of, shapes, partial(count_claimable, store), slots, s.max_batch)
     return checkpointed_first(pools, s.models / "checkpoints")
 
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from nutribench.errors import UserError
+from nutribench.scheduler.worker import Sink
 
 # Imported by the fork server once, so that each job's process starts with them loaded.
 PRELOAD = ("nutribench.scheduler.preload",)
@@ -60,16 +61,13 @@ class ExecutorHandle:
     executor: Executor
     slots: int  # jobs kept in flight at once
     description: str
-    sink: Callable[[dict[str, Any]], None] | None = None  # picklable; handed to each job
+    sink: Sink | None = None  # picklable; handed to each job
     events: queue.Queue = field(default_factory=queue.Queue)  # progress events at the driver
     _terminate: Callable[[], None] | None = None
     _close: Callable[[], None] | None = None
 
     def drain(self) -> list[dict[str, Any]]:
-        out = []
-        while not self.events.empty():  # the driver is its one reader
-            out.append(self.events.get_nowait())
-        return out
+        return [self.events.get_nowait() for _ in range(self.events.qsize())]  # the driver is its one reader
 
     def terminate_running(self) -> None:
         """Stop the jobs in flight (Ctrl-C): their outcomes will be ignored."""
@@ -155,9 +153,8 @@ def make_executor(spec: str | None, workers: int | None, n_jobs: int) -> tuple[E
     if address is None:
         cores = core_count()
         n = max(1, min(workers or cores, cores, n_jobs))
-        note = None
-        if workers and workers > cores:
-            note = f"--workers {workers} is more than the {cores} cores here: using {n}"
+        more = workers is not None and workers > cores
+        note = f"--workers {workers} is more than the {cores} cores here: using {n}" if more else None
         return local_executor(n), note
     handle = dask_executor(address, workers)
     handle.slots = max(1, min(handle.slots, n_jobs))

@@ -114,25 +114,14 @@ def claim_jobs(store: Store, job_ids: Sequence[int], exclude: set[int], n: int, 
         now = db_now(s)
         # PostgreSQL: lock the rows taken, and pass over rows another claimer has locked (SQLite
         # has one writer at a time and ignores FOR UPDATE). The UPDATE re-checks the rule anyway.
-        ids = (
-            s.execute(
-                select(Job.id)
-                .where(Job.id.in_(candidates), _claimable(now))
-                .order_by(Job.id)
-                .limit(n)
-                .with_for_update(skip_locked=True)
-            )
-            .scalars()
-            .all()
-        )
+        query = select(Job.id).where(Job.id.in_(candidates), _claimable(now)).order_by(Job.id).limit(n)
+        ids = s.scalars(query.with_for_update(skip_locked=True)).all()
         if not ids:
             return []
         claimed = {"status": "running", "owner": owner, "heartbeat_at": now, "started_at": now, "finished_at": None}
         fresh = {"episodes_done": 0, "last_return": None, "worker_pid": None, "wall_seconds": None}
         _set(s, Job.id.in_(ids), _claimable(now), attempt=Job.attempt + 1, **claimed, **fresh)
-        return list(
-            s.execute(select(Job).where(Job.id.in_(ids), Job.owner == owner, Job.status == "running")).scalars()
-        )
+        return list(s.scalars(select(Job).where(Job.id.in_(ids), Job.owner == owner, Job.status == "running")))
 
 
 def held_elsewhere(store: Store, job_ids: Sequence[int], owner: str) -> tuple[int, datetime | None]:
@@ -140,15 +129,8 @@ def held_elsewhere(store: Store, job_ids: Sequence[int], owner: str) -> tuple[in
     last of them becomes claimable if that driver's heartbeat stops now."""
     with store.engine.connect() as conn:
         fresh = stale_before(db_now(conn))
-        beats = (
-            conn.execute(
-                select(Job.heartbeat_at).where(
-                    Job.id.in_(job_ids), Job.status == "running", Job.owner != owner, Job.heartbeat_at >= fresh
-                )
-            )
-            .scalars()
-            .all()
-        )
+        running = (Job.id.in_(job_ids), Job.status == "running", Job.owner != owner, Job.heartbeat_at >= fresh)
+        beats = conn.scalars(select(Job.heartbeat_at).where(*running)).all()
     if not beats:
         return 0, None
     return len(beats), max(beats) + timedelta(seconds=STALE_AFTER_S)
@@ -159,9 +141,8 @@ def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, i
     out = {"done": 0, "given_up": 0, "busy": 0}
     with store.engine.connect() as conn:
         now = db_now(conn)
-        rows = conn.execute(
-            select(Job.status, Job.failures, Job.owner, Job.heartbeat_at).where(Job.id.in_(job_ids))
-        ).all()
+        query = select(Job.status, Job.failures, Job.owner, Job.heartbeat_at).where(Job.id.in_(job_ids))
+        rows = conn.execute(query).all()
     for status, failures, job_owner, beat in rows:
         if status == "done":
             out["done"] += 1
@@ -202,20 +183,9 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
         if meta.get("platform"):
             meta["platform"] = str(meta["platform"])[:255]
         job = s.execute(select(Job).where(Job.id == result.job_id)).scalar_one()
-        claimed = _set(
-            s,
-            Job.id == result.job_id,
-            Job.owner == owner,
-            Job.status == "running",
-            status="done",
-            owner=None,
-            heartbeat_at=db_now(s),
-            episodes_done=job.episodes,
-            model_path=result.model_path or model_path,
-            error=None,
-            **meta,
-        )
-        if claimed != 1:
+        done = {"status": "done", "owner": None, "heartbeat_at": db_now(s), "episodes_done": job.episodes}
+        mine = (Job.id == result.job_id, Job.owner == owner, Job.status == "running")
+        if _set(s, *mine, **done, error=None, model_path=result.model_path or model_path, **meta) != 1:
             return False
         insert_episodes(s, result.job_id, result.train, result.eval, result.eval_steps)
         diagnostics = getattr(result, "diagnostics", None)  # a result pickled before it had them: none
@@ -258,8 +228,6 @@ def flush_progress(store: Store, owner: str, live: dict[int, dict[str, Any]]) ->
     with session_scope(store.engine) as s:
         now = db_now(s)
         for job_id, st in live.items():
-            values: dict[str, Any] = {"heartbeat_at": now, "episodes_done": int(st.get("k", 0))}
-            for key, column, kind in _REPORTED:
-                if st.get(key) is not None:
-                    values[column] = kind(st[key])
+            values = {column: kind(st[key]) for key, column, kind in _REPORTED if st.get(key) is not None}
+            values |= {"heartbeat_at": now, "episodes_done": int(st.get("k", 0))}
             _set(s, Job.id == job_id, Job.owner == owner, **values)

@@ -26,6 +26,8 @@ from contextlib import suppress
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
+from nutribench.scheduler.worker import Sink
+
 _CHANNEL: Connection | None = None  # in a worker: its pipe to the driver
 
 
@@ -91,12 +93,7 @@ class LocalProcessExecutor(Executor):
     sends through :class:`PipeSink`.
     """
 
-    def __init__(
-        self,
-        max_workers: int,
-        on_progress: Callable[[dict[str, Any]], None] | None = None,
-        preload: tuple[str, ...] = (),
-    ):
+    def __init__(self, max_workers: int, on_progress: Sink | None = None, preload: tuple[str, ...] = ()):
         if max_workers < 1:
             raise ValueError("max_workers must be at least 1")
         method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
@@ -191,10 +188,7 @@ class LocalProcessExecutor(Executor):
             else:
                 run.final = True
                 if not run.future.done():
-                    if kind == "result":
-                        run.future.set_result(payload)
-                    else:
-                        run.future.set_exception(payload)
+                    (run.future.set_result if kind == "result" else run.future.set_exception)(payload)
 
     def _reap(self, run: _Running) -> None:
         self._read(run)

@@ -44,9 +44,7 @@ def note_event(live: dict[int, dict[str, Any]], resumed: dict[int, int], ev: dic
     st = live.get(ev.get("job_id"))
     if st is None:
         return
-    for key in ("k", "ret", "pid", "wall"):
-        if ev.get(key) is not None:
-            st[key] = ev[key]
+    st.update({key: ev[key] for key in ("k", "ret", "pid", "wall") if ev.get(key) is not None})
     if ev.get("k0") is not None:  # episode events only: a phase event says nothing of it
         resumed[ev["job_id"]] = int(ev["k0"])
 
@@ -60,14 +58,17 @@ def _days(run: Any) -> tuple[int, int, int]:
     return planned, done, done - sum(run.resumed.values())
 
 
-def eta_seconds(run: Any, elapsed: float) -> float | None:
+def eta_seconds(run: Any, elapsed: float, days_before: int = 0, at_least: float = 0.0) -> float | None:
     """Remaining time of this run, from the episodes trained so far (finished jobs count
     their whole budget, running ones their progress) and the time this run took for those it
-    trained itself (a batch resumed from a checkpoint did not train the days before it)."""
+    trained itself (a batch resumed from a checkpoint did not train the days before it): those
+    trained since ``days_before`` in ``elapsed`` seconds; ``None`` if not one or before
+    ``at_least`` seconds."""
     planned, done, trained_here = _days(run)
-    if trained_here <= 0 or planned <= 0:
+    days = trained_here - days_before
+    if elapsed < at_least or days <= 0 or planned <= 0:
         return None
-    return elapsed * max(planned - done, 0) / trained_here
+    return elapsed * max(planned - done, 0) / days
 
 
 #: Seconds of training after a run's first trained day before :func:`eta_since` prices the rest
@@ -79,11 +80,7 @@ def eta_since(run: Any, mark: tuple[float, int], now: float) -> float | None:
     first trained day and the days trained then), so that starting the workers is not priced
     into the rest; ``None`` until :data:`MEASURE_AFTER_S` seconds have passed since the mark
     and a day more has been trained."""
-    planned, done, trained_here = _days(run)
-    since, days = now - mark[0], trained_here - mark[1]
-    if since < MEASURE_AFTER_S or days <= 0 or planned <= 0:
-        return None
-    return since * max(planned - done, 0) / days
+    return eta_seconds(run, now - mark[0], mark[1], MEASURE_AFTER_S)
 
 
 def estimate_seconds(run: Any, costs: dict[str, float], workers: int) -> float | None:
@@ -115,14 +112,7 @@ def rough_duration(seconds: float) -> str:
     return "<1m" if m == 0 else f"~{m}m" if m < 60 else f"~{m // 60}h{m % 60:02d}m"
 
 
-def eta_text(
-    run: Any,
-    elapsed: float,
-    costs: dict[str, float],
-    workers: int,
-    mark: tuple[float, int] | None = None,
-    now: float = 0.0,
-) -> str:
+def eta_text(run: Any, elapsed: float, costs: dict, workers: int, mark: tuple | None = None, now: float = 0.0) -> str:
     """The ETA shown: measured from the days trained since ``mark`` (:func:`eta_since`) once
     a minute of training has passed; before that, :func:`estimate_seconds` (said to be one)
     until a job of this run has finished (done or failed), then :func:`eta_seconds`."""

@@ -19,9 +19,11 @@ from sqlalchemy.orm import Session
 
 from nutribench.errors import UserError
 from nutribench.scheduler.grid import Grid
+from nutribench.scheduler.lifecycle import check_not_mixed, insert_episodes
 from nutribench.scheduler.spec import JobSpec
 from nutribench.store import AgentConfig, Job, RegimeConfig, session_scope, utcnow
-from nutribench.store.engine import REGISTRATION_LOCK, hold_write_lock
+from nutribench.store.engine import REGISTRATION_LOCK, display_url, hold_write_lock
+from nutribench.store.models import METADATA_COLUMNS
 from nutribench.store.schema import Store
 
 
@@ -56,11 +58,8 @@ class _Config:
 
 def _shown(path: Path | str) -> str:
     """A file path relative to the current folder when it lies below it."""
-    p = Path(path)
-    try:
-        return str(p.resolve().relative_to(Path.cwd().resolve()))
-    except ValueError:
-        return str(p)
+    p, cwd = Path(path), Path.cwd().resolve()
+    return str(p.resolve().relative_to(cwd)) if p.resolve().is_relative_to(cwd) else str(p)
 
 
 def load_grid_configs(grid: Grid) -> tuple[list[_Config], list[_Config]]:
@@ -98,10 +97,8 @@ def _register(session: Session, table: type, configs: Sequence[_Config]) -> dict
                 )
             ids[c.name] = row.id
             continue
-        extra = {"algo": c.algo} if table is AgentConfig else {}
-        new = table(
-            name=c.name, version=c.version, sha256=c.sha256, body=c.body, source=c.source, created_at=utcnow(), **extra
-        )
+        recorded = {key: getattr(c, key) for key in ("name", "version", "sha256", "body", "source")}
+        new = table(**recorded, created_at=utcnow(), **({"algo": c.algo} if table is AgentConfig else {}))
         session.add(new)
         session.flush()
         ids[c.name] = new.id
@@ -117,18 +114,15 @@ def register_grid(
         hold_write_lock(s, REGISTRATION_LOCK)  # two drivers started at once: one registers, then the other
         rids = _register(s, RegimeConfig, regimes)
         aids = _register(s, AgentConfig, agents)
-        query = select(Job.id, Job.regime_id, Job.agent_config_id, Job.seed).where(
-            Job.regime_id.in_(rids.values()),
-            Job.agent_config_id.in_(aids.values()),
-            Job.episodes == grid.episodes,
-            Job.eval_episodes == grid.eval_episodes,
-        )
+        budgets = {"episodes": grid.episodes, "eval_episodes": grid.eval_episodes}
+        query = select(Job.id, Job.regime_id, Job.agent_config_id, Job.seed).filter_by(**budgets)
+        query = query.where(Job.regime_id.in_(rids.values()), Job.agent_config_id.in_(aids.values()))
         existing = {(r.regime_id, r.agent_config_id, r.seed): r.id for r in s.execute(query)}
         keys = [(rids[r], aids[a], seed) for r, a, seed in grid.cells()]
         missing = [k for k in keys if k not in existing]
         if missing:
-            new = {"episodes": grid.episodes, "eval_episodes": grid.eval_episodes, "status": "pending", "attempt": 0}
-            new |= {"failures": 0, "episodes_done": 0, "created_at": utcnow(), "fake": fake}
+            new = budgets | {"status": "pending", "attempt": 0, "failures": 0, "episodes_done": 0}
+            new |= {"created_at": utcnow(), "fake": fake}
             rows = [{"regime_id": r, "agent_config_id": a, "seed": seed, **new} for r, a, seed in missing]
             s.execute(insert(Job), rows)
             existing.update({(r.regime_id, r.agent_config_id, r.seed): r.id for r in s.execute(query)})
@@ -141,44 +135,26 @@ def model_path(models_dir: Path, regime: _Config, agent: _Config, seed: int, epi
     return folder / f"seed{seed}-ep{episodes}.zip"
 
 
-def spec_maker(store: Store, settings: Any, regime_cfgs: Sequence, agent_cfgs: Sequence) -> Callable[[Job], JobSpec]:
+def spec_maker(settings: Any, job_ids: list[int], regime_cfgs: list, agent_cfgs: list) -> Callable[[Job], JobSpec]:
     """A function from a job row of ``settings``' grid (a
-    :class:`~nutribench.scheduler.settings.GridSettings`, registered in ``store`` from
-    ``regime_cfgs`` and ``agent_cfgs``: :func:`~nutribench.scheduler.registration.load_grid_configs`)
+    :class:`~nutribench.scheduler.settings.GridSettings`, its jobs ``job_ids`` in grid order as
+    :func:`register_grid` returns them, registered from ``regime_cfgs`` and ``agent_cfgs``:
+    :func:`~nutribench.scheduler.registration.load_grid_configs`)
     to its :class:`~nutribench.scheduler.spec.JobSpec`: its model file under ``settings.models``,
     trained on ``settings.device``, its TensorBoard events (if any) under ``settings.tensorboard``,
     evaluated on ``settings.val_episodes`` validation days every ``settings.eval_every`` training
     days (None or 0: never)."""
-    grid, regimes, agents = settings.grid, {r.name: r for r in regime_cfgs}, {a.name: a for a in agent_cfgs}
-    with store.engine.connect() as conn:
-        rid = dict(
-            conn.execute(select(RegimeConfig.id, RegimeConfig.name).where(RegimeConfig.name.in_(grid.regimes))).all()
-        )
-        aid = dict(conn.execute(select(AgentConfig.id, AgentConfig.name).where(AgentConfig.name.in_(grid.algos))).all())
+    regimes, agents = {r.name: r for r in regime_cfgs}, {a.name: a for a in agent_cfgs}
+    cells = dict(zip(job_ids, settings.grid.cells()))  # job id -> (regime, agent config, seed)
     events = str(Path(settings.tensorboard).absolute()) if settings.tensorboard is not None else None
     how = {"device": settings.device, "tensorboard": events, "val_episodes": settings.val_episodes}
+    how["eval_every"] = int(settings.eval_every or 0)
 
     def make_spec(job: Job) -> JobSpec:
-        r, a = regimes[rid[job.regime_id]], agents[aid[job.agent_config_id]]
-        path = model_path(settings.models, r, a, job.seed, job.episodes)
-        return JobSpec(
-            job.id,
-            r.name,
-            r.version,
-            r.sha256,
-            a.name,
-            a.version,
-            a.sha256,
-            job.seed,
-            job.episodes,
-            job.eval_episodes,
-            str(path),
-            r.obj,
-            a.obj,
-            attempt=job.attempt,
-            eval_every=int(settings.eval_every or 0),
-            **how,
-        )
+        r, a = regimes[cells[job.id][0]], agents[cells[job.id][1]]
+        path = str(model_path(settings.models, r, a, job.seed, job.episodes))
+        ids = (job.id, r.name, r.version, r.sha256, a.name, a.version, a.sha256, job.seed, job.episodes)
+        return JobSpec(*ids, job.eval_episodes, path, r.obj, a.obj, attempt=job.attempt, **how)
 
     return make_spec
 
@@ -212,10 +188,6 @@ class ExternalJob:
 def store_external_job(store: Store, job: ExternalJob) -> int:
     """Record ``job``'s configs and write it as a done job with its rows, in one transaction;
     its id. A job with the same regime, agent, seed and budget already there is refused."""
-    from nutribench.scheduler.lifecycle import check_not_mixed, insert_episodes
-    from nutribench.store.engine import display_url
-    from nutribench.store.models import METADATA_COLUMNS
-
     env, cfg = job.regime_config, job.agent_config
     regime, agent = _Config.regime(env, env.name), _Config.agent(cfg, "recorded")
     check_not_mixed(store, fake=False)
@@ -233,16 +205,8 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
                 f"training days is already recorded (job {old}): record another seed, or bump the agent's version"
             )
         meta = {k: job.metadata[k] for k in METADATA_COLUMNS if k in job.metadata}
-        row = Job(
-            **key,
-            status="done",
-            attempt=1,
-            failures=0,
-            episodes_done=job.episodes,
-            created_at=utcnow(),
-            fake=False,
-            **meta,
-        )
+        done = {"status": "done", "attempt": 1, "failures": 0, "episodes_done": job.episodes, "created_at": utcnow()}
+        row = Job(**key, **done, fake=False, **meta)
         s.add(row)
         s.flush()
         insert_episodes(s, row.id, job.train, job.eval, job.eval_steps)
@@ -255,7 +219,6 @@ def check_external_entry(store: Store, regime_config: Any, agent_config: Any, se
     this agent version on this regime and seed already there (whatever its training days):
     :class:`RunError` in one line naming agent, regime and seed."""
     from nutribench.agents.config import agent_config_sha256
-    from nutribench.store.engine import display_url
 
     env, cfg = regime_config, agent_config
     what = f"Recorder {cfg.name} v{cfg.version} on {env.name} seed {seed}"
@@ -274,14 +237,8 @@ def check_external_entry(store: Store, regime_config: Any, agent_config: Any, se
             )
         if agent_row is None or regime_row is None:
             return
-        old = s.execute(
-            select(Job.id, Job.episodes).where(
-                Job.regime_id == regime_row.id,
-                Job.agent_config_id == agent_row.id,
-                Job.seed == seed,
-                Job.eval_episodes == eval_episodes,
-            )
-        ).first()
+        key = dict(regime_id=regime_row.id, agent_config_id=agent_row.id, seed=seed, eval_episodes=eval_episodes)
+        old = s.execute(select(Job.id, Job.episodes).filter_by(**key)).first()
         if old is not None:
             raise RunError(
                 f"{what}: already recorded in {where} (job {old.id}, {old.episodes} training days): "

@@ -17,6 +17,7 @@ folder) is left alone, as is one that cannot be read.
 from __future__ import annotations
 
 import json
+from contextlib import suppress
 from pathlib import Path
 from typing import Any
 
@@ -34,10 +35,8 @@ def _named_jobs(path: Path) -> list[dict[str, Any]]:
     """The jobs a manifest names: ``{"job_id": ..., ...what it is}``; a manifest of an older
     nutribench lists job ids only (``{"job_id": ...}``). Raises ValueError when it cannot be read."""
     data = json.loads(path.read_text())
-    if isinstance(data.get("jobs"), list):
-        jobs = [dict(j) for j in data["jobs"]]
-    else:
-        jobs = [{"job_id": i} for i in data["job_ids"]]
+    listed = data.get("jobs")
+    jobs = [dict(j) for j in listed] if isinstance(listed, list) else [{"job_id": i} for i in data["job_ids"]]
     for j in jobs:
         if not isinstance(j.get("job_id"), int) or isinstance(j.get("job_id"), bool):
             raise ValueError(f"{path.name}: a job id that is not an integer")
@@ -61,30 +60,17 @@ def remove_finished_checkpoints(store: Store, folder: Path) -> list[Path]:
     manifests: dict[Path, list[dict[str, Any]]] = {}
     try:
         for path in sorted(folder.glob(f"*{MANIFEST_SUFFIX}")) if folder.is_dir() else []:
-            try:
+            with suppress(OSError, ValueError, KeyError, TypeError, AttributeError):
                 manifests[path] = _named_jobs(path)
-            except (OSError, ValueError, KeyError, TypeError, AttributeError):
-                continue
     except OSError:
         return []
     ids = sorted({j["job_id"] for jobs in manifests.values() for j in jobs})
     if not ids:
         return []
-    query = (
-        select(
-            Job.id,
-            Job.status,
-            Job.seed,
-            Job.episodes,
-            AgentConfig.name,
-            AgentConfig.version,
-            AgentConfig.sha256.label("algo_sha256"),
-            RegimeConfig.sha256.label("regime_sha256"),
-        )
-        .join(AgentConfig, Job.agent_config_id == AgentConfig.id)
-        .join(RegimeConfig, Job.regime_id == RegimeConfig.id)
-        .where(Job.id.in_(ids))
-    )
+    columns = (Job.id, Job.status, Job.seed, Job.episodes, AgentConfig.name, AgentConfig.version)
+    hashes = (AgentConfig.sha256.label("algo_sha256"), RegimeConfig.sha256.label("regime_sha256"))
+    query = select(*columns, *hashes).join(AgentConfig, Job.agent_config_id == AgentConfig.id)
+    query = query.join(RegimeConfig, Job.regime_id == RegimeConfig.id).where(Job.id.in_(ids))
     try:
         with store.engine.connect() as conn:
             rows = {row.id: row for row in conn.execute(query)}

@@ -95,8 +95,7 @@ class GridSettings:
         check_engine(self.engine, self.max_batch, self.device)
         # a models folder that cannot be one (a file, a path through a file, not writable): each job
         # would train and then fail to save
-        default = self.models_dir is None
-        what, hint = ("the models folder", " (--models-dir)") if default else ("--models-dir", "")
+        what, hint = ("the models folder", " (--models-dir)") if self.models_dir is None else ("--models-dir", "")
         check_folder_target(self.models, what, RunError, f"give a folder for the trained models{hint}")
         if self.tensorboard is not None:
             check_tensorboard(Path(self.tensorboard))

@@ -27,20 +27,9 @@ from nutribench.store.models import job_state
 
 COUNTS = ("done", "running", "failed", "pending")
 #: the ``jobs`` columns of a job tuple :func:`summarize` reads, after its regime and agent config
-#: (name and version of each)
-JOB_COLUMNS = (
-    "seed",
-    "episodes",
-    "status",
-    "heartbeat_at",
-    "wall_seconds",
-    "episodes_done",
-    "failures",
-    "error",
-    "owner",
-    "worker_pid",
-    "started_at",
-)
+#: (name and version of each): those it needs, then those it may be given
+JOB_COLUMNS = ("seed", "episodes", "status", "heartbeat_at", "wall_seconds", "episodes_done", "failures", "error")
+JOB_COLUMNS += ("owner", "worker_pid", "started_at")
 
 
 @dataclass
@@ -88,12 +77,9 @@ def status_table(db: str | os.PathLike[str]) -> StatusReport:
     store = open_store(db)
     try:
         configs = (RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version)
-        q = (
-            select(*configs, *(getattr(Job, c) for c in JOB_COLUMNS))
-            .join(RegimeConfig, RegimeConfig.id == Job.regime_id)
-            .join(AgentConfig, AgentConfig.id == Job.agent_config_id)
-            .order_by(*configs, Job.episodes, Job.seed)
-        )
+        q = select(*configs, *(getattr(Job, c) for c in JOB_COLUMNS))
+        q = q.join(RegimeConfig, RegimeConfig.id == Job.regime_id)
+        q = q.join(AgentConfig, AgentConfig.id == Job.agent_config_id).order_by(*configs, Job.episodes, Job.seed)
         with store.engine.connect() as conn:
             jobs = conn.execute(q).all()
             now = db_now(conn)
@@ -128,13 +114,10 @@ def summarize(jobs: list, now: datetime | None = None) -> StatusReport:
         tally.add(n, job, now)
     running_rates, sharing = _running_rates(tally.running, now)
     remaining, unknown = tally.price(running_rates)
-    rows = tally.rows
-    totals = {c: sum(getattr(r, c) for r in rows.values()) for c in COUNTS} | {"jobs": len(jobs)}
-    totals["orphaned"] = tally.orphaned
-    workers = len(sharing)
-    eta = None if unknown else remaining / max(workers, 1)
-    wall = sum(r.wall_seconds for r in rows.values())
-    return StatusReport(list(rows.values()), totals, wall, workers, eta, tally.errors)
+    rows = list(tally.rows.values())
+    totals = {c: sum(getattr(r, c) for r in rows) for c in COUNTS} | {"jobs": len(jobs), "orphaned": tally.orphaned}
+    eta = None if unknown else remaining / max(len(sharing), 1)
+    return StatusReport(rows, totals, sum(r.wall_seconds for r in rows), len(sharing), eta, tally.errors)
 
 
 @dataclass
@@ -172,10 +155,9 @@ class _Tally:
         elif state in ("pending",) or (state == "failed" and failures < MAX_FAILURES):
             self.left[key] = self.left.get(key, 0.0) + 1.0
         if state == "failed":
-            retried = failures < MAX_FAILURES
             self.errors.append(
                 {"regime": regime, "algo": algo, "seed": seed, "budget": budget, "failures": failures}
-                | {"retried": retried, "error": _last_line(error)}
+                | {"retried": failures < MAX_FAILURES, "error": _last_line(error)}
             )
 
     def price(self, running_rates: dict[tuple, list[float]]) -> tuple[float, bool]:

@@ -106,13 +106,9 @@ def stop_line(where: str, error: BaseException, released: int | str, n: int, hel
 
 def interrupt_line(released: int | str, n: int, held: HeldResults) -> str:
     """What a stop signal's line adds: results still held (the lock never cleared), jobs not released."""
-    lost = (
-        f"the results of {held.labels()} could not be stored (the database stayed locked): trained again next run"
-        if held
-        else ""
-    )
+    lost = f"the results of {held.labels()} could not be stored (the database stayed locked): trained again next run"
     kept = "" if isinstance(released, int) else released_text(released, n)
-    return "; ".join(t for t in (lost, kept) if t)
+    return "; ".join(t for t in (lost if held else "", kept) if t)
 
 
 def first_line(exc: BaseException) -> str:

@@ -48,10 +48,7 @@ def _metrics(rng: np.random.Generator, k: int) -> dict:
 
 
 def synthetic_job(
-    spec: JobSpec,
-    progress: Sink | None = None,
-    before_episode: EpisodeHook | None = None,
-    seconds: float | None = None,
+    spec: JobSpec, progress: Sink | None = None, before_episode: EpisodeHook | None = None, seconds: float | None = None
 ) -> JobResult:
     """One job's synthetic result: ``spec.episodes`` training rows, ``spec.eval_episodes``
     evaluation episodes of HORIZON steps, and a placeholder model file at ``spec.model_path``;

@@ -47,11 +47,9 @@ def one_thread() -> Iterator[None]:
     try:
         yield
     finally:
-        for var, value in saved.items():
-            if value is None:
-                os.environ.pop(var, None)
-            else:
-                os.environ[var] = value
+        os.environ.update({var: value for var, value in saved.items() if value is not None})
+        for var in [var for var, value in saved.items() if value is None]:
+            os.environ.pop(var, None)
         if torch is not None and threads is not None:
             torch.set_num_threads(threads)
 
@@ -66,11 +64,7 @@ class JobProgress:
     ``nutribench run`` and ``nutribench status`` price the rest of a resumed batch by."""
 
     def __init__(
-        self,
-        spec: JobSpec,
-        sink: Sink | None,
-        interval: float = PROGRESS_INTERVAL_S,
-        wall: Callable[[], float] | None = None,
+        self, spec: JobSpec, sink: Sink | None, interval: float = PROGRESS_INTERVAL_S, wall: Callable | None = None
     ):
         self.spec = spec
         self.sink = sink
