@@ -112,7 +112,14 @@ def rough_duration(seconds: float) -> str:
     return "<1m" if m == 0 else f"~{m}m" if m < 60 else f"~{m // 60}h{m % 60:02d}m"
 
 
-def eta_text(run: Any, elapsed: float, costs: dict, workers: int, mark: tuple | None = None, now: float = 0.0) -> str:
+def eta_text(
+    run: Any,
+    elapsed: float,
+    costs: dict[str, float],
+    workers: int,
+    mark: tuple[float, int] | None = None,
+    now: float = 0.0,
+) -> str:
     """The ETA shown: measured from the days trained since ``mark`` (:func:`eta_since`) once
     a minute of training has passed; before that, :func:`estimate_seconds` (said to be one)
     until a job of this run has finished (done or failed), then :func:`eta_seconds`."""

@@ -64,7 +64,11 @@ class JobProgress:
     ``nutribench run`` and ``nutribench status`` price the rest of a resumed batch by."""
 
     def __init__(
-        self, spec: JobSpec, sink: Sink | None, interval: float = PROGRESS_INTERVAL_S, wall: Callable | None = None
+        self,
+        spec: JobSpec,
+        sink: Sink | None,
+        interval: float = PROGRESS_INTERVAL_S,
+        wall: Callable[[], float] | None = None,
     ):
         self.spec = spec
         self.sink = sink
