@@ -60,6 +60,8 @@ INT32_RANGE = (-(2**31), 2**31 - 1)
 #: path, an error text): a shared file's strings are read, so they are bounded.
 TEXT_MAX = 65_536
 #: Job columns that count something: never negative (a seed too: the CLI takes none below 0).
+#: The float metrics of ``episodes`` with a range: from 0 to this.
+_EPISODE_FLOATS = (("overshoot_ratio", 1.0), ("final_distance", np.inf), ("entropy", np.inf))
 _NON_NEGATIVE = ("seed", "episodes", "eval_episodes", "attempt", "failures", "episodes_done", "wall_seconds")
 
 
@@ -425,90 +427,64 @@ def _twice(keys: list[np.ndarray]) -> int | None:
     return int(order[int(np.argmax(same)) + 1]) if same.any() else None
 
 
-def _check_episodes(ep: dict[str, np.ndarray], per_job: dict[str, np.ndarray]) -> None:
-    """The rows of ``episodes``: phase known, day, foods and metrics in range, no key twice."""
-    job, phase, episode, foods, first = ep["job"], ep["phase"], ep["episode"], ep["foods"], ep["first_overshoot_step"]
-    if (row := first_row(~np.isin(phase, PHASES))) is not None:
-        raise InvalidArchive(f"episodes row {row}: phase {short_repr(str(phase[row]))} is neither train nor eval")
-    train = phase == "train"
-    limit = np.where(train, per_job["episodes"][job], per_job["eval_episodes"][job])
-    if (row := first_row((episode < 0) | (episode >= limit))) is not None:
-        raise InvalidArchive(
-            f"episodes row {row}: {phase[row]} episode {int(episode[row])} of job {int(job[row])} "
-            f"is out of its range 0..{int(limit[row]) - 1}"
-        )
-    horizon = per_job["horizon"][job]
-    if (row := first_row((foods < 0) | (foods > horizon))) is not None:
-        raise InvalidArchive(f"episodes row {row}: {int(foods[row])} foods in a day of {int(horizon[row])} steps")
-    for col, lo, hi in (("overshoot_ratio", 0.0, 1.0), ("final_distance", 0.0, np.inf), ("entropy", 0.0, np.inf)):
-        if (row := first_row((ep[col] < lo) | (ep[col] > hi))) is not None:  # NaN (a NULL) compares false
-            raise InvalidArchive(f"episodes row {row}: {col} {ep[col][row]:.6g} is out of its range {lo:g}..{hi:g}")
-    bad = ((first < 1) | (first > horizon)) & ~ep.get("first_overshoot_step.null", np.False_)
-    if (row := first_row(bad)) is not None:
-        raise InvalidArchive(
-            f"episodes row {row}: first_overshoot_step {int(first[row])} is out of its range 1..{int(horizon[row])}"
-        )
-    if (row := _twice([job, train.astype(np.int8), episode])) is not None:
-        raise InvalidArchive(
-            f"episodes row {row}: job {int(job[row])}'s {phase[row]} episode {int(episode[row])} is there twice"
-        )
+#: Each table's key (after ``job``) and how a message names a row's, for the no-key-twice check.
+_KEYS = {
+    "episodes": (("phase", "episode"), "{phase} episode {episode}"),
+    "eval_steps": (("episode", "step"), "evaluation episode {episode} step {step}"),
+    "diagnostics": (("update",), "update {update}"),
+    "validation_episodes": (("train_day", "episode"), "validation day {episode} after training day {train_day}"),
+}
 
 
-def _check_steps(st: dict[str, np.ndarray], per_job: dict[str, np.ndarray]) -> None:
-    """The rows of ``eval_steps``: day, step, food and action in range, no key twice."""
-    job = st["job"]
-    for col, lo, hi in (
-        ("episode", 0, per_job["eval_episodes"][job] - 1),
-        ("step", 1, per_job["horizon"][job]),
-        ("food", 0, per_job["foods"][job] - 1),
-        ("action", 0, 1),
-    ):
-        if (row := first_row((st[col] < lo) | (st[col] > hi))) is not None:
-            raise InvalidArchive(
-                f"eval_steps row {row}: {col} {int(st[col][row])} of job {int(job[row])} is out of its range "
-                f"{lo}..{hi if np.isscalar(hi) else int(hi[row])}"
-            )
-    if (row := _twice([job, st["episode"], st["step"]])) is not None:
-        raise InvalidArchive(
-            f"eval_steps row {row}: job {int(job[row])}'s evaluation episode {int(st['episode'][row])} "
-            f"step {int(st['step'][row])} is there twice"
-        )
-
-
-def _check_diagnostics(dg: dict[str, np.ndarray]) -> None:
-    """The rows of ``diagnostics``: update and timestep not negative, no update twice per job."""
-    for col in ("update", "timestep"):
-        if (row := first_row(dg[col] < 0)) is not None:
-            raise InvalidArchive(f"diagnostics row {row}: {col} {int(dg[col][row])} is negative")
-    if (row := _twice([dg["job"], dg["update"]])) is not None:
-        raise InvalidArchive(
-            f"diagnostics row {row}: job {int(dg['job'][row])}'s update {int(dg['update'][row])} is there twice"
-        )
-
-
-def _check_validation(va: dict[str, np.ndarray], per_job: dict[str, np.ndarray]) -> None:
-    """The rows of ``validation_episodes``: training days from 1, days from 0, foods within a
-    day, no (job, training day, day) twice."""
-    for col, lo, hi in (("train_day", 1, np.inf), ("episode", 0, np.inf), ("foods", 0, per_job["horizon"][va["job"]])):
-        if (row := first_row((va[col] < lo) | (va[col] > hi))) is not None:
-            raise InvalidArchive(f"validation_episodes row {row}: {col} {int(va[col][row])} is out of its range")
-    if (row := _twice([va["job"], va["train_day"], va["episode"]])) is not None:
-        raise InvalidArchive(
-            f"validation_episodes row {row}: job {int(va['job'][row])}'s validation day {int(va['episode'][row])} "
-            f"after training day {int(va['train_day'][row])} is there twice"
-        )
+def _ranges(tables: dict[str, dict[str, np.ndarray]], per_job: dict[str, np.ndarray]) -> dict[str, list[Any]]:
+    """Per table, in the order checked, each ``(column, lo, hi, message)``: the column's values
+    lie in lo..hi (a bound a scalar or one per row), the message formatted with the row's."""
+    ep, st, va = tables["episodes"], tables["eval_steps"], tables["validation_episodes"]
+    horizon = per_job["horizon"][ep["job"]]
+    limit = np.where(ep["phase"] == "train", per_job["episodes"][ep["job"]], per_job["eval_episodes"][ep["job"]])
+    step, valid = "{col} {v} of job {job} is out of its range {lo}..{hi}", "{col} {v} is out of its range"
+    return {
+        "episodes": [
+            ("episode", 0, limit - 1, "{phase} episode {v} of job {job} is out of its range 0..{hi}"),
+            ("foods", 0, horizon, "{v} foods in a day of {hi} steps"),
+            *((c, 0.0, hi, "{col} {v:.6g} is out of its range {lo:g}..{hi:g}") for c, hi in _EPISODE_FLOATS),
+            ("first_overshoot_step", 1, horizon, "first_overshoot_step {v} is out of its range 1..{hi}"),
+        ],
+        "eval_steps": [
+            ("episode", 0, per_job["eval_episodes"][st["job"]] - 1, step),
+            ("step", 1, per_job["horizon"][st["job"]], step),
+            ("food", 0, per_job["foods"][st["job"]] - 1, step),
+            ("action", 0, 1, step),
+        ],
+        "diagnostics": [(c, 0, np.inf, "{col} {v} is negative") for c in ("update", "timestep")],
+        "validation_episodes": [
+            ("train_day", 1, np.inf, valid),
+            ("episode", 0, np.inf, valid),
+            ("foods", 0, per_job["horizon"][va["job"]], valid),
+        ],
+    }
 
 
 def _check_rows(
     tables: dict[str, dict[str, np.ndarray]], per_job: dict[str, np.ndarray], jobs: list[dict[str, Any]]
 ) -> None:
-    """Values in range and every job's rows complete: its budget of training days, its
-    evaluation days, and H steps of each."""
+    """Table by table every row's values in range (a NULL passes: a float's is NaN, which
+    compares false, an integer's has its mask) and no key twice; then every job's rows
+    complete: its budget of training days, its evaluation days, and H steps of each."""
     ep, sjob = tables["episodes"], tables["eval_steps"]["job"]
-    _check_episodes(ep, per_job)
-    _check_steps(tables["eval_steps"], per_job)
-    _check_diagnostics(tables["diagnostics"])
-    _check_validation(tables["validation_episodes"], per_job)
+    if (row := first_row(~np.isin(ep["phase"], PHASES))) is not None:
+        raise InvalidArchive(f"episodes row {row}: phase {short_repr(str(ep['phase'][row]))} is neither train nor eval")
+    for name, ranges in _ranges(tables, per_job).items():
+        t = tables[name]
+        for col, lo, hi, message in ranges:
+            if (row := first_row(((t[col] < lo) | (t[col] > hi)) & ~t.get(f"{col}.null", np.False_))) is not None:
+                at = {k: a[row] for k, a in t.items()} | {"col": col, "v": t[col][row]}
+                at |= {k: b if np.isscalar(b) else b[row] for k, b in (("lo", lo), ("hi", hi))}
+                raise InvalidArchive(f"{name} row {row}: {message.format_map(at)}")
+        key, what = _KEYS[name]
+        if (row := _twice([t["job"], *(t[k] for k in key)])) is not None:
+            said = what.format_map({k: t[k][row] for k in key})
+            raise InvalidArchive(f"{name} row {row}: job {t['job'][row]}'s {said} is there twice")
     train = ep["phase"] == "train"
     trains = np.bincount(ep["job"][train], minlength=len(jobs))
     evals = np.bincount(ep["job"][~train], minlength=len(jobs))
