@@ -46,6 +46,7 @@ from nutribench.store.engine import (
     hold_write_lock,
     in_memory,
     make_engine,
+    one_line,
     sqlite_path,
 )
 
@@ -119,15 +120,11 @@ def revision_chain() -> list[str]:
 def _revision_chain(folder: Path) -> tuple[str, ...]:
     links = [_revision_link(path) for path in sorted((folder / "versions").glob("*.py"))]
     parent_of = dict(link for link in links if link is not None)
-    children: dict[str | None, list[str]] = {}
-    for rev, down in parent_of.items():
-        children.setdefault(down, []).append(rev)
+    child = {down: rev for rev, down in parent_of.items()}  # a parent of two (a branch) leaves one out
     chain: list[str] = []
-    down: str | None = None
-    while down in children and len(children[down]) == 1:
-        down = children[down][0]
-        chain.append(down)
-    if None in links or len(chain) != len(parent_of) or not chain:
+    while (chain[-1] if chain else None) in child:
+        chain.append(child[chain[-1] if chain else None])
+    if None in links or len(child) != len(parent_of) or len(chain) != len(parent_of) or not chain:
         return tuple(_alembic_chain())
     return tuple(chain)
 
@@ -318,10 +315,10 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
         raise
     except OperationalError as e:
         engine.dispose()
-        raise StoreError(f"cannot open database {display}: {_one_line(e.orig)}") from None
+        raise StoreError(f"cannot open database {display}: {one_line(e.orig)}") from None
     except DatabaseError as e:
         engine.dispose()
-        raise StoreError(f"{display} is not a usable database: {_one_line(e.orig)}") from None
+        raise StoreError(f"{display} is not a usable database: {one_line(e.orig)}") from None
 
 
 def upgrade_schema(db: str | os.PathLike[str] | URL) -> str:
@@ -332,8 +329,3 @@ def upgrade_schema(db: str | os.PathLike[str] | URL) -> str:
         "created" if store.created else (f"upgraded from {store.upgraded_from}" if store.upgraded_from else "already")
     )
     return f"{store.display}: schema {what} at revision {store.revision}"
-
-
-def _one_line(error: BaseException) -> str:
-    """A driver's error message on one line (PostgreSQL's span several)."""
-    return " ".join(str(error).split()) or type(error).__name__

@@ -59,9 +59,9 @@ INT32_RANGE = (-(2**31), 2**31 - 1)
 #: The longest text an archive may carry in a column without a length of its own (a source
 #: path, an error text): a shared file's strings are read, so they are bounded.
 TEXT_MAX = 65_536
-#: Job columns that count something: never negative (a seed too: the CLI takes none below 0).
 #: The float metrics of ``episodes`` with a range: from 0 to this.
 _EPISODE_FLOATS = (("overshoot_ratio", 1.0), ("final_distance", np.inf), ("entropy", np.inf))
+#: Job columns that count something: never negative (a seed too: the CLI takes none below 0).
 _NON_NEGATIVE = ("seed", "episodes", "eval_episodes", "attempt", "failures", "episodes_done", "wall_seconds")
 
 
