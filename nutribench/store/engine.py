@@ -41,7 +41,7 @@ class StoreError(UserError):
     """A database problem a user can fix (bad path, not a database, old schema). One line."""
 
 
-def one_line(error: BaseException, n: int | None = None) -> str:
+def one_line_error(error: BaseException, n: int | None = None) -> str:
     """``str(error)`` on one line (whitespace collapsed: a driver's message, PostgreSQL's spans
     several), cut to ``n`` characters where given; the type's name if empty."""
     text = " ".join(str(error).split()) or type(error).__name__

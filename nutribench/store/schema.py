@@ -46,7 +46,7 @@ from nutribench.store.engine import (
     hold_write_lock,
     in_memory,
     make_engine,
-    one_line,
+    one_line_error,
     sqlite_path,
 )
 
@@ -315,10 +315,10 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
         raise
     except OperationalError as e:
         engine.dispose()
-        raise StoreError(f"cannot open database {display}: {one_line(e.orig)}") from None
+        raise StoreError(f"cannot open database {display}: {one_line_error(e.orig)}") from None
     except DatabaseError as e:
         engine.dispose()
-        raise StoreError(f"{display} is not a usable database: {one_line(e.orig)}") from None
+        raise StoreError(f"{display} is not a usable database: {one_line_error(e.orig)}") from None
 
 
 def upgrade_schema(db: str | os.PathLike[str] | URL) -> str:

@@ -32,7 +32,7 @@ from sqlalchemy import Column, Float, Integer, MetaData, Table
 from nutribench.diagnostics import NAME_MAX, NAME_PATTERN, QUANTITIES, TIMESTEP
 from nutribench.diagnostics import valid_name as valid_quantity
 from nutribench.engines import ENGINES
-from nutribench.store.engine import StoreError, one_line
+from nutribench.store.engine import StoreError, one_line_error
 from nutribench.store.models import Diagnostic, Episode, EvalStep, ValidationEpisode
 
 FORMAT = "nutribench-results"
@@ -159,7 +159,9 @@ def _check_sizes(path: str | os.PathLike[str], where: str) -> None:
                 try:
                     shape, _, dtype = read(fh)
                 except ValueError as e:
-                    raise StoreError(f"{where}: array {info.filename} has a bad header ({one_line(e, 160)})") from None
+                    raise StoreError(
+                        f"{where}: array {info.filename} has a bad header ({one_line_error(e, 160)})"
+                    ) from None
             nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
             if nbytes > info.file_size:
                 raise StoreError(
@@ -192,14 +194,14 @@ def open_archive(path: str | os.PathLike[str], *, arrays: bool = True) -> tuple[
         raise
     except Exception as e:  # noqa: BLE001 - bytes from anywhere: BadZipFile, zlib.error, EOFError, a bad .npy header
         # (ValueError, tokenize.TokenError, ...): whatever the reader trips on, the file is not an archive
-        raise StoreError(f"{not_archive}: {one_line(e, 160)}") from None
+        raise StoreError(f"{not_archive}: {one_line_error(e, 160)}") from None
     meta_raw = found.pop("meta", None)
     if not isinstance(meta_raw, np.ndarray) or meta_raw.dtype != np.uint8 or meta_raw.ndim != 1:
         raise StoreError(f"{not_archive}: no meta")
     try:
         meta = json.loads(meta_raw.tobytes().decode())
     except (UnicodeDecodeError, ValueError, RecursionError) as e:
-        raise StoreError(f"{not_archive}: its meta is not JSON ({one_line(e, 160)})") from None
+        raise StoreError(f"{not_archive}: its meta is not JSON ({one_line_error(e, 160)})") from None
     if not isinstance(meta, dict):
         raise StoreError(f"{not_archive}: its meta is not a JSON object")
     return meta, found
