@@ -111,9 +111,9 @@ def check_contents(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
     replay_evaluations(meta, tables, per_job)
     counts = meta.get("counts")
     have = {"jobs": len(meta["jobs"]), **{name: len(cols["job"]) for name, cols in tables.items()}}
-    for name in OPTIONAL_TABLES:  # an archive without the table (or without its rows) need not count it
-        if isinstance(counts, dict) and name not in counts and not have[name]:
-            del have[name]
+    # an archive without an optional table (or without its rows) need not count it
+    listed = counts if isinstance(counts, dict) else have
+    have = {k: n for k, n in have.items() if n or k in listed or k not in OPTIONAL_TABLES}
     if not isinstance(counts, dict) or set(counts) != set(have):
         raise InvalidArchive(f"meta: counts should list {', '.join(have)}")
     for key, n in have.items():
@@ -141,16 +141,12 @@ def _nul(value: Any) -> str | None:
     if isinstance(value, str):
         k = value.find("\x00")
         return None if k < 0 else f"character {k}"
-    if isinstance(value, dict):
-        for key, v in value.items():
-            if (where := _nul(key)) is not None:
-                return f"a key, {where}"
-            if (where := _nul(v)) is not None:
-                return f"{short_repr(key, 30)} {where}"
-    if isinstance(value, list):
-        for n, v in enumerate(value):
-            if (where := _nul(v)) is not None:
-                return f"[{n}] {where}"
+    named = isinstance(value, dict)
+    for key, v in value.items() if named else enumerate(value) if isinstance(value, list) else ():
+        if named and (where := _nul(key)) is not None:
+            return f"a key, {where}"
+        if (where := _nul(v)) is not None:
+            return f"{short_repr(key, 30)} {where}" if named else f"[{key}] {where}"
     return None
 
 
@@ -350,11 +346,12 @@ def _fill_optional(arrays: dict[str, np.ndarray]) -> None:
                 arrays[f"{name}.{col.name}"] = np.zeros(0, dtype=dtypes[col.type.python_type])
 
 
-def _check_column(col: Any, key: str, arr: Any, null: Any, n: int, job_key: str) -> None:
-    """Column ``key`` of the archive (``arr``, and its NULL mask ``null`` or None): there, one
+def _check_column(col: Any, name: str, arrays: dict[str, np.ndarray], n: int) -> None:
+    """Column ``col`` of table ``name`` in ``arrays`` (and its NULL mask, if any): there, one
     dimension of ``n`` rows, of its type; finite measurements, integers of their range, strings
     of their length without a NUL; a mask only where the column allows NULL."""
-    kind = col.type.python_type
+    kind, key = col.type.python_type, f"{name}.{col.name}"
+    arr, null = arrays.get(key), arrays.get(f"{key}.null")
     if arr is None:
         raise InvalidArchive(f"column {key} is missing")
     if not isinstance(arr, np.ndarray) or arr.ndim != 1:
@@ -364,7 +361,7 @@ def _check_column(col: Any, key: str, arr: Any, null: Any, n: int, job_key: str)
             f"column {key} holds {arr.dtype}, not {({float: 'float64', int: 'integers', str: 'strings'})[kind]}"
         )
     if len(arr) != n:
-        raise InvalidArchive(f"column {key} has {len(arr):,} rows, {job_key} {n:,}")
+        raise InvalidArchive(f"column {key} has {len(arr):,} rows, {name}.job {n:,}")
     if null is not None:
         if not col.nullable:
             raise InvalidArchive(f"column {key} has NULLs, which it does not allow")
@@ -375,10 +372,9 @@ def _check_column(col: Any, key: str, arr: Any, null: Any, n: int, job_key: str)
             f"column {key} holds {'NaN' if np.isnan(arr[row]) else arr[row]} in row {row} "
             "(a measurement is finite; a NULL is marked in its .null mask)"
         )
-    if kind is int and n:
-        vals = arr if null is None else arr[~null]
-        if vals.size and (vals.min() < INT32_RANGE[0] or vals.max() > INT32_RANGE[1]):
-            raise InvalidArchive(f"column {key} holds integers out of range")
+    vals = arr if null is None else arr[~null]
+    if kind is int and vals.size and (vals.min() < INT32_RANGE[0] or vals.max() > INT32_RANGE[1]):
+        raise InvalidArchive(f"column {key} holds integers out of range")
     if kind is str and n:
         length = getattr(col.type, "length", None)
         if length is not None and arr.dtype.itemsize // 4 > length and (np.char.str_len(arr) > length).any():
@@ -398,14 +394,12 @@ def _check_table(name: str, arrays: dict[str, np.ndarray], n_jobs: int) -> dict[
         raise InvalidArchive(f"column {name}.job is missing or not a column of integers")
     cols = {"job": job}
     for col in columns(archive_table(name, arrays)):
-        key = f"{name}.{col.name}"
-        null = arrays.get(f"{key}.null")
-        _check_column(col, key, arrays.get(key), null, len(job), f"{name}.job")
-        cols[col.name] = arrays[key]
+        _check_column(col, name, arrays, len(job))
+        cols[col.name], null = arrays[f"{name}.{col.name}"], arrays.get(f"{name}.{col.name}.null")
         if null is not None:  # kept beside its column, and applied as NaN to a float one
             cols[f"{col.name}.null"] = null
             if col.type.python_type is float:
-                cols[col.name] = np.where(null, np.nan, arrays[key])
+                cols[col.name] = np.where(null, np.nan, cols[col.name])
     if job.size and (job.min() < 0 or job.max() >= n_jobs):
         bad = int(job.min()) if job.min() < 0 else int(job.max())
         raise InvalidArchive(
