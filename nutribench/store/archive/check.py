@@ -152,20 +152,19 @@ def _nul(value: Any) -> str | None:
 
 def _valid(kind: type, col: Any, value: Any) -> bool:
     """Whether the (non-null) ``value`` is one of column ``col``, of Python type ``kind``."""
-    if kind is bool:
-        return isinstance(value, bool)
-    if kind is int:
-        return isinstance(value, int) and not isinstance(value, bool) and INT32_RANGE[0] <= value <= INT32_RANGE[1]
-    if kind is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    if kind is str:
-        return isinstance(value, str) and len(value) <= (getattr(col.type, "length", None) or TEXT_MAX)
     if kind is datetime:
         try:
             return isinstance(value, str) and bool(datetime.fromisoformat(value))
         except ValueError:
             return False
-    return kind is dict and isinstance(value, dict)
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    return {
+        bool: isinstance(value, bool),
+        int: number and isinstance(value, int) and INT32_RANGE[0] <= value <= INT32_RANGE[1],
+        float: number and math.isfinite(value),
+        str: isinstance(value, str) and len(value) <= (getattr(col.type, "length", None) or TEXT_MAX),
+        dict: isinstance(value, dict),
+    }[kind]
 
 
 def _check_row(table: type, row: Any, skip: Sequence[str], what: str, optional: Any = (), extra: Any = ()) -> None:
@@ -177,14 +176,11 @@ def _check_row(table: type, row: Any, skip: Sequence[str], what: str, optional: 
     unknown = sorted(set(row) - {c.name for c in cols} - set(extra))
     if unknown:
         raise InvalidArchive(f"{what}: unknown field {short_repr(unknown[0])}")
-    for col in cols:
+    for col in (c for c in cols if c.name in row or c.name not in optional):
         if col.name not in row:
-            if col.name in optional:
-                continue
             raise InvalidArchive(f"{what}: field {col.name!r} is missing")
         value = row[col.name]
-        where = _nul(value)
-        if where is not None:
+        if (where := _nul(value)) is not None:
             raise InvalidArchive(
                 f"{what}: {col.name} holds a NUL byte ({where}), which no text column stores (PostgreSQL refuses it)"
             )
@@ -408,19 +404,6 @@ def _check_table(name: str, arrays: dict[str, np.ndarray], n_jobs: int) -> dict[
     return cols
 
 
-def _twice(keys: list[np.ndarray]) -> int | None:
-    """A row whose key (the columns ``keys``) another row has too; None if all differ."""
-    n = len(keys[0])
-    if n < 2:
-        return None
-    order = np.lexsort(keys[::-1])
-    same = np.ones(n - 1, dtype=bool)
-    for k in keys:
-        s = k[order]
-        same &= s[1:] == s[:-1]
-    return int(order[int(np.argmax(same)) + 1]) if same.any() else None
-
-
 #: Each table's key (after ``job``) and how a message names a row's, for the no-key-twice check.
 _KEYS = {
     "episodes": (("phase", "episode"), "{phase} episode {episode}"),
@@ -475,8 +458,12 @@ def _check_rows(
                 at = {k: a[row] for k, a in t.items()} | {"col": col, "v": t[col][row]}
                 at |= {k: b if np.isscalar(b) else b[row] for k, b in (("lo", lo), ("hi", hi))}
                 raise InvalidArchive(f"{name} row {row}: {message.format_map(at)}")
-        key, what = _KEYS[name]
-        if (row := _twice([t["job"], *(t[k] for k in key)])) is not None:
+        key, what = _KEYS[name]  # sorted by its key, a row with the key of the one before it is there twice
+        keys = [t["job"], *(t[k] for k in key)]
+        order = np.lexsort(keys[::-1])
+        same = np.logical_and.reduce([k[order][1:] == k[order][:-1] for k in keys])
+        if (twice := first_row(same)) is not None:
+            row = int(order[twice + 1])
             said = what.format_map({k: t[k][row] for k in key})
             raise InvalidArchive(f"{name} row {row}: job {t['job'][row]}'s {said} is there twice")
     train = ep["phase"] == "train"
