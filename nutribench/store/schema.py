@@ -90,7 +90,7 @@ OPTUNA_TABLES = frozenset(
 )
 
 
-def alembic_config(url: URL | str | None = None) -> Config:
+def alembic_config() -> Config:
     """A programmatic alembic Config (no alembic.ini needed); ``migrations/env.py`` reads
     :data:`VERSION_TABLE` from here."""
     from alembic.config import Config
@@ -98,9 +98,6 @@ def alembic_config(url: URL | str | None = None) -> Config:
     cfg = Config()
     cfg.set_main_option("script_location", str(migrations_dir()))
     cfg.set_main_option("version_table", VERSION_TABLE)
-    if url is not None:
-        u = url if isinstance(url, URL) else database_url(url)
-        cfg.set_main_option("sqlalchemy.url", u.render_as_string(hide_password=False).replace("%", "%%"))
     return cfg
 
 
@@ -273,11 +270,11 @@ def _classify(conn: Connection, display: str) -> str | None:
     return rev
 
 
-def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrade: bool = True) -> Store:
+def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False) -> Store:
     """Open ``db`` and check its schema.
 
-    ``writer=True`` (the driver): create the file if missing, create or upgrade the schema
-    (unless ``upgrade=False``, then refuse). ``writer=False``: refuse a missing file, an empty
+    ``writer=True`` (the driver): create the file if missing, create or upgrade the schema.
+    ``writer=False``: refuse a missing file, an empty
     database or an older schema with the command that fixes it.
     """
     url = db if isinstance(db, URL) else database_url(db)
@@ -304,7 +301,7 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
                     f"{display} is an empty database, nothing has run yet: {db_command('nutribench run', url)} fills it"
                 )
             if rev != head:
-                if not (writer and upgrade):
+                if not writer:
                     raise StoreError(
                         f"{display} is on schema revision {rev}, this nutribench needs {head}: run {_upgrade_cmd(url)}"
                     )

@@ -241,9 +241,9 @@ def check_meta_configs(meta: dict[str, Any]) -> dict[tuple[str, str, int], dict[
     return out
 
 
-def _regime_shape(row: dict[str, Any], what: str) -> tuple[int, int]:
-    """(horizon, number of foods) of a regime's stored body."""
-    body = row["body"]
+def _regime_shape(configs: dict[tuple[str, str, int], Any], ref: tuple[str, int]) -> tuple[int, int]:
+    """(horizon, number of foods) of the stored body of the archive's regime ``ref`` (name, version)."""
+    body, what = configs[("regime", *ref)]["body"], f"regime {ref[0]!r} v{ref[1]}"
     reward, catalog = body.get("reward"), body.get("catalog")
     horizon = reward.get("horizon") if isinstance(reward, dict) else None
     foods = catalog.get("food") if isinstance(catalog, dict) else None
@@ -299,7 +299,6 @@ def check_meta_jobs(meta: dict[str, Any], configs: dict[tuple[str, str, int], di
     if not isinstance(jobs, list):
         raise InvalidArchive("meta: 'jobs' is missing or not a list")
     keys: set[tuple[Any, ...]] = set()
-    shape: dict[tuple[str, int], tuple[int, int]] = {}
     out = {k: np.zeros(len(jobs), dtype=np.int64) for k in ("episodes", "eval_episodes", "horizon", "foods")}
     for i, job in enumerate(jobs):
         _check_row(Job, job, JOB_SKIP, f"job {i}", optional=JOB_DEFAULTS, extra=("regime", "agent"))
@@ -310,10 +309,8 @@ def check_meta_jobs(meta: dict[str, Any], configs: dict[tuple[str, str, int], di
         if key in keys:
             raise InvalidArchive(f"{what} is listed twice (same configs, seed, budget and evaluation days)")
         keys.add(key)
-        if refs[0] not in shape:
-            shape[refs[0]] = _regime_shape(configs[("regime", *refs[0])], f"regime {refs[0][0]!r} v{refs[0][1]}")
         out["episodes"][i], out["eval_episodes"][i] = job["episodes"], job["eval_episodes"]
-        out["horizon"][i], out["foods"][i] = shape[refs[0]]
+        out["horizon"][i], out["foods"][i] = _regime_shape(configs, refs[0])
     if len({bool(job.get("fake", False)) for job in jobs}) > 1:
         raise InvalidArchive("it mixes a dry run's jobs (fake) with real results")
     return out
