@@ -84,15 +84,13 @@ def _copy_tables(read: Any, write: Any, on_table: Callable[[str, int], None]) ->
             n += len(batch)
         counts[table.name] = n
         on_table(table.name, n)
-    if write.get_bind().dialect.name == "postgresql":
-        for table in Base.metadata.sorted_tables:
-            if "id" in table.columns and table.c.id.primary_key:
-                write.execute(
-                    text(
-                        f"SELECT setval(pg_get_serial_sequence('{table.name}', 'id'), "
-                        f"coalesce((SELECT max(id) FROM {table.name}), 0) + 1, false)"
-                    )
+        if write.get_bind().dialect.name == "postgresql" and "id" in table.columns and table.c.id.primary_key:
+            write.execute(
+                text(
+                    f"SELECT setval(pg_get_serial_sequence('{table.name}', 'id'), "
+                    f"coalesce((SELECT max(id) FROM {table.name}), 0) + 1, false)"
                 )
+            )
     # compared before the commit: a mismatch rolls the whole copy back
     copied = _counts(write)
     if copied != counts:

@@ -117,12 +117,14 @@ def revision_chain() -> list[str]:
 def _revision_chain(folder: Path) -> tuple[str, ...]:
     links = [_revision_link(path) for path in sorted((folder / "versions").glob("*.py"))]
     parent_of = dict(link for link in links if link is not None)
-    child = {down: rev for rev, down in parent_of.items()}  # a parent of two (a branch) leaves one out
+    child = {down: rev for rev, down in parent_of.items()}  # a parent of two (a branch): the chain misses one
     chain: list[str] = []
     while (chain[-1] if chain else None) in child:
         chain.append(child[chain[-1] if chain else None])
-    if None in links or len(child) != len(parent_of) or len(chain) != len(parent_of) or not chain:
-        return tuple(_alembic_chain())
+    if None in links or len(chain) != len(parent_of) or not chain:
+        from alembic.script import ScriptDirectory
+
+        return tuple(s.revision for s in reversed(list(ScriptDirectory.from_config(alembic_config()).walk_revisions())))
     return tuple(chain)
 
 
@@ -138,13 +140,6 @@ def _revision_link(path: Path) -> tuple[str, str | None] | None:
     if not isinstance(rev, str) or not (down is None or isinstance(down, str)):
         return None
     return rev, down
-
-
-def _alembic_chain() -> list[str]:
-    from alembic.script import ScriptDirectory
-
-    script = ScriptDirectory.from_config(alembic_config())
-    return [s.revision for s in reversed(list(script.walk_revisions()))]
 
 
 def _stored_revision(conn: Connection, table: str, display: str) -> str | None:
