@@ -158,14 +158,6 @@ def _stored_revision(conn: Connection, table: str, display: str) -> str | None:
     return rows[0] if rows else None
 
 
-def current_revision(conn: Connection, display: str = "the database") -> str | None:
-    """nutribench's schema revision of the database on ``conn`` (None: none yet); a database
-    from before :data:`VERSION_TABLE` is read from alembic's default table when that holds one
-    of nutribench's revisions (not Optuna's). A version table holding more than one revision is
-    refused in one line (``display``: the database as the line names it)."""
-    return _stored_revision(conn, VERSION_TABLE, display) or _legacy_revision(conn, display)
-
-
 def _legacy_revision(conn: Connection, display: str = "the database") -> str | None:
     """nutribench's revision in ``alembic_version`` (a database from before the move), else None."""
     rev = _stored_revision(conn, LEGACY_VERSION_TABLE, display)
@@ -247,7 +239,8 @@ def _upgrade_cmd(url: URL) -> str:
 
 def _classify(conn: Connection, display: str) -> str | None:
     """The schema revision, None for an empty database; refuse foreign databases."""
-    rev = current_revision(conn, display)
+    # a database from before VERSION_TABLE: its revision in alembic's default table (if nutribench's, not Optuna's)
+    rev = _stored_revision(conn, VERSION_TABLE, display) or _legacy_revision(conn, display)
     if rev is None:
         tables = set(inspect(conn).get_table_names()) - OPTUNA_TABLES
         if tables:

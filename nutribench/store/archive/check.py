@@ -96,16 +96,14 @@ def verify_archive(path: str | os.PathLike[str]) -> dict[str, int]:
 def check_contents(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
     """Every check of :mod:`nutribench.store.archive`'s docstring on an archive's content;
     :class:`InvalidArchive` with the first thing wrong."""
-    unknown = sorted(set(meta) - META_KEYS)
-    if unknown:
+    if unknown := sorted(set(meta) - META_KEYS):
         raise InvalidArchive(f"meta: unknown field {short_repr(unknown[0])}")
     configs = check_meta_configs(meta)
     check_installed(meta)
     per_job = check_meta_jobs(meta, configs)
     _fill_optional(arrays)
     tables = {name: _check_table(name, arrays, len(meta["jobs"])) for name in ARCHIVE_TABLES}
-    other = sorted(set(arrays) - {f"{name}.{col}" for name, cols in tables.items() for col in cols})
-    if other:
+    if other := sorted(set(arrays) - {f"{name}.{col}" for name, cols in tables.items() for col in cols}):
         raise InvalidArchive(f"array {short_repr(other[0])} is not part of the format")
     _check_rows(tables, per_job, meta["jobs"])
     replay_evaluations(meta, tables, per_job)
@@ -173,8 +171,7 @@ def _check_row(table: type, row: Any, skip: Sequence[str], what: str, optional: 
     if not isinstance(row, dict):
         raise InvalidArchive(f"{what} is not a JSON object")
     cols = [c for c in table.__table__.columns if c.name not in skip]
-    unknown = sorted(set(row) - {c.name for c in cols} - set(extra))
-    if unknown:
+    if unknown := sorted(set(row) - {c.name for c in cols} - set(extra)):
         raise InvalidArchive(f"{what}: unknown field {short_repr(unknown[0])}")
     for col in (c for c in cols if c.name in row or c.name not in optional):
         if col.name not in row:
