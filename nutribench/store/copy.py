@@ -63,8 +63,7 @@ def _check_empty(source: Any, target: Any) -> list[str]:
         rows = ", ".join(f"{n} {name}" for name, n in held.items() if n)
         raise StoreError(f"db copy: {target.display} already holds rows ({rows}): copy into a new, empty database")
     studies = _study_names(source.engine)
-    clash = sorted(set(studies) & set(_study_names(target.engine)))
-    if clash:
+    if clash := sorted(set(studies) & set(_study_names(target.engine))):
         raise StoreError(
             f"db copy: {target.display} already holds the tuning studies {', '.join(clash)}: copy into a new, "
             "empty database"

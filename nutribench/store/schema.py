@@ -56,8 +56,7 @@ if TYPE_CHECKING:
 
 def migrations_dir() -> Path:
     """``migrations/`` of the source checkout, else the copy shipped in the wheel."""
-    env = os.environ.get("NUTRIBENCH_MIGRATIONS")
-    if env:
+    if env := os.environ.get("NUTRIBENCH_MIGRATIONS"):
         return Path(env)
     package = Path(__file__).resolve().parents[1]
     for candidate in (package.parent / "migrations", package / "_migrations"):
@@ -242,8 +241,7 @@ def _classify(conn: Connection, display: str) -> str | None:
     # a database from before VERSION_TABLE: its revision in alembic's default table (if nutribench's, not Optuna's)
     rev = _stored_revision(conn, VERSION_TABLE, display) or _legacy_revision(conn, display)
     if rev is None:
-        tables = set(inspect(conn).get_table_names()) - OPTUNA_TABLES
-        if tables:
+        if tables := set(inspect(conn).get_table_names()) - OPTUNA_TABLES:
             raise StoreError(
                 f"{display} holds tables ({', '.join(sorted(tables)[:4])}...) but no nutribench schema: "
                 "give another --db"

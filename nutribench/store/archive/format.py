@@ -135,8 +135,8 @@ def _check_sizes(path: str | os.PathLike[str], where: str) -> None:
         infos = zf.infolist()
         if len(infos) > MAX_MEMBERS:
             raise StoreError(f"{where}: {len(infos):,} arrays (at most {MAX_MEMBERS:,}); nothing imported")
-        twice = [n for n, c in Counter(i.filename for i in infos).items() if c > 1]
-        if twice:  # a reader keeps one of two same-named members (the last): which is the archive?
+        # a reader keeps one of two same-named members (the last): which is the archive?
+        if twice := [n for n, c in Counter(i.filename for i in infos).items() if c > 1]:
             raise StoreError(
                 f"{where}: member {short_repr(twice[0])} is there twice (a zip that two readers can read "
                 "differently is refused); nothing imported"

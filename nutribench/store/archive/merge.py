@@ -118,8 +118,7 @@ def _write(
     fake = bool(meta["jobs"] and meta["jobs"][0].get("fake", False))
     with session_scope(store.engine) as s:
         hold_write_lock(s, REGISTRATION_LOCK)
-        other = s.execute(select(func.count()).select_from(Job).where(Job.fake == (not fake))).scalar_one()
-        if other:
+        if other := s.execute(select(func.count()).select_from(Job).where(Job.fake == (not fake))).scalar_one():
             ours, theirs = ("a dry run's jobs (fake)", "real jobs") if fake else ("real results", "dry-run jobs (fake)")
             raise StoreError(
                 f"db import: {path} holds {ours} and {store.display} holds {other} {theirs}: the two are never "
