@@ -63,8 +63,7 @@ def _check_empty(source: Any, target: Any) -> list[str]:
         rows = ", ".join(f"{n} {name}" for name, n in held.items() if n)
         raise StoreError(f"db copy: {target.display} already holds rows ({rows}): copy into a new, empty database")
     studies = _study_names(source.engine)
-    clash = sorted(set(studies) & set(_study_names(target.engine)))
-    if clash:
+    if clash := sorted(set(studies) & set(_study_names(target.engine))):
         raise StoreError(
             f"db copy: {target.display} already holds the tuning studies {', '.join(clash)}: copy into a new, "
             "empty database"
@@ -84,15 +83,13 @@ def _copy_tables(read: Any, write: Any, on_table: Callable[[str, int], None]) ->
             n += len(batch)
         counts[table.name] = n
         on_table(table.name, n)
-    if write.get_bind().dialect.name == "postgresql":
-        for table in Base.metadata.sorted_tables:
-            if "id" in table.columns and table.c.id.primary_key:
-                write.execute(
-                    text(
-                        f"SELECT setval(pg_get_serial_sequence('{table.name}', 'id'), "
-                        f"coalesce((SELECT max(id) FROM {table.name}), 0) + 1, false)"
-                    )
+        if write.get_bind().dialect.name == "postgresql" and "id" in table.columns and table.c.id.primary_key:
+            write.execute(
+                text(
+                    f"SELECT setval(pg_get_serial_sequence('{table.name}', 'id'), "
+                    f"coalesce((SELECT max(id) FROM {table.name}), 0) + 1, false)"
                 )
+            )
     # compared before the commit: a mismatch rolls the whole copy back
     copied = _counts(write)
     if copied != counts:

@@ -41,6 +41,13 @@ class StoreError(UserError):
     """A database problem a user can fix (bad path, not a database, old schema). One line."""
 
 
+def one_line_error(error: BaseException, n: int | None = None) -> str:
+    """``str(error)`` on one line (whitespace collapsed: a driver's message, PostgreSQL's spans
+    several), cut to ``n`` characters where given; the type's name if empty."""
+    text = " ".join(str(error).split()) or type(error).__name__
+    return text if n is None or len(text) <= n else text[: n - 3] + "..."
+
+
 def database_url(db: str | os.PathLike[str]) -> URL:
     """A SQLAlchemy URL from ``--db``: a URL as is, anything else a SQLite file path. An ``@``
     left unencoded in the user part (``lab:p@ss@host``) belongs to it: the host starts after the

@@ -120,14 +120,13 @@ class Base(DeclarativeBase):
     metadata = MetaData(naming_convention=NAMING)
 
 
-class RegimeConfig(Base):
-    """A regime's full dynamics (regime file + food catalog + reward), as hashed by EnvConfig."""
+class ConfigColumns:
+    """The columns of a config table, unique on (name, version): ``id`` and ``name`` first (an
+    agent config's ``algo`` comes next), then the version, the content's sha256, the content
+    itself, the file it was read from and when it was recorded."""
 
-    __tablename__ = "regimes"
-    __table_args__ = (UniqueConstraint("name", "version"),)
-
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
-    name: Mapped[str] = mapped_column(String(64))
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, sort_order=-1)
+    name: Mapped[str] = mapped_column(String(64), sort_order=-1)
     version: Mapped[int] = mapped_column(Integer)
     sha256: Mapped[str] = mapped_column(String(64))
     body: Mapped[dict[str, Any]] = mapped_column(StrictJSON)
@@ -135,20 +134,20 @@ class RegimeConfig(Base):
     created_at: Mapped[datetime] = mapped_column(DateTime)
 
 
-class AgentConfig(Base):
+class RegimeConfig(ConfigColumns, Base):
+    """A regime's full dynamics (regime file + food catalog + reward), as hashed by EnvConfig."""
+
+    __tablename__ = "regimes"
+    __table_args__ = (UniqueConstraint("name", "version"),)
+
+
+class AgentConfig(ConfigColumns, Base):
     """An agent configuration file's content (algorithm and hyperparameters)."""
 
     __tablename__ = "agent_configs"
     __table_args__ = (UniqueConstraint("name", "version"),)
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
-    name: Mapped[str] = mapped_column(String(64))
     algo: Mapped[str] = mapped_column(String(64))
-    version: Mapped[int] = mapped_column(Integer)
-    sha256: Mapped[str] = mapped_column(String(64))
-    body: Mapped[dict[str, Any]] = mapped_column(StrictJSON)
-    source: Mapped[str | None] = mapped_column(Text)
-    created_at: Mapped[datetime] = mapped_column(DateTime)
 
 
 class Job(Base):
@@ -219,6 +218,12 @@ class Job(Base):
     error: Mapped[str | None] = mapped_column(Text, doc="last failure (traceback or reason); kept after a retry")
 
 
+class JobRow:
+    """A row of a job (removed with it), keyed by ``job_id`` first."""
+
+    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True, sort_order=-1)
+
+
 class DayMetrics:
     """The metric columns of a day (:data:`nutribench.env.metrics.METRIC_KEYS` and the policy's
     entropy), after a table's own key columns: ``episodes`` and ``validation_episodes`` have them."""
@@ -234,23 +239,21 @@ class DayMetrics:
     entropy: Mapped[float | None] = mapped_column(Float)
 
 
-class Episode(DayMetrics, Base):
+class Episode(JobRow, DayMetrics, Base):
     """Metrics of one training or evaluation episode (:data:`nutribench.env.metrics.METRIC_KEYS`)."""
 
     __tablename__ = "episodes"
     __table_args__ = (CheckConstraint("phase IN ('train', 'eval')", name="phase"),)
 
-    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
     phase: Mapped[str] = mapped_column(String(8), primary_key=True)
     episode: Mapped[int] = mapped_column(Integer, primary_key=True, doc="0-based")
 
 
-class EvalStep(Base):
+class EvalStep(JobRow, Base):
     """One step of an evaluation episode: enough to redraw the trajectory."""
 
     __tablename__ = "eval_steps"
 
-    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
     episode: Mapped[int] = mapped_column(Integer, primary_key=True)
     step: Mapped[int] = mapped_column(Integer, primary_key=True, doc="1..H")
     food: Mapped[int] = mapped_column(Integer, doc="index of the food offered at this step")
@@ -261,7 +264,7 @@ class EvalStep(Base):
     reward: Mapped[float] = mapped_column(Float)
 
 
-class Diagnostic(Base):
+class Diagnostic(JobRow, Base):
     """One quantity of one training update of a job (on-policy: a rollout's update; off-policy:
     a training day, means over its gradient steps): a long table, one row per (job, update,
     name), so that a quantity of a new algorithm needs no migration. The names are those of
@@ -272,18 +275,16 @@ class Diagnostic(Base):
 
     __tablename__ = "diagnostics"
 
-    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
     update: Mapped[int] = mapped_column(Integer, primary_key=True, doc="0-based, per job")
     name: Mapped[str] = mapped_column(String(64), primary_key=True, doc="the quantity: timestep, value_loss, ...")
     value: Mapped[float] = mapped_column(Float, doc="finite (timestep: env steps up to the end of this update)")
 
 
-class ValidationEpisode(DayMetrics, Base):
+class ValidationEpisode(JobRow, DayMetrics, Base):
     """One validation day of a greedy evaluation during training (:mod:`nutribench.agents.validation`)."""
 
     __tablename__ = "validation_episodes"
 
-    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
     train_day: Mapped[int] = mapped_column(Integer, primary_key=True, doc="training days played before it")
     episode: Mapped[int] = mapped_column(Integer, primary_key=True, doc="the validation day, 0-based")
     # after the metrics (sort_order: a mixin's columns come after the class's own)

@@ -46,6 +46,7 @@ from nutribench.store.engine import (
     hold_write_lock,
     in_memory,
     make_engine,
+    one_line_error,
     sqlite_path,
 )
 
@@ -55,8 +56,7 @@ if TYPE_CHECKING:
 
 def migrations_dir() -> Path:
     """``migrations/`` of the source checkout, else the copy shipped in the wheel."""
-    env = os.environ.get("NUTRIBENCH_MIGRATIONS")
-    if env:
+    if env := os.environ.get("NUTRIBENCH_MIGRATIONS"):
         return Path(env)
     package = Path(__file__).resolve().parents[1]
     for candidate in (package.parent / "migrations", package / "_migrations"):
@@ -89,7 +89,7 @@ OPTUNA_TABLES = frozenset(
 )
 
 
-def alembic_config(url: URL | str | None = None) -> Config:
+def alembic_config() -> Config:
     """A programmatic alembic Config (no alembic.ini needed); ``migrations/env.py`` reads
     :data:`VERSION_TABLE` from here."""
     from alembic.config import Config
@@ -97,9 +97,6 @@ def alembic_config(url: URL | str | None = None) -> Config:
     cfg = Config()
     cfg.set_main_option("script_location", str(migrations_dir()))
     cfg.set_main_option("version_table", VERSION_TABLE)
-    if url is not None:
-        u = url if isinstance(url, URL) else database_url(url)
-        cfg.set_main_option("sqlalchemy.url", u.render_as_string(hide_password=False).replace("%", "%%"))
     return cfg
 
 
@@ -119,16 +116,14 @@ def revision_chain() -> list[str]:
 def _revision_chain(folder: Path) -> tuple[str, ...]:
     links = [_revision_link(path) for path in sorted((folder / "versions").glob("*.py"))]
     parent_of = dict(link for link in links if link is not None)
-    children: dict[str | None, list[str]] = {}
-    for rev, down in parent_of.items():
-        children.setdefault(down, []).append(rev)
+    child = {down: rev for rev, down in parent_of.items()}  # a parent of two (a branch): the chain misses one
     chain: list[str] = []
-    down: str | None = None
-    while down in children and len(children[down]) == 1:
-        down = children[down][0]
-        chain.append(down)
+    while (chain[-1] if chain else None) in child:
+        chain.append(child[chain[-1] if chain else None])
     if None in links or len(chain) != len(parent_of) or not chain:
-        return tuple(_alembic_chain())
+        from alembic.script import ScriptDirectory
+
+        return tuple(s.revision for s in reversed(list(ScriptDirectory.from_config(alembic_config()).walk_revisions())))
     return tuple(chain)
 
 
@@ -146,13 +141,6 @@ def _revision_link(path: Path) -> tuple[str, str | None] | None:
     return rev, down
 
 
-def _alembic_chain() -> list[str]:
-    from alembic.script import ScriptDirectory
-
-    script = ScriptDirectory.from_config(alembic_config())
-    return [s.revision for s in reversed(list(script.walk_revisions()))]
-
-
 def _stored_revision(conn: Connection, table: str, display: str) -> str | None:
     """The one revision in alembic version table ``table`` (None: no table, or no row); more than
     one is refused in one line naming the database (``display``) and the table."""
@@ -167,14 +155,6 @@ def _stored_revision(conn: Connection, table: str, display: str) -> str | None:
             "were added"
         )
     return rows[0] if rows else None
-
-
-def current_revision(conn: Connection, display: str = "the database") -> str | None:
-    """nutribench's schema revision of the database on ``conn`` (None: none yet); a database
-    from before :data:`VERSION_TABLE` is read from alembic's default table when that holds one
-    of nutribench's revisions (not Optuna's). A version table holding more than one revision is
-    refused in one line (``display``: the database as the line names it)."""
-    return _stored_revision(conn, VERSION_TABLE, display) or _legacy_revision(conn, display)
 
 
 def _legacy_revision(conn: Connection, display: str = "the database") -> str | None:
@@ -258,10 +238,10 @@ def _upgrade_cmd(url: URL) -> str:
 
 def _classify(conn: Connection, display: str) -> str | None:
     """The schema revision, None for an empty database; refuse foreign databases."""
-    rev = current_revision(conn, display)
+    # a database from before VERSION_TABLE: its revision in alembic's default table (if nutribench's, not Optuna's)
+    rev = _stored_revision(conn, VERSION_TABLE, display) or _legacy_revision(conn, display)
     if rev is None:
-        tables = set(inspect(conn).get_table_names()) - OPTUNA_TABLES
-        if tables:
+        if tables := set(inspect(conn).get_table_names()) - OPTUNA_TABLES:
             raise StoreError(
                 f"{display} holds tables ({', '.join(sorted(tables)[:4])}...) but no nutribench schema: "
                 "give another --db"
@@ -276,11 +256,11 @@ def _classify(conn: Connection, display: str) -> str | None:
     return rev
 
 
-def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrade: bool = True) -> Store:
+def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False) -> Store:
     """Open ``db`` and check its schema.
 
-    ``writer=True`` (the driver): create the file if missing, create or upgrade the schema
-    (unless ``upgrade=False``, then refuse). ``writer=False``: refuse a missing file, an empty
+    ``writer=True`` (the driver): create the file if missing, create or upgrade the schema.
+    ``writer=False``: refuse a missing file, an empty
     database or an older schema with the command that fixes it.
     """
     url = db if isinstance(db, URL) else database_url(db)
@@ -307,7 +287,7 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
                     f"{display} is an empty database, nothing has run yet: {db_command('nutribench run', url)} fills it"
                 )
             if rev != head:
-                if not (writer and upgrade):
+                if not writer:
                     raise StoreError(
                         f"{display} is on schema revision {rev}, this nutribench needs {head}: run {_upgrade_cmd(url)}"
                     )
@@ -318,10 +298,10 @@ def open_store(db: str | os.PathLike[str] | URL, *, writer: bool = False, upgrad
         raise
     except OperationalError as e:
         engine.dispose()
-        raise StoreError(f"cannot open database {display}: {_one_line(e.orig)}") from None
+        raise StoreError(f"cannot open database {display}: {one_line_error(e.orig)}") from None
     except DatabaseError as e:
         engine.dispose()
-        raise StoreError(f"{display} is not a usable database: {_one_line(e.orig)}") from None
+        raise StoreError(f"{display} is not a usable database: {one_line_error(e.orig)}") from None
 
 
 def upgrade_schema(db: str | os.PathLike[str] | URL) -> str:
@@ -332,8 +312,3 @@ def upgrade_schema(db: str | os.PathLike[str] | URL) -> str:
         "created" if store.created else (f"upgraded from {store.upgraded_from}" if store.upgraded_from else "already")
     )
     return f"{store.display}: schema {what} at revision {store.revision}"
-
-
-def _one_line(error: BaseException) -> str:
-    """A driver's error message on one line (PostgreSQL's span several)."""
-    return " ".join(str(error).split()) or type(error).__name__

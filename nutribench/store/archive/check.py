@@ -59,6 +59,8 @@ INT32_RANGE = (-(2**31), 2**31 - 1)
 #: The longest text an archive may carry in a column without a length of its own (a source
 #: path, an error text): a shared file's strings are read, so they are bounded.
 TEXT_MAX = 65_536
+#: The float metrics of ``episodes`` with a range: from 0 to this.
+_EPISODE_FLOATS = (("overshoot_ratio", 1.0), ("final_distance", np.inf), ("entropy", np.inf))
 #: Job columns that count something: never negative (a seed too: the CLI takes none below 0).
 _NON_NEGATIVE = ("seed", "episodes", "eval_episodes", "attempt", "failures", "episodes_done", "wall_seconds")
 
@@ -94,24 +96,22 @@ def verify_archive(path: str | os.PathLike[str]) -> dict[str, int]:
 def check_contents(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
     """Every check of :mod:`nutribench.store.archive`'s docstring on an archive's content;
     :class:`InvalidArchive` with the first thing wrong."""
-    unknown = sorted(set(meta) - META_KEYS)
-    if unknown:
+    if unknown := sorted(set(meta) - META_KEYS):
         raise InvalidArchive(f"meta: unknown field {short_repr(unknown[0])}")
     configs = check_meta_configs(meta)
     check_installed(meta)
     per_job = check_meta_jobs(meta, configs)
     _fill_optional(arrays)
     tables = {name: _check_table(name, arrays, len(meta["jobs"])) for name in ARCHIVE_TABLES}
-    other = sorted(set(arrays) - {f"{name}.{col}" for name, cols in tables.items() for col in cols})
-    if other:
+    if other := sorted(set(arrays) - {f"{name}.{col}" for name, cols in tables.items() for col in cols}):
         raise InvalidArchive(f"array {short_repr(other[0])} is not part of the format")
     _check_rows(tables, per_job, meta["jobs"])
     replay_evaluations(meta, tables, per_job)
     counts = meta.get("counts")
     have = {"jobs": len(meta["jobs"]), **{name: len(cols["job"]) for name, cols in tables.items()}}
-    for name in OPTIONAL_TABLES:  # an archive without the table (or without its rows) need not count it
-        if isinstance(counts, dict) and name not in counts and not have[name]:
-            del have[name]
+    # an archive without an optional table (or without its rows) need not count it
+    listed = counts if isinstance(counts, dict) else have
+    have = {k: n for k, n in have.items() if n or k in listed or k not in OPTIONAL_TABLES}
     if not isinstance(counts, dict) or set(counts) != set(have):
         raise InvalidArchive(f"meta: counts should list {', '.join(have)}")
     for key, n in have.items():
@@ -139,35 +139,30 @@ def _nul(value: Any) -> str | None:
     if isinstance(value, str):
         k = value.find("\x00")
         return None if k < 0 else f"character {k}"
-    if isinstance(value, dict):
-        for key, v in value.items():
-            if (where := _nul(key)) is not None:
-                return f"a key, {where}"
-            if (where := _nul(v)) is not None:
-                return f"{short_repr(key, 30)} {where}"
-    if isinstance(value, list):
-        for n, v in enumerate(value):
-            if (where := _nul(v)) is not None:
-                return f"[{n}] {where}"
+    named = isinstance(value, dict)
+    for key, v in value.items() if named else enumerate(value) if isinstance(value, list) else ():
+        if named and (where := _nul(key)) is not None:
+            return f"a key, {where}"
+        if (where := _nul(v)) is not None:
+            return f"{short_repr(key, 30)} {where}" if named else f"[{key}] {where}"
     return None
 
 
 def _valid(kind: type, col: Any, value: Any) -> bool:
     """Whether the (non-null) ``value`` is one of column ``col``, of Python type ``kind``."""
-    if kind is bool:
-        return isinstance(value, bool)
-    if kind is int:
-        return isinstance(value, int) and not isinstance(value, bool) and INT32_RANGE[0] <= value <= INT32_RANGE[1]
-    if kind is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    if kind is str:
-        return isinstance(value, str) and len(value) <= (getattr(col.type, "length", None) or TEXT_MAX)
     if kind is datetime:
         try:
             return isinstance(value, str) and bool(datetime.fromisoformat(value))
         except ValueError:
             return False
-    return kind is dict and isinstance(value, dict)
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    return {
+        bool: isinstance(value, bool),
+        int: number and isinstance(value, int) and INT32_RANGE[0] <= value <= INT32_RANGE[1],
+        float: number and math.isfinite(value),
+        str: isinstance(value, str) and len(value) <= (getattr(col.type, "length", None) or TEXT_MAX),
+        dict: isinstance(value, dict),
+    }[kind]
 
 
 def _check_row(table: type, row: Any, skip: Sequence[str], what: str, optional: Any = (), extra: Any = ()) -> None:
@@ -176,17 +171,13 @@ def _check_row(table: type, row: Any, skip: Sequence[str], what: str, optional: 
     if not isinstance(row, dict):
         raise InvalidArchive(f"{what} is not a JSON object")
     cols = [c for c in table.__table__.columns if c.name not in skip]
-    unknown = sorted(set(row) - {c.name for c in cols} - set(extra))
-    if unknown:
+    if unknown := sorted(set(row) - {c.name for c in cols} - set(extra)):
         raise InvalidArchive(f"{what}: unknown field {short_repr(unknown[0])}")
-    for col in cols:
+    for col in (c for c in cols if c.name in row or c.name not in optional):
         if col.name not in row:
-            if col.name in optional:
-                continue
             raise InvalidArchive(f"{what}: field {col.name!r} is missing")
         value = row[col.name]
-        where = _nul(value)
-        if where is not None:
+        if (where := _nul(value)) is not None:
             raise InvalidArchive(
                 f"{what}: {col.name} holds a NUL byte ({where}), which no text column stores (PostgreSQL refuses it)"
             )
@@ -247,9 +238,9 @@ def check_meta_configs(meta: dict[str, Any]) -> dict[tuple[str, str, int], dict[
     return out
 
 
-def _regime_shape(row: dict[str, Any], what: str) -> tuple[int, int]:
-    """(horizon, number of foods) of a regime's stored body."""
-    body = row["body"]
+def _regime_shape(configs: dict[tuple[str, str, int], Any], ref: tuple[str, int]) -> tuple[int, int]:
+    """(horizon, number of foods) of the stored body of the archive's regime ``ref`` (name, version)."""
+    body, what = configs[("regime", *ref)]["body"], f"regime {ref[0]!r} v{ref[1]}"
     reward, catalog = body.get("reward"), body.get("catalog")
     horizon = reward.get("horizon") if isinstance(reward, dict) else None
     foods = catalog.get("food") if isinstance(catalog, dict) else None
@@ -305,7 +296,6 @@ def check_meta_jobs(meta: dict[str, Any], configs: dict[tuple[str, str, int], di
     if not isinstance(jobs, list):
         raise InvalidArchive("meta: 'jobs' is missing or not a list")
     keys: set[tuple[Any, ...]] = set()
-    shape: dict[tuple[str, int], tuple[int, int]] = {}
     out = {k: np.zeros(len(jobs), dtype=np.int64) for k in ("episodes", "eval_episodes", "horizon", "foods")}
     for i, job in enumerate(jobs):
         _check_row(Job, job, JOB_SKIP, f"job {i}", optional=JOB_DEFAULTS, extra=("regime", "agent"))
@@ -316,10 +306,8 @@ def check_meta_jobs(meta: dict[str, Any], configs: dict[tuple[str, str, int], di
         if key in keys:
             raise InvalidArchive(f"{what} is listed twice (same configs, seed, budget and evaluation days)")
         keys.add(key)
-        if refs[0] not in shape:
-            shape[refs[0]] = _regime_shape(configs[("regime", *refs[0])], f"regime {refs[0][0]!r} v{refs[0][1]}")
         out["episodes"][i], out["eval_episodes"][i] = job["episodes"], job["eval_episodes"]
-        out["horizon"][i], out["foods"][i] = shape[refs[0]]
+        out["horizon"][i], out["foods"][i] = _regime_shape(configs, refs[0])
     if len({bool(job.get("fake", False)) for job in jobs}) > 1:
         raise InvalidArchive("it mixes a dry run's jobs (fake) with real results")
     return out
@@ -348,11 +336,12 @@ def _fill_optional(arrays: dict[str, np.ndarray]) -> None:
                 arrays[f"{name}.{col.name}"] = np.zeros(0, dtype=dtypes[col.type.python_type])
 
 
-def _check_column(col: Any, key: str, arr: Any, null: Any, n: int, job_key: str) -> None:
-    """Column ``key`` of the archive (``arr``, and its NULL mask ``null`` or None): there, one
+def _check_column(col: Any, name: str, arrays: dict[str, np.ndarray], n: int) -> None:
+    """Column ``col`` of table ``name`` in ``arrays`` (and its NULL mask, if any): there, one
     dimension of ``n`` rows, of its type; finite measurements, integers of their range, strings
     of their length without a NUL; a mask only where the column allows NULL."""
-    kind = col.type.python_type
+    kind, key = col.type.python_type, f"{name}.{col.name}"
+    arr, null = arrays.get(key), arrays.get(f"{key}.null")
     if arr is None:
         raise InvalidArchive(f"column {key} is missing")
     if not isinstance(arr, np.ndarray) or arr.ndim != 1:
@@ -362,7 +351,7 @@ def _check_column(col: Any, key: str, arr: Any, null: Any, n: int, job_key: str)
             f"column {key} holds {arr.dtype}, not {({float: 'float64', int: 'integers', str: 'strings'})[kind]}"
         )
     if len(arr) != n:
-        raise InvalidArchive(f"column {key} has {len(arr):,} rows, {job_key} {n:,}")
+        raise InvalidArchive(f"column {key} has {len(arr):,} rows, {name}.job {n:,}")
     if null is not None:
         if not col.nullable:
             raise InvalidArchive(f"column {key} has NULLs, which it does not allow")
@@ -373,10 +362,9 @@ def _check_column(col: Any, key: str, arr: Any, null: Any, n: int, job_key: str)
             f"column {key} holds {'NaN' if np.isnan(arr[row]) else arr[row]} in row {row} "
             "(a measurement is finite; a NULL is marked in its .null mask)"
         )
-    if kind is int and n:
-        vals = arr if null is None else arr[~null]
-        if vals.size and (vals.min() < INT32_RANGE[0] or vals.max() > INT32_RANGE[1]):
-            raise InvalidArchive(f"column {key} holds integers out of range")
+    vals = arr if null is None else arr[~null]
+    if kind is int and vals.size and (vals.min() < INT32_RANGE[0] or vals.max() > INT32_RANGE[1]):
+        raise InvalidArchive(f"column {key} holds integers out of range")
     if kind is str and n:
         length = getattr(col.type, "length", None)
         if length is not None and arr.dtype.itemsize // 4 > length and (np.char.str_len(arr) > length).any():
@@ -396,14 +384,12 @@ def _check_table(name: str, arrays: dict[str, np.ndarray], n_jobs: int) -> dict[
         raise InvalidArchive(f"column {name}.job is missing or not a column of integers")
     cols = {"job": job}
     for col in columns(archive_table(name, arrays)):
-        key = f"{name}.{col.name}"
-        null = arrays.get(f"{key}.null")
-        _check_column(col, key, arrays.get(key), null, len(job), f"{name}.job")
-        cols[col.name] = arrays[key]
+        _check_column(col, name, arrays, len(job))
+        cols[col.name], null = arrays[f"{name}.{col.name}"], arrays.get(f"{name}.{col.name}.null")
         if null is not None:  # kept beside its column, and applied as NaN to a float one
             cols[f"{col.name}.null"] = null
             if col.type.python_type is float:
-                cols[col.name] = np.where(null, np.nan, arrays[key])
+                cols[col.name] = np.where(null, np.nan, cols[col.name])
     if job.size and (job.min() < 0 or job.max() >= n_jobs):
         bad = int(job.min()) if job.min() < 0 else int(job.max())
         raise InvalidArchive(
@@ -412,103 +398,68 @@ def _check_table(name: str, arrays: dict[str, np.ndarray], n_jobs: int) -> dict[
     return cols
 
 
-def _twice(keys: list[np.ndarray]) -> int | None:
-    """A row whose key (the columns ``keys``) another row has too; None if all differ."""
-    n = len(keys[0])
-    if n < 2:
-        return None
-    order = np.lexsort(keys[::-1])
-    same = np.ones(n - 1, dtype=bool)
-    for k in keys:
-        s = k[order]
-        same &= s[1:] == s[:-1]
-    return int(order[int(np.argmax(same)) + 1]) if same.any() else None
+#: Each table's key (after ``job``) and how a message names a row's, for the no-key-twice check.
+_KEYS = {
+    "episodes": (("phase", "episode"), "{phase} episode {episode}"),
+    "eval_steps": (("episode", "step"), "evaluation episode {episode} step {step}"),
+    "diagnostics": (("update",), "update {update}"),
+    "validation_episodes": (("train_day", "episode"), "validation day {episode} after training day {train_day}"),
+}
 
 
-def _check_episodes(ep: dict[str, np.ndarray], per_job: dict[str, np.ndarray]) -> None:
-    """The rows of ``episodes``: phase known, day, foods and metrics in range, no key twice."""
-    job, phase, episode, foods, first = ep["job"], ep["phase"], ep["episode"], ep["foods"], ep["first_overshoot_step"]
-    if (row := first_row(~np.isin(phase, PHASES))) is not None:
-        raise InvalidArchive(f"episodes row {row}: phase {short_repr(str(phase[row]))} is neither train nor eval")
-    train = phase == "train"
-    limit = np.where(train, per_job["episodes"][job], per_job["eval_episodes"][job])
-    if (row := first_row((episode < 0) | (episode >= limit))) is not None:
-        raise InvalidArchive(
-            f"episodes row {row}: {phase[row]} episode {int(episode[row])} of job {int(job[row])} "
-            f"is out of its range 0..{int(limit[row]) - 1}"
-        )
-    horizon = per_job["horizon"][job]
-    if (row := first_row((foods < 0) | (foods > horizon))) is not None:
-        raise InvalidArchive(f"episodes row {row}: {int(foods[row])} foods in a day of {int(horizon[row])} steps")
-    for col, lo, hi in (("overshoot_ratio", 0.0, 1.0), ("final_distance", 0.0, np.inf), ("entropy", 0.0, np.inf)):
-        if (row := first_row((ep[col] < lo) | (ep[col] > hi))) is not None:  # NaN (a NULL) compares false
-            raise InvalidArchive(f"episodes row {row}: {col} {ep[col][row]:.6g} is out of its range {lo:g}..{hi:g}")
-    bad = ((first < 1) | (first > horizon)) & ~ep.get("first_overshoot_step.null", np.False_)
-    if (row := first_row(bad)) is not None:
-        raise InvalidArchive(
-            f"episodes row {row}: first_overshoot_step {int(first[row])} is out of its range 1..{int(horizon[row])}"
-        )
-    if (row := _twice([job, train.astype(np.int8), episode])) is not None:
-        raise InvalidArchive(
-            f"episodes row {row}: job {int(job[row])}'s {phase[row]} episode {int(episode[row])} is there twice"
-        )
-
-
-def _check_steps(st: dict[str, np.ndarray], per_job: dict[str, np.ndarray]) -> None:
-    """The rows of ``eval_steps``: day, step, food and action in range, no key twice."""
-    job = st["job"]
-    for col, lo, hi in (
-        ("episode", 0, per_job["eval_episodes"][job] - 1),
-        ("step", 1, per_job["horizon"][job]),
-        ("food", 0, per_job["foods"][job] - 1),
-        ("action", 0, 1),
-    ):
-        if (row := first_row((st[col] < lo) | (st[col] > hi))) is not None:
-            raise InvalidArchive(
-                f"eval_steps row {row}: {col} {int(st[col][row])} of job {int(job[row])} is out of its range "
-                f"{lo}..{hi if np.isscalar(hi) else int(hi[row])}"
-            )
-    if (row := _twice([job, st["episode"], st["step"]])) is not None:
-        raise InvalidArchive(
-            f"eval_steps row {row}: job {int(job[row])}'s evaluation episode {int(st['episode'][row])} "
-            f"step {int(st['step'][row])} is there twice"
-        )
-
-
-def _check_diagnostics(dg: dict[str, np.ndarray]) -> None:
-    """The rows of ``diagnostics``: update and timestep not negative, no update twice per job."""
-    for col in ("update", "timestep"):
-        if (row := first_row(dg[col] < 0)) is not None:
-            raise InvalidArchive(f"diagnostics row {row}: {col} {int(dg[col][row])} is negative")
-    if (row := _twice([dg["job"], dg["update"]])) is not None:
-        raise InvalidArchive(
-            f"diagnostics row {row}: job {int(dg['job'][row])}'s update {int(dg['update'][row])} is there twice"
-        )
-
-
-def _check_validation(va: dict[str, np.ndarray], per_job: dict[str, np.ndarray]) -> None:
-    """The rows of ``validation_episodes``: training days from 1, days from 0, foods within a
-    day, no (job, training day, day) twice."""
-    for col, lo, hi in (("train_day", 1, np.inf), ("episode", 0, np.inf), ("foods", 0, per_job["horizon"][va["job"]])):
-        if (row := first_row((va[col] < lo) | (va[col] > hi))) is not None:
-            raise InvalidArchive(f"validation_episodes row {row}: {col} {int(va[col][row])} is out of its range")
-    if (row := _twice([va["job"], va["train_day"], va["episode"]])) is not None:
-        raise InvalidArchive(
-            f"validation_episodes row {row}: job {int(va['job'][row])}'s validation day {int(va['episode'][row])} "
-            f"after training day {int(va['train_day'][row])} is there twice"
-        )
+def _ranges(tables: dict[str, dict[str, np.ndarray]], per_job: dict[str, np.ndarray]) -> dict[str, list[Any]]:
+    """Per table, in the order checked, each ``(column, lo, hi, message)``: the column's values
+    lie in lo..hi (a bound a scalar or one per row), the message formatted with the row's."""
+    ep, st, va = tables["episodes"], tables["eval_steps"], tables["validation_episodes"]
+    horizon = per_job["horizon"][ep["job"]]
+    limit = np.where(ep["phase"] == "train", per_job["episodes"][ep["job"]], per_job["eval_episodes"][ep["job"]])
+    step, valid = "{col} {v} of job {job} is out of its range {lo}..{hi}", "{col} {v} is out of its range"
+    return {
+        "episodes": [
+            ("episode", 0, limit - 1, "{phase} episode {v} of job {job} is out of its range 0..{hi}"),
+            ("foods", 0, horizon, "{v} foods in a day of {hi} steps"),
+            *((c, 0.0, hi, "{col} {v:.6g} is out of its range {lo:g}..{hi:g}") for c, hi in _EPISODE_FLOATS),
+            ("first_overshoot_step", 1, horizon, "first_overshoot_step {v} is out of its range 1..{hi}"),
+        ],
+        "eval_steps": [
+            ("episode", 0, per_job["eval_episodes"][st["job"]] - 1, step),
+            ("step", 1, per_job["horizon"][st["job"]], step),
+            ("food", 0, per_job["foods"][st["job"]] - 1, step),
+            ("action", 0, 1, step),
+        ],
+        "diagnostics": [(c, 0, np.inf, "{col} {v} is negative") for c in ("update", "timestep")],
+        "validation_episodes": [
+            ("train_day", 1, np.inf, valid),
+            ("episode", 0, np.inf, valid),
+            ("foods", 0, per_job["horizon"][va["job"]], valid),
+        ],
+    }
 
 
 def _check_rows(
     tables: dict[str, dict[str, np.ndarray]], per_job: dict[str, np.ndarray], jobs: list[dict[str, Any]]
 ) -> None:
-    """Values in range and every job's rows complete: its budget of training days, its
-    evaluation days, and H steps of each."""
+    """Table by table every row's values in range (a NULL passes: a float's is NaN, which
+    compares false, an integer's has its mask) and no key twice; then every job's rows
+    complete: its budget of training days, its evaluation days, and H steps of each."""
     ep, sjob = tables["episodes"], tables["eval_steps"]["job"]
-    _check_episodes(ep, per_job)
-    _check_steps(tables["eval_steps"], per_job)
-    _check_diagnostics(tables["diagnostics"])
-    _check_validation(tables["validation_episodes"], per_job)
+    if (row := first_row(~np.isin(ep["phase"], PHASES))) is not None:
+        raise InvalidArchive(f"episodes row {row}: phase {short_repr(str(ep['phase'][row]))} is neither train nor eval")
+    for name, ranges in _ranges(tables, per_job).items():
+        t = tables[name]
+        for col, lo, hi, message in ranges:
+            if (row := first_row(((t[col] < lo) | (t[col] > hi)) & ~t.get(f"{col}.null", np.False_))) is not None:
+                at = {k: a[row] for k, a in t.items()} | {"col": col, "v": t[col][row]}
+                at |= {k: b if np.isscalar(b) else b[row] for k, b in (("lo", lo), ("hi", hi))}
+                raise InvalidArchive(f"{name} row {row}: {message.format_map(at)}")
+        key, what = _KEYS[name]  # sorted by its key, a row with the key of the one before it is there twice
+        keys = [t["job"], *(t[k] for k in key)]
+        order = np.lexsort(keys[::-1])
+        same = np.logical_and.reduce([k[order][1:] == k[order][:-1] for k in keys])
+        if (twice := first_row(same)) is not None:
+            row = int(order[twice + 1])
+            said = what.format_map({k: t[k][row] for k in key})
+            raise InvalidArchive(f"{name} row {row}: job {t['job'][row]}'s {said} is there twice")
     train = ep["phase"] == "train"
     trains = np.bincount(ep["job"][train], minlength=len(jobs))
     evals = np.bincount(ep["job"][~train], minlength=len(jobs))

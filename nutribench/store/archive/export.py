@@ -122,16 +122,12 @@ def _archive(
 
 
 def _encode(table: str, col: Any, values: list[Any]) -> dict[str, np.ndarray]:
-    kind = col.type.python_type
+    kind, key = col.type.python_type, f"{table}.{col.name}"
     nulls = np.array([v is None for v in values], dtype=bool)
-    key = f"{table}.{col.name}"
-    if kind is float:
-        arr = np.array([np.nan if v is None else v for v in values], dtype=np.float64)
-    elif kind is int:
-        arr = np.array([-1 if v is None else v for v in values], dtype=np.int64)
-        arr = arr.astype(np.int32) if arr.size == 0 or (arr.min() >= -(2**31) and arr.max() < 2**31) else arr
-    else:
-        arr = np.array(["" if v is None else v for v in values], dtype=str)
+    fill, dtype = {float: (np.nan, np.float64), int: (-1, np.int64), str: ("", str)}[kind]  # a NULL's stand-in
+    arr = np.array([fill if v is None else v for v in values], dtype=dtype)
+    if kind is int and (arr.size == 0 or (arr.min() >= -(2**31) and arr.max() < 2**31)):
+        arr = arr.astype(np.int32)
     return {key: arr, f"{key}.null": nulls} if nulls.any() else {key: arr}
 
 

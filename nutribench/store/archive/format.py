@@ -32,7 +32,7 @@ from sqlalchemy import Column, Float, Integer, MetaData, Table
 from nutribench.diagnostics import NAME_MAX, NAME_PATTERN, QUANTITIES, TIMESTEP
 from nutribench.diagnostics import valid_name as valid_quantity
 from nutribench.engines import ENGINES
-from nutribench.store.engine import StoreError
+from nutribench.store.engine import StoreError, one_line_error
 from nutribench.store.models import Diagnostic, Episode, EvalStep, ValidationEpisode
 
 FORMAT = "nutribench-results"
@@ -80,12 +80,6 @@ def short_repr(value: Any, n: int = 60) -> str:
     """``repr(value)``, cut to ``n`` characters: a value from the archive shown in the one line."""
     text = repr(value)
     return text if len(text) <= n else text[: n - 3] + "..."
-
-
-def one_line_reason(e: BaseException) -> str:
-    """``str(e)`` on one line (whitespace collapsed), cut to 160 characters; the type's name if empty."""
-    text = " ".join(str(e).split()) or type(e).__name__
-    return text if len(text) <= 160 else text[:157] + "..."
 
 
 def first_row(bad: np.ndarray) -> int | None:
@@ -141,8 +135,8 @@ def _check_sizes(path: str | os.PathLike[str], where: str) -> None:
         infos = zf.infolist()
         if len(infos) > MAX_MEMBERS:
             raise StoreError(f"{where}: {len(infos):,} arrays (at most {MAX_MEMBERS:,}); nothing imported")
-        twice = [n for n, c in Counter(i.filename for i in infos).items() if c > 1]
-        if twice:  # a reader keeps one of two same-named members (the last): which is the archive?
+        # a reader keeps one of two same-named members (the last): which is the archive?
+        if twice := [n for n, c in Counter(i.filename for i in infos).items() if c > 1]:
             raise StoreError(
                 f"{where}: member {short_repr(twice[0])} is there twice (a zip that two readers can read "
                 "differently is refused); nothing imported"
@@ -166,7 +160,7 @@ def _check_sizes(path: str | os.PathLike[str], where: str) -> None:
                     shape, _, dtype = read(fh)
                 except ValueError as e:
                     raise StoreError(
-                        f"{where}: array {info.filename} has a bad header ({one_line_reason(e)})"
+                        f"{where}: array {info.filename} has a bad header ({one_line_error(e, 160)})"
                     ) from None
             nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
             if nbytes > info.file_size:
@@ -200,14 +194,14 @@ def open_archive(path: str | os.PathLike[str], *, arrays: bool = True) -> tuple[
         raise
     except Exception as e:  # noqa: BLE001 - bytes from anywhere: BadZipFile, zlib.error, EOFError, a bad .npy header
         # (ValueError, tokenize.TokenError, ...): whatever the reader trips on, the file is not an archive
-        raise StoreError(f"{not_archive}: {one_line_reason(e)}") from None
+        raise StoreError(f"{not_archive}: {one_line_error(e, 160)}") from None
     meta_raw = found.pop("meta", None)
     if not isinstance(meta_raw, np.ndarray) or meta_raw.dtype != np.uint8 or meta_raw.ndim != 1:
         raise StoreError(f"{not_archive}: no meta")
     try:
         meta = json.loads(meta_raw.tobytes().decode())
     except (UnicodeDecodeError, ValueError, RecursionError) as e:
-        raise StoreError(f"{not_archive}: its meta is not JSON ({one_line_reason(e)})") from None
+        raise StoreError(f"{not_archive}: its meta is not JSON ({one_line_error(e, 160)})") from None
     if not isinstance(meta, dict):
         raise StoreError(f"{not_archive}: its meta is not a JSON object")
     return meta, found

@@ -95,12 +95,12 @@ def _part_sha256(kind: str, body: Any) -> str | None:
         return None
 
 
-def check_installed(meta: dict[str, Any], installed: Installed | None = None) -> None:
+def check_installed(meta: dict[str, Any]) -> None:
     """Every config of the (checked) ``meta`` that bears an installed config's name and
     version has its content; :class:`InvalidArchive` naming the first that has not."""
     from nutribench.agents.config import body_settings_sha256
 
-    installed = installed_configs() if installed is None else installed
+    installed = installed_configs()
     if not installed:
         return
 

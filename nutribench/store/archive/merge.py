@@ -13,7 +13,6 @@ import contextlib
 import os
 from collections.abc import Callable
 from datetime import datetime
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -69,15 +68,6 @@ def database_rows(
     return len(decoded), [{"job_id": job_id, **r} for r in decoded]
 
 
-def _remove_new_file(path: Path | None) -> None:
-    """Remove the SQLite file (and its WAL and journal) a failed import created."""
-    if path is None:
-        return
-    for p in (path, *side_files(path)):
-        with contextlib.suppress(OSError):  # best effort: the failure is reported anyway
-            p.unlink(missing_ok=True)
-
-
 def import_results(
     path: str | os.PathLike[str], db: str, *, on_step: Callable[[str, int, int], None] = lambda *_: None
 ) -> dict[str, int]:
@@ -93,8 +83,10 @@ def import_results(
         with store:  # disposed of before a file the import created is removed
             return _write(store, meta, arrays, path, on_step)
     except BaseException:
-        if store.created:
-            _remove_new_file(new_file)
+        if store.created and new_file is not None:  # the SQLite file, its WAL and journal it created
+            for p in (new_file, *side_files(new_file)):
+                with contextlib.suppress(OSError):  # best effort: the failure is reported anyway
+                    p.unlink(missing_ok=True)
         raise
 
 
@@ -126,8 +118,7 @@ def _write(
     fake = bool(meta["jobs"] and meta["jobs"][0].get("fake", False))
     with session_scope(store.engine) as s:
         hold_write_lock(s, REGISTRATION_LOCK)
-        other = s.execute(select(func.count()).select_from(Job).where(Job.fake == (not fake))).scalar_one()
-        if other:
+        if other := s.execute(select(func.count()).select_from(Job).where(Job.fake == (not fake))).scalar_one():
             ours, theirs = ("a dry run's jobs (fake)", "real jobs") if fake else ("real results", "dry-run jobs (fake)")
             raise StoreError(
                 f"db import: {path} holds {ours} and {store.display} holds {other} {theirs}: the two are never "
