@@ -115,18 +115,13 @@ class BatchedDDQN(BatchedOffPolicyAlgorithm):
         self.state["epsilon"] = self.exploration(progress_remaining)
 
     def update(self, steps: int, progress_remaining: float, batch: Batch) -> None:
-        lr = self.lr_schedule(progress_remaining)
+        lr, epsilon = self.lr_schedule(progress_remaining), self.state["epsilon"]
         losses = ddqn_update(self.q, self.q_target, self.optimizer, batch, lr, self.cfg.max_grad_norm, self.means)
-        self.means.add(**{names.LEARNING_RATE: lr, names.EPSILON: self.state["epsilon"]})
+        self.means.add(**{names.LEARNING_RATE: lr, names.EPSILON: epsilon})
         if self.on_update is not None:
+            copies = self.state["copies"]
             self.on_update(
-                {
-                    "steps": steps,
-                    "learning_rate": lr,
-                    "epsilon": self.state["epsilon"],
-                    "target_copies": self.state["copies"],
-                    "losses": losses,
-                }
+                {"steps": steps, "learning_rate": lr, "epsilon": epsilon, "target_copies": copies, "losses": losses}
             )
 
     def model_state_dict(self) -> dict[str, Any]:
