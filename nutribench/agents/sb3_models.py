@@ -14,13 +14,37 @@ policy's class, and plain SB3's ``A2C``, ``DQN`` and ``PPO`` load them.
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
+from gymnasium import spaces
 from stable_baselines3 import A2C, DQN, PPO
 from stable_baselines3.common.buffers import NStepReplayBuffer
+from stable_baselines3.common.policies import BasePolicy
 from torch.nn import functional as F
+
+
+class FlatDiscretePolicy(BasePolicy):
+    """What nutribench's own SB3 policies (GRU-PPO's and discrete SAC's) share: a flat ``Box``
+    of observations and ``Discrete`` actions (:meth:`sizes` checks them), and the constructor
+    parameters they keep under the same names, :attr:`KEPT`, saved with the model (its
+    ``lr_schedule`` is not needed to load the policy alone)."""
+
+    KEPT: ClassVar[tuple[str, ...]] = ()
+
+    def sizes(self) -> tuple[int, int]:
+        """The observation's and the action space's sizes; ValueError for other spaces."""
+        name, obs, actions = type(self).__name__, self.observation_space, self.action_space
+        if not isinstance(actions, spaces.Discrete):
+            raise ValueError(f"{name} needs a Discrete action space, got {actions}")
+        if not isinstance(obs, spaces.Box) or len(obs.shape) != 1:
+            raise ValueError(f"{name} needs a flat Box observation space, got {obs}")
+        return int(obs.shape[0]), int(actions.n)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        kept = {name: getattr(self, name) for name in self.KEPT}
+        return super()._get_constructor_parameters() | kept | {"lr_schedule": self._dummy_schedule}
 
 
 class MonteCarloAC(A2C):
@@ -68,13 +92,11 @@ class DoubleDQN(DQN):
         """SB3's, with that warning silenced where it is false (a file saved before the class
         was left out: its buffer class and kwargs both say n-step, so n-step returns are set up)."""
         kwargs = self.replay_buffer_kwargs or {}
-        if self.replay_buffer_class is NStepReplayBuffer and kwargs.get("n_steps") == self.n_steps:
-            with warnings.catch_warnings():
+        with warnings.catch_warnings():
+            if self.replay_buffer_class is NStepReplayBuffer and kwargs.get("n_steps") == self.n_steps:
                 warnings.filterwarnings(
                     "ignore", message=r"`n_steps=\d+` is ignored because a custom", category=UserWarning
                 )
-                super()._setup_model()
-        else:
             super()._setup_model()
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
