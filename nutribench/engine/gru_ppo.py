@@ -226,6 +226,14 @@ class StackedGRUActorCritic(SB3Weights):
         return pairs
 
 
+class RecurrentActor(Actor):
+    """Acting with the GRU actor-critic, its state carried from step to step from zeros (reset
+    where a day starts; a checkpoint keeps it)."""
+
+    def __init__(self, net: StackedGRUActorCritic):
+        super().__init__(net, th.zeros(2 * net.k, 1, net.hidden, device=net.params[0].device))
+
+
 class BatchedGRUPPO(BatchedPPO):
     """K GRU-PPO agents: PPO's loop, loss and step with the stacked GRU actor-critic, its
     state carried while acting, its update over whole days."""
@@ -250,9 +258,8 @@ class BatchedGRUPPO(BatchedPPO):
             memory=memory.pop(),
         )
 
-    def make_actor(self, net: StackedGRUActorCritic) -> Actor:
-        """The GRU state carried while acting, from zeros (a checkpoint keeps it)."""
-        return Actor(net, th.zeros(2 * net.k, 1, net.hidden, device=net.params[0].device))
+    def make_actor(self, net: StackedGRUActorCritic) -> RecurrentActor:
+        return RecurrentActor(net)
 
     def greedy(self) -> Greedy:
         state: list[th.Tensor] = []  # the GRU state of the days played, from zeros

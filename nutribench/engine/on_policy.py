@@ -146,19 +146,16 @@ def gradient_step(
 
 class Actor:
     """Acting with ``net`` (its ``step(obs (K, d), state, starts (K,))`` -> logits ``(K, n_actions)``,
-    values ``(K,)``, the new state) at the observations ``obs (K, d)`` and day starts ``(K,)``
-    of the env (numpy, moved to the net's device), without gradient: ``state`` (a recurrent
-    net's; None: a feedforward net keeps none) carried from step to step, reset by the net
-    where a day starts; ``advance=False`` peeks (the value after the rollout, as SB3's
-    ``predict_values``, which does not keep the new state)."""
+    values ``(K,)``, the new state): ``state`` (a recurrent net's; None: a feedforward net keeps
+    none) carried from step to step, reset by the net where a day starts; ``advance=False``
+    peeks (the value after the rollout, as SB3's ``predict_values``, which does not keep the
+    new state)."""
 
     def __init__(self, net: Any, state: th.Tensor | None = None):
         self.net, self.state = net, state
 
-    def __call__(self, obs: np.ndarray, starts: np.ndarray, advance: bool = True) -> tuple[th.Tensor, th.Tensor]:
-        obs, starts = (th.as_tensor(x, device=self.net.params[0].device) for x in (obs, starts))
-        with th.no_grad():
-            logits, values, state = self.net.step(obs, self.state, starts)
+    def __call__(self, obs: th.Tensor, starts: th.Tensor, advance: bool = True) -> tuple[th.Tensor, th.Tensor]:
+        logits, values, state = self.net.step(obs, self.state, starts)
         if advance:
             self.state = state
         return logits, values
@@ -251,7 +248,7 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         obs, start_of_day = self.last_obs, self.start_of_day
         for t in range(n_steps):
             self.day_boundary(self.num_timesteps)  # the evaluation during training that is due, if any
-            logits, values = self.actor(obs, start_of_day)
+            logits, values = self.act(obs, start_of_day)
             logp = th.log_softmax(logits, dim=-1).cpu().numpy()
             actions = (uniforms[:, t] < np.exp(logp[:, 1])).astype(np.int64)
             buf["obs"][:, t], buf["actions"][:, t], buf["starts"][:, t] = obs, actions, start_of_day
@@ -270,6 +267,11 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
             return None
         return self.compute_returns(buf)
 
+    def act(self, obs: np.ndarray, starts: np.ndarray, advance: bool = True) -> tuple[th.Tensor, th.Tensor]:
+        """:attr:`actor` (no gradient) at the env's observations ``obs (K, d)`` and day starts ``(K,)``."""
+        with th.no_grad():
+            return self.actor(th.as_tensor(obs, device=self.device), th.as_tensor(starts, device=self.device), advance)
+
     def scale_rewards(self, rewards: np.ndarray) -> np.ndarray:
         """``VecNormalize``'s reward scaling: the running deviation of each agent's discounted
         return, updated with this step's rewards (the rewards as they are without it)."""
@@ -283,7 +285,7 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         """The rollout of ``buf`` (the arrays of :meth:`collect_rollouts`) with SB3's GAE
         from the value after its last step; handed to ``on_rollout`` first, if set."""
         settings, device = self.settings, self.device
-        _, last_values = self.actor(self.last_obs, self.start_of_day, advance=False)
+        _, last_values = self.act(self.last_obs, self.start_of_day, advance=False)
         buf["advantages"], buf["returns"] = gae(
             buf["rewards"],
             buf["values"],
