@@ -249,14 +249,8 @@ class BatchedGRUPPO(BatchedPPO):
         memory = {c.memory for c in self.cfgs}
         if len(memory) > 1:
             raise ValueError("agents of one batch must agree on memory")
-        return StackedGRUActorCritic(
-            self.k,
-            self.envs.obs_dim,
-            self.cfg.hidden_size,
-            generators=generators,
-            device=self.device,
-            memory=memory.pop(),
-        )
+        kwargs = dict(generators=generators, device=self.device, memory=memory.pop())
+        return StackedGRUActorCritic(self.k, self.envs.obs_dim, self.cfg.hidden_size, **kwargs)
 
     def make_actor(self, net: StackedGRUActorCritic) -> RecurrentActor:
         return RecurrentActor(net)

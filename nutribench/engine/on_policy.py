@@ -134,14 +134,8 @@ def gradient_step(
     norms = clip_grad_norm_per_agent(params, settings.max_grad_norm, k)
     optimizer.step(active=settings.active)
     if means is not None:
-        means.add(
-            **{
-                names.POLICY_LOSS: policy_loss,
-                names.VALUE_LOSS: value_loss,
-                names.ENTROPY_LOSS: entropy_loss,
-                names.GRAD_NORM: norms,
-            }
-        )
+        losses = {names.POLICY_LOSS: policy_loss, names.VALUE_LOSS: value_loss, names.ENTROPY_LOSS: entropy_loss}
+        means.add(**losses, **{names.GRAD_NORM: norms})
 
 
 class Actor:
@@ -286,14 +280,9 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         from the value after its last step; handed to ``on_rollout`` first, if set."""
         settings, device = self.settings, self.device
         _, last_values = self.act(self.last_obs, self.start_of_day, advance=False)
+        last, dones = last_values.cpu().numpy(), self.start_of_day.astype(bool)
         buf["advantages"], buf["returns"] = gae(
-            buf["rewards"],
-            buf["values"],
-            buf["starts"],
-            last_values.cpu().numpy(),
-            self.start_of_day.astype(bool),
-            settings.gamma,
-            settings.gae_lambda,
+            buf["rewards"], buf["values"], buf["starts"], last, dones, settings.gamma, settings.gae_lambda
         )
         if self.on_rollout is not None:
             shown = ("obs", "actions", "rewards", "starts", "values", "advantages", "returns")
