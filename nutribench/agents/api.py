@@ -249,7 +249,8 @@ def train(
     if algorithm(cfg).build is None:  # a plug-in: its days are recorded by the env
         if validator is not None:
             raise ValueError(f"{cfg.name}: evaluation during training needs a built-in algorithm's loop")
-        model, env, days = _train_plugin(cfg, env, base, seed, episodes, horizon, on_episode, tensorboard)
+        recorder = RecordingVecEnv(env, base, episodes, on_episode)
+        model, env, days = _train_plugin(cfg, recorder, seed, horizon, tensorboard), recorder.venv, recorder.episodes
     else:
         model = make_model(cfg, env, seed=seed, horizon=horizon)
         recorder = EpisodeMetrics(base, episodes, on_episode)
@@ -271,24 +272,14 @@ def train(
     return agent
 
 
-def _train_plugin(
-    cfg: Any,
-    env: VecEnv,
-    base: NutriRLSB3VecEnv,
-    seed: int,
-    episodes: int,
-    horizon: int,
-    on_episode: EpisodeFn | None,
-    tensorboard: str | Path | None,
-) -> tuple[Any, VecEnv, list[dict[str, Any]]]:
-    """A plug-in's model trained on ``env`` (its days recorded by the env, not by a callback:
-    the plug-in's ``learn`` may take none); the model, the env it trained in and its days."""
-    recorder = RecordingVecEnv(env, base, episodes, on_episode)
+def _train_plugin(cfg: Any, recorder: RecordingVecEnv, seed: int, horizon: int, tensorboard: str | Path | None) -> Any:
+    """A plug-in's model trained on ``recorder`` (the env that records its days, not a callback:
+    the plug-in's ``learn`` may take none) for the days the recorder asks."""
     model = recorder.model = make_model(cfg, recorder, seed=seed, horizon=horizon)
     plugin_logger(model, tensorboard)
-    model.learn(total_timesteps=episodes * horizon)
+    model.learn(total_timesteps=recorder.n_episodes * horizon)
     recorder.check_budget(cfg)
-    return model, recorder.venv, recorder.episodes
+    return model
 
 
 def _validation_callback(

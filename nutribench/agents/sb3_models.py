@@ -106,13 +106,10 @@ class DoubleDQN(DQN):
         for _ in range(gradient_steps):
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
             discounts = data.discounts if data.discounts is not None else self.gamma
+            next_obs = data.next_observations
             with th.no_grad():
                 target = double_dqn_target(
-                    self.q_net(data.next_observations),
-                    self.q_net_target(data.next_observations),
-                    data.rewards,
-                    data.dones,
-                    discounts,
+                    self.q_net(next_obs), self.q_net_target(next_obs), data.rewards, data.dones, discounts
                 )
             current = th.gather(self.q_net(data.observations), dim=1, index=data.actions.long())
             loss = F.smooth_l1_loss(current, target)
