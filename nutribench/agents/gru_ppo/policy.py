@@ -123,22 +123,17 @@ class GRUActorCriticPolicy(FlatDiscretePolicy):
         nutrients, foods = obs[..., : self.n_nutrients], obs[..., self.n_nutrients :]
         keep = 1.0 - episode_starts.float().reshape(batch, steps)
         h_nut, h_food = state
-        if steps == 1 or bool((keep[:, 1:] == 1.0).all()):
-            # Fast path: the state is reset at most before the first step -> one GRU call.
-            mask = keep[:, 0].reshape(1, batch, 1)
-            out_nut, h_nut = self.nutrient_gru(nutrients, h_nut * mask)
-            out_food, h_food = self.food_gru(foods, h_food * mask)
-        else:
-            # An episode starts inside a sequence: step by step, zeroing the state there.
-            outs_nut, outs_food = [], []
-            for t in range(steps):
-                mask = keep[:, t].reshape(1, batch, 1)
-                o_nut, h_nut = self.nutrient_gru(nutrients[:, t : t + 1], h_nut * mask)
-                o_food, h_food = self.food_gru(foods[:, t : t + 1], h_food * mask)
-                outs_nut.append(o_nut)
-                outs_food.append(o_food)
-            out_nut, out_food = th.cat(outs_nut, dim=1), th.cat(outs_food, dim=1)
-        return th.cat([out_nut, out_food], dim=-1), (h_nut, h_food)
+        # the state reset at most before the first step: one GRU call over all steps; else
+        # (an episode starts inside a sequence) step by step, zeroing the state there
+        whole = steps == 1 or bool((keep[:, 1:] == 1.0).all())
+        outs_nut, outs_food = [], []
+        for t in [0] if whole else range(steps):
+            mask, end = keep[:, t].reshape(1, batch, 1), steps if whole else t + 1
+            o_nut, h_nut = self.nutrient_gru(nutrients[:, t:end], h_nut * mask)
+            o_food, h_food = self.food_gru(foods[:, t:end], h_food * mask)
+            outs_nut.append(o_nut)
+            outs_food.append(o_food)
+        return th.cat([th.cat(outs_nut, dim=1), th.cat(outs_food, dim=1)], dim=-1), (h_nut, h_food)
 
     def _step(self, obs: th.Tensor, state: GRUState, episode_starts: th.Tensor) -> tuple[th.Tensor, GRUState]:
         """One step for a batch of envs: ``obs (n, obs_dim)``, ``episode_starts (n,)`` -> features ``(n, 2H)``."""
