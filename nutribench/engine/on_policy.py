@@ -299,13 +299,10 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
 
     def log_update(self, rollout: Rollout) -> None:
         """The diagnostics of the update just made on ``rollout`` (one read of the device's sums)."""
-        row: dict[str, Any] = {
-            **self.means.means(),
-            names.EXPLAINED_VARIANCE: [
-                explained_variance(v, r) for v, r in zip(rollout.values.cpu().numpy(), rollout.returns.cpu().numpy())
-            ],
-            names.LEARNING_RATE: self.settings.learning_rate,
-        }
+        means = self.means.means()
+        values, returns = rollout.values.cpu().numpy(), rollout.returns.cpu().numpy()
+        variances = [explained_variance(v, r) for v, r in zip(values, returns)]
+        row = {**means, names.EXPLAINED_VARIANCE: variances, names.LEARNING_RATE: self.settings.learning_rate}
         if self.ret_stats is not None:
             row[names.RETURN_SCALE] = np.sqrt(self.ret_stats.var + NORM_EPS)
         self.record(self.num_timesteps, row)
