@@ -145,16 +145,8 @@ def stand_in_env(spaces: Any, where: str) -> VecEnv:
         high = np.asarray(spaces["obs_high"], dtype=np.float64)
         dtype = np.dtype(spaces["obs_dtype"])
         n = spaces["n_actions"]
-        ok = (
-            low.ndim == 1
-            and low.shape == high.shape
-            and 0 < len(low) <= 4096
-            and dtype.kind == "f"
-            and type(n) is int
-            and 1 <= n <= 1024
-            and not np.isnan(low).any()
-            and not np.isnan(high).any()
-        )
+        box_ok = low.ndim == 1 and low.shape == high.shape and 0 < len(low) <= 4096 and dtype.kind == "f"
+        ok = box_ok and type(n) is int and 1 <= n <= 1024 and not np.isnan(low).any() and not np.isnan(high).any()
     except (KeyError, TypeError, ValueError):
         ok = False
     if not ok:

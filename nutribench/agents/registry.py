@@ -117,11 +117,8 @@ class Algorithm:
 def no_replay_scaling(cfg: Any, horizon: int | None) -> str | None:
     """``batch_limits`` of an off-policy algorithm: its batched replay would have to scale
     sampled rewards."""
-    if cfg.normalize_reward:
-        return (
-            "the batched engine does not scale replayed rewards (normalize_reward = true); set normalize_reward = false"
-        )
-    return None
+    why = "the batched engine does not scale replayed rewards (normalize_reward = true); set normalize_reward = false"
+    return why if cfg.normalize_reward else None
 
 
 _EXTRA: dict[str, Algorithm] = {}

@@ -125,13 +125,8 @@ class BatchedDDQN(BatchedOffPolicyAlgorithm):
             )
 
     def model_state_dict(self) -> dict[str, Any]:
-        return {
-            "q": list(self.q.params),
-            "q_target": list(self.q_target.params),
-            "optimizer": self.optimizer.state_dict(),
-            "epsilon": self.state["epsilon"],
-            "copies": self.state["copies"],
-        }
+        nets = {"q": list(self.q.params), "q_target": list(self.q_target.params)}
+        return {**nets, "optimizer": self.optimizer.state_dict(), **self.state}  # the epsilon and the target copies
 
     def load_model_state_dict(self, state: dict[str, Any]) -> None:
         load_params(self.q.params, state["q"])

@@ -67,11 +67,8 @@ class SACSettings:
         for name in data[0]:
             if name not in cls.CONTINUOUS and name not in _NAMING and any(d[name] != data[0][name] for d in data):
                 raise ValueError(f"agents of one batch must agree on {name}")
-        values = {}
-        for name in cls.CONTINUOUS:
-            column = [float(d[name]) for d in data]
-            values[name] = column[0] if len(set(column)) == 1 else np.asarray(column, dtype=np.float64)
-        return cls(**values)
+        columns = {name: [float(d[name]) for d in data] for name in cls.CONTINUOUS}
+        return cls(**{n: c[0] if len(set(c)) == 1 else np.asarray(c, dtype=np.float64) for n, c in columns.items()})
 
 
 class StackedSAC(SB3Weights):

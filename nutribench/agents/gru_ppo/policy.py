@@ -202,13 +202,12 @@ class GRUActorCriticPolicy(FlatDiscretePolicy):
         episode_starts: th.Tensor | None = None,
         deterministic: bool = False,
     ) -> tuple[th.Tensor, GRUState]:
-        obs = observation  # type: ignore[assignment]
-        n = obs.shape[0]  # type: ignore[union-attr]
+        n = observation.shape[0]  # type: ignore[union-attr]
         if state is None:
             state = self.initial_state(n)
         if episode_starts is None:
             episode_starts = th.zeros(n, device=self.device)
-        actions, _, _, new_state = self.forward(obs, state, episode_starts, deterministic)  # type: ignore[arg-type]
+        actions, _, _, new_state = self.forward(observation, state, episode_starts, deterministic)  # type: ignore[arg-type]
         return actions, new_state
 
     def predict(  # type: ignore[override]
