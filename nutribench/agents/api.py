@@ -198,17 +198,10 @@ def make_train_env(env_cfg: EnvConfig, cfg: Any) -> tuple[NutriRLSB3VecEnv, VecE
     as the config asks (observations and/or rewards; SB3 sees scaled rewards, the
     recorded metrics stay raw because they are read from the base env)."""
     base = NutriRLSB3VecEnv(num_envs=1, regime=env_cfg)
-    if not (cfg.normalize_obs or cfg.normalize_reward):
+    norms = dict(norm_obs=cfg.normalize_obs, norm_reward=cfg.normalize_reward)
+    if not any(norms.values()):
         return base, base
-    env = VecNormalize(
-        base,
-        norm_obs=cfg.normalize_obs,
-        norm_reward=cfg.normalize_reward,
-        gamma=cfg.gamma,
-        clip_obs=CLIP_OBS,
-        epsilon=NORM_EPS,
-    )
-    return base, env
+    return base, VecNormalize(base, **norms, gamma=cfg.gamma, clip_obs=CLIP_OBS, epsilon=NORM_EPS)
 
 
 @single_threaded()

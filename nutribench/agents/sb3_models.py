@@ -121,9 +121,8 @@ class DoubleDQN(DQN):
             self.policy.optimizer.step()
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/loss", float(np.mean(losses)))
-        self.logger.record("train/q_mean", float(np.mean(q_means)))
-        self.logger.record("train/grad_norm", float(np.mean(grad_norms)))
+        for key, values in (("loss", losses), ("q_mean", q_means), ("grad_norm", grad_norms)):
+            self.logger.record(f"train/{key}", float(np.mean(values)))
 
     def day_entropy(self, obs: np.ndarray) -> None:
         """Epsilon-greedy over Q-values: no stochastic policy whose entropy to record."""

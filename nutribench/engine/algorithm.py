@@ -171,7 +171,5 @@ class BatchedAlgorithm:
         shared = {n: float(v) for n, v in values.items() if np.ndim(v) == 0}
         columns = {n: np.asarray(v, dtype=np.float64).tolist() for n, v in values.items() if n not in shared}
         for j in range(self.k):
-            row: dict[str, float] = {names.UPDATE: update, names.TIMESTEP: timestep}
-            row.update({n: v[j] for n, v in columns.items()})
-            row.update(shared)
-            self.diagnostics[j].append(row)
+            row = {names.UPDATE: update, names.TIMESTEP: timestep, **{n: v[j] for n, v in columns.items()}}
+            self.diagnostics[j].append(row | shared)

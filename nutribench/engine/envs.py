@@ -221,12 +221,8 @@ def as_trained_agent(
     if ret_stats is not None:
         for name in ("mean", "var", "count"):
             setattr(env.ret_rms, name, float(getattr(ret_stats, name)[j]))
-    provenance = {
-        **training_provenance(env_cfg, cfg, seed, episodes),
-        "engine": Engine.BATCHED.value,
-        "device": device,
-        "batch_wall_seconds_per_agent": wall,
-    }
+    batched = {"engine": Engine.BATCHED.value, "device": device, "batch_wall_seconds_per_agent": wall}
+    provenance = training_provenance(env_cfg, cfg, seed, episodes) | batched
     agent = TrainedAgent(
         model, cfg.algo, cfg, mean, var, vec_normalize=env if hasattr(env, "obs_rms") else None, provenance=provenance
     )
