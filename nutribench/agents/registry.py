@@ -232,9 +232,8 @@ def unregister(algo: str) -> None:
 def reload_installed() -> None:
     """Read the entry-point group and the built-in package again (after installing a package,
     or adding a module, in this process)."""
-    _installed.cache_clear()
-    builtin_algorithms.cache_clear()
-    _builtin_modules.cache_clear()
+    for cached in (_installed, builtin_algorithms, _builtin_modules):
+        cached.cache_clear()
 
 
 def get(algo: str) -> Algorithm:
