@@ -1,7 +1,8 @@
 """The built-in algorithms' own SB3 model classes where they are small: MC's
 :class:`MonteCarloAC`, DDQN's :class:`DoubleDQN` (and its target, :func:`double_dqn_target`),
 PPO's :class:`PPOWithGradNorm` (SAC's and GRU-PPO's are packages of their own,
-:mod:`nutribench.agents.sac` and :mod:`nutribench.agents.gru_ppo`).
+:mod:`nutribench.agents.sac` and :mod:`nutribench.agents.gru_ppo`, whose policies share
+:class:`FlatDiscretePolicy`).
 
 They live apart from their algorithms' modules (:mod:`nutribench.agents.builtin`) so that
 reading and checking an agent config imports neither torch nor Stable-Baselines3: a module of

@@ -30,7 +30,7 @@ import torch as th
 
 from nutribench.engine.device import leaves_on
 from nutribench.engine.evaluate import Greedy, greedy_categorical
-from nutribench.engine.on_policy import Actor, log_prob_entropy
+from nutribench.engine.on_policy import StackedActor, log_prob_entropy
 from nutribench.engine.ppo import BatchedPPO
 from nutribench.engine.stacked import SB3Weights, linear_pairs, orthogonal
 
@@ -226,7 +226,7 @@ class StackedGRUActorCritic(SB3Weights):
         return pairs
 
 
-class RecurrentActor(Actor):
+class RecurrentActor(StackedActor):
     """Acting with the GRU actor-critic, its state carried from step to step from zeros (reset
     where a day starts; a checkpoint keeps it)."""
 

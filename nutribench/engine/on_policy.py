@@ -138,7 +138,7 @@ def gradient_step(
         means.add(**losses, **{names.GRAD_NORM: norms})
 
 
-class Actor:
+class StackedActor:
     """Acting with ``net`` (its ``step(obs (K, d), state, starts (K,))`` -> logits ``(K, n_actions)``,
     values ``(K,)``, the new state): ``state`` (a recurrent net's; None: a feedforward net keeps
     none) carried from step to step, reset by the net where a day starts; ``advance=False``
@@ -204,10 +204,10 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         """The K agents' stacked network (``params``, ``store_sb3``), initialised from ``generators``."""
         raise NotImplementedError
 
-    def make_actor(self, net: Any) -> Actor:
+    def make_actor(self, net: Any) -> StackedActor:
         """Acting with ``net``: ``(obs (K, d), starts (K,), advance=True)`` -> logits, values
         (here: a feedforward net's, no state)."""
-        return Actor(net)
+        return StackedActor(net)
 
     def train(self, rollout: Rollout) -> None:
         """The algorithm's update of the K agents on ``rollout`` (SB3's ``train()``), then
