@@ -198,17 +198,10 @@ def make_train_env(env_cfg: EnvConfig, cfg: Any) -> tuple[NutriRLSB3VecEnv, VecE
     as the config asks (observations and/or rewards; SB3 sees scaled rewards, the
     recorded metrics stay raw because they are read from the base env)."""
     base = NutriRLSB3VecEnv(num_envs=1, regime=env_cfg)
-    if not (cfg.normalize_obs or cfg.normalize_reward):
+    norms = dict(norm_obs=cfg.normalize_obs, norm_reward=cfg.normalize_reward)
+    if not any(norms.values()):
         return base, base
-    env = VecNormalize(
-        base,
-        norm_obs=cfg.normalize_obs,
-        norm_reward=cfg.normalize_reward,
-        gamma=cfg.gamma,
-        clip_obs=CLIP_OBS,
-        epsilon=NORM_EPS,
-    )
-    return base, env
+    return base, VecNormalize(base, **norms, gamma=cfg.gamma, clip_obs=CLIP_OBS, epsilon=NORM_EPS)
 
 
 @single_threaded()
@@ -249,7 +242,8 @@ def train(
     if algorithm(cfg).build is None:  # a plug-in: its days are recorded by the env
         if validator is not None:
             raise ValueError(f"{cfg.name}: evaluation during training needs a built-in algorithm's loop")
-        model, env, days = _train_plugin(cfg, env, base, seed, episodes, horizon, on_episode, tensorboard)
+        recorder = RecordingVecEnv(env, base, episodes, on_episode)
+        model, env, days = _train_plugin(cfg, recorder, seed, horizon, tensorboard), recorder.venv, recorder.episodes
     else:
         model = make_model(cfg, env, seed=seed, horizon=horizon)
         recorder = EpisodeMetrics(base, episodes, on_episode)
@@ -271,24 +265,14 @@ def train(
     return agent
 
 
-def _train_plugin(
-    cfg: Any,
-    env: VecEnv,
-    base: NutriRLSB3VecEnv,
-    seed: int,
-    episodes: int,
-    horizon: int,
-    on_episode: EpisodeFn | None,
-    tensorboard: str | Path | None,
-) -> tuple[Any, VecEnv, list[dict[str, Any]]]:
-    """A plug-in's model trained on ``env`` (its days recorded by the env, not by a callback:
-    the plug-in's ``learn`` may take none); the model, the env it trained in and its days."""
-    recorder = RecordingVecEnv(env, base, episodes, on_episode)
+def _train_plugin(cfg: Any, recorder: RecordingVecEnv, seed: int, horizon: int, tensorboard: str | Path | None) -> Any:
+    """A plug-in's model trained on ``recorder`` (the env that records its days, not a callback:
+    the plug-in's ``learn`` may take none) for the days the recorder asks."""
     model = recorder.model = make_model(cfg, recorder, seed=seed, horizon=horizon)
     plugin_logger(model, tensorboard)
-    model.learn(total_timesteps=episodes * horizon)
+    model.learn(total_timesteps=recorder.n_episodes * horizon)
     recorder.check_budget(cfg)
-    return model, recorder.venv, recorder.episodes
+    return model
 
 
 def _validation_callback(

@@ -132,11 +132,10 @@ class _SpacesOnly(gym.Env):
     def __init__(self, observation_space: gym.spaces.Box, action_space: gym.spaces.Discrete):
         self.observation_space, self.action_space = observation_space, action_space
 
-    def reset(self, *, seed: int | None = None, options: dict | None = None) -> Any:  # pragma: no cover
+    def step(self, *args: Any, **kwargs: Any) -> Any:  # pragma: no cover
         raise RuntimeError("a stand-in env for loading weights: it cannot be played")
 
-    def step(self, action: Any) -> Any:  # pragma: no cover
-        raise RuntimeError("a stand-in env for loading weights: it cannot be played")
+    reset = step
 
 
 def stand_in_env(spaces: Any, where: str) -> VecEnv:
@@ -146,16 +145,8 @@ def stand_in_env(spaces: Any, where: str) -> VecEnv:
         high = np.asarray(spaces["obs_high"], dtype=np.float64)
         dtype = np.dtype(spaces["obs_dtype"])
         n = spaces["n_actions"]
-        ok = (
-            low.ndim == 1
-            and low.shape == high.shape
-            and 0 < len(low) <= 4096
-            and dtype.kind == "f"
-            and type(n) is int
-            and 1 <= n <= 1024
-            and not np.isnan(low).any()
-            and not np.isnan(high).any()
-        )
+        box_ok = low.ndim == 1 and low.shape == high.shape and 0 < len(low) <= 4096 and dtype.kind == "f"
+        ok = box_ok and type(n) is int and 1 <= n <= 1024 and not np.isnan(low).any() and not np.isnan(high).any()
     except (KeyError, TypeError, ValueError):
         ok = False
     if not ok:
@@ -298,6 +289,10 @@ def load_plugin_model(path: str | Path, make_agent: Callable[[dict[str, Any], An
     return rebuild_from_weights(path, lambda env: make_agent(dict(params), env, 0), side["spaces"], side["config"])
 
 
+#: ``VecNormalize``'s float settings, as its sidecar's JSON holds them
+VEC_NORMALIZE_FLOATS = ("clip_obs", "clip_reward", "gamma", "epsilon")
+
+
 def vec_normalize_stats(vn: VecNormalize) -> dict[str, Any]:
     """``VecNormalize``'s statistics and settings as JSON (what its pickle holds that matters)."""
     rms = lambda r: {"mean": np.asarray(r.mean).tolist(), "var": np.asarray(r.var).tolist(), "count": float(r.count)}  # noqa: E731
@@ -306,32 +301,21 @@ def vec_normalize_stats(vn: VecNormalize) -> dict[str, Any]:
         "ret_rms": rms(vn.ret_rms),
         "norm_obs": bool(vn.norm_obs),
         "norm_reward": bool(vn.norm_reward),
-        "clip_obs": float(vn.clip_obs),
-        "clip_reward": float(vn.clip_reward),
-        "gamma": float(vn.gamma),
-        "epsilon": float(vn.epsilon),
+        **{name: float(getattr(vn, name)) for name in VEC_NORMALIZE_FLOATS},
     }
 
 
 def vec_normalize_from_stats(stats: dict[str, Any], venv: VecEnv) -> VecNormalize:
     """A frozen ``VecNormalize`` around ``venv`` with the statistics :func:`vec_normalize_stats`
     wrote (evaluation: ``training=False``, raw rewards), rebuilt without a pickle."""
-    vn = VecNormalize(
-        venv,
-        training=False,
-        norm_obs=bool(stats["norm_obs"]),
-        norm_reward=False,
-        clip_obs=float(stats["clip_obs"]),
-        clip_reward=float(stats["clip_reward"]),
-        gamma=float(stats["gamma"]),
-        epsilon=float(stats["epsilon"]),
-    )
+    floats = {name: float(stats[name]) for name in VEC_NORMALIZE_FLOATS}
+    vn = VecNormalize(venv, training=False, norm_obs=bool(stats["norm_obs"]), norm_reward=False, **floats)
     for key in ("obs_rms", "ret_rms"):
         saved = stats.get(key)
         if saved is not None:
             rms = getattr(vn, key)
-            rms.mean = np.asarray(saved["mean"], dtype=np.float64).reshape(np.shape(rms.mean))
-            rms.var = np.asarray(saved["var"], dtype=np.float64).reshape(np.shape(rms.var))
+            for part in ("mean", "var"):
+                setattr(rms, part, np.asarray(saved[part], dtype=np.float64).reshape(np.shape(getattr(rms, part))))
             rms.count = float(saved["count"])
     return vn
 

@@ -117,11 +117,8 @@ class Algorithm:
 def no_replay_scaling(cfg: Any, horizon: int | None) -> str | None:
     """``batch_limits`` of an off-policy algorithm: its batched replay would have to scale
     sampled rewards."""
-    if cfg.normalize_reward:
-        return (
-            "the batched engine does not scale replayed rewards (normalize_reward = true); set normalize_reward = false"
-        )
-    return None
+    why = "the batched engine does not scale replayed rewards (normalize_reward = true); set normalize_reward = false"
+    return why if cfg.normalize_reward else None
 
 
 _EXTRA: dict[str, Algorithm] = {}
@@ -235,9 +232,8 @@ def unregister(algo: str) -> None:
 def reload_installed() -> None:
     """Read the entry-point group and the built-in package again (after installing a package,
     or adding a module, in this process)."""
-    _installed.cache_clear()
-    builtin_algorithms.cache_clear()
-    _builtin_modules.cache_clear()
+    for cached in (_installed, builtin_algorithms, _builtin_modules):
+        cached.cache_clear()
 
 
 def get(algo: str) -> Algorithm:

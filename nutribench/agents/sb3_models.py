@@ -1,7 +1,8 @@
 """The built-in algorithms' own SB3 model classes where they are small: MC's
 :class:`MonteCarloAC`, DDQN's :class:`DoubleDQN` (and its target, :func:`double_dqn_target`),
 PPO's :class:`PPOWithGradNorm` (SAC's and GRU-PPO's are packages of their own,
-:mod:`nutribench.agents.sac` and :mod:`nutribench.agents.gru_ppo`).
+:mod:`nutribench.agents.sac` and :mod:`nutribench.agents.gru_ppo`, whose policies share
+:class:`FlatDiscretePolicy`).
 
 They live apart from their algorithms' modules (:mod:`nutribench.agents.builtin`) so that
 reading and checking an agent config imports neither torch nor Stable-Baselines3: a module of
@@ -14,13 +15,37 @@ policy's class, and plain SB3's ``A2C``, ``DQN`` and ``PPO`` load them.
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
+from gymnasium import spaces
 from stable_baselines3 import A2C, DQN, PPO
 from stable_baselines3.common.buffers import NStepReplayBuffer
+from stable_baselines3.common.policies import BasePolicy
 from torch.nn import functional as F
+
+
+class FlatDiscretePolicy(BasePolicy):
+    """What nutribench's own SB3 policies (GRU-PPO's and discrete SAC's) share: a flat ``Box``
+    of observations and ``Discrete`` actions (:meth:`sizes` checks them), and the constructor
+    parameters they keep under the same names, :attr:`KEPT`, saved with the model (its
+    ``lr_schedule`` is not needed to load the policy alone)."""
+
+    KEPT: ClassVar[tuple[str, ...]] = ()
+
+    def sizes(self) -> tuple[int, int]:
+        """The observation's and the action space's sizes; ValueError for other spaces."""
+        name, obs, actions = type(self).__name__, self.observation_space, self.action_space
+        if not isinstance(actions, spaces.Discrete):
+            raise ValueError(f"{name} needs a Discrete action space, got {actions}")
+        if not isinstance(obs, spaces.Box) or len(obs.shape) != 1:
+            raise ValueError(f"{name} needs a flat Box observation space, got {obs}")
+        return int(obs.shape[0]), int(actions.n)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        kept = {name: getattr(self, name) for name in self.KEPT}
+        return super()._get_constructor_parameters() | kept | {"lr_schedule": self._dummy_schedule}
 
 
 class MonteCarloAC(A2C):
@@ -68,13 +93,11 @@ class DoubleDQN(DQN):
         """SB3's, with that warning silenced where it is false (a file saved before the class
         was left out: its buffer class and kwargs both say n-step, so n-step returns are set up)."""
         kwargs = self.replay_buffer_kwargs or {}
-        if self.replay_buffer_class is NStepReplayBuffer and kwargs.get("n_steps") == self.n_steps:
-            with warnings.catch_warnings():
+        with warnings.catch_warnings():
+            if self.replay_buffer_class is NStepReplayBuffer and kwargs.get("n_steps") == self.n_steps:
                 warnings.filterwarnings(
                     "ignore", message=r"`n_steps=\d+` is ignored because a custom", category=UserWarning
                 )
-                super()._setup_model()
-        else:
             super()._setup_model()
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
@@ -84,13 +107,10 @@ class DoubleDQN(DQN):
         for _ in range(gradient_steps):
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
             discounts = data.discounts if data.discounts is not None else self.gamma
+            next_obs = data.next_observations
             with th.no_grad():
                 target = double_dqn_target(
-                    self.q_net(data.next_observations),
-                    self.q_net_target(data.next_observations),
-                    data.rewards,
-                    data.dones,
-                    discounts,
+                    self.q_net(next_obs), self.q_net_target(next_obs), data.rewards, data.dones, discounts
                 )
             current = th.gather(self.q_net(data.observations), dim=1, index=data.actions.long())
             loss = F.smooth_l1_loss(current, target)
@@ -102,9 +122,8 @@ class DoubleDQN(DQN):
             self.policy.optimizer.step()
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/loss", float(np.mean(losses)))
-        self.logger.record("train/q_mean", float(np.mean(q_means)))
-        self.logger.record("train/grad_norm", float(np.mean(grad_norms)))
+        for key, values in (("loss", losses), ("q_mean", q_means), ("grad_norm", grad_norms)):
+            self.logger.record(f"train/{key}", float(np.mean(values)))
 
     def day_entropy(self, obs: np.ndarray) -> None:
         """Epsilon-greedy over Q-values: no stochastic policy whose entropy to record."""

@@ -68,6 +68,12 @@ class StackedActorCritic(StackedMLP):
         logits, values = self.forward(obs.reshape(self.k, -1, obs.shape[-1]))
         return *log_prob_entropy(logits, actions.reshape(self.k, -1)), values
 
+    def step(self, obs: th.Tensor, state: None, starts: th.Tensor) -> tuple[th.Tensor, th.Tensor, None]:
+        """One acting step: ``obs (K, d)`` -> logits ``(K, n_actions)``, values ``(K,)`` and no state
+        (``starts`` is for recurrent nets: a feedforward one keeps no state)."""
+        logits, values = self.forward(obs.unsqueeze(1))
+        return logits[:, 0], values[:, 0], state
+
     def sb3_pairs(self, j: int, policy) -> list[tuple[th.Tensor, th.Tensor]]:
         """Agent ``j``'s parameters and an SB3 ``ActorCriticPolicy``'s (nutribench's backbone)."""
         a, p = self.n_actions, self.params
@@ -78,26 +84,6 @@ class StackedActorCritic(StackedMLP):
             (p[-1][j, 0, :a], policy.action_net.bias),
             (p[-1][j, 0, a:], policy.value_net.bias),
         ]
-
-
-class FeedforwardActor:
-    """Acting with the MLP actor-critic: ``(obs (K, d), starts (K,))`` -> logits ``(K, 2)``,
-    values ``(K,)`` (``starts`` and ``advance`` are for recurrent actors; a feedforward one
-    keeps no state)."""
-
-    def __init__(self, net: StackedActorCritic):
-        self.net = net
-
-    def __call__(self, obs: th.Tensor, starts: th.Tensor, advance: bool = True) -> tuple[th.Tensor, th.Tensor]:
-        logits, values = self.net.forward(obs.unsqueeze(1))
-        return logits[:, 0], values[:, 0]
-
-    def state_dict(self) -> dict:
-        """Nothing to keep: a feedforward actor carries no state."""
-        return {}
-
-    def load_state_dict(self, state: dict) -> None:
-        pass
 
 
 class BatchedActorCriticAlgorithm(BatchedOnPolicyAlgorithm):
@@ -113,9 +99,6 @@ class BatchedActorCriticAlgorithm(BatchedOnPolicyAlgorithm):
         return StackedActorCritic(
             self.k, self.envs.obs_dim, list(self.cfg.net_arch), generators=generators, device=self.device
         )
-
-    def make_actor(self, net: StackedActorCritic) -> FeedforwardActor:
-        return FeedforwardActor(net)
 
     def greedy(self) -> Greedy:
         return lambda obs: greedy_categorical(self.net.forward(obs)[0])

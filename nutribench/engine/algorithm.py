@@ -23,6 +23,7 @@ optimisers already hold), so that training goes on exactly where it was saved.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar
 
@@ -75,20 +76,11 @@ class BatchedAlgorithm:
         """Each agent (trained for ``episodes`` days in ``wall`` seconds, the batch's) as the SB3
         engine's :class:`~nutribench.agents.api.TrainedAgent` of its
         config (:func:`~nutribench.engine.envs.as_trained_agent`), with its ``diagnostics``."""
-        agents = []
+        agents, share, device = [], wall / self.k, str(self.device)
         for j in range(self.k):
-            agent = as_trained_agent(
-                self.envs,
-                j,
-                self.cfgs[j],
-                episodes,
-                lambda model, j=j: self.store_weights(j, model),
-                self.ret_stats,
-                wall / self.k,
-                str(self.device),
-            )
-            agent.diagnostics = self.diagnostics[j]
-            agent.validation = self.envs.validation[j]
+            store = functools.partial(self.store_weights, j)
+            agent = as_trained_agent(self.envs, j, self.cfgs[j], episodes, store, self.ret_stats, share, device)
+            agent.diagnostics, agent.validation = self.diagnostics[j], self.envs.validation[j]
             agents.append(agent)
         return agents
 
@@ -179,7 +171,5 @@ class BatchedAlgorithm:
         shared = {n: float(v) for n, v in values.items() if np.ndim(v) == 0}
         columns = {n: np.asarray(v, dtype=np.float64).tolist() for n, v in values.items() if n not in shared}
         for j in range(self.k):
-            row: dict[str, float] = {names.UPDATE: update, names.TIMESTEP: timestep}
-            row.update({n: v[j] for n, v in columns.items()})
-            row.update(shared)
-            self.diagnostics[j].append(row)
+            row = {names.UPDATE: update, names.TIMESTEP: timestep, **{n: v[j] for n, v in columns.items()}}
+            self.diagnostics[j].append(row | shared)

@@ -115,28 +115,18 @@ class BatchedDDQN(BatchedOffPolicyAlgorithm):
         self.state["epsilon"] = self.exploration(progress_remaining)
 
     def update(self, steps: int, progress_remaining: float, batch: Batch) -> None:
-        lr = self.lr_schedule(progress_remaining)
+        lr, epsilon = self.lr_schedule(progress_remaining), self.state["epsilon"]
         losses = ddqn_update(self.q, self.q_target, self.optimizer, batch, lr, self.cfg.max_grad_norm, self.means)
-        self.means.add(**{names.LEARNING_RATE: lr, names.EPSILON: self.state["epsilon"]})
+        self.means.add(**{names.LEARNING_RATE: lr, names.EPSILON: epsilon})
         if self.on_update is not None:
+            copies = self.state["copies"]
             self.on_update(
-                {
-                    "steps": steps,
-                    "learning_rate": lr,
-                    "epsilon": self.state["epsilon"],
-                    "target_copies": self.state["copies"],
-                    "losses": losses,
-                }
+                {"steps": steps, "learning_rate": lr, "epsilon": epsilon, "target_copies": copies, "losses": losses}
             )
 
     def model_state_dict(self) -> dict[str, Any]:
-        return {
-            "q": list(self.q.params),
-            "q_target": list(self.q_target.params),
-            "optimizer": self.optimizer.state_dict(),
-            "epsilon": self.state["epsilon"],
-            "copies": self.state["copies"],
-        }
+        nets = {"q": list(self.q.params), "q_target": list(self.q_target.params)}
+        return {**nets, "optimizer": self.optimizer.state_dict(), **self.state}  # the epsilon and the target copies
 
     def load_model_state_dict(self, state: dict[str, Any]) -> None:
         load_params(self.q.params, state["q"])

@@ -191,12 +191,8 @@ def _set_plain_state(obj: Any, state: dict[str, Any]) -> None:
         raise ValueError(f"the checkpoint's {type(obj).__name__} state does not fit this batch")
     for key, value in state.items():
         have = mine[key]
-        fits = (
-            isinstance(value, np.ndarray) and value.dtype == have.dtype and value.shape == have.shape
-            if isinstance(have, np.ndarray)
-            else type(value) is type(have)
-        )
-        if not fits:
+        array = isinstance(have, np.ndarray)  # then of its dtype and shape too
+        if type(value) is not type(have) or (array and (value.dtype, value.shape) != (have.dtype, have.shape)):
             raise ValueError(f"the checkpoint's {type(obj).__name__}.{key} does not fit this batch")
         setattr(obj, key, value)
 
@@ -225,12 +221,8 @@ def as_trained_agent(
     if ret_stats is not None:
         for name in ("mean", "var", "count"):
             setattr(env.ret_rms, name, float(getattr(ret_stats, name)[j]))
-    provenance = {
-        **training_provenance(env_cfg, cfg, seed, episodes),
-        "engine": Engine.BATCHED.value,
-        "device": device,
-        "batch_wall_seconds_per_agent": wall,
-    }
+    batched = {"engine": Engine.BATCHED.value, "device": device, "batch_wall_seconds_per_agent": wall}
+    provenance = training_provenance(env_cfg, cfg, seed, episodes) | batched
     agent = TrainedAgent(
         model, cfg.algo, cfg, mean, var, vec_normalize=env if hasattr(env, "obs_rms") else None, provenance=provenance
     )

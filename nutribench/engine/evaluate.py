@@ -61,16 +61,12 @@ class BatchValidator(Validator):
             raw[g.agents] = obs.reshape(len(g.agents), n, -1)
         recorders = [EpisodeRecorder(env.num_envs) for env in self._played]
         metrics: list[list[dict]] = [[{} for _ in range(n)] for _ in range(k)]
-        entropy = np.zeros((k, n))
-        has_entropy = True
+        entropy = np.zeros((k, n))  # summed over the steps; None for a policy without one
         for _ in range(horizon):
             x = th.as_tensor(envs.normalize(raw), device=device)
             with th.no_grad():
                 actions, step_entropy = greedy(x)
-            if step_entropy is None:
-                has_entropy = False
-            else:
-                entropy += step_entropy.cpu().numpy()
+            entropy = None if entropy is None or step_entropy is None else entropy + step_entropy.cpu().numpy()
             actions = actions.cpu().numpy()
             for g, env, rec in zip(envs.groups, self._played, recorders):
                 obs, rewards, term, trunc, info = env.step(actions[g.agents].reshape(-1))
@@ -80,7 +76,7 @@ class BatchValidator(Validator):
                     metrics[int(g.agents[row // n])][row % n] = m
         return [
             [
-                {"episode": i, **metrics[j][i], "entropy": float(entropy[j, i] / horizon) if has_entropy else None}
+                {"episode": i, **metrics[j][i], "entropy": None if entropy is None else float(entropy[j, i] / horizon)}
                 for i in range(n)
             ]
             for j in range(k)

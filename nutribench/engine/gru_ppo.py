@@ -30,7 +30,7 @@ import torch as th
 
 from nutribench.engine.device import leaves_on
 from nutribench.engine.evaluate import Greedy, greedy_categorical
-from nutribench.engine.on_policy import log_prob_entropy
+from nutribench.engine.on_policy import StackedActor, log_prob_entropy
 from nutribench.engine.ppo import BatchedPPO
 from nutribench.engine.stacked import SB3Weights, linear_pairs, orthogonal
 
@@ -226,29 +226,12 @@ class StackedGRUActorCritic(SB3Weights):
         return pairs
 
 
-class RecurrentActor:
-    """Acting with the GRU actor-critic, its state carried from step to step (reset where a
-    day starts); ``advance=False`` peeks (the value after the rollout, as SB3's
-    ``predict_values``, which does not keep the new state)."""
+class RecurrentActor(StackedActor):
+    """Acting with the GRU actor-critic, its state carried from step to step from zeros (reset
+    where a day starts; a checkpoint keeps it)."""
 
     def __init__(self, net: StackedGRUActorCritic):
-        self.net = net
-        self.state = th.zeros(2 * net.k, 1, net.hidden, device=net.params[0].device)
-
-    def __call__(self, obs: th.Tensor, starts: th.Tensor, advance: bool = True) -> tuple[th.Tensor, th.Tensor]:
-        logits, values, state = self.net.step(obs, self.state, starts)
-        if advance:
-            self.state = state
-        return logits, values
-
-    def state_dict(self) -> dict[str, th.Tensor]:
-        """The carried GRU state (a checkpoint keeps it)."""
-        return {"state": self.state}
-
-    def load_state_dict(self, state: dict[str, th.Tensor]) -> None:
-        if state["state"].shape != self.state.shape:
-            raise ValueError("the checkpoint's GRU state does not fit this batch")
-        self.state = state["state"].to(self.state.device)
+        super().__init__(net, th.zeros(2 * net.k, 1, net.hidden, device=net.params[0].device))
 
 
 class BatchedGRUPPO(BatchedPPO):
@@ -266,14 +249,8 @@ class BatchedGRUPPO(BatchedPPO):
         memory = {c.memory for c in self.cfgs}
         if len(memory) > 1:
             raise ValueError("agents of one batch must agree on memory")
-        return StackedGRUActorCritic(
-            self.k,
-            self.envs.obs_dim,
-            self.cfg.hidden_size,
-            generators=generators,
-            device=self.device,
-            memory=memory.pop(),
-        )
+        kwargs = dict(generators=generators, device=self.device, memory=memory.pop())
+        return StackedGRUActorCritic(self.k, self.envs.obs_dim, self.cfg.hidden_size, **kwargs)
 
     def make_actor(self, net: StackedGRUActorCritic) -> RecurrentActor:
         return RecurrentActor(net)

@@ -49,26 +49,22 @@ class StackedReplay:
     """One replay per agent (raw observations and rewards), filled in step together; SB3's
     ``NStepReplayBuffer`` sampling for given indices."""
 
-    #: the arrays a checkpoint keeps
-    ARRAYS = ("obs", "next_obs", "actions", "rewards", "dones")
+    #: the arrays a checkpoint keeps (in :meth:`add`'s order), and their dtypes
+    ARRAYS = {"obs": np.float32, "next_obs": np.float32, "actions": np.int64, "rewards": np.float32, "dones": bool}
 
     def __init__(self, k: int, size: int, obs_dim: int, n_step: int, gamma: float):
         self.size, self.n_step, self.gamma = size, n_step, gamma
         # zeros, not empty: the n-step window reads (masked) entries past the newest one
-        self.obs = np.zeros((k, size, obs_dim), dtype=np.float32)
-        self.next_obs = np.zeros((k, size, obs_dim), dtype=np.float32)
-        self.actions = np.zeros((k, size), dtype=np.int64)
-        self.rewards = np.zeros((k, size), dtype=np.float32)
-        self.dones = np.zeros((k, size), dtype=bool)
+        for name, dtype in self.ARRAYS.items():
+            setattr(self, name, np.zeros((k, size, obs_dim) if "obs" in name else (k, size), dtype=dtype))
         self.pos, self.full = 0, False
 
     def add(
         self, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray, dones: np.ndarray
     ) -> None:
-        p = self.pos
-        self.obs[:, p], self.actions[:, p], self.rewards[:, p] = obs, actions, rewards
-        self.next_obs[:, p], self.dones[:, p] = next_obs, dones
-        self.pos = (p + 1) % self.size
+        for name, value in zip(self.ARRAYS, (obs, next_obs, actions, rewards, dones)):
+            getattr(self, name)[:, self.pos] = value
+        self.pos = (self.pos + 1) % self.size
         self.full = self.full or self.pos == 0
 
     def state_dict(self) -> dict[str, Any]:

@@ -134,14 +134,36 @@ def gradient_step(
     norms = clip_grad_norm_per_agent(params, settings.max_grad_norm, k)
     optimizer.step(active=settings.active)
     if means is not None:
-        means.add(
-            **{
-                names.POLICY_LOSS: policy_loss,
-                names.VALUE_LOSS: value_loss,
-                names.ENTROPY_LOSS: entropy_loss,
-                names.GRAD_NORM: norms,
-            }
-        )
+        losses = {names.POLICY_LOSS: policy_loss, names.VALUE_LOSS: value_loss, names.ENTROPY_LOSS: entropy_loss}
+        means.add(**losses, **{names.GRAD_NORM: norms})
+
+
+class StackedActor:
+    """Acting with ``net`` (its ``step(obs (K, d), state, starts (K,))`` -> logits ``(K, n_actions)``,
+    values ``(K,)``, the new state): ``state`` (a recurrent net's; None: a feedforward net keeps
+    none) carried from step to step, reset by the net where a day starts; ``advance=False``
+    peeks (the value after the rollout, as SB3's ``predict_values``, which does not keep the
+    new state)."""
+
+    def __init__(self, net: Any, state: th.Tensor | None = None):
+        self.net, self.state = net, state
+
+    def __call__(self, obs: th.Tensor, starts: th.Tensor, advance: bool = True) -> tuple[th.Tensor, th.Tensor]:
+        logits, values, state = self.net.step(obs, self.state, starts)
+        if advance:
+            self.state = state
+        return logits, values
+
+    def state_dict(self) -> dict[str, th.Tensor]:
+        """The carried state (a checkpoint keeps it; nothing for a feedforward actor)."""
+        return {} if self.state is None else {"state": self.state}
+
+    def load_state_dict(self, state: dict[str, th.Tensor]) -> None:
+        if self.state is None:
+            return
+        if state["state"].shape != self.state.shape:
+            raise ValueError("the checkpoint's GRU state does not fit this batch")
+        self.state = state["state"].to(self.state.device)
 
 
 class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
@@ -182,9 +204,10 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         """The K agents' stacked network (``params``, ``store_sb3``), initialised from ``generators``."""
         raise NotImplementedError
 
-    def make_actor(self, net: Any) -> Any:
-        """Acting with ``net``: ``(obs (K, d), starts (K,), advance=True)`` -> logits, values."""
-        raise NotImplementedError
+    def make_actor(self, net: Any) -> StackedActor:
+        """Acting with ``net``: ``(obs (K, d), starts (K,), advance=True)`` -> logits, values
+        (here: a feedforward net's, no state)."""
+        return StackedActor(net)
 
     def train(self, rollout: Rollout) -> None:
         """The algorithm's update of the K agents on ``rollout`` (SB3's ``train()``), then
@@ -211,7 +234,7 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         """``n_steps`` env steps of every agent from :attr:`last_obs`; the rollout with its
         advantages and returns, or None for a rollout shorter than ``settings.n_steps`` (the
         budget's end)."""
-        envs, k, device = self.envs, self.k, self.device
+        envs, k = self.envs, self.k
         buf = {name: np.empty((k, n_steps), dtype=np.float32) for name in ("log_probs", "values", "rewards", "starts")}
         buf["obs"] = np.empty((k, n_steps, envs.obs_dim), dtype=np.float32)
         buf["actions"] = np.empty((k, n_steps), dtype=np.int64)
@@ -219,8 +242,7 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         obs, start_of_day = self.last_obs, self.start_of_day
         for t in range(n_steps):
             self.day_boundary(self.num_timesteps)  # the evaluation during training that is due, if any
-            with th.no_grad():
-                logits, values = self.actor(th.as_tensor(obs, device=device), th.as_tensor(start_of_day, device=device))
+            logits, values = self.act(obs, start_of_day)
             logp = th.log_softmax(logits, dim=-1).cpu().numpy()
             actions = (uniforms[:, t] < np.exp(logp[:, 1])).astype(np.int64)
             buf["obs"][:, t], buf["actions"][:, t], buf["starts"][:, t] = obs, actions, start_of_day
@@ -229,17 +251,20 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
             raw_next, rewards, day_over = envs.step(actions, entropy=-(np.exp(logp) * logp).sum(axis=1))
             buf["rewards"][:, t] = self.scale_rewards(rewards)
             self.num_timesteps += 1
+            start_of_day = np.full(k, float(day_over), dtype=np.float32)
             if day_over:  # a day boundary: every agent's day ended at this step
                 self.discounted[:] = 0.0
                 raw_next = envs.new_days()
-                start_of_day = np.ones(k, dtype=np.float32)
-            else:
-                start_of_day = np.zeros(k, dtype=np.float32)
             obs = envs.seen(raw_next)
         self.last_obs, self.start_of_day = obs, start_of_day
         if n_steps < self.settings.n_steps:
             return None
         return self.compute_returns(buf)
+
+    def act(self, obs: np.ndarray, starts: np.ndarray, advance: bool = True) -> tuple[th.Tensor, th.Tensor]:
+        """:attr:`actor` (no gradient) at the env's observations ``obs (K, d)`` and day starts ``(K,)``."""
+        with th.no_grad():
+            return self.actor(th.as_tensor(obs, device=self.device), th.as_tensor(starts, device=self.device), advance)
 
     def scale_rewards(self, rewards: np.ndarray) -> np.ndarray:
         """``VecNormalize``'s reward scaling: the running deviation of each agent's discounted
@@ -254,20 +279,10 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         """The rollout of ``buf`` (the arrays of :meth:`collect_rollouts`) with SB3's GAE
         from the value after its last step; handed to ``on_rollout`` first, if set."""
         settings, device = self.settings, self.device
-        with th.no_grad():
-            _, last_values = self.actor(
-                th.as_tensor(self.last_obs, device=device),
-                th.as_tensor(self.start_of_day, device=device),
-                advance=False,
-            )
+        _, last_values = self.act(self.last_obs, self.start_of_day, advance=False)
+        last, dones = last_values.cpu().numpy(), self.start_of_day.astype(bool)
         buf["advantages"], buf["returns"] = gae(
-            buf["rewards"],
-            buf["values"],
-            buf["starts"],
-            last_values.cpu().numpy(),
-            self.start_of_day.astype(bool),
-            settings.gamma,
-            settings.gae_lambda,
+            buf["rewards"], buf["values"], buf["starts"], last, dones, settings.gamma, settings.gae_lambda
         )
         if self.on_rollout is not None:
             shown = ("obs", "actions", "rewards", "starts", "values", "advantages", "returns")
@@ -284,13 +299,10 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
 
     def log_update(self, rollout: Rollout) -> None:
         """The diagnostics of the update just made on ``rollout`` (one read of the device's sums)."""
-        row: dict[str, Any] = {
-            **self.means.means(),
-            names.EXPLAINED_VARIANCE: [
-                explained_variance(v, r) for v, r in zip(rollout.values.cpu().numpy(), rollout.returns.cpu().numpy())
-            ],
-            names.LEARNING_RATE: self.settings.learning_rate,
-        }
+        means = self.means.means()
+        values, returns = rollout.values.cpu().numpy(), rollout.returns.cpu().numpy()
+        variances = [explained_variance(v, r) for v, r in zip(values, returns)]
+        row = {**means, names.EXPLAINED_VARIANCE: variances, names.LEARNING_RATE: self.settings.learning_rate}
         if self.ret_stats is not None:
             row[names.RETURN_SCALE] = np.sqrt(self.ret_stats.var + NORM_EPS)
         self.record(self.num_timesteps, row)

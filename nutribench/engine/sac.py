@@ -38,15 +38,7 @@ from nutribench import diagnostics as names
 from nutribench.engine.envs import AgentEnvs
 from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.off_policy import OFF_POLICY_ADAM_EPS, Batch, BatchedOffPolicyAlgorithm
-from nutribench.engine.stacked import (
-    AgentMeans,
-    SB3Weights,
-    StackedAdam,
-    StackedMLP,
-    linears,
-    load_params,
-    per_agent,
-)
+from nutribench.engine.stacked import AgentMeans, SB3Weights, StackedAdam, StackedMLP, linears, load_params, per_agent
 
 #: the fields of an agent config that name it, not what it trains
 _NAMING = ("name", "version", "description")
@@ -75,11 +67,8 @@ class SACSettings:
         for name in data[0]:
             if name not in cls.CONTINUOUS and name not in _NAMING and any(d[name] != data[0][name] for d in data):
                 raise ValueError(f"agents of one batch must agree on {name}")
-        values = {}
-        for name in cls.CONTINUOUS:
-            column = [float(d[name]) for d in data]
-            values[name] = column[0] if len(set(column)) == 1 else np.asarray(column, dtype=np.float64)
-        return cls(**values)
+        columns = {name: [float(d[name]) for d in data] for name in cls.CONTINUOUS}
+        return cls(**{n: c[0] if len(set(c)) == 1 else np.asarray(c, dtype=np.float64) for n, c in columns.items()})
 
 
 class StackedSAC(SB3Weights):
@@ -183,13 +172,8 @@ def sac_update(
         for targ, online in zip(net.critic_target.params, net.critic.params):
             targ.mul_(per_agent(1.0 - taus, targ, targ.ndim)).add_(per_agent(taus, targ, targ.ndim) * online)
     if means is not None:
-        means.add(
-            **{
-                names.VALUE_LOSS: critic_loss,
-                names.ACTOR_LOSS: actor_loss,
-                names.Q_MEAN: th.min(q1_taken, q2_taken).mean(dim=1),
-            }
-        )
+        q_mean = th.min(q1_taken, q2_taken).mean(dim=1)
+        means.add(**{names.VALUE_LOSS: critic_loss, names.ACTOR_LOSS: actor_loss, names.Q_MEAN: q_mean})
     return {"critic_loss": critic_loss.detach().cpu().numpy(), "actor_loss": actor_loss.detach().cpu().numpy()}
 
 

@@ -220,11 +220,9 @@ class StackedAdam(th.optim.Adam):
     def __init__(self, params: list[th.Tensor], rate: float | np.ndarray, eps: float):
         fused = [p for p in params if math.prod(p.shape[1:]) % VECTOR_FLOATS == 0]
         rest = [p for p in params if math.prod(p.shape[1:]) % VECTOR_FLOATS != 0]
-        groups = ([{"params": fused}] if fused else []) + (
-            [{"params": rest, "fused": False, "foreach": True}] if rest else []
-        )
+        groups = [{"params": fused}, {"params": rest, "fused": False, "foreach": True}]
         try:
-            super().__init__(groups, lr=1.0, eps=eps, fused=True)
+            super().__init__([g for g in groups if g["params"]], lr=1.0, eps=eps, fused=True)
         except RuntimeError:  # pragma: no cover - torch < 2.4 on CPU
             super().__init__(params, lr=1.0, eps=eps, foreach=True)
         self.rate = rate

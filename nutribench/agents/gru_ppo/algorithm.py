@@ -148,11 +148,7 @@ class GRUPPO(OnPolicyAlgorithm):
     # ---- acting: the hidden state is carried from step to step ----
 
     def collect_rollouts(
-        self,
-        env: VecEnv,
-        callback: BaseCallback,
-        rollout_buffer: RolloutBuffer,
-        n_rollout_steps: int,
+        self, env: VecEnv, callback: BaseCallback, rollout_buffer: RolloutBuffer, n_rollout_steps: int
     ) -> bool:
         """SB3's ``OnPolicyAlgorithm.collect_rollouts`` with the GRU state carried between steps
         (and stored in the buffer, the state carried *into* each step)."""
@@ -234,13 +230,13 @@ class GRUPPO(OnPolicyAlgorithm):
         advantages = data.advantages
         if self.normalize_advantage and len(advantages) > 1:
             advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-        ratio = th.exp(log_prob - data.old_log_prob)
+        log_ratio = log_prob - data.old_log_prob
+        ratio = th.exp(log_ratio)
         policy_loss = -th.min(advantages * ratio, advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)).mean()
         value_loss = F.mse_loss(data.returns, values)
         entropy_loss = -entropy.mean()
         loss = policy_loss + self.ent_coef * entropy_loss + self.vf_coef * value_loss
         with th.no_grad():
-            log_ratio = log_prob - data.old_log_prob
             stats = {
                 "policy_gradient_loss": policy_loss.item(),
                 "value_loss": value_loss.item(),

@@ -9,10 +9,11 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.distributions import CategoricalDistribution
-from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.preprocessing import preprocess_obs
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
+
+from nutribench.agents.sb3_models import FlatDiscretePolicy
 
 GRUState = tuple[th.Tensor, th.Tensor]
 """``(h_nutrient, h_food)``, each ``(1, batch, hidden_size)`` (nn.GRU's layout)."""
@@ -29,7 +30,7 @@ def _orthogonal_gru_init_(gru: nn.GRU, gain: float = 1.0) -> None:
             nn.init.zeros_(param)
 
 
-class GRUActorCriticPolicy(BasePolicy):
+class GRUActorCriticPolicy(FlatDiscretePolicy):
     """Two-stream GRU actor-critic (the paper's Table 6); see the module docstring.
 
     :param observation_space: flat ``Box`` of ``n_nutrients + N`` dims (nutrients first).
@@ -46,6 +47,8 @@ class GRUActorCriticPolicy(BasePolicy):
     :param optimizer_class: optimiser class (Adam).
     :param optimizer_kwargs: optimiser keyword arguments; default ``eps=1e-5`` for Adam, as SB3's PPO.
     """
+
+    KEPT = ("hidden_size", "head_size", "n_nutrients", "ortho_init", "memory", "optimizer_class", "optimizer_kwargs")
 
     def __init__(
         self,
@@ -68,11 +71,7 @@ class GRUActorCriticPolicy(BasePolicy):
         )
         if use_sde:
             raise ValueError("GRUActorCriticPolicy does not support gSDE")
-        if not isinstance(action_space, spaces.Discrete):
-            raise ValueError(f"GRUActorCriticPolicy needs a Discrete action space, got {action_space}")
-        if not isinstance(observation_space, spaces.Box) or len(observation_space.shape) != 1:
-            raise ValueError(f"GRUActorCriticPolicy needs a flat Box observation space, got {observation_space}")
-        obs_dim = int(observation_space.shape[0])
+        obs_dim, n_actions = self.sizes()
         if not 0 < n_nutrients < obs_dim:
             raise ValueError(f"n_nutrients must be in 1..{obs_dim - 1}, got {n_nutrients}")
         self.hidden_size = int(hidden_size)
@@ -81,7 +80,6 @@ class GRUActorCriticPolicy(BasePolicy):
         self.n_foods = obs_dim - self.n_nutrients
         self.ortho_init = ortho_init
         self.memory = bool(memory)
-        n_actions = int(action_space.n)
 
         self.nutrient_gru = nn.GRU(self.n_nutrients, self.hidden_size, num_layers=1, batch_first=True)
         self.food_gru = nn.GRU(self.n_foods, self.hidden_size, num_layers=1, batch_first=True)
@@ -100,14 +98,6 @@ class GRUActorCriticPolicy(BasePolicy):
                 self.init_weights(module[2], gain=output_gain)
 
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        kept = {
-            name: getattr(self, name)
-            for name in "hidden_size head_size n_nutrients ortho_init memory optimizer_class optimizer_kwargs".split()
-        }
-        # lr_schedule: not needed to load the policy alone
-        return super()._get_constructor_parameters() | kept | {"lr_schedule": self._dummy_schedule}
 
     # ---- recurrent core ----
 
@@ -133,22 +123,17 @@ class GRUActorCriticPolicy(BasePolicy):
         nutrients, foods = obs[..., : self.n_nutrients], obs[..., self.n_nutrients :]
         keep = 1.0 - episode_starts.float().reshape(batch, steps)
         h_nut, h_food = state
-        if steps == 1 or bool((keep[:, 1:] == 1.0).all()):
-            # Fast path: the state is reset at most before the first step -> one GRU call.
-            mask = keep[:, 0].reshape(1, batch, 1)
-            out_nut, h_nut = self.nutrient_gru(nutrients, h_nut * mask)
-            out_food, h_food = self.food_gru(foods, h_food * mask)
-        else:
-            # An episode starts inside a sequence: step by step, zeroing the state there.
-            outs_nut, outs_food = [], []
-            for t in range(steps):
-                mask = keep[:, t].reshape(1, batch, 1)
-                o_nut, h_nut = self.nutrient_gru(nutrients[:, t : t + 1], h_nut * mask)
-                o_food, h_food = self.food_gru(foods[:, t : t + 1], h_food * mask)
-                outs_nut.append(o_nut)
-                outs_food.append(o_food)
-            out_nut, out_food = th.cat(outs_nut, dim=1), th.cat(outs_food, dim=1)
-        return th.cat([out_nut, out_food], dim=-1), (h_nut, h_food)
+        # the state reset at most before the first step: one GRU call over all steps; else
+        # (an episode starts inside a sequence) step by step, zeroing the state there
+        whole = steps == 1 or bool((keep[:, 1:] == 1.0).all())
+        outs_nut, outs_food = [], []
+        for t in [0] if whole else range(steps):
+            mask, end = keep[:, t].reshape(1, batch, 1), steps if whole else t + 1
+            o_nut, h_nut = self.nutrient_gru(nutrients[:, t:end], h_nut * mask)
+            o_food, h_food = self.food_gru(foods[:, t:end], h_food * mask)
+            outs_nut.append(o_nut)
+            outs_food.append(o_food)
+        return th.cat([th.cat(outs_nut, dim=1), th.cat(outs_food, dim=1)], dim=-1), (h_nut, h_food)
 
     def _step(self, obs: th.Tensor, state: GRUState, episode_starts: th.Tensor) -> tuple[th.Tensor, GRUState]:
         """One step for a batch of envs: ``obs (n, obs_dim)``, ``episode_starts (n,)`` -> features ``(n, 2H)``."""
@@ -217,13 +202,12 @@ class GRUActorCriticPolicy(BasePolicy):
         episode_starts: th.Tensor | None = None,
         deterministic: bool = False,
     ) -> tuple[th.Tensor, GRUState]:
-        obs = observation  # type: ignore[assignment]
-        n = obs.shape[0]  # type: ignore[union-attr]
+        n = observation.shape[0]  # type: ignore[union-attr]
         if state is None:
             state = self.initial_state(n)
         if episode_starts is None:
             episode_starts = th.zeros(n, device=self.device)
-        actions, _, _, new_state = self.forward(obs, state, episode_starts, deterministic)  # type: ignore[arg-type]
+        actions, _, _, new_state = self.forward(observation, state, episode_starts, deterministic)  # type: ignore[arg-type]
         return actions, new_state
 
     def predict(  # type: ignore[override]

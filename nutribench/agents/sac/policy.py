@@ -8,12 +8,13 @@ from typing import Any
 
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.preprocessing import preprocess_obs
 from stable_baselines3.common.torch_layers import create_mlp
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 from torch.nn import functional as F
+
+from nutribench.agents.sb3_models import FlatDiscretePolicy
 
 
 class TwinQNetwork(nn.Module):
@@ -28,7 +29,7 @@ class TwinQNetwork(nn.Module):
         return self.q1(obs), self.q2(obs)
 
 
-class DiscreteSACPolicy(BasePolicy):
+class DiscreteSACPolicy(FlatDiscretePolicy):
     """Categorical actor + twin Q critics + their two target copies, with one Adam optimiser each
     for the actor (``actor_optimizer``) and for both critics (``critic_optimizer``).
 
@@ -45,6 +46,8 @@ class DiscreteSACPolicy(BasePolicy):
     :param optimizer_kwargs: extra optimiser keyword arguments (besides the learning rate).
     """
 
+    KEPT = ("net_arch", "activation_fn", "optimizer_class", "optimizer_kwargs")
+
     def __init__(
         self,
         observation_space: spaces.Space,
@@ -56,19 +59,11 @@ class DiscreteSACPolicy(BasePolicy):
         optimizer_kwargs: dict[str, Any] | None = None,
     ):
         super().__init__(
-            observation_space,
-            action_space,
-            optimizer_class=optimizer_class,
-            optimizer_kwargs=optimizer_kwargs,
+            observation_space, action_space, optimizer_class=optimizer_class, optimizer_kwargs=optimizer_kwargs
         )
-        if not isinstance(action_space, spaces.Discrete):
-            raise ValueError(f"DiscreteSACPolicy needs a Discrete action space, got {action_space}")
-        if not isinstance(observation_space, spaces.Box) or len(observation_space.shape) != 1:
-            raise ValueError(f"DiscreteSACPolicy needs a flat Box observation space, got {observation_space}")
+        obs_dim, n_actions = self.sizes()
         self.net_arch = [int(n) for n in net_arch]
         self.activation_fn = activation_fn
-        obs_dim = int(observation_space.shape[0])
-        n_actions = int(action_space.n)
 
         self.actor = nn.Sequential(*create_mlp(obs_dim, n_actions, self.net_arch, activation_fn))
         self.critic = TwinQNetwork(obs_dim, n_actions, self.net_arch, activation_fn)
@@ -76,15 +71,9 @@ class DiscreteSACPolicy(BasePolicy):
         self.critic_target.requires_grad_(False)
         self.critic_target.train(False)
 
-        self.actor_optimizer = self.optimizer_class(self.actor.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
-        self.critic_optimizer = self.optimizer_class(
-            self.critic.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
-        )
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        kept = {name: getattr(self, name) for name in "net_arch activation_fn optimizer_class optimizer_kwargs".split()}
-        # lr_schedule: not needed to load the policy alone
-        return super()._get_constructor_parameters() | kept | {"lr_schedule": self._dummy_schedule}
+        rate = lr_schedule(1)
+        self.actor_optimizer = self.optimizer_class(self.actor.parameters(), lr=rate, **self.optimizer_kwargs)
+        self.critic_optimizer = self.optimizer_class(self.critic.parameters(), lr=rate, **self.optimizer_kwargs)
 
     def set_training_mode(self, mode: bool) -> None:
         self.actor.train(mode)
