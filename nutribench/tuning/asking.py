@@ -18,10 +18,16 @@ the cached storage's ``_backend`` and the RDB table models.
 from __future__ import annotations
 
 import copy
+import datetime
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
+
+import optuna
+import sqlalchemy
+from optuna.storages._rdb import models
+from optuna.trial import TrialState
 
 
 def rdb_backend(study: Any) -> Any:
@@ -37,8 +43,6 @@ def beat(storage: Any, trial_ids: list[int]) -> None:
     backend = getattr(storage, "_backend", storage)
     if not trial_ids:
         return
-    import sqlalchemy
-    from optuna.storages._rdb import models
 
     beats = models.TrialHeartbeatModel
     session = backend.scoped_session()
@@ -76,12 +80,10 @@ def heartbeats(study: Any, trials: list[Any]) -> Iterator[None]:
     stop = threading.Event()
 
     def beating() -> None:
-        from sqlalchemy.exc import OperationalError
-
         while not stop.wait(interval):
             try:
                 beat(storage, ids)
-            except OperationalError:  # a beat the database refused (a full disk): the next one tries
+            except sqlalchemy.exc.OperationalError:  # a beat the database refused (a full disk): the next one tries
                 pass  # again; missed for the whole grace period, the trials go stale as a killed driver's
 
     thread = threading.Thread(target=beating, daemon=True)
@@ -96,12 +98,8 @@ def heartbeats(study: Any, trials: list[Any]) -> Iterator[None]:
 def _count_held(study: Any) -> int:
     """How many of the study's trials are finished (complete or pruned) or running: one
     ``COUNT`` on an RDB storage, read afresh (other drivers' trials included)."""
-    from optuna.trial import TrialState
-
     states = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.RUNNING)
     storage = rdb_backend(study)
-    import sqlalchemy
-    from optuna.storages._rdb import models
 
     trials = models.TrialModel
     with storage.engine.connect() as conn:
@@ -116,12 +114,6 @@ def _pop_waiting(study: Any) -> int | None:
     the queued ids read in one query, each taken in one conditional UPDATE, which one driver
     wins (Study.ask reads, then writes: on SQLite two drivers could both take one trial, and
     one trial was told twice)."""
-    import datetime
-
-    import sqlalchemy
-    from optuna.storages._rdb import models
-    from optuna.trial import TrialState
-
     storage = rdb_backend(study)
     trials = models.TrialModel
     while True:
@@ -156,9 +148,6 @@ def claim(study: Any, trials: int) -> Any | None:
     The count is taken after the ask, the new trial among the running: of drivers asking at
     once none runs a trial past the count (each one's count holds every trial asked before it;
     one over the count goes back to the queue, WAITING, never run nor counted, never beaten)."""
-    import optuna
-    from optuna.trial import TrialState
-
     study._thread_local.cached_all_trials = None  # as Study.ask: the trials read afresh
     trial_id = _pop_waiting(study)
     if trial_id is None:

@@ -28,12 +28,17 @@ later group's too, while an earlier one trains); an error or Ctrl-C fails those 
 
 from __future__ import annotations
 
+import datetime
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
+import optuna
+from optuna.storages._rdb import models
+from optuna.trial import TrialState
+from sqlalchemy.exc import OperationalError
 
 from nutribench.tuning.asking import StackView, claim, heartbeats, rdb_backend
 from nutribench.tuning.objective import TrialScores, ValidationObjective
@@ -55,17 +60,11 @@ def fail_stale(study: Any) -> None:
     those whose heartbeat is older than the grace period (Optuna's
     :func:`~optuna.storages.fail_stale_trials`), and a RUNNING trial that never beat (its
     driver killed between asking it and its first beat) once it started that long ago."""
-    import datetime
-
-    import optuna
-    from optuna.trial import TrialState
-
     with quiet_experimental():
         optuna.storages.fail_stale_trials(study)
     storage = rdb_backend(study)
     if not hasattr(storage, "scoped_session") or not storage.get_heartbeat_interval():
         return
-    from optuna.storages._rdb import models
 
     grace = datetime.timedelta(seconds=storage.grace_period or 2 * storage.heartbeat_interval)
     session = storage.scoped_session()
@@ -130,8 +129,6 @@ def run_study(
     refuses (a full disk) fails the trial at once and is one line (:func:`fail_trials`)."""
     if trials < 1:
         raise TuneError("--trials must be >= 1")
-    import optuna
-    from optuna.trial import TrialState
 
     def run_one(room: int) -> bool:
         trial = claim(study, trials)
@@ -174,8 +171,6 @@ def refused_write(error: BaseException) -> str | None:
     ("database or disk is full", "disk I/O error", "attempt to write a readonly database"): an
     :class:`sqlalchemy.exc.OperationalError` met directly or behind Optuna's
     ``StorageInternalError`` (its cause); None for any other error."""
-    from sqlalchemy.exc import OperationalError
-
     seen: set[int] = set()
     e: BaseException | None = error
     while e is not None and id(e) not in seen:
@@ -196,8 +191,6 @@ def fail_trials(study: Any, trials: list[Any], error: BaseException) -> None:
     line saying so, which trials were failed at once and what to do. A trial the database
     would not even mark failed is left to the stale rule: any driver fails it (and runs its
     parameters again) once the grace period has passed since its last heartbeat."""
-    from optuna.trial import TrialState
-
     reason = refused_write(error)
     failed, left = [], []
     for trial in trials:
@@ -371,8 +364,6 @@ class StackedTrials:
 
     def train_group(self, study: Any, group: list[tuple[Any, Any]]) -> None:
         """Train the trials of one group in one batch and tell Optuna each one's outcome."""
-        from optuna.trial import TrialState
-
         obj = self.objective
         n_jobs = len(obj.jobs)
         trials = [t for t, _ in group]
