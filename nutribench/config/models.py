@@ -155,9 +155,6 @@ class Range(_Strict):
             raise ValueError(f"high ({self.high}) is below low ({self.low})")
         return self
 
-    def contains(self, x: float) -> bool:
-        return self.low - 1e-9 <= x <= self.high + 1e-9
-
 
 class NutrientRanges(_Strict):
     C: Range
@@ -165,9 +162,8 @@ class NutrientRanges(_Strict):
     P: Range
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        lo = np.array([self.C.low, self.F.low, self.P.low])
-        hi = np.array([self.C.high, self.F.high, self.P.high])
-        return lo, hi
+        ranges = (self.C, self.F, self.P)
+        return np.array([r.low for r in ranges]), np.array([r.high for r in ranges])
 
 
 class DelayRanges(_Strict):
@@ -231,7 +227,7 @@ class Regime(_Strict):
                 values, ranges = getattr(delay, what), getattr(self.ranges, what)
                 for n in NUTRIENTS:
                     x, r = getattr(values, n), getattr(ranges, n)
-                    if not r.contains(x):
+                    if not r.low - 1e-9 <= x <= r.high + 1e-9:
                         raise ValueError(
                             f"foods.{key}.{what}.{n} = {x} is outside ranges.{what}.{n} [{r.low}, {r.high}]"
                         )
