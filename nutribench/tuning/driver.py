@@ -139,7 +139,7 @@ def tune(
             )
 
         objective = ValidationObjective(space, study, device=t.device, on_evaluation=evaluation)
-        bar = progress(f"tune {t.study}", "asking for a trial") if progress else nullcontext(_quiet)
+        bar = progress(f"tune {t.study}", "asking for a trial") if progress else nullcontext(lambda *_: None)
         show_training(objective, shown.enter_context(bar))
         if t.stack > 1:
             counts = StackedTrials(objective, t.stack).run(handle, t.trials, on_trial=finished, on_wait=waiting)
@@ -151,10 +151,6 @@ def tune(
         "writes the best as a new agent file"
     )
     return counts
-
-
-def _quiet(text: str, done: int | None = None, total: int | None = None) -> None:
-    """No progress line."""
 
 
 def show_training(objective: Any, advance: Callable[..., None]) -> None:

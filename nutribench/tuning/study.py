@@ -182,7 +182,7 @@ def optuna_storage(db: Any, writer: bool = True) -> Any:
     heartbeats and stale-trial retry; None for a reader when the database holds no study."""
     from nutribench.store.schema import open_store
 
-    heartbeat_settings()  # a bad setting refused before anything is opened
+    interval, grace = heartbeat_settings()  # a bad setting refused before anything is opened
     store = open_store(db, writer=writer)
     url = store.url.render_as_string(hide_password=False)
     with store.engine.connect() as conn:
@@ -191,7 +191,6 @@ def optuna_storage(db: Any, writer: bool = True) -> Any:
     if not writer and not has_studies:
         return None
 
-    interval, grace = heartbeat_settings()
     for attempt in range(10):
         try:
             with quiet_experimental(), quiet_optuna():
