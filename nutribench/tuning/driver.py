@@ -62,14 +62,9 @@ def plan(t: TuneSettings) -> tuple[Any, Any, bool]:
         space_sha256=space.sha256,
         regimes=tuple(t.regimes),
         seeds=tuning_seeds(t.seeds),
-        days=t.days,
         eval_every=t.eval_every or default_eval_every(t.days),
-        val_episodes=t.val_episodes,
-        sampler_seed=t.sampler_seed,
-        pruner=t.pruner,
-        startup_trials=t.startup_trials,
-        objective=t.objective,
         constant_liar=True,  # a new study's; one made before keeps its sampler (open_study)
+        **{k: getattr(t, k) for k in ("days", "val_episodes", "sampler_seed", "pruner", "startup_trials", "objective")},
     )
     # a plug-in's trials are scored once, after their last day, and never pruned: recorded so
     once = bool(by_entry_point(space.base().algo))
