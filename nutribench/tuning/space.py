@@ -43,14 +43,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from nutribench.agents.config import Name, load_agent_config, parse_agent_config
 from nutribench.agents.registry import by_entry_point
-from nutribench.config.loading import (
-    ConfigError,
-    content_sha256,
-    read_toml,
-    regimes_dir,
-    resolve_named_file,
-    validate,
-)
+from nutribench.config.loading import ConfigError, content_sha256, read_toml, regimes_dir, resolve_named_file, validate
 from nutribench.config.sizes import size
 
 #: the fields of an agent config that name or describe it, never searched
