@@ -116,15 +116,15 @@ def _pop_waiting(study: Any) -> int | None:
     one trial was told twice)."""
     storage = rdb_backend(study)
     trials = models.TrialModel
+    waiting = (
+        sqlalchemy.select(trials.trial_id)
+        .where(trials.study_id == study._study_id, trials.state == TrialState.WAITING)
+        .order_by(trials.trial_id)
+        .limit(8)
+    )
     while True:
         with storage.engine.connect() as conn:
-            queued = conn.execute(
-                sqlalchemy.select(trials.trial_id)
-                .where(trials.study_id == study._study_id, trials.state == TrialState.WAITING)
-                .order_by(trials.trial_id)
-                .limit(8)
-            ).scalars()
-            queued = list(queued)
+            queued = conn.execute(waiting).scalars().all()
         if not queued:
             return None
         for trial_id in queued:

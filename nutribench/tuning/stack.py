@@ -333,7 +333,7 @@ class StackedTrials:
 
         return drive(study, trials, run_stack, on_wait)
 
-    def ask(self, study: Any, n: int, trials: int | None = None) -> list[tuple[Any, Any]]:
+    def ask(self, study: Any, n: int, trials: int) -> list[tuple[Any, Any]]:
         """Up to ``n`` claimed trials and their configs (fewer where other drivers claimed the
         study's last places first: never past ``trials`` finished and running), each drawn by
         the sampler as a lone trial is, its structural knobs included (issue 73: a stack that
@@ -341,12 +341,11 @@ class StackedTrials:
         :meth:`run` then trains trials of one structure together. A trial Optuna queued (a
         killed driver's, to retry) keeps its own parameters."""
         space = self.objective.space
-        count = trials if trials is not None else 2**62
         view = StackView.of(study)  # the study read once; the stack's trials kept as written (asking.py)
         out: list[tuple[Any, Any]] = []
         try:
             for _ in range(n):
-                trial = claim(view, count)
+                trial = claim(view, trials)
                 if trial is None:
                     break
                 try:

@@ -130,10 +130,9 @@ class StudySettings:
             )
         if self.startup_trials < 1:
             raise TuneError("--startup-trials must be >= 1 (the random trials TPE starts from)")
-        if self.pruner not in PRUNERS:
-            raise TuneError(f"--pruner: {self.pruner!r} is not one of {', '.join(PRUNERS)}")
-        if self.objective not in OBJECTIVES:
-            raise TuneError(f"--objective: {self.objective!r} is not one of {', '.join(OBJECTIVES)}")
+        for option, value, known in (("--pruner", self.pruner, PRUNERS), ("--objective", self.objective, OBJECTIVES)):
+            if value not in known:
+                raise TuneError(f"{option}: {value!r} is not one of {', '.join(known)}")
         if self.objective == "late-mean" and self.days // self.eval_every < 2:
             raise TuneError("--objective late-mean needs two evaluations or more: lower --eval-every")
 
@@ -384,12 +383,11 @@ def tuning_seeds(text: str | None) -> tuple[int, ...]:
     """``--seeds 101,102`` checked as ``nutribench run`` checks its seeds
     (:func:`nutribench.scheduler.grid.parse_seeds`: non-negative, in range, no repeats), as a
     tuple; the default tuning seeds for None or an empty text."""
-    from nutribench.scheduler.grid import GridError
-    from nutribench.scheduler.grid import parse_seeds as grid_seeds
+    from nutribench.scheduler.grid import GridError, parse_seeds
 
     if text is None or not text.strip():
         return DEFAULT_TUNING_SEEDS
     try:
-        return grid_seeds(text)
+        return parse_seeds(text)
     except GridError as e:
         raise TuneError(str(e)) from None
