@@ -22,6 +22,7 @@ schedule and the target (the full state); a rung needs the ones below it.
 from __future__ import annotations
 
 from collections import Counter
+from itertools import product
 from typing import Annotated
 
 import numpy as np
@@ -222,13 +223,8 @@ class Regime(_Strict):
 
     @model_validator(mode="after")
     def _within_ranges(self) -> Regime:
-        for key, delay in self.foods.items():
-            for what in ("tau", "sigma"):
-                values, ranges = getattr(delay, what), getattr(self.ranges, what)
-                for n in NUTRIENTS:
-                    x, r = getattr(values, n), getattr(ranges, n)
-                    if not r.low - 1e-9 <= x <= r.high + 1e-9:
-                        raise ValueError(
-                            f"foods.{key}.{what}.{n} = {x} is outside ranges.{what}.{n} [{r.low}, {r.high}]"
-                        )
+        for (key, delay), what, n in product(self.foods.items(), ("tau", "sigma"), NUTRIENTS):
+            x, r = getattr(getattr(delay, what), n), getattr(getattr(self.ranges, what), n)
+            if not r.low - 1e-9 <= x <= r.high + 1e-9:
+                raise ValueError(f"foods.{key}.{what}.{n} = {x} is outside ranges.{what}.{n} [{r.low}, {r.high}]")
         return self
