@@ -30,8 +30,7 @@ from __future__ import annotations
 
 import datetime
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -65,10 +64,8 @@ def fail_stale(study: Any) -> None:
     storage = rdb_backend(study)
     if not hasattr(storage, "scoped_session") or not storage.get_heartbeat_interval():
         return
-
     grace = datetime.timedelta(seconds=storage.grace_period or 2 * storage.heartbeat_interval)
-    session = storage.scoped_session()
-    try:
+    with storage.scoped_session() as session:  # closed afterwards
         never_beat = [
             t.trial_id
             for t in session.query(models.TrialModel)
@@ -76,8 +73,6 @@ def fail_stale(study: Any) -> None:
             .all()
             if not t.heartbeats and t.datetime_start is not None and datetime.datetime.now() - t.datetime_start > grace
         ]
-    finally:
-        session.close()
     callback = storage.get_heartbeat_stale_trial_callback()
     for trial_id in never_beat:
         try:
@@ -156,14 +151,26 @@ def drive(
 ) -> StudyCounts:
     """Call ``run(room)`` (it claims and runs up to ``room`` trials; False when another driver
     claimed them first) until ``study`` holds ``trials`` finished trials (:func:`wait_for_room`);
-    the study's counts then. Optuna's log quiet, a write the database refuses one line."""
-    with quiet_optuna(), refused_writes_as_one_line():
-        while True:
-            counts, room = wait_for_room(study, trials, on_wait)
-            if not room:
-                return counts
-            if not run(room):
-                time.sleep(0.05 + 0.2 * np.random.random())  # another driver asked at the same moment
+    the study's counts then. Optuna's log quiet; a write the database refuses outside a trial
+    (claiming one, failing a stale one) one line (:class:`TuneError`), not Optuna's traceback."""
+    with quiet_optuna():
+        try:
+            while True:
+                counts, room = wait_for_room(study, trials, on_wait)
+                if not room:
+                    return counts
+                if not run(room):
+                    time.sleep(0.05 + 0.2 * np.random.random())  # another driver asked at the same moment
+        except TuneError:
+            raise
+        except Exception as e:
+            reason = refused_write(e)
+            if reason is None:
+                raise
+            raise _RefusedWrite(
+                f"the study's database refused a write: {reason}: no trial of this driver was running; free space "
+                "(or make the database writable) and run the same command again"
+            ) from None
 
 
 def refused_write(error: BaseException) -> str | None:
@@ -246,24 +253,6 @@ def _empty_the_log(study: Any) -> bool:
             raise
         return False
     return not busy
-
-
-@contextmanager
-def refused_writes_as_one_line() -> Iterator[None]:
-    """A write the study's database refused outside a trial (claiming one, failing a stale one)
-    raised as one line (:class:`TuneError`), not as Optuna's traceback."""
-    try:
-        yield
-    except TuneError:
-        raise
-    except Exception as e:
-        reason = refused_write(e)
-        if reason is None:
-            raise
-        raise _RefusedWrite(
-            f"the study's database refused a write: {reason}: no trial of this driver was running; free space "
-            "(or make the database writable) and run the same command again"
-        ) from None
 
 
 class _AllPruned(Exception):
