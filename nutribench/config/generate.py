@@ -178,8 +178,7 @@ def regime_to_toml(regime: Regime) -> str:
         *[f"{option} = true" for option in OBSERVATION_OPTIONS if d[option]],
         "",
         "[ranges]",
-        f"tau = {_range_table(d['ranges']['tau'])}",
-        f"sigma = {_range_table(d['ranges']['sigma'])}",
+        *[f"{what} = {_range_table(d['ranges'][what])}" for what in ("tau", "sigma")],
         "",
         "[foods]",
     ]
