@@ -21,7 +21,7 @@ import copy
 import datetime
 import threading
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from typing import Any
 
 import optuna
@@ -81,10 +81,10 @@ def heartbeats(study: Any, trials: list[Any]) -> Iterator[None]:
 
     def beating() -> None:
         while not stop.wait(interval):
-            try:
+            # a beat the database refused (a full disk): the next one tries again; missed for the
+            # whole grace period, the trials go stale as a killed driver's
+            with suppress(sqlalchemy.exc.OperationalError):
                 beat(storage, ids)
-            except sqlalchemy.exc.OperationalError:  # a beat the database refused (a full disk): the next one tries
-                pass  # again; missed for the whole grace period, the trials go stale as a killed driver's
 
     thread = threading.Thread(target=beating, daemon=True)
     thread.start()

@@ -25,7 +25,7 @@ import time
 import warnings
 from collections import Counter
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -327,10 +327,8 @@ def count_trials(study: Any) -> StudyCounts:
     if counts.complete:
         best = study.best_trial
         counts.best_number, counts.best_value, counts.best_params = best.number, best.value, dict(best.params)
-    try:
+    with suppress(TuneError):  # a study not made by nutribench tune: no settings
         counts.settings = stored_settings(study)
-    except TuneError:
-        counts.settings = None
     return counts
 
 
