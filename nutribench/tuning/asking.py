@@ -45,24 +45,19 @@ def beat(storage: Any, trial_ids: list[int]) -> None:
         return
 
     beats = models.TrialHeartbeatModel
-    session = backend.scoped_session()
-    try:
-        now = session.execute(sqlalchemy.func.now()).scalar()
-        rows = session.query(beats).filter(beats.trial_id.in_(trial_ids)).all()
-        known = {row.trial_id for row in rows}
-        for row in rows:
-            row.heartbeat = now
-        session.add_all([beats(trial_id=t, heartbeat=now) for t in trial_ids if t not in known])
-        session.commit()
-    except sqlalchemy.exc.IntegrityError:  # a heartbeat row written meanwhile: one by one, as Optuna does
-        session.rollback()
-        for trial_id in trial_ids:
-            backend.record_heartbeat(trial_id)
-    except BaseException:
-        session.rollback()
-        raise
-    finally:
-        session.close()
+    with backend.scoped_session() as session:  # closed (an open transaction rolled back) whatever happens
+        try:
+            now = session.execute(sqlalchemy.func.now()).scalar()
+            rows = session.query(beats).filter(beats.trial_id.in_(trial_ids)).all()
+            known = {row.trial_id for row in rows}
+            for row in rows:
+                row.heartbeat = now
+            session.add_all([beats(trial_id=t, heartbeat=now) for t in trial_ids if t not in known])
+            session.commit()
+        except sqlalchemy.exc.IntegrityError:  # a heartbeat row written meanwhile: one by one, as Optuna does
+            session.rollback()
+            for trial_id in trial_ids:
+                backend.record_heartbeat(trial_id)
 
 
 @contextmanager
@@ -98,14 +93,11 @@ def heartbeats(study: Any, trials: list[Any]) -> Iterator[None]:
 def _count_held(study: Any) -> int:
     """How many of the study's trials are finished (complete or pruned) or running: one
     ``COUNT`` on an RDB storage, read afresh (other drivers' trials included)."""
-    states = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.RUNNING)
-    storage = rdb_backend(study)
-
-    trials = models.TrialModel
-    with storage.engine.connect() as conn:
-        query = sqlalchemy.select(sqlalchemy.func.count(trials.trial_id)).where(
-            trials.study_id == study._study_id, trials.state.in_(states)
-        )
+    trials, held = models.TrialModel, (TrialState.COMPLETE, TrialState.PRUNED, TrialState.RUNNING)
+    query = sqlalchemy.select(sqlalchemy.func.count(trials.trial_id)).where(
+        trials.study_id == study._study_id, trials.state.in_(held)
+    )
+    with rdb_backend(study).engine.connect() as conn:
         return int(conn.execute(query).scalar_one())
 
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 import datetime
 import time
 from collections.abc import Callable
+from contextlib import suppress
 from typing import Any
 
 import numpy as np
@@ -373,9 +374,8 @@ class StackedTrials:
             obj.record_engine(trial, cfg)
             trial.set_user_attr("stacked_with", [t.number for t in trials if t is not trial])
         try:  # beating since their claim (run's heartbeats)
-            self.train(group, on_validation, active)
-        except _AllPruned:
-            pass
+            with suppress(_AllPruned):
+                self.train(group, on_validation, active)
         except BaseException:
             for trial in trials:
                 study.tell(trial, state=TrialState.FAIL)
