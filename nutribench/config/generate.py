@@ -70,22 +70,6 @@ def check_regime_name(name: str) -> str:
     return name
 
 
-def _parse_range(item: str, option: str) -> tuple[str, dict[str, float]]:
-    m = _RANGE.match(item)
-    if not m:
-        raise ConfigError(
-            f"{option} '{item}': malformed range: write NUTRIENT=LOW-HIGH, e.g. {option} C=10-12,F=18-20,P=14-16"
-        )
-    key, low, high = m.group(1).upper(), float(m.group(2)), float(m.group(3))
-    if key not in NUTRIENTS:
-        raise ConfigError(f"{option} '{item}': unknown nutrient '{m.group(1)}': use C, F or P")
-    if low < 0 or high < 0:
-        raise ConfigError(f"{option} '{item}': negative bound: delays are steps >= 0 (e.g. {key}=0-2)")
-    if low > high:
-        raise ConfigError(f"{option} '{item}': low {low:g} is above high {high:g}: write {key}={high:g}-{low:g}")
-    return key, {"low": low, "high": high}
-
-
 def parse_ranges(text: str, option: str = "--tau") -> dict[str, dict[str, float]]:
     """``"C=10-12,F=18-20,P=14-16"`` -> ``{"C": {"low": 10.0, "high": 12.0}, ...}``.
 
@@ -97,10 +81,21 @@ def parse_ranges(text: str, option: str = "--tau") -> dict[str, dict[str, float]
     if not items:
         raise ConfigError(f"{option} '{text}': no ranges given: write e.g. {option} C=10-12,F=18-20,P=14-16")
     for item in items:
-        key, rng = _parse_range(item, option)
+        m = _RANGE.match(item)
+        if not m:
+            raise ConfigError(
+                f"{option} '{item}': malformed range: write NUTRIENT=LOW-HIGH, e.g. {option} C=10-12,F=18-20,P=14-16"
+            )
+        key, low, high = m.group(1).upper(), float(m.group(2)), float(m.group(3))
+        if key not in NUTRIENTS:
+            raise ConfigError(f"{option} '{item}': unknown nutrient '{m.group(1)}': use C, F or P")
+        if low < 0 or high < 0:
+            raise ConfigError(f"{option} '{item}': negative bound: delays are steps >= 0 (e.g. {key}=0-2)")
+        if low > high:
+            raise ConfigError(f"{option} '{item}': low {low:g} is above high {high:g}: write {key}={high:g}-{low:g}")
         if key in out:
             raise ConfigError(f"{option} '{text}': nutrient {key} given twice: give each of C, F, P at most once")
-        out[key] = rng
+        out[key] = {"low": low, "high": high}
     return out
 
 
@@ -183,8 +178,7 @@ def regime_to_toml(regime: Regime) -> str:
         *[f"{option} = true" for option in OBSERVATION_OPTIONS if d[option]],
         "",
         "[ranges]",
-        f"tau = {_range_table(d['ranges']['tau'])}",
-        f"sigma = {_range_table(d['ranges']['sigma'])}",
+        *[f"{what} = {_range_table(d['ranges'][what])}" for what in ("tau", "sigma")],
         "",
         "[foods]",
     ]

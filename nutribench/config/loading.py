@@ -12,7 +12,7 @@ import os
 import stat
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, partialmethod
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -62,10 +62,6 @@ def check_folder_setting(variable: str, folder: Path, what: str) -> None:
         raise ConfigError(f"{variable}={folder}: is {file_kind(mode)}, not a folder: set {variable} to {what}")
 
 
-def _format_loc(loc: tuple[Any, ...]) -> str:
-    return ".".join(str(p) for p in loc) or "(top level)"
-
-
 def format_validation_error(path: Path | str, err: ValidationError) -> str:
     """One line: file, the first failing field and what is wrong (and how many more)."""
     errors = err.errors()
@@ -78,7 +74,7 @@ def format_validation_error(path: Path | str, err: ValidationError) -> str:
     elif "input" in first and not isinstance(first["input"], (dict, list)):
         msg = f"{msg} (got {first['input']!r})"
     more = f" (+{len(errors) - 1} more errors)" if len(errors) > 1 else ""
-    where = f"{_format_loc(first['loc'])}: " if first["loc"] else ""  # a check of several fields names them
+    where = f"{'.'.join(map(str, first['loc']))}: " if first["loc"] else ""  # a check of several fields names them
     return f"{path}: {where}{msg}{more}"
 
 
@@ -110,27 +106,16 @@ def resolve_named_file(name_or_path: str | Path, folder: Path, what: str, known:
 _PARSED: dict[tuple[Any, bytes], Any] = {}
 
 
-def file_digest(path: Path) -> bytes | None:
-    """A digest of the file's bytes, the key of a cache of what was parsed from it: a file
-    changed in any way (even within one tick of the file system's clock, its size kept) is
-    parsed again; None where it cannot be read (then :func:`read_toml` raises its one line)."""
-    try:
-        return hashlib.blake2b(read_config_bytes(path), digest_size=20).digest()
-    except ConfigError:
-        return None
-
-
 def parse_once(path: Path, parse: Callable[[dict[str, Any]], T], tag: Any) -> T:
     """``parse`` of the TOML file at ``path`` (:func:`read_toml`), once per content and ``tag``
     in this process (what it returns must be frozen): a tuning study loaded its regime files
-    thousands of times (issue 51); reading the bytes is cheap."""
-    key = file_digest(path)
-    if key is not None and (tag, key) in _PARSED:
-        return _PARSED[(tag, key)]
-    out = parse(read_toml(path))
-    if key is not None:
-        _PARSED[(tag, key)] = out
-    return out
+    thousands of times (issue 51); reading the bytes is cheap. The key is a digest of the
+    file's bytes: a file changed in any way (even within one tick of the file system's clock,
+    its size kept) is parsed again; one that cannot be read raises :func:`read_toml`'s line."""
+    key = (tag, hashlib.blake2b(read_config_bytes(path), digest_size=20).digest())
+    if key not in _PARSED:
+        _PARSED[key] = parse(read_toml(path))
+    return _PARSED[key]
 
 
 def validate(model: type[M], data: Any, source: Path | str) -> M:
@@ -149,13 +134,9 @@ def load_model(model: type[M], path: Path) -> M:
     return parse_once(path, lambda data: validate(model, data, path), model)
 
 
-def canonical_json(obj: Any) -> str:
-    """Stable JSON text of a config's content (key order and formatting do not matter)."""
-    return json.dumps(obj, sort_keys=True, separators=(",", ":"))
-
-
 def content_sha256(obj: Any) -> str:
-    return hashlib.sha256(canonical_json(obj).encode()).hexdigest()
+    """The hash of a config's content as stable JSON text (key order and formatting do not matter)."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 @dataclass(frozen=True)
@@ -219,11 +200,8 @@ class EnvConfig:
     def _delay_array(self, what: str) -> np.ndarray:
         return np.stack([getattr(self.regime.foods[key], what).as_array() for key in self.catalog.keys])
 
-    def tau(self) -> np.ndarray:
-        return self._delay_array("tau")
-
-    def sigma(self) -> np.ndarray:
-        return self._delay_array("sigma")
+    tau = partialmethod(_delay_array, "tau")
+    sigma = partialmethod(_delay_array, "sigma")
 
 
 def resolve_regime_path(regime: str | os.PathLike[str]) -> Path:
@@ -260,9 +238,4 @@ def list_regimes(folder: Path | None = None) -> list[str]:
     and then fails to load with the field named. A file that is not valid TOML raises
     :class:`ConfigError` (file, line and column): it must not silently leave the grid."""
     folder = folder or regimes_dir()
-    names = []
-    for p in sorted(folder.glob("*.toml")):
-        data = read_toml(p)
-        if any(key in data for key in ("ranges", "foods", "catalog")):
-            names.append(p.stem)
-    return names
+    return [p.stem for p in sorted(folder.glob("*.toml")) if {"ranges", "foods", "catalog"} & read_toml(p).keys()]

@@ -22,6 +22,7 @@ schedule and the target (the full state); a rung needs the ones below it.
 from __future__ import annotations
 
 from collections import Counter
+from itertools import product
 from typing import Annotated
 
 import numpy as np
@@ -155,9 +156,6 @@ class Range(_Strict):
             raise ValueError(f"high ({self.high}) is below low ({self.low})")
         return self
 
-    def contains(self, x: float) -> bool:
-        return self.low - 1e-9 <= x <= self.high + 1e-9
-
 
 class NutrientRanges(_Strict):
     C: Range
@@ -165,9 +163,8 @@ class NutrientRanges(_Strict):
     P: Range
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        lo = np.array([self.C.low, self.F.low, self.P.low])
-        hi = np.array([self.C.high, self.F.high, self.P.high])
-        return lo, hi
+        ranges = (self.C, self.F, self.P)
+        return np.array([r.low for r in ranges]), np.array([r.high for r in ranges])
 
 
 class DelayRanges(_Strict):
@@ -226,13 +223,8 @@ class Regime(_Strict):
 
     @model_validator(mode="after")
     def _within_ranges(self) -> Regime:
-        for key, delay in self.foods.items():
-            for what in ("tau", "sigma"):
-                values, ranges = getattr(delay, what), getattr(self.ranges, what)
-                for n in NUTRIENTS:
-                    x, r = getattr(values, n), getattr(ranges, n)
-                    if not r.contains(x):
-                        raise ValueError(
-                            f"foods.{key}.{what}.{n} = {x} is outside ranges.{what}.{n} [{r.low}, {r.high}]"
-                        )
+        for (key, delay), what, n in product(self.foods.items(), ("tau", "sigma"), NUTRIENTS):
+            x, r = getattr(getattr(delay, what), n), getattr(getattr(self.ranges, what), n)
+            if not r.low - 1e-9 <= x <= r.high + 1e-9:
+                raise ValueError(f"foods.{key}.{what}.{n} = {x} is outside ranges.{what}.{n} [{r.low}, {r.high}]")
         return self

@@ -84,11 +84,6 @@ def read_config_bytes(path: Path | str) -> bytes:
         if not stat.S_ISREG(found.st_mode):
             raise _not_regular(path, found.st_mode)
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: file not found") from None
-    except OSError as e:  # no permission, a loop of links, an I/O error
-        raise ConfigError(f"{path}: cannot read the file: {e.strerror or e}") from None
-    try:
         with os.fdopen(fd, "rb") as fh:  # closed whatever happens
             opened = os.fstat(fd)
             if not stat.S_ISREG(opened.st_mode):  # replaced between the two looks
@@ -96,7 +91,9 @@ def read_config_bytes(path: Path | str) -> bytes:
             if opened.st_size > MAX_CONFIG_BYTES:
                 raise _too_large(path, opened.st_size)
             data = fh.read(MAX_CONFIG_BYTES + 1)
-    except OSError as e:
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: file not found") from None
+    except OSError as e:  # no permission, a loop of links, an I/O error
         raise ConfigError(f"{path}: cannot read the file: {e.strerror or e}") from None
     if len(data) > MAX_CONFIG_BYTES:  # it grew while it was read
         raise _too_large(path, len(data))

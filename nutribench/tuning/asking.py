@@ -18,10 +18,16 @@ the cached storage's ``_backend`` and the RDB table models.
 from __future__ import annotations
 
 import copy
+import datetime
 import threading
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from typing import Any
+
+import optuna
+import sqlalchemy
+from optuna.storages._rdb import models
+from optuna.trial import TrialState
 
 
 def rdb_backend(study: Any) -> Any:
@@ -37,28 +43,21 @@ def beat(storage: Any, trial_ids: list[int]) -> None:
     backend = getattr(storage, "_backend", storage)
     if not trial_ids:
         return
-    import sqlalchemy
-    from optuna.storages._rdb import models
 
     beats = models.TrialHeartbeatModel
-    session = backend.scoped_session()
-    try:
-        now = session.execute(sqlalchemy.func.now()).scalar()
-        rows = session.query(beats).filter(beats.trial_id.in_(trial_ids)).all()
-        known = {row.trial_id for row in rows}
-        for row in rows:
-            row.heartbeat = now
-        session.add_all([beats(trial_id=t, heartbeat=now) for t in trial_ids if t not in known])
-        session.commit()
-    except sqlalchemy.exc.IntegrityError:  # a heartbeat row written meanwhile: one by one, as Optuna does
-        session.rollback()
-        for trial_id in trial_ids:
-            backend.record_heartbeat(trial_id)
-    except BaseException:
-        session.rollback()
-        raise
-    finally:
-        session.close()
+    with backend.scoped_session() as session:  # closed (an open transaction rolled back) whatever happens
+        try:
+            now = session.execute(sqlalchemy.func.now()).scalar()
+            rows = session.query(beats).filter(beats.trial_id.in_(trial_ids)).all()
+            known = {row.trial_id for row in rows}
+            for row in rows:
+                row.heartbeat = now
+            session.add_all([beats(trial_id=t, heartbeat=now) for t in trial_ids if t not in known])
+            session.commit()
+        except sqlalchemy.exc.IntegrityError:  # a heartbeat row written meanwhile: one by one, as Optuna does
+            session.rollback()
+            for trial_id in trial_ids:
+                backend.record_heartbeat(trial_id)
 
 
 @contextmanager
@@ -76,13 +75,11 @@ def heartbeats(study: Any, trials: list[Any]) -> Iterator[None]:
     stop = threading.Event()
 
     def beating() -> None:
-        from sqlalchemy.exc import OperationalError
-
         while not stop.wait(interval):
-            try:
+            # a beat the database refused (a full disk): the next one tries again; missed for the
+            # whole grace period, the trials go stale as a killed driver's
+            with suppress(sqlalchemy.exc.OperationalError):
                 beat(storage, ids)
-            except OperationalError:  # a beat the database refused (a full disk): the next one tries
-                pass  # again; missed for the whole grace period, the trials go stale as a killed driver's
 
     thread = threading.Thread(target=beating, daemon=True)
     thread.start()
@@ -96,18 +93,11 @@ def heartbeats(study: Any, trials: list[Any]) -> Iterator[None]:
 def _count_held(study: Any) -> int:
     """How many of the study's trials are finished (complete or pruned) or running: one
     ``COUNT`` on an RDB storage, read afresh (other drivers' trials included)."""
-    from optuna.trial import TrialState
-
-    states = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.RUNNING)
-    storage = rdb_backend(study)
-    import sqlalchemy
-    from optuna.storages._rdb import models
-
-    trials = models.TrialModel
-    with storage.engine.connect() as conn:
-        query = sqlalchemy.select(sqlalchemy.func.count(trials.trial_id)).where(
-            trials.study_id == study._study_id, trials.state.in_(states)
-        )
+    trials, held = models.TrialModel, (TrialState.COMPLETE, TrialState.PRUNED, TrialState.RUNNING)
+    query = sqlalchemy.select(sqlalchemy.func.count(trials.trial_id)).where(
+        trials.study_id == study._study_id, trials.state.in_(held)
+    )
+    with rdb_backend(study).engine.connect() as conn:
         return int(conn.execute(query).scalar_one())
 
 
@@ -116,23 +106,17 @@ def _pop_waiting(study: Any) -> int | None:
     the queued ids read in one query, each taken in one conditional UPDATE, which one driver
     wins (Study.ask reads, then writes: on SQLite two drivers could both take one trial, and
     one trial was told twice)."""
-    import datetime
-
-    import sqlalchemy
-    from optuna.storages._rdb import models
-    from optuna.trial import TrialState
-
     storage = rdb_backend(study)
     trials = models.TrialModel
+    waiting = (
+        sqlalchemy.select(trials.trial_id)
+        .where(trials.study_id == study._study_id, trials.state == TrialState.WAITING)
+        .order_by(trials.trial_id)
+        .limit(8)
+    )
     while True:
         with storage.engine.connect() as conn:
-            queued = conn.execute(
-                sqlalchemy.select(trials.trial_id)
-                .where(trials.study_id == study._study_id, trials.state == TrialState.WAITING)
-                .order_by(trials.trial_id)
-                .limit(8)
-            ).scalars()
-            queued = list(queued)
+            queued = conn.execute(waiting).scalars().all()
         if not queued:
             return None
         for trial_id in queued:
@@ -156,9 +140,6 @@ def claim(study: Any, trials: int) -> Any | None:
     The count is taken after the ask, the new trial among the running: of drivers asking at
     once none runs a trial past the count (each one's count holds every trial asked before it;
     one over the count goes back to the queue, WAITING, never run nor counted, never beaten)."""
-    import optuna
-    from optuna.trial import TrialState
-
     study._thread_local.cached_all_trials = None  # as Study.ask: the trials read afresh
     trial_id = _pop_waiting(study)
     if trial_id is None:

@@ -62,14 +62,9 @@ def plan(t: TuneSettings) -> tuple[Any, Any, bool]:
         space_sha256=space.sha256,
         regimes=tuple(t.regimes),
         seeds=tuning_seeds(t.seeds),
-        days=t.days,
         eval_every=t.eval_every or default_eval_every(t.days),
-        val_episodes=t.val_episodes,
-        sampler_seed=t.sampler_seed,
-        pruner=t.pruner,
-        startup_trials=t.startup_trials,
-        objective=t.objective,
         constant_liar=True,  # a new study's; one made before keeps its sampler (open_study)
+        **{k: getattr(t, k) for k in ("days", "val_episodes", "sampler_seed", "pruner", "startup_trials", "objective")},
     )
     # a plug-in's trials are scored once, after their last day, and never pruned: recorded so
     once = bool(by_entry_point(space.base().algo))
@@ -139,7 +134,7 @@ def tune(
             )
 
         objective = ValidationObjective(space, study, device=t.device, on_evaluation=evaluation)
-        bar = progress(f"tune {t.study}", "asking for a trial") if progress else nullcontext(_quiet)
+        bar = progress(f"tune {t.study}", "asking for a trial") if progress else nullcontext(lambda *_: None)
         show_training(objective, shown.enter_context(bar))
         if t.stack > 1:
             counts = StackedTrials(objective, t.stack).run(handle, t.trials, on_trial=finished, on_wait=waiting)
@@ -151,10 +146,6 @@ def tune(
         "writes the best as a new agent file"
     )
     return counts
-
-
-def _quiet(text: str, done: int | None = None, total: int | None = None) -> None:
-    """No progress line."""
 
 
 def show_training(objective: Any, advance: Callable[..., None]) -> None:

@@ -16,11 +16,13 @@ the study was created with.
 from __future__ import annotations
 
 import os
+import tomllib
 from pathlib import Path
 from typing import Any
 
 from nutribench.agents.config import agent_config_to_toml, agents_dir
-from nutribench.agents.registry import paper_names
+from nutribench.agents.registry import by_entry_point, paper_names
+from nutribench.config.loading import ConfigError
 from nutribench.safe_write import atomic_write, check_folder_target, check_regular_file
 from nutribench.tuning.space import decoded, load_search_space, validated_space
 from nutribench.tuning.study import SPACE_ATTR, TuneError, count_trials, stored_settings
@@ -59,8 +61,6 @@ def tuned_config(study: Any, name: str | None = None) -> tuple[Any, str]:
 
 def _scored(cfg: Any, settings: Any) -> str:
     """How the study scored a trial: periodic evaluations, or once at its end (a plug-in's own loop)."""
-    from nutribench.agents.registry import by_entry_point
-
     days = f"{settings.val_episodes} validation day{'s' if settings.val_episodes != 1 else ''}"
     if by_entry_point(cfg.algo):
         return f"each agent scored once, after its last day, on {days} (a plug-in's own loop)"
@@ -77,8 +77,6 @@ def study_space(study: Any) -> Any:
     """The study's search space, as it was when the study was created (version and hash
     checked): from the file at its kept path, else from its kept text (the file moved or
     gone), else by its name in ``regimes/search/`` (a study made before the file was kept)."""
-    from nutribench.config.loading import ConfigError
-
     settings = stored_settings(study)
     kept = study.user_attrs.get(SPACE_ATTR)
     kept = kept if isinstance(kept, dict) else {}
@@ -113,10 +111,6 @@ def study_space(study: Any) -> Any:
 
 def _kept_space(text: str, source: str) -> Any:
     """The search space of a study's kept text (``source`` names it in a one-line ConfigError)."""
-    import tomllib
-
-    from nutribench.config.loading import ConfigError
-
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:

@@ -32,14 +32,6 @@ class Breach:
         return f"{self.knob}: {self.detail}"
 
 
-def _range(space: SearchSpace, field: str) -> tuple | None:
-    """A searched field's range without its ``why`` (None: not searched)."""
-    p = space.params.get(field)
-    if p is None:
-        return None
-    return (p.kind, p.low, p.high, p.log, tuple(map(str, p.choices)) if p.choices else None)
-
-
 def parity_breaches(spaces: dict[str, SearchSpace]) -> list[Breach]:
     """Every shared knob (:func:`shared_knobs`) that the ``spaces`` (agent -> its space) search
     over unequal ranges, or that a space neither searches nor explains in ``[kept]``."""
@@ -51,9 +43,10 @@ def parity_breaches(spaces: dict[str, SearchSpace]) -> list[Breach]:
             if space is None:
                 continue
             for field in fields:
-                r = _range(space, field)
-                if r is not None:
-                    ranges[f"{space.name}.{field}"] = r
+                p = space.params.get(field)
+                if p is not None:  # its range without its ``why``
+                    choices = p.choices and tuple(map(str, p.choices))
+                    ranges[f"{space.name}.{field}"] = (p.kind, p.low, p.high, p.log, choices)
                 elif field not in space.kept:
                     breaches.append(Breach(knob, f"{space.name} neither searches {field} nor says why in [kept]"))
         if len(set(ranges.values())) > 1:

@@ -9,6 +9,7 @@ import time
 from typing import Any
 
 import numpy as np
+import optuna
 
 
 def make_sampler(settings: Any, joining: bool = False) -> Any:
@@ -25,8 +26,6 @@ def make_sampler(settings: Any, joining: bool = False) -> Any:
     (``joining``) draws a seed of its own from ``sampler_seed``, its process and the clock:
     two drivers with one seed would draw the same random trials (found in the tuned grid's
     first studies: trials 0/1, 2/3 and 4/5 were pairs)."""
-    import optuna
-
     seed = settings.sampler_seed
     if joining:
         seed = int(np.random.SeedSequence([seed, os.getpid(), time.time_ns()]).generate_state(1)[0])
@@ -44,8 +43,6 @@ def make_pruner(settings: Any) -> Any:
     stop most of them on their first evaluations, when delayed-regime curves still cross
     (reports/sensitivity: PPO at 1e-3 looks as good as 3e-4 early and drifts later). No trial
     is pruned before half its days or before ``startup_trials`` trials have finished."""
-    import optuna
-
     if settings.pruner == "none":
         return optuna.pruners.NopPruner()
     return optuna.pruners.MedianPruner(

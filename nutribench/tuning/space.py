@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -42,14 +43,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from nutribench.agents.config import Name, load_agent_config, parse_agent_config
 from nutribench.agents.registry import by_entry_point
-from nutribench.config.loading import (
-    ConfigError,
-    content_sha256,
-    read_toml,
-    regimes_dir,
-    resolve_named_file,
-    validate,
-)
+from nutribench.config.loading import ConfigError, content_sha256, read_toml, regimes_dir, resolve_named_file, validate
 from nutribench.config.sizes import size
 
 #: the fields of an agent config that name or describe it, never searched
@@ -156,20 +150,12 @@ class SearchSpace(BaseModel):
         return parse_agent_config(data, f"search space {self.name!r}")
 
 
-def search_dir() -> Path:
-    """``regimes/search/`` (under ``$NUTRIBENCH_REGIMES`` when set)."""
-    return regimes_dir() / "search"
-
-
-def list_search_spaces(folder: Path | None = None) -> list[str]:
-    """Names of the search-space files."""
-    folder = folder or search_dir()
-    return sorted(p.stem for p in folder.glob("*.toml")) if folder.is_dir() else []
-
-
 def resolve_space_path(name_or_path: str | Path) -> Path:
-    """A space name (``ppo``) or a path to a TOML file."""
-    return resolve_named_file(name_or_path, search_dir(), "search space", list_search_spaces())
+    """A space name (``ppo``: a file of ``regimes/search/``, under ``$NUTRIBENCH_REGIMES`` when
+    set) or a path to a TOML file."""
+    folder = regimes_dir() / "search"
+    known = sorted(p.stem for p in folder.glob("*.toml")) if folder.is_dir() else []
+    return resolve_named_file(name_or_path, folder, "search space", known)
 
 
 def load_search_space(name_or_path: str | Path) -> SearchSpace:
@@ -246,24 +232,16 @@ def estimate_bytes(values: dict[str, Any], agents: int) -> int:
     return agents * 4 * (params * _PARAM_COPIES + rollout)
 
 
-def memory_limit() -> int | None:
-    """This machine's memory in bytes (None where the system does not say)."""
-    import os
-
-    try:
-        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
 def check_space_memory(space: SearchSpace, agents: int, limit: int | None = None) -> None:
     """Refuse in one line a space whose largest trial (each parameter at the end of its range
     that needs the most memory, the others at the base file's values) would need more memory
     than this machine has (:func:`estimate_bytes`: its networks and rollout buffers), before a
     study is opened: such a trial would fail with a MemoryError and be left failed in it."""
-    limit = limit if limit is not None else memory_limit()
     if limit is None:
-        return
+        try:  # this machine's memory
+            limit = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (ValueError, OSError, AttributeError):  # the system does not say
+            return
     data = space.base().model_dump(mode="json")
     base = dict(data["params"]) if by_entry_point(data["algo"]) else data
     worst = dict(base)

@@ -28,12 +28,17 @@ later group's too, while an earlier one trains); an error or Ctrl-C fails those 
 
 from __future__ import annotations
 
+import datetime
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
+from contextlib import suppress
 from typing import Any
 
 import numpy as np
+import optuna
+from optuna.storages._rdb import models
+from optuna.trial import TrialState
+from sqlalchemy.exc import OperationalError
 
 from nutribench.tuning.asking import StackView, claim, heartbeats, rdb_backend
 from nutribench.tuning.objective import TrialScores, ValidationObjective
@@ -55,21 +60,13 @@ def fail_stale(study: Any) -> None:
     those whose heartbeat is older than the grace period (Optuna's
     :func:`~optuna.storages.fail_stale_trials`), and a RUNNING trial that never beat (its
     driver killed between asking it and its first beat) once it started that long ago."""
-    import datetime
-
-    import optuna
-    from optuna.trial import TrialState
-
     with quiet_experimental():
         optuna.storages.fail_stale_trials(study)
     storage = rdb_backend(study)
     if not hasattr(storage, "scoped_session") or not storage.get_heartbeat_interval():
         return
-    from optuna.storages._rdb import models
-
     grace = datetime.timedelta(seconds=storage.grace_period or 2 * storage.heartbeat_interval)
-    session = storage.scoped_session()
-    try:
+    with storage.scoped_session() as session:  # closed afterwards
         never_beat = [
             t.trial_id
             for t in session.query(models.TrialModel)
@@ -77,8 +74,6 @@ def fail_stale(study: Any) -> None:
             .all()
             if not t.heartbeats and t.datetime_start is not None and datetime.datetime.now() - t.datetime_start > grace
         ]
-    finally:
-        session.close()
     callback = storage.get_heartbeat_stale_trial_callback()
     for trial_id in never_beat:
         try:
@@ -130,8 +125,6 @@ def run_study(
     refuses (a full disk) fails the trial at once and is one line (:func:`fail_trials`)."""
     if trials < 1:
         raise TuneError("--trials must be >= 1")
-    import optuna
-    from optuna.trial import TrialState
 
     def run_one(room: int) -> bool:
         trial = claim(study, trials)
@@ -159,14 +152,26 @@ def drive(
 ) -> StudyCounts:
     """Call ``run(room)`` (it claims and runs up to ``room`` trials; False when another driver
     claimed them first) until ``study`` holds ``trials`` finished trials (:func:`wait_for_room`);
-    the study's counts then. Optuna's log quiet, a write the database refuses one line."""
-    with quiet_optuna(), refused_writes_as_one_line():
-        while True:
-            counts, room = wait_for_room(study, trials, on_wait)
-            if not room:
-                return counts
-            if not run(room):
-                time.sleep(0.05 + 0.2 * np.random.random())  # another driver asked at the same moment
+    the study's counts then. Optuna's log quiet; a write the database refuses outside a trial
+    (claiming one, failing a stale one) one line (:class:`TuneError`), not Optuna's traceback."""
+    with quiet_optuna():
+        try:
+            while True:
+                counts, room = wait_for_room(study, trials, on_wait)
+                if not room:
+                    return counts
+                if not run(room):
+                    time.sleep(0.05 + 0.2 * np.random.random())  # another driver asked at the same moment
+        except TuneError:
+            raise
+        except Exception as e:
+            reason = refused_write(e)
+            if reason is None:
+                raise
+            raise _RefusedWrite(
+                f"the study's database refused a write: {reason}: no trial of this driver was running; free space "
+                "(or make the database writable) and run the same command again"
+            ) from None
 
 
 def refused_write(error: BaseException) -> str | None:
@@ -174,8 +179,6 @@ def refused_write(error: BaseException) -> str | None:
     ("database or disk is full", "disk I/O error", "attempt to write a readonly database"): an
     :class:`sqlalchemy.exc.OperationalError` met directly or behind Optuna's
     ``StorageInternalError`` (its cause); None for any other error."""
-    from sqlalchemy.exc import OperationalError
-
     seen: set[int] = set()
     e: BaseException | None = error
     while e is not None and id(e) not in seen:
@@ -196,8 +199,6 @@ def fail_trials(study: Any, trials: list[Any], error: BaseException) -> None:
     line saying so, which trials were failed at once and what to do. A trial the database
     would not even mark failed is left to the stale rule: any driver fails it (and runs its
     parameters again) once the grace period has passed since its last heartbeat."""
-    from optuna.trial import TrialState
-
     reason = refused_write(error)
     failed, left = [], []
     for trial in trials:
@@ -253,24 +254,6 @@ def _empty_the_log(study: Any) -> bool:
             raise
         return False
     return not busy
-
-
-@contextmanager
-def refused_writes_as_one_line() -> Iterator[None]:
-    """A write the study's database refused outside a trial (claiming one, failing a stale one)
-    raised as one line (:class:`TuneError`), not as Optuna's traceback."""
-    try:
-        yield
-    except TuneError:
-        raise
-    except Exception as e:
-        reason = refused_write(e)
-        if reason is None:
-            raise
-        raise _RefusedWrite(
-            f"the study's database refused a write: {reason}: no trial of this driver was running; free space "
-            "(or make the database writable) and run the same command again"
-        ) from None
 
 
 class _AllPruned(Exception):
@@ -340,7 +323,7 @@ class StackedTrials:
 
         return drive(study, trials, run_stack, on_wait)
 
-    def ask(self, study: Any, n: int, trials: int | None = None) -> list[tuple[Any, Any]]:
+    def ask(self, study: Any, n: int, trials: int) -> list[tuple[Any, Any]]:
         """Up to ``n`` claimed trials and their configs (fewer where other drivers claimed the
         study's last places first: never past ``trials`` finished and running), each drawn by
         the sampler as a lone trial is, its structural knobs included (issue 73: a stack that
@@ -348,12 +331,11 @@ class StackedTrials:
         :meth:`run` then trains trials of one structure together. A trial Optuna queued (a
         killed driver's, to retry) keeps its own parameters."""
         space = self.objective.space
-        count = trials if trials is not None else 2**62
         view = StackView.of(study)  # the study read once; the stack's trials kept as written (asking.py)
         out: list[tuple[Any, Any]] = []
         try:
             for _ in range(n):
-                trial = claim(view, count)
+                trial = claim(view, trials)
                 if trial is None:
                     break
                 try:
@@ -371,8 +353,6 @@ class StackedTrials:
 
     def train_group(self, study: Any, group: list[tuple[Any, Any]]) -> None:
         """Train the trials of one group in one batch and tell Optuna each one's outcome."""
-        from optuna.trial import TrialState
-
         obj = self.objective
         n_jobs = len(obj.jobs)
         trials = [t for t, _ in group]
@@ -394,9 +374,8 @@ class StackedTrials:
             obj.record_engine(trial, cfg)
             trial.set_user_attr("stacked_with", [t.number for t in trials if t is not trial])
         try:  # beating since their claim (run's heartbeats)
-            self.train(group, on_validation, active)
-        except _AllPruned:
-            pass
+            with suppress(_AllPruned):
+                self.train(group, on_validation, active)
         except BaseException:
             for trial in trials:
                 study.tell(trial, state=TrialState.FAIL)

@@ -25,9 +25,15 @@ import time
 import warnings
 from collections import Counter
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field, replace
 from typing import Any
+
+import optuna
+from optuna.storages import RDBStorage, RetryHeartbeatStaleTrialCallback
+from optuna.trial import TrialState
+from sqlalchemy import inspect
+from sqlalchemy.exc import IntegrityError, OperationalError, ProgrammingError
 
 from nutribench.errors import UserError
 from nutribench.tuning.sampling import make_pruner, make_sampler  # noqa: F401 (here since the first studies)
@@ -124,10 +130,9 @@ class StudySettings:
             )
         if self.startup_trials < 1:
             raise TuneError("--startup-trials must be >= 1 (the random trials TPE starts from)")
-        if self.pruner not in PRUNERS:
-            raise TuneError(f"--pruner: {self.pruner!r} is not one of {', '.join(PRUNERS)}")
-        if self.objective not in OBJECTIVES:
-            raise TuneError(f"--objective: {self.objective!r} is not one of {', '.join(OBJECTIVES)}")
+        for option, value, known in (("--pruner", self.pruner, PRUNERS), ("--objective", self.objective, OBJECTIVES)):
+            if value not in known:
+                raise TuneError(f"{option}: {value!r} is not one of {', '.join(known)}")
         if self.objective == "late-mean" and self.days // self.eval_every < 2:
             raise TuneError("--objective late-mean needs two evaluations or more: lower --eval-every")
 
@@ -137,8 +142,6 @@ def quiet_experimental() -> Iterator[None]:
     """Optuna's ``ExperimentalWarning`` silenced while the block runs, the caller's warnings
     filters restored afterwards: the heartbeat and the stale-trial retry are marked
     experimental since Optuna 2.8; their behaviour here is tested."""
-    import optuna
-
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
         yield
@@ -149,8 +152,6 @@ def quiet_optuna() -> Iterator[None]:
     """Optuna's log at ``WARNING`` while the block runs (no "A new study created" line among
     the command's own), its verbosity as the caller had it afterwards, an exception or not: a
     library does not change its caller's process. Used as a decorator too (``@quiet_optuna()``)."""
-    import optuna
-
     verbosity = optuna.logging.get_verbosity()
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     try:
@@ -178,12 +179,9 @@ def optuna_storage(db: Any, writer: bool = True) -> Any:
     """Open nutribench's schema on ``db`` (``writer``: created or upgraded, else it must be there:
     :func:`nutribench.store.open_store`), then Optuna's RDB storage on the same URL, with
     heartbeats and stale-trial retry; None for a reader when the database holds no study."""
-    from optuna.storages import RDBStorage, RetryHeartbeatStaleTrialCallback
-    from sqlalchemy import inspect
-
     from nutribench.store.schema import open_store
 
-    heartbeat_settings()  # a bad setting refused before anything is opened
+    interval, grace = heartbeat_settings()  # a bad setting refused before anything is opened
     store = open_store(db, writer=writer)
     url = store.url.render_as_string(hide_password=False)
     with store.engine.connect() as conn:
@@ -191,9 +189,7 @@ def optuna_storage(db: Any, writer: bool = True) -> Any:
     store.dispose()
     if not writer and not has_studies:
         return None
-    from sqlalchemy.exc import IntegrityError, OperationalError, ProgrammingError
 
-    interval, grace = heartbeat_settings()
     for attempt in range(10):
         try:
             with quiet_experimental(), quiet_optuna():
@@ -238,8 +234,6 @@ def open_study(
     (an ``eval_every`` and ``pruner`` that never applied) resumes with what it holds.
     ``space_file`` (``{"path": ..., "toml": ...}``: :func:`nutribench.tuning.export.space_file_attr`)
     is kept with the study (a study made before it was kept gets it on its next resume)."""
-    import optuna
-
     if settings is not None:
         check_study_name(name)
     storage = optuna_storage(db, writer=settings is not None)
@@ -327,26 +321,20 @@ class StudyCounts:
 
 def count_trials(study: Any) -> StudyCounts:
     """A study's trial counts by state and its best trial."""
-    from optuna.trial import TrialState
-
     n = Counter(t.state for t in study.get_trials(deepcopy=False))
     states = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.RUNNING, TrialState.FAIL, TrialState.WAITING)
     counts = StudyCounts(study.study_name, *(n[state] for state in states))
     if counts.complete:
         best = study.best_trial
         counts.best_number, counts.best_value, counts.best_params = best.number, best.value, dict(best.params)
-    try:
+    with suppress(TuneError):  # a study not made by nutribench tune: no settings
         counts.settings = stored_settings(study)
-    except TuneError:
-        counts.settings = None
     return counts
 
 
 @quiet_optuna()
 def study_counts(db: Any, name: str | None = None) -> list[StudyCounts]:
     """Every study of ``db`` (or the one named) with its counts; [] when none."""
-    import optuna
-
     storage = optuna_storage(db, writer=False)
     if storage is None:
         return []
@@ -360,8 +348,6 @@ def study_counts(db: Any, name: str | None = None) -> list[StudyCounts]:
 
 def study_names(storage: Any) -> list[str]:
     """The names of the studies in ``storage`` (None: no study table), sorted."""
-    import optuna
-
     return [] if storage is None else sorted(s.study_name for s in optuna.get_all_study_summaries(storage, False))
 
 
@@ -395,12 +381,11 @@ def tuning_seeds(text: str | None) -> tuple[int, ...]:
     """``--seeds 101,102`` checked as ``nutribench run`` checks its seeds
     (:func:`nutribench.scheduler.grid.parse_seeds`: non-negative, in range, no repeats), as a
     tuple; the default tuning seeds for None or an empty text."""
-    from nutribench.scheduler.grid import GridError
-    from nutribench.scheduler.grid import parse_seeds as grid_seeds
+    from nutribench.scheduler.grid import GridError, parse_seeds
 
     if text is None or not text.strip():
         return DEFAULT_TUNING_SEEDS
     try:
-        return grid_seeds(text)
+        return parse_seeds(text)
     except GridError as e:
         raise TuneError(str(e)) from None
