@@ -109,14 +109,23 @@ class ValidationObjective:
         from nutribench.agents.days import validation_food_streams
         from nutribench.agents.registry import by_entry_point
 
-        plug_in = by_entry_point(cfg.algo)  # its own loop (algo "external"): its final agent evaluated
         for j, (regime, seed) in enumerate(self.jobs):
-            during = dict(eval_every=s.eval_every, val_episodes=s.val_episodes)
-            during["on_validation"] = lambda _, day, rows, j=j: on_validation(j, day, rows)
-            agent = train(regime, cfg, seed, s.days, on_episode=self.job_days(j), **({} if plug_in else during))
-            if plug_in:  # nothing to prune on
+            # a plug-in's own loop (algo "external"): its final agent is evaluated, nothing to prune on
+            if by_entry_point(cfg.algo):
+                agent = train(regime, cfg, seed, s.days, on_episode=self.job_days(j))
                 days = validation_food_streams(regime, seed, s.val_episodes)
                 on_validation(j, s.days, evaluate(agent, regime, days, record_steps=False).episodes)
+                continue
+            train(
+                regime,
+                cfg,
+                seed,
+                s.days,
+                eval_every=s.eval_every,
+                val_episodes=s.val_episodes,
+                on_validation=lambda _, day, rows, j=j: on_validation(j, day, rows),
+                on_episode=self.job_days(j),
+            )
 
     def train_batch(
         self, jobs: list[tuple[str, int]], cfg: Any, on_validation: Callable[..., None], **extra: Any
