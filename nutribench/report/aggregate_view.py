@@ -273,14 +273,9 @@ def _width_notes(res: AggregateResult) -> list[str]:
     resample (no interval, the tick alone); seeds that all score alike give every resample the
     same value (an interval of zero width)."""
     iv = res.intervals[res.intervals["aggregate"] == "iqm"]
-    single = [a for a in res.algos if (iv["algo"] == a).any() and iv.loc[iv["algo"] == a, "lo"].isna().all()]
-    flat = [
-        a
-        for a in res.algos
-        if a not in single
-        and (iv["algo"] == a).any()
-        and np.allclose(iv.loc[iv["algo"] == a, "hi"], iv.loc[iv["algo"] == a, "lo"], equal_nan=True)
-    ]
+    mine = {a: iv[iv["algo"] == a] for a in res.algos if (iv["algo"] == a).any()}
+    single = [a for a, m in mine.items() if m["lo"].isna().all()]
+    flat = [a for a, m in mine.items() if a not in single and np.allclose(m["hi"], m["lo"], equal_nan=True)]
     notes = []
     if single:
         notes.append(
@@ -304,12 +299,8 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
     ``ev``: the evaluation episodes the scores came from: each row then states its agent's
     training budget (days) and the caption the budgets and seeds (a warning when they differ)."""
     budgets = {a: budget_cell(ev[ev["algo"] == a]) for a in res.algos} if ev is not None and not ev.empty else {}
-    rows, fmt_rows = [], []
-    for group in GROUPS:
-        if res.regimes.get(group) or res.partial.get(group):
-            for row, f in _aggregate_rows(res, group, budgets):
-                rows.append(row)
-                fmt_rows.append(f)
+    groups = [g for g in GROUPS if res.regimes.get(g) or res.partial.get(g)]
+    pairs = [pair for group in groups for pair in _aggregate_rows(res, group, budgets)]
     title = (
         "Aggregate scores: share of the never -> planner gap per run (seed x regime), over regimes x seeds; point estimate "
         f"[95 % interval over runs: IQM {interval_caption('iqm')}; {aggregate_intervals_text(profile=False)}; none "
@@ -321,27 +312,14 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
     if res.notes:
         title += " (note: " + "; ".join(res.notes) + ")"
     budget_col = ["budget (days)"] if budgets else []
-    cols = [
-        "regimes",
-        "algorithm",
-        *budget_col,
-        "runs",
-        *(f"{AGGREGATE_LABELS[a]} (%)" for a in AGGREGATES),
-        *(f"P(> {algo_label(a)})" for a in res.algos),
-    ]
-    fmt = pd.DataFrame(fmt_rows, columns=cols).astype(object).fillna("")  # a column all None is float64
+    cols = ["regimes", "algorithm", *budget_col, "runs", *(f"{AGGREGATE_LABELS[a]} (%)" for a in AGGREGATES)]
+    cols += [f"P(> {algo_label(a)})" for a in res.algos]
+    fmt = pd.DataFrame([f for _, f in pairs], columns=cols).astype(object).fillna("")  # a column all None is float64
     if len(fmt) == 0:
         fmt = fmt[cols[: 3 + len(budget_col)]]
-    raw_cols = [
-        "group",
-        "regimes",
-        "algo",
-        *(["budget"] if budgets else []),
-        "runs",
-        *(f"{a}{s}" for a in AGGREGATES for s in ("", "_lo", "_hi")),
-        *(f"p_gt_{a}{s}" for a in res.algos for s in ("", "_lo", "_hi")),
-    ]
-    return TableResult("aggregate", title, pd.DataFrame(rows, columns=raw_cols), fmt)
+    raw_cols = ["group", "regimes", "algo", *(["budget"] if budgets else []), "runs"]
+    raw_cols += [f"{a}{s}" for a in [*AGGREGATES, *(f"p_gt_{o}" for o in res.algos)] for s in ("", "_lo", "_hi")]
+    return TableResult("aggregate", title, pd.DataFrame([r for r, _ in pairs], columns=raw_cols), fmt)
 
 
 def _aggregate_rows(res: AggregateResult, group: str, budgets: dict[str, str]):

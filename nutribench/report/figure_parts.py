@@ -8,6 +8,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from itertools import groupby
 
 import pandas as pd
 from matplotlib.figure import Figure
@@ -51,16 +52,9 @@ def wrap_text(text: str, fig: Figure, fontsize: float) -> str:
 
 def seed_list(seeds: Iterable[int]) -> str:
     """Seeds in increasing order, runs of three or more as ranges: ``0-9, 21, 1997``."""
-    seeds = sorted({int(s) for s in seeds})
-    parts: list[str] = []
-    i = 0
-    while i < len(seeds):
-        j = i
-        while j + 1 < len(seeds) and seeds[j + 1] == seeds[j] + 1:
-            j += 1
-        parts += [f"{seeds[i]}-{seeds[j]}"] if j - i >= 2 else [str(s) for s in seeds[i : j + 1]]
-        i = j + 1
-    return ", ".join(parts)
+    ordered = enumerate(sorted({int(s) for s in seeds}))
+    runs = [[s for _, s in run] for _, run in groupby(ordered, lambda pair: pair[1] - pair[0])]
+    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) >= 3 else ", ".join(map(str, r)) for r in runs)
 
 
 def _budget_seeds(cell: pd.DataFrame) -> str:

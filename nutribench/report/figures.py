@@ -32,6 +32,7 @@ from nutribench.report.figure_parts import (
     sort_regimes,
     training_legend,
 )
+from nutribench.report.headroom import regime_shares
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
@@ -210,15 +211,6 @@ def _reference_scores(references: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def _draw_headroom(ax, ev: pd.DataFrame, day_references: pd.DataFrame, xs: Mapping[str, float]) -> list[str]:
-    """Lookahead's and clairvoyant's shares of the gap per regime on panel (A) (the mean over
-    the seeds' days ``ev`` holds, :func:`nutribench.report.headroom.regime_shares`), as grey
-    reference lines; the policies drawn."""
-    from nutribench.report.headroom import regime_shares
-
-    return _reference_lines(ax, regime_shares(ev, day_references), "share", STRONG_STYLES, xs)
-
-
 def _reference_lines(ax, ref: pd.DataFrame, column: str, styles: Mapping, xs: Mapping[str, float]) -> list[str]:
     """Each policy of ``styles`` that ``ref`` holds (columns policy, regime, ``column``) as a
     reference line across its regimes, broken where regimes are missing; the policies drawn."""
@@ -327,8 +319,8 @@ def eval_across_regimes(
         if references is not None and not references.empty:
             ref = references[references["regime"].isin(regimes)]
             _reference_lines(ax, _reference_scores(ref) if gap_panel else ref, metric, POLICY_STYLES, xs)
-        if gap_panel:
-            headroom = _draw_headroom(ax, ev, day_references, xs)
+        if gap_panel:  # lookahead's and clairvoyant's shares per regime (mean over the seeds' days ev holds)
+            headroom = _reference_lines(ax, regime_shares(ev, day_references), "share", STRONG_STYLES, xs)
         _eval_axes(ax, p, metric, gap_panel, xs)
     _reference_legend(fig, axes.flat[0])
     notes = _missing_note(regimes, present, ev) + notes
@@ -424,15 +416,9 @@ def _eval_axes(ax, p: int, metric: str, gap_panel: bool, xs: Mapping[str, float]
 
 def _reference_legend(fig: Figure, ax) -> None:
     """The legend under the panels: the agents in a row, the reference lines in the next."""
-    handles, labels = ax.get_legend_handles_labels()
-    is_ref = [lab.endswith("(reference)") for lab in labels]
-    legend_rows(
-        fig,
-        [
-            ([h for h, r in zip(handles, is_ref) if r == ref], [lab for lab, r in zip(labels, is_ref) if r == ref])
-            for ref in (False, True)
-        ],
-    )
+    entries = list(zip(*ax.get_legend_handles_labels()))
+    groups = [[(h, lab) for h, lab in entries if lab.endswith("(reference)") == ref] for ref in (False, True)]
+    legend_rows(fig, [([h for h, _ in g], [lab for _, lab in g]) for g in groups])
 
 
 def _eval_caption(ev: pd.DataFrame, gap: bool, headroom: list[str]) -> str:
