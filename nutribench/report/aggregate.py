@@ -69,12 +69,7 @@ DELAYED_REGIMES: tuple[str, ...] = tuple(f"run{i}" for i in range(1, 7))
 GROUPS: dict[str, str] = {"all": "all regimes", "delayed": "delayed regimes (run1-run6)"}
 #: The aggregates, in the figure's and the table's order.
 AGGREGATES: tuple[str, ...] = ("iqm", "median", "mean", "optimality_gap")
-AGGREGATE_LABELS: dict[str, str] = {
-    "iqm": "IQM",
-    "median": "median",
-    "mean": "mean",
-    "optimality_gap": "optimality gap",
-}
+AGGREGATE_LABELS: dict[str, str] = {a: a.replace("_", " ") for a in AGGREGATES} | {"iqm": "IQM"}
 
 
 # --------------------------------------------------------------------------- interval estimates

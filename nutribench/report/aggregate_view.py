@@ -142,16 +142,8 @@ def _profile_panel(ax, res: AggregateResult, group: str, colors: Palette, names,
             continue
         color = colors.color(algo)
         every = max(1, len(p) // 6)
-        ax.plot(
-            p["tau"],
-            p["fraction"],
-            color=color,
-            lw=1.5,
-            label=names[algo],
-            marker=colors.marker(algo),
-            ms=5,
-            markevery=(algos.index(algo) * every // len(algos), every),
-        )
+        line = dict(color=color, lw=1.5, label=names[algo], marker=colors.marker(algo), ms=5)
+        ax.plot(p["tau"], p["fraction"], markevery=(algos.index(algo) * every // len(algos), every), **line)
         if p["lo"].notna().any():
             ax.fill_between(p["tau"], p["lo"], p["hi"], color=color, alpha=0.15, lw=0)
     yardstick_lines(ax)
@@ -309,8 +301,6 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
     )
     if budgets:
         title += f"; {budget_caption(ev)}"
-    if res.notes:
-        title += " (note: " + "; ".join(res.notes) + ")"
     budget_col = ["budget (days)"] if budgets else []
     cols = ["regimes", "algorithm", *budget_col, "runs", *(f"{AGGREGATE_LABELS[a]} (%)" for a in AGGREGATES)]
     cols += [f"P(> {algo_label(a)})" for a in res.algos]
@@ -319,7 +309,9 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
         fmt = fmt[cols[: 3 + len(budget_col)]]
     raw_cols = ["group", "regimes", "algo", *(["budget"] if budgets else []), "runs"]
     raw_cols += [f"{a}{s}" for a in [*AGGREGATES, *(f"p_gt_{o}" for o in res.algos)] for s in ("", "_lo", "_hi")]
-    return TableResult("aggregate", title, pd.DataFrame([r for r, _ in pairs], columns=raw_cols), fmt)
+    return TableResult("aggregate", title, pd.DataFrame([r for r, _ in pairs], columns=raw_cols), fmt).add_notes(
+        res.notes
+    )
 
 
 def _aggregate_rows(res: AggregateResult, group: str, budgets: dict[str, str]):

@@ -188,13 +188,6 @@ def learning_figure(db: DbFile, data: ReportData | None, algos: Sequence[str] | 
         raise ReportError(f"figure 6: {e}") from None
 
 
-def _with_notes(res: TableResult, data: ReportData) -> TableResult:
-    """What was left out of the data, in the table's caption as on the figures."""
-    if data.notes:
-        res.title += " (note: " + "; ".join(data.notes) + ")"
-    return res
-
-
 def _day_references(data: ReportData, log: Log | None = None):
     """The never/planner yardsticks on every evaluation day of ``data`` (Figures 3/4 panel (A),
     the results table, Figure 5), played once per ``data``."""
@@ -222,15 +215,15 @@ def _metrics_table(key: str, data: ReportData | None) -> TableResult:
     if key == "aggregate":
         from nutribench.report.aggregate_view import aggregate_table
 
-        return _with_notes(aggregate_table(_aggregate(data, "aggregate table"), data.eval), data)
+        return aggregate_table(_aggregate(data, "aggregate table"), data.eval).add_notes(data.notes)
     if key == "results":
         ev = data.eval
         if ev.empty:
             raise ReportError(f"results table: no evaluation episodes{data.what()} in the database")
-        return _with_notes(table_results(ev, references=_day_references(data)), data)
+        return table_results(ev, references=_day_references(data)).add_notes(data.notes)
     if data.train.empty:
         raise ReportError(f"training table: no training episodes{data.what()} in the database")
-    return _with_notes(table_training(data.train), data)
+    return table_training(data.train).add_notes(data.notes)
 
 
 def build_table(
@@ -325,12 +318,9 @@ class _Writer:
             if self.log:
                 self.log(f"skipped: {e}")
             return
-        if number is not None:
-            written = write_figure(res, self.out, stem)
-            self.page.append(page_figure(number, res, written))
-        else:
-            written = write_table(res, self.out, stem)
-            self.page.append(page_table(stem, res, written))
+        figure = number is not None
+        written = (write_figure if figure else write_table)(res, self.out, stem)
+        self.page.append(page_figure(number, res, written) if figure else page_table(stem, res, written))
         self.paths += written
 
 

@@ -42,20 +42,8 @@ from nutribench.stats import caption as interval_caption
 
 #: Bootstrap resamples of the seeds.
 COMPARE_REPS = 10_000
-COMPARE_COLUMNS = [
-    "regime",
-    "regimes",
-    "seeds",
-    "days",
-    "a_mean",
-    "b_mean",
-    "diff",
-    "diff_lo",
-    "diff_hi",
-    "p_a_better",
-    "p_lo",
-    "p_hi",
-]
+COMPARE_COLUMNS = ["regime", "regimes", "seeds", "days", "a_mean", "b_mean", "diff", "diff_lo", "diff_hi"]
+COMPARE_COLUMNS += ["p_a_better", "p_lo", "p_hi"]
 
 
 class CompareError(UserError, ValueError):
@@ -236,13 +224,8 @@ def compare_agents(
     used = ev[ev["algo"].isin([a, b]) & ev["regime"].isin(paired)]
     budget_a, budget_b = (budget_cell(used[used["algo"] == n]) for n in (a, b))
     if budget_a != budget_b:
-        notes.insert(
-            0,
-            f"warning: budgets differ ({trained_text(algo_label(a), budget_a)}, "
-            f"{trained_text(algo_label(b), budget_b, verb='')}): "
-            "the difference is "
-            "the agents' and their budgets' together",
-        )
+        both = f"{trained_text(algo_label(a), budget_a)}, {trained_text(algo_label(b), budget_b, verb='')}"
+        notes.insert(0, f"warning: budgets differ ({both}): the difference is the agents' and their budgets' together")
     return Comparison(a, b, pd.DataFrame(rows, columns=COMPARE_COLUMNS), days, reps, notes, _header(used))
 
 
@@ -383,10 +366,10 @@ def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, re
     names = [spec_a.name, spec_b.name]
     if names[0] == names[1]:  # two entries of one config: each is named by its spec
         names = [str(EntrySpec(*e)) for e in picked]
-    parts = []
-    for entry, name in zip(picked, names):
-        rows = data.eval[(data.eval[list(ENTRY)] == pd.Series(entry, index=list(ENTRY))).all(axis=1)]
-        parts.append(rows.assign(algo=name))
+    parts = [
+        data.eval[(data.eval[list(ENTRY)] == pd.Series(entry, index=list(ENTRY))).all(axis=1)].assign(algo=name)
+        for entry, name in zip(picked, names)
+    ]
     res = compare_agents(pd.concat(parts, ignore_index=True), names[0], names[1], regimes, reps)
     res.notes = [*notes, *res.notes]
     return res

@@ -220,14 +220,8 @@ def _reference_lines(ax, ref: pd.DataFrame, column: str, styles: Mapping, xs: Ma
         if r.empty:
             continue
         r = r.set_index("regime").loc[sort_regimes(r["regime"])]
-        ax.plot(
-            *_with_breaks([xs[k] for k in r.index], r[column].to_numpy(dtype=float)),
-            lw=0.8,
-            ms=4,
-            alpha=0.9,
-            label=f"{policy} (reference)",
-            **style,
-        )
+        xy = _with_breaks([xs[k] for k in r.index], r[column].to_numpy(dtype=float))
+        ax.plot(*xy, lw=0.8, ms=4, alpha=0.9, label=f"{policy} (reference)", **style)
         drawn.append(policy)
     return drawn
 

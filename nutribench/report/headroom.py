@@ -63,9 +63,7 @@ def with_strong_references(day_references: pd.DataFrame, log: Log | None = None)
     out = day_references.copy()
     committed = committed_references(log)
     if committed.empty or out.empty:
-        for p in STRONG_POLICIES:
-            out[p] = np.nan
-        return out
+        return out.assign(**dict.fromkeys(STRONG_POLICIES, np.nan))
     key = ["regime", "seed", "episode"]
     found = committed.set_index(key).reindex(pd.MultiIndex.from_frame(out[key].astype({"seed": int, "episode": int})))
     yard = ["never", "planner"]

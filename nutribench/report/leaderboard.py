@@ -152,10 +152,7 @@ def _flags(budget: str, seeds: list[int], covered: list[str], board: list[str]) 
 def _lookup(by: dict, entry: tuple[str, int, int], default: str) -> str:
     """``by``'s value for an entry (name, version, budget), else for (name, version), else for
     the name alone (a map of one row per name, as :func:`protocols` gives), else ``default``."""
-    for key in (entry, entry[:2], entry[0]):
-        if key in by:
-            return by[key]
-    return default
+    return next((by[key] for key in (entry, entry[:2], entry[0]) if key in by), default)
 
 
 def leaderboard_rows(
@@ -186,19 +183,10 @@ def leaderboard_rows(
         seeds = sorted({int(s) for s in cell["seed"]})
         budget = budget_cell(cell)
         mine_jobs = job_info.loc[sorted(set(cell["job_id"]))]
-        row = _row(
-            algo,
-            _lookup(protocol, entry, "?"),
-            mine,
-            board,
-            reps,
-            version=version,
-            budget=budget,
-            seeds=" ".join(map(str, seeds)),
-            engine="/".join(sorted({str(e) for e in mine_jobs["engine"].dropna()})) or "?",
-            code=_code_version(mine_jobs),
-            checked=_lookup(checked or {}, entry, REPLAYED),
-        )
+        engine = "/".join(sorted({str(e) for e in mine_jobs["engine"].dropna()})) or "?"
+        cells = dict(version=version, budget=budget, seeds=" ".join(map(str, seeds)), engine=engine)
+        cells.update(code=_code_version(mine_jobs), checked=_lookup(checked or {}, entry, REPLAYED))
+        row = _row(algo, _lookup(protocol, entry, "?"), mine, board, reps, **cells)
         covered = row["covered"].split(",") if row["covered"] else []
         row["flags"] = "; ".join(_flags(budget, seeds, covered, board))
         rows.append(row)
@@ -308,29 +296,24 @@ def _iqm_cell(point: float, lo: float, hi: float) -> str:
 def leaderboard_table(rows: pd.DataFrame) -> TableResult:
     """The leaderboard as a table (Markdown, LaTeX, CSV); ``rows``: :func:`leaderboard_rows`."""
     board = [c.removeprefix("share_") for c in rows.columns if c.startswith("share_")]
-    fmt = []
-    for r in rows.to_dict("records"):
-        f = {
+    fmt = [
+        {
             "rank": "" if r["rank"] is None or pd.isna(r["rank"]) else int(r["rank"]),
             "agent": algo_label(r["algo"]),
             "IQM share of gap (%) [95% CI]": _iqm_cell(r["iqm"], r["iqm_lo"], r["iqm_hi"]),
             "regimes": f"{r['regimes']}/{len(board)}",
+            **{f"{g} (%)": _pct(r[f"share_{g}"]) for g in board},
+            "version": "-" if r["protocol"] == REFERENCE_PROTOCOL else f"v{r['version']}" if "version" in r else "?",
+            "budget (days)": _cell(r["budget"]),
+            "seeds": r["seeds"].replace(" ", ", "),
+            "engine": _cell(r["engine"]),
+            "protocol": r["protocol"],
+            "code": _cell(r["code"]),
+            "checked": r.get("checked", REPLAYED),
+            "flags": r["flags"] or "-",
         }
-        f.update({f"{g} (%)": _pct(r[f"share_{g}"]) for g in board})
-        version = "-" if r["protocol"] == REFERENCE_PROTOCOL else f"v{r['version']}" if "version" in r else "?"
-        f.update(
-            {
-                "version": version,
-                "budget (days)": _cell(r["budget"]),
-                "seeds": r["seeds"].replace(" ", ", "),
-                "engine": _cell(r["engine"]),
-                "protocol": r["protocol"],
-                "code": _cell(r["code"]),
-                "checked": r.get("checked", REPLAYED),
-                "flags": r["flags"] or "-",
-            }
-        )
-        fmt.append(f)
+        for r in rows.to_dict("records")
+    ]
     title = (
         "Leaderboard: every agent ranked by the IQM of its run scores (one seed on one regime = one run, scored as the "
         "share of the regime's never -> planner gap it closes on its own evaluation days; 0 % = never eat, 100 % = the "
@@ -395,10 +378,8 @@ def leaderboard_from_db(
 
         checked = verify_entries(db, ev, verify, log)
         notes += _set_apart_notes(checked)
-    table = leaderboard_table(leaderboard_rows(ev, references, jobs, _drawn_protocols(configs, ev), reps, checked))
-    if notes:
-        table.title += " (note: " + "; ".join(notes) + ")"
-    return table
+    rows = leaderboard_rows(ev, references, jobs, _drawn_protocols(configs, ev), reps, checked)
+    return leaderboard_table(rows).add_notes(notes)
 
 
 def _drawn_protocols(configs: pd.DataFrame, ev: pd.DataFrame) -> dict[tuple[str, int], str]:
@@ -407,8 +388,7 @@ def _drawn_protocols(configs: pd.DataFrame, ev: pd.DataFrame) -> dict[tuple[str,
     drawn = set(map(tuple, ev[["algo", "algo_version"]].drop_duplicates().to_numpy()))
     configs = configs[[(n, v) in drawn for n, v in zip(configs["name"], configs["version"])]]
     return {
-        (name, int(version)): protocols(configs[(configs["name"] == name) & (configs["version"] == version)])[name]
-        for name, version in configs[["name", "version"]].drop_duplicates().itertuples(index=False)
+        (name, int(version)): protocols(rows)[name] for (name, version), rows in configs.groupby(["name", "version"])
     }
 
 

@@ -134,15 +134,12 @@ def colors(names: Iterable[str]) -> dict[str, str]:
     """A colour per name, in :func:`order`: the built-in colours for the five, for the others
     one of :data:`USER_COLORS` while one is free, then derived colours (distinct from every
     colour before)."""
-    names = order(names)
     fixed = builtin_colors()
     taken = list(fixed.values())
     out: dict[str, str] = {}
-    for n in names:
-        if n in fixed:
-            out[n] = fixed[n]
-        else:
-            out[n] = _user_color(n, taken) or _pick(n, taken)
+    for n in order(names):
+        out[n] = fixed.get(n) or _user_color(n, taken) or _pick(n, taken)
+        if n not in fixed:
             taken.append(out[n])
     return out
 
@@ -153,11 +150,8 @@ def markers(names: Iterable[str]) -> dict[str, str]:
     when all are taken, the one the hash picks (the colour still differs)."""
     out: dict[str, str] = {}
     for n in order(names):
-        if n in BUILTIN_MARKERS:
-            out[n] = BUILTIN_MARKERS[n]
-            continue
         ring = _ring(n, USER_MARKERS)
-        out[n] = next((m for m in ring if m not in out.values()), ring[0])
+        out[n] = BUILTIN_MARKERS.get(n) or next((m for m in ring if m not in out.values()), ring[0])
     return out
 
 

@@ -49,6 +49,12 @@ class TableResult:
     raw: pd.DataFrame
     formatted: pd.DataFrame
 
+    def add_notes(self, notes: list[str]) -> TableResult:
+        """The table with ``notes`` (what was left out of its data) at the end of its caption."""
+        if notes:
+            self.title += " (note: " + "; ".join(notes) + ")"
+        return self
+
     def to_markdown(self) -> str:
         return "\n".join([f"**{self.title}**", "", *markdown_rows(self.formatted)]) + "\n"
 
