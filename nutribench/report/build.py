@@ -48,6 +48,7 @@ from nutribench.report.data import (
     check_names,
     load_report_data,
     prepare,
+    quiet,
     read_metrics,
     stored_agent_configs,
 )
@@ -299,7 +300,7 @@ class _Writer:
     and keeps what index.html shows; with ``all``, an item the data cannot give is skipped
     (one ``skipped:`` line through ``log``) instead of failing the report."""
 
-    def __init__(self, out: DbFile, steps: int, all: bool, log: Log | None, progress: Log | None) -> None:  # noqa: A002
+    def __init__(self, out: DbFile, steps: int, all: bool, log: Log, progress: Log | None) -> None:  # noqa: A002
         self.out, self.steps, self.all, self.log, self.progress = out, steps, all, log, progress
         self.done = 0
         self.paths: list[Path] = []
@@ -315,8 +316,7 @@ class _Writer:
         except ReportError as e:
             if not self.all:
                 raise
-            if self.log:
-                self.log(f"skipped: {e}")
+            self.log(f"skipped: {e}")
             return
         figure = number is not None
         written = (write_figure if figure else write_table)(res, self.out, stem)
@@ -353,6 +353,7 @@ def build_report(
     item starts, so a long ``--all`` shows where it is.
     """
     figs, tables, pair, stored = _request(db, figs, tables, all, algos, pair)
+    log = log or quiet
     plan = table_plan(tables, all, stored, algos)
     # the database is read once, up front, and only when something needs it: a database that
     # cannot be read (missing, empty, outdated) fails the whole command, even with ``all``
@@ -361,13 +362,11 @@ def build_report(
     if all and raw is not None:
         for key, why in unheld_tables(plan, stored, raw, tables).items():
             del plan[key]
-            if log:
-                log(f"skipped: {why}")
+            log(f"skipped: {why}")
     ablation = figure4.without_memory(pair, stored, raw) if 4 in figs else {}
     pair_data = prepare(raw, [*pair, *ablation]) if raw is not None and 4 in figs else None
-    if log:
-        for note in dict.fromkeys([*(data.notes if data else []), *(pair_data.notes if pair_data else [])]):
-            log(f"note: {note}")
+    for note in dict.fromkeys([*(data.notes if data else []), *(pair_data.notes if pair_data else [])]):
+        log(f"note: {note}")
     w = _Writer(out, len(figs) + len(plan) + int(all), all, log, progress)
     for f in figs:
         figure_data = pair_data if f == 4 else data

@@ -133,9 +133,7 @@ class Comparison:
 
     def method(self) -> str:
         """How the intervals were made, for the title."""
-        if CHOSEN["paired"] == "t":
-            return interval_caption("paired")
-        return f"{interval_caption('paired')}, {self.reps} resamples"
+        return interval_caption("paired") + ("" if CHOSEN["paired"] == "t" else f", {self.reps} resamples")
 
     def formatted(self) -> pd.DataFrame:
         """The rows as text: regime, seeds, days, means, difference [interval], P(A > B) [interval]."""

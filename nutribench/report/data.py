@@ -34,6 +34,10 @@ DbFile = str | os.PathLike[str]
 Log = Callable[[str], None]
 
 
+def quiet(msg: str) -> None:
+    """The :data:`Log` of a caller that gave none: it says nothing."""
+
+
 class ReportError(UserError, ValueError):
     """Something the report cannot build from what it was given; printed as one line."""
 

@@ -191,11 +191,8 @@ def legend_rows(fig: Figure, rows: list[tuple[list, list[str]]], fontsize: float
         return
     ncols = max(len(labels) for _, labels in rows)
     blank = Line2D([], [], alpha=0)
-    handles, labels = [], []
-    for c in range(ncols):
-        for hs, ls in rows:
-            handles.append(hs[c] if c < len(hs) else blank)
-            labels.append(ls[c] if c < len(ls) else "")
+    cells = [(hs[c], ls[c]) if c < len(ls) else (blank, "") for c in range(ncols) for hs, ls in rows]
+    handles, labels = (list(v) for v in zip(*cells))
     fig.legend(handles, labels, loc="outside lower center", ncols=ncols, fontsize=fontsize, frameon=False)
 
 

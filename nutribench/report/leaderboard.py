@@ -54,7 +54,7 @@ import numpy as np
 import pandas as pd
 
 from nutribench.report.aggregate import interval_estimates, regime_span, run_scores, score_set
-from nutribench.report.data import ENTRY, Log, ReportError, entries
+from nutribench.report.data import ENTRY, Log, ReportError, entries, quiet
 from nutribench.report.figure_parts import UNRECORDED, budget_cell, seed_list, sort_regimes
 from nutribench.report.leaderboard_verify import REPLAYED, not_reproduced
 from nutribench.report.palette import BUILTIN_ORDER
@@ -405,7 +405,7 @@ def leaderboard_from_archives(
     from nutribench.store.archive import import_results
     from nutribench.store.engine import StoreError
 
-    reps = check_reps(reps)
+    reps, log = check_reps(reps), log or quiet
     folder = Path(folder)
     archives = sorted(folder.glob("*.npz")) if folder.is_dir() else []
     if not archives:
@@ -422,14 +422,12 @@ def leaderboard_from_archives(
                 reason = str(e).removeprefix("db import: ").removesuffix("; nothing imported")
                 refused[path] = reason.replace(str(path), path.name, 1)
                 continue
-            if log:
-                log(f"imported {path.name}")
+            log(f"imported {path.name}")
         listed = [refused[p] for p in archives if p in refused]
         if len(refused) == len(archives):
             raise ReportError(f"{folder}: every archive was refused ({'; '.join(listed)})")
         for reason in listed:
-            if log:
-                log(f"refused: {reason}")
+            log(f"refused: {reason}")
         table = leaderboard_from_db(db, reps=reps, log=log, verify=verify)
     if refused:
         table.title += f" (refused, not ranked: {'; '.join(listed)})"

@@ -176,15 +176,11 @@ class Palette:
 
     def marker(self, name: str) -> str:
         """``name``'s marker (as in :func:`markers` over the palette's names and ``name``)."""
-        if name in self.markers:
-            return self.markers[name]
-        return markers([*self.colors, *self.markers, name])[name]
+        return self.markers.get(name) or markers([*self.colors, *self.markers, name])[name]
 
     def color(self, name: str) -> str:
         """``name``'s colour (as in :func:`colors` over the palette's names and ``name``)."""
-        if name in self.colors:
-            return self.colors[name]
-        return colors([*self.colors, name])[name]
+        return self.colors.get(name) or colors([*self.colors, name])[name]
 
 
 def palette(names: Iterable[str] = ()) -> Palette:
