@@ -331,9 +331,7 @@ def _aggregate_rows(res: AggregateResult, group: str, budgets: dict[str, str]):
             p, lo, hi = (float(mine.loc[agg, c]) for c in ("point", "lo", "hi"))
             row[agg], row[f"{agg}_lo"], row[f"{agg}_hi"] = p, lo, hi
             f[f"{AGGREGATE_LABELS[agg]} (%)"] = interval_cell(p, lo, hi, _percent)
-        for other in res.algos:
-            if other == algo:
-                continue
+        for other in [o for o in res.algos if o != algo]:
             r = imp[(imp["x"] == algo) & (imp["y"] == other)]
             p, lo, hi = (float(r[c].iloc[0]) if len(r) else float("nan") for c in ("p", "lo", "hi"))
             row[f"p_gt_{other}"], row[f"p_gt_{other}_lo"], row[f"p_gt_{other}_hi"] = p, lo, hi

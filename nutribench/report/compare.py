@@ -140,9 +140,7 @@ class Comparison:
         la, lb = algo_label(self.a), algo_label(self.b)
         out = []
         for r in self.rows.itertuples(index=False):
-            name = r.regime
-            if r.regime in ("all", "delayed"):
-                name = f"{r.regime} ({regime_span(r.regimes.split(','))})"
+            name = f"{r.regime} ({regime_span(r.regimes.split(','))})" if r.regime in ("all", "delayed") else r.regime
             pci = f" [{r.p_lo:.2f}, {r.p_hi:.2f}]" if np.isfinite(r.p_lo) else ""
             diff = interval_cell(r.diff, r.diff_lo, r.diff_hi, "{:+.2f}".format)
             out.append((name, r.seeds, r.days, f"{r.a_mean:.2f}", f"{r.b_mean:.2f}", diff, f"{r.p_a_better:.2f}{pci}"))

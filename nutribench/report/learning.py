@@ -23,6 +23,7 @@ from nutribench.report.figure_parts import (
     FigureResult,
     agent_labels,
     budget_seeds_line,
+    count_span,
     draw_notes,
     set_title,
     sort_regimes,
@@ -102,8 +103,7 @@ def learning_curve_figure(
             ax.set_ylabel("")
         bottom_axis(ax, k, len(regimes), ncols, "training day")
     training_legend(fig, list(axes), [legend[a] for a in names])
-    days = sorted(set(curve.groupby("job_id")["episode"].nunique()))
-    n_days = f"{days[0]}" if len(days) == 1 else f"{days[0]}-{days[-1]}"
+    n_days = count_span(curve.groupby("job_id")["episode"].nunique())
     caption = (
         f"{GAP_LABEL} on {n_days} validation days per evaluation (never the test days), "
         f"IQM over seeds with its 95 % interval over seeds ({interval_caption('iqm')})\n"

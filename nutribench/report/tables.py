@@ -117,13 +117,10 @@ def table_regimes(configs) -> TableResult:
 def _flatten(d: dict, prefix: str = "") -> dict:
     out = {}
     for k, v in d.items():
-        key = f"{prefix}{k}"
         if isinstance(v, dict) and v:
-            out.update(_flatten(v, key + "."))
-        elif isinstance(v, dict):
-            out[key] = "{}"  # an empty table (e.g. [params]) is still shown
-        else:
-            out[key] = v
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:  # an empty table (e.g. [params]) is still shown
+            out[f"{prefix}{k}"] = "{}" if isinstance(v, dict) else v
     return out
 
 
@@ -167,8 +164,7 @@ def table_agent_config(number: int, config) -> TableResult:
     raw = pd.DataFrame(
         {"hyperparameter": list(flat), "value": [v if not isinstance(v, list) else str(v) for v in flat.values()]}
     )
-    fmt = raw.copy()
-    fmt["value"] = [", ".join(map(str, v)) if isinstance(v, list) else str(v) for v in flat.values()]
+    fmt = raw.assign(value=[", ".join(map(str, v)) if isinstance(v, list) else str(v) for v in flat.values()])
     return TableResult(f"table{number}", _config_title(number, config.name, content), raw, fmt)
 
 
