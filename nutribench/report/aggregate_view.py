@@ -330,15 +330,10 @@ def _aggregate_rows(res: AggregateResult, group: str, budgets: dict[str, str]):
         for agg in AGGREGATES:
             p, lo, hi = (float(mine.loc[agg, c]) for c in ("point", "lo", "hi"))
             row[agg], row[f"{agg}_lo"], row[f"{agg}_hi"] = p, lo, hi
-            f[f"{AGGREGATE_LABELS[agg]} (%)"] = interval_cell(p, lo, hi, _percent)
+            f[f"{AGGREGATE_LABELS[agg]} (%)"] = interval_cell(p, lo, hi, lambda v: f"{100 * v:.0f}")  # no % sign
         for other in [o for o in res.algos if o != algo]:
             r = imp[(imp["x"] == algo) & (imp["y"] == other)]
             p, lo, hi = (float(r[c].iloc[0]) if len(r) else float("nan") for c in ("p", "lo", "hi"))
             row[f"p_gt_{other}"], row[f"p_gt_{other}_lo"], row[f"p_gt_{other}_hi"] = p, lo, hi
             f[f"P(> {algo_label(other)})"] = interval_cell(p, lo, hi)
         yield row, f
-
-
-def _percent(v: float) -> str:
-    """A share as a whole percent, without the sign: ``0.456`` -> ``46``."""
-    return f"{100 * v:.0f}"

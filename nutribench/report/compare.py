@@ -222,7 +222,9 @@ def compare_agents(
     if budget_a != budget_b:
         both = f"{trained_text(algo_label(a), budget_a)}, {trained_text(algo_label(b), budget_b, verb='')}"
         notes.insert(0, f"warning: budgets differ ({both}): the difference is the agents' and their budgets' together")
-    return Comparison(a, b, pd.DataFrame(rows, columns=COMPARE_COLUMNS), days, reps, notes, _header(used))
+    # the budgets and seeds line of the comparison, a budget of 0 days said as UNRECORDED
+    header = budget_seeds_text(used).replace("budget 0 days", f"budget unknown ({UNRECORDED})")
+    return Comparison(a, b, pd.DataFrame(rows, columns=COMPARE_COLUMNS), days, reps, notes, header)
 
 
 def _check_held(ev: pd.DataFrame, names: Sequence[str]) -> None:
@@ -263,12 +265,6 @@ def trained_text(label: str, budget: str, verb: str = "trained ") -> str:
         return f"{label} {verb}{budget} days"
     known = [p for p in parts if p != "0"]
     return f"{label}: {UNRECORDED}" + (f" for some seeds, {'/'.join(known)} days for the others" if known else "")
-
-
-def _header(used: pd.DataFrame) -> str:
-    """The budgets and seeds line of the comparison (:func:`budget_seeds_text`), a budget of 0
-    days said as :data:`UNRECORDED`."""
-    return re.sub(r"budget 0 days", f"budget unknown ({UNRECORDED})", budget_seeds_text(used))
 
 
 def _regimes_of(ev: pd.DataFrame, name: str) -> str:

@@ -129,15 +129,10 @@ def budget_cell(cell: pd.DataFrame) -> str:
     return "/".join(str(b) for b in sorted({int(b) for b in cell["budget"].dropna()}))
 
 
-def budgets_differ(df: pd.DataFrame) -> bool:
-    """Whether the configs of ``df`` were trained for different budgets (a caption says so)."""
-    return "budget" in df and len({budget_cell(df[df["algo"] == a]) for a in df["algo"].unique()}) > 1
-
-
 def budget_caption(df: pd.DataFrame) -> str:
     """The budget and seeds line of a table's caption; it warns when budgets differ."""
     text = budget_seeds_text(df)
-    if budgets_differ(df):
+    if "budget" in df and len({budget_cell(df[df["algo"] == a]) for a in df["algo"].unique()}) > 1:
         text = "budgets differ, compare across them with care: " + text
     return text
 

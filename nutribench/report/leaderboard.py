@@ -68,7 +68,6 @@ from nutribench.store.archive.installed import disagreeing_archives, forged_regi
 #: The reference grid a row is checked against: the paper's budget and seeds.
 REFERENCE_BUDGET: int = PRESETS["paper"].episodes
 REFERENCE_SEEDS: tuple[int, ...] = PRESETS["paper"].seeds
-PROTOCOLS = ("paper config", "tuned", "variant", "plug-in", "recorded")
 #: how the description of a file written by ``nutribench tune best --write`` begins
 TUNED_PREFIX = "tuned by nutribench tune"
 
@@ -87,21 +86,10 @@ def check_reps(reps: object) -> int:
     return reps
 
 
-def same_settings(shipped: object, body: object) -> bool:
-    """Whether a stored config ``body`` (its content as recorded) has the settings of the
-    config ``shipped``: equal but for :data:`nutribench.agents.config.NOT_SETTINGS`, read
-    through the config model (:func:`~nutribench.agents.config.body_settings_sha256`). A body
-    that does not validate has not."""
-    from nutribench.agents.config import body_settings_sha256, settings_sha256
-
-    stored = body_settings_sha256(body)
-    return stored is not None and stored == settings_sha256(shipped)
-
-
 def protocols(configs: pd.DataFrame) -> dict[str, str]:
     """The protocol of each agent config (columns name, version, sha256, body: the
     ``agent_configs`` rows of the versions drawn)."""
-    from nutribench.agents.config import agent_config_sha256, parse_agent_config
+    from nutribench.agents.config import agent_config_sha256, body_settings_sha256, parse_agent_config, settings_sha256
     from nutribench.agents.registry import by_entry_point
     from nutribench.config.loading import read_toml, regimes_dir
 
@@ -117,7 +105,9 @@ def protocols(configs: pd.DataFrame) -> dict[str, str]:
         if r.name in BUILTIN_ORDER and shipped.is_file():
             cfg = parse_agent_config(read_toml(shipped), shipped)
             exact = int(cfg.version) == int(r.version) and agent_config_sha256(cfg) == r.sha256
-            same = exact or same_settings(cfg, body)
+            # or the settings of the shipped file: equal but for nutribench.agents.config.NOT_SETTINGS,
+            # read through the config model (a body that does not validate, None, has not)
+            same = exact or body_settings_sha256(body) == settings_sha256(cfg)
         out[r.name] = "paper config" if same else "tuned" if tuned else "variant"
     return out
 

@@ -69,11 +69,6 @@ def _registered() -> dict[str, Any]:
     return {a: table[a] for a in registry.names()}
 
 
-def builtin_colors() -> dict[str, str]:
-    """The colours the registered algorithms state (the paper's five: its figures')."""
-    return {a: e.color for a, e in _registered().items() if e.color}
-
-
 def order(names: Iterable[str]) -> list[str]:
     """``names`` once each: those of registered algorithms in the registry's order (the paper's
     five first, in its order), then the others by name."""
@@ -134,7 +129,7 @@ def colors(names: Iterable[str]) -> dict[str, str]:
     """A colour per name, in :func:`order`: the built-in colours for the five, for the others
     one of :data:`USER_COLORS` while one is free, then derived colours (distinct from every
     colour before)."""
-    fixed = builtin_colors()
+    fixed = {a: e.color for a, e in _registered().items() if e.color}  # the registered algorithms' (the five's)
     taken = list(fixed.values())
     out: dict[str, str] = {}
     for n in order(names):
