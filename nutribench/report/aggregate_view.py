@@ -91,7 +91,7 @@ def aggregate_figure(
 
 def _interval_panels(fig, grid, res: AggregateResult, colors: Palette, names, groups, offset, headroom) -> list[dict]:
     """The top row: one panel per aggregate, a bar (the interval) and a tick (the point) per
-    agent and group; the rows drawn."""
+    agent and group; the rows drawn (panel, group, algo, y, point, lo, hi)."""
     algos = res.algos
     ypos = {a: len(algos) - 1 - i for i, a in enumerate(algos)}
     drawn = []
@@ -102,9 +102,7 @@ def _interval_panels(fig, grid, res: AggregateResult, colors: Palette, names, gr
             for r in rows.itertuples(index=False):
                 y = ypos[r.algo] + offset[group]
                 _interval_mark(ax, y, r, colors.color(r.algo), group)
-                drawn.append(
-                    {"panel": agg, "group": group, "algo": r.algo, "y": y, "point": r.point, "lo": r.lo, "hi": r.hi}
-                )
+                drawn.append((agg, group, r.algo, y, r.point, r.lo, r.hi))
         yardstick_lines(ax)
         _headroom_lines(ax, headroom, agg)
         ax.set_yticks(list(ypos.values()), [_agent_label(res, a, names) for a in ypos] if k == 0 else [""] * len(ypos))

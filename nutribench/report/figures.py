@@ -81,9 +81,11 @@ def panel_grid(n: int, extra: float, sharex: bool) -> tuple[Figure, np.ndarray, 
     return fig, axes[:n], ncols
 
 
-def bottom_axis(ax, k: int, n: int, ncols: int, label: str, own_axis: bool = False) -> None:
-    """Panel ``k`` of ``n``: an x label and tick labels where no panel is below it (or where each
-    panel has its x axis of its own)."""
+def dress_panel(ax, k: int, n: int, ncols: int, title: str, label: str, own_axis: bool = False) -> None:
+    """Panel ``k`` of ``n``: its title and grid, and an x label and tick labels where no panel
+    is below it (or where each panel has its x axis of its own)."""
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
     if own_axis or k >= n - ncols:
         ax.set_xlabel(label)
         ax.tick_params(labelbottom=True)
@@ -117,8 +119,7 @@ def training_curves(
     split = any(b is not None for _, b in panels)
     fig, axes, ncols = panel_grid(len(panels), 0.9, sharex=not split)
     rows = []
-    for k, (regime, budget) in enumerate(panels):
-        ax = axes[k]
+    for k, ((regime, budget), ax) in enumerate(zip(panels, axes)):
         best = -np.inf
         for algo in algos:
             cell = train[(train["regime"] == regime) & (train["algo"] == algo)]
@@ -129,11 +130,10 @@ def training_curves(
             rows.append(line.assign(regime=regime)[["regime", "algo", "episode", "mean", "sem", "n_seeds"]])
         if best_line and np.isfinite(best):
             ax.axhline(best, color="k", ls="--", lw=0.9, label="best (smoothed)" if window > 1 else "best")
-        ax.set_title(f"{regime}" + (f", budget {budget} days" if budget is not None else ""), fontsize=10)
-        ax.grid(alpha=0.3)
+        heading = f"{regime}" + (f", budget {budget} days" if budget is not None else "")
+        dress_panel(ax, k, len(panels), ncols, heading, "training episode", own_axis=split)
         if k % ncols == 0:
             ax.set_ylabel(METRIC_LABELS.get(metric, metric))
-        bottom_axis(ax, k, len(panels), ncols, "training episode", own_axis=split)
     training_legend(fig, list(axes), [legend[a] for a in algos])
     notes = _missing_note(regimes, algos, train)
     n_seeds = train.groupby(["regime", "algo"])["seed"].nunique()
@@ -387,8 +387,7 @@ def _regime_stats(cell: pd.DataFrame, metric: str, scores: pd.DataFrame | None) 
     else:
         per_seed = cell.groupby(["regime", "seed"])[metric].mean().groupby("regime")
     ci = {r: mean_ci(v.to_numpy(dtype=float)) for r, v in per_seed}
-    for k, col in enumerate(("mean", "lo", "hi")):
-        stats[col] = [ci[r][k] for r in stats.index]
+    stats[["mean", "lo", "hi"]] = [ci[r] for r in stats.index]
     stats["seeds"] = [int(cell[cell["regime"] == r]["seed"].nunique()) for r in stats.index]
     return stats
 

@@ -403,9 +403,7 @@ def leaderboard_from_archives(
     refused = dict(disagreeing_archives(archives))  # path -> one line, naming the archive
     with tempfile.TemporaryDirectory(prefix="nutribench-leaderboard-") as tmp:
         db = str(Path(tmp) / "leaderboard.db")
-        for path in archives:
-            if path in refused:
-                continue
+        for path in [p for p in archives if p not in refused]:
             try:
                 import_results(path, db)
             except StoreError as e:

@@ -270,10 +270,9 @@ def _yardstick_cells(row: dict, f: dict, cell: pd.DataFrame, ref: pd.DataFrame) 
     agent closes, raw and formatted; the days' yardsticks (None where one lacks a day)."""
     days = ref.reindex(pd.MultiIndex.from_arrays([cell["regime"], cell["seed"], cell["episode"]]))
     complete = not days[["never", "planner"]].isna().any().any()
-    nan = float("nan")
-    row["never_mean"] = float(days["never"].mean()) if complete else nan
-    row["planner_mean"] = float(days["planner"].mean()) if complete else nan
-    row["gap_closed"] = gap_closed(row["return_mean"], row["never_mean"], row["planner_mean"]) if complete else nan
+    for p in ("never", "planner"):
+        row[f"{p}_mean"] = float(days[p].mean()) if complete else float("nan")
+    row["gap_closed"] = gap_closed(row["return_mean"], row["never_mean"], row["planner_mean"]) if complete else np.nan
     f["never / planner"] = f"{row['never_mean']:.2f} / {row['planner_mean']:.2f}" if complete else "n/a"
     f["gap closed"] = f"{100 * row['gap_closed']:.0f} %" if np.isfinite(row["gap_closed"]) else "n/a"
     shares = _seed_shares(cell, days) if complete else np.array([])
