@@ -188,20 +188,10 @@ def _aggregate_legend(fig: Figure, res: AggregateResult, names, profile_axes, gr
     found = legend_entries(profile_axes)
     labels = [names[a] for a in res.algos if names[a] in found]
     h0, l0 = fig.axes[0].get_legend_handles_labels()  # the references above the planner, if drawn
-    group_handles = [
-        (
-            Patch(facecolor="0.5", edgecolor="0.4", **_GROUP_STYLE[g]),
-            Line2D([], [], marker="|", ms=0, **_TICK_STYLE[g]),
-        )
-        for g in groups
-    ]
-    legend_rows(
-        fig,
-        [
-            ([found[lab] for lab in labels] + h0, labels + l0),
-            (group_handles, [_group_entry(res, g, offset[g]) for g in groups]),
-        ],
-    )
+    bars = [Patch(facecolor="0.5", edgecolor="0.4", **_GROUP_STYLE[g]) for g in groups]
+    ticks = [Line2D([], [], marker="|", ms=0, **_TICK_STYLE[g]) for g in groups]
+    agents = ([found[lab] for lab in labels] + h0, labels + l0)
+    legend_rows(fig, [agents, (list(zip(bars, ticks)), [_group_entry(res, g, offset[g]) for g in groups])])
 
 
 def _aggregate_caption(res: AggregateResult, ev: pd.DataFrame | None, headroom: pd.DataFrame | None) -> str:

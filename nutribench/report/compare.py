@@ -297,10 +297,7 @@ class EntrySpec:
                     f"{text!r}: give an agent as NAME, NAME@vVERSION, NAME@DAYS or NAME@vVERSION@DAYS "
                     "(e.g. ppo, ppo@v1, ppo@5000, ppo@v2@150)"
                 )
-            if m.group(1):
-                version = int(m.group(1))
-            else:
-                budget = int(m.group(2))
+            version, budget = (int(m.group(1)), budget) if m.group(1) else (version, int(m.group(2)))
         return cls(name.strip(), version, budget)
 
     def __str__(self) -> str:
@@ -317,9 +314,8 @@ def choose_entry(ev: pd.DataFrame, spec: EntrySpec) -> tuple[tuple[str, int, int
     from nutribench.report.data import entries, entry_label
 
     held = entries(ev[ev["algo"] == spec.name])
-    match = [
-        e for e in held if spec.version in (None, e[1]) and spec.budget in (None, e[2])
-    ]  # entries() lists the largest budget, then the newest version, first
+    # entries() lists the largest budget, then the newest version, first
+    match = [e for e in held if spec.version in (None, e[1]) and spec.budget in (None, e[2])]
     listed = "; ".join(f"{entry_label(e)} ({EntrySpec(*e)})" for e in held)
     if not match:
         raise CompareError(f"{spec}: no such entry in the database; {spec.name} has {listed}")
