@@ -149,27 +149,18 @@ class Comparison:
         )
 
     def to_markdown(self) -> str:
-        lines = [f"**{self.title()}**", ""]
-        if self.provenance:
-            lines += [self.provenance, ""]
-        lines += markdown_rows(self.formatted())
-        if self.notes:
-            lines += ["", *map(_note_line, self.notes)]
-        return "\n".join(lines) + "\n"
+        head = [f"**{self.title()}**", "", *([self.provenance, ""] if self.provenance else [])]
+        notes = ["", *map(_note_line, self.notes)] if self.notes else []
+        return "\n".join([*head, *markdown_rows(self.formatted()), *notes]) + "\n"
 
     def to_text(self) -> str:
         fmt = self.formatted()
-        cols = list(fmt.columns)
-        width = {c: max(len(c), *(len(str(v)) for v in fmt[c])) for c in cols}
-        right = {"seeds", "days"}
-        cell = lambda c, v: str(v).rjust(width[c]) if c in right else str(v).ljust(width[c])  # noqa: E731
-        lines = [self.title()]
-        if self.provenance:
-            lines.append(self.provenance)
-        lines += ["", "  ".join(cell(c, c) for c in cols).rstrip()]
-        lines += ["  ".join(cell(c, v) for c, v in zip(cols, row)).rstrip() for row in fmt.itertuples(index=False)]
-        lines += list(map(_note_line, self.notes))
-        return "\n".join(lines) + "\n"
+        rows = [list(fmt.columns), *fmt.itertuples(index=False)]  # the header, then the rows
+        width = [max(len(str(row[k])) for row in rows) for k in range(len(fmt.columns))]
+        just = [str.rjust if c in ("seeds", "days") else str.ljust for c in fmt.columns]
+        table = ["  ".join(j(str(v), w) for j, v, w in zip(just, row, width)).rstrip() for row in rows]
+        head = [self.title(), *([self.provenance] if self.provenance else []), ""]
+        return "\n".join([*head, *table, *map(_note_line, self.notes)]) + "\n"
 
 
 def _note_line(note: str) -> str:

@@ -253,9 +253,7 @@ def _draw_gapped(
     ax.plot(x, mean, marker=marker, ms=5, color=color, label=label)
     ax.fill_between(x, lo, hi, color=color, alpha=0.2, lw=0)
     has = np.isfinite(mean)
-    left = np.r_[False, has[:-1]]
-    right = np.r_[has[1:], False]
-    alone = has & ~left & ~right
+    alone = has & ~np.r_[False, has[:-1]] & ~np.r_[has[1:], False]  # no neighbour on the left or right
     if alone.any():
         err = np.array([mean[alone] - lo[alone], hi[alone] - mean[alone]])
         ax.errorbar(x[alone], mean[alone], yerr=err, fmt="none", ecolor=color, capsize=4, lw=1.2)

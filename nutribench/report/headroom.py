@@ -120,6 +120,5 @@ def aggregate_points(ev: pd.DataFrame, day_references: pd.DataFrame, groups: dic
             per = [mine[mine["regime"] == r].sort_values("seed")["score"].to_numpy(dtype=float) for r in regimes]
             if not regimes or any(not len(x) for x in per):
                 continue
-            for agg in ("iqm", "median", "mean"):
-                rows.append({"group": group, "policy": policy, "aggregate": agg, "point": point_estimate(agg, per)})
+            rows += [(group, policy, agg, point_estimate(agg, per)) for agg in ("iqm", "median", "mean")]
     return pd.DataFrame(rows, columns=["group", "policy", "aggregate", "point"])

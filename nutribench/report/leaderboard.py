@@ -214,6 +214,10 @@ def _row(algo: str, protocol: str, mine: pd.DataFrame, board: list[str], reps: i
 REFERENCE_PROTOCOL = "reference (planned, not learned)"
 
 
+#: The references above the planner, each with why it is not ranked.
+_UNRANKED = {"lookahead": "sampled futures finished by the planner", "clairvoyant": "the day's foods known"}
+
+
 def _reference_rows(ev: pd.DataFrame, references: pd.DataFrame, board: list[str], reps: int) -> pd.DataFrame:
     """Unranked rows for lookahead and clairvoyant (:mod:`nutribench.report.headroom`): the
     same scores on the same days, over the board's regimes they cover; none where
@@ -222,7 +226,7 @@ def _reference_rows(ev: pd.DataFrame, references: pd.DataFrame, board: list[str]
 
     runs = reference_runs(ev, references).rename(columns={"policy": "algo"})
     rows = []
-    for algo in ("lookahead", "clairvoyant"):
+    for algo, why in _UNRANKED.items():
         mine = runs[runs["algo"] == algo]
         if mine.empty:
             continue
@@ -230,9 +234,7 @@ def _reference_rows(ev: pd.DataFrame, references: pd.DataFrame, board: list[str]
         seeds = " ".join(map(str, sorted({int(s) for s in mine["seed"]})))
         cells = dict(budget=None, seeds=seeds, engine=None, code=None, checked=f"from {SOURCE}")
         row = {"rank": None, **_row(algo, REFERENCE_PROTOCOL, mine, board, reps, **cells)}
-        row["flags"] = "unranked: " + (
-            "sampled futures finished by the planner" if algo == "lookahead" else "the day's foods known"
-        )
+        row["flags"] = f"unranked: {why}"
         rows.append(row)
     return pd.DataFrame(rows)
 

@@ -77,11 +77,7 @@ def table_plan(
     if all or "all" in tables:
         configs = [str(n) for n, name in numbers.items() if algos is None or name in algos]
         keys = ["1", *configs, "results", "training", "aggregate", *keys]
-    plan: dict[str, str] = {}
-    for k in keys:
-        key, stem = resolve_table(k, numbers)
-        plan.setdefault(key, stem)
-    return plan
+    return dict(resolve_table(k, numbers) for k in keys)  # a key named twice keeps its first place
 
 
 def unheld_tables(

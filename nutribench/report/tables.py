@@ -42,6 +42,10 @@ def markdown_rows(frame: pd.DataFrame) -> list[str]:
     return ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols), *rows]
 
 
+#: How a table's LaTeX float is placed and ruled.
+_FLOAT = dict(position="t", position_float="centering", hrules=True)
+
+
 @dataclass
 class TableResult:
     name: str
@@ -63,11 +67,7 @@ class TableResult:
         (:func:`latex_escape`), written by pandas' Styler."""
         style = self.formatted.style.hide(axis="index").format(latex_escape).format_index(latex_escape, axis=1)
         return style.to_latex(
-            position="t",
-            position_float="centering",
-            caption=latex_escape(self.title),
-            hrules=True,
-            column_format="l" * len(self.formatted.columns),
+            caption=latex_escape(self.title), column_format="l" * len(self.formatted.columns), **_FLOAT
         )
 
     def to_csv(self) -> str:
