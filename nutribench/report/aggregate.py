@@ -69,12 +69,7 @@ DELAYED_REGIMES: tuple[str, ...] = tuple(f"run{i}" for i in range(1, 7))
 GROUPS: dict[str, str] = {"all": "all regimes", "delayed": "delayed regimes (run1-run6)"}
 #: The aggregates, in the figure's and the table's order.
 AGGREGATES: tuple[str, ...] = ("iqm", "median", "mean", "optimality_gap")
-AGGREGATE_LABELS: dict[str, str] = {
-    "iqm": "IQM",
-    "median": "median",
-    "mean": "mean",
-    "optimality_gap": "optimality gap",
-}
+AGGREGATE_LABELS: dict[str, str] = {a: a.replace("_", " ") for a in AGGREGATES} | {"iqm": "IQM"}
 
 
 # --------------------------------------------------------------------------- interval estimates
@@ -216,17 +211,12 @@ def aggregate_scores(
             f"{algo_label(algo)} lacks regimes the others have: aggregated over its own ({spans}), "
             "not comparable with the others' aggregates nor in their profiles and P(X > Y)"
         )
-    return AggregateResult(
-        scores=scores,
-        regimes=used,
-        algos=algos,
-        reps=reps,
-        partial=partial,
-        notes=list(dict.fromkeys(notes)),
-        intervals=frame(intervals, ["group", "algo", "aggregate", "point", "lo", "hi", "runs", "regimes"]),
-        profiles=frame(profiles, ["group", "algo", "tau", "fraction", "lo", "hi"]),
-        improvement=frame(improvement, ["group", "x", "y", "p", "lo", "hi"]),
+    frames = (  # the fields intervals, profiles and improvement, in that order
+        frame(intervals, ["group", "algo", "aggregate", "point", "lo", "hi", "runs", "regimes"]),
+        frame(profiles, ["group", "algo", "tau", "fraction", "lo", "hi"]),
+        frame(improvement, ["group", "x", "y", "p", "lo", "hi"]),
     )
+    return AggregateResult(scores, used, *frames, algos, reps, partial, list(dict.fromkeys(notes)))
 
 
 def _full_and_partial(scores: pd.DataFrame, regimes: Iterable[str], algos: Sequence[str]) -> tuple[list, list]:

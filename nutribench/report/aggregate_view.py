@@ -91,7 +91,7 @@ def aggregate_figure(
 
 def _interval_panels(fig, grid, res: AggregateResult, colors: Palette, names, groups, offset, headroom) -> list[dict]:
     """The top row: one panel per aggregate, a bar (the interval) and a tick (the point) per
-    agent and group; the rows drawn."""
+    agent and group; the rows drawn (panel, group, algo, y, point, lo, hi)."""
     algos = res.algos
     ypos = {a: len(algos) - 1 - i for i, a in enumerate(algos)}
     drawn = []
@@ -102,9 +102,7 @@ def _interval_panels(fig, grid, res: AggregateResult, colors: Palette, names, gr
             for r in rows.itertuples(index=False):
                 y = ypos[r.algo] + offset[group]
                 _interval_mark(ax, y, r, colors.color(r.algo), group)
-                drawn.append(
-                    {"panel": agg, "group": group, "algo": r.algo, "y": y, "point": r.point, "lo": r.lo, "hi": r.hi}
-                )
+                drawn.append((agg, group, r.algo, y, r.point, r.lo, r.hi))
         yardstick_lines(ax)
         _headroom_lines(ax, headroom, agg)
         ax.set_yticks(list(ypos.values()), [_agent_label(res, a, names) for a in ypos] if k == 0 else [""] * len(ypos))
@@ -142,16 +140,8 @@ def _profile_panel(ax, res: AggregateResult, group: str, colors: Palette, names,
             continue
         color = colors.color(algo)
         every = max(1, len(p) // 6)
-        ax.plot(
-            p["tau"],
-            p["fraction"],
-            color=color,
-            lw=1.5,
-            label=names[algo],
-            marker=colors.marker(algo),
-            ms=5,
-            markevery=(algos.index(algo) * every // len(algos), every),
-        )
+        line = dict(color=color, lw=1.5, label=names[algo], marker=colors.marker(algo), ms=5)
+        ax.plot(p["tau"], p["fraction"], markevery=(algos.index(algo) * every // len(algos), every), **line)
         if p["lo"].notna().any():
             ax.fill_between(p["tau"], p["lo"], p["hi"], color=color, alpha=0.15, lw=0)
     yardstick_lines(ax)
@@ -198,20 +188,10 @@ def _aggregate_legend(fig: Figure, res: AggregateResult, names, profile_axes, gr
     found = legend_entries(profile_axes)
     labels = [names[a] for a in res.algos if names[a] in found]
     h0, l0 = fig.axes[0].get_legend_handles_labels()  # the references above the planner, if drawn
-    group_handles = [
-        (
-            Patch(facecolor="0.5", edgecolor="0.4", **_GROUP_STYLE[g]),
-            Line2D([], [], marker="|", ms=0, **_TICK_STYLE[g]),
-        )
-        for g in groups
-    ]
-    legend_rows(
-        fig,
-        [
-            ([found[lab] for lab in labels] + h0, labels + l0),
-            (group_handles, [_group_entry(res, g, offset[g]) for g in groups]),
-        ],
-    )
+    bars = [Patch(facecolor="0.5", edgecolor="0.4", **_GROUP_STYLE[g]) for g in groups]
+    ticks = [Line2D([], [], marker="|", ms=0, **_TICK_STYLE[g]) for g in groups]
+    agents = ([found[lab] for lab in labels] + h0, labels + l0)
+    legend_rows(fig, [agents, (list(zip(bars, ticks)), [_group_entry(res, g, offset[g]) for g in groups])])
 
 
 def _aggregate_caption(res: AggregateResult, ev: pd.DataFrame | None, headroom: pd.DataFrame | None) -> str:
@@ -273,14 +253,9 @@ def _width_notes(res: AggregateResult) -> list[str]:
     resample (no interval, the tick alone); seeds that all score alike give every resample the
     same value (an interval of zero width)."""
     iv = res.intervals[res.intervals["aggregate"] == "iqm"]
-    single = [a for a in res.algos if (iv["algo"] == a).any() and iv.loc[iv["algo"] == a, "lo"].isna().all()]
-    flat = [
-        a
-        for a in res.algos
-        if a not in single
-        and (iv["algo"] == a).any()
-        and np.allclose(iv.loc[iv["algo"] == a, "hi"], iv.loc[iv["algo"] == a, "lo"], equal_nan=True)
-    ]
+    mine = {a: iv[iv["algo"] == a] for a in res.algos if (iv["algo"] == a).any()}
+    single = [a for a, m in mine.items() if m["lo"].isna().all()]
+    flat = [a for a, m in mine.items() if a not in single and np.allclose(m["hi"], m["lo"], equal_nan=True)]
     notes = []
     if single:
         notes.append(
@@ -304,12 +279,8 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
     ``ev``: the evaluation episodes the scores came from: each row then states its agent's
     training budget (days) and the caption the budgets and seeds (a warning when they differ)."""
     budgets = {a: budget_cell(ev[ev["algo"] == a]) for a in res.algos} if ev is not None and not ev.empty else {}
-    rows, fmt_rows = [], []
-    for group in GROUPS:
-        if res.regimes.get(group) or res.partial.get(group):
-            for row, f in _aggregate_rows(res, group, budgets):
-                rows.append(row)
-                fmt_rows.append(f)
+    groups = [g for g in GROUPS if res.regimes.get(g) or res.partial.get(g)]
+    pairs = [pair for group in groups for pair in _aggregate_rows(res, group, budgets)]
     title = (
         "Aggregate scores: share of the never -> planner gap per run (seed x regime), over regimes x seeds; point estimate "
         f"[95 % interval over runs: IQM {interval_caption('iqm')}; {aggregate_intervals_text(profile=False)}; none "
@@ -318,30 +289,17 @@ def aggregate_table(res: AggregateResult, ev: pd.DataFrame | None = None) -> Tab
     )
     if budgets:
         title += f"; {budget_caption(ev)}"
-    if res.notes:
-        title += " (note: " + "; ".join(res.notes) + ")"
     budget_col = ["budget (days)"] if budgets else []
-    cols = [
-        "regimes",
-        "algorithm",
-        *budget_col,
-        "runs",
-        *(f"{AGGREGATE_LABELS[a]} (%)" for a in AGGREGATES),
-        *(f"P(> {algo_label(a)})" for a in res.algos),
-    ]
-    fmt = pd.DataFrame(fmt_rows, columns=cols).astype(object).fillna("")  # a column all None is float64
+    cols = ["regimes", "algorithm", *budget_col, "runs", *(f"{AGGREGATE_LABELS[a]} (%)" for a in AGGREGATES)]
+    cols += [f"P(> {algo_label(a)})" for a in res.algos]
+    fmt = pd.DataFrame([f for _, f in pairs], columns=cols).astype(object).fillna("")  # a column all None is float64
     if len(fmt) == 0:
         fmt = fmt[cols[: 3 + len(budget_col)]]
-    raw_cols = [
-        "group",
-        "regimes",
-        "algo",
-        *(["budget"] if budgets else []),
-        "runs",
-        *(f"{a}{s}" for a in AGGREGATES for s in ("", "_lo", "_hi")),
-        *(f"p_gt_{a}{s}" for a in res.algos for s in ("", "_lo", "_hi")),
-    ]
-    return TableResult("aggregate", title, pd.DataFrame(rows, columns=raw_cols), fmt)
+    raw_cols = ["group", "regimes", "algo", *(["budget"] if budgets else []), "runs"]
+    raw_cols += [f"{a}{s}" for a in [*AGGREGATES, *(f"p_gt_{o}" for o in res.algos)] for s in ("", "_lo", "_hi")]
+    return TableResult("aggregate", title, pd.DataFrame([r for r, _ in pairs], columns=raw_cols), fmt).add_notes(
+        res.notes
+    )
 
 
 def _aggregate_rows(res: AggregateResult, group: str, budgets: dict[str, str]):
@@ -360,17 +318,10 @@ def _aggregate_rows(res: AggregateResult, group: str, budgets: dict[str, str]):
         for agg in AGGREGATES:
             p, lo, hi = (float(mine.loc[agg, c]) for c in ("point", "lo", "hi"))
             row[agg], row[f"{agg}_lo"], row[f"{agg}_hi"] = p, lo, hi
-            f[f"{AGGREGATE_LABELS[agg]} (%)"] = interval_cell(p, lo, hi, _percent)
-        for other in res.algos:
-            if other == algo:
-                continue
+            f[f"{AGGREGATE_LABELS[agg]} (%)"] = interval_cell(p, lo, hi, lambda v: f"{100 * v:.0f}")  # no % sign
+        for other in [o for o in res.algos if o != algo]:
             r = imp[(imp["x"] == algo) & (imp["y"] == other)]
             p, lo, hi = (float(r[c].iloc[0]) if len(r) else float("nan") for c in ("p", "lo", "hi"))
             row[f"p_gt_{other}"], row[f"p_gt_{other}_lo"], row[f"p_gt_{other}_hi"] = p, lo, hi
             f[f"P(> {algo_label(other)})"] = interval_cell(p, lo, hi)
         yield row, f
-
-
-def _percent(v: float) -> str:
-    """A share as a whole percent, without the sign: ``0.456`` -> ``46``."""
-    return f"{100 * v:.0f}"

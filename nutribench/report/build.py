@@ -48,6 +48,7 @@ from nutribench.report.data import (
     check_names,
     load_report_data,
     prepare,
+    quiet,
     read_metrics,
     stored_agent_configs,
 )
@@ -188,13 +189,6 @@ def learning_figure(db: DbFile, data: ReportData | None, algos: Sequence[str] | 
         raise ReportError(f"figure 6: {e}") from None
 
 
-def _with_notes(res: TableResult, data: ReportData) -> TableResult:
-    """What was left out of the data, in the table's caption as on the figures."""
-    if data.notes:
-        res.title += " (note: " + "; ".join(data.notes) + ")"
-    return res
-
-
 def _day_references(data: ReportData, log: Log | None = None):
     """The never/planner yardsticks on every evaluation day of ``data`` (Figures 3/4 panel (A),
     the results table, Figure 5), played once per ``data``."""
@@ -222,15 +216,15 @@ def _metrics_table(key: str, data: ReportData | None) -> TableResult:
     if key == "aggregate":
         from nutribench.report.aggregate_view import aggregate_table
 
-        return _with_notes(aggregate_table(_aggregate(data, "aggregate table"), data.eval), data)
+        return aggregate_table(_aggregate(data, "aggregate table"), data.eval).add_notes(data.notes)
     if key == "results":
         ev = data.eval
         if ev.empty:
             raise ReportError(f"results table: no evaluation episodes{data.what()} in the database")
-        return _with_notes(table_results(ev, references=_day_references(data)), data)
+        return table_results(ev, references=_day_references(data)).add_notes(data.notes)
     if data.train.empty:
         raise ReportError(f"training table: no training episodes{data.what()} in the database")
-    return _with_notes(table_training(data.train), data)
+    return table_training(data.train).add_notes(data.notes)
 
 
 def build_table(
@@ -306,7 +300,7 @@ class _Writer:
     and keeps what index.html shows; with ``all``, an item the data cannot give is skipped
     (one ``skipped:`` line through ``log``) instead of failing the report."""
 
-    def __init__(self, out: DbFile, steps: int, all: bool, log: Log | None, progress: Log | None) -> None:  # noqa: A002
+    def __init__(self, out: DbFile, steps: int, all: bool, log: Log, progress: Log | None) -> None:  # noqa: A002
         self.out, self.steps, self.all, self.log, self.progress = out, steps, all, log, progress
         self.done = 0
         self.paths: list[Path] = []
@@ -322,15 +316,11 @@ class _Writer:
         except ReportError as e:
             if not self.all:
                 raise
-            if self.log:
-                self.log(f"skipped: {e}")
+            self.log(f"skipped: {e}")
             return
-        if number is not None:
-            written = write_figure(res, self.out, stem)
-            self.page.append(page_figure(number, res, written))
-        else:
-            written = write_table(res, self.out, stem)
-            self.page.append(page_table(stem, res, written))
+        figure = number is not None
+        written = (write_figure if figure else write_table)(res, self.out, stem)
+        self.page.append(page_figure(number, res, written) if figure else page_table(stem, res, written))
         self.paths += written
 
 
@@ -363,6 +353,7 @@ def build_report(
     item starts, so a long ``--all`` shows where it is.
     """
     figs, tables, pair, stored = _request(db, figs, tables, all, algos, pair)
+    log = log or quiet
     plan = table_plan(tables, all, stored, algos)
     # the database is read once, up front, and only when something needs it: a database that
     # cannot be read (missing, empty, outdated) fails the whole command, even with ``all``
@@ -371,13 +362,11 @@ def build_report(
     if all and raw is not None:
         for key, why in unheld_tables(plan, stored, raw, tables).items():
             del plan[key]
-            if log:
-                log(f"skipped: {why}")
+            log(f"skipped: {why}")
     ablation = figure4.without_memory(pair, stored, raw) if 4 in figs else {}
     pair_data = prepare(raw, [*pair, *ablation]) if raw is not None and 4 in figs else None
-    if log:
-        for note in dict.fromkeys([*(data.notes if data else []), *(pair_data.notes if pair_data else [])]):
-            log(f"note: {note}")
+    for note in dict.fromkeys([*(data.notes if data else []), *(pair_data.notes if pair_data else [])]):
+        log(f"note: {note}")
     w = _Writer(out, len(figs) + len(plan) + int(all), all, log, progress)
     for f in figs:
         figure_data = pair_data if f == 4 else data

@@ -42,20 +42,8 @@ from nutribench.stats import caption as interval_caption
 
 #: Bootstrap resamples of the seeds.
 COMPARE_REPS = 10_000
-COMPARE_COLUMNS = [
-    "regime",
-    "regimes",
-    "seeds",
-    "days",
-    "a_mean",
-    "b_mean",
-    "diff",
-    "diff_lo",
-    "diff_hi",
-    "p_a_better",
-    "p_lo",
-    "p_hi",
-]
+COMPARE_COLUMNS = ["regime", "regimes", "seeds", "days", "a_mean", "b_mean", "diff", "diff_lo", "diff_hi"]
+COMPARE_COLUMNS += ["p_a_better", "p_lo", "p_hi"]
 
 
 class CompareError(UserError, ValueError):
@@ -145,18 +133,14 @@ class Comparison:
 
     def method(self) -> str:
         """How the intervals were made, for the title."""
-        if CHOSEN["paired"] == "t":
-            return interval_caption("paired")
-        return f"{interval_caption('paired')}, {self.reps} resamples"
+        return interval_caption("paired") + ("" if CHOSEN["paired"] == "t" else f", {self.reps} resamples")
 
     def formatted(self) -> pd.DataFrame:
         """The rows as text: regime, seeds, days, means, difference [interval], P(A > B) [interval]."""
         la, lb = algo_label(self.a), algo_label(self.b)
         out = []
         for r in self.rows.itertuples(index=False):
-            name = r.regime
-            if r.regime in ("all", "delayed"):
-                name = f"{r.regime} ({regime_span(r.regimes.split(','))})"
+            name = f"{r.regime} ({regime_span(r.regimes.split(','))})" if r.regime in ("all", "delayed") else r.regime
             pci = f" [{r.p_lo:.2f}, {r.p_hi:.2f}]" if np.isfinite(r.p_lo) else ""
             diff = interval_cell(r.diff, r.diff_lo, r.diff_hi, "{:+.2f}".format)
             out.append((name, r.seeds, r.days, f"{r.a_mean:.2f}", f"{r.b_mean:.2f}", diff, f"{r.p_a_better:.2f}{pci}"))
@@ -165,27 +149,18 @@ class Comparison:
         )
 
     def to_markdown(self) -> str:
-        lines = [f"**{self.title()}**", ""]
-        if self.provenance:
-            lines += [self.provenance, ""]
-        lines += markdown_rows(self.formatted())
-        if self.notes:
-            lines += ["", *map(_note_line, self.notes)]
-        return "\n".join(lines) + "\n"
+        head = [f"**{self.title()}**", "", *([self.provenance, ""] if self.provenance else [])]
+        notes = ["", *map(_note_line, self.notes)] if self.notes else []
+        return "\n".join([*head, *markdown_rows(self.formatted()), *notes]) + "\n"
 
     def to_text(self) -> str:
         fmt = self.formatted()
-        cols = list(fmt.columns)
-        width = {c: max(len(c), *(len(str(v)) for v in fmt[c])) for c in cols}
-        right = {"seeds", "days"}
-        cell = lambda c, v: str(v).rjust(width[c]) if c in right else str(v).ljust(width[c])  # noqa: E731
-        lines = [self.title()]
-        if self.provenance:
-            lines.append(self.provenance)
-        lines += ["", "  ".join(cell(c, c) for c in cols).rstrip()]
-        lines += ["  ".join(cell(c, v) for c, v in zip(cols, row)).rstrip() for row in fmt.itertuples(index=False)]
-        lines += list(map(_note_line, self.notes))
-        return "\n".join(lines) + "\n"
+        rows = [list(fmt.columns), *fmt.itertuples(index=False)]  # the header, then the rows
+        width = [max(len(str(row[k])) for row in rows) for k in range(len(fmt.columns))]
+        just = [str.rjust if c in ("seeds", "days") else str.ljust for c in fmt.columns]
+        table = ["  ".join(j(str(v), w) for j, v, w in zip(just, row, width)).rstrip() for row in rows]
+        head = [self.title(), *([self.provenance] if self.provenance else []), ""]
+        return "\n".join([*head, *table, *map(_note_line, self.notes)]) + "\n"
 
 
 def _note_line(note: str) -> str:
@@ -236,14 +211,11 @@ def compare_agents(
     used = ev[ev["algo"].isin([a, b]) & ev["regime"].isin(paired)]
     budget_a, budget_b = (budget_cell(used[used["algo"] == n]) for n in (a, b))
     if budget_a != budget_b:
-        notes.insert(
-            0,
-            f"warning: budgets differ ({trained_text(algo_label(a), budget_a)}, "
-            f"{trained_text(algo_label(b), budget_b, verb='')}): "
-            "the difference is "
-            "the agents' and their budgets' together",
-        )
-    return Comparison(a, b, pd.DataFrame(rows, columns=COMPARE_COLUMNS), days, reps, notes, _header(used))
+        both = f"{trained_text(algo_label(a), budget_a)}, {trained_text(algo_label(b), budget_b, verb='')}"
+        notes.insert(0, f"warning: budgets differ ({both}): the difference is the agents' and their budgets' together")
+    # the budgets and seeds line of the comparison, a budget of 0 days said as UNRECORDED
+    header = budget_seeds_text(used).replace("budget 0 days", f"budget unknown ({UNRECORDED})")
+    return Comparison(a, b, pd.DataFrame(rows, columns=COMPARE_COLUMNS), days, reps, notes, header)
 
 
 def _check_held(ev: pd.DataFrame, names: Sequence[str]) -> None:
@@ -286,12 +258,6 @@ def trained_text(label: str, budget: str, verb: str = "trained ") -> str:
     return f"{label}: {UNRECORDED}" + (f" for some seeds, {'/'.join(known)} days for the others" if known else "")
 
 
-def _header(used: pd.DataFrame) -> str:
-    """The budgets and seeds line of the comparison (:func:`budget_seeds_text`), a budget of 0
-    days said as :data:`UNRECORDED`."""
-    return re.sub(r"budget 0 days", f"budget unknown ({UNRECORDED})", budget_seeds_text(used))
-
-
 def _regimes_of(ev: pd.DataFrame, name: str) -> str:
     return ", ".join(sort_regimes(ev.loc[ev["algo"] == name, "regime"])) or "none"
 
@@ -322,10 +288,7 @@ class EntrySpec:
                     f"{text!r}: give an agent as NAME, NAME@vVERSION, NAME@DAYS or NAME@vVERSION@DAYS "
                     "(e.g. ppo, ppo@v1, ppo@5000, ppo@v2@150)"
                 )
-            if m.group(1):
-                version = int(m.group(1))
-            else:
-                budget = int(m.group(2))
+            version, budget = (int(m.group(1)), budget) if m.group(1) else (version, int(m.group(2)))
         return cls(name.strip(), version, budget)
 
     def __str__(self) -> str:
@@ -342,9 +305,8 @@ def choose_entry(ev: pd.DataFrame, spec: EntrySpec) -> tuple[tuple[str, int, int
     from nutribench.report.data import entries, entry_label
 
     held = entries(ev[ev["algo"] == spec.name])
-    match = [
-        e for e in held if spec.version in (None, e[1]) and spec.budget in (None, e[2])
-    ]  # entries() lists the largest budget, then the newest version, first
+    # entries() lists the largest budget, then the newest version, first
+    match = [e for e in held if spec.version in (None, e[1]) and spec.budget in (None, e[2])]
     listed = "; ".join(f"{entry_label(e)} ({EntrySpec(*e)})" for e in held)
     if not match:
         raise CompareError(f"{spec}: no such entry in the database; {spec.name} has {listed}")
@@ -383,10 +345,10 @@ def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, re
     names = [spec_a.name, spec_b.name]
     if names[0] == names[1]:  # two entries of one config: each is named by its spec
         names = [str(EntrySpec(*e)) for e in picked]
-    parts = []
-    for entry, name in zip(picked, names):
-        rows = data.eval[(data.eval[list(ENTRY)] == pd.Series(entry, index=list(ENTRY))).all(axis=1)]
-        parts.append(rows.assign(algo=name))
+    parts = [
+        data.eval[(data.eval[list(ENTRY)] == pd.Series(entry, index=list(ENTRY))).all(axis=1)].assign(algo=name)
+        for entry, name in zip(picked, names)
+    ]
     res = compare_agents(pd.concat(parts, ignore_index=True), names[0], names[1], regimes, reps)
     res.notes = [*notes, *res.notes]
     return res

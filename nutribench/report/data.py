@@ -34,6 +34,10 @@ DbFile = str | os.PathLike[str]
 Log = Callable[[str], None]
 
 
+def quiet(msg: str) -> None:
+    """The :data:`Log` of a caller that gave none: it says nothing."""
+
+
 class ReportError(UserError, ValueError):
     """Something the report cannot build from what it was given; printed as one line."""
 
@@ -87,13 +91,6 @@ def _keep_newest(df: pd.DataFrame, col: str, ver: str) -> tuple[pd.DataFrame, li
         dropped = sorted({f"{n} v{v}" for n, v in old[[col, ver]].drop_duplicates().itertuples(index=False)})
         notes.append(f"older {col} versions left out: {', '.join(dropped)}")
     return df[df[ver] == newest], notes
-
-
-def _keep_latest_versions(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
-    """Per regime and per algo, the newest config version present; note what was dropped."""
-    df, notes = _keep_newest(df, "regime", "regime_version")
-    df, algo_notes = _keep_newest(df, "algo", "algo_version")
-    return df, notes + algo_notes
 
 
 def _keep_largest_budget(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
@@ -160,8 +157,10 @@ def prepare(df: pd.DataFrame, algos: Sequence[str] | None = None, latest_only: b
     if df.empty:
         return ReportData(df, [], selected, colors)
     notes: list[str] = []
-    if latest_only:
-        df, notes = _keep_latest_versions(df)
+    if latest_only:  # per regime and per algo, the newest config version present
+        df, notes = _keep_newest(df, "regime", "regime_version")
+        df, algo_notes = _keep_newest(df, "algo", "algo_version")
+        notes += algo_notes
     df, budget_notes = _keep_largest_budget(df)
     return ReportData(df.reset_index(drop=True), notes + budget_notes, selected, colors)
 
@@ -224,11 +223,8 @@ def stored_agent_configs(db: DbFile) -> dict[str, Any]:
         with session_scope(store.engine) as s:
             rows = s.execute(select(AgentConfig.name, AgentConfig.version, AgentConfig.body)).all()
     check_names([name for name, _, _ in rows], "agent config", store.display)
-    newest: dict[str, tuple[int, dict[str, Any]]] = {}
-    for name, version, body in rows:
-        if name not in newest or version > newest[name][0]:
-            newest[name] = (version, dict(body))
-    return {n: _StoredConfig(n, newest[n][1]) for n in sort_algos(newest)}
+    newest = {name: body for name, _, body in sorted(rows, key=lambda row: row[1])}  # the newest version last
+    return {n: _StoredConfig(n, dict(newest[n])) for n in sort_algos(newest)}
 
 
 def check_known(names: Sequence[str], held: Iterable[str], option: str) -> None:

@@ -48,10 +48,6 @@ SMOOTH_SHARE = 0.02  # rolling window: this share of the series
 FIGURE_COLUMNS = 3
 
 
-def _smooth(y: pd.Series, window: int) -> pd.Series:
-    return y.rolling(window, center=True, min_periods=1).mean() if window > 1 else y
-
-
 def diagnostics_figure(rows: pd.DataFrame, horizon: int, title: str = "") -> Figure:
     """``rows``: one row per update, columns ``seed``, ``timestep`` and the quantities (NaN
     where absent). One panel per quantity present, one line per seed, x = training day."""
@@ -71,7 +67,9 @@ def diagnostics_figure(rows: pd.DataFrame, horizon: int, title: str = "") -> Fig
             if g.empty:
                 continue
             day = g["timestep"].to_numpy(dtype=float) / horizon
-            ax.plot(day, _smooth(g[q].astype(float), window), color=colors[seed], lw=1.1, label=f"seed {seed}")
+            y = g[q].astype(float)
+            y = y.rolling(window, center=True, min_periods=1).mean() if window > 1 else y
+            ax.plot(day, y, color=colors[seed], lw=1.1, label=f"seed {seed}")
         values = rows[q].dropna().to_numpy(dtype=float)
         if len(values) and values.min() > 0 and values.max() / values.min() > 100:
             ax.set_yscale("log")

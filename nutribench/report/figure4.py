@@ -50,10 +50,9 @@ def without_memory(
         body = cfg.model_dump(mode="json")
         if name in pair or body.get("memory", True) is not False or (evaluated is not None and name not in evaluated):
             continue
-        for member, member_body in members.items():
-            if member_body.get("memory", True) is True and _rest(member_body) == _rest(body):
-                out[name] = member
-                break
+        same = [m for m, mb in members.items() if mb.get("memory", True) is True and _rest(mb) == _rest(body)]
+        if same:
+            out[name] = same[0]
     return out
 
 

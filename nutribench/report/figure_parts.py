@@ -8,6 +8,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from itertools import groupby
 
 import pandas as pd
 from matplotlib.figure import Figure
@@ -51,16 +52,9 @@ def wrap_text(text: str, fig: Figure, fontsize: float) -> str:
 
 def seed_list(seeds: Iterable[int]) -> str:
     """Seeds in increasing order, runs of three or more as ranges: ``0-9, 21, 1997``."""
-    seeds = sorted({int(s) for s in seeds})
-    parts: list[str] = []
-    i = 0
-    while i < len(seeds):
-        j = i
-        while j + 1 < len(seeds) and seeds[j + 1] == seeds[j] + 1:
-            j += 1
-        parts += [f"{seeds[i]}-{seeds[j]}"] if j - i >= 2 else [str(s) for s in seeds[i : j + 1]]
-        i = j + 1
-    return ", ".join(parts)
+    ordered = enumerate(sorted({int(s) for s in seeds}))
+    runs = [[s for _, s in run] for _, run in groupby(ordered, lambda pair: pair[1] - pair[0])]
+    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) >= 3 else ", ".join(map(str, r)) for r in runs)
 
 
 def _budget_seeds(cell: pd.DataFrame) -> str:
@@ -135,15 +129,10 @@ def budget_cell(cell: pd.DataFrame) -> str:
     return "/".join(str(b) for b in sorted({int(b) for b in cell["budget"].dropna()}))
 
 
-def budgets_differ(df: pd.DataFrame) -> bool:
-    """Whether the configs of ``df`` were trained for different budgets (a caption says so)."""
-    return "budget" in df and len({budget_cell(df[df["algo"] == a]) for a in df["algo"].unique()}) > 1
-
-
 def budget_caption(df: pd.DataFrame) -> str:
     """The budget and seeds line of a table's caption; it warns when budgets differ."""
     text = budget_seeds_text(df)
-    if budgets_differ(df):
+    if "budget" in df and len({budget_cell(df[df["algo"] == a]) for a in df["algo"].unique()}) > 1:
         text = "budgets differ, compare across them with care: " + text
     return text
 
@@ -197,11 +186,8 @@ def legend_rows(fig: Figure, rows: list[tuple[list, list[str]]], fontsize: float
         return
     ncols = max(len(labels) for _, labels in rows)
     blank = Line2D([], [], alpha=0)
-    handles, labels = [], []
-    for c in range(ncols):
-        for hs, ls in rows:
-            handles.append(hs[c] if c < len(hs) else blank)
-            labels.append(ls[c] if c < len(ls) else "")
+    cells = [(hs[c], ls[c]) if c < len(ls) else (blank, "") for c in range(ncols) for hs, ls in rows]
+    handles, labels = (list(v) for v in zip(*cells))
     fig.legend(handles, labels, loc="outside lower center", ncols=ncols, fontsize=fontsize, frameon=False)
 
 

@@ -32,6 +32,7 @@ from nutribench.report.figure_parts import (
     sort_regimes,
     training_legend,
 )
+from nutribench.report.headroom import regime_shares
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
@@ -80,9 +81,11 @@ def panel_grid(n: int, extra: float, sharex: bool) -> tuple[Figure, np.ndarray, 
     return fig, axes[:n], ncols
 
 
-def bottom_axis(ax, k: int, n: int, ncols: int, label: str, own_axis: bool = False) -> None:
-    """Panel ``k`` of ``n``: an x label and tick labels where no panel is below it (or where each
-    panel has its x axis of its own)."""
+def dress_panel(ax, k: int, n: int, ncols: int, title: str, label: str, own_axis: bool = False) -> None:
+    """Panel ``k`` of ``n``: its title and grid, and an x label and tick labels where no panel
+    is below it (or where each panel has its x axis of its own)."""
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
     if own_axis or k >= n - ncols:
         ax.set_xlabel(label)
         ax.tick_params(labelbottom=True)
@@ -116,8 +119,7 @@ def training_curves(
     split = any(b is not None for _, b in panels)
     fig, axes, ncols = panel_grid(len(panels), 0.9, sharex=not split)
     rows = []
-    for k, (regime, budget) in enumerate(panels):
-        ax = axes[k]
+    for k, ((regime, budget), ax) in enumerate(zip(panels, axes)):
         best = -np.inf
         for algo in algos:
             cell = train[(train["regime"] == regime) & (train["algo"] == algo)]
@@ -128,11 +130,10 @@ def training_curves(
             rows.append(line.assign(regime=regime)[["regime", "algo", "episode", "mean", "sem", "n_seeds"]])
         if best_line and np.isfinite(best):
             ax.axhline(best, color="k", ls="--", lw=0.9, label="best (smoothed)" if window > 1 else "best")
-        ax.set_title(f"{regime}" + (f", budget {budget} days" if budget is not None else ""), fontsize=10)
-        ax.grid(alpha=0.3)
+        heading = f"{regime}" + (f", budget {budget} days" if budget is not None else "")
+        dress_panel(ax, k, len(panels), ncols, heading, "training episode", own_axis=split)
         if k % ncols == 0:
             ax.set_ylabel(METRIC_LABELS.get(metric, metric))
-        bottom_axis(ax, k, len(panels), ncols, "training episode", own_axis=split)
     training_legend(fig, list(axes), [legend[a] for a in algos])
     notes = _missing_note(regimes, algos, train)
     n_seeds = train.groupby(["regime", "algo"])["seed"].nunique()
@@ -210,15 +211,6 @@ def _reference_scores(references: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def _draw_headroom(ax, ev: pd.DataFrame, day_references: pd.DataFrame, xs: Mapping[str, float]) -> list[str]:
-    """Lookahead's and clairvoyant's shares of the gap per regime on panel (A) (the mean over
-    the seeds' days ``ev`` holds, :func:`nutribench.report.headroom.regime_shares`), as grey
-    reference lines; the policies drawn."""
-    from nutribench.report.headroom import regime_shares
-
-    return _reference_lines(ax, regime_shares(ev, day_references), "share", STRONG_STYLES, xs)
-
-
 def _reference_lines(ax, ref: pd.DataFrame, column: str, styles: Mapping, xs: Mapping[str, float]) -> list[str]:
     """Each policy of ``styles`` that ``ref`` holds (columns policy, regime, ``column``) as a
     reference line across its regimes, broken where regimes are missing; the policies drawn."""
@@ -228,14 +220,8 @@ def _reference_lines(ax, ref: pd.DataFrame, column: str, styles: Mapping, xs: Ma
         if r.empty:
             continue
         r = r.set_index("regime").loc[sort_regimes(r["regime"])]
-        ax.plot(
-            *_with_breaks([xs[k] for k in r.index], r[column].to_numpy(dtype=float)),
-            lw=0.8,
-            ms=4,
-            alpha=0.9,
-            label=f"{policy} (reference)",
-            **style,
-        )
+        xy = _with_breaks([xs[k] for k in r.index], r[column].to_numpy(dtype=float))
+        ax.plot(*xy, lw=0.8, ms=4, alpha=0.9, label=f"{policy} (reference)", **style)
         drawn.append(policy)
     return drawn
 
@@ -267,9 +253,7 @@ def _draw_gapped(
     ax.plot(x, mean, marker=marker, ms=5, color=color, label=label)
     ax.fill_between(x, lo, hi, color=color, alpha=0.2, lw=0)
     has = np.isfinite(mean)
-    left = np.r_[False, has[:-1]]
-    right = np.r_[has[1:], False]
-    alone = has & ~left & ~right
+    alone = has & ~np.r_[False, has[:-1]] & ~np.r_[has[1:], False]  # no neighbour on the left or right
     if alone.any():
         err = np.array([mean[alone] - lo[alone], hi[alone] - mean[alone]])
         ax.errorbar(x[alone], mean[alone], yerr=err, fmt="none", ecolor=color, capsize=4, lw=1.2)
@@ -327,8 +311,8 @@ def eval_across_regimes(
         if references is not None and not references.empty:
             ref = references[references["regime"].isin(regimes)]
             _reference_lines(ax, _reference_scores(ref) if gap_panel else ref, metric, POLICY_STYLES, xs)
-        if gap_panel:
-            headroom = _draw_headroom(ax, ev, day_references, xs)
+        if gap_panel:  # lookahead's and clairvoyant's shares per regime (mean over the seeds' days ev holds)
+            headroom = _reference_lines(ax, regime_shares(ev, day_references), "share", STRONG_STYLES, xs)
         _eval_axes(ax, p, metric, gap_panel, xs)
     _reference_legend(fig, axes.flat[0])
     notes = _missing_note(regimes, present, ev) + notes
@@ -401,8 +385,7 @@ def _regime_stats(cell: pd.DataFrame, metric: str, scores: pd.DataFrame | None) 
     else:
         per_seed = cell.groupby(["regime", "seed"])[metric].mean().groupby("regime")
     ci = {r: mean_ci(v.to_numpy(dtype=float)) for r, v in per_seed}
-    for k, col in enumerate(("mean", "lo", "hi")):
-        stats[col] = [ci[r][k] for r in stats.index]
+    stats[["mean", "lo", "hi"]] = [ci[r] for r in stats.index]
     stats["seeds"] = [int(cell[cell["regime"] == r]["seed"].nunique()) for r in stats.index]
     return stats
 
@@ -424,15 +407,9 @@ def _eval_axes(ax, p: int, metric: str, gap_panel: bool, xs: Mapping[str, float]
 
 def _reference_legend(fig: Figure, ax) -> None:
     """The legend under the panels: the agents in a row, the reference lines in the next."""
-    handles, labels = ax.get_legend_handles_labels()
-    is_ref = [lab.endswith("(reference)") for lab in labels]
-    legend_rows(
-        fig,
-        [
-            ([h for h, r in zip(handles, is_ref) if r == ref], [lab for lab, r in zip(labels, is_ref) if r == ref])
-            for ref in (False, True)
-        ],
-    )
+    entries = list(zip(*ax.get_legend_handles_labels()))
+    groups = [[(h, lab) for h, lab in entries if lab.endswith("(reference)") == ref] for ref in (False, True)]
+    legend_rows(fig, [([h for h, _ in g], [lab for _, lab in g]) for g in groups])
 
 
 def _eval_caption(ev: pd.DataFrame, gap: bool, headroom: list[str]) -> str:

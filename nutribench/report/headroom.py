@@ -63,9 +63,7 @@ def with_strong_references(day_references: pd.DataFrame, log: Log | None = None)
     out = day_references.copy()
     committed = committed_references(log)
     if committed.empty or out.empty:
-        for p in STRONG_POLICIES:
-            out[p] = np.nan
-        return out
+        return out.assign(**dict.fromkeys(STRONG_POLICIES, np.nan))
     key = ["regime", "seed", "episode"]
     found = committed.set_index(key).reindex(pd.MultiIndex.from_frame(out[key].astype({"seed": int, "episode": int})))
     yard = ["never", "planner"]
@@ -122,6 +120,5 @@ def aggregate_points(ev: pd.DataFrame, day_references: pd.DataFrame, groups: dic
             per = [mine[mine["regime"] == r].sort_values("seed")["score"].to_numpy(dtype=float) for r in regimes]
             if not regimes or any(not len(x) for x in per):
                 continue
-            for agg in ("iqm", "median", "mean"):
-                rows.append({"group": group, "policy": policy, "aggregate": agg, "point": point_estimate(agg, per)})
+            rows += [(group, policy, agg, point_estimate(agg, per)) for agg in ("iqm", "median", "mean")]
     return pd.DataFrame(rows, columns=["group", "policy", "aggregate", "point"])

@@ -105,15 +105,9 @@ def write_index(
 
 def page_figure(number: int, res: Any, written: Sequence[Path]) -> PageItem:
     """Figure ``number`` on index.html: its PNG, the first line of its title, its notes."""
-    sup = getattr(res.figure, "_suptitle", None)
-    heading = sup.get_text().splitlines()[0] if sup is not None and sup.get_text() else ""
-    return PageItem(
-        written[0].stem,
-        f"Figure {number}" + (f": {heading}" if heading else ""),
-        png=written[0].name,
-        notes=list(res.notes),
-        files=[p.name for p in written],
-    )
+    heading = (res.figure.get_suptitle().splitlines() or [""])[0]
+    title = f"Figure {number}" + (f": {heading}" if heading else "")
+    return PageItem(written[0].stem, title, png=written[0].name, notes=list(res.notes), files=[p.name for p in written])
 
 
 #: Longest table heading taken from a caption's head (``Leaderboard: every agent ranked ...``).

@@ -54,7 +54,7 @@ import numpy as np
 import pandas as pd
 
 from nutribench.report.aggregate import interval_estimates, regime_span, run_scores, score_set
-from nutribench.report.data import ENTRY, Log, ReportError, entries
+from nutribench.report.data import ENTRY, Log, ReportError, entries, quiet
 from nutribench.report.figure_parts import UNRECORDED, budget_cell, seed_list, sort_regimes
 from nutribench.report.leaderboard_verify import REPLAYED, not_reproduced
 from nutribench.report.palette import BUILTIN_ORDER
@@ -68,7 +68,6 @@ from nutribench.store.archive.installed import disagreeing_archives, forged_regi
 #: The reference grid a row is checked against: the paper's budget and seeds.
 REFERENCE_BUDGET: int = PRESETS["paper"].episodes
 REFERENCE_SEEDS: tuple[int, ...] = PRESETS["paper"].seeds
-PROTOCOLS = ("paper config", "tuned", "variant", "plug-in", "recorded")
 #: how the description of a file written by ``nutribench tune best --write`` begins
 TUNED_PREFIX = "tuned by nutribench tune"
 
@@ -87,21 +86,10 @@ def check_reps(reps: object) -> int:
     return reps
 
 
-def same_settings(shipped: object, body: object) -> bool:
-    """Whether a stored config ``body`` (its content as recorded) has the settings of the
-    config ``shipped``: equal but for :data:`nutribench.agents.config.NOT_SETTINGS`, read
-    through the config model (:func:`~nutribench.agents.config.body_settings_sha256`). A body
-    that does not validate has not."""
-    from nutribench.agents.config import body_settings_sha256, settings_sha256
-
-    stored = body_settings_sha256(body)
-    return stored is not None and stored == settings_sha256(shipped)
-
-
 def protocols(configs: pd.DataFrame) -> dict[str, str]:
     """The protocol of each agent config (columns name, version, sha256, body: the
     ``agent_configs`` rows of the versions drawn)."""
-    from nutribench.agents.config import agent_config_sha256, parse_agent_config
+    from nutribench.agents.config import agent_config_sha256, body_settings_sha256, parse_agent_config, settings_sha256
     from nutribench.agents.registry import by_entry_point
     from nutribench.config.loading import read_toml, regimes_dir
 
@@ -117,7 +105,9 @@ def protocols(configs: pd.DataFrame) -> dict[str, str]:
         if r.name in BUILTIN_ORDER and shipped.is_file():
             cfg = parse_agent_config(read_toml(shipped), shipped)
             exact = int(cfg.version) == int(r.version) and agent_config_sha256(cfg) == r.sha256
-            same = exact or same_settings(cfg, body)
+            # or the settings of the shipped file: equal but for nutribench.agents.config.NOT_SETTINGS,
+            # read through the config model (a body that does not validate, None, has not)
+            same = exact or body_settings_sha256(body) == settings_sha256(cfg)
         out[r.name] = "paper config" if same else "tuned" if tuned else "variant"
     return out
 
@@ -152,10 +142,7 @@ def _flags(budget: str, seeds: list[int], covered: list[str], board: list[str]) 
 def _lookup(by: dict, entry: tuple[str, int, int], default: str) -> str:
     """``by``'s value for an entry (name, version, budget), else for (name, version), else for
     the name alone (a map of one row per name, as :func:`protocols` gives), else ``default``."""
-    for key in (entry, entry[:2], entry[0]):
-        if key in by:
-            return by[key]
-    return default
+    return next((by[key] for key in (entry, entry[:2], entry[0]) if key in by), default)
 
 
 def leaderboard_rows(
@@ -186,19 +173,10 @@ def leaderboard_rows(
         seeds = sorted({int(s) for s in cell["seed"]})
         budget = budget_cell(cell)
         mine_jobs = job_info.loc[sorted(set(cell["job_id"]))]
-        row = _row(
-            algo,
-            _lookup(protocol, entry, "?"),
-            mine,
-            board,
-            reps,
-            version=version,
-            budget=budget,
-            seeds=" ".join(map(str, seeds)),
-            engine="/".join(sorted({str(e) for e in mine_jobs["engine"].dropna()})) or "?",
-            code=_code_version(mine_jobs),
-            checked=_lookup(checked or {}, entry, REPLAYED),
-        )
+        engine = "/".join(sorted({str(e) for e in mine_jobs["engine"].dropna()})) or "?"
+        cells = dict(version=version, budget=budget, seeds=" ".join(map(str, seeds)), engine=engine)
+        cells.update(code=_code_version(mine_jobs), checked=_lookup(checked or {}, entry, REPLAYED))
+        row = _row(algo, _lookup(protocol, entry, "?"), mine, board, reps, **cells)
         covered = row["covered"].split(",") if row["covered"] else []
         row["flags"] = "; ".join(_flags(budget, seeds, covered, board))
         rows.append(row)
@@ -236,6 +214,10 @@ def _row(algo: str, protocol: str, mine: pd.DataFrame, board: list[str], reps: i
 REFERENCE_PROTOCOL = "reference (planned, not learned)"
 
 
+#: The references above the planner, each with why it is not ranked.
+_UNRANKED = {"lookahead": "sampled futures finished by the planner", "clairvoyant": "the day's foods known"}
+
+
 def _reference_rows(ev: pd.DataFrame, references: pd.DataFrame, board: list[str], reps: int) -> pd.DataFrame:
     """Unranked rows for lookahead and clairvoyant (:mod:`nutribench.report.headroom`): the
     same scores on the same days, over the board's regimes they cover; none where
@@ -244,7 +226,7 @@ def _reference_rows(ev: pd.DataFrame, references: pd.DataFrame, board: list[str]
 
     runs = reference_runs(ev, references).rename(columns={"policy": "algo"})
     rows = []
-    for algo in ("lookahead", "clairvoyant"):
+    for algo, why in _UNRANKED.items():
         mine = runs[runs["algo"] == algo]
         if mine.empty:
             continue
@@ -252,9 +234,7 @@ def _reference_rows(ev: pd.DataFrame, references: pd.DataFrame, board: list[str]
         seeds = " ".join(map(str, sorted({int(s) for s in mine["seed"]})))
         cells = dict(budget=None, seeds=seeds, engine=None, code=None, checked=f"from {SOURCE}")
         row = {"rank": None, **_row(algo, REFERENCE_PROTOCOL, mine, board, reps, **cells)}
-        row["flags"] = "unranked: " + (
-            "sampled futures finished by the planner" if algo == "lookahead" else "the day's foods known"
-        )
+        row["flags"] = f"unranked: {why}"
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -308,29 +288,24 @@ def _iqm_cell(point: float, lo: float, hi: float) -> str:
 def leaderboard_table(rows: pd.DataFrame) -> TableResult:
     """The leaderboard as a table (Markdown, LaTeX, CSV); ``rows``: :func:`leaderboard_rows`."""
     board = [c.removeprefix("share_") for c in rows.columns if c.startswith("share_")]
-    fmt = []
-    for r in rows.to_dict("records"):
-        f = {
+    fmt = [
+        {
             "rank": "" if r["rank"] is None or pd.isna(r["rank"]) else int(r["rank"]),
             "agent": algo_label(r["algo"]),
             "IQM share of gap (%) [95% CI]": _iqm_cell(r["iqm"], r["iqm_lo"], r["iqm_hi"]),
             "regimes": f"{r['regimes']}/{len(board)}",
+            **{f"{g} (%)": _pct(r[f"share_{g}"]) for g in board},
+            "version": "-" if r["protocol"] == REFERENCE_PROTOCOL else f"v{r['version']}" if "version" in r else "?",
+            "budget (days)": _cell(r["budget"]),
+            "seeds": r["seeds"].replace(" ", ", "),
+            "engine": _cell(r["engine"]),
+            "protocol": r["protocol"],
+            "code": _cell(r["code"]),
+            "checked": r.get("checked", REPLAYED),
+            "flags": r["flags"] or "-",
         }
-        f.update({f"{g} (%)": _pct(r[f"share_{g}"]) for g in board})
-        version = "-" if r["protocol"] == REFERENCE_PROTOCOL else f"v{r['version']}" if "version" in r else "?"
-        f.update(
-            {
-                "version": version,
-                "budget (days)": _cell(r["budget"]),
-                "seeds": r["seeds"].replace(" ", ", "),
-                "engine": _cell(r["engine"]),
-                "protocol": r["protocol"],
-                "code": _cell(r["code"]),
-                "checked": r.get("checked", REPLAYED),
-                "flags": r["flags"] or "-",
-            }
-        )
-        fmt.append(f)
+        for r in rows.to_dict("records")
+    ]
     title = (
         "Leaderboard: every agent ranked by the IQM of its run scores (one seed on one regime = one run, scored as the "
         "share of the regime's never -> planner gap it closes on its own evaluation days; 0 % = never eat, 100 % = the "
@@ -395,10 +370,8 @@ def leaderboard_from_db(
 
         checked = verify_entries(db, ev, verify, log)
         notes += _set_apart_notes(checked)
-    table = leaderboard_table(leaderboard_rows(ev, references, jobs, _drawn_protocols(configs, ev), reps, checked))
-    if notes:
-        table.title += " (note: " + "; ".join(notes) + ")"
-    return table
+    rows = leaderboard_rows(ev, references, jobs, _drawn_protocols(configs, ev), reps, checked)
+    return leaderboard_table(rows).add_notes(notes)
 
 
 def _drawn_protocols(configs: pd.DataFrame, ev: pd.DataFrame) -> dict[tuple[str, int], str]:
@@ -407,8 +380,7 @@ def _drawn_protocols(configs: pd.DataFrame, ev: pd.DataFrame) -> dict[tuple[str,
     drawn = set(map(tuple, ev[["algo", "algo_version"]].drop_duplicates().to_numpy()))
     configs = configs[[(n, v) in drawn for n, v in zip(configs["name"], configs["version"])]]
     return {
-        (name, int(version)): protocols(configs[(configs["name"] == name) & (configs["version"] == version)])[name]
-        for name, version in configs[["name", "version"]].drop_duplicates().itertuples(index=False)
+        (name, int(version)): protocols(rows)[name] for (name, version), rows in configs.groupby(["name", "version"])
     }
 
 
@@ -425,7 +397,7 @@ def leaderboard_from_archives(
     from nutribench.store.archive import import_results
     from nutribench.store.engine import StoreError
 
-    reps = check_reps(reps)
+    reps, log = check_reps(reps), log or quiet
     folder = Path(folder)
     archives = sorted(folder.glob("*.npz")) if folder.is_dir() else []
     if not archives:
@@ -433,23 +405,19 @@ def leaderboard_from_archives(
     refused = dict(disagreeing_archives(archives))  # path -> one line, naming the archive
     with tempfile.TemporaryDirectory(prefix="nutribench-leaderboard-") as tmp:
         db = str(Path(tmp) / "leaderboard.db")
-        for path in archives:
-            if path in refused:
-                continue
+        for path in [p for p in archives if p not in refused]:
             try:
                 import_results(path, db)
             except StoreError as e:
                 reason = str(e).removeprefix("db import: ").removesuffix("; nothing imported")
                 refused[path] = reason.replace(str(path), path.name, 1)
                 continue
-            if log:
-                log(f"imported {path.name}")
+            log(f"imported {path.name}")
         listed = [refused[p] for p in archives if p in refused]
         if len(refused) == len(archives):
             raise ReportError(f"{folder}: every archive was refused ({'; '.join(listed)})")
         for reason in listed:
-            if log:
-                log(f"refused: {reason}")
+            log(f"refused: {reason}")
         table = leaderboard_from_db(db, reps=reps, log=log, verify=verify)
     if refused:
         table.title += f" (refused, not ranked: {'; '.join(listed)})"

@@ -196,8 +196,7 @@ def verify_entries(
         checks[jid] = rerun_job(path, job, configs, mine, returns)
         if log and checks[jid].status not in ("missing", "plugin"):
             log(f"re-ran {checks[jid].label} from {path}: {checks[jid].status}")
-    out = {}
-    for entry, rows in ev.groupby(list(ENTRY)):
-        mine = sorted({int(j) for j in rows["job_id"]})
-        out[(str(entry[0]), int(entry[1]), int(entry[2]))] = entry_cell([checks[j] for j in mine])
-    return out
+    return {
+        (str(e[0]), int(e[1]), int(e[2])): entry_cell([checks[j] for j in sorted({int(j) for j in rows["job_id"]})])
+        for e, rows in ev.groupby(list(ENTRY))
+    }

@@ -23,11 +23,12 @@ from nutribench.report.figure_parts import (
     FigureResult,
     agent_labels,
     budget_seeds_line,
+    count_span,
     draw_notes,
     set_title,
     sort_regimes,
 )
-from nutribench.report.figures import GAP_LABEL, bottom_axis, gap_axis, panel_grid, training_legend
+from nutribench.report.figures import GAP_LABEL, dress_panel, gap_axis, panel_grid, training_legend
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import order as sort_algos
 from nutribench.report.scores import DEFAULT_REPS, run_scores
@@ -84,8 +85,7 @@ def learning_curve_figure(
     colors = colors or palette(names)
     legend = agent_labels(curve.drop_duplicates(["algo", "seed", "budget"])[["algo", "seed", "budget"]])
     fig, axes, ncols = panel_grid(len(regimes), 1.1, sharex=True)
-    for k, regime in enumerate(regimes):
-        ax = axes[k]
+    for k, (regime, ax) in enumerate(zip(regimes, axes)):
         for algo in names:
             line = points[(points["regime"] == regime) & (points["algo"] == algo)]
             if line.empty:
@@ -96,14 +96,11 @@ def learning_curve_figure(
             )
             ax.fill_between(line["train_day"], line["lo"], line["hi"], color=c, alpha=0.2, lw=0)
         gap_axis(ax)
-        ax.set_title(regime, fontsize=10)
-        ax.grid(alpha=0.3)
+        dress_panel(ax, k, len(regimes), ncols, regime, "training day")
         if k % ncols:
             ax.set_ylabel("")
-        bottom_axis(ax, k, len(regimes), ncols, "training day")
     training_legend(fig, list(axes), [legend[a] for a in names])
-    days = sorted(set(curve.groupby("job_id")["episode"].nunique()))
-    n_days = f"{days[0]}" if len(days) == 1 else f"{days[0]}-{days[-1]}"
+    n_days = count_span(curve.groupby("job_id")["episode"].nunique())
     caption = (
         f"{GAP_LABEL} on {n_days} validation days per evaluation (never the test days), "
         f"IQM over seeds with its 95 % interval over seeds ({interval_caption('iqm')})\n"

@@ -69,11 +69,6 @@ def _registered() -> dict[str, Any]:
     return {a: table[a] for a in registry.names()}
 
 
-def builtin_colors() -> dict[str, str]:
-    """The colours the registered algorithms state (the paper's five: its figures')."""
-    return {a: e.color for a, e in _registered().items() if e.color}
-
-
 def order(names: Iterable[str]) -> list[str]:
     """``names`` once each: those of registered algorithms in the registry's order (the paper's
     five first, in its order), then the others by name."""
@@ -134,15 +129,12 @@ def colors(names: Iterable[str]) -> dict[str, str]:
     """A colour per name, in :func:`order`: the built-in colours for the five, for the others
     one of :data:`USER_COLORS` while one is free, then derived colours (distinct from every
     colour before)."""
-    names = order(names)
-    fixed = builtin_colors()
+    fixed = {a: e.color for a, e in _registered().items() if e.color}  # the registered algorithms' (the five's)
     taken = list(fixed.values())
     out: dict[str, str] = {}
-    for n in names:
-        if n in fixed:
-            out[n] = fixed[n]
-        else:
-            out[n] = _user_color(n, taken) or _pick(n, taken)
+    for n in order(names):
+        out[n] = fixed.get(n) or _user_color(n, taken) or _pick(n, taken)
+        if n not in fixed:
             taken.append(out[n])
     return out
 
@@ -153,11 +145,8 @@ def markers(names: Iterable[str]) -> dict[str, str]:
     when all are taken, the one the hash picks (the colour still differs)."""
     out: dict[str, str] = {}
     for n in order(names):
-        if n in BUILTIN_MARKERS:
-            out[n] = BUILTIN_MARKERS[n]
-            continue
         ring = _ring(n, USER_MARKERS)
-        out[n] = next((m for m in ring if m not in out.values()), ring[0])
+        out[n] = BUILTIN_MARKERS.get(n) or next((m for m in ring if m not in out.values()), ring[0])
     return out
 
 
@@ -182,15 +171,11 @@ class Palette:
 
     def marker(self, name: str) -> str:
         """``name``'s marker (as in :func:`markers` over the palette's names and ``name``)."""
-        if name in self.markers:
-            return self.markers[name]
-        return markers([*self.colors, *self.markers, name])[name]
+        return self.markers.get(name) or markers([*self.colors, *self.markers, name])[name]
 
     def color(self, name: str) -> str:
         """``name``'s colour (as in :func:`colors` over the palette's names and ``name``)."""
-        if name in self.colors:
-            return self.colors[name]
-        return colors([*self.colors, name])[name]
+        return self.colors.get(name) or colors([*self.colors, name])[name]
 
 
 def palette(names: Iterable[str] = ()) -> Palette:

@@ -62,11 +62,8 @@ def performance_profiles(
         else:
             lo = hi = np.full_like(point, np.nan)
         frames.append(pd.DataFrame({"algo": algo, "tau": taus, "fraction": point, "lo": lo, "hi": hi}))
-    return (
-        pd.concat(frames, ignore_index=True)
-        if frames
-        else pd.DataFrame(columns=["algo", "tau", "fraction", "lo", "hi"])
-    )
+    empty = pd.DataFrame(columns=["algo", "tau", "fraction", "lo", "hi"])
+    return pd.concat(frames, ignore_index=True) if frames else empty
 
 
 def _improvement(x: Runs, y: Runs) -> np.ndarray:

@@ -17,7 +17,7 @@ from typing import Any
 import pandas as pd
 
 from nutribench.config import ConfigError
-from nutribench.report.data import Log
+from nutribench.report.data import Log, quiet
 
 
 def simple_policy_references(
@@ -55,17 +55,16 @@ def eval_day_references(ev: pd.DataFrame, log: Log | None = None) -> pd.DataFram
     from nutribench.config import load_env_config
     from nutribench.report.headroom import with_strong_references
 
+    log = log or quiet
     rows: list[dict[str, Any]] = []
     for (regime, version, seed), days in ev.groupby(["regime", "regime_version", "seed"]):
         try:
             cfg = load_env_config(regime)
         except ConfigError as e:
-            if log:
-                log(f"no never/planner yardsticks for {regime}: {e}")
+            log(f"no never/planner yardsticks for {regime}: {e}")
             continue
         if int(cfg.version) != int(version):
-            if log:
-                log(f"no never/planner yardsticks for {regime} v{version}: the regime file is v{cfg.version}")
+            log(f"no never/planner yardsticks for {regime} v{version}: the regime file is v{cfg.version}")
             continue
         streams = eval_food_streams(regime, int(seed), int(days["episode"].max()) + 1)
         rows += [{"regime": regime, "seed": seed, **d} for d in day_yardsticks(regime, streams)]

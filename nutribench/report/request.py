@@ -36,12 +36,6 @@ def parse_figs(values: list[str] | None) -> list[int]:
     return list(dict.fromkeys(int(v) for v in items))
 
 
-def parse_tables(values: list[str] | None) -> list[str]:
-    """``--table`` values: 1-6, results, training, all, or a number from 7 / a config name for
-    the database's other agent configs (those are checked against the database when it is read)."""
-    return list(dict.fromkeys(_split(values)))
-
-
 def parse_algos(value: str | None) -> list[str] | None:
     """``--algos a,b,c`` as names (None: every config of the database)."""
     if value is None:
@@ -87,7 +81,10 @@ class ReportRequest:
         cls, fig: list[str] | None, table: list[str] | None, all: bool, algos: str | None, pair: str | None, *rest
     ) -> ReportRequest:
         """The request of the command line's values (in the order of the fields), checked (:meth:`check`)."""
-        request = cls(parse_figs(fig), parse_tables(table), all, parse_algos(algos), parse_pair(pair), *rest)
+        # --table: 1-6, results, training, all, or a number from 7 / a config name for the database's
+        # other agent configs (those are checked against the database when it is read)
+        tables = list(dict.fromkeys(_split(table)))
+        request = cls(parse_figs(fig), tables, all, parse_algos(algos), parse_pair(pair), *rest)
         request.check()
         return request
 

@@ -101,13 +101,13 @@ def score_set(
     group's name, for the note)."""
     algos = sort_algos(scores["algo"]) if algos is None else list(algos)
     finite = scores[np.isfinite(scores["score"].to_numpy(dtype=float))]
+    by = {key: g.sort_values("seed")["score"].to_numpy(dtype=float) for key, g in finite.groupby(["regime", "algo"])}
+    ran = set(zip(scores["regime"], scores["algo"]))
     kept, notes = [], []
     for regime in sort_regimes(set(regimes) & set(scores["regime"])):
-        missing, unscored = [], []
-        for algo in algos:
-            if finite[(finite["regime"] == regime) & (finite["algo"] == algo)].empty:
-                ran = not scores[(scores["regime"] == regime) & (scores["algo"] == algo)].empty
-                (unscored if ran else missing).append(algo_label(algo))
+        lacking = [a for a in algos if (regime, a) not in by]
+        missing = [algo_label(a) for a in lacking if (regime, a) not in ran]
+        unscored = [algo_label(a) for a in lacking if (regime, a) in ran]
         why = []
         if missing:
             why.append(f"no evaluation of {', '.join(missing)}")
@@ -119,14 +119,7 @@ def score_set(
             notes.append(f"{what + ': ' if what else ''}{regime} left out ({'; '.join(why)})")
         else:
             kept.append(regime)
-    runs = {
-        a: [
-            finite[(finite["regime"] == r) & (finite["algo"] == a)].sort_values("seed")["score"].to_numpy(dtype=float)
-            for r in kept
-        ]
-        for a in algos
-    }
-    return ScoreSet(kept, runs, notes)
+    return ScoreSet(kept, {a: [by[(r, a)] for r in kept] for a in algos}, notes)
 
 
 # Each statistic of the bootstrap takes one array per regime, shaped (resamples, runs of that

@@ -35,11 +35,6 @@ def stored_or_none(db: DbFile | None) -> dict[str, Any]:
         return {}
 
 
-def table_list(numbers: dict[int, str]) -> str:
-    """Every table key, for an error line: ``1, 2 (mc), ..., results, training, aggregate``."""
-    return ", ".join(["1", *(f"{n} ({name})" for n, name in numbers.items()), "results", "training", "aggregate"])
-
-
 def resolve_table(key: str, numbers: dict[int, str]) -> tuple[str, str]:
     """(key, file stem) of table ``key``: "1", a config table's number or its config's name,
     "results", "training" or "aggregate"; ``numbers``: :func:`config_table_numbers` of the database."""
@@ -49,7 +44,8 @@ def resolve_table(key: str, numbers: dict[int, str]) -> tuple[str, str]:
         return key, f"table{key}_{numbers[int(key)]}"
     if key in TABLES:
         return key, TABLES[key]
-    raise ReportError(f"no table {key} (--table {key}): the tables are {table_list(numbers)}")
+    listed = ", ".join(["1", *(f"{n} ({name})" for n, name in numbers.items()), "results", "training", "aggregate"])
+    raise ReportError(f"no table {key} (--table {key}): the tables are {listed}")
 
 
 def config_table(number: int, name: str, db: DbFile | None, stored: dict[str, Any] | None) -> TableResult:
@@ -81,11 +77,7 @@ def table_plan(
     if all or "all" in tables:
         configs = [str(n) for n, name in numbers.items() if algos is None or name in algos]
         keys = ["1", *configs, "results", "training", "aggregate", *keys]
-    plan: dict[str, str] = {}
-    for k in keys:
-        key, stem = resolve_table(k, numbers)
-        plan.setdefault(key, stem)
-    return plan
+    return dict(resolve_table(k, numbers) for k in keys)  # a key named twice keeps its first place
 
 
 def unheld_tables(

@@ -5,6 +5,7 @@ numbers (written as CSV) and a formatted frame (written as Markdown and LaTeX)."
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 
@@ -41,12 +42,22 @@ def markdown_rows(frame: pd.DataFrame) -> list[str]:
     return ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols), *rows]
 
 
+#: How a table's LaTeX float is placed and ruled.
+_FLOAT = dict(position="t", position_float="centering", hrules=True)
+
+
 @dataclass
 class TableResult:
     name: str
     title: str
     raw: pd.DataFrame
     formatted: pd.DataFrame
+
+    def add_notes(self, notes: list[str]) -> TableResult:
+        """The table with ``notes`` (what was left out of its data) at the end of its caption."""
+        if notes:
+            self.title += " (note: " + "; ".join(notes) + ")"
+        return self
 
     def to_markdown(self) -> str:
         return "\n".join([f"**{self.title}**", "", *markdown_rows(self.formatted)]) + "\n"
@@ -56,11 +67,7 @@ class TableResult:
         (:func:`latex_escape`), written by pandas' Styler."""
         style = self.formatted.style.hide(axis="index").format(latex_escape).format_index(latex_escape, axis=1)
         return style.to_latex(
-            position="t",
-            position_float="centering",
-            caption=latex_escape(self.title),
-            hrules=True,
-            column_format="l" * len(self.formatted.columns),
+            caption=latex_escape(self.title), column_format="l" * len(self.formatted.columns), **_FLOAT
         )
 
     def to_csv(self) -> str:
@@ -69,14 +76,8 @@ class TableResult:
 
 #: LaTeX's special characters and what each becomes in running text.
 _LATEX_SPECIAL = {
+    **{ch: "\\" + ch for ch in "&%$#_{}"},
     "\\": r"\textbackslash{}",
-    "&": r"\&",
-    "%": r"\%",
-    "$": r"\$",
-    "#": r"\#",
-    "_": r"\_",
-    "{": r"\{",
-    "}": r"\}",
     "~": r"\textasciitilde{}",
     "^": r"\textasciicircum{}",
     "±": r"$\pm$",
@@ -88,24 +89,26 @@ def latex_escape(value: object) -> str:
     return "".join(_LATEX_SPECIAL.get(ch, ch) for ch in str(value))
 
 
+#: Table 1's range columns, in the paper's order.
+_RANGES = list(itertools.product(("tau", "sigma"), ("C", "P", "F")))
+
+
 def table_regimes(configs) -> TableResult:
     """Table 1: the delay regimes (ranges in steps), from the regime files."""
     rows = []
     for cfg in configs:
         r = cfg.regime.ranges
         row = {"run": cfg.name, "description": cfg.regime.description, "version": cfg.version, "seed": cfg.regime.seed}
-        for what in ("tau", "sigma"):
-            for n in ("C", "P", "F"):  # the paper's column order
-                rng_ = getattr(getattr(r, what), n)
-                row[f"{what}_{n}_low"], row[f"{what}_{n}_high"] = rng_.low, rng_.high
+        for what, n in _RANGES:
+            rng_ = getattr(getattr(r, what), n)
+            row[f"{what}_{n}_low"], row[f"{what}_{n}_high"] = rng_.low, rng_.high
         rows.append(row)
     raw = pd.DataFrame(rows)
     raw = raw.set_index("run").loc[sort_regimes(raw["run"])].reset_index()
     fmt = pd.DataFrame({"run": raw["run"], "description": raw["description"]})
-    for what in ("tau", "sigma"):
-        for n in ("C", "P", "F"):
-            lo, hi = raw[f"{what}_{n}_low"], raw[f"{what}_{n}_high"]
-            fmt[f"{what}_{n}"] = [f"{a:g}" if a == b else f"{a:g}-{b:g}" for a, b in zip(lo, hi)]
+    for what, n in _RANGES:
+        lo, hi = raw[f"{what}_{n}_low"], raw[f"{what}_{n}_high"]
+        fmt[f"{what}_{n}"] = [f"{a:g}" if a == b else f"{a:g}-{b:g}" for a, b in zip(lo, hi)]
     return TableResult(
         "table1", "Table 1: delay regimes (steps; per-food values drawn uniformly from these ranges)", raw, fmt
     )
@@ -114,13 +117,10 @@ def table_regimes(configs) -> TableResult:
 def _flatten(d: dict, prefix: str = "") -> dict:
     out = {}
     for k, v in d.items():
-        key = f"{prefix}{k}"
         if isinstance(v, dict) and v:
-            out.update(_flatten(v, key + "."))
-        elif isinstance(v, dict):
-            out[key] = "{}"  # an empty table (e.g. [params]) is still shown
-        else:
-            out[key] = v
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:  # an empty table (e.g. [params]) is still shown
+            out[f"{prefix}{k}"] = "{}" if isinstance(v, dict) else v
     return out
 
 
@@ -164,8 +164,7 @@ def table_agent_config(number: int, config) -> TableResult:
     raw = pd.DataFrame(
         {"hyperparameter": list(flat), "value": [v if not isinstance(v, list) else str(v) for v in flat.values()]}
     )
-    fmt = raw.copy()
-    fmt["value"] = [", ".join(map(str, v)) if isinstance(v, list) else str(v) for v in flat.values()]
+    fmt = raw.assign(value=[", ".join(map(str, v)) if isinstance(v, list) else str(v) for v in flat.values()])
     return TableResult(f"table{number}", _config_title(number, config.name, content), raw, fmt)
 
 
@@ -209,16 +208,7 @@ def table_results(df: pd.DataFrame, references: pd.DataFrame | None = None) -> T
     strong = references is not None and {"lookahead", "clairvoyant"} <= set(references.columns)
     yard = ["never", "planner", "lookahead", "clairvoyant"] if strong else ["never", "planner"]
     ref = references.set_index(["regime", "seed", "episode"])[yard] if references is not None else None
-    rows, fmt_rows = [], []
-    for regime, algo, cell in _cells(ev):
-        row, f, seed_ci = _result_row(regime, algo, cell, ref is not None)
-        days = _yardstick_cells(row, f, cell, ref) if ref is not None else None
-        row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"] = seed_ci
-        row["budget"] = f["budget (days)"]  # last: the CSV's earlier columns keep their places
-        if strong:
-            _strong_cells(row, f, days)
-        rows.append(row)
-        fmt_rows.append(f)
+    rows = [_result_row(regime, algo, cell, ref, strong) for regime, algo, cell in _cells(ev)]
     title = (
         "Results: fixed-policy inference; first the seed-level 95 % interval (mean over seeds of each seed's mean over its "
         f"evaluation days, {interval_caption('mean')}), then mean ± standard error over seeds x evaluation "
@@ -232,7 +222,12 @@ def table_results(df: pd.DataFrame, references: pd.DataFrame | None = None) -> T
             "; lookahead / clairvoyant: the shares of the same gap the two references above the planner close on the "
             f"row's days (100 % is the greedy planner, not the optimum; {SOURCE})"
         )
-    return TableResult("results", title, pd.DataFrame(rows), pd.DataFrame(fmt_rows))
+    return TableResult("results", title, *_frames(rows))
+
+
+def _frames(rows: list[tuple[dict, dict]]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The raw and the formatted frame of a table's (raw row, formatted row) pairs."""
+    return pd.DataFrame([r for r, _ in rows]), pd.DataFrame([f for _, f in rows])
 
 
 def _cells(df: pd.DataFrame) -> Iterator[tuple[str, str, pd.DataFrame]]:
@@ -242,24 +237,32 @@ def _cells(df: pd.DataFrame) -> Iterator[tuple[str, str, pd.DataFrame]]:
             yield regime, algo, df[(df["regime"] == regime) & (df["algo"] == algo)]
 
 
-def _result_row(regime: str, algo: str, cell: pd.DataFrame, yardsticks: bool) -> tuple[dict, dict, tuple]:
-    """The results table's raw and formatted row of one agent on one regime, the yardsticks'
-    cells left to :func:`_yardstick_cells` (``yardsticks``: the gap's interval keeps its
-    column's place), and the seed-level interval (the raw row holds it last)."""
+def _result_row(
+    regime: str, algo: str, cell: pd.DataFrame, ref: pd.DataFrame | None, strong: bool
+) -> tuple[dict, dict]:
+    """The results table's raw and formatted row of one agent on one regime: with the
+    yardsticks ``ref``, their cells (:func:`_yardstick_cells`; the gap's interval keeps its
+    column's place) and, ``strong``, the references above the planner (:func:`_strong_cells`);
+    the raw row holds the seed-level interval and the budget last."""
     row = {"regime": regime, "algo": algo, "seeds": cell["seed"].nunique(), "episodes": len(cell)}
     f = {"regime": regime, "algorithm": algo_label(algo), "budget (days)": budget_cell(cell)}
     f.update(seeds=row["seeds"], episodes=row["episodes"])
     seed_means = cell.groupby("seed")["return"].mean().to_numpy(dtype=float)
     seed_ci = mean_ci(seed_means)
     f["return [95% CI over seeds]"] = interval_cell(*seed_ci)
-    if yardsticks:
+    if ref is not None:
         f["gap closed [95% CI over seeds]"] = "n/a"
     for m in RESULT_METRICS:
         row[f"{m}_mean"], row[f"{m}_sem"], f[m] = mean_sem_cell(cell[m], 2 if m in ("return", "foods") else 3)
     point, lo, hi = iqm_runs_ci([seed_means])
     row["return_iqm"], row["return_iqm_lo"], row["return_iqm_hi"] = point, lo, hi
     f["return IQM [95% CI over seeds]"] = interval_cell(point, lo, hi)
-    return row, f, seed_ci
+    days = _yardstick_cells(row, f, cell, ref) if ref is not None else None
+    row["return_seed_mean"], row["return_seed_lo"], row["return_seed_hi"] = seed_ci
+    row["budget"] = f["budget (days)"]  # last: the CSV's earlier columns keep their places
+    if strong:
+        _strong_cells(row, f, days)
+    return row, f
 
 
 def _yardstick_cells(row: dict, f: dict, cell: pd.DataFrame, ref: pd.DataFrame) -> pd.DataFrame | None:
@@ -267,10 +270,9 @@ def _yardstick_cells(row: dict, f: dict, cell: pd.DataFrame, ref: pd.DataFrame) 
     agent closes, raw and formatted; the days' yardsticks (None where one lacks a day)."""
     days = ref.reindex(pd.MultiIndex.from_arrays([cell["regime"], cell["seed"], cell["episode"]]))
     complete = not days[["never", "planner"]].isna().any().any()
-    nan = float("nan")
-    row["never_mean"] = float(days["never"].mean()) if complete else nan
-    row["planner_mean"] = float(days["planner"].mean()) if complete else nan
-    row["gap_closed"] = gap_closed(row["return_mean"], row["never_mean"], row["planner_mean"]) if complete else nan
+    for p in ("never", "planner"):
+        row[f"{p}_mean"] = float(days[p].mean()) if complete else float("nan")
+    row["gap_closed"] = gap_closed(row["return_mean"], row["never_mean"], row["planner_mean"]) if complete else np.nan
     f["never / planner"] = f"{row['never_mean']:.2f} / {row['planner_mean']:.2f}" if complete else "n/a"
     f["gap closed"] = f"{100 * row['gap_closed']:.0f} %" if np.isfinite(row["gap_closed"]) else "n/a"
     shares = _seed_shares(cell, days) if complete else np.array([])
@@ -296,15 +298,9 @@ def _strong_cells(row: dict, f: dict, days: pd.DataFrame | None) -> None:
 def _seed_shares(cell: pd.DataFrame, days: pd.DataFrame) -> np.ndarray:
     """Each seed's share of the never -> planner gap closed on its own evaluation days
     (``days``: the yardsticks of ``cell``'s rows, in the same order)."""
-    frame = pd.DataFrame(
-        {
-            "seed": cell["seed"].to_numpy(),
-            "return": cell["return"].to_numpy(dtype=float),
-            "never": days["never"].to_numpy(dtype=float),
-            "planner": days["planner"].to_numpy(dtype=float),
-        }
-    )
-    means = frame.groupby("seed")[["return", "never", "planner"]].mean()
+    frame = days[["never", "planner"]].astype(float).reset_index(drop=True)
+    frame = frame.assign(seed=cell["seed"].to_numpy(), ret=cell["return"].to_numpy(dtype=float))
+    means = frame.groupby("seed")[["ret", "never", "planner"]].mean()
     return np.array([gap_closed(r, n, p) for r, n, p in means.itertuples(index=False)], dtype=float)
 
 
@@ -318,7 +314,7 @@ def table_training(df: pd.DataFrame, last_share: float = 0.1) -> TableResult:
     tr = df[df["phase"] == "train"]
     if tr.empty:
         raise ValueError("no training episodes for the training table")
-    rows, fmt_rows = [], []
+    rows = []
     for regime, algo, cell in _cells(tr):
         budget = int(cell["budget"].max())
         # days are numbered from 0: the window always holds the last day (a 1- or 5-day job has one)
@@ -331,11 +327,10 @@ def table_training(df: pd.DataFrame, last_share: float = 0.1) -> TableResult:
             row[f"{m}_mean"], row[f"{m}_sem"], f[f"our {m}"] = mean_sem_cell(per_seed[m], 2)
             row[f"authors_{m}"] = float("nan") if theirs is None else theirs[0 if m == "return" else 1]
             f[f"authors' {m}"] = "" if theirs is None else f"{row[f'authors_{m}']:.1f}"
-        rows.append(row)
-        fmt_rows.append(f)
+        rows.append((row, f))
     pct = round(100 * last_share)
     title = (
         f"Training: mean return and foods per day over the last {pct} % of training days, ours (± standard error over "
         f"seeds) and the authors' logged ones (last 10 % of their {AUTHORS_BUDGET} days)"
     )
-    return TableResult("training", title, pd.DataFrame(rows), pd.DataFrame(fmt_rows))
+    return TableResult("training", title, *_frames(rows))

@@ -13,6 +13,8 @@ from nutribench.report.figure_parts import wrap_text
 
 NUTRIENT_COLORS = {"C": "#4c72b0", "F": "#dd8452", "P": "#55a868"}
 NUTRIENT_NAMES = {"C": "carbohydrate", "F": "fat", "P": "protein"}
+#: How a meal's name is written above the top panel, at the step it was eaten.
+MEAL_NAME_STYLE = dict(rotation=90, va="bottom", ha="center", fontsize=7, color="0.3", clip_on=False)
 
 
 def trajectory_figure(steps: pd.DataFrame, dynamics: RegimeDynamics, title: str = "") -> Figure:
@@ -60,18 +62,7 @@ def _absorbed_panel(ax, steps: pd.DataFrame, meals: pd.DataFrame, dynamics: Regi
     for t, food in zip(meals["step"].astype(int), meals["food"].astype(int)):
         ax.axvline(t - 0.5, color="0.6", lw=0.8, ls=":")
         name = dynamics.food_names[food].replace("_", " ")
-        ax.text(
-            t - 0.5,
-            1.01,
-            name,
-            rotation=90,
-            va="bottom",
-            ha="center",
-            fontsize=7,
-            color="0.3",
-            transform=ax.get_xaxis_transform(),
-            clip_on=False,
-        )
+        ax.text(t - 0.5, 1.01, name, transform=ax.get_xaxis_transform(), **MEAL_NAME_STYLE)
     ax.set_ylim(0, max(1.2, float(steps[list(NUTRIENTS)].to_numpy().max()) * 1.08))
     ax.set_ylabel("absorbed (x daily target)")
 
