@@ -25,18 +25,6 @@ from nutribench.cli.common import (
 )
 from nutribench.errors import check_range
 
-_StrongDays = option(
-    int, "days (the first of the same streams) that lookahead and clairvoyant play per regime; 0: neither", min=0
-)
-_TestDays = option(
-    bool,
-    "instead: never, planner, lookahead (256 futures) and clairvoyant on the paper's test days "
-    "(seeds 0,21,9,2003,1997 x their 5 evaluation days), the shares of the gap per regime",
-    "--test-days",
-)
-_ReferencesOut = option(
-    Optional[Path], "with --test-days: write the per-day returns to this CSV (regimes/references.csv)"
-)
 _EvalDays = option(Optional[int], "days played per policy and regime [default: 200]", "--eval-episodes", min=1)
 
 
@@ -46,10 +34,19 @@ def baselines(
     episodes: _EvalDays = None,
     old_episodes: EpisodesAlias = None,
     seed: option(int, "seed of the food streams (the same for every policy)") = 0,
-    strong_days: _StrongDays = 10,
+    strong_days: option(
+        int, "days (the first of the same streams) that lookahead and clairvoyant play per regime; 0: neither", min=0
+    ) = 10,
     samples: option(int, "sampled futures a lookahead step weighs each action on", min=1) = 64,
-    test_days: _TestDays = False,
-    out: _ReferencesOut = None,
+    test_days: option(
+        bool,
+        "instead: never, planner, lookahead (256 futures) and clairvoyant on the paper's test days "
+        "(seeds 0,21,9,2003,1997 x their 5 evaluation days), the shares of the gap per regime",
+        "--test-days",
+    ) = False,
+    out: option(
+        Optional[Path], "with --test-days: write the per-day returns to this CSV (regimes/references.csv)"
+    ) = None,
     markdown: option(bool, "print a Markdown table instead of a rich one") = False,
 ) -> None:
     """Mean return, foods eaten, final distance, overshoot ratio and share of the never -> planner
@@ -97,13 +94,6 @@ def _test_day_table(names: list[str], out: Path | None, markdown: bool) -> None:
     print_table(TEST_DAY_HEADERS, cells, title, markdown, names)
 
 
-_TensorboardFolder = path_flag(
-    "--tensorboard",
-    "also write the training diagnostics as TensorBoard events under this folder "
-    "(run folder <algo>-<regime>-seed<seed>)",
-)
-
-
 @user_errors
 def train_cmd(
     algo: option(str, "agent config name (regimes/agents/<name>.toml) or a .toml path") = "ppo",
@@ -113,7 +103,11 @@ def train_cmd(
     episodes_alias: EpisodesAlias = None,
     eval_episodes: option(int, "greedy evaluation days", min=1) = 5,
     save: option(Optional[Path], "save the trained model here (.zip + .json)") = None,
-    tensorboard_given: _TensorboardFolder = None,
+    tensorboard_given: path_flag(
+        "--tensorboard",
+        "also write the training diagnostics as TensorBoard events under this folder "
+        "(run folder <algo>-<regime>-seed<seed>)",
+    ) = None,
     eval_every: option(int, EVAL_EVERY_HELP, min=0) = 0,
     val_episodes: ValEpisodesOption = 5,
 ) -> None:

@@ -20,12 +20,6 @@ from nutribench.cli.common import (
 )
 
 FORMATS = ("markdown", "csv", "latex", "json")
-_Verify = path_flag(
-    "--verify",
-    "a folder of the jobs' trained models as `nutribench run --models-dir` writes it "
-    "(<regime>-v<rv>/<agent>-v<av>/seed<seed>-ep<budget>.zip): each model supplied is loaded as data, "
-    "played greedily on its job's test days and compared action for action (the `checked` column)",
-)
 
 
 @user_errors
@@ -37,7 +31,12 @@ def leaderboard_cmd(
     out_given: path_flag("--out", "also write leaderboard.md, .tex and .csv into this folder") = None,
     fmt: option(str, "what to print: markdown, csv, latex or json", "--format") = "markdown",
     reps: KeptRepsOption = 2000,
-    verify_given: _Verify = None,
+    verify_given: path_flag(
+        "--verify",
+        "a folder of the jobs' trained models as `nutribench run --models-dir` writes it "
+        "(<regime>-v<rv>/<agent>-v<av>/seed<seed>-ep<budget>.zip): each model supplied is loaded as data, "
+        "played greedily on its job's test days and compared action for action (the `checked` column)",
+    ) = None,
 ) -> None:
     """Every agent ranked by the IQM of its share of the never -> planner gap (95 % interval)
     over the regimes it covers, with its per-regime shares, budget, seeds, engine, protocol and

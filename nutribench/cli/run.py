@@ -35,57 +35,50 @@ from nutribench.cli.signals import StopSignalsAsCtrlC
 from nutribench.engines import Engine
 from nutribench.scheduler.grid import DEFAULT_PRESET, PRESETS
 
-# the options of ``run``, one alias each (the command's signature is then one line an option)
+# the options of ``run`` whose help would not fit on the signature's one line an option
 _Preset = option(
     Optional[str], f"grid preset: {', '.join(PRESETS)} (default {DEFAULT_PRESET}); options below override its fields"
 )
-_Algos = option(str, "'all' or comma-separated agent config names (mc, ddqn, ppo, sac, gru_ppo)")
 _Seeds = option(
     Optional[str],
     "comma-separated non-negative integers, e.g. 0,21,9, or a named set: paper (0,21,9,2003,1997, "
     "the published baselines' seeds), quick (0,21), smoke (0)",
 )
-_Workers = option(Optional[int], "jobs at once (default: core count; never more than jobs)", min=1)
-_ModelsDir = path_flag("--models-dir", "where trained models go (default: models/ next to the db)")
-_UpgradeOnly = option(bool, "create or upgrade the database schema, then exit", "--upgrade-only")
 _RetryFailed = option(bool, "try again the jobs that failed 3 times (once their cause is fixed)", "--retry-failed")
 _EngineName = option(
     str, "'sb3' (a job per worker) or 'batched' (the jobs of one agent config trained together, one batch per worker)"
 )
-_BatchSize = option(
-    int, "--engine batched: at most this many jobs in a batch (a batch's jobs are stored when it ends)", min=1
-)
-_Device = option(str, f"{DEVICE_HELP}; the SB3 engine trains on the CPU (auto or cpu)")
 _Tensorboard = path_flag(
     "--tensorboard",
     "also write each job's training diagnostics as TensorBoard events under this folder "
     "(one run folder per job: job<id>-<algo>-<regime>-seed<seed>)",
 )
-_Yes = option(bool, "start a bare `nutribench run` (the paper grid) without asking", "--yes", "-y")
 
 
 @user_errors
 def run_cmd(
     preset: _Preset = None,
     regimes: option(str, "'all' or comma-separated regime names (run0..run6)") = "all",
-    algos: _Algos = "all",
+    algos: option(str, "'all' or comma-separated agent config names (mc, ddqn, ppo, sac, gru_ppo)") = "all",
     seeds: _Seeds = None,
     days: option(Optional[int], "training days per job (episodes of 50 steps)", "--days") = None,
     episodes_alias: Annotated[Optional[int], typer.Option("--episodes", hidden=True)] = None,
     eval_episodes: option(Optional[int], "evaluation episodes per job (default 5)") = None,
-    workers: _Workers = None,
+    workers: option(Optional[int], "jobs at once (default: core count; never more than jobs)", min=1) = None,
     executor: option(str, "'local' (a process per job) or 'dask://HOST:PORT'") = "local",
     db: DbOption = "nutribench.db",
-    models_dir: _ModelsDir = None,
-    upgrade_only: _UpgradeOnly = False,
+    models_dir: path_flag("--models-dir", "where trained models go (default: models/ next to the db)") = None,
+    upgrade_only: option(bool, "create or upgrade the database schema, then exit", "--upgrade-only") = False,
     retry_failed: _RetryFailed = False,
     engine: _EngineName = Engine.SB3.value,
-    batch_size: _BatchSize = 35,
-    device: _Device = "auto",
+    batch_size: option(
+        int, "--engine batched: at most this many jobs in a batch (a batch's jobs are stored when it ends)", min=1
+    ) = 35,
+    device: option(str, f"{DEVICE_HELP}; the SB3 engine trains on the CPU (auto or cpu)") = "auto",
     tensorboard_given: _Tensorboard = None,
     eval_every: option(int, EVAL_EVERY_HELP + "; stored in validation_episodes", min=0) = 0,
     val_episodes: ValEpisodesOption = 5,
-    yes: _Yes = False,
+    yes: option(bool, "start a bare `nutribench run` (the paper grid) without asking", "--yes", "-y") = False,
 ) -> None:
     """Train and evaluate every regime x algo x seed job not done yet; store the results."""
     episodes = old_spelling(days, episodes_alias, "--days", "--episodes")

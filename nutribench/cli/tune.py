@@ -38,21 +38,6 @@ _TuneDb = option(
 )
 
 
-_SpaceOption = option(
-    Optional[str],
-    "search space to tune: a name in regimes/search/ (ppo, mc, ddqn, sac, gru_ppo, ppo_v2, ...) or a .toml path",
-    "--space",
-)
-_Seeds = option(Optional[str], "tuning seeds, comma-separated (default 101,102,103; never 0,21,9,2003,1997)")
-_EvalEvery = option(
-    Optional[int], "training days between validation evaluations, a divisor of --days (default: about days/10)"
-)
-_Startup = option(int, "random trials before TPE models the values (and before the median pruner prunes)")
-_Objective = option(
-    str,
-    "a trial's objective: 'last' (its value at the last day) or 'late-mean' (the mean of its values after half its days)",
-    "--objective",
-)
 _Stack = option(
     int, "trials trained together in one batch (PPO, MC, GRU-PPO, SAC: those that agree on structure; 1: one at a time)"
 )
@@ -62,19 +47,29 @@ _Stack = option(
 @user_errors
 def tune_cmd(
     ctx: typer.Context,
-    space: _SpaceOption = None,
+    space: option(
+        Optional[str],
+        "search space to tune: a name in regimes/search/ (ppo, mc, ddqn, sac, gru_ppo, ppo_v2, ...) or a .toml path",
+        "--space",
+    ) = None,
     algo: Annotated[Optional[str], typer.Option("--algo", hidden=True)] = None,
     study: option(Optional[str], "the study's name (new: created; existing: resumed)") = None,
     regimes: option(str, "tuning regimes, comma-separated") = "run0,run1,run2,run4",
-    seeds: _Seeds = None,
+    seeds: option(Optional[str], "tuning seeds, comma-separated (default 101,102,103; never 0,21,9,2003,1997)") = None,
     trials: option(int, "finished trials (complete or pruned) the study should hold") = 32,
     days: option(int, "training days per agent of a trial") = 1000,
-    eval_every: _EvalEvery = None,
+    eval_every: option(
+        Optional[int], "training days between validation evaluations, a divisor of --days (default: about days/10)"
+    ) = None,
     val_episodes: option(int, "validation days per evaluation") = 5,
     sampler_seed: option(int, "seed of the TPE sampler") = 0,
     pruner: option(str, "'median' (after half the days) or 'none'") = "median",
-    startup_trials: _Startup = 5,
-    objective_rule: _Objective = "last",
+    startup_trials: option(int, "random trials before TPE models the values (and before the median pruner prunes)") = 5,
+    objective_rule: option(
+        str,
+        "a trial's objective: 'last' (its value at the last day) or 'late-mean' (the mean of its values after half its days)",
+        "--objective",
+    ) = "last",
     stack: _Stack = 1,
     device: option(str, DEVICE_HELP) = "cpu",
     db: _TuneDb = "nutribench.db",
