@@ -64,19 +64,11 @@ def vector_env_rate(regime: str, num_envs: int, vector_steps: int = 1000, repeat
 def bench_env(regimes=("run0", "run6"), sizes=(1, 64, 1024, 4096), repeats: int = 5) -> list[dict]:
     rows = []
     for regime in regimes:
-        rows.append(
-            {"regime": regime, "env": "single", "num_envs": 1, "steps_per_s": single_env_rate(regime, repeats=repeats)}
-        )
-        for n in sizes:
-            vsteps = max(200, min(20_000, 2_000_000 // n))
-            rows.append(
-                {
-                    "regime": regime,
-                    "env": "vector",
-                    "num_envs": n,
-                    "steps_per_s": vector_env_rate(regime, n, vsteps, repeats),
-                }
-            )
+        runs = [("single", 1, single_env_rate(regime, repeats=repeats))]
+        runs += [
+            ("vector", n, vector_env_rate(regime, n, max(200, min(20_000, 2_000_000 // n)), repeats)) for n in sizes
+        ]
+        rows += [{"regime": regime, "env": env, "num_envs": n, "steps_per_s": rate} for env, n, rate in runs]
     return rows
 
 
@@ -121,11 +113,7 @@ def _bare_sb3_seconds(algo: str, regime: str, episodes: int, seed: int, bare_cls
 
 
 def bench_train(
-    algos: list[str],
-    regime: str = "run0",
-    episodes: int = 100,
-    repeats: int = 3,
-    seed: int = 0,
+    algos: list[str], regime: str = "run0", episodes: int = 100, repeats: int = 3, seed: int = 0
 ) -> list[dict]:
     """Env-steps per second of ``nutribench.agents.train`` for each algorithm, and of bare
     SB3 PPO and DQN on the same env (medians over ``repeats``); plus the CPU-hours the paper
@@ -149,25 +137,15 @@ def bench_train(
             times += timings(lambda c=cfg: train(regime, c, seed=seed, episodes=episodes), 1)
             for cls_name, _ in bare_refs:
                 bare_times[cls_name].append(_bare_sb3_seconds(algo, regime, episodes, seed, cls_name))
-        row = {
-            "what": f"nutribench {algo}",
-            "algo": algo,
-            "steps_per_s": steps / statistics.median(times),
-            "bare": False,
-        }
+        rate = steps / statistics.median(times)
+        row = {"what": f"nutribench {algo}", "algo": algo, "steps_per_s": rate, "bare": False}
         if bare_refs:  # the first bare row is the one the plumbing's overhead is measured against
             ref = bare_times[bare_refs[0][0]]
             row["vs_bare"] = statistics.median(b / t for b, t in zip(ref, times))  # paired, per repeat
         rows.append(row)
         for cls_name, label in bare_refs:
-            rows.append(
-                {
-                    "what": label,
-                    "algo": algo,
-                    "steps_per_s": steps / statistics.median(bare_times[cls_name]),
-                    "bare": True,
-                }
-            )
+            rate = steps / statistics.median(bare_times[cls_name])
+            rows.append({"what": label, "algo": algo, "steps_per_s": rate, "bare": True})
     for r in rows:
         r["paper_grid_cpu_hours"] = PAPER_GRID_STEPS / r["steps_per_s"] / 3600
     return rows

@@ -65,10 +65,7 @@ def parse_sizes(text: str) -> list[int]:
 
 
 #: the finished studies' cost benches, once hidden options of ``bench train``: where they went
-MOVED = {
-    "--diagnostics-cost": "reports/diagnostics_cost/README.md",
-    "--eval-every": "reports/eval_cost/README.md",
-}
+MOVED = {"--diagnostics-cost": "reports/diagnostics_cost/README.md", "--eval-every": "reports/eval_cost/README.md"}
 
 
 @bench_app.command("train")

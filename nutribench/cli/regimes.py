@@ -29,9 +29,7 @@ def regimes_list() -> None:
 
 @regimes_app.command("check")
 @user_errors
-def regimes_check(
-    regimes: option(str, "'all' or comma-separated names or paths") = "all",
-) -> None:
+def regimes_check(regimes: option(str, "'all' or comma-separated names or paths") = "all") -> None:
     """Validate regime files and check that their drawn values equal a fresh draw from ranges + seed."""
     from nutribench.config import list_regimes, load_env_config
     from nutribench.config.generate import regenerate
