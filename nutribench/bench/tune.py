@@ -114,21 +114,11 @@ def bench_tune(
     for rep in range(repeats):
         for arm in ARMS if rep % 2 == 0 else ARMS[::-1]:
             walls[arm].append(_time_arm(arm, cfgs, jobs, days, eval_every, val_episodes, workers))
-    rows = []
-    for arm in ARMS:
-        median = statistics.median(walls[arm])
-        rows.append(
-            {
-                "arm": arm,
-                "space": space,
-                "trials": trials,
-                "agents_per_trial": len(jobs),
-                "days": days,
-                "workers": workers,
-                "walls": walls[arm],
-                "wall_s": median,
-                "trials_per_hour": trials / median * 3600,
-            }
-        )
+    common = {"space": space, "trials": trials, "agents_per_trial": len(jobs), "days": days, "workers": workers}
+    medians = {arm: statistics.median(walls[arm]) for arm in ARMS}
+    rows = [
+        {"arm": a, **common, "walls": walls[a], "wall_s": m, "trials_per_hour": trials / m * 3600}
+        for a, m in medians.items()
+    ]
     rows[1]["ratio"] = rows[1]["trials_per_hour"] / rows[0]["trials_per_hour"]
     return rows

@@ -16,16 +16,12 @@ import math
 import numpy as np
 
 
-def round_half_up(x: float) -> int:
-    return int(math.floor(x + 0.5))
-
-
 def kernel(tau: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
     """Offsets k (steps after consumption) and weights (summing to 1) of one kernel."""
     if sigma < 0 or tau < 0:
         raise ValueError(f"tau and sigma must be >= 0, got tau={tau}, sigma={sigma}")
     if sigma == 0:
-        return np.array([round_half_up(tau)]), np.ones(1)
+        return np.array([int(math.floor(tau + 0.5))]), np.ones(1)  # round half up
     offsets = np.arange(1, math.ceil(6 * sigma) + 1)
     with np.errstate(over="ignore"):
         logw = -0.5 * ((offsets - tau) / sigma) ** 2
