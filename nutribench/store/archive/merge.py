@@ -53,7 +53,6 @@ def database_rows(
     """Rows ``rows`` (positions) of the archive's table ``name`` as insert dicts of job
     ``job_id`` for :func:`~nutribench.store.models.insert_rows`: how many archive rows, and the
     dicts (``diagnostics``: one per update and quantity, :func:`~nutribench.store.models.diagnostic_rows`)."""
-    table = ARCHIVE_TABLES[name]
     layout = archive_table(name, arrays)
     cols = {}
     for col in columns(layout):
@@ -61,7 +60,7 @@ def database_rows(
         null = arrays.get(f"{name}.{col.name}.null")
         if null is not None:
             values = [None if n else v for v, n in zip(values, null[rows].tolist(), strict=True)]
-        cols[table.__mapper__.get_property_by_column(col).key if layout is table else col.name] = values
+        cols[col.name] = values  # by column name (``return``), which insert_rows takes as it is
     decoded = [dict(zip(cols, vals, strict=True)) for vals in zip(*cols.values(), strict=True)]
     if name == "diagnostics":
         return len(decoded), diagnostic_rows(job_id, decoded)
