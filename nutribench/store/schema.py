@@ -247,8 +247,7 @@ def _classify(conn: Connection, display: str) -> str | None:
                 "give another --db"
             )
         return None
-    known = set(revision_chain())
-    if rev not in known:
+    if rev not in revision_chain():
         raise StoreError(
             f"{display} is on schema revision {rev}, unknown to this nutribench (newest known: "
             f"{head_revision()}): it was written by a newer nutribench; upgrade nutribench"

@@ -63,6 +63,7 @@ TEXT_MAX = 65_536
 _EPISODE_FLOATS = (("overshoot_ratio", 1.0), ("final_distance", np.inf), ("entropy", np.inf))
 #: Job columns that count something: never negative (a seed too: the CLI takes none below 0).
 _NON_NEGATIVE = ("seed", "episodes", "eval_episodes", "attempt", "failures", "episodes_done", "wall_seconds")
+_UNKNOWN_STATUS = f"an unknown status (known: {', '.join(JOB_STATUSES)})"
 
 
 def read_archive(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -269,11 +270,7 @@ def _job_refs(job: dict[str, Any], what: str, configs: dict[tuple[str, str, int]
 def _check_job(job: dict[str, Any], what: str) -> None:
     """A job of the meta (fields checked): done, of a known engine, its counts in range."""
     if job["status"] != "done":
-        known = (
-            "a known status"
-            if job["status"] in JOB_STATUSES
-            else f"an unknown status (known: {', '.join(JOB_STATUSES)})"
-        )
+        known = "a known status" if job["status"] in JOB_STATUSES else _UNKNOWN_STATUS
         raise InvalidArchive(f"{what}: status {short_repr(job['status'])} is {known}; an archive holds done jobs only")
     if job["engine"] is not None and job["engine"] not in ENGINES:
         raise InvalidArchive(f"{what}: engine {short_repr(job['engine'])} is unknown (known: {', '.join(ENGINES)})")

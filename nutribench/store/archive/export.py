@@ -91,10 +91,9 @@ def _archive(
         .where(Job.status == "done")
         .order_by(Job.id)
     )
-    if algos:
-        query = query.where(AgentConfig.name.in_(list(algos)))
-    if regimes:
-        query = query.where(RegimeConfig.name.in_(list(regimes)))
+    for column, names in ((AgentConfig.name, algos), (RegimeConfig.name, regimes)):
+        if names:
+            query = query.where(column.in_(list(names)))
     found = s.execute(query).all()
     if not found:
         which = "".join(f" of {', '.join(names)}" for names in (algos, regimes) if names)

@@ -20,7 +20,7 @@ from sqlalchemy import delete, func, insert, select, update
 from sqlalchemy.orm import Session
 
 from nutribench.store.archive.check import read_archive
-from nutribench.store.archive.format import ARCHIVE_TABLES, JOB_DEFAULTS, JOB_SKIP, archive_table, columns
+from nutribench.store.archive.format import ARCHIVE_TABLES, JOB_DEFAULTS, archive_table, columns
 from nutribench.store.engine import (
     REGISTRATION_LOCK,
     StoreError,
@@ -53,7 +53,6 @@ def database_rows(
     """Rows ``rows`` (positions) of the archive's table ``name`` as insert dicts of job
     ``job_id`` for :func:`~nutribench.store.models.insert_rows`: how many archive rows, and the
     dicts (``diagnostics``: one per update and quantity, :func:`~nutribench.store.models.diagnostic_rows`)."""
-    table = ARCHIVE_TABLES[name]
     layout = archive_table(name, arrays)
     cols = {}
     for col in columns(layout):
@@ -61,7 +60,7 @@ def database_rows(
         null = arrays.get(f"{name}.{col.name}.null")
         if null is not None:
             values = [None if n else v for v, n in zip(values, null[rows].tolist(), strict=True)]
-        cols[table.__mapper__.get_property_by_column(col).key if layout is table else col.name] = values
+        cols[col.name] = values  # by column name (``return``), which insert_rows takes as it is
     decoded = [dict(zip(cols, vals, strict=True)) for vals in zip(*cols.values(), strict=True)]
     if name == "diagnostics":
         return len(decoded), diagnostic_rows(job_id, decoded)
@@ -175,13 +174,12 @@ def _write_job(
     if have is not None and job_state(have.status, have.heartbeat_at, now) == "running":
         label = f"{job['regime'][0]} x {job['agent'][0]} seed {job['seed']}"
         raise StoreError(f"db import: {label} is running in {where} (driver {have.owner}): import once that run stops")
-    # every column, those an older archive lacks at their defaults, the stored model path dropped
-    # (an archive carries no model, and a path is never trusted)
-    values = {
-        c.name: job.get(c.name, JOB_DEFAULTS.get(c.name)) for c in Job.__table__.columns if c.name not in JOB_SKIP
-    }
+    # every column but the id, those an older archive lacks at their defaults (the driver's bookkeeping,
+    # format.JOB_SKIP, is in no archive: checked, so NULL), the stored model path dropped (an archive carries
+    # no model, and a path is never trusted)
+    values = {c.name: job.get(c.name, JOB_DEFAULTS.get(c.name)) for c in Job.__table__.columns if c.name != "id"}
     values = _datetimes(Job, values)
-    values.update(model_path=None, regime_id=rid, agent_config_id=aid, owner=None, heartbeat_at=None, worker_pid=None)
+    values.update(model_path=None, regime_id=rid, agent_config_id=aid)
     if have is None:
         return s.execute(insert(Job).values(**values).returning(Job.id)).scalar_one()
     for table in ARCHIVE_TABLES.values():
