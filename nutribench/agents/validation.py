@@ -114,8 +114,4 @@ class ValidationCallback(BaseCallback):
                 self._pending = (self.days, self._obs_stats())
         return True
 
-    def _on_rollout_start(self) -> None:
-        self.flush()
-
-    def _on_training_end(self) -> None:
-        self.flush()
+    _on_rollout_start = _on_training_end = flush

@@ -49,10 +49,7 @@ class GRUSequence(th.autograd.Function):
     def forward(ctx, gi: th.Tensor, w_hh: th.Tensor, b_hh: th.Tensor) -> th.Tensor:
         m, s, t_max, h3 = gi.shape
         H = h3 // 3
-        hs = gi.new_empty(m, s, t_max, H)
-        rz = gi.new_empty(m, s, t_max, 2 * H)
-        ns = gi.new_empty(m, s, t_max, H)
-        ghn = gi.new_empty(m, s, t_max, H)
+        hs, rz, ns, ghn = (gi.new_empty(m, s, t_max, width) for width in (H, 2 * H, H, H))
         h = gi.new_zeros(m, s, H)
         for t in range(t_max):
             gh = th.baddbmm(b_hh, h, w_hh)
@@ -68,8 +65,7 @@ class GRUSequence(th.autograd.Function):
     def backward(ctx, d_hs: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         w_hh, hs, rz, ns, ghn = ctx.saved_tensors
         m, s, t_max, H = hs.shape
-        d_gi = hs.new_empty(m, s, t_max, 3 * H)
-        d_gh = hs.new_empty(m, s, t_max, 3 * H)
+        d_gi, d_gh = hs.new_empty(m, s, t_max, 3 * H), hs.new_empty(m, s, t_max, 3 * H)
         w_t = w_hh.transpose(1, 2)
         zeros = hs.new_zeros(m, s, H)
         dh = zeros
@@ -79,9 +75,8 @@ class GRUSequence(th.autograd.Function):
             r, z, n = rz[:, :, t, :H], rz[:, :, t, H:], ns[:, :, t]
             da_n = dh * (1 - z) * (1 - n * n)
             d_rz = th.cat([da_n * ghn[:, :, t], dh * (h_prev - n)], dim=-1) * rz[:, :, t] * (1 - rz[:, :, t])
-            d_gi[:, :, t, : 2 * H] = d_rz
+            d_gi[:, :, t, : 2 * H] = d_gh[:, :, t, : 2 * H] = d_rz
             d_gi[:, :, t, 2 * H :] = da_n
-            d_gh[:, :, t, : 2 * H] = d_rz
             d_gh[:, :, t, 2 * H :] = da_n * r
             dh = dh * z + th.bmm(d_gh[:, :, t], w_t)
         h_prev_all = th.cat([hs.new_zeros(m, s, 1, H), hs[:, :, :-1]], dim=2).reshape(m, s * t_max, H)

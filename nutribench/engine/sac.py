@@ -77,6 +77,7 @@ class StackedSAC(SB3Weights):
     the CPU and moved to ``device``."""
 
     NETWORKS = ("actor", "critic", "critic_target")
+    OPTIMIZERS = ("actor_optimizer", "critic_optimizer")
 
     def __init__(
         self,
@@ -116,16 +117,15 @@ class StackedSAC(SB3Weights):
         """The networks' parameters and the optimisers' ``state_dict`` (a checkpoint keeps them)."""
         return {
             **{name: list(getattr(self, name).params) for name in self.NETWORKS},
-            "actor_optimizer": self.actor_optimizer.state_dict(),
-            "critic_optimizer": self.critic_optimizer.state_dict(),
+            **{name: getattr(self, name).state_dict() for name in self.OPTIMIZERS},
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Take over :meth:`state_dict` (in place); ValueError if it does not fit."""
         for name in self.NETWORKS:
             load_params(getattr(self, name).params, state[name])
-        self.actor_optimizer.load_state_dict(state["actor_optimizer"])
-        self.critic_optimizer.load_state_dict(state["critic_optimizer"])
+        for name in self.OPTIMIZERS:
+            getattr(self, name).load_state_dict(state[name])
 
 
 def sac_update(

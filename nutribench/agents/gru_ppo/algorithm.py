@@ -295,10 +295,7 @@ class GRUPPO(OnPolicyAlgorithm):
         episode_start: np.ndarray | None = None,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
         """``pi(.|history)`` after one more step, and the new state (same conventions as ``predict``)."""
-        self.policy.set_training_mode(False)
-        obs, vectorized = self.policy.obs_to_tensor(observation)
-        n = obs.shape[0]  # type: ignore[union-attr]
-        state_t, starts = self.policy.carried(n, state, episode_start)
+        obs, vectorized, state_t, starts = self.policy.carried(observation, state, episode_start)
         with th.no_grad():
             dist, new_state = self.policy.get_distribution(obs, state_t, starts)  # type: ignore[arg-type]
             probs = dist.distribution.probs.cpu().numpy()

@@ -75,9 +75,8 @@ class RecurrentRolloutBuffer(RolloutBuffer):
     def add(self, *args, hidden_state: GRUState, **kwargs) -> None:  # type: ignore[override]
         """SB3's ``add(obs, action, reward, episode_start, value, log_prob)`` plus the state
         carried into this step (before the ``episode_start`` reset)."""
-        h_nut, h_food = hidden_state
-        self.hidden_states[self.pos, :, 0] = h_nut[0].cpu().numpy()
-        self.hidden_states[self.pos, :, 1] = h_food[0].cpu().numpy()
+        for stream, h in enumerate(hidden_state):  # 0: the nutrient GRU's, 1: the food GRU's
+            self.hidden_states[self.pos, :, stream] = h[0].cpu().numpy()
         super().add(*args, **kwargs)
 
     def to_sequences(self, arr: np.ndarray) -> np.ndarray:

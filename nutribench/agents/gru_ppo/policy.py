@@ -183,17 +183,21 @@ class GRUActorCriticPolicy(FlatDiscretePolicy):
     # ---- SB3 predict API (sb3-contrib RecurrentPPO semantics) ----
 
     def carried(
-        self, n: int, state: tuple[np.ndarray, ...] | None, episode_start: np.ndarray | None
-    ) -> tuple[GRUState, th.Tensor]:
-        """:meth:`predict`'s ``state`` and ``episode_start`` for ``n`` envs as tensors on the
-        policy's device: the zero state, and no episode start, where they are None."""
+        self, observation: np.ndarray, state: tuple[np.ndarray, ...] | None, episode_start: np.ndarray | None
+    ) -> tuple[th.Tensor, bool, GRUState, th.Tensor]:
+        """:meth:`predict`'s arguments as tensors on the policy's device, the policy put in
+        evaluation mode: the observations and whether they were a batch, the state (zeros
+        where None) and the episode starts (none where None)."""
+        self.set_training_mode(False)
+        obs, vectorized = self.obs_to_tensor(observation)
+        n = obs.shape[0]  # type: ignore[union-attr]
         state_t = (
             self.initial_state(n)
             if state is None
             else tuple(th.as_tensor(s, dtype=th.float32, device=self.device) for s in state)
         )
         starts = np.zeros(n, dtype=np.float32) if episode_start is None else np.asarray(episode_start, dtype=np.float32)
-        return state_t, th.as_tensor(starts.reshape(n), device=self.device)  # type: ignore[return-value]
+        return obs, vectorized, state_t, th.as_tensor(starts.reshape(n), device=self.device)  # type: ignore[return-value]
 
     def _predict(  # type: ignore[override]
         self,
@@ -226,10 +230,7 @@ class GRUActorCriticPolicy(FlatDiscretePolicy):
         :param deterministic: argmax action instead of a sample.
         :return: ``(actions, (h_nutrient, h_food))``, states as ``(1, n_envs, hidden)`` arrays.
         """
-        self.set_training_mode(False)
-        obs_tensor, vectorized = self.obs_to_tensor(observation)
-        n = obs_tensor.shape[0]  # type: ignore[union-attr]
-        state_t, starts = self.carried(n, state, episode_start)
+        obs_tensor, vectorized, state_t, starts = self.carried(observation, state, episode_start)
         with th.no_grad():
             actions, new_state = self._predict(obs_tensor, state_t, starts, deterministic)  # type: ignore[arg-type]
         actions_np = actions.cpu().numpy().reshape((-1, *self.action_space.shape))  # type: ignore[misc]

@@ -85,8 +85,7 @@ class DiscreteSACPolicy(FlatDiscretePolicy):
 
     def action_log_probs(self, obs: PyTorchObs) -> tuple[th.Tensor, th.Tensor]:
         """``(probs, log_probs)``, each ``(batch, n_actions)``, of the policy at ``obs``."""
-        logits = self.actor(self._obs(obs))
-        log_probs = F.log_softmax(logits, dim=-1)
+        log_probs = F.log_softmax(self.actor(self._obs(obs)), dim=-1)
         return log_probs.exp(), log_probs
 
     def entropy(self, obs: PyTorchObs) -> th.Tensor:
