@@ -22,7 +22,7 @@ schedule and the target (the full state); a rung needs the ones below it.
 from __future__ import annotations
 
 from collections import Counter
-from itertools import product
+from itertools import pairwise, product
 from typing import Annotated
 
 import numpy as np
@@ -212,9 +212,8 @@ class Regime(_Strict):
 
     @model_validator(mode="after")
     def _a_ladder(self) -> Regime:
-        rungs = (("observe_clock", self.observe_clock), ("observe_pending", self.observe_pending))
-        for (lower, on), upper in zip(rungs, ("observe_pending", "observe_latent")):
-            if getattr(self, upper) and not on:
+        for lower, upper in pairwise(("observe_clock", "observe_pending", "observe_latent")):
+            if getattr(self, upper) and not getattr(self, lower):
                 raise ValueError(
                     f"{upper} = true needs {lower} = true: the observation levels are a ladder "
                     "(clock, then pending, then latent); set the rungs below it too"

@@ -151,20 +151,17 @@ def _check_text_depth(path: Path | str, text: str) -> None:
     depth = dots = 0
     for m in _TOKENS.finditer(text):
         tok = m.group()
+        if tok == ".":
+            dots += 1
+        elif tok in "[]{}=,\n":  # what ends a dotted key (strings and comments are longer tokens)
+            dots = 0
         if tok in "[{":
             depth += 1
-            dots = 0
-            if depth > MAX_DEPTH:
-                raise _too_deep(path, "its arrays and tables", text.count("\n", 0, m.start()) + 1)
         elif tok in "]}":
             depth = max(depth - 1, 0)
-            dots = 0
-        elif tok == ".":
-            dots += 1
-            if dots >= MAX_DEPTH:
-                raise _too_deep(path, "the parts of a dotted key", text.count("\n", 0, m.start()) + 1)
-        elif tok in "=,\n":
-            dots = 0
+        if depth > MAX_DEPTH or dots >= MAX_DEPTH:  # only one at a time: an opening bracket ends a dotted key
+            what = "its arrays and tables" if depth > MAX_DEPTH else "the parts of a dotted key"
+            raise _too_deep(path, what, text.count("\n", 0, m.start()) + 1)
 
 
 def check_strings(path: Path | str, data: Any) -> None:

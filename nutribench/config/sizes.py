@@ -61,14 +61,8 @@ REPLAY_BYTES = 2 * 4 * 4 + 8 + 3 * 4
 
 def observation_width(n_foods: int, horizon: int, level: int = 1) -> int:
     """Floats of the observation at ``level`` of the ladder (the env's layout)."""
-    width = 3 + n_foods
-    if level >= 2:
-        width += 1
-    if level >= 3:
-        width += 3
-    if level >= 4:
-        width += 3 * (horizon - 1) + 3
-    return width
+    rungs = (1, 3, 3 * (horizon - 1) + 3)  # what levels 2, 3 and 4 add to level 1's
+    return 3 + n_foods + sum(rungs[: max(level - 1, 0)])
 
 
 def dynamics_bytes(n_foods: int, horizon: int, level: int = 1) -> int:
@@ -117,7 +111,6 @@ def size(n: float) -> str:
         if n < 1024 or unit == "PiB":
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
         n /= 1024
-    return f"{n:.1f} PiB"
 
 
 def too_large(what: str, need: int) -> str | None:

@@ -70,10 +70,7 @@ class JobProgress:
         interval: float = PROGRESS_INTERVAL_S,
         wall: Callable[[], float] | None = None,
     ):
-        self.spec = spec
-        self.sink = sink
-        self.interval = interval
-        self.wall = wall
+        self.spec, self.sink, self.interval, self.wall = spec, sink, interval, wall
         self.recent: deque[float] = deque(maxlen=RECENT_EPISODES)
         self.k0: int | None = None  # the days done before this process trained its first
         self._last = 0.0
