@@ -251,16 +251,6 @@ def build_table(
     return config_table(number, numbers[number], db, stored)
 
 
-def _leaderboard(data: ReportData, db: DbFile, log: Log | None) -> TableResult:
-    """The leaderboard section of index.html (:mod:`nutribench.report.leaderboard`): every
-    entry (name, version, budget) of the configs the report draws, as ``nutribench
-    leaderboard`` ranks them, none hidden by another (the figures' choice of the newest
-    version and largest budget is not the leaderboard's)."""
-    from nutribench.report.leaderboard import leaderboard_from_db
-
-    return leaderboard_from_db(db, log=log, algos=data.selected)
-
-
 def _page_subtitle(db: DbFile, data: ReportData | None) -> str:
     """index.html's line under the title: the database's name (never the folder it lay in,
     which may be a temporary one) and the budgets and seeds of what the page draws."""
@@ -375,7 +365,12 @@ def build_report(
     for key, stem in plan.items():
         w.item(f"table {key}", partial(build_table, key, data, db, stored), stem)
     if all and data is not None and not data.eval.empty:
-        w.item("leaderboard", partial(_leaderboard, data, db, log), "leaderboard")
+        # the leaderboard section of index.html: every entry (name, version, budget) of the configs
+        # the report draws, as ``nutribench leaderboard`` ranks them, none hidden by another (the
+        # figures' choice of the newest version and largest budget is not the leaderboard's)
+        from nutribench.report.leaderboard import leaderboard_from_db
+
+        w.item("leaderboard", partial(leaderboard_from_db, db, log=log, algos=data.selected), "leaderboard")
     if all:
         w.paths.append(write_index(w.page, out, title="nutribench report", subtitle=_page_subtitle(db, data)))
     return w.paths
