@@ -148,11 +148,10 @@ def build_figure(
     :func:`nutribench.report.figure4.without_memory`); :class:`ReportError` when it has nothing to draw."""
     try:
         if number in (1, 2):
-            if data.train.empty:
-                raise ReportError(f"figure {number}: no training episodes{data.what()} in the database")
+            train = data.rows("train", f"figure {number}")
             # the dashed "best" line marks the best return (Figure 1); most foods eaten is no "best"
             res = training_curves(
-                data.train, "return" if number == 1 else "foods", best_line=number == 1, colors=data.colors
+                train, "return" if number == 1 else "foods", best_line=number == 1, colors=data.colors
             )
         elif number in (3, 4):
             res = _eval_figure(number, data, pair, reference_episodes, log, ablation)
@@ -202,10 +201,8 @@ def _aggregate(data: ReportData, what: str):
     table), computed once per ``data``."""
     from nutribench.report.aggregate import aggregate_from_eval
 
-    if data.eval.empty:
-        raise ReportError(f"{what}: no evaluation episodes{data.what()} in the database")
     if getattr(data, "_aggregate", None) is None:
-        data._aggregate = aggregate_from_eval(data.eval, _day_references(data))  # type: ignore[attr-defined]
+        data._aggregate = aggregate_from_eval(data.rows("eval", what), _day_references(data))  # type: ignore[attr-defined]
     return data._aggregate  # type: ignore[attr-defined]
 
 
@@ -218,13 +215,8 @@ def _metrics_table(key: str, data: ReportData | None) -> TableResult:
 
         return aggregate_table(_aggregate(data, "aggregate table"), data.eval).add_notes(data.notes)
     if key == "results":
-        ev = data.eval
-        if ev.empty:
-            raise ReportError(f"results table: no evaluation episodes{data.what()} in the database")
-        return table_results(ev, references=_day_references(data)).add_notes(data.notes)
-    if data.train.empty:
-        raise ReportError(f"training table: no training episodes{data.what()} in the database")
-    return table_training(data.train).add_notes(data.notes)
+        return table_results(data.rows("eval", "results table"), references=_day_references(data)).add_notes(data.notes)
+    return table_training(data.rows("train", "training table")).add_notes(data.notes)
 
 
 def build_table(

@@ -73,6 +73,15 @@ class ReportData:
         """`` for a2c_mine, PPO`` when configs were selected, else ``""`` (for messages)."""
         return f" for {', '.join(algo_label(a) for a in self.selected)}" if self.selected else ""
 
+    def rows(self, phase: str, what: str) -> pd.DataFrame:
+        """The rows of ``phase`` (``train`` or ``eval``); :class:`ReportError` naming ``what`` (the
+        figure or table that needs them) when there are none."""
+        rows = self.metrics[self.metrics["phase"] == phase]
+        if rows.empty:
+            kind = "training" if phase == "train" else "evaluation"
+            raise ReportError(f"{what}: no {kind} episodes{self.what()} in the database")
+        return rows
+
     @property
     def train(self) -> pd.DataFrame:
         return self.metrics[self.metrics["phase"] == "train"]
