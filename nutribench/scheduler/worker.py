@@ -47,9 +47,11 @@ def one_thread() -> Iterator[None]:
     try:
         yield
     finally:
-        os.environ.update({var: value for var, value in saved.items() if value is not None})
-        for var in [var for var, value in saved.items() if value is None]:
-            os.environ.pop(var, None)
+        for var, value in saved.items():
+            if value is None:
+                os.environ.pop(var, None)
+            else:
+                os.environ[var] = value
         if torch is not None and threads is not None:
             torch.set_num_threads(threads)
 
@@ -70,7 +72,10 @@ class JobProgress:
         interval: float = PROGRESS_INTERVAL_S,
         wall: Callable[[], float] | None = None,
     ):
-        self.spec, self.sink, self.interval, self.wall = spec, sink, interval, wall
+        self.spec = spec
+        self.sink = sink
+        self.interval = interval
+        self.wall = wall
         self.recent: deque[float] = deque(maxlen=RECENT_EPISODES)
         self.k0: int | None = None  # the days done before this process trained its first
         self._last = 0.0
