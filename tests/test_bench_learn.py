@@ -3,6 +3,8 @@ figures are a benchmark's, not a test's)."""
 
 from __future__ import annotations
 
+import re
+
 import pytest
 from typer.testing import CliRunner
 
@@ -119,3 +121,17 @@ def test_bench_learn_with_the_batched_engine_and_its_limits(monkeypatch) -> None
     monkeypatch.setattr("nutribench.agents.registry.batched_names", lambda: ["ppo", "mc"])
     bad = CliRunner().invoke(app, ["--algos", "sac", "--engine", "batched"])
     assert bad.exit_code == 2 and "use --engine sb3" in bad.output
+
+
+@pytest.mark.parametrize("name", ["learn", "engines", "status"])
+def test_the_moved_bench_commands_say_where_they_went_in_one_line(name: str) -> None:
+    """``nutribench bench NAME`` (before it moved to ``benchmarks/NAME.py``), with its old options:
+    one line naming the script, exit 2, and hidden from ``bench --help``."""
+    from nutribench.cli import app as nutribench_app
+
+    res = runner.invoke(nutribench_app, ["bench", name, "--seeds", "0,1", "--markdown"])
+    lines = res.output.strip().splitlines()
+    assert res.exit_code == 2 and len(lines) == 1 and f"python benchmarks/{name}.py" in lines[0], res.output
+    listed = runner.invoke(nutribench_app, ["bench", "--help"]).output
+    listed_names = re.findall(r"^  ([a-z]+)\b", listed.partition("Commands:")[2], re.M)
+    assert name not in listed_names and "env" in listed_names, listed
