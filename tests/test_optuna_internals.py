@@ -1,5 +1,5 @@
 """The Optuna internals nutribench's tuning driver relies on (``nutribench/tuning/asking.py``,
-``stack.py``, ``sampling.py``: private attributes and the RDB storage's table models, used where
+``stack.py``, ``study.py``: private attributes and the RDB storage's table models, used where
 Optuna's public API would read every trial of a study for each ask or beat) exist, with the
 meaning the driver gives them, in the installed Optuna; pyproject pins ``optuna>=5.0,<6``. An
 upgrade that moves one fails here, by name, not as a wrong count in a running study."""

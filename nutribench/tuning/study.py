@@ -15,7 +15,9 @@ path, even moved (:func:`nutribench.tuning.export.study_space`).
 ``trials`` counts finished trials (complete or pruned); how drivers claim, run and retry trials
 (stopping at that count exactly, a killed driver's trial failed and run again) is
 :mod:`nutribench.tuning.stack`'s. The heartbeat's interval and grace period are
-:func:`heartbeat_settings`.
+:func:`heartbeat_settings`. The sampler and pruner are made from the stored settings
+(:func:`make_sampler`, :func:`make_pruner`): what a study fixes when it is created is what
+every driver that resumes it uses.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+import numpy as np
 import optuna
 from optuna.storages import RDBStorage, RetryHeartbeatStaleTrialCallback
 from optuna.trial import TrialState
@@ -36,7 +39,6 @@ from sqlalchemy import inspect
 from sqlalchemy.exc import IntegrityError, OperationalError, ProgrammingError
 
 from nutribench.errors import UserError
-from nutribench.tuning.sampling import make_pruner, make_sampler  # noqa: F401 (here since the first studies)
 
 #: seeds the project reports results on (the paper's); a tuning study may not tune on them
 REPORTED_SEEDS: tuple[int, ...] = (0, 21, 9, 2003, 1997)
@@ -84,7 +86,7 @@ class StudySettings:
     pruner: str
     startup_trials: int = 5
     objective: str = "last"  # a study made before the setting existed scored its last day
-    constant_liar: bool = False  # one made before it drew its stacked trials without (sampling.py)
+    constant_liar: bool = False  # one made before it drew its stacked trials without (make_sampler)
 
     def as_attr(self) -> dict[str, Any]:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in self.__dict__.items()}
@@ -135,6 +137,44 @@ class StudySettings:
                 raise TuneError(f"{option}: {value!r} is not one of {', '.join(known)}")
         if self.objective == "late-mean" and self.days // self.eval_every < 2:
             raise TuneError("--objective late-mean needs two evaluations or more: lower --eval-every")
+
+
+def make_sampler(settings: StudySettings, joining: bool = False) -> Any:
+    """A seeded TPE sampler (the first ``startup_trials`` random, as Optuna's default), with
+    Optuna's constant liar where the study's settings ask for it (every study made since the
+    setting exists): a trial still running counts as a bad one while the next is drawn, so the
+    N trials of a stack (asked at once, all running) spread out instead of crowding the same
+    good region (Optuna's advice for batch and parallel optimisation). Not multivariate: the
+    protocols' studies were all drawn by independent TPE, and a sampler switched between them
+    would confound their comparison; ``multivariate`` is Optuna's to try in a study of one's own.
+
+    The driver that creates a study seeds it with ``sampler_seed``: a study run by one driver
+    from start to end is reproducible. A driver that joins or resumes an existing study
+    (``joining``) draws a seed of its own from ``sampler_seed``, its process and the clock:
+    two drivers with one seed would draw the same random trials (found in the tuned grid's
+    first studies: trials 0/1, 2/3 and 4/5 were pairs)."""
+    seed = settings.sampler_seed
+    if joining:
+        seed = int(np.random.SeedSequence([seed, os.getpid(), time.time_ns()]).generate_state(1)[0])
+    return optuna.samplers.TPESampler(
+        seed=seed,
+        n_startup_trials=settings.startup_trials,
+        constant_liar=settings.constant_liar,
+    )
+
+
+def make_pruner(settings: StudySettings) -> Any:
+    """The median rule on the periodic validation evaluations, not before half the budget.
+
+    Median, not successive halving: a study here has tens of trials, and halving's rungs would
+    stop most of them on their first evaluations, when delayed-regime curves still cross
+    (reports/sensitivity: PPO at 1e-3 looks as good as 3e-4 early and drifts later). No trial
+    is pruned before half its days or before ``startup_trials`` trials have finished."""
+    if settings.pruner == "none":
+        return optuna.pruners.NopPruner()
+    return optuna.pruners.MedianPruner(
+        n_startup_trials=settings.startup_trials, n_warmup_steps=settings.days // 2, interval_steps=1
+    )
 
 
 @contextmanager
