@@ -142,13 +142,6 @@ class DayModel:
         penalty = self.lc * np.tanh(d_min / self.tau_c) + self.lo * np.tanh(over_min)
         return self.lp * (nodes.d - d_min[:, -1]) - penalty.sum(axis=1)
 
-    def returns(self, foods: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """The returns of the days ``foods`` (n, H) played with ``actions`` (n, H) on the model."""
-        nodes = self.start(len(foods))
-        for t in range(self.horizon):
-            nodes, _ = self.step(nodes, t, foods[:, t], actions[:, t].astype(bool))
-        return nodes.ret
-
 
 def _bits(acts: np.ndarray, horizon: int) -> np.ndarray:
     """``(n, H)`` 0/1 actions from one bit per step."""
