@@ -59,14 +59,21 @@ class PlannerPolicy:
         self.min_gain = min_gain
 
     def __call__(self, env):
-        target = env.target
         gain = env.dyn.arrivals[env.steps_taken, np.atleast_1d(env.offered)]  # (n, 3) arriving by H if eaten now
         eventual = np.atleast_2d(env.state) + np.atleast_2d(env.pending_by_horizon())
-        after = eventual + gain
-        no_over = np.all(after <= target + 1e-9, axis=1)
-        closer = np.abs(eventual - target).sum(1) - np.abs(after - target).sum(1) >= self.min_gain
-        a = (no_over & closer).astype(np.int64)
+        a = planner_eats(eventual, gain, env.target, self.min_gain).astype(np.int64)
         return int(a[0]) if np.ndim(env.state) == 1 else a
+
+
+def planner_eats(eventual: np.ndarray, gain: np.ndarray, target: np.ndarray | float, min_gain: float) -> np.ndarray:
+    """The greedy planner's rule (:class:`PlannerPolicy`), batched: given what will have arrived
+    by step H, ``eventual`` (n, 3), and what the offered food would add by then, ``gain`` (n, 3),
+    whether to eat it: no nutrient ends above ``target`` and the L1 distance to it shrinks by at
+    least ``min_gain``."""
+    after = eventual + gain
+    no_over = np.all(after <= target + 1e-9, axis=1)
+    closer = np.abs(eventual - target).sum(1) - np.abs(after - target).sum(1) >= min_gain
+    return no_over & closer
 
 
 POLICIES: dict[str, Callable[[int | None], object]] = {

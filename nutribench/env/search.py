@@ -39,6 +39,7 @@ import numpy as np
 
 from nutribench.config import EnvConfig
 from nutribench.env.nutri_env import RegimeDynamics
+from nutribench.env.policies import planner_eats
 
 #: Return tolerance of the exact search (a node is pruned only below the best known by more).
 EXACT_TOLERANCE = 1e-9
@@ -112,12 +113,15 @@ class DayModel:
     def planner(self, nodes: Nodes, t: int, food: np.ndarray, min_gain: float = 0.05) -> np.ndarray:
         """The greedy planner's actions (:class:`~nutribench.env.policies.PlannerPolicy`) at the
         nodes (the env sums what is pending where the nodes keep the sum: equal to rounding)."""
-        gain = self.arrivals[t, food]
-        eventual = nodes.eventual
-        after = eventual + gain
-        no_over = np.all(after <= 1.0 + 1e-9, axis=1)
-        closer = np.abs(eventual - 1.0).sum(1) - np.abs(after - 1.0).sum(1) >= min_gain
-        return no_over & closer
+        return planner_eats(nodes.eventual, self.arrivals[t, food], 1.0, min_gain)
+
+    def finish(self, nodes: Nodes, t: int, foods: np.ndarray) -> Nodes:
+        """``nodes`` after step ``t`` played to the day's end by the greedy planner (:meth:`planner`),
+        offered ``foods`` (B, H - t): column k at step t + k."""
+        for u in range(t, self.horizon):
+            f = foods[:, u - t]
+            nodes, _ = self.step(nodes, u, f, self.planner(nodes, u, f))
+        return nodes
 
     def most_added(self, foods: np.ndarray) -> list[np.ndarray]:
         """Per step t, ``(H - t, 3)``: the most that the foods offered at steps t .. t + j can
@@ -143,11 +147,6 @@ class DayModel:
         return self.lp * (nodes.d - d_min[:, -1]) - penalty.sum(axis=1)
 
 
-def _bits(acts: np.ndarray, horizon: int) -> np.ndarray:
-    """``(n, H)`` 0/1 actions from one bit per step."""
-    return ((acts[:, None] >> np.arange(horizon)) & 1).astype(np.int64)
-
-
 # --------------------------------------------------------------------------- lookahead
 def lookahead_actions(
     regime: str | EnvConfig | DayModel, foods: np.ndarray, samples: int = 64, seed: int = 0
@@ -169,10 +168,7 @@ def lookahead_actions(
         nodes.ret = np.zeros(len(idx))
         eat = np.tile(np.repeat([False, True], K), n)
         nodes, _ = model.step(nodes, t, foods[idx, t], eat)
-        fut = np.tile(futures, (2 * n, 1))
-        for u in range(t + 1, H):
-            f = fut[:, u - t - 1]
-            nodes, _ = model.step(nodes, u, f, model.planner(nodes, u, f))
+        nodes = model.finish(nodes, t + 1, np.tile(futures, (2 * n, 1)))  # the futures' foods from step t + 1
         mean = nodes.ret.reshape(n, 2, K).mean(axis=2)
         a = mean[:, 1] > mean[:, 0]
         actions[:, t] = a
@@ -248,17 +244,10 @@ def clairvoyant_actions(
     for i, day in enumerate(foods):
         added = model.most_added(day)
         # the first of equal returns stands: the beam's, then the planner's, then the proof's
-        best = max(_beam(model, day, width, added), _planner_day(model, day), key=lambda found: found[0])
+        planned = _best(model.finish(model.start(1), 0, day[None]))  # the greedy planner's day
+        best = max(_beam(model, day, width, added), planned, key=lambda found: found[0])
         proof = _branch_and_bound(model, day, best[0], max_nodes, added)
         how.append("beam" if proof is None else "exact")
         _, acts = max(best, proof or best, key=lambda found: found[0])
-        actions[i] = _bits(np.array([acts]), H)[0]
+        actions[i] = (acts >> np.arange(H)) & 1  # one bit per step
     return actions, how
-
-
-def _planner_day(model: DayModel, day: np.ndarray) -> tuple[float, int]:
-    nodes = model.start(1)
-    for t in range(model.horizon):
-        f = day[t : t + 1]
-        nodes, _ = model.step(nodes, t, f, model.planner(nodes, t, f))
-    return _best(nodes)  # one node
