@@ -75,21 +75,13 @@ elif not any(isinstance(f, _RegisterWithGymnasium) for f in sys.meta_path):
     sys.meta_path.insert(0, _RegisterWithGymnasium())
 
 
-def _version() -> str:
-    """The installed distribution's version (``0.0.0+unknown`` in a source tree not installed)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("nutribench")
-    except PackageNotFoundError:  # running from a source tree without installing
-        return "0.0.0+unknown"
-
-
 def __getattr__(name: str):
     """``nutribench.__version__`` and ``nutribench.Recorder``, read or imported on first use
     (``import nutribench`` stays light: importlib.metadata is a twentieth of a command's start-up)."""
-    if name == "__version__":
-        value = globals()["__version__"] = _version()
+    if name == "__version__":  # the installed distribution's (``0.0.0+unknown`` in a source tree not installed)
+        from nutribench.provenance import dist_version
+
+        value = globals()["__version__"] = dist_version("nutribench") or "0.0.0+unknown"
         return value
     if name == "Recorder":
         from nutribench.recorder import Recorder

@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import Any
 
 
-def _version(dist: str) -> str | None:
+def dist_version(dist: str) -> str | None:
+    """The installed version of the distribution ``dist``; None when it is not installed."""
     try:
         return version(dist)
     except PackageNotFoundError:
@@ -56,9 +57,9 @@ def collect_metadata() -> dict[str, Any]:
         "host": socket.gethostname(),
         "platform": platform.platform(terse=True)[:255],
         "python_version": platform.python_version(),
-        "numpy_version": _version("numpy"),
-        "torch_version": _version("torch"),
-        "sb3_version": _version("stable-baselines3") or _version("stable_baselines3"),
+        "numpy_version": dist_version("numpy"),
+        "torch_version": dist_version("torch"),
+        "sb3_version": dist_version("stable-baselines3") or dist_version("stable_baselines3"),
         "nutribench_version": nutribench.__version__,
         "git_commit": commit,
         "git_dirty": dirty,
