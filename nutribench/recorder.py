@@ -31,8 +31,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from nutribench.clock import utcnow
 from nutribench.engines import Engine
 from nutribench.errors import UserError
+from nutribench.provenance import collect_metadata, file_sha256
 
 
 class RecorderError(UserError):
@@ -123,12 +125,9 @@ class PolicyAgent:
 
 def _caller_source(depth: int = 2) -> tuple[str | None, str | None]:
     """The file of the code that created the recorder, and its sha256 (None if not a file)."""
-    frame = inspect.stack()[depth]
-    path = Path(frame.filename)
+    path = Path(inspect.stack()[depth].filename)
     if not path.is_file():
         return None, None
-    from nutribench.provenance import file_sha256
-
     return str(path.resolve()), file_sha256(path)
 
 
@@ -194,7 +193,6 @@ class Recorder:
 
     # ------------------------------------------------------------------ the with block
     def __enter__(self) -> Recorder:
-        from nutribench.clock import utcnow
         from nutribench.env.nutri_env import NutriRLEnv
 
         self._check_database()
@@ -260,8 +258,6 @@ class Recorder:
             raise RecorderError(
                 f"Recorder {self.agent_config.name}: call rec.evaluate(policy) before the with block ends (nothing was written)"
             )
-        from nutribench.clock import utcnow
-        from nutribench.provenance import collect_metadata
         from nutribench.scheduler.registration import ExternalJob, store_external_job
         from nutribench.store import open_store
 
