@@ -224,7 +224,7 @@ def test_the_level_4_observation_determines_the_rest_of_the_day(name):
         obs, *_ = env.step(int(rng.random() < 0.3))
     cols, H = env.dyn.columns, env.horizon
     copy = NutriRLEnv(cfg)
-    copy.reset(options={"foods": env.foods_stream})
+    copy.reset(options={"foods": env._foods.copy()})
     t = int(round(float(obs[cols["clock"]][0]) * H))
     s = obs[cols["state"]].astype(np.float64)
     copy._t, copy._s = t, s.tolist()

@@ -35,13 +35,10 @@ def single_env_rate(regime: str, steps: int = 100_000, repeats: int = 5, seed: i
     def run():
         env.reset(seed=seed)
         step, reset = env.step, env.reset
-        k = 0
-        for a in actions:
+        for k, a in enumerate(actions, 1):
             step(a)
-            k += 1
-            if k == H:
+            if k % H == 0:
                 reset()
-                k = 0
 
     return _median_rate(run, steps, repeats)
 

@@ -234,10 +234,6 @@ class NutriRLEnv(DynamicsView, gym.Env[np.ndarray, int]):
         """Index of the food offered at the next step (-1 once the episode is over)."""
         return int(self._foods[self._t]) if self._t < self._H else -1
 
-    @property
-    def foods_stream(self) -> np.ndarray:
-        return self._foods.copy()
-
     def pending_by_horizon(self) -> np.ndarray:
         """Nutrients already eaten but not yet absorbed that will arrive by step H."""
         return self._pending[self._t :].sum(axis=0)

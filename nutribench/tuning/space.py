@@ -184,7 +184,8 @@ def check_space(space: SearchSpace, source: Path | str) -> None:
     except ConfigError as e:
         raise ConfigError(f"{source}: agent: {e}") from None
     data = base.model_dump(mode="json")
-    known = set(data["params"]) if by_entry_point(data["algo"]) else set(data) - set(_IDENTITY)
+    plugin = by_entry_point(data["algo"])
+    known = set(data["params"]) if plugin else set(data) - set(_IDENTITY)
     for name in space.kept:
         if name not in known or name in space.params:
             raise ConfigError(
@@ -193,11 +194,8 @@ def check_space(space: SearchSpace, source: Path | str) -> None:
             )
     for name, param in space.params.items():
         if name not in known:
-            where = (
-                f"keys of its [params]: {', '.join(sorted(known)) or '(none)'}"
-                if by_entry_point(data["algo"])
-                else (f"its hyperparameters: {', '.join(sorted(known))}")
-            )
+            names = ", ".join(sorted(known))
+            where = f"keys of its [params]: {names or '(none)'}" if plugin else f"its hyperparameters: {names}"
             raise ConfigError(f"{source}: params.{name}: not a hyperparameter of agent {base.name!r} ({where})")
         for value in param.ends():
             try:
