@@ -59,16 +59,13 @@ MAX_STEPS = 2**31 - 1
 REPLAY_BYTES = 2 * 4 * 4 + 8 + 3 * 4
 
 
-def observation_width(n_foods: int, horizon: int, level: int = 1) -> int:
-    """Floats of the observation at ``level`` of the ladder (the env's layout)."""
-    rungs = (1, 3, 3 * (horizon - 1) + 3)  # what levels 2, 3 and 4 add to level 1's
-    return 3 + n_foods + sum(rungs[: max(level - 1, 0)])
-
-
 def dynamics_bytes(n_foods: int, horizon: int, level: int = 1) -> int:
     """Bytes a regime's dynamics hold at least: ``N x H x 3`` float64 twice and ``N + 1``
-    observation rows of float32."""
-    return 48 * n_foods * horizon + 4 * (n_foods + 1) * observation_width(n_foods, horizon, level)
+    observation rows of float32, each as wide as the observation at ``level`` of the ladder
+    (the env's layout)."""
+    rungs = (1, 3, 3 * (horizon - 1) + 3)  # the floats levels 2, 3 and 4 add to level 1's 3 + N
+    width = 3 + n_foods + sum(rungs[: max(level - 1, 0)])
+    return 48 * n_foods * horizon + 4 * (n_foods + 1) * width
 
 
 #: The most foods a catalog may have: their dynamics alone, with a horizon of one step, within

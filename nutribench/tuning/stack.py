@@ -342,7 +342,6 @@ class StackedTrials:
                     out.append((trial, space.config(space.suggest(trial))))
                 except BaseException as e:
                     asked = [trial, *(t for t, _ in out)]
-                    out.clear()
                     for t in asked:
                         t.study, t.storage = study, study._storage
                     fail_trials(study, asked, e)
