@@ -74,8 +74,7 @@ def play(
     With a vector env, ``episodes`` must equal ``env.num_envs``; ``foods`` (episodes x H)
     fixes the food streams.
     """
-    vector = hasattr(env, "num_envs")
-    if vector:
+    if hasattr(env, "num_envs"):  # a vector env
         if episodes != env.num_envs:
             raise ValueError(f"a vector env plays num_envs={env.num_envs} episodes at once, asked for {episodes}")
         options = {"foods": foods} if foods is not None else None
