@@ -26,6 +26,7 @@ from nutribench.config.loading import read_toml
 from nutribench.engine.gru_ppo import RecurrentActor, StackedGRUActorCritic
 from nutribench.engine.train import train_batched
 from nutribench.env.sb3 import NutriRLSB3VecEnv
+from tests.policy_probes import gru_action_entropy, gru_action_probabilities
 
 ROOT = Path(__file__).resolve().parents[1]
 NOMEM = ROOT / "reports" / "ladder" / "agents" / "gru_ppo_nomem.toml"
@@ -99,10 +100,10 @@ def test_sb3_without_memory_the_output_at_a_step_depends_on_that_step_alone() ->
         for day in days:  # acting and evaluation: predict's conventions, the state carried
             state, start = None, np.ones(1, dtype=bool)
             for obs in day:
-                p, state = model.action_probabilities(obs[None], state, start)
+                p, state = gru_action_probabilities(model, obs[None], state, start)
                 start = np.zeros(1, dtype=bool)
             probs.append(p)
-        alone, _ = model.action_probabilities(days[0, -1][None])  # the last step from the zero state
+        alone, _ = gru_action_probabilities(model, days[0, -1][None])  # the last step from the zero state
         if memory:
             assert np.abs(probs[0] - probs[1]).max() > 1e-3  # the history matters
             continue
@@ -119,7 +120,7 @@ def test_sb3_without_memory_the_output_at_a_step_depends_on_that_step_alone() ->
                 values.numpy(), pol.critic_head(one[:, 0]).flatten().numpy(), rtol=1e-6, atol=1e-6
             )
         assert model.day_entropy(days[0]) == pytest.approx(
-            float(np.mean([model.action_entropy(o[None])[0][0] for o in days[0]])), abs=1e-6
+            float(np.mean([gru_action_entropy(model, o[None])[0][0] for o in days[0]])), abs=1e-6
         )
 
 

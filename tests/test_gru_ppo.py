@@ -18,6 +18,7 @@ from nutribench.agents.gru_ppo import (
 )
 from nutribench.env import NutriRLEnv
 from nutribench.env.sb3 import NutriRLSB3VecEnv
+from tests.policy_probes import gru_action_probabilities
 
 th.set_num_threads(1)
 
@@ -98,8 +99,8 @@ def test_earlier_observations_change_current_action_probabilities(model):
     current = obs_vec((0.3, 0.3, 0.3), food=4)[None]
     _, state_a = model.predict(obs_vec((0.0, 0.0, 0.0), food=1)[None], episode_start=start)
     _, state_b = model.predict(obs_vec((2.0, 1.5, 1.0), food=7)[None], episode_start=start)
-    p_a, next_a = model.action_probabilities(current, state_a)
-    p_b, next_b = model.action_probabilities(current, state_b)
+    p_a, next_a = gru_action_probabilities(model, current, state_a)
+    p_b, next_b = gru_action_probabilities(model, current, state_b)
     # same current observation, different histories: different hidden states and probabilities
     assert np.abs(next_a[0] - next_b[0]).max() > 1e-2 and np.abs(next_a[1] - next_b[1]).max() > 1e-2
     assert np.abs(p_a - p_b).max() > 1e-6  # the untrained policy output is small (gain 0.01)
@@ -118,18 +119,18 @@ def test_earlier_observations_change_current_action_probabilities(model):
 def test_episode_start_resets_to_initial_behaviour(model):
     rng = np.random.default_rng(0)
     first = rng.normal(size=(3, OBS_DIM)).astype(np.float32)
-    p0, s0 = model.action_probabilities(first)  # state=None: fresh episode
+    p0, s0 = gru_action_probabilities(model, first)  # state=None: fresh episode
     state = s0
     for _ in range(5):
-        _, state = model.action_probabilities(rng.normal(size=(3, OBS_DIM)).astype(np.float32), state)
-    p_carried, _ = model.action_probabilities(first, state)
+        _, state = gru_action_probabilities(model, rng.normal(size=(3, OBS_DIM)).astype(np.float32), state)
+    p_carried, _ = gru_action_probabilities(model, first, state)
     assert np.abs(p_carried - p0).max() > 0
-    p_reset, s_reset = model.action_probabilities(first, state, episode_start=np.ones(3, dtype=bool))
+    p_reset, s_reset = gru_action_probabilities(model, first, state, episode_start=np.ones(3, dtype=bool))
     np.testing.assert_array_equal(p_reset, p0)
     for a, b in zip(s_reset, s0):
         np.testing.assert_array_equal(a, b)
     # per-env reset: only env 1 starts an episode
-    p_mixed, _ = model.action_probabilities(first, state, episode_start=np.array([False, True, False]))
+    p_mixed, _ = gru_action_probabilities(model, first, state, episode_start=np.array([False, True, False]))
     np.testing.assert_array_equal(p_mixed[1], p0[1])
     np.testing.assert_array_equal(p_mixed[[0, 2]], p_carried[[0, 2]])
     # predict() follows the same convention and returns (1, n_envs, 128) states
@@ -313,8 +314,8 @@ def test_save_load_round_trip(tmp_path):
     obs_seq = np.random.default_rng(0).normal(size=(20, 8, OBS_DIM)).astype(np.float32)
     for a, b in zip(_rollout_actions(model, obs_seq), _rollout_actions(loaded, obs_seq)):
         np.testing.assert_array_equal(a, b)
-    p0, _ = model.action_probabilities(obs_seq[0])
-    p1, _ = loaded.action_probabilities(obs_seq[0])
+    p0, _ = gru_action_probabilities(model, obs_seq[0])
+    p1, _ = gru_action_probabilities(loaded, obs_seq[0])
     np.testing.assert_array_equal(p0, p1)
     loaded.learn(100, reset_num_timesteps=False)  # keeps training after loading
     # loading without an env is enough to predict

@@ -12,6 +12,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from nutribench.agents.sac import DiscreteSAC, DiscreteSACPolicy, soft_bellman_target, soft_value
 from nutribench.env import NutriRLEnv
 from nutribench.env.sb3 import NutriRLSB3VecEnv
+from tests.policy_probes import sac_action_probabilities
 
 th.set_num_threads(1)
 
@@ -172,7 +173,7 @@ def test_learns_a_few_episodes(regime):
     assert np.isfinite(model.logger.name_to_value["train/entropy"])
     obs = venv.reset()
     entropy = model.action_entropy(obs)
-    probs = model.action_probabilities(obs)
+    probs = sac_action_probabilities(model, obs)
     assert entropy.shape == (4,) and probs.shape == (4, 2)
     np.testing.assert_allclose(entropy, -(probs * np.log(probs)).sum(axis=1), rtol=1e-4, atol=1e-6)
     actions, state = model.predict(obs, deterministic=True)
@@ -196,7 +197,7 @@ def test_save_load_round_trip(tmp_path):
     a0, _ = model.predict(obs, deterministic=True)
     a1, _ = loaded.predict(obs, deterministic=True)
     np.testing.assert_array_equal(a0, a1)
-    np.testing.assert_allclose(model.action_probabilities(obs), loaded.action_probabilities(obs), atol=0)
+    np.testing.assert_allclose(sac_action_probabilities(model, obs), sac_action_probabilities(loaded, obs), atol=0)
     assert loaded.alpha == 0.2 and loaded.tau == 0.005
     assert loaded.policy.actor_optimizer.param_groups[0]["lr"] == pytest.approx(1e-4)
     assert loaded.policy.critic_optimizer.param_groups[0]["lr"] == pytest.approx(1e-3)

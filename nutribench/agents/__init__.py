@@ -17,16 +17,11 @@ if TYPE_CHECKING:
     from nutribench.agents.config import list_agent_configs, load_agent_config
     from nutribench.agents.days import eval_food_streams, validation_food_streams
 
-#: each public name and the submodule that holds it
+#: each submodule and the public names it holds
 _HOMES = {
-    "EvalResult": "api",
-    "TrainedAgent": "api",
-    "eval_food_streams": "days",
-    "evaluate": "api",
-    "list_agent_configs": "config",
-    "load_agent_config": "config",
-    "train": "api",
-    "validation_food_streams": "days",
+    "api": ("EvalResult", "TrainedAgent", "evaluate", "train"),
+    "config": ("list_agent_configs", "load_agent_config"),
+    "days": ("eval_food_streams", "validation_food_streams"),
 }
 
 __all__ = [
@@ -42,4 +37,6 @@ __all__ = [
 
 
 #: a public name of the package, from its submodule (imported now); a submodule, as ever
-__getattr__ = lazy_attributes(__name__, **{name: f"{__name__}.{home}" for name, home in _HOMES.items()})
+__getattr__ = lazy_attributes(
+    __name__, **{name: f"{__name__}.{home}" for home, names in _HOMES.items() for name in names}
+)

@@ -99,11 +99,11 @@ def __getattr__(name: str) -> Any:
 def episode_entropy(model: Any, obs: np.ndarray) -> float | None:
     """Mean policy entropy (nats) over one episode's observations ``(T, obs_dim)`` as the
     policy saw them (normalised), from the first step of the day; None for a policy that is
-    not stochastic or whose distribution cannot be read. An algorithm with a policy of its own
-    says how (``day_entropy``: DDQN, discrete SAC, GRU-PPO); SB3's actor-critic policies (MC,
-    PPO, any plug-in built on them) share one way, and sb3-contrib's recurrent policies
-    (``get_distribution(obs, lstm_states, episode_starts)``) are stepped through the day from
-    a zero state, as they acted."""
+    not stochastic (DDQN's epsilon-greedy Q-values) or whose distribution cannot be read. An
+    algorithm with a policy of its own says how (``day_entropy``: discrete SAC, GRU-PPO); SB3's
+    actor-critic policies (MC, PPO, any plug-in built on them) share one way, and sb3-contrib's
+    recurrent policies (``get_distribution(obs, lstm_states, episode_starts)``) are stepped
+    through the day from a zero state, as they acted."""
     own = getattr(model, "day_entropy", None)
     if own is not None:
         return own(obs)

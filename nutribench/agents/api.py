@@ -243,7 +243,7 @@ def train(
         if validator is not None:
             raise ValueError(f"{cfg.name}: evaluation during training needs a built-in algorithm's loop")
         recorder = RecordingVecEnv(env, base, episodes, on_episode)
-        model, env, days = _train_plugin(cfg, recorder, seed, horizon, tensorboard), recorder.venv, recorder.episodes
+        model = _train_plugin(cfg, recorder, seed, horizon, tensorboard)
     else:
         model = make_model(cfg, env, seed=seed, horizon=horizon)
         recorder = EpisodeMetrics(base, episodes, on_episode)
@@ -254,12 +254,11 @@ def train(
         if validator is not None:
             callbacks.append(_validation_callback(validator, model, cfg, env_cfg, seed, val_episodes))
         model.learn(total_timesteps=episodes * horizon, callback=CallbackList(callbacks))
-        days = recorder.episodes
     agent = TrainedAgent(model, cfg.algo, cfg, provenance=training_provenance(env_cfg, cfg, seed, episodes))
     if cfg.normalize_obs:
         agent.obs_mean, agent.obs_var = env.obs_rms.mean.copy(), env.obs_rms.var.copy()  # type: ignore[union-attr]
     agent.vec_normalize = env if isinstance(env, VecNormalize) else None
-    agent.train_episodes = days
+    agent.train_episodes = recorder.episodes
     agent.diagnostics = recorded.rows if recorded is not None else []
     agent.validation = validator.rows[0] if validator is not None else []
     return agent

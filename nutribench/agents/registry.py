@@ -43,10 +43,13 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 from nutribench.config.loading import ConfigError
 from nutribench.provenance import file_sha256
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
 
 #: the entry-point group algorithms register in
 ENTRY_POINT_GROUP = "nutribench.algorithms"
@@ -54,6 +57,9 @@ ENTRY_POINT_GROUP = "nutribench.algorithms"
 BUILTIN_PACKAGE = "nutribench.agents.builtin"
 #: what builds a model for an algorithm whose ``arguments`` are given (SB3 classes)
 SB3_BUILD = "nutribench.agents.algos:build_model"
+#: what an algorithm's ``arguments`` function returns: the SB3 class and its constructor
+#: arguments but env, seed, device, verbose and gamma (what :data:`SB3_BUILD` adds)
+ModelArguments: TypeAlias = "tuple[type[BaseAlgorithm], dict[str, Any]]"
 
 
 @dataclass(frozen=True)

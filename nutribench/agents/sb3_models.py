@@ -125,10 +125,6 @@ class DoubleDQN(DQN):
         for key, values in (("loss", losses), ("q_mean", q_means), ("grad_norm", grad_norms)):
             self.logger.record(f"train/{key}", float(np.mean(values)))
 
-    def day_entropy(self, obs: np.ndarray) -> None:
-        """Epsilon-greedy over Q-values: no stochastic policy whose entropy to record."""
-        return None
-
 
 class PPOWithGradNorm(PPO):
     """SB3 ``PPO`` unchanged, built without SB3's minibatch-size warning; its diagnostics'

@@ -5,16 +5,13 @@ models."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Literal
 
 from pydantic import model_validator
 
 from nutribench.agents.config import FeedForward, GradNorm, NonNegInt, PosFloat, PosInt, Prob, Transitions
-from nutribench.agents.registry import Algorithm, lazy_attributes, no_replay_scaling
+from nutribench.agents.registry import Algorithm, ModelArguments, lazy_attributes, no_replay_scaling
 from nutribench.config.sizes import n_step_bytes, too_large
-
-if TYPE_CHECKING:
-    from stable_baselines3.common.base_class import BaseAlgorithm
 
 
 class DDQNConfig(FeedForward):
@@ -47,7 +44,7 @@ class DDQNConfig(FeedForward):
         return self
 
 
-def ddqn_arguments(cfg: DDQNConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+def ddqn_arguments(cfg: DDQNConfig, horizon: int) -> ModelArguments:
     """Double DQN: a linear learning-rate schedule, hard target copies (tau 1)."""
     from stable_baselines3.common.utils import LinearSchedule
 

@@ -6,16 +6,13 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 from pydantic import Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
 from nutribench.agents.config import AgentBase, Flag, HiddenSize, PosInt, PPOFields
-from nutribench.agents.registry import Algorithm, lazy_attributes
+from nutribench.agents.registry import Algorithm, ModelArguments, lazy_attributes
 from nutribench.config.sizes import rollout_bytes, too_large
-
-if TYPE_CHECKING:
-    from stable_baselines3.common.base_class import BaseAlgorithm
 
 
 class GRUPPOConfig(AgentBase, PPOFields):
@@ -57,7 +54,7 @@ class GRUPPOConfig(AgentBase, PPOFields):
         return self
 
 
-def gru_ppo_arguments(cfg: GRUPPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+def gru_ppo_arguments(cfg: GRUPPOConfig, horizon: int) -> ModelArguments:
     """GRU-PPO: PPO's arguments, the recurrent policy's sizes and whether it carries its state."""
     from nutribench.agents.gru_ppo import GRUPPO
 

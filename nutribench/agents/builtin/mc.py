@@ -6,13 +6,10 @@ acts with its models."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Literal
 
 from nutribench.agents.config import FeedForward, GradNorm, NonNegFloat, PosFloat
-from nutribench.agents.registry import Algorithm, lazy_attributes
-
-if TYPE_CHECKING:
-    from stable_baselines3.common.base_class import BaseAlgorithm
+from nutribench.agents.registry import Algorithm, ModelArguments, lazy_attributes
 
 
 class MCConfig(FeedForward):
@@ -26,7 +23,7 @@ class MCConfig(FeedForward):
     max_grad_norm: GradNorm
 
 
-def mc_arguments(cfg: MCConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+def mc_arguments(cfg: MCConfig, horizon: int) -> ModelArguments:
     """MC: an A2C whose rollout is one whole day, GAE lambda 1, Adam, no advantage normalisation."""
     from nutribench.agents.algos import shared_actor_critic_kwargs
     from nutribench.agents.sb3_models import MonteCarloAC

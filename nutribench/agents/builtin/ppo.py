@@ -7,13 +7,10 @@ SB3's ``PPO`` loads and acts with its models. Its optimisation fields
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Literal
 
 from nutribench.agents.config import FeedForward, PPOFields
-from nutribench.agents.registry import Algorithm, lazy_attributes
-
-if TYPE_CHECKING:
-    from stable_baselines3.common.base_class import BaseAlgorithm
+from nutribench.agents.registry import Algorithm, ModelArguments, lazy_attributes
 
 
 class PPOConfig(FeedForward, PPOFields):
@@ -22,7 +19,7 @@ class PPOConfig(FeedForward, PPOFields):
     algo: Literal["ppo"]
 
 
-def ppo_model_arguments(cfg: PPOConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+def ppo_model_arguments(cfg: PPOConfig, horizon: int) -> ModelArguments:
     """PPO on the shared actor-critic."""
     from nutribench.agents.algos import shared_actor_critic_kwargs
     from nutribench.agents.sb3_models import PPOWithGradNorm

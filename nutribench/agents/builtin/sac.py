@@ -4,13 +4,10 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Literal
 
 from nutribench.agents.config import FeedForward, NonNegFloat, NonNegInt, PosFloat, PosInt, Prob, Transitions
-from nutribench.agents.registry import Algorithm, lazy_attributes, no_replay_scaling
-
-if TYPE_CHECKING:
-    from stable_baselines3.common.base_class import BaseAlgorithm
+from nutribench.agents.registry import Algorithm, ModelArguments, lazy_attributes, no_replay_scaling
 
 
 class SACConfig(FeedForward):
@@ -28,7 +25,7 @@ class SACConfig(FeedForward):
     gradient_steps: PosInt
 
 
-def sac_arguments(cfg: SACConfig, horizon: int) -> tuple[type[BaseAlgorithm], dict[str, Any]]:
+def sac_arguments(cfg: SACConfig, horizon: int) -> ModelArguments:
     """Discrete SAC, fixed temperature."""
     from nutribench.agents.sac import DiscreteSAC
 

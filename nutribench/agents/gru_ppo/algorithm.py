@@ -288,30 +288,6 @@ class GRUPPO(OnPolicyAlgorithm):
 
     # ---- inspection ----
 
-    def action_probabilities(
-        self,
-        observation: np.ndarray,
-        state: tuple[np.ndarray, ...] | None = None,
-        episode_start: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
-        """``pi(.|history)`` after one more step, and the new state (same conventions as ``predict``)."""
-        obs, vectorized, state_t, starts = self.policy.carried(observation, state, episode_start)
-        with th.no_grad():
-            dist, new_state = self.policy.get_distribution(obs, state_t, starts)  # type: ignore[arg-type]
-            probs = dist.distribution.probs.cpu().numpy()
-        return (probs if vectorized else probs[0]), tuple(h.cpu().numpy() for h in new_state)
-
-    def action_entropy(
-        self,
-        observation: np.ndarray,
-        state: tuple[np.ndarray, ...] | None = None,
-        episode_start: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
-        """Entropy (nats) of ``pi(.|history)`` after one more step, and the new state."""
-        probs, new_state = self.action_probabilities(observation, state, episode_start)
-        logs = np.log(np.clip(probs, 1e-30, None))
-        return -(probs * logs).sum(axis=-1), new_state
-
     def day_entropy(self, obs: np.ndarray) -> float:
         """Mean entropy over one whole day's observations ``(T, obs_dim)``, the GRU state
         carried from a zero state at the day's first step (as when acting)."""

@@ -200,17 +200,10 @@ class GRUActorCriticPolicy(FlatDiscretePolicy):
         return obs, vectorized, state_t, th.as_tensor(starts.reshape(n), device=self.device)  # type: ignore[return-value]
 
     def _predict(  # type: ignore[override]
-        self,
-        observation: PyTorchObs,
-        state: GRUState | None = None,
-        episode_starts: th.Tensor | None = None,
-        deterministic: bool = False,
+        self, observation: PyTorchObs, state: GRUState, episode_starts: th.Tensor, deterministic: bool = False
     ) -> tuple[th.Tensor, GRUState]:
-        n = observation.shape[0]  # type: ignore[union-attr]
-        if state is None:
-            state = self.initial_state(n)
-        if episode_starts is None:
-            episode_starts = th.zeros(n, device=self.device)
+        """Actions and the new state after one step from ``state`` (:meth:`carried` makes the
+        defaults of :meth:`predict`'s arguments)."""
         actions, _, _, new_state = self.forward(observation, state, episode_starts, deterministic)  # type: ignore[arg-type]
         return actions, new_state
 

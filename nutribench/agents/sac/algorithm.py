@@ -216,21 +216,14 @@ class DiscreteSAC(OffPolicyAlgorithm):
 
     # ---- inspection ----
 
-    def _of_observations(self, observation: np.ndarray, of: Any) -> np.ndarray:
-        """``of(obs)`` (no gradient) at a batch ``(n, obs_dim)`` (or one ``(obs_dim,)``) of observations."""
+    def action_entropy(self, observation: np.ndarray) -> np.ndarray:
+        """Entropy (nats) of ``pi(.|s)`` for a batch ``(n, obs_dim)`` (or one ``(obs_dim,)``) of
+        observations, as the policy sees them (already normalised when the env is wrapped in
+        ``VecNormalize``)."""
         obs, vectorized = self.policy.obs_to_tensor(observation)
         with th.no_grad():
-            out = of(obs).cpu().numpy()
-        return out if vectorized else out[0]
-
-    def action_probabilities(self, observation: np.ndarray) -> np.ndarray:
-        """``pi(.|s)`` for a batch ``(n, obs_dim)`` (or one ``(obs_dim,)``) of observations, as
-        the policy sees them (already normalised when the env is wrapped in ``VecNormalize``)."""
-        return self._of_observations(observation, lambda obs: self.policy.action_log_probs(obs)[0])
-
-    def action_entropy(self, observation: np.ndarray) -> np.ndarray:
-        """Entropy (nats) of ``pi(.|s)`` for a batch of observations (see :meth:`action_probabilities`)."""
-        return self._of_observations(observation, self.policy.entropy)
+            entropy = self.policy.entropy(obs).cpu().numpy()
+        return entropy if vectorized else entropy[0]
 
     def day_entropy(self, obs: np.ndarray) -> float:
         """Mean entropy over one day's observations ``(T, obs_dim)`` (the training record's)."""
