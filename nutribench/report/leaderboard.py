@@ -255,15 +255,10 @@ def _set_apart(rows: pd.DataFrame) -> pd.Series:
 def _set_apart_notes(checked: dict) -> list[str]:
     """A caption note for each entry set apart (:func:`_set_apart`), with its reason; ``checked``:
     entry (name, version, budget) -> its ``checked`` cell."""
-
-    def label(entry) -> str:
-        if not isinstance(entry, tuple):
-            return algo_label(entry)
-        name, version, budget = entry
-        return f"{algo_label(name)} v{version} ({budget} day{'' if budget == 1 else 's'})"
-
     return [
-        f"{label(e)} is set apart, not ranked: {cell}" for e, cell in sorted(checked.items()) if not_reproduced(cell)
+        f"{algo_label(name)} v{version} ({budget} day{'' if budget == 1 else 's'}) is set apart, not ranked: {cell}"
+        for (name, version, budget), cell in sorted(checked.items())
+        if not_reproduced(cell)
     ]
 
 
