@@ -326,7 +326,7 @@ def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, re
     several, and a note says which was compared and what else the database holds; per
     (regime, seed) its newest job (:func:`nutribench.report.data.prepare_entries`). Agent
     configs without evaluation days raise :class:`CompareError` naming those the database has."""
-    from nutribench.report.data import ENTRY, prepare_entries, read_episodes
+    from nutribench.report.data import entry_rows, prepare_entries, read_episodes
 
     spec_a, spec_b = EntrySpec.parse(a), EntrySpec.parse(b)
     if spec_a == spec_b:
@@ -345,10 +345,7 @@ def load_comparison(db, a: str, b: str, regimes: Sequence[str] | None = None, re
     names = [spec_a.name, spec_b.name]
     if names[0] == names[1]:  # two entries of one config: each is named by its spec
         names = [str(EntrySpec(*e)) for e in picked]
-    parts = [
-        data.eval[(data.eval[list(ENTRY)] == pd.Series(entry, index=list(ENTRY))).all(axis=1)].assign(algo=name)
-        for entry, name in zip(picked, names)
-    ]
+    parts = [entry_rows(data.eval, entry).assign(algo=name) for entry, name in zip(picked, names)]
     res = compare_agents(pd.concat(parts, ignore_index=True), names[0], names[1], regimes, reps)
     res.notes = [*notes, *res.notes]
     return res

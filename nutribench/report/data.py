@@ -208,6 +208,11 @@ def entries(df: pd.DataFrame) -> list[tuple[str, int, int]]:
     return sorted(keys, key=lambda k: (rank[k[0]], -k[2], -k[1]))
 
 
+def entry_rows(df: pd.DataFrame, entry: tuple[str, int, int]) -> pd.DataFrame:
+    """The rows of ``df`` of one entry (name, version, budget)."""
+    return df[(df[list(ENTRY)] == pd.Series(entry, index=list(ENTRY))).all(axis=1)]
+
+
 def entry_label(entry: tuple[str, int, int]) -> str:
     """``ppo v1, 5000 days``: how captions and notes name an entry."""
     name, version, budget = entry

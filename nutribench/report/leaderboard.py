@@ -54,7 +54,7 @@ import numpy as np
 import pandas as pd
 
 from nutribench.report.aggregate import interval_estimates, regime_span, run_scores, score_set
-from nutribench.report.data import ENTRY, Log, ReportError, entries, quiet
+from nutribench.report.data import Log, ReportError, entries, entry_rows, quiet
 from nutribench.report.figure_parts import UNRECORDED, budget_cell, seed_list, sort_regimes
 from nutribench.report.leaderboard_verify import REPLAYED, not_reproduced
 from nutribench.report.palette import BUILTIN_ORDER
@@ -168,7 +168,7 @@ def leaderboard_rows(
     rows = []
     for entry in entries(ev):
         algo, version, _ = entry
-        cell = ev[(ev[list(ENTRY)] == pd.Series(entry, index=list(ENTRY))).all(axis=1)]
+        cell = entry_rows(ev, entry)
         mine = run_scores(cell, references)
         seeds = sorted({int(s) for s in cell["seed"]})
         budget = budget_cell(cell)
@@ -255,15 +255,10 @@ def _set_apart(rows: pd.DataFrame) -> pd.Series:
 def _set_apart_notes(checked: dict) -> list[str]:
     """A caption note for each entry set apart (:func:`_set_apart`), with its reason; ``checked``:
     entry (name, version, budget) -> its ``checked`` cell."""
-
-    def label(entry) -> str:
-        if not isinstance(entry, tuple):
-            return algo_label(entry)
-        name, version, budget = entry
-        return f"{algo_label(name)} v{version} ({budget} day{'' if budget == 1 else 's'})"
-
     return [
-        f"{label(e)} is set apart, not ranked: {cell}" for e, cell in sorted(checked.items()) if not_reproduced(cell)
+        f"{algo_label(name)} v{version} ({budget} day{'' if budget == 1 else 's'}) is set apart, not ranked: {cell}"
+        for (name, version, budget), cell in sorted(checked.items())
+        if not_reproduced(cell)
     ]
 
 

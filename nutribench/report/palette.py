@@ -133,7 +133,8 @@ def colors(names: Iterable[str]) -> dict[str, str]:
     taken = list(fixed.values())
     out: dict[str, str] = {}
     for n in order(names):
-        out[n] = fixed.get(n) or _user_color(n, taken) or _pick(n, taken)
+        # one of USER_COLORS not yet taken, from a place the name's hash picks; else a derived one
+        out[n] = fixed.get(n) or next((c for c in _ring(n, USER_COLORS) if c not in taken), None) or _pick(n, taken)
         if n not in fixed:
             taken.append(out[n])
     return out
@@ -154,12 +155,6 @@ def _ring(name: str, options: tuple[str, ...]) -> list[str]:
     """``options`` from a place a hash of ``name`` picks, round to the one before it."""
     start = int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "big") % len(options)
     return [options[(start + k) % len(options)] for k in range(len(options))]
-
-
-def _user_color(name: str, taken: list[str]) -> str | None:
-    """The first colour of :data:`USER_COLORS` not in ``taken``, from a place the name's hash
-    picks; None when every one is taken."""
-    return next((c for c in _ring(name, USER_COLORS) if c not in taken), None)
 
 
 @dataclass(frozen=True)

@@ -66,22 +66,14 @@ def performance_profiles(
     return pd.concat(frames, ignore_index=True) if frames else empty
 
 
-def _improvement(x: Runs, y: Runs) -> np.ndarray:
-    """P(X > Y) per resample: per regime the share of (run of X, run of Y) pairs where X scores
-    higher (ties half), averaged over regimes; ``x``/``y``: one array (resamples, runs) per regime."""
-    per_task = [
-        np.mean((a[:, :, None] > b[:, None, :]) + 0.5 * (a[:, :, None] == b[:, None, :]), axis=(1, 2))
-        for a, b in zip(x, y)
-    ]
-    return np.mean(np.stack(per_task, axis=1), axis=1)
-
-
 def probability_of_improvement(x: Runs, y: Runs) -> float:
     """rliable's average probability of improvement of X over Y (its own function when both
-    have the same number of runs on every regime)."""
+    have the same number of runs on every regime; else the same statistic on the ragged runs:
+    per regime the share of (run of X, run of Y) pairs where X scores higher, ties half,
+    averaged over regimes)."""
     if len({len(a) for a in x}) == 1 and len({len(b) for b in y}) == 1:
         return float(rly.probability_of_improvement(np.stack(x, axis=1), np.stack(y, axis=1)))
-    return float(_improvement([a[None, :] for a in x], [b[None, :] for b in y])[0])
+    return float(np.mean([np.mean((a[:, None] > b) + 0.5 * (a[:, None] == b)) for a, b in zip(x, y)]))
 
 
 def improvement_probabilities(

@@ -84,14 +84,6 @@ class ScoreSet:
     runs: dict[str, Runs]
     notes: list[str] = field(default_factory=list)
 
-    def rectangular(self, algo: str) -> bool:
-        """Whether ``algo`` has the same number of runs on every regime (an rliable matrix)."""
-        return len({len(x) for x in self.runs[algo]}) == 1
-
-    def matrix(self, algo: str) -> np.ndarray:
-        """``algo``'s scores as rliable takes them: ``(runs, regimes)`` (rectangular only)."""
-        return np.stack(self.runs[algo], axis=1)
-
 
 def score_set(
     scores: pd.DataFrame, regimes: Iterable[str], algos: Sequence[str] | None = None, what: str = ""
