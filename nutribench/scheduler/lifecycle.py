@@ -154,8 +154,8 @@ def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, i
 
 
 def _metrics(row: dict[str, Any], columns: Sequence[str]) -> dict[str, Any]:
-    """``row``'s values of ``columns`` (None where absent), keyed as the tables' attributes (``ret``)."""
-    return {("ret" if c == "return" else c): row.get(c) for c in columns}
+    """``row``'s values of ``columns`` (None where absent), by column name."""
+    return {c: row.get(c) for c in columns}
 
 
 def insert_episodes(

@@ -338,16 +338,10 @@ def diagnostic_rows(job_id: int, diagnostics: list[dict[str, Any]]) -> list[dict
 
 
 def insert_rows(session: Any, model: type[Base], rows: list[dict[str, Any]]) -> None:
-    """Insert ``rows`` (dicts keyed by ``model``'s attribute names, every row the same keys, None for
-    NULL) in executemany batches, through the table itself; a key that names its column otherwise
-    (``Episode.ret`` is ``return``) is renamed in the dicts given. The ORM's bulk insert leaves a None
-    out of its row's INSERT, so rows that differ in which values are None (an episode with no
-    overshoot, a diagnostic an algorithm lacks) fall into separate statements of a few rows each: an
-    archive's 175,000 episodes took 58,000 statements that way."""
-    if not rows:
-        return
-    renamed = {a.key: a.columns[0].key for a in model.__mapper__.column_attrs if a.key != a.columns[0].key}
-    for key in renamed.keys() & rows[0].keys():
-        for row in rows:
-            row[renamed[key]] = row.pop(key)
-    session.execute(model.__table__.insert(), rows)
+    """Insert ``rows`` (dicts keyed by ``model``'s column names, ``return`` for ``Episode.ret``, every
+    row the same keys, None for NULL) in executemany batches, through the table itself. The ORM's
+    bulk insert leaves a None out of its row's INSERT, so rows that differ in which values are None
+    (an episode with no overshoot, a diagnostic an algorithm lacks) fall into separate statements of
+    a few rows each: an archive's 175,000 episodes took 58,000 statements that way."""
+    if rows:
+        session.execute(model.__table__.insert(), rows)

@@ -23,6 +23,9 @@ if TYPE_CHECKING:
     import pandas as pd
 
 Db = str | os.PathLike[str] | URL | Engine
+#: A filter on a column: one value or several (None: every row).
+Names = Iterable[str] | str | None
+Numbers = Iterable[int] | int | None
 
 
 def _query(db: Db, sql: str, params: dict[str, list] | None = None) -> pd.DataFrame:
@@ -40,10 +43,12 @@ def _query(db: Db, sql: str, params: dict[str, list] | None = None) -> pd.DataFr
             engine.dispose()
 
 
-def _where(filters: dict[str, Iterable | str | int | None]) -> tuple[str, dict[str, list]]:
-    """The ``WHERE`` clause of the filters given (a value or several per column) and its parameters."""
+def _where(filters: dict[str, Names | Numbers], *also: str) -> tuple[str, dict[str, list]]:
+    """The ``WHERE`` clause of the filters given (a value or several per column), then of the
+    conditions ``also``, and its parameters."""
     params = {col: [v] if isinstance(v, (str, int)) else list(v) for col, v in filters.items() if v is not None}
-    return (" WHERE " + " AND ".join(f'"{col}" IN :{col}' for col in params)) if params else "", params
+    conditions = [*(f'"{col}" IN :{col}' for col in params), *also]
+    return (" WHERE " + " AND ".join(conditions)) if conditions else "", params
 
 
 def _read(db: Db, view: str, filters: dict, order: str, latest_only: bool) -> pd.DataFrame:
@@ -60,8 +65,8 @@ def read_episode_metrics(
     db: Db,
     *,
     phase: str | None = None,
-    regimes: Iterable[str] | str | None = None,
-    algos: Iterable[str] | str | None = None,
+    regimes: Names = None,
+    algos: Names = None,
     budget: int | None = None,
     latest_only: bool = False,
 ) -> pd.DataFrame:
@@ -76,9 +81,9 @@ def read_episode_metrics(
 def read_eval_trajectories(
     db: Db,
     *,
-    regimes: Iterable[str] | str | None = None,
-    algos: Iterable[str] | str | None = None,
-    seeds: Iterable[int] | int | None = None,
+    regimes: Names = None,
+    algos: Names = None,
+    seeds: Numbers = None,
     episode: int | None = None,
     latest_only: bool = False,
 ) -> pd.DataFrame:
@@ -88,12 +93,7 @@ def read_eval_trajectories(
 
 
 def read_training_diagnostics(
-    db: Db,
-    *,
-    regimes: Iterable[str] | str | None = None,
-    algos: Iterable[str] | str | None = None,
-    seeds: Iterable[int] | int | None = None,
-    latest_only: bool = False,
+    db: Db, *, regimes: Names = None, algos: Names = None, seeds: Numbers = None, latest_only: bool = False
 ) -> pd.DataFrame:
     """Rows of ``training_diagnostics``: one per training update of each job (columns in
     :mod:`nutribench.store.views`, quantities in :mod:`nutribench.diagnostics`), and before
@@ -103,11 +103,9 @@ def read_training_diagnostics(
 
     filters = {"regime": regimes, "algo": algos, "seed": seeds}
     df = _read(db, "training_diagnostics", filters, '"job_id", "update"', latest_only)
-    where, params = _where(filters)
     known = ", ".join(f"'{n}'" for n in COLUMNS)  # the vocabulary's names: constants, not input
-    where = f"{where} AND" if where else " WHERE"
-    sql = f'SELECT "job_id", "update", "name", "value" FROM diagnostic_values{where} "name" NOT IN ({known})'
-    other = _query(db, sql, params)
+    where, params = _where(filters, f'"name" NOT IN ({known})')
+    other = _query(db, f'SELECT "job_id", "update", "name", "value" FROM diagnostic_values{where}', params)
     if other.empty or df.empty:
         return df
     wide = other.pivot(index=["job_id", "update"], columns="name", values="value")
@@ -117,12 +115,7 @@ def read_training_diagnostics(
 
 
 def read_learning_curve(
-    db: Db,
-    *,
-    regimes: Iterable[str] | str | None = None,
-    algos: Iterable[str] | str | None = None,
-    seeds: Iterable[int] | int | None = None,
-    latest_only: bool = False,
+    db: Db, *, regimes: Names = None, algos: Names = None, seeds: Numbers = None, latest_only: bool = False
 ) -> pd.DataFrame:
     """Rows of ``learning_curve``: one per validation day of each evaluation during training
     (columns in :mod:`nutribench.store.views`), ordered by job, training day and day."""

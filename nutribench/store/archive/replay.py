@@ -72,9 +72,9 @@ def _close(stored: np.ndarray, replayed: np.ndarray) -> np.ndarray:
 
 def replay_evaluations(
     meta: dict[str, Any], tables: dict[str, dict[str, np.ndarray]], per_job: dict[str, np.ndarray]
-) -> int:
+) -> None:
     """Replay every evaluation day of the archive's real jobs (checked complete and in range
-    before); :class:`InvalidArchive` naming job and day at the first disagreement. The days replayed."""
+    before); :class:`InvalidArchive` naming job and day at the first disagreement."""
     jobs = meta["jobs"]
     regimes = {(r["name"], r["version"]): r for r in meta["regimes"]}
     by_regime: dict[tuple[str, int], list[int]] = {}
@@ -88,7 +88,6 @@ def replay_evaluations(
     # rows of job i: steps from step_start[i], days from day_start[i] (complete: checked before)
     step_start = np.concatenate([[0], np.cumsum(per_job["eval_episodes"] * per_job["horizon"])])
     day_start = np.concatenate([[0], np.cumsum(per_job["eval_episodes"])])
-    replayed = 0
     for key, members in by_regime.items():
         cfg = stored_regime(regimes[key])
         H = cfg.reward.horizon
@@ -101,8 +100,6 @@ def replay_evaluations(
             chunk = days[lo : lo + CHUNK]
             rows = np.stack([order[step_start[i] + d * H + np.arange(H)] for i, d in chunk])  # (n, H)
             _replay_chunk(cfg, chunk, rows, st, ep, ev_order[[day_start[i] + d for i, d in chunk]], jobs)
-            replayed += len(chunk)
-    return replayed
 
 
 def _replay_chunk(
