@@ -25,8 +25,17 @@ from nutribench.errors import UserError
 from nutribench.scheduler.executors import dask_address
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.pools import MAX_BATCH, check_engine
-from nutribench.scheduler.registration import RunError
+from nutribench.scheduler.registration import RunError, load_grid_configs
 from nutribench.scheduler.worker import JobFn
+from nutribench.store.engine import (
+    StoreError,
+    check_sqlite_file,
+    database_url,
+    hide_secrets,
+    in_memory,
+    shown_db,
+    sqlite_path,
+)
 
 
 @dataclass(frozen=True)
@@ -79,8 +88,6 @@ class GridSettings:
     def models(self) -> Path:
         """Where trained models go: ``models_dir``, else ``models/`` next to a SQLite file, else in
         the current folder."""
-        from nutribench.store.engine import database_url, sqlite_path
-
         if self.models_dir is not None:
             return Path(self.models_dir)
         path = sqlite_path(database_url(str(self.db)))
@@ -91,7 +98,6 @@ class GridSettings:
         docstring), each a one-line :class:`~nutribench.errors.UserError`."""
         from nutribench.engine import every_seconds_from_env
         from nutribench.safe_write import check_folder_target, check_tensorboard
-        from nutribench.scheduler.registration import load_grid_configs
 
         dask_address(self.executor)
         check_engine(self.engine, self.max_batch, self.device)
@@ -114,8 +120,6 @@ class GridSettings:
     def starting_line(self) -> str:
         """What the run starts, printed as soon as its options are checked, before the database
         is opened and the workers start: the first line the run writes to a log file."""
-        from nutribench.store.engine import shown_db
-
         grid, where = self.grid, shown_db(str(self.db))
         at = "" if self.workers is None else f", {self.workers} at a time"
         return (
@@ -167,15 +171,6 @@ def default_job_fn() -> JobFn:
 def check_db(db: str) -> None:
     """Refuse a database path that cannot be created or is not SQLite, and an in-memory database
     (every result would be lost), before anything runs."""
-    from nutribench.store.engine import (
-        StoreError,
-        check_sqlite_file,
-        database_url,
-        hide_secrets,
-        in_memory,
-        sqlite_path,
-    )
-
     url = database_url(db)
     if in_memory(url):
         raise StoreError(

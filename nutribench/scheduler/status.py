@@ -170,14 +170,13 @@ class _Tally:
         remaining, unknown = 0.0, False
         for key, row in self.rows.items():
             config = (row.algo, row.algo_version)
-            guesses = (
-                _mean(self.rates.get(key)),
-                _mean(per_algo.get(config)),
-                _mean(running_rates.get(config)),
-                _mean(self.orphan_rates.get(config)),
-                overall,
+            known = (
+                self.rates.get(key),
+                per_algo.get(config),
+                running_rates.get(config),
+                self.orphan_rates.get(config),
             )
-            rate = next((r for r in guesses if r is not None), None)
+            rate = next((_mean(rates) for rates in known if rates), overall)
             jobs_left = self.left.get(key, 0.0)
             if jobs_left and rate is None:
                 unknown = True
