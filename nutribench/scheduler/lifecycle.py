@@ -167,11 +167,8 @@ def insert_episodes(
         for phase, episodes in (("train", train), ("eval", evaluation))
         for ep in episodes
     ]
-    if rows:
-        insert_rows(session, Episode, rows)
-    if eval_steps:
-        steps = [{"job_id": job_id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in eval_steps]
-        insert_rows(session, EvalStep, steps)
+    insert_rows(session, Episode, rows)  # none: no statement
+    insert_rows(session, EvalStep, [{"job_id": job_id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in eval_steps])
 
 
 def store_result(store: Store, result: JobResult, owner: str, model_path: str | None) -> bool:
@@ -188,13 +185,12 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
         if _set(s, *mine, **done, error=None, model_path=result.model_path or model_path, **meta) != 1:
             return False
         insert_episodes(s, result.job_id, result.train, result.eval, result.eval_steps)
-        diagnostics = getattr(result, "diagnostics", None)  # a result pickled before it had them: none
-        if diagnostics:
-            insert_rows(s, Diagnostic, diagnostic_rows(result.job_id, diagnostics))
-        validation = getattr(result, "validation", None)  # likewise: a result pickled before revision 0006
-        if validation:
-            rows = [{"job_id": result.job_id, **_metrics(v, VALIDATION_COLUMNS)} for v in validation]
-            insert_rows(s, ValidationEpisode, rows)
+        diagnostics = getattr(result, "diagnostics", None) or []  # a result pickled before it had them: none
+        insert_rows(s, Diagnostic, diagnostic_rows(result.job_id, diagnostics))
+        validation = getattr(result, "validation", None) or []  # likewise: a result pickled before revision 0006
+        insert_rows(
+            s, ValidationEpisode, [{"job_id": result.job_id, **_metrics(v, VALIDATION_COLUMNS)} for v in validation]
+        )
         return True
 
 
