@@ -123,16 +123,13 @@ def write_tensorboard(folder: Path, rows: list[dict]) -> None:
     """``rows`` (training diagnostics) as TensorBoard events in ``folder``: each quantity as
     the scalar ``diagnostics/<name>`` at the row's env step, as the SB3 engine writes them (a
     plug-in algorithm's own names after the vocabulary's)."""
+    from nutribench.agents.training_log import tensorboard_folder
     from nutribench.diagnostics import QUANTITIES, TIMESTEP, UPDATE
 
-    try:
-        from torch.utils.tensorboard import SummaryWriter
-    except ImportError:
-        raise RuntimeError(
-            "--tensorboard needs the tensorboard package: pip install 'nutribench[tensorboard]'"
-        ) from None
-    folder.mkdir(parents=True, exist_ok=True)
-    writer = SummaryWriter(log_dir=str(folder))
+    log_dir = tensorboard_folder(folder)  # made, as the SB3 engine makes it; a clear error without tensorboard
+    from torch.utils.tensorboard import SummaryWriter
+
+    writer = SummaryWriter(log_dir=log_dir)
     try:
         for row in rows:
             other = sorted(set(row) - {UPDATE, TIMESTEP, *QUANTITIES})
