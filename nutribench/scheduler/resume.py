@@ -84,12 +84,10 @@ def remove_finished_checkpoints(store: Store, folder: Path) -> list[Path]:
             continue
         from nutribench.engine.checkpoint import checkpoint_files  # torch: only when there is something to delete
 
-        try:
+        with suppress(OSError):  # a file it cannot delete: the manifest stays, for the next run
             for file in [*checkpoint_files(path.with_name(prefix)), path]:
                 file.unlink(missing_ok=True)
-        except OSError:
-            continue
-        removed.append(path)
+            removed.append(path)
     return removed
 
 

@@ -74,17 +74,13 @@ def _last_line(text: str | None) -> str:
 def status_table(db: str | os.PathLike[str]) -> StatusReport:
     """Counts per regime x algo x budget, wall time used, remaining work and ETA, and the
     last error of every failed job. Raises StoreError (one line) for a bad database."""
-    store = open_store(db)
-    try:
-        configs = (RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version)
-        q = select(*configs, *(getattr(Job, c) for c in JOB_COLUMNS))
-        q = q.join(RegimeConfig, RegimeConfig.id == Job.regime_id)
-        q = q.join(AgentConfig, AgentConfig.id == Job.agent_config_id).order_by(*configs, Job.episodes, Job.seed)
-        with store.engine.connect() as conn:
-            jobs = conn.execute(q).all()
-            now = db_now(conn)
-    finally:
-        store.dispose()
+    configs = (RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version)
+    q = select(*configs, *(getattr(Job, c) for c in JOB_COLUMNS))
+    q = q.join(RegimeConfig, RegimeConfig.id == Job.regime_id)
+    q = q.join(AgentConfig, AgentConfig.id == Job.agent_config_id).order_by(*configs, Job.episodes, Job.seed)
+    with open_store(db) as store, store.engine.connect() as conn:
+        jobs = conn.execute(q).all()
+        now = db_now(conn)
     return summarize(jobs, now)
 
 
