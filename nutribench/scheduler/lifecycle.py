@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import and_, func, or_, select, update
 
-from nutribench.store.engine import StoreError, db_now, display_url, session_scope
+from nutribench.store.engine import StoreError, db_now, session_scope
 from nutribench.store.models import (
     EPISODE_METRICS,
     EVAL_STEP_COLUMNS,
@@ -63,14 +63,13 @@ def check_not_mixed(store: Store, fake: bool) -> None:
         n = conn.execute(select(func.count()).select_from(Job).where(Job.fake == (not fake))).scalar_one()
     if not n:
         return
-    where = display_url(store.url)
     if fake:
         raise StoreError(
-            f"{where} holds {n} real jobs: a dry run (NUTRIBENCH_JOB=fake) would mix synthetic rows "
+            f"{store.display} holds {n} real jobs: a dry run (NUTRIBENCH_JOB=fake) would mix synthetic rows "
             "with results; give it a database of its own (--db)"
         )
     raise StoreError(
-        f"{where} holds {n} dry-run jobs (NUTRIBENCH_JOB=fake), which are never results: write real "
+        f"{store.display} holds {n} dry-run jobs (NUTRIBENCH_JOB=fake), which are never results: write real "
         "work to another database (--db), or delete this one"
     )
 
