@@ -123,16 +123,13 @@ def write_tensorboard(folder: Path, rows: list[dict]) -> None:
     """``rows`` (training diagnostics) as TensorBoard events in ``folder``: each quantity as
     the scalar ``diagnostics/<name>`` at the row's env step, as the SB3 engine writes them (a
     plug-in algorithm's own names after the vocabulary's)."""
+    from nutribench.agents.training_log import tensorboard_folder
     from nutribench.diagnostics import QUANTITIES, TIMESTEP, UPDATE
 
-    try:
-        from torch.utils.tensorboard import SummaryWriter
-    except ImportError:
-        raise RuntimeError(
-            "--tensorboard needs the tensorboard package: pip install 'nutribench[tensorboard]'"
-        ) from None
-    folder.mkdir(parents=True, exist_ok=True)
-    writer = SummaryWriter(log_dir=str(folder))
+    log_dir = tensorboard_folder(folder)  # made, as the SB3 engine makes it; a clear error without tensorboard
+    from torch.utils.tensorboard import SummaryWriter
+
+    writer = SummaryWriter(log_dir=log_dir)
     try:
         for row in rows:
             other = sorted(set(row) - {UPDATE, TIMESTEP, *QUANTITIES})
@@ -166,21 +163,15 @@ def remove_abandoned(folder: Path, specs: list[JobSpec]) -> list[Path]:
     its id and what it is (agent config, regime, seed, budget); a manifest of an older
     nutribench (job ids only) by its ids and the file name's agent config. Returns the
     manifests deleted."""
-    mine = {json.dumps(_job(s), sort_keys=True) for s in specs}
-    ids = {s.job_id for s in specs}
+    from nutribench.scheduler.resume import MANIFEST_SUFFIX, read_manifests  # read as the driver reads them
+
+    mine, ids = [_job(s) for s in specs], {s.job_id for s in specs}
     prefix = f"{specs[0].algo}-v{specs[0].algo_version}-"
     removed = []
-    for path in sorted(folder.glob("*.jobs.json")) if folder.is_dir() else []:
-        try:
-            data = json.loads(path.read_text())
-            if isinstance(data.get("jobs"), list):
-                hit = any(json.dumps(j, sort_keys=True) in mine for j in data["jobs"])
-            else:
-                hit = path.name.startswith(prefix) and bool(ids & {int(i) for i in data["job_ids"]})
-        except (OSError, ValueError, KeyError, TypeError, AttributeError):
-            continue
-        if hit:
-            for p in checkpoint_files(path.with_name(path.name[: -len(".jobs.json")])):
+    for path, jobs in read_manifests(folder).items():
+        older = path.name.startswith(prefix) and any("algo_sha256" not in j and j["job_id"] in ids for j in jobs)
+        if older or any(j in mine for j in jobs):
+            for p in checkpoint_files(path.with_name(path.name[: -len(MANIFEST_SUFFIX)])):
                 p.unlink(missing_ok=True)
             path.unlink(missing_ok=True)
             removed.append(path)

@@ -20,14 +20,17 @@ One call of :func:`run_grid`:
    jobs ``interrupted`` (no rows are written for them: rows are only written when a job completes);
 8. at its start and end, deletes the batched engine's checkpoints whose jobs are all done (:mod:`nutribench.scheduler.resume`).
 
-What a run uses when not told: the job function in :mod:`nutribench.scheduler.defaults`, the
+What a run uses when not told: the job function (:func:`~nutribench.scheduler.settings.default_job_fn`), the
 models folder :attr:`GridSettings.models <nutribench.scheduler.settings.GridSettings.models>`. No signal handler (``run``'s: :mod:`nutribench.cli.signals`).
 """
 
 from __future__ import annotations
 
+import os
+import socket
 import threading
 import time
+import uuid
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
@@ -37,7 +40,6 @@ from typing import Any
 from sqlalchemy.exc import OperationalError
 
 from nutribench.engines import Engine
-from nutribench.scheduler.defaults import default_batch_fn, default_job_fn, driver_token
 from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_executor
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.lifecycle import (
@@ -56,13 +58,12 @@ from nutribench.scheduler.pools import Pool, batch_pools, check_engine
 from nutribench.scheduler.progress import make_view, note_event
 from nutribench.scheduler.registration import RunError, load_grid_configs, register_grid, spec_maker
 from nutribench.scheduler.resume import checkpointed_first, remove_finished_checkpoints
-from nutribench.scheduler.settings import GridSettings
+from nutribench.scheduler.settings import GridSettings, default_batch_fn, default_job_fn
 from nutribench.scheduler.spec import JobSpec
 from nutribench.scheduler.storing import (
     HeldResults,
     error_text,
     first_line,
-    interrupt_line,
     one_line,
     release_quietly,
     stop_line,
@@ -290,14 +291,18 @@ class _Run:
             held = [s.job_id for specs in self.in_flight.values() for s in specs] + list(self.held)
             released = release_quietly(self.store, held, self.owner)
         self.summary.interrupted = released if isinstance(released, int) else 0
-        how = (released, len(held), self.held)
-        line = stop_line(self.store.display, error, *how) if error else interrupt_line(*how)
+        line = stop_line(self.store.display, error, released, len(held), self.held)
         if line and not error:
             self.view.log(f"[red]{line}[/]")
         self.summary.user_interrupt = error is None
         self.in_flight.clear()
         self.live.clear()
         return line
+
+
+def driver_token() -> str:
+    """A unique owner token for one driver: host, process id and a random part (the jobs it claims carry it)."""
+    return f"{socket.gethostname()[:80]}:{os.getpid()}:{uuid.uuid4().hex[:12]}"
 
 
 def run_grid(settings: GridSettings, stop: threading.Event | None = None) -> RunSummary:

@@ -63,8 +63,8 @@ class ExecutorHandle:
     description: str
     sink: Sink | None = None  # picklable; handed to each job
     events: queue.Queue = field(default_factory=queue.Queue)  # progress events at the driver
-    _terminate: Callable[[], None] | None = None
-    _close: Callable[[], None] | None = None
+    _terminate: Callable[[], None] = lambda: None  # stops what the executor's shutdown leaves running
+    _close: Callable[[], None] = lambda: None  # releases what the executor holds (a cluster's client)
 
     def drain(self) -> list[dict[str, Any]]:
         return [self.events.get_nowait() for _ in range(self.events.qsize())]  # the driver is its one reader
@@ -75,15 +75,13 @@ class ExecutorHandle:
             self.executor.shutdown(wait=False, cancel_futures=True)
         except TypeError:  # pragma: no cover - executors without cancel_futures
             self.executor.shutdown(wait=False)
-        if self._terminate is not None:
-            self._terminate()
+        self._terminate()
 
     def close(self) -> None:
         try:
             self.executor.shutdown(wait=True)
         finally:
-            if self._close is not None:
-                self._close()
+            self._close()
 
 
 def local_executor(workers: int) -> ExecutorHandle:

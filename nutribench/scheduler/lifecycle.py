@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import and_, func, or_, select, update
 
-from nutribench.store.engine import StoreError, db_now, display_url, session_scope
+from nutribench.store.engine import StoreError, db_now, session_scope
 from nutribench.store.models import (
     EPISODE_METRICS,
     EVAL_STEP_COLUMNS,
@@ -63,14 +63,13 @@ def check_not_mixed(store: Store, fake: bool) -> None:
         n = conn.execute(select(func.count()).select_from(Job).where(Job.fake == (not fake))).scalar_one()
     if not n:
         return
-    where = display_url(store.url)
     if fake:
         raise StoreError(
-            f"{where} holds {n} real jobs: a dry run (NUTRIBENCH_JOB=fake) would mix synthetic rows "
+            f"{store.display} holds {n} real jobs: a dry run (NUTRIBENCH_JOB=fake) would mix synthetic rows "
             "with results; give it a database of its own (--db)"
         )
     raise StoreError(
-        f"{where} holds {n} dry-run jobs (NUTRIBENCH_JOB=fake), which are never results: write real "
+        f"{store.display} holds {n} dry-run jobs (NUTRIBENCH_JOB=fake), which are never results: write real "
         "work to another database (--db), or delete this one"
     )
 
@@ -167,11 +166,8 @@ def insert_episodes(
         for phase, episodes in (("train", train), ("eval", evaluation))
         for ep in episodes
     ]
-    if rows:
-        insert_rows(session, Episode, rows)
-    if eval_steps:
-        steps = [{"job_id": job_id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in eval_steps]
-        insert_rows(session, EvalStep, steps)
+    insert_rows(session, Episode, rows)  # none: no statement
+    insert_rows(session, EvalStep, [{"job_id": job_id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in eval_steps])
 
 
 def store_result(store: Store, result: JobResult, owner: str, model_path: str | None) -> bool:
@@ -188,13 +184,12 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
         if _set(s, *mine, **done, error=None, model_path=result.model_path or model_path, **meta) != 1:
             return False
         insert_episodes(s, result.job_id, result.train, result.eval, result.eval_steps)
-        diagnostics = getattr(result, "diagnostics", None)  # a result pickled before it had them: none
-        if diagnostics:
-            insert_rows(s, Diagnostic, diagnostic_rows(result.job_id, diagnostics))
-        validation = getattr(result, "validation", None)  # likewise: a result pickled before revision 0006
-        if validation:
-            rows = [{"job_id": result.job_id, **_metrics(v, VALIDATION_COLUMNS)} for v in validation]
-            insert_rows(s, ValidationEpisode, rows)
+        diagnostics = getattr(result, "diagnostics", None) or []  # a result pickled before it had them: none
+        insert_rows(s, Diagnostic, diagnostic_rows(result.job_id, diagnostics))
+        validation = getattr(result, "validation", None) or []  # likewise: a result pickled before revision 0006
+        insert_rows(
+            s, ValidationEpisode, [{"job_id": result.job_id, **_metrics(v, VALIDATION_COLUMNS)} for v in validation]
+        )
         return True
 
 

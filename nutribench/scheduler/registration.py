@@ -22,7 +22,7 @@ from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.lifecycle import check_not_mixed, insert_episodes
 from nutribench.scheduler.spec import JobSpec
 from nutribench.store import AgentConfig, Job, RegimeConfig, session_scope, utcnow
-from nutribench.store.engine import REGISTRATION_LOCK, display_url, hold_write_lock
+from nutribench.store.engine import REGISTRATION_LOCK, hold_write_lock
 from nutribench.store.models import METADATA_COLUMNS
 from nutribench.store.schema import Store
 
@@ -201,7 +201,7 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
         old = s.execute(select(Job.id).filter_by(**key)).scalar_one_or_none()
         if old is not None:
             raise RunError(
-                f"{display_url(store.url)}: {cfg.name} v{cfg.version} on {env.name} seed {job.seed} with {job.episodes} "
+                f"{store.display}: {cfg.name} v{cfg.version} on {env.name} seed {job.seed} with {job.episodes} "
                 f"training days is already recorded (job {old}): record another seed, or bump the agent's version"
             )
         meta = {k: job.metadata[k] for k in METADATA_COLUMNS if k in job.metadata}
@@ -222,7 +222,7 @@ def check_external_entry(store: Store, regime_config: Any, agent_config: Any, se
 
     env, cfg = regime_config, agent_config
     what = f"Recorder {cfg.name} v{cfg.version} on {env.name} seed {seed}"
-    where = display_url(store.url)
+    where = store.display
     with session_scope(store.engine) as s:
         agent_row = _recorded(s, AgentConfig, cfg.name, cfg.version)
         if agent_row is not None and agent_row.sha256 != agent_config_sha256(cfg):

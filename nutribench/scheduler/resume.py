@@ -31,16 +31,20 @@ from nutribench.store.schema import Store
 MANIFEST_SUFFIX = ".jobs.json"
 
 
-def _named_jobs(path: Path) -> list[dict[str, Any]]:
-    """The jobs a manifest names: ``{"job_id": ..., ...what it is}``; a manifest of an older
-    nutribench lists job ids only (``{"job_id": ...}``). Raises ValueError when it cannot be read."""
-    data = json.loads(path.read_text())
-    listed = data.get("jobs")
-    jobs = [dict(j) for j in listed] if isinstance(listed, list) else [{"job_id": i} for i in data["job_ids"]]
-    for j in jobs:
-        if not isinstance(j.get("job_id"), int) or isinstance(j.get("job_id"), bool):
-            raise ValueError(f"{path.name}: a job id that is not an integer")
-    return jobs
+def read_manifests(folder: Path) -> dict[Path, list[dict[str, Any]]]:
+    """The jobs each batch manifest in ``folder`` names, by manifest: ``{"job_id": ..., ...what
+    it is}`` (a manifest of an older nutribench lists job ids only: ``{"job_id": ...}``). A
+    manifest that cannot be read, or names a job id that is not an integer, is left out; a
+    folder that cannot be listed raises OSError."""
+    manifests = {}
+    for path in sorted(folder.glob(f"*{MANIFEST_SUFFIX}")) if folder.is_dir() else []:
+        with suppress(OSError, ValueError, KeyError, TypeError, AttributeError):
+            data = json.loads(path.read_text())
+            listed = data.get("jobs")
+            jobs = [dict(j) for j in listed] if isinstance(listed, list) else [{"job_id": i} for i in data["job_ids"]]
+            if all(type(j.get("job_id")) is int for j in jobs):  # JSON's integers (not true or 3.0)
+                manifests[path] = jobs
+    return manifests
 
 
 def _done(job: dict[str, Any], row: Any, prefix: str) -> bool:
@@ -57,11 +61,8 @@ def remove_finished_checkpoints(store: Store, folder: Path) -> list[Path]:
     """Delete the batch manifests in ``folder`` every job of which is done in ``store``, and
     their checkpoints (see the module docstring). Returns the manifests deleted. Never
     raises for a folder or a database it cannot read: housekeeping waits for the next run."""
-    manifests: dict[Path, list[dict[str, Any]]] = {}
     try:
-        for path in sorted(folder.glob(f"*{MANIFEST_SUFFIX}")) if folder.is_dir() else []:
-            with suppress(OSError, ValueError, KeyError, TypeError, AttributeError):
-                manifests[path] = _named_jobs(path)
+        manifests = read_manifests(folder)
     except OSError:
         return []
     ids = sorted({j["job_id"] for jobs in manifests.values() for j in jobs})
@@ -83,12 +84,10 @@ def remove_finished_checkpoints(store: Store, folder: Path) -> list[Path]:
             continue
         from nutribench.engine.checkpoint import checkpoint_files  # torch: only when there is something to delete
 
-        try:
+        with suppress(OSError):  # a file it cannot delete: the manifest stays, for the next run
             for file in [*checkpoint_files(path.with_name(prefix)), path]:
                 file.unlink(missing_ok=True)
-        except OSError:
-            continue
-        removed.append(path)
+            removed.append(path)
     return removed
 
 
@@ -98,11 +97,8 @@ def checkpointed_first(pools: list[Pool], folder: Path) -> list[Pool]:
     claims the same batch again and it resumes from its checkpoint. A batch whose jobs are
     no longer all in one pool (another grid, or some were done since) is left alone."""
     first: list[Pool] = []
-    for path in sorted(folder.glob(f"*{MANIFEST_SUFFIX}")) if folder.is_dir() else []:
-        try:
-            ids = [int(i) for i in json.loads(path.read_text())["job_ids"]]
-        except (OSError, ValueError, KeyError, TypeError):
-            continue
+    for jobs in read_manifests(folder).values():
+        ids = [j["job_id"] for j in jobs]
         for pool in pools:
             if pool.batched and ids and set(ids) <= set(pool.job_ids):
                 pool.job_ids = [i for i in pool.job_ids if i not in set(ids)]

@@ -1,5 +1,7 @@
 """What one :func:`~nutribench.scheduler.driver.run_grid` call runs, as one settings object,
-and what ``nutribench run`` checks of it and says before and after it runs.
+what ``nutribench run`` checks of it and says before and after it runs, and the functions that
+run a job and a batch when it is not told (the training job, or the synthetic one of a dry run
+with ``$NUTRIBENCH_JOB=fake``; the batched engine's worker function).
 
 :class:`GridSettings` holds the grid (regimes x agent configs x seeds, the budgets) and how it
 runs (database, workers, executor, engine, device, models and TensorBoard folders, evaluation
@@ -23,7 +25,17 @@ from nutribench.errors import UserError
 from nutribench.scheduler.executors import dask_address
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.pools import MAX_BATCH, check_engine
-from nutribench.scheduler.registration import RunError
+from nutribench.scheduler.registration import RunError, load_grid_configs
+from nutribench.scheduler.worker import JobFn
+from nutribench.store.engine import (
+    StoreError,
+    check_sqlite_file,
+    database_url,
+    hide_secrets,
+    in_memory,
+    shown_db,
+    sqlite_path,
+)
 
 
 @dataclass(frozen=True)
@@ -32,7 +44,7 @@ class GridSettings:
     days and ``eval_episodes`` evaluation days, into the database ``db``.
 
     ``workers``: jobs at once (None: the cores); ``executor``: ``local`` or ``dask://HOST:PORT``;
-    ``job_fn``/``batch_fn``: what runs one job / one batch (None: :mod:`~nutribench.scheduler.defaults`);
+    ``job_fn``/``batch_fn``: what runs one job / one batch (None: :func:`default_job_fn`, :func:`default_batch_fn`);
     ``models_dir``: where trained models go (None: ``models/`` next to the database);
     ``display``: the live progress view; ``retry_failed``: jobs that failed
     :data:`~nutribench.scheduler.lifecycle.MAX_FAILURES` times are tried again.
@@ -76,8 +88,6 @@ class GridSettings:
     def models(self) -> Path:
         """Where trained models go: ``models_dir``, else ``models/`` next to a SQLite file, else in
         the current folder."""
-        from nutribench.store.engine import database_url, sqlite_path
-
         if self.models_dir is not None:
             return Path(self.models_dir)
         path = sqlite_path(database_url(str(self.db)))
@@ -88,8 +98,6 @@ class GridSettings:
         docstring), each a one-line :class:`~nutribench.errors.UserError`."""
         from nutribench.engine import every_seconds_from_env
         from nutribench.safe_write import check_folder_target, check_tensorboard
-        from nutribench.scheduler.defaults import job_choice
-        from nutribench.scheduler.registration import load_grid_configs
 
         dask_address(self.executor)
         check_engine(self.engine, self.max_batch, self.device)
@@ -112,8 +120,6 @@ class GridSettings:
     def starting_line(self) -> str:
         """What the run starts, printed as soon as its options are checked, before the database
         is opened and the workers start: the first line the run writes to a log file."""
-        from nutribench.store.engine import shown_db
-
         grid, where = self.grid, shown_db(str(self.db))
         at = "" if self.workers is None else f", {self.workers} at a time"
         return (
@@ -128,18 +134,43 @@ def _n(count: int, word: str) -> str:
     return f"{count:,} {word}{'' if count == 1 else 's'}"
 
 
+def default_batch_fn() -> Callable:
+    """The batched engine's worker function (``$NUTRIBENCH_JOB=fake``: the synthetic job per spec)."""
+    if os.environ.get("NUTRIBENCH_JOB", "").strip() == "fake":
+        from nutribench.scheduler.synthetic import synthetic_batch
+
+        return synthetic_batch
+    from nutribench.scheduler.batched_job import run_batch
+
+    return run_batch
+
+
+def job_choice() -> str:
+    """``$NUTRIBENCH_JOB``: ``"fake"`` (the synthetic job) or ``"real"`` (unset); another value is
+    a one-line :class:`RunError`. Checked before a run starts, without importing the real job
+    (it imports torch)."""
+    choice = os.environ.get("NUTRIBENCH_JOB", "").strip()
+    if choice not in ("", "real", "fake"):
+        raise RunError(f"NUTRIBENCH_JOB={choice}: use 'fake' (synthetic jobs) or leave it unset")
+    return choice or "real"
+
+
+def default_job_fn() -> JobFn:
+    """``$NUTRIBENCH_JOB=fake`` (tests, dry runs): the synthetic job; else the real one."""
+    if job_choice() == "fake":
+        from nutribench.scheduler.synthetic import synthetic_job
+
+        return synthetic_job
+    try:
+        from nutribench.scheduler.single_job import run_job
+    except ImportError as e:
+        raise RunError(f"the training job cannot be imported ({e}): is nutribench fully installed?") from None
+    return run_job
+
+
 def check_db(db: str) -> None:
     """Refuse a database path that cannot be created or is not SQLite, and an in-memory database
     (every result would be lost), before anything runs."""
-    from nutribench.store.engine import (
-        StoreError,
-        check_sqlite_file,
-        database_url,
-        hide_secrets,
-        in_memory,
-        sqlite_path,
-    )
-
     url = database_url(db)
     if in_memory(url):
         raise StoreError(

@@ -36,10 +36,7 @@ def with_yardsticks(spec: JobSpec, validation: list[dict]) -> list[dict]:
     if not validation:
         return []
     days = day_yardsticks(spec.regime_config, validation_food_streams(spec.regime_config, spec.seed, spec.val_episodes))
-    return [
-        {**row, "never": days[row["episode"]]["never"], "planner": days[row["episode"]]["planner"]}
-        for row in validation
-    ]
+    return [row | {key: days[row["episode"]][key] for key in ("never", "planner")} for row in validation]
 
 
 def run_job(spec: JobSpec, sink: Sink | None = None) -> JobResult:

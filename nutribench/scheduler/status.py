@@ -74,17 +74,13 @@ def _last_line(text: str | None) -> str:
 def status_table(db: str | os.PathLike[str]) -> StatusReport:
     """Counts per regime x algo x budget, wall time used, remaining work and ETA, and the
     last error of every failed job. Raises StoreError (one line) for a bad database."""
-    store = open_store(db)
-    try:
-        configs = (RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version)
-        q = select(*configs, *(getattr(Job, c) for c in JOB_COLUMNS))
-        q = q.join(RegimeConfig, RegimeConfig.id == Job.regime_id)
-        q = q.join(AgentConfig, AgentConfig.id == Job.agent_config_id).order_by(*configs, Job.episodes, Job.seed)
-        with store.engine.connect() as conn:
-            jobs = conn.execute(q).all()
-            now = db_now(conn)
-    finally:
-        store.dispose()
+    configs = (RegimeConfig.name, RegimeConfig.version, AgentConfig.name, AgentConfig.version)
+    q = select(*configs, *(getattr(Job, c) for c in JOB_COLUMNS))
+    q = q.join(RegimeConfig, RegimeConfig.id == Job.regime_id)
+    q = q.join(AgentConfig, AgentConfig.id == Job.agent_config_id).order_by(*configs, Job.episodes, Job.seed)
+    with open_store(db) as store, store.engine.connect() as conn:
+        jobs = conn.execute(q).all()
+        now = db_now(conn)
     return summarize(jobs, now)
 
 
@@ -170,14 +166,13 @@ class _Tally:
         remaining, unknown = 0.0, False
         for key, row in self.rows.items():
             config = (row.algo, row.algo_version)
-            guesses = (
-                _mean(self.rates.get(key)),
-                _mean(per_algo.get(config)),
-                _mean(running_rates.get(config)),
-                _mean(self.orphan_rates.get(config)),
-                overall,
+            known = (
+                self.rates.get(key),
+                per_algo.get(config),
+                running_rates.get(config),
+                self.orphan_rates.get(config),
             )
-            rate = next((r for r in guesses if r is not None), None)
+            rate = next((_mean(rates) for rates in known if rates), overall)
             jobs_left = self.left.get(key, 0.0)
             if jobs_left and rate is None:
                 unknown = True

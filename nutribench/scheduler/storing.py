@@ -98,14 +98,13 @@ def released_text(released: int | str, n: int) -> str:
     )
 
 
-def stop_line(where: str, error: BaseException, released: int | str, n: int, held: HeldResults) -> str:
-    """The one line a run stopped by a storage error ends with."""
-    lost = f"; the results of {held.labels()} could not be stored (trained again next run)" if held else ""
-    return f"cannot write to {where}: {one_line(error)}: the run stopped; {released_text(released, n)}{lost}"
-
-
-def interrupt_line(released: int | str, n: int, held: HeldResults) -> str:
-    """What a stop signal's line adds: results still held (the lock never cleared), jobs not released."""
+def stop_line(where: str, error: BaseException | None, released: int | str, n: int, held: HeldResults) -> str:
+    """The line a stopped run ends with: stopped by a storage ``error``, that error, the ``n``
+    running jobs ``released`` (how many, or why not) and the results lost; stopped by a signal
+    (no ``error``), only what it adds: results still held (the lock never cleared), jobs not released."""
+    if error is not None:
+        lost = f"; the results of {held.labels()} could not be stored (trained again next run)" if held else ""
+        return f"cannot write to {where}: {one_line(error)}: the run stopped; {released_text(released, n)}{lost}"
     lost = f"the results of {held.labels()} could not be stored (the database stayed locked): trained again next run"
     kept = "" if isinstance(released, int) else released_text(released, n)
     return "; ".join(t for t in (lost if held else "", kept) if t)
