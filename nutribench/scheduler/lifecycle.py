@@ -152,22 +152,23 @@ def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, i
     return out
 
 
-def _metrics(row: dict[str, Any], columns: Sequence[str]) -> dict[str, Any]:
-    """``row``'s values of ``columns`` (None where absent), by column name."""
-    return {c: row.get(c) for c in columns}
-
-
-def insert_episodes(
-    session: Any, job_id: int, train: list[dict], evaluation: list[dict], eval_steps: list[dict]
-) -> None:
-    """A finished job's training and evaluation episodes and its evaluation steps, as rows."""
+def insert_job_rows(session: Any, job_id: int, job: Any) -> None:
+    """A finished job's rows: its training and evaluation episodes, evaluation steps, training
+    diagnostics and validation days (``job``: a :class:`JobResult`, or an external job, which has
+    neither of the last two; so has a result pickled before it had them)."""
     rows = [
-        {"job_id": job_id, "phase": phase, "episode": int(ep["episode"]), **_metrics(ep, EPISODE_METRICS)}
-        for phase, episodes in (("train", train), ("eval", evaluation))
+        {"job_id": job_id, "phase": phase, "episode": int(ep["episode"]), **{c: ep.get(c) for c in EPISODE_METRICS}}
+        for phase, episodes in (("train", job.train), ("eval", job.eval))
         for ep in episodes
     ]
     insert_rows(session, Episode, rows)  # none: no statement
-    insert_rows(session, EvalStep, [{"job_id": job_id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in eval_steps])
+    steps = [{"job_id": job_id, **{k: st[k] for k in EVAL_STEP_COLUMNS}} for st in job.eval_steps]
+    insert_rows(session, EvalStep, steps)
+    insert_rows(session, Diagnostic, diagnostic_rows(job_id, getattr(job, "diagnostics", None) or []))
+    days = getattr(job, "validation", None) or []
+    insert_rows(
+        session, ValidationEpisode, [{"job_id": job_id, **{c: d.get(c) for c in VALIDATION_COLUMNS}} for d in days]
+    )
 
 
 def store_result(store: Store, result: JobResult, owner: str, model_path: str | None) -> bool:
@@ -183,13 +184,7 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
         mine = (Job.id == result.job_id, Job.owner == owner, Job.status == "running")
         if _set(s, *mine, **done, error=None, model_path=result.model_path or model_path, **meta) != 1:
             return False
-        insert_episodes(s, result.job_id, result.train, result.eval, result.eval_steps)
-        diagnostics = getattr(result, "diagnostics", None) or []  # a result pickled before it had them: none
-        insert_rows(s, Diagnostic, diagnostic_rows(result.job_id, diagnostics))
-        validation = getattr(result, "validation", None) or []  # likewise: a result pickled before revision 0006
-        insert_rows(
-            s, ValidationEpisode, [{"job_id": result.job_id, **_metrics(v, VALIDATION_COLUMNS)} for v in validation]
-        )
+        insert_job_rows(s, result.job_id, result)
         return True
 
 

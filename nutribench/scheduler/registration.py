@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session
 
 from nutribench.errors import UserError
 from nutribench.scheduler.grid import Grid
-from nutribench.scheduler.lifecycle import check_not_mixed, insert_episodes
+from nutribench.scheduler.lifecycle import check_not_mixed, insert_job_rows
 from nutribench.scheduler.spec import JobSpec
 from nutribench.store import AgentConfig, Job, RegimeConfig, session_scope, utcnow
 from nutribench.store.engine import REGISTRATION_LOCK, hold_write_lock
@@ -209,7 +209,7 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
         row = Job(**key, **done, fake=False, **meta)
         s.add(row)
         s.flush()
-        insert_episodes(s, row.id, job.train, job.eval, job.eval_steps)
+        insert_job_rows(s, row.id, job)
         return row.id
 
 
