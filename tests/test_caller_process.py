@@ -192,8 +192,7 @@ def test_a_job_in_the_caller_s_process_leaves_its_threads_and_environment(
 
 
 def test_a_failing_job_in_the_caller_s_process_leaves_its_threads(caller_threads: int) -> None:
-    from nutribench.scheduler.spec import JobFailed
-    from nutribench.scheduler.worker import execute
+    from nutribench.scheduler.worker import JobFailed, execute
 
     def job(spec, sink):
         raise ValueError("broken")

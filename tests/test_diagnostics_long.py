@@ -22,7 +22,7 @@ from nutribench.cli import app
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.lifecycle import claim_jobs, store_result
 from nutribench.scheduler.registration import load_grid_configs, register_grid
-from nutribench.scheduler.spec import JobResult
+from nutribench.scheduler.worker import JobResult
 from nutribench.store import head_revision, make_engine, open_store, read_training_diagnostics
 from nutribench.store.archive.export import wide_diagnostics
 from nutribench.store.archive.format import columns

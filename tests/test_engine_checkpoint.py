@@ -25,7 +25,7 @@ def batch_specs(models, jobs=JOBS, episodes: int = 5, first_id: int = 1):
     """The JobSpecs of a batch of MC jobs whose models go to ``models`` (as ``nutribench run`` makes them)."""
     from nutribench.agents.config import agent_config_sha256
     from nutribench.config import load_env_config
-    from nutribench.scheduler.spec import JobSpec
+    from nutribench.scheduler.worker import JobSpec
 
     cfg = load_agent_config("mc")
     out = []
@@ -167,8 +167,7 @@ def test_run_batch_resumes_a_stopped_batch_and_removes_its_checkpoint(tmp_path, 
     from functools import partial
 
     import nutribench.scheduler.batched_job as batch
-    from nutribench.scheduler.spec import JobSpec
-    from nutribench.scheduler.worker import JobProgress
+    from nutribench.scheduler.worker import JobProgress, JobSpec
 
     def specs(models: str) -> list[JobSpec]:
         return batch_specs(tmp_path / models)

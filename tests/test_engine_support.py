@@ -159,7 +159,7 @@ def test_run_batch_refuses_an_unsupported_config(agents: Path, tmp_path: Path) -
     from nutribench.scheduler.batched_job import run_batch
     from nutribench.scheduler.grid import Grid
     from nutribench.scheduler.registration import load_grid_configs
-    from nutribench.scheduler.spec import JobFailed, JobSpec
+    from nutribench.scheduler.worker import JobFailed, JobSpec
 
     regimes, configs = load_grid_configs(Grid(("run0",), ("sac_nr",), (0,), 2, 1))
     r, a = regimes[0], configs[0]

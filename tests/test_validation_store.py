@@ -20,7 +20,7 @@ from nutribench.cli import app
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.lifecycle import claim_jobs, store_result
 from nutribench.scheduler.registration import load_grid_configs, register_grid
-from nutribench.scheduler.spec import JobResult
+from nutribench.scheduler.worker import JobResult
 from nutribench.store import make_engine, open_store, read_episode_metrics, read_learning_curve
 from nutribench.store.engine import database_url
 from nutribench.store.schema import upgrade_connection

@@ -16,8 +16,8 @@ The driver's side (the one process that writes the database):
 
 The worker's side (never touches the database):
 
-- :mod:`~nutribench.scheduler.spec`: JobSpec in, JobResult out (pure, picklable data)
-- :mod:`~nutribench.scheduler.worker`: what every executor runs (one thread, progress events)
+- :mod:`~nutribench.scheduler.worker`: JobSpec in, JobResult out (pure, picklable data); what every
+  executor runs (one thread, progress events)
 - :mod:`~nutribench.scheduler.single_job`: one job (SB3 engine or a plug-in's code)
 - :mod:`~nutribench.scheduler.batched_job`: a batch of jobs through the batched engine
 - :mod:`~nutribench.scheduler.synthetic`: the dry run's and the tests' stand-in job

@@ -42,8 +42,7 @@ from nutribench.engines import Engine
 from nutribench.provenance import collect_metadata, git_state
 from nutribench.safe_write import atomic_write
 from nutribench.scheduler.single_job import check_configs, finished_result
-from nutribench.scheduler.spec import JobFailed, JobResult, JobSpec
-from nutribench.scheduler.worker import JobProgress, Sink
+from nutribench.scheduler.worker import JobFailed, JobProgress, JobResult, JobSpec, Sink
 
 
 def run_batch(specs: list[JobSpec], sink: Sink | None = None) -> list[JobResult]:

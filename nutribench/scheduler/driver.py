@@ -59,7 +59,6 @@ from nutribench.scheduler.progress import make_view, note_event
 from nutribench.scheduler.registration import RunError, load_grid_configs, register_grid, spec_maker
 from nutribench.scheduler.resume import checkpointed_first, remove_finished_checkpoints
 from nutribench.scheduler.settings import GridSettings, default_batch_fn, default_job_fn
-from nutribench.scheduler.spec import JobSpec
 from nutribench.scheduler.storing import (
     HeldResults,
     error_text,
@@ -70,7 +69,7 @@ from nutribench.scheduler.storing import (
     store_finished,
     unless_locked,
 )
-from nutribench.scheduler.worker import JobFn, execute
+from nutribench.scheduler.worker import JobFn, JobSpec, execute
 from nutribench.store import Job, open_store
 from nutribench.store.engine import StoreError
 from nutribench.store.schema import Store

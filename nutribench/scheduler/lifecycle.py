@@ -47,7 +47,7 @@ from nutribench.store.models import (
 from nutribench.store.schema import Store
 
 if TYPE_CHECKING:
-    from nutribench.scheduler.spec import JobResult
+    from nutribench.scheduler.worker import JobResult
 
 MAX_FAILURES = 3  # a job that failed this often is no longer retried
 #: what a worker reports of a running job (its training seconds so far, a resumed batch's earlier

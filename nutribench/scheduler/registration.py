@@ -2,7 +2,7 @@
 their content in the database (refusing a changed file whose version was not bumped), and
 create the job rows it lacks. Used by :func:`nutribench.scheduler.driver.run_grid` before
 any job runs; then :func:`spec_maker` turns each job row the driver claims into what a
-worker is given (:class:`~nutribench.scheduler.spec.JobSpec`: the configs it runs with, their
+worker is given (:class:`~nutribench.scheduler.worker.JobSpec`: the configs it runs with, their
 hashes, its model file's path, its device). The recorder's jobs (:class:`ExternalJob`) are
 registered here too.
 """
@@ -20,7 +20,7 @@ from sqlalchemy.orm import Session
 from nutribench.errors import UserError
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.lifecycle import check_not_mixed, insert_job_rows
-from nutribench.scheduler.spec import JobSpec
+from nutribench.scheduler.worker import JobSpec
 from nutribench.store import AgentConfig, Job, RegimeConfig, session_scope, utcnow
 from nutribench.store.engine import REGISTRATION_LOCK, hold_write_lock
 from nutribench.store.models import METADATA_COLUMNS
@@ -140,7 +140,7 @@ def spec_maker(settings: Any, job_ids: list[int], regime_cfgs: list, agent_cfgs:
     :class:`~nutribench.scheduler.settings.GridSettings`, its jobs ``job_ids`` in grid order as
     :func:`register_grid` returns them, registered from ``regime_cfgs`` and ``agent_cfgs``:
     :func:`~nutribench.scheduler.registration.load_grid_configs`)
-    to its :class:`~nutribench.scheduler.spec.JobSpec`: its model file under ``settings.models``,
+    to its :class:`~nutribench.scheduler.worker.JobSpec`: its model file under ``settings.models``,
     trained on ``settings.device``, its TensorBoard events (if any) under ``settings.tensorboard``,
     evaluated on ``settings.val_episodes`` validation days every ``settings.eval_every`` training
     days (None or 0: never)."""

@@ -1,7 +1,7 @@
 """The real job: train one agent on one regime with one seed, evaluate it, save the model.
 
 Runs in a worker process; never touches the database. Progress goes to ``sink`` (see
-:mod:`nutribench.scheduler.worker`); the result is a :class:`~nutribench.scheduler.spec.JobResult`.
+:mod:`nutribench.scheduler.worker`); the result is a :class:`~nutribench.scheduler.worker.JobResult`.
 """
 
 from __future__ import annotations
@@ -18,8 +18,7 @@ from nutribench.baselines import day_yardsticks
 from nutribench.clock import utcnow
 from nutribench.engines import Engine
 from nutribench.provenance import collect_metadata
-from nutribench.scheduler.spec import JobFailed, JobResult, JobSpec
-from nutribench.scheduler.worker import JobProgress, Sink
+from nutribench.scheduler.worker import JobFailed, JobProgress, JobResult, JobSpec, Sink
 
 
 def check_configs(spec: JobSpec) -> None:

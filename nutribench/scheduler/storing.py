@@ -20,7 +20,7 @@ from typing import Any
 from sqlalchemy.exc import OperationalError
 
 from nutribench.scheduler.lifecycle import STALE_AFTER_S, release_jobs, store_result
-from nutribench.scheduler.spec import JobFailed, JobResult, JobSpec
+from nutribench.scheduler.worker import JobFailed, JobResult, JobSpec
 
 RETRY_FIRST_S = 1.0  # the first pause before a held result is stored again; doubled each time
 RETRY_MAX_S = 30.0

@@ -25,8 +25,7 @@ from nutribench.clock import utcnow
 from nutribench.engines import Engine
 from nutribench.provenance import collect_metadata
 from nutribench.safe_write import atomic_write
-from nutribench.scheduler.spec import JobResult, JobSpec
-from nutribench.scheduler.worker import JobProgress, Sink
+from nutribench.scheduler.worker import JobProgress, JobResult, JobSpec, Sink
 
 #: Called with a job's spec and the training episode about to run (0-based)
 EpisodeHook = Callable[[JobSpec, int], None]
