@@ -217,8 +217,7 @@ def test_run_batch_resumes_a_stopped_batch_and_removes_its_checkpoint(tmp_path, 
 
 
 def test_a_batch_that_left_a_checkpoint_is_claimed_first_and_whole(tmp_path):
-    from nutribench.scheduler.pools import Pool
-    from nutribench.scheduler.resume import checkpointed_first
+    from nutribench.scheduler.pools import Pool, checkpointed_first
 
     folder = tmp_path / "checkpoints"
     folder.mkdir()

@@ -6,8 +6,8 @@ The driver's side (the one process that writes the database):
 - :mod:`~nutribench.scheduler.registration`: configs and job rows recorded; a claimed row -> its JobSpec
 - :mod:`~nutribench.scheduler.lifecycle`: the only code that changes a job's status (claim,
   heartbeat, stale rule, done / failed / interrupted), read by status too
-- :mod:`~nutribench.scheduler.pools`: jobs one by one or in batches per agent config; ``--engine`` checks
-- :mod:`~nutribench.scheduler.resume`: stopped batches claimed first; finished batches' checkpoints deleted
+- :mod:`~nutribench.scheduler.pools`: jobs one by one or in batches per agent config; ``--engine`` checks;
+  stopped batches claimed first; finished batches' checkpoints deleted
 - :mod:`~nutribench.scheduler.driver`: the loop (claim, submit, store each finished job in one transaction),
   with :mod:`~nutribench.scheduler.settings` (what it runs, the job functions when not told) and
   :mod:`~nutribench.scheduler.storing` (a locked or failing database); it installs no signal handler (``run``'s are :mod:`nutribench.cli.signals`)

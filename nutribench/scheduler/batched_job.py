@@ -141,7 +141,7 @@ def write_tensorboard(folder: Path, rows: list[dict]) -> None:
 
 def manifest(path: Path) -> Path:
     """``<checkpoint>.jobs.json``: the job ids of the batch, so that the next run claims the
-    same batch and it resumes (:func:`nutribench.scheduler.resume.checkpointed_first`)."""
+    same batch and it resumes (:func:`nutribench.scheduler.pools.checkpointed_first`)."""
     return path.with_name(path.name + ".jobs.json")
 
 
@@ -162,7 +162,7 @@ def remove_abandoned(folder: Path, specs: list[JobSpec]) -> list[Path]:
     its id and what it is (agent config, regime, seed, budget); a manifest of an older
     nutribench (job ids only) by its ids and the file name's agent config. Returns the
     manifests deleted."""
-    from nutribench.scheduler.resume import MANIFEST_SUFFIX, read_manifests  # read as the driver reads them
+    from nutribench.scheduler.pools import MANIFEST_SUFFIX, read_manifests  # read as the driver reads them
 
     mine, ids = [_job(s) for s in specs], {s.job_id for s in specs}
     prefix = f"{specs[0].algo}-v{specs[0].algo_version}-"

@@ -18,7 +18,7 @@ One call of :func:`run_grid`:
    in ONE transaction; a failed job gets status ``failed``, ``failures + 1`` and its error;
 7. on Ctrl-C (a KeyboardInterrupt) or its ``stop`` event stops the workers and marks their
    jobs ``interrupted`` (no rows are written for them: rows are only written when a job completes);
-8. at its start and end, deletes the batched engine's checkpoints whose jobs are all done (:mod:`nutribench.scheduler.resume`).
+8. at its start and end, deletes the batched engine's checkpoints whose jobs are all done (:mod:`nutribench.scheduler.pools`).
 
 What a run uses when not told: the job function (:func:`~nutribench.scheduler.settings.default_job_fn`), the
 models folder :attr:`GridSettings.models <nutribench.scheduler.settings.GridSettings.models>`. No signal handler (``run``'s: :mod:`nutribench.cli.signals`).
@@ -54,10 +54,9 @@ from nutribench.scheduler.lifecycle import (
     reset_given_up,
     store_failure,
 )
-from nutribench.scheduler.pools import Pool, batch_pools, check_engine
+from nutribench.scheduler.pools import Pool, batch_pools, check_engine, checkpointed_first, remove_finished_checkpoints
 from nutribench.scheduler.progress import make_view, note_event
 from nutribench.scheduler.registration import RunError, load_grid_configs, register_grid, spec_maker
-from nutribench.scheduler.resume import checkpointed_first, remove_finished_checkpoints
 from nutribench.scheduler.settings import GridSettings, default_batch_fn, default_job_fn
 from nutribench.scheduler.storing import (
     HeldResults,
