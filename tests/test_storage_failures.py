@@ -54,7 +54,6 @@ def grid(db: Path, seeds=(0, 21), **kw):
 def patch_store(monkeypatch: pytest.MonkeyPatch, fn) -> None:
     """Replace the store of a finished job wherever the driver looks it up (today's code and this one)."""
     monkeypatch.setattr(driver, "store_result", fn, raising=False)
-    monkeypatch.setattr("nutribench.scheduler.storing.store_result", fn, raising=False)
 
 
 def operational(message: str) -> OperationalError:
@@ -94,7 +93,6 @@ def test_disk_full_that_refuses_every_write_leaves_the_jobs_to_the_stale_rule(re
 
     patch_store(monkeypatch, full)
     monkeypatch.setattr(driver, "store_failure", full)
-    monkeypatch.setattr("nutribench.scheduler.storing.release_jobs", full)
     monkeypatch.setattr(driver, "release_jobs", full)
     with pytest.raises(StoreError) as info:
         grid(db, seeds=(0,))

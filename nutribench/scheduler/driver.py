@@ -20,6 +20,17 @@ One call of :func:`run_grid`:
    jobs ``interrupted`` (no rows are written for them: rows are only written when a job completes);
 8. at its start and end, deletes the batched engine's checkpoints whose jobs are all done (:mod:`nutribench.scheduler.pools`).
 
+Storing finished jobs when the database pushes back:
+
+- A lock held past the busy timeout ("database is locked": another writer holds SQLite's one
+  write lock for long; PostgreSQL's lock timeouts) is not the job's fault: its result is kept
+  in memory (:class:`HeldResults`) and stored again with a growing pause until it succeeds or
+  the run stops, the job heartbeating meanwhile so that no other driver takes it over. A
+  heartbeat or a claim that meets the lock is simply tried again later.
+- Any other operational error while writing (disk full, I/O error, a read-only file, the
+  server gone) stops the run with one line (:func:`stop_line`): its jobs are released if the
+  database still takes that write, else left to the stale rule; the next run resumes them.
+
 What a run uses when not told: the job function (:func:`~nutribench.scheduler.settings.default_job_fn`), the
 models folder :attr:`GridSettings.models <nutribench.scheduler.settings.GridSettings.models>`. No signal handler (``run``'s: :mod:`nutribench.cli.signals`).
 """
@@ -31,7 +42,7 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
 from functools import partial
@@ -44,6 +55,7 @@ from nutribench.scheduler.executors import ExecutorHandle, make_executor, probe_
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.lifecycle import (
     MAX_FAILURES,
+    STALE_AFTER_S,
     check_not_mixed,
     claim_jobs,
     count_claimable,
@@ -53,28 +65,119 @@ from nutribench.scheduler.lifecycle import (
     release_jobs,
     reset_given_up,
     store_failure,
+    store_result,
 )
 from nutribench.scheduler.pools import Pool, batch_pools, check_engine, checkpointed_first, remove_finished_checkpoints
 from nutribench.scheduler.progress import make_view, note_event
 from nutribench.scheduler.registration import RunError, load_grid_configs, register_grid, spec_maker
 from nutribench.scheduler.settings import GridSettings, default_batch_fn, default_job_fn
-from nutribench.scheduler.storing import (
-    HeldResults,
-    error_text,
-    first_line,
-    one_line,
-    release_quietly,
-    stop_line,
-    store_finished,
-    unless_locked,
-)
-from nutribench.scheduler.worker import JobFn, JobSpec, execute
+from nutribench.scheduler.worker import JobFailed, JobFn, JobResult, JobSpec, execute
 from nutribench.store import Job, open_store
 from nutribench.store.engine import StoreError
 from nutribench.store.schema import Store
 
 WAIT_POLL_S = 1.0  # how often a driver with nothing to run looks at jobs held by another
 FLUSH_EVERY_S = 3.0  # progress + heartbeat writes
+
+
+# --------------------------------------------------------------------------- a database that pushes back
+RETRY_FIRST_S = 1.0  # the first pause before a held result is stored again; doubled each time
+RETRY_MAX_S = 30.0
+LOCK_WORDS = (
+    "database is locked",
+    "database table is locked",
+    "lock timeout",
+    "could not obtain lock",
+    "deadlock detected",
+)
+
+
+def one_line(error: BaseException) -> str:
+    """A database error's message on one line, without SQLAlchemy's statement and parameters."""
+    return " ".join(str(getattr(error, "orig", None) or error).split()) or type(error).__name__
+
+
+def is_lock_error(error: BaseException) -> bool:
+    """A write that met another writer's lock for longer than the busy timeout."""
+    return isinstance(error, OperationalError) and any(w in one_line(error).lower() for w in LOCK_WORDS)
+
+
+def unless_locked(fn: Callable[..., Any], *args: Any, default: Any = None) -> Any:
+    """``fn(*args)``, or ``default`` when it met the lock (another write is tried later)."""
+    try:
+        return fn(*args)
+    except OperationalError as e:
+        if not is_lock_error(e):
+            raise
+        return default
+
+
+@dataclass
+class Held:
+    spec: Any
+    result: Any
+    due: float
+    pause: float
+
+
+class HeldResults(dict):
+    """Finished jobs' results the database could not take yet (job id -> :class:`Held`)."""
+
+    def hold(self, spec: Any, result: Any) -> float:
+        """Keep ``result``; the pause until it is stored again (doubling up to RETRY_MAX_S)."""
+        before = self.get(spec.job_id)
+        pause = RETRY_FIRST_S if before is None else min(2 * before.pause, RETRY_MAX_S)
+        self[spec.job_id] = Held(spec, result, time.monotonic() + pause, pause)
+        return pause
+
+    def due(self) -> list[Held]:
+        now = time.monotonic()
+        return [h for h in list(self.values()) if h.due <= now]
+
+    def labels(self) -> str:
+        return ", ".join(h.spec.label for h in self.values())
+
+
+def release_quietly(store: Any, job_ids: Sequence[int], owner: str) -> int | str:
+    """Release ``job_ids`` as interrupted: how many, or why the database refused that too."""
+    try:
+        return release_jobs(store, job_ids, owner)
+    except OperationalError as e:
+        return one_line(e)
+
+
+def released_text(released: int | str, n: int) -> str:
+    if n == 0:
+        return "no job was running: nothing was lost"
+    if isinstance(released, int):
+        return f"{released} running job{'s' if released != 1 else ''} released, the next run resumes them"
+    return (
+        f"its {n} running job{'s' if n != 1 else ''} could not be released either ({released}): the next run "
+        f"takes them over once their heartbeat is {STALE_AFTER_S:.0f} s old"
+    )
+
+
+def stop_line(where: str, error: BaseException | None, released: int | str, n: int, held: HeldResults) -> str:
+    """The line a stopped run ends with: stopped by a storage ``error``, that error, the ``n``
+    running jobs ``released`` (how many, or why not) and the results lost; stopped by a signal
+    (no ``error``), only what it adds: results still held (the lock never cleared), jobs not released."""
+    if error is not None:
+        lost = f"; the results of {held.labels()} could not be stored (trained again next run)" if held else ""
+        return f"cannot write to {where}: {one_line(error)}: the run stopped; {released_text(released, n)}{lost}"
+    lost = f"the results of {held.labels()} could not be stored (the database stayed locked): trained again next run"
+    kept = "" if isinstance(released, int) else released_text(released, n)
+    return "; ".join(t for t in (lost if held else "", kept) if t)
+
+
+def first_line(exc: BaseException) -> str:
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+
+
+def error_text(exc: BaseException) -> str:
+    """What a failed job's row keeps: the message, and the worker's traceback where there is one."""
+    if isinstance(exc, JobFailed):
+        return f"{exc}\n{exc.traceback_text}".strip()
+    return f"{type(exc).__name__}: {exc}"
 
 
 @dataclass
@@ -200,8 +303,27 @@ class _Run:
         for spec in specs:  # each job on its own: one that cannot be stored does not lose the others
             self._store(spec, results.get(spec.job_id))
 
-    def _store(self, spec: JobSpec, result: Any) -> None:
-        if store_finished(self, spec, result):
+    def _store(self, spec: JobSpec, result: JobResult | None) -> None:
+        """Store a finished job, counted and shown once stored. A result that meets the write
+        lock is held (:attr:`held`) and stored again later; another operational error (disk
+        full, I/O error, read-only) is raised: the driver stops; anything else is the job's failure."""
+        try:
+            if result is None:
+                raise JobFailed(f"{spec.label}: its batch returned no result for it")
+            stored = store_result(self.store, result, self.owner, spec.model_path)
+        except OperationalError as e:
+            if not is_lock_error(e):
+                raise
+            self.view.log(
+                f"[yellow]kept[/] {spec.label}: {one_line(e)}; stored again in {self.held.hold(spec, result):.0f} s"
+            )
+            return
+        except Exception as e:  # noqa: BLE001 - recorded as the job's failure, the run goes on
+            self._failed(spec, e, "could not be stored: ")
+            stored = False
+        if self.held.pop(spec.job_id, None) is not None:  # its job heartbeated while held
+            self.live.pop(spec.job_id, None)
+        if stored:
             self.summary.done += 1
             self.view.log(f"[green]done[/] {spec.label} ({result.metadata.get('wall_seconds', 0.0):.1f} s)")
 
