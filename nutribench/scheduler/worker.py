@@ -137,6 +137,7 @@ def one_thread() -> Iterator[None]:
             torch.set_num_threads(threads)
 
 
+@dataclass(eq=False)
 class JobProgress:
     """Throttled progress events of one job: ``start``, then ``episode`` (k done of n, mean
     recent return) at most every ``interval`` seconds and at the last episode.
@@ -146,20 +147,13 @@ class JobProgress:
     callable), this job's training seconds so far, those before a resume included: what
     ``nutribench run`` and ``nutribench status`` price the rest of a resumed batch by."""
 
-    def __init__(
-        self,
-        spec: JobSpec,
-        sink: Sink | None,
-        interval: float = PROGRESS_INTERVAL_S,
-        wall: Callable[[], float] | None = None,
-    ):
-        self.spec = spec
-        self.sink = sink
-        self.interval = interval
-        self.wall = wall
-        self.recent: deque[float] = deque(maxlen=RECENT_EPISODES)
-        self.k0: int | None = None  # the days done before this process trained its first
-        self._last = 0.0
+    spec: JobSpec
+    sink: Sink | None
+    interval: float = PROGRESS_INTERVAL_S
+    wall: Callable[[], float] | None = None
+    recent: deque[float] = field(init=False, default_factory=lambda: deque(maxlen=RECENT_EPISODES))
+    k0: int | None = field(init=False, default=None)  # the days done before this process trained its first
+    _last: float = field(init=False, default=0.0)
 
     def _send(self, event: dict[str, Any]) -> None:
         if self.sink is None:
