@@ -42,7 +42,7 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
 from functools import partial
@@ -136,14 +136,6 @@ class HeldResults(dict):
 
     def labels(self) -> str:
         return ", ".join(h.spec.label for h in self.values())
-
-
-def release_quietly(store: Any, job_ids: Sequence[int], owner: str) -> int | str:
-    """Release ``job_ids`` as interrupted: how many, or why the database refused that too."""
-    try:
-        return release_jobs(store, job_ids, owner)
-    except OperationalError as e:
-        return one_line(e)
 
 
 def released_text(released: int | str, n: int) -> str:
@@ -409,7 +401,10 @@ class _Run:
             self.handle.terminate_running()
         finally:  # whatever stopping the workers did, their jobs are given back
             held = [s.job_id for specs in self.in_flight.values() for s in specs] + list(self.held)
-            released = release_quietly(self.store, held, self.owner)
+            try:  # released as interrupted: how many, or why the database refused that too
+                released: int | str = release_jobs(self.store, held, self.owner)
+            except OperationalError as e:
+                released = one_line(e)
         self.summary.interrupted = released if isinstance(released, int) else 0
         line = stop_line(self.store.display, error, released, len(held), self.held)
         if line and not error:
