@@ -52,8 +52,8 @@ def grid(db: Path, seeds=(0, 21), **kw):
 
 
 def patch_store(monkeypatch: pytest.MonkeyPatch, fn) -> None:
-    """Replace the store of a finished job wherever the driver looks it up (today's code and this one)."""
-    monkeypatch.setattr(driver, "store_result", fn, raising=False)
+    """Replace the store of a finished job where the driver looks it up."""
+    monkeypatch.setattr(driver, "store_result", fn)
 
 
 def operational(message: str) -> OperationalError:
