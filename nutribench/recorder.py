@@ -258,7 +258,7 @@ class Recorder:
             raise RecorderError(
                 f"Recorder {self.agent_config.name}: call rec.evaluate(policy) before the with block ends (nothing was written)"
             )
-        from nutribench.scheduler.registration import ExternalJob, store_external_job
+        from nutribench.scheduler.registration import store_external_job
         from nutribench.store import open_store
 
         if self.trained_days and self.env.days:
@@ -274,15 +274,8 @@ class Recorder:
             "source": self.source[0],
             "source_sha256": self.source[1],
         }
-        job = ExternalJob(
-            self.regime_config,
-            self.agent_config,
-            self.seed,
-            self.env.days,
-            self._eval.episodes,
-            self._eval.steps,
-            meta,
-            budget=self.trained_days or None,
-        )
+        episodes = self.trained_days or len(self.env.days)
         with open_store(self.db, writer=True) as store:
-            return store_external_job(store, job)
+            return store_external_job(
+                store, self.regime_config, self.agent_config, self.seed, episodes, self.env.days, self._eval, meta
+            )
