@@ -29,7 +29,8 @@ class StopSignalsAsCtrlC:
 
     def __enter__(self) -> None:
         self.previous, self.raised_at = {}, None
-        for sig in STOP_SIGNALS if main_thread() else ():
+        # only the main thread may install signal handlers
+        for sig in STOP_SIGNALS if threading.current_thread() is threading.main_thread() else ():
             if sig != signal.SIGINT or signal.getsignal(sig) is not signal.SIG_IGN:
                 self.previous[sig] = signal.signal(sig, self._stop)
 
@@ -42,8 +43,3 @@ class StopSignalsAsCtrlC:
         stopped = self.raised_at is not None or (kind is not None and issubclass(kind, KeyboardInterrupt))
         for sig, handler in self.previous.items():
             signal.signal(sig, signal.SIG_IGN if stopped else handler)
-
-
-def main_thread() -> bool:
-    """Whether this is the main thread (the only one that may install signal handlers)."""
-    return threading.current_thread() is threading.main_thread()
