@@ -59,10 +59,9 @@ from nutribench.scheduler.progress import make_view, note_event
 from nutribench.scheduler.registration import RunError, load_grid_configs, register_grid, spec_maker
 from nutribench.scheduler.resume import checkpointed_first, remove_finished_checkpoints
 from nutribench.scheduler.settings import GridSettings, default_batch_fn, default_job_fn
-from nutribench.scheduler.spec import JobSpec
+from nutribench.scheduler.spec import JobFailed, JobSpec
 from nutribench.scheduler.storing import (
     HeldResults,
-    error_text,
     first_line,
     one_line,
     release_quietly,
@@ -208,8 +207,12 @@ class _Run:
             self.view.log(f"[green]done[/] {spec.label} ({result.metadata.get('wall_seconds', 0.0):.1f} s)")
 
     def _failed(self, spec: JobSpec, error: BaseException, shown: str = "") -> None:
-        """Status ``failed`` with the error kept, counted and shown (after ``shown``)."""
-        store_failure(self.store, spec.job_id, self.owner, error_text(error))
+        """Status ``failed`` with the error kept (the message, and the worker's traceback where
+        there is one), counted and shown (after ``shown``)."""
+        text = f"{type(error).__name__}: {error}"
+        if isinstance(error, JobFailed):
+            text = f"{error}\n{error.traceback_text}".strip()
+        store_failure(self.store, spec.job_id, self.owner, text)
         self.summary.failed += 1
         self.view.log(f"[red]failed[/] {spec.label}: {shown}{first_line(error)}")
 

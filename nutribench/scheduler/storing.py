@@ -114,13 +114,6 @@ def first_line(exc: BaseException) -> str:
     return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
-def error_text(exc: BaseException) -> str:
-    """What a failed job's row keeps: the message, and the worker's traceback where there is one."""
-    if isinstance(exc, JobFailed):
-        return f"{exc}\n{exc.traceback_text}".strip()
-    return f"{type(exc).__name__}: {exc}"
-
-
 def store_finished(run: Any, spec: JobSpec, result: JobResult | None) -> bool:
     """Store a finished job for the driver's ``run``: True once stored. A result that meets the
     write lock is held (``run.held``) and stored again later; another operational error (disk
