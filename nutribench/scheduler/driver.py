@@ -21,7 +21,7 @@ One call of :func:`run_grid`:
 8. at its start and end, deletes the batched engine's checkpoints whose jobs are all done (:mod:`nutribench.scheduler.resume`).
 
 What a run uses when not told: the job function (:func:`~nutribench.scheduler.settings.default_job_fn`), the
-models folder :attr:`GridSettings.models <nutribench.scheduler.settings.GridSettings.models>`. No signal handler (``run``'s: :mod:`nutribench.cli.signals`).
+models folder :attr:`GridSettings.models <nutribench.scheduler.settings.GridSettings.models>`. No signal handler (``run``'s: :mod:`nutribench.cli.run`).
 """
 
 from __future__ import annotations
