@@ -232,7 +232,6 @@ class Recorder:
         """Refuse a database the job could not be written to, before the loop; a new SQLite
         file is only checked: it is created when the job is written (a failed recording leaves
         no empty database behind)."""
-        from nutribench.scheduler.lifecycle import check_not_mixed
         from nutribench.scheduler.registration import check_external_entry
         from nutribench.store import StoreError, open_store
         from nutribench.store.engine import check_sqlite_file, database_url, in_memory, sqlite_path
@@ -247,8 +246,7 @@ class Recorder:
             check_sqlite_file(path, create=True)
             return
         with open_store(self.db, writer=True) as store:
-            check_not_mixed(store, fake=False)
-            # a conflict or a duplicate found now, before the training loop, not after it
+            # a dry run's database, a conflict or a duplicate found now, before the training loop, not after it
             check_external_entry(store, self.regime_config, self.agent_config, self.seed, self.eval_episodes)
 
     def save(self) -> int:

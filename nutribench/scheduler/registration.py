@@ -199,14 +199,15 @@ def store_external_job(
         return row.id
 
 
-def check_external_entry(store: Store, regime_config: Any, agent_config: Any, seed: int, eval_episodes: int) -> None:
+def check_external_entry(store: Store, env: Any, cfg: Any, seed: int, eval_episodes: int) -> None:
     """What :class:`nutribench.Recorder` checks as its ``with`` block opens, before any training:
-    the regime and the agent recorded with other content under the same version, or a job of
-    this agent version on this regime and seed already there (whatever its training days):
-    :class:`RunError` in one line naming agent, regime and seed."""
+    a database holding a dry run's jobs (:func:`~nutribench.scheduler.lifecycle.check_not_mixed`'s
+    StoreError); the regime ``env`` and the agent ``cfg`` recorded with other content under the
+    same version, or a job of this agent version on this regime and seed already there (whatever
+    its training days): :class:`RunError` in one line naming agent, regime and seed."""
     from nutribench.agents.config import agent_config_sha256
 
-    env, cfg = regime_config, agent_config
+    check_not_mixed(store, fake=False)
     what = f"Recorder {cfg.name} v{cfg.version} on {env.name} seed {seed}"
     where = store.display
     with session_scope(store.engine) as s:
