@@ -12,9 +12,8 @@ import logging.config
 from alembic import context
 
 from nutribench.store.engine import database_url, make_engine
-from nutribench.store.models import Base
+from nutribench.store.models import VIEWS, Base
 from nutribench.store.schema import OPTUNA_TABLES, VERSION_TABLE
-from nutribench.store.views import VIEWS
 
 config = context.config
 target_metadata = Base.metadata

@@ -232,7 +232,6 @@ class Recorder:
         """Refuse a database the job could not be written to, before the loop; a new SQLite
         file is only checked: it is created when the job is written (a failed recording leaves
         no empty database behind)."""
-        from nutribench.scheduler.lifecycle import check_not_mixed
         from nutribench.scheduler.registration import check_external_entry
         from nutribench.store import StoreError, open_store
         from nutribench.store.engine import check_sqlite_file, database_url, in_memory, sqlite_path
@@ -247,8 +246,7 @@ class Recorder:
             check_sqlite_file(path, create=True)
             return
         with open_store(self.db, writer=True) as store:
-            check_not_mixed(store, fake=False)
-            # a conflict or a duplicate found now, before the training loop, not after it
+            # a dry run's database, a conflict or a duplicate found now, before the training loop, not after it
             check_external_entry(store, self.regime_config, self.agent_config, self.seed, self.eval_episodes)
 
     def save(self) -> int:
@@ -258,7 +256,7 @@ class Recorder:
             raise RecorderError(
                 f"Recorder {self.agent_config.name}: call rec.evaluate(policy) before the with block ends (nothing was written)"
             )
-        from nutribench.scheduler.registration import ExternalJob, store_external_job
+        from nutribench.scheduler.registration import store_external_job
         from nutribench.store import open_store
 
         if self.trained_days and self.env.days:
@@ -274,15 +272,8 @@ class Recorder:
             "source": self.source[0],
             "source_sha256": self.source[1],
         }
-        job = ExternalJob(
-            self.regime_config,
-            self.agent_config,
-            self.seed,
-            self.env.days,
-            self._eval.episodes,
-            self._eval.steps,
-            meta,
-            budget=self.trained_days or None,
-        )
+        episodes = self.trained_days or len(self.env.days)
         with open_store(self.db, writer=True) as store:
-            return store_external_job(store, job)
+            return store_external_job(
+                store, self.regime_config, self.agent_config, self.seed, episodes, self.env.days, self._eval, meta
+            )

@@ -78,8 +78,7 @@ def check_folder_target(
     """Refuse ``folder`` (to hold new files) if it, or the nearest part of it that exists, is
     not a folder, or that folder refuses a new entry (a temporary folder made there and removed
     again). A folder that does not exist yet is made by the writer."""
-    why = _folder_problem(Path(folder))
-    if why:
+    if why := _folder_problem(Path(folder)):
         raise error(f"{_label(Path(folder), what)}: {why}: {hint}")
 
 
@@ -97,8 +96,7 @@ def check_file_target(path: Path | str, what: str = "", error: type[UserError] =
     """Refuse a file to write that exists and is not a regular file (:func:`check_regular_file`),
     or whose real folder cannot take it (as :func:`check_folder_target` would)."""
     check_regular_file(path, what, error)
-    why = _folder_problem(Path(os.path.realpath(path)).parent)
-    if why:
+    if why := _folder_problem(Path(os.path.realpath(path)).parent):
         raise error(f"{_label(Path(path), what)}: its folder {why}: give a path in a folder that takes new files")
 
 

@@ -23,8 +23,8 @@ from nutribench.scheduler.registration import load_grid_configs, register_grid
 from nutribench.scheduler.worker import JobResult
 from nutribench.store import head_revision, make_engine, open_store
 from nutribench.store.engine import database_url
+from nutribench.store.models import TRAINING_DIAGNOSTICS_COLUMNS
 from nutribench.store.schema import upgrade_connection
-from nutribench.store.views import TRAINING_DIAGNOSTICS_COLUMNS
 
 REPO = Path(__file__).resolve().parents[1]
 ALGOS = ("mc", "ppo", "gru_ppo", "ddqn", "sac")

@@ -28,9 +28,8 @@ from nutribench.store.archive.export import wide_diagnostics
 from nutribench.store.archive.format import columns
 from nutribench.store.archive.merge import database_rows
 from nutribench.store.engine import database_url
-from nutribench.store.models import Base
+from nutribench.store.models import DIAGNOSTIC_VALUES_COLUMNS, TRAINING_DIAGNOSTICS_COLUMNS, Base
 from nutribench.store.schema import alembic_config, upgrade_connection
-from nutribench.store.views import DIAGNOSTIC_VALUES_COLUMNS, TRAINING_DIAGNOSTICS_COLUMNS
 
 REPO = Path(__file__).resolve().parents[1]
 #: a committed archive with diagnostics (the batched engine's PPO, 20 jobs, 10,000 updates)

@@ -22,8 +22,7 @@ from typer.testing import CliRunner
 from nutribench.cli import app
 from nutribench.scheduler.status import status_table
 from nutribench.store import StoreError, head_revision, open_store, read_episode_metrics
-from nutribench.store.models import STALE_AFTER_S
-from nutribench.store.views import EPISODE_METRICS_COLUMNS, VIEWS
+from nutribench.store.models import EPISODE_METRICS_COLUMNS, STALE_AFTER_S, VIEWS
 from tests.conftest import wait_for
 from tests.test_store import make_0001
 

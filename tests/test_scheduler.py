@@ -18,7 +18,7 @@ from sqlalchemy import create_engine, text
 from typer.testing import CliRunner
 
 from nutribench.cli import app
-from nutribench.cli.signals import STOP_SIGNALS
+from nutribench.cli.run import STOP_SIGNALS
 from nutribench.config import list_regimes
 from nutribench.scheduler.driver import GridSettings, RunError, run_grid
 from nutribench.scheduler.grid import PRESETS, GridError, parse_seeds, resolve_grid

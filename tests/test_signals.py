@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from nutribench.cli.signals import STOP_SIGNALS
+from nutribench.cli.run import STOP_SIGNALS
 from tests.conftest import run_cli_args, wait_for
 from tests.test_scheduler import NUTRIBENCH, _env, regimes, sql, statuses  # noqa: F401 - regimes: the fixture
 

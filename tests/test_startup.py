@@ -79,7 +79,7 @@ def test_status_on_an_up_to_date_database_imports_no_alembic_nor_other_commands(
     assert verdict == "NO-ALEMBIC"
     assert heavy == "-"  # no gymnasium, numpy, torch, pandas nor the environment
     # the one command's module and what it imports, not the other commands'
-    assert commands.split() == ["nutribench.cli.common", "nutribench.cli.run", "nutribench.cli.signals"]
+    assert commands.split() == ["nutribench.cli.common", "nutribench.cli.run"]
 
 
 _REGISTERED = """

@@ -15,8 +15,8 @@ from typer.testing import CliRunner
 from nutribench.cli import app
 from nutribench.store import Base, StoreError, head_revision, make_engine, open_store, read_episode_metrics
 from nutribench.store.engine import database_url
+from nutribench.store.models import EPISODE_METRICS_COLUMNS, EVAL_TRAJECTORY_COLUMNS, VIEWS
 from nutribench.store.schema import VERSION_TABLE, revision_chain, upgrade_connection
-from nutribench.store.views import EPISODE_METRICS_COLUMNS, EVAL_TRAJECTORY_COLUMNS, VIEWS
 
 
 def _include(obj, name, type_, reflected, compare_to) -> bool:

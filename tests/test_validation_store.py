@@ -23,8 +23,8 @@ from nutribench.scheduler.registration import load_grid_configs, register_grid
 from nutribench.scheduler.worker import JobResult
 from nutribench.store import make_engine, open_store, read_episode_metrics, read_learning_curve
 from nutribench.store.engine import database_url
+from nutribench.store.models import LEARNING_CURVE_COLUMNS
 from nutribench.store.schema import upgrade_connection
-from nutribench.store.views import LEARNING_CURVE_COLUMNS
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -99,8 +99,9 @@ def bench_train_cmd(
     from nutribench.agents.registry import paper_names
     from nutribench.bench.throughput import bench_train
     from nutribench.config import load_env_config
+    from nutribench.scheduler.pools import check_engine
 
-    check_engine_options(engine, device)
+    check_engine(engine, 1, device)  # an unknown engine or device, or CUDA where there is none: before anything trains
     names = split_csv(algos, paper_names(), "algorithm")
     load_env_config(regime)
     rows = bench_train(names, regime=regime, episodes=episodes, repeats=repeats)
@@ -154,14 +155,6 @@ def moved_command(name: str) -> None:
 
 for _moved in ("learn", "status", "engines"):
     moved_command(_moved)
-
-
-def check_engine_options(engine: str, device: str) -> None:
-    """Refuse an unknown ``--engine``, an unknown ``--device``, CUDA where there is none, or a
-    GPU asked of the SB3 engine, in one line, before anything trains."""
-    from nutribench.scheduler.pools import check_engine
-
-    check_engine(engine, 1, device)
 
 
 @bench_app.command("tune")

@@ -51,8 +51,7 @@ def argument(kind: Any, help: str, **settings: Any) -> Any:
 
 
 #: the options several commands share, written once
-DB_HELP = "results database: a SQLite file or a SQLAlchemy URL"
-DbOption = option(str, DB_HELP, envvar="NUTRIBENCH_DB")
+DbOption = option(str, "results database: a SQLite file or a SQLAlchemy URL", envvar="NUTRIBENCH_DB")
 #: ``--episodes``, the old spelling of ``--days`` (hidden; :func:`old_spelling` reconciles the two)
 EpisodesAlias = Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True)]
 ValEpisodesOption = option(int, "validation days each evaluation during training plays", min=1)

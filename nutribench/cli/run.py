@@ -5,12 +5,23 @@ path that cannot be written, a file that is not a database, a config changed wit
 version bump, an unknown executor, an engine option it cannot take such as ``--device cuda``
 where there is no CUDA, a models folder that is a file) is checked before the database file
 is created and reported as one red line with exit status 2.
+
+The command line's stop signals (:class:`StopSignalsAsCtrlC`): Ctrl-C (SIGINT), a batch
+system's preemption (SIGTERM) and a closed terminal (SIGHUP) all end a ``nutribench run`` in
+the same graceful stop (running jobs released as ``interrupted``, exit 130), however many of
+them arrive. Signal handlers belong to the program, not to a library:
+:func:`nutribench.scheduler.driver.run_grid` installs none (it stops on KeyboardInterrupt, or
+when its ``stop`` event is set), so a notebook or a script that calls it keeps its own
+handlers; ``run`` installs these around its call.
 """
 
 from __future__ import annotations
 
 import json
-from typing import Annotated, Optional
+import signal
+import threading
+import time
+from typing import Annotated, Any, Optional
 
 import typer
 
@@ -31,7 +42,6 @@ from nutribench.cli.common import (
     split_csv,
     user_errors,
 )
-from nutribench.cli.signals import StopSignalsAsCtrlC
 from nutribench.engines import Engine
 from nutribench.scheduler.grid import DEFAULT_PRESET, PRESETS
 
@@ -53,6 +63,36 @@ _Tensorboard = path_flag(
     "also write each job's training diagnostics as TensorBoard events under this folder "
     "(one run folder per job: job<id>-<algo>-<regime>-seed<seed>)",
 )
+
+
+#: Signals that stop a run as Ctrl-C does: a batch system's preemption (SIGTERM) and a closed
+#: terminal (SIGHUP) release the running jobs as ``interrupted`` at once.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class StopSignalsAsCtrlC:
+    """Within the block (main thread only), the first stop signal raises KeyboardInterrupt;
+    later ones are ignored: in the block for a second (then the first counts as lost), and
+    after a stop until the process exits (the command is ending: a second Ctrl-C must not
+    break its last lines). Without a stop, the handlers found are put back. SIGINT stays
+    ignored where it was (a shell's background job)."""
+
+    def __enter__(self) -> None:
+        self.previous, self.raised_at = {}, None
+        # only the main thread may install signal handlers
+        for sig in STOP_SIGNALS if threading.current_thread() is threading.main_thread() else ():
+            if sig != signal.SIGINT or signal.getsignal(sig) is not signal.SIG_IGN:
+                self.previous[sig] = signal.signal(sig, self._stop)
+
+    def _stop(self, signum: int, frame: Any) -> None:
+        if self.raised_at is None or time.monotonic() - self.raised_at > 1.0:
+            self.raised_at = time.monotonic()
+            raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    def __exit__(self, kind: type[BaseException] | None, *exc: object) -> None:
+        stopped = self.raised_at is not None or (kind is not None and issubclass(kind, KeyboardInterrupt))
+        for sig, handler in self.previous.items():
+            signal.signal(sig, signal.SIG_IGN if stopped else handler)
 
 
 @user_errors

@@ -10,7 +10,7 @@ The driver's side (the one process that writes the database):
   stopped batches claimed first; finished batches' checkpoints deleted
 - :mod:`~nutribench.scheduler.driver`: the loop (claim, submit, store each finished job in one transaction),
   results kept through a locked or failing database, with :mod:`~nutribench.scheduler.settings` (what it
-  runs, the job functions when not told); it installs no signal handler (``run``'s are :mod:`nutribench.cli.signals`)
+  runs, the job functions when not told); it installs no signal handler (``run``'s are :mod:`nutribench.cli.run`)
 - :mod:`~nutribench.scheduler.executors`, :mod:`~nutribench.scheduler.local`: where jobs run
 - :mod:`~nutribench.scheduler.progress`: the live panel; :mod:`~nutribench.scheduler.status`: ``nutribench status``
 

@@ -32,7 +32,7 @@ Storing finished jobs when the database pushes back:
   database still takes that write, else left to the stale rule; the next run resumes them.
 
 What a run uses when not told: the job function (:func:`~nutribench.scheduler.settings.default_job_fn`), the
-models folder :attr:`GridSettings.models <nutribench.scheduler.settings.GridSettings.models>`. No signal handler (``run``'s: :mod:`nutribench.cli.signals`).
+models folder :attr:`GridSettings.models <nutribench.scheduler.settings.GridSettings.models>`. No signal handler (``run``'s: :mod:`nutribench.cli.run`).
 """
 
 from __future__ import annotations
@@ -163,13 +163,6 @@ def stop_line(where: str, error: BaseException | None, released: int | str, n: i
 
 def first_line(exc: BaseException) -> str:
     return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-
-
-def error_text(exc: BaseException) -> str:
-    """What a failed job's row keeps: the message, and the worker's traceback where there is one."""
-    if isinstance(exc, JobFailed):
-        return f"{exc}\n{exc.traceback_text}".strip()
-    return f"{type(exc).__name__}: {exc}"
 
 
 @dataclass
@@ -320,8 +313,12 @@ class _Run:
             self.view.log(f"[green]done[/] {spec.label} ({result.metadata.get('wall_seconds', 0.0):.1f} s)")
 
     def _failed(self, spec: JobSpec, error: BaseException, shown: str = "") -> None:
-        """Status ``failed`` with the error kept, counted and shown (after ``shown``)."""
-        store_failure(self.store, spec.job_id, self.owner, error_text(error))
+        """Status ``failed`` with the error kept (the message, and the worker's traceback where
+        there is one), counted and shown (after ``shown``)."""
+        text = f"{type(error).__name__}: {error}"
+        if isinstance(error, JobFailed):
+            text = f"{error}\n{error.traceback_text}".strip()
+        store_failure(self.store, spec.job_id, self.owner, text)
         self.summary.failed += 1
         self.view.log(f"[red]failed[/] {spec.label}: {shown}{first_line(error)}")
 

@@ -154,8 +154,8 @@ def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, i
 
 def insert_job_rows(session: Any, job_id: int, job: Any) -> None:
     """A finished job's rows: its training and evaluation episodes, evaluation steps, training
-    diagnostics and validation days (``job``: a :class:`JobResult`, or an external job, which has
-    neither of the last two; so has a result pickled before it had them)."""
+    diagnostics and validation days (``job``: a :class:`JobResult`; an external job's has none
+    of the last two, nor has a result pickled before it had them)."""
     rows = [
         {"job_id": job_id, "phase": phase, "episode": int(ep["episode"]), **{c: ep.get(c) for c in EPISODE_METRICS}}
         for phase, episodes in (("train", job.train), ("eval", job.eval))

@@ -3,8 +3,8 @@ their content in the database (refusing a changed file whose version was not bum
 create the job rows it lacks. Used by :func:`nutribench.scheduler.driver.run_grid` before
 any job runs; then :func:`spec_maker` turns each job row the driver claims into what a
 worker is given (:class:`~nutribench.scheduler.worker.JobSpec`: the configs it runs with, their
-hashes, its model file's path, its device). The recorder's jobs (:class:`ExternalJob`) are
-registered here too.
+hashes, its model file's path, its device). The recorder's jobs (:func:`store_external_job`)
+are registered here too.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from sqlalchemy.orm import Session
 from nutribench.errors import UserError
 from nutribench.scheduler.grid import Grid
 from nutribench.scheduler.lifecycle import check_not_mixed, insert_job_rows
-from nutribench.scheduler.worker import JobSpec
+from nutribench.scheduler.worker import JobResult, JobSpec
 from nutribench.store import AgentConfig, Job, RegimeConfig, session_scope, utcnow
 from nutribench.store.engine import REGISTRATION_LOCK, hold_write_lock
 from nutribench.store.models import METADATA_COLUMNS
@@ -159,36 +159,22 @@ def spec_maker(settings: Any, job_ids: list[int], regime_cfgs: list, agent_cfgs:
     return make_spec
 
 
-@dataclass(frozen=True)
-class ExternalJob:
-    """A job trained outside nutribench (:class:`nutribench.Recorder`, ``nutribench evaluate``):
-    its configs, seed, metric rows and metadata, stored as one done job. Its budget is its
-    training rows' count, or ``budget`` where the training was done elsewhere and only its
-    length is known (a saved model's sidecar): then it has no training rows."""
-
-    regime_config: Any
-    agent_config: Any
-    seed: int
-    train: list[dict[str, Any]]
-    eval: list[dict[str, Any]]
-    eval_steps: list[dict[str, Any]]
-    metadata: dict[str, Any]
-    budget: int | None = None
-
-    def __post_init__(self) -> None:
-        if self.budget is not None and self.train:
-            raise ValueError("an external job's budget is its training rows' count, or given with no training rows")
-
-    @property
-    def episodes(self) -> int:
-        """The job's budget: its training days."""
-        return self.budget if self.budget is not None else len(self.train)
-
-
-def store_external_job(store: Store, job: ExternalJob) -> int:
-    """Record ``job``'s configs and write it as a done job with its rows, in one transaction;
-    its id. A job with the same regime, agent, seed and budget already there is refused."""
-    env, cfg = job.regime_config, job.agent_config
+def store_external_job(
+    store: Store,
+    env: Any,
+    cfg: Any,
+    seed: int,
+    episodes: int,
+    train: list[dict[str, Any]],
+    evaluation: Any,
+    metadata: dict[str, Any],
+) -> int:
+    """Record a job trained outside nutribench (:class:`nutribench.Recorder`, ``nutribench
+    evaluate``): its regime ``env`` and agent ``cfg``, seed, budget ``episodes`` (its training
+    rows' count, or the training days of a model trained elsewhere, a saved model's sidecar:
+    then it has no ``train`` rows), its ``evaluation`` (its ``episodes`` and ``steps``) and
+    ``metadata``; written as a done job with its rows, in one transaction; its id. A job with
+    the same regime, agent, seed and budget already there is refused."""
     regime, agent = _Config.regime(env, env.name), _Config.agent(cfg, "recorded")
     check_not_mixed(store, fake=False)
     with session_scope(store.engine) as s:
@@ -196,31 +182,32 @@ def store_external_job(store: Store, job: ExternalJob) -> int:
         rid = _register(s, RegimeConfig, [regime])[regime.name]
         aid = _register(s, AgentConfig, [agent])[agent.name]
         key = dict(
-            regime_id=rid, agent_config_id=aid, seed=job.seed, episodes=job.episodes, eval_episodes=len(job.eval)
+            regime_id=rid, agent_config_id=aid, seed=seed, episodes=episodes, eval_episodes=len(evaluation.episodes)
         )
         old = s.execute(select(Job.id).filter_by(**key)).scalar_one_or_none()
         if old is not None:
             raise RunError(
-                f"{store.display}: {cfg.name} v{cfg.version} on {env.name} seed {job.seed} with {job.episodes} "
+                f"{store.display}: {cfg.name} v{cfg.version} on {env.name} seed {seed} with {episodes} "
                 f"training days is already recorded (job {old}): record another seed, or bump the agent's version"
             )
-        meta = {k: job.metadata[k] for k in METADATA_COLUMNS if k in job.metadata}
-        done = {"status": "done", "attempt": 1, "failures": 0, "episodes_done": job.episodes, "created_at": utcnow()}
+        meta = {k: metadata[k] for k in METADATA_COLUMNS if k in metadata}
+        done = {"status": "done", "attempt": 1, "failures": 0, "episodes_done": episodes, "created_at": utcnow()}
         row = Job(**key, **done, fake=False, **meta)
         s.add(row)
         s.flush()
-        insert_job_rows(s, row.id, job)
+        insert_job_rows(s, row.id, JobResult(row.id, train, evaluation.episodes, evaluation.steps, metadata))
         return row.id
 
 
-def check_external_entry(store: Store, regime_config: Any, agent_config: Any, seed: int, eval_episodes: int) -> None:
+def check_external_entry(store: Store, env: Any, cfg: Any, seed: int, eval_episodes: int) -> None:
     """What :class:`nutribench.Recorder` checks as its ``with`` block opens, before any training:
-    the regime and the agent recorded with other content under the same version, or a job of
-    this agent version on this regime and seed already there (whatever its training days):
-    :class:`RunError` in one line naming agent, regime and seed."""
+    a database holding a dry run's jobs (:func:`~nutribench.scheduler.lifecycle.check_not_mixed`'s
+    StoreError); the regime ``env`` and the agent ``cfg`` recorded with other content under the
+    same version, or a job of this agent version on this regime and seed already there (whatever
+    its training days): :class:`RunError` in one line naming agent, regime and seed."""
     from nutribench.agents.config import agent_config_sha256
 
-    env, cfg = regime_config, agent_config
+    check_not_mixed(store, fake=False)
     what = f"Recorder {cfg.name} v{cfg.version} on {env.name} seed {seed}"
     where = store.display
     with session_scope(store.engine) as s:

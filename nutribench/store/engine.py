@@ -27,7 +27,7 @@ from urllib.parse import unquote_plus
 from sqlalchemy import Connection, Engine, create_engine, event, text
 from sqlalchemy.engine import URL, make_url
 from sqlalchemy.exc import ArgumentError, NoSuchModuleError
-from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.orm import Session
 
 from nutribench.clock import utcnow
 from nutribench.errors import UserError
@@ -322,7 +322,5 @@ def db_now(conn: Connection | Session) -> datetime:
 @contextmanager
 def session_scope(engine: Engine) -> Iterator[Session]:
     """One transaction: commit if the block succeeds, roll back if it raises."""
-    factory = sessionmaker(engine, expire_on_commit=False)
-    with factory() as session:
-        with session.begin():
-            yield session
+    with Session(engine, expire_on_commit=False) as session, session.begin():
+        yield session

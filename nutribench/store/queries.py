@@ -70,7 +70,7 @@ def read_episode_metrics(
     budget: int | None = None,
     latest_only: bool = False,
 ) -> pd.DataFrame:
-    """Rows of the ``episode_metrics`` view (columns in :mod:`nutribench.store.views`).
+    """Rows of the ``episode_metrics`` view (columns in :mod:`nutribench.store.models`).
 
     ``latest_only`` keeps, per regime and per algo, only the newest config version present.
     """
@@ -96,7 +96,7 @@ def read_training_diagnostics(
     db: Db, *, regimes: Names = None, algos: Names = None, seeds: Numbers = None, latest_only: bool = False
 ) -> pd.DataFrame:
     """Rows of ``training_diagnostics``: one per training update of each job (columns in
-    :mod:`nutribench.store.views`, quantities in :mod:`nutribench.diagnostics`), and before
+    :mod:`nutribench.store.models`, quantities in :mod:`nutribench.diagnostics`), and before
     ``job_id`` a column per other quantity a plug-in's algorithm recorded (from
     ``diagnostic_values``; NaN for an update without it)."""
     from nutribench.diagnostics import COLUMNS
@@ -118,7 +118,7 @@ def read_learning_curve(
     db: Db, *, regimes: Names = None, algos: Names = None, seeds: Numbers = None, latest_only: bool = False
 ) -> pd.DataFrame:
     """Rows of ``learning_curve``: one per validation day of each evaluation during training
-    (columns in :mod:`nutribench.store.views`), ordered by job, training day and day."""
+    (columns in :mod:`nutribench.store.models`), ordered by job, training day and day."""
     filters = {"regime": regimes, "algo": algos, "seed": seeds}
     return _read(db, "learning_curve", filters, '"job_id", "train_day", "episode"', latest_only)
 

@@ -154,10 +154,8 @@ def _peek_configs(path: Path) -> set[tuple[str, str, int, str]] | None:
     full check (its meta alone); None for a file whose meta cannot be read (its import says why)."""
     try:
         meta, _ = open_archive(path, arrays=False)
-        rows = [
-            (kind, row) for key, kind in (("regimes", "regime"), ("agent_configs", "agent config")) for row in meta[key]
-        ]
-        idents = [(kind, row["name"], row["version"], row["sha256"]) for kind, row in rows]
+        lists = (("regimes", "regime"), ("agent_configs", "agent config"))
+        idents = [(kind, row["name"], row["version"], row["sha256"]) for key, kind in lists for row in meta[key]]
     except (StoreError, KeyError, TypeError):  # the import refuses it with the reason
         return None
     return {i for i in idents if isinstance(i[1], str) and isinstance(i[3], str) and type(i[2]) is int}

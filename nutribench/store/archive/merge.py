@@ -95,9 +95,7 @@ def _config_ids(s: Session, meta: dict[str, Any], where: str, path: Any) -> dict
     ids = {}
     for table, rows in ((RegimeConfig, meta["regimes"]), (AgentConfig, meta["agent_configs"])):
         for row in rows:
-            have = s.execute(
-                select(table).where(table.name == row["name"], table.version == row["version"])
-            ).scalar_one_or_none()
+            have = s.scalars(select(table).filter_by(name=row["name"], version=row["version"])).one_or_none()
             if have is not None and have.sha256 != row["sha256"]:
                 raise StoreError(
                     f"db import: {row['name']} v{row['version']} is recorded in {where} with other "
