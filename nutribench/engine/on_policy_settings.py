@@ -5,7 +5,7 @@ one per agent (:meth:`OnPolicySettings.for_agents`; a loss reads one with
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
 import numpy as np
@@ -74,26 +74,13 @@ class OnPolicySettings:
     @classmethod
     def from_config(cls, cfg: Any, horizon: int) -> OnPolicySettings:
         """The settings of the SB3 model that ``algos.model_arguments`` builds for ``cfg``
-        on days of ``horizon`` steps: PPO's fields as written; MC's as A2C gets them (a
+        on days of ``horizon`` steps: the fields its arguments name, as written (PPO's); MC's as A2C gets them (a
         rollout of one day, one step on all of it, lambda 1, no advantage normalisation);
         GRU-PPO's batch in whole days (as ``GRUPPO.sequences_per_batch``)."""
         _, args = model_arguments(cfg, horizon)
+        settings = {"n_epochs": 1, "clip_range": None}  # A2C's (MC's): one pass, no clipping
+        settings |= {f.name: args[f.name] for f in fields(cls) if f.name in args}
         seq = args.get("sequence_length")
         batch_size = args.get("batch_size", args["n_steps"])
-        as_written = (
-            "learning_rate",
-            "n_steps",
-            "gae_lambda",
-            "ent_coef",
-            "vf_coef",
-            "max_grad_norm",
-            "normalize_advantage",
-        )
-        return cls(
-            **{name: args[name] for name in as_written},
-            batch_size=batch_size if seq is None else max(1, round(batch_size / seq)),
-            n_epochs=args.get("n_epochs", 1),
-            gamma=cfg.gamma,
-            clip_range=args.get("clip_range"),
-            sequence_length=seq,
-        )
+        settings["batch_size"] = batch_size if seq is None else max(1, round(batch_size / seq))
+        return cls(**settings, gamma=cfg.gamma)
