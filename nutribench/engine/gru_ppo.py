@@ -28,11 +28,10 @@ import math
 
 import torch as th
 
-from nutribench.engine.device import leaves_on
 from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.on_policy import StackedActor, log_prob_entropy
 from nutribench.engine.ppo import BatchedPPO
-from nutribench.engine.stacked import SB3Weights, linear_pairs, orthogonal
+from nutribench.engine.stacked import SB3Weights, linear_pairs, orthogonal, with_zero_biases
 
 N_NUTRIENTS = 3
 
@@ -119,10 +118,7 @@ class StackedGRUActorCritic(SB3Weights):
         first = th.cat([orthogonal(k, 2 * hidden, head, math.sqrt(2), generators) for _ in range(2)], dim=2)
         actor_out = orthogonal(k, head, n_actions, 0.01, generators)
         critic_out = orthogonal(k, head, 1, 1.0, generators)
-        self.params = []
-        for w in (w_ih, w_hh, first, actor_out, critic_out):  # each layer's weights, then its zero biases
-            self.params += [w.requires_grad_(), th.zeros(w.shape[0], 1, w.shape[2], requires_grad=True)]
-        self.params = leaves_on(self.params, device)
+        self.params = with_zero_biases([w_ih, w_hh, first, actor_out, critic_out], device)
 
     # ---- the recurrent core ----
 

@@ -53,6 +53,15 @@ def linear_pairs(params: list[th.Tensor], j: int, layers: list[th.nn.Linear]) ->
     return pairs
 
 
+def with_zero_biases(weights: list[th.Tensor], device: th.device | str | None) -> list[th.Tensor]:
+    """Stacked layers ``(W, b)``: each weight ``(K, in, out)`` (made on the CPU) and a zero bias
+    ``(K, 1, out)``, all leaves requiring grad, moved to ``device`` (:func:`leaves_on`)."""
+    params = []
+    for w in weights:
+        params += [w.requires_grad_(), th.zeros(w.shape[0], 1, w.shape[2], requires_grad=True)]
+    return leaves_on(params, device)
+
+
 class SB3Weights:
     """A stacked network whose agent ``j`` is copied from and into the SB3 policy (or the
     ``nn.Linear`` layers) of one agent, parameter by parameter: :meth:`sb3_pairs`."""
