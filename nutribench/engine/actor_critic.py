@@ -40,15 +40,11 @@ class StackedActorCritic(StackedMLP):
     ):
         """Initialised on the CPU from ``generators`` (one per agent), then moved to ``device``."""
         sizes = [obs_dim, *net_arch]
-        self.n_actions = n_actions
+        self.k, self.n_actions = k, n_actions
         weights = [orthogonal(k, n_in, n_out, GAINS[0], generators) for n_in, n_out in zip(sizes[:-1], sizes[1:])]
         heads = ((n_actions, GAINS[2]), (1, GAINS[3]))  # the actor's logits, then the value
         weights.append(th.cat([orthogonal(k, sizes[-1], n_out, gain, generators) for n_out, gain in heads], dim=2))
         self.params = with_zero_biases(weights, device)
-
-    @property
-    def k(self) -> int:
-        return self.params[0].shape[0]
 
     def forward(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """``obs (K, B, obs_dim)`` -> logits ``(K, B, n_actions)``, values ``(K, B)``."""

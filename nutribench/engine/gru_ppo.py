@@ -122,11 +122,12 @@ class StackedGRUActorCritic(SB3Weights):
 
     # ---- the recurrent core ----
 
-    def _inputs(self, obs: th.Tensor) -> th.Tensor:
-        """``obs (K, N, d)`` -> the 2K cells' inputs ``(2K, N, width)``."""
+    def _projections(self, obs: th.Tensor) -> th.Tensor:
+        """``obs (K, N, d)`` -> the 2K cells' input projections ``W_ih x + b_ih`` ``(2K, N, 3H)``
+        (their inputs ``x (2K, N, width)``: the nutrients, then the foods, each zero-padded)."""
         nut, food = obs[..., :N_NUTRIENTS], obs[..., N_NUTRIENTS:]
         pad = lambda x: th.nn.functional.pad(x, (0, self.width - x.shape[-1]))  # noqa: E731
-        return th.cat([pad(nut), pad(food)])
+        return th.baddbmm(self.params[1], th.cat([pad(nut), pad(food)]), self.params[0])
 
     def _cell(self, gi: th.Tensor, h: th.Tensor) -> th.Tensor:
         """One GRU step of the 2K cells: input projection ``gi (2K, B, 3H)``, state ``h (2K, B, H)``."""
@@ -155,9 +156,7 @@ class StackedGRUActorCritic(SB3Weights):
         if not self.memory and t_max > 1:
             logits, values = self.sequences(obs.reshape(k, s * t_max, 1, -1))
             return logits.reshape(k, s, t_max, -1), values.reshape(k, s, t_max)
-        gi = th.baddbmm(self.params[1], self._inputs(obs.reshape(k, s * t_max, -1)), self.params[0]).reshape(
-            2 * k, s, t_max, -1
-        )
+        gi = self._projections(obs.reshape(k, s * t_max, -1)).reshape(2 * k, s, t_max, -1)
         out = GRUSequence.apply(gi, self.params[2], self.params[3])  # (2K, S, T, H)
         features = th.cat([out[:k], out[k:]], dim=-1).reshape(k, s * t_max, 2 * self.hidden)
         logits, values = self._heads(features)
@@ -185,8 +184,7 @@ class StackedGRUActorCritic(SB3Weights):
         from zeros; without memory every step does)."""
         if not self.memory:
             state = th.zeros_like(state)
-        gi = th.baddbmm(self.params[1], self._inputs(obs), self.params[0])
-        h = self._cell(gi, state)
+        h = self._cell(self._projections(obs), state)
         logits, values = self._heads(th.cat([h[: self.k], h[self.k :]], dim=-1))
         return logits, values, h
 
