@@ -101,15 +101,12 @@ class OnPolicySettings:
         each = [cls.from_config(c, horizon) for c in cfgs]
         first = each[0]
         for name in first.__dataclass_fields__:
-            if name in cls.CONTINUOUS or name == "active":
-                continue
-            values = {getattr(e, name) for e in each}
-            if len(values) > 1:
-                raise ValueError(f"agents of one batch must agree on {name} (got {sorted(values, key=str)})")
-        for name in cls.CONTINUOUS:
             values = [getattr(e, name) for e in each]
-            if len(set(values)) > 1:
-                setattr(first, name, np.asarray(values, dtype=np.float64))
+            if name == "active" or len(set(values)) == 1:
+                continue
+            if name not in cls.CONTINUOUS:
+                raise ValueError(f"agents of one batch must agree on {name} (got {sorted(set(values), key=str)})")
+            setattr(first, name, np.asarray(values, dtype=np.float64))
         return first
 
     @classmethod
