@@ -171,9 +171,8 @@ class StackedGRUActorCritic(SB3Weights):
 
     def step(self, obs: th.Tensor, state: th.Tensor, starts: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """One acting step: ``obs (K, d)``, ``state (2K, 1, H)`` zeroed where ``starts (K,)``;
-        logits ``(K, n_actions)``, values ``(K,)`` and the new state (zeroed everywhere without memory)."""
-        if not self.memory:
-            starts = th.ones_like(starts)
+        logits ``(K, n_actions)``, values ``(K,)`` and the new state (without memory :meth:`step_days`
+        zeroes it everywhere)."""
         keep = (1.0 - starts).reshape(1, self.k, 1, 1).expand(2, -1, -1, -1).reshape(2 * self.k, 1, 1)
         logits, values, h = self.step_days(obs.unsqueeze(1), state * keep)
         return logits[:, 0], values[:, 0], h
