@@ -35,7 +35,7 @@ from nutribench.agents.api import TrainedAgent, make_train_env, training_provena
 from nutribench.engine.checkpoint import Checkpoint, CheckpointRefused
 from nutribench.engine.envs import AgentEnvs, OtherJobs
 from nutribench.engine.evaluate import BatchValidator, Greedy
-from nutribench.engine.stacked import RunningStats
+from nutribench.engine.stacked import AgentMeans, RunningStats
 from nutribench.engines import Engine
 
 
@@ -72,6 +72,10 @@ class BatchedAlgorithm:
         self.validator: BatchValidator | None = None
         #: the agents' running statistics of the discounted return (reward scaling), if any
         self.ret_stats: RunningStats | None = None
+        #: the quantities of the update (off-policy: the day) in progress, their means then recorded
+        self.means = AgentMeans()
+        #: the observations the agents act on next, as the policies see them (None until the first day starts)
+        self.last_obs: np.ndarray | None = None
 
     def trained_agents(self, episodes: int, wall: float) -> list[TrainedAgent]:
         """Each agent (trained for ``episodes`` days in ``wall`` seconds, the batch's) as the SB3

@@ -262,10 +262,8 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         self.optimizer = StackedAdam(self.net.params, self.settings.learning_rate, ADAM_EPS)
         self.ret_stats = RunningStats(self.k) if cfg.normalize_reward else None
         self.discounted = np.zeros(self.k)  # each agent's discounted return so far (reward scaling)
-        self.means = AgentMeans()
-        #: the observations the agents act on next (None until the first day starts) and
-        #: whether that step starts a day (SB3's ``_last_obs``, ``_last_episode_starts``)
-        self.last_obs: np.ndarray | None = None
+        #: whether the step the agents act on next (at :attr:`last_obs`) starts a day (SB3's
+        #: ``_last_obs``, ``_last_episode_starts``)
         self.start_of_day = np.ones(self.k, dtype=np.float32)
 
     # ---- what each algorithm gives ----
