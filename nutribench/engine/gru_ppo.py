@@ -191,8 +191,7 @@ class StackedGRUActorCritic(SB3Weights):
 
     def sb3_pairs(self, j: int, policy) -> list[tuple[th.Tensor, th.Tensor]]:
         """Agent ``j``'s parameters and a ``GRUActorCriticPolicy``'s."""
-        k, H, a = self.k, self.hidden, self.n_actions
-        p = self.params
+        k, p = self.k, self.params
         pairs = []
         for stream, gru in enumerate((policy.nutrient_gru, policy.food_gru)):
             row = stream * k + j
@@ -210,7 +209,7 @@ class StackedGRUActorCritic(SB3Weights):
             (p[5][j, 0, self.head :], policy.critic_head[0].bias),
             *linear_pairs(p[6:], j, [policy.actor_head[2], policy.critic_head[2]]),
         ]
-        assert H == policy.hidden_size and a == policy.action_space.n
+        assert self.hidden == policy.hidden_size and self.n_actions == policy.action_space.n
         return pairs
 
 
