@@ -323,9 +323,7 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
                 raw_next = envs.new_days()
             obs = envs.seen(raw_next)
         self.last_obs, self.start_of_day = obs, start_of_day
-        if n_steps < self.settings.n_steps:
-            return None
-        return self.compute_returns(buf)
+        return None if n_steps < self.settings.n_steps else self.compute_returns(buf)
 
     def act(self, obs: np.ndarray, starts: np.ndarray, advance: bool = True) -> tuple[th.Tensor, th.Tensor]:
         """:attr:`actor` (no gradient) at the env's observations ``obs (K, d)`` and day starts ``(K,)``."""
