@@ -63,9 +63,8 @@ class BatchValidator(Validator):
         rows: list[list[dict]] = [[{} for _ in range(n)] for _ in range(k)]
         entropy = np.zeros((k, n))  # summed over the steps; None for a policy without one
         for _ in range(horizon):
-            x = th.as_tensor(envs.normalize(raw), device=device)
             with th.no_grad():
-                actions, step_entropy = greedy(x)
+                actions, step_entropy = greedy(th.as_tensor(envs.normalize(raw), device=device))
             entropy = None if entropy is None or step_entropy is None else entropy + step_entropy.cpu().numpy()
             actions = actions.cpu().numpy()
             for g, env, rec in zip(envs.groups, self._played, recorders):
