@@ -342,16 +342,15 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
     def compute_returns(self, buf: dict[str, np.ndarray]) -> Rollout:
         """The rollout of ``buf`` (the arrays of :meth:`collect_rollouts`) with SB3's GAE
         from the value after its last step; handed to ``on_rollout`` first, if set."""
-        settings, device = self.settings, self.device
         _, last_values = self.act(self.last_obs, self.start_of_day, advance=False)
         last, dones = last_values.cpu().numpy(), self.start_of_day.astype(bool)
         buf["advantages"], buf["returns"] = gae(
-            buf["rewards"], buf["values"], buf["starts"], last, dones, settings.gamma, settings.gae_lambda
+            buf["rewards"], buf["values"], buf["starts"], last, dones, self.settings.gamma, self.settings.gae_lambda
         )
         if self.on_rollout is not None:
             shown = ("obs", "actions", "rewards", "starts", "values", "advantages", "returns")
             self.on_rollout({**{name: buf[name] for name in shown}, "foods": np.stack(self.envs.days_drawn)})
-        return Rollout(**{f.name: th.as_tensor(buf[f.name], device=device) for f in fields(Rollout)})
+        return Rollout(**{f.name: th.as_tensor(buf[f.name], device=self.device) for f in fields(Rollout)})
 
     def permutations(self, rollout: Rollout) -> np.ndarray:
         """``(n_epochs, K, units)``: each agent's order of the rollout's units (transitions, or
