@@ -21,8 +21,9 @@ import torch as th
 
 from nutribench.agents import eval_food_streams, evaluate
 from nutribench.agents.config import load_agent_config
+from nutribench.agents.registry import batched_class
 from nutribench.engine.actor_critic import StackedActorCritic
-from nutribench.engine.envs import AgentEnvs, as_trained_agent
+from nutribench.engine.envs import AgentEnvs
 from nutribench.engine.gru_ppo import StackedGRUActorCritic
 from nutribench.engine.sac import StackedSAC
 from nutribench.engine.stacked import StackedMLP
@@ -236,32 +237,17 @@ def _agent_with_bias(algo: str, bias: tuple[float, float]):
     (DDQN: Q-values) ``bias`` at every observation, handed back as the engine hands back its
     trained agents."""
     cfg = load_agent_config(algo)
-    envs = AgentEnvs([("run0", 0)], cfg.normalize_obs)
-    b = th.tensor(bias)
+    algorithm = batched_class(algo)(cfg, AgentEnvs([("run0", 0)], cfg.normalize_obs), th.device("cpu"))
+    if algo == "ddqn":
+        params = algorithm.q.params
+    elif algo == "sac":
+        params = algorithm.net.actor.params
+    else:  # the actor-critics' head holds the logits, then the value (ppo, mc); GRU-PPO's actor layer
+        params = algorithm.net.params[:8] if algo == "gru_ppo" else algorithm.net.params
     with th.no_grad():
-        if algo in ("ppo", "mc"):
-            net = StackedActorCritic(1, envs.obs_dim, list(cfg.net_arch))
-            net.params[-2].zero_()
-            net.params[-1][0, 0, :2] = b
-            store = lambda model: net.store_sb3(0, model.policy)  # noqa: E731
-        elif algo == "gru_ppo":
-            net = StackedGRUActorCritic(1, envs.obs_dim, cfg.hidden_size)
-            net.params[6].zero_()
-            net.params[7][0, 0] = b
-            store = lambda model: net.store_sb3(0, model.policy)  # noqa: E731
-        elif algo == "sac":
-            net = StackedSAC(1, [envs.obs_dim, *cfg.net_arch, 2], 1e-4, 1e-3)
-            net.actor.params[-2].zero_()
-            net.actor.params[-1][0, 0] = b
-            store = lambda model: net.store_sb3(0, model.policy)  # noqa: E731
-        else:
-            from nutribench.engine.ddqn import _store
-
-            q, q_target = (StackedMLP(1, [envs.obs_dim, *cfg.net_arch, 2]) for _ in range(2))
-            q.params[-2].zero_()
-            q.params[-1][0, 0] = b
-            store = lambda model: _store(q, q_target, 0, model)  # noqa: E731
-    return as_trained_agent(envs, 0, cfg, 0, store, None, 0.0)
+        params[-2].zero_()
+        params[-1][0, 0, :2] = th.tensor(bias)
+    return algorithm.trained_agents(0, 0.0)[0]
 
 
 @pytest.mark.parametrize("algo", ["ppo", "mc", "gru_ppo", "sac", "ddqn"])

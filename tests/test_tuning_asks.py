@@ -88,8 +88,8 @@ def test_a_tuning_batch_builds_no_sb3_model(monkeypatch) -> None:
     import nutribench.engine.algorithm as algorithm
 
     built: list[int] = []
-    real = algorithm.as_trained_agent
-    monkeypatch.setattr(algorithm, "as_trained_agent", lambda *a, **kw: built.append(1) or real(*a, **kw))
+    real = algorithm.build_model
+    monkeypatch.setattr(algorithm, "build_model", lambda *a, **kw: built.append(1) or real(*a, **kw))
     rows: list[tuple[int, int, float]] = []
 
     def on_validation(j: int, day: int, r) -> None:

@@ -13,10 +13,9 @@ import math
 
 import torch as th
 
-from nutribench.engine.device import leaves_on
 from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.on_policy import BatchedOnPolicyAlgorithm, log_prob_entropy
-from nutribench.engine.stacked import StackedMLP, linear_pairs, linears, orthogonal
+from nutribench.engine.stacked import StackedMLP, linear_pairs, linears, orthogonal, with_zero_biases
 
 GAINS = (math.sqrt(2), math.sqrt(2), 0.01, 1.0)  # backbone layers, actor head, value head
 
@@ -41,21 +40,11 @@ class StackedActorCritic(StackedMLP):
     ):
         """Initialised on the CPU from ``generators`` (one per agent), then moved to ``device``."""
         sizes = [obs_dim, *net_arch]
-        self.n_actions = n_actions
-        self.params: list[th.Tensor] = []
-        for n_in, n_out in zip(sizes[:-1], sizes[1:]):
-            self.params += [
-                orthogonal(k, n_in, n_out, GAINS[0], generators).requires_grad_(),
-                th.zeros(k, 1, n_out, requires_grad=True),
-            ]
+        self.k, self.n_actions = k, n_actions
+        weights = [orthogonal(k, n_in, n_out, GAINS[0], generators) for n_in, n_out in zip(sizes[:-1], sizes[1:])]
         heads = ((n_actions, GAINS[2]), (1, GAINS[3]))  # the actor's logits, then the value
-        head = th.cat([orthogonal(k, sizes[-1], n_out, gain, generators) for n_out, gain in heads], dim=2)
-        self.params += [head.requires_grad_(), th.zeros(k, 1, n_actions + 1, requires_grad=True)]
-        self.params = leaves_on(self.params, device)
-
-    @property
-    def k(self) -> int:
-        return self.params[0].shape[0]
+        weights.append(th.cat([orthogonal(k, sizes[-1], n_out, gain, generators) for n_out, gain in heads], dim=2))
+        self.params = with_zero_biases(weights, device)
 
     def forward(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """``obs (K, B, obs_dim)`` -> logits ``(K, B, n_actions)``, values ``(K, B)``."""

@@ -23,7 +23,6 @@ optimisers already hold), so that training goes on exactly where it was saved.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar
 
@@ -31,11 +30,13 @@ import numpy as np
 import torch as th
 
 from nutribench import diagnostics as names
-from nutribench.agents.api import TrainedAgent
+from nutribench.agents.algos import build_model
+from nutribench.agents.api import TrainedAgent, make_train_env, training_provenance
 from nutribench.engine.checkpoint import Checkpoint, CheckpointRefused
-from nutribench.engine.envs import AgentEnvs, OtherJobs, as_trained_agent
+from nutribench.engine.envs import AgentEnvs, OtherJobs
 from nutribench.engine.evaluate import BatchValidator, Greedy
-from nutribench.engine.stacked import RunningStats
+from nutribench.engine.stacked import AgentMeans, RunningStats
+from nutribench.engines import Engine
 
 
 class BatchedAlgorithm:
@@ -71,16 +72,37 @@ class BatchedAlgorithm:
         self.validator: BatchValidator | None = None
         #: the agents' running statistics of the discounted return (reward scaling), if any
         self.ret_stats: RunningStats | None = None
+        #: the quantities of the update (off-policy: the day) in progress, their means then recorded
+        self.means = AgentMeans()
+        #: the observations the agents act on next, as the policies see them (None until the first day starts)
+        self.last_obs: np.ndarray | None = None
 
     def trained_agents(self, episodes: int, wall: float) -> list[TrainedAgent]:
         """Each agent (trained for ``episodes`` days in ``wall`` seconds, the batch's) as the SB3
-        engine's :class:`~nutribench.agents.api.TrainedAgent` of its
-        config (:func:`~nutribench.engine.envs.as_trained_agent`), with its ``diagnostics``."""
-        agents, share, device = [], wall / self.k, str(self.device)
-        for j in range(self.k):
-            store = functools.partial(self.store_weights, j)
-            agent = as_trained_agent(self.envs, j, self.cfgs[j], episodes, store, self.ret_stats, share, device)
-            agent.diagnostics, agent.validation = self.diagnostics[j], self.envs.validation[j]
+        engine's :class:`~nutribench.agents.api.TrainedAgent` of its config, as ``agents.train``
+        returns it: the SB3 model of its config in its ``VecNormalize``, with the trained weights
+        (:meth:`store_weights`; the model is on the CPU whatever the device that trained it, its
+        provenance names that device), its training days, ``diagnostics`` and ``validation``."""
+        envs, agents, share = self.envs, [], wall / self.k
+        batched = {"engine": Engine.BATCHED.value, "device": str(self.device), "batch_wall_seconds_per_agent": share}
+        for j, cfg in enumerate(self.cfgs):
+            env_cfg, seed, obs_stats = envs.env_cfgs[j], envs.seeds[j], envs.obs_stats
+            _, env = make_train_env(env_cfg, cfg)
+            model = build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon)
+            self.store_weights(j, model)
+            mean = var = None
+            if obs_stats is not None:
+                mean, var = obs_stats.mean[j].copy(), obs_stats.var[j].copy()
+                rms = env.obs_rms
+                rms.mean, rms.var, rms.count = mean.copy(), var.copy(), float(obs_stats.count[j])
+            if self.ret_stats is not None:
+                for name in ("mean", "var", "count"):
+                    setattr(env.ret_rms, name, float(getattr(self.ret_stats, name)[j]))
+            provenance = training_provenance(env_cfg, cfg, seed, episodes) | batched
+            vec_normalize = env if hasattr(env, "obs_rms") else None
+            agent = TrainedAgent(model, cfg.algo, cfg, mean, var, vec_normalize=vec_normalize, provenance=provenance)
+            agent.train_episodes = envs.episodes[j]
+            agent.diagnostics, agent.validation = self.diagnostics[j], envs.validation[j]
             agents.append(agent)
         return agents
 

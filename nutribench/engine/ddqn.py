@@ -135,9 +135,5 @@ class BatchedDDQN(BatchedOffPolicyAlgorithm):
         self.state = {"epsilon": float(state["epsilon"]), "copies": int(state["copies"])}
 
     def store_weights(self, j: int, model: Any) -> None:
-        _store(self.q, self.q_target, j, model)
-
-
-def _store(q: StackedMLP, q_target: StackedMLP, j: int, model: Any) -> None:
-    q.store_sb3(j, linears(model.q_net.q_net))
-    q_target.store_sb3(j, linears(model.q_net_target.q_net))
+        self.q.store_sb3(j, linears(model.q_net.q_net))
+        self.q_target.store_sb3(j, linears(model.q_net_target.q_net))

@@ -70,11 +70,9 @@ def resolve_device(name: str | th.device) -> th.device:
     import torch as th
 
     kind, index = _parse(name)
-    if kind == "auto":
-        kind = "cuda" if th.cuda.is_available() else "cpu"
-    elif kind == "cuda":
+    if kind == "cuda":
         _check_cuda(name, index)
-    if kind == "cpu":
+    if kind == "cpu" or (kind == "auto" and not th.cuda.is_available()):
         return th.device("cpu")
     return th.device("cuda", th.cuda.current_device() if index is None else index)
 

@@ -1,9 +1,7 @@
 """The K agents' environments for the batched engine: one natively batched vector env per
 regime (rows are agents), each agent's food days from its own seed, its observations
 normalised by its own running statistics (SB3's ``VecNormalize``), and its training days'
-metrics recorded as the SB3 engine records them; and each trained agent handed back as the
-SB3 engine's :class:`~nutribench.agents.api.TrainedAgent`. The observation is the vector
-env's at each regime's observation level (the ladder of :mod:`nutribench.env.nutri_env`);
+metrics recorded as the SB3 engine records them. The observation is the vector env's at each regime's observation level (the ladder of :mod:`nutribench.env.nutri_env`);
 one batch needs one observation size, so its regimes share the catalog and the level."""
 
 from __future__ import annotations
@@ -13,11 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from nutribench.agents.algos import build_model
-from nutribench.agents.api import CLIP_OBS, NORM_EPS, TrainedAgent, make_train_env, training_provenance
+from nutribench.agents.api import CLIP_OBS, NORM_EPS
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.engine.stacked import RunningStats
-from nutribench.engines import Engine
 from nutribench.env.metrics import EpisodeRecorder
 from nutribench.env.vector_env import NutriRLVectorEnv
 
@@ -195,36 +191,3 @@ def _set_plain_state(obj: Any, state: dict[str, Any]) -> None:
         if type(value) is not type(have) or (array and (value.dtype, value.shape) != (have.dtype, have.shape)):
             raise ValueError(f"the checkpoint's {type(obj).__name__}.{key} does not fit this batch")
         setattr(obj, key, value)
-
-
-def as_trained_agent(
-    envs: AgentEnvs,
-    j: int,
-    cfg: Any,
-    episodes: int,
-    store_weights: Callable[[Any], None],
-    ret_stats: RunningStats | None,
-    wall: float,
-    device: str = "cpu",
-) -> TrainedAgent:
-    """Agent ``j`` of ``envs`` as the SB3 model of its config in its ``VecNormalize``, as
-    ``agents.train`` returns it: ``store_weights(model)`` puts the trained weights in (the
-    model is on the CPU whatever the ``device`` trained it; its provenance names that device)."""
-    env_cfg, seed, obs_stats = envs.env_cfgs[j], envs.seeds[j], envs.obs_stats
-    _, env = make_train_env(env_cfg, cfg)
-    model = build_model(cfg, env, seed=seed, horizon=env_cfg.reward.horizon)
-    store_weights(model)
-    mean = var = None
-    if obs_stats is not None:
-        mean, var = obs_stats.mean[j].copy(), obs_stats.var[j].copy()
-        env.obs_rms.mean, env.obs_rms.var, env.obs_rms.count = mean.copy(), var.copy(), float(obs_stats.count[j])
-    if ret_stats is not None:
-        for name in ("mean", "var", "count"):
-            setattr(env.ret_rms, name, float(getattr(ret_stats, name)[j]))
-    batched = {"engine": Engine.BATCHED.value, "device": device, "batch_wall_seconds_per_agent": wall}
-    provenance = training_provenance(env_cfg, cfg, seed, episodes) | batched
-    agent = TrainedAgent(
-        model, cfg.algo, cfg, mean, var, vec_normalize=env if hasattr(env, "obs_rms") else None, provenance=provenance
-    )
-    agent.train_episodes = envs.episodes[j]
-    return agent

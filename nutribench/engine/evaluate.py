@@ -60,12 +60,11 @@ class BatchValidator(Validator):
             obs, _ = env.reset(options={"foods": streams[g.agents].reshape(-1, horizon)})
             raw[g.agents] = obs.reshape(len(g.agents), n, -1)
         recorders = [EpisodeRecorder(env.num_envs) for env in self._played]
-        metrics: list[list[dict]] = [[{} for _ in range(n)] for _ in range(k)]
+        rows: list[list[dict]] = [[{} for _ in range(n)] for _ in range(k)]
         entropy = np.zeros((k, n))  # summed over the steps; None for a policy without one
         for _ in range(horizon):
-            x = th.as_tensor(envs.normalize(raw), device=device)
             with th.no_grad():
-                actions, step_entropy = greedy(x)
+                actions, step_entropy = greedy(th.as_tensor(envs.normalize(raw), device=device))
             entropy = None if entropy is None or step_entropy is None else entropy + step_entropy.cpu().numpy()
             actions = actions.cpu().numpy()
             for g, env, rec in zip(envs.groups, self._played, recorders):
@@ -73,11 +72,7 @@ class BatchValidator(Validator):
                 raw[g.agents] = obs.reshape(len(g.agents), n, -1)
                 ended = term | trunc
                 for row, m in zip(np.flatnonzero(ended), rec.record(rewards, ended, info)):
-                    metrics[int(g.agents[row // n])][row % n] = m
-        return [
-            [
-                {"episode": i, **metrics[j][i], "entropy": None if entropy is None else float(entropy[j, i] / horizon)}
-                for i in range(n)
-            ]
-            for j in range(k)
-        ]
+                    j, i = int(g.agents[row // n]), int(row % n)  # a day ends at its last step: its entropy is summed
+                    day_entropy = None if entropy is None else float(entropy[j, i] / horizon)
+                    rows[j][i] = {"episode": i, **m, "entropy": day_entropy}
+        return rows

@@ -28,11 +28,10 @@ import math
 
 import torch as th
 
-from nutribench.engine.device import leaves_on
 from nutribench.engine.evaluate import Greedy, greedy_categorical
 from nutribench.engine.on_policy import StackedActor, log_prob_entropy
 from nutribench.engine.ppo import BatchedPPO
-from nutribench.engine.stacked import SB3Weights, linear_pairs, orthogonal
+from nutribench.engine.stacked import SB3Weights, linear_pairs, orthogonal, with_zero_biases
 
 N_NUTRIENTS = 3
 
@@ -119,18 +118,16 @@ class StackedGRUActorCritic(SB3Weights):
         first = th.cat([orthogonal(k, 2 * hidden, head, math.sqrt(2), generators) for _ in range(2)], dim=2)
         actor_out = orthogonal(k, head, n_actions, 0.01, generators)
         critic_out = orthogonal(k, head, 1, 1.0, generators)
-        self.params = []
-        for w in (w_ih, w_hh, first, actor_out, critic_out):  # each layer's weights, then its zero biases
-            self.params += [w.requires_grad_(), th.zeros(w.shape[0], 1, w.shape[2], requires_grad=True)]
-        self.params = leaves_on(self.params, device)
+        self.params = with_zero_biases([w_ih, w_hh, first, actor_out, critic_out], device)
 
     # ---- the recurrent core ----
 
-    def _inputs(self, obs: th.Tensor) -> th.Tensor:
-        """``obs (K, N, d)`` -> the 2K cells' inputs ``(2K, N, width)``."""
+    def _projections(self, obs: th.Tensor) -> th.Tensor:
+        """``obs (K, N, d)`` -> the 2K cells' input projections ``W_ih x + b_ih`` ``(2K, N, 3H)``
+        (their inputs ``x (2K, N, width)``: the nutrients, then the foods, each zero-padded)."""
         nut, food = obs[..., :N_NUTRIENTS], obs[..., N_NUTRIENTS:]
         pad = lambda x: th.nn.functional.pad(x, (0, self.width - x.shape[-1]))  # noqa: E731
-        return th.cat([pad(nut), pad(food)])
+        return th.baddbmm(self.params[1], th.cat([pad(nut), pad(food)]), self.params[0])
 
     def _cell(self, gi: th.Tensor, h: th.Tensor) -> th.Tensor:
         """One GRU step of the 2K cells: input projection ``gi (2K, B, 3H)``, state ``h (2K, B, H)``."""
@@ -159,9 +156,7 @@ class StackedGRUActorCritic(SB3Weights):
         if not self.memory and t_max > 1:
             logits, values = self.sequences(obs.reshape(k, s * t_max, 1, -1))
             return logits.reshape(k, s, t_max, -1), values.reshape(k, s, t_max)
-        gi = th.baddbmm(self.params[1], self._inputs(obs.reshape(k, s * t_max, -1)), self.params[0]).reshape(
-            2 * k, s, t_max, -1
-        )
+        gi = self._projections(obs.reshape(k, s * t_max, -1)).reshape(2 * k, s, t_max, -1)
         out = GRUSequence.apply(gi, self.params[2], self.params[3])  # (2K, S, T, H)
         features = th.cat([out[:k], out[k:]], dim=-1).reshape(k, s * t_max, 2 * self.hidden)
         logits, values = self._heads(features)
@@ -176,9 +171,8 @@ class StackedGRUActorCritic(SB3Weights):
 
     def step(self, obs: th.Tensor, state: th.Tensor, starts: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """One acting step: ``obs (K, d)``, ``state (2K, 1, H)`` zeroed where ``starts (K,)``;
-        logits ``(K, n_actions)``, values ``(K,)`` and the new state (zeroed everywhere without memory)."""
-        if not self.memory:
-            starts = th.ones_like(starts)
+        logits ``(K, n_actions)``, values ``(K,)`` and the new state (without memory :meth:`step_days`
+        zeroes it everywhere)."""
         keep = (1.0 - starts).reshape(1, self.k, 1, 1).expand(2, -1, -1, -1).reshape(2 * self.k, 1, 1)
         logits, values, h = self.step_days(obs.unsqueeze(1), state * keep)
         return logits[:, 0], values[:, 0], h
@@ -189,8 +183,7 @@ class StackedGRUActorCritic(SB3Weights):
         from zeros; without memory every step does)."""
         if not self.memory:
             state = th.zeros_like(state)
-        gi = th.baddbmm(self.params[1], self._inputs(obs), self.params[0])
-        h = self._cell(gi, state)
+        h = self._cell(self._projections(obs), state)
         logits, values = self._heads(th.cat([h[: self.k], h[self.k :]], dim=-1))
         return logits, values, h
 
@@ -198,8 +191,7 @@ class StackedGRUActorCritic(SB3Weights):
 
     def sb3_pairs(self, j: int, policy) -> list[tuple[th.Tensor, th.Tensor]]:
         """Agent ``j``'s parameters and a ``GRUActorCriticPolicy``'s."""
-        k, H, a = self.k, self.hidden, self.n_actions
-        p = self.params
+        k, p = self.k, self.params
         pairs = []
         for stream, gru in enumerate((policy.nutrient_gru, policy.food_gru)):
             row = stream * k + j
@@ -217,7 +209,7 @@ class StackedGRUActorCritic(SB3Weights):
             (p[5][j, 0, self.head :], policy.critic_head[0].bias),
             *linear_pairs(p[6:], j, [policy.actor_head[2], policy.critic_head[2]]),
         ]
-        assert H == policy.hidden_size and a == policy.action_space.n
+        assert self.hidden == policy.hidden_size and self.n_actions == policy.action_space.n
         return pairs
 
 

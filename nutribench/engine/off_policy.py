@@ -30,7 +30,6 @@ import torch as th
 from nutribench.engine.algorithm import BatchedAlgorithm
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs
-from nutribench.engine.stacked import AgentMeans
 
 
 @dataclass
@@ -146,11 +145,9 @@ class BatchedOffPolicyAlgorithm(BatchedAlgorithm):
 
     def __init__(self, cfg: Any, envs: AgentEnvs, device: th.device, cfgs: list[Any] | None = None):
         super().__init__(cfg, envs, device, cfgs)
-        self.means = AgentMeans()
         self.replay: StackedReplay | None = None  # made when learning starts (its size depends on the budget)
-        #: the raw observations the agents act on next, and as the policies see them
+        #: the raw observations the agents act on next (:attr:`last_obs` as the policies see them)
         self.raw: np.ndarray | None = None
-        self.last_obs: np.ndarray | None = None
         #: each agent's random actions and uniform draws for the day (drawn at its start)
         self.day_draws: tuple[np.ndarray, np.ndarray] | None = None
 

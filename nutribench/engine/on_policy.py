@@ -30,18 +30,18 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
 from stable_baselines3.common.utils import explained_variance
 
 from nutribench import diagnostics as names
+from nutribench.agents.algos import model_arguments
 from nutribench.agents.api import CLIP_OBS, NORM_EPS
 from nutribench.engine.algorithm import BatchedAlgorithm
 from nutribench.engine.checkpoint import Checkpoint
 from nutribench.engine.envs import AgentEnvs
-from nutribench.engine.on_policy_settings import OnPolicySettings
 from nutribench.engine.stacked import (
     AgentMeans,
     RunningStats,
@@ -52,6 +52,76 @@ from nutribench.engine.stacked import (
 )
 
 ADAM_EPS = 1e-5  # SB3's ActorCriticPolicy passes eps=1e-5 to Adam
+
+
+@dataclass
+class OnPolicySettings:
+    """What the rollout and the update read from an agent config (PPO, MC or GRU-PPO): the
+    one place the on-policy loop and updates take their settings from (never the config).
+    Each continuous setting is one float for all K agents, read only in :func:`gradient_step`
+    (``ent_coef``, ``vf_coef``, ``max_grad_norm``), :func:`~nutribench.engine.ppo.ppo_update`
+    (``clip_range``), :meth:`BatchedOnPolicyAlgorithm.scale_rewards` (``gamma``),
+    :meth:`BatchedOnPolicyAlgorithm.compute_returns` (``gamma``, ``gae_lambda``), the optimiser
+    (:class:`~nutribench.engine.stacked.StackedAdam`) and :meth:`BatchedOnPolicyAlgorithm.log_update`
+    (``learning_rate``), so a per-agent value (a ``(K,)`` array) changes those reads only."""
+
+    learning_rate: float | np.ndarray
+    n_steps: int
+    batch_size: int
+    n_epochs: int
+    gamma: float | np.ndarray
+    gae_lambda: float | np.ndarray
+    clip_range: float | np.ndarray | None  # None: A2C's update (MC)
+    ent_coef: float | np.ndarray
+    vf_coef: float | np.ndarray
+    max_grad_norm: float | np.ndarray
+    normalize_advantage: bool
+    sequence_length: int | None = None  # GRU-PPO: minibatches of whole days (batch_size counts days)
+    #: agents whose updates are applied (``(K,)`` bool, the caller's array, read at every step);
+    #: None: all. A frozen agent's parameters stay as they are (a pruned tuning trial's).
+    active: np.ndarray | None = None
+
+    #: the settings that may differ between the agents of one batch (each a ``(K,)`` array then)
+    CONTINUOUS: ClassVar[tuple[str, ...]] = (
+        "learning_rate",
+        "gamma",
+        "gae_lambda",
+        "clip_range",
+        "ent_coef",
+        "vf_coef",
+        "max_grad_norm",
+    )
+
+    @classmethod
+    def for_agents(cls, cfgs: list[Any], horizon: int) -> OnPolicySettings:
+        """The settings of K agents, one config each: the structural settings must agree (they
+        shape the rollout and the minibatches); each continuous one (:attr:`CONTINUOUS`) is a
+        ``(K,)`` array where the configs differ, else the one value (the single-config path,
+        unchanged)."""
+        each = [cls.from_config(c, horizon) for c in cfgs]
+        first = each[0]
+        for name in first.__dataclass_fields__:
+            values = [getattr(e, name) for e in each]
+            if name == "active" or len(set(values)) == 1:
+                continue
+            if name not in cls.CONTINUOUS:
+                raise ValueError(f"agents of one batch must agree on {name} (got {sorted(set(values), key=str)})")
+            setattr(first, name, np.asarray(values, dtype=np.float64))
+        return first
+
+    @classmethod
+    def from_config(cls, cfg: Any, horizon: int) -> OnPolicySettings:
+        """The settings of the SB3 model that ``algos.model_arguments`` builds for ``cfg``
+        on days of ``horizon`` steps: the fields its arguments name, as written (PPO's); MC's as
+        A2C gets them (a rollout of one day, one step on all of it, lambda 1, no advantage
+        normalisation); GRU-PPO's batch in whole days (as ``GRUPPO.sequences_per_batch``)."""
+        _, args = model_arguments(cfg, horizon)
+        settings = {"n_epochs": 1, "clip_range": None}  # A2C's (MC's): one pass, no clipping
+        settings |= {f.name: args[f.name] for f in fields(cls) if f.name in args}
+        seq = args.get("sequence_length")
+        batch_size = args.get("batch_size", args["n_steps"])
+        settings["batch_size"] = batch_size if seq is None else max(1, round(batch_size / seq))
+        return cls(**settings, gamma=cfg.gamma)
 
 
 @dataclass
@@ -103,9 +173,7 @@ def log_prob_entropy(logits: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, 
     """``log pi(a|s)`` and the categorical policy's entropy from ``logits (K, B, n_actions)``
     and ``actions (K, B)``, each ``(K, B)``."""
     logp_all = th.log_softmax(logits, dim=-1)
-    log_prob = logp_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
-    entropy = -(logp_all.exp() * logp_all).sum(-1)
-    return log_prob, entropy
+    return logp_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1), -(logp_all.exp() * logp_all).sum(-1)
 
 
 def normalized(adv: th.Tensor) -> th.Tensor:
@@ -192,10 +260,8 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
         self.optimizer = StackedAdam(self.net.params, self.settings.learning_rate, ADAM_EPS)
         self.ret_stats = RunningStats(self.k) if cfg.normalize_reward else None
         self.discounted = np.zeros(self.k)  # each agent's discounted return so far (reward scaling)
-        self.means = AgentMeans()
-        #: the observations the agents act on next (None until the first day starts) and
-        #: whether that step starts a day (SB3's ``_last_obs``, ``_last_episode_starts``)
-        self.last_obs: np.ndarray | None = None
+        #: whether the step the agents act on next (at :attr:`last_obs`) starts a day (SB3's
+        #: ``_last_obs``, ``_last_episode_starts``)
         self.start_of_day = np.ones(self.k, dtype=np.float32)
 
     # ---- what each algorithm gives ----
@@ -257,9 +323,7 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
                 raw_next = envs.new_days()
             obs = envs.seen(raw_next)
         self.last_obs, self.start_of_day = obs, start_of_day
-        if n_steps < self.settings.n_steps:
-            return None
-        return self.compute_returns(buf)
+        return None if n_steps < self.settings.n_steps else self.compute_returns(buf)
 
     def act(self, obs: np.ndarray, starts: np.ndarray, advance: bool = True) -> tuple[th.Tensor, th.Tensor]:
         """:attr:`actor` (no gradient) at the env's observations ``obs (K, d)`` and day starts ``(K,)``."""
@@ -278,16 +342,15 @@ class BatchedOnPolicyAlgorithm(BatchedAlgorithm):
     def compute_returns(self, buf: dict[str, np.ndarray]) -> Rollout:
         """The rollout of ``buf`` (the arrays of :meth:`collect_rollouts`) with SB3's GAE
         from the value after its last step; handed to ``on_rollout`` first, if set."""
-        settings, device = self.settings, self.device
         _, last_values = self.act(self.last_obs, self.start_of_day, advance=False)
         last, dones = last_values.cpu().numpy(), self.start_of_day.astype(bool)
         buf["advantages"], buf["returns"] = gae(
-            buf["rewards"], buf["values"], buf["starts"], last, dones, settings.gamma, settings.gae_lambda
+            buf["rewards"], buf["values"], buf["starts"], last, dones, self.settings.gamma, self.settings.gae_lambda
         )
         if self.on_rollout is not None:
             shown = ("obs", "actions", "rewards", "starts", "values", "advantages", "returns")
             self.on_rollout({**{name: buf[name] for name in shown}, "foods": np.stack(self.envs.days_drawn)})
-        return Rollout(**{f.name: th.as_tensor(buf[f.name], device=device) for f in fields(Rollout)})
+        return Rollout(**{f.name: th.as_tensor(buf[f.name], device=self.device) for f in fields(Rollout)})
 
     def permutations(self, rollout: Rollout) -> np.ndarray:
         """``(n_epochs, K, units)``: each agent's order of the rollout's units (transitions, or

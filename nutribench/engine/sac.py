@@ -203,10 +203,8 @@ class BatchedSAC(BatchedOffPolicyAlgorithm):
         with th.no_grad():
             probs, log_probs = self.net.policy(th.as_tensor(obs, device=self.device).unsqueeze(1))
         probs, log_probs = probs[:, 0].cpu().numpy(), log_probs[:, 0].cpu().numpy()
-        entropy = -(probs * log_probs).sum(axis=1)
-        if n < self.cfg.learning_starts:
-            return random_actions, entropy
-        return (uniforms < probs[:, 1]).astype(np.int64), entropy
+        actions = random_actions if n < self.cfg.learning_starts else (uniforms < probs[:, 1]).astype(np.int64)
+        return actions, -(probs * log_probs).sum(axis=1)
 
     def greedy(self) -> Greedy:
         return lambda obs: greedy_categorical(self.net.actor.forward(obs))

@@ -53,6 +53,15 @@ def linear_pairs(params: list[th.Tensor], j: int, layers: list[th.nn.Linear]) ->
     return pairs
 
 
+def with_zero_biases(weights: list[th.Tensor], device: th.device | str | None) -> list[th.Tensor]:
+    """Stacked layers ``(W, b)``: each weight ``(K, in, out)`` (made on the CPU) and a zero bias
+    ``(K, 1, out)``, all leaves requiring grad, moved to ``device`` (:func:`leaves_on`)."""
+    params = []
+    for w in weights:
+        params += [w.requires_grad_(), th.zeros(w.shape[0], 1, w.shape[2], requires_grad=True)]
+    return leaves_on(params, device)
+
+
 class SB3Weights:
     """A stacked network whose agent ``j`` is copied from and into the SB3 policy (or the
     ``nn.Linear`` layers) of one agent, parameter by parameter: :meth:`sb3_pairs`."""
@@ -162,8 +171,7 @@ def clip_grad_norm_per_agent(params: list[th.Tensor], max_norm: float | np.ndarr
     k = params[0].shape[0] if k is None else k
     # each row's sum over its own contiguous elements, then over an agent's rows: the same
     # order of additions at every K (a sum over dims (0, 2) at once was blocked by K)
-    sq = sum(p.grad.pow(2).reshape(p.shape[0] // k, k, -1).sum(dim=2).sum(dim=0) for p in params)
-    norms = sq.sqrt()
+    norms = sum(p.grad.pow(2).reshape(p.shape[0] // k, k, -1).sum(dim=2).sum(dim=0) for p in params).sqrt()
     if isinstance(max_norm, np.ndarray):
         max_norm = per_agent(max_norm, norms)  # inf / x = inf -> 1: unclipped
     elif not math.isfinite(max_norm):
