@@ -6,8 +6,10 @@ Everything here is a thin layer over :mod:`nutribench.report.figures`,
 Figure / table out). This module adds what those pure builders do not know about:
 
 * which agent configs a report draws (``algos``: default every config in the database) and
-  which pair Figure 4 compares (``pair``: default PPO and GRU-PPO; and :mod:`~nutribench.report.figure4`'s
-  memory ablation beside it); colours are one palette
+  which pair Figure 4 compares (``pair``: default PPO and GRU-PPO, checked by :func:`check_pair`;
+  and beside it its memory ablation, :func:`without_memory`: each config the database holds
+  that is one of the pair's configs with ``memory = false`` and nothing else changed; a
+  database without one draws the pair alone); colours are one palette
   per database (:mod:`nutribench.report.palette`), so a config looks the same in every figure;
 * which rows of the database a figure uses (:mod:`nutribench.report.data`): per regime and
   algorithm the newest config versions (``latest_only``) and, per (regime, algorithm, seed),
@@ -37,13 +39,14 @@ cannot be read raises :class:`nutribench.store.StoreError`.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from functools import partial
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
+
 from nutribench.config import ConfigError
-from nutribench.report import figure4
 from nutribench.report.data import (
     DbFile,
     Log,
@@ -85,6 +88,60 @@ FIGURES: dict[int, str] = {
 FIGURE_NAMES: dict[str, int] = {"aggregate": 5, "learning": 6}
 #: Figure 4's default pair (its file keeps the name ``fig4_ppo_vs_gru_ppo``).
 DEFAULT_PAIR = ("ppo", "gru_ppo")
+
+
+# --------------------------------------------------------------------------- Figure 4's configs
+#: what may differ between a config and its copy without memory (Figure 4's memory ablation)
+_OWN = ("name", "version", "description", "memory")
+
+
+def check_pair(pair: Sequence[str] | None, default: tuple[str, str]) -> tuple[str, str]:
+    """``pair`` as a tuple (None: ``default``); :class:`ReportError` unless two different names."""
+    if pair is None:
+        return default
+    if len(pair) != 2 or pair[0] == pair[1]:
+        raise ReportError(f"--pair {','.join(pair)}: give two different agent configs, e.g. --pair ppo,gru_ppo")
+    check_names(pair, "agent config", "--pair")
+    return (pair[0], pair[1])
+
+
+def _rest(body: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in body.items() if k not in _OWN}
+
+
+def without_memory(
+    pair: Sequence[str], stored: Mapping[str, Any] | None, metrics: pd.DataFrame | None = None
+) -> dict[str, str]:
+    """The configs of ``stored`` (:func:`~nutribench.report.data.stored_agent_configs`) that
+    are a config of ``pair`` with ``memory = false`` and nothing else changed, each mapped to
+    that config of the pair, in ``stored``'s order (each drawn as ``<label> without memory
+    (<name>)``, so that with the ladder study's archives, ``reports/ladder/``, Figure 4 shows
+    PPO, GRU-PPO and GRU-PPO without memory; GRU-PPO's option: the state zeroed before every
+    step); only those with evaluation episodes in ``metrics`` (rows of ``episode_metrics``)
+    when it is given; none where ``stored`` is None."""
+    out: dict[str, str] = {}
+    members = {m: stored[m].model_dump(mode="json") for m in pair if stored and m in stored}
+    evaluated = None if metrics is None else set(metrics.loc[metrics["phase"] == "eval", "algo"])
+    for name, cfg in (stored or {}).items():
+        body = cfg.model_dump(mode="json")
+        if name in pair or body.get("memory", True) is not False or (evaluated is not None and name not in evaluated):
+            continue
+        same = [m for m, mb in members.items() if mb.get("memory", True) is True and _rest(mb) == _rest(body)]
+        if same:
+            out[name] = same[0]
+    return out
+
+
+def ablation_labels(ablation: Mapping[str, str]) -> dict[str, str]:
+    """The legend labels of the ablation's configs: ``GRU-PPO without memory (gru_ppo_nomem)``."""
+    return {name: f"{algo_label(member)} without memory ({name})" for name, member in ablation.items()}
+
+
+def pair_title(pair: Sequence[str], ablation: Mapping[str, str]) -> str:
+    """The figure's first title line: ``PPO against GRU-PPO with and without memory``."""
+    ablated = set(ablation.values())
+    a, b = (f"{algo_label(m)} with and without memory" if m in ablated else algo_label(m) for m in pair)
+    return f"{a} against {b}: fixed-policy inference across regimes"
 
 
 # --------------------------------------------------------------------------- the table plan
@@ -173,7 +230,7 @@ def unheld_tables(
 
 def needs_stored_configs(figs: list[int], tables: list[str], all: bool, algos: Sequence[str] | None) -> bool:  # noqa: A002
     """Whether the database's agent configs must be read: to check ``algos`` or the pair, to
-    find Figure 4's configs without memory (:mod:`nutribench.report.figure4`), or to find the
+    find Figure 4's configs without memory (:func:`without_memory`), or to find the
     tables of configs other than the five."""
     if all or 4 in figs or any(t not in TABLES for t in tables):
         return True
@@ -225,10 +282,10 @@ def _eval_figure(
         data.eval,
         algos=algos,
         references=refs,
-        title=figure4.title(pair, ablation) if number == 4 else "Fixed-policy inference across regimes",
+        title=pair_title(pair, ablation) if number == 4 else "Fixed-policy inference across regimes",
         colors=data.colors,
         day_references=_day_references(data, log),
-        labels=figure4.labels(ablation),
+        labels=ablation_labels(ablation),
     )
 
 
@@ -242,7 +299,7 @@ def build_figure(
 ) -> FigureResult:
     """Figure 1-4 of the paper from ``data`` (Figure 4: ``pair``, which ``data`` must hold, and
     beside it ``ablation``'s configs, each a pair config without memory:
-    :func:`nutribench.report.figure4.without_memory`); :class:`ReportError` when it has nothing to draw."""
+    :func:`without_memory`); :class:`ReportError` when it has nothing to draw."""
     try:
         if number in (1, 2):
             train = data.rows("train", f"figure {number}")
@@ -365,7 +422,7 @@ def _request(db: DbFile, figs, tables, all: bool, algos, pair) -> tuple[list[int
             raise ReportError(f"no figure {f}: the figures are {', '.join(map(str, FIGURES))}")
     if not figs and not tables:
         raise ReportError("nothing to build: ask for figures, tables or all")
-    pair_given, pair = pair is not None, figure4.check_pair(pair, DEFAULT_PAIR)
+    pair_given, pair = pair is not None, check_pair(pair, DEFAULT_PAIR)
     stored = stored_agent_configs(db) if needs_stored_configs(figs, tables, all, algos) else None
     if stored is not None and algos is not None:
         check_known(algos, stored, "--algos")
@@ -442,7 +499,7 @@ def build_report(
         for key, why in unheld_tables(plan, stored, raw, tables).items():
             del plan[key]
             log(f"skipped: {why}")
-    ablation = figure4.without_memory(pair, stored, raw) if 4 in figs else {}
+    ablation = without_memory(pair, stored, raw) if 4 in figs else {}
     pair_data = prepare(raw, [*pair, *ablation]) if raw is not None and 4 in figs else None
     for note in dict.fromkeys([*(data.notes if data else []), *(pair_data.notes if pair_data else [])]):
         log(f"note: {note}")
