@@ -304,7 +304,7 @@ def test_results_table_leads_with_the_seed_level_interval():
 def test_trajectory_meal_labels_sit_above_the_curves():
     """With many meals the labels stay out of the axes (inside, they would cover the curves)."""
     from nutribench.env import NutriRLEnv
-    from nutribench.report.trajectory import trajectory_figure
+    from nutribench.report.output import trajectory_figure
 
     env = NutriRLEnv("run3")
     env.reset(options={"foods": [k % 10 for k in range(50)]})

@@ -2,7 +2,7 @@
 the files under ``reports/``.
 
 Everything here is a thin layer over :mod:`nutribench.report.figures`,
-:mod:`nutribench.report.tables` and :mod:`nutribench.report.trajectory` (DataFrame in,
+:mod:`nutribench.report.tables` and :func:`nutribench.report.output.trajectory_figure` (DataFrame in,
 Figure / table out). This module adds what those pure builders do not know about:
 
 * which agent configs a report draws (``algos``: default every config in the database) and
