@@ -174,7 +174,7 @@ def test_training_table_is_the_last_tenth_of_training_beside_the_authors():
         per_seed = cell.groupby("seed")["return"].mean()
         assert raw.loc[(regime, algo), "return_mean"] == pytest.approx(per_seed.mean())
         assert raw.loc[(regime, algo), "return_sem"] == pytest.approx(per_seed.std(ddof=1) / np.sqrt(3))
-    # the authors' logged numbers (nutribench/report/authors.py), run0 and run6
+    # the authors' logged numbers (nutribench/report/tables.py AUTHORS_LAST_10PCT), run0 and run6
     assert (raw.loc[("run0", "ppo"), "authors_return"], raw.loc[("run0", "ppo"), "authors_foods"]) == (-5.9, 5.0)
     assert (raw.loc[("run6", "sac"), "authors_return"], raw.loc[("run6", "sac"), "authors_foods"]) == (-29.0, 25.3)
     assert "authors' return" in res.formatted.columns
