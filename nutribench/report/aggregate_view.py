@@ -67,7 +67,7 @@ def aggregate_figure(
 
     ``ev``: the evaluation episodes the scores came from, for the budget and seeds line.
     ``headroom``: the references above the planner
-    (:func:`nutribench.report.headroom.aggregate_points`), drawn on the IQM, median and mean
+    (:func:`nutribench.report.references.aggregate_points`), drawn on the IQM, median and mean
     panels as grey lines at their aggregate over all regimes."""
     colors = colors or palette(res.algos)
     names = agent_labels(ev) if ev is not None and not ev.empty else {}

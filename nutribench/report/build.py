@@ -64,7 +64,7 @@ from nutribench.report.figures import FigureResult, draw_notes, eval_across_regi
 from nutribench.report.html import page_figure, page_table, write_index
 from nutribench.report.output import build_trajectory, write_figure, write_table
 from nutribench.report.palette import label as algo_label
-from nutribench.report.references import eval_day_references, simple_policy_references
+from nutribench.report.references import aggregate_points, eval_day_references, simple_policy_references
 from nutribench.report.tables import (
     CONFIG_TABLES,
     TableResult,
@@ -315,7 +315,6 @@ def build_figure(
             )
         elif number == 5:
             from nutribench.report.aggregate_view import aggregate_figure
-            from nutribench.report.headroom import aggregate_points
 
             agg = _aggregate(data, "figure 5")
             headroom = aggregate_points(data.eval, _day_references(data), agg.regimes)

@@ -32,10 +32,10 @@ from nutribench.report.figure_parts import (
     sort_regimes,
     training_legend,
 )
-from nutribench.report.headroom import regime_shares
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
+from nutribench.report.references import regime_shares
 from nutribench.report.scores import run_scores
 from nutribench.stats import caption, mean_ci
 
@@ -51,7 +51,7 @@ POLICY_STYLES = {
     "always": dict(color="0.75", ls="--", marker="+"),
     "planner": dict(color="k", ls="-", marker="*"),
 }
-#: The references above the planner on panel (A)'s gap scale (:mod:`nutribench.report.headroom`).
+#: The references above the planner on panel (A)'s gap scale (:mod:`nutribench.report.references`).
 STRONG_STYLES = {
     "lookahead": dict(color="0.3", ls="--", marker="^"),
     "clairvoyant": dict(color="0.3", ls="-", marker="v"),

@@ -219,10 +219,10 @@ _UNRANKED = {"lookahead": "sampled futures finished by the planner", "clairvoyan
 
 
 def _reference_rows(ev: pd.DataFrame, references: pd.DataFrame, board: list[str], reps: int) -> pd.DataFrame:
-    """Unranked rows for lookahead and clairvoyant (:mod:`nutribench.report.headroom`): the
+    """Unranked rows for lookahead and clairvoyant (:mod:`nutribench.report.references`): the
     same scores on the same days, over the board's regimes they cover; none where
     ``references`` lacks them."""
-    from nutribench.report.headroom import SOURCE, reference_runs
+    from nutribench.report.references import SOURCE, reference_runs
 
     runs = reference_runs(ev, references).rename(columns={"policy": "algo"})
     rows = []

@@ -201,7 +201,7 @@ def table_results(df: pd.DataFrame, references: pd.DataFrame | None = None) -> T
     returns on each evaluation day) each row also gives the mean return of ``never`` and of
     the ``planner`` on exactly the row's evaluation days, and the share of that gap the
     agent closes; NaN where a day of the row has no reference. Where ``references`` also has
-    ``lookahead`` and ``clairvoyant`` (:mod:`nutribench.report.headroom`), each row gives their
+    ``lookahead`` and ``clairvoyant`` (:mod:`nutribench.report.references`), each row gives their
     shares of the same gap on the same days (``lookahead_gap``, ``clairvoyant_gap``): the
     headroom above the planner's 100 %."""
     ev = df[df["phase"] == "eval"]
@@ -218,7 +218,7 @@ def table_results(df: pd.DataFrame, references: pd.DataFrame | None = None) -> T
         f"({interval_caption('iqm')}); {budget_caption(ev)}"
     )
     if strong:
-        from nutribench.report.headroom import SOURCE
+        from nutribench.report.references import SOURCE
 
         title += (
             "; lookahead / clairvoyant: the shares of the same gap the two references above the planner close on the "
