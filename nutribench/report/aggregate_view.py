@@ -24,7 +24,7 @@ from nutribench.report.figure_parts import (
     count_span,
     legend_entries,
 )
-from nutribench.report.figures import FigureResult, draw_notes, legend_rows, percent_axis, set_title, yardstick_lines
+from nutribench.report.figures import FigureResult, draw_notes, gap_scale, legend_rows, set_title
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.tables import TableResult, interval_cell
@@ -103,11 +103,10 @@ def _interval_panels(fig, grid, res: AggregateResult, colors: Palette, names, gr
                 y = ypos[r.algo] + offset[group]
                 _interval_mark(ax, y, r, colors.color(r.algo), group)
                 drawn.append((agg, group, r.algo, y, r.point, r.lo, r.hi))
-        yardstick_lines(ax)
+        gap_scale(ax)
         _headroom_lines(ax, headroom, agg)
         ax.set_yticks(list(ypos.values()), [_agent_label(res, a, names) for a in ypos] if k == 0 else [""] * len(ypos))
         ax.set_ylim(-0.6, len(algos) - 0.4)
-        percent_axis(ax.xaxis)
         ax.set_title(AGGREGATE_LABELS[agg] + (" (lower is better)" if agg == "optimality_gap" else ""), fontsize=10)
         ax.set_xlabel("share of the never → planner gap", fontsize=8)
         ax.grid(axis="x", alpha=0.3)
@@ -144,8 +143,7 @@ def _profile_panel(ax, res: AggregateResult, group: str, colors: Palette, names,
         ax.plot(p["tau"], p["fraction"], markevery=(algos.index(algo) * every // len(algos), every), **line)
         if p["lo"].notna().any():
             ax.fill_between(p["tau"], p["lo"], p["hi"], color=color, alpha=0.15, lw=0)
-    yardstick_lines(ax)
-    percent_axis(ax.xaxis)
+    gap_scale(ax)
     ax.set_ylim(-0.02, 1.02)
     ax.set_title(f"performance profile, {group_title(res, group)}", fontsize=9)
     ax.set_xlabel("score threshold τ (share of the gap)", fontsize=8)

@@ -177,15 +177,12 @@ def budget_panels(train: pd.DataFrame, regimes: list[str]) -> list[tuple[str, in
 GAP_LABEL = "share of the never -> planner gap closed"
 
 
-def percent_axis(axis) -> None:
-    """Shares on ``axis`` (an x or y axis) as whole percents."""
+def gap_scale(ax, vertical: bool = True) -> None:
+    """The gap scale along x (``vertical``: its lines stand upright) or y: shares as whole
+    percents, and dotted grey lines at never (0) and the planner (1)."""
     from matplotlib.ticker import PercentFormatter
 
-    axis.set_major_formatter(PercentFormatter(xmax=1, decimals=0))
-
-
-def yardstick_lines(ax, vertical: bool = True) -> None:
-    """Dotted grey lines at never (0) and the planner (1) of the gap scale."""
+    (ax.xaxis if vertical else ax.yaxis).set_major_formatter(PercentFormatter(xmax=1, decimals=0))
     for v in (0.0, 1.0):
         (ax.axvline if vertical else ax.axhline)(v, color="0.5", ls=":", lw=0.9, zorder=0)
 
@@ -193,8 +190,7 @@ def yardstick_lines(ax, vertical: bool = True) -> None:
 def gap_axis(ax) -> None:
     """Panel (A) on the gap scale: linear, 0 = never eat, 100 % = the full-information planner,
     so equal distances are equal shares of what there is to gain."""
-    percent_axis(ax.yaxis)
-    yardstick_lines(ax, vertical=False)
+    gap_scale(ax, vertical=False)
     ax.set_ylabel("0 = never eat, 100 % = planner (linear)", fontsize=8)
 
 
