@@ -216,15 +216,10 @@ def _aggregate_caption(res: AggregateResult, ev: pd.DataFrame | None, headroom: 
 def aggregate_intervals_text(profile: bool = True) -> str:
     """How the intervals of the median, mean, optimality gap, P(X > Y) (and the profiles'
     bands) are made, with their measured coverage, for a caption."""
-    parts = [
-        f"median: {aggregate_caption('median')}",
-        f"mean: {aggregate_caption('mean')}",
-        f"optimality gap: {aggregate_caption('gap')}",
-        f"P(X > Y): {aggregate_caption('improvement')}",
-    ]
+    named = {"median": "median", "mean": "mean", "gap": "optimality gap", "improvement": "P(X > Y)"}
     if profile:
-        parts.append(f"profile bands: {aggregate_caption('profile')}")
-    return "; ".join(parts)
+        named["profile"] = "profile bands"
+    return "; ".join(f"{name}: {aggregate_caption(statistic)}" for statistic, name in named.items())
 
 
 def _group_entry(res: AggregateResult, group: str, offset: float) -> str:
