@@ -24,7 +24,7 @@ from nutribench.report.figure_parts import (
     count_span,
     legend_entries,
 )
-from nutribench.report.figures import FigureResult, draw_notes, gap_scale, legend_rows, set_title
+from nutribench.report.figures import FigureResult, gap_scale, legend_rows, set_title
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.tables import TableResult, interval_cell
@@ -83,9 +83,8 @@ def aggregate_figure(
     for j, group in enumerate(GROUPS):
         _improvement_panel(fig, fig.add_subplot(grid[1, 2 + j]), res, group, colorbar=j == 1)
     _aggregate_legend(fig, res, names, profile_axes, groups, offset)
-    set_title(fig, f"{title}\n{_aggregate_caption(res, ev, headroom)}")
     notes = [*res.notes, *_width_notes(res)]
-    draw_notes(fig, notes)
+    set_title(fig, f"{title}\n{_aggregate_caption(res, ev, headroom)}", notes)
     return FigureResult(fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "y", "point", "lo", "hi"]), notes)
 
 

@@ -60,7 +60,8 @@ from nutribench.report.data import (
     read_metrics,
     stored_agent_configs,
 )
-from nutribench.report.figures import FigureResult, draw_notes, eval_across_regimes, sort_regimes, training_curves
+from nutribench.report.figure_parts import FigureResult, budget_caption, draw_notes, sort_regimes
+from nutribench.report.figures import eval_across_regimes, training_curves
 from nutribench.report.html import page_figure, page_table, write_index
 from nutribench.report.output import build_trajectory, write_figure, write_table
 from nutribench.report.palette import label as algo_label
@@ -400,8 +401,6 @@ def _page_subtitle(db: DbFile, data: ReportData | None) -> str:
     """index.html's line under the title: the database's name (never the folder it lay in,
     which may be a temporary one) and the budgets and seeds of what the page draws."""
     from sqlalchemy.engine import make_url
-
-    from nutribench.report.figure_parts import budget_caption
 
     text = str(db)
     name = Path(text).name if "://" not in text else Path(make_url(text).database or "").name

@@ -25,7 +25,6 @@ from nutribench.report.figure_parts import (
     budget_seeds_line,
     count_span,
     default_window,
-    draw_notes,
     legend_rows,
     regime_index,
     set_title,
@@ -140,8 +139,7 @@ def training_curves(
     smoothing = f"a {window}-episode moving average" if window > 1 else "the per-episode values (no smoothing)"
     band = "band = standard error across seeds" if n_seeds.max() > 1 else "one seed: no band"
     caption = f"mean over seeds ({count_span(n_seeds)} per line) of {smoothing}; {band}\n{budget_seeds_line(train)}"
-    set_title(fig, (title or f"Training {METRIC_LABELS.get(metric, metric)}") + f"\n{caption}")
-    draw_notes(fig, notes)
+    set_title(fig, (title or f"Training {METRIC_LABELS.get(metric, metric)}") + f"\n{caption}", notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)
 
 
@@ -315,8 +313,7 @@ def eval_across_regimes(
     absent = [algo_label(a) for a in algos or () if a not in present]
     if absent:
         notes.append(f"no evaluation data for {', '.join(absent)}")
-    set_title(fig, f"{title}\n{_eval_caption(ev, scores is not None, headroom)}")
-    draw_notes(fig, notes)
+    set_title(fig, f"{title}\n{_eval_caption(ev, scores is not None, headroom)}", notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)
 
 
