@@ -50,7 +50,7 @@ import numpy as np
 import pandas as pd
 from rliable import metrics as rly
 
-from nutribench.report.figure_parts import sort_regimes
+from nutribench.report.figure_parts import regime_index, sort_regimes
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
 from nutribench.report.scores import DEFAULT_REPS, GAMMA, ScoreSet, pooled, run_scores, score_set
@@ -312,8 +312,6 @@ def aggregate_from_eval(
 
 def regime_span(regimes: Sequence[str]) -> str:
     """``run0-run6`` for consecutive runs, else the names (``run1, run3``)."""
-    from nutribench.report.figure_parts import regime_index
-
     idx = [regime_index(r) for r in regimes]
     if len(regimes) > 2 and None not in idx and idx == list(range(idx[0], idx[0] + len(idx))):
         return f"{regimes[0]}-{regimes[-1]}"

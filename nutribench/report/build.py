@@ -46,7 +46,7 @@ from typing import Any
 
 import pandas as pd
 
-from nutribench.config import ConfigError
+from nutribench.config import ConfigError, list_regimes, load_env_config
 from nutribench.report.data import (
     DbFile,
     Log,
@@ -382,8 +382,6 @@ def build_table(
     given); "results" and "training" from the episodes of ``data``."""
     key = str(key)
     if key == "1":
-        from nutribench.config import list_regimes, load_env_config
-
         names = list_regimes()
         if not names:
             raise ReportError("table 1: no regime files found")

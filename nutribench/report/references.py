@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from nutribench.baselines import STRONG_POLICIES
-from nutribench.config import ConfigError
+from nutribench.baselines import REFERENCE_COLUMNS, STRONG_POLICIES, baseline_table, day_yardsticks
+from nutribench.config import ConfigError, load_env_config, regimes_dir
 from nutribench.report.data import Log, quiet
 
 
@@ -48,8 +48,6 @@ def simple_policy_references(
 
     Columns: regime, policy, return, foods, final_distance, overshoot_ratio.
     """
-    from nutribench.baselines import baseline_table
-
     rows = []
     for regime in regimes:
         try:
@@ -70,8 +68,6 @@ def eval_day_references(ev: pd.DataFrame, log: Log | None = None) -> pd.DataFram
     on a day ``regimes/references.csv`` lacks).
     """
     from nutribench.agents import eval_food_streams
-    from nutribench.baselines import day_yardsticks
-    from nutribench.config import load_env_config
 
     log = log or quiet
     rows: list[dict[str, Any]] = []
@@ -99,9 +95,6 @@ def committed_references(log: Log | None = None) -> pd.DataFrame:
     """The rows of ``regimes/references.csv`` whose regime content is the installed regime
     file's; regimes whose file changed (or is gone) are left out, logged. Columns:
     :data:`~nutribench.baselines.REFERENCE_COLUMNS`."""
-    from nutribench.baselines import REFERENCE_COLUMNS
-    from nutribench.config import ConfigError, load_env_config, regimes_dir
-
     path = regimes_dir() / REFERENCES_FILE
     if not path.is_file():
         if log:
