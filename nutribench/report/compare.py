@@ -126,14 +126,12 @@ class Comparison:
 
     def title(self) -> str:
         la, lb = algo_label(self.a), algo_label(self.b)
+        # how the intervals were made
+        method = interval_caption("paired") + ("" if CHOSEN["paired"] == "t" else f", {self.reps} resamples")
         return (
             f"{la} - {lb}: mean paired difference of evaluation returns (same seed, same day), 95 % interval over "
-            f"seeds ({self.method()}; a seed's days kept together); P({la} > {lb}) over paired days (ties count half)"
+            f"seeds ({method}; a seed's days kept together); P({la} > {lb}) over paired days (ties count half)"
         )
-
-    def method(self) -> str:
-        """How the intervals were made, for the title."""
-        return interval_caption("paired") + ("" if CHOSEN["paired"] == "t" else f", {self.reps} resamples")
 
     def formatted(self) -> pd.DataFrame:
         """The rows as text: regime, seeds, days, means, difference [interval], P(A > B) [interval]."""
