@@ -135,10 +135,8 @@ def interval_estimates(
             elif agg == "mean":
                 lo, hi = (float(v[0]) for v in strata_t(values, sizes, "regime", confidence)[1:])
             else:  # the gap falls as the capped mean rises
-                capped_lo, capped_hi = (
-                    float(v[0]) for v in strata_t(np.minimum(values, GAMMA), sizes, "run", confidence)[1:]
-                )
-                lo, hi = GAMMA - capped_hi, GAMMA - capped_lo
+                _, capped_lo, capped_hi = strata_t(np.minimum(values, GAMMA), sizes, "run", confidence)
+                lo, hi = GAMMA - float(capped_hi[0]), GAMMA - float(capped_lo[0])
             rows.append((algo, agg, point_estimate(agg, runs), lo, hi, int(sum(sizes)), len(runs)))
     return pd.DataFrame(rows, columns=["algo", "aggregate", "point", "lo", "hi", "runs", "regimes"])
 

@@ -194,10 +194,9 @@ def compare_agents(
     if days.empty:
         raise CompareError(f"{a} and {b} share no seed on {', '.join(wanted)}: nothing to pair ({'; '.join(notes)})")
     for r in paired:
+        partnered = set(days.loc[days["regime"] == r, "seed"])
         for name in (a, b):
-            lost = set(ev.loc[(ev["algo"] == name) & (ev["regime"] == r), "seed"]) - set(
-                days.loc[days["regime"] == r, "seed"]
-            )
+            lost = set(ev.loc[(ev["algo"] == name) & (ev["regime"] == r), "seed"]) - partnered
             if lost:
                 notes.append(f"{r}: seeds {seed_list(lost)} of {name} have no partner, left out")
     rows = [_summary(r, [r], days[days["regime"] == r], reps, confidence) for r in paired]
