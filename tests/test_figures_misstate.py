@@ -118,7 +118,7 @@ def test_figure_5_intervals_end_inside_their_panels():
 
 def test_trajectory_legend_keeps_clear_of_a_long_title():
     from nutribench.env import RegimeDynamics
-    from nutribench.report.trajectory import trajectory_figure
+    from nutribench.report.output import trajectory_figure
 
     H = 50
     eat = (np.arange(1, H + 1) % 7 == 0).astype(int)

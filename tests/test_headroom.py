@@ -79,8 +79,8 @@ def test_figure_3_draws_the_references_above_the_planner_on_panel_a():
 def test_figure_5_and_the_leaderboard_set_the_references_beside_the_agents():
     from nutribench.report.aggregate import aggregate_from_eval
     from nutribench.report.aggregate_view import aggregate_figure
-    from nutribench.report.headroom import aggregate_points
     from nutribench.report.leaderboard import REFERENCE_PROTOCOL, leaderboard_rows, leaderboard_table
+    from nutribench.report.references import aggregate_points
 
     _, ev, refs = _frames()
     res = aggregate_from_eval(ev, refs, reps=50)
@@ -164,7 +164,7 @@ def test_a_regime_of_committed_references_is_remade_exactly(committed):
 def test_committed_references_of_a_changed_regime_file_are_not_used(monkeypatch, tmp_path):
     import shutil
 
-    from nutribench.report.headroom import committed_references
+    from nutribench.report.references import committed_references
 
     for f in regimes_dir().iterdir():
         if f.is_file():

@@ -174,7 +174,7 @@ def test_training_table_is_the_last_tenth_of_training_beside_the_authors():
         per_seed = cell.groupby("seed")["return"].mean()
         assert raw.loc[(regime, algo), "return_mean"] == pytest.approx(per_seed.mean())
         assert raw.loc[(regime, algo), "return_sem"] == pytest.approx(per_seed.std(ddof=1) / np.sqrt(3))
-    # the authors' logged numbers (nutribench/report/authors.py), run0 and run6
+    # the authors' logged numbers (nutribench/report/tables.py AUTHORS_LAST_10PCT), run0 and run6
     assert (raw.loc[("run0", "ppo"), "authors_return"], raw.loc[("run0", "ppo"), "authors_foods"]) == (-5.9, 5.0)
     assert (raw.loc[("run6", "sac"), "authors_return"], raw.loc[("run6", "sac"), "authors_foods"]) == (-29.0, 25.3)
     assert "authors' return" in res.formatted.columns
@@ -304,7 +304,7 @@ def test_results_table_leads_with_the_seed_level_interval():
 def test_trajectory_meal_labels_sit_above_the_curves():
     """With many meals the labels stay out of the axes (inside, they would cover the curves)."""
     from nutribench.env import NutriRLEnv
-    from nutribench.report.trajectory import trajectory_figure
+    from nutribench.report.output import trajectory_figure
 
     env = NutriRLEnv("run3")
     env.reset(options={"foods": [k % 10 for k in range(50)]})

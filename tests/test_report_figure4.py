@@ -12,7 +12,6 @@ from sqlalchemy import select
 
 import nutribench.report.build as build
 from nutribench.agents.config import agent_config_content, load_agent_config
-from nutribench.report import figure4
 from nutribench.report.build import build_report, read_metrics, stored_agent_configs
 from nutribench.store import AgentConfig, open_store, session_scope
 from tests.test_report_cli import make_db
@@ -57,7 +56,7 @@ def _drawn(db: Path, out: Path, monkeypatch, **kw) -> tuple[list[str], str, list
 
 def test_figure_4_draws_gru_ppo_without_memory_beside_the_pair(tmp_path: Path, monkeypatch) -> None:
     db = _db(tmp_path / "ablation.db", ("ppo", "gru_ppo", "gru_ppo_nomem", "gru_ppo_wide"))
-    assert figure4.without_memory(build.DEFAULT_PAIR, stored_agent_configs(db), read_metrics(db)) == {
+    assert build.without_memory(build.DEFAULT_PAIR, stored_agent_configs(db), read_metrics(db)) == {
         "gru_ppo_nomem": "gru_ppo"
     }
     algos, title, legend = _drawn(db, tmp_path / "out", monkeypatch)
@@ -90,15 +89,15 @@ def test_a_memoryless_config_without_evaluation_episodes_is_not_drawn() -> None:
 
     stored = {n: Stored(b) for n, b in bodies.items()}
     evaluated = pd.DataFrame({"phase": ["eval", "eval", "train"], "algo": ["ppo", "gru_ppo", "gru_ppo_nomem"]})
-    assert figure4.without_memory(("ppo", "gru_ppo"), stored, evaluated) == {}
-    assert figure4.without_memory(("ppo", "gru_ppo"), stored) == {"gru_ppo_nomem": "gru_ppo"}
-    assert figure4.without_memory(("ppo", "gru_ppo"), None) == {}
+    assert build.without_memory(("ppo", "gru_ppo"), stored, evaluated) == {}
+    assert build.without_memory(("ppo", "gru_ppo"), stored) == {"gru_ppo_nomem": "gru_ppo"}
+    assert build.without_memory(("ppo", "gru_ppo"), None) == {}
 
 
 @pytest.mark.parametrize("pair", [("ppo",), ("ppo", "ppo")])
 def test_a_bad_pair_is_one_line(pair) -> None:
     with pytest.raises(build.ReportError, match="two different agent configs"):
-        figure4.check_pair(pair, build.DEFAULT_PAIR)
+        build.check_pair(pair, build.DEFAULT_PAIR)
 
 
 @pytest.mark.slow  # about 40 s: three jobs through the scheduler, then the report

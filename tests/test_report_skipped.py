@@ -59,7 +59,7 @@ def test_all_skips_each_item_the_database_does_not_hold_with_one_line(tmp_path: 
 def test_the_tables_of_configs_without_results_are_the_ones_left_out():
     import pandas as pd
 
-    from nutribench.report.table_plan import table_plan, unheld_tables
+    from nutribench.report.build import table_plan, unheld_tables
 
     plan = table_plan([], True, {"ppo": None, "mine": None, "idle": None}, None)
     assert list(plan) == ["1", "2", "3", "4", "5", "6", "7", "8", "results", "training", "aggregate"]

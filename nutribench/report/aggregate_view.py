@@ -24,7 +24,7 @@ from nutribench.report.figure_parts import (
     count_span,
     legend_entries,
 )
-from nutribench.report.figures import FigureResult, draw_notes, legend_rows, percent_axis, set_title, yardstick_lines
+from nutribench.report.figures import FigureResult, gap_scale, legend_rows, set_title
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.tables import TableResult, interval_cell
@@ -67,7 +67,7 @@ def aggregate_figure(
 
     ``ev``: the evaluation episodes the scores came from, for the budget and seeds line.
     ``headroom``: the references above the planner
-    (:func:`nutribench.report.headroom.aggregate_points`), drawn on the IQM, median and mean
+    (:func:`nutribench.report.references.aggregate_points`), drawn on the IQM, median and mean
     panels as grey lines at their aggregate over all regimes."""
     colors = colors or palette(res.algos)
     names = agent_labels(ev) if ev is not None and not ev.empty else {}
@@ -83,9 +83,8 @@ def aggregate_figure(
     for j, group in enumerate(GROUPS):
         _improvement_panel(fig, fig.add_subplot(grid[1, 2 + j]), res, group, colorbar=j == 1)
     _aggregate_legend(fig, res, names, profile_axes, groups, offset)
-    set_title(fig, f"{title}\n{_aggregate_caption(res, ev, headroom)}")
     notes = [*res.notes, *_width_notes(res)]
-    draw_notes(fig, notes)
+    set_title(fig, f"{title}\n{_aggregate_caption(res, ev, headroom)}", notes)
     return FigureResult(fig, pd.DataFrame(drawn, columns=["panel", "group", "algo", "y", "point", "lo", "hi"]), notes)
 
 
@@ -103,11 +102,10 @@ def _interval_panels(fig, grid, res: AggregateResult, colors: Palette, names, gr
                 y = ypos[r.algo] + offset[group]
                 _interval_mark(ax, y, r, colors.color(r.algo), group)
                 drawn.append((agg, group, r.algo, y, r.point, r.lo, r.hi))
-        yardstick_lines(ax)
+        gap_scale(ax)
         _headroom_lines(ax, headroom, agg)
         ax.set_yticks(list(ypos.values()), [_agent_label(res, a, names) for a in ypos] if k == 0 else [""] * len(ypos))
         ax.set_ylim(-0.6, len(algos) - 0.4)
-        percent_axis(ax.xaxis)
         ax.set_title(AGGREGATE_LABELS[agg] + (" (lower is better)" if agg == "optimality_gap" else ""), fontsize=10)
         ax.set_xlabel("share of the never → planner gap", fontsize=8)
         ax.grid(axis="x", alpha=0.3)
@@ -144,8 +142,7 @@ def _profile_panel(ax, res: AggregateResult, group: str, colors: Palette, names,
         ax.plot(p["tau"], p["fraction"], markevery=(algos.index(algo) * every // len(algos), every), **line)
         if p["lo"].notna().any():
             ax.fill_between(p["tau"], p["lo"], p["hi"], color=color, alpha=0.15, lw=0)
-    yardstick_lines(ax)
-    percent_axis(ax.xaxis)
+    gap_scale(ax)
     ax.set_ylim(-0.02, 1.02)
     ax.set_title(f"performance profile, {group_title(res, group)}", fontsize=9)
     ax.set_xlabel("score threshold τ (share of the gap)", fontsize=8)
@@ -218,15 +215,10 @@ def _aggregate_caption(res: AggregateResult, ev: pd.DataFrame | None, headroom: 
 def aggregate_intervals_text(profile: bool = True) -> str:
     """How the intervals of the median, mean, optimality gap, P(X > Y) (and the profiles'
     bands) are made, with their measured coverage, for a caption."""
-    parts = [
-        f"median: {aggregate_caption('median')}",
-        f"mean: {aggregate_caption('mean')}",
-        f"optimality gap: {aggregate_caption('gap')}",
-        f"P(X > Y): {aggregate_caption('improvement')}",
-    ]
+    named = {"median": "median", "mean": "mean", "gap": "optimality gap", "improvement": "P(X > Y)"}
     if profile:
-        parts.append(f"profile bands: {aggregate_caption('profile')}")
-    return "; ".join(parts)
+        named["profile"] = "profile bands"
+    return "; ".join(f"{name}: {aggregate_caption(statistic)}" for statistic, name in named.items())
 
 
 def _group_entry(res: AggregateResult, group: str, offset: float) -> str:

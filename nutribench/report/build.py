@@ -2,12 +2,14 @@
 the files under ``reports/``.
 
 Everything here is a thin layer over :mod:`nutribench.report.figures`,
-:mod:`nutribench.report.tables` and :mod:`nutribench.report.trajectory` (DataFrame in,
+:mod:`nutribench.report.tables` and :func:`nutribench.report.output.trajectory_figure` (DataFrame in,
 Figure / table out). This module adds what those pure builders do not know about:
 
 * which agent configs a report draws (``algos``: default every config in the database) and
-  which pair Figure 4 compares (``pair``: default PPO and GRU-PPO; and :mod:`~nutribench.report.figure4`'s
-  memory ablation beside it); colours are one palette
+  which pair Figure 4 compares (``pair``: default PPO and GRU-PPO, checked by :func:`check_pair`;
+  and beside it its memory ablation, :func:`without_memory`: each config the database holds
+  that is one of the pair's configs with ``memory = false`` and nothing else changed; a
+  database without one draws the pair alone); colours are one palette
   per database (:mod:`nutribench.report.palette`), so a config looks the same in every figure;
 * which rows of the database a figure uses (:mod:`nutribench.report.data`): per regime and
   algorithm the newest config versions (``latest_only``) and, per (regime, algorithm, seed),
@@ -19,7 +21,11 @@ Figure / table out). This module adds what those pure builders do not know about
   (:mod:`nutribench.report.references`: the simple policies, played afresh; nothing cached);
 * Tables 2-6 from the five built-in agent config files, Tables 7, 8, ... from the bodies of
   the other configs stored in the database (:func:`nutribench.report.tables.config_table_numbers`);
-  which tables a call builds and what a table key names: :mod:`nutribench.report.table_plan`;
+  which tables a call builds and the file stem of each (:func:`table_plan`), what a table key
+  names (:func:`resolve_table`: "1", a config table's number or its config's name, "results",
+  "training", "aggregate"), whether the database's stored agent configs must be read for it
+  (:func:`needs_stored_configs`), and the config tables themselves (:func:`config_table`: a
+  built-in config from its file, any other as stored in the database);
 * writing (:mod:`nutribench.report.output`): figures as PNG (150 dpi) and PDF, tables as
   Markdown, LaTeX and CSV, and the trajectory view of one evaluation episode; with ``all``,
   ``index.html``, the report on one static page (:mod:`nutribench.report.html`), with the
@@ -33,12 +39,14 @@ cannot be read raises :class:`nutribench.store.StoreError`.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from functools import partial
 from pathlib import Path
 from typing import Any
 
-from nutribench.report import figure4
+import pandas as pd
+
+from nutribench.config import ConfigError, list_regimes, load_env_config
 from nutribench.report.data import (
     DbFile,
     Log,
@@ -52,21 +60,21 @@ from nutribench.report.data import (
     read_metrics,
     stored_agent_configs,
 )
-from nutribench.report.figures import FigureResult, draw_notes, eval_across_regimes, sort_regimes, training_curves
+from nutribench.report.figure_parts import FigureResult, budget_caption, draw_notes, sort_regimes
+from nutribench.report.figures import eval_across_regimes, training_curves
 from nutribench.report.html import page_figure, page_table, write_index
 from nutribench.report.output import build_trajectory, write_figure, write_table
 from nutribench.report.palette import label as algo_label
-from nutribench.report.references import eval_day_references, simple_policy_references
-from nutribench.report.table_plan import (
-    TABLES,
-    config_table,
-    needs_stored_configs,
-    resolve_table,
-    stored_or_none,
-    table_plan,
-    unheld_tables,
+from nutribench.report.references import aggregate_points, eval_day_references, simple_policy_references
+from nutribench.report.tables import (
+    CONFIG_TABLES,
+    TableResult,
+    config_table_numbers,
+    table_agent_config,
+    table_regimes,
+    table_results,
+    table_training,
 )
-from nutribench.report.tables import TableResult, config_table_numbers, table_regimes, table_results, table_training
 
 #: Figures of the paper this command can build, and the file stem each is written to.
 FIGURES: dict[int, str] = {
@@ -81,6 +89,153 @@ FIGURES: dict[int, str] = {
 FIGURE_NAMES: dict[str, int] = {"aggregate": 5, "learning": 6}
 #: Figure 4's default pair (its file keeps the name ``fig4_ppo_vs_gru_ppo``).
 DEFAULT_PAIR = ("ppo", "gru_ppo")
+
+
+# --------------------------------------------------------------------------- Figure 4's configs
+#: what may differ between a config and its copy without memory (Figure 4's memory ablation)
+_OWN = ("name", "version", "description", "memory")
+
+
+def check_pair(pair: Sequence[str] | None, default: tuple[str, str]) -> tuple[str, str]:
+    """``pair`` as a tuple (None: ``default``); :class:`ReportError` unless two different names."""
+    if pair is None:
+        return default
+    if len(pair) != 2 or pair[0] == pair[1]:
+        raise ReportError(f"--pair {','.join(pair)}: give two different agent configs, e.g. --pair ppo,gru_ppo")
+    check_names(pair, "agent config", "--pair")
+    return (pair[0], pair[1])
+
+
+def _rest(body: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in body.items() if k not in _OWN}
+
+
+def without_memory(
+    pair: Sequence[str], stored: Mapping[str, Any] | None, metrics: pd.DataFrame | None = None
+) -> dict[str, str]:
+    """The configs of ``stored`` (:func:`~nutribench.report.data.stored_agent_configs`) that
+    are a config of ``pair`` with ``memory = false`` and nothing else changed, each mapped to
+    that config of the pair, in ``stored``'s order (each drawn as ``<label> without memory
+    (<name>)``, so that with the ladder study's archives, ``reports/ladder/``, Figure 4 shows
+    PPO, GRU-PPO and GRU-PPO without memory; GRU-PPO's option: the state zeroed before every
+    step); only those with evaluation episodes in ``metrics`` (rows of ``episode_metrics``)
+    when it is given; none where ``stored`` is None."""
+    out: dict[str, str] = {}
+    members = {m: stored[m].model_dump(mode="json") for m in pair if stored and m in stored}
+    evaluated = None if metrics is None else set(metrics.loc[metrics["phase"] == "eval", "algo"])
+    for name, cfg in (stored or {}).items():
+        body = cfg.model_dump(mode="json")
+        if name in pair or body.get("memory", True) is not False or (evaluated is not None and name not in evaluated):
+            continue
+        same = [m for m, mb in members.items() if mb.get("memory", True) is True and _rest(mb) == _rest(body)]
+        if same:
+            out[name] = same[0]
+    return out
+
+
+def ablation_labels(ablation: Mapping[str, str]) -> dict[str, str]:
+    """The legend labels of the ablation's configs: ``GRU-PPO without memory (gru_ppo_nomem)``."""
+    return {name: f"{algo_label(member)} without memory ({name})" for name, member in ablation.items()}
+
+
+def pair_title(pair: Sequence[str], ablation: Mapping[str, str]) -> str:
+    """The figure's first title line: ``PPO against GRU-PPO with and without memory``."""
+    ablated = set(ablation.values())
+    a, b = (f"{algo_label(m)} with and without memory" if m in ablated else algo_label(m) for m in pair)
+    return f"{a} against {b}: fixed-policy inference across regimes"
+
+
+# --------------------------------------------------------------------------- the table plan
+#: Tables: 1 (regimes), 2-6 (the built-in agent configurations), "results", "training",
+#: "aggregate"; the other configs of a database add Tables 7, 8, ... (``table<N>_<name>``).
+TABLES: dict[str, str] = {
+    "1": "table1_regimes",
+    **{str(n): f"table{n}_{a}" for n, a in CONFIG_TABLES.items()},
+    "results": "table_results",
+    "training": "table_training_vs_authors",
+    "aggregate": "table_aggregate",
+}
+
+
+def stored_or_none(db: DbFile | None) -> dict[str, Any]:
+    """:func:`stored_agent_configs` of ``db``; empty when there is no readable database."""
+    from nutribench.store import StoreError
+
+    try:
+        return stored_agent_configs(db) if db is not None else {}
+    except StoreError:
+        return {}
+
+
+def resolve_table(key: str, numbers: dict[int, str]) -> tuple[str, str]:
+    """(key, file stem) of table ``key``: "1", a config table's number or its config's name,
+    "results", "training" or "aggregate"; ``numbers``: :func:`config_table_numbers` of the database."""
+    by_name = {name: n for n, name in numbers.items()}
+    key = str(by_name.get(key, key))
+    if key.isdigit() and int(key) in numbers:
+        return key, f"table{key}_{numbers[int(key)]}"
+    if key in TABLES:
+        return key, TABLES[key]
+    listed = ", ".join(["1", *(f"{n} ({name})" for n, name in numbers.items()), "results", "training", "aggregate"])
+    raise ReportError(f"no table {key} (--table {key}): the tables are {listed}")
+
+
+def config_table(number: int, name: str, db: DbFile | None, stored: dict[str, Any] | None) -> TableResult:
+    """Table ``number``: a built-in config from its file (else as stored in ``db``); any other
+    config as stored in ``db`` (the body it ran with)."""
+    config, why = None, ""
+    if name in CONFIG_TABLES.values():
+        try:
+            from nutribench.agents.config import load_agent_config
+
+            config = load_agent_config(name)
+        except (ImportError, ConfigError) as e:
+            why = f" ({e})"
+    if config is None:
+        config = (stored if stored is not None else stored_or_none(db)).get(name)
+    if config is None:
+        raise ReportError(f"table {number}: no {name} agent config file and none in the database{why}")
+    return table_agent_config(number, config)
+
+
+def table_plan(
+    tables: Sequence[str], all: bool, stored: dict[str, Any] | None, algos: Sequence[str] | None
+) -> dict[str, str]:  # noqa: A002
+    """Table key -> file stem of every table to build, checked. ``all`` (or "all" among
+    ``tables``): Table 1, the config tables of ``algos`` (default every config: 2-6 and the
+    database's others), the results, the training and the aggregate tables."""
+    numbers = config_table_numbers(stored or ())
+    keys = [t for t in tables if t != "all"]
+    if all or "all" in tables:
+        configs = [str(n) for n, name in numbers.items() if algos is None or name in algos]
+        keys = ["1", *configs, "results", "training", "aggregate", *keys]
+    return dict(resolve_table(k, numbers) for k in keys)  # a key named twice keeps its first place
+
+
+def unheld_tables(
+    plan: dict[str, str], stored: dict[str, Any] | None, metrics: Any, asked: Sequence[str] = ()
+) -> dict[str, str]:
+    """Key -> why, for the config tables of ``plan`` whose agent config has no episodes in
+    ``metrics`` (rows of ``episode_metrics``): ``--all`` leaves them out (a report draws what
+    the database holds); a table asked for by its key or name (``asked``) is kept."""
+    numbers = config_table_numbers(stored or ())
+    held = set(metrics["algo"]) if len(metrics) else set()
+    out = {}
+    for key in plan:
+        name = numbers.get(int(key)) if key.isdigit() and key != "1" else None
+        if name is None or name in held or key in asked or name in asked:
+            continue
+        out[key] = f"table {key} ({name}): no results of {name} in the database (--table {key} builds it all the same)"
+    return out
+
+
+def needs_stored_configs(figs: list[int], tables: list[str], all: bool, algos: Sequence[str] | None) -> bool:  # noqa: A002
+    """Whether the database's agent configs must be read: to check ``algos`` or the pair, to
+    find Figure 4's configs without memory (:func:`without_memory`), or to find the
+    tables of configs other than the five."""
+    if all or 4 in figs or any(t not in TABLES for t in tables):
+        return True
+    return algos is not None and bool(figs or [t for t in tables if t != "1"])
 
 
 def _add_notes(res: FigureResult, extra: Sequence[str]) -> FigureResult:
@@ -128,10 +283,10 @@ def _eval_figure(
         data.eval,
         algos=algos,
         references=refs,
-        title=figure4.title(pair, ablation) if number == 4 else "Fixed-policy inference across regimes",
+        title=pair_title(pair, ablation) if number == 4 else "Fixed-policy inference across regimes",
         colors=data.colors,
         day_references=_day_references(data, log),
-        labels=figure4.labels(ablation),
+        labels=ablation_labels(ablation),
     )
 
 
@@ -145,7 +300,7 @@ def build_figure(
 ) -> FigureResult:
     """Figure 1-4 of the paper from ``data`` (Figure 4: ``pair``, which ``data`` must hold, and
     beside it ``ablation``'s configs, each a pair config without memory:
-    :func:`nutribench.report.figure4.without_memory`); :class:`ReportError` when it has nothing to draw."""
+    :func:`without_memory`); :class:`ReportError` when it has nothing to draw."""
     try:
         if number in (1, 2):
             train = data.rows("train", f"figure {number}")
@@ -161,7 +316,6 @@ def build_figure(
             )
         elif number == 5:
             from nutribench.report.aggregate_view import aggregate_figure
-            from nutribench.report.headroom import aggregate_points
 
             agg = _aggregate(data, "figure 5")
             headroom = aggregate_points(data.eval, _day_references(data), agg.regimes)
@@ -228,8 +382,6 @@ def build_table(
     given); "results" and "training" from the episodes of ``data``."""
     key = str(key)
     if key == "1":
-        from nutribench.config import list_regimes, load_env_config
-
         names = list_regimes()
         if not names:
             raise ReportError("table 1: no regime files found")
@@ -247,8 +399,6 @@ def _page_subtitle(db: DbFile, data: ReportData | None) -> str:
     """index.html's line under the title: the database's name (never the folder it lay in,
     which may be a temporary one) and the budgets and seeds of what the page draws."""
     from sqlalchemy.engine import make_url
-
-    from nutribench.report.figure_parts import budget_caption
 
     text = str(db)
     name = Path(text).name if "://" not in text else Path(make_url(text).database or "").name
@@ -268,7 +418,7 @@ def _request(db: DbFile, figs, tables, all: bool, algos, pair) -> tuple[list[int
             raise ReportError(f"no figure {f}: the figures are {', '.join(map(str, FIGURES))}")
     if not figs and not tables:
         raise ReportError("nothing to build: ask for figures, tables or all")
-    pair_given, pair = pair is not None, figure4.check_pair(pair, DEFAULT_PAIR)
+    pair_given, pair = pair is not None, check_pair(pair, DEFAULT_PAIR)
     stored = stored_agent_configs(db) if needs_stored_configs(figs, tables, all, algos) else None
     if stored is not None and algos is not None:
         check_known(algos, stored, "--algos")
@@ -345,7 +495,7 @@ def build_report(
         for key, why in unheld_tables(plan, stored, raw, tables).items():
             del plan[key]
             log(f"skipped: {why}")
-    ablation = figure4.without_memory(pair, stored, raw) if 4 in figs else {}
+    ablation = without_memory(pair, stored, raw) if 4 in figs else {}
     pair_data = prepare(raw, [*pair, *ablation]) if raw is not None and 4 in figs else None
     for note in dict.fromkeys([*(data.notes if data else []), *(pair_data.notes if pair_data else [])]):
         log(f"note: {note}")

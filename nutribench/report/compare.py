@@ -126,14 +126,12 @@ class Comparison:
 
     def title(self) -> str:
         la, lb = algo_label(self.a), algo_label(self.b)
+        # how the intervals were made
+        method = interval_caption("paired") + ("" if CHOSEN["paired"] == "t" else f", {self.reps} resamples")
         return (
             f"{la} - {lb}: mean paired difference of evaluation returns (same seed, same day), 95 % interval over "
-            f"seeds ({self.method()}; a seed's days kept together); P({la} > {lb}) over paired days (ties count half)"
+            f"seeds ({method}; a seed's days kept together); P({la} > {lb}) over paired days (ties count half)"
         )
-
-    def method(self) -> str:
-        """How the intervals were made, for the title."""
-        return interval_caption("paired") + ("" if CHOSEN["paired"] == "t" else f", {self.reps} resamples")
 
     def formatted(self) -> pd.DataFrame:
         """The rows as text: regime, seeds, days, means, difference [interval], P(A > B) [interval]."""
@@ -196,10 +194,9 @@ def compare_agents(
     if days.empty:
         raise CompareError(f"{a} and {b} share no seed on {', '.join(wanted)}: nothing to pair ({'; '.join(notes)})")
     for r in paired:
+        partnered = set(days.loc[days["regime"] == r, "seed"])
         for name in (a, b):
-            lost = set(ev.loc[(ev["algo"] == name) & (ev["regime"] == r), "seed"]) - set(
-                days.loc[days["regime"] == r, "seed"]
-            )
+            lost = set(ev.loc[(ev["algo"] == name) & (ev["regime"] == r), "seed"]) - partnered
             if lost:
                 notes.append(f"{r}: seeds {seed_list(lost)} of {name} have no partner, left out")
     rows = [_summary(r, [r], days[days["regime"] == r], reps, confidence) for r in paired]

@@ -83,10 +83,6 @@ class ReportData:
         return rows
 
     @property
-    def train(self) -> pd.DataFrame:
-        return self.metrics[self.metrics["phase"] == "train"]
-
-    @property
     def eval(self) -> pd.DataFrame:
         return self.metrics[self.metrics["phase"] == "eval"]
 

@@ -81,8 +81,7 @@ def diagnostics_figure(rows: pd.DataFrame, horizon: int, title: str = "") -> Fig
     for ax in axes[max(0, len(present) - FIGURE_COLUMNS) : len(present)]:
         ax.set_xlabel("training day", fontsize=8)
         ax.xaxis.set_tick_params(labelbottom=True)
-    handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside right upper", fontsize=8, frameon=False)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside right upper", fontsize=8, frameon=False)
     how = f"rolling mean over {window} updates" if window > 1 else "one point per update"
     fig.suptitle(f"{title} ({how})" if title else how, fontsize=10)
     return fig

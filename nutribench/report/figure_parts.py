@@ -143,11 +143,11 @@ def count_span(counts: pd.Series) -> str:
     return f"{lo}" if lo == hi else f"{lo}-{hi}"
 
 
-def set_title(fig: Figure, title: str) -> None:
-    """The figure's title and caption (suptitle), wrapped to the figure's width; the notes of
-    :func:`draw_notes` are kept under it."""
+def set_title(fig: Figure, title: str, notes: list[str] | None = None) -> None:
+    """The figure's title and caption (suptitle), wrapped to the figure's width, with ``notes``
+    under it (:func:`draw_notes`; None: the notes drawn before are kept)."""
     fig._report_title = title  # type: ignore[attr-defined]
-    draw_notes(fig, getattr(fig, "_report_notes", []))
+    draw_notes(fig, getattr(fig, "_report_notes", []) if notes is None else notes)
 
 
 def draw_notes(fig: Figure, notes: list[str]) -> None:

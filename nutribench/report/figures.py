@@ -25,17 +25,16 @@ from nutribench.report.figure_parts import (
     budget_seeds_line,
     count_span,
     default_window,
-    draw_notes,
     legend_rows,
     regime_index,
     set_title,
     sort_regimes,
     training_legend,
 )
-from nutribench.report.headroom import regime_shares
 from nutribench.report.palette import Palette, palette
 from nutribench.report.palette import label as algo_label
 from nutribench.report.palette import order as sort_algos
+from nutribench.report.references import regime_shares
 from nutribench.report.scores import run_scores
 from nutribench.stats import caption, mean_ci
 
@@ -51,7 +50,7 @@ POLICY_STYLES = {
     "always": dict(color="0.75", ls="--", marker="+"),
     "planner": dict(color="k", ls="-", marker="*"),
 }
-#: The references above the planner on panel (A)'s gap scale (:mod:`nutribench.report.headroom`).
+#: The references above the planner on panel (A)'s gap scale (:mod:`nutribench.report.references`).
 STRONG_STYLES = {
     "lookahead": dict(color="0.3", ls="--", marker="^"),
     "clairvoyant": dict(color="0.3", ls="-", marker="v"),
@@ -140,8 +139,7 @@ def training_curves(
     smoothing = f"a {window}-episode moving average" if window > 1 else "the per-episode values (no smoothing)"
     band = "band = standard error across seeds" if n_seeds.max() > 1 else "one seed: no band"
     caption = f"mean over seeds ({count_span(n_seeds)} per line) of {smoothing}; {band}\n{budget_seeds_line(train)}"
-    set_title(fig, (title or f"Training {METRIC_LABELS.get(metric, metric)}") + f"\n{caption}")
-    draw_notes(fig, notes)
+    set_title(fig, (title or f"Training {METRIC_LABELS.get(metric, metric)}") + f"\n{caption}", notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)
 
 
@@ -177,15 +175,12 @@ def budget_panels(train: pd.DataFrame, regimes: list[str]) -> list[tuple[str, in
 GAP_LABEL = "share of the never -> planner gap closed"
 
 
-def percent_axis(axis) -> None:
-    """Shares on ``axis`` (an x or y axis) as whole percents."""
+def gap_scale(ax, vertical: bool = True) -> None:
+    """The gap scale along x (``vertical``: its lines stand upright) or y: shares as whole
+    percents, and dotted grey lines at never (0) and the planner (1)."""
     from matplotlib.ticker import PercentFormatter
 
-    axis.set_major_formatter(PercentFormatter(xmax=1, decimals=0))
-
-
-def yardstick_lines(ax, vertical: bool = True) -> None:
-    """Dotted grey lines at never (0) and the planner (1) of the gap scale."""
+    (ax.xaxis if vertical else ax.yaxis).set_major_formatter(PercentFormatter(xmax=1, decimals=0))
     for v in (0.0, 1.0):
         (ax.axvline if vertical else ax.axhline)(v, color="0.5", ls=":", lw=0.9, zorder=0)
 
@@ -193,8 +188,7 @@ def yardstick_lines(ax, vertical: bool = True) -> None:
 def gap_axis(ax) -> None:
     """Panel (A) on the gap scale: linear, 0 = never eat, 100 % = the full-information planner,
     so equal distances are equal shares of what there is to gain."""
-    percent_axis(ax.yaxis)
-    yardstick_lines(ax, vertical=False)
+    gap_scale(ax, vertical=False)
     ax.set_ylabel("0 = never eat, 100 % = planner (linear)", fontsize=8)
 
 
@@ -319,8 +313,7 @@ def eval_across_regimes(
     absent = [algo_label(a) for a in algos or () if a not in present]
     if absent:
         notes.append(f"no evaluation data for {', '.join(absent)}")
-    set_title(fig, f"{title}\n{_eval_caption(ev, scores is not None, headroom)}")
-    draw_notes(fig, notes)
+    set_title(fig, f"{title}\n{_eval_caption(ev, scores is not None, headroom)}", notes)
     return FigureResult(fig, pd.concat(rows, ignore_index=True), notes)
 
 

@@ -56,7 +56,7 @@ import pandas as pd
 from nutribench.report.aggregate import interval_estimates, regime_span, run_scores, score_set
 from nutribench.report.data import Log, ReportError, entries, entry_rows, quiet
 from nutribench.report.figure_parts import UNRECORDED, budget_cell, seed_list, sort_regimes
-from nutribench.report.leaderboard_verify import REPLAYED, not_reproduced
+from nutribench.report.leaderboard_verify import REPLAYED, not_reproduced, verify_entries
 from nutribench.report.palette import BUILTIN_ORDER
 from nutribench.report.palette import label as algo_label
 from nutribench.report.scores import DEFAULT_REPS
@@ -219,10 +219,10 @@ _UNRANKED = {"lookahead": "sampled futures finished by the planner", "clairvoyan
 
 
 def _reference_rows(ev: pd.DataFrame, references: pd.DataFrame, board: list[str], reps: int) -> pd.DataFrame:
-    """Unranked rows for lookahead and clairvoyant (:mod:`nutribench.report.headroom`): the
+    """Unranked rows for lookahead and clairvoyant (:mod:`nutribench.report.references`): the
     same scores on the same days, over the board's regimes they cover; none where
     ``references`` lacks them."""
-    from nutribench.report.headroom import SOURCE, reference_runs
+    from nutribench.report.references import SOURCE, reference_runs
 
     runs = reference_runs(ev, references).rename(columns={"policy": "algo"})
     rows = []
@@ -361,8 +361,6 @@ def leaderboard_from_db(
     references = eval_day_references(scored, log=log)
     checked = None
     if verify is not None:
-        from nutribench.report.leaderboard_verify import verify_entries
-
         checked = verify_entries(db, ev, verify, log)
         notes += _set_apart_notes(checked)
     rows = leaderboard_rows(ev, references, jobs, _drawn_protocols(configs, ev), reps, checked)

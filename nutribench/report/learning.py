@@ -24,7 +24,6 @@ from nutribench.report.figure_parts import (
     agent_labels,
     budget_seeds_line,
     count_span,
-    draw_notes,
     set_title,
     sort_regimes,
 )
@@ -106,6 +105,5 @@ def learning_curve_figure(
         f"IQM over seeds with its 95 % interval over seeds ({interval_caption('iqm')})\n"
         f"{budget_seeds_line(curve)}"
     )
-    set_title(fig, f"Learning curves: evaluation during training\n{caption}")
-    draw_notes(fig, notes)
+    set_title(fig, f"Learning curves: evaluation during training\n{caption}", notes)
     return FigureResult(fig, points, notes)

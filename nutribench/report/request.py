@@ -11,7 +11,7 @@ from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
-from nutribench.errors import UserError
+from nutribench.errors import UserError, check_range
 
 
 def _split(values: list[str] | None) -> list[str]:
@@ -94,7 +94,6 @@ class ReportRequest:
 
     def check(self) -> None:
         """Refuse an empty request or options that do not go together, one line each."""
-        from nutribench.errors import check_range
         from nutribench.scheduler.grid import MAX_EPISODES, MAX_SEED
 
         if not (self.figures_or_tables or self.trajectory or self.diagnostics):

@@ -1,6 +1,6 @@
-"""Run scores and their stratified bootstrap: what the aggregate statistics
-(:mod:`nutribench.report.aggregate`) and the performance profiles and probabilities of
-improvement (:mod:`nutribench.report.profiles`) are computed from.
+"""Run scores and their stratified bootstrap: what the aggregate statistics, the performance
+profiles and the probabilities of improvement (:mod:`nutribench.report.aggregate`) are
+computed from.
 
 A **run** is one job: an agent config trained with one seed on one regime. Its **score** is
 the share of the regime's never -> planner gap it closes on its own evaluation days,
