@@ -84,9 +84,10 @@ class ValidationObjective:
 
         return Engine.BATCHED.value if supports(cfg) is None else Engine.SB3.value
 
-    def batch_days(self) -> Callable[[int, dict[str, Any]], None] | None:
+    def batch_days(self, job: int | None = None) -> Callable[[int, dict[str, Any]], None] | None:
         """The batched engine's ``on_episode``: :attr:`on_day` each time the batch's furthest
-        agent ends a day (a batch's agents end their days together, a pruned trial's stop)."""
+        agent ends a day (a batch's agents end their days together, a pruned trial's stop),
+        telling it ``job`` (None: a batch; a job trained alone, :meth:`job_days`)."""
         if self.on_day is None:
             return None
         on_day, days, reached = self.on_day, {}, [0]
@@ -95,7 +96,7 @@ class ValidationObjective:
             days[j] = days.get(j, 0) + 1
             if days[j] > reached[0]:
                 reached[0] = days[j]
-                on_day(reached[0], None)
+                on_day(reached[0], job)
 
         return on_episode
 
@@ -151,15 +152,8 @@ class ValidationObjective:
 
     def job_days(self, j: int) -> Callable[[dict[str, Any]], None] | None:
         """The SB3 engine's ``on_episode`` for job ``j`` (trained alone): :attr:`on_day` at each day."""
-        if self.on_day is None:
-            return None
-        on_day, days = self.on_day, [0]
-
-        def on_episode(_metrics: dict[str, Any]) -> None:
-            days[0] += 1
-            on_day(days[0], j)
-
-        return on_episode
+        count = self.batch_days(j)  # one job: each of its days is the furthest
+        return None if count is None else lambda metrics: count(j, metrics)
 
 
 class TrialScores:

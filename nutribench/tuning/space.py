@@ -138,16 +138,18 @@ class SearchSpace(BaseModel):
     def config(self, values: dict[str, Any], *, name: str | None = None, description: str | None = None) -> Any:
         """The agent config of ``values`` (the base file's, the searched ones replaced), validated;
         under a new ``name`` it is that new file's version 1."""
-        base = self.base()
-        data = base.model_dump(mode="json")
-        if by_entry_point(data["algo"]):
-            data["params"] = {**data["params"], **values}
-        else:
-            data.update(values)
+        data = self.base().model_dump(mode="json")
+        hyperparameters(data).update(values)
         if name is not None and name != data["name"]:
             data["name"], data["version"] = name, 1
         data["description"] = description or data["description"]
         return parse_agent_config(data, f"search space {self.name!r}")
+
+
+def hyperparameters(data: dict[str, Any]) -> dict[str, Any]:
+    """The hyperparameters in an agent config's JSON dump ``data`` (the same dict, to read or
+    update): a plug-in's ``[params]`` table (``algo = "external"``), else the config's own keys."""
+    return data["params"] if by_entry_point(data["algo"]) else data
 
 
 def resolve_space_path(name_or_path: str | Path) -> Path:
@@ -240,8 +242,7 @@ def check_space_memory(space: SearchSpace, agents: int, limit: int | None = None
             limit = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
         except (ValueError, OSError, AttributeError):  # the system does not say
             return
-    data = space.base().model_dump(mode="json")
-    base = dict(data["params"]) if by_entry_point(data["algo"]) else data
+    base = hyperparameters(space.base().model_dump(mode="json"))
     worst = dict(base)
     for name, param in space.params.items():
         worst[name] = max(param.ends(), key=lambda v, n=name: estimate_bytes({**base, n: v}, agents))

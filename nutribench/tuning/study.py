@@ -177,14 +177,11 @@ def make_pruner(settings: StudySettings) -> Any:
     )
 
 
-@contextmanager
-def quiet_experimental() -> Iterator[None]:
+def quiet_experimental() -> warnings.catch_warnings[None]:
     """Optuna's ``ExperimentalWarning`` silenced while the block runs, the caller's warnings
     filters restored afterwards: the heartbeat and the stale-trial retry are marked
     experimental since Optuna 2.8; their behaviour here is tested."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
-        yield
+    return warnings.catch_warnings(action="ignore", category=optuna.exceptions.ExperimentalWarning)
 
 
 @contextmanager
