@@ -12,8 +12,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-Env = "NutriRLEnv | NutriRLVectorEnv"
-
 
 class RandomPolicy:
     """Eats each offered food with probability 1/2."""
