@@ -4,7 +4,7 @@ the yardsticks of the share of the never -> planner gap (:func:`gap_closed`) on 
 :func:`validation_yardsticks` (a job's validation days).
 
 Beside the simple policies (random, never, always, the greedy planner), two stronger ones say
-how far above the planner's 100 % the optimum lies (:mod:`nutribench.env.search`):
+how far above the planner's 100 % the optimum lies (:mod:`nutribench.env.policies`):
 ``lookahead`` (the planner's information, sampled futures) and ``clairvoyant`` (the day's
 foods known; exact where its branch and bound proves the day's best return, a beam
 otherwise): :func:`play_strong_policy`, and :func:`test_day_references` on the paper's test
@@ -18,11 +18,10 @@ import numpy as np
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.env import NutriRLVectorEnv
 from nutribench.env.metrics import play
-from nutribench.env.policies import make_policy
-from nutribench.env.search import DayModel, clairvoyant_actions, lookahead_actions
+from nutribench.env.policies import DayModel, clairvoyant_actions, lookahead_actions, make_policy
 
 POLICY_ORDER = ("random", "never", "always", "planner")
-#: The two references above the planner, slower to play (:mod:`nutribench.env.search`).
+#: The two references above the planner, slower to play (:mod:`nutribench.env.policies`).
 STRONG_POLICIES = ("lookahead", "clairvoyant")
 SUMMARY_KEYS = ("return", "foods", "final_distance", "overshoot_ratio")
 #: Sampled futures a lookahead step weighs each action on (``nutribench baselines``' default:
@@ -59,7 +58,7 @@ def play_strong_policy(
 ) -> list[dict]:
     """Per-episode metrics of ``lookahead`` (``samples`` futures a step, ``seed``) or
     ``clairvoyant`` (beam ``width``, proof of at most ``max_nodes`` nodes a step) on the days
-    ``foods`` ``(n, horizon)``: the actions planned on :class:`~nutribench.env.search.DayModel`,
+    ``foods`` ``(n, horizon)``: the actions planned on :class:`~nutribench.env.policies.DayModel`,
     played in the env. Each dict also has ``search``: ``"exact"`` or ``"beam"`` (clairvoyant),
     ``"sampled"`` (lookahead)."""
     model = DayModel(regime)

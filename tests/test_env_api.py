@@ -97,7 +97,7 @@ def test_render_modes():
 def test_rgb_array_draws_the_nutrients_against_the_target_with_numpy_alone():
     """The picture: each nutrient's bar grows with what is absorbed (solid) and what is on its
     way (striped, the nutrient's colour too); the dashed target line sits at 1.0 of the scale."""
-    from nutribench.env.picture import COLORS, SIZE, nutrient_picture
+    from nutribench.env.nutri_env import COLORS, SIZE, nutrient_picture
 
     def colored(img, color):
         return int((img == np.array(color, dtype=np.uint8)).all(axis=2).sum())

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from nutribench.env import NutriRLEnv
-from nutribench.env.kernels import absorption_schedule, kernel
+from nutribench.env.nutri_env import absorption_schedule, kernel
 
 
 def _w(tau: float, sigma: float) -> list[float]:

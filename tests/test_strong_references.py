@@ -16,7 +16,7 @@ from nutribench.cli import app
 from nutribench.config import load_env_config
 from nutribench.env import NutriRLVectorEnv
 from nutribench.env.metrics import play
-from nutribench.env.search import DayModel, clairvoyant_actions, lookahead_actions
+from nutribench.env.policies import DayModel, clairvoyant_actions, lookahead_actions
 
 
 def _returns(regime, foods, actions):

@@ -32,8 +32,9 @@ from typing import Any
 import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import CallbackList
-from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
 from nutribench.agents.algos import episode_entropy
 from nutribench.agents.config import agent_config_content, load_agent_config, parse_agent_config
@@ -47,16 +48,9 @@ from nutribench.agents.model_files import (
     vec_normalize_stats,
     write_model_atomically,
 )
-from nutribench.agents.recording import EpisodeFn, EpisodeMetrics, RecordingVecEnv
 from nutribench.agents.registry import algorithm, algorithms, loader_entry_point, make_model
 from nutribench.agents.training_log import TrainingDiagnostics, plugin_logger
-from nutribench.agents.validation import (
-    DEFAULT_VAL_EPISODES,
-    ValidationCallback,
-    ValidationFn,
-    Validator,
-    check_eval_every,
-)
+from nutribench.agents.validation import DEFAULT_VAL_EPISODES, ValidationFn, Validator, check_eval_every
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.env.metrics import EpisodeRecorder
 from nutribench.env.sb3 import NutriRLSB3VecEnv
@@ -193,6 +187,97 @@ def single_threaded() -> Iterator[None]:
         th.set_num_threads(threads)
 
 
+# ---- how a training day is recorded: EpisodeMetrics (the SB3 callback of the built-in
+# algorithms) and RecordingVecEnv (the env of a plug-in agent, whatever its ``learn`` does);
+# both read the NutriRL adapter's raw rewards and info, not what ``VecNormalize`` scaled ----
+
+EpisodeFn = Callable[[dict[str, Any]], None]
+
+
+def finish_day(
+    days: list[dict[str, Any]], metrics: dict[str, Any], model: Any, obs: list, on_episode: EpisodeFn | None
+) -> None:
+    """Append a finished day's row (its number, ``metrics`` and the entropy of ``model``'s policy
+    over the day's observations ``obs``, None without a model) to ``days``, hand it to
+    ``on_episode``, and forget ``obs``."""
+    entropy = episode_entropy(model, np.stack(obs)) if model is not None else None
+    obs.clear()
+    days.append({"episode": len(days), **metrics, "entropy": entropy})
+    if on_episode is not None:
+        on_episode(days[-1])
+
+
+class EpisodeMetrics(BaseCallback):
+    """Records the per-day metrics (:data:`~nutribench.env.metrics.METRIC_KEYS`) of every
+    finished training day and stops after ``episodes``.
+
+    Reads the dones SB3 passes to callbacks and the raw rewards and batched info of the
+    NutriRL SB3 adapter (not SB3's rewards, which ``VecNormalize`` may have scaled); the observation each action was taken at is ``model._last_obs``
+    during ``on_step`` (on- and off-policy SB3 update it after the callback).
+    """
+
+    def __init__(self, base_env: NutriRLSB3VecEnv, episodes: int, on_episode: EpisodeFn | None = None):
+        super().__init__()
+        self.base_env, self.n_episodes, self.on_episode = base_env, episodes, on_episode
+        self.recorder = EpisodeRecorder(1)
+        self.episodes: list[dict[str, Any]] = []
+        self._obs: list[np.ndarray] = []
+
+    def _on_step(self) -> bool:
+        self._obs.append(np.array(self.model._last_obs[0], dtype=np.float32))
+        for metrics in self.recorder.record(self.base_env.last_rewards, self.locals["dones"], self.base_env.last_info):
+            finish_day(self.episodes, metrics, self.model, self._obs, self.on_episode)
+        return len(self.episodes) < self.n_episodes or self._rollout_ends_here()
+
+    def _rollout_ends_here(self) -> bool:
+        """True on the last step of an on-policy rollout: there, stopping would make SB3 drop
+        the rollout without its update, so training goes on and ``learn`` ends after the
+        update (``total_timesteps`` is the budget). A budget that ends mid-rollout stops there:
+        SB3 cannot update on a partial rollout, so those last days teach nothing."""
+        n, n_rollout = self.locals.get("n_steps"), self.locals.get("n_rollout_steps")
+        return isinstance(self.model, OnPolicyAlgorithm) and n is not None and n + 1 == n_rollout
+
+
+class RecordingVecEnv(VecEnvWrapper):
+    """The training env of a plug-in agent: records the per-day metrics of its first
+    ``episodes`` finished days, whatever its ``learn`` does (no SB3 callback needed).
+
+    Sits outside ``VecNormalize``, so the observations it keeps for the day's entropy are the
+    ones the policy saw; the metrics are read from the NutriRL adapter's raw rewards and info.
+    """
+
+    def __init__(self, venv: VecEnv, base: NutriRLSB3VecEnv, episodes: int, on_episode: EpisodeFn | None = None):
+        super().__init__(venv)
+        self.base, self.n_episodes, self.on_episode = base, episodes, on_episode
+        self.model: Any = None
+        self.recorder = EpisodeRecorder(1)
+        self.episodes: list[dict[str, Any]] = []
+        self._obs: list[np.ndarray] = []
+
+    def reset(self) -> np.ndarray:
+        obs = self.venv.reset()
+        self.recorder.clear()
+        self._obs = [np.array(obs[0], dtype=np.float32)]
+        return obs
+
+    def step_wait(self) -> Any:
+        obs, rewards, dones, infos = self.venv.step_wait()
+        for metrics in self.recorder.record(self.base.last_rewards, dones, self.base.last_info):
+            if len(self.episodes) < self.n_episodes:
+                finish_day(self.episodes, metrics, self.model, self._obs, self.on_episode)
+            self._obs.clear()
+        self._obs.append(np.array(obs[0], dtype=np.float32))
+        return obs, rewards, dones, infos
+
+    def check_budget(self, cfg: Any) -> None:
+        """A plug-in's ``learn(total_timesteps=days x horizon)`` must play its whole budget."""
+        if len(self.episodes) < self.n_episodes:
+            raise RuntimeError(
+                f"{cfg.entry_point}: learn() played {len(self.episodes)} whole days of the {self.n_episodes} asked "
+                "(it must honour total_timesteps)"
+            )
+
+
 def make_train_env(env_cfg: EnvConfig, cfg: Any) -> tuple[NutriRLSB3VecEnv, VecEnv]:
     """The single-day SB3 env a job trains on, and the same wrapped in ``VecNormalize``
     as the config asks (observations and/or rewards; SB3 sees scaled rewards, the
@@ -272,6 +357,47 @@ def _train_plugin(cfg: Any, recorder: RecordingVecEnv, seed: int, horizon: int, 
     model.learn(total_timesteps=recorder.n_episodes * horizon)
     recorder.check_budget(cfg)
     return model
+
+
+ObsStats = tuple[np.ndarray | None, np.ndarray | None]
+
+
+class ValidationCallback(BaseCallback):
+    """The SB3 engine's evaluation during training (:mod:`nutribench.agents.validation`): at the end of
+    every ``validator.every``-th training day it freezes the observation statistics; it plays
+    the validation days (``play(obs_mean, obs_var)`` -> one metrics dict per day) before the
+    next action, i.e. at the next step if no update came between (on-policy: the rollout goes
+    on; off-policy: the rollout goes on), else at the start of the next rollout, after the
+    update, or at the end of training."""
+
+    def __init__(self, validator: Validator, play: Callable[[np.ndarray | None, np.ndarray | None], list[dict]]):
+        super().__init__()
+        self.validator, self.play = validator, play
+        self.days = 0
+        self._pending: tuple[int, ObsStats] | None = None
+
+    def _obs_stats(self) -> ObsStats:
+        rms = getattr(self.model.get_env(), "obs_rms", None)
+        if rms is None or not getattr(self.model.get_env(), "norm_obs", False):
+            return None, None
+        return rms.mean.copy(), rms.var.copy()
+
+    def flush(self) -> None:
+        """Play the evaluation that is due, if any."""
+        if self._pending is not None:
+            day, (mean, var) = self._pending
+            self._pending = None
+            self.validator.add(day, [self.play(mean, var)])
+
+    def _on_step(self) -> bool:
+        self.flush()  # a day ended at the previous step and no update came since
+        if bool(np.asarray(self.locals["dones"])[0]):
+            self.days += 1
+            if self.validator.due(self.days):
+                self._pending = (self.days, self._obs_stats())
+        return True
+
+    _on_rollout_start = _on_training_end = flush
 
 
 def _validation_callback(

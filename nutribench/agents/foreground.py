@@ -57,6 +57,7 @@ class TrainRequest:
     def evaluation_cells(self, agent: Any, env_cfg: Any) -> list[list[str]]:
         """The greedy evaluation on the seed's evaluation days: a row of cells per day, then the means."""
         from nutribench.agents.api import eval_food_streams, evaluate
+        from nutribench.baselines import SUMMARY_KEYS
 
         streams = eval_food_streams(env_cfg, self.seed, self.eval_episodes)
         days = evaluate(agent, env_cfg, streams, record_steps=False).episodes
@@ -65,9 +66,7 @@ class TrainRequest:
             + [f"{r['overshoot_ratio']:.2f}", f"{r['final_C']:.2f} / {r['final_F']:.2f} / {r['final_P']:.2f}"]
             for r in days
         ]
-        mean = {
-            k: sum(r[k] for r in days) / len(days) for k in ("return", "foods", "final_distance", "overshoot_ratio")
-        }
+        mean = {k: sum(r[k] for r in days) / len(days) for k in SUMMARY_KEYS}
         means = f"{mean['return']:.2f}", f"{mean['foods']:.2f}", f"{mean['final_distance']:.3f}"
         return [*cells, ["mean", *means, f"{mean['overshoot_ratio']:.2f}", ""]]
 

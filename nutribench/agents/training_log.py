@@ -228,8 +228,7 @@ class TrainingDiagnostics(BaseCallback):
             self._close_row()
 
     def _on_training_end(self) -> None:
-        if not self.off_policy and self.diag_logger.updated:
-            self._close_row()
+        self._on_rollout_start()  # the last on-policy update's row
         if self.probe is not None:
             self.probe.remove()
         self.diag_logger.close()

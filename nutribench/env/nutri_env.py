@@ -48,7 +48,7 @@ has an all-zero food part: the day is over and nothing is offered.
 ## Transition
 
 Eating food i at step t (steps are numbered 1..H) schedules ``m_n(i) * w_k`` of nutrient
-n at step t + k, with the kernel weights w of :mod:`nutribench.env.kernels` (window
+n at step t + k, with the kernel weights w of :func:`~nutribench.env.nutri_env.kernel` (window
 t+1 .. t+ceil(6 sigma); with sigma = 0 everything at t + round(tau); with tau = sigma = 0
 in the same step, so the observation returned by that step already contains it). Then
 ``s_t = s_{t-1} + (everything due at step t)``. Absorption due after step H never arrives.
@@ -97,6 +97,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -104,8 +105,56 @@ import numpy as np
 from gymnasium import spaces
 
 from nutribench.config import EnvConfig, load_env_config
-from nutribench.env.kernels import absorption_schedule, arrivals_by_horizon
-from nutribench.env.picture import nutrient_picture
+
+
+def kernel(tau: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets k (steps after consumption) and weights (summing to 1) of one absorption kernel
+    (pure numpy, computed once per regime).
+
+    A food consumed at step t with mean delay ``tau`` and spread ``sigma`` (steps) delivers its
+    amount over steps u = t+1 .. t+ceil(6 sigma) with weights
+    ``exp(-0.5 ((u - (t + tau)) / sigma) ** 2)`` normalised to sum to 1 over that window.
+    With sigma = 0 the whole amount arrives at step t + round(tau) (round half up), which is
+    the same step t when tau = 0. Kernels are indexed by the offset k = u - t >= 0."""
+    if sigma < 0 or tau < 0:
+        raise ValueError(f"tau and sigma must be >= 0, got tau={tau}, sigma={sigma}")
+    if sigma == 0:
+        return np.array([int(math.floor(tau + 0.5))]), np.ones(1)  # round half up
+    offsets = np.arange(1, math.ceil(6 * sigma) + 1)
+    with np.errstate(over="ignore"):
+        logw = -0.5 * ((offsets - tau) / sigma) ** 2
+    if np.isfinite(logw.max()):
+        # Subtracting the max before exp changes nothing after normalisation but keeps a
+        # window far from tau (all weights tiny) from underflowing to 0/0.
+        w = np.exp(logw - logw.max())
+    else:  # sigma so small that every weight overflows: the limit puts all on the nearest offset(s)
+        dist = np.abs(offsets - tau)
+        w = (dist == dist.min()).astype(np.float64)
+    return offsets, w / w.sum()
+
+
+def absorption_schedule(masses: np.ndarray, tau: np.ndarray, sigma: np.ndarray, length: int) -> np.ndarray:
+    """``A[i, k, n]``: amount of nutrient n of food i absorbed k steps after eating it.
+
+    Offsets at or beyond ``length`` are dropped: with ``length = horizon`` that is exactly
+    what can never arrive within an episode (eaten at step t >= 1, arriving after step H).
+    """
+    n_foods, n_nut = masses.shape
+    A = np.zeros((n_foods, length, n_nut))
+    for i in range(n_foods):
+        for n in range(n_nut):
+            offsets, w = kernel(float(tau[i, n]), float(sigma[i, n]))
+            keep = offsets < length
+            A[i, offsets[keep], n] = masses[i, n] * w[keep]
+    return A
+
+
+def arrivals_by_horizon(schedule: np.ndarray, horizon: int) -> np.ndarray:
+    """``R[t, i, n]``: amount of nutrient n of food i that arrives by step H when eaten after
+    t steps have been taken (i.e. at step t + 1). Used by the planner."""
+    cums = np.cumsum(schedule, axis=1)  # (N, L, 3): arrived within offsets 0..k
+    # R[t] = cums[:, H - t - 1]: eaten at step t+1, offsets up to H-(t+1)
+    return np.ascontiguousarray(cums[:, horizon - 1 :: -1, :].transpose(1, 0, 2))
 
 
 class RegimeDynamics:
@@ -315,3 +364,79 @@ class NutriRLEnv(DynamicsView, gym.Env[np.ndarray, int]):
             f"step {self._t:2d}/{self.horizon}  C {C:5.2f}  F {F:5.2f}  P {P:5.2f}  (target 1.00)  "
             f"distance {self._d:5.2f}  eaten {self._eaten:2d}  offered: {offered}\n"
         )
+
+
+# ---- the ``render_mode="rgb_array"`` picture (:func:`nutrient_picture`), drawn with numpy alone ----
+
+#: The picture's size, (height, width) in pixels.
+SIZE: tuple[int, int] = (240, 320)
+#: C, F, P: the colours of the three nutrients (RGB).
+COLORS: tuple[tuple[int, int, int], ...] = ((76, 114, 176), (221, 132, 82), (85, 168, 104))
+_WHITE, _BLACK, _GREY = (255, 255, 255), (0, 0, 0), (170, 170, 170)
+#: 3 x 5 pixel letters under the bars (1 = ink), each scaled up when drawn.
+_GLYPHS = {
+    "C": ("111", "100", "100", "100", "111"),
+    "F": ("111", "100", "110", "100", "100"),
+    "P": ("111", "101", "111", "100", "100"),
+}
+
+
+def _glyph(img: np.ndarray, letter: str, top: int, left: int, scale: int) -> None:
+    ink = np.kron([[c == "1" for c in row] for row in _GLYPHS[letter]], np.ones((scale, scale))) > 0
+    img[top : top + 5 * scale, left : left + 3 * scale][ink] = _BLACK  # each pixel of the letter a scale x scale block
+
+
+def nutrient_picture(absorbed: Sequence[float], pending: Sequence[float], step: int, horizon: int) -> np.ndarray:
+    """An RGB picture (uint8, shape ``SIZE + (3,)``) of the nutrients ``absorbed`` (C, F, P,
+    as multiples of the daily target) and those ``pending`` (eaten, arriving by the end of the
+    day) against the target, after ``step`` of ``horizon`` steps.
+
+    The environment's ``render_mode="rgb_array"`` picture, drawn with numpy alone (the base
+    install, gymnasium, numpy and pydantic, has no plotting library; Gymnasium's ``check_env``
+    renders every mode the metadata lists).
+
+    It draws three bars, carbohydrates, fats and proteins in the colours the
+    report gives them, each the amount absorbed so far (solid) with what is eaten and still on its
+    way by the end of the day stacked on it (striped), against the daily target (a dashed black
+    line at 1.0); under each bar its letter, and along the top a bar of the day's progress (steps
+    taken of the horizon). The vertical scale runs from 0 to 1.5 times the target, or further when
+    a bar reaches higher. Pixels only, no text rendering: a picture a video recorder can store."""
+    h, w = SIZE
+    img = np.full((h, w, 3), _WHITE, dtype=np.uint8)
+    absorbed = np.clip(np.asarray(absorbed, dtype=float), 0.0, None)
+    pending = np.clip(np.asarray(pending, dtype=float), 0.0, None)
+    top_value = max(1.5, float(np.max(absorbed + pending)) * 1.1)
+    plot_top, plot_bottom, left, right = 28, h - 30, 24, w - 16
+    span = plot_bottom - plot_top
+
+    def y_of(value: float) -> int:  # the pixel row of a value (0 at the bottom of the plot)
+        return int(round(plot_bottom - span * min(value, top_value) / top_value))
+
+    # the day's progress along the top
+    img[8:16, left:right] = _GREY
+    done = left + int(round((right - left) * min(max(step, 0), horizon) / max(horizon, 1)))
+    img[8:16, left:done] = _BLACK
+    # the bars
+    slot = (right - left) // 3
+    bar = int(slot * 0.6)
+    rows = np.arange(h)[:, None]
+    cols = np.arange(w)[None, :]
+    for i, (a, p, color) in enumerate(zip(absorbed, pending, COLORS)):
+        x0 = left + i * slot + (slot - bar) // 2
+        x1 = x0 + bar
+        y_abs, y_all = y_of(a), y_of(a + p)
+        img[y_abs:plot_bottom, x0:x1] = color
+        if y_all < y_abs:  # pending: diagonal stripes of the nutrient's colour over white, outlined
+            stripes = ((rows[y_all:y_abs] + cols[:, x0:x1]) // 4) % 2 == 0
+            region = img[y_all:y_abs, x0:x1]
+            region[stripes] = color
+            img[y_all:y_abs, [x0, x1 - 1]] = _GREY
+            img[y_all, x0:x1] = _GREY
+        _glyph(img, "CFP"[i], plot_bottom + 6, x0 + bar // 2 - 6, 4)
+    # the axis and the target, dashed
+    img[plot_bottom : plot_bottom + 2, left - 4 : right] = _BLACK
+    img[plot_top:plot_bottom, left - 4 : left - 2] = _BLACK
+    y_target = y_of(1.0)
+    for x in range(left - 4, right, 12):
+        img[y_target - 1 : y_target + 1, x : min(x + 7, right)] = _BLACK
+    return img

@@ -36,7 +36,7 @@ class NutriRLSB3VecEnv(VecEnv):
         if venv.metadata["autoreset_mode"] != AutoresetMode.SAME_STEP:
             raise ValueError("NutriRLSB3VecEnv needs a NutriRLVectorEnv with autoreset_mode=SAME_STEP")
         self.venv = venv
-        self.render_mode = None
+        # SB3's VecEnv takes its render_mode from the vector env's (None: it does not render)
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
         self._actions: np.ndarray | None = None
         self.last_info: dict[str, Any] = {}

@@ -9,7 +9,7 @@ two above the planner (lookahead, clairvoyant), read from ``regimes/references.c
   ``lookahead`` and ``clairvoyant`` where the committed file holds the day.
 
 The references above the 100 % mark, set beside the agents: ``lookahead`` and
-``clairvoyant`` (:mod:`nutribench.env.search`), on the gap scale every table uses (0 % =
+``clairvoyant`` (:mod:`nutribench.env.policies`), on the gap scale every table uses (0 % =
 never eat, 100 % = the greedy planner; neither mark moves).
 
 Planning them takes minutes, so their returns on the paper's test days (seeds 0, 21, 9,
