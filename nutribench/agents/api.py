@@ -50,7 +50,13 @@ from nutribench.agents.model_files import (
 )
 from nutribench.agents.registry import algorithm, algorithms, loader_entry_point, make_model
 from nutribench.agents.training_log import TrainingDiagnostics, plugin_logger
-from nutribench.agents.validation import DEFAULT_VAL_EPISODES, ValidationFn, Validator, check_eval_every
+from nutribench.agents.validation import (
+    DEFAULT_VAL_EPISODES,
+    ValidationCallback,
+    ValidationFn,
+    Validator,
+    check_eval_every,
+)
 from nutribench.config import EnvConfig, load_env_config
 from nutribench.env.metrics import EpisodeRecorder
 from nutribench.env.sb3 import NutriRLSB3VecEnv
@@ -357,47 +363,6 @@ def _train_plugin(cfg: Any, recorder: RecordingVecEnv, seed: int, horizon: int, 
     model.learn(total_timesteps=recorder.n_episodes * horizon)
     recorder.check_budget(cfg)
     return model
-
-
-ObsStats = tuple[np.ndarray | None, np.ndarray | None]
-
-
-class ValidationCallback(BaseCallback):
-    """The SB3 engine's evaluation during training (:mod:`nutribench.agents.validation`): at the end of
-    every ``validator.every``-th training day it freezes the observation statistics; it plays
-    the validation days (``play(obs_mean, obs_var)`` -> one metrics dict per day) before the
-    next action, i.e. at the next step if no update came between (on-policy: the rollout goes
-    on; off-policy: the rollout goes on), else at the start of the next rollout, after the
-    update, or at the end of training."""
-
-    def __init__(self, validator: Validator, play: Callable[[np.ndarray | None, np.ndarray | None], list[dict]]):
-        super().__init__()
-        self.validator, self.play = validator, play
-        self.days = 0
-        self._pending: tuple[int, ObsStats] | None = None
-
-    def _obs_stats(self) -> ObsStats:
-        rms = getattr(self.model.get_env(), "obs_rms", None)
-        if rms is None or not getattr(self.model.get_env(), "norm_obs", False):
-            return None, None
-        return rms.mean.copy(), rms.var.copy()
-
-    def flush(self) -> None:
-        """Play the evaluation that is due, if any."""
-        if self._pending is not None:
-            day, (mean, var) = self._pending
-            self._pending = None
-            self.validator.add(day, [self.play(mean, var)])
-
-    def _on_step(self) -> bool:
-        self.flush()  # a day ended at the previous step and no update came since
-        if bool(np.asarray(self.locals["dones"])[0]):
-            self.days += 1
-            if self.validator.due(self.days):
-                self._pending = (self.days, self._obs_stats())
-        return True
-
-    _on_rollout_start = _on_training_end = flush
 
 
 def _validation_callback(

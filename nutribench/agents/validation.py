@@ -17,14 +17,17 @@ they are made, and an exception it raises (a tuner's ``optuna.TrialPruned``) sto
 training and propagates.
 
 * :class:`Validator`: the bookkeeping both engines share (which days, the rows, the callback);
-* :class:`~nutribench.agents.api.ValidationCallback`: the SB3 engine's callback; the batched
-  engine calls its validator at every day boundary (:mod:`nutribench.engine.evaluate`).
+* :class:`ValidationCallback`: the SB3 engine's callback; the batched engine calls its
+  validator at every day boundary (:mod:`nutribench.engine.evaluate`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from typing import Any
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
 
 #: ``on_validation(agent_index, train_day, rows)``: one metrics dict per validation day
 ValidationFn = Callable[[int, int, list[dict[str, Any]]], None]
@@ -71,3 +74,44 @@ class Validator:
         if self.on_validation is not None:
             for j, rows in enumerate(per_agent):
                 self.on_validation(j, day, [dict(r) for r in rows])
+
+
+ObsStats = tuple[np.ndarray | None, np.ndarray | None]
+
+
+class ValidationCallback(BaseCallback):
+    """The SB3 engine's evaluation during training (the module docstring): at the end of
+    every ``validator.every``-th training day it freezes the observation statistics; it plays
+    the validation days (``play(obs_mean, obs_var)`` -> one metrics dict per day) before the
+    next action, i.e. at the next step if no update came between (on-policy: the rollout goes
+    on; off-policy: the rollout goes on), else at the start of the next rollout, after the
+    update, or at the end of training."""
+
+    def __init__(self, validator: Validator, play: Callable[[np.ndarray | None, np.ndarray | None], list[dict]]):
+        super().__init__()
+        self.validator, self.play = validator, play
+        self.days = 0
+        self._pending: tuple[int, ObsStats] | None = None
+
+    def _obs_stats(self) -> ObsStats:
+        rms = getattr(self.model.get_env(), "obs_rms", None)
+        if rms is None or not getattr(self.model.get_env(), "norm_obs", False):
+            return None, None
+        return rms.mean.copy(), rms.var.copy()
+
+    def flush(self) -> None:
+        """Play the evaluation that is due, if any."""
+        if self._pending is not None:
+            day, (mean, var) = self._pending
+            self._pending = None
+            self.validator.add(day, [self.play(mean, var)])
+
+    def _on_step(self) -> bool:
+        self.flush()  # a day ended at the previous step and no update came since
+        if bool(np.asarray(self.locals["dones"])[0]):
+            self.days += 1
+            if self.validator.due(self.days):
+                self._pending = (self.days, self._obs_stats())
+        return True
+
+    _on_rollout_start = _on_training_end = flush
