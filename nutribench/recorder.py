@@ -275,5 +275,12 @@ class Recorder:
         episodes = self.trained_days or len(self.env.days)
         with open_store(self.db, writer=True) as store:
             return store_external_job(
-                store, self.regime_config, self.agent_config, self.seed, episodes, self.env.days, self._eval, meta
+                store,
+                env=self.regime_config,
+                cfg=self.agent_config,
+                seed=self.seed,
+                episodes=episodes,
+                train=self.env.days,
+                evaluation=self._eval,
+                metadata=meta,
             )

@@ -79,8 +79,9 @@ class StopSignalsAsCtrlC:
 
     def __enter__(self) -> None:
         self.previous, self.raised_at = {}, None
-        # only the main thread may install signal handlers
-        for sig in STOP_SIGNALS if threading.current_thread() is threading.main_thread() else ():
+        if threading.current_thread() is not threading.main_thread():
+            return  # only the main thread may install signal handlers
+        for sig in STOP_SIGNALS:
             if sig != signal.SIGINT or signal.getsignal(sig) is not signal.SIG_IGN:
                 self.previous[sig] = signal.signal(sig, self._stop)
 

@@ -83,7 +83,8 @@ class BatchedAlgorithm:
         returns it: the SB3 model of its config in its ``VecNormalize``, with the trained weights
         (:meth:`store_weights`; the model is on the CPU whatever the device that trained it, its
         provenance names that device), its training days, ``diagnostics`` and ``validation``."""
-        envs, agents, share = self.envs, [], wall / self.k
+        envs, agents = self.envs, []
+        share = wall / self.k
         batched = {"engine": Engine.BATCHED.value, "device": str(self.device), "batch_wall_seconds_per_agent": share}
         for j, cfg in enumerate(self.cfgs):
             env_cfg, seed, obs_stats = envs.env_cfgs[j], envs.seeds[j], envs.obs_stats

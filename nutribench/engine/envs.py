@@ -1,8 +1,9 @@
 """The K agents' environments for the batched engine: one natively batched vector env per
 regime (rows are agents), each agent's food days from its own seed, its observations
 normalised by its own running statistics (SB3's ``VecNormalize``), and its training days'
-metrics recorded as the SB3 engine records them. The observation is the vector env's at each regime's observation level (the ladder of :mod:`nutribench.env.nutri_env`);
-one batch needs one observation size, so its regimes share the catalog and the level."""
+metrics recorded as the SB3 engine records them. The observation is the vector env's at
+each regime's observation level (the ladder of :mod:`nutribench.env.nutri_env`); one batch
+needs one observation size, so its regimes share the catalog and the level."""
 
 from __future__ import annotations
 

@@ -173,7 +173,9 @@ def log_prob_entropy(logits: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, 
     """``log pi(a|s)`` and the categorical policy's entropy from ``logits (K, B, n_actions)``
     and ``actions (K, B)``, each ``(K, B)``."""
     logp_all = th.log_softmax(logits, dim=-1)
-    return logp_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1), -(logp_all.exp() * logp_all).sum(-1)
+    log_prob = logp_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
+    entropy = -(logp_all.exp() * logp_all).sum(-1)
+    return log_prob, entropy
 
 
 def normalized(adv: th.Tensor) -> th.Tensor:

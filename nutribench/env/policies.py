@@ -6,7 +6,8 @@ information" lie. Each works on a :class:`NutriRLVectorEnv` (batched, one action
 and on a single :class:`NutriRLEnv` (one action), reading only the env's public
 inspection API.
 
-The greedy planner is the benchmark's 100 % mark; it is not optimal. These two say how far above it the optimum lies:
+The greedy planner is the benchmark's 100 % mark; it is not optimal. These two say how far
+above it the optimum lies:
 
 * :func:`lookahead_actions`, **lookahead**: the planner's information (the state, what is
   pending, the offered food; not the future foods). At each step it plays both actions on

@@ -52,7 +52,8 @@ class NutriRLVectorEnv(DynamicsView, VectorEnv):
             raise ValueError(f"autoreset_mode must be NEXT_STEP or SAME_STEP, got {mode}")
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.dyn = RegimeDynamics(regime)
-        self.num_envs = num_envs  # render_mode: VectorEnv's, None
+        self.num_envs = num_envs
+        self.render_mode = None
         self.single_observation_space = self.dyn.observation_space
         self.single_action_space = self.dyn.action_space
         self.observation_space = batch_space(self.single_observation_space, num_envs)

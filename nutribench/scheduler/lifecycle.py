@@ -152,7 +152,7 @@ def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, i
     return out
 
 
-def insert_job_rows(session: Any, job_id: int, job: Any) -> None:
+def insert_job_rows(session: Any, job_id: int, job: JobResult) -> None:
     """A finished job's rows: its training and evaluation episodes, evaluation steps, training
     diagnostics and validation days (``job``: a :class:`JobResult`; an external job's has none
     of the last two, nor has a result pickled before it had them)."""

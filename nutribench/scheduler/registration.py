@@ -161,6 +161,7 @@ def spec_maker(settings: Any, job_ids: list[int], regime_cfgs: list, agent_cfgs:
 
 def store_external_job(
     store: Store,
+    *,
     env: Any,
     cfg: Any,
     seed: int,
