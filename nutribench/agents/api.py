@@ -218,8 +218,9 @@ class EpisodeMetrics(BaseCallback):
     finished training day and stops after ``episodes``.
 
     Reads the dones SB3 passes to callbacks and the raw rewards and batched info of the
-    NutriRL SB3 adapter (not SB3's rewards, which ``VecNormalize`` may have scaled); the observation each action was taken at is ``model._last_obs``
-    during ``on_step`` (on- and off-policy SB3 update it after the callback).
+    NutriRL SB3 adapter (not SB3's rewards, which ``VecNormalize`` may have scaled); the
+    observation each action was taken at is ``model._last_obs`` during ``on_step`` (on- and
+    off-policy SB3 update it after the callback).
     """
 
     def __init__(self, base_env: NutriRLSB3VecEnv, episodes: int, on_episode: EpisodeFn | None = None):

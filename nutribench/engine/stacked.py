@@ -171,8 +171,8 @@ def clip_grad_norm_per_agent(params: list[th.Tensor], max_norm: float | np.ndarr
     k = params[0].shape[0] if k is None else k
     # each row's sum over its own contiguous elements, then over an agent's rows: the same
     # order of additions at every K (a sum over dims (0, 2) at once was blocked by K)
-    squares = sum(p.grad.pow(2).reshape(p.shape[0] // k, k, -1).sum(dim=2).sum(dim=0) for p in params)
-    norms = squares.sqrt()
+    sq = sum(p.grad.pow(2).reshape(p.shape[0] // k, k, -1).sum(dim=2).sum(dim=0) for p in params)
+    norms = sq.sqrt()
     if isinstance(max_norm, np.ndarray):
         max_norm = per_agent(max_norm, norms)  # inf / x = inf -> 1: unclipped
     elif not math.isfinite(max_norm):
