@@ -152,10 +152,11 @@ def grid_counts(store: Store, job_ids: Sequence[int], owner: str) -> dict[str, i
     return out
 
 
-def insert_job_rows(session: Any, job_id: int, job: JobResult) -> None:
-    """A finished job's rows: its training and evaluation episodes, evaluation steps, training
-    diagnostics and validation days (``job``: a :class:`JobResult`; an external job's has none
-    of the last two, nor has a result pickled before it had them)."""
+def insert_job_rows(session: Any, job: JobResult) -> None:
+    """A finished job's rows, under its ``job_id``: its training and evaluation episodes,
+    evaluation steps, training diagnostics and validation days (an external job's result has
+    none of the last two, nor has a result pickled before it had them)."""
+    job_id = job.job_id
     rows = [
         {"job_id": job_id, "phase": phase, "episode": int(ep["episode"]), **{c: ep.get(c) for c in EPISODE_METRICS}}
         for phase, episodes in (("train", job.train), ("eval", job.eval))
@@ -184,7 +185,7 @@ def store_result(store: Store, result: JobResult, owner: str, model_path: str | 
         mine = (Job.id == result.job_id, Job.owner == owner, Job.status == "running")
         if _set(s, *mine, **done, error=None, model_path=result.model_path or model_path, **meta) != 1:
             return False
-        insert_job_rows(s, result.job_id, result)
+        insert_job_rows(s, result)
         return True
 
 

@@ -196,7 +196,7 @@ def store_external_job(
         row = Job(**key, **done, fake=False, **meta)
         s.add(row)
         s.flush()
-        insert_job_rows(s, row.id, JobResult(row.id, train, evaluation.episodes, evaluation.steps, metadata))
+        insert_job_rows(s, JobResult(row.id, train, evaluation.episodes, evaluation.steps, metadata))
         return row.id
 
 
